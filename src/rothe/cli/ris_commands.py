@@ -1,0 +1,273 @@
+"""CLI commands for rate-independent systems: ``rothe run|compare ris-1d`` (and FE examples)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..control.controllers import CONTROLS
+from ..errors import RunFailed, check_choice, check_decreasing, check_positive, fail
+from ..stepping.ris import run_nested, run_ris
+from .common import (
+    add_output_options,
+    output_dir,
+    parse_float,
+    parse_float_list,
+    print_summary,
+    write_summary,
+)
+from .registry import command
+
+SUMMARY_KEYS = (
+    "example", "control", "tol", "accepted_steps", "rejected_steps", "inner_solves",
+    "newton_iterations", "t_final", "s_final", "max_residual", "sum_residual", "error_l2",
+    "error_linf", "wall_time_s",
+)
+
+
+def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
+    """The summary.json fields of the foundation issue for one RIS trajectory."""
+    st = traj.stats
+    I1, I2 = traj["I1"], traj["I2"]
+    res = I1 + I2 if len(I1) else np.zeros(0)
+    meta = traj.meta
+    summary = {
+        "example": example,
+        "control": meta.get("control"),
+        "tol": meta.get("tol"),
+        "tau0": meta.get("tau0"),
+        "accepted_steps": st.accepted_steps,
+        "rejected_steps": st.rejected_steps,
+        "inner_solves": st.inner_solves,
+        "newton_iterations": st.newton_iterations,
+        "fb_steps": st.fb_steps,
+        "linear_factorizations": st.linear_factorizations,
+        "landing_retries": st.landing_retries,
+        "t_final": float(traj["t"][-1]),
+        "s_final": float(traj["s"][-1]),
+        "max_residual": float(res.max()) if res.size else 0.0,
+        "sum_residual": float(res.sum()) if res.size else 0.0,
+        "min_I2": float(I2.min()) if I2.size else 0.0,
+        "max_kkt_residual": float(traj["kkt"].max()) if len(traj) else 0.0,
+        "max_multiplier": float(traj["lam"].max()) if len(traj) else 0.0,
+        "energy_final": float(traj["energy"][-1]),
+        "wall_time_s": st.wall_time_s,
+        "status": "completed",
+    }
+    summary.update(extra or {})
+    return summary
+
+
+class RISRunBase:
+    """Shared ``run`` logic; subclasses provide the problem and example-specific output."""
+
+    name = "ris"
+    default_tau = 0.1
+
+    def add_example_options(self, parser) -> None:
+        pass
+
+    def configure(self, parser) -> None:
+        parser.add_argument("--control", default="adaptive",
+                            help="adaptive | uniform | nested | order2 (default adaptive)")
+        parser.add_argument("--tol", type=parse_float("--tol"), default=1e-4,
+                            help="residual tolerance of adaptive/order2 (default 1e-4)")
+        parser.add_argument("--tols", type=parse_float_list("--tols"), default=None,
+                            help="decreasing tolerances for --control nested (default 1e-3,1e-4,1e-5)")
+        parser.add_argument("--tau", type=parse_float("--tau"), default=None,
+                            help=f"fixed step (uniform) or first step (default {self.default_tau})")
+        parser.add_argument("--tau-min", type=parse_float("--tau-min"), default=1e-12,
+                            help="smallest step before the run stops with an error (default 1e-12)")
+        parser.add_argument("--simpson", type=int, default=8,
+                            help="Simpson subintervals for I1, I2 (even, default 8)")
+        self.add_example_options(parser)
+        add_output_options(parser, self.name)
+
+    # hooks -----------------------------------------------------------------------------------
+    def build_problem(self, args):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def extra_summary(self, args, problem, traj) -> dict:
+        return {}
+
+    def write_extra(self, args, problem, traj, out) -> None:
+        pass
+
+    def exact(self):
+        return None
+
+    # ------------------------------------------------------------------------------------------
+    def validate(self, args):
+        control = check_choice("--control", args.control, CONTROLS)
+        tol = check_positive("--tol", args.tol)
+        tau = check_positive("--tau", args.tau if args.tau is not None else self.default_tau)
+        tau_min = check_positive("--tau-min", args.tau_min)
+        if tau_min > tau:
+            raise fail("--tau-min", tau_min, f"must be <= --tau (= {tau:g})")
+        tols = None
+        if control == "nested":
+            tols = check_decreasing("--tols", args.tols or [1e-3, 1e-4, 1e-5])
+        elif args.tols is not None:
+            raise fail("--tols", ",".join(map(str, args.tols)), "is only used with --control nested")
+        if args.simpson < 2 or args.simpson % 2:
+            raise fail("--simpson", args.simpson, "must be an even integer >= 2")
+        return control, tol, tau, tau_min, tols
+
+    def execute(self, args) -> int:
+        control, tol, tau, tau_min, tols = self.validate(args)
+        problem = self.build_problem(args)
+        out = output_dir(args, self.name)
+        progress = not args.quiet
+        common = dict(tau=tau, tau_min=tau_min, simpson_subintervals=args.simpson,
+                      progress=progress)
+        try:
+            if control == "nested":
+                runs = run_nested(problem, tols, **common)
+            else:
+                runs = [run_ris(problem, control, tol=None if control == "uniform" else tol,
+                                **common)]
+        except RunFailed as exc:
+            traj = exc.trajectory
+            if traj is not None:
+                traj.save_npz(out / "trajectory.npz")
+                summary = ris_summary(traj, self.name, self.extra_summary(args, problem, traj))
+                summary.update(status="failed", failure=str(exc), where=exc.where)
+                write_summary(out, summary)
+            raise
+        traj = runs[-1]
+        summary = ris_summary(traj, self.name, self.extra_summary(args, problem, traj))
+        if control == "nested":
+            summary["control"] = "nested"
+            summary["tols"] = tols
+            summary["runs"] = [
+                ris_summary(r, self.name, self.extra_summary(args, problem, r)) for r in runs
+            ]
+            for i, r in enumerate(runs):
+                r.save_npz(out / f"nested_{i}.npz")
+        summary["tau0"] = tau
+        traj.save_npz(out / "trajectory.npz", extra=self.npz_extra(problem))
+        self.write_extra(args, problem, traj, out)
+        if not args.no_plots:
+            self.plot(args, problem, runs, out)
+        write_summary(out, summary)
+        if not args.quiet:
+            print(f"rothe run {self.name}: wrote {out}/")
+            print_summary(summary, SUMMARY_KEYS + tuple(self.summary_keys_extra()))
+        return 0
+
+    def summary_keys_extra(self):
+        return ()
+
+    def npz_extra(self, problem) -> dict:
+        return {}
+
+    def plot(self, args, problem, runs, out) -> None:
+        from ..plotting.ris import plot_path, plot_steps
+
+        traj = runs[-1]
+        label = f"{self.name}, {traj.meta.get('control')}"
+        if traj.meta.get("tol") is not None:
+            label += f", tol={traj.meta['tol']:g}"
+        plot_path(traj, out / "fig1_path.png", exact=self.exact(), title=label)
+        plot_steps(traj, out / "fig2_steps.png", title=label)
+
+
+@command("run", "ris-1d")
+class RunRIS1D(RISRunBase):
+    help = "Example 7.1 of Andreia & Meyer (2022): 1-D RIS with exact BV solution (7.1)"
+    name = "ris-1d"
+    default_tau = 0.1
+
+    def build_problem(self, args):
+        from ..problems.ris_1d import example_7_1
+
+        return example_7_1()
+
+    def exact(self):
+        from ..problems.ris_1d import exact_solution
+
+        return exact_solution
+
+    def extra_summary(self, args, problem, traj) -> dict:
+        from ..problems.ris_1d import errors_against_exact
+
+        return errors_against_exact(traj["s"], traj["t"], traj["z"])
+
+
+def compare_ris_1d(tols=(1e-3, 1e-4, 1e-5, 1e-6), taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001),
+                   tau0=0.1, controls=("adaptive", "order2")) -> list[dict]:
+    """Run adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.1; one row each."""
+    from ..problems.ris_1d import errors_against_exact, example_7_1
+
+    problem = example_7_1()
+    rows = []
+    for control in controls:
+        for tol in tols:
+            traj = run_ris(problem, control, tol=tol, tau=tau0)
+            rows.append(ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"])))
+    for tau in taus:
+        traj = run_ris(problem, "uniform", tol=None, tau=tau)
+        row = ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
+        row["tau0"] = tau
+        rows.append(row)
+    return rows
+
+
+def uniform_work_at_error(rows, key="error_linf"):
+    """Fit log(inner solves) = a + b log(error) over the uniform rows; returns a callable."""
+    u = [r for r in rows if r["control"] == "uniform"]
+    x = np.log([r[key] for r in u])
+    y = np.log([r["inner_solves"] for r in u])
+    b, a = np.polyfit(x, y, 1)
+    return lambda err: float(np.exp(a + b * np.log(err)))
+
+
+def format_table(rows, work_fit=None) -> str:
+    head = (f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
+            f"{'L2 err':>9} {'Linf err':>9} {'seconds':>8}")
+    if work_fit is not None:
+        head += f" {'solves/uniform@Linf':>20}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        par = r["tau0"] if r["control"] == "uniform" else r["tol"]
+        line = (f"{r['control']:<9} {par:>8.0e} {r['accepted_steps']:>8d} {r['rejected_steps']:>8d} "
+                f"{r['inner_solves']:>7d} {r['error_l2']:>9.2e} {r['error_linf']:>9.2e} "
+                f"{r['wall_time_s']:>8.3f}")
+        if work_fit is not None:
+            ratio = r["inner_solves"] / work_fit(r["error_linf"]) if r["control"] != "uniform" else math.nan
+            line += f" {ratio:>20.2f}" if math.isfinite(ratio) else f" {'':>20}"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+@command("compare", "ris-1d")
+class CompareRIS1D:
+    help = "Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2 vs uniform (Ex. 7.1)"
+
+    def configure(self, parser) -> None:
+        parser.add_argument("--tols", type=parse_float_list("--tols"), default=[1e-3, 1e-4, 1e-5, 1e-6])
+        parser.add_argument("--taus", type=parse_float_list("--taus"),
+                            default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001])
+        add_output_options(parser, "compare-ris-1d")
+
+    def execute(self, args) -> int:
+        tols = [check_positive("--tols", x) for x in args.tols]
+        taus = [check_positive("--taus", x) for x in args.taus]
+        if len(taus) < 2:
+            raise fail("--taus", ",".join(map(str, taus)), "needs at least two step sizes")
+        out = output_dir(args, "compare-ris-1d")
+        rows = compare_ris_1d(tols, taus)
+        fit = uniform_work_at_error(rows)
+        table = format_table(rows, fit)
+        (out / "table.txt").write_text(table + "\n")
+        write_summary(out, {"example": "ris-1d", "rows": rows})
+        if not args.no_plots:
+            from ..plotting.ris import plot_error_vs_work
+
+            plot_error_vs_work(rows, out / "fig3_error_vs_steps.png",
+                               title="Example 7.1: error against number of steps")
+        if not args.quiet:
+            print(table)
+            print(f"wrote {out}/")
+        return 0

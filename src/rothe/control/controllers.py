@@ -1,0 +1,199 @@
+"""Step-size controllers: small objects that accept or reject a step and propose the next one.
+
+All controllers run on the one evolve loop (:func:`rothe.stepping.evolve.evolve`). A controller
+
+- ``propose(s, ...)`` returns the step to try from curve parameter s (and, for nested grids, the
+  exact end point s_end the step must land on), and
+- ``decide(result)`` looks at the step's error measures (``result.errors``, here I1 and I2) and
+  whether its inner solve converged, and returns a :class:`Decision` (accept?, next step).
+
+A failed inner solve is never accepted by any controller.
+
+Implemented (Andreia & Meyer 2022): ``uniform`` (fixed tau, the local stationary scheme),
+``adaptive`` (Alg. 3.2), ``nested`` (Alg. 6.2 for one tolerance of a decreasing sequence, given the
+grids of the earlier runs), and ``order2`` (beyond the paper: uses I ~ C tau^2, Lemma 5.3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import check_positive, fail
+
+CONTROLS = ("adaptive", "uniform", "nested", "order2")
+
+
+@dataclass
+class Decision:
+    accept: bool
+    next_tau: float
+    reason: str = ""
+
+
+def _max_error(result) -> float:
+    return max(result.errors.values()) if result.errors else 0.0
+
+
+class StepController:
+    """Base class: holds tau_min / tau_max and the nominal step sigma."""
+
+    name = "base"
+
+    def __init__(self, tau0: float, tau_min: float = 1e-12, tau_max: float = math.inf):
+        self.tau0 = check_positive("tau", tau0)
+        self.tau_min = check_positive("tau_min", tau_min)
+        self.tau_max = check_positive("tau_max", tau_max) if math.isfinite(tau_max) else math.inf
+        if self.tau_min > self.tau0:
+            raise fail("tau_min", self.tau_min, f"must be <= tau (= {self.tau0:g})")
+        if self.tau_max < self.tau0:
+            raise fail("tau_max", self.tau_max, f"must be >= tau (= {self.tau0:g})")
+        self.sigma = self.tau0
+
+    def propose(self, s: float) -> tuple[float, float | None]:
+        """Step to try from s, and the exact end point if the step must land on a grid point."""
+        return self.sigma, None
+
+    def decide(self, result) -> Decision:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def _clamp(self, tau: float) -> float:
+        return min(tau, self.tau_max)
+
+
+class UniformController(StepController):
+    """Fixed step tau (the scheme with uniform step of [17, 18] compared in Sec. 7).
+
+    Residuals are computed but never cause rejection. If an inner solve fails, the step is
+    rejected and retried with half the step (then the nominal tau resumes): a failed solve is
+    never an accepted step.
+    """
+
+    name = "uniform"
+
+    def __init__(self, tau0: float, tau_min: float = 1e-12):
+        super().__init__(tau0, tau_min)
+        self._retry: float | None = None
+
+    def propose(self, s):
+        return (self._retry if self._retry is not None else self.tau0), None
+
+    def decide(self, result) -> Decision:
+        if not result.converged:
+            self._retry = result.tau / 2
+            return Decision(False, self._retry, f"inner solve failed ({result.code})")
+        self._retry = None
+        return Decision(True, self.tau0, "uniform")
+
+
+class AdaptiveController(StepController):
+    """Alg. 3.2 (and Alg. 6.2 when ``grid`` holds the points of earlier runs).
+
+    Accept if I1 < tol and I2 < tol; then double the nominal step if both are < tol/2.
+    Otherwise halve the step that was tried and redo the step. With ``grid``, a step never
+    passes over a grid point: tau_k = min(sigma_k, sbar - s_{k-1}) with sbar the next grid point
+    (6.1), and it then ends exactly on sbar, so the grids nest.
+    """
+
+    name = "adaptive"
+
+    def __init__(
+        self,
+        tol: float,
+        tau0: float,
+        tau_min: float = 1e-12,
+        tau_max: float = math.inf,
+        grid: np.ndarray | None = None,
+    ):
+        super().__init__(tau0, tau_min, tau_max)
+        self.tol = check_positive("tol", tol)
+        self.grid = None if grid is None else np.unique(np.asarray(grid, dtype=float))
+        if self.grid is not None:
+            self.name = "nested"
+
+    def propose(self, s):
+        sigma = self._clamp(self.sigma)
+        if self.grid is None:
+            return sigma, None
+        i = np.searchsorted(self.grid, s, side="right")
+        if i < self.grid.size:
+            sbar = float(self.grid[i])
+            if s + sigma >= sbar:
+                return sbar - s, sbar
+        return sigma, None
+
+    def decide(self, result) -> Decision:
+        tau = result.tau
+        if not result.converged:
+            self.sigma = tau / 2
+            return Decision(False, self.sigma, f"inner solve failed ({result.code})")
+        I1, I2 = result.errors["I1"], result.errors["I2"]
+        if I1 < self.tol and I2 < self.tol:
+            if I1 < self.tol / 2 and I2 < self.tol / 2:
+                self.sigma = self._clamp(2 * self.sigma)
+            return Decision(True, self.sigma, "accepted")
+        self.sigma = tau / 2
+        return Decision(False, self.sigma, f"I1={I1:.3g}, I2={I2:.3g} >= tol={self.tol:g}")
+
+
+class Order2Controller(StepController):
+    """Beyond the paper: propose tau from the known order of the residuals.
+
+    Lemma 5.3 gives I1, I2 <= C tau^2 in finite dimensions. Each step measures
+    C_k = max(I1, I2) / tau_k^2, and the next step is the one that would meet the tolerance
+    with a safety factor, clamped against wild changes:
+
+        tau_next = clip(safety * (tol / C)^(1/2), tau/4, 4 tau),   C = max(C_k, C_{k-1}).
+
+    Taking the larger constant of the last two accepted steps matters: in rate-independent slip
+    the scheme can carry a neutral period-2 oscillation of the time increments (in Example 7.1,
+    dt_k = tau - dt_{k-1}), so I alternates between two levels at a fixed tau, and a controller
+    that follows the last value alone oscillates and rejects every other step.
+    Acceptance is that of Alg. 3.2 (I1 < tol and I2 < tol).
+    """
+
+    name = "order2"
+
+    def __init__(self, tol, tau0, tau_min=1e-12, tau_max=math.inf, safety: float = 0.8):
+        super().__init__(tau0, tau_min, tau_max)
+        self.tol = check_positive("tol", tol)
+        self.safety = check_positive("safety", safety)
+        self._C_prev = 0.0
+
+    def decide(self, result) -> Decision:
+        tau = result.tau
+        if not result.converged:
+            self.sigma = tau / 4
+            return Decision(False, self.sigma, f"inner solve failed ({result.code})")
+        err = max(_max_error(result), 0.0)
+        C = err / (tau * tau)
+        accept = result.errors["I1"] < self.tol and result.errors["I2"] < self.tol
+        C_eff = max(C, self._C_prev) if accept else C
+        ideal = math.inf if C_eff == 0.0 else self.safety * math.sqrt(self.tol / C_eff)
+        if accept:
+            self._C_prev = C
+            self.sigma = self._clamp(min(4 * tau, max(tau / 4, ideal)))
+            return Decision(True, self.sigma, "accepted")
+        self.sigma = min(tau / 2, max(tau / 4, ideal))
+        return Decision(False, self.sigma, f"max(I1, I2)={err:.3g} >= tol={self.tol:g}")
+
+
+def make_controller(
+    control: str,
+    *,
+    tol: float | None = None,
+    tau: float,
+    tau_min: float = 1e-12,
+    tau_max: float = math.inf,
+    grid=None,
+) -> StepController:
+    """Build a controller by name (the CLI's --control)."""
+    if control == "uniform":
+        return UniformController(tau, tau_min)
+    if control in ("adaptive", "nested"):
+        return AdaptiveController(tol, tau, tau_min, tau_max, grid=grid)
+    if control == "order2":
+        return Order2Controller(tol, tau, tau_min, tau_max)
+    raise fail("control", control, "must be one of " + ", ".join(CONTROLS))

@@ -1,0 +1,99 @@
+"""Errors a user can cause, and the checks that raise them where input enters.
+
+Every message names the parameter, the value received and what is allowed, on one line, e.g.
+``tol: got -0.001, must be > 0``. The CLI prints exactly that line and exits with status 2;
+the Python API raises :class:`RotheInputError`, a :class:`ValueError`, with the same message.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+
+class RotheInputError(ValueError):
+    """Bad input: the message names the parameter, the value and what is allowed."""
+
+
+class RunFailed(RuntimeError):
+    """A run stopped midway (e.g. the step size fell below tau_min).
+
+    ``where`` holds the context (step, s, t, tau, residuals); the trajectory computed so far is
+    attached as ``trajectory`` so that callers can still write it to disk.
+    """
+
+    def __init__(self, message: str, where: dict | None = None, trajectory=None):
+        super().__init__(message)
+        self.where = dict(where or {})
+        self.trajectory = trajectory
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+def fail(name: str, value, allowed: str) -> RotheInputError:
+    """Build the one-line error ``<name>: got <value>, <allowed>``."""
+    return RotheInputError(f"{name}: got {_fmt(value)}, {allowed}")
+
+
+def check_real(name: str, value) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise fail(name, value, "must be a real number") from None
+    if not math.isfinite(x):
+        raise fail(name, value, "must be finite")
+    return x
+
+
+def check_positive(name: str, value) -> float:
+    x = check_real(name, value)
+    if not x > 0:
+        raise fail(name, value, "must be > 0")
+    return x
+
+
+def check_nonnegative(name: str, value) -> float:
+    x = check_real(name, value)
+    if not x >= 0:
+        raise fail(name, value, "must be >= 0")
+    return x
+
+
+def check_int(name: str, value, minimum: int | None = None) -> int:
+    if isinstance(value, bool) or not float(value).is_integer():
+        raise fail(name, value, "must be an integer")
+    n = int(value)
+    if minimum is not None and n < minimum:
+        raise fail(name, value, f"must be an integer >= {minimum}")
+    return n
+
+
+def check_choice(name: str, value, choices: Sequence[str]) -> str:
+    if value not in choices:
+        raise fail(name, value, "must be one of " + ", ".join(choices))
+    return value
+
+
+def check_decreasing(name: str, values: Sequence[float]) -> list[float]:
+    """A strictly decreasing sequence of positive numbers (the tolerances of Alg. 6.2)."""
+    xs = [check_positive(name, v) for v in values]
+    if len(xs) == 0:
+        raise fail(name, list(values), "must hold at least one tolerance")
+    for a, b in zip(xs, xs[1:]):
+        if not b < a:
+            raise fail(name, ",".join(_fmt(x) for x in xs), "must be strictly decreasing")
+    return xs
+
+
+def check_finite_array(name: str, array) -> np.ndarray:
+    a = np.asarray(array, dtype=float)
+    if not np.all(np.isfinite(a)):
+        bad = a[~np.isfinite(a)].ravel()[0]
+        raise fail(name, float(bad), "must be finite (no NaN or inf)")
+    return a

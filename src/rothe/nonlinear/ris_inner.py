@@ -1,0 +1,453 @@
+"""The inner problem of one RIS step: a ball-constrained, L1-regularized, non-convex minimization.
+
+Step 3 of Alg. 3.2 asks for z_k with
+
+    0 in d(R + I_tau)(z_k - z_{k-1}) + D_z I(t_{k-1}, z_k)                     (3.1)
+    I(t_{k-1}, z_k) + R(z_k - z_{k-1}) <= I(t_{k-1}, z_{k-1})                  (3.2)
+
+i.e. a stationary point of J(d) = I(t_{k-1}, z_{k-1} + d) + R(d) on the ball ||d||_V <= tau that
+does not increase J. Lemma 4.1 writes (3.1) with a multiplier lambda >= 0:
+
+    g_i + r_i sgn(d_i) + lambda m_i d_i = 0      where d_i != 0,
+    |g_i| <= r_i                                 where d_i  = 0,            g = D_z I(t_{k-1}, z)
+    lambda (||d||_V - tau) = 0,   ||d||_V <= tau,   lambda >= 0.             (4.1)-(4.4)
+
+Design (SPEC section 2, "a design that works with the ball"): the ball is handled *directly*;
+we never search over lambda with penalized problems (lambda -> z(lambda) jumps exactly where the
+viscous jumps happen). Each iteration
+
+1. predicts the active set (moving nodes and their signs) from a diagonal Newton step on the
+   normal map: node i moves iff |y_i| > r_i / D_i with y = d - (g + lambda M d) / D,
+   D_i = H_ii + lambda m_i (so a node at rest moves iff |g_i| > r_i);
+2. solves the semismooth Newton system on that active set -- off the sphere a plain Newton step,
+   on the sphere the bordered system for (d, lambda) *together* with the linearized constraint
+   ||d||_V = tau (two solves with one matrix, no lambda search);
+3. keeps the iterate feasible (orthant projection onto the predicted signs, radial retraction
+   onto the ball) and globalizes with a line search on J, which therefore never increases;
+4. falls back to a forward-backward step with the proximal map of R + I_tau in the m-weighted
+   inner product -- soft-thresholding followed by radial scaling onto the ball -- whenever the
+   Newton candidate does not decrease J (non-convex F, indefinite Hessian). Repeated failures
+   shift the Hessian by nu*M (Levenberg style), which the solver relaxes again after successes.
+
+The multiplier is read off the converged point: on the sphere, lambda is the least-squares
+solution of the stationarity equations over the moving nodes (exact at a KKT point), clamped at 0.
+
+The solver has the init / step / terminate shape: :meth:`BallStepSolver.init` builds the state
+at d = 0 (z = z_{k-1}), :meth:`step` does one iteration, :meth:`terminate` returns a result code.
+Nothing raises inside the loop: failures become codes and the step is then rejected upstream.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..problems.ris import RISProblem
+from .linear import ReusableSolver, SingularSystem
+
+_EPS = np.finfo(float).eps
+
+
+@dataclass
+class InnerOptions:
+    """Convergence criteria and limits of the inner solver.
+
+    The stationarity residual (see :func:`kkt_residual`) must fall below
+    ``atol + rtol * scale`` with scale = ||r||_{V^-1} + ||D_z I(t, z_{k-1})||_{V^-1}, or below
+    the round-off floor of evaluating the gradient, whichever is larger.
+    """
+
+    atol: float = 1e-10
+    rtol: float = 1e-10
+    max_iter: int = 60
+    max_fb_backtracks: int = 60
+    linear_solver: str = "auto"
+    amg_threshold: int = 150_000
+
+
+@dataclass
+class InnerState:
+    t: float
+    zprev: np.ndarray
+    tau: float
+    d: np.ndarray
+    z: np.ndarray
+    Az: np.ndarray
+    g: np.ndarray
+    J: float
+    J0: float
+    lam: float = 0.0
+    kkt: float = np.inf
+    tol: float = 0.0
+    scale: float = 1.0
+    iteration: int = 0
+    newton_steps: int = 0
+    fb_steps: int = 0
+    nu: float = 0.0
+    c_fb: float = 1.0
+    code: str = "running"
+    history: list = field(default_factory=list)
+
+
+@dataclass
+class InnerResult:
+    z: np.ndarray
+    d: np.ndarray
+    lam: float
+    converged: bool
+    code: str
+    iterations: int
+    newton_steps: int
+    fb_steps: int
+    kkt_residual: float
+    tolerance: float
+    J_start: float
+    J_final: float
+    gradient: np.ndarray  # D_z I(t_{k-1}, z_k), reused by the residual estimators
+
+
+def stationarity_defect(problem: RISProblem, d, g, lam) -> np.ndarray:
+    """Componentwise defect w of (4.4) with multiplier lam (a vector of nodal functionals)."""
+    moving = d != 0.0
+    w = np.where(moving, g + problem.r * np.sign(d) + lam * problem.m * d, 0.0)
+    rest = ~moving
+    w[rest] = np.sign(g[rest]) * np.maximum(np.abs(g[rest]) - problem.r[rest], 0.0)
+    return w
+
+
+def multiplier_on_sphere(problem: RISProblem, d, g) -> float:
+    """Least-squares lambda >= 0 for g + r sgn(d) + lambda M d = 0 over the moving nodes.
+
+    Minimizes sum_i (g_i + r_i sgn d_i + lambda m_i d_i)^2 / m_i, i.e. the V^-1 norm of the
+    defect: lambda = -sum_i (g_i + r_i sgn d_i) d_i / ||d||_V^2.
+    """
+    nd2 = float(problem.m @ (d * d))
+    if nd2 == 0.0:
+        return 0.0
+    lam = -float(((g + problem.r * np.sign(d)) * d).sum()) / nd2
+    return max(lam, 0.0)
+
+
+def kkt_residual(problem: RISProblem, d, g, lam, tau) -> float:
+    """||w||_{V^-1} + lam * (tau - ||d||_V)_+ : stationarity (4.4) plus complementarity (4.1)."""
+    w = stationarity_defect(problem, d, g, lam)
+    return problem.norm_Vinv(w) + lam * max(tau - problem.norm_V(d), 0.0)
+
+
+class _NewtonMatrix:
+    """K = S (H + shift*M) S + diag(D_I) on a fixed sparsity pattern, refilled by numpy.
+
+    S = diag(chi) masks the active (moving) nodes; inactive rows and columns are replaced by a
+    positive diagonal so the system keeps its size (a preconditioner built for one active set
+    stays usable for a neighbouring one). H = A + F''(z) with a diagonal F'' (nodal F) or a
+    general one (then assembled with sparse algebra).
+    """
+
+    def __init__(self, problem: RISProblem):
+        self.p = problem
+        A = problem.A
+        if problem.sparse:
+            A = sp.csr_matrix(A)
+            # make sure every diagonal entry is structurally present
+            A = (A + sp.diags(np.zeros(problem.n))).tocsr()
+            A.sort_indices()
+            self.A = A
+            self.rows = np.repeat(np.arange(problem.n), np.diff(A.indptr))
+            self.cols = A.indices
+            diag_mask = self.rows == self.cols
+            self.diag_pos = np.flatnonzero(diag_mask)
+            assert np.array_equal(self.rows[self.diag_pos], np.arange(problem.n))
+        else:
+            self.A = np.asarray(A)
+
+    def build(self, chi: np.ndarray, hess_F, shift: float, inactive_diag: np.ndarray):
+        p = self.p
+        chif = chi.astype(float)
+        general = sp.issparse(hess_F) or np.ndim(hess_F) == 2
+        if p.sparse and general:
+            S = sp.diags(chif)
+            K = (S @ (self.A + sp.csr_matrix(hess_F)) @ S).tocsr()
+            K = K + sp.diags(chif * shift * p.m + (1 - chif) * inactive_diag)
+            return K.tocsr()
+        if p.sparse:
+            K = sp.csr_matrix(
+                (self.A.data * (chif[self.rows] * chif[self.cols]), self.A.indices, self.A.indptr),
+                shape=self.A.shape,
+            )
+            dvals = self.A.data[self.diag_pos] + hess_F + shift * p.m
+            K.data[self.diag_pos] = chif * dvals + (1 - chif) * inactive_diag
+            return K
+        H = np.array(self.A, dtype=float)
+        if general:
+            H = H + (hess_F.toarray() if sp.issparse(hess_F) else np.asarray(hess_F))
+        else:
+            H[np.diag_indices_from(H)] += hess_F
+        K = H * np.outer(chif, chif)
+        K[np.diag_indices_from(K)] = chif * (np.diag(H) + shift * p.m) + (1 - chif) * inactive_diag
+        return K
+
+
+class BallStepSolver:
+    """Damped semismooth Newton for one step (3.1)+(3.2); see the module docstring."""
+
+    def __init__(self, problem: RISProblem, options: InnerOptions | None = None):
+        self.p = problem
+        self.o = options or InnerOptions()
+        self.linear = ReusableSolver(self.o.linear_solver, amg_threshold=self.o.amg_threshold)
+        self._K = _NewtonMatrix(problem)
+        A = problem.A
+        self._absA = abs(A) if problem.sparse else np.abs(A)
+        # Lipschitz-type scale of grad(phi) in the m-metric (Gershgorin): start of the FB step
+        rowsum = np.asarray(abs(A).sum(axis=1)).ravel()
+        self._c_scale = float(np.max(rowsum / problem.m))
+
+    # -- evaluations ---------------------------------------------------------------------------
+    def _evaluate(self, t, zprev, d):
+        z = zprev + d
+        Az = self.p.A @ z
+        Fz = self.p.F(z)
+        ell = self.p.load(t)
+        g = Az + self.p.dF(z) - ell
+        J = 0.5 * float(z @ Az) + Fz - float(ell @ z) + self.p.dissipation(d)
+        return z, Az, g, J
+
+    def _hess_F(self, z):
+        return self.p.d2F(z)
+
+    def _hess_diag(self, z, hess_F):
+        if sp.issparse(hess_F) or np.ndim(hess_F) == 2:
+            return self.p.A_diag + np.asarray(hess_F.diagonal() if sp.issparse(hess_F) else np.diag(hess_F))
+        return self.p.A_diag + hess_F
+
+    def _convexifying_shift(self, z) -> float:
+        """max(0, -min_i F''_ii / m_i) for a diagonal F'' (0 for a general F'')."""
+        h = self.p.d2F(z)
+        if sp.issparse(h) or np.ndim(h) == 2:
+            return 0.0
+        return float(max(0.0, np.max(-h / self.p.m)))
+
+    def _apply_H(self, hess_F, v):
+        out = self.p.A @ v
+        if sp.issparse(hess_F) or np.ndim(hess_F) == 2:
+            return out + np.asarray(hess_F @ v).ravel()
+        return out + hess_F * v
+
+    # -- init / step / terminate --------------------------------------------------------------
+    def init(self, t: float, zprev: np.ndarray, tau: float) -> InnerState:
+        d = np.zeros_like(zprev)
+        z, Az, g, J = self._evaluate(t, zprev, d)
+        p = self.p
+        scale = p.norm_Vinv(p.r) + p.norm_Vinv(g)
+        # round-off floor of evaluating g (sum of absolute contributions), in the V^-1 norm
+        floor_terms = (
+            (self._absA @ np.abs(z)) + np.abs(p.dF(z)) + np.abs(p.load(t)) + np.abs(g)
+        )
+        floor = 64 * _EPS * p.norm_Vinv(floor_terms)
+        tol = max(self.o.atol + self.o.rtol * scale, floor)
+        st = InnerState(
+            t=t, zprev=zprev, tau=tau, d=d, z=z, Az=Az, g=g, J=J, J0=J, tol=tol, scale=scale
+        )
+        st.c_fb = max(self._c_scale, 1e-12)
+        st.kkt = kkt_residual(p, d, g, 0.0, tau)
+        return st
+
+    def terminate(self, st: InnerState) -> tuple[bool, str]:
+        if st.code not in ("running",):
+            return True, st.code
+        if st.kkt <= st.tol:
+            st.code = "converged"
+            return True, st.code
+        if st.iteration >= self.o.max_iter:
+            st.code = "max_iterations"
+            return True, st.code
+        return False, st.code
+
+    def step(self, st: InnerState) -> InnerState:
+        """One iteration: Newton candidate with line search on J, else a forward-backward step."""
+        p = self.p
+        st.iteration += 1
+        on_sphere = p.norm_V(st.d) >= st.tau * (1 - 1e-12) and st.lam > 0
+        accepted = self._newton_step(st, on_sphere)
+        if accepted:
+            st.newton_steps += 1
+            st.nu = 0.0 if st.nu < 1e-8 * self._c_scale else st.nu / 4
+        else:
+            # shift the Hessian by nu*M: at least the amount that makes A + F'' + nu*M >= A >= 0
+            st.nu = max(2 * st.nu, self._convexifying_shift(st.z), 1e-3 * self._c_scale)
+            if not self._fb_step(st):
+                st.code = "stalled"
+                return st
+            st.fb_steps += 1
+        if not (np.isfinite(st.J) and np.all(np.isfinite(st.d))):
+            st.code = "nonfinite"
+        return st
+
+    def solve(self, t: float, zprev: np.ndarray, tau: float) -> InnerResult:
+        st = self.init(t, zprev, tau)
+        while True:
+            done, code = self.terminate(st)
+            if done:
+                break
+            self.step(st)
+        return self._result(st)
+
+    # -- pieces -------------------------------------------------------------------------------
+    def _set_multiplier(self, st: InnerState) -> None:
+        p = self.p
+        if p.norm_V(st.d) >= st.tau * (1 - 1e-10):
+            st.lam = multiplier_on_sphere(p, st.d, st.g)
+        else:
+            st.lam = 0.0
+        st.kkt = kkt_residual(p, st.d, st.g, st.lam, st.tau)
+
+    def _accept(self, st: InnerState, d, z, Az, g, J) -> None:
+        st.d, st.z, st.Az, st.g, st.J = d, z, Az, g, J
+        self._set_multiplier(st)
+
+    def _newton_step(self, st: InnerState, on_sphere: bool) -> bool:
+        p = self.p
+        d, g, lam, tau = st.d, st.g, (st.lam if on_sphere else 0.0), st.tau
+        hess_F = self._hess_F(st.z)
+        hdiag = self._hess_diag(st.z, hess_F)
+        # 1. active-set prediction by a diagonal Newton step on the normal map
+        Dg = np.maximum(hdiag + lam * p.m, 1e-8 * self._c_scale * p.m)
+        y = d - (g + lam * p.m * d) / Dg
+        active = np.abs(y) > p.r / Dg
+        if not np.any(active):
+            # every node at rest: the step is d = 0 (sticking) when that is stationary
+            if np.any(d != 0):
+                cand = np.zeros_like(d)
+                return self._try_candidates(st, [cand], None)
+            return False
+        sigma = np.sign(y) * active
+        inactive = ~active
+        # 2. Newton system on the active set (inactive nodes are sent to zero: delta_I = -d_I)
+        shift = lam + st.nu
+        inactive_diag = np.where(Dg > 0, Dg, 1.0)
+        K = self._K.build(active, hess_F, shift, inactive_diag)
+        dI = np.where(inactive, d, 0.0)
+        HdI = self._apply_H(hess_F, dI) if np.any(dI) else np.zeros_like(d)
+        G = g + p.r * sigma + lam * p.m * d
+        b = np.where(active, -G + HdI, -inactive_diag * d)
+        try:
+            if on_sphere:
+                w = np.where(active, p.m * d, 0.0)
+                pvec, qvec = self.linear.solve(K, [b, w], rtol=self._lin_rtol(st))
+                nd = p.norm_V(d)
+                wq = float(w @ qvec)
+                if not np.isfinite(wq) or abs(wq) <= 1e-14 * max(float(w @ w) / max(Dg.max(), 1e-300), 1e-300):
+                    return False
+                mI = float((p.m * dI * dI).sum())
+                dlam = (float(w @ pvec) - mI - nd * (tau - nd)) / wq
+                delta = pvec - dlam * qvec
+                lam_new = lam + dlam
+            else:
+                (delta,) = self.linear.solve(K, [b], rtol=self._lin_rtol(st))
+                lam_new = 0.0
+        except SingularSystem:
+            return False
+        if not np.all(np.isfinite(delta)):
+            return False
+        delta[inactive] = -d[inactive]
+        # 3. feasibility: orthant of the predicted signs, then the ball
+        trial = d + delta
+        trial[(np.sign(trial) != sigma)] = 0.0
+        nt = p.norm_V(trial)
+        if on_sphere and lam_new > 0 and nt > 0:
+            trial *= tau / nt
+            sphere = True
+        else:
+            sphere = False
+            if nt > tau:
+                trial *= tau / nt
+                sphere = True
+        return self._try_candidates(st, [trial], hess_F, sphere=sphere)
+
+    def _try_candidates(self, st: InnerState, candidates, hess_F, sphere: bool = False) -> bool:
+        """Line search along d -> candidate (retracting onto the sphere when it is active)."""
+        p = self.p
+        d = st.d
+        noise = 1e-13 * (abs(st.J) + abs(st.J0) + 1.0)
+        for cand in candidates:
+            step = cand - d
+            if hess_F is not None:
+                quad = float(step @ self._apply_H(hess_F, step))
+            else:
+                quad = 0.0
+            pred = -(float(st.g @ step) + 0.5 * quad + p.dissipation(cand) - p.dissipation(d))
+            for alpha in (1.0, 0.5, 0.25):
+                trial = d + alpha * step if alpha < 1 else cand
+                if sphere and alpha < 1:
+                    nt = p.norm_V(trial)
+                    if nt > 0:
+                        trial = trial * (st.tau / nt)
+                z, Az, g, J = self._evaluate(st.t, st.zprev, trial)
+                if not np.isfinite(J):
+                    continue
+                if J < st.J and J <= st.J - 1e-4 * alpha * max(pred, 0.0):
+                    self._accept(st, trial, z, Az, g, J)
+                    return True
+                if abs(J - st.J) <= noise:
+                    # J is flat to round-off (near convergence): accept if stationarity improves
+                    on = p.norm_V(trial) >= st.tau * (1 - 1e-10)
+                    lam = multiplier_on_sphere(p, trial, g) if on else 0.0
+                    if kkt_residual(p, trial, g, lam, st.tau) < 0.5 * st.kkt:
+                        self._accept(st, trial, z, Az, g, J)
+                        return True
+        return False
+
+    def _fb_step(self, st: InnerState) -> bool:
+        """Forward-backward step d+ = prox(d - g/(c m)) with backtracking on c.
+
+        prox of R + I_tau in the (c m)-weighted inner product: soft-threshold with r/(c m), then
+        scale radially onto the ball. Sufficient decrease J(d+) <= J(d) - 1e-4 c ||d+ - d||_m^2.
+        """
+        p = self.p
+        c = max(st.c_fb / 2, 1e-12)
+        for _ in range(self.o.max_fb_backtracks):
+            y = st.d - st.g / (c * p.m)
+            s = np.sign(y) * np.maximum(np.abs(y) - p.r / (c * p.m), 0.0)
+            ns = p.norm_V(s)
+            if ns > st.tau:
+                s *= st.tau / ns
+            step = s - st.d
+            ms = float(p.m @ (step * step))
+            if ms == 0.0:
+                return False
+            z, Az, g, J = self._evaluate(st.t, st.zprev, s)
+            if np.isfinite(J) and J <= st.J - 1e-4 * c * ms:
+                st.c_fb = c
+                self._accept(st, s, z, Az, g, J)
+                return True
+            c *= 2.0
+        return False
+
+    def _lin_rtol(self, st: InnerState) -> float:
+        """Forcing term of the inexact Newton method (Eisenstat-Walker type).
+
+        eta = min(1e-2, kkt/scale) gives superlinear convergence; it is never looser than needed
+        for the last step to land below the tolerance (eta * kkt <= tol / 10).
+        """
+        eta = min(1e-2, st.kkt / st.scale)
+        eta = max(eta, 0.1 * st.tol / max(st.kkt, 1e-300))
+        return float(np.clip(eta, 1e-12, 1e-2))
+
+    def _result(self, st: InnerState) -> InnerResult:
+        converged = st.code == "converged"
+        return InnerResult(
+            z=st.z,
+            d=st.d,
+            lam=st.lam,
+            converged=converged,
+            code=st.code,
+            iterations=st.iteration,
+            newton_steps=st.newton_steps,
+            fb_steps=st.fb_steps,
+            kkt_residual=st.kkt,
+            tolerance=st.tol,
+            J_start=st.J0,
+            J_final=st.J,
+            gradient=st.g,
+        )

@@ -1,0 +1,285 @@
+"""One step of the local incremental stationary scheme (Alg. 3.2, Steps 3-6) and a RIS run.
+
+From (s_{k-1}, t_{k-1}, z_{k-1}) and tau_k:
+
+3. z_k from the inner solver: (3.1) with (3.2), multiplier lambda_k (Lemma 4.1);
+4. t_k = t_{k-1} + tau_k - ||z_k - z_{k-1}||_V,  s_k = s_{k-1} + tau_k;
+5./6. the residuals I_1^k (3.3), I_2^k (3.4) of the affine interpolants (composite Simpson).
+
+The stepper returns the new state, the residuals (as the controller's error measures) and the
+solver counters; it never decides acceptance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..control.controllers import make_controller
+from ..errors import RunFailed, check_int, check_positive, fail
+from ..estimators.residuals import step_residuals
+from ..io.trajectory import Trajectory
+from ..nonlinear.ris_inner import BallStepSolver, InnerOptions
+from ..problems.ris import RISProblem
+from .evolve import evolve
+
+
+@dataclass
+class RISState:
+    s: float
+    t: float
+    z: np.ndarray
+    k: int = 0  # number of accepted steps so far
+
+
+@dataclass
+class RISStepResult:
+    state: RISState
+    tau: float
+    converged: bool
+    code: str
+    lam: float
+    kkt: float
+    kkt_tol: float
+    I1: float
+    I2: float
+    I1_err: float
+    I2_err: float
+    J_start: float
+    J_final: float
+    energy: float  # I(t_k, z_k)
+    counters: dict = field(default_factory=dict)
+
+    @property
+    def errors(self) -> dict:
+        return {"I1": self.I1, "I2": self.I2}
+
+
+class RISStepper:
+    """Steps 3-6 of Alg. 3.2 for a :class:`RISProblem`."""
+
+    def __init__(
+        self,
+        problem: RISProblem,
+        inner: InnerOptions | None = None,
+        simpson_subintervals: int = 8,
+        S: float | None = None,
+    ):
+        self.problem = problem
+        self.solver = BallStepSolver(problem, inner)
+        self.n_simpson = check_int("simpson_subintervals", simpson_subintervals, minimum=2)
+        if self.n_simpson % 2:
+            raise fail("simpson_subintervals", self.n_simpson, "must be even")
+        self.S = None if S is None else check_positive("S", S)
+        self.t_tol = 1e-10 * max(1.0, problem.T)
+        self._last_tau = 0.0
+
+    # -- evolve-loop interface ----------------------------------------------------------------
+    def finished(self, state: RISState) -> bool:
+        if state.t >= self.problem.T - self.t_tol:
+            return True
+        return self.S is not None and state.s >= self.S * (1 - 1e-14)
+
+    def limit(self, state: RISState, tau: float) -> float:
+        if self.S is not None:
+            return min(tau, self.S - state.s)
+        return tau
+
+    def overshoot(self, state: RISState, attempts: list[RISStepResult]):
+        """A shorter tau that lands on T when the step overshoots it, or None.
+
+        t(tau) = t_{k-1} + tau - ||d(tau)|| is flat for small tau (z_k first catches up with the
+        equilibrium at t_{k-1}) and then about affine, so a proportional shortening can fall into
+        the flat part. We bracket T between the attempts of this step (tau = 0 gives t_{k-1}) and
+        use regula falsi with the Illinois modification.
+        """
+        T = self.problem.T
+        last = attempts[-1]
+        if not last.converged or abs(last.state.t - T) <= self.t_tol:
+            return None
+        if len(attempts) == 1 and last.state.t <= T:
+            return None
+        lo = (0.0, state.t - T)  # (tau, t(tau) - T) with value < 0
+        hi = None
+        for a in attempts:
+            if not a.converged:
+                continue
+            f = a.state.t - T
+            if f > 0 and (hi is None or a.tau < hi[0]):
+                hi = (a.tau, f)
+            if f < 0 and a.tau > lo[0]:
+                lo = (a.tau, f)
+        if hi is None or not lo[0] < hi[0]:
+            return None
+        f_lo, f_hi = lo[1], hi[1]
+        # Illinois: halve the weight of an end point that was kept twice in a row
+        if len(attempts) >= 3 and (attempts[-1].state.t - T) * (attempts[-2].state.t - T) > 0:
+            if attempts[-1].state.t > T:
+                f_lo *= 0.5
+            else:
+                f_hi *= 0.5
+        tau = lo[0] - f_lo * (hi[0] - lo[0]) / (f_hi - f_lo)
+        if not lo[0] < tau < hi[0]:
+            tau = 0.5 * (lo[0] + hi[0])
+        return tau
+
+    def pick_landing(self, attempts: list[RISStepResult]) -> RISStepResult:
+        """Of the converged attempts, the one ending closest to T without overshooting, if any."""
+        T = self.problem.T
+        ok = [a for a in attempts if a.converged]
+        if not ok:
+            return attempts[-1]
+        under = [a for a in ok if a.state.t <= T + self.t_tol]
+        pool = under or ok
+        return min(pool, key=lambda a: abs(a.state.t - T))
+
+    def step(self, state: RISState, tau: float, s_end: float | None = None) -> RISStepResult:
+        p = self.problem
+        self._last_tau = tau
+        lin = self.solver.linear.stats
+        before = (lin.factorizations, lin.solves, lin.krylov_iterations)
+        res = self.solver.solve(state.t, state.z, tau)
+        counters = {
+            "newton_iterations": res.iterations,
+            "fb_steps": res.fb_steps,
+            "linear_factorizations": lin.factorizations - before[0],
+            "linear_solves": lin.solves - before[1],
+            "krylov_iterations": lin.krylov_iterations - before[2],
+        }
+        nd = p.norm_V(res.d)
+        t_new = state.t + max(tau - nd, 0.0)  # Step 4; ||d|| <= tau up to round-off
+        s_new = s_end if s_end is not None else state.s + tau
+        new_state = RISState(s=s_new, t=t_new, z=res.z, k=state.k + 1)
+        if res.converged:
+            r = step_residuals(p, state.t, state.z, t_new, res.z, res.gradient, self.n_simpson)
+            energy = p.energy(t_new, res.z)
+        else:
+            r = None
+            energy = math.nan
+        nan = math.nan
+        return RISStepResult(
+            state=new_state,
+            tau=tau,
+            converged=res.converged,
+            code=res.code,
+            lam=res.lam,
+            kkt=res.kkt_residual,
+            kkt_tol=res.tolerance,
+            I1=r.I1 if r else nan,
+            I2=r.I2 if r else nan,
+            I1_err=r.I1_err if r else nan,
+            I2_err=r.I2_err if r else nan,
+            J_start=res.J_start,
+            J_final=res.J_final,
+            energy=energy,
+            counters=counters,
+        )
+
+    def record(self, traj: Trajectory, result: RISStepResult) -> None:
+        st = result.state
+        traj.append(
+            s=st.s,
+            t=st.t,
+            z=self.problem.full_state(st.z),
+            energy=result.energy,
+            tau=result.tau,
+            I1=result.I1,
+            I2=result.I2,
+            I1_err=result.I1_err,
+            I2_err=result.I2_err,
+            lam=result.lam,
+            kkt=result.kkt,
+            kkt_tol=result.kkt_tol,
+            descent=result.J_start - result.J_final,
+            newton_iterations=result.counters.get("newton_iterations", 0),
+        )
+
+    def where(self, state: RISState, result: RISStepResult | None) -> dict:
+        info = {"step": state.k + 1, "s": state.s, "t": state.t}
+        if result is not None:
+            info.update(tau=result.tau, I1=result.I1, I2=result.I2, code=result.code,
+                        kkt=result.kkt)
+        return info
+
+    def progress_fields(self, state: RISState) -> dict:
+        return {"s": f"{state.s:.5g}", "t": f"{state.t:.5g}", "tau": f"{self._last_tau:.2g}"}
+
+
+def initial_trajectory(problem: RISProblem, meta: dict | None = None) -> Trajectory:
+    traj = Trajectory(meta=meta)
+    traj.append(s=0.0, t=0.0, z=problem.full_state(problem.z0), energy=problem.energy(0.0, problem.z0))
+    return traj
+
+
+def run_ris(
+    problem: RISProblem,
+    control: str = "adaptive",
+    *,
+    tol: float | None = 1e-4,
+    tau: float = 0.1,
+    tau_min: float = 1e-12,
+    tau_max: float = math.inf,
+    grid=None,
+    S: float | None = None,
+    inner: InnerOptions | None = None,
+    simpson_subintervals: int = 8,
+    progress: bool = False,
+    meta: dict | None = None,
+) -> Trajectory:
+    """Run the scheme from (0, 0, z0) until t reaches T (or s reaches S).
+
+    Raises :class:`RunFailed` (with ``.trajectory``) when the step size would fall below
+    ``tau_min``; the trajectory computed so far is attached.
+    """
+    controller = make_controller(
+        control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max, grid=grid
+    )
+    stepper = RISStepper(problem, inner, simpson_subintervals, S=S)
+    info = {"example": problem.name, "control": controller.name, "tol": tol, "tau0": tau}
+    info.update(meta or {})
+    traj = initial_trajectory(problem, info)
+    state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
+    evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress)
+    return traj
+
+
+def run_nested(
+    problem: RISProblem,
+    tols,
+    *,
+    tau: float = 0.1,
+    tau_min: float = 1e-12,
+    tau_max: float = math.inf,
+    inner: InnerOptions | None = None,
+    simpson_subintervals: int = 8,
+    progress: bool = False,
+) -> list[Trajectory]:
+    """Alg. 6.2: runs for tol_1 > tol_2 > ...; run n never steps over a grid point of runs < n."""
+    from ..errors import check_decreasing
+
+    tols = check_decreasing("tols", tols)
+    runs: list[Trajectory] = []
+    grid = np.empty(0)
+    for tol in tols:
+        try:
+            traj = run_ris(
+                problem,
+                "nested" if runs else "adaptive",
+                tol=tol,
+                tau=tau,
+                tau_min=tau_min,
+                tau_max=tau_max,
+                grid=grid if runs else None,
+                inner=inner,
+                simpson_subintervals=simpson_subintervals,
+                progress=progress,
+                meta={"nested_index": len(runs)},
+            )
+        except RunFailed as exc:
+            exc.where["nested_tol"] = tol
+            raise
+        runs.append(traj)
+        grid = np.union1d(grid, traj["s"][1:])
+    return runs
