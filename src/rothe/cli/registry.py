@@ -14,7 +14,7 @@ VERBS = {
     "study": "run a parameter study (convergence, perturbation)",
 }
 
-MODULES = ("rothe.cli.ris_commands", "rothe.cli.eld_commands")
+MODULES = ("rothe.cli.ris_commands", "rothe.cli.ris_fem_commands", "rothe.cli.eld_commands")
 
 _COMMANDS: dict[str, dict[str, object]] = {verb: {} for verb in VERBS}
 
