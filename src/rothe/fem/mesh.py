@@ -1,0 +1,278 @@
+"""Simplex meshes for P1 finite elements: builders, file import (meshio, gmsh included), checks.
+
+Meshes are scikit-fem objects (:class:`skfem.MeshTri` in 2D, :class:`skfem.MeshTet` in 3D), so
+everything scikit-fem offers (refinement, ``with_boundaries``, plotting) works on them. Named
+boundary parts live in ``mesh.boundaries`` as arrays of facet indices (scikit-fem's convention).
+
+Builders
+    :func:`unit_square` (N x N cells, each split into two triangles, either all along the
+    diagonal direction of y = x -- scikit-fem's ``init_tensor`` -- or in a "union jack" pattern
+    that is symmetric under every reflection of the square), :func:`unit_cube` (N^3 cubes, six
+    tetrahedra each, scikit-fem's ``init_tensor``). Both carry the boundary parts ``left``,
+    ``right``, ``bottom``, ``top`` (and ``front``, ``back`` in 3D) of scikit-fem's defaults.
+
+Files
+    :func:`load_mesh` reads anything meshio reads (gmsh ``.msh`` 2.2/4.x, ``.vtu``, ``.xdmf``,
+    ...), keeps the triangle (2D) or tetrahedron (3D) cells and turns gmsh physical groups
+    (``gmsh:physical`` cell data + ``field_data`` names) or meshio ``cell_sets`` on the facet
+    cells (lines in 2D, triangles in 3D) into named boundary parts. Nodes used by no cell are
+    dropped (gmsh files often keep geometry points).
+
+Checks (:func:`check_mesh`): finite coordinates, cell indices in range, no degenerate cell
+(|volume| > 1e-12 * h^d for the cell's longest edge h). Every failure is a one-line
+:class:`~rothe.errors.RotheInputError`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import RotheInputError, check_int, fail
+
+#: meshio cell type of the volume cells and of the boundary facets, by dimension
+CELL_TYPE = {2: "triangle", 3: "tetra"}
+FACET_TYPE = {2: "line", 3: "triangle"}
+
+
+def bad(name: str, what: str, allowed: str) -> RotheInputError:
+    """``<name>: got <what>, <allowed>`` with a described (unquoted) value."""
+    return RotheInputError(f"{name}: got {what}, {allowed}")
+
+
+def _skfem_class(dim: int):
+    from skfem import MeshTet, MeshTri
+
+    return {2: MeshTri, 3: MeshTet}[dim]
+
+
+def unit_square(n: int = 40, pattern: str = "tensor"):
+    """The unit square with n x n cells split into 2 n^2 triangles ((n + 1)^2 nodes).
+
+    ``pattern='tensor'``: every cell split along its diagonal parallel to y = x (scikit-fem's
+    ``MeshTri.init_tensor``); the mesh is symmetric under (x, y) -> (y, x) and under the point
+    reflection (x, y) -> (1 - x, 1 - y). ``pattern='unionjack'``: the diagonal alternates with
+    the parity of i + j, so for even n the mesh is symmetric under all eight symmetries of the
+    square.
+    """
+    from skfem import MeshTri
+
+    n = check_int("n", n, minimum=2)
+    x = np.linspace(0.0, 1.0, n + 1)
+    if pattern == "tensor":
+        mesh = MeshTri.init_tensor(x, x)
+    elif pattern == "unionjack":
+        X, Y = np.meshgrid(x, x, indexing="ij")
+        p = np.vstack([X.ravel(), Y.ravel()])
+        i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        i, j = i.ravel(), j.ravel()
+        v00 = i * (n + 1) + j
+        v10 = (i + 1) * (n + 1) + j
+        v01 = i * (n + 1) + j + 1
+        v11 = (i + 1) * (n + 1) + j + 1
+        slash = (i + j) % 2 == 0  # diagonal v00-v11 ("/"), else v10-v01 ("\")
+        t1 = np.where(slash, [v00, v10, v11], [v00, v10, v01])
+        t2 = np.where(slash, [v00, v11, v01], [v10, v11, v01])
+        mesh = MeshTri(p, np.hstack([t1, t2]))
+    else:
+        raise fail("pattern", pattern, "must be one of tensor, unionjack")
+    return mesh.with_defaults()
+
+
+def unit_cube(n: int = 12):
+    """The unit cube with n^3 cubes split into 6 n^3 tetrahedra ((n + 1)^3 nodes)."""
+    from skfem import MeshTet
+
+    n = check_int("n", n, minimum=2)
+    x = np.linspace(0.0, 1.0, n + 1)
+    return MeshTet.init_tensor(x, x, x).with_defaults()
+
+
+def mesh_dim(mesh) -> int:
+    return int(mesh.p.shape[0])
+
+
+def cell_volumes(mesh) -> np.ndarray:
+    """Signed-free volumes |K| of the simplices (area in 2D), vectorized."""
+    p, t = mesh.p, mesh.t
+    d = p.shape[0]
+    B = np.stack([p[:, t[k]] - p[:, t[0]] for k in range(1, d + 1)], axis=-1)  # (d, nc, d)
+    B = np.moveaxis(B, 0, 1)  # (nc, d, d): columns are edge vectors
+    return np.abs(np.linalg.det(B)) / (2.0 if d == 2 else 6.0)
+
+
+def check_mesh(mesh, name: str = "mesh"):
+    """Validate a P1 simplex mesh; returns it. One-line errors name ``name``."""
+    p, t = np.asarray(mesh.p), np.asarray(mesh.t)
+    d = p.shape[0]
+    if d not in (2, 3) or t.shape[0] != d + 1:
+        raise bad(name, f"a mesh with {t.shape[0]}-node cells in {d}D",
+                   "must be triangles (2D) or tetrahedra (3D)")
+    if t.shape[1] == 0:
+        raise bad(name, "a mesh with 0 cells", "must have at least one cell")
+    if not np.all(np.isfinite(p)):
+        raise bad(name, "non-finite node coordinates", "coordinates must be finite")
+    if t.min() < 0 or t.max() >= p.shape[1]:
+        raise bad(name, f"cell node index {int(t.max())}",
+                   f"must be in [0, {p.shape[1] - 1}] (the number of nodes)")
+    vol = cell_volumes(mesh)
+    edges = [p[:, t[a]] - p[:, t[b]] for a in range(d + 1) for b in range(a)]
+    h = np.sqrt(np.max([np.sum(e * e, axis=0) for e in edges], axis=0))
+    degenerate = np.nonzero(vol <= 1e-12 * h**d)[0]
+    if degenerate.size:
+        k = int(degenerate[0])
+        raise bad(name, f"a degenerate cell (index {k}, volume {vol[k]:.3g})",
+                   f"all {t.shape[1]} cells must have positive volume")
+    return mesh
+
+
+def _match_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Index into ``b`` (rows, sorted within each row) of every row of ``a``; -1 if absent."""
+    a = np.sort(a, axis=1)
+    both = np.vstack([b, a])
+    _, inv = np.unique(both, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    where = np.full(inv.max() + 1, -1, dtype=np.int64)
+    where[inv[: len(b)]] = np.arange(len(b))
+    return where[inv[len(b):]]
+
+
+def _read_meshio(path: Path):
+    """meshio.read, silenced: meshio prints to stdout/stderr and calls sys.exit(1) when no
+    reader for the extension succeeds; both become one RotheInputError line here."""
+    import contextlib
+    import io
+
+    import meshio
+
+    chatter = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            return meshio.read(str(path))
+    except (Exception, SystemExit) as exc:  # meshio raises many types, or exits
+        lines = [ln.strip() for ln in (str(exc) if not isinstance(exc, SystemExit) else "")
+                 .splitlines() + chatter.getvalue().splitlines() if ln.strip()]
+        msg = lines[0] if lines else type(exc).__name__
+        for noise in (f"'{path}'", str(path), "Error: "):
+            msg = msg.replace(noise, "")
+        msg = " ".join(msg.split()).rstrip(" .")
+        raise fail("--mesh", str(path), f"is not a mesh meshio can read ({msg})") from None
+
+
+def load_mesh(path, dim: int | None = None, name: str = "--mesh"):
+    """Read a triangle (2D) or tetrahedron (3D) mesh from any file meshio reads.
+
+    ``dim`` = 2 or 3 asks for that cell type; ``None`` takes tetrahedra if there are any, else
+    triangles. Named boundary parts come from gmsh physical groups (``$PhysicalNames``) or
+    meshio cell sets on the facet cells; unnamed physical tags are called ``tag<k>``.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise fail(name, str(path), "no such file")
+    if path.is_dir():
+        raise fail(name, str(path), "is a directory, must be a mesh file")
+    m = _read_meshio(path)
+    blocks: dict[str, list[np.ndarray]] = {}
+    for block in m.cells:
+        blocks.setdefault(block.type, []).append(np.asarray(block.data))
+    if dim is None:
+        dim = 3 if "tetra" in blocks else 2
+    ctype = CELL_TYPE[dim]
+    if ctype not in blocks:
+        found = ", ".join(sorted(blocks)) or "none"
+        raise fail(name, str(path), f"has no {ctype} cells (found: {found}); a {dim}D run "
+                                    f"needs {ctype} cells")
+    cells = np.vstack(blocks[ctype])
+    points = np.asarray(m.points, dtype=float)
+    if points.shape[1] > dim:
+        extra = points[:, dim:]
+        if np.ptp(extra, axis=0).max() > 1e-12 * max(1.0, np.abs(points).max()):
+            raise fail(name, str(path), f"has {ctype} cells that are not flat in {dim}D "
+                                        "(a surface mesh?), must be a planar 2D mesh")
+        points = points[:, :dim]
+    if points.shape[1] < dim:
+        raise fail(name, str(path), f"has {points.shape[1]}D points, a {dim}D mesh needs {dim}")
+
+    # drop nodes used by no cell and renumber
+    used = np.zeros(len(points), dtype=bool)
+    if cells.size:
+        if cells.min() < 0 or cells.max() >= len(points):
+            raise fail(name, str(path), "has cells with node indices out of range")
+        used[cells.ravel()] = True
+    new_index = np.full(len(points), -1, dtype=np.int64)
+    new_index[used] = np.arange(int(used.sum()))
+    p = points[used].T.copy()
+    t = new_index[cells].T.copy()
+
+    cls = _skfem_class(dim)
+    mesh = cls(p, t, validate=False)
+    check_mesh(mesh, name)
+    parts = _boundary_parts(m, blocks, dim, new_index)
+    if parts:
+        facets = mesh.facets.T  # (nf, dim), each row sorted
+        bnd = {}
+        for part, rows in parts.items():
+            idx = _match_rows(rows, facets) if len(rows) else np.empty(0, dtype=np.int64)
+            # kept even when empty, so that choosing it for Dirichlet data gets a clear error
+            bnd[part] = np.unique(idx[idx >= 0]).astype(np.int64)
+        mesh = cls(p, mesh.t, _boundaries=bnd, validate=False)
+    return mesh
+
+
+def _boundary_parts(m, blocks, dim, new_index) -> dict[str, np.ndarray]:
+    """Facet node rows (renumbered) of every named group on the facet cells."""
+    ftype = FACET_TYPE[dim]
+    if ftype not in blocks:
+        return {}
+    parts: dict[str, list[np.ndarray]] = {}
+    # gmsh physical groups: per-block tags + names from field_data {name: [tag, dim]}
+    tags_by_block = m.cell_data.get("gmsh:physical") if m.cell_data else None
+    names = {}
+    for key, val in (m.field_data or {}).items():
+        val = np.asarray(val).ravel()
+        if val.size >= 2 and int(val[1]) == dim - 1:
+            names[int(val[0])] = key
+    if tags_by_block is not None:
+        for block, tags in zip(m.cells, tags_by_block, strict=True):
+            if block.type != ftype:
+                continue
+            data = np.asarray(block.data)
+            tags = np.asarray(tags).ravel()
+            for tag in np.unique(tags):
+                label = names.get(int(tag), f"tag{int(tag)}")
+                parts.setdefault(label, []).append(data[tags == tag])
+    # meshio cell sets (e.g. from .xdmf/.vtu writers that keep them)
+    for label, per_block in (m.cell_sets or {}).items():
+        if label.startswith("gmsh:"):
+            continue
+        for block, ids in zip(m.cells, per_block, strict=True):
+            if block.type == ftype and ids is not None and len(ids):
+                parts.setdefault(label, []).append(np.asarray(block.data)[np.asarray(ids)])
+    out = {}
+    for label, rows in parts.items():
+        rows = np.vstack(rows)
+        mapped = new_index[rows]
+        if np.any(mapped < 0):  # a facet on nodes no cell uses cannot be a boundary facet
+            mapped = mapped[np.all(mapped >= 0, axis=1)]
+        out[label] = mapped
+    return out
+
+
+def boundary_part_names(mesh) -> list[str]:
+    return sorted((mesh.boundaries or {}).keys())
+
+
+def describe(mesh) -> str:
+    d = mesh_dim(mesh)
+    kind = "triangles" if d == 2 else "tetrahedra"
+    return f"{mesh.p.shape[1]} nodes, {mesh.t.shape[1]} {kind}"
+
+
+def require_dim(mesh, dim: int, name: str = "mesh"):
+    d = mesh_dim(mesh)
+    if d != dim:
+        raise RotheInputError(
+            f"{name}: got a {d}D mesh ({describe(mesh)}), must be {dim}D for this example"
+        )
+    return mesh

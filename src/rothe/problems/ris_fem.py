@@ -1,0 +1,387 @@
+"""Rate-independent systems in H^1_0 discretized by P1 finite elements (Example 1.4, Sec. 7.2).
+
+Andreia & Meyer (2022), Example 1.4 with Z = H^1_0(Omega) (or H^1 with zero values on named
+boundary parts), V = L2, X = L1:
+
+    I(t, z) = 1/2 int c |grad z|^2 + int g(z) - <l(t), z>,     R(v) = kappa ||v||_{L1},
+    ||v||_V = ||v||_{L2}.
+
+Discretization (P1 on triangles / tetrahedra, nodal basis phi_i, lumped mass m_i = int phi_i):
+
+* unknowns: the nodal values z_i at the *free* nodes (every node not on the Dirichlet boundary),
+  z_i = 0 on the Dirichlet nodes; :meth:`FERISProblem.full_state` returns all nodal values in the
+  order of ``mesh.p`` with those zeros;
+* A = stiffness of c(-Laplace) restricted to the free nodes (exact for P1, c piecewise constant);
+* F(z) = sum_i m_i g(z_i) over *all* nodes (the Dirichlet nodes contribute the constant
+  g(0) sum m_i there, so that F is the lumped approximation of int_Omega g(z_h) itself);
+  F'(z)_i = m_i g'(z_i) and F''(z) = diag(m_i g''(z_i)) at the free nodes;
+* R(v) = sum_i kappa m_i |v_i| (r_i = kappa m_i) and ||v||_V^2 = sum_i m_i v_i^2;
+* <l(t), phi_i> the nodal functionals of the load, restricted to the free nodes.
+
+Which quadrature F uses, and why
+    Nodal (vertex, "lumped") quadrature: int_K g(z_h) ~ |K|/(d+1) sum_{vertices} g(z_j),
+    i.e. F(z) = sum_i m_i g(z_i). Reasons: (1) it is the same lumping the paper uses for the L1
+    norm ([9, Sec. 4]) and SPEC section 1 uses for V, so F', R and the metric all act node by
+    node and the generalized Newton matrix of a step is A + diag(m g''(z)) + diag(...) with the
+    sparsity of A -- a consistent quadrature would make F'' a full mass-like matrix per
+    iteration; (2) F, F' and F'' cost O(n) vector operations and no assembly (under 10 ms at
+    10^6 nodes versus seconds for a quadrature-point assembly; PERFORMANCE-NOTES); (3) it is
+    accurate enough: the vertex rule is exact for affine integrands and O(h^2) for smooth ones,
+    the same order as the P1 L2 error, so the discrete energy converges at order 2 (tested in
+    tests/fem/test_convergence.py); (4) it keeps the discrete problem a RIS in R^n with diagonal
+    data, for which dist has the closed form of SPEC section 1 and the KKT system of Lemma 4.1
+    decouples except through A.
+
+Load
+    ``load(t)`` returns either a number c -- the constant density, <l(t), phi_i> = c m_i (exact,
+    since m_i = int phi_i) -- or a vector of nodal functionals over all nodes (values at the
+    Dirichlet nodes are ignored). Example 7.2: <l(t), z> = -200 t^3 int z, i.e. c = -200 t^3.
+
+Sign conventions are those of :class:`rothe.problems.ris.RISProblem`: D_z I = A z + F'(z) - l(t).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import RotheInputError, check_finite_array, check_positive, check_real
+from ..fem.mesh import bad, check_mesh, describe, mesh_dim, unit_cube, unit_square
+from ..fem.scalar import boundary_nodes, lumped_mass, split_dofs, stiffness
+from .ris import RISProblem
+
+#: points where g', g'' are compared with finite differences of g and g' (irrational-ish, so
+#: that kinks of a piecewise g at round numbers are not hit)
+DERIVATIVE_CHECK_POINTS = np.array([-2.31, -1.13, -0.617, -0.0931, 0.0, 0.0713, 0.389, 0.94,
+                                    1.27, 2.58])
+
+ScalarFn = Callable[[np.ndarray], np.ndarray]
+
+
+def _vectorized(label: str, fn: ScalarFn, x: np.ndarray) -> np.ndarray:
+    try:
+        y = np.asarray(fn(x), dtype=float)
+    except Exception as exc:  # the user's function: any failure is bad input
+        raise bad(label, f"an error on a numpy array ({type(exc).__name__}: {exc})",
+                   "must be a vectorized function of a numpy array") from None
+    if y.shape != x.shape:
+        if y.ndim == 0:
+            y = np.full(x.shape, float(y))
+        else:
+            raise bad(label, f"an array of shape {y.shape} for input shape {x.shape}",
+                       "must return one value per entry")
+    return y
+
+
+def check_pointwise_derivatives(g: ScalarFn, dg: ScalarFn, d2g: ScalarFn,
+                                points=DERIVATIVE_CHECK_POINTS) -> None:
+    """Compare dg with central differences of g and d2g with those of dg at a few points.
+
+    A derivative passes at a point if it matches the difference quotient to a relative 1e-5 for
+    either of two step sizes (1e-4 and 1e-6 times max(1, |z|)): the larger step absorbs
+    round-off, the smaller the curvature of smooth functions. Raises a one-line
+    RotheInputError naming the derivative, the point and both values.
+    """
+    z = np.asarray(points, dtype=float)
+    gz = _vectorized("g", g, z)
+    d1 = _vectorized("dg", dg, z)
+    d2 = _vectorized("d2g", d2g, z)
+    for label, values in (("g", gz), ("dg", d1), ("d2g", d2)):
+        if not np.all(np.isfinite(values)):
+            bad = z[~np.isfinite(values)][0]
+            raise bad(label, f"a non-finite value at z = {bad:g}", "must be finite")
+    for label, exact, base in (("dg", d1, g), ("d2g", d2, dg)):
+        best = np.full(z.shape, np.inf)
+        fd_keep = np.zeros_like(z)
+        for rel in (1e-4, 1e-6):
+            h = rel * np.maximum(1.0, np.abs(z))
+            fd = (_vectorized(label, base, z + h) - _vectorized(label, base, z - h)) / (2 * h)
+            err = np.abs(fd - exact) / np.maximum(1.0, np.maximum(np.abs(fd), np.abs(exact)))
+            better = err < best
+            best = np.where(better, err, best)
+            fd_keep = np.where(better, fd, fd_keep)
+        bad = np.nonzero(best > 1e-5)[0]
+        if bad.size:
+            i = bad[0]
+            of = "g" if label == "dg" else "dg"
+            raise RotheInputError(
+                f"{label}: got {exact[i]:.6g} at z = {z[i]:g}, must match finite differences "
+                f"of {of} ({fd_keep[i]:.6g}); check the derivative you supplied"
+            )
+
+
+class FERISProblem(RISProblem):
+    """A P1 finite-element RIS on a scikit-fem triangle or tetrahedron mesh.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        P1 simplex mesh (see :mod:`rothe.fem.mesh` for builders and file import).
+    g, dg, d2g : vectorized callables R -> R
+        The energy density of F(z) = int g(z) and its first two derivatives (checked against
+        finite differences at a few points when the problem is built).
+    load : callable
+        t -> number (a constant load density c(t): <l, phi_i> = c(t) m_i) or (n_nodes,) array
+        of nodal functionals <l(t), phi_i>. Checked to be finite at 9 times in [0, T].
+    kappa : float > 0
+        R(v) = kappa ||v||_{L1} with lumped mass.
+    coefficient : number, per-cell array or callable c(x) > 0
+        A = stiffness of c (-Laplace).
+    z0 : number, callable z0(x) or array
+        Initial state: a number (the value at every free node), nodal values over all nodes
+        (must vanish on the Dirichlet nodes) or over the free nodes only.
+    T : float
+        Final time.
+    dirichlet : None or list of str
+        None: homogeneous Dirichlet on the whole boundary; otherwise the names of the boundary
+        parts (``mesh.boundaries``) where z = 0; the rest of the boundary is natural (Neumann).
+    load_rate : callable, optional
+        t -> dl/dt in the same form as ``load``.
+    """
+
+    def __init__(
+        self,
+        mesh,
+        g: ScalarFn,
+        dg: ScalarFn,
+        d2g: ScalarFn,
+        load: Callable[[float], object],
+        *,
+        kappa: float = 1.0,
+        coefficient=1.0,
+        z0=0.0,
+        T: float = 1.0,
+        dirichlet=None,
+        load_rate: Callable[[float], object] | None = None,
+        name: str = "ris-fem",
+    ):
+        self.mesh = check_mesh(mesh)
+        self.dim = mesh_dim(mesh)
+        T = check_positive("T", T)
+        self.kappa = check_positive("kappa", kappa)
+        n_nodes = mesh.p.shape[1]
+        fixed = boundary_nodes(mesh, dirichlet)
+        if fixed.size == 0:
+            where = "the mesh boundary" if dirichlet is None else f"boundary parts {dirichlet}"
+            raise bad("mesh", f"a mesh with no nodes on {where} ({describe(mesh)})",
+                       "homogeneous Dirichlet data needs at least one boundary node")
+        free, fixed = split_dofs(n_nodes, fixed)
+        if free.size == 0:
+            raise bad("mesh", f"a mesh whose {n_nodes} nodes all lie on the Dirichlet boundary",
+                       "needs at least one interior node (refine the mesh)")
+        self.free, self.fixed = free, fixed
+        self.n_nodes = n_nodes
+        self.dirichlet = dirichlet
+
+        check_pointwise_derivatives(g, dg, d2g)
+        self.g, self.dg, self.d2g = g, dg, d2g
+
+        m_all = lumped_mass(mesh)
+        self.m_all = m_all
+        m = m_all[free]
+        K = stiffness(mesh, coefficient)
+        A = sp.csr_matrix(K[free][:, free])
+        A.sort_indices()
+        self._F_fixed = float(np.sum(m_all[fixed]) * _vectorized("g", g, np.zeros(1))[0])
+
+        self._user_load = load
+        self._user_load_rate = load_rate
+        for t_check in np.linspace(0.0, T, 9):
+            self._load_vector(load, t_check, "load")
+
+        z0_free = self._initial_state(z0)
+
+        super().__init__(
+            A=A,
+            F=self._F,
+            dF=self._dF,
+            d2F=self._d2F,
+            load=lambda t: self._load_vector(self._user_load, t, "load"),
+            dissipation_weights=self.kappa * m,
+            metric_weights=m,
+            z0=z0_free,
+            T=T,
+            load_rate=(None if load_rate is None else
+                       (lambda t: self._load_vector(self._user_load_rate, t, "load_rate"))),
+            name=name,
+            # F' and F'' are exact sums of the pointwise g', g'' checked above
+            check_derivatives=False,
+        )
+
+    # -- data ----------------------------------------------------------------------------------
+    def _load_vector(self, fn, t: float, label: str) -> np.ndarray:
+        try:
+            val = fn(t)
+        except Exception as exc:
+            raise bad(f"{label}(t={t:g})", f"an error ({type(exc).__name__}: {exc})",
+                       "must evaluate for t in [0, T]") from None
+        val = np.asarray(val, dtype=float)
+        if val.ndim == 0:
+            check_finite_array(f"{label}(t={t:g})", val)
+            return float(val) * self.m_all[self.free]
+        if val.shape != (self.n_nodes,):
+            raise bad(f"{label}(t={t:g})", f"an array of shape {val.shape}",
+                       f"must be a number (density) or one nodal functional per node "
+                       f"({self.n_nodes})")
+        check_finite_array(f"{label}(t={t:g})", val[self.free])
+        return val[self.free]
+
+    def _initial_state(self, z0) -> np.ndarray:
+        n_free = self.free.size
+        if callable(z0):
+            z = np.asarray(z0(self.mesh.p), dtype=float)
+            if z.ndim == 0:
+                z = np.full(self.n_nodes, float(z))
+            z = z.copy()
+            z[self.fixed] = 0.0  # the interpolant of a function in H^1_0 vanishes there anyway
+        else:
+            z = np.asarray(z0, dtype=float)
+            if z.ndim == 0:
+                check_real("z0", float(z))
+                return np.full(n_free, float(z))
+        if z.shape == (n_free,) and n_free != self.n_nodes:
+            return check_finite_array("z0", z).copy()
+        if z.shape != (self.n_nodes,):
+            raise bad("z0", f"an array of shape {z.shape}",
+                       f"must be a number, a callable, or values at all {self.n_nodes} nodes "
+                       f"or at the {n_free} free nodes")
+        check_finite_array("z0", z)
+        on_bnd = np.abs(z[self.fixed]).max()
+        if on_bnd > 0:
+            raise bad("z0", f"values up to {on_bnd:g} on Dirichlet nodes",
+                       "must vanish there (homogeneous Dirichlet data)")
+        return z[self.free].copy()
+
+    # -- F by nodal quadrature ----------------------------------------------------------------
+    def _F(self, z: np.ndarray) -> float:
+        return float(self.m @ self.g(z)) + self._F_fixed
+
+    def _dF(self, z: np.ndarray) -> np.ndarray:
+        return self.m * self.dg(z)
+
+    def _d2F(self, z: np.ndarray) -> np.ndarray:
+        return self.m * self.d2g(z)
+
+    # -- output -------------------------------------------------------------------------------
+    def full_state(self, z: np.ndarray) -> np.ndarray:
+        """Nodal values at all mesh nodes (order of ``mesh.p``), zero on the Dirichlet nodes."""
+        out = np.zeros(self.n_nodes)
+        out[self.free] = z
+        return out
+
+    def integral(self, z: np.ndarray) -> float:
+        """int_Omega z_h by the lumped mass (exact for P1)."""
+        return float(self.m @ z)
+
+    @property
+    def nodes(self) -> np.ndarray:
+        return self.mesh.p.T.copy()
+
+    @property
+    def cells(self) -> np.ndarray:
+        return self.mesh.t.T.copy()
+
+
+# -- Example 7.2 and its 3D analogue ----------------------------------------------------------
+
+def g_7_2(z):
+    """g(z) = 48 (1 - z^2)^2, the double well of (7.2)."""
+    return 48.0 * (1.0 - z * z) ** 2
+
+
+def dg_7_2(z):
+    return -192.0 * z * (1.0 - z * z)
+
+
+def d2g_7_2(z):
+    return 576.0 * z * z - 192.0
+
+
+def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, kappa: float = 1.0,
+                T: float = 1.0, dirichlet=None, pattern: str = "tensor",
+                name: str = "ris-2d") -> FERISProblem:
+    """Example 7.2 of Andreia & Meyer (2022) (SPEC section 3).
+
+    Omega = (0,1)^2 (an n x n-cell grid, (n+1)^2 nodes; 1681 nodes for the default n = 40) or
+    any 2D ``mesh``; g(z) = 48 (1 - z^2)^2; <l(t), z> = amplitude t^3 int z with amplitude
+    -200; T = 1; z0 = 0; R = ||.||_{L1}, V = L2, both lumped. g is even, so ``amplitude`` > 0
+    (or ``z0`` of the other sign) gives the mirrored branch z -> -z.
+    """
+    amplitude = check_real("amplitude", amplitude)
+    if mesh is None:
+        mesh = unit_square(n, pattern)
+    elif mesh_dim(mesh) != 2:
+        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+                   "must be 2D (triangles) for ris-2d")
+    return FERISProblem(
+        mesh, g_7_2, dg_7_2, d2g_7_2,
+        load=lambda t: amplitude * t**3,
+        load_rate=lambda t: 3.0 * amplitude * t**2,
+        kappa=kappa, z0=z0, T=T, dirichlet=dirichlet, name=name,
+    )
+
+
+def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
+                   kappa: float = 1.0, T: float = 1.0, dirichlet=None,
+                   name: str = "ris-3d") -> FERISProblem:
+    """The energy of Example 7.2 on the unit cube (n^3 cubes, 6 tetrahedra each) or a 3D mesh.
+
+    Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
+    paper: it shows that nothing in the discretization or the solver depends on d.
+    """
+    amplitude = check_real("amplitude", amplitude)
+    if mesh is None:
+        mesh = unit_cube(n)
+    elif mesh_dim(mesh) != 3:
+        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+                   "must be 3D (tetrahedra) for ris-3d")
+    return FERISProblem(
+        mesh, g_7_2, dg_7_2, d2g_7_2,
+        load=lambda t: amplitude * t**3,
+        load_rate=lambda t: 3.0 * amplitude * t**2,
+        kappa=kappa, z0=z0, T=T, dirichlet=dirichlet, name=name,
+    )
+
+
+# -- which stationary branch a run followed -----------------------------------------------------
+
+def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
+    """Maximal runs of accepted steps with t_k - t_{k-1} <= rel * tau_k (the ball constraint
+    active: the state moves while physical time stands still, a viscous jump), as
+    ``{"t": t, "s_start": s, "s_end": s, "steps": k}``."""
+    t, s, tau = traj["t"], traj["s"], traj["tau"]
+    if len(tau) == 0:
+        return []
+    jump = np.diff(t) <= rel * tau
+    edges = np.diff(np.concatenate([[0], jump.astype(int), [0]]))
+    starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+    return [{"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]), "steps": int(b - a)}
+            for a, b in zip(starts, ends, strict=True)]
+
+
+def describe_branch(problem: FERISProblem, traj) -> dict:
+    """Energy, range and mean of the final state and the viscous jumps: which branch a run took.
+
+    Several stationary points exist (g is a double well): the run reports where it ended --
+    the sign of z (g is even, so z -> -z maps branches onto each other), its range and int z --
+    and when it jumped. A one-line ``branch`` string summarizes it.
+    """
+    z = traj["z"][-1]
+    jumps = viscous_jumps(traj)
+    mean = float(problem.m_all @ z) / float(problem.m_all.sum())
+    zmin, zmax = float(z.min()), float(z.max())
+    sign = "z <= 0" if zmax <= 1e-12 else ("z >= 0" if zmin >= -1e-12 else "z changes sign")
+    energy = float(traj["energy"][-1])
+    jt = ", ".join(f"{j['t']:.4g}" for j in jumps) or "none"
+    return {
+        "energy_final": energy,
+        "z_min": zmin,
+        "z_max": zmax,
+        "z_mean": mean,
+        "n_viscous_jumps": len(jumps),
+        "viscous_jumps": jumps,
+        "branch": (f"{sign}, z in [{zmin:.4g}, {zmax:.4g}], mean {mean:.4g}, energy {energy:.6g}, "
+                   f"{len(jumps)} viscous jump(s) at t = {jt}"),
+    }
