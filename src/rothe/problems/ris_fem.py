@@ -90,22 +90,21 @@ def check_pointwise_derivatives(g: ScalarFn, dg: ScalarFn, d2g: ScalarFn,
     d2 = _vectorized("d2g", d2g, z)
     for label, values in (("g", gz), ("dg", d1), ("d2g", d2)):
         if not np.all(np.isfinite(values)):
-            bad = z[~np.isfinite(values)][0]
-            raise bad(label, f"a non-finite value at z = {bad:g}", "must be finite")
-    for label, exact, base in (("dg", d1, g), ("d2g", d2, dg)):
+            z_bad = z[~np.isfinite(values)][0]
+            raise bad(label, f"a non-finite value at z = {z_bad:g}", "must be finite")
+    for label, exact, base, of in (("dg", d1, g, "g"), ("d2g", d2, dg, "dg")):
         best = np.full(z.shape, np.inf)
         fd_keep = np.zeros_like(z)
         for rel in (1e-4, 1e-6):
             h = rel * np.maximum(1.0, np.abs(z))
-            fd = (_vectorized(label, base, z + h) - _vectorized(label, base, z - h)) / (2 * h)
+            fd = (_vectorized(of, base, z + h) - _vectorized(of, base, z - h)) / (2 * h)
             err = np.abs(fd - exact) / np.maximum(1.0, np.maximum(np.abs(fd), np.abs(exact)))
             better = err < best
             best = np.where(better, err, best)
             fd_keep = np.where(better, fd, fd_keep)
-        bad = np.nonzero(best > 1e-5)[0]
-        if bad.size:
-            i = bad[0]
-            of = "g" if label == "dg" else "dg"
+        wrong = np.nonzero(best > 1e-5)[0]
+        if wrong.size:
+            i = wrong[0]
             raise RotheInputError(
                 f"{label}: got {exact[i]:.6g} at z = {z[i]:g}, must match finite differences "
                 f"of {of} ({fd_keep[i]:.6g}); check the derivative you supplied"

@@ -1,0 +1,192 @@
+"""The FE RIS problem: structure (interior unknowns, full state, lumped weights), derivatives of
+F by nodal quadrature, and every bad input named in the issue with its one-line message."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from skfem import MeshTri
+
+from rothe.errors import RotheInputError
+from rothe.fem.mesh import load_mesh, unit_cube, unit_square
+from rothe.fem.scalar import lumped_mass, stiffness
+from rothe.problems.ris_fem import (
+    FERISProblem,
+    check_pointwise_derivatives,
+    d2g_7_2,
+    dg_7_2,
+    example_7_2,
+    example_7_2_3d,
+    g_7_2,
+)
+
+
+@pytest.fixture(scope="module")
+def p8():
+    return example_7_2(8)
+
+
+def test_structure_of_example_7_2(p8):
+    p = p8
+    mesh = p.mesh
+    assert p.n_nodes == 81 and p.n == 49 and p.free.size + p.fixed.size == 81
+    on_edge = (mesh.p[:, p.fixed] == 0) | (mesh.p[:, p.fixed] == 1)
+    assert np.all(on_edge.any(axis=0))
+    m = lumped_mass(mesh)
+    assert np.allclose(p.m, m[p.free]) and np.allclose(p.r, p.kappa * m[p.free])
+    K = stiffness(mesh)
+    assert abs(p.A - K[p.free][:, p.free]).max() == 0
+    # full_state: all nodes in mesh order, zero on the boundary
+    z = np.arange(1.0, p.n + 1)
+    full = p.full_state(z)
+    assert full.shape == (81,) and np.all(full[p.fixed] == 0) and np.array_equal(full[p.free], z)
+    # load: -200 t^3 int phi_i = -200 t^3 m_i exactly
+    assert np.allclose(p.load(0.5), -200 * 0.125 * p.m)
+    assert np.allclose(p.load_rate(0.5), -600 * 0.25 * p.m)
+    # F over all nodes: 48 * area at z = 0, and the integral of g by the vertex rule
+    assert math.isclose(p.F(np.zeros(p.n)), 48.0, rel_tol=1e-14)
+    assert math.isclose(p.energy(0.0, p.z0), 48.0, rel_tol=1e-14)
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(np.float64, 49, elements=st.floats(-2, 2)), st.floats(0, 1))
+def test_F_and_gradient_are_the_lumped_integrals(z, t):
+    p = example_7_2(8)
+    full = p.full_state(z)
+    m_all = lumped_mass(p.mesh)
+    assert math.isclose(p.F(z), float(m_all @ g_7_2(full)), rel_tol=1e-12, abs_tol=1e-12)
+    assert np.allclose(p.dF(z), p.m * dg_7_2(z), rtol=1e-14, atol=0)
+    assert np.allclose(p.d2F(z), p.m * d2g_7_2(z), rtol=1e-14, atol=0)
+    # directional derivative of the energy by central differences
+    v = np.sin(np.arange(p.n))
+    h = 1e-6
+    fd = (p.energy(t, z + h * v) - p.energy(t, z - h * v)) / (2 * h)
+    assert math.isclose(p.gradient(t, z) @ v, fd, rel_tol=1e-6, abs_tol=1e-6)
+    # dist: closed form with lumped weights (SPEC section 1)
+    eta = p.gradient(t, z)
+    closed_form = float(np.sum(np.maximum(np.abs(eta) - p.m, 0) ** 2 / p.m))
+    assert math.isclose(p.dist(eta) ** 2, closed_form, rel_tol=1e-12, abs_tol=1e-300)
+
+
+def test_3d_problem_and_dimension_checks():
+    p = example_7_2_3d(3)
+    assert p.dim == 3 and p.n_nodes == 64 and p.n == 8
+    assert math.isclose(p.energy(0.0, p.z0), 48.0, rel_tol=1e-14)
+    with pytest.raises(RotheInputError, match=r"^mesh: got a 3D mesh \(64 nodes, 162 tetrahedra\), "
+                                              r"must be 2D \(triangles\) for ris-2d$"):
+        example_7_2(mesh=unit_cube(3))
+    with pytest.raises(RotheInputError, match=r"must be 3D \(tetrahedra\) for ris-3d$"):
+        example_7_2_3d(mesh=unit_square(3))
+
+
+def test_named_dirichlet_parts_and_z0_forms():
+    mesh = unit_square(4)
+    p = example_7_2(mesh=mesh, dirichlet=["left"])
+    assert p.fixed.size == 5 and np.allclose(mesh.p[0, p.fixed], 0) and p.n == 20
+    # z0 as a callable, as nodal values (zero on the boundary) and as free values
+    q = example_7_2(4, z0=lambda x: np.sin(np.pi * x[0]) * np.sin(np.pi * x[1]))
+    full = q.full_state(q.z0)
+    assert full.max() > 0.9 and np.all(full[q.fixed] == 0)
+    assert np.array_equal(example_7_2(4, z0=full).z0, q.z0)
+    assert np.array_equal(example_7_2(4, z0=q.z0).z0, q.z0)
+    assert np.all(example_7_2(4, z0=-0.5).z0 == -0.5)
+
+
+# -- bad inputs ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("n", [1, 0])
+def test_grid_smaller_than_2(n):
+    with pytest.raises(RotheInputError, match=rf"^n: got {n}, must be an integer >= 2$"):
+        example_7_2(n)
+
+
+def test_wrong_first_derivative():
+    with pytest.raises(RotheInputError,
+                       match=r"^dg: got .* at z = -2.31, must match finite differences of g "
+                             r"\(.*\); check the derivative you supplied$"):
+        FERISProblem(unit_square(4), g_7_2, lambda z: 192 * z * (1 - z * z), d2g_7_2,
+                     load=lambda t: -200 * t**3)
+
+
+def test_wrong_second_derivative():
+    with pytest.raises(RotheInputError, match=r"^d2g: got 2881\.59 at z = -2\.31, must match "
+                                              r"finite differences of dg \(2877\.59\)"):
+        # g = 48 (1 - z^2)^2 - 2 z^2 with the derivative right but g'' of the plain double well
+        FERISProblem(unit_square(4), lambda z: g_7_2(z) - 2 * z * z,
+                     lambda z: dg_7_2(z) - 4 * z, d2g_7_2, load=lambda t: -200 * t**3)
+
+
+def test_correct_piecewise_g_passes_and_nonvectorized_g_fails():
+    # |z|^3 has a continuous g'' with a kink at 0; the check points avoid round numbers
+    check_pointwise_derivatives(lambda z: np.abs(z) ** 3, lambda z: 3 * z * np.abs(z),
+                                lambda z: 6 * np.abs(z))
+    with pytest.raises(RotheInputError, match=r"^g: got an error on a numpy array \(TypeError"):
+        FERISProblem(unit_square(4), lambda z: math.exp(z), np.exp, np.exp, load=lambda t: 0.0)
+    with pytest.raises(RotheInputError, match=r"^dg: got a non-finite value at z = -2.31"):
+        check_pointwise_derivatives(np.exp, lambda z: np.where(z < -2, np.nan, np.exp(z)), np.exp)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_load_nan_or_inf(bad):
+    with pytest.raises(RotheInputError, match=r"^load\(t=0\.625\): got (nan|inf|-inf), must be "
+                                              r"finite \(no NaN or inf\)$"):
+        example_load = lambda t: bad if t > 0.6 else -200 * t**3  # noqa: E731
+        FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2, load=example_load)
+    vec = np.zeros(25)
+    vec[12] = bad  # an interior node
+    with pytest.raises(RotheInputError, match=r"^load\(t=0\): got .*, must be finite"):
+        FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2, load=lambda t: vec)
+
+
+def test_load_of_wrong_shape_or_raising():
+    with pytest.raises(RotheInputError, match=r"^load\(t=0\): got an array of shape \(3,\), "
+                                              r"must be a number \(density\) or one nodal "
+                                              r"functional per node \(25\)$"):
+        FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2, load=lambda t: np.ones(3))
+    with pytest.raises(RotheInputError, match=r"^load\(t=0\): got an error \(KeyError"):
+        FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2, load=lambda t: {}[t])
+
+
+def test_mesh_without_boundary_or_interior_nodes(tmp_path, gmsh_text):
+    # a physical group that names no facet of the mesh: no Dirichlet nodes
+    path = gmsh_text.write_msh22(tmp_path / "sq.msh", unit_square(4),
+                                 lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"))
+    text = path.read_text().replace('"rest"', '"rest"\n1 9 "hole"').replace("$PhysicalNames\n3",
+                                                                           "$PhysicalNames\n4")
+    path.write_text(text)
+    mesh = load_mesh(path)
+    with pytest.raises(RotheInputError, match=r"^dirichlet: got 'hole', must be one of left, rest"):
+        example_7_2(mesh=mesh, dirichlet=["hole"])
+    mesh = MeshTri(mesh.p, mesh.t, _boundaries={"left": mesh.boundaries["left"],
+                                                "hole": np.empty(0, dtype=np.int64)})
+    with pytest.raises(RotheInputError, match=r"^mesh: got a mesh with no nodes on boundary parts "
+                                              r"\['hole'\] \(25 nodes, 32 triangles\), homogeneous "
+                                              r"Dirichlet data needs at least one boundary node$"):
+        example_7_2(mesh=mesh, dirichlet=["hole"])
+    # every node on the boundary: nothing to compute
+    with pytest.raises(RotheInputError, match=r"^mesh: got a mesh whose 4 nodes all lie on the "
+                                              r"Dirichlet boundary, needs at least one interior"):
+        example_7_2(mesh=MeshTri())
+
+
+def test_z0_nonzero_on_the_boundary_and_bad_shapes():
+    full = np.ones(25)
+    with pytest.raises(RotheInputError, match=r"^z0: got values up to 1 on Dirichlet nodes, must "
+                                              r"vanish there \(homogeneous Dirichlet data\)$"):
+        example_7_2(4, z0=full)
+    with pytest.raises(RotheInputError, match=r"^z0: got an array of shape \(7,\)"):
+        example_7_2(4, z0=np.zeros(7))
+    with pytest.raises(RotheInputError, match=r"^z0: got nan, must be finite"):
+        example_7_2(4, z0=math.nan)
+
+
+def test_kappa_and_T_must_be_positive():
+    with pytest.raises(RotheInputError, match=r"^kappa: got 0, must be > 0$"):
+        example_7_2(4, kappa=0)
+    with pytest.raises(RotheInputError, match=r"^T: got -1, must be > 0$"):
+        example_7_2(4, T=-1)
