@@ -30,7 +30,13 @@ class RunFailed(RuntimeError):
         self.trajectory = trajectory
 
 
+class described(str):
+    """A value given as a description (printed without quotes), e.g. 'matrix of shape (2, 2)'."""
+
+
 def _fmt(value) -> str:
+    if isinstance(value, described):
+        return str(value)
     if isinstance(value, float):
         return f"{value:g}"
     return repr(value) if isinstance(value, str) else str(value)
@@ -85,7 +91,7 @@ def check_decreasing(name: str, values: Sequence[float]) -> list[float]:
     xs = [check_positive(name, v) for v in values]
     if len(xs) == 0:
         raise fail(name, list(values), "must hold at least one tolerance")
-    for a, b in zip(xs, xs[1:]):
+    for a, b in zip(xs, xs[1:], strict=False):
         if not b < a:
             raise fail(name, ",".join(_fmt(x) for x in xs), "must be strictly decreasing")
     return xs

@@ -20,9 +20,20 @@ from .common import (
 from .registry import command
 
 SUMMARY_KEYS = (
-    "example", "control", "tol", "accepted_steps", "rejected_steps", "inner_solves",
-    "newton_iterations", "t_final", "s_final", "max_residual", "sum_residual", "error_l2",
-    "error_linf", "wall_time_s",
+    "example",
+    "control",
+    "tol",
+    "accepted_steps",
+    "rejected_steps",
+    "inner_solves",
+    "newton_iterations",
+    "t_final",
+    "s_final",
+    "max_residual",
+    "sum_residual",
+    "error_l2",
+    "error_linf",
+    "wall_time_s",
 )
 
 
@@ -69,18 +80,41 @@ class RISRunBase:
         pass
 
     def configure(self, parser) -> None:
-        parser.add_argument("--control", default="adaptive",
-                            help="adaptive | uniform | nested | order2 (default adaptive)")
-        parser.add_argument("--tol", type=parse_float("--tol"), default=1e-4,
-                            help="residual tolerance of adaptive/order2 (default 1e-4)")
-        parser.add_argument("--tols", type=parse_float_list("--tols"), default=None,
-                            help="decreasing tolerances for --control nested (default 1e-3,1e-4,1e-5)")
-        parser.add_argument("--tau", type=parse_float("--tau"), default=None,
-                            help=f"fixed step (uniform) or first step (default {self.default_tau})")
-        parser.add_argument("--tau-min", type=parse_float("--tau-min"), default=1e-12,
-                            help="smallest step before the run stops with an error (default 1e-12)")
-        parser.add_argument("--simpson", type=int, default=8,
-                            help="Simpson subintervals for I1, I2 (even, default 8)")
+        parser.add_argument(
+            "--control",
+            default="adaptive",
+            help="adaptive | uniform | nested | order2 (default adaptive)",
+        )
+        parser.add_argument(
+            "--tol",
+            type=parse_float("--tol"),
+            default=1e-4,
+            help="residual tolerance of adaptive/order2 (default 1e-4)",
+        )
+        parser.add_argument(
+            "--tols",
+            type=parse_float_list("--tols"),
+            default=None,
+            help="decreasing tolerances for --control nested (default 1e-3,1e-4,1e-5)",
+        )
+        parser.add_argument(
+            "--tau",
+            type=parse_float("--tau"),
+            default=None,
+            help=f"fixed step (uniform) or first step (default {self.default_tau})",
+        )
+        parser.add_argument(
+            "--tau-min",
+            type=parse_float("--tau-min"),
+            default=1e-12,
+            help="smallest step before the run stops with an error (default 1e-12)",
+        )
+        parser.add_argument(
+            "--simpson",
+            type=int,
+            default=8,
+            help="Simpson subintervals for I1, I2 (even, default 8)",
+        )
         self.add_example_options(parser)
         add_output_options(parser, self.name)
 
@@ -97,6 +131,10 @@ class RISRunBase:
     def exact(self):
         return None
 
+    def inner_options(self, args):
+        """InnerOptions for the run (None: the solver's defaults)."""
+        return None
+
     # ------------------------------------------------------------------------------------------
     def validate(self, args):
         control = check_choice("--control", args.control, CONTROLS)
@@ -109,7 +147,9 @@ class RISRunBase:
         if control == "nested":
             tols = check_decreasing("--tols", args.tols or [1e-3, 1e-4, 1e-5])
         elif args.tols is not None:
-            raise fail("--tols", ",".join(map(str, args.tols)), "is only used with --control nested")
+            raise fail(
+                "--tols", ",".join(map(str, args.tols)), "is only used with --control nested"
+            )
         if args.simpson < 2 or args.simpson % 2:
             raise fail("--simpson", args.simpson, "must be an even integer >= 2")
         return control, tol, tau, tau_min, tols
@@ -119,18 +159,25 @@ class RISRunBase:
         problem = self.build_problem(args)
         out = output_dir(args, self.name)
         progress = not args.quiet
-        common = dict(tau=tau, tau_min=tau_min, simpson_subintervals=args.simpson,
-                      progress=progress)
+        common = dict(
+            tau=tau,
+            tau_min=tau_min,
+            simpson_subintervals=args.simpson,
+            progress=progress,
+            inner=self.inner_options(args),
+        )
         try:
             if control == "nested":
                 runs = run_nested(problem, tols, **common)
             else:
-                runs = [run_ris(problem, control, tol=None if control == "uniform" else tol,
-                                **common)]
+                runs = [
+                    run_ris(problem, control, tol=None if control == "uniform" else tol, **common)
+                ]
         except RunFailed as exc:
             traj = exc.trajectory
             if traj is not None:
-                traj.save_npz(out / "trajectory.npz")
+                traj.save_npz(out / "trajectory.npz", extra=self.npz_extra(problem))
+                self.write_extra(args, problem, traj, out)
                 summary = ris_summary(traj, self.name, self.extra_summary(args, problem, traj))
                 summary.update(status="failed", failure=str(exc), where=exc.where)
                 write_summary(out, summary)
@@ -195,8 +242,12 @@ class RunRIS1D(RISRunBase):
         return errors_against_exact(traj["s"], traj["t"], traj["z"])
 
 
-def compare_ris_1d(tols=(1e-3, 1e-4, 1e-5, 1e-6), taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001),
-                   tau0=0.1, controls=("adaptive", "order2")) -> list[dict]:
+def compare_ris_1d(
+    tols=(1e-3, 1e-4, 1e-5, 1e-6),
+    taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001),
+    tau0=0.1,
+    controls=("adaptive", "order2"),
+) -> list[dict]:
     """Run adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.1; one row each."""
     from ..problems.ris_1d import errors_against_exact, example_7_1
 
@@ -205,7 +256,9 @@ def compare_ris_1d(tols=(1e-3, 1e-4, 1e-5, 1e-6), taus=(0.1, 0.05, 0.02, 0.01, 0
     for control in controls:
         for tol in tols:
             traj = run_ris(problem, control, tol=tol, tau=tau0)
-            rows.append(ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"])))
+            rows.append(
+                ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
+            )
     for tau in taus:
         traj = run_ris(problem, "uniform", tol=None, tau=tau)
         row = ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
@@ -224,18 +277,26 @@ def uniform_work_at_error(rows, key="error_linf"):
 
 
 def format_table(rows, work_fit=None) -> str:
-    head = (f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
-            f"{'L2 err':>9} {'Linf err':>9} {'seconds':>8}")
+    head = (
+        f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
+        f"{'L2 err':>9} {'Linf err':>9} {'seconds':>8}"
+    )
     if work_fit is not None:
         head += f" {'solves/uniform@Linf':>20}"
     lines = [head, "-" * len(head)]
     for r in rows:
         par = r["tau0"] if r["control"] == "uniform" else r["tol"]
-        line = (f"{r['control']:<9} {par:>8.0e} {r['accepted_steps']:>8d} {r['rejected_steps']:>8d} "
-                f"{r['inner_solves']:>7d} {r['error_l2']:>9.2e} {r['error_linf']:>9.2e} "
-                f"{r['wall_time_s']:>8.3f}")
+        line = (
+            f"{r['control']:<9} {par:>8.0e} {r['accepted_steps']:>8d} {r['rejected_steps']:>8d} "
+            f"{r['inner_solves']:>7d} {r['error_l2']:>9.2e} {r['error_linf']:>9.2e} "
+            f"{r['wall_time_s']:>8.3f}"
+        )
         if work_fit is not None:
-            ratio = r["inner_solves"] / work_fit(r["error_linf"]) if r["control"] != "uniform" else math.nan
+            ratio = (
+                r["inner_solves"] / work_fit(r["error_linf"])
+                if r["control"] != "uniform"
+                else math.nan
+            )
             line += f" {ratio:>20.2f}" if math.isfinite(ratio) else f" {'':>20}"
         lines.append(line)
     return "\n".join(lines)
@@ -246,9 +307,14 @@ class CompareRIS1D:
     help = "Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2 vs uniform (Ex. 7.1)"
 
     def configure(self, parser) -> None:
-        parser.add_argument("--tols", type=parse_float_list("--tols"), default=[1e-3, 1e-4, 1e-5, 1e-6])
-        parser.add_argument("--taus", type=parse_float_list("--taus"),
-                            default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001])
+        parser.add_argument(
+            "--tols", type=parse_float_list("--tols"), default=[1e-3, 1e-4, 1e-5, 1e-6]
+        )
+        parser.add_argument(
+            "--taus",
+            type=parse_float_list("--taus"),
+            default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001],
+        )
         add_output_options(parser, "compare-ris-1d")
 
     def execute(self, args) -> int:
@@ -265,8 +331,11 @@ class CompareRIS1D:
         if not args.no_plots:
             from ..plotting.ris import plot_error_vs_work
 
-            plot_error_vs_work(rows, out / "fig3_error_vs_steps.png",
-                               title="Example 7.1: error against number of steps")
+            plot_error_vs_work(
+                rows,
+                out / "fig3_error_vs_steps.png",
+                title="Example 7.1: error against number of steps",
+            )
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")

@@ -156,7 +156,7 @@ class Order2Controller(StepController):
 
     name = "order2"
 
-    def __init__(self, tol, tau0, tau_min=1e-12, tau_max=math.inf, safety: float = 0.8):
+    def __init__(self, tol, tau0, tau_min=1e-12, tau_max=math.inf, safety: float = 0.9):
         super().__init__(tau0, tau_min, tau_max)
         self.tol = check_positive("tol", tol)
         self.safety = check_positive("safety", safety)

@@ -6,7 +6,8 @@ dt = t_k - t_{k-1}; hence t^' = dt / tau and z^' = d / tau are constant, and
 
     I_1^k = int t^'(s) dist(-D_z I(t^, z^)) ds
           = dt * int_0^1 dist(theta) dtheta,                                             (3.3)
-    I_2^k = int <D_z I(t^, z^) - D_z I(t_{k-1}, z_k), z^'> + ||z^'||_V (dist(t^, z^) - dist(t_{k-1}, z_k)) ds
+    I_2^k = int <D_z I(t^, z^) - D_z I(t_{k-1}, z_k), z^'>
+            + ||z^'||_V (dist(t^, z^) - dist(t_{k-1}, z_k)) ds
           = int_0^1 <D_z I(theta) - gbar, d> + ||d||_V (dist(theta) - distbar) dtheta,   (3.4)
 
 with gbar = D_z I(t_{k-1}, z_k) (the gradient at the inner solution) and distbar its distance.
@@ -50,7 +51,7 @@ def simpson_weights(n: int) -> np.ndarray:
 
 
 def _coarse_weights(n: int) -> np.ndarray:
-    """Weights on the same n+1 points of the embedded rule (Simpson on even points, or trapezoid)."""
+    """Weights of the embedded rule on the same n+1 points (Simpson on even points or trapezoid)."""
     w = np.zeros(n + 1)
     if n % 4 == 0:
         w[::2] = simpson_weights(n // 2)

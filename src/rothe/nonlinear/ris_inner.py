@@ -61,7 +61,7 @@ class InnerOptions:
 
     atol: float = 1e-10
     rtol: float = 1e-10
-    max_iter: int = 60
+    max_iter: int = 100
     max_fb_backtracks: int = 60
     linear_solver: str = "auto"
     amg_threshold: int = 150_000
@@ -218,7 +218,9 @@ class BallStepSolver:
 
     def _hess_diag(self, z, hess_F):
         if sp.issparse(hess_F) or np.ndim(hess_F) == 2:
-            return self.p.A_diag + np.asarray(hess_F.diagonal() if sp.issparse(hess_F) else np.diag(hess_F))
+            return self.p.A_diag + np.asarray(
+                hess_F.diagonal() if sp.issparse(hess_F) else np.diag(hess_F)
+            )
         return self.p.A_diag + hess_F
 
     def _convexifying_shift(self, z) -> float:
@@ -241,9 +243,7 @@ class BallStepSolver:
         p = self.p
         scale = p.norm_Vinv(p.r) + p.norm_Vinv(g)
         # round-off floor of evaluating g (sum of absolute contributions), in the V^-1 norm
-        floor_terms = (
-            (self._absA @ np.abs(z)) + np.abs(p.dF(z)) + np.abs(p.load(t)) + np.abs(g)
-        )
+        floor_terms = (self._absA @ np.abs(z)) + np.abs(p.dF(z)) + np.abs(p.load(t)) + np.abs(g)
         floor = 64 * _EPS * p.norm_Vinv(floor_terms)
         tol = max(self.o.atol + self.o.rtol * scale, floor)
         st = InnerState(
@@ -337,7 +337,9 @@ class BallStepSolver:
                 pvec, qvec = self.linear.solve(K, [b, w], rtol=self._lin_rtol(st))
                 nd = p.norm_V(d)
                 wq = float(w @ qvec)
-                if not np.isfinite(wq) or abs(wq) <= 1e-14 * max(float(w @ w) / max(Dg.max(), 1e-300), 1e-300):
+                if not np.isfinite(wq) or abs(wq) <= 1e-14 * max(
+                    float(w @ w) / max(Dg.max(), 1e-300), 1e-300
+                ):
                     return False
                 mI = float((p.m * dI * dI).sum())
                 dlam = (float(w @ pvec) - mI - nd * (tau - nd)) / wq
@@ -386,7 +388,9 @@ class BallStepSolver:
                 z, Az, g, J = self._evaluate(st.t, st.zprev, trial)
                 if not np.isfinite(J):
                     continue
-                if J < st.J and J <= st.J - 1e-4 * alpha * max(pred, 0.0):
+                # a real predicted decrease is required: a step that only "decreases" J by
+                # round-off (e.g. a Newton step cancelled by the orthant projection) is a stall
+                if pred > noise and J < st.J and J <= st.J - 1e-4 * alpha * pred:
                     self._accept(st, trial, z, Az, g, J)
                     return True
                 if abs(J - st.J) <= noise:

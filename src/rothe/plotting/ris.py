@@ -84,13 +84,19 @@ def plot_error_vs_work(rows, path, title="") -> Path:
         rs = sorted(rs, key=lambda r: r["inner_solves"])
         solves = [r["inner_solves"] for r in rs]
         acc = [r["accepted_steps"] for r in rs]
-        for ax, key in zip(axes, ("error_l2", "error_linf")):
+        for ax, key in zip(axes, ("error_l2", "error_linf"), strict=False):
             err = [r[key] for r in rs]
             (line,) = ax.loglog(solves, err, "-" + styles.get(name, "x"), label=f"{name} (solves)")
             if name != "uniform":
-                ax.loglog(acc, err, ":" + styles.get(name, "x"), mfc="none",
-                          color=line.get_color(), label=f"{name} (accepted)")
-    for ax, lab in zip(axes, ("L2 error", "L-infinity error")):
+                ax.loglog(
+                    acc,
+                    err,
+                    ":" + styles.get(name, "x"),
+                    mfc="none",
+                    color=line.get_color(),
+                    label=f"{name} (accepted)",
+                )
+    for ax, lab in zip(axes, ("L2 error", "L-infinity error"), strict=False):
         ax.set_xlabel("number of steps")
         ax.set_ylabel(lab)
         ax.grid(alpha=0.3, which="both")

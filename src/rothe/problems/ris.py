@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import RotheInputError, check_finite_array, check_positive, fail
+from ..errors import RotheInputError, check_finite_array, check_positive, described, fail
 
 ArrayFn = Callable[[np.ndarray], np.ndarray]
 
@@ -78,7 +78,7 @@ class RISProblem:
         self.T = check_positive("T", T)
         z0 = check_finite_array("z0", np.atleast_1d(np.asarray(z0, dtype=float)))
         if z0.ndim != 1:
-            raise fail("z0", f"array of shape {z0.shape}", "must be a 1-D vector")
+            raise fail("z0", described(f"array of shape {z0.shape}"), "must be a 1-D vector")
         n = z0.size
         self.n = n
         self.z0 = z0.copy()
@@ -98,9 +98,13 @@ class RISProblem:
             asym = np.max(np.abs(A - A.T)) if A.size else 0.0
             scale = np.max(np.abs(A)) if A.size else 1.0
         if A.shape != (n, n):
-            raise fail("A", f"matrix of shape {A.shape}", f"must have shape ({n}, {n}) like z0")
+            raise fail(
+                "A", described(f"matrix of shape {A.shape}"), f"must have shape ({n}, {n}) like z0"
+            )
         if asym > 1e-10 * max(scale, 1e-300):
-            raise fail("A", f"a matrix with max|A - A^T| = {asym:.3g}", "must be symmetric")
+            raise fail(
+                "A", described(f"a matrix with max|A - A^T| = {asym:.3g}"), "must be symmetric"
+            )
         self.A = A
         self.sparse = sp.issparse(A)
         self.A_diag = np.asarray(A.diagonal(), dtype=float).copy()
@@ -195,7 +199,7 @@ class RISProblem:
             ):
                 ex = exact()
                 if not np.all(np.isfinite(ex)):
-                    raise fail(label, "a non-finite value", "must be finite")
+                    raise fail(label, described("a non-finite value"), "must be finite")
                 ok = False
                 for h in (1e-5 * scale, 1e-7 * scale):
                     num = numeric(z, v, h)

@@ -34,7 +34,9 @@ def _progress_bar(enabled: bool):
     except ImportError:  # pragma: no cover - tqdm is a dependency
         return None
     # delay: runs shorter than about a second never show a bar
-    return tqdm(total=None, file=sys.stderr, delay=1.0, unit="step", leave=False, dynamic_ncols=True)
+    return tqdm(
+        total=None, file=sys.stderr, delay=1.0, unit="step", leave=False, dynamic_ncols=True
+    )
 
 
 def evolve(
@@ -113,6 +115,11 @@ def evolve(
 
 def _count(stats, result) -> None:
     stats.inner_solves += 1
-    for key in ("newton_iterations", "fb_steps", "linear_factorizations", "linear_solves",
-                "krylov_iterations"):
+    for key in (
+        "newton_iterations",
+        "fb_steps",
+        "linear_factorizations",
+        "linear_solves",
+        "krylov_iterations",
+    ):
         setattr(stats, key, getattr(stats, key) + int(result.counters.get(key, 0)))

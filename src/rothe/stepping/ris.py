@@ -199,8 +199,9 @@ class RISStepper:
     def where(self, state: RISState, result: RISStepResult | None) -> dict:
         info = {"step": state.k + 1, "s": state.s, "t": state.t}
         if result is not None:
-            info.update(tau=result.tau, I1=result.I1, I2=result.I2, code=result.code,
-                        kkt=result.kkt)
+            info.update(
+                tau=result.tau, I1=result.I1, I2=result.I2, code=result.code, kkt=result.kkt
+            )
         return info
 
     def progress_fields(self, state: RISState) -> dict:
@@ -209,7 +210,9 @@ class RISStepper:
 
 def initial_trajectory(problem: RISProblem, meta: dict | None = None) -> Trajectory:
     traj = Trajectory(meta=meta)
-    traj.append(s=0.0, t=0.0, z=problem.full_state(problem.z0), energy=problem.energy(0.0, problem.z0))
+    traj.append(
+        s=0.0, t=0.0, z=problem.full_state(problem.z0), energy=problem.energy(0.0, problem.z0)
+    )
     return traj
 
 

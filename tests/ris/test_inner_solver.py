@@ -1,0 +1,112 @@
+"""The inner step (3.1)+(3.2) on random non-convex problems; Lemma 4.1 checked independently."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rothe import BallStepSolver, InnerOptions, RISProblem
+
+
+def random_problem(seed, n, sparse=False, coupled_F=False):
+    rng = np.random.default_rng(seed)
+    B = rng.standard_normal((n, n))
+    A = B @ B.T / n + 0.3 * np.eye(n)
+    a = rng.uniform(0.5, 4.0, n)  # double-well depths: F is non-convex
+    C = 0.5 * rng.standard_normal((n, n)) / n
+    C = C + C.T
+    if coupled_F:
+        F = lambda z: float(a @ (1 - z**2) ** 2 + 0.5 * z @ C @ z)  # noqa: E731
+        dF = lambda z: -4 * a * z * (1 - z**2) + C @ z  # noqa: E731
+        d2F = lambda z: np.diag(a * (12 * z**2 - 4)) + C  # noqa: E731
+    else:
+        F = lambda z: float(a @ (1 - z**2) ** 2)  # noqa: E731
+        dF = lambda z: -4 * a * z * (1 - z**2)  # noqa: E731
+        d2F = lambda z: a * (12 * z**2 - 4)  # noqa: E731
+    b0, b1 = rng.standard_normal(n), 3 * rng.standard_normal(n)
+    problem = RISProblem(
+        sp.csr_matrix(A) if sparse else A,
+        F,
+        dF,
+        d2F,
+        load=lambda t: b0 + b1 * t,
+        dissipation_weights=rng.uniform(0.1, 2.0, n),
+        metric_weights=rng.uniform(0.2, 2.0, n),
+        z0=rng.uniform(-1.5, 1.5, n),
+        T=1.0,
+    )
+    return problem, rng
+
+
+def independent_kkt(problem, t, zprev, res, tau):
+    """Residuals of (4.1)-(4.4) computed from scratch (not with the solver's helpers)."""
+    d = res.z - zprev
+    g = problem.A @ res.z + problem.dF(res.z) - problem.load(t)
+    r, m, lam = problem.r, problem.m, res.lam
+    moving = d != 0
+    w = np.where(moving, g + r * np.sign(d) + lam * m * d, np.maximum(np.abs(g) - r, 0))
+    stat = np.sqrt(np.sum(w**2 / m))
+    nd = np.sqrt(m @ d**2)
+    dist = np.sqrt(np.sum(np.maximum(np.abs(g) - r, 0) ** 2 / m))
+    return stat, nd, dist, g, d
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 10**6),
+    n=st.integers(1, 9),
+    tau=st.floats(1e-3, 3.0),
+    t=st.floats(0.0, 1.0),
+    sparse=st.booleans(),
+    coupled=st.booleans(),
+)
+def test_every_step_satisfies_lemma_4_1(seed, n, tau, t, sparse, coupled):
+    problem, rng = random_problem(seed, n, sparse, coupled)
+    zprev = rng.uniform(-1.5, 1.5, n)
+    solver = BallStepSolver(problem, InnerOptions(atol=1e-10, rtol=1e-10))
+    res = solver.solve(t, zprev, tau)
+    assert res.converged, res.code
+    stat, nd, dist, g, d = independent_kkt(problem, t, zprev, res, tau)
+    assert stat <= 1e-8
+    assert res.lam >= 0.0
+    assert nd <= tau * (1 + 1e-12)
+    if nd < tau * (1 - 1e-9):
+        assert res.lam == 0.0  # (4.1): an interior step has no multiplier
+    # (4.2): tau * dist(-DI) = lam ||d||^2 and (4.3): R(d) + tau dist = <-DI, d>
+    scale = 1.0 + abs(g @ d) + tau * dist
+    assert abs(tau * dist - res.lam * nd**2) <= 1e-7 * scale
+    assert abs(problem.dissipation(d) + tau * dist + g @ d) <= 1e-7 * scale
+    # (3.2): the step never increases I(t, .) + R(. - zprev)
+    J = problem.energy(t, res.z) + problem.dissipation(d)
+    assert J <= problem.energy(t, zprev) + 1e-12 * (1 + abs(J))
+
+
+def test_sticking_step_costs_no_linear_solve():
+    """If |D_z I(t, z_prev)| <= r componentwise, z_prev itself is the answer (d = 0)."""
+    problem, rng = random_problem(3, 5)
+    zprev = problem.z0.copy()
+    g = problem.gradient(0.0, zprev)
+    problem.r[:] = np.abs(g) + 0.1
+    solver = BallStepSolver(problem)
+    res = solver.solve(0.0, zprev, 0.5)
+    assert res.converged and res.iterations == 0
+    assert np.array_equal(res.z, zprev) and res.lam == 0.0
+    assert solver.linear.stats.factorizations == 0
+
+
+def test_viscous_jump_lands_on_sphere_with_positive_multiplier():
+    """Ex. 7.1 at t = 2.2, z = -2: no stable state nearby, so the step is a jump of length tau."""
+    from rothe.problems.ris_1d import example_7_1
+
+    problem = example_7_1()
+    solver = BallStepSolver(problem)
+    for tau in (1e-3, 0.1, 1.0, 3.0):
+        res = solver.solve(2.2, np.array([-2.0]), tau)
+        assert res.converged
+        assert res.d[0] == pytest.approx(tau, rel=1e-12)
+        # stationarity on the sphere: -DI(2.2, z) - 1 = lam * d  with DI = z - 3.2 + p'(z)
+        z = res.z[0]
+        grad = z - 3.2 + problem.dF(res.z)[0]
+        assert res.lam == pytest.approx((-grad - 1.0) / tau, rel=1e-9)
+        assert res.lam > 0
