@@ -1,0 +1,288 @@
+"""CLI commands for finite-element RIS: ``run ris-2d``, ``run ris-3d``, ``compare ris-2d``.
+
+``run ris-2d`` is Example 7.2 of Andreia & Meyer (2022) on an N x N grid of the unit square
+(default N = 40: 1681 nodes) or on any 2D mesh file; ``run ris-3d`` the same energy on the unit
+cube or a 3D mesh file. Besides the foundation outputs (summary.json, trajectory.npz, figures)
+they write the mesh into trajectory.npz (``nodes``, ``cells``), ``solution.xdmf`` + ``.h5`` (z
+over s, for ParaView), the Fig. 4 analogue and snapshots of z. ``compare ris-2d`` draws Fig. 5.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import check_choice, check_int, check_positive, fail
+from .common import (
+    add_output_options,
+    output_dir,
+    parse_float,
+    parse_float_list,
+    peak_memory_mb,
+    write_summary,
+)
+from .registry import command
+from .ris_commands import RISRunBase, ris_summary
+
+LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa+gmres"}
+
+
+def linear_solver_used(traj, problem, method: str = "auto") -> str:
+    """The linear solver of the run's Newton systems.
+
+    Taken from ``traj.meta['linear_solver']`` when the stepper records it; otherwise the kind
+    that :class:`~rothe.nonlinear.linear.ReusableSolver` selects for this many unknowns (its
+    choice is a deterministic function of the method and the size, so this is what ran).
+    """
+    if traj.meta.get("linear_solver"):
+        return str(traj.meta["linear_solver"])
+    from ..nonlinear.linear import ReusableSolver
+    from ..nonlinear.ris_inner import InnerOptions
+
+    o = InnerOptions(linear_solver=method)
+    kind = ReusableSolver(o.linear_solver, amg_threshold=o.amg_threshold).resolve_kind(problem.n)
+    return LINEAR_KINDS[kind]
+
+
+class _RunRISFem(RISRunBase):
+    dim = 2
+    default_tau = 0.1
+    default_n = 40
+
+    def add_example_options(self, parser) -> None:
+        what = "N x N cells of the unit square" if self.dim == 2 else "N^3 cubes of the unit cube"
+        parser.add_argument("--n", type=int, default=None,
+                            help=f"grid of {what} (default {self.default_n})")
+        parser.add_argument("--mesh", default=None,
+                            help="mesh file instead of the grid: anything meshio reads (gmsh .msh "
+                                 "2.2/4.x, .vtu, .xdmf, ...), "
+                                 + ("triangle" if self.dim == 2 else "tetra") + " cells")
+        parser.add_argument("--dirichlet", default=None,
+                            help="comma-separated boundary parts (gmsh physical groups, or left,"
+                                 "right,bottom,top" + (",front,back" if self.dim == 3 else "")
+                                 + " on the grid) where z = 0; default: the whole boundary")
+        parser.add_argument("--z0", type=parse_float("--z0"), default=0.0,
+                            help="initial state at every interior node (default 0)")
+        parser.add_argument("--amplitude", type=parse_float("--amplitude"), default=-200.0,
+                            help="load <l(t), z> = A t^3 int z (default A = -200; its sign picks "
+                                 "the branch z < 0 or z > 0)")
+        parser.add_argument("--linear-solver", default="auto",
+                            help="auto | direct | amg: solver of the Newton systems (default auto: "
+                                 "sparse LU up to 150k unknowns, AMG-preconditioned Krylov above)")
+
+    # hooks -----------------------------------------------------------------------------------
+    def build_problem(self, args):
+        from ..fem.mesh import load_mesh
+        from ..nonlinear.linear import LINEAR_SOLVERS
+        from ..problems.ris_fem import example_7_2, example_7_2_3d
+
+        check_choice("--linear-solver", args.linear_solver, LINEAR_SOLVERS)
+        if args.mesh is not None and args.n is not None:
+            raise fail("--n", args.n, "cannot be combined with --mesh (the mesh fixes the grid)")
+        n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
+        mesh = load_mesh(args.mesh, dim=self.dim) if args.mesh is not None else None
+        dirichlet = None
+        if args.dirichlet is not None:
+            dirichlet = [x.strip() for x in args.dirichlet.split(",") if x.strip()]
+        factory = example_7_2 if self.dim == 2 else example_7_2_3d
+        t0 = time.perf_counter()
+        problem = factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
+        self._setup_time = time.perf_counter() - t0
+        self._grid = None if mesh is not None else n
+        return problem
+
+    def inner_options(self, args):
+        from ..nonlinear.ris_inner import InnerOptions
+
+        return InnerOptions(linear_solver=args.linear_solver)
+
+    def extra_summary(self, args, problem, traj) -> dict:
+        from ..problems.ris_fem import describe_branch
+
+        extra = {
+            "mesh": args.mesh if args.mesh is not None else f"{self._grid}^{self.dim} grid",
+            "n_nodes": problem.n_nodes,
+            "n_cells": int(problem.mesh.t.shape[1]),
+            "n_unknowns": problem.n,
+            "linear_solver": linear_solver_used(traj, problem, args.linear_solver),
+            "setup_time_s": getattr(self, "_setup_time", None),
+            "peak_memory_mb": peak_memory_mb(),
+            "z0": args.z0,
+            "amplitude": args.amplitude,
+        }
+        extra.update(describe_branch(problem, traj))
+        return extra
+
+    def summary_keys_extra(self):
+        return ("n_nodes", "energy_final", "z_min", "z_max", "n_viscous_jumps", "branch",
+                "linear_solver", "peak_memory_mb")
+
+    def npz_extra(self, problem) -> dict:
+        return {"nodes": problem.nodes, "cells": problem.cells}
+
+    def write_extra(self, args, problem, traj, out) -> None:
+        from ..io.xdmf import write_series
+
+        write_series(out / "solution.xdmf", problem.nodes, problem.cells, traj["s"],
+                     {"z": traj["z"]}, {"t": traj["t"]})
+
+    def plot(self, args, problem, runs, out) -> None:
+        from ..plotting.ris import plot_path
+        from ..plotting.ris_fem import plot_fig4, plot_snapshots
+
+        traj = runs[-1]
+        label = f"{self.name}, {problem.n_nodes} nodes, {traj.meta.get('control')}"
+        if traj.meta.get("tol") is not None and traj.meta.get("control") != "uniform":
+            label += f", tol={traj.meta['tol']:g}"
+        plot_fig4(runs, out / "fig4_steps.png", title=f"{self.name}: physical time and step size")
+        plot_path(traj, out / "fig1_path.png", title=label)
+        plot_snapshots(problem.nodes, problem.cells, traj["s"], traj["t"], traj["z"],
+                       out / "fig_snapshots.png", title=label)
+
+
+@command("run", "ris-2d")
+class RunRIS2D(_RunRISFem):
+    help = ("Example 7.2 of Andreia & Meyer (2022): P1 finite elements on the unit square "
+            "(N x N grid, default 40: 1681 nodes) or a mesh file")
+    name = "ris-2d"
+    dim = 2
+    default_n = 40
+
+
+@command("run", "ris-3d")
+class RunRIS3D(_RunRISFem):
+    help = ("The energy of Example 7.2 on the unit cube (P1 tetrahedra, N^3 cubes, default 12) "
+            "or a 3D mesh file")
+    name = "ris-3d"
+    dim = 3
+    default_n = 12
+
+
+# -- compare ris-2d (Fig. 5) --------------------------------------------------------------------
+
+def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=(0.02, 0.01, 0.005, 0.0025),
+                   tau0: float = 0.1, controls=("adaptive", "order2"), mesh=None,
+                   progress: bool = False) -> list[dict]:
+    """Adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.2; one row each."""
+    from ..errors import RunFailed
+    from ..problems.ris_fem import describe_branch, example_7_2
+    from ..stepping.ris import run_ris
+
+    problem = example_7_2(n, mesh)
+    runs = [(c, tol, tau0) for c in controls for tol in tols] + [("uniform", None, t) for t in taus]
+    rows = []
+    for control, tol, tau in runs:
+        try:
+            traj = run_ris(problem, control, tol=tol, tau=tau, progress=progress)
+            status = "completed"
+        except RunFailed as exc:  # keep the table: a failed run is a row with its status
+            traj, status = exc.trajectory, f"failed: {exc}"
+        row = ris_summary(traj, "ris-2d", describe_branch(problem, traj))
+        row.update(tau0=tau, status=status, n_nodes=problem.n_nodes)
+        rows.append(row)
+    return rows
+
+
+def uniform_steps_at_residual(rows, key: str = "sum_residual"):
+    """Fit log(accepted steps) = a + b log(residual) over the uniform rows; returns a callable."""
+    u = [r for r in rows if r["control"] == "uniform" and r["status"] == "completed"
+         and r[key] > 0]
+    if len(u) < 2:
+        return None
+    x = np.log([r[key] for r in u])
+    y = np.log([r["accepted_steps"] for r in u])
+    b, a = np.polyfit(x, y, 1)
+    return lambda res: float(np.exp(a + b * np.log(res)))
+
+
+def format_table(rows, fit=None) -> str:
+    head = (f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
+            f"{'newton':>7} {'max_k(I1+I2)':>12} {'sum_k(I1+I2)':>12} {'energy':>10} "
+            f"{'z_min':>8} {'z_max':>8} {'jumps':>5} {'seconds':>8}")
+    if fit is not None:
+        head += f" {'acc/unif':>8} {'solves/unif':>11}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        par = r["tau0"] if r["control"] == "uniform" else r["tol"]
+        line = (f"{r['control']:<9} {par:>8.0e} {r['accepted_steps']:>8d} "
+                f"{r['rejected_steps']:>8d} {r['inner_solves']:>7d} {r['newton_iterations']:>7d} "
+                f"{r['max_residual']:>12.3e} {r['sum_residual']:>12.3e} "
+                f"{r['energy_final']:>10.4f} {r['z_min']:>8.4f} {r['z_max']:>8.4f} "
+                f"{r['n_viscous_jumps']:>5d} {r['wall_time_s']:>8.2f}")
+        if fit is not None and r["control"] != "uniform" and r["sum_residual"] > 0:
+            nu = fit(r["sum_residual"])
+            line += f" {r['accepted_steps'] / nu:>8.2f} {r['inner_solves'] / nu:>11.2f}"
+        if r["status"] != "completed":
+            line += "  " + r["status"]
+        lines.append(line)
+    if fit is not None:
+        lines.append("")
+        lines.append("acc/unif, solves/unif: accepted steps (inner solves) of the run divided by "
+                     "the accepted steps the uniform scheme needs for the same global residual "
+                     "sum_k(I1+I2) (log-log fit over the uniform rows)")
+    return "\n".join(lines)
+
+
+@command("compare", "ris-2d")
+class CompareRIS2D:
+    help = ("Fig. 5 of Andreia & Meyer: local and global residual against steps, adaptive/order2 "
+            "vs uniform (Example 7.2)")
+
+    def configure(self, parser) -> None:
+        parser.add_argument("--n", type=int, default=40, help="N x N grid (default 40: 1681 nodes)")
+        parser.add_argument("--mesh", default=None, help="2D mesh file instead of the grid")
+        parser.add_argument("--tols", type=parse_float_list("--tols"), default=[1e-4, 1e-5, 1e-6],
+                            help="tolerances of adaptive and order2 (default 1e-4,1e-5,1e-6)")
+        parser.add_argument("--taus", type=parse_float_list("--taus"),
+                            default=[0.02, 0.01, 0.005, 0.0025],
+                            help="steps of the uniform scheme (default 0.02,0.01,0.005,0.0025)")
+        parser.add_argument("--controls", default="adaptive,order2",
+                            help="step controllers besides uniform (default adaptive,order2)")
+        parser.add_argument("--tau", type=parse_float("--tau"), default=0.1,
+                            help="first step of adaptive/order2 (default 0.1)")
+        add_output_options(parser, "compare-ris-2d")
+
+    def execute(self, args) -> int:
+        from ..fem.mesh import load_mesh
+
+        tols = [check_positive("--tols", x) for x in args.tols]
+        taus = [check_positive("--taus", x) for x in args.taus]
+        tau0 = check_positive("--tau", args.tau)
+        if len(taus) < 2:
+            raise fail("--taus", ",".join(map(str, taus)), "needs at least two step sizes")
+        controls = [c.strip() for c in args.controls.split(",") if c.strip()]
+        for c in controls:
+            check_choice("--controls", c, ("adaptive", "order2"))
+        if args.mesh is not None and args.n != 40:
+            raise fail("--n", args.n, "cannot be combined with --mesh")
+        n = check_int("--n", args.n, minimum=2)
+        mesh = load_mesh(args.mesh, dim=2) if args.mesh is not None else None
+        out = output_dir(args, "compare-ris-2d")
+        t0 = time.perf_counter()
+        rows = compare_ris_2d(n, tols, taus, tau0, tuple(controls), mesh,
+                              progress=not args.quiet)
+        fit = uniform_steps_at_residual(rows)
+        table = format_table(rows, fit)
+        (out / "table.txt").write_text(table + "\n")
+        summary = {"example": "ris-2d", "n_nodes": rows[0]["n_nodes"], "rows": rows,
+                   "wall_time_s": time.perf_counter() - t0, "peak_memory_mb": peak_memory_mb()}
+        if fit is not None:
+            for r in rows:
+                if r["control"] != "uniform" and r["sum_residual"] > 0:
+                    r["uniform_steps_same_residual"] = fit(r["sum_residual"])
+        write_summary(out, summary)
+        if not args.no_plots:
+            from ..plotting.ris import plot_residual_vs_steps
+
+            plot_residual_vs_steps(
+                [r for r in rows if r["status"] == "completed"], out / "fig5_residuals.png",
+                title=f"Example 7.2 ({rows[0]['n_nodes']} nodes): residuals against steps")
+        if not args.quiet:
+            print(table)
+            print(f"wrote {out}/")
+        return 0 if all(r["status"] == "completed" for r in rows) else 1
+
+
+__all__ = ["RunRIS2D", "RunRIS3D", "CompareRIS2D", "compare_ris_2d", "format_table",
+           "linear_solver_used", "uniform_steps_at_residual"]
