@@ -69,7 +69,11 @@ def test_lemma_5_3_residuals_are_order_tau_squared():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_lemma_4_12_on_random_nonconvex_runs(seed):
-    """Every accepted step: I1 >= 0 and I2 >= -(embedded Simpson error estimate)."""
+    """Every accepted step: I1 >= 0 and I2 >= -(Simpson error estimate) - kkt * ||d||_V.
+
+    Lemma 4.12 assumes exact stationarity; a KKT defect w of the inner solve shifts the discrete
+    energy identity by <w, d> <= ||w||_{V^-1} ||d||_V, so that is the solver's share of the bound.
+    """
     rng = np.random.default_rng(seed)
     n = 5
     B = rng.standard_normal((n, n))
@@ -89,7 +93,7 @@ def test_lemma_4_12_on_random_nonconvex_runs(seed):
     traj = run_ris(problem, "adaptive", tol=1e-5, tau=0.05)
     assert len(traj) > 10
     assert np.all(traj["I1"] >= 0)
-    assert np.all(traj["I2"] >= -traj["I2_err"] - 1e-14)
+    assert np.all(traj["I2"] >= -traj["I2_err"] - traj["kkt"] * traj["step_norm"] - 1e-15)
     assert np.all(traj["descent"] >= -1e-12)
 
 

@@ -50,6 +50,7 @@ class RISStepResult:
     J_start: float
     J_final: float
     energy: float  # I(t_k, z_k)
+    step_norm: float = 0.0  # ||z_k - z_{k-1}||_V
     counters: dict = field(default_factory=dict)
 
     @property
@@ -174,6 +175,7 @@ class RISStepper:
             J_start=res.J_start,
             J_final=res.J_final,
             energy=energy,
+            step_norm=nd,
             counters=counters,
         )
 
@@ -193,6 +195,7 @@ class RISStepper:
             kkt=result.kkt,
             kkt_tol=result.kkt_tol,
             descent=result.J_start - result.J_final,
+            step_norm=result.step_norm,
             newton_iterations=result.counters.get("newton_iterations", 0),
         )
 
