@@ -1,0 +1,55 @@
+"""Elastodynamics as an operator DAE, discretized in time first (Altmann 2015).
+
+    rho u'' + D(u') + K u + B* lambda = F,   B u = G      (2.7, original, index 3)
+    u = u1 + u2, B u2 = G, B v2 = G', B w2 = G'',
+    rho (u1'' + w2) + D(u1' + v2) + K (u1 + u2) + B* lambda = F   (2.8, regularized, index 1)
+
+Implicit Euler (3.4) in both forms (:func:`run_eld`), on vector P1/P2 elements
+(:class:`rothe.fem.elasticity.VectorSpace`), with Dirichlet data enforced weakly by a Lagrange
+multiplier (the boundary reaction), linear or nonlinear damping with the constants of (2.5), the
+step bound of Lemma 3.2, energy bookkeeping, and the perturbation behaviour of Theorem 4.5.
+"""
+
+from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
+from .damping import (
+    Damping,
+    DampingConstants,
+    NoDamping,
+    NonlinearDamping,
+    RayleighDamping,
+    UserDamping,
+    make_damping,
+)
+from .data import DataNoise, StepData
+from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem
+from .materials import Material
+from .problem import DirichletData, ELDProblem
+from .schemes import ELDStepper, NewtonOptions, run_eld
+from .studies import convergence_study, perturbation_study
+
+__all__ = [
+    "Damping",
+    "DampingConstants",
+    "DataNoise",
+    "DirichletConstraint",
+    "DirichletData",
+    "ELDProblem",
+    "ELDStepper",
+    "HarmonicLifting",
+    "ManufacturedSolution",
+    "Material",
+    "NewtonOptions",
+    "NoDamping",
+    "NodalLifting",
+    "NonlinearDamping",
+    "RayleighDamping",
+    "StepData",
+    "UserDamping",
+    "beam_problem",
+    "convergence_study",
+    "make_damping",
+    "mms_errors",
+    "mms_problem",
+    "perturbation_study",
+    "run_eld",
+]

@@ -1,0 +1,260 @@
+"""Examples: a manufactured solution on the unit square, and a 3D cantilever moved at one end.
+
+Manufactured solution (:func:`mms_problem`). On (0,1)^2 in plane strain,
+
+    u(x, t) = sin(pi t + pi/6) P(x) + (1 - cos(pi t)) R(x),
+    P = (x + x y + y^2/2,  x^2/2 - x y + y),   R = (x^2 - y^2/2 + y,  x y + x/2 + y^2),
+
+so u(0) = P/2, u'(0) = (pi sqrt(3)/2) P. Dirichlet data G = u on the Dirichlet parts (default
+``left``: one straight part, so that the exact multiplier -sigma n is continuous along it and
+lies in the P2 trace space), traction on the other parts, and the body force that makes u exact
+for the chosen damping:
+
+    f = rho u'' - div sigma(u + b u') + (a u'  |  -d0 u' + d_nl N(u'))      (Rayleigh | nonlinear),
+    traction on Gamma_N:  sigma(u + b u') n,   multiplier on Gamma_D:  lambda = -sigma(u + b u') n,
+
+(the stiffness-proportional part b K of the damping is a Kelvin-Voigt stress b sigma(u'), hence
+its appearance in the traction and the multiplier). u is quadratic in x, so P2 elements represent
+it exactly: with ``degree=2`` the semi-discrete solution is u itself (the nonlinear damping is
+integrated with the same rule in the scheme and in F) and every error measured is the error of
+the time discretization. With P1 an O(h^2) spatial error adds to it.
+
+Cantilever (:func:`beam_problem`). The box [0, L] x [0, 1] x [0, 1] (E = 1000, nu = 0.3,
+rho = 1), the end x = 0 held and moved: G(t) = (0, 0, A (1 - cos(2 pi t / t_move)) / 2) for
+t <= t_move, then 0; the end x = L and the sides free. The multiplier on x = 0 is the reaction.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import check_choice, check_positive
+from ..fem import eld_mesh
+from .damping import Damping, NonlinearDamping, RayleighDamping
+from .materials import Material
+from .problem import DirichletData, ELDProblem
+
+# quadratic polynomials c0 + cx x + cy y + cxx x^2 + cxy x y + cyy y^2, per component
+_P = np.array([[0.0, 1.0, 0.0, 0.0, 1.0, 0.5], [0.0, 0.0, 1.0, 0.5, -1.0, 0.0]])
+_R = np.array([[0.0, 0.0, 1.0, 1.0, 0.0, -0.5], [0.0, 0.5, 0.0, 0.0, 1.0, 1.0]])
+
+
+def _quad_value(c, x):
+    X, Y = x[0], x[1]
+    return np.stack([a[0] + a[1] * X + a[2] * Y + a[3] * X * X + a[4] * X * Y + a[5] * Y * Y
+                     for a in c])
+
+
+def _quad_grad(c, x):
+    """(2, 2, ...): [comp, k] = d_k u_comp."""
+    X, Y = x[0], x[1]
+    out = np.empty((2, 2) + X.shape)
+    for comp in range(2):
+        a = c[comp]
+        out[comp, 0] = a[1] + 2 * a[3] * X + a[4] * Y
+        out[comp, 1] = a[2] + a[4] * X + 2 * a[5] * Y
+    return out
+
+
+def _div_sigma_const(c, lam, mu):
+    """div sigma(w) = mu Lap w + (lam + mu) grad div w, constant for quadratic w."""
+    lap = np.array([2 * c[0, 3] + 2 * c[0, 5], 2 * c[1, 3] + 2 * c[1, 5]])
+    grad_div = np.array([2 * c[0, 3] + c[1, 4], c[0, 4] + 2 * c[1, 5]])
+    return mu * lap + (lam + mu) * grad_div
+
+
+class ManufacturedSolution:
+    """u = alpha(t) P + beta(t) R, alpha = sin(pi t + pi/6), beta = 1 - cos(pi t) (module doc)."""
+
+    def __init__(self, material: Material, damping: Damping):
+        self.material = material
+        self.damping = damping
+        self.b = getattr(damping, "b", 0.0)
+
+    @staticmethod
+    def _time(t):
+        pi = math.pi
+        s, c = math.sin(pi * t), math.cos(pi * t)
+        s6, c6 = math.sin(pi * t + pi / 6), math.cos(pi * t + pi / 6)
+        # (alpha, beta), their first and second derivatives
+        return (s6, 1 - c), (pi * c6, pi * s), (-pi * pi * s6, pi * pi * c)
+
+    def _coeffs(self, t, order):
+        a, b = self._time(t)[order]
+        return a * _P + b * _R
+
+    def u(self, t, x):
+        return _quad_value(self._coeffs(t, 0), x)
+
+    def u_dot(self, t, x):
+        return _quad_value(self._coeffs(t, 1), x)
+
+    def u_ddot(self, t, x):
+        return _quad_value(self._coeffs(t, 2), x)
+
+    def grad_u(self, t, x):
+        return _quad_grad(self._coeffs(t, 0), x)
+
+    def grad_u_dot(self, t, x):
+        return _quad_grad(self._coeffs(t, 1), x)
+
+    def stress(self, t, x):
+        """sigma(u + b u') at x: (2, 2, ...)."""
+        m = self.material
+        g = self.grad_u(t, x) + self.b * self.grad_u_dot(t, x)
+        eps = 0.5 * (g + g.transpose((1, 0) + tuple(range(2, g.ndim))))
+        tr = eps[0, 0] + eps[1, 1]
+        sig = 2 * m.mu * eps
+        sig[0, 0] += m.lam * tr
+        sig[1, 1] += m.lam * tr
+        return sig
+
+    def traction(self, t, x, n):
+        """sigma(u + b u') n."""
+        return np.einsum("ij...,j...->i...", self.stress(t, x), n)
+
+    def multiplier(self, t, x, n):
+        """lambda = -sigma(u + b u') n on Gamma_D (paper's sign: ... + B* lambda = F)."""
+        return -self.traction(t, x, n)
+
+    def body_force(self, t, x):
+        m = self.material
+        w_coeffs = self._coeffs(t, 0) + self.b * self._coeffs(t, 1)
+        div = _div_sigma_const(w_coeffs, m.lam, m.mu).reshape((2,) + (1,) * (x.ndim - 1))
+        v = self.u_dot(t, x)
+        f = m.rho * self.u_ddot(t, x) - div
+        if isinstance(self.damping, RayleighDamping):
+            f = f + self.damping.a * v
+        elif isinstance(self.damping, NonlinearDamping):
+            f = f + self.damping.force_density(v)
+        return f
+
+
+def mms_problem(n: int = 8, degree: int = 2, *, damping: Damping | None = None, rho: float = 1.0,
+                lam: float = 2.0, mu: float = 1.0, T: float = 1.0,
+                dirichlet=("left",), start: str = "exact"
+                ) -> tuple[ELDProblem, ManufacturedSolution]:
+    """The manufactured-solution problem on the unit square with n x n cells (module docstring).
+
+    Default damping: NonlinearDamping(b=0.01, d0=0.5, d_nl=1, v_ref=1). ``start='rest'`` starts
+    from u0 = v0 = 0 instead of the exact initial data, which is inconsistent with G(0) != 0
+    (Remark 2.2) and is refused before the first step.
+    """
+    start = check_choice("start", start, ("exact", "rest"))
+    material = Material(rho=rho, lam=lam, mu=mu, dim=2)
+    damping = damping if damping is not None else NonlinearDamping(b=0.01, d0=0.5, d_nl=1.0)
+    exact = ManufacturedSolution(material, damping)
+    mesh = eld_mesh.unit_square(n)
+    dirichlet = tuple(dirichlet)
+    data = DirichletData(exact.u, exact.u_dot, exact.u_ddot)
+    names = sorted((mesh.boundaries or {}).keys())
+    # an unknown Dirichlet name is reported by ELDProblem (one line, naming the known parts)
+    traction = {p: exact.traction for p in names if p not in dirichlet}
+    problem = ELDProblem(mesh, material, degree=degree, damping=damping,
+                         dirichlet={p: data for p in dirichlet}, traction=traction,
+                         body_force=exact.body_force,
+                         u0=(lambda x: exact.u(0.0, x)) if start == "exact" else None,
+                         v0=(lambda x: exact.u_dot(0.0, x)) if start == "exact" else None,
+                         T=T, name="eld-mms")
+    return problem, exact
+
+
+def mms_errors(problem: ELDProblem, exact: ManufacturedSolution, traj) -> dict:
+    """Errors at T of u and v (L2, H1) and of lambda (L2(Gamma_D)); max over steps if stored."""
+    space = problem.space
+    T = float(traj["t"][-1])
+    state = getattr(traj, "final_state", None)
+    u = state.u if state is not None else traj["u"][-1]
+    v = state.v if state is not None else traj["v"][-1]
+    lam = state.lam if state is not None else traj["lam"][-1]
+    eu = space.error_norms(u, lambda x: exact.u(T, x), lambda x: exact.grad_u(T, x))
+    ev = space.error_norms(v, lambda x: exact.u_dot(T, x), lambda x: exact.grad_u_dot(T, x))
+    lam_quad = multiplier_quadrature(problem)
+    out = {
+        "error_u_l2": eu["l2"], "error_u_h1": eu["h1"],
+        "error_v_l2": ev["l2"], "error_v_h1": ev["h1"],
+        "error_lam_l2": lam_quad.error(lam, lambda x, n: exact.multiplier(T, x, n)),
+        "lam_norm": "L2(Gamma_D)",
+    }
+    if "lam" in traj:
+        lams = traj["lam"]
+        ts = traj["t"][1:]
+        out["error_lam_l2_max"] = max(
+            lam_quad.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n))
+            for k in range(len(ts)))
+    return out
+
+
+class MultiplierQuadrature:
+    """Evaluates multipliers (values on the constrained dofs) at Gamma_D quadrature points."""
+
+    def __init__(self, problem: ELDProblem):
+        self.problem = problem
+        c = problem.constraint
+        self.q = problem.space.facet_quadrature(c.parts, intorder=2 * problem.space.degree + 2,
+                                                name="dirichlet")
+
+    def values(self, lam: np.ndarray) -> np.ndarray:
+        c = self.problem.constraint
+        space = self.problem.space
+        full = np.zeros((space.n_scalar, space.dim))
+        full[c.scalar_dofs] = np.asarray(lam).reshape(-1, space.dim)
+        return np.stack([np.einsum("ifq,if->fq", self.q.values, full[self.q.dofs, k])
+                         for k in range(space.dim)])
+
+    def error(self, lam: np.ndarray, exact) -> float:
+        diff = self.values(lam) - exact(self.q.x, self.q.normals)
+        return float(np.sqrt(np.sum(np.sum(diff**2, axis=0) * self.q.dx)))
+
+
+def multiplier_quadrature(problem: ELDProblem) -> MultiplierQuadrature:
+    return MultiplierQuadrature(problem)
+
+
+# -- the cantilever ----------------------------------------------------------------------------
+
+class EndMotion:
+    """G(t) = (0, 0, A (1 - cos(2 pi t / t_move)) / 2) for t <= t_move, else 0 (H^2 in time)."""
+
+    def __init__(self, amplitude: float = 0.1, t_move: float = 0.5):
+        self.A = float(amplitude)
+        self.t_move = check_positive("t_move", t_move)
+
+    def _z(self, t, order):
+        if t > self.t_move:
+            return 0.0
+        w = 2 * math.pi / self.t_move
+        if order == 0:
+            return self.A * (1 - math.cos(w * t)) / 2
+        if order == 1:
+            return self.A * w * math.sin(w * t) / 2
+        return self.A * w * w * math.cos(w * t) / 2
+
+    def _field(self, t, x, order):
+        out = np.zeros((3,) + x.shape[1:])
+        out[2] = self._z(t, order)
+        return out
+
+    def G(self, t, x):
+        return self._field(t, x, 0)
+
+    def G_dot(self, t, x):
+        return self._field(t, x, 1)
+
+    def G_ddot(self, t, x):
+        return self._field(t, x, 2)
+
+
+def beam_problem(n: int = 4, *, length: float = 4.0, E: float = 1000.0, nu: float = 0.3,
+                 rho: float = 1.0, damping: Damping | None = None, amplitude: float = 0.1,
+                 t_move: float = 0.5, T: float = 2.0, degree: int = 1) -> ELDProblem:
+    """The cantilever: n cells across the unit cross-section, round(length * n) along it."""
+    material = Material.from_young(E, nu, rho, dim=3)
+    nx = max(1, int(round(length * n)))
+    mesh = eld_mesh.box(nx, n, n, length, 1.0, 1.0)
+    motion = EndMotion(amplitude, t_move)
+    return ELDProblem(mesh, material, degree=degree, damping=damping,
+                      dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
+                      T=T, name="eld-beam")

@@ -1,0 +1,270 @@
+"""An elastodynamics problem as the operator DAE (2.7): data, operators and validation.
+
+    rho u'' + D u' + K u + B* lambda = F   in V*,      B u = G   in Q*,      u(0) = g, u'(0) = h.
+
+:class:`ELDProblem` collects the mesh, the material, the damping, the Dirichlet data G(t) on named
+boundary parts (enforced weakly through the trace B and a multiplier, see
+:mod:`rothe.eld.constraint`), the Neumann tractions on other named parts, the body force and the
+initial data. It assembles M (density 1), K and the damping operator once, and evaluates the
+data at a given time:
+
+- ``load(t)``: F(t) = int f(t) . phi dx + sum_parts int_P g_P(t) . phi ds  (a dof vector);
+- ``G(t)``, ``G_dot(t)``, ``G_ddot(t)``: the nodal values of G and its derivatives on the
+  constrained dofs (B u = G means S u = G(t) there).
+
+Callables and their shapes (x holds points with the coordinate axis first):
+
+- Dirichlet ``G(t, x)`` with x (d, k) returns (d, k) (a (d,) constant broadcasts);
+  pass a :class:`DirichletData` to give G_dot and G_ddot as well. Without them the library
+  differentiates G by central differences and states the estimated accuracy (``derivative_info``
+  and a warning).
+- traction ``g(t, x, n)`` with points x and outward unit normals n, both (d, nf, nq);
+- body force ``f(t, x)`` with x (d, ne, nq);
+- ``u0``, ``v0``: callables x -> (d, k), dof vectors, or None (zero).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RotheInputError, check_positive, fail
+from ..fem.elasticity import VectorSpace
+from .constraint import DirichletConstraint
+from .damping import Damping, NoDamping
+from .materials import Material
+
+#: relative tolerance of the consistency G(0) = u0 on Gamma_D (Remark 2.2)
+CONSISTENCY_TOL = 1e-8
+
+
+@dataclass
+class DirichletData:
+    """G(t, x) on one boundary part, with its time derivatives if known."""
+
+    G: object
+    G_dot: object = None
+    G_ddot: object = None
+
+    def __post_init__(self):
+        for name in ("G", "G_dot", "G_ddot"):
+            f = getattr(self, name)
+            if f is not None and not callable(f):
+                raise fail(name, type(f).__name__, "must be a callable (t, x) -> values")
+        if self.G is None:
+            raise fail("G", None, "must be a callable (t, x) -> values")
+
+
+def _eps_step(order: int, scale: float) -> float:
+    """Step for central differences of order 1 or 2 balancing truncation and round-off."""
+    eps = np.finfo(float).eps
+    return (eps ** (1.0 / 3.0) if order == 1 else eps**0.25) * scale
+
+
+class ELDProblem:
+    """Elastodynamics with Dirichlet data by multipliers (see the module docstring).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri | skfem.MeshTet with named boundary parts
+    material : Material
+    degree : 1 | 2
+    damping : Damping (default none)
+    dirichlet : dict part -> callable G(t, x) or DirichletData. Where two parts share nodes,
+        the part listed last sets their values.
+    traction : dict part -> callable g(t, x, n)
+    body_force : callable f(t, x) or None
+    u0, v0 : initial displacement and velocity
+    T : end time
+    """
+
+    def __init__(self, mesh, material: Material, *, degree: int = 1, damping: Damping | None = None,
+                 dirichlet: dict, traction: dict | None = None, body_force=None, u0=None, v0=None,
+                 T: float = 1.0, name: str = "eld"):
+        self.name = name
+        self.space = VectorSpace(mesh, degree)
+        if not isinstance(material, Material):
+            raise fail("material", type(material).__name__, "must be a rothe.eld.Material")
+        if material.dim != self.space.dim:
+            raise fail("material.dim", material.dim,
+                       f"must equal the mesh dimension {self.space.dim}")
+        self.material = material
+        self.damping = NoDamping() if damping is None else damping
+        if not isinstance(self.damping, Damping):
+            raise fail("damping", type(self.damping).__name__, "must be a rothe.eld damping object")
+        self.T = check_positive("T", T)
+        if not isinstance(dirichlet, dict) or not dirichlet:
+            raise fail("dirichlet", dirichlet, "must map at least one boundary part to its data G")
+        traction = dict(traction or {})
+        both = sorted(set(dirichlet) & set(traction))
+        if both:
+            raise fail("traction", both[0],
+                       "is also a Dirichlet part; a part is either held or loaded")
+        self.dirichlet = {p: g if isinstance(g, DirichletData) else DirichletData(g)
+                          for p, g in dirichlet.items()}
+        self.constraint = DirichletConstraint(self.space, tuple(self.dirichlet), "dirichlet")
+        self._traction = {}
+        for part, g in traction.items():
+            if not callable(g):
+                raise fail(f"traction[{part!r}]", type(g).__name__, "must be a callable (t, x, n)")
+            self._traction[part] = (g, self.space.facet_quadrature((part,), name="traction"))
+        if body_force is not None and not callable(body_force):
+            raise fail("body_force", type(body_force).__name__, "must be a callable (t, x)")
+        self.body_force = body_force
+
+        sp_ = self.space
+        self.M = sp_.mass()
+        self.K = sp_.stiffness(material.lam, material.mu)
+        self.damping_op = self.damping.operator(sp_, self.M, self.K)
+        self.u0 = self._initial(u0, "u0")
+        self.v0 = self._initial(v0, "v0")
+        self._part_points = {p: sp_.doflocs[:, sp_.scalar_dofs_on((p,), "dirichlet")]
+                             for p in self.dirichlet}
+        self.derivative_info = self._derivative_info()
+
+    # -- initial data ---------------------------------------------------------------------------
+    def _initial(self, value, name: str) -> np.ndarray:
+        n = self.space.ndofs
+        if value is None:
+            return np.zeros(n)
+        if callable(value):
+            return self.space.interpolate(value)
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (n,):
+            raise fail(name, f"an array of shape {arr.shape}",
+                       f"must be a callable or shape ({n},)")
+        if not np.all(np.isfinite(arr)):
+            raise fail(name, "non-finite values", "must be finite")
+        return arr.copy()
+
+    def check_initial_consistency(self, tol: float = CONSISTENCY_TOL) -> float:
+        """Remark 2.2: B g = G(0). Raises a one-line error if max|S u0 - G(0)| exceeds
+        tol * max(1, max|G(0)|, max|u0|); returns the mismatch."""
+        g0 = self.G(0.0)
+        su0 = self.constraint.restrict(self.u0)
+        err = float(np.max(np.abs(su0 - g0))) if g0.size else 0.0
+        scale = max(1.0, float(np.max(np.abs(g0), initial=0.0)), float(np.max(np.abs(self.u0))))
+        if not err <= tol * scale:
+            raise RotheInputError(
+                f"u0: got max|u0 - G(0)| = {err:.3g} on the Dirichlet parts "
+                f"{', '.join(self.constraint.parts)}, must equal G(0) there within "
+                f"{tol * scale:.3g} (consistent initial data, Remark 2.2)"
+            )
+        return err
+
+    # -- data -----------------------------------------------------------------------------------
+    def _eval_dirichlet(self, which: str, t: float) -> np.ndarray:
+        c = self.constraint
+        d = self.space.dim
+        out = np.zeros((c.scalar_dofs.size, d))
+        for part, data in self.dirichlet.items():
+            f = getattr(data, which)
+            x = self._part_points[part]
+            vals = np.asarray(f(float(t), x), dtype=float)
+            if vals.shape == (d,):
+                vals = np.broadcast_to(vals[:, None], (d, x.shape[1]))
+            if vals.shape != (d, x.shape[1]):
+                raise fail(f"dirichlet[{part!r}].{which}", f"values of shape {vals.shape}",
+                           f"must return shape ({d}, k) for points x of shape ({d}, k)")
+            out[c.part_positions[part]] = vals.T
+        return out.ravel()
+
+    def G(self, t: float) -> np.ndarray:
+        return self._eval_dirichlet("G", t)
+
+    def G_dot(self, t: float) -> np.ndarray:
+        if all(d.G_dot is not None for d in self.dirichlet.values()):
+            return self._eval_dirichlet("G_dot", t)
+        h = _eps_step(1, max(1.0, self.T))
+        return (self.G(t + h) - self.G(t - h)) / (2 * h)
+
+    def G_ddot(self, t: float) -> np.ndarray:
+        if all(d.G_ddot is not None for d in self.dirichlet.values()):
+            return self._eval_dirichlet("G_ddot", t)
+        if all(d.G_dot is not None for d in self.dirichlet.values()):
+            h = _eps_step(1, max(1.0, self.T))
+            plus, minus = self._eval_dirichlet("G_dot", t + h), self._eval_dirichlet("G_dot", t - h)
+            return (plus - minus) / (2 * h)
+        h = _eps_step(2, max(1.0, self.T))
+        return (self.G(t + h) - 2 * self.G(t) + self.G(t - h)) / (h * h)
+
+    def _derivative_info(self) -> dict:
+        """How G_dot and G_ddot are obtained, with an error estimate when differenced.
+
+        The estimate compares the difference quotient with step h and 2h at five times in [0, T]
+        (both are O(h^2), so the difference over 3 estimates the error of the h quotient).
+        """
+        info = {}
+        have_dot = all(d.G_dot is not None for d in self.dirichlet.values())
+        have_ddot = all(d.G_ddot is not None for d in self.dirichlet.values())
+        times = np.linspace(0.0, self.T, 5)
+        scale = max(1.0, self.T)
+        for which, given in (("G_dot", have_dot), ("G_ddot", have_ddot)):
+            if given:
+                info[which] = {"method": "given"}
+                continue
+            from_dot = which == "G_ddot" and have_dot
+            f = (lambda t: self._eval_dirichlet("G_dot", t)) if from_dot else self.G
+            order = 1 if (which == "G_dot" or from_dot) else 2
+            h = _eps_step(order, scale)
+            err, size = 0.0, 0.0
+            for t in times:
+                if order == 1:
+                    a = (f(t + h) - f(t - h)) / (2 * h)
+                    b = (f(t + 2 * h) - f(t - 2 * h)) / (4 * h)
+                else:
+                    a = (f(t + h) - 2 * f(t) + f(t - h)) / h**2
+                    b = (f(t + 2 * h) - 2 * f(t) + f(t - 2 * h)) / (4 * h**2)
+                err = max(err, float(np.max(np.abs(a - b), initial=0.0)) / 3)
+                size = max(size, float(np.max(np.abs(a), initial=0.0)))
+            method = "central differences of " + ("G_dot" if from_dot else "G")
+            info[which] = {"method": method, "h": h, "estimated_error": err,
+                           "estimated_relative_error": err / size if size > 0 else 0.0}
+            warnings.warn(
+                f"{which} not given: {method} with h = {h:.2g}; estimated max error "
+                f"{err:.2g} (relative {info[which]['estimated_relative_error']:.2g}) at t in "
+                f"[0, {self.T:g}]", stacklevel=3)
+        return info
+
+    def load(self, t: float) -> np.ndarray:
+        """F(t): body force and tractions as a dof vector."""
+        sp_ = self.space
+        F = np.zeros(sp_.ndofs)
+        if self.body_force is not None:
+            x = sp_.quad_points
+            f = np.broadcast_to(np.asarray(self.body_force(float(t), x), dtype=float), x.shape)
+            F += sp_.load_from_quad(f)
+        for g, q in self._traction.values():
+            vals = np.broadcast_to(np.asarray(g(float(t), q.x, q.normals), dtype=float), q.x.shape)
+            F += q.integrate_against_basis(vals, sp_.n_scalar).ravel()
+        return F
+
+    @property
+    def has_loads(self) -> bool:
+        return self.body_force is not None or bool(self._traction)
+
+    # -- description ----------------------------------------------------------------------------
+    def describe(self) -> dict:
+        m = self.material
+        return {
+            "name": self.name,
+            "dim": self.space.dim,
+            "degree": self.space.degree,
+            "ndofs": self.space.ndofs,
+            "constrained_dofs": self.constraint.m,
+            "cells": int(self.space.mesh.t.shape[1]),
+            "rho": m.rho, "lam": m.lam, "mu": m.mu,
+            "damping": self.damping.describe(),
+            "dirichlet_parts": list(self.constraint.parts),
+            "traction_parts": list(self._traction),
+            "T": self.T,
+            "derivatives_of_G": self.derivative_info,
+        }
+
+    def step_bound(self) -> float:
+        """Lemma 3.2: the steps are uniquely solvable for tau < rho/d0 (inf if d0 = 0)."""
+        d0 = self.damping.constants.d0
+        return math.inf if d0 == 0 else self.material.rho / d0

@@ -1,0 +1,520 @@
+"""Implicit Euler (3.4) for the elastodynamic operator DAE, in the original and regularized forms.
+
+With D u^j = (u^j - u^{j-1})/tau and D^2 u^j = (u^j - 2 u^{j-1} + u^{j-2})/tau^2 (t_j = j tau):
+
+``original`` -- the index-3 saddle-point system (2.7) discretized directly: per step
+    rho M D^2 u^j + D(D u^j) + K u^j + B^T lambda^j = F^j,      B u^j = G^j,
+    one (nonlinear if D is) saddle-point system for (u^j, lambda^j).
+
+``regularized`` -- the index-1 form (2.8) discretized as (3.4): per step
+    u_2^j = B^- G^j,  v_2^j = B^- G_dot^j,  w_2^j = B^- G_ddot^j        (3.4b)
+    u_1^j in V_B = ker B from (3.4a) tested with V_B:
+      rho M (D^2 u_1^j + w_2^j) + D(D u_1^j + v_2^j) + K (u_1^j + u_2^j) = F^j   on V_B,
+    lambda^j from (3.4a) tested with V^c (:meth:`DirichletConstraint.multiplier_from_residual`);
+    u^j = u_1^j + u_2^j, velocity v^j = D u_1^j + v_2^j, acceleration a^j = D^2 u_1^j + w_2^j.
+    B^- is a fixed right inverse of B (:mod:`rothe.eld.constraint`; default: nodal lifting).
+
+Start-up (the paper takes u_1^1, v_1^1 as given data): u^0 = g, u^{-1} = g - tau h, so that
+D u^0 = h, and the steps j = 1, ..., n = T/tau follow. In the regularized form u_1^0 =
+g - B^- G^0 and v_1^0 = h - B^- G_dot^0 (with their Gamma_D values set to zero: h need not match
+G_dot(0), Remark 2.2), u_1^{-1} = u_1^0 - tau v_1^0. Unique solvability needs tau < rho/d0
+(Lemma 3.2); it is checked before the first step, together with B g = G(0) (Remark 2.2).
+
+Linear damping: the step matrix (rho/tau^2) M + C/tau + K (on ker B, or bordered by B) is factored
+once and every step is back-substitutions. Nonlinear damping: Newton's method with backtracking,
+its systems solved by Krylov iterations preconditioned with a stored factorization
+(:mod:`rothe.eld.solvers`). A Newton solve that fails stops the run with :class:`RunFailed`
+(the step is never accepted).
+
+Energy bookkeeping (the discrete energy identity of the scheme). Testing the full equation
+rho M a + D v + K u + B^T lambda = F with tau v^j and using 2 (a - b) a = a^2 - b^2 + (a - b)^2:
+
+    E^j - E^{j-1} = tau F.v  - tau lambda.(B v)  - tau D(v).v  - N^j  - X^j,
+    E = 1/2 rho v.M v + 1/2 u.K u,
+    N^j = 1/2 rho |v^j - v^{j-1}|_M^2 + 1/2 |u^j - u^{j-1}|_K^2 >= 0   (numerical dissipation),
+    X^j = rho tau M(a^j - D v^j).v^j + tau K u^j.(v^j - D u^j)           (data mismatch),
+
+i.e. work of the loads, work of the support (reaction) on the prescribed boundary motion, physical
+dissipation, numerical dissipation of implicit Euler, and a term that vanishes when G_dot, G_ddot
+are the difference quotients of G (always in the original form; O(tau) per unit time in the
+regularized form with exact derivatives). The trajectory holds these sums and the residual of
+the balance, which closes to solver tolerance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..control.controllers import UniformController
+from ..errors import RunFailed, check_choice, check_positive, fail
+from ..io.trajectory import Trajectory
+from ..stepping.evolve import evolve
+from .constraint import LIFTINGS, make_lifting
+from .data import DATA_MODES, DataNoise, StepData
+from .problem import ELDProblem
+from .solvers import ReferenceSolver, SolveFailed, resolve_kind
+
+FORMS = ("regularized", "original")
+
+
+@dataclass
+class NewtonOptions:
+    """Newton's method for nonlinear damping: stop when the (estimated) error of the iterate is
+    below ``tol`` times the size of the unknown, at most ``max_iter`` iterations."""
+
+    tol: float = 1e-10
+    max_iter: int = 25
+
+    def __post_init__(self):
+        self.tol = check_positive("newton tol", self.tol)
+        if int(self.max_iter) < 1:
+            raise fail("newton max_iter", self.max_iter, "must be >= 1")
+
+
+@dataclass
+class EnergyLedger:
+    """Cumulative terms of the discrete energy identity (see the module docstring)."""
+
+    kinetic: float = 0.0
+    elastic: float = 0.0
+    initial: float = 0.0
+    work: float = 0.0  # loads F
+    work_reaction: float = 0.0  # support on the prescribed boundary motion: -tau lambda.B v
+    dissipated: float = 0.0  # physical: tau D(v).v
+    numerical: float = 0.0  # implicit Euler: N^j
+    mismatch: float = 0.0  # X^j
+
+    @property
+    def energy(self) -> float:
+        return self.kinetic + self.elastic
+
+    @property
+    def residual(self) -> float:
+        """E^j - E^0 - (work + work_reaction - dissipated - numerical - mismatch)."""
+        return self.energy - self.initial - (self.work + self.work_reaction - self.dissipated
+                                             - self.numerical - self.mismatch)
+
+
+@dataclass
+class ELDState:
+    s: float  # the evolve loop's curve parameter: here the time
+    t: float
+    j: int
+    x: np.ndarray  # the scheme's unknown at t_j: u_1^j (regularized) or u^j (original)
+    x_prev: np.ndarray  # ... at t_{j-1}
+    u: np.ndarray  # u^j
+    v: np.ndarray  # v^j (the scheme's velocity)
+    Ku: np.ndarray
+    Mv: np.ndarray
+    lam: np.ndarray | None
+    ledger: EnergyLedger
+
+
+@dataclass
+class ELDStepResult:
+    state: ELDState
+    tau: float
+    lam: np.ndarray
+    reactions: dict
+    newton_iterations: int
+    counters: dict = field(default_factory=dict)
+    converged: bool = True
+    code: str = "ok"
+
+    @property
+    def errors(self) -> dict:
+        return {}
+
+
+class ELDStepper:
+    """One Euler step of (3.4) in either form; the evolve loop (fixed step) drives it.
+
+    Parameters
+    ----------
+    problem : ELDProblem
+    form : 'regularized' | 'original'
+    tau : step size; T / tau must be an integer
+    data : 'points' | 'means' | 'differenced'  (:mod:`rothe.eld.data`)
+    lifting : 'nodal' | 'harmonic'  (the right inverse B^-, regularized form)
+    solver : 'auto' | 'direct' | 'amg'
+    noise : DataNoise, optional perturbation of the data of every step (Sec. 4.3)
+    store_fields : keep u, v, lambda of every step in the trajectory
+    observer : callable(state, result) after every accepted step (e.g. to write XDMF)
+    linear_rtol : relative residual of iterative linear solves
+    """
+
+    def __init__(self, problem: ELDProblem, form: str, tau: float, *, data: str = "points",
+                 lifting: str = "nodal", solver: str = "auto", newton: NewtonOptions | None = None,
+                 noise: DataNoise | None = None, store_fields: bool = True, observer=None,
+                 linear_rtol: float = 1e-10):
+        self.problem = problem
+        self.form = check_choice("form", form, FORMS)
+        self.tau = tau = check_positive("tau", tau)
+        bound = problem.step_bound()
+        if not tau < bound:
+            raise fail("tau", tau, f"must be < rho/d0 = {bound:g} (Lemma 3.2: unique solvability "
+                       "of the Euler steps)")
+        ratio = problem.T / tau
+        self.n_steps = int(round(ratio))
+        if self.n_steps < 1 or abs(ratio - self.n_steps) > 1e-9 * max(1.0, ratio):
+            raise fail("tau", tau, f"must divide T = {problem.T:g} into equal steps "
+                       f"(T/tau = {ratio:.6g})")
+        self.data_mode = check_choice("data", data, DATA_MODES)
+        self.lifting_kind = check_choice("lifting", lifting, LIFTINGS)
+        self.newton = newton or NewtonOptions()
+        self.store_fields = bool(store_fields)
+        self.observer = observer
+        problem.check_initial_consistency()
+        self.data = StepData(problem, tau, data, noise)
+
+        p = problem
+        c = p.constraint
+        self.rho = p.material.rho
+        self.D = p.damping_op
+        self.C = self.D.linear
+        self.I = c.free
+        n = p.space.ndofs
+        A = ((self.rho / tau**2) * p.M + (1.0 / tau) * self.C + p.K).tocsr()
+        self.A = A
+        if self.form == "regularized":
+            self.kind = resolve_kind(solver, self.I.size, p.space.dim)
+            rbm = p.space.rigid_body_modes()[self.I] if self.kind == "amg" else None
+            self.solver = ReferenceSolver(self.kind, spd=True, near_nullspace=rbm, rtol=linear_rtol)
+            self.A_II = A[self.I][:, self.I].tocsr()
+            if self.D.is_linear:
+                self.solver.factor(self.A_II)
+            self.lifting = make_lifting(self.lifting_kind, c, p.K)
+        else:
+            self.kind = resolve_kind(solver, n + c.m, p.space.dim)
+            if self.kind == "amg":
+                raise fail("solver", solver if solver != "auto" else "auto (amg at this size)",
+                           "the original form's saddle-point system is solved by sparse LU only; "
+                           "use the regularized form for AMG")
+            self.solver = ReferenceSolver("direct", spd=False, rtol=linear_rtol)
+            self._kkt_lin = self._kkt(A)
+            if self.D.is_linear:
+                self.solver.factor(self._kkt_lin)
+            self.lifting = None
+        self.initial_factorizations = self.solver.stats.factorizations
+        self._last_newton = 0
+
+    def _kkt(self, A) -> sp.csr_matrix:
+        B = self.problem.constraint.B
+        return sp.bmat([[A, B.T], [B, None]], format="csr")
+
+    # -- initial state --------------------------------------------------------------------------
+    def initial_state(self) -> ELDState:
+        p, tau = self.problem, self.tau
+        c = p.constraint
+        G0, G_dot0 = self.data.initial()
+        if self.form == "regularized":
+            u2, v2 = self.lifting.lift_many([G0, G_dot0])
+            x = p.u0 - u2
+            x[c.dofs] = 0.0
+            v1 = p.v0 - v2
+            v1[c.dofs] = 0.0
+            x_prev = x - tau * v1
+            u, v = x + u2, v1 + v2
+        else:
+            x = p.u0.copy()
+            x_prev = p.u0 - tau * p.v0
+            u, v = x, p.v0.copy()
+        Ku, Mv = p.K @ u, p.M @ v
+        e0 = 0.5 * self.rho * float(v @ Mv) + 0.5 * float(u @ Ku)
+        ledger = EnergyLedger(kinetic=0.5 * self.rho * float(v @ Mv), elastic=0.5 * float(u @ Ku),
+                              initial=e0)
+        return ELDState(s=0.0, t=0.0, j=0, x=x, x_prev=x_prev, u=u, v=v, Ku=Ku, Mv=Mv, lam=None,
+                        ledger=ledger)
+
+    def record_initial(self, traj: Trajectory, state: ELDState) -> None:
+        L = state.ledger
+        rec = dict(t=0.0, kinetic=L.kinetic, elastic=L.elastic, energy=L.energy, work=0.0,
+                   work_reaction=0.0, dissipated=0.0, numerical_dissipation=0.0,
+                   data_mismatch=0.0, balance_residual=0.0)
+        if self.store_fields:
+            rec.update(u=state.u.copy(), v=state.v.copy())
+        traj.append(**rec)
+
+    # -- evolve-loop interface ------------------------------------------------------------------
+    def finished(self, state: ELDState) -> bool:
+        return state.j >= self.n_steps
+
+    def limit(self, state: ELDState, tau: float) -> float:
+        return tau
+
+    def overshoot(self, state, attempts):
+        return None  # t_n = n tau = T exactly: equal steps never overshoot
+
+    def pick_landing(self, attempts):
+        return attempts[-1]
+
+    def where(self, state: ELDState, result=None) -> dict:
+        info = {"step": state.j + 1, "s": state.t, "t": state.t, "tau": self.tau,
+                "form": self.form}
+        if result is not None:
+            info["newton_iterations"] = result.newton_iterations
+        return info
+
+    def progress_fields(self, state: ELDState) -> dict:
+        return {"t": f"{state.t:.4g}", "newton": self._last_newton}
+
+    def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
+        if not math.isclose(tau, self.tau, rel_tol=1e-12):
+            raise RunFailed(f"the Euler scheme (3.4) takes equal steps tau = {self.tau:g}; the "
+                            f"controller asked for {tau:g}", where=self.where(state))
+        j = state.j + 1
+        st = self.solver.stats
+        before = (st.factorizations, st.backsolves, st.krylov_iterations, st.solves)
+        vals = self.data.at(j)
+        try:
+            if self.form == "regularized":
+                x, u, v, a, lam_known, its = self._step_regularized(state, vals)
+            else:
+                x, u, v, a, lam_known, its = self._step_original(state, vals)
+        except SolveFailed as exc:
+            raise RunFailed(f"linear solve failed at step {j} (t = {j * tau:.6g}): {exc}",
+                            where=self.where(state)) from exc
+        self._last_newton = its
+        p = self.problem
+        c = p.constraint
+        Ku = p.K @ u
+        Mv = p.M @ v
+        Ma = p.M @ a
+        Dv = self.D.apply(v)
+        if lam_known is None:
+            r = vals.F - self.rho * Ma - Dv - Ku
+            lam = c.multiplier_from_residual(r[c.dofs])
+        else:
+            lam = lam_known
+        # energy identity (module docstring)
+        L = state.ledger
+        dv, du = v - state.v, u - state.u
+        dMv, dKu = Mv - state.Mv, Ku - state.Ku
+        Bv = c.boundary_mass @ v[c.dofs]
+        ledger = replace(
+            L,
+            kinetic=0.5 * self.rho * float(v @ Mv),
+            elastic=0.5 * float(u @ Ku),
+            work=L.work + tau * float(vals.F @ v),
+            work_reaction=L.work_reaction - tau * float(lam @ Bv),
+            dissipated=L.dissipated + tau * float(Dv @ v),
+            numerical=L.numerical + 0.5 * self.rho * float(dv @ dMv) + 0.5 * float(du @ dKu),
+            mismatch=L.mismatch + self.rho * tau * float((Ma - dMv / tau) @ v)
+            + tau * float(Ku @ (v - du / tau)),
+        )
+        new = ELDState(s=j * tau, t=j * tau, j=j, x=x, x_prev=state.x, u=u, v=v, Ku=Ku, Mv=Mv,
+                       lam=lam, ledger=ledger)
+        counters = {
+            "newton_iterations": its,
+            "linear_factorizations": st.factorizations - before[0],
+            "linear_solves": st.backsolves - before[1],
+            "krylov_iterations": st.krylov_iterations - before[2],
+        }
+        return ELDStepResult(state=new, tau=tau, lam=lam, reactions=c.reactions(lam),
+                             newton_iterations=its, counters=counters)
+
+    # -- the two forms --------------------------------------------------------------------------
+    def _step_regularized(self, state: ELDState, vals):
+        p, tau, rho = self.problem, self.tau, self.rho
+        I = self.I
+        u2, v2, w2 = self.lifting.lift_many([vals.G, vals.G_dot, vals.G_ddot])
+        p1, p2 = state.x, state.x_prev
+        n = p.space.ndofs
+        guess = (2.0 * p1 - p2)[I]
+        if self.D.is_linear:
+            rhs = (vals.F + p.M @ (rho * (2.0 * p1 - p2) / tau**2 - rho * w2)
+                   + self.C @ (p1 / tau - v2) - p.K @ u2)
+            xI = self.solver.solve_reference(rhs[I], x0=guess)
+            its = 0
+        else:
+            def residual(xI):
+                x = np.zeros(n)
+                x[I] = xI
+                v = (x - p1) / tau + v2
+                R = (rho * (p.M @ ((x - 2.0 * p1 + p2) / tau**2 + w2)) + self.D.apply(v)
+                     + p.K @ (x + u2) - vals.F)
+                return R[I], v
+
+            def jacobian(v):
+                # matrix-free J_II w = A_II w + (N'(v) E w)_I / tau; assembled only when the
+                # stored preconditioner must be rebuilt
+                action = self.D.nonlinear_jacobian_action(v)
+
+                def matvec(w):
+                    full = np.zeros(n)
+                    full[I] = w
+                    return self.A_II @ w + action(full)[I] / tau
+
+                op = spla.LinearOperator((I.size, I.size), matvec=matvec, dtype=float)
+
+                def assemble():
+                    return (self.A_II + (1.0 / tau) * self.D.nonlinear_jacobian(v)[I][:, I]).tocsr()
+
+                return op, assemble
+
+            xI, its = self._newton(residual, jacobian, guess, p1[I], state)
+        x = np.zeros(n)
+        x[I] = xI
+        u = x + u2
+        v = (x - p1) / tau + v2
+        a = (x - 2.0 * p1 + p2) / tau**2 + w2
+        return x, u, v, a, None, its
+
+    def _step_original(self, state: ELDState, vals):
+        p, tau, rho = self.problem, self.tau, self.rho
+        c = p.constraint
+        n = p.space.ndofs
+        p1, p2 = state.x, state.x_prev
+        g_rhs = c.boundary_mass @ vals.G
+        if self.D.is_linear:
+            rhs_u = vals.F + p.M @ (rho * (2.0 * p1 - p2) / tau**2) + self.C @ (p1 / tau)
+            z = self.solver.solve_reference(np.concatenate([rhs_u, g_rhs]))
+            its = 0
+        else:
+            B = c.B
+            lam0 = state.lam if state.lam is not None else np.zeros(c.m)
+
+            def residual(z):
+                u, lam = z[:n], z[n:]
+                v = (u - p1) / tau
+                R_u = (rho * (p.M @ ((u - 2.0 * p1 + p2) / tau**2)) + self.D.apply(v) + p.K @ u
+                       + B.T @ lam - vals.F)
+                return np.concatenate([R_u, B @ u - g_rhs]), v
+
+            def jacobian(v):
+                action = self.D.nonlinear_jacobian_action(v)
+                m = c.m
+
+                def matvec(z):
+                    u, lam = z[:n], z[n:]
+                    return np.concatenate([self.A @ u + action(u) / tau + B.T @ lam, B @ u])
+
+                op = spla.LinearOperator((n + m, n + m), matvec=matvec, dtype=float)
+
+                def assemble():
+                    return self._kkt(self.A + (1.0 / tau) * self.D.nonlinear_jacobian(v))
+
+                return op, assemble
+
+            z0 = np.concatenate([2.0 * p1 - p2, lam0])
+            z, its = self._newton(residual, jacobian, z0, np.concatenate([p1, lam0]), state)
+        u, lam = z[:n], z[n:]
+        v = (u - p1) / tau
+        a = (u - 2.0 * p1 + p2) / tau**2
+        return u, u, v, a, lam, its
+
+    def _newton(self, residual, jacobian, z0, z_prev, state):
+        """Newton's method with backtracking on |R|; returns (z, iterations) or raises RunFailed.
+
+        Stops when the estimated error of the iterate, |dz| theta / (1 - theta) with the
+        contraction theta = |dz_k| / |dz_{k-1}| (or |dz| itself in the first iteration), is below
+        tol * max(|z|, |z - z_prev|).
+        """
+        opts = self.newton
+        z = z0.copy()
+        R, v = residual(z)
+        rnorm = np.linalg.norm(R)
+        prev_step = None
+        for it in range(1, opts.max_iter + 1):
+            if rnorm == 0.0:
+                return z, it - 1
+            J, assemble = jacobian(v)
+            dz = self.solver.solve(J, -R, assemble=assemble)
+            alpha = 1.0
+            while True:
+                z_new = z + alpha * dz
+                R_new, v_new = residual(z_new)
+                r_new = np.linalg.norm(R_new)
+                if r_new <= (1.0 - 1e-4 * alpha) * rnorm or alpha < 1.0 / 64:
+                    break
+                alpha *= 0.5
+            step = alpha * np.linalg.norm(dz)
+            z, R, v, rnorm = z_new, R_new, v_new, r_new
+            scale = max(np.linalg.norm(z), np.linalg.norm(z - z_prev), 1e-300)
+            if prev_step is not None and prev_step > 0 and alpha == 1.0:
+                theta = step / prev_step
+                estimate = step * theta / (1.0 - theta) if theta < 1.0 else math.inf
+            else:
+                estimate = step
+            if estimate <= opts.tol * scale or step == 0.0:
+                return z, it
+            prev_step = step
+        where = self.where(state)
+        where.update(newton_iterations=opts.max_iter, residual=float(rnorm))
+        raise RunFailed(
+            f"Newton's method did not converge in {opts.max_iter} iterations at step "
+            f"{state.j + 1} (t = {(state.j + 1) * self.tau:.6g}, tau = {self.tau:g}, "
+            f"|R| = {rnorm:.3g}); the step is not accepted", where=where)
+
+    # -- recording ------------------------------------------------------------------------------
+    def record(self, traj: Trajectory, result: ELDStepResult) -> None:
+        st = result.state
+        L = st.ledger
+        rec = dict(
+            t=st.t, kinetic=L.kinetic, elastic=L.elastic, energy=L.energy, work=L.work,
+            work_reaction=L.work_reaction, dissipated=L.dissipated,
+            numerical_dissipation=L.numerical, data_mismatch=L.mismatch,
+            balance_residual=L.residual, tau=result.tau,
+            lam_norm=self.problem.constraint.l2_norm(result.lam),
+            newton_iterations=result.newton_iterations,
+        )
+        for part, force in result.reactions.items():
+            rec[f"reaction_{part}"] = force
+        if self.store_fields:
+            rec.update(u=st.u, v=st.v, lam=result.lam)
+        traj.append(**rec)
+        if self.observer is not None:
+            self.observer(st, result)
+
+
+def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
+            data: str = "points", lifting: str = "nodal", solver: str = "auto",
+            newton: NewtonOptions | None = None, noise: DataNoise | None = None,
+            store_fields: bool = True, observer=None, progress: bool = False,
+            linear_rtol: float = 1e-10, meta: dict | None = None) -> Trajectory:
+    """Run the Euler scheme (3.4) from t = 0 to T with n = T/tau equal steps.
+
+    Runs on the shared evolve loop with a fixed-step controller. Returns a
+    :class:`~rothe.io.trajectory.Trajectory`: point series (n + 1 entries, t = 0 included)
+    ``t, kinetic, elastic, energy, work, work_reaction, dissipated, numerical_dissipation,
+    data_mismatch, balance_residual`` (and ``u, v`` with ``store_fields``); step series
+    (n entries) ``tau, lam_norm, reaction_<part>, newton_iterations`` (and ``lam``).
+    Raises :class:`RunFailed` (with ``.trajectory``) if a step cannot be solved.
+    """
+    stepper = ELDStepper(problem, form, tau, data=data, lifting=lifting, solver=solver,
+                         newton=newton, noise=noise, store_fields=store_fields, observer=observer,
+                         linear_rtol=linear_rtol)
+    info = {"example": problem.name, "form": form, "tau": tau, "n_steps": stepper.n_steps,
+            "data": data, "lifting": lifting if form == "regularized" else None,
+            "solver": stepper.kind, "control": "uniform", "step_bound": problem.step_bound(),
+            "problem": problem.describe()}
+    if noise is not None:
+        info["noise"] = {"delta": noise.delta, "target": noise.target, "seed": noise.seed}
+    info.update(meta or {})
+    traj = Trajectory(meta=info)
+    state = stepper.initial_state()
+    stepper.record_initial(traj, state)
+    traj.stats.linear_factorizations += stepper.initial_factorizations
+    controller = UniformController(tau)
+    try:
+        final = evolve(stepper, controller, state, traj, tau_min=tau, progress=progress)
+    except RunFailed as exc:
+        exc.trajectory = traj
+        _finish_meta(traj, stepper)
+        raise
+    _finish_meta(traj, stepper)
+    traj.final_state = final
+    return traj
+
+
+def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:
+    s = stepper.solver.stats
+    traj.meta["linear_solver"] = {
+        "kind": stepper.kind, "factorizations": s.factorizations, "backsolves": s.backsolves,
+        "krylov_iterations": s.krylov_iterations, "setup_seconds": s.setup_seconds,
+    }
