@@ -98,11 +98,13 @@ def test_file_with_only_lines(tmp_path):
         load_mesh(path, dim=2)
 
 
-def test_vtu_2d_points_with_z_column_and_unused_nodes(tmp_path):
+@pytest.mark.parametrize("suffix", [".vtu", ".xdmf"])
+def test_vtu_xdmf_2d_points_with_z_column_and_unused_nodes(tmp_path, monkeypatch, suffix):
+    monkeypatch.chdir(tmp_path)  # meshio's XDMF writer puts its .h5 into the cwd
     ref = unit_square(3)
     pts = np.c_[ref.p.T, np.zeros(ref.p.shape[1])]
     pts = np.vstack([pts, [[5.0, 5.0, 0.0]]])  # a node no cell uses (a gmsh geometry point)
-    path = tmp_path / "square.vtu"
+    path = tmp_path / f"square{suffix}"
     meshio.write(path, meshio.Mesh(pts, [("triangle", ref.t.T)]))
     m = load_mesh(path)
     assert m.p.shape == (2, 16)
