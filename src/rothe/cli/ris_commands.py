@@ -131,6 +131,10 @@ class RISRunBase:
     def exact(self):
         return None
 
+    def summary_at_end(self, args) -> dict:
+        """Fields measured last, just before summary.json is written (e.g. peak memory)."""
+        return {}
+
     def inner_options(self, args):
         """InnerOptions for the run (None: the solver's defaults)."""
         return None
@@ -180,6 +184,7 @@ class RISRunBase:
                 self.write_extra(args, problem, traj, out)
                 summary = ris_summary(traj, self.name, self.extra_summary(args, problem, traj))
                 summary.update(status="failed", failure=str(exc), where=exc.where)
+                summary.update(self.summary_at_end(args))
                 write_summary(out, summary)
             raise
         traj = runs[-1]
@@ -197,6 +202,7 @@ class RISRunBase:
         self.write_extra(args, problem, traj, out)
         if not args.no_plots:
             self.plot(args, problem, runs, out)
+        summary.update(self.summary_at_end(args))
         write_summary(out, summary)
         if not args.quiet:
             print(f"rothe run {self.name}: wrote {out}/")

@@ -110,12 +110,16 @@ class _RunRISFem(RISRunBase):
             "n_unknowns": problem.n,
             "linear_solver": linear_solver_used(traj, problem, args.linear_solver),
             "setup_time_s": getattr(self, "_setup_time", None),
-            "peak_memory_mb": peak_memory_mb(),
+            "peak_memory_mb": peak_memory_mb(),  # updated at the very end (summary_at_end)
             "z0": args.z0,
             "amplitude": args.amplitude,
         }
         extra.update(describe_branch(problem, traj))
         return extra
+
+    def summary_at_end(self, args) -> dict:
+        # after the XDMF file and the figures: the peak of the whole process
+        return {"peak_memory_mb": peak_memory_mb()}
 
     def summary_keys_extra(self):
         return ("n_nodes", "energy_final", "z_min", "z_max", "n_viscous_jumps", "branch",
