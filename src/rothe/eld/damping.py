@@ -22,8 +22,9 @@ Every damping object here is a *description* (numbers, validated where they ente
 - :class:`UserDamping`: your own D, either a matrix (linear) or a force with its Jacobian,
   with the constants you state.
 
-A discrete operator has ``linear`` (the sparse matrix C of the linear part, D v = C v + N(v)),
-``is_linear``, ``apply(v)``, ``jacobian(v)`` (sparse, = C + N'(v)) and ``nonlinear_jacobian(v)``.
+A discrete operator (:class:`DampingOperator`) has the linear part C = a_M M + a_K K (+ a matrix)
+with D v = C v + N(v), ``is_linear``, ``apply(v)``, ``linear_apply(v)``, ``jacobian(v)``
+(sparse, = C + N'(v)), ``nonlinear_jacobian(v)`` and its matrix-free action.
 """
 
 from __future__ import annotations
@@ -56,11 +57,20 @@ class DampingConstants:
 
 
 class DampingOperator:
-    """Discrete D acting on interleaved dof vectors: D v = C v + N(v)."""
+    """Discrete D acting on interleaved dof vectors: D v = C v + N(v).
 
-    def __init__(self, linear: sp.spmatrix, nonlinear=None, nonlinear_jacobian=None,
+    The linear part is kept as C = mass_coef M + stiffness_coef K (+ matrix), not as a new
+    sparse matrix: at a million unknowns a third matrix of the size of K costs 0.6 GB, and the
+    step matrix (rho/tau^2) M + C/tau + K is then built from M and K directly.
+    """
+
+    def __init__(self, M, K, *, mass_coef: float = 0.0, stiffness_coef: float = 0.0,
+                 matrix=None, nonlinear=None, nonlinear_jacobian=None,
                  nonlinear_jacobian_action=None):
-        self.linear = sp.csr_matrix(linear)
+        self.M, self.K = M, K
+        self.mass_coef = float(mass_coef)
+        self.stiffness_coef = float(stiffness_coef)
+        self.matrix = None if matrix is None else sp.csr_matrix(matrix)
         self._N = nonlinear
         self._dN = nonlinear_jacobian
         self._dN_action = nonlinear_jacobian_action
@@ -69,8 +79,27 @@ class DampingOperator:
     def is_linear(self) -> bool:
         return self._N is None
 
+    @property
+    def linear(self) -> sp.csr_matrix:
+        """C assembled (a new matrix; the schemes use :meth:`linear_apply` instead)."""
+        C = self.mass_coef * self.M + self.stiffness_coef * self.K
+        if self.matrix is not None:
+            C = C + self.matrix
+        return sp.csr_matrix(C)
+
+    def linear_apply(self, v: np.ndarray) -> np.ndarray:
+        """C v."""
+        out = np.zeros_like(v, dtype=float)
+        if self.mass_coef != 0.0:
+            out += self.mass_coef * (self.M @ v)
+        if self.stiffness_coef != 0.0:
+            out += self.stiffness_coef * (self.K @ v)
+        if self.matrix is not None:
+            out += self.matrix @ v
+        return out
+
     def apply(self, v: np.ndarray) -> np.ndarray:
-        out = self.linear @ v
+        out = self.linear_apply(v)
         if self._N is not None:
             out = out + self._N(v)
         return out
@@ -84,7 +113,7 @@ class DampingOperator:
     def nonlinear_jacobian(self, v: np.ndarray) -> sp.csr_matrix:
         """N'(v) alone, assembled (zero matrix for linear damping)."""
         if self._N is None:
-            return sp.csr_matrix(self.linear.shape)
+            return sp.csr_matrix(self.M.shape)
         return sp.csr_matrix(self._dN(v))
 
     def nonlinear_jacobian_action(self, v: np.ndarray):
@@ -121,7 +150,7 @@ class NoDamping(Damping):
         return DampingConstants(0.0, 0.0, 0.0, 0.0)
 
     def operator(self, space, M, K) -> DampingOperator:
-        return DampingOperator(sp.csr_matrix(M.shape))
+        return DampingOperator(M, K)
 
 
 class RayleighDamping(Damping):
@@ -138,7 +167,7 @@ class RayleighDamping(Damping):
         return DampingConstants(0.0, self.b, self.b, self.a)
 
     def operator(self, space, M, K) -> DampingOperator:
-        return DampingOperator(self.a * M + self.b * K)
+        return DampingOperator(M, K, mass_coef=self.a, stiffness_coef=self.b)
 
     def describe(self) -> dict:
         return {**super().describe(), "a": self.a, "b": self.b}
@@ -182,9 +211,9 @@ class NonlinearDamping(Damping):
         return -self.d0 * v + self.d_nl * saturating_velocity(v, self.v_ref)
 
     def operator(self, space, M, K) -> DampingOperator:
-        linear = self.b * K - self.d0 * M
+        linear = dict(mass_coef=-self.d0, stiffness_coef=self.b)
         if self.d_nl == 0.0:
-            return DampingOperator(linear)
+            return DampingOperator(M, K, **linear)
         d_nl, v_ref = self.d_nl, self.v_ref
 
         def N(v):
@@ -204,7 +233,8 @@ class NonlinearDamping(Damping):
 
             return apply
 
-        return DampingOperator(linear, N, dN, dN_action)
+        return DampingOperator(M, K, **linear, nonlinear=N, nonlinear_jacobian=dN,
+                               nonlinear_jacobian_action=dN_action)
 
     def describe(self) -> dict:
         return {**super().describe(), "b": self.b, "d_nl": self.d_nl, "v_ref": self.v_ref}
@@ -244,9 +274,9 @@ class UserDamping(Damping):
             C = sp.csr_matrix(self.matrix)
             if C.shape != M.shape:
                 raise fail("damping matrix", f"shape {C.shape}", f"must be {M.shape}")
-            return DampingOperator(C)
-        zero = sp.csr_matrix(M.shape)
-        return DampingOperator(zero, self.force, lambda v: sp.csr_matrix(self.jacobian(v)))
+            return DampingOperator(M, K, matrix=C)
+        return DampingOperator(M, K, nonlinear=self.force,
+                               nonlinear_jacobian=lambda v: sp.csr_matrix(self.jacobian(v)))
 
 
 def make_damping(kind: str, *, a: float = 0.0, b: float = 0.0, d0: float = 0.0,

@@ -176,16 +176,20 @@ class ELDStepper:
         c = p.constraint
         self.rho = p.material.rho
         self.D = p.damping_op
-        self.C = self.D.linear
         self.I = c.free
         n = p.space.ndofs
-        A = ((self.rho / tau**2) * p.M + (1.0 / tau) * self.C + p.K).tocsr()
-        self.A = A
+        # A = (rho/tau^2) M + C/tau + K with C = a_M M + a_K K (+ E), without forming C
+        D = self.D
+        A = ((self.rho / tau**2 + D.mass_coef / tau) * p.M
+             + (1.0 + D.stiffness_coef / tau) * p.K).tocsr()
+        if D.matrix is not None:
+            A = (A + (1.0 / tau) * D.matrix).tocsr()
         if self.form == "regularized":
             self.kind = resolve_kind(solver, self.I.size, p.space.dim)
             rbm = p.space.rigid_body_modes()[self.I] if self.kind == "amg" else None
             self.solver = ReferenceSolver(self.kind, spd=True, near_nullspace=rbm, rtol=linear_rtol)
             self.A_II = A[self.I][:, self.I].tocsr()
+            del A  # at a million unknowns every matrix of this size costs 0.6 GB
             if self.D.is_linear:
                 self.solver.factor(self.A_II)
             self.lifting = make_lifting(self.lifting_kind, c, p.K)
@@ -196,6 +200,7 @@ class ELDStepper:
                            "the original form's saddle-point system is solved by sparse LU only; "
                            "use the regularized form for AMG")
             self.solver = ReferenceSolver("direct", spd=False, rtol=linear_rtol)
+            self.A = A
             self._kkt_lin = self._kkt(A)
             if self.D.is_linear:
                 self.solver.factor(self._kkt_lin)
@@ -328,7 +333,7 @@ class ELDStepper:
         guess = (2.0 * p1 - p2)[I]
         if self.D.is_linear:
             rhs = (vals.F + p.M @ (rho * (2.0 * p1 - p2) / tau**2 - rho * w2)
-                   + self.C @ (p1 / tau - v2) - p.K @ u2)
+                   + self.D.linear_apply(p1 / tau - v2) - p.K @ u2)
             xI = self.solver.solve_reference(rhs[I], x0=guess)
             its = 0
         else:
@@ -372,7 +377,8 @@ class ELDStepper:
         p1, p2 = state.x, state.x_prev
         g_rhs = c.boundary_mass @ vals.G
         if self.D.is_linear:
-            rhs_u = vals.F + p.M @ (rho * (2.0 * p1 - p2) / tau**2) + self.C @ (p1 / tau)
+            rhs_u = (vals.F + p.M @ (rho * (2.0 * p1 - p2) / tau**2)
+                     + self.D.linear_apply(p1 / tau))
             z = self.solver.solve_reference(np.concatenate([rhs_u, g_rhs]))
             its = 0
         else:

@@ -126,6 +126,18 @@ class ReferenceSolver:
             raise SolveFailed(f"AMG-CG did not reach rtol {self.rtol:g} in 500 iterations")
         return x
 
+    def time_backsolve(self, n: int, repeats: int = 20, seed: int = 0) -> float:
+        """Median seconds of one application of the stored factorization (one back-substitution
+        for LU, one V-cycle for AMG) to a random vector of length n; for benchmarks."""
+        rng = np.random.default_rng(seed)
+        times = []
+        for _ in range(repeats):
+            b = rng.standard_normal(n)
+            t0 = time.perf_counter()
+            self._prec(b)
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times))
+
     # -- nearby matrices ------------------------------------------------------------------------
     def solve(self, A, b: np.ndarray, x0=None, assemble=None) -> np.ndarray:
         """x = A^{-1} b by Krylov preconditioned with the reference (rebuilt if it went stale).

@@ -1,0 +1,112 @@
+"""Figures of elastodynamics runs: energy balance, reaction forces, convergence, perturbations."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def _save(fig, path) -> Path:
+    path = Path(path)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_energy_balance(traj, path, title: str = "") -> Path:
+    """Left: kinetic, elastic and total energy. Right: the terms of the energy identity,
+    E(t) - E(0) = W_loads + W_support - D_physical - D_numerical - X_data, and its residual."""
+    t = traj["t"]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    ax = axes[0]
+    ax.plot(t, traj["kinetic"], label="kinetic")
+    ax.plot(t, traj["elastic"], label="elastic")
+    ax.plot(t, traj["energy"], "k", lw=1.6, label="total E")
+    ax.set_xlabel("t")
+    ax.set_ylabel("energy")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    e0 = traj["energy"][0]
+    ax.plot(t, traj["energy"] - e0, "k", lw=1.6, label="E(t) - E(0)")
+    ax.plot(t, traj["work"], label="work of loads")
+    ax.plot(t, traj["work_reaction"], label="work of the support")
+    ax.plot(t, -traj["dissipated"], label="- physical dissipation")
+    ax.plot(t, -traj["numerical_dissipation"], label="- numerical dissipation")
+    if np.max(np.abs(traj["data_mismatch"])) > 0:
+        ax.plot(t, -traj["data_mismatch"], ":", label="- data mismatch")
+    res = np.max(np.abs(traj["balance_residual"]))
+    ax.set_title(f"balance residual max {res:.2e}", fontsize=9)
+    ax.set_xlabel("t")
+    ax.legend(fontsize=7)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_reactions(traj, path, title: str = "") -> Path:
+    """Reaction force per Dirichlet part (-int lambda ds, one curve per component) over time."""
+    t = traj["t"][1:]
+    parts = [k for k in traj.keys() if k.startswith("reaction_")]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    names = "xyz"
+    for key in parts:
+        R = traj[key]
+        for c in range(R.shape[1]):
+            axes[0].plot(t, R[:, c], label=f"{key[len('reaction_'):]}: R_{names[c]}")
+    axes[0].set_xlabel("t")
+    axes[0].set_ylabel(r"reaction force $-\int \lambda\, ds$")
+    axes[0].legend(fontsize=8)
+    axes[1].plot(t, traj["lam_norm"])
+    axes[1].set_xlabel("t")
+    axes[1].set_ylabel(r"$\|\lambda\|_{L^2(\Gamma_D)}$")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_convergence(taus, errors: dict, path, rates: dict | None = None, title: str = "") -> Path:
+    """Log-log errors against tau, with a slope-1 reference."""
+    taus = np.asarray(taus)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for name, errs in errors.items():
+        label = name if not rates or name not in rates else f"{name} (rate {rates[name]:.2f})"
+        ax.loglog(taus, errs, "o-", label=label)
+    first = np.asarray(next(iter(errors.values())))
+    ax.loglog(taus, first[0] * taus / taus[0], "k--", lw=1, label=r"$O(\tau)$")
+    ax.set_xlabel(r"$\tau$")
+    ax.set_ylabel("error at T")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_perturbation(taus, table: dict, path, title: str = "") -> Path:
+    """Amplification max_j |x_pert^j - x^j| / delta against tau, both forms (Theorem 4.5)."""
+    taus = np.asarray(taus)
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    panels = (("amp", r"multiplier $\lambda$"), ("amp_v", "velocity"), ("amp_u", "displacement"))
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        for form, style in (("regularized", "o-"), ("original", "s--")):
+            name = f"{key}_{form}"
+            if name in table:
+                ax.loglog(taus, table[name], style, label=form)
+        ax.set_xlabel(r"$\tau$")
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel(r"$\max_j \|\cdot_{pert} - \cdot\| / \delta$")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)

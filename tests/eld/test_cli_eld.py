@@ -1,0 +1,116 @@
+"""The ELD commands: outputs, summary fields, and one-line errors with exit status 2."""
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+
+from rothe.cli.main import main
+
+
+def _run(argv, capsys):
+    code = main(argv)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):
+    out = tmp_path / "mms"
+    code, stdout, _ = _run(["run", "eld-mms", "--tau", "0.05", "--n", "2", "--out", str(out)],
+                           capsys)
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("error_u_l2", "error_u_h1", "error_v_l2", "error_v_h1", "error_lam_l2",
+                "accepted_steps", "rejected_steps", "newton_iterations", "wall_time_s",
+                "balance_residual_max", "reaction_left_final"):
+        assert key in summary, key
+    assert summary["lam_norm"] == "L2(Gamma_D)"
+    assert summary["accepted_steps"] == 20 and summary["status"] == "completed"
+    assert summary["balance_residual_max"] < 1e-9
+    assert (out / "fig_energy.png").is_file() and (out / "fig_reaction.png").is_file()
+    data = np.load(out / "trajectory.npz")
+    assert data["lam"].shape[0] == 20 and data["t"].shape[0] == 21
+    assert "energy balance of the scheme" in stdout and "numerical dissipation" in stdout
+
+
+def test_quiet_prints_nothing(tmp_path, capsys):
+    code, stdout, stderr = _run(["run", "eld-mms", "--tau", "0.1", "--n", "2", "--quiet",
+                                 "--no-plots", "--out", str(tmp_path)], capsys)
+    assert code == 0 and stdout == "" and stderr == ""
+    assert not (tmp_path / "fig_energy.png").exists()
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--rho", "1", "--d0", "2", "--tau", "0.6"],
+     "tau: got 0.6, must be < rho/d0 = 0.5 (Lemma 3.2"),
+    (["--rho", "-1"], "rho: got -1, must be > 0"),
+    (["--mu", "-1"], "mu: got -1, must be > 0"),
+    (["--lam", "-1.5"], "lam: got -1.5, must be > -2 mu / d = -1"),
+    (["--dirichlet", "lft"], "dirichlet: got 'lft', must be one of bottom, left, right, top"),
+    (["--start", "rest"], "u0: got max|u0 - G(0)| = 0.5 on the Dirichlet parts left"),
+    (["--tau", "0.3"], "tau: got 0.3, must divide T = 1 into equal steps"),
+    (["--form", "index3"], "--form: got 'index3', must be one of regularized, original"),
+    (["--damping", "viscous"], "--damping: got 'viscous', must be one of none, rayleigh"),
+    (["--d0", "-1"], "d0: got -1, must be >= 0"),
+    (["--degree", "3"], "degree: got 3, must be 1 or 2"),
+])
+def test_bad_input_is_one_line_and_exit_status_2(tmp_path, capsys, args, message):
+    out = tmp_path / "bad"
+    code, _, stderr = _run(["run", "eld-mms", "--n", "2", "--out", str(out), "--quiet"] + args,
+                           capsys)
+    assert code == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rothe: error: ")
+    assert message in lines[0]
+    assert not (out / "trajectory.npz").exists()  # stopped before the first step
+
+
+def test_study_eld_convergence(tmp_path, capsys):
+    out = tmp_path / "conv"
+    code, stdout, _ = _run(["study", "eld-convergence", "--n", "2", "--halvings", "2",
+                            "--out", str(out), "--no-plots"], capsys)
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["tau"] == [0.1, 0.05, 0.025]
+    assert len(s["error_u"]) == 3 and len(s["error_v"]) == 3
+    assert s["rate_u"] > 0.8 and s["rate_v"] > 0.7
+    assert "fitted orders" in stdout and (out / "table.txt").is_file()
+
+
+def test_study_eld_perturbation(tmp_path, capsys):
+    out = tmp_path / "pert"
+    code, stdout, _ = _run(["study", "eld-perturbation", "--taus", "0.1,0.01", "--n", "2",
+                            "--targets", "G", "--damping", "rayleigh", "--out", str(out)],
+                           capsys)
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["tau"] == [0.1, 0.01]
+    for key in ("amp_regularized", "amp_original", "amp_v_regularized", "amp_v_original",
+                "amp_u_regularized", "amp_u_original"):
+        assert len(s[key]) == 2, key
+    assert s["amp_original"][1] > 5 * s["amp_original"][0]
+    assert (out / "fig_perturbation_G.png").is_file()
+    code, _, stderr = _run(["study", "eld-perturbation", "--taus", "0.1", "--out", str(out)],
+                           capsys)
+    assert code == 2 and "needs at least two step sizes" in stderr
+
+
+def test_run_eld_beam_writes_xdmf_of_u_v_and_the_multiplier(tmp_path, capsys):
+    out = tmp_path / "beam"
+    code, _, _ = _run(["run", "eld-beam", "--n", "1", "--T", "0.1", "--tau", "0.01",
+                       "--save-every", "2", "--out", str(out), "--quiet"], capsys)
+    assert code == 0
+    for name in ("beam.xdmf", "beam.h5", "beam_multiplier.xdmf", "beam_multiplier.h5",
+                 "fig_reaction.png", "summary.json", "trajectory.npz"):
+        assert (out / name).is_file(), name
+    with meshio.xdmf.TimeSeriesReader(str(out / "beam_multiplier.xdmf")) as reader:
+        reader.read_points_cells()
+        t, point_data, _ = reader.read_data(reader.num_steps - 1)
+    assert t == pytest.approx(0.1) and point_data["lambda"].shape[1] == 3
+    s = json.loads((out / "summary.json").read_text())
+    assert s["n_steps"] == 10 and s["xdmf_steps"] == 6  # t = 0 and every second step
+    data = np.load(out / "trajectory.npz")
+    assert data["reaction_left"].shape == (10, 3)
+    # the held end is pulled up (+z): the support pushes the beam up at first
+    assert data["reaction_left"][0, 2] > 0
