@@ -98,6 +98,10 @@ class DampingOperator:
             out += self.matrix @ v
         return out
 
+    def nonlinear_apply(self, v: np.ndarray) -> np.ndarray:
+        """N(v) (zero for linear damping)."""
+        return np.zeros_like(v, dtype=float) if self._N is None else self._N(v)
+
     def apply(self, v: np.ndarray) -> np.ndarray:
         out = self.linear_apply(v)
         if self._N is not None:

@@ -65,13 +65,18 @@ FORMS = ("regularized", "original")
 @dataclass
 class NewtonOptions:
     """Newton's method for nonlinear damping: stop when the (estimated) error of the iterate is
-    below ``tol`` times the size of the unknown, at most ``max_iter`` iterations."""
+    below ``tol`` times the size of the unknown, at most ``max_iter`` iterations. The Newton
+    corrections are solved to the relative residual ``krylov_rtol`` (inexact Newton: the
+    iteration then contracts by about that factor, and the stopping test still asks for
+    ``tol``)."""
 
     tol: float = 1e-10
     max_iter: int = 25
+    krylov_rtol: float = 1e-4
 
     def __post_init__(self):
         self.tol = check_positive("newton tol", self.tol)
+        self.krylov_rtol = check_positive("newton krylov_rtol", self.krylov_rtol)
         if int(self.max_iter) < 1:
             raise fail("newton max_iter", self.max_iter, "must be >= 1")
 
@@ -113,6 +118,13 @@ class ELDState:
     Mv: np.ndarray
     lam: np.ndarray | None
     ledger: EnergyLedger
+    # M x, K x of the scheme's unknown at t_j and t_{j-1}: every other product of a step is a
+    # combination of these and of thin products with the lifted boundary data, so a step with
+    # linear damping needs two sparse products besides the back-substitution
+    Mx: np.ndarray | None = None
+    Kx: np.ndarray | None = None
+    Mx_prev: np.ndarray | None = None
+    Kx_prev: np.ndarray | None = None
 
 
 @dataclass
@@ -129,6 +141,22 @@ class ELDStepResult:
     @property
     def errors(self) -> dict:
         return {}
+
+
+@dataclass
+class _Kinematics:
+    """The fields of one step and the products the energy identity and lambda need."""
+
+    x: np.ndarray
+    Mx: np.ndarray
+    Kx: np.ndarray
+    u: np.ndarray | None = None
+    v: np.ndarray | None = None
+    Ku: np.ndarray | None = None
+    Mv: np.ndarray | None = None
+    Ma: np.ndarray | None = None
+    Dv: np.ndarray | None = None
+    lam: np.ndarray | None = None
 
 
 class ELDStepper:
@@ -193,6 +221,10 @@ class ELDStepper:
             if self.D.is_linear:
                 self.solver.factor(self.A_II)
             self.lifting = make_lifting(self.lifting_kind, c, p.K)
+            if self.lifting_kind == "nodal":
+                # B^- g = S^T g: products with lifted data only touch the columns of Gamma_D
+                self._M_C = p.M[:, c.dofs].tocsr()
+                self._K_C = p.K[:, c.dofs].tocsr()
         else:
             self.kind = resolve_kind(solver, n + c.m, p.space.dim)
             if self.kind == "amg":
@@ -234,7 +266,8 @@ class ELDStepper:
         ledger = EnergyLedger(kinetic=0.5 * self.rho * float(v @ Mv), elastic=0.5 * float(u @ Ku),
                               initial=e0)
         return ELDState(s=0.0, t=0.0, j=0, x=x, x_prev=x_prev, u=u, v=v, Ku=Ku, Mv=Mv, lam=None,
-                        ledger=ledger)
+                        ledger=ledger, Mx=p.M @ x, Kx=p.K @ x, Mx_prev=p.M @ x_prev,
+                        Kx_prev=p.K @ x_prev)
 
     def record_initial(self, traj: Trajectory, state: ELDState) -> None:
         L = state.ledger
@@ -278,24 +311,23 @@ class ELDStepper:
         vals = self.data.at(j)
         try:
             if self.form == "regularized":
-                x, u, v, a, lam_known, its = self._step_regularized(state, vals)
+                k, its = self._step_regularized(state, vals)
             else:
-                x, u, v, a, lam_known, its = self._step_original(state, vals)
+                k, its = self._step_original(state, vals)
         except SolveFailed as exc:
             raise RunFailed(f"linear solve failed at step {j} (t = {j * tau:.6g}): {exc}",
                             where=self.where(state)) from exc
         self._last_newton = its
         p = self.problem
         c = p.constraint
-        Ku = p.K @ u
-        Mv = p.M @ v
-        Ma = p.M @ a
-        Dv = self.D.apply(v)
-        if lam_known is None:
-            r = vals.F - self.rho * Ma - Dv - Ku
-            lam = c.multiplier_from_residual(r[c.dofs])
+        x, u, v, Ku, Mv, Ma, Dv = k.x, k.u, k.v, k.Ku, k.Mv, k.Ma, k.Dv
+        if k.lam is None:
+            # (3.4a) tested with V^c: the residual on the constrained rows is B^T lambda
+            C = c.dofs
+            r_C = vals.F[C] - self.rho * Ma[C] - Dv[C] - Ku[C]
+            lam = c.multiplier_from_residual(r_C)
         else:
-            lam = lam_known
+            lam = k.lam
         # energy identity (module docstring)
         L = state.ledger
         dv, du = v - state.v, u - state.u
@@ -313,7 +345,8 @@ class ELDStepper:
             + tau * float(Ku @ (v - du / tau)),
         )
         new = ELDState(s=j * tau, t=j * tau, j=j, x=x, x_prev=state.x, u=u, v=v, Ku=Ku, Mv=Mv,
-                       lam=lam, ledger=ledger)
+                       lam=lam, ledger=ledger, Mx=k.Mx, Kx=k.Kx, Mx_prev=state.Mx,
+                       Kx_prev=state.Kx)
         counters = {
             "newton_iterations": its,
             "linear_factorizations": st.factorizations - before[0],
@@ -324,95 +357,137 @@ class ELDStepper:
                              newton_iterations=its, counters=counters)
 
     # -- the two forms --------------------------------------------------------------------------
+    def _lifted(self, gs):
+        """[(B^- g, M B^- g, K B^- g) for g in gs], by thin column products (nodal lifting)."""
+        if self.lifting_kind == "nodal":
+            return [(self.lifting(g), self._M_C @ g, self._K_C @ g) for g in gs]
+        p = self.problem
+        return [(w, p.M @ w, p.K @ w) for w in self.lifting.lift_many(list(gs))]
+
+    def _kinematics(self, state: ELDState, x, Mx, Kx, lifted, with_nonlinear: bool = True):
+        """u, v, a and their products from x = u_1^j (or u^j) and the lifted data.
+
+        u = x + u2, v = (x - x^{j-1})/tau + v2, a = (x - 2 x^{j-1} + x^{j-2})/tau^2 + w2.
+        """
+        tau = self.tau
+        p1 = state.x
+        (u2, _, Ku2), (v2, Mv2, Kv2), (_, Mw2, _) = lifted
+        k = _Kinematics(x=x, Mx=Mx, Kx=Kx)
+        k.u = x + u2 if u2 is not None else x
+        k.v = (x - p1) / tau + (v2 if v2 is not None else 0.0)
+        k.Mv = (Mx - state.Mx) / tau + Mv2
+        k.Ma = (Mx - 2.0 * state.Mx + state.Mx_prev) / tau**2 + Mw2
+        k.Ku = Kx + Ku2
+        Kv = (Kx - state.Kx) / tau + Kv2
+        D = self.D
+        Dv = D.mass_coef * k.Mv + D.stiffness_coef * Kv
+        if D.matrix is not None:
+            Dv = Dv + D.matrix @ k.v
+        if with_nonlinear and not D.is_linear:
+            Dv = Dv + D.nonlinear_apply(k.v)
+        k.Dv = Dv
+        return k
+
     def _step_regularized(self, state: ELDState, vals):
         p, tau, rho = self.problem, self.tau, self.rho
         I = self.I
-        u2, v2, w2 = self.lifting.lift_many([vals.G, vals.G_dot, vals.G_ddot])
-        p1, p2 = state.x, state.x_prev
         n = p.space.ndofs
-        guess = (2.0 * p1 - p2)[I]
-        if self.D.is_linear:
-            rhs = (vals.F + p.M @ (rho * (2.0 * p1 - p2) / tau**2 - rho * w2)
-                   + self.D.linear_apply(p1 / tau - v2) - p.K @ u2)
+        lifted = self._lifted((vals.G, vals.G_dot, vals.G_ddot))
+        (u2, _, Ku2), (v2, Mv2, Kv2), (w2, Mw2, _) = lifted
+        D = self.D
+        guess = (2.0 * state.x - state.x_prev)[I]
+        if D.is_linear:
+            # [(rho/tau^2) M + C/tau + K] x = F + rho M (2 x^{j-1} - x^{j-2})/tau^2 - rho M w2
+            #                                   + C (x^{j-1}/tau - v2) - K u2      on V_B
+            rhs = (vals.F + rho * (2.0 * state.Mx - state.Mx_prev) / tau**2 - rho * Mw2
+                   + D.mass_coef * (state.Mx / tau - Mv2)
+                   + D.stiffness_coef * (state.Kx / tau - Kv2) - Ku2)
+            if D.matrix is not None:
+                rhs = rhs + D.matrix @ (state.x / tau - v2)
             xI = self.solver.solve_reference(rhs[I], x0=guess)
-            its = 0
-        else:
-            def residual(xI):
-                x = np.zeros(n)
-                x[I] = xI
-                v = (x - p1) / tau + v2
-                R = (rho * (p.M @ ((x - 2.0 * p1 + p2) / tau**2 + w2)) + self.D.apply(v)
-                     + p.K @ (x + u2) - vals.F)
-                return R[I], v
+            x = np.zeros(n)
+            x[I] = xI
+            return self._kinematics(state, x, p.M @ x, p.K @ x, lifted), 0
 
-            def jacobian(v):
-                # matrix-free J_II w = A_II w + (N'(v) E w)_I / tau; assembled only when the
-                # stored preconditioner must be rebuilt
-                action = self.D.nonlinear_jacobian_action(v)
+        cache = {}
 
-                def matvec(w):
-                    full = np.zeros(n)
-                    full[I] = w
-                    return self.A_II @ w + action(full)[I] / tau
+        def residual(xI):
+            x = np.zeros(n)
+            x[I] = xI
+            k = self._kinematics(state, x, p.M @ x, p.K @ x, lifted)
+            cache["k"] = k
+            R = rho * k.Ma + k.Dv + k.Ku - vals.F
+            return R[I], k.v
 
-                op = spla.LinearOperator((I.size, I.size), matvec=matvec, dtype=float)
+        def jacobian(v):
+            # matrix-free J_II w = A_II w + (N'(v) E w)_I / tau; assembled only when the
+            # stored preconditioner must be rebuilt
+            action = D.nonlinear_jacobian_action(v)
 
-                def assemble():
-                    return (self.A_II + (1.0 / tau) * self.D.nonlinear_jacobian(v)[I][:, I]).tocsr()
+            def matvec(w):
+                full = np.zeros(n)
+                full[I] = w
+                return self.A_II @ w + action(full)[I] / tau
 
-                return op, assemble
+            op = spla.LinearOperator((I.size, I.size), matvec=matvec, dtype=float)
 
-            xI, its = self._newton(residual, jacobian, guess, p1[I], state)
-        x = np.zeros(n)
-        x[I] = xI
-        u = x + u2
-        v = (x - p1) / tau + v2
-        a = (x - 2.0 * p1 + p2) / tau**2 + w2
-        return x, u, v, a, None, its
+            def assemble():
+                return (self.A_II + (1.0 / tau) * D.nonlinear_jacobian(v)[I][:, I]).tocsr()
+
+            return op, assemble
+
+        _, its = self._newton(residual, jacobian, guess, state.x[I], state)
+        return cache["k"], its
 
     def _step_original(self, state: ELDState, vals):
         p, tau, rho = self.problem, self.tau, self.rho
         c = p.constraint
         n = p.space.ndofs
-        p1, p2 = state.x, state.x_prev
+        zero = (None, 0.0, 0.0)
+        lifted = [zero, zero, zero]
         g_rhs = c.boundary_mass @ vals.G
-        if self.D.is_linear:
-            rhs_u = (vals.F + p.M @ (rho * (2.0 * p1 - p2) / tau**2)
-                     + self.D.linear_apply(p1 / tau))
+        D = self.D
+        if D.is_linear:
+            rhs_u = (vals.F + rho * (2.0 * state.Mx - state.Mx_prev) / tau**2
+                     + D.mass_coef * state.Mx / tau + D.stiffness_coef * state.Kx / tau)
+            if D.matrix is not None:
+                rhs_u = rhs_u + D.matrix @ (state.x / tau)
             z = self.solver.solve_reference(np.concatenate([rhs_u, g_rhs]))
-            its = 0
-        else:
-            B = c.B
-            lam0 = state.lam if state.lam is not None else np.zeros(c.m)
+            u = z[:n]
+            k = self._kinematics(state, u, p.M @ u, p.K @ u, lifted)
+            k.lam = z[n:]
+            return k, 0
 
-            def residual(z):
+        B = c.B
+        lam0 = state.lam if state.lam is not None else np.zeros(c.m)
+        cache = {}
+
+        def residual(z):
+            u, lam = z[:n], z[n:]
+            k = self._kinematics(state, u, p.M @ u, p.K @ u, lifted)
+            k.lam = lam
+            cache["k"] = k
+            R_u = rho * k.Ma + k.Dv + k.Ku + B.T @ lam - vals.F
+            return np.concatenate([R_u, B @ u - g_rhs]), k.v
+
+        def jacobian(v):
+            action = D.nonlinear_jacobian_action(v)
+            m = c.m
+
+            def matvec(z):
                 u, lam = z[:n], z[n:]
-                v = (u - p1) / tau
-                R_u = (rho * (p.M @ ((u - 2.0 * p1 + p2) / tau**2)) + self.D.apply(v) + p.K @ u
-                       + B.T @ lam - vals.F)
-                return np.concatenate([R_u, B @ u - g_rhs]), v
+                return np.concatenate([self.A @ u + action(u) / tau + B.T @ lam, B @ u])
 
-            def jacobian(v):
-                action = self.D.nonlinear_jacobian_action(v)
-                m = c.m
+            op = spla.LinearOperator((n + m, n + m), matvec=matvec, dtype=float)
 
-                def matvec(z):
-                    u, lam = z[:n], z[n:]
-                    return np.concatenate([self.A @ u + action(u) / tau + B.T @ lam, B @ u])
+            def assemble():
+                return self._kkt(self.A + (1.0 / tau) * D.nonlinear_jacobian(v))
 
-                op = spla.LinearOperator((n + m, n + m), matvec=matvec, dtype=float)
+            return op, assemble
 
-                def assemble():
-                    return self._kkt(self.A + (1.0 / tau) * self.D.nonlinear_jacobian(v))
-
-                return op, assemble
-
-            z0 = np.concatenate([2.0 * p1 - p2, lam0])
-            z, its = self._newton(residual, jacobian, z0, np.concatenate([p1, lam0]), state)
-        u, lam = z[:n], z[n:]
-        v = (u - p1) / tau
-        a = (u - 2.0 * p1 + p2) / tau**2
-        return u, u, v, a, lam, its
+        z0 = np.concatenate([2.0 * state.x - state.x_prev, lam0])
+        _, its = self._newton(residual, jacobian, z0, np.concatenate([state.x, lam0]), state)
+        return cache["k"], its
 
     def _newton(self, residual, jacobian, z0, z_prev, state):
         """Newton's method with backtracking on |R|; returns (z, iterations) or raises RunFailed.
@@ -430,7 +505,7 @@ class ELDStepper:
             if rnorm == 0.0:
                 return z, it - 1
             J, assemble = jacobian(v)
-            dz = self.solver.solve(J, -R, assemble=assemble)
+            dz = self.solver.solve(J, -R, assemble=assemble, rtol=opts.krylov_rtol)
             alpha = 1.0
             while True:
                 z_new = z + alpha * dz
@@ -514,7 +589,8 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
         _finish_meta(traj, stepper)
         raise
     _finish_meta(traj, stepper)
-    traj.final_state = final
+    traj.final_state = final  # not saved to .npz: the last state and the stepper, for callers
+    traj.stepper = stepper
     return traj
 
 
