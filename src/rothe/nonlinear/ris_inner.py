@@ -88,6 +88,8 @@ class InnerState:
     nu: float = 0.0
     c_fb: float = 1.0
     code: str = "running"
+    hint: np.ndarray | None = None  # a candidate increment (e.g. the previous step's), tried once
+    last_alpha: float = 0.0  # damping factor of the last accepted line-search step
     history: list = field(default_factory=list)
 
 
@@ -237,7 +239,15 @@ class BallStepSolver:
         return out + hess_F * v
 
     # -- init / step / terminate --------------------------------------------------------------
-    def init(self, t: float, zprev: np.ndarray, tau: float) -> InnerState:
+    def init(self, t: float, zprev: np.ndarray, tau: float, hint=None) -> InnerState:
+        """State at d = 0 (z = z_{k-1}). ``hint``: an increment tried as the first candidate.
+
+        The iteration always starts at z_{k-1} (it must: from there descent finds the stationary
+        point "nearest" the previous state). A hint -- typically the previous accepted step scaled
+        to the new tau -- is only a line-search candidate of the first iteration, taken if it
+        lowers J; in a viscous jump it replaces a useless Newton step with the indefinite Hessian
+        at the start of the step by a point on the sphere with a good multiplier.
+        """
         d = np.zeros_like(zprev)
         z, Az, g, J = self._evaluate(t, zprev, d)
         p = self.p
@@ -249,8 +259,16 @@ class BallStepSolver:
         st = InnerState(
             t=t, zprev=zprev, tau=tau, d=d, z=z, Az=Az, g=g, J=J, J0=J, tol=tol, scale=scale
         )
-        st.c_fb = max(self._c_scale, 1e-12)
+        # forward-backward backtracking starts from a long step (small c): it reaches the sphere
+        # at once when the ball is active, and halves the step from there otherwise
+        st.c_fb = max(1e-4 * self._c_scale, 1e-12)
         st.kkt = kkt_residual(p, d, g, 0.0, tau)
+        if hint is not None and np.any(hint):
+            h = np.asarray(hint, dtype=float).copy()
+            nh = p.norm_V(h)
+            if nh > tau:
+                h *= tau / nh
+            st.hint = h
         return st
 
     def terminate(self, st: InnerState) -> tuple[bool, str]:
@@ -268,14 +286,26 @@ class BallStepSolver:
         """One iteration: Newton candidate with line search on J, else a forward-backward step."""
         p = self.p
         st.iteration += 1
+        if st.hint is not None:
+            hint, st.hint = st.hint, None
+            sphere = p.norm_V(hint) >= st.tau * (1 - 1e-12)
+            if self._try_candidates(st, [hint], None, sphere=sphere, full_only=True):
+                return st
         on_sphere = p.norm_V(st.d) >= st.tau * (1 - 1e-12) and st.lam > 0
+        kkt_before = st.kkt
         accepted = self._newton_step(st, on_sphere)
         if accepted:
             st.newton_steps += 1
-            st.nu = 0.0 if st.nu < 1e-8 * self._c_scale else st.nu / 4
+            if st.last_alpha == 1.0 and st.kkt <= 0.5 * kkt_before:
+                st.nu = 0.0  # the true Hessian works here: quadratic convergence from now on
+            else:
+                st.nu *= 0.5
         else:
             # shift the Hessian by nu*M: at least the amount that makes A + F'' + nu*M >= A >= 0
-            st.nu = max(2 * st.nu, self._convexifying_shift(st.z), 1e-3 * self._c_scale)
+            st.nu = min(
+                max(2 * st.nu, self._convexifying_shift(st.z), 1e-3 * self._c_scale),
+                1e6 * self._c_scale,
+            )
             if not self._fb_step(st):
                 st.code = "stalled"
                 return st
@@ -284,8 +314,8 @@ class BallStepSolver:
             st.code = "nonfinite"
         return st
 
-    def solve(self, t: float, zprev: np.ndarray, tau: float) -> InnerResult:
-        st = self.init(t, zprev, tau)
+    def solve(self, t: float, zprev: np.ndarray, tau: float, hint=None) -> InnerResult:
+        st = self.init(t, zprev, tau, hint)
         while True:
             done, code = self.terminate(st)
             if done:
@@ -312,7 +342,10 @@ class BallStepSolver:
         hess_F = self._hess_F(st.z)
         hdiag = self._hess_diag(st.z, hess_F)
         # 1. active-set prediction by a diagonal Newton step on the normal map
-        Dg = np.maximum(hdiag + lam * p.m, 1e-8 * self._c_scale * p.m)
+        # D_i must be a meaningful positive scale: where the curvature along coordinate i is
+        # negative, a clamped near-zero D_i turns a 1e-7 stationarity defect into an active-set
+        # flip of a moving node at every iteration (a stall found by hypothesis, seed 374)
+        Dg = np.maximum(hdiag + lam * p.m, 1e-2 * self._c_scale * p.m)
         y = d - (g + lam * p.m * d) / Dg
         active = np.abs(y) > p.r / Dg
         if not np.any(active):
@@ -367,7 +400,8 @@ class BallStepSolver:
                 sphere = True
         return self._try_candidates(st, [trial], hess_F, sphere=sphere)
 
-    def _try_candidates(self, st: InnerState, candidates, hess_F, sphere: bool = False) -> bool:
+    def _try_candidates(self, st: InnerState, candidates, hess_F, sphere: bool = False,
+                        full_only: bool = False) -> bool:
         """Line search along d -> candidate (retracting onto the sphere when it is active)."""
         p = self.p
         d = st.d
@@ -379,7 +413,7 @@ class BallStepSolver:
             else:
                 quad = 0.0
             pred = -(float(st.g @ step) + 0.5 * quad + p.dissipation(cand) - p.dissipation(d))
-            for alpha in (1.0, 0.5, 0.25):
+            for alpha in (1.0,) if full_only else (1.0, 0.5, 0.25):
                 trial = d + alpha * step if alpha < 1 else cand
                 if sphere and alpha < 1:
                     nt = p.norm_V(trial)
@@ -392,6 +426,7 @@ class BallStepSolver:
                 # round-off (e.g. a Newton step cancelled by the orthant projection) is a stall
                 if pred > noise and J < st.J and J <= st.J - 1e-4 * alpha * pred:
                     self._accept(st, trial, z, Az, g, J)
+                    st.last_alpha = alpha
                     return True
                 if abs(J - st.J) <= noise:
                     # J is flat to round-off (near convergence): accept if stationarity improves
@@ -399,6 +434,7 @@ class BallStepSolver:
                     lam = multiplier_on_sphere(p, trial, g) if on else 0.0
                     if kkt_residual(p, trial, g, lam, st.tau) < 0.5 * st.kkt:
                         self._accept(st, trial, z, Az, g, J)
+                        st.last_alpha = alpha
                         return True
         return False
 

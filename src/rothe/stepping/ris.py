@@ -51,6 +51,7 @@ class RISStepResult:
     J_final: float
     energy: float  # I(t_k, z_k)
     step_norm: float = 0.0  # ||z_k - z_{k-1}||_V
+    increment: np.ndarray | None = None  # z_k - z_{k-1}
     counters: dict = field(default_factory=dict)
 
     @property
@@ -76,6 +77,8 @@ class RISStepper:
         self.S = None if S is None else check_positive("S", S)
         self.t_tol = 1e-10 * max(1.0, problem.T)
         self._last_tau = 0.0
+        # the last accepted step (its end state, increment and tau): a warm-start candidate
+        self._previous: tuple[np.ndarray, np.ndarray, float] | None = None
 
     # -- evolve-loop interface ----------------------------------------------------------------
     def finished(self, state: RISState) -> bool:
@@ -141,7 +144,11 @@ class RISStepper:
         self._last_tau = tau
         lin = self.solver.linear.stats
         before = (lin.factorizations, lin.solves, lin.krylov_iterations)
-        res = self.solver.solve(state.t, state.z, tau)
+        hint = None
+        if self._previous is not None and self._previous[0] is state.z:
+            _, d_prev, tau_prev = self._previous
+            hint = d_prev * (tau / tau_prev)  # same velocity dz/ds as the previous step
+        res = self.solver.solve(state.t, state.z, tau, hint=hint)
         counters = {
             "newton_iterations": res.iterations,
             "fb_steps": res.fb_steps,
@@ -176,11 +183,13 @@ class RISStepper:
             J_final=res.J_final,
             energy=energy,
             step_norm=nd,
+            increment=res.d,
             counters=counters,
         )
 
     def record(self, traj: Trajectory, result: RISStepResult) -> None:
         st = result.state
+        self._previous = (st.z, result.increment, result.tau)
         traj.append(
             s=st.s,
             t=st.t,
