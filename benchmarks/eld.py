@@ -130,8 +130,8 @@ def part_beam(n: int, steps: int) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--part", default="all", choices=("all", "steps", "beam"))
-    parser.add_argument("--n2d", type=int, default=48, help="2D cells per side (default 48)")
-    parser.add_argument("--n3d", type=int, default=4, help="beam cells across for LU (default 4)")
+    parser.add_argument("--n2d", type=int, default=64, help="2D cells per side (default 64)")
+    parser.add_argument("--n3d", type=int, default=8, help="beam cells across for LU (default 8)")
     parser.add_argument("--tau", type=float, default=0.01)
     parser.add_argument("--beam-n", type=int, default=44, help="beam cells across (default 44)")
     parser.add_argument("--beam-steps", type=int, default=5)

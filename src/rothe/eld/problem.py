@@ -211,6 +211,9 @@ class ELDProblem:
             order = 1 if (which == "G_dot" or from_dot) else 2
             h = _eps_step(order, scale)
             err, size = 0.0, 0.0
+            # scale of the derivative: its own size, or that of G over the time scale if larger
+            # (so that a derivative that vanishes does not make the relative error meaningless)
+            g_scale = max(float(np.max(np.abs(f(t)), initial=0.0)) for t in times)
             for t in times:
                 if order == 1:
                     a = (f(t + h) - f(t - h)) / (2 * h)
@@ -221,6 +224,7 @@ class ELDProblem:
                 err = max(err, float(np.max(np.abs(a - b), initial=0.0)) / 3)
                 size = max(size, float(np.max(np.abs(a), initial=0.0)))
             method = "central differences of " + ("G_dot" if from_dot else "G")
+            size = max(size, g_scale / max(self.T, 1e-300) ** order)
             info[which] = {"method": method, "h": h, "estimated_error": err,
                            "estimated_relative_error": err / size if size > 0 else 0.0}
             warnings.warn(

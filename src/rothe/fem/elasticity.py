@@ -298,6 +298,10 @@ class VectorSpace:
         facets = self.facets(parts, name)
         if facets.size == 0:
             return np.zeros(0, dtype=np.int64)
+        if self.degree == 1:
+            # P1: the dofs are the facets' vertices (scikit-fem's get_dofs would first build the
+            # edge structures of the whole mesh, seconds at a million unknowns)
+            return np.unique(self.mesh.facets[:, facets]).astype(np.int64)
         return np.unique(np.asarray(self.grad_basis.get_dofs(facets).all(), dtype=np.int64))
 
     def vector_dofs(self, scalar_dofs: np.ndarray) -> np.ndarray:

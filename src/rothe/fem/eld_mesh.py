@@ -29,7 +29,13 @@ def tag_box_faces(mesh):
         low_name, high_name = _AXIS_NAMES[axis]
         parts[low_name] = facets[np.abs(mid[axis] - lo[axis]) < tol]
         parts[high_name] = facets[np.abs(mid[axis] - hi[axis]) < tol]
-    return mesh.with_boundaries(parts)
+    tagged = mesh.with_boundaries(parts)
+    # with_boundaries returns a copy without the facet structures just computed; hand them on
+    # (they depend only on p and t) instead of rebuilding them (seconds at millions of cells)
+    for cached in ("_facets", "_t2f", "_f2t"):
+        if hasattr(mesh, cached) and not hasattr(tagged, cached):
+            setattr(tagged, cached, getattr(mesh, cached))
+    return tagged
 
 
 def unit_square(n: int):
