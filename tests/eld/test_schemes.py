@@ -51,6 +51,11 @@ def test_regularized_with_differenced_data_reproduces_the_original_form():
         assert np.abs(reg["v"] - orig["v"]).max() <= 1e-8 * np.abs(orig["v"]).max()
         assert np.abs(reg["lam"] - orig["lam"]).max() <= 1e-7 * np.abs(orig["lam"]).max()
         assert np.abs(reg["data_mismatch"]).max() <= 1e-9 * np.abs(reg["energy"]).max()
+        # with consistent data the scheme's velocity is the difference quotient of u
+        assert np.abs(reg["du"] - reg["v"]).max() <= 1e-8 * np.abs(orig["v"]).max()
+    assert np.abs(orig["du"] - orig["v"]).max() <= 1e-12 * np.abs(orig["v"]).max()
+    exact_data = run_eld(problem, "regularized", 0.02)  # v = D u_1 + v_2 differs from D u
+    assert 1e-6 < np.abs(exact_data["du"] - exact_data["v"]).max() < 0.1 * np.abs(orig["v"]).max()
 
 
 def test_choice_of_complement_does_not_change_u_with_exact_derivatives_up_to_order_tau():

@@ -134,6 +134,7 @@ class ELDStepResult:
     lam: np.ndarray
     reactions: dict
     newton_iterations: int
+    du: np.ndarray | None = None  # (u^j - u^{j-1})/tau, = v^j in the original form
     counters: dict = field(default_factory=dict)
     converged: bool = True
     code: str = "ok"
@@ -275,7 +276,7 @@ class ELDStepper:
                    work_reaction=0.0, dissipated=0.0, numerical_dissipation=0.0,
                    data_mismatch=0.0, balance_residual=0.0)
         if self.store_fields:
-            rec.update(u=state.u.copy(), v=state.v.copy())
+            rec.update(u=state.u.copy(), v=state.v.copy(), du=state.v.copy())
         traj.append(**rec)
 
     # -- evolve-loop interface ------------------------------------------------------------------
@@ -354,7 +355,7 @@ class ELDStepper:
             "krylov_iterations": st.krylov_iterations - before[2],
         }
         return ELDStepResult(state=new, tau=tau, lam=lam, reactions=c.reactions(lam),
-                             newton_iterations=its, counters=counters)
+                             newton_iterations=its, du=du / tau, counters=counters)
 
     # -- the two forms --------------------------------------------------------------------------
     def _lifted(self, gs):
@@ -547,7 +548,7 @@ class ELDStepper:
         for part, force in result.reactions.items():
             rec[f"reaction_{part}"] = force
         if self.store_fields:
-            rec.update(u=st.u, v=st.v, lam=result.lam)
+            rec.update(u=st.u, v=st.v, du=result.du, lam=result.lam)
         traj.append(**rec)
         if self.observer is not None:
             self.observer(st, result)
@@ -563,8 +564,10 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     Runs on the shared evolve loop with a fixed-step controller. Returns a
     :class:`~rothe.io.trajectory.Trajectory`: point series (n + 1 entries, t = 0 included)
     ``t, kinetic, elastic, energy, work, work_reaction, dissipated, numerical_dissipation,
-    data_mismatch, balance_residual`` (and ``u, v`` with ``store_fields``); step series
-    (n entries) ``tau, lam_norm, reaction_<part>, newton_iterations`` (and ``lam``).
+    data_mismatch, balance_residual`` (and with ``store_fields`` ``u``, the scheme's velocity
+    ``v`` and the difference quotient ``du`` = (u^j - u^{j-1})/tau, which differ in the
+    regularized form by v_2^j - D u_2^j; ``du`` at t = 0 is h); step series (n entries)
+    ``tau, lam_norm, reaction_<part>, newton_iterations`` (and ``lam``).
     Raises :class:`RunFailed` (with ``.trajectory``) if a step cannot be solved.
     """
     stepper = ELDStepper(problem, form, tau, data=data, lifting=lifting, solver=solver,
