@@ -50,7 +50,8 @@ def main() -> None:
     print("\nOn the fitted error-vs-work curves (log work against log Linf, tol 1e-3..1e-6):")
     print(f"{'Linf':>8} {'adaptive solves':>16} {'adaptive accepted':>18} {'order2 solves':>14}")
     for err in (1e-2, 3e-3, 1e-3):
-        print(f"{err:>8.0e} {fitted_ratio(rows, 'adaptive', work, 'inner_solves', err):>16.2f} "
+        adaptive_solves = fitted_ratio(rows, "adaptive", work, "inner_solves", err)
+        print(f"{err:>8.0e} {adaptive_solves:>16.2f} "
               f"{fitted_ratio(rows, 'adaptive', work, 'accepted_steps', err):>18.2f} "
               f"{fitted_ratio(rows, 'order2', work, 'inner_solves', err):>14.2f}")
 

@@ -53,8 +53,14 @@ class ReusableSolver:
     amg_threshold : int
         Above this many unknowns, 'auto' uses AMG.
     max_krylov : int
-        If GMRES needs more iterations than this with the stored preconditioner, it is rebuilt
-        from the current matrix and the solve is repeated.
+        Direct: GMRES restart length; more iterations than this mean the stored LU is stale.
+        AMG: a solve needing more than ``max(max_krylov, 3 x the iterations right after a
+        rebuild)`` iterations triggers a rebuild from the current matrix.
+
+    ``solve(K, rhs, key=..., surrogate=..., spd=...)``: a ``key`` (e.g. the active set) that
+    differs from the stored one forces a rebuild; ``surrogate`` is the matrix the preconditioner
+    is built from if not K itself (AMG needs an SPD matrix even when K is indefinite); ``spd``
+    says K itself is SPD, so AMG runs preconditioned CG instead of GMRES.
     """
 
     def __init__(self, method: str = "auto", amg_threshold: int = 150_000, max_krylov: int = 12):
@@ -64,12 +70,15 @@ class ReusableSolver:
         self.stats = LinearStats()
         self._prec = None  # callable b -> approx K_ref^{-1} b
         self._prec_shape = None
+        self._key = None
+        self._fresh_its: int | None = None  # Krylov iterations of the first solve after a build
         self.kind_used: str | None = None
 
     def reset(self) -> None:
         """Forget the stored preconditioner (e.g. when the mesh changes)."""
         self._prec = None
         self._prec_shape = None
+        self._key = None
 
     def resolve_kind(self, n: int) -> str:
         if self.method != "auto":
@@ -77,10 +86,9 @@ class ReusableSolver:
         return "direct" if n <= self.amg_threshold else "amg"
 
     # -- building ------------------------------------------------------------------------------
-    def _build(self, K) -> None:
-        n = K.shape[0]
-        kind = self.resolve_kind(n)
+    def _build(self, K, kind: str) -> None:
         self.stats.factorizations += 1
+        self._fresh_its = None
         try:
             if kind == "direct":
                 lu = spla.splu(sp.csc_matrix(K), permc_spec="MMD_AT_PLUS_A")
@@ -92,8 +100,8 @@ class ReusableSolver:
                 Kc = sp.csr_matrix(K)
                 Kc.eliminate_zeros()
                 ml = pyamg.smoothed_aggregation_solver(Kc, max_coarse=500)
-                self._prec = lambda b, ml=ml: ml.solve(b, tol=1e-12, maxiter=1, cycle="V")
-                self.kind_used = "pyamg-sa+gmres"
+                self._prec = ml.aspreconditioner(cycle="V")
+                self.kind_used = "pyamg-sa"
         except RuntimeError as exc:  # splu: "Factor is exactly singular"
             self._prec = None
             self.stats.failures += 1
@@ -101,70 +109,80 @@ class ReusableSolver:
         self._prec_shape = K.shape
 
     # -- solving -------------------------------------------------------------------------------
-    def solve(self, K, rhs: list[np.ndarray], rtol: float = 1e-10) -> list[np.ndarray]:
+    def solve(self, K, rhs: list[np.ndarray], rtol: float = 1e-10, *, key=None, surrogate=None,
+              spd: bool = False) -> list[np.ndarray]:
         """Solve K x = b for each b in ``rhs`` to relative residual ``rtol``."""
         if not sp.issparse(K):
-            self.stats.factorizations += 1
-            self.stats.solves += len(rhs)
-            self.kind_used = "lapack"
-            try:
-                lu = sla.lu_factor(np.asarray(K), check_finite=True)
-            except (ValueError, np.linalg.LinAlgError) as exc:
-                self.stats.failures += 1
-                raise SingularSystem(str(exc)) from exc
-            if np.any(np.abs(np.diag(lu[0])) <= 1e-14 * max(1.0, np.max(np.abs(K)))):
-                self.stats.failures += 1
-                raise SingularSystem("singular dense matrix")
-            return [sla.lu_solve(lu, b) for b in rhs]
-
+            return self._dense(K, rhs)
         K = sp.csr_matrix(K)
-        if self._prec is None or self._prec_shape != K.shape:
-            self._build(K)
+        kind = self.resolve_kind(K.shape[0])
+        stale = (self._prec is None or self._prec_shape != K.shape
+                 or (key is not None and (self._key is None or not np.array_equal(key, self._key))))
+        if stale:
+            self._build(K if surrogate is None else surrogate, kind)
+            self._key = None if key is None else np.array(key, copy=True)
         out = []
         for b in rhs:
-            x = self._krylov(K, b, rtol)
+            x = self._krylov(K, b, rtol, kind, spd)
             if x is None:  # the stored preconditioner is stale: rebuild and retry once
-                self._build(K)
-                x = self._krylov(K, b, rtol)
+                self._build(K if surrogate is None else surrogate, kind)
+                self._key = None if key is None else np.array(key, copy=True)
+                x = self._krylov(K, b, rtol, kind, spd, fresh=True)
                 if x is None:
                     self.stats.failures += 1
-                    raise SingularSystem("GMRES did not converge with a fresh preconditioner")
+                    raise SingularSystem("the Krylov solver did not converge with a fresh "
+                                         "preconditioner")
             out.append(x)
         return out
 
-    def _krylov(self, K, b, rtol):
+    def _dense(self, K, rhs):
+        self.stats.factorizations += 1
+        self.stats.solves += len(rhs)
+        self.kind_used = "lapack"
+        try:
+            lu = sla.lu_factor(np.asarray(K), check_finite=True)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            self.stats.failures += 1
+            raise SingularSystem(str(exc)) from exc
+        if np.any(np.abs(np.diag(lu[0])) <= 1e-14 * max(1.0, np.max(np.abs(K)))):
+            self.stats.failures += 1
+            raise SingularSystem("singular dense matrix")
+        return [sla.lu_solve(lu, b) for b in rhs]
+
+    def _krylov(self, K, b, rtol, kind, spd, fresh=False):
         self.stats.solves += 1
         bnorm = np.linalg.norm(b)
         if bnorm == 0.0:
             return np.zeros_like(b)
-        x = self._prec(b)
-        if not np.all(np.isfinite(x)):
-            return None
-        res = np.linalg.norm(b - K @ x)
-        if res <= rtol * bnorm:
+        if kind == "direct":
+            x = self._prec(b)
+            if not np.all(np.isfinite(x)):
+                return None
             self.stats.krylov_iterations += 1
-            return x
+            if np.linalg.norm(b - K @ x) <= rtol * bnorm:
+                return x
+            x0, restart, maxiter, limit = x, self.max_krylov, 1, self.max_krylov
+        else:
+            x0, restart, maxiter = None, 60, 4
+            limit = 10**9 if fresh or self._fresh_its is None else max(
+                self.max_krylov, 3 * self._fresh_its)
         M = spla.LinearOperator(K.shape, matvec=self._prec, dtype=float)
         its = [0]
 
         def count(_):
             its[0] += 1
 
-        x, info = spla.gmres(
-            K,
-            b,
-            x0=x,
-            rtol=rtol,
-            atol=0.0,
-            restart=self.max_krylov,
-            maxiter=1,
-            M=M,
-            callback=count,
-            callback_type="pr_norm",
-        )
-        self.stats.krylov_iterations += its[0] + 1
-        if info != 0 or not np.all(np.isfinite(x)):
+        if kind == "amg" and spd:
+            x, info = spla.cg(K, b, x0=x0, rtol=rtol, atol=0.0, maxiter=restart * maxiter, M=M,
+                              callback=count)
+        else:
+            x, info = spla.gmres(K, b, x0=x0, rtol=rtol, atol=0.0, restart=restart,
+                                 maxiter=maxiter, M=M, callback=count, callback_type="pr_norm")
+        self.stats.krylov_iterations += its[0]
+        if info != 0 or not np.all(np.isfinite(x)) or its[0] > limit:
             return None
         if np.linalg.norm(b - K @ x) > max(rtol, 1e-14) * bnorm * 10:
             return None
+        if kind == "amg" and self._fresh_its is None:
+            self._fresh_its = its[0]
         return x

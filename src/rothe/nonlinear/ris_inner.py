@@ -359,7 +359,6 @@ class BallStepSolver:
         # 2. Newton system on the active set (inactive nodes are sent to zero: delta_I = -d_I)
         shift = lam + st.nu
         inactive_diag = np.where(Dg > 0, Dg, 1.0)
-        K = self._K.build(active, hess_F, shift, inactive_diag)
         dI = np.where(inactive, d, 0.0)
         HdI = self._apply_H(hess_F, dI) if np.any(dI) else np.zeros_like(d)
         G = g + p.r * sigma + lam * p.m * d
@@ -367,7 +366,9 @@ class BallStepSolver:
         try:
             if on_sphere:
                 w = np.where(active, p.m * d, 0.0)
-                pvec, qvec = self.linear.solve(K, [b, w], rtol=self._lin_rtol(st))
+                pvec, qvec = self._solve_newton(
+                    active, hess_F, shift, inactive_diag, [b, w], self._lin_rtol(st)
+                )
                 nd = p.norm_V(d)
                 wq = float(w @ qvec)
                 if not np.isfinite(wq) or abs(wq) <= 1e-14 * max(
@@ -379,7 +380,9 @@ class BallStepSolver:
                 delta = pvec - dlam * qvec
                 lam_new = lam + dlam
             else:
-                (delta,) = self.linear.solve(K, [b], rtol=self._lin_rtol(st))
+                (delta,) = self._solve_newton(
+                    active, hess_F, shift, inactive_diag, [b], self._lin_rtol(st)
+                )
                 lam_new = 0.0
         except SingularSystem:
             return False
@@ -399,6 +402,49 @@ class BallStepSolver:
                 trial *= tau / nt
                 sphere = True
         return self._try_candidates(st, [trial], hess_F, sphere=sphere)
+
+    def _solve_newton(self, active, hess_F, shift, inactive_diag, rhs, rtol):
+        """Solve the active-set Newton system K x = b for each b in ``rhs`` (full-length vectors).
+
+        K = S (A + F'' + shift M) S + diag(inactive_diag) (I - S), S = diag(active).
+
+        Direct path (and dense problems): K at full size, so the LU of one active set stays a
+        good preconditioner for neighbouring ones (GMRES absorbs the low-rank difference).
+        AMG path: the system reduced to the active set, K_AA = A_AA + diag(c) with
+        c = F''_A + shift m_A; the hierarchy is built from the SPD surrogate A_AA + diag(c_+)
+        (A_AA is a principal submatrix of the SPD A), CG runs when K_AA is that surrogate
+        (c >= 0, e.g. in slip) and GMRES when K_AA is indefinite (e.g. at a viscous jump);
+        the hierarchy is reused until the active set changes or the iterations grow.
+        """
+        p = self.p
+        general = sp.issparse(hess_F) or np.ndim(hess_F) == 2
+        kind = self.linear.resolve_kind(p.n) if p.sparse else "dense"
+        if kind != "amg" or general:
+            K = self._K.build(active, hess_F, shift, inactive_diag)
+            return self.linear.solve(K, rhs, rtol=rtol)
+        idx = np.flatnonzero(active)
+        A_AA = self._reduced_A(active, idx)
+        c = hess_F[idx] + shift * p.m[idx]
+        K_AA = (A_AA + sp.diags(c)).tocsr()
+        spd = bool(c.min() >= 0)
+        surrogate = K_AA if spd else (A_AA + sp.diags(np.maximum(c, 0.0))).tocsr()
+        sols = self.linear.solve(
+            K_AA, [b[idx] for b in rhs], rtol=rtol, key=active, surrogate=surrogate, spd=spd
+        )
+        out = []
+        for b, x_A in zip(rhs, sols, strict=True):
+            x = b / inactive_diag  # inactive rows: diag(inactive_diag) x_I = b_I
+            x[idx] = x_A
+            out.append(x)
+        return out
+
+    def _reduced_A(self, active, idx):
+        cached = getattr(self, "_A_reduced", None)
+        if cached is not None and np.array_equal(cached[0], active):
+            return cached[1]
+        A_AA = sp.csr_matrix(self.p.A)[idx][:, idx].tocsr()
+        self._A_reduced = (active.copy(), A_AA)
+        return A_AA
 
     def _try_candidates(self, st: InnerState, candidates, hess_F, sphere: bool = False,
                         full_only: bool = False) -> bool:
