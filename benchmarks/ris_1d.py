@@ -56,7 +56,8 @@ def main() -> None:
               f"{fitted_ratio(rows, 'order2', work, 'inner_solves', err):>14.2f}")
 
     print("\nAlg. 3.2 depends on where tau0 * 2^j falls (its double/reject cycle); tau0 sweep:")
-    print(f"{'tol':>7} {'tau0':>6} {'accepted':>8} {'rejected':>8} {'Linf':>9} {'solves/uniform':>15}")
+    print(f"{'tol':>7} {'tau0':>6} {'accepted':>8} {'rejected':>8} {'Linf':>9} "
+          f"{'solves/uniform':>15}")
     for tol in (1e-4, 1e-5):
         for tau0 in (0.1, 0.125, 0.15):
             r = one(problem, "adaptive", tol=tol, tau=tau0)
