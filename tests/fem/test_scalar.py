@@ -103,10 +103,40 @@ def test_boundary_parts():
     free, fixed = split_dofs(m.p.shape[1], lb)
     assert free.size + fixed.size == 25 and np.intersect1d(free, fixed).size == 0
     with pytest.raises(RotheInputError,
-                       match=r"^dirichlet: got 'inlet', must be one of bottom, left, right, top$"):
+                       match=r"^dirichlet: got 'inlet', must be one of bottom, left, right, top "
+                             r"\(sides of the bounding box; the mesh has no named parts\)$"):
         boundary_nodes(m, ["inlet"])
+    with pytest.raises(RotheInputError, match=r"^dirichlet: got 'front', must be one of bottom"):
+        boundary_nodes(m, ["front"])  # no z sides in 2D
     with pytest.raises(RotheInputError, match=r"^dirichlet: got an empty list"):
         boundary_nodes(m, [])
-    bare = MeshTri(m.p, m.t)
-    with pytest.raises(RotheInputError, match="no named boundary parts"):
-        boundary_nodes(bare, ["left"])
+    named = m.with_boundaries({"inlet": lambda x: x[0] < 1e-12})
+    assert np.array_equal(boundary_nodes(named, "inlet"), left)
+    with pytest.raises(RotheInputError, match=r"^dirichlet: got 'left', must be one of inlet$"):
+        boundary_nodes(named, ["left"])  # named parts replace the box sides
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(2, 7), amp=st.floats(0.0, 0.3), seed=st.integers(0, 10_000),
+       unionjack=st.booleans())
+def test_boundary_detection_matches_scikit_fem(n, amp, seed, unionjack):
+    """Own facet counting == scikit-fem's boundary nodes and default side tags, any mesh."""
+    m = unit_square(n, "unionjack" if unionjack else "tensor")
+    rng = np.random.default_rng(seed)
+    p = m.p.copy()
+    inner = np.ones(p.shape[1], bool)
+    inner[m.boundary_nodes()] = False
+    p[:, inner] += amp / n * rng.uniform(-1, 1, (2, inner.sum()))
+    m = MeshTri(p, m.t)
+    assert np.array_equal(boundary_nodes(m), m.boundary_nodes())
+    tagged = m.with_defaults()
+    for name in ("left", "right", "bottom", "top"):
+        assert np.array_equal(boundary_nodes(m, name), boundary_nodes(tagged, name))
+
+
+def test_boundary_detection_3d():
+    c = unit_cube(3)
+    assert np.array_equal(boundary_nodes(c), c.boundary_nodes())
+    tagged = c.with_defaults()
+    for name in tagged.boundaries:
+        assert np.array_equal(boundary_nodes(c, name), boundary_nodes(tagged, name))

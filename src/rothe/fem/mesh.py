@@ -8,8 +8,11 @@ Builders
     :func:`unit_square` (N x N cells, each split into two triangles, either all along the
     diagonal direction of y = x -- scikit-fem's ``init_tensor`` -- or in a "union jack" pattern
     that is symmetric under every reflection of the square), :func:`unit_cube` (N^3 cubes, six
-    tetrahedra each, scikit-fem's ``init_tensor``). Both carry the boundary parts ``left``,
-    ``right``, ``bottom``, ``top`` (and ``front``, ``back`` in 3D) of scikit-fem's defaults.
+    tetrahedra each, scikit-fem's ``init_tensor``). On these (and on any mesh without named
+    parts) the sides of the bounding box are available by scikit-fem's default names ``left``,
+    ``right`` (x), ``bottom``, ``top`` (y), ``front``, ``back`` (z): see :func:`box_part_nodes`.
+    They are computed on demand, not attached with ``with_defaults()``, which rebuilds the
+    facet list (1.8 s at 10^6 nodes).
 
 Files
     :func:`load_mesh` reads anything meshio reads (gmsh ``.msh`` 2.2/4.x, ``.vtu``, ``.xdmf``,
@@ -77,7 +80,7 @@ def unit_square(n: int = 40, pattern: str = "tensor"):
         mesh = MeshTri(p, np.hstack([t1, t2]))
     else:
         raise fail("pattern", pattern, "must be one of tensor, unionjack")
-    return mesh.with_defaults()
+    return mesh
 
 
 def unit_cube(n: int = 12):
@@ -86,7 +89,52 @@ def unit_cube(n: int = 12):
 
     n = check_int("n", n, minimum=2)
     x = np.linspace(0.0, 1.0, n + 1)
-    return MeshTet.init_tensor(x, x, x).with_defaults()
+    return MeshTet.init_tensor(x, x, x)
+
+
+def boundary_facets(mesh) -> np.ndarray:
+    """(n_boundary_facets, d) node indices of the facets that belong to exactly one cell.
+
+    Vectorized: every cell contributes its d+1 facets (sorted node tuples), each encoded as one
+    integer; facets counted once are boundary facets. Independent of scikit-fem's facet list,
+    which costs about 1.5 s to build at 10^6 nodes.
+    """
+    t = np.asarray(mesh.t)
+    k, n = t.shape[0], int(mesh.p.shape[1])
+    f = np.sort(np.concatenate([np.delete(t, j, axis=0) for j in range(k)], axis=1), axis=0)
+    f = f.astype(np.int64)
+    if float(n) ** (k - 1) < 2.0**62:
+        key = f[0]
+        for row in f[1:]:
+            key = key * n + row
+        _, first, counts = np.unique(key, return_index=True, return_counts=True)
+    else:  # too many nodes to pack a facet into one int64
+        _, first, counts = np.unique(f, axis=1, return_index=True, return_counts=True)
+    return f[:, first[counts == 1]].T
+
+
+BOX_PARTS = {"left": (0, np.min), "right": (0, np.max), "bottom": (1, np.min),
+             "top": (1, np.max), "front": (2, np.min), "back": (2, np.max)}
+
+
+def box_part_nodes(mesh, name: str, facets: np.ndarray | None = None) -> np.ndarray:
+    """Nodes of the boundary facets on one side of the bounding box (scikit-fem's names).
+
+    A facet belongs to ``left`` if all its nodes have x = min x (to 1e-2 times the shortest
+    boundary edge), and so on for ``right`` (max x), ``bottom``/``top`` (y), ``front``/``back``
+    (z). Returns a sorted, possibly empty, array.
+    """
+    axis, pick = BOX_PARTS[name]
+    p = mesh.p
+    if axis >= p.shape[0]:
+        return np.empty(0, dtype=np.int64)
+    facets = boundary_facets(mesh) if facets is None else facets
+    x = p[axis]
+    level = pick(x)
+    edge = np.linalg.norm(p[:, facets[:, 0]] - p[:, facets[:, 1]], axis=0)
+    atol = 1e-2 * float(edge.min()) if edge.size else 0.0
+    on = np.all(np.abs(x[facets] - level) <= atol, axis=1)
+    return np.unique(facets[on]).astype(np.int64)
 
 
 def mesh_dim(mesh) -> int:

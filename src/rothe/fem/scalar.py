@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import fail
-from .mesh import bad, cell_volumes
+from .mesh import BOX_PARTS, bad, boundary_facets, box_part_nodes, cell_volumes
 
 
 def _gradients(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -121,24 +121,32 @@ def boundary_nodes(mesh, parts=None) -> np.ndarray:
     """Sorted node indices on the whole boundary (``parts=None``) or on named boundary parts.
 
     Named parts are scikit-fem boundaries (``mesh.boundaries``: facet indices), e.g. from gmsh
-    physical groups (:func:`rothe.fem.mesh.load_mesh`) or ``mesh.with_defaults()``.
+    physical groups (:func:`rothe.fem.mesh.load_mesh`) or ``mesh.with_boundaries(...)``. A mesh
+    without named parts offers the sides of its bounding box under scikit-fem's default names
+    (``left``, ``right``, ``bottom``, ``top``, ``front``, ``back``; see
+    :func:`rothe.fem.mesh.box_part_nodes`).
     """
     if parts is None:
-        return np.asarray(mesh.boundary_nodes(), dtype=np.int64)
+        return np.unique(boundary_facets(mesh)).astype(np.int64)
     if isinstance(parts, str):
         parts = [parts]
     parts = list(parts)
-    known = dict(mesh.boundaries or {})
     if not parts:
         raise bad("dirichlet", "an empty list", "name at least one boundary part")
-    facets = []
+    known = dict(mesh.boundaries or {})
+    if known:
+        for part in parts:
+            if part not in known:
+                raise fail("dirichlet", part, f"must be one of {', '.join(sorted(known))}")
+        f = np.concatenate([np.asarray(known[part], dtype=np.int64) for part in parts])
+        return np.unique(mesh.facets[:, f]).astype(np.int64)
+    box = [name for name, (axis, _) in BOX_PARTS.items() if axis < mesh.p.shape[0]]
     for part in parts:
-        if part not in known:
-            allowed = ", ".join(sorted(known)) or "none (the mesh has no named boundary parts)"
-            raise fail("dirichlet", part, f"must be one of {allowed}")
-        facets.append(np.asarray(known[part], dtype=np.int64))
-    f = np.concatenate(facets)
-    return np.unique(mesh.facets[:, f]).astype(np.int64)
+        if part not in box:
+            raise fail("dirichlet", part, f"must be one of {', '.join(sorted(box))} (sides of "
+                                          "the bounding box; the mesh has no named parts)")
+    facets = boundary_facets(mesh)
+    return np.unique(np.concatenate([box_part_nodes(mesh, part, facets) for part in parts]))
 
 
 def split_dofs(n_nodes: int, fixed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
