@@ -74,9 +74,14 @@ def evolve(
     (:func:`single_threaded_blas`).
     """
     with single_threaded_blas():
-        return _evolve(stepper, controller, state, trajectory, tau_min=tau_min,
-                       max_attempts=max_attempts, max_landing_retries=max_landing_retries,
-                       progress=progress)
+        try:
+            return _evolve(stepper, controller, state, trajectory, tau_min=tau_min,
+                           max_attempts=max_attempts, max_landing_retries=max_landing_retries,
+                           progress=progress)
+        except RunFailed as exc:  # a stepper's own failure: still hand back what was computed
+            if exc.trajectory is None:
+                exc.trajectory = trajectory
+            raise
 
 
 def _evolve(stepper, controller, state, trajectory, *, tau_min, max_attempts,

@@ -95,9 +95,10 @@ class RISStepper:
         """A shorter tau that lands on T when the step overshoots it, or None.
 
         t(tau) = t_{k-1} + tau - ||d(tau)|| is flat for small tau (z_k first catches up with the
-        equilibrium at t_{k-1}) and then about affine, so a proportional shortening can fall into
-        the flat part. We bracket T between the attempts of this step (tau = 0 gives t_{k-1}) and
-        use regula falsi with the Illinois modification.
+        equilibrium at t_{k-1}) and then about affine. We bracket T between the attempts of this
+        step (tau = 0 gives t_{k-1}): regula falsi with the Illinois modification, and bisection
+        after an attempt that made no progress in t (it fell into the flat part, where a secant
+        would keep proposing points in that part).
         """
         T = self.problem.T
         last = attempts[-1]
@@ -105,7 +106,8 @@ class RISStepper:
             return None
         if len(attempts) == 1 and last.state.t <= T:
             return None
-        lo = (0.0, state.t - T)  # (tau, t(tau) - T) with value < 0
+        f0 = state.t - T
+        lo = (0.0, f0)  # (tau, t(tau) - T) with value < 0
         hi = None
         for a in attempts:
             if not a.converged:
@@ -117,6 +119,8 @@ class RISStepper:
                 lo = (a.tau, f)
         if hi is None or not lo[0] < hi[0]:
             return None
+        if last.state.t - T <= f0 + self.t_tol:
+            return 0.5 * (lo[0] + hi[0])  # no progress in t: bisect out of the flat part
         f_lo, f_hi = lo[1], hi[1]
         # Illinois: halve the weight of an end point that was kept twice in a row
         if len(attempts) >= 3 and (attempts[-1].state.t - T) * (attempts[-2].state.t - T) > 0:
@@ -130,14 +134,22 @@ class RISStepper:
         return tau
 
     def pick_landing(self, attempts: list[RISStepResult]) -> RISStepResult:
-        """Of the converged attempts, the one ending closest to T without overshooting, if any."""
+        """The attempt to hand to the controller after shortening.
+
+        One that ends within t_tol of T if any; otherwise the one closest to T among those that
+        made progress in t (an undershoot that stayed in the flat part of t(tau) would only burn
+        a step), so a small overshoot of T is preferred to no progress.
+        """
         T = self.problem.T
         ok = [a for a in attempts if a.converged]
         if not ok:
             return attempts[-1]
-        under = [a for a in ok if a.state.t <= T + self.t_tol]
-        pool = under or ok
-        return min(pool, key=lambda a: abs(a.state.t - T))
+        t_prev = attempts[0].state.t - attempts[0].tau + attempts[0].step_norm
+        landed = [a for a in ok if abs(a.state.t - T) <= self.t_tol]
+        if landed:
+            return landed[0]
+        useful = [a for a in ok if a.state.t > t_prev + self.t_tol] or ok
+        return min(useful, key=lambda a: abs(a.state.t - T))
 
     def step(self, state: RISState, tau: float, s_end: float | None = None) -> RISStepResult:
         p = self.problem
