@@ -7,20 +7,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.tri as mtri
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.tri as mtri  # noqa: E402
-import numpy as np  # noqa: E402
-
-
-def _save(fig, path) -> Path:
-    path = Path(path)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+from .common import plt, save_figure
 
 
 def plot_fig4(runs, path, title: str = "") -> Path:
@@ -43,7 +33,7 @@ def plot_fig4(runs, path, title: str = "") -> Path:
             ax.grid(alpha=0.3, which="both")
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def snapshot_indices(s: np.ndarray, count: int = 4) -> np.ndarray:
