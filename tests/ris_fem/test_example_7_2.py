@@ -178,10 +178,8 @@ def test_order2_and_nested_on_the_fe_problem(nested8):
     assert np.all(np.min(np.abs(coarse[:, None] - fine[None, :]), axis=1) <= 1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="the nested controller (control/controllers.py, not the FE "
-                   "code) steps the round-off gap (tau ~ 1e-16) when s ends within a few ulps of "
-                   "a grid point of an earlier run; 71 of 1662 steps here")
 def test_nested_takes_no_round_off_sized_steps(nested8):
+    """A step that would end within round-off of an earlier grid point lands on it exactly."""
     assert np.min(nested8[1]["tau"]) > 1e-12
 
 

@@ -117,10 +117,14 @@ class AdaptiveController(StepController):
         sigma = self._clamp(self.sigma)
         if self.grid is None:
             return sigma, None
-        i = np.searchsorted(self.grid, s, side="right")
+        # a grid point within round-off of s counts as reached, and a step that would end within
+        # round-off of the next grid point lands on it: otherwise s_k = s_{k-1} + tau falls a
+        # few ulps short of sbar and the next step has tau ~ 1e-16
+        eps = 1e-12 * max(1.0, abs(s))
+        i = np.searchsorted(self.grid, s + eps, side="right")
         if i < self.grid.size:
             sbar = float(self.grid[i])
-            if s + sigma >= sbar:
+            if s + sigma >= sbar - max(eps, 1e-9 * sigma):
                 return sbar - s, sbar
         return sigma, None
 
