@@ -50,6 +50,23 @@ def test_run_ris_2d_outputs(tmp_path, capsys):
     assert np.array_equal(data["z"], Z)
 
 
+@pytest.mark.parametrize("method", ["auto", "direct", "amg"])
+def test_reported_linear_solver_is_the_one_that_ran(method):
+    """summary.json names the solver from the size rule; it must match what the solver used."""
+    from rothe.cli.ris_fem_commands import linear_solver_used
+    from rothe.nonlinear.ris_inner import InnerOptions
+    from rothe.problems.ris_fem import example_7_2
+    from rothe.stepping.ris import RISState, RISStepper
+
+    p = example_7_2(6)
+    stepper = RISStepper(p, InnerOptions(linear_solver=method))
+    state = RISState(0.0, 0.0, p.z0.copy())
+    for _ in range(4):  # sticking, then the viscous jump: Newton systems are solved
+        state = stepper.step(state, 0.1).state
+    assert stepper.solver.linear.kind_used is not None
+    assert linear_solver_used(Trajectory(), p, method) == stepper.solver.linear.kind_used
+
+
 def test_run_ris_2d_from_gmsh_with_named_dirichlet_part(tmp_path, capsys, gmsh_text):
     msh = gmsh_text.write_msh41(tmp_path / "sq.msh", unit_square(6),
                                 lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"))

@@ -25,7 +25,8 @@ from .common import (
 from .registry import command
 from .ris_commands import RISRunBase, ris_summary
 
-LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa+gmres"}
+#: ReusableSolver.kind_used for each resolved method (kept in sync by tests/ris_fem/test_cli.py)
+LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa"}
 #: uniform steps of ``compare ris-2d``: 0.01 / 2^k, k = 0..7, so that the uniform global residuals
 #: (about 1.2 ... 0.01 on Example 7.2) bracket those of adaptive at tol = 1e-4 ... 1e-6
 COMPARE_TAUS = tuple(0.01 / 2**k for k in range(8))
