@@ -15,14 +15,17 @@ from skfem import MeshTri
 from rothe.errors import RotheInputError
 from rothe.fem.mesh import load_mesh, unit_cube, unit_square
 from rothe.fem.scalar import lumped_mass, stiffness
+from rothe.io.trajectory import Trajectory
 from rothe.problems.ris_fem import (
     FERISProblem,
+    catch_up_steps,
     check_pointwise_derivatives,
     d2g_7_2,
     dg_7_2,
     example_7_2,
     example_7_2_3d,
     g_7_2,
+    viscous_jumps,
 )
 
 
@@ -190,3 +193,29 @@ def test_kappa_and_T_must_be_positive():
         example_7_2(4, kappa=0)
     with pytest.raises(RotheInputError, match=r"^T: got -1, must be > 0$"):
         example_7_2(4, T=-1)
+
+
+def _traj(taus, dts):
+    tr = Trajectory()
+    tr.append(s=0.0, t=0.0)
+    s = t = 0.0
+    for tau, dt in zip(taus, dts, strict=True):
+        s, t = s + tau, t + dt
+        tr.append(s=s, t=t, tau=tau)
+    return tr
+
+
+def test_viscous_jumps_catch_up_and_round_off_steps():
+    # stick (t' = 1), a long jump (t' = 0) with a round-off step inside, slip, then a short
+    # step with t' = 0 after a longer one: a catch-up, not a jump
+    taus = [0.1, 0.1, 0.2, 1e-17, 0.2, 0.1, 0.05, 0.02, 0.05]
+    dts = [0.1, 0.1, 0.0, 0.0, 0.0, 0.06, 0.03, 0.0, 0.03]
+    tr = _traj(taus, dts)
+    jumps = viscous_jumps(tr)
+    assert len(jumps) == 1
+    assert jumps[0]["t"] == pytest.approx(0.2) and jumps[0]["steps"] == 2
+    assert jumps[0]["s_end"] - jumps[0]["s_start"] == pytest.approx(0.4)
+    assert catch_up_steps(tr) == 1
+    # a jump right at the start (z0 not stationary) always counts
+    assert viscous_jumps(_traj([0.1, 0.1], [0.0, 0.1]))[0]["steps"] == 1
+    assert viscous_jumps(_traj([], [])) == [] and catch_up_steps(_traj([], [])) == 0

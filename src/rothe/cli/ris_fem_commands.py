@@ -239,7 +239,8 @@ class CompareRIS2D:
             "vs uniform (Example 7.2)")
 
     def configure(self, parser) -> None:
-        parser.add_argument("--n", type=int, default=40, help="N x N grid (default 40: 1681 nodes)")
+        parser.add_argument("--n", type=int, default=None,
+                            help="N x N grid (default 40: 1681 nodes)")
         parser.add_argument("--mesh", default=None, help="2D mesh file instead of the grid")
         parser.add_argument("--tols", type=parse_float_list("--tols"), default=[1e-4, 1e-5, 1e-6],
                             help="tolerances of adaptive and order2 (default 1e-4,1e-5,1e-6)")
@@ -263,9 +264,9 @@ class CompareRIS2D:
         controls = [c.strip() for c in args.controls.split(",") if c.strip()]
         for c in controls:
             check_choice("--controls", c, ("adaptive", "order2"))
-        if args.mesh is not None and args.n != 40:
+        if args.mesh is not None and args.n is not None:
             raise fail("--n", args.n, "cannot be combined with --mesh")
-        n = check_int("--n", args.n, minimum=2)
+        n = check_int("--n", args.n if args.n is not None else 40, minimum=2)
         mesh = load_mesh(args.mesh, dim=2) if args.mesh is not None else None
         out = output_dir(args, "compare-ris-2d")
         t0 = time.perf_counter()

@@ -346,18 +346,54 @@ def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
 
 # -- which stationary branch a run followed -----------------------------------------------------
 
-def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
-    """Maximal runs of accepted steps with t_k - t_{k-1} <= rel * tau_k (the ball constraint
-    active: the state moves while physical time stands still, a viscous jump), as
-    ``{"t": t, "s_start": s, "s_end": s, "steps": k}``."""
+def _zero_dt_runs(traj, rel: float):
+    """(starts, ends, tiny) of the maximal runs of accepted steps with t_k - t_{k-1} <= rel tau_k.
+
+    Steps of round-off size (tau_k <= 1e-12 max(1, s_k), e.g. a step that closes the gap to a
+    grid point of an earlier nested run) say nothing about t^': they continue whatever the step
+    before them was and never start a run on their own.
+    """
     t, s, tau = traj["t"], traj["s"], traj["tau"]
-    if len(tau) == 0:
-        return []
     jump = np.diff(t) <= rel * tau
+    tiny = tau <= 1e-12 * np.maximum(1.0, s[1:])
+    last_real = np.maximum.accumulate(np.where(~tiny, np.arange(len(tau)), -1))
+    jump = np.where(last_real >= 0, jump[np.maximum(last_real, 0)], False)
     edges = np.diff(np.concatenate([[0], jump.astype(int), [0]]))
-    starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
-    return [{"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]), "steps": int(b - a)}
-            for a, b in zip(starts, ends, strict=True)]
+    return np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0], tiny
+
+
+def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
+    """Viscous jumps of a run: maximal runs of accepted steps with t_k - t_{k-1} <= rel * tau_k
+    (the ball constraint active: the state moves while physical time stands still), as
+    ``{"t": t, "s_start": s, "s_end": s, "steps": k}``.
+
+    Not counted (see :func:`catch_up_steps`): a run shorter in s than the step before it. After
+    a step of length tau in rate-independent slip, z_k is stationary at t_{k-1}, so it lags the
+    equilibrium of t_k by up to about tau; a following shorter step (e.g. one that lands on T or
+    on a nested grid point) is then spent entirely on catching up, with t^' = 0 and lambda > 0.
+    Such runs vanish with the step size; a viscous jump of the BV solution does not.
+    """
+    if len(traj) == 0:
+        return []
+    t, s, tau = traj["t"], traj["s"], traj["tau"]
+    starts, ends, tiny = _zero_dt_runs(traj, rel)
+    out = []
+    for a, b in zip(starts, ends, strict=True):
+        before = np.nonzero(~tiny[:a])[0]
+        if before.size and s[b] - s[a] <= tau[before[-1]]:
+            continue
+        out.append({"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]),
+                    "steps": int(np.count_nonzero(~tiny[a:b]))})
+    return out
+
+
+def catch_up_steps(traj, rel: float = 1e-8) -> int:
+    """Number of steps with t^' = 0 that :func:`viscous_jumps` does not count as a jump."""
+    if len(traj) == 0:
+        return 0
+    starts, ends, tiny = _zero_dt_runs(traj, rel)
+    in_runs = sum(int(np.count_nonzero(~tiny[a:b])) for a, b in zip(starts, ends, strict=True))
+    return in_runs - sum(j["steps"] for j in viscous_jumps(traj, rel))
 
 
 def describe_branch(problem: FERISProblem, traj) -> dict:
@@ -374,6 +410,7 @@ def describe_branch(problem: FERISProblem, traj) -> dict:
     sign = "z <= 0" if zmax <= 1e-12 else ("z >= 0" if zmin >= -1e-12 else "z changes sign")
     energy = float(traj["energy"][-1])
     jt = ", ".join(f"{j['t']:.4g}" for j in jumps) or "none"
+    catch = catch_up_steps(traj)
     return {
         "energy_final": energy,
         "z_min": zmin,
@@ -381,6 +418,8 @@ def describe_branch(problem: FERISProblem, traj) -> dict:
         "z_mean": mean,
         "n_viscous_jumps": len(jumps),
         "viscous_jumps": jumps,
+        "catch_up_steps": catch,
         "branch": (f"{sign}, z in [{zmin:.4g}, {zmax:.4g}], mean {mean:.4g}, energy {energy:.6g}, "
-                   f"{len(jumps)} viscous jump(s) at t = {jt}"),
+                   f"{len(jumps)} viscous jump(s) at t = {jt}"
+                   + (f" (+{catch} catch-up step(s) with t' = 0)" if catch else "")),
     }
