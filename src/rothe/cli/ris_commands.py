@@ -115,6 +115,13 @@ class RISRunBase:
             default=8,
             help="Simpson subintervals for I1, I2 (even, default 8)",
         )
+        parser.add_argument(
+            "--keep-every",
+            type=int,
+            default=1,
+            help="keep z of every K-th accepted state and of the last (default 1: all); "
+            "the other series are kept for every step",
+        )
         self.add_example_options(parser)
         add_output_options(parser, self.name)
 
@@ -154,6 +161,8 @@ class RISRunBase:
             raise fail(
                 "--tols", ",".join(map(str, args.tols)), "is only used with --control nested"
             )
+        if args.keep_every < 1:
+            raise fail("--keep-every", args.keep_every, "must be an integer >= 1")
         if args.simpson < 2 or args.simpson % 2:
             raise fail("--simpson", args.simpson, "must be an even integer >= 2")
         return control, tol, tau, tau_min, tols
@@ -169,6 +178,7 @@ class RISRunBase:
             simpson_subintervals=args.simpson,
             progress=progress,
             inner=self.inner_options(args),
+            keep_every=args.keep_every,
         )
         try:
             if control == "nested":

@@ -42,10 +42,11 @@ def linear_solver_used(traj, problem, method: str = "auto") -> str:
     if traj.meta.get("linear_solver"):
         return str(traj.meta["linear_solver"])
     from ..nonlinear.linear import ReusableSolver
-    from ..nonlinear.ris_inner import InnerOptions
+    from ..nonlinear.ris_inner import InnerOptions, amg_threshold_for
 
     o = InnerOptions(linear_solver=method)
-    kind = ReusableSolver(o.linear_solver, amg_threshold=o.amg_threshold).resolve_kind(problem.n)
+    solver = ReusableSolver(o.linear_solver, amg_threshold=amg_threshold_for(problem, o))
+    kind = solver.resolve_kind(problem.n)
     return LINEAR_KINDS[kind]
 
 
@@ -131,9 +132,10 @@ class _RunRISFem(RISRunBase):
 
     def write_extra(self, args, problem, traj, out) -> None:
         from ..io.xdmf import write_series
+        from ..stepping.ris import stored_states
 
-        write_series(out / "solution.xdmf", problem.nodes, problem.cells, traj["s"],
-                     {"z": traj["z"]}, {"t": traj["t"]})
+        s, t, z = stored_states(traj)
+        write_series(out / "solution.xdmf", problem.nodes, problem.cells, s, {"z": z}, {"t": t})
 
     def plot(self, args, problem, runs, out) -> None:
         from ..plotting.ris import plot_path
@@ -145,8 +147,11 @@ class _RunRISFem(RISRunBase):
             label += f", tol={traj.meta['tol']:g}"
         plot_fig4(runs, out / "fig4_steps.png", title=f"{self.name}: physical time and step size")
         plot_path(traj, out / "fig1_path.png", title=label)
-        plot_snapshots(problem.nodes, problem.cells, traj["s"], traj["t"], traj["z"],
-                       out / "fig_snapshots.png", title=label)
+        from ..stepping.ris import stored_states
+
+        s, t, z = stored_states(traj)
+        plot_snapshots(problem.nodes, problem.cells, s, t, z, out / "fig_snapshots.png",
+                       title=label)
 
 
 @command("run", "ris-2d")

@@ -64,7 +64,24 @@ class InnerOptions:
     max_iter: int = 100
     max_fb_backtracks: int = 60
     linear_solver: str = "auto"
-    amg_threshold: int = 150_000
+    amg_threshold: int | None = None  # None: by the fill of A, see amg_threshold_for
+
+
+def amg_threshold_for(problem: RISProblem, options: InnerOptions) -> int:
+    """Unknowns above which ``auto`` uses AMG instead of sparse LU.
+
+    Measured on Example 7.2 (benchmarks/ris_2d.py, LU reused across iterations and steps): at
+    408k and 998k unknowns in 2D, LU and AMG cost about the same per step (jump: 1.4 vs 2.1 and
+    1.3 vs 1.5 LU(A) per accepted step; slip: 1.6 vs 1.0), while at 159k a jump step took 16 s with
+    LU and 48 s with AMG. LU fill grows like n log n for 2D-like stencils (<= 10 nonzeros per row:
+    2.7 GB peak at 10^6 unknowns) but like n^(4/3) in 3D, so: 400k unknowns for sparse 2D-like
+    matrices, 50k otherwise.
+    """
+    if options.amg_threshold is not None:
+        return int(options.amg_threshold)
+    A = problem.A
+    per_row = A.nnz / max(problem.n, 1) if sp.issparse(A) else problem.n
+    return 400_000 if per_row <= 10 else 50_000
 
 
 @dataclass
@@ -197,7 +214,9 @@ class BallStepSolver:
     def __init__(self, problem: RISProblem, options: InnerOptions | None = None):
         self.p = problem
         self.o = options or InnerOptions()
-        self.linear = ReusableSolver(self.o.linear_solver, amg_threshold=self.o.amg_threshold)
+        self.linear = ReusableSolver(
+            self.o.linear_solver, amg_threshold=amg_threshold_for(problem, self.o)
+        )
         self._K = _NewtonMatrix(problem)
         A = problem.A
         self._absA = abs(A) if problem.sparse else np.abs(A)

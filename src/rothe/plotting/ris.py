@@ -16,9 +16,11 @@ def plot_path(traj, path, exact=None, title="", component=None) -> Path:
     For vector states, z^ is shown as its min, max and V-mean over the nodes unless
     ``component`` selects one entry.
     """
-    s, t, z = traj["s"], traj["t"], traj["z"]
+    from ..stepping.ris import stored_states
+
+    s, t, z = stored_states(traj)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    axes[0].plot(s, t, "-", lw=1.4, label="numerical")
+    axes[0].plot(traj["s"], traj["t"], "-", lw=1.4, label="numerical")
     if z.ndim == 2 and z.shape[1] == 1:
         z1 = z[:, 0]
         axes[1].plot(s, z1, "-", lw=1.4, label="numerical")

@@ -68,8 +68,11 @@ class RISStepper:
         inner: InnerOptions | None = None,
         simpson_subintervals: int = 8,
         S: float | None = None,
+        keep_every: int = 1,
     ):
         self.problem = problem
+        # z of every keep_every-th accepted state (and of the last): 8 MB per state at 10^6 nodes
+        self.keep_every = check_int("keep_every", keep_every, minimum=1)
         self.solver = BallStepSolver(problem, inner)
         self.n_simpson = check_int("simpson_subintervals", simpson_subintervals, minimum=2)
         if self.n_simpson % 2:
@@ -202,10 +205,11 @@ class RISStepper:
     def record(self, traj: Trajectory, result: RISStepResult) -> None:
         st = result.state
         self._previous = (st.z, result.increment, result.tau)
+        if st.k % self.keep_every == 0:
+            traj.append(z=self.problem.full_state(st.z), z_step=st.k)
         traj.append(
             s=st.s,
             t=st.t,
-            z=self.problem.full_state(st.z),
             energy=result.energy,
             tau=result.tau,
             I1=result.I1,
@@ -235,9 +239,17 @@ class RISStepper:
 def initial_trajectory(problem: RISProblem, meta: dict | None = None) -> Trajectory:
     traj = Trajectory(meta=meta)
     traj.append(
-        s=0.0, t=0.0, z=problem.full_state(problem.z0), energy=problem.energy(0.0, problem.z0)
+        s=0.0, t=0.0, z=problem.full_state(problem.z0), z_step=0,
+        energy=problem.energy(0.0, problem.z0),
     )
     return traj
+
+
+def stored_states(traj: Trajectory):
+    """(s, t, z) of the states whose z was kept (all of them unless keep_every > 1)."""
+    z = traj["z"]
+    idx = traj["z_step"] if "z_step" in traj else np.arange(len(z))
+    return traj["s"][idx], traj["t"][idx], z
 
 
 def run_ris(
@@ -254,21 +266,30 @@ def run_ris(
     simpson_subintervals: int = 8,
     progress: bool = False,
     meta: dict | None = None,
+    keep_every: int = 1,
 ) -> Trajectory:
     """Run the scheme from (0, 0, z0) until t reaches T (or s reaches S).
 
+    ``keep_every = k`` keeps z of every k-th accepted state and of the last one (the other series
+    are kept for every step; ``z_step`` says which steps z holds, :func:`stored_states`).
+    ``meta['linear_solver']`` records the linear solver that ran.
     Raises :class:`RunFailed` (with ``.trajectory``) when the step size would fall below
     ``tau_min``; the trajectory computed so far is attached.
     """
     controller = make_controller(
         control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max, grid=grid
     )
-    stepper = RISStepper(problem, inner, simpson_subintervals, S=S)
+    stepper = RISStepper(problem, inner, simpson_subintervals, S=S, keep_every=keep_every)
     info = {"example": problem.name, "control": controller.name, "tol": tol, "tau0": tau}
     info.update(meta or {})
     traj = initial_trajectory(problem, info)
     state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
-    evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress)
+    try:
+        state = evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress)
+    finally:
+        traj.meta["linear_solver"] = stepper.solver.linear.kind_used
+    if state.k % stepper.keep_every:
+        traj.append(z=problem.full_state(state.z), z_step=state.k)
     return traj
 
 
@@ -282,6 +303,7 @@ def run_nested(
     inner: InnerOptions | None = None,
     simpson_subintervals: int = 8,
     progress: bool = False,
+    keep_every: int = 1,
 ) -> list[Trajectory]:
     """Alg. 6.2: runs for tol_1 > tol_2 > ...; run n never steps over a grid point of runs < n."""
     from ..errors import check_decreasing
@@ -303,6 +325,7 @@ def run_nested(
                 simpson_subintervals=simpson_subintervals,
                 progress=progress,
                 meta={"nested_index": len(runs)},
+                keep_every=keep_every,
             )
         except RunFailed as exc:
             exc.where["nested_tol"] = tol
