@@ -289,7 +289,7 @@ class ELDStepper:
     def overshoot(self, state, attempts):
         return None  # t_n = n tau = T exactly: equal steps never overshoot
 
-    def pick_landing(self, attempts):
+    def pick_landing(self, state, attempts):
         return attempts[-1]
 
     def where(self, state: ELDState, result=None) -> dict:

@@ -10,7 +10,7 @@
 A stepper provides ``step(state, tau, s_end) -> result`` (with ``converged``, ``code``, ``tau``,
 ``errors``, ``state`` and solver counters), ``finished(state)``, ``limit(state, tau)`` (e.g. to
 stop at a given S), ``overshoot(state, attempts)`` (a shorter tau that lands on the end time, or
-None, given the attempts of this step so far) with ``pick_landing(attempts)`` (the attempt to
+None, given the attempts of this step so far) with ``pick_landing(state, attempts)`` (the attempt to
 hand to the controller), ``record(trajectory, result)`` and ``progress_fields(state)``.
 
 If a rejection would push the step below ``tau_min``, the loop raises :class:`RunFailed` naming
@@ -114,7 +114,8 @@ def _evolve(stepper, controller, state, trajectory, *, tau_min, max_attempts,
                 stats.landing_retries += 1
                 attempts_here.append(stepper.step(state, shorter, None))
                 _count(stats, attempts_here[-1])
-            result = stepper.pick_landing(attempts_here) if len(attempts_here) > 1 else result
+            if len(attempts_here) > 1:
+                result = stepper.pick_landing(state, attempts_here)
             decision = controller.decide(result)
             if decision.accept:
                 state = result.state

@@ -136,7 +136,7 @@ class RISStepper:
             tau = 0.5 * (lo[0] + hi[0])
         return tau
 
-    def pick_landing(self, attempts: list[RISStepResult]) -> RISStepResult:
+    def pick_landing(self, state: RISState, attempts: list[RISStepResult]) -> RISStepResult:
         """The attempt to hand to the controller after shortening.
 
         One that ends within t_tol of T if any; otherwise the one closest to T among those that
@@ -147,11 +147,10 @@ class RISStepper:
         ok = [a for a in attempts if a.converged]
         if not ok:
             return attempts[-1]
-        t_prev = attempts[0].state.t - attempts[0].tau + attempts[0].step_norm
         landed = [a for a in ok if abs(a.state.t - T) <= self.t_tol]
         if landed:
             return landed[0]
-        useful = [a for a in ok if a.state.t > t_prev + self.t_tol] or ok
+        useful = [a for a in ok if a.state.t > state.t + self.t_tol] or ok
         return min(useful, key=lambda a: abs(a.state.t - T))
 
     def step(self, state: RISState, tau: float, s_end: float | None = None) -> RISStepResult:
