@@ -34,9 +34,16 @@ def _progress_bar(enabled: bool):
         from tqdm import tqdm
     except ImportError:  # pragma: no cover - tqdm is a dependency
         return None
-    # delay: runs shorter than about a second never show a bar
+    # delay: runs shorter than about a second never show a bar; disable=None: no bar when
+    # stderr is not a terminal (logs, CI), where carriage returns only clutter the file
     return tqdm(
-        total=None, file=sys.stderr, delay=1.0, unit="step", leave=False, dynamic_ncols=True
+        total=None,
+        file=sys.stderr,
+        delay=1.0,
+        unit="step",
+        leave=False,
+        dynamic_ncols=True,
+        disable=None,
     )
 
 
