@@ -308,18 +308,8 @@ def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, ka
     -200; T = 1; z0 = 0; R = ||.||_{L1}, V = L2, both lumped. g is even, so ``amplitude`` > 0
     (or ``z0`` of the other sign) gives the mirrored branch z -> -z.
     """
-    amplitude = check_real("amplitude", amplitude)
-    if mesh is None:
-        mesh = unit_square(n, pattern)
-    elif mesh_dim(mesh) != 2:
-        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-                   "must be 2D (triangles) for ris-2d")
-    return FERISProblem(
-        mesh, g_7_2, dg_7_2, d2g_7_2,
-        load=lambda t: amplitude * t**3,
-        load_rate=lambda t: 3.0 * amplitude * t**2,
-        kappa=kappa, z0=z0, T=T, dirichlet=dirichlet, name=name,
-    )
+    return _energy_7_2_on(unit_square(n, pattern) if mesh is None else mesh, 2, amplitude, z0,
+                          kappa, T, dirichlet, name)
 
 
 def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
@@ -330,12 +320,17 @@ def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
     Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
     paper: it shows that nothing in the discretization or the solver depends on d.
     """
+    return _energy_7_2_on(unit_cube(n) if mesh is None else mesh, 3, amplitude, z0, kappa, T,
+                          dirichlet, name)
+
+
+def _energy_7_2_on(mesh, dim, amplitude, z0, kappa, T, dirichlet, name) -> FERISProblem:
+    """g of (7.2) and the load amplitude t^3 int z on a ``dim``-dimensional mesh."""
     amplitude = check_real("amplitude", amplitude)
-    if mesh is None:
-        mesh = unit_cube(n)
-    elif mesh_dim(mesh) != 3:
+    if mesh_dim(mesh) != dim:
+        cells = "triangles" if dim == 2 else "tetrahedra"
         raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-                   "must be 3D (tetrahedra) for ris-3d")
+                  f"must be {dim}D ({cells}) for {name}")
     return FERISProblem(
         mesh, g_7_2, dg_7_2, d2g_7_2,
         load=lambda t: amplitude * t**3,
