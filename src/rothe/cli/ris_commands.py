@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 
 import numpy as np
 
@@ -70,14 +71,15 @@ def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
     return summary
 
 
-class RISRunBase:
+class RISRunBase(ABC):
     """Shared ``run`` logic; subclasses provide the problem and example-specific output."""
 
     name = "ris"
     default_tau = 0.1
 
     def add_example_options(self, parser) -> None:
-        pass
+        """Optional hook: options of this example (none by default)."""
+        return None
 
     def configure(self, parser) -> None:
         parser.add_argument(
@@ -126,14 +128,16 @@ class RISRunBase:
         add_output_options(parser, self.name)
 
     # hooks -----------------------------------------------------------------------------------
-    def build_problem(self, args):  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def build_problem(self, args):
+        """The RISProblem of this example from the parsed options."""
 
     def extra_summary(self, args, problem, traj) -> dict:
         return {}
 
     def write_extra(self, args, problem, traj, out) -> None:
-        pass
+        """Optional hook: extra output files (none by default)."""
+        return None
 
     def exact(self):
         return None

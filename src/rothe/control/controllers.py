@@ -17,6 +17,7 @@ grids of the earlier runs), and ``order2`` (beyond the paper: uses I ~ C tau^2, 
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +38,7 @@ def _max_error(result) -> float:
     return max(result.errors.values()) if result.errors else 0.0
 
 
-class StepController:
+class StepController(ABC):
     """Base class: holds tau_min / tau_max and the nominal step sigma."""
 
     name = "base"
@@ -56,8 +57,9 @@ class StepController:
         """Step to try from s, and the exact end point if the step must land on a grid point."""
         return self.sigma, None
 
-    def decide(self, result) -> Decision:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def decide(self, result) -> Decision:
+        """Accept or reject the step from its error measures; propose the next step."""
 
     def _clamp(self, tau: float) -> float:
         return min(tau, self.tau_max)

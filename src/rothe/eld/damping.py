@@ -30,6 +30,7 @@ with D v = C v + N(v), ``is_linear``, ``apply(v)``, ``linear_apply(v)``, ``jacob
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -130,17 +131,19 @@ class DampingOperator:
         return lambda w: J @ w
 
 
-class Damping:
+class Damping(ABC):
     """Base class of the damping descriptions."""
 
     name = "base"
 
     @property
-    def constants(self) -> DampingConstants:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def constants(self) -> DampingConstants:
+        """d0, d1, d2 of (2.5)."""
 
-    def operator(self, space, M, K) -> DampingOperator:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def operator(self, space, M, K) -> DampingOperator:
+        """The discrete damping operator on the given space."""
 
     def describe(self) -> dict:
         return {"name": self.name, **self.constants.as_dict()}
