@@ -39,7 +39,7 @@ Nothing raises inside the loop: failures become codes and the step is then rejec
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -107,7 +107,6 @@ class InnerState:
     code: str = "running"
     hint: np.ndarray | None = None  # a candidate increment (e.g. the previous step's), tried once
     last_alpha: float = 0.0  # damping factor of the last accepted line-search step
-    history: list = field(default_factory=list)
 
 
 @dataclass
@@ -234,9 +233,6 @@ class BallStepSolver:
         J = 0.5 * float(z @ Az) + Fz - float(ell @ z) + self.p.dissipation(d)
         return z, Az, g, J
 
-    def _hess_F(self, z):
-        return self.p.d2F(z)
-
     def _hess_diag(self, z, hess_F):
         if sp.issparse(hess_F) or np.ndim(hess_F) == 2:
             return self.p.A_diag + np.asarray(
@@ -308,7 +304,7 @@ class BallStepSolver:
         if st.hint is not None:
             hint, st.hint = st.hint, None
             sphere = p.norm_V(hint) >= st.tau * (1 - 1e-12)
-            if self._try_candidates(st, [hint], None, sphere=sphere, full_only=True):
+            if self._line_search(st, hint, None, sphere=sphere, full_only=True):
                 return st
         on_sphere = p.norm_V(st.d) >= st.tau * (1 - 1e-12) and st.lam > 0
         kkt_before = st.kkt
@@ -358,7 +354,7 @@ class BallStepSolver:
     def _newton_step(self, st: InnerState, on_sphere: bool) -> bool:
         p = self.p
         d, g, lam, tau = st.d, st.g, (st.lam if on_sphere else 0.0), st.tau
-        hess_F = self._hess_F(st.z)
+        hess_F = self.p.d2F(st.z)
         hdiag = self._hess_diag(st.z, hess_F)
         # 1. active-set prediction by a diagonal Newton step on the normal map
         # D_i must be a meaningful positive scale: where the curvature along coordinate i is
@@ -371,7 +367,7 @@ class BallStepSolver:
             # every node at rest: the step is d = 0 (sticking) when that is stationary
             if np.any(d != 0):
                 cand = np.zeros_like(d)
-                return self._try_candidates(st, [cand], None)
+                return self._line_search(st, cand, None)
             return False
         sigma = np.sign(y) * active
         inactive = ~active
@@ -420,7 +416,7 @@ class BallStepSolver:
             if nt > tau:
                 trial *= tau / nt
                 sphere = True
-        return self._try_candidates(st, [trial], hess_F, sphere=sphere)
+        return self._line_search(st, trial, hess_F, sphere=sphere)
 
     def _solve_newton(self, active, hess_F, shift, inactive_diag, rhs, rtol):
         """Solve the active-set Newton system K x = b for each b in ``rhs`` (full-length vectors).
@@ -465,42 +461,41 @@ class BallStepSolver:
         self._A_reduced = (active.copy(), A_AA)
         return A_AA
 
-    def _try_candidates(self, st: InnerState, candidates, hess_F, sphere: bool = False,
-                        full_only: bool = False) -> bool:
-        """Line search along d -> candidate (retracting onto the sphere when it is active)."""
+    def _line_search(self, st: InnerState, cand, hess_F, sphere: bool = False,
+                     full_only: bool = False) -> bool:
+        """Line search along d -> cand (retracting onto the sphere when it is active)."""
         p = self.p
         d = st.d
         noise = 1e-13 * (abs(st.J) + abs(st.J0) + 1.0)
-        for cand in candidates:
-            step = cand - d
-            if hess_F is not None:
-                quad = float(step @ self._apply_H(hess_F, step))
-            else:
-                quad = 0.0
-            pred = -(float(st.g @ step) + 0.5 * quad + p.dissipation(cand) - p.dissipation(d))
-            for alpha in (1.0,) if full_only else (1.0, 0.5, 0.25):
-                trial = d + alpha * step if alpha < 1 else cand
-                if sphere and alpha < 1:
-                    nt = p.norm_V(trial)
-                    if nt > 0:
-                        trial = trial * (st.tau / nt)
-                z, Az, g, J = self._evaluate(st.t, st.zprev, trial)
-                if not np.isfinite(J):
-                    continue
-                # a real predicted decrease is required: a step that only "decreases" J by
-                # round-off (e.g. a Newton step cancelled by the orthant projection) is a stall
-                if pred > noise and J < st.J and J <= st.J - 1e-4 * alpha * pred:
+        step = cand - d
+        if hess_F is not None:
+            quad = float(step @ self._apply_H(hess_F, step))
+        else:
+            quad = 0.0
+        pred = -(float(st.g @ step) + 0.5 * quad + p.dissipation(cand) - p.dissipation(d))
+        for alpha in (1.0,) if full_only else (1.0, 0.5, 0.25):
+            trial = d + alpha * step if alpha < 1 else cand
+            if sphere and alpha < 1:
+                nt = p.norm_V(trial)
+                if nt > 0:
+                    trial = trial * (st.tau / nt)
+            z, Az, g, J = self._evaluate(st.t, st.zprev, trial)
+            if not np.isfinite(J):
+                continue
+            # a real predicted decrease is required: a step that only "decreases" J by
+            # round-off (e.g. a Newton step cancelled by the orthant projection) is a stall
+            if pred > noise and J < st.J and J <= st.J - 1e-4 * alpha * pred:
+                self._accept(st, trial, z, Az, g, J)
+                st.last_alpha = alpha
+                return True
+            if abs(J - st.J) <= noise:
+                # J is flat to round-off (near convergence): accept if stationarity improves
+                on = p.norm_V(trial) >= st.tau * (1 - 1e-10)
+                lam = multiplier_on_sphere(p, trial, g) if on else 0.0
+                if kkt_residual(p, trial, g, lam, st.tau) < 0.5 * st.kkt:
                     self._accept(st, trial, z, Az, g, J)
                     st.last_alpha = alpha
                     return True
-                if abs(J - st.J) <= noise:
-                    # J is flat to round-off (near convergence): accept if stationarity improves
-                    on = p.norm_V(trial) >= st.tau * (1 - 1e-10)
-                    lam = multiplier_on_sphere(p, trial, g) if on else 0.0
-                    if kkt_residual(p, trial, g, lam, st.tau) < 0.5 * st.kkt:
-                        self._accept(st, trial, z, Az, g, J)
-                        st.last_alpha = alpha
-                        return True
         return False
 
     def _fb_step(self, st: InnerState) -> bool:
