@@ -78,6 +78,22 @@ def energy_summary(traj) -> dict:
     }
 
 
+def _write_run(args, out, name, traj, summary, label, keys) -> None:
+    """What every ELD run writes: trajectory.npz, the energy and reaction figures, summary.json,
+    and (unless --quiet) the summary and the energy balance on stdout."""
+    traj.save_npz(out / "trajectory.npz")
+    if not args.no_plots:
+        from ..plotting.eld import plot_energy_balance, plot_reactions
+
+        plot_energy_balance(traj, out / "fig_energy.png", title=label)
+        plot_reactions(traj, out / "fig_reaction.png", title=label)
+    write_summary(out, summary)
+    if not args.quiet:
+        print(f"rothe run {name}: wrote {out}/")
+        print_summary(summary, keys)
+        print(format_energy_balance(summary))
+
+
 def format_energy_balance(e: dict) -> str:
     """The discrete energy identity at T, term by term (see rothe.eld.schemes)."""
     lhs = e["energy_final"] - e["energy_initial"]
@@ -188,18 +204,7 @@ class RunEldMMS:
         summary = run_summary(traj, self.name)
         summary.update(n=n, degree=args.degree, dirichlet=list(parts))
         summary.update(mms_errors(problem, exact, traj))
-        traj.save_npz(out / "trajectory.npz")
-        if not args.no_plots:
-            from ..plotting.eld import plot_energy_balance, plot_reactions
-
-            label = f"eld-mms, {form}, tau={tau:g}"
-            plot_energy_balance(traj, out / "fig_energy.png", title=label)
-            plot_reactions(traj, out / "fig_reaction.png", title=label)
-        write_summary(out, summary)
-        if not args.quiet:
-            print(f"rothe run {self.name}: wrote {out}/")
-            print_summary(summary, MMS_KEYS)
-            print(format_energy_balance(summary))
+        _write_run(args, out, self.name, traj, summary, f"eld-mms, {form}, tau={tau:g}", MMS_KEYS)
         return 0
 
 
@@ -273,20 +278,11 @@ class RunEldBeam:
         )
         R = traj["reaction_left"]
         summary["reaction_left_max_abs"] = np.max(np.abs(R), axis=0).tolist()
-        traj.save_npz(out / "trajectory.npz")
-        if not args.no_plots:
-            from ..plotting.eld import plot_energy_balance, plot_reactions
-
-            label = f"eld-beam, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
-            plot_energy_balance(traj, out / "fig_energy.png", title=label)
-            plot_reactions(traj, out / "fig_reaction.png", title=label)
-        write_summary(out, summary)
-        if not args.quiet:
-            print(f"rothe run {self.name}: wrote {out}/")
-            print_summary(summary, ("example", "form", "tau", "n_steps", "ndofs", "linear_solver",
-                                    "krylov_iterations", "seconds_per_step", "peak_memory_mb",
-                                    "reaction_left_final", "wall_time_s"))
-            print(format_energy_balance(summary))
+        label = f"eld-beam, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
+        _write_run(args, out, self.name, traj, summary, label,
+                   ("example", "form", "tau", "n_steps", "ndofs", "linear_solver",
+                    "krylov_iterations", "seconds_per_step", "peak_memory_mb",
+                    "reaction_left_final", "wall_time_s"))
         return 0
 
 
