@@ -30,7 +30,13 @@ def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):
     assert summary["balance_residual_max"] < 1e-9
     assert (out / "fig_energy.png").is_file() and (out / "fig_reaction.png").is_file()
     data = np.load(out / "trajectory.npz")
-    assert data["lam"].shape[0] == 20 and data["t"].shape[0] == 21
+    # kept states t = 0, ..., T (lam[0] the consistent initial multiplier) and the mesh
+    assert data["lam"].shape[0] == 21 and data["t"].shape[0] == 21
+    assert data["u"].shape == (21, data["doflocs"].shape[0] * 2)
+    assert data["nodes"].shape == (9, 2) and data["cells"].shape == (8, 3)
+    assert np.array_equal(data["kept_t"], data["t"])
+    for name in ("mms.xdmf", "mms.h5", "mms_multiplier.xdmf"):
+        assert (out / name).is_file(), name
     assert "energy balance of the scheme" in stdout and "numerical dissipation" in stdout
 
 

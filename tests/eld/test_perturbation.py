@@ -46,7 +46,8 @@ def test_noise_in_the_load_affects_both_forms_alike():
 
 
 def test_noise_depends_only_on_seed_and_step():
-    a, b = DataNoise(1e-3, "G", seed=4), DataNoise(1e-3, "G", seed=4)
+    targets = ("G", "G_dot", "G_ddot")
+    a, b = DataNoise(1e-3, targets, seed=4), DataNoise(1e-3, targets, seed=4)
     for j in (1, 7):
         for x, y in zip(a.constraint_noise(j, 10), b.constraint_noise(j, 10), strict=True):
             assert np.array_equal(x, y)

@@ -1,10 +1,13 @@
 """CLI commands for elastodynamics: ``rothe run eld-mms|eld-beam``,
 ``rothe study eld-convergence|eld-perturbation``.
 
-Outputs follow the foundation layout: ``summary.json``, ``trajectory.npz`` (runs), a table
-(studies), PNG figures unless ``--no-plots``, XDMF for the beam. Bad input is one line and exit
-status 2 (raised as RotheInputError by the library where the value enters, e.g. tau >= rho/d0 by
-the stepper before the first step); a run that fails midway writes what it has and exits 1.
+Outputs follow the foundation layout: ``summary.json``, ``trajectory.npz`` (runs: with the mesh,
+the kept u, v, a, lambda and the dof layout, see :mod:`rothe.io.eld_output`), a table (studies),
+PNG figures unless ``--no-plots``, and for every run XDMF for ParaView (u, v, Cauchy and von
+Mises stresses, lambda). Bad input is one line and exit status 2 (raised as RotheInputError by
+the library where the value enters, e.g. tau >= rho/d0 by the stepper before the first step); a
+run that fails midway (a failed solve, a non-finite state or datum) writes what it has with
+``status: failed`` and exits 1.
 """
 
 from __future__ import annotations
@@ -24,6 +27,48 @@ from .common import (
 from .registry import command
 
 FORMS = ("regularized", "original")
+SCHEMES = ("euler", "bdf2")
+#: eld-beam: P2 with 3 cells across (3675 dofs): sideways reactions 0.4 % / 0.3 % (Euler) and
+#: 0.5 % / 0.7 % (BDF2) of R_z, R_z within 0.03 % of n = 4 (P1 n = 3: 17 % / 27 %)
+BEAM_DEFAULT_N = 3
+BEAM_DEFAULT_DEGREE = 2
+#: the note on a coarse mesh when a sideways reaction exceeds this fraction of R_z
+BEAM_SIDEWAYS_NOTE = 0.02
+CONTROLS = ("uniform", "adaptive")
+
+
+def _scheme_option(parser) -> None:
+    parser.add_argument("--scheme", default="euler",
+                        help="euler | bdf2: implicit Euler (3.4), the paper's scheme (default), or "
+                             "variable-step BDF2 (second order)")
+
+
+def _control_options(parser) -> None:
+    parser.add_argument("--control", default="uniform",
+                        help="uniform | adaptive: equal steps tau (must divide T), or steps chosen "
+                             "by the local error estimate (then --tau is the first step)")
+    parser.add_argument("--tol", type=parse_float("--tol"), default=None,
+                        help="tolerance of --control adaptive: local error in the energy norm "
+                             "relative to the run's energy-norm scale")
+
+
+def _check_control(args) -> tuple[str, str, float | None]:
+    scheme = check_choice("--scheme", args.scheme, SCHEMES)
+    control = check_choice("--control", args.control, CONTROLS)
+    tol = args.tol
+    if control == "adaptive":
+        if tol is None:
+            raise fail("--tol", None, "must be given (> 0) with --control adaptive")
+        tol = check_positive("--tol", tol)
+    elif tol is not None:
+        raise fail("--tol", tol, "is used by --control adaptive only (this run has uniform steps)")
+    return scheme, control, tol
+
+
+def _keep_option(parser, default: int) -> None:
+    parser.add_argument("--keep-every", type=int, default=default,
+                        help=f"keep u, v, a, lambda of every k-th step in trajectory.npz and the "
+                             f"XDMF files (default {default}; t = 0 and the last step always)")
 
 
 def _damping_options(parser, default_b: float = 0.01) -> None:
@@ -66,27 +111,33 @@ def _mms_options(parser) -> None:
 
 
 def energy_summary(traj) -> dict:
+    e0 = float(traj["energy"][0])
+    e1 = float(traj["energy"][-1])
     return {
-        "energy_initial": float(traj["energy"][0]),
-        "energy_final": float(traj["energy"][-1]),
+        "energy_initial": e0,
+        "energy_final": e1,
+        "energy_ratio": e1 / e0 if e0 > 0 else None,
         "work_loads": float(traj["work"][-1]),
         "work_support": float(traj["work_reaction"][-1]),
         "dissipated_physical": float(traj["dissipated"][-1]),
         "dissipated_numerical": float(traj["numerical_dissipation"][-1]),
+        "dissipated_numerical_G": float(traj["numerical_dissipation_G"][-1]),
+        "step_change": float(traj["step_change"][-1]),
         "data_mismatch": float(traj["data_mismatch"][-1]),
+        "residual_work": float(traj["residual_work"][-1]),
+        "transfer": float(traj["transfer"][-1]),
         "balance_residual_max": float(np.max(np.abs(traj["balance_residual"]))),
     }
 
 
-def _write_run(args, out, name, traj, summary, label, keys) -> None:
-    """What every ELD run writes: trajectory.npz, the energy and reaction figures, summary.json,
-    and (unless --quiet) the summary and the energy balance on stdout."""
-    traj.save_npz(out / "trajectory.npz")
-    if not args.no_plots:
-        from ..plotting.eld import plot_energy_balance, plot_reactions
+def _write_run(args, out, name, traj, summary, label, keys, problem, xdmf: bool = True) -> None:
+    """What every ELD run writes: trajectory.npz (with the mesh), XDMF of the kept states
+    (unless streamed already), the energy and reaction figures, summary.json, and (unless
+    --quiet) the summary and the energy balance on stdout."""
+    from ..io.eld_output import write_eld_result
 
-        plot_energy_balance(traj, out / "fig_energy.png", title=label)
-        plot_reactions(traj, out / "fig_reaction.png", title=label)
+    write_eld_result(traj, problem, out, name=name.replace("eld-", ""), xdmf=xdmf,
+                     figures=not args.no_plots, title=label)
     write_summary(out, summary)
     if not args.quiet:
         print(f"rothe run {name}: wrote {out}/")
@@ -104,6 +155,8 @@ def format_energy_balance(e: dict) -> str:
         ("  - physical dissipation", e["dissipated_physical"]),
         ("  - numerical dissipation", e["dissipated_numerical"]),
         ("  - data mismatch", e["data_mismatch"]),
+        ("  + solver residual work", e["residual_work"]),
+        ("  + mesh transfer", e["transfer"]),
     )
     lines = ["energy balance of the scheme (E = kinetic + elastic):"]
     lines += [f"  {name:<26} {value:>14.6g}" for name, value in rows]
@@ -118,6 +171,9 @@ def run_summary(traj, example: str) -> dict:
     summary = {
         "example": example,
         "form": meta.get("form"),
+        "scheme": meta.get("scheme"),
+        "control": meta.get("control"),
+        "tol": meta.get("tol"),
         "tau": meta.get("tau"),
         "data": meta.get("data"),
         "lifting": meta.get("lifting"),
@@ -128,6 +184,8 @@ def run_summary(traj, example: str) -> dict:
         "step_bound_rho_over_d0": meta.get("step_bound"),
         "accepted_steps": st.accepted_steps,
         "rejected_steps": st.rejected_steps,
+        "tau_min_used": float(np.min(traj["tau"])) if st.accepted_steps else None,
+        "tau_max_used": float(np.max(traj["tau"])) if st.accepted_steps else None,
         "inner_solves": st.inner_solves,
         "newton_iterations": st.newton_iterations,
         "newton_per_step": st.newton_iterations / max(st.accepted_steps, 1),
@@ -148,18 +206,24 @@ def run_summary(traj, example: str) -> dict:
     return summary
 
 
-def _failed(out, traj, exc, example: str, extra: dict | None = None) -> None:
+def _failed(out, traj, exc, example: str, extra: dict | None = None, problem=None) -> None:
     if traj is None:
         return
-    traj.save_npz(out / "trajectory.npz")
+    if problem is not None:
+        from ..io.eld_output import mesh_arrays
+
+        traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
+    else:
+        traj.save_npz(out / "trajectory.npz")
     summary = run_summary(traj, example)
     summary.update(extra or {})
     summary.update(status="failed", failure=str(exc), where=exc.where)
     write_summary(out, summary)
 
 
-MMS_KEYS = ("example", "form", "tau", "n_steps", "ndofs", "newton_per_step", "error_u_l2",
-            "error_u_h1", "error_v_l2", "error_v_h1", "error_lam_l2", "wall_time_s")
+MMS_KEYS = ("example", "form", "scheme", "control", "tau", "accepted_steps", "rejected_steps",
+            "ndofs", "newton_per_step", "error_u_l2", "error_u_h1", "error_v_l2", "error_v_h1",
+            "error_lam_l2", "error_lam_l2_max", "wall_time_s")
 
 
 @command("run", "eld-mms")
@@ -170,8 +234,18 @@ class RunEldMMS:
 
     def configure(self, parser) -> None:
         parser.add_argument("--form", default="regularized", help="regularized | original")
+        _scheme_option(parser)
         parser.add_argument("--tau", type=parse_float("--tau"), default=0.01,
-                            help="time step; must divide T (default 0.01)")
+                            help="time step; must divide T (default 0.01); the first step with "
+                                 "--control adaptive")
+        _control_options(parser)
+        parser.add_argument("--steps", type=parse_float_list("--steps"), default=None,
+                            help="a given step sequence tau_1,...,tau_n summing to T (instead of "
+                                 "--tau; BDF2: ratios below 1 + sqrt(2))")
+        parser.add_argument("--load-quadrature", type=int, default=None,
+                            help="degree of the quadrature of body force and tractions "
+                                 "(default 2 * degree)")
+        _keep_option(parser, 1)
         parser.add_argument("--dirichlet", default="left",
                             help="comma-separated Dirichlet parts (default left); "
                                  "traction on the rest")
@@ -187,24 +261,31 @@ class RunEldMMS:
 
         form = check_choice("--form", args.form, FORMS)
         tau = check_positive("--tau", args.tau)
+        scheme, control, tol = _check_control(args)
+        keep = check_int("--keep-every", args.keep_every, minimum=1)
+        if args.steps is not None and control != "uniform":
+            raise fail("--steps", "a step sequence", "is a fixed grid: not with --control adaptive")
         n = check_int("--n", args.n, minimum=1)
         parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
         if not parts:
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
         damping = _make_damping(args)
         problem, exact = mms_problem(n, args.degree, damping=damping, rho=args.rho, lam=args.lam,
-                                     mu=args.mu, T=args.T, dirichlet=parts, start=args.start)
+                                     mu=args.mu, T=args.T, dirichlet=parts, start=args.start,
+                                     load_quadrature=args.load_quadrature)
         out = output_dir(args, self.name)
         try:
-            traj = run_eld(problem, form, tau, data=args.data, lifting=args.lifting,
-                           progress=not args.quiet)
+            traj = run_eld(problem, form, tau, scheme=scheme, control=control, tol=tol,
+                           steps=args.steps, data=args.data, lifting=args.lifting,
+                           keep_every=keep, progress=not args.quiet)
         except RunFailed as exc:
-            _failed(out, exc.trajectory, exc, self.name)
+            _failed(out, exc.trajectory, exc, self.name, problem=problem)
             raise
         summary = run_summary(traj, self.name)
         summary.update(n=n, degree=args.degree, dirichlet=list(parts))
         summary.update(mms_errors(problem, exact, traj))
-        _write_run(args, out, self.name, traj, summary, f"eld-mms, {form}, tau={tau:g}", MMS_KEYS)
+        label = f"eld-mms, {scheme}, {form}, " + (f"tol={tol:g}" if tol else f"tau={tau:g}")
+        _write_run(args, out, self.name, traj, summary, label, MMS_KEYS, problem)
         return 0
 
 
@@ -216,14 +297,18 @@ class RunEldBeam:
 
     def configure(self, parser) -> None:
         parser.add_argument("--form", default="regularized", help="regularized | original")
-        parser.add_argument("--n", type=int, default=3,
-                            help="cells across the unit cross-section (default 3); "
+        _scheme_option(parser)
+        parser.add_argument("--n", type=int, default=BEAM_DEFAULT_N,
+                            help=f"cells across the unit cross-section (default {BEAM_DEFAULT_N}); "
                                  "round(length*n) along the beam")
         parser.add_argument("--length", type=parse_float("--length"), default=4.0,
                             help="beam length (default 4)")
-        parser.add_argument("--degree", type=int, default=1, help="1 or 2 (default 1)")
+        parser.add_argument("--degree", type=int, default=BEAM_DEFAULT_DEGREE,
+                            help=f"1 or 2 (default {BEAM_DEFAULT_DEGREE})")
         parser.add_argument("--tau", type=parse_float("--tau"), default=0.01,
-                            help="time step (default 0.01)")
+                            help="time step (default 0.01); the first step with --control "
+                                 "adaptive")
+        _control_options(parser)
         parser.add_argument("--T", type=parse_float("--T"), default=2.0,
                             help="end time (default 2)")
         parser.add_argument("--E", type=parse_float("--E"), default=1000.0, help="Young's modulus")
@@ -235,6 +320,7 @@ class RunEldBeam:
         parser.add_argument("--solver", default="auto", help="auto | direct | amg")
         parser.add_argument("--save-every", type=int, default=5,
                             help="write every k-th step to XDMF (default 5)")
+        _keep_option(parser, 5)
         _damping_options(parser, default_b=0.002)
         parser.set_defaults(damping="rayleigh")
         add_output_options(parser, self.name)
@@ -246,8 +332,10 @@ class RunEldBeam:
 
         form = check_choice("--form", args.form, FORMS)
         tau = check_positive("--tau", args.tau)
+        scheme, control, tol = _check_control(args)
         n = check_int("--n", args.n, minimum=1)
         every = check_int("--save-every", args.save_every, minimum=1)
+        keep = check_int("--keep-every", args.keep_every, minimum=1)
         damping = _make_damping(args)
         problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,
                                damping=damping, amplitude=args.amplitude, t_move=args.t_move,
@@ -257,16 +345,16 @@ class RunEldBeam:
         writer.write(0.0, problem.u0, problem.v0, None)
 
         def observer(state, result):
-            if state.j % every == 0 or state.j == round(problem.T / tau):
+            if state.j % every == 0 or state.t >= problem.T:
                 writer.write(state.t, state.u, state.v, result.lam)
 
         try:
-            traj = run_eld(problem, form, tau, solver=args.solver, store_fields=False,
-                           observer=observer, progress=not args.quiet,
-                           linear_rtol=1e-8)
+            traj = run_eld(problem, form, tau, scheme=scheme, control=control, tol=tol,
+                           solver=args.solver, keep_every=keep, observer=observer,
+                           progress=not args.quiet, linear_rtol=1e-8)
         except RunFailed as exc:
             writer.close()
-            _failed(out, exc.trajectory, exc, self.name)
+            _failed(out, exc.trajectory, exc, self.name, problem=problem)
             raise
         writer.close()
         summary = run_summary(traj, self.name)
@@ -277,12 +365,29 @@ class RunEldBeam:
             xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written,
         )
         R = traj["reaction_left"]
-        summary["reaction_left_max_abs"] = np.max(np.abs(R), axis=0).tolist()
-        label = f"eld-beam, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
+        peak = np.max(np.abs(R), axis=0)
+        summary["reaction_left_max_abs"] = peak.tolist()
+        # the motion is purely in z and the beam symmetric: R_x, R_y vanish for the exact solution
+        sideways = (peak[:2] / peak[2]).tolist() if peak[2] > 0 else [0.0, 0.0]
+        summary["reaction_sideways_over_z"] = sideways
+        e = energy_summary(traj)
+        put_in = e["work_support"] + e["work_loads"]
+        summary["numerical_dissipation_fraction"] = (e["dissipated_numerical"] / put_in
+                                                     if put_in > 0 else None)
+        label = f"eld-beam, {scheme}, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
         _write_run(args, out, self.name, traj, summary, label,
-                   ("example", "form", "tau", "n_steps", "ndofs", "linear_solver",
-                    "krylov_iterations", "seconds_per_step", "peak_memory_mb",
-                    "reaction_left_final", "wall_time_s"))
+                   ("example", "form", "scheme", "tau", "accepted_steps", "ndofs",
+                    "linear_solver", "krylov_iterations", "seconds_per_step", "peak_memory_mb",
+                    "reaction_left_final", "reaction_left_max_abs", "wall_time_s"), problem,
+                   xdmf=False)
+        if not args.quiet:
+            print(f"numerical dissipation: {e['dissipated_numerical']:.4g} of the {put_in:.4g} "
+                  "put in by the support and the loads (physical damping "
+                  f"{e['dissipated_physical']:.4g})")
+            if max(sideways) > BEAM_SIDEWAYS_NOTE:
+                print(f"note: coarse mesh for the reactions: the sideways reactions are "
+                      f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of R_z, "
+                      "zero for the exact solution; use --degree 2 or a larger --n")
         return 0
 
 
@@ -293,6 +398,7 @@ class StudyEldConvergence:
 
     def configure(self, parser) -> None:
         parser.add_argument("--form", default="regularized", help="regularized | original")
+        _scheme_option(parser)
         parser.add_argument("--tau0", type=parse_float("--tau0"), default=0.1,
                             help="largest step (default 0.1)")
         parser.add_argument("--halvings", type=int, default=5,
@@ -305,6 +411,7 @@ class StudyEldConvergence:
         from ..eld.studies import convergence_study, format_convergence_table
 
         form = check_choice("--form", args.form, FORMS)
+        scheme = check_choice("--scheme", args.scheme, SCHEMES)
         halvings = check_int("--halvings", args.halvings, minimum=1)
         n = check_int("--n", args.n, minimum=1)
         damping = _make_damping(args)
@@ -312,7 +419,8 @@ class StudyEldConvergence:
         study = convergence_study(form, tau0=args.tau0, halvings=halvings, n=n,
                                   degree=args.degree, damping=damping, rho=args.rho,
                                   lam=args.lam, mu=args.mu, T=args.T, data=args.data,
-                                  lifting=args.lifting, progress=not args.quiet)
+                                  lifting=args.lifting, scheme=scheme,
+                                  progress=not args.quiet)
         table = format_convergence_table(study)
         (out / "table.txt").write_text(table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
@@ -323,11 +431,14 @@ class StudyEldConvergence:
             plot_convergence(
                 study["tau"],
                 {"u L2": study["error_u"], "u H1": study["error_u_h1"], "v L2": study["error_v"],
-                 "lambda L2(G_D)": study["error_lam"]},
+                 "lambda L2(G_D)": study["error_lam"],
+                 "max_j lambda": study["error_lam_max"]},
                 out / "fig_convergence.png",
                 rates={"u L2": study["rate_u"], "u H1": study["rate_u_h1"],
-                       "v L2": study["rate_v"], "lambda L2(G_D)": study["rate_lam"]},
-                title=f"eld-mms, {form}, P{study['degree']}")
+                       "v L2": study["rate_v"], "lambda L2(G_D)": study["rate_lam"],
+                       "max_j lambda": study["rate_lam_max"]},
+                title=f"eld-mms, {scheme}, {form}, P{study['degree']}",
+                order=1 if scheme == "euler" else 2)
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")
@@ -349,7 +460,9 @@ class StudyEldPerturbation:
         parser.add_argument("--n", type=int, default=6, help="cells per side (default 6)")
         parser.add_argument("--degree", type=int, default=1, help="1 or 2 (default 1)")
         parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-        parser.add_argument("--targets", default="G,F", help="noise in G, F or both (default G,F)")
+        parser.add_argument("--targets", default="G,G_dot,G_ddot,F",
+                            help="the data perturbed, each alone (default G,G_dot,G_ddot,F)")
+        _scheme_option(parser)
         _damping_options(parser)
         add_output_options(parser, self.name)
 
@@ -359,15 +472,21 @@ class StudyEldPerturbation:
         taus = [check_positive("--taus", t) for t in args.taus]
         if len(taus) < 2:
             raise fail("--taus", ",".join(map(str, args.taus)), "needs at least two step sizes")
+        from ..eld.data import NOISE_TARGETS
+
         targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
+        if not targets:
+            raise fail("--targets", args.targets, "must name at least one of "
+                       + ", ".join(NOISE_TARGETS))
         for t in targets:
-            check_choice("--targets", t, ("G", "F"))
+            check_choice("--targets", t, NOISE_TARGETS)
+        scheme = check_choice("--scheme", args.scheme, SCHEMES)
         n = check_int("--n", args.n, minimum=1)
         damping = _make_damping(args)
         out = output_dir(args, self.name)
         study = perturbation_study(taus, delta=args.delta, targets=targets, n=n,
                                    degree=args.degree, damping=damping, seed=args.seed,
-                                   progress=not args.quiet)
+                                   scheme=scheme, progress=not args.quiet)
         table = format_perturbation_table(study)
         (out / "table.txt").write_text(table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
@@ -378,7 +497,7 @@ class StudyEldPerturbation:
             for target in targets:
                 plot_perturbation(study["tau"], study[target],
                                   out / f"fig_perturbation_{target}.png",
-                                  title=f"noise in {target}, delta = {args.delta:g}")
+                                  title=f"{scheme}: noise in {target}, delta = {args.delta:g}")
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")

@@ -4,12 +4,16 @@
     u = u1 + u2, B u2 = G, B v2 = G', B w2 = G'',
     rho (u1'' + w2) + D(u1' + v2) + K (u1 + u2) + B* lambda = F   (2.8, regularized, index 1)
 
-Implicit Euler (3.4) in both forms (:func:`run_eld`), on vector P1/P2 elements
-(:class:`rothe.fem.elasticity.VectorSpace`), with Dirichlet data enforced weakly by a Lagrange
-multiplier (the boundary reaction), linear or nonlinear damping with the constants of (2.5), the
-step bound of Lemma 3.2, energy bookkeeping, and the perturbation behaviour of Theorem 4.5.
+Implicit Euler (3.4) and variable-step BDF2 in both forms (:func:`run_eld`, ``scheme=``), with
+uniform steps, a given step sequence or adaptive steps (``control='adaptive'``, ``tol=``) on
+the shared evolve loop, on vector P1/P2 elements (:class:`rothe.fem.elasticity.VectorSpace`),
+with Dirichlet data enforced weakly by a Lagrange multiplier (the boundary reaction), linear or
+nonlinear damping with the constants of (2.5), the step bound of Lemma 3.2, energy bookkeeping,
+the perturbation behaviour of Theorem 4.5, stresses (:mod:`rothe.eld.stress`) and outputs for
+ParaView (:func:`write_eld_result`). See ``docs/eld.md``.
 """
 
+from ..io.eld_output import write_eld_result
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .damping import (
     Damping,
@@ -21,10 +25,11 @@ from .damping import (
     make_damping,
 )
 from .data import DataNoise, StepData
-from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem
+from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem, ramp_problem
 from .materials import Material
 from .problem import DirichletData, ELDProblem
-from .schemes import ELDStepper, NewtonOptions, run_eld
+from .schemes import ELDState, ELDStepper, NewtonOptions, run_eld, step_coefficients
+from .stress import StressEvaluator, cauchy_stress, von_mises
 from .studies import convergence_study, perturbation_study
 
 __all__ = [
@@ -34,6 +39,7 @@ __all__ = [
     "DirichletConstraint",
     "DirichletData",
     "ELDProblem",
+    "ELDState",
     "ELDStepper",
     "HarmonicLifting",
     "ManufacturedSolution",
@@ -44,12 +50,18 @@ __all__ = [
     "NonlinearDamping",
     "RayleighDamping",
     "StepData",
+    "StressEvaluator",
     "UserDamping",
     "beam_problem",
+    "cauchy_stress",
     "convergence_study",
     "make_damping",
     "mms_errors",
     "mms_problem",
     "perturbation_study",
+    "ramp_problem",
     "run_eld",
+    "step_coefficients",
+    "von_mises",
+    "write_eld_result",
 ]

@@ -1,25 +1,34 @@
 """The data of step j: F^j, G^j, G_dot^j, G_ddot^j (Sec. 3.1.1), optionally perturbed (Sec. 4.3).
 
-Modes (t_j = j tau):
+The step runs from t_{j-1} to t_j = t_{j-1} + tau_j (steps may vary). Modes:
 
 - ``points`` (3.3): every datum at t_j: F(t_j), G(t_j), G_dot(t_j), G_ddot(t_j).
 - ``means`` (3.1): step means over (t_{j-1}, t_j]. For F by the two-point Gauss rule in time
   (exact for cubics). For the constraint the paper's recipe after Lemma 3.1: G by point values
   and its derivatives by means, which the fundamental theorem makes exact,
-  G_dot^j = (G(t_j) - G(t_{j-1}))/tau = D G^j and G_ddot^j = (G_dot(t_j) - G_dot(t_{j-1}))/tau.
-- ``differenced``: G_dot^j = D G^j and G_ddot^j = D G_dot^j from the point values of G (with
-  G_dot^0 = S h, the boundary values of the initial velocity). These are exactly the
-  derivatives the original form sees, so the regularized form then reproduces the original one
-  to round-off. Provided to check that, not as a recommendation: it throws away the robustness
-  of Theorem 4.5.
+  G_dot^j = (G(t_j) - G(t_{j-1}))/tau_j and G_ddot^j = (G_dot(t_j) - G_dot(t_{j-1}))/tau_j.
+  Step means are first-order data (they sit O(tau) away from the values at t_j): Euler only.
+- ``differenced``: G_dot^j and G_ddot^j are the scheme's own difference quotients of the
+  (perturbed) point values of G: with the step coefficients (alpha_0, alpha_1, alpha_2) of
+  :func:`rothe.eld.schemes.step_coefficients`,
+  G_dot^j = (alpha_0 G^j + alpha_1 G^{j-1} + alpha_2 G^{j-2}) / tau_j and the same for G_ddot
+  from G_dot. These are exactly the boundary velocity and acceleration the original form sees,
+  so the regularized form then reproduces the original one to round-off. Provided to check
+  that, not as a recommendation: it throws away the robustness of Theorem 4.5. The history
+  G^{j-1}, G^{j-2}, G_dot^{j-1}, G_dot^{j-2} lives in the stepper's state (so a rejected step
+  and a resumed run see the same values).
+
+All modes are pure functions of (j, t_{j-1}, t_j) and, for ``differenced``, of the history
+passed in: a rejected and retried step, a changed step size and a resumed run are consistent.
 
 Perturbations (:class:`DataNoise`): Theorem 4.5 perturbs F^j by delta^j in V*, and G^j, G_dot^j,
-G_ddot^j by theta^j, xi^j, vartheta^j in Q*, each its own delta-sized error. Here theta, xi,
-vartheta are independent vectors of nodal values, uniform in [-delta, delta] on every
-constrained dof, and the load noise is M r with r uniform in [-delta, delta] at every dof (an L2
-body force of size delta). The noise of step j depends only on (seed, j), so two runs (e.g. the
-two forms) see the same theta^j. In ``differenced`` mode the noise enters G only and is then
-differenced, as in the original form.
+G_ddot^j by theta^j, xi^j, vartheta^j in Q*, each its own delta-sized error. Here each datum
+can be perturbed alone or together with others: theta, xi, vartheta are independent vectors of
+nodal values, uniform in [-delta, delta] on every constrained dof, and the load noise is M r with
+r uniform in [-delta, delta] at every dof (an L2 body force of size delta). The noise of step j
+depends only on (seed, j, datum), so two runs (e.g. the two forms) see the same theta^j. The
+original form uses G only (its derivatives are difference quotients of G + theta), so noise in
+G_dot or G_ddot does not reach it; in ``differenced`` mode the same holds for the regularized form.
 """
 
 from __future__ import annotations
@@ -28,41 +37,62 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import check_choice, check_nonnegative, check_positive
+from ..errors import check_choice, check_int, check_nonnegative, fail
 
 DATA_MODES = ("points", "means", "differenced")
-NOISE_TARGETS = ("G", "F")
+#: the data a DataNoise may perturb, with their random streams
+NOISE_TARGETS = ("G", "G_dot", "G_ddot", "F")
+_STREAM = {"G": 1, "G_dot": 2, "G_ddot": 3, "F": 4}
 
 _GAUSS2 = (0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0))
 
 
 @dataclass
 class DataNoise:
-    """delta-sized noise in the constraint data (target 'G') or in the load (target 'F')."""
+    """delta-sized noise in one datum (``target='G'``, ``'G_dot'``, ``'G_ddot'`` or ``'F'``) or in
+    several at once (``target=('G', 'G_dot', 'G_ddot')``: the separate data of (4.6))."""
 
     delta: float
-    target: str = "G"
+    target: str | tuple = "G"
     seed: int = 0
 
     def __post_init__(self):
         self.delta = check_nonnegative("delta", self.delta)
-        self.target = check_choice("noise target", self.target, NOISE_TARGETS)
+        targets = (self.target,) if isinstance(self.target, str) else tuple(self.target)
+        if not targets:
+            raise fail("noise target", "()", "must name at least one of "
+                       + ", ".join(NOISE_TARGETS))
+        for t in targets:
+            check_choice("noise target", t, NOISE_TARGETS)
+        self.target = targets[0] if len(targets) == 1 else targets
+        self.targets = targets
+        self.seed = check_int("seed", self.seed, minimum=0)
 
     def _uniform(self, j: int, stream: int, n: int) -> np.ndarray:
         rng = np.random.default_rng([int(self.seed), int(j), int(stream)])
         return self.delta * rng.uniform(-1.0, 1.0, n)
 
-    def constraint_noise(self, j: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(theta^j, xi^j, vartheta^j), independent."""
-        if self.target != "G":
-            z = np.zeros(m)
-            return z, z, z
-        return self._uniform(j, 1, m), self._uniform(j, 2, m), self._uniform(j, 3, m)
+    def perturbs(self, datum: str) -> bool:
+        return datum in self.targets
+
+    def datum_noise(self, datum: str, j: int, n: int) -> np.ndarray | None:
+        """The noise of step j in one datum (a vector of length n), or None if not perturbed."""
+        if datum not in self.targets:
+            return None
+        return self._uniform(j, _STREAM[datum], n)
+
+    def constraint_noise(self, j: int, m: int) -> tuple:
+        """(theta^j, xi^j, vartheta^j): the noise in G, G_dot, G_ddot (zeros where unperturbed)."""
+        return tuple(self._uniform(j, _STREAM[k], m) if k in self.targets else np.zeros(m)
+                     for k in ("G", "G_dot", "G_ddot"))
 
     def load_noise(self, j: int, M) -> np.ndarray | None:
-        if self.target != "F":
+        if "F" not in self.targets:
             return None
-        return M @ self._uniform(j, 4, M.shape[0])
+        return M @ self._uniform(j, _STREAM["F"], M.shape[0])
+
+    def describe(self) -> dict:
+        return {"delta": self.delta, "target": list(self.targets), "seed": self.seed}
 
 
 @dataclass
@@ -72,60 +102,67 @@ class StepValues:
     G_dot: np.ndarray
     G_ddot: np.ndarray
 
+    def first_nonfinite(self) -> str | None:
+        """The name of the first datum with a NaN or inf entry, or None."""
+        for name in ("F", "G", "G_dot", "G_ddot"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                return name
+        return None
+
 
 class StepData:
-    """Evaluates the data of steps j = 1, 2, ... in order (see the module docstring)."""
+    """Evaluates the data of a step from t_prev to t (see the module docstring)."""
 
-    def __init__(self, problem, tau: float, mode: str = "points", noise: DataNoise | None = None):
+    def __init__(self, problem, mode: str = "points", noise: DataNoise | None = None):
         self.problem = problem
-        self.tau = check_positive("tau", tau)
         self.mode = check_choice("data", mode, DATA_MODES)
+        if noise is not None and not isinstance(noise, DataNoise):
+            raise fail("noise", type(noise).__name__, "must be a rothe.eld.DataNoise")
         self.noise = noise
-        self._j = 0
-        c = problem.constraint
-        self.G0 = problem.G(0.0)
-        if self.mode == "differenced":
-            self.G_dot0 = c.restrict(problem.v0)
-        else:
-            self.G_dot0 = problem.G_dot(0.0)
-        self._prev_G = self.G0
-        self._prev_G_dot = self.G_dot0
-        self._prev_G_exact = self.G0
-        self._prev_G_dot_exact = problem.G_dot(0.0) if self.mode == "means" else self.G_dot0
 
     def initial(self) -> tuple[np.ndarray, np.ndarray]:
-        """(G^0, G_dot^0): the constraint data at t = 0 used to split the initial data."""
-        return self.G0, self.G_dot0
+        """(G^0, G_dot^0): the constraint data at t = 0 used to split the initial data.
 
-    def at(self, j: int) -> StepValues:
-        if j != self._j + 1:
-            raise RuntimeError(f"StepData: step {j} requested after step {self._j}")
-        self._j = j
-        p, tau = self.problem, self.tau
-        t = j * tau
+        In ``differenced`` mode G_dot^0 is the boundary value of the initial velocity (what the
+        original form's Euler start sees)."""
+        p = self.problem
+        G0 = p.G(0.0)
+        if self.mode == "differenced":
+            return G0, p.constraint.restrict(p.v0)
+        return G0, p.G_dot(0.0)
+
+    def at(self, j: int, t_prev: float, t: float, coefficients=None, history=None
+           ) -> StepValues:
+        """The data of step j on (t_prev, t].
+
+        ``coefficients`` (alpha_0, alpha_1, alpha_2) and ``history`` (a dict with ``G``, ``G_1``,
+        ``G_dot``, ``G_dot_1``: the perturbed G^{j-1}, G^{j-2} and the differenced G_dot^{j-1},
+        G_dot^{j-2}) are needed in ``differenced`` mode only.
+        """
+        p = self.problem
+        tau = t - t_prev
         if self.mode == "means" and p.has_loads:
-            F = sum(0.5 * p.load((j - 1) * tau + a * tau) for a in _GAUSS2)
+            F = sum(0.5 * p.load(t_prev + a * tau) for a in _GAUSS2)
         else:
             F = p.load(t)
         m = p.constraint.m
-        theta, xi, vartheta = (self.noise.constraint_noise(j, m) if self.noise is not None
-                               else (0.0, 0.0, 0.0))
         if self.noise is not None:
+            theta, xi, vartheta = self.noise.constraint_noise(j, m)
             dF = self.noise.load_noise(j, p.M)
             if dF is not None:
                 F = F + dF
-        G_exact = p.G(t)
-        G = G_exact + theta
+        else:
+            theta = xi = vartheta = 0.0
+        G = p.G(t) + theta
         if self.mode == "points":
             G_dot = p.G_dot(t) + xi
             G_ddot = p.G_ddot(t) + vartheta
         elif self.mode == "means":
-            G_dot = (G_exact - self._prev_G_exact) / tau + xi
-            G_dot_exact = p.G_dot(t)
-            G_ddot = (G_dot_exact - self._prev_G_dot_exact) / tau + vartheta
-            self._prev_G_dot_exact = G_dot_exact
-        else:  # differenced: the perturbed G enters, its derivatives are difference quotients
-            G_dot = (G - self._prev_G) / tau
-            G_ddot = (G_dot - self._prev_G_dot) / tau
-        self._prev_G, self._prev_G_dot, self._prev_G_exact = G, G_dot, G_exact
+            G_dot = (p.G(t) - p.G(t_prev)) / tau + xi
+            G_ddot = (p.G_dot(t) - p.G_dot(t_prev)) / tau + vartheta
+        else:  # differenced: the perturbed G enters, its derivatives are the scheme's quotients
+            a0, a1, a2 = coefficients
+            h = history
+            G_dot = (a0 * G + a1 * h["G"] + (a2 * h["G_1"] if a2 else 0.0)) / tau
+            G_ddot = (a0 * G_dot + a1 * h["G_dot"] + (a2 * h["G_dot_1"] if a2 else 0.0)) / tau
         return StepValues(F=F, G=G, G_dot=G_dot, G_ddot=G_ddot)

@@ -19,6 +19,11 @@ it exactly: with ``degree=2`` the semi-discrete solution is u itself (the nonlin
 integrated with the same rule in the scheme and in F) and every error measured is the error of
 the time discretization. With P1 an O(h^2) spatial error adds to it.
 
+Fast ramp (:func:`ramp_problem`): the unit square (P2 by default), its left side moved
+sideways by G(t) = (0, A S(t)) with the smoothed step S(t) = (1 + tanh((t - t_ramp)/w))/2
+(10 % to 90 % in 2.2 w; w = 0.005, t_ramp = 0.5), free elsewhere, no body force, Rayleigh damping
+b K (b = 0.01) that damps the mesh's highest modes. A time-localized event for step control.
+
 Cantilever (:func:`beam_problem`). The box [0, L] x [0, 1] x [0, 1] (E = 1000, nu = 0.3,
 rho = 1), the end x = 0 held and moved: G(t) = (0, 0, A (1 - cos(2 pi t / t_move)) / 2) for
 t <= t_move, then 0; the end x = L and the sides free. The multiplier on x = 0 is the reaction.
@@ -134,7 +139,7 @@ class ManufacturedSolution:
 
 def mms_problem(n: int = 8, degree: int = 2, *, damping: Damping | None = None, rho: float = 1.0,
                 lam: float = 2.0, mu: float = 1.0, T: float = 1.0,
-                dirichlet=("left",), start: str = "exact"
+                dirichlet=("left",), start: str = "exact", load_quadrature: int | None = None
                 ) -> tuple[ELDProblem, ManufacturedSolution]:
     """The manufactured-solution problem on the unit square with n x n cells (module docstring).
 
@@ -157,12 +162,14 @@ def mms_problem(n: int = 8, degree: int = 2, *, damping: Damping | None = None, 
                          body_force=exact.body_force,
                          u0=(lambda x: exact.u(0.0, x)) if start == "exact" else None,
                          v0=(lambda x: exact.u_dot(0.0, x)) if start == "exact" else None,
-                         T=T, name="eld-mms")
+                         T=T, name="eld-mms", load_quadrature=load_quadrature)
     return problem, exact
 
 
 def mms_errors(problem: ELDProblem, exact: ManufacturedSolution, traj) -> dict:
-    """Errors at T of u and v (L2, H1) and of lambda (L2(Gamma_D)); max over steps if stored."""
+    """Errors at T of u and v (L2, H1) and of lambda (L2(Gamma_D)); with kept fields also the
+    maxima over the kept states t > 0 (``error_u_l2_max``, ``error_v_l2_max``,
+    ``error_lam_l2_max``)."""
     space = problem.space
     T = float(traj["t"][-1])
     state = getattr(traj, "final_state", None)
@@ -178,12 +185,16 @@ def mms_errors(problem: ELDProblem, exact: ManufacturedSolution, traj) -> dict:
         "error_lam_l2": lam_quad.error(lam, lambda x, n: exact.multiplier(T, x, n)),
         "lam_norm": "L2(Gamma_D)",
     }
-    if "lam" in traj:
-        lams = traj["lam"]
-        ts = traj["t"][1:]
+    if "kept_t" in traj:
+        ts = traj["kept_t"]
+        us, vs, lams = traj["u"], traj["v"], traj["lam"]
+        ks = range(1, len(ts))
+        out["error_u_l2_max"] = max(
+            space.error_norms(us[k], lambda x, t=ts[k]: exact.u(t, x))["l2"] for k in ks)
+        out["error_v_l2_max"] = max(
+            space.error_norms(vs[k], lambda x, t=ts[k]: exact.u_dot(t, x))["l2"] for k in ks)
         out["error_lam_l2_max"] = max(
-            lam_quad.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n))
-            for k in range(len(ts)))
+            lam_quad.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n)) for k in ks)
     return out
 
 
@@ -211,6 +222,54 @@ class MultiplierQuadrature:
 
 def multiplier_quadrature(problem: ELDProblem) -> MultiplierQuadrature:
     return MultiplierQuadrature(problem)
+
+
+# -- the fast ramp -----------------------------------------------------------------------------
+
+class SmoothStep:
+    """G(t) = (0, A (1 + tanh((t - t0)/w))/2) with its first and second derivatives (2D)."""
+
+    def __init__(self, amplitude: float = 0.1, t0: float = 0.5, width: float = 0.005):
+        self.A = float(amplitude)
+        self.t0 = float(t0)
+        self.w = check_positive("width", width)
+
+    def _s(self, t, order):
+        z = math.tanh((t - self.t0) / self.w)
+        if order == 0:
+            return self.A * (1.0 + z) / 2.0
+        sech2 = 1.0 - z * z
+        if order == 1:
+            return self.A * sech2 / (2.0 * self.w)
+        return -self.A * sech2 * z / self.w**2
+
+    def _field(self, t, x, order):
+        out = np.zeros((2,) + x.shape[1:])
+        out[1] = self._s(t, order)
+        return out
+
+    def G(self, t, x):
+        return self._field(t, x, 0)
+
+    def G_dot(self, t, x):
+        return self._field(t, x, 1)
+
+    def G_ddot(self, t, x):
+        return self._field(t, x, 2)
+
+
+def ramp_problem(n: int = 4, degree: int = 2, *, amplitude: float = 0.1, t_ramp: float = 0.5,
+                 width: float = 0.005, b: float = 0.01, rho: float = 1.0, lam: float = 2.0,
+                 mu: float = 1.0, T: float = 1.0) -> ELDProblem:
+    """The unit square with its left side moved by a fast smoothed step (module docstring)."""
+    material = Material(rho=rho, lam=lam, mu=mu, dim=2)
+    step = SmoothStep(amplitude, t_ramp, width)
+    mesh = eld_mesh.unit_square(n)
+    g0 = step.G(0.0, np.zeros((2, 1)))[:, 0]
+    return ELDProblem(mesh, material, degree=degree, damping=RayleighDamping(0.0, b),
+                      dirichlet={"left": DirichletData(step.G, step.G_dot, step.G_ddot)},
+                      u0=lambda x: np.broadcast_to(g0[:, None], x.shape).copy(), T=T,
+                      name="eld-ramp")
 
 
 # -- the cantilever ----------------------------------------------------------------------------

@@ -21,6 +21,10 @@ Callables and their shapes (x holds points with the coordinate axis first):
 - traction ``g(t, x, n)`` with points x and outward unit normals n, both (d, nf, nq);
 - body force ``f(t, x)`` with x (d, ne, nq);
 - ``u0``, ``v0``: callables x -> (d, k), dof vectors, or None (zero).
+
+Loads are integrated by quadrature of degree ``load_quadrature`` (default 2p, p the element
+degree: exact for loads of degree p against the basis) over the cells (body force) and the
+facets of the traction parts.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import RotheInputError, check_positive, fail
+from ..errors import RotheInputError, check_int, check_positive, fail
 from ..fem.elasticity import VectorSpace
 from .constraint import DirichletConstraint
 from .damping import Damping, NoDamping
@@ -39,6 +43,30 @@ from .materials import Material
 
 #: relative tolerance of the consistency G(0) = u0 on Gamma_D (Remark 2.2)
 CONSISTENCY_TOL = 1e-8
+
+
+class _CellQuadrature:
+    """Cell quadrature of a chosen degree for the body force (when it differs from 2p)."""
+
+    def __init__(self, space, intorder: int):
+        from skfem import Basis
+
+        basis = Basis(space.mesh, space.element, intorder=intorder)
+        self.values = np.stack([np.asarray(b[0]) for b in basis.basis])  # (nbf, ne, nq)
+        self.dx = np.asarray(basis.dx)
+        self.x = np.asarray(basis.global_coordinates())
+        self.element_dofs = np.asarray(basis.element_dofs)
+        self.n_scalar = space.n_scalar
+        self.dim = space.dim
+
+    def load(self, f: np.ndarray) -> np.ndarray:
+        """int f . phi dx for f (d, ne, nq) at this rule's points."""
+        local = np.einsum("ieq,eq,ceq->cie", self.values, self.dx, f)
+        out = np.empty((self.n_scalar, self.dim))
+        flat = self.element_dofs.ravel()
+        for c in range(self.dim):
+            out[:, c] = np.bincount(flat, weights=local[c].ravel(), minlength=self.n_scalar)
+        return out.ravel()
 
 
 @dataclass
@@ -79,11 +107,12 @@ class ELDProblem:
     body_force : callable f(t, x) or None
     u0, v0 : initial displacement and velocity
     T : end time
+    load_quadrature : degree of the quadrature rule for body force and tractions (default 2p)
     """
 
     def __init__(self, mesh, material: Material, *, degree: int = 1, damping: Damping | None = None,
                  dirichlet: dict, traction: dict | None = None, body_force=None, u0=None, v0=None,
-                 T: float = 1.0, name: str = "eld"):
+                 T: float = 1.0, name: str = "eld", load_quadrature: int | None = None):
         self.name = name
         self.space = VectorSpace(mesh, degree)
         if not isinstance(material, Material):
@@ -106,14 +135,23 @@ class ELDProblem:
         self.dirichlet = {p: g if isinstance(g, DirichletData) else DirichletData(g)
                           for p, g in dirichlet.items()}
         self.constraint = DirichletConstraint(self.space, tuple(self.dirichlet), "dirichlet")
+        default_q = 2 * self.space.degree
+        if load_quadrature is None:
+            load_quadrature = default_q
+        self.load_quadrature = check_int("load_quadrature", load_quadrature, minimum=1)
+        if self.load_quadrature > 19:
+            raise fail("load_quadrature", load_quadrature, "must be an integer in 1..19")
         self._traction = {}
         for part, g in traction.items():
             if not callable(g):
                 raise fail(f"traction[{part!r}]", type(g).__name__, "must be a callable (t, x, n)")
-            self._traction[part] = (g, self.space.facet_quadrature((part,), name="traction"))
+            self._traction[part] = (g, self.space.facet_quadrature(
+                (part,), intorder=self.load_quadrature, name="traction"))
         if body_force is not None and not callable(body_force):
             raise fail("body_force", type(body_force).__name__, "must be a callable (t, x)")
         self.body_force = body_force
+        self._cell_quadrature = (None if self.load_quadrature == default_q
+                                 else _CellQuadrature(self.space, self.load_quadrature))
 
         sp_ = self.space
         self.M = sp_.mass()
@@ -238,9 +276,10 @@ class ELDProblem:
         sp_ = self.space
         F = np.zeros(sp_.ndofs)
         if self.body_force is not None:
-            x = sp_.quad_points
+            q = self._cell_quadrature
+            x = sp_.quad_points if q is None else q.x
             f = np.broadcast_to(np.asarray(self.body_force(float(t), x), dtype=float), x.shape)
-            F += sp_.load_from_quad(f)
+            F += sp_.load_from_quad(f) if q is None else q.load(f)
         for g, q in self._traction.values():
             vals = np.broadcast_to(np.asarray(g(float(t), q.x, q.normals), dtype=float), q.x.shape)
             F += q.integrate_against_basis(vals, sp_.n_scalar).ravel()
@@ -265,6 +304,7 @@ class ELDProblem:
             "dirichlet_parts": list(self.constraint.parts),
             "traction_parts": list(self._traction),
             "T": self.T,
+            "load_quadrature": self.load_quadrature,
             "derivatives_of_G": self.derivative_info,
         }
 

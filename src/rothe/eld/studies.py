@@ -1,6 +1,7 @@
 """Parameter studies on the manufactured solution: convergence in tau, and Theorem 4.5.
 
-:func:`convergence_study` halves tau repeatedly and fits the order of the errors at T.
+:func:`convergence_study` halves tau repeatedly and fits the order of the errors at T and of
+their maxima over all steps (u, u' in L2, lambda in L2(Gamma_D)), for either scheme.
 With P2 elements the manufactured solution is exact in space (:mod:`rothe.eld.examples`), so
 the mesh cannot hide the temporal error however coarse it is.
 
@@ -11,9 +12,10 @@ the amplifications
     amp   = max_j ||lambda_pert^j - lambda^j||_{L2(Gamma_D)} / delta,
     amp_v = max_j ||v_pert^j - v^j||_{L2} / delta,   amp_u = max_j ||u_pert^j - u^j||_{L2} / delta.
 
-Noise in G enters the regularized form as separate errors in G, G_dot and G_ddot (each its own
-delta-sized vector, as in (4.6)); the original form sees only G + theta and differences it
-implicitly (xi ~ theta/tau, vartheta ~ theta/tau^2). Noise in F enters both forms identically.
+Each datum is perturbed alone (targets ``G``, ``G_dot``, ``G_ddot``, ``F``), each with its own
+delta-sized vector as in (4.6). The original form sees only G + theta and differences it
+implicitly (xi ~ theta/tau, vartheta ~ theta/tau^2); noise in G_dot or G_ddot does not reach it
+(amplification 0). Noise in F enters both forms identically.
 """
 
 from __future__ import annotations
@@ -23,22 +25,27 @@ import time
 import numpy as np
 
 from ..errors import check_int, check_positive, fail
-from .data import DataNoise
+from .data import NOISE_TARGETS, DataNoise
 from .examples import mms_errors, mms_problem
 from .schemes import FORMS, run_eld
 
 
-def fitted_rate(taus, errors) -> float:
-    """Least-squares slope of log(error) against log(tau)."""
-    x, y = np.log(np.asarray(taus, float)), np.log(np.asarray(errors, float))
+def fitted_rate(taus, errors) -> float | None:
+    """Least-squares slope of log(error) against log(tau) (None if an error is not positive)."""
+    errors = np.asarray(errors, float)
+    if not np.all(errors > 0) or not np.all(np.isfinite(errors)):
+        return None
+    x, y = np.log(np.asarray(taus, float)), np.log(errors)
     return float(np.polyfit(x, y, 1)[0])
 
 
 def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings: int = 5,
                       n: int = 4, degree: int = 2, damping=None, rho: float = 1.0,
                       lam: float = 2.0, mu: float = 1.0, T: float = 1.0, data: str = "points",
-                      lifting: str = "nodal", progress: bool = False) -> dict:
-    """Errors at T of u, v (L2, H1) and lambda (L2(Gamma_D)) for tau0 / 2^k, k = 0..halvings."""
+                      lifting: str = "nodal", scheme: str = "euler",
+                      progress: bool = False) -> dict:
+    """Errors at T of u, v (L2, H1) and lambda (L2(Gamma_D)), and the maxima over the steps of
+    the L2 errors, for tau0 / 2^k, k = 0..halvings."""
     if form not in FORMS:
         raise fail("form", form, "must be one of " + ", ".join(FORMS))
     tau0 = check_positive("tau0", tau0)
@@ -48,7 +55,7 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
     rows = []
     for tau in taus:
         t0 = time.perf_counter()
-        traj = run_eld(problem, form, tau, data=data, lifting=lifting, store_fields=False,
+        traj = run_eld(problem, form, tau, scheme=scheme, data=data, lifting=lifting,
                        progress=progress)
         err = mms_errors(problem, exact, traj)
         st = traj.stats
@@ -57,7 +64,8 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
                      "backsolves": traj.meta["linear_solver"]["backsolves"],
                      "seconds": time.perf_counter() - t0, **err})
     out = {
-        "example": "eld-mms", "form": form, "n": n, "degree": degree, "data": data,
+        "example": "eld-mms", "form": form, "scheme": scheme, "n": n, "degree": degree,
+        "data": data,
         "lifting": lifting, "ndofs": problem.space.ndofs,
         "damping": problem.damping.describe(),
         "tau": taus,
@@ -66,26 +74,34 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
         "error_v": [r["error_v_l2"] for r in rows],
         "error_v_h1": [r["error_v_h1"] for r in rows],
         "error_lam": [r["error_lam_l2"] for r in rows],
+        "error_u_max": [r["error_u_l2_max"] for r in rows],
+        "error_v_max": [r["error_v_l2_max"] for r in rows],
+        "error_lam_max": [r["error_lam_l2_max"] for r in rows],
         "lam_norm": "L2(Gamma_D)",
         "rows": rows,
     }
-    for key in ("u", "u_h1", "v", "v_h1", "lam"):
+    for key in ("u", "u_h1", "v", "v_h1", "lam", "u_max", "v_max", "lam_max"):
         out[f"rate_{key}"] = fitted_rate(taus, out[f"error_{key}"])
     return out
 
 
 def format_convergence_table(study: dict) -> str:
     head = (f"{'tau':>9} {'steps':>6} {'newton':>7} {'|u-u_h| L2':>11} {'H1':>10} "
-            f"{'|v-v_h| L2':>11} {'H1':>10} {'|lam| L2(G_D)':>13} {'seconds':>8}")
-    lines = [f"eld-mms, form {study['form']}, P{study['degree']}, n = {study['n']} "
-             f"({study['ndofs']} dofs), data by {study['data']}", head, "-" * len(head)]
+            f"{'|v-v_h| L2':>11} {'H1':>10} {'|lam| L2(G_D)':>13} {'max_j u':>10} "
+            f"{'max_j v':>10} {'max_j lam':>10} {'seconds':>8}")
+    lines = [f"eld-mms, scheme {study.get('scheme', 'euler')}, form {study['form']}, "
+             f"P{study['degree']}, n = {study['n']} ({study['ndofs']} dofs), data by "
+             f"{study['data']}; errors at T and maxima over the steps", head, "-" * len(head)]
     for r in study["rows"]:
         lines.append(f"{r['tau']:>9.5f} {r['steps']:>6d} {r['newton_iterations']:>7d} "
                      f"{r['error_u_l2']:>11.3e} {r['error_u_h1']:>10.3e} {r['error_v_l2']:>11.3e} "
-                     f"{r['error_v_h1']:>10.3e} {r['error_lam_l2']:>13.3e} {r['seconds']:>8.2f}")
-    lines.append(f"fitted orders: u {study['rate_u']:.3f} (H1 {study['rate_u_h1']:.3f}), "
+                     f"{r['error_v_h1']:>10.3e} {r['error_lam_l2']:>13.3e} "
+                     f"{r['error_u_l2_max']:>10.3e} {r['error_v_l2_max']:>10.3e} "
+                     f"{r['error_lam_l2_max']:>10.3e} {r['seconds']:>8.2f}")
+    lines.append(f"fitted orders at T: u {study['rate_u']:.3f} (H1 {study['rate_u_h1']:.3f}), "
                  f"v {study['rate_v']:.3f} (H1 {study['rate_v_h1']:.3f}), "
-                 f"lambda {study['rate_lam']:.3f}")
+                 f"lambda {study['rate_lam']:.3f}; max over steps: u {study['rate_u_max']:.3f}, "
+                 f"v {study['rate_v_max']:.3f}, lambda {study['rate_lam_max']:.3f}")
     return "\n".join(lines)
 
 
@@ -102,23 +118,26 @@ def _amplifications(problem, base, pert, delta: float) -> tuple[float, float, fl
 
 
 def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, delta: float = 1e-6,
-                       targets=("G", "F"), forms=FORMS, n: int = 6, degree: int = 1,
-                       damping=None, seed: int = 0, T: float = 1.0,
-                       progress: bool = False) -> dict:
-    """Amplification of delta-noise in G (and separately in F) for each tau and form.
+                       targets=("G", "G_dot", "G_ddot", "F"), forms=FORMS, n: int = 6,
+                       degree: int = 1, damping=None, seed: int = 0, T: float = 1.0,
+                       scheme: str = "euler", progress: bool = False) -> dict:
+    """Amplification of delta-noise in each datum alone (G, G_dot, G_ddot, F) for each tau and
+    form.
 
-    Returns ``{"tau": [...], "delta": delta, "G": table, "F": table}`` where each table holds
+    Returns ``{"tau": [...], "delta": delta, "<target>": table, ...}`` where each table holds
     ``amp_<form>`` (multiplier), ``amp_v_<form>``, ``amp_u_<form>`` (lists over tau) and the
-    fitted slopes ``slope_<name>``; the multiplier amplifications under G-noise are repeated at
-    the top level as ``amp_regularized`` and ``amp_original``.
+    fitted slopes ``slope_<name>`` (None where the amplification is 0: the original form does
+    not use G_dot, G_ddot); the amplifications under noise in G are repeated at the top level
+    as ``amp_regularized``, ``amp_original``, ...
     """
     taus = [check_positive("taus", t) for t in taus]
     delta = check_positive("delta", delta)
     for target in targets:
-        if target not in ("G", "F"):
-            raise fail("targets", target, "must be G or F")
+        if target not in NOISE_TARGETS:
+            raise fail("targets", target, "must be one of " + ", ".join(NOISE_TARGETS))
     problem, _ = mms_problem(n, degree, damping=damping, T=T)
-    out = {"example": "eld-mms", "n": n, "degree": degree, "ndofs": problem.space.ndofs,
+    out = {"example": "eld-mms", "scheme": scheme, "n": n, "degree": degree,
+           "ndofs": problem.space.ndofs, "targets": list(targets),
            "damping": problem.damping.describe(), "tau": taus, "delta": delta, "seed": seed,
            "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"}}
     tables = {t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in forms}
@@ -126,9 +145,9 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
     t0 = time.perf_counter()
     for tau in taus:
         for form in forms:
-            base = run_eld(problem, form, tau, progress=progress)
+            base = run_eld(problem, form, tau, scheme=scheme, progress=progress)
             for target in targets:
-                pert = run_eld(problem, form, tau, progress=progress,
+                pert = run_eld(problem, form, tau, scheme=scheme, progress=progress,
                                noise=DataNoise(delta, target, seed))
                 amp, amp_v, amp_u = _amplifications(problem, base, pert, delta)
                 tables[target][f"amp_{form}"].append(amp)
@@ -147,17 +166,23 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
     return out
 
 
+_WHAT = {
+    "G": "noise in G alone (u_2 = B^- G in the regularized form; G in the original form)",
+    "G_dot": "noise in G_dot alone (v_2 in the regularized form; unused by the original form)",
+    "G_ddot": "noise in G_ddot alone (w_2 in the regularized form; unused by the original form)",
+    "F": "noise in F (both forms alike)",
+}
+
+
 def format_perturbation_table(study: dict) -> str:
     lines = []
-    first = next(study[t] for t in ("G", "F") if t in study)
+    present = [t for t in NOISE_TARGETS if t in study]
+    first = study[present[0]]
     forms = [f for f in FORMS if f"amp_{f}" in first]
-    for target in ("G", "F"):
-        if target not in study:
-            continue
+    for target in present:
         table = study[target]
-        what = ("noise in G (regularized: G, G_dot, G_ddot each perturbed; original: G)"
-                if target == "G" else "noise in F (both forms alike)")
-        lines.append(f"{what}, delta = {study['delta']:g}; max_j |x_pert - x| / delta")
+        lines.append(f"scheme {study.get('scheme', 'euler')}, {_WHAT[target]}, delta = "
+                     f"{study['delta']:g}; max_j |x_pert - x| / delta")
         head = f"{'tau':>8}"
         for f in forms:
             short = f[:3]
@@ -169,8 +194,8 @@ def format_perturbation_table(study: dict) -> str:
                 line += (f" {table[f'amp_{f}'][i]:>11.3e} {table[f'amp_v_{f}'][i]:>10.3e}"
                          f" {table[f'amp_u_{f}'][i]:>10.3e}")
             lines.append(line)
-        slopes = ", ".join(f"{k[len('slope_'):]} {v:+.2f}" for k, v in table.items()
-                           if k.startswith("slope_"))
+        slopes = ", ".join(f"{k[len('slope_'):]} " + ("n/a" if v is None else f"{v:+.2f}")
+                           for k, v in table.items() if k.startswith("slope_"))
         lines.append(f"log-log slopes in tau: {slopes}")
         lines.append("")
     return "\n".join(lines).rstrip()

@@ -65,15 +65,18 @@ def plot_reactions(traj, path, title: str = "") -> Path:
     return _save(fig, path)
 
 
-def plot_convergence(taus, errors: dict, path, rates: dict | None = None, title: str = "") -> Path:
-    """Log-log errors against tau, with a slope-1 reference."""
+def plot_convergence(taus, errors: dict, path, rates: dict | None = None, title: str = "",
+                     order: int = 1) -> Path:
+    """Log-log errors against tau, with a reference line of the given order."""
     taus = np.asarray(taus)
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for name, errs in errors.items():
-        label = name if not rates or name not in rates else f"{name} (rate {rates[name]:.2f})"
+        rate = None if not rates else rates.get(name)
+        label = name if rate is None else f"{name} (rate {rate:.2f})"
         ax.loglog(taus, errs, "o-", label=label)
     first = np.asarray(next(iter(errors.values())))
-    ax.loglog(taus, first[0] * taus / taus[0], "k--", lw=1, label=r"$O(\tau)$")
+    ax.loglog(taus, first[0] * (taus / taus[0]) ** order, "k--", lw=1,
+              label=r"$O(\tau)$" if order == 1 else rf"$O(\tau^{order})$")
     ax.set_xlabel(r"$\tau$")
     ax.set_ylabel("error at T")
     ax.grid(alpha=0.3, which="both")
@@ -91,7 +94,7 @@ def plot_perturbation(taus, table: dict, path, title: str = "") -> Path:
     for ax, (key, label) in zip(axes, panels, strict=True):
         for form, style in (("regularized", "o-"), ("original", "s--")):
             name = f"{key}_{form}"
-            if name in table:
+            if name in table and np.any(np.asarray(table[name]) > 0):
                 ax.loglog(taus, table[name], style, label=form)
         ax.set_xlabel(r"$\tau$")
         ax.set_title(label, fontsize=10)
