@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import RunFailed, check_choice, check_int, check_positive, fail
+from ..errors import RunFailed, check_choice, check_int, check_positive, described, fail
 from .common import (
     add_output_options,
     output_dir,
@@ -123,6 +123,9 @@ def energy_summary(traj) -> dict:
         "dissipated_numerical": float(traj["numerical_dissipation"][-1]),
         "dissipated_numerical_G": float(traj["numerical_dissipation_G"][-1]),
         "step_change": float(traj["step_change"][-1]),
+        "numerical_boundary_term": float(traj["numerical_dissipation"][-1]
+                                         - traj["numerical_dissipation_G"][-1]
+                                         - traj["step_change"][-1]),
         "data_mismatch": float(traj["data_mismatch"][-1]),
         "residual_work": float(traj["residual_work"][-1]),
         "transfer": float(traj["transfer"][-1]),
@@ -160,6 +163,10 @@ def format_energy_balance(e: dict) -> str:
     )
     lines = ["energy balance of the scheme (E = kinetic + elastic):"]
     lines += [f"  {name:<26} {value:>14.6g}" for name, value in rows]
+    if e.get("numerical_boundary_term"):  # BDF2: N = N_G + S + (C^n - C^0), rothe.eld.schemes
+        lines.insert(6, f"  {'    (G-form part N_G':<26} {e['dissipated_numerical_G']:>14.6g}")
+        lines.insert(7, f"  {'     + step changes S':<26} {e['step_change']:>14.6g}")
+        lines.insert(8, f"  {'     + C^n - C^0)':<26} {e['numerical_boundary_term']:>14.6g}")
     lines.append(f"  {'max |residual| per step':<26} {e['balance_residual_max']:>14.2e}")
     return "\n".join(lines)
 
@@ -178,9 +185,9 @@ def run_summary(traj, example: str) -> dict:
         "data": meta.get("data"),
         "lifting": meta.get("lifting"),
         "n_steps": meta.get("n_steps"),
-        "ndofs": meta["problem"]["ndofs"],
-        "constrained_dofs": meta["problem"]["constrained_dofs"],
-        "damping": meta["problem"]["damping"],
+        "ndofs": meta.get("problem", {}).get("ndofs"),
+        "constrained_dofs": meta.get("problem", {}).get("constrained_dofs"),
+        "damping": meta.get("problem", {}).get("damping"),
         "step_bound_rho_over_d0": meta.get("step_bound"),
         "accepted_steps": st.accepted_steps,
         "rejected_steps": st.rejected_steps,
@@ -193,7 +200,7 @@ def run_summary(traj, example: str) -> dict:
         "linear_factorizations": solver.get("factorizations", st.linear_factorizations),
         "backsolves": solver.get("backsolves", st.linear_solves),
         "krylov_iterations": solver.get("krylov_iterations", st.krylov_iterations),
-        "t_final": float(traj["t"][-1]),
+        "t_final": float(traj["t"][-1]) if "t" in traj else None,
         "wall_time_s": st.wall_time_s,
         "peak_memory_mb": peak_memory_mb(),
         "status": "completed",
@@ -202,7 +209,8 @@ def run_summary(traj, example: str) -> dict:
         for key in traj.keys():
             if key.startswith("reaction_"):
                 summary[f"{key}_final"] = traj[key][-1].tolist()
-    summary.update(energy_summary(traj))
+    if "energy" in traj:
+        summary.update(energy_summary(traj))
     return summary
 
 
@@ -264,7 +272,8 @@ class RunEldMMS:
         scheme, control, tol = _check_control(args)
         keep = check_int("--keep-every", args.keep_every, minimum=1)
         if args.steps is not None and control != "uniform":
-            raise fail("--steps", "a step sequence", "is a fixed grid: not with --control adaptive")
+            raise fail("--steps", described("a step sequence"),
+                       "is a fixed grid: not with --control adaptive")
         n = check_int("--n", args.n, minimum=1)
         parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
         if not parts:

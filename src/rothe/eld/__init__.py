@@ -28,7 +28,15 @@ from .data import DataNoise, StepData
 from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem, ramp_problem
 from .materials import Material
 from .problem import DirichletData, ELDProblem
-from .schemes import ELDState, ELDStepper, NewtonOptions, run_eld, step_coefficients
+from .schemes import (
+    ELDRun,
+    ELDState,
+    ELDStepper,
+    NewtonOptions,
+    prepare_eld_run,
+    run_eld,
+    step_coefficients,
+)
 from .stress import StressEvaluator, cauchy_stress, von_mises
 from .studies import convergence_study, perturbation_study
 
@@ -39,6 +47,7 @@ __all__ = [
     "DirichletConstraint",
     "DirichletData",
     "ELDProblem",
+    "ELDRun",
     "ELDState",
     "ELDStepper",
     "HarmonicLifting",
@@ -59,6 +68,7 @@ __all__ = [
     "mms_errors",
     "mms_problem",
     "perturbation_study",
+    "prepare_eld_run",
     "ramp_problem",
     "run_eld",
     "step_coefficients",

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import check_choice, check_int, check_nonnegative, fail
+from ..errors import check_choice, check_int, check_nonnegative, described, fail
 
 DATA_MODES = ("points", "means", "differenced")
 #: the data a DataNoise may perturb, with their random streams
@@ -60,7 +60,7 @@ class DataNoise:
         self.delta = check_nonnegative("delta", self.delta)
         targets = (self.target,) if isinstance(self.target, str) else tuple(self.target)
         if not targets:
-            raise fail("noise target", "()", "must name at least one of "
+            raise fail("noise target", described("()"), "must name at least one of "
                        + ", ".join(NOISE_TARGETS))
         for t in targets:
             check_choice("noise target", t, NOISE_TARGETS)

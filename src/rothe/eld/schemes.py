@@ -44,7 +44,8 @@ solvable if tau_j / alpha_0 < rho/d0, i.e. tau_j < rho/d0 (Euler) and, for BDF2,
 tau_j (1 + omega_j)/(1 + 2 omega_j) < rho/d0: tau_j < 1.5 rho/d0 with equal steps, and in
 general tau_j < [2c - tau_{j-1} + sqrt(tau_{j-1}^2 + 4 c^2)] / 2 with c = rho/d0 (the left side
 increases with tau_j; :func:`max_step_for`). No bound if d0 = 0. Uniform steps and given
-sequences are checked before the first step; the adaptive controller stays below 0.95 times it.
+sequences are checked before the first step; the adaptive controller keeps tau_j/alpha_0 below
+0.95 rho/d0.
 
 **Start.** The paper takes u_1^1, v_1^1 as data; here the run starts from u(0) = g, u'(0) = h.
 Euler: u^{-1} = g - tau h, i.e. y^0 = h (regularized: y^0 = h - B^- G_dot^0 with zero trace).
@@ -165,7 +166,15 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..errors import RotheInputError, RunFailed, check_choice, check_int, check_positive, fail
+from ..errors import (
+    RotheInputError,
+    RunFailed,
+    check_choice,
+    check_int,
+    check_positive,
+    described,
+    fail,
+)
 from ..io.trajectory import Trajectory
 from ..stepping.evolve import evolve
 from .constraint import LIFTINGS, make_lifting
@@ -453,7 +462,8 @@ class ELDStepper:
         self.tau_uniform = None
         if steps is not None:
             if self.control != "uniform":
-                raise fail("steps", "a step sequence", "is a fixed grid: use control='uniform'")
+                raise fail("steps", described("a step sequence"),
+                           "is a fixed grid: use control='uniform'")
             self.steps = self._check_steps(steps)
             self.tau = float(self.steps[0])
             self.n_steps = int(self.steps.size)
@@ -492,36 +502,39 @@ class ELDStepper:
         try:
             arr = np.asarray(steps, dtype=float).ravel()
         except (TypeError, ValueError):
-            raise fail("steps", type(steps).__name__, "must be a sequence of step sizes") from None
+            raise fail("steps", described(type(steps).__name__),
+                       "must be a sequence of step sizes") from None
         if arr.size == 0:
-            raise fail("steps", "[]", "must hold at least one step size")
+            raise fail("steps", described("[]"), "must hold at least one step size")
         bad = np.flatnonzero(~(np.isfinite(arr) & (arr > 0)))
         if bad.size:
             k = int(bad[0])
-            raise fail("steps", f"tau_{k + 1} = {arr[k]:g}", "must be positive and finite")
+            raise fail("steps", described(f"tau_{k + 1} = {arr[k]:g}"),
+                       "must be positive and finite")
         total = float(arr.sum())
         if abs(total - self.T) > 1e-10 * self.T:
-            raise fail("steps", f"steps summing to {total:.12g}", f"must sum to T = {self.T:g}")
+            raise fail("steps", described(f"steps summing to {total:.12g}"),
+                       f"must sum to T = {self.T:g}")
         tau_prev = None
         for k, tau in enumerate(arr):
             if self.scheme == "bdf2" and tau_prev is not None:
                 ratio = tau / tau_prev
                 if not ratio < BDF2_ZERO_STABILITY:
-                    raise fail("steps", f"tau_{k + 1}/tau_{k} = {ratio:.6g}",
+                    raise fail("steps", described(f"tau_{k + 1}/tau_{k} = {ratio:.6g}"),
                                f"must be < 1 + sqrt(2) = {BDF2_ZERO_STABILITY:.6g} (zero-stability "
                                "of variable-step BDF2)")
             a0 = step_coefficients(self.scheme, tau, tau_prev)[0]
             if not tau / a0 < self.bound:
-                raise fail("steps", f"tau_{k + 1} = {tau:g}",
+                raise fail("steps", described(f"tau_{k + 1} = {tau:g}"),
                            f"must satisfy tau_j/alpha_j < rho/d0 = {self.bound:g} (alpha_j = "
                            f"{a0:.6g}; Lemma 3.2)")
             tau_prev = tau
         return arr
 
     def max_step(self, tau_prev: float | None) -> float:
-        """The controller's limit for the step after ``tau_prev``: BOUND_SAFETY times the
-        solvability bound (:func:`max_step_for`)."""
-        return BOUND_SAFETY * max_step_for(self.scheme, self.bound, tau_prev)
+        """The controller's limit for the step after ``tau_prev``: the step whose effective
+        step tau/alpha_0 is BOUND_SAFETY times the solvability bound (:func:`max_step_for`)."""
+        return max_step_for(self.scheme, BOUND_SAFETY * self.bound, tau_prev)
 
     # -- matrices and solves --------------------------------------------------------------------
     def _step_matrix(self, te: float) -> sp.csr_matrix:
@@ -637,6 +650,12 @@ class ELDStepper:
         return a, lam
 
     def initial_state(self) -> ELDState:
+        """The state at t = 0 (raises RunFailed if the consistent acceleration or multiplier
+        at t = 0 is not finite, e.g. after an overflow)."""
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return self._initial_state()
+
+    def _initial_state(self) -> ELDState:
         p = self.problem
         c = p.constraint
         G0, Gd0 = self.data.initial()
@@ -647,6 +666,11 @@ class ELDStepper:
             if not np.all(np.isfinite(value)):
                 raise fail(name, "non-finite values", "must be finite (the initial data)")
         a0, lam0 = self.consistent_acceleration(0.0, p.u0, vc, Gdd0)
+        if not (np.all(np.isfinite(a0)) and np.all(np.isfinite(lam0))):
+            raise RunFailed("non-finite initial state: the consistent acceleration or multiplier "
+                            "at t = 0 has NaN or inf entries (overflow?)",
+                            where={"step": 0, "s": 0.0, "t": 0.0, "form": self.form,
+                                   "scheme": self.scheme})
         if self.form == "regularized":
             u2, v2, w2 = self.lifting.lift_many([G0, Gd0, Gdd0])
             x = p.u0 - u2
@@ -791,6 +815,11 @@ class ELDStepper:
                              code=code, message=message, where=where, counters=counters or {})
 
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
+        # overflow and NaN are detected in the result (a failed step), not reported as warnings
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return self._step(state, tau)
+
+    def _step(self, state: ELDState, tau: float) -> ELDStepResult:
         j = state.j + 1
         t_new = self._time_after(state, tau)
         scheme = self.scheme
@@ -1147,6 +1176,8 @@ class ELDStepper:
         R[C] += c.boundary_mass @ lam
         Bv = c.boundary_mass @ v[C]
         kin, el = 0.5 * rho * _dot(v, Mv), 0.5 * _dot(u, Ku)
+        if not math.isfinite(kin + el):
+            return None, "the energy E = 1/2 rho v.M v + 1/2 u.K u"
         ledger = replace(
             L, kinetic=kin, elastic=el,
             work=L.work + tau * _dot(vals.F, v),
@@ -1247,31 +1278,42 @@ class ELDStepper:
             energy_norm_max=float(data["energy_norm_max"]))
 
 
-def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
-            scheme: str = "euler", control: str = "uniform", tol: float | None = None,
-            steps=None, data: str = "points", lifting: str = "nodal", solver: str = "auto",
-            newton: NewtonOptions | None = None, noise: DataNoise | None = None,
-            store_fields: bool = True, keep_every: int = 1, observer=None,
-            progress: bool = False, linear_rtol: float = 1e-10, tau_min: float | None = None,
-            tau_max: float | None = None, start: str = "taylor",
-            error_scale: float | None = None, meta: dict | None = None) -> Trajectory:
-    """Run Euler (3.4) or BDF2 from t = 0 to T (module docstring).
+@dataclass
+class ELDRun:
+    """A prepared run: the stepper, its controller, the trajectory with the initial state
+    recorded, the initial state and the evolve loop's tau_min (:func:`prepare_eld_run`)."""
 
-    ``control='uniform'``: n = T/tau equal steps (or the given ``steps``); ``'adaptive'``: tau is
-    the first step, the local error estimate is kept below ``tol`` (relative, energy norm) with
-    steps in [tau_min, tau_max] (defaults 1e-10 T and T).
+    stepper: ELDStepper
+    controller: object
+    trajectory: Trajectory
+    state: ELDState
+    tau_min: float
 
-    Runs on the shared evolve loop. Returns a :class:`~rothe.io.trajectory.Trajectory`:
-    point series (one entry per state, t = 0 included) ``t, kinetic, elastic, energy, work,
-    work_reaction, dissipated, numerical_dissipation, numerical_dissipation_G, step_change,
-    data_mismatch, residual_work, transfer, balance_residual``; step series (one per step)
-    ``tau, local_error, lam_norm, reaction_<part>, newton_iterations``; with ``store_fields``
-    the kept states (every ``keep_every``-th, t = 0 and the last) ``kept_step, kept_t`` and
-    ``u, v, a`` (interleaved dof vectors of ``problem.space``) and ``lam`` (values on the
-    constrained dofs ``problem.constraint.dofs``; ``lam[0]`` and ``a[0]`` are the consistent
-    multiplier and acceleration at t = 0). Raises :class:`RunFailed` (with ``.trajectory``) if a
-    step cannot be solved or its state is not finite.
-    """
+    def evolve(self, progress: bool = False) -> ELDState:
+        """Run to the end on the shared evolve loop; returns the final state."""
+        try:
+            final = evolve(self.stepper, self.controller, self.state, self.trajectory,
+                           tau_min=self.tau_min, progress=progress)
+        except RunFailed as exc:
+            exc.trajectory = self.trajectory
+            _finish_meta(self.trajectory, self.stepper)
+            raise
+        _finish_meta(self.trajectory, self.stepper)
+        self.state = final
+        return final
+
+
+def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
+                    scheme: str = "euler", control: str = "uniform", tol: float | None = None,
+                    steps=None, data: str = "points", lifting: str = "nodal",
+                    solver: str = "auto", newton: NewtonOptions | None = None,
+                    noise: DataNoise | None = None, store_fields: bool = True,
+                    keep_every: int = 1, observer=None, linear_rtol: float = 1e-10,
+                    tau_min: float | None = None, tau_max: float | None = None,
+                    start: str = "taylor", error_scale: float | None = None,
+                    meta: dict | None = None) -> ELDRun:
+    """Validate the options, build stepper and controller, record the initial state
+    (the arguments of :func:`run_eld`)."""
     control = check_choice("control", control, CONTROLS)
     if control == "adaptive":
         if tol is None:
@@ -1302,7 +1344,7 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
             raise fail("tau_min", tau_min, f"must be <= the first step tau = {stepper.tau:g}")
         controller = adaptive_controller(stepper, tol, stepper.tau, tau_min=tau_min,
                                          tau_max=tau_max)
-        info.update(tol=tol, tau_min=tau_min, tau_max=tau_max, error_scale=None,
+        info.update(tol=tol, tau_min=tau_min, tau_max=tau_max,
                     ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None)
         loop_tau_min = tau_min
     else:
@@ -1313,21 +1355,55 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
         loop_tau_min = 1e-300  # a fixed grid never shrinks a step; a failed step stops the run
     info.update(meta or {})
     traj = Trajectory(meta=info)
-    state = stepper.initial_state()
-    if control == "adaptive":
-        traj.meta["error_scale"] = stepper.error_scale
-    stepper.record_initial(traj, state)
-    traj.stats.linear_factorizations += stepper.initial_factorizations
     try:
-        final = evolve(stepper, controller, state, traj, tau_min=loop_tau_min, progress=progress)
+        state = stepper.initial_state()
     except RunFailed as exc:
         exc.trajectory = traj
         _finish_meta(traj, stepper)
         raise
-    _finish_meta(traj, stepper)
+    if control == "adaptive":
+        traj.meta["error_scale"] = stepper.error_scale
+    stepper.record_initial(traj, state)
+    traj.stats.linear_factorizations += stepper.initial_factorizations
+    return ELDRun(stepper, controller, traj, state, loop_tau_min)
+
+
+def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
+            scheme: str = "euler", control: str = "uniform", tol: float | None = None,
+            steps=None, data: str = "points", lifting: str = "nodal", solver: str = "auto",
+            newton: NewtonOptions | None = None, noise: DataNoise | None = None,
+            store_fields: bool = True, keep_every: int = 1, observer=None,
+            progress: bool = False, linear_rtol: float = 1e-10, tau_min: float | None = None,
+            tau_max: float | None = None, start: str = "taylor",
+            error_scale: float | None = None, meta: dict | None = None) -> Trajectory:
+    """Run Euler (3.4) or BDF2 from t = 0 to T (module docstring).
+
+    ``control='uniform'``: n = T/tau equal steps (or the given ``steps``); ``'adaptive'``: tau is
+    the first step, the local error estimate is kept below ``tol`` (relative to the energy-norm
+    scale S_j, floor ``error_scale``) with steps in [tau_min, tau_max] (defaults 1e-10 T and T).
+
+    Runs on the shared evolve loop. Returns a :class:`~rothe.io.trajectory.Trajectory`:
+    point series (one entry per state, t = 0 included) ``t, kinetic, elastic, energy, work,
+    work_reaction, dissipated, numerical_dissipation, numerical_dissipation_G, step_change,
+    data_mismatch, residual_work, transfer, balance_residual``; step series (one per step)
+    ``tau, local_error, lam_norm, reaction_<part>, newton_iterations``; with ``store_fields``
+    the kept states (every ``keep_every``-th, t = 0 and the last) ``kept_step, kept_t`` and
+    ``u, v, a`` (interleaved dof vectors of ``problem.space``) and ``lam`` (values on the
+    constrained dofs ``problem.constraint.dofs``; ``lam[0]`` and ``a[0]`` are the consistent
+    multiplier and acceleration at t = 0). ``traj.final_state``, ``traj.stepper`` and
+    ``traj.controller`` are attached (not saved). Raises :class:`RunFailed` (with
+    ``.trajectory``) if a step cannot be solved or its state or data is not finite.
+    """
+    run = prepare_eld_run(problem, form, tau, scheme=scheme, control=control, tol=tol,
+                          steps=steps, data=data, lifting=lifting, solver=solver, newton=newton,
+                          noise=noise, store_fields=store_fields, keep_every=keep_every,
+                          observer=observer, linear_rtol=linear_rtol, tau_min=tau_min,
+                          tau_max=tau_max, start=start, error_scale=error_scale, meta=meta)
+    final = run.evolve(progress=progress)
+    traj = run.trajectory
     traj.final_state = final  # not saved to .npz: the last state and the stepper, for callers
-    traj.stepper = stepper
-    traj.controller = controller
+    traj.stepper = run.stepper
+    traj.controller = run.controller
     return traj
 
 

@@ -149,9 +149,9 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
     if xdmf:
         if "kept_t" not in traj:
-            from ..errors import fail
+            from ..errors import described, fail
 
-            raise fail("traj", "a run without stored fields",
+            raise fail("traj", described("a run without stored fields"),
                        "must come from run_eld(..., store_fields=True) to write XDMF")
         writer = EldXdmfWriter(out, problem, name=name)
         try:

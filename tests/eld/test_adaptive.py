@@ -1,0 +1,142 @@
+"""Adaptive time steps: the error-norm controller, the local error estimate, adaptive runs."""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from rothe.control.controllers import ErrorNormController
+from rothe.eld import NonlinearDamping, mms_problem, ramp_problem, run_eld, step_coefficients
+from rothe.eld.schemes import BDF2_RATIO_CAP, BOUND_SAFETY
+from rothe.errors import RotheInputError
+
+
+@dataclass
+class _Result:
+    tau: float
+    error: float
+    converged: bool = True
+    code: str = "ok"
+    errors: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.errors = {"local_error": self.error}
+
+
+def test_error_norm_controller_rejects_accepts_and_limits_the_next_step():
+    bound_calls = []
+
+    def bound(tau_last):
+        bound_calls.append(tau_last)
+        return 0.3 if tau_last is None else 0.35
+
+    c = ErrorNormController(1e-3, 0.1, order=2, max_ratio=1.8, step_bound=bound, tau_max=1.0)
+    assert c.propose(0.0) == (0.1, None)
+    # too large an error: reject, shrink by safety * (tol/err)^(1/3) but not below fac_min
+    d = c.decide(_Result(0.1, 8e-3))
+    assert not d.accept and d.next_tau == pytest.approx(0.1 * 0.9 * 0.5)
+    d = c.decide(_Result(d.next_tau, 1e-1))
+    assert not d.accept and d.next_tau == pytest.approx(0.045 * 0.2)  # fac_min
+    # accepted right after a rejection: no growth even with a tiny error
+    d = c.decide(_Result(0.009, 1e-9))
+    assert d.accept and d.next_tau == pytest.approx(0.009)
+    # then growth, limited by fac_max = 2 and by max_ratio = 1.8 times the last accepted step
+    d = c.decide(_Result(0.009, 1e-9))
+    assert d.accept and d.next_tau == pytest.approx(1.8 * 0.009)
+    # the step bound of the last accepted step caps the proposal
+    tau = d.next_tau
+    for _ in range(20):
+        d = c.decide(_Result(tau, 1e-9))
+        tau = d.next_tau
+    assert tau == pytest.approx(0.35) and bound_calls[-1] == pytest.approx(0.35)
+    # a failed inner solve is a rejection, whatever the error
+    d = c.decide(_Result(tau, 0.0, converged=False, code="newton"))
+    assert not d.accept and d.next_tau == pytest.approx(0.25 * 0.35)
+    # round trip of its state
+    saved = c.checkpoint_state()
+    other = ErrorNormController(1e-3, 0.1, order=2, max_ratio=1.8, step_bound=bound)
+    other.restore_state(saved)
+    assert other.checkpoint_state() == saved
+    with pytest.raises(RotheInputError, match=r"^tol: got 0, must be > 0"):
+        ErrorNormController(0.0, 0.1, order=2)
+
+
+@pytest.mark.parametrize("scheme,order", [("euler", 1), ("bdf2", 2)])
+def test_local_error_estimate_has_the_order_of_the_local_error(scheme, order):
+    """local_error ~ tau^(p+1) on a smooth solution: halving tau divides it by 2^(p+1)."""
+    problem, _ = mms_problem(2, 2)
+    a = run_eld(problem, "regularized", 0.02, scheme=scheme, store_fields=False)
+    b = run_eld(problem, "regularized", 0.01, scheme=scheme, store_fields=False)
+    # compare at the same times t = 0.2, 0.4, ..., 1.0 (away from the start)
+    ea = a["local_error"][9::10]
+    eb = b["local_error"][19::20]
+    ratio = np.median(ea / eb)
+    assert 2 ** (order + 1) * 0.8 <= ratio <= 2 ** (order + 1) * 1.25
+
+
+@pytest.fixture(scope="module")
+def ramp_run():
+    problem = ramp_problem(2, 2)
+    return problem, run_eld(problem, "regularized", 0.01, scheme="bdf2", control="adaptive",
+                            tol=1e-4)
+
+
+def test_adaptive_bdf2_refines_at_the_ramp_and_keeps_its_limits(ramp_run):
+    problem, traj = ramp_run
+    t, tau = traj["t"][1:], traj["tau"]
+    assert traj["t"][-1] == 1.0
+    assert traj.stats.rejected_steps >= 1
+    near = tau[np.abs(t - 0.5) < 0.01]
+    far = tau[(t < 0.3) | (t > 0.8)]
+    assert near.max() < far.min() / 5
+    # every accepted step met the tolerance, the ratio cap and the solvability bound
+    assert traj["local_error"].max() <= 1e-4
+    ratios = tau[1:] / tau[:-1]
+    assert ratios.max() <= BDF2_RATIO_CAP * (1 + 1e-12)
+    scale = np.abs(traj["energy"]).max() + np.abs(traj["work_reaction"]).max()
+    assert np.abs(traj["balance_residual"]).max() <= 1e-12 * scale
+
+
+def test_adaptive_steps_never_exceed_the_solvability_bound():
+    problem, _ = mms_problem(2, 1, damping=NonlinearDamping(d0=2.0), T=4.0)  # rho/d0 = 0.5
+    for scheme in ("euler", "bdf2"):
+        traj = run_eld(problem, "regularized", 0.1, scheme=scheme, control="adaptive", tol=0.5)
+        tau = traj["tau"]
+        prev = [None] + list(tau[:-1])
+        eff = [t / step_coefficients(scheme, t, p)[0] for t, p in zip(tau, prev, strict=True)]
+        assert max(eff) <= BOUND_SAFETY * 0.5 * (1 + 1e-12)
+        assert max(eff) > 0.8 * BOUND_SAFETY * 0.5  # the bound, not the error, limited it
+
+
+def test_adaptive_error_follows_the_tolerance():
+    problem, exact = mms_problem(2, 2)
+    from rothe.eld import mms_errors
+
+    errs, steps = [], []
+    for tol in (1e-3, 1e-5):
+        traj = run_eld(problem, "regularized", 0.01, scheme="bdf2", control="adaptive", tol=tol,
+                       store_fields=False)
+        errs.append(mms_errors(problem, exact, traj)["error_u_l2"])
+        steps.append(traj.stats.accepted_steps)
+    # local error ~ tau^3 ~ tol: 100x smaller tol, about 100^(1/3) = 4.6x more steps
+    assert 3.0 <= steps[1] / steps[0] <= 7.0
+    assert errs[1] < errs[0] / 10
+
+
+def test_adaptive_bad_input_is_one_line():
+    problem, _ = mms_problem(2, 1)
+    with pytest.raises(RotheInputError, match=r"^tol: got 0, must be > 0$"):
+        run_eld(problem, "regularized", 0.1, control="adaptive", tol=0)
+    with pytest.raises(RotheInputError, match=r"^tol: got None, must be given"):
+        run_eld(problem, "regularized", 0.1, control="adaptive")
+    with pytest.raises(RotheInputError, match=r"^tol: got 0.001, is used by control='adaptive'"):
+        run_eld(problem, "regularized", 0.1, tol=1e-3)
+    with pytest.raises(RotheInputError, match=r"^control: got 'pid', must be one of uniform, "
+                       "adaptive"):
+        run_eld(problem, "regularized", 0.1, control="pid")
+    with pytest.raises(RotheInputError, match=r"^scheme: got 'bdf3', must be one of euler, bdf2"):
+        run_eld(problem, "regularized", 0.1, scheme="bdf3")
+    with pytest.raises(RotheInputError, match=r"^tau: got 2, \(the first step\) must be <= T"):
+        run_eld(problem, "regularized", 2.0, control="adaptive", tol=1e-3)
+    assert math.isfinite(BDF2_RATIO_CAP)
