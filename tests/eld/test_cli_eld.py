@@ -120,3 +120,18 @@ def test_run_eld_beam_writes_xdmf_of_u_v_and_the_multiplier(tmp_path, capsys):
     assert data["reaction_left"].shape == (10, 3)
     # the held end is pulled up (+z): the support pushes the beam up at first
     assert data["reaction_left"][0, 2] > 0
+
+
+def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(tmp_path, capsys):
+    out = tmp_path / "coarse"
+    code, stdout, _ = _run(["run", "eld-beam", "--n", "1", "--degree", "1", "--T", "0.3",
+                            "--no-plots", "--out", str(out)], capsys)
+    assert code == 0
+    assert "numerical dissipation: " in stdout and "put in by the support" in stdout
+    assert "note: coarse mesh for the reactions: the sideways reactions are" in stdout
+    s = json.loads((out / "summary.json").read_text())
+    assert max(s["reaction_sideways_over_z"]) > 0.02
+    assert 0 < s["numerical_dissipation_fraction"] < 1
+    data = np.load(out / "trajectory.npz")
+    assert data["nodes"].shape[1] == 3 and data["cells"].shape[1] == 4
+    assert data["kept_step"][-1] == 30

@@ -151,7 +151,8 @@ Linear algebra: with linear damping and constant tau_eff the step matrix is fact
 every step is one back-substitution plus two sparse products (M x, K x; every other product is
 a combination of cached ones and thin products with the lifted data). When tau_eff changes,
 the system is solved by Krylov iterations preconditioned with the stored factorization, which is
-rebuilt from the current matrix when they stall. Nonlinear damping: Newton's method with
+rebuilt from the current matrix when they stall (below REFACTOR_BELOW unknowns with the direct
+solver: a new LU for every new tau_eff). Nonlinear damping: Newton's method with
 backtracking, corrections by Krylov iterations preconditioned the same way
 (:mod:`rothe.eld.solvers`). A step whose solve fails, or whose state or data is not finite, is
 never accepted.
@@ -176,7 +177,7 @@ from ..errors import (
     fail,
 )
 from ..io.trajectory import Trajectory
-from ..stepping.evolve import evolve
+from ..stepping.evolve import evolve, single_threaded_blas
 from .constraint import LIFTINGS, make_lifting
 from .control import FixedStepController, adaptive_controller
 from .data import DATA_MODES, DataNoise, StepData
@@ -195,6 +196,9 @@ BDF2_ZERO_STABILITY = 1.0 + math.sqrt(2.0)
 BDF2_RATIO_CAP = 1.8
 #: the adaptive controller stays below this fraction of the solvability bound
 BOUND_SAFETY = 0.95
+#: below this many unknowns a new tau_eff gets its own LU (cheaper than ~10 preconditioned
+#: Krylov iterations with the stored one; PERFORMANCE-NOTES: factor / solve ~ 26 at 25k in 2D)
+REFACTOR_BELOW = 20_000
 #: cached products: name -> (matrix, field)
 PRODUCTS = {
     "Mx": ("M", "x"), "Kx": ("K", "x"), "Mx_1": ("M", "x_1"), "Kx_1": ("K", "x_1"),
@@ -531,6 +535,17 @@ class ELDStepper:
             tau_prev = tau
         return arr
 
+    @property
+    def system_size(self) -> int:
+        """Unknowns of the step's linear systems: free dofs (regularized) or dofs + multiplier."""
+        c = self.problem.constraint
+        return self.I.size if self.form == "regularized" else self.problem.space.ndofs + c.m
+
+    @property
+    def A_II(self):
+        """The stored step matrix A(tau_eff) on the free dofs (regularized form)."""
+        return self._A_stored if self.form == "regularized" else None
+
     def max_step(self, tau_prev: float | None) -> float:
         """The controller's limit for the step after ``tau_prev``: the step whose effective
         step tau/alpha_0 is BOUND_SAFETY times the solvability bound (:func:`max_step_for`)."""
@@ -599,6 +614,9 @@ class ELDStepper:
         if ref is not None and ref["v"] is None and ref["tau_eff"] == te:
             return self.solver.solve_reference(rhs, x0=guess)
         n = rhs.size
+        if self.kind == "direct" and n <= REFACTOR_BELOW:
+            self._factor(te, None)
+            return self.solver.solve_reference(rhs, x0=guess)
         if self.form == "regularized":
             op = spla.LinearOperator((n, n), matvec=lambda w: self._apply_A(w, te), dtype=float)
         else:
@@ -652,7 +670,10 @@ class ELDStepper:
     def initial_state(self) -> ELDState:
         """The state at t = 0 (raises RunFailed if the consistent acceleration or multiplier
         at t = 0 is not finite, e.g. after an overflow)."""
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        # BLAS level-1 calls outside the evolve loop: single-threaded as inside it
+        # (rothe.stepping.evolve.single_threaded_blas; threaded dots spin on busy cores)
+        with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore",
+                                                 divide="ignore"):
             return self._initial_state()
 
     def _initial_state(self) -> ELDState:
@@ -694,9 +715,9 @@ class ELDStepper:
         kin, el = 0.5 * self.rho * _dot(v, Mv), 0.5 * _dot(u, Ku)
         state.ledger = EnergyLedger(kinetic=kin, elastic=el, initial=kin + el)
         norm0 = math.sqrt(max(2.0 * (kin + el), 0.0))
-        if self.error_scale is None:
+        if self.error_scale is None and self.control == "adaptive":
             self.error_scale = max(norm0, self._data_scale()) or 1.0
-        state.energy_norm_max = max(norm0, self.error_scale)
+        state.energy_norm_max = max(norm0, self.error_scale or 0.0)
         return state
 
     def _data_scale(self) -> float:
