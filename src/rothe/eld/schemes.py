@@ -587,9 +587,65 @@ class ELDStepper:
         B = self.problem.constraint.B
         return sp.bmat([[A, B.T], [B, None]], format="csr")
 
+    def _pattern_parts(self):
+        """The system's sparsity pattern with the values of M, K, E (and B) on it, so that A(te)
+        for a new te is one linear combination of value arrays (variable steps)."""
+        if getattr(self, "_parts", None) is None:
+            p, D = self.problem, self.D
+            n = p.space.ndofs
+            E = sp.csr_matrix(D.matrix) if D.matrix is not None else sp.csr_matrix((n, n))
+            zero_nn = sp.csr_matrix((n, n))
+            if self.form == "regularized":
+                def system(X, Bpart=None):
+                    return sp.csr_matrix(X)[self.I][:, self.I]
+            else:
+                B = p.constraint.B
+                zero_B = sp.csr_matrix(B.shape)
+
+                def system(X, Bpart=None):
+                    return self._kkt_blocks(X, zero_B if Bpart is None else Bpart)
+
+            P = sp.csr_matrix(system(p.M + p.K + E, None if self.form == "regularized" else B))
+            P.sum_duplicates()
+            P.sort_indices()
+            ncol = P.shape[1]
+            keys = np.repeat(np.arange(P.shape[0], dtype=np.int64), np.diff(P.indptr)) * ncol \
+                + P.indices
+
+            def on_pattern(X):
+                X = sp.csr_matrix(X)
+                X.sum_duplicates()
+                xk = np.repeat(np.arange(X.shape[0], dtype=np.int64), np.diff(X.indptr)) * ncol \
+                    + X.indices
+                out = np.zeros(keys.size)
+                out[np.searchsorted(keys, xk)] = X.data
+                return out
+
+            parts = {"M": on_pattern(system(p.M)), "K": on_pattern(system(p.K)),
+                     "E": on_pattern(system(E)),
+                     "B": None if self.form == "regularized"
+                     else on_pattern(system(zero_nn, B))}
+            self._parts = (P.indices.copy(), P.indptr.copy(), P.shape, parts)
+        return self._parts
+
+    @staticmethod
+    def _kkt_blocks(A, B):
+        m = B.shape[0]
+        return sp.bmat([[A, B.T], [B, sp.csr_matrix((m, m))]], format="csr")
+
     def _system_matrix(self, te: float, v: np.ndarray | None) -> sp.csr_matrix:
         """The matrix a factorization is built from: A(te) (+ N'(v)/te), restricted or bordered.
-        A function of (te, v) alone, so that a checkpoint can name it."""
+        A function of (te, v) alone, so that a checkpoint can name it (variable steps with
+        linear damping: by value arrays on a fixed pattern, :meth:`_pattern_parts`)."""
+        variable_steps = self.n_steps is None or self.steps is not None
+        if v is None and variable_steps:
+            indices, indptr, shape, parts = self._pattern_parts()
+            D = self.D
+            data = ((self.rho / te**2 + D.mass_coef / te) * parts["M"]
+                    + (1.0 + D.stiffness_coef / te) * parts["K"] + (1.0 / te) * parts["E"])
+            if parts["B"] is not None:
+                data = data + parts["B"]
+            return sp.csr_matrix((data, indices.copy(), indptr.copy()), shape=shape)
         A = self._step_matrix(te)
         if v is not None:
             A = (A + (1.0 / te) * self.D.nonlinear_jacobian(v)).tocsr()
