@@ -239,7 +239,7 @@ def part_adaptive(n: int, kref: int, tols) -> dict:
     uni = [r for r in rows if r["run"].startswith("uniform")]
     head = (f"{'run':<22} {'accepted':>8} {'rejected':>8} {'solves':>7} {'error at T':>11} "
             f"{'max error':>10} {'tau min':>9} {'tau max':>9} {'seconds':>8} "
-            f"{'ratio (max)':>11} {'ratio (T)':>10}")
+            f"{'ratio (max)':>11} {'ratio (T)':>10} {'s-ratio':>10}")
     print(head)
     print("-" * len(head))
     ratios_max, ratios_T = [], []
@@ -250,19 +250,22 @@ def part_adaptive(n: int, kref: int, tols) -> dict:
                                                              steps=u["solves"]) for u in uni])
             n_T = _equal_error_steps(r["error_T"], [dict(error=u["error_T"], steps=u["solves"])
                                                     for u in uni])
+            s_max = _equal_error_steps(r["error_max"], [dict(error=u["error_max"],
+                                                             steps=u["seconds"]) for u in uni])
             r["ratio_max"] = None if n_max is None else r["solves"] / n_max
             r["ratio_T"] = None if n_T is None else r["solves"] / n_T
+            r["seconds_ratio_max"] = None if s_max is None else r["seconds"] / s_max
             ratios_max.append(r["ratio_max"])
             ratios_T.append(r["ratio_T"])
             extra = "".join(" " + (f"{x:>10.3f}" if x is not None else f"{'outside':>10}")
-                            for x in (r["ratio_max"], r["ratio_T"]))
+                            for x in (r["ratio_max"], r["ratio_T"], r["seconds_ratio_max"]))
         print(f"{r['run']:<22} {r['accepted']:>8d} {r['rejected']:>8d} {r['solves']:>7d} "
               f"{r['error_T']:>11.3e} {r['error_max']:>10.3e} {r['tau_min']:>9.2e} "
               f"{r['tau_max']:>9.2e} {r['seconds']:>8.2f}{extra}", flush=True)
     good = [x for x in ratios_max if x is not None]
     goodT = [x for x in ratios_T if x is not None]
     print("ratio = solves of the adaptive run / uniform steps with the same error (log-log "
-          "interpolated between uniform runs)")
+          "interpolated between uniform runs); s-ratio = the same for seconds at equal max error")
     if good:
         print(f"steps ratio adaptive/uniform at equal max-over-time error: {min(good):.3f} ... "
               f"{max(good):.3f} (target <= 0.333)")
