@@ -44,7 +44,7 @@ the balance, which closes to solver tolerance.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,6 +52,7 @@ import scipy.sparse.linalg as spla
 
 from ..control.controllers import UniformController
 from ..errors import RunFailed, check_choice, check_positive, fail
+from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
 from ..stepping.evolve import evolve
 from .constraint import LIFTINGS, make_lifting
@@ -553,12 +554,44 @@ class ELDStepper:
         if self.observer is not None:
             self.observer(st, result)
 
+    # -- checkpoint protocol (rothe.io.checkpoint); kept apart from the scheme on purpose ------
+    _STATE_ARRAYS = ("x", "x_prev", "u", "v", "Ku", "Mv", "lam", "Mx", "Kx", "Mx_prev", "Kx_prev")
+    _DATA_HISTORY = ("_j", "_prev_G", "_prev_G_dot", "_prev_G_exact", "_prev_G_dot_exact")
+
+    def checkpoint_state(self, state: ELDState) -> dict:
+        """The state of step j with the scheme's history (x^{j-1} and the products kept with
+        it), the energy ledger, the step data's history (difference quotients of G), the Newton
+        counter shown in the progress, and the linear solver (with its reference matrix when it
+        was refactored since the stepper was built)."""
+        refactored = self.solver.stats.factorizations != self.initial_factorizations
+        return {
+            "stepper": "eld", "form": self.form, "tau": self.tau,
+            "s": float(state.s), "t": float(state.t), "j": int(state.j),
+            "arrays": {name: getattr(state, name) for name in self._STATE_ARRAYS},
+            "ledger": asdict(state.ledger),
+            "data": {name: getattr(self.data, name) for name in self._DATA_HISTORY},
+            "last_newton": int(self._last_newton),
+            "solver": self.solver.checkpoint_state(reference=refactored),
+        }
+
+    def restore_state(self, data: dict) -> ELDState:
+        if data.get("stepper") != "eld" or data["form"] != self.form or data["tau"] != self.tau:
+            raise ValueError("restore_state: the state of another stepper (form, tau)")
+        arrays = {k: None if v is None else np.array(v) for k, v in data["arrays"].items()}
+        for name, value in data["data"].items():
+            setattr(self.data, name, value if np.isscalar(value) else np.array(value))
+        self._last_newton = int(data["last_newton"])
+        self.solver.restore_state(data["solver"])
+        return ELDState(s=float(data["s"]), t=float(data["t"]), j=int(data["j"]),
+                        ledger=EnergyLedger(**data["ledger"]), **arrays)
+
 
 def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
             data: str = "points", lifting: str = "nodal", solver: str = "auto",
             newton: NewtonOptions | None = None, noise: DataNoise | None = None,
-            store_fields: bool = True, observer=None, progress: bool = False,
-            linear_rtol: float = 1e-10, meta: dict | None = None) -> Trajectory:
+            store_fields: bool = True, observer=None, progress=False,
+            linear_rtol: float = 1e-10, meta: dict | None = None, checkpoint=None,
+            resume=None) -> Trajectory:
     """Run the Euler scheme (3.4) from t = 0 to T with n = T/tau equal steps.
 
     Runs on the shared evolve loop with a fixed-step controller. Returns a
@@ -569,6 +602,9 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     regularized form by v_2^j - D u_2^j; ``du`` at t = 0 is h); step series (n entries)
     ``tau, lam_norm, reaction_<part>, newton_iterations`` (and ``lam``).
     Raises :class:`RunFailed` (with ``.trajectory``) if a step cannot be solved.
+    ``checkpoint`` / ``resume``: as for :func:`rothe.stepping.ris.run_ris` (a resumed run
+    continues bit for bit; an ``observer`` that keeps state, such as an output writer, is
+    passed as a checkpoint attachment so that it is restored too).
     """
     stepper = ELDStepper(problem, form, tau, data=data, lifting=lifting, solver=solver,
                          newton=newton, noise=noise, store_fields=store_fields, observer=observer,
@@ -580,21 +616,48 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     if noise is not None:
         info["noise"] = {"delta": noise.delta, "target": noise.target, "seed": noise.seed}
     info.update(meta or {})
-    traj = Trajectory(meta=info)
-    state = stepper.initial_state()
-    stepper.record_initial(traj, state)
-    traj.stats.linear_factorizations += stepper.initial_factorizations
     controller = UniformController(tau)
-    try:
-        final = evolve(stepper, controller, state, traj, tau_min=tau, progress=progress)
-    except RunFailed as exc:
-        exc.trajectory = traj
-        _finish_meta(traj, stepper)
-        raise
-    _finish_meta(traj, stepper)
+    arguments = run_arguments(
+        form=form, tau=tau, data=data, lifting=lifting, solver=solver,
+        newton=asdict(stepper.newton), noise=None if noise is None else asdict(noise),
+        store_fields=store_fields, linear_rtol=linear_rtol)
+    with RunCheckpointing("run_eld", problem, arguments, checkpoint, resume) as rc:
+        cp, restored = rc.checkpointer, rc.restored
+        if restored is not None:
+            traj = restored.trajectory(0)
+            traj.meta.update(info)
+            traj.meta["sessions"] = restored.sessions + 1
+            state = stepper.restore_state(restored.state["stepper"])
+            controller.restore_state(restored.state["controller"])
+        else:
+            traj = Trajectory(meta=info)
+            state = stepper.initial_state()
+            stepper.record_initial(traj, state)
+            traj.stats.linear_factorizations += stepper.initial_factorizations
+        if cp is not None:
+            cp.register(traj)
+            if restored is None:
+                cp.save(stepper, controller, state, where=_eld_where(traj, state))
+        try:
+            final = evolve(stepper, controller, state, traj, tau_min=tau, progress=progress,
+                           checkpointer=cp)
+        except RunFailed as exc:
+            exc.trajectory = traj
+            _finish_meta(traj, stepper)
+            raise
+        finally:
+            _finish_meta(traj, stepper)
+        if cp is not None:
+            cp.save(stepper, controller, final, status="completed",
+                    where=_eld_where(traj, final))
     traj.final_state = final  # not saved to .npz: the last state and the stepper, for callers
     traj.stepper = stepper
     return traj
+
+
+def _eld_where(traj: Trajectory, state: ELDState) -> dict:
+    return {"accepted_steps": traj.stats.accepted_steps, "s": float(state.t),
+            "t": float(state.t), "j": int(state.j)}
 
 
 def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:
