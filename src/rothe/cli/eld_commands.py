@@ -9,9 +9,12 @@ the stepper before the first step); a run that fails midway writes what it has a
 
 from __future__ import annotations
 
+import shutil
+import sys
+
 import numpy as np
 
-from ..errors import RunFailed, check_choice, check_int, check_positive, fail
+from ..errors import check_choice, check_int, check_positive, fail
 from .common import (
     add_output_options,
     output_dir,
@@ -19,9 +22,12 @@ from .common import (
     parse_float_list,
     peak_memory_mb,
     print_summary,
+    progress_of,
     write_summary,
+    write_table,
 )
 from .registry import command
+from .session import RunSession, add_run_options
 
 FORMS = ("regularized", "original")
 
@@ -78,20 +84,31 @@ def energy_summary(traj) -> dict:
     }
 
 
-def _write_run(args, out, name, traj, summary, label, keys) -> None:
-    """What every ELD run writes: trajectory.npz, the energy and reaction figures, summary.json,
-    and (unless --quiet) the summary and the energy balance on stdout."""
+def _write_run(args, out, traj, summary, label, plots: bool = True) -> None:
+    """What every ELD run writes into ``out`` (its staging directory): trajectory.npz, the
+    energy and reaction figures (completed runs), summary.json last."""
     traj.save_npz(out / "trajectory.npz")
-    if not args.no_plots:
+    if plots and not args.no_plots:
         from ..plotting.eld import plot_energy_balance, plot_reactions
 
         plot_energy_balance(traj, out / "fig_energy.png", title=label)
         plot_reactions(traj, out / "fig_reaction.png", title=label)
     write_summary(out, summary)
+
+
+def _print_run(args, results, name, summary, keys) -> None:
     if not args.quiet:
-        print(f"rothe run {name}: wrote {out}/")
+        print(f"rothe run {name}: wrote {results}/")
         print_summary(summary, keys)
         print(format_energy_balance(summary))
+
+
+def _already_completed(session) -> bool:
+    if session.already_completed:
+        print(f"rothe: {session.out}: the run already completed; its results are there",
+              file=sys.stderr)
+        return True
+    return False
 
 
 def format_energy_balance(e: dict) -> str:
@@ -148,16 +165,6 @@ def run_summary(traj, example: str) -> dict:
     return summary
 
 
-def _failed(out, traj, exc, example: str, extra: dict | None = None) -> None:
-    if traj is None:
-        return
-    traj.save_npz(out / "trajectory.npz")
-    summary = run_summary(traj, example)
-    summary.update(extra or {})
-    summary.update(status="failed", failure=str(exc), where=exc.where)
-    write_summary(out, summary)
-
-
 MMS_KEYS = ("example", "form", "tau", "n_steps", "ndofs", "newton_per_step", "error_u_l2",
             "error_u_h1", "error_v_l2", "error_v_h1", "error_lam_l2", "wall_time_s")
 
@@ -180,6 +187,7 @@ class RunEldMMS:
                                  "(inconsistent with G(0): refused, Remark 2.2)")
         _mms_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         from ..eld.examples import mms_errors, mms_problem
@@ -194,18 +202,27 @@ class RunEldMMS:
         damping = _make_damping(args)
         problem, exact = mms_problem(n, args.degree, damping=damping, rho=args.rho, lam=args.lam,
                                      mu=args.mu, T=args.T, dirichlet=parts, start=args.start)
-        out = output_dir(args, self.name)
-        try:
-            traj = run_eld(problem, form, tau, data=args.data, lifting=args.lifting,
-                           progress=not args.quiet)
-        except RunFailed as exc:
-            _failed(out, exc.trajectory, exc, self.name)
-            raise
-        summary = run_summary(traj, self.name)
-        summary.update(n=n, degree=args.degree, dirichlet=list(parts))
-        summary.update(mms_errors(problem, exact, traj))
-        _write_run(args, out, self.name, traj, summary, f"eld-mms, {form}, tau={tau:g}", MMS_KEYS)
-        return 0
+        session = RunSession(args, self.name)
+        with session:
+            if _already_completed(session):
+                return 0
+            outcome = session.run(lambda **kw: run_eld(problem, form, tau, data=args.data,
+                                                       lifting=args.lifting, **kw))
+            results = session.results_dir(outcome.status)
+            traj = outcome.result
+            if traj is not None:
+                with session.outputs(outcome.status) as stage:
+                    summary = run_summary(traj, self.name)
+                    summary.update(n=n, degree=args.degree, dirichlet=list(parts))
+                    if outcome.status == "completed":
+                        summary.update(mms_errors(problem, exact, traj))
+                    session.annotate(summary, outcome)
+                    _write_run(args, stage, traj, summary, f"eld-mms, {form}, tau={tau:g}",
+                               plots=outcome.status == "completed")
+            code = session.finish(outcome, results)
+        if outcome.status == "completed":
+            _print_run(args, results, self.name, summary, MMS_KEYS)
+        return code
 
 
 @command("run", "eld-beam")
@@ -238,6 +255,7 @@ class RunEldBeam:
         _damping_options(parser, default_b=0.002)
         parser.set_defaults(damping="rayleigh")
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         from ..eld.examples import beam_problem
@@ -252,38 +270,54 @@ class RunEldBeam:
         problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,
                                damping=damping, amplitude=args.amplitude, t_move=args.t_move,
                                T=args.T, degree=args.degree)
-        out = output_dir(args, self.name)
-        writer = EldXdmfWriter(out, problem, name="beam")
-        writer.write(0.0, problem.u0, problem.v0, None)
+        session = RunSession(args, self.name)
+        with session:
+            if _already_completed(session):
+                return 0
+            stream = session.checkpoint_dir / "stream"
+            if session.resume is None:  # segments of an earlier run are not this run's
+                shutil.rmtree(stream, ignore_errors=True)
+            writer = EldXdmfWriter(stream, problem, name="beam")
+            if session.resume is None:
+                writer.write(0.0, problem.u0, problem.v0, None)
 
-        def observer(state, result):
-            if state.j % every == 0 or state.j == round(problem.T / tau):
-                writer.write(state.t, state.u, state.v, result.lam)
+            def observer(state, result):
+                if state.j % every == 0 or state.j == round(problem.T / tau):
+                    writer.write(state.t, state.u, state.v, result.lam)
 
-        try:
-            traj = run_eld(problem, form, tau, solver=args.solver, store_fields=False,
-                           observer=observer, progress=not args.quiet,
-                           linear_rtol=1e-8)
-        except RunFailed as exc:
-            writer.close()
-            _failed(out, exc.trajectory, exc, self.name)
-            raise
-        writer.close()
-        summary = run_summary(traj, self.name)
-        summary.update(
-            n=n, degree=args.degree, length=args.length, E=args.E, nu=args.nu,
-            amplitude=args.amplitude, t_move=args.t_move,
-            seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
-            xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written,
-        )
-        R = traj["reaction_left"]
-        summary["reaction_left_max_abs"] = np.max(np.abs(R), axis=0).tolist()
-        label = f"eld-beam, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
-        _write_run(args, out, self.name, traj, summary, label,
-                   ("example", "form", "tau", "n_steps", "ndofs", "linear_solver",
-                    "krylov_iterations", "seconds_per_step", "peak_memory_mb",
-                    "reaction_left_final", "wall_time_s"))
-        return 0
+            session.checkpoint.attachments = {"xdmf": writer}
+            outcome = session.run(lambda **kw: run_eld(
+                problem, form, tau, solver=args.solver, store_fields=False, observer=observer,
+                linear_rtol=1e-8, **kw))
+            results = session.results_dir(outcome.status)
+            traj = outcome.result
+            if traj is not None:
+                with session.outputs(outcome.status) as stage:
+                    writer.export(stage)
+                    summary = run_summary(traj, self.name)
+                    summary.update(
+                        n=n, degree=args.degree, length=args.length, E=args.E, nu=args.nu,
+                        amplitude=args.amplitude, t_move=args.t_move,
+                        seconds_per_step=traj.stats.wall_time_s
+                        / max(traj.stats.accepted_steps, 1),
+                        xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written,
+                    )
+                    if traj.stats.accepted_steps:
+                        R = traj["reaction_left"]
+                        summary["reaction_left_max_abs"] = np.max(np.abs(R), axis=0).tolist()
+                    session.annotate(summary, outcome)
+                    label = f"eld-beam, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
+                    _write_run(args, stage, traj, summary, label,
+                               plots=outcome.status == "completed")
+            code = session.finish(outcome, results)
+            if outcome.status == "completed":
+                writer.discard()
+        if outcome.status == "completed":
+            _print_run(args, results, self.name, summary,
+                       ("example", "form", "tau", "n_steps", "ndofs", "linear_solver",
+                        "krylov_iterations", "seconds_per_step", "peak_memory_mb",
+                        "reaction_left_final", "wall_time_s"))
+        return code
 
 
 @command("study", "eld-convergence")
@@ -312,9 +346,9 @@ class StudyEldConvergence:
         study = convergence_study(form, tau0=args.tau0, halvings=halvings, n=n,
                                   degree=args.degree, damping=damping, rho=args.rho,
                                   lam=args.lam, mu=args.mu, T=args.T, data=args.data,
-                                  lifting=args.lifting, progress=not args.quiet)
+                                  lifting=args.lifting, progress=progress_of(args))
         table = format_convergence_table(study)
-        (out / "table.txt").write_text(table + "\n")
+        write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
         write_summary(out, study)
         if not args.no_plots:
@@ -367,9 +401,9 @@ class StudyEldPerturbation:
         out = output_dir(args, self.name)
         study = perturbation_study(taus, delta=args.delta, targets=targets, n=n,
                                    degree=args.degree, damping=damping, seed=args.seed,
-                                   progress=not args.quiet)
+                                   progress=progress_of(args))
         table = format_perturbation_table(study)
-        (out / "table.txt").write_text(table + "\n")
+        write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
         write_summary(out, study)
         if not args.no_plots:

@@ -351,18 +351,32 @@ class CheckpointOptions:
         self.every_seconds = check_positive("checkpoint every_seconds", self.every_seconds)
 
 
-class _Lock:
-    """An exclusive flock on ``<dir>/.lock``: one writer per checkpoint directory."""
+_HELD: dict[str, list] = {}  # resolved lock path -> [fd, holders] (flock is per open file)
 
-    def __init__(self, directory: Path):
-        self.path = directory / ".lock"
-        self.fd = None
 
-    def acquire(self) -> None:
+class DirectoryLock:
+    """An exclusive ``flock`` on ``<dir>/.lock``: one rothe process per checkpoint directory.
+
+    Re-entrant within a process (the command line holds it for the whole run, the checkpointer
+    inside it again); released by the kernel if the process dies, so a killed run never leaves
+    a stale lock. Raises :class:`CheckpointError` naming the other process's pid.
+    """
+
+    def __init__(self, directory):
+        self.path = Path(directory) / ".lock"
+        self.key = None
+
+    def acquire(self) -> DirectoryLock:
         try:
             import fcntl
         except ImportError:  # pragma: no cover - not POSIX
-            return
+            return self
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        key = str(self.path.resolve())
+        if key in _HELD:
+            _HELD[key][1] += 1
+            self.key = key
+            return self
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -375,13 +389,29 @@ class _Lock:
                                   f"(pid {other})") from None
         os.ftruncate(fd, 0)
         os.write(fd, str(os.getpid()).encode())
-        self.fd = fd
+        _HELD[key] = [fd, 1]
+        self.key = key
+        return self
 
     def release(self) -> None:
-        if self.fd is not None:
+        if self.key is None:
+            return
+        key, self.key = self.key, None
+        entry = _HELD.get(key)
+        if entry is None:
+            return
+        entry[1] -= 1
+        if entry[1] == 0:
+            del _HELD[key]
             with contextlib.suppress(OSError):
-                os.close(self.fd)
-            self.fd = None
+                os.close(entry[0])
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()
+        return False
 
 
 class Checkpointer:
@@ -408,8 +438,7 @@ class Checkpointer:
         self._saved: list[dict[str, int]] = []
         self._last = time.monotonic()
         self.directory.mkdir(parents=True, exist_ok=True)
-        self._lock = _Lock(self.directory)
-        self._lock.acquire()
+        self._lock = DirectoryLock(self.directory).acquire()
         remove_stale_temporaries(self.directory)
         same_dir = restored is not None and _same_dir(restored.directory, self.directory)
         if restored is not None:
