@@ -637,7 +637,7 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
         if cp is not None:
             cp.register(traj)
             if restored is None:
-                cp.save(stepper, controller, state, where=_eld_where(traj, state))
+                cp.save_or_warn(stepper, controller, state, where=_eld_where(traj, state))
         try:
             final = evolve(stepper, controller, state, traj, tau_min=tau, progress=progress,
                            checkpointer=cp)
@@ -648,7 +648,7 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
         finally:
             _finish_meta(traj, stepper)
         if cp is not None:
-            cp.save(stepper, controller, final, status="completed",
+            cp.save_or_warn(stepper, controller, final, status="completed",
                     where=_eld_where(traj, final))
     traj.final_state = final  # not saved to .npz: the last state and the stepper, for callers
     traj.stepper = stepper

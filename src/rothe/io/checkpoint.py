@@ -44,6 +44,7 @@ import os
 import re
 import time
 import uuid
+import warnings
 import zipfile
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -61,6 +62,10 @@ CHECKPOINT_SUBDIR = "checkpoint"
 STATUSES = ("running", "interrupted", "failed", "completed")
 RESUMABLE = ("running", "interrupted", "completed")
 _SEGMENT_RE = re.compile(r"^traj(\d+)-(\d+)\.npz$")
+
+
+class CheckpointWarning(UserWarning):
+    """A checkpoint could not be written (e.g. a full disk); the run went on."""
 
 
 class CheckpointError(RotheInputError):
@@ -437,6 +442,7 @@ class Checkpointer:
         self._segments: list[list[dict]] = []
         self._saved: list[dict[str, int]] = []
         self._last = time.monotonic()
+        self._warned = False
         self.directory.mkdir(parents=True, exist_ok=True)
         self._lock = DirectoryLock(self.directory).acquire()
         remove_stale_temporaries(self.directory)
@@ -535,6 +541,22 @@ class Checkpointer:
         self._remove_unreferenced()
         self._last = time.monotonic()
         return self.directory
+
+    def save_or_warn(self, *args, **kwargs) -> Path | None:
+        """:meth:`save`, but a write error (a full disk) is a warning, not the end of the run:
+        the previous checkpoint stays valid, the run goes on, and the results are still written
+        (or fail with their own error). Warns once per run."""
+        from ..errors import OutputWriteError
+
+        try:
+            return self.save(*args, **kwargs)
+        except OutputWriteError as exc:
+            self._last = time.monotonic()  # retry at the next interval, not at every step
+            if not self._warned:
+                self._warned = True
+                warnings.warn(f"checkpoint not written ({exc}); the run goes on and the "
+                              "previous checkpoint stays", CheckpointWarning, stacklevel=2)
+            return None
 
     def _remove_unreferenced(self) -> None:
         keep = {s["file"] for segs in self._segments for s in segs}

@@ -66,8 +66,14 @@ class OutputSet:
             except BaseException:
                 self.abort()
                 raise
-        else:
-            self.abort()
+            return False
+        self.abort()
+        if isinstance(exc, OutputWriteError) and exc.filename:
+            # name the file as the user will look for it, not its staged copy
+            staged = Path(exc.filename)
+            if self.staging in staged.parents or staged.parent == self.staging:
+                final = self.directory / staged.relative_to(self.staging).parts[0]
+                raise OutputWriteError(final, OSError(exc.errno, exc.strerror)) from None
         return False
 
     def abort(self) -> None:

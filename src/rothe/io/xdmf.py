@@ -17,31 +17,39 @@ ParaView's "XDMF Reader" both read it):
 Why not meshio's writer: it creates the .h5 file in the *current working directory* (it uses
 ``Path(filename).stem``), not next to the .xdmf, and it writes in place.
 
-Two writers:
+HDF5 never writes to disk here. h5py builds every HDF5 file in memory (a ``BytesIO``), and the
+bytes are written with ordinary atomic file I/O (:mod:`rothe.io.atomic`). Writing HDF5 directly
+to a full disk made the HDF5 library fail inside its cache flushes: thousands of "Exception
+ignored" tracebacks, then a segmentation fault, and a destroyed earlier result. Now a full disk
+is an ``OSError`` from ``write`` like any other: one line naming the file, nothing half-written.
 
-- :class:`XdmfSeriesWriter` (and :func:`write_series`): steps are streamed into a temporary HDF5
-  file beside the target, so a long series never needs all snapshots in memory; on ``close`` the
-  HDF5 file and then the XML are renamed into place (atomic, :mod:`rothe.io.atomic`). A failure
-  (e.g. a full disk: h5py's errors are caught) removes the temporary files and leaves any earlier
-  pair untouched.
-- :class:`StreamedSeries`: for runs that checkpoint while they stream (eld-beam). Steps go to
-  HDF5 *segments* in a work directory; ``checkpoint_state`` closes the open segment (complete on
-  disk, an HDF5 file being written when a process is killed can be unreadable) and records the
-  steps so far; ``restore_state`` drops what was written after that checkpoint; ``export`` writes
-  ``<name>.xdmf`` + ``<name>.h5`` (the segments merged) wherever the results go.
+Steps are collected in *segments* (one in memory at a time, at most ``MAX_SEGMENT_BYTES``), so
+a long series never holds all snapshots in memory:
+
+- :class:`StreamedSeries`: for runs that checkpoint while they stream (eld-beam). Segments are
+  written to a work directory when they fill up and at every checkpoint (``checkpoint_state``),
+  so a checkpoint never refers to data that exists only in memory; ``restore_state`` drops what
+  was written after that checkpoint; ``export(directory)`` writes ``<name>.xdmf`` +
+  ``<name>.h5`` (the segments merged, or linked when there is one; a series larger than
+  ``MAX_MERGED_BYTES`` stays split into ``<name>.h5``, ``<name>.1.h5``, ... which the XML
+  references).
+- :class:`XdmfSeriesWriter` (and :func:`write_series`): the same in a temporary work directory;
+  on ``close`` the HDF5 file(s) and then the XML appear under their final names, complete.
 """
 
 from __future__ import annotations
 
 import contextlib
+import io
 import os
+import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import OutputWriteError
-from .atomic import atomic_path, atomic_write_text, fsync_dir, fsync_file, temporary_name
+from .atomic import TMP_PREFIX, atomic_path, atomic_write_bytes, atomic_write_text
 
 TOPOLOGY = {3: "Triangle", 4: "Tetrahedron"}  # by nodes per cell
 XINCLUDE = "http://www.w3.org/2001/XInclude"
@@ -73,8 +81,8 @@ def _check_fields(fields: dict, n_nodes: int) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _h5_error(path, exc: BaseException) -> OutputWriteError:
-    return OutputWriteError(path, exc if isinstance(exc, OSError) else OSError(None, str(exc)))
+MAX_SEGMENT_BYTES = 256 * 2**20
+MAX_MERGED_BYTES = 1024 * 2**20
 
 
 def _item(parent, h5_name: str, dataset: str, shape, dtype):
@@ -87,10 +95,11 @@ def _item(parent, h5_name: str, dataset: str, shape, dtype):
 
 
 def xdmf_text(h5_name: str, nodes_shape, cells_shape, steps) -> str:
-    """The XML of a series whose heavy data are all in ``h5_name``.
+    """The XML of a series whose mesh is in ``h5_name``.
 
-    ``steps``: list of dicts with ``time``, ``info`` (name -> float) and ``fields``
-    (name -> shape); field f of step k is the dataset ``f/k``.
+    ``steps``: list of dicts with ``time``, ``info`` (name -> float), ``fields``
+    (name -> shape) and optionally ``h5`` (the file of the step's data, default ``h5_name``);
+    field f of step k is the dataset ``f/k``.
     """
     root = ET.Element("Xdmf", Version="3.0")
     domain = ET.SubElement(root, "Domain")
@@ -115,9 +124,183 @@ def xdmf_text(h5_name: str, nodes_shape, cells_shape, steps) -> str:
             att = ET.SubElement(g, "Attribute", Name=name,
                                 AttributeType="Scalar" if len(shape) == 1 else "Vector",
                                 Center="Node")
-            _item(att, h5_name, f"{name}/{k}", shape, float)
+            _item(att, step.get("h5", h5_name), f"{name}/{k}", shape, float)
     ET.indent(root)
     return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+class _MemoryH5:
+    """An HDF5 file built in memory; ``bytes()`` closes it and returns its content."""
+
+    def __init__(self):
+        import h5py
+
+        self._bio = io.BytesIO()
+        self.file = h5py.File(self._bio, "w")
+        self.nbytes = 0
+
+    def put(self, name: str, data: np.ndarray) -> None:
+        self.file.create_dataset(name, data=data)
+        self.nbytes += data.nbytes
+
+    def bytes(self) -> bytes:
+        self.file.close()
+        return self._bio.getvalue()
+
+    def discard(self) -> None:
+        with contextlib.suppress(Exception):
+            self.file.close()
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    """``dst`` becomes a complete copy of the (never modified) file ``src``, atomically: a hard
+    link when the file system allows one (no data copied), else a copy."""
+    with atomic_path(dst) as tmp:
+        try:
+            os.link(src, tmp)
+        except OSError:
+            shutil.copyfile(src, tmp)
+
+
+class StreamedSeries:
+    """An XDMF series collected in HDF5 segments; checkpointable (see the module docstring).
+
+    ``work_dir``: where the segments ``<name>.seg<k>.h5`` are written (e.g.
+    ``OUT/checkpoint/stream``); ``export(directory)`` writes ``directory/<name>.xdmf`` and its
+    HDF5 file(s).
+    """
+
+    def __init__(self, work_dir, name: str, nodes, cells,
+                 max_segment_bytes: int = MAX_SEGMENT_BYTES):
+        self.work_dir = Path(work_dir)
+        self.name = name
+        self.nodes, self.cells = _check_mesh(nodes, cells)
+        self.n_nodes = self.nodes.shape[0]
+        self.max_segment_bytes = int(max_segment_bytes)
+        self.steps: list[dict] = []  # time, info, fields (name -> shape), segment index
+        self.segments: list[str] = []  # segment files written (complete) in work_dir
+        self._open: _MemoryH5 | None = None
+        self._pending: bytes | None = None  # a closed segment whose write failed
+
+    def _segment_path(self, k: int) -> Path:
+        return self.work_dir / f"{self.name}.seg{k:05d}.h5"
+
+    def write_step(self, time: float, fields: dict, info: dict | None = None) -> None:
+        arrays = _check_fields(fields, self.n_nodes)
+        k = len(self.steps)
+        if self._open is None:
+            self._flush_pending()
+            self._open = _MemoryH5()
+            if not self.segments:  # the first segment carries the mesh
+                self._open.put("mesh/geometry", self.nodes)
+                self._open.put("mesh/topology", self.cells)
+        for name, values in arrays.items():
+            self._open.put(f"{name}/{k}", values)
+        self.steps.append({"time": float(time), "info": dict(info or {}),
+                           "fields": {n: list(v.shape) for n, v in arrays.items()},
+                           "segment": len(self.segments)})
+        if self._open.nbytes >= self.max_segment_bytes:
+            self._close_segment()
+
+    def _close_segment(self) -> None:
+        """Write the segment in memory to its file (atomically)."""
+        seg, self._open = self._open, None
+        if seg is not None:
+            self._pending = seg.bytes()
+        self._flush_pending()
+
+    def _flush_pending(self) -> None:
+        if self._pending is None:
+            return
+        self.work_dir.mkdir(parents=True, exist_ok=True)
+        path = self._segment_path(len(self.segments))
+        atomic_write_bytes(path, self._pending)  # OutputWriteError: kept, retried next time
+        self._pending = None
+        self.segments.append(path.name)
+
+    # -- checkpoint protocol ------------------------------------------------------------------
+    def checkpoint_state(self) -> dict:
+        """Write the open segment (the checkpoint must not refer to memory) and record the
+        steps so far."""
+        self._close_segment()
+        return {"segments": list(self.segments), "steps": [dict(s) for s in self.steps]}
+
+    def restore_state(self, data: dict) -> None:
+        if self._open is not None:
+            self._open.discard()
+            self._open = None
+        self._pending = None
+        self.segments = list(data["segments"])
+        self.steps = [dict(s) for s in data["steps"]]
+        for s in self.steps:
+            s["fields"] = {k: list(v) for k, v in s["fields"].items()}
+        keep = set(self.segments)
+        for p in self.work_dir.glob(f"{self.name}.seg*.h5"):  # written after that checkpoint
+            if p.name not in keep:
+                with contextlib.suppress(OSError):
+                    p.unlink()
+        missing = [s for s in self.segments if not (self.work_dir / s).is_file()]
+        if missing:
+            from .checkpoint import CheckpointError
+
+            raise CheckpointError(f"{self.work_dir}: the streamed output segment {missing[0]} "
+                                  "of the checkpoint is missing")
+
+    # -- export -------------------------------------------------------------------------------
+    def _data_bytes(self) -> int:
+        return sum(int(np.prod(shape)) * 8 for s in self.steps for shape in s["fields"].values())
+
+    def export(self, directory) -> Path:
+        """``directory/<name>.xdmf`` + its HDF5 file(s) with every step so far (atomically:
+        the HDF5 files first, the XML last)."""
+        import h5py
+
+        self._close_segment()
+        directory = Path(directory)
+        main = f"{self.name}.h5"
+        steps = [{"time": s["time"], "info": s["info"],
+                  "fields": {n: tuple(v) for n, v in s["fields"].items()}} for s in self.steps]
+        if len(self.segments) == 1:
+            _link_or_copy(self.work_dir / self.segments[0], directory / main)
+        elif len(self.segments) > 1 and self._data_bytes() <= MAX_MERGED_BYTES:
+            merged = _MemoryH5()
+            try:
+                merged.put("mesh/geometry", self.nodes)
+                merged.put("mesh/topology", self.cells)
+                for index, seg in enumerate(self.segments):
+                    with h5py.File(self.work_dir / seg, "r") as src:
+                        for k, s in enumerate(self.steps):
+                            if s["segment"] == index:
+                                for field in s["fields"]:
+                                    merged.put(f"{field}/{k}", src[f"{field}/{k}"][()])
+                data = merged.bytes()
+            except BaseException:
+                merged.discard()
+                raise
+            atomic_write_bytes(directory / main, data)
+        elif self.segments:  # too large to merge in memory: one file per segment
+            for index, seg in enumerate(self.segments):
+                name = main if index == 0 else f"{self.name}.{index}.h5"
+                _link_or_copy(self.work_dir / seg, directory / name)
+            for s, out in zip(self.steps, steps, strict=True):
+                out["h5"] = main if s["segment"] == 0 else f"{self.name}.{s['segment']}.h5"
+        else:  # no steps: the mesh alone
+            mesh = _MemoryH5()
+            mesh.put("mesh/geometry", self.nodes)
+            mesh.put("mesh/topology", self.cells)
+            atomic_write_bytes(directory / main, mesh.bytes())
+        path = directory / f"{self.name}.xdmf"
+        atomic_write_text(path, xdmf_text(main, self.nodes.shape, self.cells.shape, steps))
+        return path
+
+    def discard(self) -> None:
+        """Remove the segments (after the results were committed)."""
+        if self._open is not None:
+            self._open.discard()
+            self._open = None
+        for seg in self.segments:
+            with contextlib.suppress(OSError):
+                (self.work_dir / seg).unlink()
 
 
 class XdmfSeriesWriter:
@@ -128,63 +311,46 @@ class XdmfSeriesWriter:
     """
 
     def __init__(self, path, nodes, cells):
-        import h5py
+        import secrets
 
         self.path = Path(path).with_suffix(".xdmf")
         self.h5_path = self.path.with_suffix(".h5")
         nodes, cells = _check_mesh(nodes, cells)
         self.n_nodes = nodes.shape[0]
-        self._shapes = (nodes.shape, cells.shape)
-        self.steps: list[dict] = []
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = temporary_name(self.h5_path)
-        try:
-            self._h5 = h5py.File(self._tmp, "w")
-            self._h5.create_dataset("mesh/geometry", data=nodes)
-            self._h5.create_dataset("mesh/topology", data=cells)
-        except Exception as exc:
-            self._discard()
-            raise _h5_error(self.h5_path, exc) from exc
+        self._work = self.path.parent / (f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-"
+                                         f"{self.path.stem}.parts")
+        self._series = StreamedSeries(self._work, self.path.stem, nodes, cells)
+
+    @property
+    def steps(self) -> list[dict]:
+        return self._series.steps
 
     def write_step(self, time: float, fields: dict[str, np.ndarray], info: dict | None = None):
         """Append one step: ``fields`` maps names to nodal arrays (n_nodes,) or (n_nodes, 3)."""
-        arrays = _check_fields(fields, self.n_nodes)
-        k = len(self.steps)
         try:
-            for name, values in arrays.items():
-                self._h5.create_dataset(f"{name}/{k}", data=values)
-        except Exception as exc:
-            self._discard()
-            raise _h5_error(self.h5_path, exc) from exc
-        self.steps.append({"time": float(time), "info": dict(info or {}),
-                           "fields": {n: v.shape for n, v in arrays.items()}})
-
-    def _discard(self) -> None:
-        h5, self._h5 = getattr(self, "_h5", None), None
-        if h5 is not None:
-            with contextlib.suppress(Exception):
-                h5.close()
-        with contextlib.suppress(OSError):
-            os.unlink(self._tmp)
+            self._series.write_step(time, fields, info)
+        except OutputWriteError as exc:
+            raise OutputWriteError(self.h5_path, OSError(exc.errno, exc.strerror)) from None
 
     def close(self):
-        """Rename the HDF5 file into place, then write the XML (both atomically)."""
-        if self._h5 is None:
+        """Write the HDF5 file(s), then the XML, under their final names."""
+        if self._series is None:
             return
         try:
-            self._h5.close()
-            self._h5 = None
-            fsync_file(self._tmp)
-        except Exception as exc:
-            self._discard()
-            raise _h5_error(self.h5_path, exc) from exc
-        os.replace(self._tmp, self.h5_path)
-        fsync_dir(self.path.parent)
-        atomic_write_text(self.path, xdmf_text(self.h5_path.name, *self._shapes, self.steps))
+            self._series.export(self.path.parent)
+        except OutputWriteError as exc:  # name the file the user asked for, not a segment
+            target = self.path if str(exc.filename).endswith(".xdmf") else self.h5_path
+            raise OutputWriteError(target, OSError(exc.errno, exc.strerror)) from None
+        finally:
+            self.abort()
 
     def abort(self):
-        """Forget everything written (the files at the target are left as they were)."""
-        self._discard()
+        """Forget everything written (files at the target are left as they were)."""
+        if self._series is not None:
+            self._series.discard()
+            self._series = None
+        shutil.rmtree(self._work, ignore_errors=True)
 
     def __enter__(self):
         return self
@@ -206,123 +372,6 @@ def write_series(path, nodes, cells, times, fields: dict[str, np.ndarray],
             w.write_step(time, {name: np.asarray(v)[k] for name, v in fields.items()},
                          {key: np.asarray(v)[k] for key, v in (info or {}).items()})
     return w.path
-
-
-class StreamedSeries:
-    """An XDMF series streamed into HDF5 segments during a run; checkpointable (module doc).
-
-    ``work_dir``: where the segments ``<name>.seg<k>.h5`` live (e.g. ``OUT/checkpoint/stream``);
-    ``export(directory)`` writes ``directory/<name>.xdmf`` and ``<name>.h5``.
-    """
-
-    def __init__(self, work_dir, name: str, nodes, cells):
-        self.work_dir = Path(work_dir)
-        self.name = name
-        self.nodes, self.cells = _check_mesh(nodes, cells)
-        self.n_nodes = self.nodes.shape[0]
-        self.steps: list[dict] = []  # time, info, fields (name -> shape), segment
-        self.segments: list[str] = []
-        self._h5 = None
-        self.work_dir.mkdir(parents=True, exist_ok=True)
-
-    def _segment_path(self, k: int) -> Path:
-        return self.work_dir / f"{self.name}.seg{k:05d}.h5"
-
-    def write_step(self, time: float, fields: dict, info: dict | None = None) -> None:
-        import h5py
-
-        arrays = _check_fields(fields, self.n_nodes)
-        k = len(self.steps)
-        path = self._segment_path(len(self.segments))
-        try:
-            if self._h5 is None:
-                self._h5 = h5py.File(path, "w")
-                self.segments.append(path.name)
-            for name, values in arrays.items():
-                self._h5.create_dataset(f"{name}/{k}", data=values)
-        except Exception as exc:
-            self._close_segment(quiet=True)
-            raise _h5_error(path, exc) from exc
-        self.steps.append({"time": float(time), "info": dict(info or {}),
-                           "fields": {n: list(v.shape) for n, v in arrays.items()},
-                           "segment": len(self.segments) - 1})
-
-    def _close_segment(self, quiet: bool = False) -> None:
-        h5, self._h5 = self._h5, None
-        if h5 is None:
-            return
-        try:
-            path = h5.filename
-            h5.close()
-            fsync_file(path)
-        except Exception as exc:
-            if not quiet:
-                raise _h5_error(self.work_dir, exc) from exc
-
-    # -- checkpoint protocol ------------------------------------------------------------------
-    def checkpoint_state(self) -> dict:
-        """Close the open segment (complete on disk) and record the steps written so far."""
-        self._close_segment()
-        return {"segments": list(self.segments), "steps": [dict(s) for s in self.steps]}
-
-    def restore_state(self, data: dict) -> None:
-        self._close_segment(quiet=True)
-        self.segments = list(data["segments"])
-        self.steps = [dict(s) for s in data["steps"]]
-        for s in self.steps:
-            s["fields"] = {k: list(v) for k, v in s["fields"].items()}
-        keep = set(self.segments)
-        for p in self.work_dir.glob(f"{self.name}.seg*.h5"):  # written after that checkpoint
-            if p.name not in keep:
-                with contextlib.suppress(OSError):
-                    p.unlink()
-        missing = [s for s in self.segments if not (self.work_dir / s).is_file()]
-        if missing:
-            from .checkpoint import CheckpointError
-
-            raise CheckpointError(f"{self.work_dir}: the streamed output segment {missing[0]} "
-                                  "of the checkpoint is missing")
-
-    # -- export -------------------------------------------------------------------------------
-    def export(self, directory) -> Path:
-        """``directory/<name>.xdmf`` + ``<name>.h5`` with every step so far (atomically)."""
-        import h5py
-
-        self._close_segment()
-        directory = Path(directory)
-        h5_path = directory / f"{self.name}.h5"
-        with atomic_path(h5_path) as tmp:
-            try:
-                with h5py.File(tmp, "w") as dst:
-                    dst.create_dataset("mesh/geometry", data=self.nodes)
-                    dst.create_dataset("mesh/topology", data=self.cells)
-                    for seg_index, seg in enumerate(self.segments):
-                        names = [(k, s) for k, s in enumerate(self.steps)
-                                 if s["segment"] == seg_index]
-                        if not names:
-                            continue
-                        with h5py.File(self.work_dir / seg, "r") as src:
-                            for k, s in names:
-                                for field in s["fields"]:
-                                    dst.create_dataset(f"{field}/{k}",
-                                                       data=src[f"{field}/{k}"][()])
-            except OSError:
-                raise
-            except Exception as exc:
-                raise _h5_error(h5_path, exc) from exc
-        steps = [{"time": s["time"], "info": s["info"],
-                  "fields": {n: tuple(v) for n, v in s["fields"].items()}} for s in self.steps]
-        path = directory / f"{self.name}.xdmf"
-        atomic_write_text(path, xdmf_text(h5_path.name, self.nodes.shape, self.cells.shape,
-                                          steps))
-        return path
-
-    def discard(self) -> None:
-        """Remove the segments (after the results were committed)."""
-        self._close_segment(quiet=True)
-        for seg in self.segments:
-            with contextlib.suppress(OSError):
-                (self.work_dir / seg).unlink()
 
 
 def read_series(path):

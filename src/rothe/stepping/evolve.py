@@ -122,8 +122,8 @@ class _Loop:
         info = self.where(self.state)
         info.update(where or {})
         try:
-            return self.checkpointer.save(self.stepper, self.controller, self.state,
-                                          status=status, where=info)
+            return self.checkpointer.save_or_warn(self.stepper, self.controller, self.state,
+                                                  status=status, where=info)
         except Exception:
             if quiet:  # the failure being reported matters more than its checkpoint
                 return None

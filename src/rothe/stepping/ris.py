@@ -375,11 +375,12 @@ def run_ris(
         if cp is not None:
             cp.register(traj)
             if restored is None:
-                cp.save(stepper, controller, state, where=_where(traj, state))
+                cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
         state = _evolve_ris(problem, stepper, controller, traj, state, tau_min=tau_min,
                             progress=progress, checkpointer=cp)
         if cp is not None:
-            cp.save(stepper, controller, state, status="completed", where=_where(traj, state))
+            cp.save_or_warn(stepper, controller, state, status="completed",
+                            where=_where(traj, state))
     return traj
 
 
@@ -446,7 +447,7 @@ def run_nested(
                 state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
                 if cp is not None:
                     cp.register(traj)
-                    cp.save(stepper, controller, state, where=_where(traj, state))
+                    cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
             try:
                 state = _evolve_ris(problem, stepper, controller, traj, state, tau_min=tau_min,
                                     progress=progress, checkpointer=cp)
@@ -458,7 +459,7 @@ def run_nested(
         if cp is not None:
             cp.context = {"nested_index": len(tols)}
             last = runs[-1]
-            cp.save(status="completed", where={"accepted_steps": last.stats.accepted_steps,
+            cp.save_or_warn(status="completed", where={"accepted_steps": last.stats.accepted_steps,
                                                "s": float(last["s"][-1]),
                                                "t": float(last["t"][-1])})
     return runs
