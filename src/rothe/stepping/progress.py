@@ -108,20 +108,21 @@ class Progress:
     def update(self, state, stats) -> None:
         if not self.o.enabled:
             return
-        fields = dict(self.stepper.progress_fields(state))
-        pos = _position(self.stepper, state)
         if self.bar is not None:
+            pos = _position(self.stepper, state)
             if pos is not None:
                 self.bar.update(pos[1] - self.bar.n)
             else:
                 self.bar.update(1)
+            fields = dict(self.stepper.progress_fields(state))
             fields.update(acc=stats.accepted_steps, rej=stats.rejected_steps)
             self.bar.set_postfix(fields, refresh=False)
             return
         now = time.monotonic()
-        if now - self.last_line >= self.o.every_seconds:
+        if now - self.last_line >= self.o.every_seconds:  # only then format anything
             self.last_line = now
-            self._line(state, stats, pos, fields, now)
+            self._line(state, stats, _position(self.stepper, state),
+                       dict(self.stepper.progress_fields(state)), now)
 
     def _line(self, state, stats, pos, fields, now, prefix="rothe: ") -> None:
         elapsed = now - self.t0
