@@ -122,7 +122,7 @@ def test_checkpoint_file_format_needs_no_pickle_and_segments_are_incremental(tmp
     p = example_7_1()
     traj = run_ris(p, "adaptive", tol=1e-2, checkpoint=CheckpointOptions(tmp_path, 1e-9))
     with np.load(tmp_path / MAIN, allow_pickle=False) as f:
-        header = json.loads(str(f["__checkpoint__"]))
+        header = json.loads(f["__checkpoint__"].tobytes().decode())
     assert header["format"] == "rothe-checkpoint" and header["format_version"] == 1
     assert header["api"] == "run_ris" and header["arguments"]["tol"] == 1e-2
     assert header["status"] == "completed"
@@ -159,9 +159,9 @@ def test_resume_refuses_another_problem_other_arguments_and_another_api(tmp_path
 def _rewrite_header(d, **changes):
     with np.load(d / MAIN, allow_pickle=False) as f:
         data = {k: f[k] for k in f.files}
-    header = json.loads(str(data["__checkpoint__"]))
+    header = json.loads(data["__checkpoint__"].tobytes().decode())
     header.update(changes)
-    data["__checkpoint__"] = np.asarray(json.dumps(header))
+    data["__checkpoint__"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
     np.savez(d / MAIN, **data)
 
 

@@ -92,9 +92,10 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
     ckpt = d / "checkpoint" / MAIN
     with np.load(ckpt, allow_pickle=False) as f:
         data = {k: f[k] for k in f.files}
-    header = json.loads(str(data["__checkpoint__"]))
+    header = json.loads(data["__checkpoint__"].tobytes().decode())
     header["rothe_version"] = "0.0.1"
-    np.savez(ckpt, **{**data, "__checkpoint__": np.asarray(json.dumps(header))})
+    data["__checkpoint__"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    np.savez(ckpt, **data)
     refused(["resume", d], r"written by rothe 0\.0\.1, this is rothe \S+; resume it with "
                            r"rothe 0\.0\.1 or start over")
     raw = ckpt.read_bytes()
@@ -102,6 +103,36 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
     refused(["resume", d], r"checkpoint\.npz: not a readable checkpoint \(truncated or damaged")
     before = {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()}
     assert {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()} == before
+
+
+def test_stopped_before_the_first_accepted_step(tmp_path, capsys, monkeypatch):
+    """A signal during set-up (e.g. Ctrl-C during the first, long step of a big run, whose
+    attempt is then rejected): a summary with 0 steps, a checkpoint, resumable."""
+    original = RISStepper.finished
+    sent = []
+
+    def finished(self, state):
+        if not sent:
+            sent.append(os.kill(os.getpid(), signal.SIGINT))
+        return original(self, state)
+
+    monkeypatch.setattr(RISStepper, "finished", finished)
+    d = tmp_path / "run"
+    assert _run(RIS2D + ["--out", d], capsys)[0] == 130
+    s = _summary(d)
+    assert s["status"] == "interrupted" and s["accepted_steps"] == 0 and s["max_residual"] == 0
+    monkeypatch.setattr(RISStepper, "finished", original)
+    assert _run(["resume", d, "--quiet"], capsys)[0] == 0
+    assert _summary(d)["status"] == "completed"
+
+
+def test_resume_refuses_a_checkpoint_written_from_python(tmp_path, capsys):
+    from rothe import run_ris
+    from rothe.problems.ris_1d import example_7_1
+
+    run_ris(example_7_1(), "adaptive", tol=1e-2, checkpoint=tmp_path / "c")
+    code, _, err = _run(["resume", tmp_path / "c"], capsys)
+    assert code == 2 and "written by run_ris() from Python, not by a rothe command" in err
 
 
 def test_resume_refuses_a_changed_mesh_file(tmp_path, capsys, signal_at_attempt):

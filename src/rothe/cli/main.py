@@ -77,7 +77,7 @@ class Resume:
         from ..io.checkpoint import CheckpointError, load_checkpoint
         from .session import _run_dir
 
-        ckpt = load_checkpoint(args.dir)
+        ckpt = load_checkpoint(args.dir, header_only=True)
         ckpt.require_resumable()
         argv = ckpt.record.get("argv")
         if not argv:

@@ -44,7 +44,8 @@ SUMMARY_KEYS = (
 def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
     """The summary.json fields of the foundation issue for one RIS trajectory."""
     st = traj.stats
-    I1, I2 = traj["I1"], traj["I2"]
+    # no step series before the first accepted step (a run stopped at once)
+    I1, I2 = (traj[k] if k in traj else np.zeros(0) for k in ("I1", "I2"))
     res = I1 + I2 if len(I1) else np.zeros(0)
     meta = traj.meta
     summary = {

@@ -174,7 +174,7 @@ class RunSession:
         if not (self.checkpoint_dir / MAIN).is_file():
             return
         try:
-            ckpt = load_checkpoint(self.checkpoint_dir, check_version=False)
+            ckpt = load_checkpoint(self.checkpoint_dir, check_version=False, header_only=True)
         except CheckpointError:
             return  # unreadable: nothing that could be resumed is lost by replacing it
         if ckpt.status in ("running", "interrupted") and not self.args.discard_checkpoint:
@@ -223,7 +223,8 @@ class RunSession:
     @property
     def run_id(self) -> str | None:
         try:
-            return load_checkpoint(self.checkpoint_dir, check_version=False).run_id
+            return load_checkpoint(self.checkpoint_dir, check_version=False,
+                                   header_only=True).run_id
         except CheckpointError:
             return None
 
@@ -233,7 +234,7 @@ class RunSession:
     def annotate(self, summary: dict, outcome: Outcome) -> dict:
         """status, where it stopped, checkpoint and resume hints, sessions and wall time."""
         try:
-            ckpt = load_checkpoint(self.checkpoint_dir, check_version=False)
+            ckpt = load_checkpoint(self.checkpoint_dir, check_version=False, header_only=True)
         except CheckpointError:
             ckpt = None
         summary["status"] = outcome.status

@@ -2,9 +2,10 @@
 
 A checkpoint directory (``<out>/checkpoint/`` for the command line) holds
 
-    checkpoint.npz      the current checkpoint: a JSON document (array ``__checkpoint__``) with
-                        the nested state, whose numpy arrays are stored beside it as ``a0``,
-                        ``a1``, ... and referenced from the JSON as ``{"__array__": "a7"}``
+    checkpoint.npz      the current checkpoint: a JSON document (``__checkpoint__``, its UTF-8
+                        bytes as a uint8 array) with the nested state, whose numpy arrays are
+                        stored beside it as ``a0``, ``a1``, ... and referenced from the JSON as
+                        ``{"__array__": "a7"}``
     traj<i>-<seq>.npz   the entries trajectory i gained since the previous checkpoint: append-only
                         segments, written once and referenced by every later checkpoint, so that
                         checkpointing a run of K steps costs O(K) in total, not O(K^2)
@@ -295,11 +296,13 @@ class Checkpoint:
         return traj
 
 
-def load_checkpoint(path, *, check_version: bool = True) -> Checkpoint:
+def load_checkpoint(path, *, check_version: bool = True, header_only: bool = False
+                    ) -> Checkpoint:
     """Read a checkpoint (``path`` is the checkpoint directory or a run directory holding one).
 
     Raises :class:`CheckpointError` with one line for a missing directory, a missing,
     truncated or foreign checkpoint file, or (``check_version``) another rothe version.
+    ``header_only``: skip the state's arrays (for status, where, run_id, record).
     """
     path = Path(path)
     if not path.exists():
@@ -315,8 +318,11 @@ def load_checkpoint(path, *, check_version: bool = True) -> Checkpoint:
         with np.load(main, allow_pickle=False) as data:
             if "__checkpoint__" not in data.files:
                 raise CheckpointError(f"{main}: not a rothe checkpoint (no __checkpoint__ entry)")
-            header = json.loads(str(data["__checkpoint__"]))
-            arrays = {k: data[k] for k in data.files if k != "__checkpoint__"}
+            raw = data["__checkpoint__"]
+            header = json.loads(raw.tobytes().decode("utf-8") if raw.dtype == np.uint8
+                                else str(raw))
+            arrays = {} if header_only else {k: data[k] for k in data.files
+                                              if k != "__checkpoint__"}
     except CheckpointError:
         raise
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
@@ -530,9 +536,9 @@ class Checkpointer:
             "trajectories": traj_records,
         }
         header["state"] = encode(payload, arrays)
-        text = json.dumps(header, allow_nan=True)
+        text = json.dumps(header, allow_nan=True).encode("utf-8")
         with atomic_path(self.directory / MAIN) as tmp:
-            np.savez(tmp, __checkpoint__=np.asarray(text), **arrays)
+            np.savez(tmp, __checkpoint__=np.frombuffer(text, dtype=np.uint8), **arrays)
         # only now are the new segments part of a checkpoint
         for i, seg in new_segments:
             self._segments[i].append(seg)
@@ -615,7 +621,11 @@ class RunCheckpointing:
         self.checkpointer = Checkpointer(checkpoint, api=api, arguments=arguments,
                                          fingerprint=fingerprint, restored=self.restored)
         if self.restored is not None:
-            self.checkpointer.restore_attachments(self.restored)
+            try:
+                self.checkpointer.restore_attachments(self.restored)
+            except BaseException:
+                self.close()
+                raise
 
     @property
     def resuming(self) -> bool:
