@@ -127,6 +127,7 @@ def test_checkpoint_file_format_needs_no_pickle_and_segments_are_incremental(tmp
     assert header["api"] == "run_ris" and header["arguments"]["tol"] == 1e-2
     assert header["status"] == "completed"
     assert {"A", "z0", "load", "F"} <= set(header["fingerprint"])
+    assert header["libraries"]["numpy"] == np.__version__
     segments = header["trajectories"][0]["segments"]
     assert len(segments) > 10  # one per checkpoint (one after every step here)
     # every entry is written once: the segment counts add up to the series lengths
@@ -163,6 +164,15 @@ def _rewrite_header(d, **changes):
     header.update(changes)
     data["__checkpoint__"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
     np.savez(d / MAIN, **data)
+
+
+def test_other_library_versions_are_a_warning(tmp_path):
+    from rothe.io.checkpoint import CheckpointWarning
+
+    d = _checkpoint(tmp_path)
+    _rewrite_header(d, libraries={"numpy": "1.0.0"})
+    with pytest.warns(CheckpointWarning, match=r"numpy 1\.0\.0 -> .*may differ .* last bits"):
+        run_ris(example_7_1(), "adaptive", tol=1e-3, resume=d)
 
 
 def test_resume_refuses_missing_truncated_foreign_and_other_version(tmp_path):

@@ -82,6 +82,20 @@ def package_version() -> str:
     return __version__
 
 
+def library_versions() -> dict:
+    """Versions of the libraries whose rounding a bit-for-bit continuation depends on."""
+    import scipy
+
+    out = {"numpy": np.__version__, "scipy": scipy.__version__}
+    try:
+        import pyamg
+
+        out["pyamg"] = pyamg.__version__
+    except ImportError:  # pragma: no cover - a dependency
+        pass
+    return out
+
+
 # -- encoding ---------------------------------------------------------------------------------
 
 def encode(obj, arrays: dict, where: str = "state"):
@@ -243,6 +257,14 @@ class Checkpoint:
         if theirs != mine:
             raise CheckpointError(f"{self.directory}: written by rothe {theirs}, this is rothe "
                                   f"{mine}; resume it with rothe {theirs} or start over")
+
+    def warn_if_libraries_differ(self) -> None:
+        old, new = self.header.get("libraries") or {}, library_versions()
+        diff = [f"{k} {old[k]} -> {new.get(k)}" for k in sorted(old) if old[k] != new.get(k)]
+        if diff:
+            warnings.warn(f"{self.directory}: written with other library versions "
+                          f"({', '.join(diff)}); the resumed run may differ from an "
+                          "uninterrupted one in the last bits", CheckpointWarning, stacklevel=3)
 
     def require_resumable(self) -> None:
         if self.status == "failed":
@@ -526,7 +548,8 @@ class Checkpointer:
         arrays: dict = {}
         header = {
             "format": FORMAT, "format_version": FORMAT_VERSION,
-            "rothe_version": package_version(), "run_id": self.run_id,
+            "rothe_version": package_version(), "libraries": library_versions(),
+            "run_id": self.run_id,
             "sequence": seq, "sessions": self.sessions,
             "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "status": status, "where": normalized(where or {}),
@@ -612,6 +635,7 @@ class RunCheckpointing:
             ckpt.require_version()
             ckpt.require_resumable()
             ckpt.require_same(api, arguments, fingerprint)
+            ckpt.warn_if_libraries_differ()
             self.restored = ckpt
             if checkpoint is None:
                 checkpoint = CheckpointOptions(ckpt.directory, every_seconds=ckpt.every_seconds,
