@@ -30,6 +30,47 @@ class RunFailed(RuntimeError):
         self.trajectory = trajectory
 
 
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped by SIGINT or SIGTERM between two steps (the step under way was finished).
+
+    A ``KeyboardInterrupt`` (not an ``Exception``): code that catches failures of single runs
+    (``except Exception``, ``except RunFailed``) lets it through, and the run stops. Carries the
+    trajectory computed so far (``trajectory``), where the run stopped (``where``: step, s, t),
+    the signal number (``signum``) and the checkpoint written (``checkpoint``, a directory, or
+    None when the run had no checkpoint); pass that directory as ``resume=`` to continue.
+    """
+
+    def __init__(self, message: str, *, signum: int, where: dict | None = None,
+                 trajectory=None, checkpoint=None, state=None):
+        super().__init__(message)
+        self.signum = int(signum)
+        self.where = dict(where or {})
+        self.trajectory = trajectory
+        self.checkpoint = checkpoint
+        self.state = state
+
+    @property
+    def exit_status(self) -> int:
+        """128 + signal number: 130 for SIGINT, 143 for SIGTERM (the shell's convention)."""
+        return 128 + self.signum
+
+
+class OutputWriteError(OSError):
+    """Writing an output file failed (disk full, read-only file system, permission).
+
+    The message names the file: ``cannot write run1/trajectory.npz: No space left on device``;
+    the previous version of the file, if any, is unchanged (outputs are written atomically).
+    """
+
+    def __init__(self, path, cause: BaseException):
+        errno_ = getattr(cause, "errno", None)
+        reason = getattr(cause, "strerror", None) or str(cause) or type(cause).__name__
+        super().__init__(errno_, reason, str(path))
+
+    def __str__(self) -> str:
+        return f"cannot write {self.filename}: {self.strerror}"
+
+
 class described(str):
     """A value given as a description (printed without quotes), e.g. 'matrix of shape (2, 2)'."""
 

@@ -29,15 +29,24 @@ def test_round_trip(tmp_path, mesh, monkeypatch):
     assert ("Triangle" if mesh.p.shape[0] == 2 else "Tetrahedron") in text
 
 
-def test_streaming_writer_and_shape_checks(tmp_path):
+def test_streaming_writer_is_atomic_and_checks_shapes(tmp_path):
     m = unit_square(2)
     with XdmfSeriesWriter(tmp_path / "a.xdmf", m.p.T, m.t.T) as w:
         w.write_step(0.0, {"z": np.zeros(9)})
-        w.flush()
-        assert read_series(tmp_path / "a.xdmf")[2].tolist() == [0.0]
-        w.write_step(0.5, {"z": np.ones(9)})
+        w.write_step(0.5, {"z": np.ones(9), "u": np.ones((9, 2))})
+        # nothing visible under the final names before close (a kill now leaves no pair)
+        assert not (tmp_path / "a.xdmf").exists() and not (tmp_path / "a.h5").exists()
         with pytest.raises(ValueError, match=r"z: got shape \(4,\), must be \(9,\)"):
             w.write_step(1.0, {"z": np.ones(4)})
-    assert read_series(tmp_path / "a.xdmf")[2].tolist() == [0.0, 0.5]
+    _, _, times, data = read_series(tmp_path / "a.xdmf")
+    assert times.tolist() == [0.0, 0.5] and data["u"].shape == (1, 9, 3)
+    assert sorted(os.listdir(tmp_path)) == ["a.h5", "a.xdmf"]  # no temporary left
+    # an error while writing leaves the earlier pair untouched and no temporary file
+    before = (tmp_path / "a.h5").read_bytes()
+    with pytest.raises(RuntimeError), XdmfSeriesWriter(tmp_path / "a.xdmf", m.p.T, m.t.T) as w:
+        w.write_step(0.0, {"z": np.full(9, 7.0)})
+        raise RuntimeError("the run failed")
+    assert (tmp_path / "a.h5").read_bytes() == before
+    assert sorted(os.listdir(tmp_path)) == ["a.h5", "a.xdmf"]
     with pytest.raises(ValueError, match="cells: got shape"):
         XdmfSeriesWriter(tmp_path / "b.xdmf", m.p.T, np.zeros((3, 5), int))

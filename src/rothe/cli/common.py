@@ -1,8 +1,10 @@
 """Options and output conventions shared by every command.
 
-Every ``run``/``compare``/``study`` takes ``--out DIR``, ``--no-plots`` and ``--quiet``; results go
-to ``rothe-out/<name>/`` by default: ``summary.json``, ``trajectory.npz`` and PNG figures (plus
-ParaView files where there is a mesh).
+Every ``run``/``compare``/``study`` takes ``--out DIR``, ``--no-plots``, ``--quiet`` and
+``--progress-every SECONDS``; results go to ``rothe-out/<name>/`` by default: ``summary.json``,
+``trajectory.npz`` and PNG figures (plus ParaView files where there is a mesh). Every file is
+written atomically (:mod:`rothe.io.atomic`); the ``run`` commands commit their files together
+(:mod:`rothe.cli.session`, :mod:`rothe.io.outputs`).
 """
 
 from __future__ import annotations
@@ -16,21 +18,30 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import fail
-
 
 def add_output_options(parser, name: str) -> None:
     parser.add_argument("--out", default=None, help=f"output directory (default rothe-out/{name})")
     parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    parser.add_argument("--progress-every", type=parse_float("--progress-every"), default=30.0,
+                        metavar="SECONDS",
+                        help="when stderr is not a terminal (a log): one progress line every "
+                             "SECONDS (default 30); on a terminal a progress bar")
 
 
 def output_dir(args, name: str) -> Path:
+    """The output directory, created and checked for writability (errors name --out)."""
+    from ..io.atomic import check_writable
+
     out = Path(args.out) if args.out else Path("rothe-out") / name
-    if out.exists() and not out.is_dir():
-        raise fail("--out", str(out), "must be a directory (a file of that name exists)")
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    return check_writable(out, "--out")
+
+
+def progress_of(args):
+    """The progress options of a command (``--quiet``, ``--progress-every``)."""
+    from .session import progress_options
+
+    return progress_options(args)
 
 
 def parse_float(name: str):
@@ -81,9 +92,25 @@ def _jsonable(value):
 
 
 def write_summary(out: Path, summary: dict) -> Path:
-    path = Path(out) / "summary.json"
-    path.write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    """Write ``out/summary.json`` atomically. In a run's staging directory (see
+    :mod:`rothe.io.outputs`) the summary also lists the files of the result (``files``)."""
+    from ..io.atomic import TMP_PREFIX, atomic_write_text
+
+    out = Path(out)
+    if out.name.startswith(TMP_PREFIX):
+        names = sorted(p.name for p in out.iterdir() if p.is_file()
+                       and not p.name.startswith("."))
+        summary = dict(summary, files=sorted(set(names) | {"summary.json"}))
+    path = out / "summary.json"
+    atomic_write_text(path, json.dumps(_jsonable(summary), indent=2) + "\n")
     return path
+
+
+def write_table(out: Path, text: str, name: str = "table.txt") -> Path:
+    """Write a table (text) atomically."""
+    from ..io.atomic import atomic_write_text
+
+    return atomic_write_text(Path(out) / name, text)
 
 
 def print_summary(summary: dict, keys) -> None:

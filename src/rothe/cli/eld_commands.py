@@ -5,16 +5,22 @@ Outputs follow the foundation layout: ``summary.json``, ``trajectory.npz`` (runs
 the kept u, v, a, lambda and the dof layout, see :mod:`rothe.io.eld_output`), a table (studies),
 PNG figures unless ``--no-plots``, and for every run XDMF for ParaView (u, v, Cauchy and von
 Mises stresses, lambda). Bad input is one line and exit status 2 (raised as RotheInputError by
-the library where the value enters, e.g. tau >= rho/d0 by the stepper before the first step); a
-run that fails midway (a failed solve, a non-finite state or datum) writes what it has with
-``status: failed`` and exits 1.
+the library where the value enters, e.g. tau >= rho/d0 by the stepper before the first step).
+The run commands are sessions (:mod:`rothe.cli.session`): checkpoints in ``OUT/checkpoint``
+(``--checkpoint-every``, ``--resume``, ``rothe resume OUT``), results staged and committed
+together with ``summary.json`` last; a run that fails midway (a failed solve, a non-finite state
+or datum) writes what it has with ``status: failed`` and exits 1, a run stopped by SIGINT /
+SIGTERM with ``status: interrupted`` and exits 130 / 143.
 """
 
 from __future__ import annotations
 
+import shutil
+import sys
+
 import numpy as np
 
-from ..errors import RunFailed, check_choice, check_int, check_positive, described, fail
+from ..errors import check_choice, check_int, check_positive, described, fail
 from .common import (
     add_output_options,
     output_dir,
@@ -22,9 +28,12 @@ from .common import (
     parse_float_list,
     peak_memory_mb,
     print_summary,
+    progress_of,
     write_summary,
+    write_table,
 )
 from .registry import command
+from .session import RunSession, add_run_options
 
 FORMS = ("regularized", "original")
 SCHEMES = ("euler", "bdf2")
@@ -133,19 +142,32 @@ def energy_summary(traj) -> dict:
     }
 
 
-def _write_run(args, out, name, traj, summary, label, keys, problem, xdmf: bool = True) -> None:
-    """What every ELD run writes: trajectory.npz (with the mesh), XDMF of the kept states
-    (unless streamed already), the energy and reaction figures, summary.json, and (unless
-    --quiet) the summary and the energy balance on stdout."""
+def _write_run(args, out, name, traj, summary, label, problem, xdmf: bool = True,
+               plots: bool = True) -> None:
+    """What every ELD run writes into ``out`` (its staging directory): trajectory.npz (with the
+    mesh), XDMF of the kept states (unless streamed already), the energy and reaction figures
+    (completed runs), summary.json last."""
     from ..io.eld_output import write_eld_result
 
-    write_eld_result(traj, problem, out, name=name.replace("eld-", ""), xdmf=xdmf,
-                     figures=not args.no_plots, title=label)
+    write_eld_result(traj, problem, out, name=name.replace("eld-", ""),
+                     xdmf=xdmf and "kept_t" in traj,
+                     figures=plots and not args.no_plots and "energy" in traj, title=label)
     write_summary(out, summary)
+
+
+def _print_run(args, results, name, summary, keys) -> None:
     if not args.quiet:
-        print(f"rothe run {name}: wrote {out}/")
+        print(f"rothe run {name}: wrote {results}/")
         print_summary(summary, keys)
         print(format_energy_balance(summary))
+
+
+def _already_completed(session) -> bool:
+    if session.already_completed:
+        print(f"rothe: {session.out}: the run already completed; its results are there",
+              file=sys.stderr)
+        return True
+    return False
 
 
 def format_energy_balance(e: dict) -> str:
@@ -214,21 +236,6 @@ def run_summary(traj, example: str) -> dict:
     return summary
 
 
-def _failed(out, traj, exc, example: str, extra: dict | None = None, problem=None) -> None:
-    if traj is None:
-        return
-    if problem is not None:
-        from ..io.eld_output import mesh_arrays
-
-        traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
-    else:
-        traj.save_npz(out / "trajectory.npz")
-    summary = run_summary(traj, example)
-    summary.update(extra or {})
-    summary.update(status="failed", failure=str(exc), where=exc.where)
-    write_summary(out, summary)
-
-
 MMS_KEYS = ("example", "form", "scheme", "control", "tau", "accepted_steps", "rejected_steps",
             "ndofs", "newton_per_step", "error_u_l2", "error_u_h1", "error_v_l2", "error_v_h1",
             "error_lam_l2", "error_lam_l2_max", "wall_time_s")
@@ -262,6 +269,7 @@ class RunEldMMS:
                                  "(inconsistent with G(0): refused, Remark 2.2)")
         _mms_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         from ..eld.examples import mms_errors, mms_problem
@@ -282,20 +290,30 @@ class RunEldMMS:
         problem, exact = mms_problem(n, args.degree, damping=damping, rho=args.rho, lam=args.lam,
                                      mu=args.mu, T=args.T, dirichlet=parts, start=args.start,
                                      load_quadrature=args.load_quadrature)
-        out = output_dir(args, self.name)
-        try:
-            traj = run_eld(problem, form, tau, scheme=scheme, control=control, tol=tol,
-                           steps=args.steps, data=args.data, lifting=args.lifting,
-                           keep_every=keep, progress=not args.quiet)
-        except RunFailed as exc:
-            _failed(out, exc.trajectory, exc, self.name, problem=problem)
-            raise
-        summary = run_summary(traj, self.name)
-        summary.update(n=n, degree=args.degree, dirichlet=list(parts))
-        summary.update(mms_errors(problem, exact, traj))
         label = f"eld-mms, {scheme}, {form}, " + (f"tol={tol:g}" if tol else f"tau={tau:g}")
-        _write_run(args, out, self.name, traj, summary, label, MMS_KEYS, problem)
-        return 0
+        session = RunSession(args, self.name)
+        with session:
+            if _already_completed(session):
+                return 0
+            outcome = session.run(lambda **kw: run_eld(
+                problem, form, tau, scheme=scheme, control=control, tol=tol, steps=args.steps,
+                data=args.data, lifting=args.lifting, keep_every=keep, **kw))
+            results = session.results_dir(outcome.status)
+            traj = outcome.result
+            completed = outcome.status == "completed"
+            if traj is not None:
+                with session.outputs(outcome.status) as stage:
+                    summary = run_summary(traj, self.name)
+                    summary.update(n=n, degree=args.degree, dirichlet=list(parts))
+                    if completed:
+                        summary.update(mms_errors(problem, exact, traj))
+                    session.annotate(summary, outcome)
+                    _write_run(args, stage, self.name, traj, summary, label, problem,
+                               plots=completed)
+            code = session.finish(outcome, results)
+        if completed:
+            _print_run(args, results, self.name, summary, MMS_KEYS)
+        return code
 
 
 @command("run", "eld-beam")
@@ -333,6 +351,7 @@ class RunEldBeam:
         _damping_options(parser, default_b=0.002)
         parser.set_defaults(damping="rayleigh")
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         from ..eld.examples import beam_problem
@@ -349,56 +368,79 @@ class RunEldBeam:
         problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,
                                damping=damping, amplitude=args.amplitude, t_move=args.t_move,
                                T=args.T, degree=args.degree)
-        out = output_dir(args, self.name)
-        writer = EldXdmfWriter(out, problem, name="beam")
-        writer.write(0.0, problem.u0, problem.v0, None)
-
-        def observer(state, result):
-            # n tau may round to just below T: the last step by a relative margin
-            if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
-                writer.write(state.t, state.u, state.v, result.lam)
-
-        try:
-            traj = run_eld(problem, form, tau, scheme=scheme, control=control, tol=tol,
-                           solver=args.solver, keep_every=keep, observer=observer,
-                           progress=not args.quiet, linear_rtol=1e-8)
-        except RunFailed as exc:
-            writer.close()
-            _failed(out, exc.trajectory, exc, self.name, problem=problem)
-            raise
-        writer.close()
-        summary = run_summary(traj, self.name)
-        summary.update(
-            n=n, degree=args.degree, length=args.length, E=args.E, nu=args.nu,
-            amplitude=args.amplitude, t_move=args.t_move,
-            seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
-            xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written,
-        )
-        R = traj["reaction_left"]
-        peak = np.max(np.abs(R), axis=0)
-        summary["reaction_left_max_abs"] = peak.tolist()
-        # the motion is purely in z and the beam symmetric: R_x, R_y vanish for the exact solution
-        sideways = (peak[:2] / peak[2]).tolist() if peak[2] > 0 else [0.0, 0.0]
-        summary["reaction_sideways_over_z"] = sideways
-        e = energy_summary(traj)
-        put_in = e["work_support"] + e["work_loads"]
-        summary["numerical_dissipation_fraction"] = (e["dissipated_numerical"] / put_in
-                                                     if put_in > 0 else None)
         label = f"eld-beam, {scheme}, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
-        _write_run(args, out, self.name, traj, summary, label,
-                   ("example", "form", "scheme", "tau", "accepted_steps", "ndofs",
-                    "linear_solver", "krylov_iterations", "seconds_per_step", "peak_memory_mb",
-                    "reaction_left_final", "reaction_left_max_abs", "wall_time_s"), problem,
-                   xdmf=False)
-        if not args.quiet:
-            print(f"numerical dissipation: {e['dissipated_numerical']:.4g} of the {put_in:.4g} "
-                  "put in by the support and the loads (physical damping "
-                  f"{e['dissipated_physical']:.4g})")
-            if max(sideways) > BEAM_SIDEWAYS_NOTE:
-                print(f"note: coarse mesh for the reactions: the sideways reactions are "
-                      f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of R_z, "
-                      "zero for the exact solution; use --degree 2 or a larger --n")
-        return 0
+        session = RunSession(args, self.name)
+        with session:
+            if _already_completed(session):
+                return 0
+            stream = session.checkpoint_dir / "stream"
+            if session.resume is None:  # segments of an earlier run are not this run's
+                shutil.rmtree(stream, ignore_errors=True)
+            writer = EldXdmfWriter(stream, problem, name="beam")
+            if session.resume is None:
+                writer.write(0.0, problem.u0, problem.v0, None)
+
+            def observer(state, result):
+                # n tau may round to just below T: the last step by a relative margin
+                if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
+                    writer.write(state.t, state.u, state.v, result.lam)
+
+            session.checkpoint.attachments = {"xdmf": writer}
+            outcome = session.run(lambda **kw: run_eld(
+                problem, form, tau, scheme=scheme, control=control, tol=tol,
+                solver=args.solver, keep_every=keep, observer=observer, linear_rtol=1e-8,
+                **kw))
+            results = session.results_dir(outcome.status)
+            traj = outcome.result
+            completed = outcome.status == "completed"
+            if traj is not None:
+                with session.outputs(outcome.status) as stage:
+                    writer.export(stage)
+                    summary = run_summary(traj, self.name)
+                    summary.update(
+                        n=n, degree=args.degree, length=args.length, E=args.E, nu=args.nu,
+                        amplitude=args.amplitude, t_move=args.t_move,
+                        seconds_per_step=traj.stats.wall_time_s
+                        / max(traj.stats.accepted_steps, 1),
+                        xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written,
+                    )
+                    e = None
+                    if traj.stats.accepted_steps:
+                        summary.update(_beam_reactions(traj))
+                        e = energy_summary(traj)
+                        put_in = e["work_support"] + e["work_loads"]
+                        summary["numerical_dissipation_fraction"] = (
+                            e["dissipated_numerical"] / put_in if put_in > 0 else None)
+                    session.annotate(summary, outcome)
+                    _write_run(args, stage, self.name, traj, summary, label, problem,
+                               xdmf=False, plots=completed)
+            code = session.finish(outcome, results)
+            if completed:
+                writer.discard()
+        if completed:
+            _print_run(args, results, self.name, summary,
+                       ("example", "form", "scheme", "tau", "accepted_steps", "ndofs",
+                        "linear_solver", "krylov_iterations", "seconds_per_step",
+                        "peak_memory_mb", "reaction_left_final", "reaction_left_max_abs",
+                        "wall_time_s"))
+            if not args.quiet and e is not None:
+                sideways = summary["reaction_sideways_over_z"]
+                print(f"numerical dissipation: {e['dissipated_numerical']:.4g} of the "
+                      f"{put_in:.4g} put in by the support and the loads (physical damping "
+                      f"{e['dissipated_physical']:.4g})")
+                if max(sideways) > BEAM_SIDEWAYS_NOTE:
+                    print(f"note: coarse mesh for the reactions: the sideways reactions are "
+                          f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of "
+                          "R_z, zero for the exact solution; use --degree 2 or a larger --n")
+        return code
+
+
+def _beam_reactions(traj) -> dict:
+    """The peak reactions at the held end and the sideways ones relative to R_z (the motion is
+    purely in z and the beam symmetric: R_x, R_y vanish for the exact solution)."""
+    peak = np.max(np.abs(traj["reaction_left"]), axis=0)
+    sideways = (peak[:2] / peak[2]).tolist() if peak[2] > 0 else [0.0, 0.0]
+    return {"reaction_left_max_abs": peak.tolist(), "reaction_sideways_over_z": sideways}
 
 
 @command("study", "eld-convergence")
@@ -430,9 +472,9 @@ class StudyEldConvergence:
                                   degree=args.degree, damping=damping, rho=args.rho,
                                   lam=args.lam, mu=args.mu, T=args.T, data=args.data,
                                   lifting=args.lifting, scheme=scheme,
-                                  progress=not args.quiet)
+                                  progress=progress_of(args))
         table = format_convergence_table(study)
-        (out / "table.txt").write_text(table + "\n")
+        write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
         write_summary(out, study)
         if not args.no_plots:
@@ -496,9 +538,9 @@ class StudyEldPerturbation:
         out = output_dir(args, self.name)
         study = perturbation_study(taus, delta=args.delta, targets=targets, n=n,
                                    degree=args.degree, damping=damping, seed=args.seed,
-                                   scheme=scheme, progress=not args.quiet)
+                                   scheme=scheme, progress=progress_of(args))
         table = format_perturbation_table(study)
-        (out / "table.txt").write_text(table + "\n")
+        write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
         write_summary(out, study)
         if not args.no_plots:

@@ -1,18 +1,23 @@
-"""The ``rothe`` command line: ``rothe run|compare|study <name> [options]``.
+"""The ``rothe`` command line: ``rothe run|compare|study <name> [options]``, ``rothe resume DIR``.
 
 Commands are registered by modules under :mod:`rothe.cli` with :func:`rothe.cli.registry.command`;
 each has ``configure(parser)`` and ``execute(args) -> int``. Errors a user can cause (bad values,
-unknown names, missing files) print one line ``rothe: error: ...`` and exit with status 2, no
-traceback; a run that fails midway (e.g. step size below tau_min) prints one line and exits with
-status 1 after writing what it computed.
+unknown names, missing files, a checkpoint that cannot be resumed, an ``--out`` that cannot be
+written) print one line ``rothe: error: ...`` and exit with status 2, no traceback; a run that
+fails midway (e.g. step size below tau_min) prints one line and exits with status 1 after writing
+what it computed; a run stopped by SIGINT / SIGTERM writes its results so far and a checkpoint and
+exits with 130 / 143; an output that cannot be written (e.g. a full disk) is one line naming the
+file, exit status 1, the earlier files unchanged.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import warnings
+from pathlib import Path
 
-from ..errors import RotheInputError, RunFailed
+from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
 from . import registry
 
 
@@ -30,7 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Time-first (Rothe) discretizations: adaptive BV paths of rate-independent "
         "systems and elastodynamics with constraints.",
     )
-    verbs = parser.add_subparsers(dest="verb", metavar="{run,compare,study}", parser_class=_Parser)
+    verbs = parser.add_subparsers(dest="verb", metavar="{run,compare,study,resume}",
+                                  parser_class=_Parser)
     verbs.required = True
     for verb, help_text in registry.VERBS.items():
         vp = verbs.add_parser(verb, help=help_text)
@@ -40,7 +46,58 @@ def build_parser() -> argparse.ArgumentParser:
             sub = names.add_parser(name, help=cmd.help, description=cmd.help)
             cmd.configure(sub)
             sub.set_defaults(_command=cmd)
+    rp = verbs.add_parser("resume", help=Resume.help, description=Resume.help)
+    Resume.configure(rp)
+    rp.set_defaults(_command=Resume())
     return parser
+
+
+class Resume:
+    """``rothe resume DIR``: re-run the command recorded in DIR's checkpoint, from it."""
+
+    help = ("continue an interrupted run from its checkpoint: re-runs the recorded command "
+            "line with --out DIR --resume DIR")
+
+    @staticmethod
+    def configure(parser) -> None:
+        from .common import parse_float
+
+        parser.add_argument("dir", metavar="DIR",
+                            help="the run's output directory (holding checkpoint/)")
+        parser.add_argument("--quiet", action="store_true", help="no progress and no summary")
+        parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
+        parser.add_argument("--checkpoint-every", type=parse_float("--checkpoint-every"),
+                            default=None, metavar="SECONDS",
+                            help="checkpoint interval (default: the recorded one)")
+        parser.add_argument("--progress-every", type=parse_float("--progress-every"),
+                            default=None, metavar="SECONDS",
+                            help="progress line interval in logs (default: the recorded one)")
+
+    def execute(self, args) -> int:
+        from ..io.checkpoint import CheckpointError, load_checkpoint
+        from .session import _run_dir
+
+        ckpt = load_checkpoint(args.dir, header_only=True)
+        ckpt.require_resumable()
+        argv = ckpt.record.get("argv")
+        if not argv:
+            raise CheckpointError(f"{args.dir}: the checkpoint was written by {ckpt.api}() from "
+                                  f"Python, not by a rothe command: resume it with "
+                                  f"{ckpt.api}(..., resume={str(args.dir)!r})")
+        run_dir = _run_dir(Path(args.dir))
+        new_argv = list(argv) + ["--out", str(run_dir), "--resume", str(run_dir)]
+        if args.quiet:
+            new_argv.append("--quiet")
+        if args.no_plots:
+            new_argv.append("--no-plots")
+        if args.checkpoint_every is not None:
+            new_argv.append(f"--checkpoint-every={args.checkpoint_every!r}")
+        if args.progress_every is not None:
+            new_argv.append(f"--progress-every={args.progress_every!r}")
+        if not args.quiet:
+            print(f"rothe: resuming 'rothe {' '.join(argv)}' in {run_dir} from its checkpoint "
+                  f"({ckpt.status}, {ckpt.describe_where()})", file=sys.stderr)
+        return _dispatch(build_parser(), new_argv)
 
 
 def _is_number(text: str) -> bool:
@@ -76,30 +133,48 @@ def _known(verb: str) -> str:
     return ", ".join(sorted(registry.commands(verb)))
 
 
+def _dispatch(parser, argv: list[str]) -> int:
+    # a clearer message than argparse's for an unknown example name
+    if len(argv) >= 2 and argv[0] in registry.VERBS and not argv[1].startswith("-"):
+        if argv[1] not in registry.commands(argv[0]):
+            raise RotheInputError(
+                f"{argv[0]}: got {argv[1]!r}, must be one of {_known(argv[0])}"
+            )
+    args = parser.parse_args(argv)
+    args._argv = list(argv)
+    return int(args._command.execute(args) or 0)
+
+
+def _one_line_warning(message, category, filename, lineno, line=None):
+    return f"rothe: warning: {message}\n"
+
+
 def main(argv=None) -> int:
     argv = _join_negative_values(list(sys.argv[1:] if argv is None else argv))
+    saved_format = warnings.formatwarning
+    warnings.formatwarning = _one_line_warning
     try:
-        parser = build_parser()
-        # a clearer message than argparse's for an unknown example name
-        if len(argv) >= 2 and argv[0] in registry.VERBS and not argv[1].startswith("-"):
-            if argv[1] not in registry.commands(argv[0]):
-                raise RotheInputError(
-                    f"{argv[0]}: got {argv[1]!r}, must be one of {_known(argv[0])}"
-                )
-        args = parser.parse_args(argv)
-        return int(args._command.execute(args) or 0)
+        return _dispatch(build_parser(), argv)
     except RotheInputError as exc:
         print(f"rothe: error: {exc}", file=sys.stderr)
         return 2
+    except OutputWriteError as exc:
+        print(f"rothe: error: {exc} (files written before are unchanged)", file=sys.stderr)
+        return 1
     except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
         print(f"rothe: error: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
         print(f"rothe: run failed: {exc}", file=sys.stderr)
         return 1
+    except RunInterrupted as exc:
+        print(f"rothe: {exc}", file=sys.stderr)
+        return exc.exit_status
     except KeyboardInterrupt:
         print("rothe: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.formatwarning = saved_format
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+import sys
 from abc import ABC, abstractmethod
 
 import numpy as np
 
 from ..control.controllers import CONTROLS
-from ..errors import RunFailed, check_choice, check_decreasing, check_positive, fail
+from ..errors import check_choice, check_decreasing, check_positive, fail
 from ..stepping.ris import run_nested, run_ris
 from .common import (
     add_output_options,
@@ -17,8 +18,10 @@ from .common import (
     parse_float_list,
     print_summary,
     write_summary,
+    write_table,
 )
 from .registry import command
+from .session import RunSession, add_run_options
 
 SUMMARY_KEYS = (
     "example",
@@ -41,7 +44,8 @@ SUMMARY_KEYS = (
 def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
     """The summary.json fields of the foundation issue for one RIS trajectory."""
     st = traj.stats
-    I1, I2 = traj["I1"], traj["I2"]
+    # no step series before the first accepted step (a run stopped at once)
+    I1, I2 = (traj[k] if k in traj else np.zeros(0) for k in ("I1", "I2"))
     res = I1 + I2 if len(I1) else np.zeros(0)
     meta = traj.meta
     summary = {
@@ -126,6 +130,7 @@ class RISRunBase(ABC):
         )
         self.add_example_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     # hooks -----------------------------------------------------------------------------------
     @abstractmethod
@@ -174,36 +179,48 @@ class RISRunBase(ABC):
     def execute(self, args) -> int:
         control, tol, tau, tau_min, tols = self.validate(args)
         problem = self.build_problem(args)
-        out = output_dir(args, self.name)
-        progress = not args.quiet
+        session = RunSession(args, self.name)
         common = dict(
             tau=tau,
             tau_min=tau_min,
             simpson_subintervals=args.simpson,
-            progress=progress,
             inner=self.inner_options(args),
             keep_every=args.keep_every,
         )
-        try:
+
+        def run(**kw):
             if control == "nested":
-                runs = run_nested(problem, tols, **common)
-            else:
-                runs = [
-                    run_ris(problem, control, tol=None if control == "uniform" else tol, **common)
-                ]
-        except RunFailed as exc:
-            traj = exc.trajectory
-            if traj is not None:
-                traj.save_npz(out / "trajectory.npz", extra=self.npz_extra(problem))
-                self.write_extra(args, problem, traj, out)
-                summary = ris_summary(traj, self.name, self.extra_summary(args, problem, traj))
-                summary.update(status="failed", failure=str(exc), where=exc.where)
-                summary.update(self.summary_at_end(args))
-                write_summary(out, summary)
-            raise
-        traj = runs[-1]
+                return run_nested(problem, tols, **common, **kw)
+            return [run_ris(problem, control, tol=None if control == "uniform" else tol,
+                            **common, **kw)]
+
+        with session:
+            if session.already_completed:
+                print(f"rothe: {session.out}: the run already completed; its results are there",
+                      file=sys.stderr)
+                return 0
+            outcome = session.run(run)
+            results = session.results_dir(outcome.status)
+            if outcome.status == "completed" or outcome.result is not None:
+                with session.outputs(outcome.status) as stage:
+                    summary = self.write_results(args, problem, outcome, stage, session,
+                                                 control, tols, tau)
+            code = session.finish(outcome, results)
+        if outcome.status == "completed" and not args.quiet:
+            print(f"rothe run {self.name}: wrote {results}/")
+            print_summary(summary, SUMMARY_KEYS + tuple(self.summary_keys_extra()))
+        return code
+
+    def write_results(self, args, problem, outcome, out, session, control, tols, tau) -> dict:
+        """Every output file of the run into ``out`` (the staging directory), summary last."""
+        if outcome.status == "completed":
+            runs = outcome.result
+            traj = runs[-1]
+        else:
+            traj = outcome.result
+            runs = [traj]
         summary = ris_summary(traj, self.name, self.extra_summary(args, problem, traj))
-        if control == "nested":
+        if control == "nested" and outcome.status == "completed":
             summary["control"] = "nested"
             summary["tols"] = tols
             summary["runs"] = [
@@ -214,14 +231,12 @@ class RISRunBase(ABC):
         summary["tau0"] = tau
         traj.save_npz(out / "trajectory.npz", extra=self.npz_extra(problem))
         self.write_extra(args, problem, traj, out)
-        if not args.no_plots:
+        if not args.no_plots and outcome.status == "completed":
             self.plot(args, problem, runs, out)
         summary.update(self.summary_at_end(args))
+        session.annotate(summary, outcome)
         write_summary(out, summary)
-        if not args.quiet:
-            print(f"rothe run {self.name}: wrote {out}/")
-            print_summary(summary, SUMMARY_KEYS + tuple(self.summary_keys_extra()))
-        return 0
+        return summary
 
     def summary_keys_extra(self):
         return ()
@@ -346,7 +361,7 @@ class CompareRIS1D:
         rows = compare_ris_1d(tols, taus)
         fit = uniform_work_at_error(rows)
         table = format_table(rows, fit)
-        (out / "table.txt").write_text(table + "\n")
+        write_table(out, table + "\n")
         write_summary(out, {"example": "ris-1d", "rows": rows})
         if not args.no_plots:
             from ..plotting.ris import plot_error_vs_work

@@ -20,7 +20,9 @@ from .common import (
     parse_float,
     parse_float_list,
     peak_memory_mb,
+    progress_of,
     write_summary,
+    write_table,
 )
 from .registry import command
 from .ris_commands import RISRunBase, ris_summary
@@ -276,10 +278,10 @@ class CompareRIS2D:
         out = output_dir(args, "compare-ris-2d")
         t0 = time.perf_counter()
         rows = compare_ris_2d(n, tols, taus, tau0, tuple(controls), mesh,
-                              progress=not args.quiet)
+                              progress=progress_of(args))
         fit = uniform_steps_at_residual(rows)
         table = format_table(rows, fit)
-        (out / "table.txt").write_text(table + "\n")
+        write_table(out, table + "\n")
         summary = {"example": "ris-2d", "n_nodes": rows[0]["n_nodes"], "rows": rows,
                    "wall_time_s": time.perf_counter() - t0, "peak_memory_mb": peak_memory_mb()}
         if fit is not None:

@@ -12,6 +12,11 @@ A failed inner solve is never accepted by any controller.
 Implemented (Andreia & Meyer 2022): ``uniform`` (fixed tau, the local stationary scheme),
 ``adaptive`` (Alg. 3.2), ``nested`` (Alg. 6.2 for one tolerance of a decreasing sequence, given the
 grids of the earlier runs), and ``order2`` (beyond the paper: uses I ~ C tau^2, Lemma 5.3).
+
+Checkpoints (:mod:`rothe.io.checkpoint`): ``checkpoint_state() -> dict`` returns everything that
+influences the controller's future decisions (the nominal step sigma and whatever history a
+controller keeps), ``restore_state(data)`` puts it back into a controller built with the same
+arguments. A controller that adds state extends both (``_extra_state`` / ``_restore_extra``).
 """
 
 from __future__ import annotations
@@ -64,6 +69,24 @@ class StepController(ABC):
     def _clamp(self, tau: float) -> float:
         return min(tau, self.tau_max)
 
+    # -- checkpoint protocol -------------------------------------------------------------------
+    def checkpoint_state(self) -> dict:
+        """The state that decides future steps: {"controller": name, "sigma": ..., ...}."""
+        return {"controller": self.name, "sigma": float(self.sigma), **self._extra_state()}
+
+    def restore_state(self, data: dict) -> None:
+        if data.get("controller") != self.name:
+            raise ValueError(f"restore_state: a {data.get('controller')!r} controller's state "
+                             f"given to a {self.name!r} controller")
+        self.sigma = float(data["sigma"])
+        self._restore_extra(data)
+
+    def _extra_state(self) -> dict:
+        return {}
+
+    def _restore_extra(self, data: dict) -> None:
+        return None
+
 
 class UniformController(StepController):
     """Fixed step tau (the scheme with uniform step of [17, 18] compared in Sec. 7).
@@ -88,6 +111,12 @@ class UniformController(StepController):
             return Decision(False, self._retry, f"inner solve failed ({result.code})")
         self._retry = None
         return Decision(True, self.tau0, "uniform")
+
+    def _extra_state(self) -> dict:
+        return {"retry": self._retry}
+
+    def _restore_extra(self, data: dict) -> None:
+        self._retry = None if data["retry"] is None else float(data["retry"])
 
 
 class AdaptiveController(StepController):
@@ -184,6 +213,12 @@ class Order2Controller(StepController):
             return Decision(True, self.sigma, "accepted")
         self.sigma = min(tau / 2, max(tau / 4, ideal))
         return Decision(False, self.sigma, f"max(I1, I2)={err:.3g} >= tol={self.tol:g}")
+
+    def _extra_state(self) -> dict:
+        return {"C_prev": float(self._C_prev)}
+
+    def _restore_extra(self, data: dict) -> None:
+        self._C_prev = float(data["C_prev"])
 
 
 def make_controller(

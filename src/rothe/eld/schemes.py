@@ -142,10 +142,11 @@ on the new mesh (recomputes the products and the energy, books the energy change
 ``transfer`` in the ledger, and keeps every other history term). Nothing else carries state.
 
 **Checkpoints.** :meth:`ELDStepper.checkpoint_state` returns a dict of arrays and plain values
-(the state with its products, the ledger, and the key of the stored factorization: the
-effective step and, for nonlinear damping, the velocity of the Jacobian it factors);
-:meth:`ELDStepper.restore_state` rebuilds the state and refactors from that key, so a resumed run
-continues bit for bit (direct solver, single-threaded BLAS).
+(the state with its products, the ledger, the error scale, the solver's counters and the key of
+the stored factorization: the effective step and, for nonlinear damping, the velocity of the
+Jacobian it factors); :meth:`ELDStepper.restore_state` rebuilds the state and refactors from
+that key, so a resumed run continues bit for bit (single-threaded BLAS). :func:`run_eld` and
+:func:`prepare_eld_run` take ``checkpoint=`` / ``resume=`` (:mod:`rothe.io.checkpoint`).
 
 Linear algebra: with linear damping and constant tau_eff the step matrix is factored once and
 every step is one back-substitution plus two sparse products (M x, K x; every other product is
@@ -176,13 +177,14 @@ from ..errors import (
     described,
     fail,
 )
+from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
 from ..stepping.evolve import evolve, single_threaded_blas
 from .constraint import LIFTINGS, make_lifting
 from .control import FixedStepController, adaptive_controller
 from .data import DATA_MODES, DataNoise, StepData
 from .problem import ELDProblem
-from .solvers import ReferenceSolver, SolveFailed, resolve_kind
+from .solvers import ReferenceSolver, SolveFailed, SolverStats, resolve_kind
 
 FORMS = ("regularized", "original")
 SCHEMES = ("euler", "bdf2")
@@ -1313,7 +1315,11 @@ class ELDStepper:
 
     # -- checkpoints ----------------------------------------------------------------------------
     def checkpoint_state(self, state: ELDState) -> dict:
-        """Everything that influences the rest of the run, as arrays and plain values."""
+        """Everything that influences the rest of the run, as arrays and plain values: the state
+        (fields, boundary vectors with the data history of ``differenced`` mode, products,
+        ledger, error scale), the key of the stored factorization, the solver's counters (the
+        run's ``linear_solver`` statistics continue from them) and the Newton count the
+        progress line shows. The step data itself keeps no state (:mod:`rothe.eld.data`)."""
         ref = self._ref
         return {
             "format": "rothe-eld-state-1", "scheme": self.scheme, "form": self.form,
@@ -1323,12 +1329,17 @@ class ELDStepper:
             "products": {k: w.copy() for k, w in state.products.items()},
             "ledger": {k: float(v) for k, v in asdict(state.ledger).items()},
             "energy_norm_max": float(state.energy_norm_max),
+            "error_scale": None if self.error_scale is None else float(self.error_scale),
             "solver_reference": None if ref is None else {
                 "tau_eff": ref["tau_eff"], "v": None if ref["v"] is None else ref["v"].copy()},
+            "solver_stats": asdict(self.solver.stats),
+            "last_newton": int(self._last_newton),
         }
 
     def restore_state(self, data: dict) -> ELDState:
-        """The state of :meth:`checkpoint_state`; refactors the stored matrix it names."""
+        """The state of :meth:`checkpoint_state`; refactors the stored matrix it names and
+        continues the solver's counters from the checkpoint's (the refactorization is not
+        counted: the uninterrupted run did not do it)."""
         if data.get("format") != "rothe-eld-state-1":
             raise RotheInputError(f"checkpoint: got format {data.get('format')!r}, must be "
                                   "'rothe-eld-state-1'")
@@ -1345,6 +1356,11 @@ class ELDStepper:
             if not same:
                 self._factor(ref["tau_eff"], None if ref["v"] is None
                              else np.asarray(ref["v"], dtype=float))
+        if data.get("solver_stats") is not None:
+            self.solver.stats = SolverStats(**data["solver_stats"])
+        if data.get("error_scale") is not None:
+            self.error_scale = float(data["error_scale"])
+        self._last_newton = int(data.get("last_newton", 0))
         tp = data["tau_prev"]
         return ELDState(
             t=float(data["t"]), j=int(data["j"]), tau_prev=None if tp is None else float(tp),
@@ -1358,26 +1374,60 @@ class ELDStepper:
 @dataclass
 class ELDRun:
     """A prepared run: the stepper, its controller, the trajectory with the initial state
-    recorded, the initial state and the evolve loop's tau_min (:func:`prepare_eld_run`)."""
+    recorded (or the trajectory and state restored from a checkpoint), the state to continue
+    from and the evolve loop's tau_min (:func:`prepare_eld_run`).
+
+    ``checkpointing`` (a :class:`~rothe.io.checkpoint.RunCheckpointing`, or None) holds the
+    lock on the checkpoint directory from :func:`prepare_eld_run` until :meth:`evolve` ends or
+    :meth:`close` is called."""
 
     stepper: ELDStepper
     controller: object
     trajectory: Trajectory
     state: ELDState
     tau_min: float
+    checkpointing: RunCheckpointing | None = None
 
-    def evolve(self, progress: bool = False) -> ELDState:
-        """Run to the end on the shared evolve loop; returns the final state."""
+    @property
+    def checkpointer(self):
+        return None if self.checkpointing is None else self.checkpointing.checkpointer
+
+    @property
+    def resumed(self) -> bool:
+        return self.checkpointing is not None and self.checkpointing.resuming
+
+    def evolve(self, progress=False) -> ELDState:
+        """Run to the end on the shared evolve loop; returns the final state.
+
+        With a checkpointer: a checkpoint of the initial state (a new run), checkpoints when
+        due and when the run stops (interrupted, failed), and one with status ``completed`` at
+        the end. Raises :class:`RunFailed` / :class:`~rothe.errors.RunInterrupted` with the
+        trajectory so far."""
+        cp = self.checkpointer
         try:
-            final = evolve(self.stepper, self.controller, self.state, self.trajectory,
-                           tau_min=self.tau_min, progress=progress)
-        except RunFailed as exc:
-            exc.trajectory = self.trajectory
-            _finish_meta(self.trajectory, self.stepper)
-            raise
-        _finish_meta(self.trajectory, self.stepper)
-        self.state = final
+            if cp is not None and not self.resumed and cp.sequence == 0:
+                cp.save_or_warn(self.stepper, self.controller, self.state,
+                                where=_eld_where(self.trajectory, self.state))
+            try:
+                final = evolve(self.stepper, self.controller, self.state, self.trajectory,
+                               tau_min=self.tau_min, progress=progress, checkpointer=cp)
+            except RunFailed as exc:
+                exc.trajectory = self.trajectory
+                raise
+            finally:
+                _finish_meta(self.trajectory, self.stepper)
+            self.state = final
+            if cp is not None:
+                cp.save_or_warn(self.stepper, self.controller, final, status="completed",
+                                where=_eld_where(self.trajectory, final))
+        finally:
+            self.close()
         return final
+
+    def close(self) -> None:
+        """Release the checkpoint directory (done by :meth:`evolve`)."""
+        if self.checkpointing is not None:
+            self.checkpointing.close()
 
 
 def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
@@ -1388,9 +1438,10 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
                     keep_every: int = 1, observer=None, linear_rtol: float = 1e-10,
                     tau_min: float | None = None, tau_max: float | None = None,
                     start: str = "taylor", error_scale: float | None = None,
-                    meta: dict | None = None) -> ELDRun:
+                    meta: dict | None = None, checkpoint=None, resume=None) -> ELDRun:
     """Validate the options, build stepper and controller, record the initial state
-    (the arguments of :func:`run_eld`)."""
+    (the arguments of :func:`run_eld`); with ``resume``, restore stepper, controller,
+    trajectory and state from the checkpoint instead."""
     control = check_choice("control", control, CONTROLS)
     if control == "adaptive":
         if tol is None:
@@ -1431,18 +1482,42 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
             controller = FixedStepController.uniform(stepper.tau, stepper.n_steps)
         loop_tau_min = 1e-300  # a fixed grid never shrinks a step; a failed step stops the run
     info.update(meta or {})
-    traj = Trajectory(meta=info)
+    # what a checkpoint must match to be resumed (the stepper's values after validation)
+    arguments = run_arguments(
+        form=form, scheme=scheme, control=control, tol=tol, tau=stepper.tau,
+        steps=stepper.steps, data=data, lifting=lifting, solver=solver,
+        newton=asdict(stepper.newton), noise=None if noise is None else noise.describe(),
+        store_fields=store_fields, keep_every=stepper.keep_every, linear_rtol=linear_rtol,
+        tau_min=tau_min, tau_max=tau_max, start=start, error_scale=error_scale)
+    rc = RunCheckpointing("run_eld", problem, arguments, checkpoint, resume)
     try:
-        state = stepper.initial_state()
-    except RunFailed as exc:
-        exc.trajectory = traj
-        _finish_meta(traj, stepper)
+        restored = rc.restored
+        if restored is not None:
+            traj = restored.trajectory(0)
+            traj.meta.update(info)
+            traj.meta["sessions"] = restored.sessions + 1
+            state = stepper.restore_state(restored.state["stepper"])
+            controller.restore_state(restored.state["controller"])
+            if control == "adaptive":
+                traj.meta["error_scale"] = stepper.error_scale
+        else:
+            traj = Trajectory(meta=info)
+            try:
+                state = stepper.initial_state()
+            except RunFailed as exc:
+                exc.trajectory = traj
+                _finish_meta(traj, stepper)
+                raise
+            if control == "adaptive":
+                traj.meta["error_scale"] = stepper.error_scale
+            stepper.record_initial(traj, state)
+            traj.stats.linear_factorizations += stepper.initial_factorizations
+        if rc.checkpointer is not None:
+            rc.checkpointer.register(traj)
+    except BaseException:
+        rc.close()
         raise
-    if control == "adaptive":
-        traj.meta["error_scale"] = stepper.error_scale
-    stepper.record_initial(traj, state)
-    traj.stats.linear_factorizations += stepper.initial_factorizations
-    return ELDRun(stepper, controller, traj, state, loop_tau_min)
+    return ELDRun(stepper, controller, traj, state, loop_tau_min, rc)
 
 
 def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
@@ -1450,9 +1525,10 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
             steps=None, data: str = "points", lifting: str = "nodal", solver: str = "auto",
             newton: NewtonOptions | None = None, noise: DataNoise | None = None,
             store_fields: bool = True, keep_every: int = 1, observer=None,
-            progress: bool = False, linear_rtol: float = 1e-10, tau_min: float | None = None,
+            progress=False, linear_rtol: float = 1e-10, tau_min: float | None = None,
             tau_max: float | None = None, start: str = "taylor",
-            error_scale: float | None = None, meta: dict | None = None) -> Trajectory:
+            error_scale: float | None = None, meta: dict | None = None, checkpoint=None,
+            resume=None) -> Trajectory:
     """Run Euler (3.4) or BDF2 from t = 0 to T (module docstring).
 
     ``control='uniform'``: n = T/tau equal steps (or the given ``steps``); ``'adaptive'``: tau is
@@ -1470,18 +1546,32 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     multiplier and acceleration at t = 0). ``traj.final_state``, ``traj.stepper`` and
     ``traj.controller`` are attached (not saved). Raises :class:`RunFailed` (with
     ``.trajectory``) if a step cannot be solved or its state or data is not finite.
+
+    ``checkpoint`` / ``resume``: as for :func:`rothe.stepping.ris.run_ris` (a directory or
+    :class:`~rothe.io.checkpoint.CheckpointOptions`; a checkpoint written by ``run_eld`` with
+    the same arguments and problem). A resumed run, with any scheme and control, returns the
+    trajectory of the uninterrupted run bit for bit (statistics too, but the wall time, which
+    sums the sessions). An ``observer`` that keeps state, such as an output writer, is passed
+    as a checkpoint attachment so that it is restored too. SIGINT / SIGTERM raise
+    :class:`~rothe.errors.RunInterrupted` with the trajectory so far (and a checkpoint).
     """
     run = prepare_eld_run(problem, form, tau, scheme=scheme, control=control, tol=tol,
                           steps=steps, data=data, lifting=lifting, solver=solver, newton=newton,
                           noise=noise, store_fields=store_fields, keep_every=keep_every,
                           observer=observer, linear_rtol=linear_rtol, tau_min=tau_min,
-                          tau_max=tau_max, start=start, error_scale=error_scale, meta=meta)
+                          tau_max=tau_max, start=start, error_scale=error_scale, meta=meta,
+                          checkpoint=checkpoint, resume=resume)
     final = run.evolve(progress=progress)
     traj = run.trajectory
     traj.final_state = final  # not saved to .npz: the last state and the stepper, for callers
     traj.stepper = run.stepper
     traj.controller = run.controller
     return traj
+
+
+def _eld_where(traj: Trajectory, state: ELDState) -> dict:
+    return {"accepted_steps": traj.stats.accepted_steps, "s": float(state.t),
+            "t": float(state.t), "j": int(state.j)}
 
 
 def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:

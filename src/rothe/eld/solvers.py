@@ -100,9 +100,12 @@ class ReferenceSolver:
         else:
             import pyamg
 
+            from ..nonlinear.linear import reproducible_random
+
             A = sp.csr_matrix(A)
             B = None if self.near_nullspace is None else np.asarray(self.near_nullspace)
-            self._ml = pyamg.smoothed_aggregation_solver(A, B=B, max_coarse=500)
+            with reproducible_random():  # pyamg draws random start vectors: repeatable runs
+                self._ml = pyamg.smoothed_aggregation_solver(A, B=B, max_coarse=500)
             self._prec = self._ml.aspreconditioner(cycle="V")
         self._A = A
         self.stats.setup_seconds += time.perf_counter() - t0
@@ -188,3 +191,24 @@ class ReferenceSolver:
         if info != 0 or not np.all(np.isfinite(x)):
             return None
         return x
+
+    # -- checkpoint protocol (rothe.io.checkpoint) ---------------------------------------------
+    def checkpoint_state(self, *, reference: bool = True) -> dict:
+        """Counters and, with ``reference``, the matrix the stored factorization was built from
+        (the factorization changes Krylov results in the last bits, so it is rebuilt from it)."""
+        from dataclasses import asdict
+
+        from ..nonlinear.linear import sparse_state
+
+        ref = None
+        if reference and self._prec is not None and self._A is not None:
+            ref = sparse_state(sp.csr_matrix(self._A) if not sp.issparse(self._A)
+                               or self._A.format not in ("csr", "csc") else self._A)
+        return {"stats": asdict(self.stats), "reference": ref}
+
+    def restore_state(self, data: dict) -> None:
+        from ..nonlinear.linear import sparse_from_state
+
+        if data["reference"] is not None:
+            self.factor(sparse_from_state(data["reference"]))
+        self.stats = SolverStats(**data["stats"])

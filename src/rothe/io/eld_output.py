@@ -1,7 +1,8 @@
 """Outputs of elastodynamics runs: ParaView (XDMF + HDF5), ``trajectory.npz`` with the mesh, and
 figures; :func:`write_eld_result` writes all of them for a result of :func:`rothe.eld.run_eld`.
 
-ParaView files (two XDMF time series, HDF5 heavy data, written through meshio):
+ParaView files (two XDMF time series with HDF5 heavy data, :mod:`rothe.io.xdmf`; meshio's
+``TimeSeriesReader`` reads them):
 
 - ``<name>.xdmf``: the body. Point data at the mesh vertices: ``u``, ``v`` (3 components; zero
   z in 2D), ``stress_nodal`` (the Cauchy stress, 9 components, averaged to the vertices by
@@ -22,31 +23,24 @@ ParaView files (two XDMF time series, HDF5 heavy data, written through meshio):
 - the time series of the run (``t``, energies, ``tau``, ``reaction_<part>``, ...; see
   :func:`rothe.eld.run_eld`), ``stats_*`` and ``meta`` (JSON).
 
-Steps are streamed to disk as they are computed by :class:`EldXdmfWriter` (nothing is kept in
-memory); :func:`write_eld_result` writes the states a run kept (``keep_every``).
+Steps are streamed to HDF5 segments in a work directory as they are computed by
+:class:`EldXdmfWriter` (nothing is kept in memory) through :class:`rothe.io.xdmf.StreamedSeries`,
+which is checkpointable (a resumed run continues the series exactly where its checkpoint was
+taken); ``export(directory)`` writes both series, complete and atomically, wherever the results
+go. :func:`write_eld_result` writes the states a run kept (``keep_every``).
 """
 
 from __future__ import annotations
 
 import os
+import secrets
+import shutil
 from pathlib import Path
 
 import numpy as np
 
-_CELL = {2: "triangle", 3: "tetra"}
-_FACET = {2: "line", 3: "triangle"}
-
-
-def _open(meshio, path: Path):
-    """A meshio XDMF time-series writer whose HDF5 file sits next to ``path``."""
-    writer = meshio.xdmf.TimeSeriesWriter(str(path))
-    cwd = os.getcwd()
-    try:
-        os.chdir(path.parent)  # meshio opens Path(filename).stem + ".h5" relative to the cwd
-        writer.__enter__()
-    finally:
-        os.chdir(cwd)
-    return writer
+from .atomic import TMP_PREFIX
+from .xdmf import StreamedSeries
 
 
 def mesh_arrays(problem) -> dict:
@@ -64,26 +58,26 @@ def mesh_arrays(problem) -> dict:
 
 
 class EldXdmfWriter:
-    """Streams u, v, stresses (vertices and cells) and lambda (Dirichlet facets) to XDMF."""
+    """Streams u, v, stresses (vertices and cells) and lambda (Dirichlet facets) of selected
+    steps into HDF5 segments in ``work_dir``; :meth:`export` writes the two XDMF series.
 
-    def __init__(self, out_dir, problem, name: str = "eld"):
-        import meshio
+    ``paths`` are the series' file names (relative: they appear where :meth:`export` puts
+    them). Checkpointable (``checkpoint_state`` / ``restore_state``: an attachment of the run's
+    checkpoint)."""
 
+    def __init__(self, work_dir, problem, name: str = "eld"):
         from ..eld.stress import StressEvaluator
 
         self.problem = problem
         space = problem.space
         mesh = space.mesh
         d = space.dim
-        out_dir = Path(out_dir).resolve()
-        out_dir.mkdir(parents=True, exist_ok=True)
-        self.paths = (out_dir / f"{name}.xdmf", out_dir / f"{name}_multiplier.xdmf")
+        self.paths = (Path(f"{name}.xdmf"), Path(f"{name}_multiplier.xdmf"))
         self.stresses = StressEvaluator(space, problem.material)
         points = np.ascontiguousarray(mesh.p.T)
         if d == 2:  # ParaView wants 3D points and vectors
             points = np.column_stack([points, np.zeros(len(points))])
-        self._body = _open(meshio, self.paths[0])
-        self._body.write_points_cells(points, [(_CELL[d], np.ascontiguousarray(mesh.t.T))])
+        self._body = StreamedSeries(work_dir, name, points, np.ascontiguousarray(mesh.t.T))
         # the boundary mesh: vertices of the Dirichlet facets, renumbered
         c = problem.constraint
         facets = space.facets(c.parts, "dirichlet")
@@ -92,8 +86,8 @@ class EldXdmfWriter:
         local = np.searchsorted(verts, fverts)
         # positions of these vertices among the constrained scalar dofs (vertex dofs = vertex ids)
         self._lam_rows = np.searchsorted(c.scalar_dofs, verts)
-        self._bnd = _open(meshio, self.paths[1])
-        self._bnd.write_points_cells(points[verts], [(_FACET[d], np.ascontiguousarray(local.T))])
+        self._bnd = StreamedSeries(work_dir, f"{name}_multiplier", points[verts],
+                                   np.ascontiguousarray(local.T))
         self.steps_written = 0
 
     def _vec3(self, values: np.ndarray) -> np.ndarray:
@@ -109,22 +103,40 @@ class EldXdmfWriter:
         vm = von_mises(sigma)
         sigma_nodal = self.stresses.nodal(sigma)
         vm_nodal = self.stresses.nodal(vm)
-        self._body.write_data(
+        self._body.write_step(
             float(t),
-            point_data={"u": self._vec3(space.vertex_values(u)),
-                        "v": self._vec3(space.vertex_values(v)),
-                        "stress_nodal": sigma_nodal.reshape(-1, 9),
-                        "von_mises_nodal": vm_nodal},
-            cell_data={"stress": [sigma.reshape(-1, 9)], "von_mises": [vm]})
+            {"u": self._vec3(space.vertex_values(u)), "v": self._vec3(space.vertex_values(v)),
+             "stress_nodal": sigma_nodal.reshape(-1, 9), "von_mises_nodal": vm_nodal},
+            cell_fields={"stress": sigma.reshape(-1, 9), "von_mises": vm})
         if lam is not None:
             L = np.asarray(lam).reshape(-1, space.dim)[self._lam_rows]
-            self._bnd.write_data(float(t), point_data={"lambda": self._vec3(L),
-                                                       "reaction_density": self._vec3(-L)})
+            self._bnd.write_step(float(t), {"lambda": self._vec3(L),
+                                            "reaction_density": self._vec3(-L)})
         self.steps_written += 1
 
+    # -- checkpoint protocol (attachment of the run's checkpoint) ---------------------------------
+    def checkpoint_state(self) -> dict:
+        return {"body": self._body.checkpoint_state(), "boundary": self._bnd.checkpoint_state(),
+                "steps_written": self.steps_written}
+
+    def restore_state(self, data: dict) -> None:
+        self._body.restore_state(data["body"])
+        self._bnd.restore_state(data["boundary"])
+        self.steps_written = int(data["steps_written"])
+
+    def export(self, directory) -> tuple[Path, Path]:
+        """Both series, complete, into ``directory`` (XDMF + HDF5 each, atomically)."""
+        return self._body.export(directory), self._bnd.export(directory)
+
+    def discard(self) -> None:
+        """Remove the streamed segments (after the results were committed)."""
+        self._body.discard()
+        self._bnd.discard()
+
     def close(self) -> None:
-        for w in (self._body, self._bnd):
-            w.__exit__(None, None, None)
+        """Write the segments held in memory to the work directory."""
+        self._body.checkpoint_state()
+        self._bnd.checkpoint_state()
 
 
 def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = True,
@@ -153,14 +165,16 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
 
             raise fail("traj", described("a run without stored fields"),
                        "must come from run_eld(..., store_fields=True) to write XDMF")
-        writer = EldXdmfWriter(out, problem, name=name)
+        # segments in a hidden work directory beside the results, then both series atomically
+        work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{name}.parts"
         try:
+            writer = EldXdmfWriter(work, problem, name=name)
             for t, u, v, lam in zip(traj["kept_t"], traj["u"], traj["v"], traj["lam"],
                                     strict=True):
                 writer.write(t, u, v, lam)
+            paths["xdmf"] = list(writer.export(out))
         finally:
-            writer.close()
-        paths["xdmf"] = list(writer.paths)
+            shutil.rmtree(work, ignore_errors=True)
     if figures:
         from ..plotting.eld import plot_energy_balance, plot_reactions
 

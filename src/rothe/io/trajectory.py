@@ -5,7 +5,8 @@ A :class:`Trajectory` holds named series. *Point* series have one entry per acce
 *step* series have one entry per accepted step (K entries: ``tau``, ``I1``, ``I2``, ``lam`` ...).
 :class:`RunStatistics` counts accepted and rejected steps, inner solves, Newton iterations,
 linear-solver work and the wall time. ``save_npz`` writes every series as an array plus the
-statistics under ``stats_<name>`` and ``meta`` as a JSON string.
+statistics under ``stats_<name>`` and ``meta`` as a JSON string, atomically (a temporary file in
+the same directory, then a rename: a kill leaves the previous file or the new one).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ class RunStatistics:
     linear_solves: int = 0
     krylov_iterations: int = 0
     landing_retries: int = 0  # steps redone shorter to land on T
-    wall_time_s: float = 0.0
+    wall_time_s: float = 0.0  # summed over all sessions of a resumed run
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -46,6 +47,14 @@ class Trajectory:
         for key, value in values.items():
             self._series.setdefault(key, []).append(np.asarray(value))
 
+    def entries(self, name: str) -> list:
+        """The entries of one series as stored (a list; not a copy)."""
+        return self._series.get(name, [])
+
+    def extend(self, name: str, values) -> None:
+        """Append several entries to one series (e.g. when restoring from a checkpoint)."""
+        self._series.setdefault(name, []).extend(values)
+
     def __getitem__(self, name: str) -> np.ndarray:
         return np.array(self._series[name])
 
@@ -62,6 +71,9 @@ class Trajectory:
         return {k: np.array(v) for k, v in self._series.items()}
 
     def save_npz(self, path, extra: dict | None = None) -> Path:
+        """Write every series, the statistics and ``meta`` to ``path`` (atomically)."""
+        from .atomic import atomic_path
+
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         data = self.arrays()
@@ -70,7 +82,8 @@ class Trajectory:
         data["meta"] = np.asarray(json.dumps(self.meta, default=str))
         if extra:
             data.update({k: np.asarray(v) for k, v in extra.items()})
-        np.savez_compressed(path, **data)
+        with atomic_path(path) as tmp:
+            np.savez_compressed(tmp, **data)
         return path
 
     @classmethod

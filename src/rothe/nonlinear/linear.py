@@ -13,10 +13,20 @@ Preconditioners: ``direct`` = scipy ``splu`` with ``MMD_AT_PLUS_A`` ordering (th
 ordering halves fill versus COLAMD); ``amg`` = pyamg smoothed aggregation; ``auto`` picks direct
 up to ``amg_threshold`` unknowns (LU is faster there for a changing matrix) and AMG above.
 Dense matrices (small R^n problems) are solved by LAPACK directly.
+
+Reproducibility. The stored preconditioner changes the results at round-off level (GMRES stops
+at a tolerance, so which LU it is preconditioned with shows in the last bits), so it is part of
+a run's state: :meth:`ReusableSolver.checkpoint_state` saves the matrix it was built from and
+:meth:`~ReusableSolver.restore_state` rebuilds it (SuperLU is deterministic: the same matrix gives
+the same factors). pyamg's smoothed-aggregation setup estimates spectral radii from a *random*
+start vector drawn from numpy's global generator, so two identical runs used to differ by up to
+3.5e-13; every AMG setup here runs under :func:`reproducible_random` (a fixed seed, the caller's
+global random state restored afterwards), which makes AMG runs repeatable bit for bit too.
 """
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +48,34 @@ class LinearStats:
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
+
+
+@contextlib.contextmanager
+def reproducible_random(seed: int = 0):
+    """Run a block with numpy's *global* generator seeded, then restore the caller's state.
+
+    For library code that draws from ``np.random`` without a seed argument (pyamg's spectral
+    radius estimates), so that its results are the same in every run.
+    """
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)
+
+
+def sparse_state(M) -> dict:
+    """A sparse matrix as a checkpoint dict (its compressed arrays exactly as they are)."""
+    M = M if M.format in ("csr", "csc") else sp.csr_matrix(M)
+    return {"format": M.format, "shape": [int(x) for x in M.shape], "data": M.data,
+            "indices": M.indices, "indptr": M.indptr}
+
+
+def sparse_from_state(data: dict):
+    cls = sp.csc_matrix if data["format"] == "csc" else sp.csr_matrix
+    return cls((np.asarray(data["data"]), np.asarray(data["indices"]),
+                np.asarray(data["indptr"])), shape=tuple(data["shape"]))
 
 
 class SingularSystem(RuntimeError):
@@ -73,12 +111,16 @@ class ReusableSolver:
         self._key = None
         self._fresh_its: int | None = None  # Krylov iterations of the first solve after a build
         self.kind_used: str | None = None
+        self._ref = None  # the matrix the preconditioner was built from (for checkpoints)
+        self._ref_kind: str | None = None
 
     def reset(self) -> None:
         """Forget the stored preconditioner (e.g. when the mesh changes)."""
         self._prec = None
         self._prec_shape = None
         self._key = None
+        self._ref = None
+        self._ref_kind = None
 
     def resolve_kind(self, n: int) -> str:
         if self.method != "auto":
@@ -91,22 +133,56 @@ class ReusableSolver:
         self._fresh_its = None
         try:
             if kind == "direct":
-                lu = spla.splu(sp.csc_matrix(K), permc_spec="MMD_AT_PLUS_A")
-                self._prec = lu.solve
-                self.kind_used = "splu"
+                Kc = sp.csc_matrix(K)
             else:
-                import pyamg
-
                 Kc = sp.csr_matrix(K)
                 Kc.eliminate_zeros()
-                ml = pyamg.smoothed_aggregation_solver(Kc, max_coarse=500)
-                self._prec = ml.aspreconditioner(cycle="V")
-                self.kind_used = "pyamg-sa"
+            self._factor(Kc, kind)
         except RuntimeError as exc:  # splu: "Factor is exactly singular"
             self._prec = None
+            self._ref = None
             self.stats.failures += 1
             raise SingularSystem(str(exc)) from exc
         self._prec_shape = K.shape
+
+    def _factor(self, Kc, kind: str) -> None:
+        """Build the preconditioner from ``Kc`` (CSC for LU, CSR for AMG) and remember ``Kc``."""
+        if kind == "direct":
+            lu = spla.splu(Kc, permc_spec="MMD_AT_PLUS_A")
+            self._prec = lu.solve
+            self.kind_used = "splu"
+        else:
+            import pyamg
+
+            with reproducible_random():
+                ml = pyamg.smoothed_aggregation_solver(Kc, max_coarse=500)
+            self._prec = ml.aspreconditioner(cycle="V")
+            self.kind_used = "pyamg-sa"
+        self._ref, self._ref_kind = Kc, kind
+
+    # -- checkpoint protocol -------------------------------------------------------------------
+    def checkpoint_state(self) -> dict:
+        """What decides future results: the matrix the stored preconditioner was built from (it
+        is rebuilt from it, bit for bit), the active-set key, the iteration baseline of the
+        rebuild rule, and the counters."""
+        ref = None
+        if self._prec is not None and self._ref is not None:
+            ref = {"kind": self._ref_kind, "matrix": sparse_state(self._ref),
+                   "shape": [int(x) for x in self._prec_shape]}
+        return {"stats": self.stats.as_dict(), "kind_used": self.kind_used,
+                "key": None if self._key is None else np.asarray(self._key),
+                "fresh_its": self._fresh_its, "reference": ref}
+
+    def restore_state(self, data: dict) -> None:
+        self.reset()
+        ref = data["reference"]
+        if ref is not None:
+            self._factor(sparse_from_state(ref["matrix"]), ref["kind"])
+            self._prec_shape = tuple(ref["shape"])
+        self._key = None if data["key"] is None else np.array(data["key"], copy=True)
+        self._fresh_its = None if data["fresh_its"] is None else int(data["fresh_its"])
+        self.kind_used = data["kind_used"]
+        self.stats = LinearStats(**data["stats"])
 
     # -- solving -------------------------------------------------------------------------------
     def solve(self, K, rhs: list[np.ndarray], rtol: float = 1e-10, *, key=None, surrogate=None,

@@ -10,10 +10,17 @@ matplotlib.use("Agg")  # figures are files; no display is needed (or present on 
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-def save_figure(fig, path) -> Path:
-    """Tight layout, 120 dpi PNG, and close the figure (long runs draw many)."""
+def save_figure(fig, path, dpi: int = 120, tight: bool = True) -> Path:
+    """Tight layout, PNG (120 dpi), written atomically; the figure is closed (long runs draw
+    many)."""
+    from ..io.atomic import atomic_path
+
     path = Path(path)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        if tight:
+            fig.tight_layout()
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
+    finally:
+        plt.close(fig)
     return path

@@ -90,7 +90,4 @@ def plot_snapshots(nodes, cells, s, t, Z, path, count: int = 4, title: str = "")
     fig.colorbar(im, ax=axes[0].tolist(), shrink=0.85, label="z")
     if title:
         fig.suptitle(title + (" (mid-plane slice)" if nodes.shape[1] == 3 else ""), fontsize=10)
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110, tight=False)

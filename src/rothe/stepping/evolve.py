@@ -1,50 +1,42 @@
 """The evolve loop shared by every step controller (and every stepper).
 
     while not stepper.finished(state):
+        (stop here if SIGINT/SIGTERM arrived: checkpoint, then RunInterrupted)
         tau, s_end = controller.propose(s)         # the controller proposes
         result = stepper.step(state, tau, s_end)   # the stepper does one step, decides nothing
         (shorten the step if it overshoots the end: stepper.overshoot)
         decision = controller.decide(result)       # the controller accepts or rejects
         accept -> state = result.state, record; reject -> retry with decision.next_tau
+        (write a checkpoint when one is due)
 
 A stepper provides ``step(state, tau, s_end) -> result`` (with ``converged``, ``code``, ``tau``,
 ``errors``, ``state`` and solver counters), ``finished(state)``, ``limit(state, tau)`` (e.g. to
 stop at a given S), ``overshoot(state, attempts)`` (a shorter tau that lands on the end time, or
 None, given the attempts of this step so far) with ``pick_landing(state, attempts)`` (the attempt to
-hand to the controller), ``record(trajectory, result)`` and ``progress_fields(state)``.
+hand to the controller), ``record(trajectory, result)``, ``where(state, result)``,
+``progress_fields(state)`` and optionally ``progress_position(state) -> (label, value, total)``.
+For checkpoints, ``checkpoint_state(state) -> dict`` and ``restore_state(data) -> state`` (the
+controller: ``checkpoint_state() -> dict``, ``restore_state(data)``); see
+:mod:`rothe.io.checkpoint` and docs/robustness.md.
 
 If a rejection would push the step below ``tau_min``, the loop raises :class:`RunFailed` naming
 the step, s, t, tau and the residuals; the trajectory so far is attached to the exception.
+
+Signals (:mod:`rothe.stepping.interrupt`): between two steps the loop checks whether SIGINT or
+SIGTERM arrived; if so it writes a checkpoint (when it has a checkpointer) and raises
+:class:`~rothe.errors.RunInterrupted` with the trajectory so far. The step under way when the
+signal came is finished first, never abandoned halfway.
 """
 
 from __future__ import annotations
 
-import sys
 import time
 from contextlib import nullcontext
 
-from ..errors import RunFailed, check_positive
+from ..errors import RunFailed, RunInterrupted, check_positive
 from ..io.trajectory import Trajectory
-
-
-def _progress_bar(enabled: bool):
-    if not enabled:
-        return None
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a dependency
-        return None
-    # delay: runs shorter than about a second never show a bar; disable=None: no bar when
-    # stderr is not a terminal (logs, CI), where carriage returns only clutter the file
-    return tqdm(
-        total=None,
-        file=sys.stderr,
-        delay=1.0,
-        unit="step",
-        leave=False,
-        dynamic_ncols=True,
-        disable=None,
-    )
+from . import interrupt
+from .progress import Progress, as_progress_options
 
 
 def single_threaded_blas():
@@ -72,34 +64,93 @@ def evolve(
     tau_min: float = 1e-12,
     max_attempts: int = 1_000_000,
     max_landing_retries: int = 6,
-    progress: bool = False,
+    progress=False,
+    checkpointer=None,
 ):
     """Run from ``state`` until ``stepper.finished``; returns the final state.
 
     Accepted steps are recorded into ``trajectory`` (``stepper.record``); statistics are
-    accumulated in ``trajectory.stats``. BLAS runs single-threaded meanwhile
-    (:func:`single_threaded_blas`).
+    accumulated in ``trajectory.stats`` (the wall time adds to what is there, so a resumed run
+    sums its sessions). BLAS runs single-threaded meanwhile (:func:`single_threaded_blas`).
+    ``progress``: bool or :class:`~rothe.stepping.progress.ProgressOptions`.
+    ``checkpointer``: a :class:`~rothe.io.checkpoint.Checkpointer` (with ``trajectory``
+    registered) to which a checkpoint is written when one is due, and when the run stops
+    (interrupted or failed). Raises :class:`RunFailed` or :class:`RunInterrupted`, both carrying
+    the trajectory so far.
     """
-    with single_threaded_blas():
+    tau_min = check_positive("tau_min", tau_min)
+    with single_threaded_blas(), interrupt.interruptible():
+        loop = _Loop(stepper, controller, trajectory, checkpointer, as_progress_options(progress))
         try:
-            return _evolve(stepper, controller, state, trajectory, tau_min=tau_min,
-                           max_attempts=max_attempts, max_landing_retries=max_landing_retries,
-                           progress=progress)
+            return loop.run(state, tau_min, max_attempts, max_landing_retries)
         except RunFailed as exc:  # a stepper's own failure: still hand back what was computed
             if exc.trajectory is None:
                 exc.trajectory = trajectory
+            loop.checkpoint("failed", where={**exc.where, "failure": str(exc)}, quiet=True)
+            raise
+        finally:
+            loop.close()
+
+
+class _Loop:
+    def __init__(self, stepper, controller, trajectory, checkpointer, progress):
+        self.stepper = stepper
+        self.controller = controller
+        self.trajectory = trajectory
+        self.checkpointer = checkpointer
+        self.progress_options = progress
+        self.progress = None
+        self.state = None
+        self._mark = time.perf_counter()
+
+    def _clock(self) -> None:
+        """Add the time since the last mark to the statistics (so checkpoints carry it)."""
+        now = time.perf_counter()
+        self.trajectory.stats.wall_time_s += now - self._mark
+        self._mark = now
+
+    def where(self, state) -> dict:
+        stats = self.trajectory.stats
+        info = {"accepted_steps": stats.accepted_steps, "rejected_steps": stats.rejected_steps}
+        info.update(self.stepper.where(state, None))
+        return info
+
+    def checkpoint(self, status: str, where: dict | None = None, quiet: bool = False):
+        if self.checkpointer is None or self.state is None:
+            return None
+        self._clock()
+        info = self.where(self.state)
+        info.update(where or {})
+        try:
+            return self.checkpointer.save_or_warn(self.stepper, self.controller, self.state,
+                                                  status=status, where=info)
+        except Exception:
+            if quiet:  # the failure being reported matters more than its checkpoint
+                return None
             raise
 
+    def stop_if_signalled(self, state) -> None:
+        signum = interrupt.requested()
+        if signum is None:
+            return
+        name = interrupt.signal_name(signum)
+        where = self.where(state)
+        where["signal"] = name
+        path = self.checkpoint("interrupted", where={"signal": name})
+        raise RunInterrupted(
+            f"interrupted by {name} after {where['accepted_steps']} accepted steps "
+            f"(s = {where.get('s', float('nan')):.6g}, t = {where.get('t', float('nan')):.6g})",
+            signum=signum, where=where, trajectory=self.trajectory, checkpoint=path,
+            state=state)
 
-def _evolve(stepper, controller, state, trajectory, *, tau_min, max_attempts,
-            max_landing_retries, progress):
-    tau_min = check_positive("tau_min", tau_min)
-    stats = trajectory.stats
-    bar = _progress_bar(progress)
-    t_start = time.perf_counter()
-    attempts = 0
-    try:
+    def run(self, state, tau_min, max_attempts, max_landing_retries):
+        stepper, controller, trajectory = self.stepper, self.controller, self.trajectory
+        stats = trajectory.stats
+        self.state = state
+        self.progress = Progress(self.progress_options, stepper, state)
+        attempts = stats.accepted_steps + stats.rejected_steps  # nonzero when resumed
         while not stepper.finished(state):
+            self.stop_if_signalled(state)
             attempts += 1
             if attempts > max_attempts:
                 raise RunFailed(
@@ -126,6 +177,7 @@ def _evolve(stepper, controller, state, trajectory, *, tau_min, max_attempts,
             decision = controller.decide(result)
             if decision.accept:
                 state = result.state
+                self.state = state
                 stepper.record(trajectory, result)
                 stats.accepted_steps += 1
             else:
@@ -140,16 +192,17 @@ def _evolve(stepper, controller, state, trajectory, *, tau_min, max_attempts,
                         where=where,
                         trajectory=trajectory,
                     )
-            if bar is not None:
-                bar.update(1)
-                fields = stepper.progress_fields(state)
-                fields.update(acc=stats.accepted_steps, rej=stats.rejected_steps)
-                bar.set_postfix(fields, refresh=False)
-    finally:
-        stats.wall_time_s += time.perf_counter() - t_start
-        if bar is not None:
-            bar.close()
-    return state
+            self.progress.update(state, stats)
+            if self.checkpointer is not None and self.checkpointer.due():
+                self.checkpoint("running")
+        return state
+
+    def close(self) -> None:
+        self._clock()
+        if self.progress is not None:
+            done = self.state is not None and self.stepper.finished(self.state)
+            self.progress.close(self.state, self.trajectory.stats,
+                                "finished" if done else "stopped")
 
 
 def _count(stats, result) -> None:

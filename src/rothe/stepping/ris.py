@@ -13,13 +13,14 @@ solver counters; it never decides acceptance.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from ..control.controllers import make_controller
-from ..errors import RunFailed, check_int, check_positive, fail
+from ..errors import RunFailed, RunInterrupted, check_int, check_positive, fail
 from ..estimators.residuals import step_residuals
+from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
 from ..nonlinear.ris_inner import BallStepSolver, InnerOptions
 from ..problems.ris import RISProblem
@@ -234,6 +235,41 @@ class RISStepper:
     def progress_fields(self, state: RISState) -> dict:
         return {"s": f"{state.s:.5g}", "t": f"{state.t:.5g}", "tau": f"{self._last_tau:.2g}"}
 
+    def progress_position(self, state: RISState) -> tuple[str, float, float]:
+        """How far the run is: s/S when it stops at a given S, t/T otherwise."""
+        if self.S is not None:
+            return "s", float(state.s), float(self.S)
+        return "t", float(state.t), float(self.problem.T)
+
+    # -- checkpoint protocol (rothe.io.checkpoint) -------------------------------------------
+    def checkpoint_state(self, state: RISState) -> dict:
+        """The state (s, t, z, k), the warm-start hint of the next step (the previous accepted
+        increment and its tau) and the linear solver's stored preconditioner."""
+        previous = None
+        if self._previous is not None:
+            z_prev, d_prev, tau_prev = self._previous
+            previous = {"increment": d_prev, "tau": float(tau_prev),
+                        "of_this_state": z_prev is state.z}
+        return {"stepper": "ris", "s": float(state.s), "t": float(state.t), "z": state.z,
+                "k": int(state.k), "last_tau": float(self._last_tau), "previous": previous,
+                "linear": self.solver.linear.checkpoint_state()}
+
+    def restore_state(self, data: dict) -> RISState:
+        if data.get("stepper") != "ris":
+            raise ValueError(f"restore_state: a {data.get('stepper')!r} stepper's state given to "
+                             "a RIS stepper")
+        state = RISState(s=float(data["s"]), t=float(data["t"]),
+                         z=np.array(data["z"], dtype=float), k=int(data["k"]))
+        self._last_tau = float(data["last_tau"])
+        prev = data["previous"]
+        if prev is None:
+            self._previous = None
+        else:  # the hint applies only to the state it was recorded with (see step)
+            self._previous = (state.z if prev["of_this_state"] else None,
+                              np.array(prev["increment"], dtype=float), float(prev["tau"]))
+        self.solver.linear.restore_state(data["linear"])
+        return state
+
 
 def initial_trajectory(problem: RISProblem, meta: dict | None = None) -> Trajectory:
     traj = Trajectory(meta=meta)
@@ -251,6 +287,33 @@ def stored_states(traj: Trajectory):
     return traj["s"][idx], traj["t"][idx], z
 
 
+def _keep_last_z(problem, stepper: RISStepper, traj: Trajectory, state: RISState) -> None:
+    """With keep_every > 1: make sure z of the last state is kept (once)."""
+    steps = traj.entries("z_step")
+    if not steps or int(steps[-1]) != state.k:
+        traj.append(z=problem.full_state(state.z), z_step=state.k)
+
+
+def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress, checkpointer):
+    try:
+        state = evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress,
+                       checkpointer=checkpointer)
+    except RunInterrupted as exc:
+        if exc.state is not None:
+            _keep_last_z(problem, stepper, traj, exc.state)
+        raise
+    finally:
+        traj.meta["linear_solver"] = stepper.solver.linear.kind_used
+    _keep_last_z(problem, stepper, traj, state)
+    return state
+
+
+def _where(traj: Trajectory, state: RISState) -> dict:
+    st = traj.stats
+    return {"accepted_steps": st.accepted_steps, "rejected_steps": st.rejected_steps,
+            "s": float(state.s), "t": float(state.t)}
+
+
 def run_ris(
     problem: RISProblem,
     control: str = "adaptive",
@@ -263,17 +326,29 @@ def run_ris(
     S: float | None = None,
     inner: InnerOptions | None = None,
     simpson_subintervals: int = 8,
-    progress: bool = False,
+    progress=False,
     meta: dict | None = None,
     keep_every: int = 1,
+    checkpoint=None,
+    resume=None,
 ) -> Trajectory:
     """Run the scheme from (0, 0, z0) until t reaches T (or s reaches S).
 
     ``keep_every = k`` keeps z of every k-th accepted state and of the last one (the other series
     are kept for every step; ``z_step`` says which steps z holds, :func:`stored_states`).
-    ``meta['linear_solver']`` records the linear solver that ran.
+    ``meta['linear_solver']`` records the linear solver that ran. ``progress``: bool or
+    :class:`~rothe.stepping.progress.ProgressOptions`.
+
+    ``checkpoint``: a directory or :class:`~rothe.io.checkpoint.CheckpointOptions` (interval,
+    default 60 s); a checkpoint is written at the start, every interval, when the run stops and
+    at the end. ``resume``: a checkpoint directory written by ``run_ris`` with the same
+    arguments and problem (else :class:`~rothe.io.checkpoint.CheckpointError`); the run
+    continues from it and returns the trajectory the uninterrupted run would have returned, bit
+    for bit (the statistics too, except the wall time, which sums the sessions).
+
     Raises :class:`RunFailed` (with ``.trajectory``) when the step size would fall below
-    ``tau_min``; the trajectory computed so far is attached.
+    ``tau_min``, and :class:`~rothe.errors.RunInterrupted` (with ``.trajectory`` and
+    ``.checkpoint``) when SIGINT or SIGTERM arrives; both carry the trajectory computed so far.
     """
     controller = make_controller(
         control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max, grid=grid
@@ -281,14 +356,31 @@ def run_ris(
     stepper = RISStepper(problem, inner, simpson_subintervals, S=S, keep_every=keep_every)
     info = {"example": problem.name, "control": controller.name, "tol": tol, "tau0": tau}
     info.update(meta or {})
-    traj = initial_trajectory(problem, info)
-    state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
-    try:
-        state = evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress)
-    finally:
-        traj.meta["linear_solver"] = stepper.solver.linear.kind_used
-    if state.k % stepper.keep_every:
-        traj.append(z=problem.full_state(state.z), z_step=state.k)
+    arguments = run_arguments(
+        control=control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max,
+        grid=None if grid is None else np.asarray(grid, dtype=float), S=S,
+        inner=asdict(inner or InnerOptions()), simpson_subintervals=simpson_subintervals,
+        keep_every=keep_every)
+    with RunCheckpointing("run_ris", problem, arguments, checkpoint, resume) as rc:
+        cp, restored = rc.checkpointer, rc.restored
+        if restored is not None:
+            traj = restored.trajectory(0)
+            traj.meta.update(info)
+            state = stepper.restore_state(restored.state["stepper"])
+            controller.restore_state(restored.state["controller"])
+            traj.meta["sessions"] = restored.sessions + 1
+        else:
+            traj = initial_trajectory(problem, info)
+            state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
+        if cp is not None:
+            cp.register(traj)
+            if restored is None:
+                cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
+        state = _evolve_ris(problem, stepper, controller, traj, state, tau_min=tau_min,
+                            progress=progress, checkpointer=cp)
+        if cp is not None:
+            cp.save_or_warn(stepper, controller, state, status="completed",
+                            where=_where(traj, state))
     return traj
 
 
@@ -301,34 +393,73 @@ def run_nested(
     tau_max: float = math.inf,
     inner: InnerOptions | None = None,
     simpson_subintervals: int = 8,
-    progress: bool = False,
+    progress=False,
     keep_every: int = 1,
+    checkpoint=None,
+    resume=None,
 ) -> list[Trajectory]:
-    """Alg. 6.2: runs for tol_1 > tol_2 > ...; run n never steps over a grid point of runs < n."""
+    """Alg. 6.2: runs for tol_1 > tol_2 > ...; run n never steps over a grid point of runs < n.
+
+    ``checkpoint`` / ``resume`` as for :func:`run_ris`; a checkpoint holds the finished runs and
+    the state of the one under way.
+    """
     from ..errors import check_decreasing
 
     tols = check_decreasing("tols", tols)
-    runs: list[Trajectory] = []
-    grid = np.empty(0)
-    for tol in tols:
-        try:
-            traj = run_ris(
-                problem,
-                "nested" if runs else "adaptive",
-                tol=tol,
-                tau=tau,
-                tau_min=tau_min,
-                tau_max=tau_max,
-                grid=grid if runs else None,
-                inner=inner,
-                simpson_subintervals=simpson_subintervals,
-                progress=progress,
-                meta={"nested_index": len(runs)},
-                keep_every=keep_every,
-            )
-        except RunFailed as exc:
-            exc.where["nested_tol"] = tol
-            raise
-        runs.append(traj)
-        grid = np.union1d(grid, traj["s"][1:])
+    arguments = run_arguments(
+        tols=tols, tau=tau, tau_min=tau_min, tau_max=tau_max,
+        inner=asdict(inner or InnerOptions()), simpson_subintervals=simpson_subintervals,
+        keep_every=keep_every)
+    with RunCheckpointing("run_nested", problem, arguments, checkpoint, resume) as rc:
+        cp, restored = rc.checkpointer, rc.restored
+        runs: list[Trajectory] = []
+        start = 0
+        if restored is not None:
+            start = int(restored.state["run"]["nested_index"])
+            runs = [restored.trajectory(i) for i in range(start)]
+            if cp is not None:
+                for r in runs:
+                    cp.register(r)
+        grid = np.empty(0)
+        for r in runs:
+            grid = np.union1d(grid, r["s"][1:])
+        for i in range(start, len(tols)):
+            tol = tols[i]
+            nested = i > 0
+            controller = make_controller("nested" if nested else "adaptive", tol=tol, tau=tau,
+                                         tau_min=tau_min, tau_max=tau_max,
+                                         grid=grid if nested else None)
+            stepper = RISStepper(problem, inner, simpson_subintervals, keep_every=keep_every)
+            info = {"example": problem.name, "control": controller.name, "tol": tol,
+                    "tau0": tau, "nested_index": i}
+            if cp is not None:
+                cp.context = {"nested_index": i}
+            if restored is not None and i == start:
+                traj = restored.trajectory(i)
+                traj.meta.update(info)
+                traj.meta["sessions"] = restored.sessions + 1
+                state = stepper.restore_state(restored.state["stepper"])
+                controller.restore_state(restored.state["controller"])
+                if cp is not None:
+                    cp.register(traj)
+            else:
+                traj = initial_trajectory(problem, info)
+                state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
+                if cp is not None:
+                    cp.register(traj)
+                    cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
+            try:
+                state = _evolve_ris(problem, stepper, controller, traj, state, tau_min=tau_min,
+                                    progress=progress, checkpointer=cp)
+            except RunFailed as exc:
+                exc.where["nested_tol"] = tol
+                raise
+            runs.append(traj)
+            grid = np.union1d(grid, traj["s"][1:])
+        if cp is not None:
+            cp.context = {"nested_index": len(tols)}
+            last = runs[-1]
+            cp.save_or_warn(status="completed", where={"accepted_steps": last.stats.accepted_steps,
+                                               "s": float(last["s"][-1]),
+                                               "t": float(last["t"][-1])})
     return runs

@@ -1,0 +1,298 @@
+"""One ``rothe run`` command as a session: output directory, checkpoint, signals, results.
+
+What a user sees in ``--out DIR`` (default ``rothe-out/<example>``):
+
+- ``DIR/checkpoint/``: the run's checkpoint, written when the run starts, every
+  ``--checkpoint-every`` seconds (default 60), when it stops for any reason and at the end;
+  ``rothe resume DIR`` continues from it (or ``rothe run ... --resume DIR``).
+- ``DIR/summary.json``, ``DIR/trajectory.npz``, figures, ParaView files: the result, committed
+  together when the run ends (:mod:`rothe.io.outputs`), whatever its status: ``completed``,
+  ``failed`` (exit 1) or ``interrupted`` (SIGINT: exit 130, SIGTERM: exit 143; the trajectory
+  so far, ``where`` it stopped and how to resume).
+- An earlier result is never destroyed by a run that does not complete: if DIR holds the
+  completed result of an earlier run, a failed or interrupted run writes its partial result to
+  ``DIR/incomplete/`` and leaves the earlier one in place; the run that then completes (e.g.
+  after ``rothe resume DIR``) replaces it and removes ``incomplete/``.
+- A new run is refused if DIR holds the checkpoint of an unfinished (interrupted or killed)
+  run -- resume it, or pass ``--discard-checkpoint`` to start over -- and if another rothe
+  process is running in DIR. ``--out`` is checked for writability before the first step.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import RunFailed, RunInterrupted, fail
+from ..io.atomic import check_writable, remove_stale_temporaries
+from ..io.checkpoint import (
+    CHECKPOINT_SUBDIR,
+    MAIN,
+    CheckpointError,
+    CheckpointOptions,
+    DirectoryLock,
+    load_checkpoint,
+    normalized,
+)
+from ..io.outputs import OutputSet, read_summary
+from ..stepping import interrupt
+from ..stepping.progress import ProgressOptions
+
+#: options that change where and how results are shown, never the results themselves
+PRESENTATION = ("out", "no_plots", "quiet", "resume", "checkpoint_every", "progress_every",
+                "discard_checkpoint")
+#: argparse bookkeeping
+_INTERNAL = ("_command", "_argv", "verb", "name")
+#: options stripped from the recorded command line (``rothe resume`` supplies them)
+_STRIP_WITH_VALUE = ("--out", "--resume")
+_STRIP_FLAGS = ("--discard-checkpoint",)
+INCOMPLETE = "incomplete"
+
+
+def add_run_options(parser) -> None:
+    """``--checkpoint-every``, ``--resume`` and ``--discard-checkpoint`` of the run commands."""
+    from .common import parse_float
+
+    parser.add_argument("--checkpoint-every", type=parse_float("--checkpoint-every"),
+                        default=60.0, metavar="SECONDS",
+                        help="write a checkpoint to OUT/checkpoint every SECONDS of wall time "
+                             "(default 60; also at the start, when stopped, and at the end)")
+    parser.add_argument("--resume", default=None, metavar="DIR",
+                        help="continue the run whose checkpoint is in DIR (the same command "
+                             "line; see also 'rothe resume DIR')")
+    parser.add_argument("--discard-checkpoint", action="store_true",
+                        help="start over even if OUT holds the checkpoint of an unfinished run "
+                             "(it is replaced)")
+
+
+def result_arguments(args) -> dict:
+    """The parsed options that can change the results (everything but presentation)."""
+    skip = set(PRESENTATION) | set(_INTERNAL)
+    return normalized({k: v for k, v in sorted(vars(args).items()) if k not in skip})
+
+
+def strip_argv(argv: list[str]) -> list[str]:
+    """The command line without --out/--resume/--discard-checkpoint (``rothe resume`` adds
+    its own)."""
+    out, i = [], 0
+    while i < len(argv):
+        tok = argv[i]
+        name = tok.split("=", 1)[0]
+        if name in _STRIP_WITH_VALUE:
+            i += 1 if "=" in tok else 2
+            continue
+        if tok in _STRIP_FLAGS:
+            i += 1
+            continue
+        out.append(tok)
+        i += 1
+    return out
+
+
+def _option(key: str) -> str:
+    return "--" + key.replace("_", "-")
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, list):
+        return ",".join(_fmt(v) for v in value)
+    return "(not given)" if value is None else str(value)
+
+
+@dataclass
+class Outcome:
+    """How a run ended: ``status`` completed | failed | interrupted, with its result/error."""
+
+    status: str
+    result: object = None
+    error: BaseException | None = None
+
+
+class RunSession:
+    """Output directory, checkpoint and signal handling of one run command."""
+
+    def __init__(self, args, name: str, argv: list[str] | None = None):
+        self.args = args
+        self.name = name
+        self.command = f"{args.verb} {args.name}"
+        self.out = Path(args.out) if args.out else Path("rothe-out") / name
+        self.resume = None
+        if args.resume is not None:
+            given = Path(args.resume)
+            if args.out is not None and _resolved(self.out) != _resolved(_run_dir(given)):
+                raise fail("--out", str(self.out),
+                           f"must be the resumed directory {_run_dir(given)} (or omitted)")
+            self.resume = self._load_resumable(given)
+            self.out = _run_dir(given)
+        check_writable(self.out, "--out")
+        self.checkpoint_dir = self.out / CHECKPOINT_SUBDIR
+        self._lock = DirectoryLock(self.checkpoint_dir)
+        self._lock.acquire()
+        try:
+            remove_stale_temporaries(self.out)
+            if self.resume is None:
+                self._refuse_unfinished()
+        except BaseException:
+            self._lock.release()
+            raise
+        if argv is None:
+            argv = getattr(args, "_argv", None)
+        argv = list(sys.argv[1:] if argv is None else argv)
+        self.checkpoint = CheckpointOptions(
+            self.checkpoint_dir,
+            every_seconds=_positive("--checkpoint-every", args.checkpoint_every),
+            record={"command": self.command, "argv": strip_argv(argv),
+                    "args": result_arguments(args)})
+        self.progress = progress_options(args)
+        self._guard = interrupt.interruptible(hard_second=True)
+
+    # -- checks before the first step -----------------------------------------------------------
+    def _load_resumable(self, given: Path):
+        try:
+            ckpt = load_checkpoint(given)
+        except CheckpointError as exc:
+            raise CheckpointError(f"--resume {exc}") from None
+        ckpt.require_resumable()
+        rec = ckpt.record
+        if rec.get("command") != self.command:
+            raise CheckpointError(f"--resume {given}: the checkpoint is of 'rothe "
+                                  f"{rec.get('command')}', not 'rothe {self.command}'")
+        old, new = rec.get("args", {}), result_arguments(self.args)
+        diff = [f"{_option(k)} {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
+                for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+        if diff:
+            raise CheckpointError(f"--resume {given}: the command line differs from the "
+                                  f"checkpoint's: {'; '.join(diff)}")
+        return ckpt
+
+    def _refuse_unfinished(self) -> None:
+        if not (self.checkpoint_dir / MAIN).is_file():
+            return
+        try:
+            ckpt = load_checkpoint(self.checkpoint_dir, check_version=False, header_only=True)
+        except CheckpointError:
+            return  # unreadable: nothing that could be resumed is lost by replacing it
+        if ckpt.status in ("running", "interrupted") and not self.args.discard_checkpoint:
+            raise fail("--out", str(self.out),
+                       f"holds the checkpoint of an unfinished run ({ckpt.status}, "
+                       f"{ckpt.describe_where()}): continue it with 'rothe resume {self.out}' "
+                       "or start over with --discard-checkpoint")
+
+    # -- running --------------------------------------------------------------------------------
+    def __enter__(self):
+        self._guard.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self._guard.__exit__(*exc)
+        self._lock.release()
+        return False
+
+    def run(self, fn) -> Outcome:
+        """``fn(checkpoint=..., resume=..., progress=...)`` -> result; catches the stops."""
+        try:
+            return Outcome("completed", fn(checkpoint=self.checkpoint, resume=self.resume,
+                                           progress=self.progress))
+        except RunFailed as exc:
+            return Outcome("failed", exc.trajectory, exc)
+        except RunInterrupted as exc:
+            return Outcome("interrupted", exc.trajectory, exc)
+
+    @property
+    def already_completed(self) -> bool:
+        """Resuming a run whose results were already committed: nothing to do."""
+        if self.resume is None or self.resume.status != "completed":
+            return False
+        s = read_summary(self.out) or {}
+        return s.get("run_id") == self.resume.run_id and s.get("status") == "completed"
+
+    def results_dir(self, status: str) -> Path:
+        """Where this run's result goes (see the module docstring)."""
+        if status == "completed":
+            return self.out
+        earlier = read_summary(self.out) or {}
+        if earlier.get("status") == "completed" and earlier.get("run_id") != self.run_id:
+            return self.out / INCOMPLETE
+        return self.out
+
+    @property
+    def run_id(self) -> str | None:
+        try:
+            return load_checkpoint(self.checkpoint_dir, check_version=False,
+                                   header_only=True).run_id
+        except CheckpointError:
+            return None
+
+    def outputs(self, status: str) -> OutputSet:
+        return OutputSet(self.results_dir(status))
+
+    def annotate(self, summary: dict, outcome: Outcome) -> dict:
+        """status, where it stopped, checkpoint and resume hints, sessions and wall time."""
+        try:
+            ckpt = load_checkpoint(self.checkpoint_dir, check_version=False, header_only=True)
+        except CheckpointError:
+            ckpt = None
+        summary["status"] = outcome.status
+        if ckpt is not None:
+            summary["run_id"] = ckpt.run_id
+            summary["sessions"] = ckpt.sessions
+            summary["checkpoint"] = str(self.checkpoint_dir)
+            if ckpt.sessions > 1:
+                summary["wall_time_note"] = (f"wall_time_s sums {ckpt.sessions} sessions (the "
+                                             "run was resumed)")
+        exc = outcome.error
+        if isinstance(exc, RunInterrupted):
+            summary["signal"] = interrupt.signal_name(exc.signum)
+            summary["where"] = exc.where
+            summary["resume"] = f"rothe resume {self.out}"
+        elif isinstance(exc, RunFailed):
+            summary["failure"] = str(exc)
+            summary["where"] = exc.where
+        return summary
+
+    def finish(self, outcome: Outcome, results: Path) -> int:
+        """After the results are committed: clean up, tell the user, return the exit status."""
+        if outcome.status == "completed":
+            inc = self.out / INCOMPLETE
+            if inc.is_dir():
+                shutil.rmtree(inc, ignore_errors=True)
+            return 0
+        exc = outcome.error
+        if isinstance(exc, RunInterrupted):
+            where = "" if results == self.out else (
+                f" (the earlier completed run stays in {self.out}/)")
+            print(f"rothe: {exc}; results so far in {results}/{where}; continue with: "
+                  f"rothe resume {self.out}", file=sys.stderr)
+            return exc.exit_status
+        raise exc
+
+
+def progress_options(args) -> ProgressOptions:
+    every = getattr(args, "progress_every", 30.0)
+    return ProgressOptions(enabled=not args.quiet, every_seconds=_positive("--progress-every",
+                                                                           every))
+
+
+def _positive(option: str, value) -> float:
+    from ..errors import check_positive
+
+    return check_positive(option, value)
+
+
+def _run_dir(path: Path) -> Path:
+    """The run's output directory for a path given to --resume / rothe resume."""
+    path = Path(path)
+    if path.name == CHECKPOINT_SUBDIR and (path / MAIN).exists():
+        return path.parent
+    return path
+
+
+def _resolved(path: Path) -> Path:
+    with contextlib.suppress(OSError):
+        return path.resolve()
+    return path

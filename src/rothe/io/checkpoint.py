@@ -1,0 +1,679 @@
+"""Checkpoints: everything a run needs to continue bit for bit, in files that need no pickle.
+
+A checkpoint directory (``<out>/checkpoint/`` for the command line) holds
+
+    checkpoint.npz      the current checkpoint: a JSON document (``__checkpoint__``, its UTF-8
+                        bytes as a uint8 array) with the nested state, whose numpy arrays are
+                        stored beside it as ``a0``, ``a1``, ... and referenced from the JSON as
+                        ``{"__array__": "a7"}``
+    traj<i>-<seq>.npz   the entries trajectory i gained since the previous checkpoint: append-only
+                        segments, written once and referenced by every later checkpoint, so that
+                        checkpointing a run of K steps costs O(K) in total, not O(K^2)
+    stream/             heavy output streamed during the run (eld-beam's XDMF segments)
+    .lock               held (flock) by the process that writes the checkpoint
+
+Every file is written atomically (:mod:`rothe.io.atomic`): a kill at any instant leaves the
+previous complete ``checkpoint.npz`` (and the segments it references) or the new one. Loading
+uses ``np.load(..., allow_pickle=False)``; zip CRCs detect truncated or damaged files.
+
+The JSON document (format ``rothe-checkpoint``, ``format_version`` 1) records
+
+- ``rothe_version``, ``run_id``, ``sequence`` (checkpoints written), ``sessions`` (1 + resumes),
+  ``status`` (running | interrupted | failed | completed), ``where`` (step, s, t of the state);
+- ``api`` (``run_ris``, ``run_nested``, ``run_eld``) and its ``arguments``, a ``fingerprint`` of
+  the problem (:func:`problem_fingerprint`: hashes of the assembled matrices, z0 / u0, v0, a few
+  load evaluations), and ``record`` (the caller's, e.g. the command line);
+- ``state``: ``stepper`` (``stepper.checkpoint_state(state)``), ``controller``
+  (``controller.checkpoint_state()``), ``run`` (the driver's context, e.g. which nested run is
+  going) and ``attachments`` (objects such as the XDMF stream writer);
+- ``trajectories``: per trajectory its ``meta``, ``stats`` and the list of segments.
+
+The protocol the state comes from (see docs/robustness.md): a stepper implements
+``checkpoint_state(state) -> dict`` and ``restore_state(data) -> state``, a controller
+``checkpoint_state() -> dict`` and ``restore_state(data) -> None``; the dicts hold nested
+dicts/lists of numpy arrays and Python floats/ints/bools/str/None only (:func:`encode` refuses
+anything else, naming where it is).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import re
+import time
+import uuid
+import warnings
+import zipfile
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import RotheInputError, check_positive
+from .atomic import atomic_path, remove_stale_temporaries
+from .trajectory import RunStatistics, Trajectory
+
+FORMAT = "rothe-checkpoint"
+FORMAT_VERSION = 1
+MAIN = "checkpoint.npz"
+CHECKPOINT_SUBDIR = "checkpoint"
+STATUSES = ("running", "interrupted", "failed", "completed")
+RESUMABLE = ("running", "interrupted", "completed")
+_SEGMENT_RE = re.compile(r"^traj(\d+)-(\d+)\.npz$")
+
+
+class CheckpointWarning(UserWarning):
+    """A checkpoint could not be written (e.g. a full disk); the run went on."""
+
+
+class CheckpointError(RotheInputError):
+    """A checkpoint cannot be resumed: missing, unreadable, foreign, or for another run.
+
+    The message is one line that says what is wrong (the CLI prints it and exits with 2).
+    """
+
+
+def package_version() -> str:
+    from .. import __version__
+
+    return __version__
+
+
+def library_versions() -> dict:
+    """Versions of the libraries whose rounding a bit-for-bit continuation depends on."""
+    import scipy
+
+    out = {"numpy": np.__version__, "scipy": scipy.__version__}
+    try:
+        import pyamg
+
+        out["pyamg"] = pyamg.__version__
+    except ImportError:  # pragma: no cover - a dependency
+        pass
+    return out
+
+
+# -- encoding ---------------------------------------------------------------------------------
+
+def encode(obj, arrays: dict, where: str = "state"):
+    """The JSON-able image of ``obj``; numpy arrays go to ``arrays`` and are referenced."""
+    if isinstance(obj, dict):
+        out = {}
+        for key, value in obj.items():
+            if not isinstance(key, str):
+                raise TypeError(f"checkpoint {where}: key {key!r} is not a str")
+            out[key] = encode(value, arrays, f"{where}.{key}")
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [encode(v, arrays, f"{where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.kind not in "biufcUS":
+            raise TypeError(f"checkpoint {where}: array of dtype {obj.dtype} (object arrays "
+                            "would need pickle)")
+        name = f"a{len(arrays)}"
+        arrays[name] = obj
+        return {"__array__": name}
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    raise TypeError(f"checkpoint {where}: a {type(obj).__name__} is not allowed (only dicts, "
+                    "lists, numpy arrays, numbers, str and None)")
+
+
+def decode(obj, arrays):
+    if isinstance(obj, dict):
+        if len(obj) == 1 and "__array__" in obj:
+            return arrays[obj["__array__"]]
+        return {k: decode(v, arrays) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [decode(v, arrays) for v in obj]
+    return obj
+
+
+def normalized(value):
+    """A JSON round trip: what a value looks like after it was written and read back."""
+    return json.loads(json.dumps(value, default=str))
+
+
+# -- fingerprints -----------------------------------------------------------------------------
+
+def digest(*items) -> str:
+    """A short SHA-256 of arrays / sparse matrices / numbers (dtype, shape and bytes)."""
+    import scipy.sparse as sp
+
+    h = hashlib.sha256()
+    for item in items:
+        if sp.issparse(item):
+            item = item.tocsr()
+            parts = [item.data, item.indices, item.indptr, np.asarray(item.shape)]
+        else:
+            parts = [np.asarray(item)]
+        for part in parts:
+            part = np.ascontiguousarray(part)
+            h.update(f"{part.dtype.str}{part.shape}".encode())
+            h.update(part.tobytes())
+    return h.hexdigest()[:16]
+
+
+def problem_fingerprint(problem) -> dict:
+    """Cheap hashes that identify a problem: assembled matrices, initial data, a few loads.
+
+    A problem may provide its own ``fingerprint() -> dict`` (e.g. with an adaptive mesh);
+    otherwise RIS problems (``A``, ``z0``, ``load``) and ELD problems (``M``, ``K``,
+    ``constraint``) are recognized. Each entry is compared separately on resume, so the refusal
+    can say what differs.
+    """
+    custom = getattr(problem, "fingerprint", None)
+    if callable(custom):
+        return normalized(dict(custom()))
+    T = float(problem.T)
+    times = (0.0, T / 3.0, T)
+    if hasattr(problem, "A") and hasattr(problem, "z0"):
+        z0 = problem.z0
+        z1 = z0 + 0.5
+        fp = {
+            "class": type(problem).__name__, "n": int(problem.n), "T": T,
+            "A": digest(problem.A), "z0": digest(z0),
+            "weights": digest(problem.r, problem.m),
+            "load": digest(*[problem.load(t) for t in times]),
+            "F": digest(np.array([problem.F(z0), problem.F(z1)]), problem.dF(z0),
+                        problem.dF(z1), problem.d2F(z0), problem.d2F(z1)),
+        }
+        if hasattr(problem, "nodes") and hasattr(problem, "cells"):
+            fp["mesh"] = digest(problem.nodes, problem.cells)
+        return fp
+    if hasattr(problem, "M") and hasattr(problem, "K") and hasattr(problem, "constraint"):
+        c = problem.constraint
+        return {
+            "class": type(problem).__name__, "ndofs": int(problem.space.ndofs), "T": T,
+            "M": digest(problem.M), "K": digest(problem.K), "B": digest(c.B, c.dofs),
+            "initial": digest(problem.u0, problem.v0),
+            "load": digest(*[problem.load(t) for t in times]),
+            "G": digest(*[problem.G(t) for t in times]),
+            "description": digest(np.frombuffer(
+                json.dumps(problem.describe(), sort_keys=True, default=str).encode(), np.uint8)),
+        }
+    raise TypeError(f"cannot fingerprint a {type(problem).__name__}: give it a fingerprint() "
+                    "method returning a dict of hashes")
+
+
+# -- the checkpoint on disk -------------------------------------------------------------------
+
+def checkpoint_dir(path) -> Path:
+    """The checkpoint directory for ``path``: ``path`` itself or ``path/checkpoint``."""
+    path = Path(path)
+    if (path / MAIN).exists() or not (path / CHECKPOINT_SUBDIR).is_dir():
+        return path
+    return path / CHECKPOINT_SUBDIR
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, str):
+        return repr(value)
+    return json.dumps(value, default=str)
+
+
+class Checkpoint:
+    """A checkpoint read from disk (:func:`load_checkpoint`)."""
+
+    def __init__(self, directory: Path, header: dict, arrays: dict):
+        self.directory = directory
+        self.header = header
+        self._arrays = arrays
+        self._state = None
+
+    path = property(lambda self: self.directory / MAIN)
+    status = property(lambda self: self.header["status"])
+    where = property(lambda self: dict(self.header.get("where") or {}))
+    record = property(lambda self: dict(self.header.get("record") or {}))
+    run_id = property(lambda self: self.header["run_id"])
+    sequence = property(lambda self: int(self.header["sequence"]))
+    sessions = property(lambda self: int(self.header.get("sessions", 1)))
+    api = property(lambda self: self.header["api"])
+    every_seconds = property(lambda self: float(self.header.get("every_seconds", 60.0)))
+
+    @property
+    def state(self) -> dict:
+        """The decoded ``stepper``/``controller``/``run``/``attachments`` state."""
+        if self._state is None:
+            self._state = decode(self.header["state"], self._arrays)
+        return self._state
+
+    def describe_where(self) -> str:
+        w = self.where
+        parts = [f"{k} = {w[k]:.6g}" if isinstance(w.get(k), float) else f"{k} = {w[k]}"
+                 for k in ("accepted_steps", "s", "t") if k in w]
+        return ", ".join(parts)
+
+    # -- checks -----------------------------------------------------------------------------
+    def require_version(self) -> None:
+        mine, theirs = package_version(), self.header.get("rothe_version")
+        if theirs != mine:
+            raise CheckpointError(f"{self.directory}: written by rothe {theirs}, this is rothe "
+                                  f"{mine}; resume it with rothe {theirs} or start over")
+
+    def warn_if_libraries_differ(self) -> None:
+        old, new = self.header.get("libraries") or {}, library_versions()
+        diff = [f"{k} {old[k]} -> {new.get(k)}" for k in sorted(old) if old[k] != new.get(k)]
+        if diff:
+            warnings.warn(f"{self.directory}: written with other library versions "
+                          f"({', '.join(diff)}); the resumed run may differ from an "
+                          "uninterrupted one in the last bits", CheckpointWarning, stacklevel=3)
+
+    def require_resumable(self) -> None:
+        if self.status == "failed":
+            w = self.where
+            raise CheckpointError(
+                f"{self.directory}: the run failed ({w.get('failure', 'see summary.json')}); "
+                "resuming it would repeat the failure")
+
+    def require_same(self, api: str, arguments: dict, fingerprint: dict | None) -> None:
+        """Refuse (one line) if the API, its arguments or the problem differ from the record."""
+        if self.api != api:
+            raise CheckpointError(f"{self.directory}: the checkpoint is of {self.api}, not {api}")
+        old, new = self.header.get("arguments", {}), normalized(arguments)
+        diff = [f"{k} = {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
+                for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+        if diff:
+            raise CheckpointError(f"{self.directory}: the arguments differ from the "
+                                  f"checkpoint's: {'; '.join(diff)}")
+        if fingerprint is not None:
+            old = self.header.get("fingerprint", {})
+            new = normalized(fingerprint)
+            keys = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+            if keys:
+                raise CheckpointError(
+                    f"{self.directory}: the problem differs from the checkpoint's (in: "
+                    f"{', '.join(keys)}); resume with the same problem or start over")
+
+    # -- trajectories -----------------------------------------------------------------------
+    @property
+    def n_trajectories(self) -> int:
+        return len(self.header.get("trajectories", []))
+
+    def trajectory(self, i: int) -> Trajectory:
+        rec = self.header["trajectories"][i]
+        traj = Trajectory(meta=rec.get("meta"))
+        for f in fields(RunStatistics):
+            if f.name in rec.get("stats", {}):
+                setattr(traj.stats, f.name, rec["stats"][f.name])
+        for seg in rec["segments"]:
+            path = self.directory / seg["file"]
+            try:
+                with np.load(path, allow_pickle=False) as data:
+                    for key, count in seg["counts"].items():
+                        values = data[key]
+                        if len(values) != count:
+                            raise ValueError(f"{key}: {len(values)} entries, expected {count}")
+                        traj.extend(key, list(values))
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+                raise CheckpointError(f"{path}: a trajectory segment of the checkpoint is "
+                                      f"missing or damaged ({exc})") from None
+        return traj
+
+
+def load_checkpoint(path, *, check_version: bool = True, header_only: bool = False
+                    ) -> Checkpoint:
+    """Read a checkpoint (``path`` is the checkpoint directory or a run directory holding one).
+
+    Raises :class:`CheckpointError` with one line for a missing directory, a missing,
+    truncated or foreign checkpoint file, or (``check_version``) another rothe version.
+    ``header_only``: skip the state's arrays (for status, where, run_id, record).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise CheckpointError(f"{path}: no such directory")
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: not a directory (give the run's output directory)")
+    directory = checkpoint_dir(path)
+    main = directory / MAIN
+    if not main.is_file():
+        raise CheckpointError(f"{path}: no checkpoint here (no {CHECKPOINT_SUBDIR}/{MAIN}); a run "
+                              "writes one when it starts")
+    try:
+        with np.load(main, allow_pickle=False) as data:
+            if "__checkpoint__" not in data.files:
+                raise CheckpointError(f"{main}: not a rothe checkpoint (no __checkpoint__ entry)")
+            raw = data["__checkpoint__"]
+            header = json.loads(raw.tobytes().decode("utf-8") if raw.dtype == np.uint8
+                                else str(raw))
+            arrays = {} if header_only else {k: data[k] for k in data.files
+                                              if k != "__checkpoint__"}
+    except CheckpointError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+        raise CheckpointError(f"{main}: not a readable checkpoint (truncated or damaged: "
+                              f"{type(exc).__name__}: {exc})") from None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise CheckpointError(f"{main}: not a rothe checkpoint")
+    if header.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(f"{main}: checkpoint format {header.get('format_version')}, this "
+                              f"rothe reads format {FORMAT_VERSION}")
+    ckpt = Checkpoint(directory, header, arrays)
+    if check_version:
+        ckpt.require_version()
+    return ckpt
+
+
+# -- writing ----------------------------------------------------------------------------------
+
+@dataclass
+class CheckpointOptions:
+    """Where and how often a run writes checkpoints.
+
+    ``path``: the checkpoint directory; ``every_seconds``: wall-clock interval between
+    checkpoints (one is also written when the run starts, when it stops for any reason, and at
+    the end); ``record``: JSON-able data stored with the checkpoint (the command line stores
+    its arguments); ``attachments``: name -> object with ``checkpoint_state() -> dict`` and
+    ``restore_state(data)`` saved and restored with the run (e.g. a streaming output writer).
+    """
+
+    path: str | os.PathLike
+    every_seconds: float = 60.0
+    record: dict | None = None
+    attachments: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.path = Path(self.path)
+        self.every_seconds = check_positive("checkpoint every_seconds", self.every_seconds)
+
+
+_HELD: dict[str, list] = {}  # resolved lock path -> [fd, holders] (flock is per open file)
+
+
+class DirectoryLock:
+    """An exclusive ``flock`` on ``<dir>/.lock``: one rothe process per checkpoint directory.
+
+    Re-entrant within a process (the command line holds it for the whole run, the checkpointer
+    inside it again); released by the kernel if the process dies, so a killed run never leaves
+    a stale lock. Raises :class:`CheckpointError` naming the other process's pid.
+    """
+
+    def __init__(self, directory):
+        self.path = Path(directory) / ".lock"
+        self.key = None
+
+    def acquire(self) -> DirectoryLock:
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return self
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        key = str(self.path.resolve())
+        if key in _HELD:
+            _HELD[key][1] += 1
+            self.key = key
+            return self
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            try:
+                other = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            finally:
+                os.close(fd)
+            raise CheckpointError(f"{self.path.parent}: in use by another running rothe process "
+                                  f"(pid {other})") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        _HELD[key] = [fd, 1]
+        self.key = key
+        return self
+
+    def release(self) -> None:
+        if self.key is None:
+            return
+        key, self.key = self.key, None
+        entry = _HELD.get(key)
+        if entry is None:
+            return
+        entry[1] -= 1
+        if entry[1] == 0:
+            del _HELD[key]
+            with contextlib.suppress(OSError):
+                os.close(entry[0])
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()
+        return False
+
+
+class Checkpointer:
+    """Writes the checkpoints of one run (see the module docstring for the layout).
+
+    The driver (``run_ris``, ``run_nested``, ``run_eld``) registers the run's trajectories,
+    keeps ``context`` up to date (e.g. the index of the nested run under way) and calls
+    :meth:`save` at the start and at the end; the evolve loop calls :meth:`due` between steps
+    and :meth:`save` when it is, and with status ``interrupted`` / ``failed`` when it stops.
+    """
+
+    def __init__(self, options: CheckpointOptions, *, api: str, arguments: dict,
+                 fingerprint: dict, restored: Checkpoint | None = None):
+        self.options = options
+        self.directory = Path(options.path)
+        self.every = options.every_seconds
+        self.api = api
+        self.arguments = normalized(arguments)
+        self.fingerprint = normalized(fingerprint)
+        self.attachments = dict(options.attachments or {})
+        self.context: dict = {}
+        self.trajectories: list[Trajectory] = []
+        self._segments: list[list[dict]] = []
+        self._saved: list[dict[str, int]] = []
+        self._last = time.monotonic()
+        self._warned = False
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._lock = DirectoryLock(self.directory).acquire()
+        remove_stale_temporaries(self.directory)
+        same_dir = restored is not None and _same_dir(restored.directory, self.directory)
+        if restored is not None:
+            self.run_id = restored.run_id
+            self.sessions = restored.sessions + 1
+            self.sequence = restored.sequence
+        else:
+            self.run_id = uuid.uuid4().hex[:12]
+            self.sessions = 1
+            self.sequence = 0
+        self._adopted = []
+        if same_dir:
+            for rec in restored.header["trajectories"]:
+                self._adopted.append(rec["segments"])
+
+    # -- registration ----------------------------------------------------------------------
+    def register(self, traj: Trajectory) -> int:
+        """Track ``traj``; entries it already holds from a checkpoint in this directory are not
+        written again."""
+        i = len(self.trajectories)
+        self.trajectories.append(traj)
+        if i < len(self._adopted):
+            segs = [dict(s) for s in self._adopted[i]]
+            saved: dict[str, int] = {}
+            for s in segs:
+                for key, n in s["counts"].items():
+                    saved[key] = saved.get(key, 0) + n
+            self._segments.append(segs)
+            self._saved.append(saved)
+        else:
+            self._segments.append([])
+            self._saved.append({})
+        return i
+
+    def due(self) -> bool:
+        return time.monotonic() - self._last >= self.every
+
+    # -- saving -----------------------------------------------------------------------------
+    def save(self, stepper=None, controller=None, state=None, *, status: str = "running",
+             where: dict | None = None) -> Path:
+        """Write a checkpoint of the run as it is now; returns the checkpoint directory."""
+        if status not in STATUSES:
+            raise ValueError(f"status: got {status!r}, must be one of {', '.join(STATUSES)}")
+        payload = {
+            "stepper": None if stepper is None else stepper.checkpoint_state(state),
+            "controller": None if controller is None else controller.checkpoint_state(),
+            "run": self.context,
+            "attachments": {name: obj.checkpoint_state()
+                            for name, obj in self.attachments.items()},
+        }
+        self.sequence += 1
+        seq = self.sequence
+        new_segments = []
+        traj_records = []
+        for i, traj in enumerate(self.trajectories):
+            saved = self._saved[i]
+            fresh = {}
+            for key in traj.keys():
+                start = saved.get(key, 0)
+                entries = traj.entries(key)
+                if len(entries) > start:
+                    fresh[key] = np.stack([np.asarray(e) for e in entries[start:]])
+            segs = list(self._segments[i])
+            if fresh:
+                name = f"traj{i}-{seq:06d}.npz"
+                with atomic_path(self.directory / name) as tmp:
+                    np.savez(tmp, **fresh)
+                seg = {"file": name, "counts": {k: int(len(v)) for k, v in fresh.items()}}
+                segs.append(seg)
+                new_segments.append((i, seg))
+            traj_records.append({"meta": normalized(traj.meta), "stats": traj.stats.as_dict(),
+                                 "segments": segs})
+        arrays: dict = {}
+        header = {
+            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "rothe_version": package_version(), "libraries": library_versions(),
+            "run_id": self.run_id,
+            "sequence": seq, "sessions": self.sessions,
+            "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "status": status, "where": normalized(where or {}),
+            "api": self.api, "arguments": self.arguments, "fingerprint": self.fingerprint,
+            "record": normalized(self.options.record or {}),
+            "every_seconds": self.every,
+            "trajectories": traj_records,
+        }
+        header["state"] = encode(payload, arrays)
+        text = json.dumps(header, allow_nan=True).encode("utf-8")
+        with atomic_path(self.directory / MAIN) as tmp:
+            np.savez(tmp, __checkpoint__=np.frombuffer(text, dtype=np.uint8), **arrays)
+        # only now are the new segments part of a checkpoint
+        for i, seg in new_segments:
+            self._segments[i].append(seg)
+            for key, n in seg["counts"].items():
+                self._saved[i][key] = self._saved[i].get(key, 0) + n
+        self._remove_unreferenced()
+        self._last = time.monotonic()
+        return self.directory
+
+    def save_or_warn(self, *args, **kwargs) -> Path | None:
+        """:meth:`save`, but a write error (a full disk) is a warning, not the end of the run:
+        the previous checkpoint stays valid, the run goes on, and the results are still written
+        (or fail with their own error). Warns once per run."""
+        from ..errors import OutputWriteError
+
+        try:
+            return self.save(*args, **kwargs)
+        except OutputWriteError as exc:
+            self._last = time.monotonic()  # retry at the next interval, not at every step
+            if not self._warned:
+                self._warned = True
+                warnings.warn(f"checkpoint not written ({exc}); the run goes on and the "
+                              "previous checkpoint stays", CheckpointWarning, stacklevel=2)
+            return None
+
+    def _remove_unreferenced(self) -> None:
+        keep = {s["file"] for segs in self._segments for s in segs}
+        with contextlib.suppress(OSError):
+            for entry in os.scandir(self.directory):
+                if _SEGMENT_RE.match(entry.name) and entry.name not in keep:
+                    with contextlib.suppress(OSError):
+                        os.unlink(entry.path)
+
+    def close(self) -> None:
+        self._lock.release()
+
+    def restore_attachments(self, restored: Checkpoint) -> None:
+        saved = restored.state.get("attachments") or {}
+        for name, obj in self.attachments.items():
+            if name in saved:
+                obj.restore_state(saved[name])
+
+
+def _same_dir(a: Path, b: Path) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False
+
+
+# -- what the drivers call --------------------------------------------------------------------
+
+class RunCheckpointing:
+    """Checkpointing and resumption of one driver call (``run_ris``, ``run_nested``, ``run_eld``).
+
+    ``checkpoint``: None, a directory, or :class:`CheckpointOptions`; ``resume``: None, a
+    directory or a :class:`Checkpoint`. Resuming checks the version, the status, the API and its
+    arguments and the problem's fingerprint (:class:`CheckpointError` with one line otherwise);
+    without ``checkpoint`` a resumed run keeps writing checkpoints where it was resumed from,
+    at the recorded interval.
+    """
+
+    def __init__(self, api: str, problem, arguments: dict, checkpoint=None, resume=None):
+        self.restored: Checkpoint | None = None
+        self.checkpointer: Checkpointer | None = None
+        if checkpoint is None and resume is None:
+            return
+        fingerprint = problem_fingerprint(problem)
+        if resume is not None:
+            ckpt = resume if isinstance(resume, Checkpoint) else load_checkpoint(resume)
+            ckpt.require_version()
+            ckpt.require_resumable()
+            ckpt.require_same(api, arguments, fingerprint)
+            ckpt.warn_if_libraries_differ()
+            self.restored = ckpt
+            if checkpoint is None:
+                checkpoint = CheckpointOptions(ckpt.directory, every_seconds=ckpt.every_seconds,
+                                               record=ckpt.record)
+        if not isinstance(checkpoint, CheckpointOptions):
+            checkpoint = CheckpointOptions(checkpoint)
+        self.checkpointer = Checkpointer(checkpoint, api=api, arguments=arguments,
+                                         fingerprint=fingerprint, restored=self.restored)
+        if self.restored is not None:
+            try:
+                self.checkpointer.restore_attachments(self.restored)
+            except BaseException:
+                self.close()
+                raise
+
+    @property
+    def resuming(self) -> bool:
+        return self.restored is not None
+
+    def close(self) -> None:
+        if self.checkpointer is not None:
+            self.checkpointer.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def run_arguments(**kwargs) -> dict:
+    """Arguments of a driver call as recorded in a checkpoint (floats kept exactly; inf as str)."""
+    out = {}
+    for key, value in kwargs.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            value = repr(value)
+        elif isinstance(value, np.ndarray):
+            value = {"sha256": digest(value), "shape": list(value.shape)}
+        out[key] = value
+    return normalized(out)
