@@ -322,11 +322,10 @@ class ErrorNormController(StepController):
         self.sigma = self._limit(tau * min(0.9, max(self.fac_min, ideal)))
         return Decision(False, self.sigma, f"{self.key} = {est:.3g} > tol = {self.tol:g}")
 
-    def checkpoint_state(self) -> dict:
-        return {"sigma": float(self.sigma), "tau_last": self.tau_last,
-                "last_rejected": bool(self.last_rejected)}
+    # the base class adds the name and sigma (and refuses another controller's state)
+    def _extra_state(self) -> dict:
+        return {"tau_last": self.tau_last, "last_rejected": bool(self.last_rejected)}
 
-    def restore_state(self, data: dict) -> None:
-        self.sigma = float(data["sigma"])
+    def _restore_extra(self, data: dict) -> None:
         self.tau_last = None if data["tau_last"] is None else float(data["tau_last"])
         self.last_rejected = bool(data["last_rejected"])

@@ -54,9 +54,12 @@ class FixedStepController:
         return Decision(True, self.step_size(min(self.k, self.n - 1)), "fixed step")
 
     def checkpoint_state(self) -> dict:
-        return {"k": int(self.k)}
+        return {"controller": self.name, "k": int(self.k)}
 
     def restore_state(self, data: dict) -> None:
+        if data.get("controller") != self.name:
+            raise ValueError(f"restore_state: a {data.get('controller')!r} controller's state "
+                             f"given to a {self.name!r} controller")
         self.k = int(data["k"])
 
 
