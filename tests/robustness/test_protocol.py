@@ -119,40 +119,42 @@ def test_reusable_solver_round_trip_rebuilds_the_same_lu():
     assert s1.stats.as_dict() == s2.stats.as_dict()
 
 
-@pytest.mark.parametrize("form, damping", [("regularized", "nonlinear"),
-                                           ("original", "nonlinear"),
-                                           ("regularized", "rayleigh")])
-def test_eld_stepper_round_trip(form, damping):
-    from rothe.control.controllers import UniformController
-    from rothe.eld import ELDStepper, make_damping, mms_problem
+@pytest.mark.parametrize("form, damping, options", [
+    ("regularized", "nonlinear", {}),
+    ("original", "nonlinear", {}),
+    ("regularized", "rayleigh", {}),
+    ("original", "nonlinear", {"scheme": "bdf2", "control": "adaptive", "tol": 1e-4}),
+    ("regularized", "rayleigh", {"scheme": "bdf2", "data": "differenced"}),
+])
+def test_eld_stepper_round_trip(form, damping, options):
+    """The stepper and the controller that run_eld uses (prepare_eld_run): Euler and BDF2,
+    uniform and adaptive steps. The step data keeps no history of its own (the differenced
+    mode's G^{j-1}, G^{j-2}, G_dot^{j-1}, G_dot^{j-2} are boundary vectors of the state)."""
+    from rothe.eld import make_damping, mms_problem, prepare_eld_run
 
     p, _ = mms_problem(3, 2, damping=make_damping(damping, b=0.01, d0=0.5))
 
     def fresh():
-        st = ELDStepper(p, form, 0.02)
-        return st, UniformController(0.02)
+        return prepare_eld_run(p, form, 0.02, **options)
 
-    def start(st):
-        traj = Trajectory()
-        s0 = st.initial_state()
-        st.record_initial(traj, s0)
-        return traj, s0
-
-    st_full, ctl = fresh()
-    full, s0 = start(st_full)
-    evolve(st_full, ctl, s0, full, tau_min=0.02)
-    st, ctl = fresh()
-    part, s0 = start(st)
-    state = evolve(StopAfter(st, 17, index=lambda s: s.j), ctl, s0, part, tau_min=0.02)
-    saved = copy.deepcopy({"stepper": st.checkpoint_state(state),
-                           "controller": ctl.checkpoint_state()})
+    run_full = fresh()
+    full = run_full.trajectory
+    evolve(run_full.stepper, run_full.controller, run_full.state, full,
+           tau_min=run_full.tau_min)
+    run = fresh()
+    part = run.trajectory
+    state = evolve(StopAfter(run.stepper, 17, index=lambda s: s.j), run.controller, run.state,
+                   part, tau_min=run.tau_min)
+    assert state.j == 17
+    saved = copy.deepcopy({"stepper": run.stepper.checkpoint_state(state),
+                           "controller": run.controller.checkpoint_state()})
     encode(saved, {})
-    st2, ctl2 = fresh()
-    state2 = st2.restore_state(saved["stepper"])
-    ctl2.restore_state(saved["controller"])
-    evolve(st2, ctl2, state2, part, tau_min=0.02)
+    run2 = fresh()
+    state2 = run2.stepper.restore_state(saved["stepper"])
+    run2.controller.restore_state(saved["controller"])
+    evolve(run2.stepper, run2.controller, state2, part, tau_min=run2.tau_min)
     _assert_same(full, part)
-    a, b = vars(st_full.solver.stats), vars(st2.solver.stats)
+    a, b = vars(run_full.stepper.solver.stats), vars(run2.stepper.solver.stats)
     assert {k: v for k, v in a.items() if k != "setup_seconds"} == {
         k: v for k, v in b.items() if k != "setup_seconds"}
 
