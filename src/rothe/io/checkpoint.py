@@ -194,6 +194,8 @@ def problem_fingerprint(problem) -> dict:
             "initial": digest(problem.u0, problem.v0),
             "load": digest(*[problem.load(t) for t in times]),
             "G": digest(*[problem.G(t) for t in times]),
+            # the damping force at a fixed velocity (a user's damping function is not described)
+            "damping": digest(problem.damping_op.apply(np.sin(np.arange(problem.space.ndofs)))),
             "description": digest(np.frombuffer(
                 json.dumps(problem.describe(), sort_keys=True, default=str).encode(), np.uint8)),
         }
