@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..control.controllers import make_controller
-from ..errors import RunFailed, RunInterrupted, check_int, check_positive, fail
+from ..errors import DataError, RunFailed, RunInterrupted, check_int, check_positive, fail
 from ..estimators.residuals import step_residuals
 from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
@@ -60,6 +60,73 @@ class RISStepResult:
         return {"I1": self.I1, "I2": self.I2}
 
 
+class ProgressMonitor:
+    """Stops a run that cannot reach its end: no progress in s over many step attempts.
+
+    Every attempt of a step advances s by its tau when accepted, and s >= t, so reaching T
+    needs at least T - t more of s. If ``window`` consecutive attempts (accepted, rejected
+    and landing retries) advanced s by less than ``min_rate`` * (T - t), the run would need more
+    than window / min_rate = 10^9 attempts at that rate, 1000 times the evolve loop's cap: it
+    is stuck (typically on steps of ~1e-10 alternating with failed inner solves). That happens
+    when dF or d2F does not belong to F (the line search on J and the Newton model disagree),
+    which the construction check misses with ``check_derivatives=False`` or a derivative that
+    is wrong only away from its test points, or when the energy is not coercive.
+
+    State (``checkpoint_state``/``restore_state``): the attempt count of the window, s at its
+    start and the failed inner solves in it.
+    """
+
+    def __init__(self, window: int = 200, min_rate: float = 1e-6):
+        self.window = check_int("window", window, minimum=1)
+        self.min_rate = check_positive("min_rate", min_rate)
+        self.attempts = 0
+        self.s_start: float | None = None
+        self.failed = 0
+        self.codes: dict[str, int] = {}
+
+    def observe(self, state: RISState, result: RISStepResult, T: float, where: dict) -> None:
+        """Count one attempt from ``state``; raise RunFailed when a window ends without
+        progress."""
+        if self.s_start is None:
+            self.s_start = state.s
+        self.attempts += 1
+        if not result.converged:
+            self.failed += 1
+            self.codes[result.code] = self.codes.get(result.code, 0) + 1
+        if self.attempts < self.window:
+            return
+        gained = state.s - self.s_start
+        remaining = T - state.t
+        if remaining > 0 and gained < self.min_rate * remaining:
+            if self.failed:
+                codes = ", ".join(f"{k} {v}" for k, v in sorted(self.codes.items()))
+                cause = (f"{self.failed} of them with a failed inner solve ({codes}): dF or d2F "
+                         "probably does not belong to F (check_derivatives=True compares them "
+                         "with finite differences), or F is not smooth enough for the Newton "
+                         "solver")
+            else:
+                cause = ("all solves converged: the step control keeps the steps tiny; check "
+                         "dF against F and the coercivity of the energy")
+            raise RunFailed(
+                f"no progress: {self.window} step attempts advanced s by {gained:.3g} at "
+                f"t = {state.t:.6g} (T = {T:g}; at this rate the run needs more than "
+                f"{self.window / self.min_rate:.0e} attempts); {cause}",
+                where=dict(where, stagnation_window=self.window, s_gained=gained,
+                           failed_solves=self.failed),
+            )
+        self.attempts, self.s_start, self.failed, self.codes = 0, state.s, 0, {}
+
+    def checkpoint_state(self) -> dict:
+        return {"attempts": self.attempts, "s_start": self.s_start, "failed": self.failed,
+                "codes": dict(self.codes)}
+
+    def restore_state(self, data: dict) -> None:
+        self.attempts = int(data["attempts"])
+        self.s_start = None if data["s_start"] is None else float(data["s_start"])
+        self.failed = int(data["failed"])
+        self.codes = {str(k): int(v) for k, v in data["codes"].items()}
+
+
 class RISStepper:
     """Steps 3-6 of Alg. 3.2 for a :class:`RISProblem`."""
 
@@ -83,6 +150,7 @@ class RISStepper:
         self._last_tau = 0.0
         # the last accepted step (its end state, increment and tau): a warm-start candidate
         self._previous: tuple[np.ndarray, np.ndarray, float] | None = None
+        self.monitor = ProgressMonitor()
 
     # -- evolve-loop interface ----------------------------------------------------------------
     def finished(self, state: RISState) -> bool:
@@ -98,11 +166,16 @@ class RISStepper:
     def overshoot(self, state: RISState, attempts: list[RISStepResult]):
         """A shorter tau that lands on T when the step overshoots it, or None.
 
-        t(tau) = t_{k-1} + tau - ||d(tau)|| is flat for small tau (z_k first catches up with the
-        equilibrium at t_{k-1}) and then about affine. We bracket T between the attempts of this
-        step (tau = 0 gives t_{k-1}): regula falsi with the Illinois modification, and bisection
-        after an attempt that made no progress in t (it fell into the flat part, where a secant
-        would keep proposing points in that part).
+        t(tau) = t_{k-1} + tau - ||d(tau)||_V is a hinge: while the ball constraint is active
+        (lambda > 0, z_k still catching up with the equilibrium at t_{k-1}) ||d|| = tau and t
+        stays at t_{k-1}; once z_k reaches a stationary point of the step's functional inside
+        the ball (lambda = 0), ||d|| no longer depends on tau and t grows with slope exactly 1.
+        So from an attempt that made progress in t the step that lands on T is
+        tau - (t(tau) - T) (one Newton step on the hinge, exact when the same stationary point
+        is reached). If that does not land (a different stationary point), the next guess is
+        regula falsi (Illinois) between the nearest progress-making attempts on both sides of
+        T, or bisection between the largest tau that stayed in the flat part and the
+        smallest that overshot. The result lands within ``t_tol`` = 1e-10 max(1, T).
         """
         T = self.problem.T
         last = attempts[-1]
@@ -110,32 +183,32 @@ class RISStepper:
             return None
         if len(attempts) == 1 and last.state.t <= T:
             return None
-        f0 = state.t - T
-        lo = (0.0, f0)  # (tau, t(tau) - T) with value < 0
-        hi = None
-        for a in attempts:
-            if not a.converged:
-                continue
-            f = a.state.t - T
-            if f > 0 and (hi is None or a.tau < hi[0]):
-                hi = (a.tau, f)
-            if f < 0 and a.tau > lo[0]:
-                lo = (a.tau, f)
-        if hi is None or not lo[0] < hi[0]:
+        ok = [a for a in attempts if a.converged]
+        over = [a for a in ok if a.state.t > T]
+        if not over:
             return None
-        if last.state.t - T <= f0 + self.t_tol:
-            return 0.5 * (lo[0] + hi[0])  # no progress in t: bisect out of the flat part
-        f_lo, f_hi = lo[1], hi[1]
-        # Illinois: halve the weight of an end point that was kept twice in a row
-        if len(attempts) >= 3 and (attempts[-1].state.t - T) * (attempts[-2].state.t - T) > 0:
-            if attempts[-1].state.t > T:
-                f_lo *= 0.5
-            else:
-                f_hi *= 0.5
-        tau = lo[0] - f_lo * (hi[0] - lo[0]) / (f_hi - f_lo)
-        if not lo[0] < tau < hi[0]:
-            tau = 0.5 * (lo[0] + hi[0])
-        return tau
+        hi = min(over, key=lambda a: a.tau)
+        below = [a.tau for a in ok if a.state.t < T and a.tau < hi.tau]
+        lo_tau = max(below, default=0.0)
+        progress = [a for a in ok if a.state.t > state.t + self.t_tol]
+        under = [a for a in progress if a.state.t < T and a.tau < hi.tau]
+        tried = {a.tau for a in attempts}
+        candidates = []
+        if under:  # both sides made progress: regula falsi on the affine part of t(tau)
+            lo = max(under, key=lambda a: a.tau)
+            f_lo, f_hi = lo.state.t - T, hi.state.t - T
+            if len(attempts) >= 3 and (attempts[-1].state.t - T) * (attempts[-2].state.t - T) > 0:
+                if attempts[-1].state.t > T:  # Illinois: halve the weight of the kept end
+                    f_lo *= 0.5
+                else:
+                    f_hi *= 0.5
+            candidates.append(lo.tau - f_lo * (hi.tau - lo.tau) / (f_hi - f_lo))
+        nearest = min(progress, key=lambda a: abs(a.state.t - T))
+        candidates.append(nearest.tau - (nearest.state.t - T))  # slope one past the hinge
+        for tau in candidates:
+            if lo_tau < tau < hi.tau and tau not in tried:
+                return tau
+        return 0.5 * (lo_tau + hi.tau)
 
     def pick_landing(self, state: RISState, attempts: list[RISStepResult]) -> RISStepResult:
         """The attempt to hand to the controller after shortening.
@@ -155,6 +228,39 @@ class RISStepper:
         return min(useful, key=lambda a: abs(a.state.t - T))
 
     def step(self, state: RISState, tau: float, s_end: float | None = None) -> RISStepResult:
+        """One attempt from ``state`` with step ``tau``.
+
+        Data that cannot be evaluated (:class:`~rothe.errors.DataError`, e.g. a load that is
+        NaN at some t) stops the run with :class:`RunFailed` (the evolve loop attaches the
+        trajectory so far), except beyond T: an attempt that overshoots T into times where
+        the load is not defined is a failed attempt, which the controller shortens.
+        """
+        try:
+            result = self._step(state, tau, s_end)
+        except DataError as exc:
+            t_reached = state.t + tau
+            if t_reached > self.problem.T + self.t_tol and state.t < self.problem.T:
+                result = self._failed_attempt(state, tau, s_end, "data_beyond_T")
+            else:
+                where = self.where(state, None)
+                where.update(tau=tau, data_error=str(exc))
+                raise RunFailed(
+                    f"{exc} (at step {where['step']}, s = {state.s:.6g}, t = {state.t:.6g}, "
+                    f"tau = {tau:.3g})", where=where) from None
+        self.monitor.observe(state, result, self.problem.T, self.where(state, result))
+        return result
+
+    def _failed_attempt(self, state: RISState, tau: float, s_end, code: str) -> RISStepResult:
+        nan = math.nan
+        return RISStepResult(
+            state=RISState(s=s_end if s_end is not None else state.s + tau, t=nan, z=state.z,
+                           k=state.k + 1),
+            tau=tau, converged=False, code=code, lam=nan, kkt=nan, kkt_tol=nan, I1=nan,
+            I2=nan, I1_err=nan, I2_err=nan, J_start=nan, J_final=nan, energy=nan,
+            increment=np.zeros_like(state.z),
+        )
+
+    def _step(self, state: RISState, tau: float, s_end: float | None) -> RISStepResult:
         p = self.problem
         self._last_tau = tau
         lin = self.solver.linear.stats
@@ -244,7 +350,8 @@ class RISStepper:
     # -- checkpoint protocol (rothe.io.checkpoint) -------------------------------------------
     def checkpoint_state(self, state: RISState) -> dict:
         """The state (s, t, z, k), the warm-start hint of the next step (the previous accepted
-        increment and its tau) and the linear solver's stored preconditioner."""
+        increment and its tau), the linear solver's stored preconditioner and the progress
+        monitor's window."""
         previous = None
         if self._previous is not None:
             z_prev, d_prev, tau_prev = self._previous
@@ -252,7 +359,8 @@ class RISStepper:
                         "of_this_state": z_prev is state.z}
         return {"stepper": "ris", "s": float(state.s), "t": float(state.t), "z": state.z,
                 "k": int(state.k), "last_tau": float(self._last_tau), "previous": previous,
-                "linear": self.solver.linear.checkpoint_state()}
+                "linear": self.solver.linear.checkpoint_state(),
+                "monitor": self.monitor.checkpoint_state()}
 
     def restore_state(self, data: dict) -> RISState:
         if data.get("stepper") != "ris":
@@ -268,7 +376,20 @@ class RISStepper:
             self._previous = (state.z if prev["of_this_state"] else None,
                               np.array(prev["increment"], dtype=float), float(prev["tau"]))
         self.solver.linear.restore_state(data["linear"])
+        if data.get("monitor") is not None:  # absent in checkpoints of earlier versions
+            self.monitor.restore_state(data["monitor"])
         return state
+
+
+#: the likely cause of a run that stopped after its inner solves kept failing (by result code)
+FAILURE_HINTS = {
+    "stalled": "the inner solver cannot reach stationarity: dF or d2F probably does not belong "
+               "to F (check_derivatives=True compares them with finite differences)",
+    "max_iterations": "the inner solver cannot reach stationarity: dF or d2F probably does not "
+                      "belong to F (check_derivatives=True compares them with finite "
+                      "differences)",
+    "nonfinite": "F, dF, d2F or the load gave a non-finite value (overflow or NaN)",
+}
 
 
 def initial_trajectory(problem: RISProblem, meta: dict | None = None) -> Trajectory:
@@ -302,9 +423,15 @@ def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress,
         if exc.state is not None:
             _keep_last_z(problem, stepper, traj, exc.state)
         raise
+    except RunFailed as exc:
+        hint = FAILURE_HINTS.get(exc.where.get("code"))
+        if hint and exc.args and "stagnation_window" not in exc.where:
+            exc.args = (f"{exc.args[0]}; {hint}",) + exc.args[1:]
+        raise
     finally:
         traj.meta["linear_solver"] = stepper.solver.linear.kind_used
     _keep_last_z(problem, stepper, traj, state)
+    traj.meta["landing"] = landing_record(stepper, state)
     return state
 
 
@@ -382,6 +509,25 @@ def run_ris(
             cp.save_or_warn(stepper, controller, state, status="completed",
                             where=_where(traj, state))
     return traj
+
+
+def landing_record(stepper: RISStepper, state: RISState) -> dict:
+    """How the run ended: on T within ``t_tol`` = 1e-10 max(1, T) (``landed``), or at S.
+
+    ``t_final_minus_T`` is the signed miss; ``landed`` is False only if the landing iteration
+    (at most ``max_landing_retries`` shortened attempts of the last step) did not reach the
+    tolerance, in which case the last accepted step is the attempt closest to T.
+    """
+    T = stepper.problem.T
+    ended_by_S = stepper.S is not None and state.t < T - stepper.t_tol
+    return {
+        "ended_by": "S" if ended_by_S else "T",
+        "T": T,
+        "t_final": float(state.t),
+        "t_final_minus_T": float(state.t - T),
+        "tolerance": stepper.t_tol,
+        "landed": bool(ended_by_S or abs(state.t - T) <= stepper.t_tol),
+    }
 
 
 def run_nested(
