@@ -17,6 +17,15 @@ class RotheInputError(ValueError):
     """Bad input: the message names the parameter, the value and what is allowed."""
 
 
+class DataError(RotheInputError):
+    """Problem data that cannot be evaluated (a non-finite load, a load function that raises).
+
+    Found when a problem is built it is bad input like any other (exit status 2); found during
+    a run (e.g. a load that turns NaN at t = 0.5) the stepper turns it into :class:`RunFailed`,
+    which keeps the trajectory computed so far (exit status 1).
+    """
+
+
 class RunFailed(RuntimeError):
     """A run stopped midway (e.g. the step size fell below tau_min).
 

@@ -10,7 +10,7 @@ given as the vector of nodal functionals. The dissipation and the viscosity metr
     R(v) = sum_i r_i |v_i|            (r_i = kappa * m_i for R = kappa ||.||_{L1} with lumped mass),
     ||v||_V^2 = sum_i m_i v_i^2       (V = lumped L2 metric, or the identity in R^n).
 
-With these, the dual distance (2.4) has the closed form (SPEC section 1)
+With these, the dual distance (2.4) has the closed form
 
     dist(eta)^2 = sum_i max(|eta_i| - r_i, 0)^2 / m_i,
 
@@ -22,12 +22,20 @@ use dist(-D_z I), and since dR(0) is symmetric, dist(-eta) = dist(eta).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import RotheInputError, check_finite_array, check_positive, described, fail
+from ..errors import (
+    DataError,
+    RotheInputError,
+    check_finite_array,
+    check_positive,
+    described,
+    fail,
+)
 
 ArrayFn = Callable[[np.ndarray], np.ndarray]
 
@@ -73,6 +81,7 @@ class RISProblem:
         load_rate: Callable[[float], np.ndarray] | None = None,
         name: str = "ris",
         check_derivatives: bool = True,
+        check_coercivity: bool = True,
     ):
         self.name = name
         self.T = check_positive("T", T)
@@ -83,48 +92,74 @@ class RISProblem:
         self.n = n
         self.z0 = z0.copy()
 
-        if np.isscalar(A):
-            A = np.array([[float(A)]])
-        if sp.issparse(A):
-            A = sp.csr_matrix(A, dtype=float)
-            A.sum_duplicates()
-            A.sort_indices()
-            asym = abs(A - A.T).max() if A.nnz else 0.0
-            scale = abs(A).max() if A.nnz else 1.0
-        else:
-            A = np.asarray(A, dtype=float)
-            if A.ndim == 0:
-                A = A.reshape(1, 1)
-            asym = np.max(np.abs(A - A.T)) if A.size else 0.0
-            scale = np.max(np.abs(A)) if A.size else 1.0
-        if A.shape != (n, n):
-            raise fail(
-                "A", described(f"matrix of shape {A.shape}"), f"must have shape ({n}, {n}) like z0"
-            )
-        if asym > 1e-10 * max(scale, 1e-300):
-            raise fail(
-                "A", described(f"a matrix with max|A - A^T| = {asym:.3g}"), "must be symmetric"
-            )
-        self.A = A
-        self.sparse = sp.issparse(A)
-        self.A_diag = np.asarray(A.diagonal(), dtype=float).copy()
+        self.A = _check_matrix(A, n)
+        self.sparse = sp.issparse(self.A)
+        self.A_diag = np.asarray(self.A.diagonal(), dtype=float).copy()
 
-        r = np.broadcast_to(np.asarray(dissipation_weights, dtype=float), (n,)).copy()
-        m = np.broadcast_to(np.asarray(metric_weights, dtype=float), (n,)).copy()
-        for label, w in (("dissipation_weights", r), ("metric_weights", m)):
-            if not np.all(np.isfinite(w)) or np.any(w <= 0):
-                bad = w[~(np.isfinite(w) & (w > 0))][0]
-                raise fail(label, float(bad), "every weight must be finite and > 0")
-        self.r = r
-        self.m = m
+        self.r = _check_weights("dissipation_weights", dissipation_weights, n)
+        self.m = _check_weights("metric_weights", metric_weights, n)
 
+        for label, fn in (("F", F), ("dF", dF), ("d2F", d2F), ("load", load)):
+            if not callable(fn):
+                raise fail(label, described(f"a {type(fn).__name__}"), "must be a callable")
+        if load_rate is not None and not callable(load_rate):
+            raise fail("load_rate", described(f"a {type(load_rate).__name__}"),
+                       "must be a callable or None")
         self._F, self._dF, self._d2F = F, dF, d2F
         self._load, self._load_rate = load, load_rate
-        for t_check in (0.0, self.T):
-            check_finite_array(f"load(t={t_check:g})", self.load(t_check))
-        check_finite_array("F(z0)", [self.F(z0)])
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported as such
+            self._check_callables()
+        if check_coercivity:
+            check_coercive(self.A)
         if check_derivatives:
             self._check_derivatives()
+
+    def _check_callables(self) -> None:
+        """F, dF, d2F at z0 and the load at 0 and T: the shapes of (1.5) and finite values.
+
+        The V^-1 norms of the load and of D_z I(0, z0) square the entries, so data near the
+        overflow threshold of double precision is refused here rather than turning the
+        residuals (3.3)-(3.4) into inf at the first step.
+        """
+        n, z0 = self.n, self.z0
+        value = _evaluate("F", self._F, z0, "z0")
+        arr = np.asarray(value, dtype=float) if _is_numeric(value) else None
+        if arr is None or arr.size != 1:
+            what = (f"an array of shape {arr.shape}" if arr is not None
+                    else f"a {type(value).__name__}")
+            raise fail("F", described(f"{what} at z0"), "must return a number (the energy F(z))")
+        check_finite_array("F(z0)", arr)
+        for label, fn in (("dF", self._dF), ("d2F", self._d2F)):
+            value = _evaluate(label, fn, z0, "z0")
+            if label == "d2F" and sp.issparse(value):
+                shape, vals = value.shape, value.data
+            else:
+                vals = np.asarray(value, dtype=float) if _is_numeric(value) else None
+                if vals is None:
+                    raise fail(label, described(f"a {type(value).__name__} at z0"),
+                               f"must return an array of shape ({n},)")
+                shape = vals.shape
+            allowed = [(n,)] if label == "dF" else [(n,), (n, n)]
+            if shape not in allowed and not (n == 1 and int(np.prod(shape)) == 1):
+                want = " or ".join(str(a) for a in allowed)
+                raise fail(label, described(f"an array of shape {shape} at z0"),
+                           f"must have shape {want} (n = {n} unknowns)")
+            check_finite_array(f"{label}(z0)", vals)
+        for t_check in (0.0, self.T):
+            value = _evaluate("load", self._load, t_check, f"t = {t_check:g}")
+            vals = np.asarray(value, dtype=float) if _is_numeric(value) else None
+            if vals is None or (vals.shape != (n,) and vals.size != n):
+                what = f"shape {vals.shape}" if vals is not None else type(value).__name__
+                raise fail(f"load(t={t_check:g})", described(f"an array of {what}"),
+                           f"must return an array of shape ({n},)")
+            norm = self.norm_Vinv(self.load(t_check))
+            if not math.isfinite(norm):
+                raise fail(f"load(t={t_check:g})", described(f"a vector of norm {norm:g}"),
+                           "must have a finite V^-1 norm (sum l_i^2 / m_i overflows)")
+        norm = self.norm_Vinv(self.gradient(0.0, z0))
+        if not math.isfinite(norm):
+            raise fail("z0", described(f"a state where ||D_z I(0, z0)||_V^-1 = {norm:g}"),
+                       "must give a finite gradient of the energy (overflow)")
 
     # -- the energy and its derivatives ------------------------------------------------------
     def F(self, z: np.ndarray) -> float:
@@ -142,7 +177,18 @@ class RISProblem:
         return h.reshape(self.n) if h.size == self.n else h.reshape(self.n, self.n)
 
     def load(self, t: float) -> np.ndarray:
-        return np.asarray(self._load(t), dtype=float).reshape(self.n)
+        """l(t); a non-finite value raises :class:`~rothe.errors.DataError` naming t."""
+        try:
+            l_t = np.asarray(self._load(t), dtype=float).reshape(self.n)
+        except DataError:
+            raise
+        except Exception as exc:  # the user's function, e.g. data that ends at T
+            raise DataError(f"load(t={t:g}): got an error ({type(exc).__name__}: {exc}), must "
+                            "evaluate for t in [0, T]") from None
+        if not np.all(np.isfinite(l_t)):
+            bad = float(l_t[~np.isfinite(l_t)][0])
+            raise DataError(f"load(t={t:g}): got {bad}, must be finite (no NaN or inf)")
+        return l_t
 
     def load_rate(self, t: float, h: float = 1e-6) -> np.ndarray:
         if self._load_rate is not None:
@@ -226,3 +272,124 @@ class RISProblem:
 
     def _fd_second(self, z, v, h):
         return (self.dF(z + h * v) - self.dF(z - h * v)) / (2 * h)
+
+
+# -- input checks ------------------------------------------------------------------------------
+
+def _is_numeric(value) -> bool:
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+def _evaluate(label: str, fn, arg, at: str):
+    """fn(arg) at construction; an exception of the user's function is one line naming it."""
+    try:
+        return fn(arg)
+    except Exception as exc:  # the user's function: any failure is bad input
+        raise fail(label, described(f"an error at {at} ({type(exc).__name__}: {exc})"),
+                   "must evaluate there") from None
+
+
+def _check_matrix(A, n: int):
+    """A as CSR or a dense (n, n) float array: square, of the size of z0, finite, symmetric."""
+    if not sp.issparse(A) and not _is_numeric(A):
+        raise fail("A", described(f"a {type(A).__name__}"),
+                   "must be a square array or a scipy.sparse matrix")
+    if np.isscalar(A):
+        A = np.array([[A]])
+    if sp.issparse(A):
+        A = sp.csr_matrix(A, dtype=float)
+    else:
+        A = np.asarray(A, dtype=float)
+        if A.ndim == 0:
+            A = A.reshape(1, 1)
+    if A.ndim != 2 or A.shape != (n, n):
+        raise fail("A", described(f"matrix of shape {A.shape}"),
+                   f"must have shape ({n}, {n}) like z0")
+    if sp.issparse(A):
+        A.sum_duplicates()
+        A.sort_indices()
+        values = A.data
+    else:
+        values = A
+    check_finite_array("A", values)
+    if sp.issparse(A):
+        asym = abs(A - A.T).max() if A.nnz else 0.0
+        scale = abs(A).max() if A.nnz else 1.0
+    else:
+        asym = np.max(np.abs(A - A.T)) if A.size else 0.0
+        scale = np.max(np.abs(A)) if A.size else 1.0
+    if asym > 1e-10 * max(scale, 1e-300):
+        raise fail("A", described(f"a matrix with max|A - A^T| = {asym:.3g}"), "must be symmetric")
+    return A
+
+
+def _check_weights(label: str, weights, n: int) -> np.ndarray:
+    w = np.asarray(weights, dtype=float) if _is_numeric(weights) else None
+    if w is None or (w.ndim > 0 and w.shape != (n,)):
+        what = f"an array of shape {w.shape}" if w is not None else f"a {type(weights).__name__}"
+        raise fail(label, described(what), f"must be a number or an array of shape ({n},)")
+    w = np.broadcast_to(w, (n,)).copy()
+    if not np.all(np.isfinite(w)) or np.any(w <= 0):
+        bad = w[~(np.isfinite(w) & (w > 0))][0]
+        raise fail(label, float(bad), "every weight must be finite and > 0")
+    return w
+
+
+#: largest n for which the coercivity of a dense A is decided by its eigenvalues (beyond: a
+#: Cholesky attempt), and of a sparse A by the pivots of a symmetric LU (beyond: the diagonal)
+DENSE_EIGEN_LIMIT = 1000
+SPARSE_LU_LIMIT = 50_000
+
+
+def check_coercive(A) -> None:
+    """Refuse an A that is not positive definite (Andreia & Meyer 2022, Sec. 1.3: A coercive).
+
+    The paper's analysis rests on <A z, z> >= alpha ||z||^2 with F >= 0: then I(t, .) is
+    bounded below and coercive, every viscous jump ends and the run reaches T. With A = -I or 0
+    and an F of at most quadratic growth the energy is unbounded below: the state runs off
+    along a viscous jump that never ends (t stays at 0 while s grows without bound).
+
+    Cost: dense n <= 1000 eigenvalues (under 0.2 s), larger dense a Cholesky factorization;
+    sparse n <= 50k an LU with diagonal pivots in a symmetric ordering (inertia by Sylvester's
+    law: A is positive definite iff every pivot is > 0); larger sparse matrices only the
+    diagonal (a_ii = <A e_i, e_i> > 0 is necessary), the run's stagnation check covers the rest.
+    """
+    n = A.shape[0]
+    tail = ("must be positive definite (coercive: <A z, z> >= alpha |z|^2, Andreia & Meyer "
+            "2022, Sec. 1.3), else the energy can be unbounded below and the run never ends; "
+            "pass check_coercivity=False if F alone makes I(t, .) coercive")
+    diag = np.asarray(A.diagonal(), dtype=float)
+    if np.any(diag <= 0):
+        i = int(np.nonzero(diag <= 0)[0][0])
+        raise fail("A", described(f"a matrix with A[{i}, {i}] = {diag[i]:g}"), tail)
+    if not sp.issparse(A):
+        if n <= DENSE_EIGEN_LIMIT:
+            lam = np.linalg.eigvalsh(A)
+            if not lam[0] > n * np.finfo(float).eps * max(abs(lam[-1]), abs(lam[0])):
+                raise fail("A", described(f"a matrix with smallest eigenvalue {lam[0]:.3g}"),
+                           tail)
+        else:
+            try:
+                np.linalg.cholesky(A)
+            except np.linalg.LinAlgError:
+                raise fail("A", described("a matrix whose Cholesky factorization fails"),
+                           tail) from None
+        return
+    if n > SPARSE_LU_LIMIT:
+        return
+    from scipy.sparse.linalg import splu
+
+    try:
+        lu = splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+    except RuntimeError:  # "Factor is exactly singular"
+        raise fail("A", described("a singular matrix"), tail) from None
+    pivots = lu.U.diagonal()
+    if not np.array_equal(lu.perm_r, lu.perm_c) or np.any(pivots <= 0):
+        neg = int(np.count_nonzero(pivots <= 0))
+        raise fail("A", described(f"a matrix with {max(neg, 1)} non-positive pivot(s) in a "
+                                  "symmetric LDL^T"), tail)
