@@ -1,6 +1,6 @@
 """Example 7.1 of Andreia & Meyer (2022): a one-dimensional RIS with a known BV solution.
 
-Z = V = R, V = 1, R(v) = |v|, T = 5, z_0 = -2 and (SPEC section 3; note the sign of the load)
+Z = V = R, V = 1, R(v) = |v|, T = 5, z_0 = -2 and (note the sign of the load)
 
     I(t, z) = 1/2 z^2 - (t + 1) z + p(z),
     p(z) = 4z + 8 (z <= -2),   4 - z^2 (|z| < 2),   -4z + 8 (z >= 2).

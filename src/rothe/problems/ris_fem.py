@@ -21,15 +21,15 @@ Discretization (P1 on triangles / tetrahedra, nodal basis phi_i, lumped mass m_i
 Which quadrature F uses, and why
     Nodal (vertex, "lumped") quadrature: int_K g(z_h) ~ |K|/(d+1) sum_{vertices} g(z_j),
     i.e. F(z) = sum_i m_i g(z_i). Reasons: (1) it is the same lumping the paper uses for the L1
-    norm ([9, Sec. 4]) and SPEC section 1 uses for V, so F', R and the metric all act node by
+    norm ([9, Sec. 4]) and the metric V uses, so F', R and the metric all act node by
     node and the generalized Newton matrix of a step is A + diag(m g''(z)) + diag(...) with the
     sparsity of A -- a consistent quadrature would make F'' a full mass-like matrix per
     iteration; (2) F, F' and F'' cost O(n) vector operations and no assembly (under 10 ms at
-    10^6 nodes versus seconds for a quadrature-point assembly; PERFORMANCE-NOTES); (3) it is
+    10^6 nodes versus 3-5 s for a quadrature-point assembly, measured); (3) it is
     accurate enough: the vertex rule is exact for affine integrands and O(h^2) for smooth ones,
     the same order as the P1 L2 error, so the discrete energy converges at order 2 (tested in
     tests/fem/test_convergence.py); (4) it keeps the discrete problem a RIS in R^n with diagonal
-    data, for which dist has the closed form of SPEC section 1 and the KKT system of Lemma 4.1
+    data, for which dist (2.4) has a closed form and the KKT system of Lemma 4.1
     decouples except through A.
 
 Load
@@ -47,7 +47,13 @@ from collections.abc import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import RotheInputError, check_finite_array, check_positive, check_real
+from ..errors import (
+    DataError,
+    RotheInputError,
+    check_finite_array,
+    check_positive,
+    check_real,
+)
 from ..fem.mesh import bad, check_mesh, describe, mesh_dim, unit_cube, unit_square
 from ..fem.scalar import boundary_nodes, lumped_mass, split_dofs, stiffness
 from .ris import RISProblem
@@ -173,6 +179,7 @@ class FERISProblem(RISProblem):
         self.free, self.fixed = free, fixed
         self.n_nodes = n_nodes
         self.dirichlet = dirichlet
+        _check_every_component_held(mesh, fixed, dirichlet)
 
         check_pointwise_derivatives(g, dg, d2g)
         self.g, self.dg, self.d2g = g, dg, d2g
@@ -207,24 +214,33 @@ class FERISProblem(RISProblem):
             name=name,
             # F' and F'' are exact sums of the pointwise g', g'' checked above
             check_derivatives=False,
+            # A is the stiffness of c > 0 on the free nodes: positive definite exactly when every
+            # connected part of the mesh has a Dirichlet node (checked above, in O(n))
+            check_coercivity=False,
         )
 
     # -- data ----------------------------------------------------------------------------------
     def _load_vector(self, fn, t: float, label: str) -> np.ndarray:
+        """Nodal functionals at the free nodes. Failures are :class:`DataError`: bad input when
+        the problem is built, a failed run that keeps its trajectory when found midway."""
+        name = f"{label}(t={t:g})"
         try:
             val = fn(t)
         except Exception as exc:
-            raise bad(f"{label}(t={t:g})", f"an error ({type(exc).__name__}: {exc})",
-                       "must evaluate for t in [0, T]") from None
-        val = np.asarray(val, dtype=float)
+            raise DataError(f"{name}: got an error ({type(exc).__name__}: {exc}), must evaluate "
+                            "for t in [0, T]") from None
+        try:
+            val = np.asarray(val, dtype=float)
+        except (TypeError, ValueError):
+            raise DataError(f"{name}: got a {type(val).__name__}, must be a number (density) or "
+                            f"one nodal functional per node ({self.n_nodes})") from None
         if val.ndim == 0:
-            check_finite_array(f"{label}(t={t:g})", val)
+            _finite_data(name, val)
             return float(val) * self.m_all[self.free]
         if val.shape != (self.n_nodes,):
-            raise bad(f"{label}(t={t:g})", f"an array of shape {val.shape}",
-                       f"must be a number (density) or one nodal functional per node "
-                       f"({self.n_nodes})")
-        check_finite_array(f"{label}(t={t:g})", val[self.free])
+            raise DataError(f"{name}: got an array of shape {val.shape}, must be a number "
+                            f"(density) or one nodal functional per node ({self.n_nodes})")
+        _finite_data(name, val[self.free])
         return val[self.free]
 
     def _initial_state(self, z0) -> np.ndarray:
@@ -283,6 +299,45 @@ class FERISProblem(RISProblem):
         return self.mesh.t.T.copy()
 
 
+def _finite_data(name: str, values) -> None:
+    values = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(values)):
+        bad_value = float(values[~np.isfinite(values)].ravel()[0])
+        raise DataError(f"{name}: got {bad_value}, must be finite (no NaN or inf)")
+
+
+def _check_every_component_held(mesh, fixed: np.ndarray, dirichlet) -> None:
+    """Every connected part of the mesh must contain a Dirichlet node.
+
+    The stiffness of c > 0 restricted to the free nodes is then positive definite (its null
+    space on the whole mesh is the functions constant on each connected part, and those vanish
+    where a part holds a zero Dirichlet value): the coercivity of A that the scheme needs
+    (Andreia & Meyer 2022, Sec. 1.3). A part with only natural boundary conditions gives a
+    singular A and an energy with a flat direction (z + c on that part). O(n) with
+    scipy.sparse.csgraph.
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    t = np.asarray(mesh.t)
+    n = mesh.p.shape[1]
+    # a star per cell (vertex 0 to the others) connects exactly what the cell connects
+    rows = np.tile(t[0], t.shape[0] - 1)
+    cols = t[1:].ravel()
+    graph = sp.csr_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    if count == 1:
+        return
+    held = np.zeros(count, dtype=bool)
+    held[label[fixed]] = True
+    if not held.all():
+        free_parts = int(np.count_nonzero(~held))
+        where = "the boundary" if dirichlet is None else f"boundary parts {dirichlet}"
+        raise bad("mesh", f"a mesh of {count} disconnected parts, {free_parts} of them without "
+                          f"a node on {where} ({describe(mesh)})",
+                  "every part needs a Dirichlet node (else A is singular: the energy is flat "
+                  "along z + const on that part)")
+
+
 # -- Example 7.2 and its 3D analogue ----------------------------------------------------------
 
 def g_7_2(z):
@@ -301,7 +356,7 @@ def d2g_7_2(z):
 def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, kappa: float = 1.0,
                 T: float = 1.0, dirichlet=None, pattern: str = "tensor",
                 name: str = "ris-2d") -> FERISProblem:
-    """Example 7.2 of Andreia & Meyer (2022) (SPEC section 3).
+    """Example 7.2 of Andreia & Meyer (2022), Sec. 7.2.
 
     Omega = (0,1)^2 (an n x n-cell grid, (n+1)^2 nodes; 1681 nodes for the default n = 40) or
     any 2D ``mesh``; g(z) = 48 (1 - z^2)^2; <l(t), z> = amplitude t^3 int z with amplitude
@@ -358,15 +413,19 @@ def _zero_dt_runs(traj, rel: float):
 
 
 def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
-    """Viscous jumps of a run: maximal runs of accepted steps with t_k - t_{k-1} <= rel * tau_k
-    (the ball constraint active: the state moves while physical time stands still), as
-    ``{"t": t, "s_start": s, "s_end": s, "steps": k}``.
+    """Viscous jumps of a run, as ``{"t": t, "s_start": s, "s_end": s, "steps": k}``.
 
-    Not counted (see :func:`catch_up_steps`): a run shorter in s than the step before it. After
-    a step of length tau in rate-independent slip, z_k is stationary at t_{k-1}, so it lags the
-    equilibrium of t_k by up to about tau; a following shorter step (e.g. one that lands on T or
-    on a nested grid point) is then spent entirely on catching up, with t^' = 0 and lambda > 0.
-    Such runs vanish with the step size; a viscous jump of the BV solution does not.
+    A viscous jump is a maximal interval of s on which t^ is constant (t_k - t_{k-1} <=
+    rel * tau_k: the ball constraint is active, the state moves while physical time stands
+    still) that spans **more than one step** and is longer in s than the step before it.
+
+    Not counted (see :func:`catch_up_steps`): a single step with t^' = 0, and a run shorter in s
+    than the step before it. After a step of length tau in rate-independent slip, z_k is
+    stationary at t_{k-1}, so it lags the equilibrium of t_k by up to about tau; a following
+    step that is no longer (after tau is halved by a rejection, one that lands on T or on a
+    nested grid point, or the neutral period-2 oscillation of the time increments in slip,
+    dt_k = tau - dt_{k-1}) is then spent on catching up, with t^' = 0 and lambda > 0. Such
+    steps vanish with the step size; a viscous jump of the BV solution does not.
     """
     if len(traj) == 0:
         return []
@@ -374,12 +433,30 @@ def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
     starts, ends, tiny = _zero_dt_runs(traj, rel)
     out = []
     for a, b in zip(starts, ends, strict=True):
+        steps = int(np.count_nonzero(~tiny[a:b]))
+        if steps < 2:
+            continue
         before = np.nonzero(~tiny[:a])[0]
-        if before.size and s[b] - s[a] <= tau[before[-1]]:
+        if before.size and s[b] - s[a] <= tau[before[-1]] * (1 + 1e-9):
             continue
         out.append({"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]),
-                    "steps": int(np.count_nonzero(~tiny[a:b]))})
+                    "steps": steps})
     return out
+
+
+#: viscous jumps listed in the one-line ``branch`` summary and the compare table (all of them
+#: are in summary.json)
+JUMPS_SHOWN = 5
+
+
+def format_jump_times(jumps, shown: int = JUMPS_SHOWN, sep: str = ", ") -> str:
+    """'t1, t2, ...' for the first ``shown`` jumps, then '(+k more)'; 'none' if there is none."""
+    if not jumps:
+        return "none"
+    text = sep.join(f"{j['t']:.4g}" for j in jumps[:shown])
+    if len(jumps) > shown:
+        text += f" (+{len(jumps) - shown} more)"
+    return text
 
 
 def catch_up_steps(traj, rel: float = 1e-8) -> int:
@@ -404,7 +481,7 @@ def describe_branch(problem: FERISProblem, traj) -> dict:
     zmin, zmax = float(z.min()), float(z.max())
     sign = "z <= 0" if zmax <= 1e-12 else ("z >= 0" if zmin >= -1e-12 else "z changes sign")
     energy = float(traj["energy"][-1])
-    jt = ", ".join(f"{j['t']:.4g}" for j in jumps) or "none"
+    jt = format_jump_times(jumps)
     catch = catch_up_steps(traj)
     return {
         "energy_final": energy,
