@@ -208,18 +208,68 @@ def _read_meshio(path: Path):
         raise fail("--mesh", str(path), f"is not a mesh meshio can read ({msg})") from None
 
 
-def load_mesh(path, dim: int | None = None, name: str = "--mesh"):
+#: what :func:`load_mesh` does with coincident nodes used by different cells
+DUPLICATE_NODES = ("error", "merge", "keep")
+
+
+def coincident_nodes(p: np.ndarray, rel: float = 1e-12) -> np.ndarray:
+    """(k, 2) pairs i < j of nodes closer than ``rel`` times the bounding-box diameter.
+
+    ``p``: (d, n) coordinates. A k-d tree (scipy.spatial.cKDTree), so O(n log n) in C: no
+    Python loop over nodes.
+    """
+    from scipy.spatial import cKDTree
+
+    if p.shape[1] < 2:
+        return np.empty((0, 2), dtype=np.int64)
+    diameter = float(np.linalg.norm(np.ptp(p, axis=1)))
+    pairs = cKDTree(p.T).query_pairs(rel * max(diameter, 1e-300), output_type="ndarray")
+    return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+
+
+def _merge_map(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Index of the representative (smallest index of its cluster) of every node."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    graph = sp.csr_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])),
+                          shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    rep = np.full(label.max() + 1, n, dtype=np.int64)
+    np.minimum.at(rep, label, np.arange(n))
+    return rep[label]
+
+
+def load_mesh(path, dim: int | None = None, name: str = "--mesh",
+              duplicate_nodes: str = "error"):
     """Read a triangle (2D) or tetrahedron (3D) mesh from any file meshio reads.
 
     ``dim`` = 2 or 3 asks for that cell type; ``None`` takes tetrahedra if there are any, else
     triangles. Named boundary parts come from gmsh physical groups (``$PhysicalNames``) or
     meshio cell sets on the facet cells; unnamed physical tags are called ``tag<k>``.
+
+    ``duplicate_nodes``: what to do with coincident nodes (closer than 1e-12 of the diameter)
+    used by different cells. Such a mesh is cut there -- a crack: the cells on the two sides
+    share no node, the P1 space allows a jump across the cut, and its faces are boundary
+    facets (so the default Dirichlet boundary, the whole boundary, includes them). Meshes glued
+    from parts without merging their nodes look exactly like this and silently give another
+    solution, so ``"error"`` (default) refuses the file and names the first pair;
+    ``"merge"`` glues every cluster of coincident nodes into one node (the mesh the file
+    presumably meant); ``"keep"`` takes the cut as intended.
     """
+    if duplicate_nodes not in DUPLICATE_NODES:
+        raise fail("duplicate_nodes", duplicate_nodes, "must be one of " +
+                   ", ".join(DUPLICATE_NODES))
+    if str(path) == "":
+        raise fail(name, "", "must name a mesh file")
     path = Path(path)
     if not path.exists():
         raise fail(name, str(path), "no such file")
     if path.is_dir():
         raise fail(name, str(path), "is a directory, must be a mesh file")
+    if not path.is_file():  # a FIFO or a device would block or never end
+        raise fail(name, str(path), "is not a regular file (a FIFO, socket or device), must be "
+                                    "a mesh file")
     m = _read_meshio(path)
     blocks: dict[str, list[np.ndarray]] = {}
     for block in m.cells:
@@ -252,6 +302,22 @@ def load_mesh(path, dim: int | None = None, name: str = "--mesh"):
     new_index[used] = np.arange(int(used.sum()))
     p = points[used].T.copy()
     t = new_index[cells].T.copy()
+    if duplicate_nodes != "keep":
+        pairs = coincident_nodes(p)
+        if len(pairs) and duplicate_nodes == "error":
+            x = ", ".join(f"{v:g}" for v in p[:, pairs[0, 0]])
+            raise fail(name, str(path), f"has {len(pairs)} pair(s) of coincident nodes used by "
+                                        f"different cells (the first at ({x})): the mesh is cut "
+                                        "there like a crack; --duplicate-nodes merge glues them, "
+                                        "keep takes the cut as intended")
+        if len(pairs):  # merge: renumber the cells onto one node per cluster, drop the rest
+            rep = _merge_map(p.shape[1], pairs)
+            keep = np.unique(rep)
+            renumber = np.full(p.shape[1], -1, dtype=np.int64)
+            renumber[keep] = np.arange(keep.size)
+            new_index = np.where(new_index >= 0, renumber[rep[np.maximum(new_index, 0)]], -1)
+            p = p[:, keep].copy()
+            t = new_index[cells].T.copy()
 
     cls = _skfem_class(dim)
     mesh = cls(p, t, validate=False)
