@@ -29,6 +29,48 @@ from .data import NOISE_TARGETS, DataNoise
 from .examples import mms_errors, mms_problem
 from .schemes import FORMS, run_eld
 
+#: most steps of the finest run of a convergence study (T / (tau0 / 2^halvings))
+MAX_STUDY_STEPS = 10**6
+#: largest noise of the perturbation study: the manufactured data G and F are of size about 1,
+#: and Theorem 4.5 is about the response to perturbations small against the data (1e300 made
+#: the data overflow and the factorization fail)
+MAX_DELTA = 1.0
+
+
+def check_halvings(name: str, halvings, tau0: float, T: float) -> int:
+    """halvings >= 1 with at most MAX_STUDY_STEPS steps in the finest run."""
+    halvings = check_int(name, halvings, minimum=1)
+    tau0 = check_positive("tau0", tau0)
+    T = check_positive("T", T)
+    steps = T / tau0 * 2.0**halvings
+    if steps > MAX_STUDY_STEPS:
+        most = max(0, int(np.floor(np.log2(MAX_STUDY_STEPS * tau0 / T))))
+        raise fail(name, halvings, f"must be <= {most} (the finest run would take {steps:.3g} "
+                                   f"steps of tau0/2^{halvings}; at most {MAX_STUDY_STEPS:.0e})")
+    return halvings
+
+
+def check_delta(name: str, delta) -> float:
+    delta = check_positive(name, delta)
+    if delta > MAX_DELTA:
+        raise fail(name, delta, f"must be <= {MAX_DELTA:g} (noise small against the data, "
+                                "which are of size about 1)")
+    return delta
+
+
+def check_noise_targets(name: str, targets) -> tuple[str, ...]:
+    """Data to perturb: names of NOISE_TARGETS, as a comma-separated string or a sequence; at
+    least one (an empty list gave StopIteration when the table was formatted)."""
+    items = targets.split(",") if isinstance(targets, str) else list(targets)
+    items = [str(t).strip() for t in items if str(t).strip()]
+    if not items:
+        shown = targets if isinstance(targets, str) else ""
+        raise fail(name, shown, "must name at least one of " + ", ".join(NOISE_TARGETS))
+    for t in items:
+        if t not in NOISE_TARGETS:
+            raise fail(name, t, "must be one of " + ", ".join(NOISE_TARGETS))
+    return tuple(dict.fromkeys(items))
+
 
 def fitted_rate(taus, errors) -> float | None:
     """Least-squares slope of log(error) against log(tau) (None if an error is not positive)."""
@@ -49,7 +91,7 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
     if form not in FORMS:
         raise fail("form", form, "must be one of " + ", ".join(FORMS))
     tau0 = check_positive("tau0", tau0)
-    halvings = check_int("halvings", halvings, minimum=1)
+    halvings = check_halvings("halvings", halvings, tau0, T)
     problem, exact = mms_problem(n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)
     taus = [tau0 / 2**k for k in range(halvings + 1)]
     rows = []
@@ -131,10 +173,9 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
     as ``amp_regularized``, ``amp_original``, ...
     """
     taus = [check_positive("taus", t) for t in taus]
-    delta = check_positive("delta", delta)
-    for target in targets:
-        if target not in NOISE_TARGETS:
-            raise fail("targets", target, "must be one of " + ", ".join(NOISE_TARGETS))
+    delta = check_delta("delta", delta)
+    targets = check_noise_targets("targets", targets)
+    seed = check_int("seed", seed, minimum=0)
     problem, _ = mms_problem(n, degree, damping=damping, T=T)
     out = {"example": "eld-mms", "scheme": scheme, "n": n, "degree": degree,
            "ndofs": problem.space.ndofs, "targets": list(targets),
