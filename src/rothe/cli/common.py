@@ -60,15 +60,28 @@ def parse_float(name: str):
 
 
 def parse_float_list(name: str):
+    """argparse type for ``1e-3,1e-4``: every item a finite number, none empty (``--tols ''``
+    must not silently mean "the defaults")."""
+
     def conv(text):
+        items = text.split(",")
         try:
-            return [float(x) for x in text.split(",") if x.strip()]
+            values = [float(x) for x in items]
         except ValueError:
+            values = None
+        if values is None or not all(math.isfinite(v) for v in values):
             raise argparse.ArgumentTypeError(
-                f"got {text!r}, must be a comma-separated list of numbers"
-            ) from None
+                f"got {text!r}, must be a comma-separated list of finite numbers"
+            )
+        return values
 
     return conv
+
+
+def given(args, option: str) -> bool:
+    """True if ``option`` (e.g. ``'--tol'``) was written on the command line (recorded by
+    :func:`rothe.cli.main.main` as ``args._given``), as opposed to taking its default."""
+    return option in getattr(args, "_given", ())
 
 
 def peak_memory_mb() -> float:

@@ -1,7 +1,7 @@
 """CLI commands for elastodynamics: ``rothe run eld-mms|eld-beam``,
 ``rothe study eld-convergence|eld-perturbation``.
 
-Outputs follow the foundation layout: ``summary.json``, ``trajectory.npz`` (runs: with the mesh,
+Outputs: ``summary.json``, ``trajectory.npz`` (runs: with the mesh,
 the kept u, v, a, lambda and the dof layout, see :mod:`rothe.io.eld_output`), a table (studies),
 PNG figures unless ``--no-plots``, and for every run XDMF for ParaView (u, v, Cauchy and von
 Mises stresses, lambda). Bad input is one line and exit status 2 (raised as RotheInputError by
@@ -23,6 +23,7 @@ import numpy as np
 from ..errors import check_choice, check_int, check_positive, described, fail
 from .common import (
     add_output_options,
+    given,
     output_dir,
     parse_float,
     parse_float_list,
@@ -102,6 +103,82 @@ def _make_damping(args):
 
     kind = check_choice("--damping", args.damping, DAMPINGS)
     return make_damping(kind, a=args.a, b=args.b, d0=args.d0, d_nl=args.d_nl, v_ref=args.v_ref)
+
+
+# -- input validation (kept apart from the commands: called first in each execute) ------------
+
+#: the damping parameters each --damping reads; one written on the command line that the chosen
+#: damping ignores is refused (``eld-mms --a -1`` ran nonlinear damping and exited 0)
+DAMPING_OPTIONS = {
+    "nonlinear": ("--b", "--d0", "--d-nl", "--v-ref"),
+    "rayleigh": ("--a", "--b"),
+    "none": (),
+}
+#: most time steps of one ELD run the CLI accepts (T / tau): beyond, --tau is a typo or
+#: an underflow (``--tau 1e-320`` made T / tau infinite)
+MAX_ELD_STEPS = 10**7
+#: peak memory per unknown (bytes). Measured here (summary.json's peak_memory_mb minus ~90 MB
+#: of interpreter): eld-mms (2D, P2, sparse LU) 3.5 and 4.6 kB/dof at 33k and 132k dofs,
+#: eld-beam (3D, LU) 7 kB/dof at 8k dofs. The team's solver measurements on this machine: a 3D
+#: elasticity LU alone takes 0.8 GB at 28k and 4.3 GB at 89k dofs (29, 48 kB/dof), AMG 2.3 GB
+#: at 1.07M (2.1 kB/dof). Rounded up: refuses sizes that cannot fit, before allocating.
+ELD_BYTES_PER_DOF = {"2d": 6000, "3d-lu": 50_000, "3d-amg": 3000}
+#: 3D unknowns up to which the beam's auto solver is sparse LU (rothe.eld.solvers)
+BEAM_LU_LIMIT = 30_000
+
+
+def check_damping_options(args) -> None:
+    from ..eld.damping import DAMPINGS
+
+    kind = check_choice("--damping", args.damping, DAMPINGS)
+    for option in sorted({o for opts in DAMPING_OPTIONS.values() for o in opts}):
+        if given(args, option) and option not in DAMPING_OPTIONS.get(kind, ()):
+            users = [k for k, opts in DAMPING_OPTIONS.items() if option in opts]
+            value = getattr(args, option.lstrip("-").replace("-", "_"))
+            raise fail(option, value, f"is not used by --damping {kind}; {option} is for "
+                                      f"--damping {' or '.join(users)}")
+
+
+def check_eld_step(option: str, tau, T: float) -> float:
+    """A time step with T / tau <= MAX_ELD_STEPS (and tau > 0)."""
+    tau = check_positive(option, tau)
+    T = check_positive("--T", T)
+    smallest = T / MAX_ELD_STEPS
+    if tau < smallest:
+        raise fail(option, tau, f"must be >= {smallest:g} (at most {MAX_ELD_STEPS:.0e} steps "
+                                f"of T = {T:g})")
+    return tau
+
+
+def check_study_options(args) -> None:
+    """The study options that rothe.eld.studies also checks, named as on the command line."""
+    from ..eld.studies import check_delta, check_halvings, check_noise_targets
+
+    if hasattr(args, "halvings"):
+        check_halvings("--halvings", args.halvings, args.tau0, args.T)
+    if hasattr(args, "targets"):
+        check_noise_targets("--targets", args.targets)
+        check_int("--seed", args.seed, minimum=0)
+        check_delta("--delta", args.delta)
+
+
+def check_mms_size(n: int, degree: int) -> None:
+    from .ris_fem_commands import check_memory
+
+    if degree in (1, 2):
+        dofs = 2 * (degree * n + 1) ** 2
+        check_memory("--n", n, dofs, ELD_BYTES_PER_DOF["2d"], what="unknowns")
+
+
+def check_beam_size(n: int, length: float, degree: int, solver: str) -> None:
+    from .ris_fem_commands import check_memory
+
+    if degree in (1, 2) and length > 0:
+        nx = max(1, round(length * n))
+        dofs = 3 * (degree * nx + 1) * (degree * n + 1) ** 2
+        lu = solver == "direct" or (solver == "auto" and dofs <= BEAM_LU_LIMIT)
+        check_memory("--n", n, dofs, ELD_BYTES_PER_DOF["3d-lu" if lu else "3d-amg"],
+                     what="unknowns")
 
 
 def _mms_options(parser) -> None:
@@ -275,6 +352,9 @@ class RunEldMMS:
         from ..eld.examples import mms_errors, mms_problem
         from ..eld.schemes import run_eld
 
+        check_damping_options(args)
+        check_eld_step("--tau", args.tau, args.T)
+        check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
         form = check_choice("--form", args.form, FORMS)
         tau = check_positive("--tau", args.tau)
         scheme, control, tol = _check_control(args)
@@ -358,6 +438,10 @@ class RunEldBeam:
         from ..eld.schemes import run_eld
         from ..io.eld_output import EldXdmfWriter
 
+        check_damping_options(args)
+        check_eld_step("--tau", args.tau, args.T)
+        check_beam_size(check_int("--n", args.n, minimum=1), args.length, args.degree,
+                        args.solver)
         form = check_choice("--form", args.form, FORMS)
         tau = check_positive("--tau", args.tau)
         scheme, control, tol = _check_control(args)
@@ -462,6 +546,10 @@ class StudyEldConvergence:
     def execute(self, args) -> int:
         from ..eld.studies import convergence_study, format_convergence_table
 
+        check_damping_options(args)
+        check_eld_step("--tau0", args.tau0, args.T)
+        check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
+        check_study_options(args)
         form = check_choice("--form", args.form, FORMS)
         scheme = check_choice("--scheme", args.scheme, SCHEMES)
         halvings = check_int("--halvings", args.halvings, minimum=1)
@@ -521,6 +609,11 @@ class StudyEldPerturbation:
     def execute(self, args) -> int:
         from ..eld.studies import format_perturbation_table, perturbation_study
 
+        check_damping_options(args)
+        for t in args.taus:
+            check_eld_step("--taus", t, 1.0)
+        check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
+        check_study_options(args)
         taus = [check_positive("--taus", t) for t in args.taus]
         if len(taus) < 2:
             raise fail("--taus", ",".join(map(str, args.taus)), "needs at least two step sizes")

@@ -17,15 +17,33 @@ import sys
 import warnings
 from pathlib import Path
 
+from .. import __version__
 from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
 from . import registry
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line and exit status 2."""
+    """argparse, but a usage error is one line and exit status 2, and options are never
+    abbreviated (``--n 8`` must not be read as ``--no-plots 8``, nor ``--tol`` as ``--tols``)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
 
     def error(self, message):  # noqa: D401 - argparse API
         raise RotheInputError(message)
+
+
+def command_list() -> str:
+    """One line per command: ``rothe <verb> <name>`` and its help, for ``rothe`` and ``--help``."""
+    registry.load_all()
+    rows = [(f"rothe {verb} {name}", cmd.help) for verb in registry.VERBS
+            for name, cmd in sorted(registry.commands(verb).items())]
+    width = max(len(r[0]) for r in rows)
+    lines = ["commands:"] + [f"  {a:<{width}}  {b}" for a, b in rows]
+    lines.append("")
+    lines.append("rothe <verb> <name> --help lists the options of a command.")
+    return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,7 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
         prog="rothe",
         description="Time-first (Rothe) discretizations: adaptive BV paths of rate-independent "
         "systems and elastodynamics with constraints.",
+        epilog=command_list(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"rothe {__version__}")
     verbs = parser.add_subparsers(dest="verb", metavar="{run,compare,study,resume}",
                                   parser_class=_Parser)
     verbs.required = True
@@ -101,15 +122,18 @@ class Resume:
 
 
 def _is_number(text: str) -> bool:
+    """A number or a comma-separated list of numbers (``-1e-3``, ``-0.1,0.1``)."""
     try:
-        float(text)
+        for part in text.split(","):
+            float(part)
     except ValueError:
         return False
     return True
 
 
 def _join_negative_values(argv: list[str]) -> list[str]:
-    """``--tol -1e-3`` -> ``--tol=-1e-3``: argparse takes '-1e-3' for an option otherwise."""
+    """``--tol -1e-3`` -> ``--tol=-1e-3`` (and ``--tols -0.1,0.1``): argparse takes a value that
+    starts with '-' for an option otherwise ("expected one argument")."""
     out: list[str] = []
     i = 0
     while i < len(argv):
@@ -140,17 +164,58 @@ def _dispatch(parser, argv: list[str]) -> int:
             raise RotheInputError(
                 f"{argv[0]}: got {argv[1]!r}, must be one of {_known(argv[0])}"
             )
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version: argparse printed them and exits
+        return int(exc.code or 0)
     args._argv = list(argv)
+    args._given = given_options(argv)
     return int(args._command.execute(args) or 0)
+
+
+def given_options(argv: list[str]) -> frozenset[str]:
+    """The options written on the command line (``--tol`` of ``--tol 1e-3`` or ``--tol=1e-3``),
+    so that a command can tell an option the user gave from its default."""
+    return frozenset(tok.split("=", 1)[0] for tok in argv if tok.startswith("--"))
 
 
 def _one_line_warning(message, category, filename, lineno, line=None):
     return f"rothe: warning: {message}\n"
 
 
+def _stdout_to_devnull() -> None:
+    """After a broken pipe: send what Python still flushes at exit to /dev/null (else it prints
+    'Exception ignored ... BrokenPipeError')."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout without a file descriptor (e.g. captured)
+        pass
+
+
 def main(argv=None) -> int:
+    """Run one command; returns the exit status (0 ok, 1 run failed, 2 bad input, 141 when the
+    reader of stdout went away, e.g. ``rothe run ris-1d | head -3``: 128 + SIGPIPE, as a shell
+    reports for programs killed by the signal; the results are written before anything is
+    printed)."""
+    try:
+        status = _main(argv)
+        sys.stdout.flush()  # a broken pipe surfaces here rather than at interpreter exit
+        return status
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return 141
+
+
+def _main(argv=None) -> int:
     argv = _join_negative_values(list(sys.argv[1:] if argv is None else argv))
+    if not argv:  # bare ``rothe``: the usage and the list of commands, not a one-line error
+        parser = build_parser()
+        print(parser.format_usage().rstrip(), file=sys.stderr)
+        print(command_list(), file=sys.stderr)
+        return 2
     saved_format = warnings.formatwarning
     warnings.formatwarning = _one_line_warning
     try:

@@ -9,10 +9,17 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from ..control.controllers import CONTROLS
-from ..errors import check_choice, check_decreasing, check_positive, fail
+from ..errors import (
+    check_choice,
+    check_decreasing,
+    check_positive,
+    described,
+    fail,
+)
 from ..stepping.ris import run_nested, run_ris
 from .common import (
     add_output_options,
+    given,
     output_dir,
     parse_float,
     parse_float_list,
@@ -27,6 +34,7 @@ SUMMARY_KEYS = (
     "example",
     "control",
     "tol",
+    "tols",
     "accepted_steps",
     "rejected_steps",
     "inner_solves",
@@ -42,10 +50,13 @@ SUMMARY_KEYS = (
 
 
 def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
-    """The summary.json fields of the foundation issue for one RIS trajectory."""
+    """The summary.json fields of one RIS trajectory (README, "Where results go")."""
     st = traj.stats
-    # no step series before the first accepted step (a run stopped at once)
-    I1, I2 = (traj[k] if k in traj else np.zeros(0) for k in ("I1", "I2"))
+
+    def steps(key):  # a run that failed at its first step has no step series at all
+        return traj[key] if key in traj else np.zeros(0)
+
+    I1, I2 = steps("I1"), steps("I2")
     res = I1 + I2 if len(I1) else np.zeros(0)
     meta = traj.meta
     summary = {
@@ -61,12 +72,14 @@ def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
         "linear_factorizations": st.linear_factorizations,
         "landing_retries": st.landing_retries,
         "t_final": float(traj["t"][-1]),
+        # how the run ended: on T within 1e-10 max(1, T), or at S (rothe.stepping.ris)
+        "landing": meta.get("landing"),
         "s_final": float(traj["s"][-1]),
         "max_residual": float(res.max()) if res.size else 0.0,
         "sum_residual": float(res.sum()) if res.size else 0.0,
         "min_I2": float(I2.min()) if I2.size else 0.0,
-        "max_kkt_residual": float(traj["kkt"].max()) if len(traj) else 0.0,
-        "max_multiplier": float(traj["lam"].max()) if len(traj) else 0.0,
+        "max_kkt_residual": float(steps("kkt").max()) if len(traj) else 0.0,
+        "max_multiplier": float(steps("lam").max()) if len(traj) else 0.0,
         "energy_final": float(traj["energy"][-1]),
         "wall_time_s": st.wall_time_s,
         "status": "completed",
@@ -75,11 +88,58 @@ def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
     return summary
 
 
+#: The options each step control reads. An option written on the command line that the chosen
+#: control does not read is refused (exit 2), never silently dropped: ``--control nested --tol
+#: 1e-6`` would otherwise run the default tolerances. A control missing from this table (a new
+#: one) is taken to read ``--tol`` like adaptive and order2; tests/cli checks that every name
+#: in CONTROLS is listed.
+CONTROL_OPTIONS = {
+    "uniform": (),
+    "adaptive": ("--tol",),
+    "order2": ("--tol",),
+    "nested": ("--tols",),
+}
+#: the options that only some controls read (--tau, --tau-min, ... are read by all)
+CONTROL_SPECIFIC = ("--tol", "--tols")
+#: smallest --tau-min relative to max(1, T): below it s + tau == s in double precision for
+#: curve parameters of the size of T
+STEP_FLOOR = 1e-14
+
+
+def control_options(control: str) -> tuple[str, ...]:
+    return CONTROL_OPTIONS.get(control, ("--tol",))
+
+
+def check_control_options(args, control: str) -> None:
+    """Refuse options the chosen control ignores (see CONTROL_OPTIONS)."""
+    for option in CONTROL_SPECIFIC:
+        if given(args, option) and option not in control_options(control):
+            users = [c for c in CONTROLS if option in control_options(c)]
+            value = getattr(args, option.lstrip("-").replace("-", "_"))
+            if isinstance(value, list):
+                value = described(",".join(f"{v:g}" for v in value))
+            reads = ("it reads " + ", ".join(control_options(control))
+                     if control_options(control) else "no tolerance: its step is --tau")
+            raise fail(option, value, f"is not used by --control {control} ({reads}); "
+                                      f"{option} is for --control {' or '.join(users)}")
+
+
+def check_step(option: str, value, T: float, tau_min: float = 1e-12) -> float:
+    """A step size of a compare run: tau_min <= tau <= T (the runs stop below tau_min)."""
+    tau = check_positive(option, value)
+    if tau < tau_min:
+        raise fail(option, tau, f"must be >= {tau_min:g} (the smallest step tau_min of the runs)")
+    if tau > T:
+        raise fail(option, tau, f"must be <= T (= {T:g}), the end time of the run")
+    return tau
+
+
 class RISRunBase(ABC):
     """Shared ``run`` logic; subclasses provide the problem and example-specific output."""
 
     name = "ris"
     default_tau = 0.1
+    T = 1.0  # end time of the example
 
     def add_example_options(self, parser) -> None:
         """Optional hook: options of this example (none by default)."""
@@ -158,23 +218,31 @@ class RISRunBase(ABC):
     # ------------------------------------------------------------------------------------------
     def validate(self, args):
         control = check_choice("--control", args.control, CONTROLS)
+        check_control_options(args, control)
         tol = check_positive("--tol", args.tol)
         tau = check_positive("--tau", args.tau if args.tau is not None else self.default_tau)
         tau_min = check_positive("--tau-min", args.tau_min)
+        T = self.end_time(args)
+        smallest = STEP_FLOOR * max(1.0, T)
+        if tau_min < smallest:
+            raise fail("--tau-min", tau_min, f"must be >= {smallest:g} (1e-14 max(1, T): a "
+                                             "smaller step vanishes in the round-off of s)")
+        if tau > T:
+            raise fail("--tau", tau, f"must be <= T (= {T:g}), the end time of the run")
         if tau_min > tau:
             raise fail("--tau-min", tau_min, f"must be <= --tau (= {tau:g})")
         tols = None
         if control == "nested":
             tols = check_decreasing("--tols", args.tols or [1e-3, 1e-4, 1e-5])
-        elif args.tols is not None:
-            raise fail(
-                "--tols", ",".join(map(str, args.tols)), "is only used with --control nested"
-            )
         if args.keep_every < 1:
             raise fail("--keep-every", args.keep_every, "must be an integer >= 1")
         if args.simpson < 2 or args.simpson % 2:
             raise fail("--simpson", args.simpson, "must be an even integer >= 2")
         return control, tol, tau, tau_min, tols
+
+    def end_time(self, args) -> float:
+        """T of the example (bounds --tau); validated before the problem is built."""
+        return self.T
 
     def execute(self, args) -> int:
         control, tol, tau, tau_min, tols = self.validate(args)
@@ -260,6 +328,14 @@ class RunRIS1D(RISRunBase):
     help = "Example 7.1 of Andreia & Meyer (2022): 1-D RIS with exact BV solution (7.1)"
     name = "ris-1d"
     default_tau = 0.1
+    T = 5.0  # example_7_1()
+
+    def validate(self, args):
+        if args.keep_every != 1:
+            raise fail("--keep-every", args.keep_every,
+                       "must be 1 for ris-1d (one unknown; the errors against (7.1) need every "
+                       "state)")
+        return super().validate(args)
 
     def build_problem(self, args):
         from ..problems.ris_1d import example_7_1
@@ -354,7 +430,7 @@ class CompareRIS1D:
 
     def execute(self, args) -> int:
         tols = [check_positive("--tols", x) for x in args.tols]
-        taus = [check_positive("--taus", x) for x in args.taus]
+        taus = [check_step("--taus", x, RunRIS1D.T) for x in args.taus]
         if len(taus) < 2:
             raise fail("--taus", ",".join(map(str, taus)), "needs at least two step sizes")
         out = output_dir(args, "compare-ris-1d")

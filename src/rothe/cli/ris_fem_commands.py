@@ -2,7 +2,7 @@
 
 ``run ris-2d`` is Example 7.2 of Andreia & Meyer (2022) on an N x N grid of the unit square
 (default N = 40: 1681 nodes) or on any 2D mesh file; ``run ris-3d`` the same energy on the unit
-cube or a 3D mesh file. Besides the foundation outputs (summary.json, trajectory.npz, figures)
+cube or a 3D mesh file. Besides the outputs of every run (summary.json, trajectory.npz, figures)
 they write the mesh into trajectory.npz (``nodes``, ``cells``), ``solution.xdmf`` + ``.h5`` (z
 over s, for ParaView), the Fig. 4 analogue and snapshots of z. ``compare ris-2d`` draws Fig. 5.
 """
@@ -16,6 +16,7 @@ import numpy as np
 from ..errors import check_choice, check_int, check_positive, fail
 from .common import (
     add_output_options,
+    given,
     output_dir,
     parse_float,
     parse_float_list,
@@ -25,7 +26,7 @@ from .common import (
     write_table,
 )
 from .registry import command
-from .ris_commands import RISRunBase, ris_summary
+from .ris_commands import RISRunBase, check_step, ris_summary
 
 #: ReusableSolver.kind_used for each resolved method (kept in sync by tests/ris_fem/test_cli.py)
 LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa"}
@@ -52,6 +53,81 @@ def linear_solver_used(traj, problem, method: str = "auto") -> str:
     return LINEAR_KINDS[kind]
 
 
+#: values of --xdmf-time
+XDMF_TIME = ("s", "t")
+
+#: peak memory per mesh node of ``run ris-2d`` / ``ris-3d`` (bytes), to refuse a --n that
+#: cannot fit before anything is allocated. Measured (peak_memory_mb of summary.json minus the
+#: ~90 MB of the interpreter and libraries; uniform tau 0.25, auto solver): 2D 2.0-2.5 kB/node
+#: at N = 200 and 400 (sparse LU), 2.7 GB at 10^6 nodes; 3D 11-12 kB/node at N = 30 and 36
+#: (LU fill of 3D stencils, up to 50k unknowns), 3.4 kB/node at N = 50 (AMG). An estimate to
+#: refuse the impossible (N = 100000 asks for 30 TB), not a budget.
+RIS_BYTES_PER_NODE = {2: 3000, 3: 12000}
+
+
+def grid_nodes(n: int, dim: int) -> int:
+    return (n + 1) ** dim
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation: MemAvailable of /proc/meminfo (Linux),
+    else physical memory by os.sysconf; None if neither is known."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _bytes(x: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
+        if x < 1000 or unit == "PB":
+            return f"{x:.3g} {unit}"
+        x /= 1000
+    return f"{x:.3g} PB"  # pragma: no cover
+
+
+def check_memory(option: str, value, count: int, bytes_each: float, what: str = "nodes") -> None:
+    """Refuse, before allocating, a size whose estimated peak exceeds the available memory."""
+    need = float(count) * bytes_each
+    have = available_memory()
+    if have is not None and need > have:
+        raise fail(option, value, f"needs about {_bytes(need)} ({count:.3g} {what}, estimated), "
+                                  f"more than the {_bytes(have)} of memory available")
+
+
+def _as_option_error(exc, args):
+    """A problem-level input error caused by --z0 or --amplitude, renamed after the option."""
+    text = str(exc)
+    for prefix, option in (("load", "--amplitude"), ("F(z0)", "--z0"), ("dF(z0)", "--z0"),
+                           ("d2F(z0)", "--z0"), ("z0", "--z0")):
+        if text.startswith(prefix):
+            value = args.amplitude if option == "--amplitude" else args.z0
+            return fail(option, value, f"gives non-finite data ({text})")
+    return exc
+
+
+def last_state_per_time(t: np.ndarray, T: float) -> np.ndarray:
+    """Indices of the last state of each run of states with equal t (within 1e-12 max(1, T)).
+
+    With physical time on ParaView's slider, the states of a viscous jump (t^ constant) would
+    share one time value; only the jump's end state is kept, the state at that t after it.
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    later = np.diff(t) > 1e-12 * max(1.0, T)
+    return np.nonzero(np.append(later, True))[0]
+
+
 class _RunRISFem(RISRunBase):
     dim = 2
     default_tau = 0.1
@@ -76,25 +152,55 @@ class _RunRISFem(RISRunBase):
                                  "the branch z < 0 or z > 0)")
         parser.add_argument("--linear-solver", default="auto",
                             help="auto | direct | amg: solver of the Newton systems (default auto: "
-                                 "sparse LU up to 150k unknowns, AMG-preconditioned Krylov above)")
+                                 "sparse LU up to 400k unknowns in 2D, 50k in 3D, "
+                                 "AMG-preconditioned Krylov above)")
+        parser.add_argument("--duplicate-nodes", default="error",
+                            help="coincident nodes of a --mesh file used by different cells (a "
+                                 "cut, like a crack): error (default) | merge (glue them) | keep "
+                                 "(the cut is intended)")
+        parser.add_argument("--xdmf-time", default="s",
+                            help="time axis of solution.xdmf (ParaView's time slider): s "
+                                 "(default: the curve parameter, every state incl. the viscous "
+                                 "jumps) | t (physical time: one state per t, a jump shows as "
+                                 "its end state)")
 
     # hooks -----------------------------------------------------------------------------------
-    def build_problem(self, args):
-        from ..fem.mesh import load_mesh
+    def validate(self, args):
+        from ..fem.mesh import DUPLICATE_NODES
         from ..nonlinear.linear import LINEAR_SOLVERS
-        from ..problems.ris_fem import example_7_2, example_7_2_3d
 
         check_choice("--linear-solver", args.linear_solver, LINEAR_SOLVERS)
+        check_choice("--duplicate-nodes", args.duplicate_nodes, DUPLICATE_NODES)
+        check_choice("--xdmf-time", args.xdmf_time, XDMF_TIME)
+        if args.mesh is None and given(args, "--duplicate-nodes"):
+            raise fail("--duplicate-nodes", args.duplicate_nodes,
+                       "is only used with --mesh (the built-in grids have no duplicate nodes)")
         if args.mesh is not None and args.n is not None:
             raise fail("--n", args.n, "cannot be combined with --mesh (the mesh fixes the grid)")
         n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
-        mesh = load_mesh(args.mesh, dim=self.dim) if args.mesh is not None else None
+        if args.mesh is None:
+            check_memory("--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim])
+        return super().validate(args)
+
+    # hooks -----------------------------------------------------------------------------------
+    def build_problem(self, args):
+        from ..errors import RotheInputError
+        from ..fem.mesh import load_mesh
+        from ..problems.ris_fem import example_7_2, example_7_2_3d
+
+        n = args.n if args.n is not None else self.default_n
+        mesh = None
+        if args.mesh is not None:
+            mesh = load_mesh(args.mesh, dim=self.dim, duplicate_nodes=args.duplicate_nodes)
         dirichlet = None
         if args.dirichlet is not None:
             dirichlet = [x.strip() for x in args.dirichlet.split(",") if x.strip()]
         factory = example_7_2 if self.dim == 2 else example_7_2_3d
         t0 = time.perf_counter()
-        problem = factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
+        try:
+            problem = factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
+        except RotheInputError as exc:
+            raise _as_option_error(exc, args) from None
         self._setup_time = time.perf_counter() - t0
         self._grid = None if mesh is not None else n
         return problem
@@ -137,7 +243,13 @@ class _RunRISFem(RISRunBase):
         from ..stepping.ris import stored_states
 
         s, t, z = stored_states(traj)
-        write_series(out / "solution.xdmf", problem.nodes, problem.cells, s, {"z": z}, {"t": t})
+        if getattr(args, "xdmf_time", "s") == "t":
+            keep = last_state_per_time(t, problem.T)
+            write_series(out / "solution.xdmf", problem.nodes, problem.cells, t[keep],
+                         {"z": z[keep]}, {"s": s[keep]})
+        else:
+            write_series(out / "solution.xdmf", problem.nodes, problem.cells, s, {"z": z},
+                         {"t": t})
 
     def plot(self, args, problem, runs, out) -> None:
         from ..plotting.ris import plot_path
@@ -212,6 +324,8 @@ def uniform_steps_at_residual(rows, key: str = "sum_residual"):
 
 
 def format_table(rows, fit=None) -> str:
+    from ..problems.ris_fem import format_jump_times
+
     head = (f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
             f"{'newton':>7} {'max_k(I1+I2)':>12} {'sum_k(I1+I2)':>12} {'energy':>10} "
             f"{'z_min':>8} {'z_max':>8} {'viscous jumps at t':<18} {'seconds':>8}")
@@ -220,7 +334,7 @@ def format_table(rows, fit=None) -> str:
     lines = [head, "-" * len(head)]
     for r in rows:
         par = r["tau0"] if r["control"] == "uniform" else r["tol"]
-        jumps = ",".join(f"{j['t']:.4g}" for j in r["viscous_jumps"]) or "none"
+        jumps = format_jump_times(r["viscous_jumps"], shown=2, sep=",")
         line = (f"{r['control']:<9} {par:>8.3g} {r['accepted_steps']:>8d} "
                 f"{r['rejected_steps']:>8d} {r['inner_solves']:>7d} {r['newton_iterations']:>7d} "
                 f"{r['max_residual']:>12.3e} {r['sum_residual']:>12.3e} "
@@ -264,8 +378,8 @@ class CompareRIS2D:
         from ..fem.mesh import load_mesh
 
         tols = [check_positive("--tols", x) for x in args.tols]
-        taus = [check_positive("--taus", x) for x in args.taus]
-        tau0 = check_positive("--tau", args.tau)
+        taus = [check_step("--taus", x, 1.0) for x in args.taus]
+        tau0 = check_step("--tau", args.tau, 1.0)
         if len(taus) < 2:
             raise fail("--taus", ",".join(map(str, taus)), "needs at least two step sizes")
         controls = [c.strip() for c in args.controls.split(",") if c.strip()]
@@ -274,6 +388,8 @@ class CompareRIS2D:
         if args.mesh is not None and args.n is not None:
             raise fail("--n", args.n, "cannot be combined with --mesh")
         n = check_int("--n", args.n if args.n is not None else 40, minimum=2)
+        if args.mesh is None:
+            check_memory("--n", n, grid_nodes(n, 2), RIS_BYTES_PER_NODE[2])
         mesh = load_mesh(args.mesh, dim=2) if args.mesh is not None else None
         out = output_dir(args, "compare-ris-2d")
         t0 = time.perf_counter()
