@@ -1,8 +1,21 @@
 """rothe: time-first (Rothe) discretizations for solid mechanics.
 
-Rate-independent systems with non-convex energy (adaptive balanced-viscosity paths, Andreia &
-Meyer 2022) and elastodynamics with time-dependent Dirichlet constraints as operator DAEs
-(Altmann 2015).
+Two families, each with its own API:
+
+* Rate-independent systems with non-convex energy (Andreia & Meyer 2022): parametrized
+  balanced-viscosity solutions by the local incremental stationary scheme with uniform,
+  adaptive (Alg. 3.2), nested (Alg. 6.2) and order2 step control. Exported here:
+  ``RISProblem`` (I(t, z) = 1/2 <Az, z> + F(z) - <l(t), z> in R^n), ``run_ris``,
+  ``run_nested``, the controllers, ``Trajectory``; finite elements in
+  ``rothe.problems.ris_fem`` (``FERISProblem``, ``example_7_2``) and ``rothe.fem.mesh``
+  (``unit_square``, ``load_mesh``).
+* Elastodynamics with time-dependent Dirichlet constraints as operator DAEs (Altmann 2015):
+  ``rothe.eld`` (``run_eld``, ``ELDProblem``, ``Material``, the damping classes,
+  ``DirichletData``); see ``help(rothe.eld)``.
+
+Command line: ``rothe`` lists the commands (``rothe run ris-1d``, ``rothe run eld-beam``, ...);
+``rothe <verb> <name> --help`` their options. Documentation with the papers' equation numbers:
+docs/ris.md, docs/ris_fem.md and docs/eld.md in the source distribution, and the docstrings.
 """
 
 from .control.controllers import (

@@ -3,7 +3,7 @@
 A Newton system K x = b changes a little from one iteration to the next (the diagonal of F''
 moves, the multiplier changes, a few nodes enter or leave the active set). Re-factorizing every
 time is wasteful: a back-substitution is 7-25x cheaper than a factorization and an AMG solve
-(PERFORMANCE-NOTES). So a :class:`ReusableSolver` keeps a *preconditioner* built from a reference
+(measured on 2D grids). So a :class:`ReusableSolver` keeps a *preconditioner* built from a reference
 matrix K_ref and solves the *current* K by preconditioned GMRES. When K == K_ref the preconditioner
 is exact (LU) and GMRES stops after one iteration; when K has drifted, a few more iterations
 absorb the difference; when it has drifted too far (too many iterations), the preconditioner is

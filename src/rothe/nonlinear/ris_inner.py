@@ -12,7 +12,7 @@ does not increase J. Lemma 4.1 writes (3.1) with a multiplier lambda >= 0:
     |g_i| <= r_i                                 where d_i  = 0,            g = D_z I(t_{k-1}, z)
     lambda (||d||_V - tau) = 0,   ||d||_V <= tau,   lambda >= 0.             (4.1)-(4.4)
 
-Design (SPEC section 2, "a design that works with the ball"): the ball is handled *directly*;
+Design: the ball is handled *directly*;
 we never search over lambda with penalized problems (lambda -> z(lambda) jumps exactly where the
 viscous jumps happen). Each iteration
 
