@@ -216,6 +216,22 @@ def test_viscous_jumps_catch_up_and_round_off_steps():
     assert jumps[0]["t"] == pytest.approx(0.2) and jumps[0]["steps"] == 2
     assert jumps[0]["s_end"] - jumps[0]["s_start"] == pytest.approx(0.4)
     assert catch_up_steps(tr) == 1
-    # a jump right at the start (z0 not stationary) always counts
-    assert viscous_jumps(_traj([0.1, 0.1], [0.0, 0.1]))[0]["steps"] == 1
+    # a relaxation at the start (z0 not stationary) counts when it spans more than one step
+    assert viscous_jumps(_traj([0.1, 0.1, 0.1], [0.0, 0.0, 0.1]))[0]["steps"] == 2
+    assert viscous_jumps(_traj([0.1, 0.1], [0.0, 0.1])) == []
     assert viscous_jumps(_traj([], [])) == [] and catch_up_steps(_traj([], [])) == 0
+
+
+def test_single_steps_with_dt_zero_are_not_jumps():
+    """The disk mesh of issue 10 reported 318 jumps where t^(s) has one plateau: in slip the
+    time increments carry a period-2 oscillation at a fixed tau (dt = tau, 0, tau, 0, ...) and
+    single steps after a halving of tau spend their length catching up. None is a jump."""
+    tau = 0.0001234567  # s_k - s_{k-1} then differs from tau by round-off, either way
+    taus = [0.1, 0.1, 0.1, 0.1] + [2 * tau] * 3 + [tau] * 400
+    dts = [0.1, 0.0, 0.0, 0.0] + [tau] * 3 + [0.9 * tau, 0.0] * 200
+    tr = _traj(taus, dts)
+    jumps = viscous_jumps(tr)
+    assert [j["steps"] for j in jumps] == [3]  # the plateau after the first step only
+    assert catch_up_steps(tr) == 200
+    # two steps with t' = 0 that together are no longer than the step before: a catch-up
+    assert viscous_jumps(_traj([0.2, 0.05, 0.05, 0.1], [0.2, 0.0, 0.0, 0.1])) == []
