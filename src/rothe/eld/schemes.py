@@ -52,7 +52,7 @@ Euler: u^{-1} = g - tau h, i.e. y^0 = h (regularized: y^0 = h - B^- G_dot^0 with
 BDF2 needs two past values of u and of v. A first Euler step would keep order 2 at T, but in
 the original form the boundary velocity of that step is a difference quotient of G, off by
 O(tau), and the largest multiplier error over the steps then converges only like tau^0.8
-(SPEC 7). Here BDF2 starts as if it had run before t = 0 on the Taylor polynomial of the
+(measured). Here BDF2 starts as if it had run before t = 0 on the Taylor polynomial of the
 solution,
 
     P(s) = g + s h_c + s^2/2 a_0 + s^3/6 S^T G_3,    s <= 0,
