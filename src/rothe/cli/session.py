@@ -45,7 +45,7 @@ from ..stepping.progress import ProgressOptions
 PRESENTATION = ("out", "no_plots", "quiet", "resume", "checkpoint_every", "progress_every",
                 "discard_checkpoint")
 #: argparse bookkeeping
-_INTERNAL = ("_command", "_argv", "verb", "name")
+_INTERNAL = ("_command", "_argv", "_given", "verb", "name")
 #: options stripped from the recorded command line (``rothe resume`` supplies them)
 _STRIP_WITH_VALUE = ("--out", "--resume")
 _STRIP_FLAGS = ("--discard-checkpoint",)
