@@ -36,9 +36,9 @@ from rothe.errors import RotheInputError
      "rothe: error: --tau0: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of T = 1)"),
     # StopIteration
     (["study", "eld-perturbation", "--targets", ""],
-     "rothe: error: --targets: got '', must be G, F or G,F (where the noise goes)"),
+     "rothe: error: --targets: got '', must name at least one of G, G_dot, G_ddot, F"),
     (["study", "eld-perturbation", "--targets", "G,X"],
-     "rothe: error: --targets: got 'G,X', must be G, F or G,F (where the noise goes)"),
+     "rothe: error: --targets: got 'X', must be one of G, G_dot, G_ddot, F"),
     # ValueError: expected non-negative integer (numpy)
     (["study", "eld-perturbation", "--seed", "-1"],
      "rothe: error: --seed: got -1, must be an integer >= 0"),
@@ -62,7 +62,7 @@ def test_study_functions_validate_their_parameters():
 
     with pytest.raises(RotheInputError, match=r"^halvings: got 40, must be <= 16 "):
         convergence_study(halvings=40)
-    with pytest.raises(RotheInputError, match=r"^targets: got '', must be G, F or G,F"):
+    with pytest.raises(RotheInputError, match=r"^targets: got '', must name at least one of G, "):
         perturbation_study(targets=())
     with pytest.raises(RotheInputError, match=r"^seed: got -3, must be an integer >= 0$"):
         perturbation_study(seed=-3)
