@@ -146,9 +146,9 @@ def test_wrong_dF_stops_with_a_message_naming_the_cause(check):
     assert e.value.where["failed_solves"] > 50
 
 
-def test_progress_monitor_state_round_trip():
+def test_stagnation_monitor_state_round_trip():
     """Checkpoint protocol: the monitor's state is plain data and restores exactly."""
-    from rothe.stepping.ris import ProgressMonitor, RISState, RISStepper
+    from rothe.stepping.ris import RISState, RISStepper, StagnationMonitor
 
     stepper = RISStepper(example_7_1())
     state = RISState(s=0.0, t=0.0, z=np.array([-2.0]))
@@ -157,7 +157,7 @@ def test_progress_monitor_state_round_trip():
         state = result.state
     data = copy.deepcopy(stepper.monitor.checkpoint_state())
     assert data["attempts"] == 3 and data["s_start"] == 0.0
-    fresh = ProgressMonitor()
+    fresh = StagnationMonitor()
     fresh.restore_state(data)
     assert fresh.checkpoint_state() == stepper.monitor.checkpoint_state()
 

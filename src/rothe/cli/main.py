@@ -39,6 +39,7 @@ def command_list() -> str:
     registry.load_all()
     rows = [(f"rothe {verb} {name}", cmd.help) for verb in registry.VERBS
             for name, cmd in sorted(registry.commands(verb).items())]
+    rows.append(("rothe resume DIR", Resume.help))
     width = max(len(r[0]) for r in rows)
     lines = ["commands:"] + [f"  {a:<{width}}  {b}" for a, b in rows]
     lines.append("")

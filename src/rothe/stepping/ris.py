@@ -60,7 +60,7 @@ class RISStepResult:
         return {"I1": self.I1, "I2": self.I2}
 
 
-class ProgressMonitor:
+class StagnationMonitor:
     """Stops a run that cannot reach its end: no progress in s over many step attempts.
 
     Every attempt of a step advances s by its tau when accepted, and s >= t, so reaching T
@@ -150,7 +150,7 @@ class RISStepper:
         self._last_tau = 0.0
         # the last accepted step (its end state, increment and tau): a warm-start candidate
         self._previous: tuple[np.ndarray, np.ndarray, float] | None = None
-        self.monitor = ProgressMonitor()
+        self.monitor = StagnationMonitor()
 
     # -- evolve-loop interface ----------------------------------------------------------------
     def finished(self, state: RISState) -> bool:
@@ -350,7 +350,7 @@ class RISStepper:
     # -- checkpoint protocol (rothe.io.checkpoint) -------------------------------------------
     def checkpoint_state(self, state: RISState) -> dict:
         """The state (s, t, z, k), the warm-start hint of the next step (the previous accepted
-        increment and its tau), the linear solver's stored preconditioner and the progress
+        increment and its tau), the linear solver's stored preconditioner and the stagnation
         monitor's window."""
         previous = None
         if self._previous is not None:
