@@ -1,0 +1,207 @@
+"""Residual error indicator for one Rothe step of elastodynamics (Altmann 2015, (3.4)).
+
+A step of the scheme is the stationary problem (strong form, w := u + b v the field whose
+stress enters, b the Kelvin-Voigt coefficient of the damping)
+
+    rho a + c_M v + N(v) - div sigma(w) = f   in Omega,
+    sigma(w) n = g                             on Gamma_N,       u = G on Gamma_D (multiplier),
+
+with a and v the scheme's acceleration and velocity *as finite element fields on the step's
+mesh* (Euler: a = D^2 u^j = (u^j - 2u^{j-1} + u^{j-2})/tau^2, v = D u^j; BDF2 likewise, with
+the history transferred to this mesh), c_M the mass-proportional damping (Rayleigh a, or -d0 of
+the nonlinear damping), N a pointwise damping force (d_nl v/sqrt(1 + |v|^2/v_ref^2)) and
+sigma(w) = lam tr eps(w) I + 2 mu eps(w). The indicator of a cell K is the residual estimator
+
+    eta_K^2 = alpha_K^2 ||R_K||_K^2 + 1/2 sum_{F in F_int(K)} mu^{-1/2} alpha_F ||J_F||_F^2
+              + sum_{F in F_N(K)} mu^{-1/2} alpha_F ||g - sigma(w_h) n||_F^2,
+
+    R_K = f - rho a_h - c_M v_h - N(v_h) + div sigma(w_h)   (div sigma = 0 in P1 cells),
+    J_F = [sigma(w_h) n]_F  (jump of the normal stress across the interior facet F),
+    alpha_S = min(h_S / (p sqrt(mu)), 1 / sqrt(kappa)),
+
+h_K the longest edge of K, h_F that of F, p the polynomial degree (the h/p scaling of
+Melenk & Wohlmuth 2001 for P2), kappa >= 0 the reaction coefficient of the step
+(``reaction``: rho/tau^2 for an Euler step, 9 rho/(4 tau^2) for BDF2, 0 for statics). With
+kappa = 0 this is the classical h_K ||R_K|| + h_F^{1/2} ||J_F|| estimator scaled by mu^{-1/2},
+reliable and efficient for the energy norm (a(e, e) + kappa ||e||^2)^{1/2} up to constants that
+depend on the shape regularity and on lam/mu (Verfuerth; the kappa-robust weights are his).
+Facets on the Dirichlet parts contribute nothing (the multiplier takes up the traction there).
+The Dirichlet data error (G not in the trace space) is not estimated.
+
+Why residual and not Zienkiewicz-Zhu recovery: the residual estimator has proven upper and
+lower bounds on every mesh, including the graded meshes and boundary layers of a moving front;
+ZZ recovery is asymptotically exact on smooth solutions but needs superconvergence, which
+graded bisection meshes and P2 do not give. The efficiency band is measured in
+``benchmarks/adapt_efficiency.py`` and asserted in ``tests/estimators``.
+
+Works for vector P1 and P2 on triangles (plane strain) and tetrahedra, with the dofs
+interleaved as in :class:`rothe.fem.elasticity.VectorSpace` (component c of scalar dof k is
+``d*k + c``). Vectorized: one pass over the cells, one over the interior facets, one over the
+Neumann facets.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import check_nonnegative, check_positive, fail
+from .simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
+
+
+def _as_field(U, n: int, d: int, name: str) -> np.ndarray:
+    arr = np.asarray(U, dtype=float)
+    if arr.shape != (n * d,):
+        raise fail(name, f"an array of shape {arr.shape}",
+                   f"must be an interleaved vector dof array of shape ({n * d},)")
+    return arr.reshape(n, d)
+
+
+def _at(data, x: np.ndarray, *extra) -> np.ndarray:
+    """A callable data(x, ...) or an array given at the points, broadcast to x's shape."""
+    vals = data(x, *extra) if callable(data) else data
+    return np.broadcast_to(np.asarray(vals, dtype=float), x.shape)
+
+
+def stress(grad: np.ndarray, lam: float, mu: float) -> np.ndarray:
+    """sigma = lam tr(eps) I + 2 mu eps for grad[c, k] = d_k w_c (leading axes (d, d, ...))."""
+    d = grad.shape[0]
+    eps = 0.5 * (grad + np.swapaxes(grad, 0, 1))
+    tr = np.trace(eps, axis1=0, axis2=1)
+    eye = np.eye(d).reshape((d, d) + (1,) * (grad.ndim - 2))
+    return lam * tr[None, None] * eye + 2.0 * mu * eps
+
+
+def eld_indicators(mesh, degree: int, lam: float, mu: float, u: np.ndarray, *,
+                   rho: float = 1.0, accel: np.ndarray | None = None,
+                   velocity: np.ndarray | None = None, mass_damping: float = 0.0,
+                   stiffness_damping: float = 0.0, pointwise_damping=None, body_force=None,
+                   traction: dict | None = None, dirichlet_parts=(), reaction: float = 0.0,
+                   evaluator: SimplexEvaluator | None = None) -> CellIndicators:
+    """Cell indicators eta_K of one elastodynamics step (formula in the module docstring).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri | skfem.MeshTet with named boundaries (the step's mesh)
+    degree : 1 | 2
+    lam, mu : Lame constants (mu > 0 also scales the weights)
+    u : (d * n,) displacement u^j (interleaved dofs)
+    rho, accel : density and the scheme's acceleration a^j as a field (None: 0)
+    velocity : the scheme's velocity v^j as a field (None: 0); enters through
+        ``mass_damping`` c_M (c_M v), ``stiffness_damping`` b (sigma(u + b v)) and
+        ``pointwise_damping`` (a callable v -> force density, v and the result (d, ...)).
+    body_force : callable f(x) with x (d, ...) -> (d, ...), or values at the cell quadrature
+        points (d, nc, nq), or None.
+    traction : dict part -> callable g(x, n) (x, n (d, nf, nq)) on Neumann parts; boundary
+        facets on no Dirichlet part and not in ``traction`` are traction free (g = 0).
+    dirichlet_parts : names of the Dirichlet parts (excluded from the boundary residual).
+    reaction : kappa >= 0 of the robust weights (rho/tau^2 for an implicit Euler step).
+    evaluator : a :class:`SimplexEvaluator` of (mesh, degree) to reuse, optional.
+    """
+    mu = check_positive("mu", mu)
+    reaction = check_nonnegative("reaction", reaction)
+    ev = evaluator if evaluator is not None else SimplexEvaluator(mesh, degree)
+    d, n = ev.dim, ev.ndofs
+    U = _as_field(u, n, d, "u")
+    W = U.copy()
+    V = None
+    if velocity is not None:
+        V = _as_field(velocity, n, d, "velocity")
+        if stiffness_damping:
+            W = W + stiffness_damping * V
+
+    # cell residual R = f - rho a - c_M v - N(v) + div sigma(w)
+    x = ev.cell_points  # (d, nc, nq)
+    R = np.zeros_like(x)
+    if body_force is not None:
+        R += _at(body_force, x)
+    if accel is not None and rho:
+        R -= rho * ev.values(_as_field(accel, n, d, "accel"))
+    if V is not None:
+        vq = ev.values(V)  # (d, nc, nq)
+        if mass_damping:
+            R -= mass_damping * vq
+        if pointwise_damping is not None:
+            R -= np.asarray(pointwise_damping(vq), dtype=float)
+    if ev.degree == 2:
+        H = ev.hessians(W)  # (c, i, j, nc): d_i d_j w_c
+        lap = np.trace(H, axis1=1, axis2=2)  # (c, nc)
+        grad_div = np.einsum("kkic->ic", H)  # d_i (div w)
+        div_sigma = mu * lap + (lam + mu) * grad_div
+        R += div_sigma[:, :, None]
+    alpha_K = robust_weight(ev.h / ev.degree, mu, reaction)
+    cell_sq = alpha_K**2 * np.sum(np.sum(R * R, axis=0) * ev.cell_dx, axis=1)
+
+    topo = ev.topology
+    # interior facets: J = sigma(w)|_K0 n0 + sigma(w)|_K1 n1 (n1 = -n0)
+    ic, il = topo.inner_cells, topo.inner_local
+    fverts = topo.facets[:, topo.interior]
+    meas, normal, diam = ev.facet_geometry(ic[0], il[0])
+    S0 = stress(ev.gradients_at(W, ic[0], ev.facet_lambda(ic[0], il[0], fverts)), lam, mu)
+    S1 = stress(ev.gradients_at(W, ic[1], ev.facet_lambda(ic[1], il[1], fverts)), lam, mu)
+    J = np.einsum("ijfq,jf->ifq", S0 - S1, normal)
+    alpha_F = robust_weight(diam / ev.degree, mu, reaction)
+    w_f = meas[:, None] * ev.facet_w[None, :]
+    inner_sq = alpha_F / np.sqrt(mu) * np.sum(np.sum(J * J, axis=0) * w_f, axis=1)
+
+    # Neumann facets: g - sigma(w) n
+    bc, bl = topo.boundary_cells, topo.boundary_local
+    dir_mask = ev.boundary_part_mask(dirichlet_parts) if dirichlet_parts else \
+        np.zeros(len(bc), dtype=bool)
+    neu = ~dir_mask
+    bc, bl = bc[neu], bl[neu]
+    bfacets = topo.boundary[neu]
+    bverts = topo.facets[:, bfacets]
+    meas_b, normal_b, diam_b = ev.facet_geometry(bc, bl)
+    Sb = stress(ev.gradients_at(W, bc, ev.facet_lambda(bc, bl, bverts)), lam, mu)
+    Jb = -np.einsum("ijfq,jf->ifq", Sb, normal_b)
+    if traction:
+        xb = ev.facet_points(bverts)
+        nb = np.broadcast_to(normal_b[:, :, None], xb.shape)
+        known = mesh.boundaries or {}
+        for part, g in traction.items():
+            if part not in known:
+                raise fail("traction", part, "must name a boundary part of the mesh")
+            on = np.isin(bfacets, np.asarray(known[part], dtype=np.int64))
+            if on.any():
+                Jb[:, on] += _at(g, xb[:, on], nb[:, on])
+    w_b = meas_b[:, None] * ev.facet_w[None, :]
+    bnd_sq = robust_weight(diam_b / ev.degree, mu, reaction) / np.sqrt(mu) * \
+        np.sum(np.sum(Jb * Jb, axis=0) * w_b, axis=1)
+    return assemble_indicators(ev, cell_sq, inner_sq, ic, bnd_sq, bc)
+
+
+def eld_indicators_for(problem, t: float, u: np.ndarray, velocity: np.ndarray | None = None,
+                       accel: np.ndarray | None = None, *, reaction: float = 0.0,
+                       evaluator: SimplexEvaluator | None = None) -> CellIndicators:
+    """:func:`eld_indicators` with the data of an :class:`~rothe.eld.problem.ELDProblem` at t.
+
+    Damping: ``NoDamping``; ``RayleighDamping(a, b)`` (c_M = a, Kelvin-Voigt b);
+    ``NonlinearDamping(b, d0, d_nl, v_ref)`` (c_M = -d0, b, N = d_nl v/sqrt(1+|v|^2/v_ref^2)).
+    A ``UserDamping`` has no pointwise form: its force is left out of the cell residual.
+    """
+    from ..eld.damping import NonlinearDamping, RayleighDamping, saturating_velocity
+
+    space = problem.space
+    m = problem.material
+    damp = problem.damping
+    kw = {}
+    if isinstance(damp, RayleighDamping):
+        kw = {"mass_damping": damp.a, "stiffness_damping": damp.b}
+    elif isinstance(damp, NonlinearDamping):
+        kw = {"mass_damping": -damp.d0, "stiffness_damping": damp.b}
+        if damp.d_nl:
+            kw["pointwise_damping"] = (
+                lambda v, s=damp: s.d_nl * saturating_velocity(v, s.v_ref))
+    body = None
+    if problem.body_force is not None:
+        def body(x, f=problem.body_force):
+            return f(float(t), x)
+
+    def at_t(g):
+        return lambda x, n: g(float(t), x, n)
+
+    traction = {part: at_t(g) for part, (g, _) in problem._traction.items()}
+    return eld_indicators(space.mesh, space.degree, m.lam, m.mu, u, rho=m.rho, accel=accel,
+                          velocity=velocity, body_force=body, traction=traction,
+                          dirichlet_parts=problem.constraint.parts, reaction=reaction,
+                          evaluator=evaluator, **kw)
