@@ -44,14 +44,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import check_nonnegative, check_positive, fail
+from ..errors import check_nonnegative, check_positive, described, fail
 from .simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
 
 
 def _as_field(U, n: int, d: int, name: str) -> np.ndarray:
     arr = np.asarray(U, dtype=float)
     if arr.shape != (n * d,):
-        raise fail(name, f"an array of shape {arr.shape}",
+        raise fail(name, described(f"an array of shape {arr.shape}"),
                    f"must be an interleaved vector dof array of shape ({n * d},)")
     return arr.reshape(n, d)
 

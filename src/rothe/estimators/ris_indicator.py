@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import check_nonnegative, fail
+from ..errors import check_nonnegative, described, fail
 from ..fem.scalar import cell_coefficient
 from .simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
 
@@ -74,7 +74,7 @@ def ris_indicators(mesh, z: np.ndarray, z_prev: np.ndarray, *, dg, load, kappa: 
     z_prev = np.asarray(z_prev, dtype=float)
     for name, arr in (("z", z), ("z_prev", z_prev)):
         if arr.shape != (n,):
-            raise fail(name, f"an array of shape {arr.shape}",
+            raise fail(name, described(f"an array of shape {arr.shape}"),
                        f"must hold the values at all {n} nodes")
     c = cell_coefficient(mesh, coefficient)
 
@@ -89,7 +89,7 @@ def ris_indicators(mesh, z: np.ndarray, z_prev: np.ndarray, *, dg, load, kappa: 
             lq = np.full(zq.shape, float(arr))
         else:
             if arr.shape != (n,):
-                raise fail("load", f"an array of shape {arr.shape}",
+                raise fail("load", described(f"an array of shape {arr.shape}"),
                            f"must be a callable, a number or {n} nodal functionals")
             if lumped_mass is None:
                 from ..fem.scalar import lumped_mass as lm

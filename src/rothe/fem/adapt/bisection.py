@@ -83,7 +83,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...errors import check_int, fail
+from ...errors import check_int, described, fail
 from .topology import (
     SKFEM_FACETS,
     FacetTopology,
@@ -141,18 +141,18 @@ def check_adaptable(mesh, name: str = "--adapt-space"):
         simplex = ["tetra"] if dim == 3 else (["triangle"] if dim == 2 else [])
         if other and simplex:
             kinds = ", ".join(simplex + other)
-            raise fail(name, f"a mixed mesh ({kinds})",
+            raise fail(name, described(f"a mixed mesh ({kinds})"),
                        "needs a mesh of triangles (2D) or tetrahedra (3D) only")
         if other:
-            raise fail(name, f"a mesh of {_OTHER_VOLUME[other[0]]}",
+            raise fail(name, described(f"a mesh of {_OTHER_VOLUME[other[0]]}"),
                        "needs triangles (2D) or tetrahedra (3D); bisection refines only "
                        "simplices")
         if not simplex:
-            raise fail(name, "a mesh without triangles or tetrahedra",
+            raise fail(name, described("a mesh without triangles or tetrahedra"),
                        "needs triangles (2D) or tetrahedra (3D)")
         return mesh
     kind = _SKFEM_KINDS.get(type(mesh).__name__, type(mesh).__name__)
-    raise fail(name, f"a mesh of {kind}",
+    raise fail(name, described(f"a mesh of {kind}"),
                "needs triangles (2D) or tetrahedra (3D); bisection refines only simplices")
 
 
@@ -228,12 +228,12 @@ class AdaptiveMesh:
         self._mesh_cls = type(mesh)
         nv, nc = p.shape[1], t.shape[1]
         if nc == 0:
-            raise fail(name, "a mesh with 0 cells", "must have at least one cell")
+            raise fail(name, described("a mesh with 0 cells"), "must have at least one cell")
         _, vol = barycentric_gradients(p, t)
         h = cell_diameters(p, t)
         bad = np.flatnonzero(vol <= 1e-12 * h**d)
         if bad.size:
-            raise fail(name, f"a degenerate cell (index {int(bad[0])})",
+            raise fail(name, described(f"a degenerate cell (index {int(bad[0])})"),
                        "all cells must have positive volume")
 
         # initial facets: numbering, boundary flags, named parts
@@ -242,7 +242,7 @@ class AdaptiveMesh:
         nf0 = init_facets.shape[1]
         counts = np.bincount(cell_facets.ravel(), minlength=nf0)
         if np.any(counts > 2):
-            raise fail(name, "a facet shared by more than two cells",
+            raise fail(name, described("a facet shared by more than two cells"),
                        "must be a conforming simplicial mesh")
         self._facet_is_boundary = counts == 1
         self._initial_facets = init_facets.T.copy()  # (nf0, d) sorted tuples
@@ -311,7 +311,7 @@ class AdaptiveMesh:
         where[ids[:nf0]] = np.arange(nf0)
         out = where[ids[nf0:]]
         if np.any(out < 0):
-            raise fail("mesh.boundaries", "a facet that is not a facet of the mesh",
+            raise fail("mesh.boundaries", described("a facet that is not a facet of the mesh"),
                        f"boundary parts must list facets of the {d}D mesh")
         return out
 
@@ -529,16 +529,16 @@ class AdaptiveMesh:
         m = np.asarray(marked)
         if m.dtype == bool:
             if m.shape != (nc,):
-                raise fail(name, f"a boolean mask of shape {m.shape}",
+                raise fail(name, described(f"a boolean mask of shape {m.shape}"),
                            f"must have one entry per cell ({nc})")
             idx = np.flatnonzero(m)
         else:
             if m.size and not np.issubdtype(m.dtype, np.integer):
-                raise fail(name, f"an array of dtype {m.dtype}",
+                raise fail(name, described(f"an array of dtype {m.dtype}"),
                            "must be a boolean mask or integer cell indices")
             idx = np.unique(m.astype(np.int64).ravel())
             if idx.size and (idx[0] < 0 or idx[-1] >= nc):
-                raise fail(name, f"cell index {int(idx[0] if idx[0] < 0 else idx[-1])}",
+                raise fail(name, described(f"cell index {int(idx[0] if idx[0] < 0 else idx[-1])}"),
                            f"must be in [0, {nc - 1}]")
         return self._leaves[idx]
 
@@ -988,7 +988,7 @@ class AdaptiveMesh:
         else:
             prio_all = np.asarray(priority, dtype=float)
             if prio_all.shape != (nc_old,):
-                raise fail("priority", f"an array of shape {prio_all.shape}",
+                raise fail("priority", described(f"an array of shape {prio_all.shape}"),
                            f"must have one value per cell ({nc_old})")
             prio = prio_all[self._src_start[ref_ids]]
         order = np.argsort(-prio, kind="stable")

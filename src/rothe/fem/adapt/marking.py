@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...errors import RotheInputError, check_int, check_real, fail
+from ...errors import RotheInputError, check_int, check_real, described, fail
 
 #: the CLI option of each parameter (error messages name them when ``naming="cli"``)
 CLI_NAMES = {"space_tol": "--space-tol", "refine_fraction": "--refine-fraction",
@@ -174,7 +174,7 @@ class SpaceAdaptivity:
         """(refine, coarsen) masks from the cell indicators (see the module docstring)."""
         eta = np.asarray(eta, dtype=float)
         if eta.ndim != 1 or not np.all(np.isfinite(eta)) or np.any(eta < 0):
-            raise fail("indicators", "an array that is not finite and >= 0 per cell",
+            raise fail("indicators", described("an array that is not finite and >= 0 per cell"),
                        "must be one finite value >= 0 per cell")
         est = float(np.sqrt(np.sum(eta * eta)))
         refine = doerfler_marking(eta, self.refine_fraction) if est > self.space_tol else \
@@ -198,7 +198,7 @@ def adapt_mesh(amesh, eta: np.ndarray, options: SpaceAdaptivity, *, degree: int 
     when nothing was marked or nothing could change; the transfer is then the identity).
     """
     if len(eta) != amesh.n_cells:
-        raise fail("indicators", f"{len(eta)} values",
+        raise fail("indicators", described(f"{len(eta)} values"),
                    f"must have one per cell ({amesh.n_cells})")
     refine, coarsen = options.mark(eta)
     return amesh.adapt(refine=refine, coarsen=coarsen, coarsen_rounds=options.coarsen_rounds,
