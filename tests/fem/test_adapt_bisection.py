@@ -1,4 +1,4 @@
-"""Adaptive meshes by bisection: conformity, boundary parts, coarsening back, history, checkpoint."""
+"""Adaptive meshes by bisection: conformity, parts, coarsening back, history, checkpoint."""
 
 from __future__ import annotations
 
