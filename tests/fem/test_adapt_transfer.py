@@ -114,7 +114,8 @@ def test_dirichlet_values_hold_after_every_change():
     """S u = G on the new Dirichlet dofs after transfer (ELD constraint B u = G): exactly for
     data in the space (refine and coarsen); for other data exactly on coarsening, and on
     refinement up to the interpolation error of the old mesh (the history keeps the old
-    interpolant of G; the stepper rebuilds u2 from G on the new mesh)."""
+    interpolant of G; the stepper rebuilds u2 from G on the new mesh); coarsening adds no
+    deviation."""
     am = AdaptiveMesh(eld_mesh.unit_square(3))
 
     def G_quadratic(x):
@@ -137,8 +138,8 @@ def test_dirichlet_values_hold_after_every_change():
         pts = con.scalar_points
         assert np.allclose(con.restrict(u), G_quadratic(pts).T.ravel(), rtol=0, atol=1e-14)
         err = np.abs(con.restrict(w) - G_smooth(pts).T.ravel()).max()
-        if coarsen_only:
-            assert change.merges and err < 1e-14
+        if coarsen_only:  # an injection: no new deviation from G
+            assert change.merges and err <= worst
         else:
             assert change.bisections and err < 1e-2
             worst = max(worst, err)
