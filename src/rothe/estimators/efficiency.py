@@ -145,12 +145,14 @@ def cube_bubble(d: int) -> ScalarField:
     return ScalarField(value, grad, hess)
 
 
-def _profile(d: int, name: str) -> ScalarField:
+def _profile(d: int, name, width: float = 0.05) -> ScalarField:
+    if isinstance(name, ScalarField):
+        return name
     if name == "bump":
         return bump(d)
     if name == "front":
-        return front(d)
-    raise ValueError(f"profile: got {name!r}, must be bump or front")
+        return front(d, width=width)
+    raise ValueError(f"profile: got {name!r}, must be bump, front or a ScalarField")
 
 
 def _initial_mesh(d: int, n0: int, tagged: bool):
@@ -218,16 +220,21 @@ def _energy_error(mesh, degree, U, u_exact, grad_exact, energy):
     return float(np.sqrt(np.sum(energy(e, ge) * ev.cell_dx)))
 
 
-def elasticity_study(dim: int = 2, degree: int = 1, profile: str = "bump", *, n0: int = 2,
+def elasticity_study(dim: int = 2, degree: int = 1, profile="bump", *, n0: int = 2,
                      adaptive: bool = True, max_dofs: int = 5000, theta: float = 0.5,
                      lam: float = 2.0, mu: float = 1.0, kappa: float = 1.0,
-                     max_levels: int = 40) -> list[dict]:
-    """Rows (dofs, cells, estimate, error, efficiency) of the ELD step study (module doc)."""
+                     width: float = 0.05, max_levels: int = 40) -> list[dict]:
+    """Rows (dofs, cells, estimate, error, efficiency) of the ELD step study (module doc).
+
+    ``profile``: "bump", "front" (of ``width``) or a :class:`ScalarField`; adaptive: Doerfler
+    marking with ``theta`` and one bisection per marked cell; uniform: d bisections of every
+    cell per level (every edge halved). Stops after the first mesh with >= ``max_dofs``.
+    """
     from ..fem.adapt import AdaptiveMesh
     from ..fem.adapt.marking import doerfler_marking
     from .eld_indicator import eld_indicators, stress
 
-    phi = _profile(dim, profile)
+    phi = _profile(dim, profile, width)
     a = np.array([1.0, 0.5, 0.25][:dim])
     amesh = AdaptiveMesh(_initial_mesh(dim, n0, tagged=True))
     rows = []
@@ -274,10 +281,14 @@ def _d2g(z):
     return 576.0 * z * z - 192.0
 
 
-def _ris_exact(dim: int, profile: str) -> ScalarField:
+def _ris_exact(dim: int, profile, width: float = 0.05) -> ScalarField:
+    if isinstance(profile, ScalarField):
+        return profile
     if profile == "bump":
         return bump(dim)
-    return cube_bubble(dim) * front(dim).shifted(1.5)
+    if profile == "front":
+        return cube_bubble(dim) * front(dim, width=width).shifted(1.5)
+    raise ValueError(f"profile: got {profile!r}, must be bump, front or a ScalarField")
 
 
 def _ris_solve(mesh, zs: ScalarField, lam: float, kappa: float):
@@ -316,15 +327,19 @@ def _ris_solve(mesh, zs: ScalarField, lam: float, kappa: float):
     return full, load, bool(np.all(z > 0))
 
 
-def ris_study(dim: int = 2, profile: str = "front", *, n0: int = 4, adaptive: bool = True,
+def ris_study(dim: int = 2, profile="front", *, n0: int = 4, adaptive: bool = True,
               max_dofs: int = 5000, theta: float = 0.5, lam: float = 250.0, kappa: float = 1.0,
-              max_levels: int = 40) -> list[dict]:
-    """Rows (dofs, cells, estimate, error, efficiency, positive) of the RIS step study."""
+              width: float = 0.05, max_levels: int = 40) -> list[dict]:
+    """Rows (dofs, cells, estimate, error, efficiency, positive) of the RIS step study.
+
+    ``positive``: all free nodal values of z_h > 0, i.e. the subgradient kappa sign(z_h - 0)
+    of the discrete step is the kappa assumed by the manufactured load.
+    """
     from ..fem.adapt import AdaptiveMesh
     from ..fem.adapt.marking import doerfler_marking
     from .ris_indicator import ris_indicators
 
-    zs = _ris_exact(dim, profile)
+    zs = _ris_exact(dim, profile, width)
     amesh = AdaptiveMesh(_initial_mesh(dim, n0, tagged=False))
     rows = []
     for _ in range(max_levels):

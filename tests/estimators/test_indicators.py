@@ -1,0 +1,146 @@
+"""Residual indicators of ELD and RIS steps: exactness, efficiency band, adaptivity pays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rothe.eld.examples import mms_problem
+from rothe.errors import RotheInputError
+from rothe.estimators.efficiency import (
+    ScalarField,
+    dofs_for_error,
+    elasticity_study,
+    ris_study,
+)
+from rothe.estimators.eld_indicator import eld_indicators, eld_indicators_for
+from rothe.estimators.ris_indicator import ris_indicators, ris_indicators_for
+from rothe.estimators.simplex import SimplexEvaluator
+from rothe.fem import eld_mesh
+from rothe.fem.adapt import AdaptiveMesh
+from rothe.fem.elasticity import VectorSpace
+from rothe.problems.ris_fem import example_7_2
+
+
+def polynomial_profile(dim: int, degree: int) -> ScalarField:
+    """A global polynomial of the given degree (exactly represented by P``degree``)."""
+    if degree == 1:
+        w = np.array([1.0, 2.0, -0.5][:dim])
+        return ScalarField(lambda x: 1 + np.tensordot(w, x, 1),
+                           lambda x: np.broadcast_to(w.reshape((dim,) + (1,) * (x.ndim - 1)),
+                                                     x.shape).copy(),
+                           lambda x: np.zeros((dim, dim) + x.shape[1:]))
+
+    def value(x):
+        return 1 + x[0] * x[1] + x[0] ** 2
+
+    def grad(x):
+        g = np.zeros_like(x)
+        g[0] = x[1] + 2 * x[0]
+        g[1] = x[0]
+        return g
+
+    def hess(x):
+        H = np.zeros((dim, dim) + x.shape[1:])
+        H[0, 0] = 2.0
+        H[0, 1] = H[1, 0] = 1.0
+        return H
+
+    return ScalarField(value, grad, hess)
+
+
+@pytest.mark.parametrize("dim, degree", [(2, 1), (2, 2), (3, 1), (3, 2)])
+def test_eld_indicator_vanishes_when_the_solution_is_in_the_space(dim, degree):
+    rows = elasticity_study(dim, degree, polynomial_profile(dim, degree), n0=1 if dim == 3
+                            else 2, adaptive=False, max_dofs=1)
+    assert rows[0]["error"] < 1e-11 and rows[0]["estimate"] < 1e-10
+
+
+def test_eld_indicator_for_the_damped_manufactured_problem_vanishes_on_the_exact_fields():
+    """mms_problem (P2, nonlinear damping b, d0, d_nl): with u, u', u'' of the exact solution
+    the cell residual, the stress jumps and the traction mismatch are all zero."""
+    problem, exact = mms_problem(n=3, degree=2)
+    space = problem.space
+    t = 0.37
+    u = space.interpolate(lambda x: exact.u(t, x))
+    v = space.interpolate(lambda x: exact.u_dot(t, x))
+    a = space.interpolate(lambda x: exact.u_ddot(t, x))
+    ind = eld_indicators_for(problem, t, u, v, a)
+    assert ind.eta.shape == (space.mesh.t.shape[1],)
+    assert ind.estimate < 1e-11
+    # a wrong acceleration shows up in the cell residual only
+    wrong = eld_indicators_for(problem, t, u, v, 1.1 * a)
+    assert wrong.estimate > 1e-3 and np.allclose(wrong.jump, 0, atol=1e-20)
+
+
+def test_eld_indicator_input_errors():
+    space = VectorSpace(eld_mesh.unit_square(2), 1)
+    with pytest.raises(RotheInputError, match=r"^u: got an array of shape \(5,\), must be an"):
+        eld_indicators(space.mesh, 1, 1.0, 1.0, np.zeros(5))
+    with pytest.raises(RotheInputError, match=r"^mu: got 0, must be > 0$"):
+        eld_indicators(space.mesh, 1, 1.0, 0.0, np.zeros(space.ndofs))
+
+
+def test_ris_indicator_measures_the_stability_violation_of_a_sticking_state():
+    """z = z_prev = 0 (sticking): no jumps; the cell residual is max(|l - g'(0)| - kappa, 0)."""
+    mesh = AdaptiveMesh(eld_mesh.unit_square(3)).mesh
+    zero = np.zeros(mesh.p.shape[1])
+    stable = ris_indicators(mesh, zero, zero, dg=lambda z: 0 * z, load=0.8, kappa=1.0)
+    assert stable.estimate == 0.0
+    ev = SimplexEvaluator(mesh, 1, cell_order=4, facet_order=1)
+    unstable = ris_indicators(mesh, zero, zero, dg=lambda z: 0 * z, load=-1.5, kappa=1.0,
+                              evaluator=ev)
+    assert np.allclose(unstable.eta**2, ev.h**2 * 0.5**2 * ev.vol, rtol=1e-12)
+    assert np.all(unstable.jump == 0) and np.all(unstable.boundary == 0)
+
+
+def test_ris_indicator_for_example_7_2():
+    problem = example_7_2(n=6)
+    rng = np.random.default_rng(0)
+    z_prev = rng.random(problem.free.size)
+    z = z_prev + 0.1 * rng.standard_normal(problem.free.size)
+    ind = ris_indicators_for(problem, 0.5, z, z_prev, lam=3.0)
+    assert ind.eta.shape == (problem.mesh.t.shape[1],) and np.all(np.isfinite(ind.eta))
+    assert ind.jump.sum() > 0 and ind.boundary.sum() == 0  # z = 0 on the whole boundary
+
+
+# -- efficiency band (coarse meshes; the tables on finer meshes: benchmarks/adapt_efficiency.py)
+
+# measured (benchmarks/adapt_efficiency.py): ELD 5.2-20.5 on these coarse meshes (the wide end
+# while the front of width 0.05 is not resolved), 9-12 asymptotically; RIS 1.5-7
+ELD_BAND = (4.0, 22.0)
+RIS_BAND = (1.3, 8.0)
+
+
+@pytest.mark.parametrize("dim, degree, profile, max_dofs", [
+    (2, 1, "bump", 1500), (2, 1, "front", 1500), (2, 2, "bump", 1500), (2, 2, "front", 1500),
+    (3, 1, "bump", 700),
+])
+def test_eld_efficiency_band(dim, degree, profile, max_dofs):
+    for adaptive in (False, True):
+        rows = elasticity_study(dim, degree, profile, adaptive=adaptive, max_dofs=max_dofs,
+                                n0=1 if dim == 3 else 2)
+        eff = np.array([r["efficiency"] for r in rows])
+        assert len(rows) >= 3
+        assert ELD_BAND[0] <= eff.min() and eff.max() <= ELD_BAND[1], eff
+        assert eff.max() / eff.min() <= 3.0, eff
+
+
+@pytest.mark.parametrize("dim, max_dofs", [(2, 1500), (3, 250)])
+def test_ris_efficiency_band(dim, max_dofs):
+    for adaptive in (False, True):
+        rows = ris_study(dim, "front", adaptive=adaptive, max_dofs=max_dofs,
+                         n0=4 if dim == 2 else 2)
+        eff = np.array([r["efficiency"] for r in rows])
+        assert all(r["positive"] for r in rows)
+        assert RIS_BAND[0] <= eff.min() and eff.max() <= RIS_BAND[1], eff
+
+
+def test_adaptive_refinement_reaches_the_error_with_fewer_dofs():
+    """A steep front (width 0.02): the indicator-driven meshes reach the error of the uniform
+    mesh with 2178 dofs with less than half the dofs."""
+    uniform = elasticity_study(2, 1, "front", width=0.02, adaptive=False, max_dofs=2000)
+    adaptive = elasticity_study(2, 1, "front", width=0.02, adaptive=True, max_dofs=2000)
+    target = uniform[-1]["error"]
+    assert uniform[-1]["dofs"] == 2178
+    assert dofs_for_error(adaptive, target) < 0.5 * uniform[-1]["dofs"]
