@@ -40,7 +40,6 @@ import scipy.sparse as sp
 from ...errors import fail
 from .topology import (
     barycentric,
-    barycentric_gradients,
     lagrange_dofs,
     lagrange_values,
     local_nodes,
@@ -66,7 +65,7 @@ def transfer_matrix(change, degree: int = 1, components: int = 1) -> sp.csr_matr
     components : 1, 2 or 3
         1 for scalar fields; d for vector fields with *interleaved* dofs (component c of
         scalar dof k is ``components * k + c``, as :class:`rothe.fem.elasticity.VectorSpace`).
-        The vector matrix is ``kron(T_scalar, I)``.
+        The vector matrix is ``kron(T_scalar, I)`` (:func:`interleave`).
 
     Returns a CSR matrix of shape (components * n_new, components * n_old). If the change
     changed nothing it is the identity.
@@ -82,47 +81,78 @@ def transfer_matrix(change, degree: int = 1, components: int = 1) -> sp.csr_matr
         return sp.identity(components * n_old, format="csr")
     edofs_new, n_new = lagrange_dofs(t_new, p_new.shape[1], degree)
 
-    # one representative (cell, local node) per new dof
+    start = change.old_start
+    count = change.old_count
+    # cells that did not change (same vertex coordinates in the same order): their nodes map
+    # one to one, which is most of the mesh in a typical adaptation
+    single = np.flatnonzero(count == 1)
+    same = np.all(p_new[:, t_new[:, single]] == p_old[:, t_old[:, start[single]]], axis=(0, 1))
+    unchanged = np.zeros(t_new.shape[1], dtype=bool)
+    unchanged[single[same]] = True
+
+    # one representative (cell, local node) per new dof, an unchanged cell where possible
     nloc, nc = edofs_new.shape
     rep_cell = np.empty(n_new, dtype=np.int64)
     rep_loc = np.empty(n_new, dtype=np.int64)
-    rep_cell[edofs_new.ravel()] = np.tile(np.arange(nc), nloc)
-    rep_loc[edofs_new.ravel()] = np.repeat(np.arange(nloc), nc)
-    bary = local_nodes(d, degree)  # (nloc, d+1)
-    x = _node_points(p_new, t_new, bary, rep_cell, rep_loc)
+    for cells in (np.flatnonzero(~unchanged), np.flatnonzero(unchanged)):
+        rep_cell[edofs_new[:, cells].ravel()] = np.tile(cells, nloc)
+        rep_loc[edofs_new[:, cells].ravel()] = np.repeat(np.arange(nloc), len(cells))
+    ident = unchanged[rep_cell]
+    rows_id = np.flatnonzero(ident)
+    cols_id = edofs_old[rep_loc[rows_id], start[rep_cell[rows_id]]]
 
-    start = change.old_start[rep_cell]
-    count = change.old_count[rep_cell]
-    glam, _ = barycentric_gradients(p_old, t_old)
-    if np.all(count == 1):
-        cell = start
-        lam = barycentric(x, p_old, t_old, cell, glam)
+    todo = np.flatnonzero(~ident)
+    bary = local_nodes(d, degree)  # (nloc, d+1)
+    x = _node_points(p_new, t_new, bary, rep_cell[todo], rep_loc[todo])
+    st, ct = start[rep_cell[todo]], count[rep_cell[todo]]
+    n_todo = len(todo)
+    if np.all(ct == 1):
+        cell = st
+        lam = barycentric(x, p_old, t_old, cell)
     else:
-        rows = np.repeat(np.arange(n_new), count)
-        offs = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
-        cand = np.repeat(start, count) + offs
-        lam_all = barycentric(x[:, rows], p_old, t_old, cand, glam)
+        rows = np.repeat(np.arange(n_todo), ct)
+        offs = np.arange(len(rows)) - np.repeat(np.cumsum(ct) - ct, ct)
+        cand = np.repeat(st, ct) + offs
+        lam_all = barycentric(x[:, rows], p_old, t_old, cand)
         score = lam_all.min(axis=0)
-        seg = np.cumsum(count) - count
-        best = np.maximum.reduceat(score, seg)
+        best = np.maximum.reduceat(score, np.cumsum(ct) - ct) if n_todo else score
         # the first candidate (in old cell order) reaching the best score of its node: the
         # containing cell (min lambda >= 0); on a shared face any of them gives equal weights
-        idx = np.flatnonzero(score >= np.repeat(best, count))[::-1]
-        pick = np.empty(n_new, dtype=np.int64)
+        idx = np.flatnonzero(score >= np.repeat(best, ct))[::-1]
+        pick = np.empty(n_todo, dtype=np.int64)
         pick[rows[idx]] = idx
         cell = cand[pick]
         lam = lam_all[:, pick]
     lam = snap_dyadic(lam)
-    vals = lagrange_values(lam, degree)  # (nloc_old, n_new)
-    cols = edofs_old[:, cell]  # (nloc_old, n_new)
-    rows = np.broadcast_to(np.arange(n_new), vals.shape)
+    vals = lagrange_values(lam, degree)  # (nloc_old, n_todo)
+    cols = edofs_old[:, cell]
+    rows = np.broadcast_to(todo, vals.shape)
     keep = vals != 0.0
-    T = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(n_new, n_old))
+    T = sp.csr_matrix((np.concatenate([np.ones(len(rows_id)), vals[keep]]),
+                       (np.concatenate([rows_id, rows[keep]]),
+                        np.concatenate([cols_id, cols[keep]]))), shape=(n_new, n_old))
     T.sum_duplicates()
     T.sort_indices()
     if components > 1:
-        T = sp.kron(T, sp.identity(components, format="csr"), format="csr")
+        T = interleave(T, components)
     return T
+
+
+def interleave(T: sp.csr_matrix, m: int) -> sp.csr_matrix:
+    """kron(T, I_m) for a CSR matrix, built directly: row m*j + c holds T's row j with the
+    columns m*k + c (component c of scalar dof k; interleaved vector dofs)."""
+    T = sp.csr_matrix(T)
+    n_rows, n_cols = T.shape
+    cnt = np.diff(T.indptr)
+    seg_len = np.repeat(cnt, m)
+    seg_start = np.repeat(T.indptr[:-1], m)
+    total = int(seg_len.sum())
+    first = np.cumsum(seg_len) - seg_len
+    pos = np.arange(total) - np.repeat(first, seg_len) + np.repeat(seg_start, seg_len)
+    comp = np.repeat(np.tile(np.arange(m), n_rows), seg_len)
+    indptr = np.concatenate([[0], np.cumsum(seg_len)])
+    return sp.csr_matrix((T.data[pos], T.indices[pos] * m + comp, indptr),
+                         shape=(m * n_rows, m * n_cols))
 
 
 def _node_points(p, t, bary, rep_cell, rep_loc):
