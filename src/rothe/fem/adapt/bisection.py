@@ -513,7 +513,8 @@ class AdaptiveMesh:
                     both = np.vstack([facets.T, rows])
                     _, ids = number_rows(both, nv)
                     idx = ids[facets.shape[1]:]
-                boundaries[part] = np.sort(idx).astype(np.int64)
+                # unique: a named interior surface is seen from both sides
+                boundaries[part] = np.unique(idx).astype(np.int64)
         subdomains = None
         if self._subdomains:
             roots = self._root[self._leaves]
@@ -1109,6 +1110,7 @@ class AdaptiveMesh:
             "initial_facets": self._initial_facets.copy(),
             "facet_is_boundary": self._facet_is_boundary.copy(),
             "euler": int(self._euler),
+            "initial_vertices": int(self._initial_vertices),
             "parts": {k: v.copy() for k, v in self._parts.items()},
             "subdomains": {k: v.copy() for k, v in self._subdomains.items()},
         }
@@ -1153,7 +1155,7 @@ class AdaptiveMesh:
         self._cache = {}
         self._stats = {"cycle_breaks": 0}
         self._initial_cells = len(self._root_input)
-        self._initial_vertices = int(self._root_input.max()) + 1
+        self._initial_vertices = int(data["initial_vertices"])
         return self
 
 
