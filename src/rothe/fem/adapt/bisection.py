@@ -79,7 +79,7 @@ Boundary parts and subdomains
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -99,7 +99,10 @@ from .topology import (
 #: version of the checkpoint layout written by :meth:`AdaptiveMesh.checkpoint_state`
 CHECKPOINT_VERSION = 1
 
-_PERM = np.array([[1, 2, 0], [0, 2, 1], [0, 1, 2]])  # (a, b, c) positions by position of c
+#: positions of (a, b, c) in the inherited face (n_i, n2, n3) given the position of the peak c
+_PERM = np.array([[1, 2, 0], [0, 2, 1], [0, 1, 2]])
+#: storage type of the forest (vertex and node numbers < 2^31); keys are formed in int64
+_INT = np.int32
 
 
 _SIMPLEX_VOLUME = {"triangle": 2, "tetra": 3}
@@ -179,6 +182,10 @@ class MeshChange:
     removed_vertices: int
     old_mesh_id: int
     new_mesh_id: int
+    #: per-mesh caches (dof numberings) shared with the AdaptiveMesh: a numbering computed for
+    #: the new mesh by one transfer is reused as the old one by the next change
+    old_cache: dict = field(default_factory=dict, repr=False, compare=False)
+    new_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def changed(self) -> bool:
@@ -362,26 +369,29 @@ class AdaptiveMesh:
         d = self.dim
         cap = max(16, 2 * n_cells)
         capv = max(16, 2 * n_vertices)
+        if n_cells >= 2**31 // 4 or n_vertices >= 2**31 // 4:
+            raise fail("mesh", described(f"a mesh with {n_cells} cells and {n_vertices} vertices"),
+                       "must have fewer than 5*10^8 of each to be adapted")
         self._cap, self._capv = cap, capv
         self._p = np.zeros((capv, d))
-        self._cells = np.zeros((cap, d + 1), dtype=np.int64)
-        self._peaks = np.zeros((cap, 2), dtype=np.int64) if d == 3 else None
+        self._cells = np.zeros((cap, d + 1), dtype=_INT)
+        self._peaks = np.zeros((cap, 2), dtype=_INT) if d == 3 else None
         self._flag = np.zeros(cap, dtype=bool) if d == 3 else None
-        self._parent = np.zeros(cap, dtype=np.int64)
-        self._child = np.zeros(cap, dtype=np.int64)
-        self._mid = np.zeros(cap, dtype=np.int64)
-        self._root = np.zeros(cap, dtype=np.int64)
+        self._parent = np.zeros(cap, dtype=_INT)
+        self._child = np.zeros(cap, dtype=_INT)
+        self._mid = np.zeros(cap, dtype=_INT)
+        self._root = np.zeros(cap, dtype=_INT)
         self._level = np.zeros(cap, dtype=np.int32)
-        self._origin = np.zeros((cap, d + 1), dtype=np.int64)
-        self._src_start = np.zeros(cap, dtype=np.int64)
-        self._src_count = np.zeros(cap, dtype=np.int64)
+        self._origin = np.zeros((cap, d + 1), dtype=_INT)
+        self._src_start = np.zeros(cap, dtype=_INT)
+        self._src_count = np.zeros(cap, dtype=_INT)
 
     _NODE_FIELDS = ("_cells", "_peaks", "_flag", "_parent", "_child", "_mid", "_root",
                     "_level", "_origin", "_src_start", "_src_count")
 
     def _reserve(self, n_nodes: int, n_vertices: int) -> None:
         if n_nodes > self._cap:
-            cap = max(n_nodes, 2 * self._cap)
+            cap = max(n_nodes, self._cap + self._cap // 2)
             for f in self._NODE_FIELDS:
                 a = getattr(self, f)
                 if a is None:
@@ -391,7 +401,7 @@ class AdaptiveMesh:
                 setattr(self, f, b)
             self._cap = cap
         if n_vertices > self._capv:
-            capv = max(n_vertices, 2 * self._capv)
+            capv = max(n_vertices, self._capv + self._capv // 2)
             b = np.zeros((capv, self.dim))
             b[: self._nv] = self._p[: self._nv]
             self._p = b
@@ -556,7 +566,7 @@ class AdaptiveMesh:
         """
         d = self.dim
         k = len(S)
-        c = self._cells[S]
+        c = self._cells[S].astype(np.int64)
         lo = np.minimum(c[:, 0], c[:, 1])
         hi = np.maximum(c[:, 0], c[:, 1])
         ukey, first, inv = np.unique((lo << 32) | hi, return_index=True, return_inverse=True)
@@ -649,10 +659,10 @@ class AdaptiveMesh:
             return S
         d = self.dim
         pairs = [(a, b) for a in range(d + 1) for b in range(a + 1, d + 1)]
-        c = self._cells[S]
+        c = self._cells[S].astype(np.int64)
         W = np.unique((np.minimum(c[:, 0], c[:, 1]) << 32) | np.maximum(c[:, 0], c[:, 1]))
         active = self._leaves
-        acells = self._cells[active]
+        acells = self._cells[active].astype(np.int64)
         reg = {"keys": np.zeros(0, dtype=np.int64), "mids": np.zeros(0, dtype=np.int64)}
         done = []
         guard = 0
@@ -708,7 +718,7 @@ class AdaptiveMesh:
             split[B] = True
             keep = ~split[active]
             active = np.concatenate([active[keep], children])
-            acells = np.concatenate([acells[keep], self._cells[children]])
+            acells = np.concatenate([acells[keep], self._cells[children].astype(np.int64)])
         bisected = np.concatenate(done) if done else np.zeros(0, dtype=np.int64)
         self._leaves = self._expand_leaves(self._leaves)
         return bisected
@@ -963,6 +973,7 @@ class AdaptiveMesh:
             ref_ids = ref_ids[self._level[ref_ids] < max_level]
         old_points = self.points.copy()
         old_cells = self.cells
+        old_cache = self._cache
         nc_old = self.n_cells
         self._src_start[self._leaves] = np.arange(nc_old)
         self._src_count[self._leaves] = 1
@@ -1004,7 +1015,8 @@ class AdaptiveMesh:
                           old_count=self._src_count[leaves].copy(),
                           bisections=int(bisected.size), merges=merges,
                           removed_vertices=n_dead_vertices, old_mesh_id=old_id,
-                          new_mesh_id=self.mesh_id)
+                          new_mesh_id=self.mesh_id, old_cache=old_cache,
+                          new_cache=self._cache)
 
     def _refine_capped(self, ref_ids, max_dofs, degree, components, priority, nc_old,
                        n_dead_vertices):
@@ -1170,7 +1182,8 @@ def _compose(first: MeshChange, second: MeshChange) -> MeshChange:
                       old_start=start, old_count=count,
                       bisections=first.bisections + second.bisections, merges=first.merges,
                       removed_vertices=first.removed_vertices, old_mesh_id=first.old_mesh_id,
-                      new_mesh_id=second.new_mesh_id)
+                      new_mesh_id=second.new_mesh_id, old_cache=first.old_cache,
+                      new_cache=second.new_cache)
 
 
 __all__ = ["AdaptiveMesh", "MeshChange", "check_adaptable", "SKFEM_FACETS"]

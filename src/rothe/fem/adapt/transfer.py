@@ -76,10 +76,10 @@ def transfer_matrix(change, degree: int = 1, components: int = 1) -> sp.csr_matr
     p_new = change.new_points.T
     t_new = change.new_cells.T
     d = p_old.shape[0]
-    edofs_old, n_old = lagrange_dofs(t_old, p_old.shape[1], degree)
+    edofs_old, n_old = _dofs(change.old_cache, t_old, p_old.shape[1], degree)
     if not change.changed:
         return sp.identity(components * n_old, format="csr")
-    edofs_new, n_new = lagrange_dofs(t_new, p_new.shape[1], degree)
+    edofs_new, n_new = _dofs(change.new_cache, t_new, p_new.shape[1], degree)
 
     start = change.old_start
     count = change.old_count
@@ -153,6 +153,14 @@ def interleave(T: sp.csr_matrix, m: int) -> sp.csr_matrix:
     indptr = np.concatenate([[0], np.cumsum(seg_len)])
     return sp.csr_matrix((T.data[pos], T.indices[pos] * m + comp, indptr),
                          shape=(m * n_rows, m * n_cols))
+
+
+def _dofs(cache: dict, t: np.ndarray, n_points: int, degree: int):
+    """Element dofs of P``degree`` on (t, n_points), kept in the mesh's cache."""
+    key = ("lagrange_dofs", degree)
+    if key not in cache:
+        cache[key] = lagrange_dofs(t, n_points, degree)
+    return cache[key]
 
 
 def _node_points(p, t, bary, rep_cell, rep_loc):
