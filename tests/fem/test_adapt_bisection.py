@@ -244,8 +244,9 @@ def test_max_level_and_subdomains():
     assert np.all(cx[west] < 0.5) and np.all(np.delete(cx, west) > 0.5)
 
 
-def test_gmsh_mesh_keeps_its_named_parts(tmp_path, gmsh_text):
-    base = delaunay_mesh(2, 30, 4)
+@pytest.mark.parametrize("dim", [2, 3])
+def test_gmsh_mesh_keeps_its_named_parts(tmp_path, gmsh_text, dim):
+    base = delaunay_mesh(dim, 30 if dim == 2 else 20, 4)
 
     def classify(mid):
         return np.where(np.isclose(mid[0], 0.0), "inlet", "wall")
@@ -255,13 +256,22 @@ def test_gmsh_mesh_keeps_its_named_parts(tmp_path, gmsh_text):
     m0 = load_mesh(path)
     am = AdaptiveMesh(m0)
     for _ in range(4):
-        refine_near(am, np.array([0.0, 0.5]), 0.3)
+        refine_near(am, np.array([0.0] + [0.5] * (dim - 1)), 0.3)
+    assert am.is_conforming()
     m = am.mesh
     inlet = m.facets[:, m.boundaries["inlet"]]
     assert np.allclose(m.p[0, inlet], 0.0)
-    total = np.sum(np.linalg.norm(np.diff(m.p[:, inlet], axis=1)[:, 0], axis=0))
-    assert np.isclose(total, 1.0)
+    # the inlet facets tile the face x = 0 (length 1 / area 1)
+    P = m.p[:, inlet]  # (d, d, nf)
+    if dim == 2:
+        size = np.linalg.norm(P[:, 1] - P[:, 0], axis=0)
+    else:
+        size = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0], axis=0),
+                                    axis=0)
+    assert np.isclose(size.sum(), 1.0)
     assert len(m.boundaries["inlet"]) > len(m0.boundaries["inlet"])
+    bnd = np.sort(np.concatenate([m.boundaries["inlet"], m.boundaries["wall"]]))
+    assert np.array_equal(bnd, np.sort(m.boundary_facets()))
 
 
 def test_adaptation_refuses_meshes_it_cannot_bisect():

@@ -159,3 +159,27 @@ def test_ris_state_on_free_nodes():
     assert sp.issparse(Tf) and Tf.shape == (new.free.size, old.free.size)
     assert np.allclose(Tf @ z, (T @ old.full_state(z))[new.free], rtol=0, atol=1e-15)
     assert np.allclose(new.full_state(Tf @ z)[new.fixed], 0.0)
+
+
+def test_refinement_keeps_the_energy_coarsening_changes_it():
+    """E(u) = 1/2 u.Ku + 1/2 u.Mu is the same after a refinement transfer (the same function);
+    after coarsening it is the energy of the interpolant (the ELD ledger's transfer term)."""
+    am = AdaptiveMesh(eld_mesh.unit_square(4))
+    space = VectorSpace(am.mesh, 2)
+
+    def energy(space, u):
+        K, M = space.stiffness(2.0, 1.0), space.mass()
+        return 0.5 * u @ (K @ u) + 0.5 * u @ (M @ u)
+
+    u = space.interpolate(lambda x: np.array([np.sin(7 * x[0]) * x[1], np.cos(5 * x[1])]))
+    e0 = energy(space, u)
+    rng = np.random.default_rng(6)
+    for _ in range(3):
+        change = am.refine(rng.random(am.n_cells) < 0.5)
+        u = change.transfer(2, 2) @ u
+        space = VectorSpace(am.mesh, 2)
+        assert np.isclose(energy(space, u), e0, rtol=1e-12)
+    change = am.coarsen(np.ones(am.n_cells, dtype=bool))
+    u = change.transfer(2, 2) @ u
+    space = VectorSpace(am.mesh, 2)
+    assert abs(energy(space, u) - e0) > 1e-6 * e0
