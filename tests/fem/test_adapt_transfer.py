@@ -179,7 +179,10 @@ def test_refinement_keeps_the_energy_coarsening_changes_it():
         u = change.transfer(2, 2) @ u
         space = VectorSpace(am.mesh, 2)
         assert np.isclose(energy(space, u), e0, rtol=1e-12)
+    # a field that the fine mesh resolves and the coarser one does not
+    u = space.interpolate(lambda x: np.array([np.sin(17 * x[0]) * x[1], np.cos(15 * x[1])]))
+    e1 = energy(space, u)
     change = am.coarsen(np.ones(am.n_cells, dtype=bool))
     u = change.transfer(2, 2) @ u
     space = VectorSpace(am.mesh, 2)
-    assert abs(energy(space, u) - e0) > 1e-6 * e0
+    assert abs(energy(space, u) - e1) > 1e-3 * e1
