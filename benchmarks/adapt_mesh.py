@@ -13,8 +13,8 @@ the measured steps) the table reports:
 * ``T P1``, ``T P2 vec``: the transfer matrices (scalar P1; vector P2, interleaved);
 * ``K P1``: ``rothe.fem.scalar.stiffness`` on the adapted mesh; ``LU``: splu (MMD_AT_PLUS_A) of
   its interior block; the ratio ``adapt / (K + LU)`` is the target ("well under 1"). The LU is
-  skipped ("-") above 5*10^5 cells: at 2*10^6 cells it alone needs more than the 3 GB a process
-  may use here (PERFORMANCE-NOTES: 1.7 GB and 11 s at 10^6 nodes).
+  skipped ("-") above 3*10^5 unknowns in 2D (at 10^6 it alone needs more than the 3 GB a
+  process may use here; PERFORMANCE-NOTES: 1.7 GB and 11 s) and 2*10^4 in 3D (minutes each).
 
 Setup (``AdaptiveMesh(mesh)`` on the initial mesh) is reported once. Times are wall seconds on
 a shared machine: compare the ratios, measured in the same run.
@@ -67,8 +67,8 @@ def run(label: str, mesh, steps: int, max_level: int) -> dict:
         _, t_p2 = timed(change.transfer, 2, d)
         K, t_k = timed(stiffness, m)
         t_lu = float("nan")
-        if am.n_cells <= 500_000:
-            free = np.setdiff1d(np.arange(m.p.shape[1]), boundary_nodes(m))
+        free = np.setdiff1d(np.arange(m.p.shape[1]), boundary_nodes(m))
+        if free.size <= (300_000 if d == 2 else 20_000):
             A = K[free][:, free].tocsc()
             _, t_lu = timed(spla.splu, A, permc_spec="MMD_AT_PLUS_A")
             del A, _

@@ -102,6 +102,12 @@ def test_scikit_fem_structures_match():
         basis = Basis(fresh, element())
         edofs, n = lagrange_dofs(m.t, m.p.shape[1], 2)
         assert n == basis.N and np.array_equal(edofs, basis.element_dofs)
+        # the numbering handed to the mesh by a P2 transfer is scikit-fem's
+        change = am.refine(np.arange(0, am.n_cells, 3))
+        m = am.mesh
+        change.transfer(2)
+        assert np.array_equal(Basis(m, element()).element_dofs,
+                              Basis(type(m)(m.p, m.t), element()).element_dofs)
 
 
 @pytest.mark.parametrize("name", ["square", "box", "delaunay2", "delaunay3"])

@@ -168,7 +168,8 @@ class MeshChange:
     the old cells that overlap it are the contiguous range ``old_start[c] : old_start[c] +
     old_count[c]`` of the old cell order: one old cell (the new cell is that cell or one of its
     descendants) or several (the new cell is an ancestor of old cells: coarsened). See
-    :mod:`rothe.fem.adapt.transfer`.
+    :mod:`rothe.fem.adapt.transfer`. ``unchanged`` (nc_new,) marks the new cells that are old
+    cells (same vertices in the same order, renumbered).
     """
 
     old_points: np.ndarray
@@ -177,6 +178,7 @@ class MeshChange:
     new_cells: np.ndarray
     old_start: np.ndarray
     old_count: np.ndarray
+    unchanged: np.ndarray
     bisections: int
     merges: int
     removed_vertices: int
@@ -502,14 +504,20 @@ class AdaptiveMesh:
     def mesh(self):
         """The current mesh as a scikit-fem ``MeshTri`` / ``MeshTet`` with named boundaries.
 
-        Built once per mesh version. The facet structures (``facets``, ``t2f``) are computed
+        Built once per mesh version. The facet structures (``facets``, ``t2f``; for
+        tetrahedra also ``edges``, ``t2e`` once a P2 transfer has numbered them) are computed
         here by sorting packed keys and handed to the mesh, so scikit-fem does not rebuild them.
         """
         if "mesh" in self._cache:
             return self._cache["mesh"]
+        from .transfer import edge_numbering
+
         p = np.ascontiguousarray(self.points.T)
         t = np.ascontiguousarray(self.cells.T)
-        facets, t2f = facet_structures(t, p.shape[1])
+        if self.dim == 2:  # the facets are the edges: one numbering for both
+            facets, t2f = edge_numbering(self._cache, t, p.shape[1])
+        else:
+            facets, t2f = facet_structures(t, p.shape[1])
         boundaries = None
         if self._parts:
             boundaries = {}
@@ -533,6 +541,9 @@ class AdaptiveMesh:
                               _subdomains=subdomains, validate=False, sort_t=False)
         mesh._facets = facets.astype(np.int32)
         mesh._t2f = t2f.astype(np.int32)
+        if self.dim == 3 and "edges" in self._cache:
+            mesh._edges = self._cache["edges"][0].astype(np.int32)
+            mesh._t2e = self._cache["edges"][1].astype(np.int32)
         self._cache["mesh"] = mesh
         return mesh
 
@@ -978,6 +989,9 @@ class AdaptiveMesh:
         self._src_start[self._leaves] = np.arange(nc_old)
         self._src_count[self._leaves] = 1
         old_id = self.mesh_id
+        n_start = self._n
+        was_leaf = np.zeros(n_start, dtype=bool)
+        was_leaf[self._leaves] = True
 
         # coarsening first (refine marks win; merged nodes stay until compaction)
         merges = 0
@@ -1003,6 +1017,9 @@ class AdaptiveMesh:
                 bisected = self._refine_capped(ref_ids, int(max_dofs), degree, components,
                                                priority, nc_old, n_dead_vertices)
 
+        L = self._leaves
+        unchanged = L < n_start
+        unchanged[unchanged] = was_leaf[L[unchanged]]
         if merges:
             self._compact(np.concatenate(dead_nodes), np.concatenate(dead_vertices))
         if merges or bisected.size:
@@ -1011,9 +1028,9 @@ class AdaptiveMesh:
         leaves = self._leaves
         return MeshChange(old_points=old_points, old_cells=old_cells,
                           new_points=self.points.copy(), new_cells=self.cells,
-                          old_start=self._src_start[leaves].copy(),
-                          old_count=self._src_count[leaves].copy(),
-                          bisections=int(bisected.size), merges=merges,
+                          old_start=self._src_start[leaves].astype(np.int64),
+                          old_count=self._src_count[leaves].astype(np.int64),
+                          unchanged=unchanged, bisections=int(bisected.size), merges=merges,
                           removed_vertices=n_dead_vertices, old_mesh_id=old_id,
                           new_mesh_id=self.mesh_id, old_cache=old_cache,
                           new_cache=self._cache)
@@ -1180,6 +1197,7 @@ def _compose(first: MeshChange, second: MeshChange) -> MeshChange:
     return MeshChange(old_points=first.old_points, old_cells=first.old_cells,
                       new_points=second.new_points, new_cells=second.new_cells,
                       old_start=start, old_count=count,
+                      unchanged=first.unchanged[second.old_start] & second.unchanged,
                       bisections=first.bisections + second.bisections, merges=first.merges,
                       removed_vertices=first.removed_vertices, old_mesh_id=first.old_mesh_id,
                       new_mesh_id=second.new_mesh_id, old_cache=first.old_cache,

@@ -83,28 +83,29 @@ def transfer_matrix(change, degree: int = 1, components: int = 1) -> sp.csr_matr
 
     start = change.old_start
     count = change.old_count
-    # cells that did not change (same vertex coordinates in the same order): their nodes map
-    # one to one, which is most of the mesh in a typical adaptation
-    single = np.flatnonzero(count == 1)
-    same = np.all(p_new[:, t_new[:, single]] == p_old[:, t_old[:, start[single]]], axis=(0, 1))
-    unchanged = np.zeros(t_new.shape[1], dtype=bool)
-    unchanged[single[same]] = True
+    # cells that did not change (the same vertices in the same order): their nodes map one to
+    # one, which is most of the mesh in a typical adaptation
+    unchanged = change.unchanged
 
-    # one representative (cell, local node) per new dof, an unchanged cell where possible
-    nloc, nc = edofs_new.shape
+    # nodes of unchanged cells take the value of the same node of the old cell
+    nloc = edofs_new.shape[0]
+    U = np.flatnonzero(unchanged)
+    old_of_new = np.full(n_new, -1, dtype=np.int64)
+    old_of_new[edofs_new[:, U].ravel()] = edofs_old[:, start[U]].ravel()
+    rows_id = np.flatnonzero(old_of_new >= 0)
+    cols_id = old_of_new[rows_id]
+    # every other node: one representative (cell, local node) among the changed cells
+    todo = np.flatnonzero(old_of_new < 0)
+    changed = np.flatnonzero(~unchanged)
     rep_cell = np.empty(n_new, dtype=np.int64)
     rep_loc = np.empty(n_new, dtype=np.int64)
-    for cells in (np.flatnonzero(~unchanged), np.flatnonzero(unchanged)):
-        rep_cell[edofs_new[:, cells].ravel()] = np.tile(cells, nloc)
-        rep_loc[edofs_new[:, cells].ravel()] = np.repeat(np.arange(nloc), len(cells))
-    ident = unchanged[rep_cell]
-    rows_id = np.flatnonzero(ident)
-    cols_id = edofs_old[rep_loc[rows_id], start[rep_cell[rows_id]]]
+    rep_cell[edofs_new[:, changed].ravel()] = np.tile(changed, nloc)
+    rep_loc[edofs_new[:, changed].ravel()] = np.repeat(np.arange(nloc), len(changed))
+    rep_cell, rep_loc = rep_cell[todo], rep_loc[todo]
 
-    todo = np.flatnonzero(~ident)
     bary = local_nodes(d, degree)  # (nloc, d+1)
-    x = _node_points(p_new, t_new, bary, rep_cell[todo], rep_loc[todo])
-    st, ct = start[rep_cell[todo]], count[rep_cell[todo]]
+    x = _node_points(p_new, t_new, bary, rep_cell, rep_loc)
+    st, ct = start[rep_cell], count[rep_cell]
     n_todo = len(todo)
     if np.all(ct == 1):
         cell = st
@@ -126,41 +127,74 @@ def transfer_matrix(change, degree: int = 1, components: int = 1) -> sp.csr_matr
     lam = snap_dyadic(lam)
     vals = lagrange_values(lam, degree)  # (nloc_old, n_todo)
     cols = edofs_old[:, cell]
-    rows = np.broadcast_to(todo, vals.shape)
     keep = vals != 0.0
-    T = sp.csr_matrix((np.concatenate([np.ones(len(rows_id)), vals[keep]]),
-                       (np.concatenate([rows_id, rows[keep]]),
-                        np.concatenate([cols_id, cols[keep]]))), shape=(n_new, n_old))
-    T.sum_duplicates()
+    # CSR directly (no COO sort): one entry in the identity rows, the nonzero weights in the rest
+    cnt = np.zeros(n_new, dtype=np.int64)
+    cnt[rows_id] = 1
+    cnt[todo] = keep.sum(axis=0)
+    indptr = np.concatenate([[0], np.cumsum(cnt)])
+    indices = np.empty(indptr[-1], dtype=np.int64)
+    data = np.empty(indptr[-1])
+    indices[indptr[rows_id]] = cols_id
+    data[indptr[rows_id]] = 1.0
+    pos = indptr[todo][None, :] + np.cumsum(keep, axis=0) - 1
+    indices[pos[keep]] = cols[keep]
+    data[pos[keep]] = vals[keep]
+    T = sp.csr_matrix((data, indices, indptr), shape=(n_new, n_old))
     T.sort_indices()
-    if components > 1:
-        T = interleave(T, components)
-    return T
+    return T if components == 1 else interleave(T, components)
 
 
 def interleave(T: sp.csr_matrix, m: int) -> sp.csr_matrix:
-    """kron(T, I_m) for a CSR matrix, built directly: row m*j + c holds T's row j with the
-    columns m*k + c (component c of scalar dof k; interleaved vector dofs)."""
+    """kron(T, I_m) for a CSR matrix, built directly: row m*j + k holds T's row j with the
+    columns m*i + k (component k of scalar dof i; interleaved vector dofs).
+
+    Entry e of scalar row j (offset o = e - indptr[j], row length c_j) goes to position
+    m * indptr[j] + k * c_j + o of the vector matrix: one pass, no sort.
+    """
     T = sp.csr_matrix(T)
     n_rows, n_cols = T.shape
-    cnt = np.diff(T.indptr)
-    seg_len = np.repeat(cnt, m)
-    seg_start = np.repeat(T.indptr[:-1], m)
-    total = int(seg_len.sum())
-    first = np.cumsum(seg_len) - seg_len
-    pos = np.arange(total) - np.repeat(first, seg_len) + np.repeat(seg_start, seg_len)
-    comp = np.repeat(np.tile(np.arange(m), n_rows), seg_len)
-    indptr = np.concatenate([[0], np.cumsum(seg_len)])
-    return sp.csr_matrix((T.data[pos], T.indices[pos] * m + comp, indptr),
-                         shape=(m * n_rows, m * n_cols))
+    indptr = T.indptr.astype(np.int64)
+    cnt = np.diff(indptr)
+    row = np.repeat(np.arange(n_rows), cnt)
+    e = np.arange(indptr[-1])
+    base = (m - 1) * indptr[row] + e  # m * indptr[j] + o
+    indices = np.empty(m * indptr[-1], dtype=np.int64)
+    data = np.empty(m * indptr[-1])
+    for k in range(m):  # the m components, not a loop over dofs
+        pos = base + k * cnt[row]
+        indices[pos] = T.indices * m + k
+        data[pos] = T.data
+    indptr_v = np.concatenate([[0], np.cumsum(np.repeat(cnt, m))])
+    return sp.csr_matrix((data, indices, indptr_v), shape=(m * n_rows, m * n_cols))
 
 
 def _dofs(cache: dict, t: np.ndarray, n_points: int, degree: int):
-    """Element dofs of P``degree`` on (t, n_points), kept in the mesh's cache."""
+    """Element dofs of P``degree`` on (t, n_points), kept in the mesh's cache.
+
+    The edge numbering is shared with :attr:`AdaptiveMesh.mesh` (triangles: its facets; it is
+    handed to the scikit-fem mesh, so a P2 basis built on it does not number the edges again).
+    """
     key = ("lagrange_dofs", degree)
     if key not in cache:
-        cache[key] = lagrange_dofs(t, n_points, degree)
+        t2e = None
+        if degree == 2:
+            t2e = edge_numbering(cache, t, n_points)[1]
+        cache[key] = lagrange_dofs(t, n_points, degree, t2e=t2e)
     return cache[key]
+
+
+def edge_numbering(cache: dict, t: np.ndarray, n_points: int):
+    """(edges, t2e) of the mesh (scikit-fem's numbering), computed once per mesh version."""
+    if "edges" not in cache:
+        from .topology import edge_structures
+
+        cache["edges"] = edge_structures(t, n_points)
+        mesh = cache.get("mesh")
+        if mesh is not None and t.shape[0] == 4 and not hasattr(mesh, "_t2e"):
+            mesh._edges = cache["edges"][0].astype(np.int32)
+            mesh._t2e = cache["edges"][1].astype(np.int32)
+    return cache["edges"]
 
 
 def _node_points(p, t, bary, rep_cell, rep_loc):
