@@ -48,19 +48,27 @@ bisection", SISC 22; equivalent to Maubach/Traxler/Kossaczky bisection after the
     classes. No initial refinement (as Stevenson's matching-condition construction would
     need) is required, so coarsening returns exactly to the user's mesh.
 
-Conformity closure (both dimensions)
-    Round r bisects the set S_r of leaves (S_0 = the marked leaves); midpoints of edges split
-    in this call are kept in a sorted key array (edge = min * 2^32 + max); S_{r+1} = the leaves
-    having one of those edges (a hanging node), found among the new children and the leaves
-    that contain both end points of an edge split in round r. Stops when S is empty.
+Conformity closure (both dimensions; :meth:`AdaptiveMesh._refine_leaves`)
+    Edge-wise: W = the edges to bisect, at first the refinement edges of the marked leaves
+    (edge key min * 2^32 + max). Each pass (a) adds the refinement edge of every leaf that
+    contains an edge of W to W, and (b) bisects, for every *compatible* edge of W (the
+    refinement edge of all leaves around it), all those leaves at once, with one new vertex per
+    edge. Bisecting an edge for its whole patch at once keeps the history coarsenable: a vertex
+    then depends only on newer ones. If no edge is compatible while W is closed (the refinement
+    edges around some vertex form a cycle, which the longest-edge labelling of an irregular
+    tetrahedral mesh allows), every leaf whose refinement edge is in W is bisected (AMP's rule,
+    whose termination they prove); a registry of the edges split in this call reuses their
+    midpoints. Only leaves with both end points of an edge of W are looked at.
 
-Coarsening (undoing bisections; the patch rule of ALBERTA and iFEM)
-    A vertex m created by bisection can be removed when every leaf containing m is a child of a
-    bisection at m whose sibling is a leaf too, and all of them are marked for coarsening:
-    count leaves at m (one ``bincount``) against twice the number of such sibling pairs. Then
-    every such pair is replaced by its parent. The removed patch is the whole star of m, so the
-    mesh stays conforming. One *round* removes one generation of vertices; ``coarsen_rounds``
-    repeats with the merged parents marked.
+Coarsening (undoing bisections; :meth:`AdaptiveMesh._coarsen_round`)
+    A vertex created by bisection is a candidate when every leaf containing it is marked. It
+    depends on the midpoints of the parents of those leaves (when they differ from it) and of
+    refined siblings; candidates depending on a non-candidate are dropped until none is left.
+    One round removes a *generation*: the sinks of that dependency graph and every strongly
+    connected component (a cycle left by the rule above) whose dependencies stay inside.
+    Their bisections are undone bottom-up; an undone cell whose removed vertices are still
+    used by another cell (it would leave a hanging node) is split again, until the mesh is
+    conforming. ``coarsen_rounds`` repeats with the merged parents marked.
 
 Numbering
     Cells are ordered depth-first in the forest (roots in the order of the initial mesh,
