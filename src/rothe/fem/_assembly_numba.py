@@ -1,0 +1,158 @@
+"""Compiled element loops for :mod:`rothe.fem.elasticity` (optional: numba, extra ``fast``).
+
+The same element matrices as the numpy path (affine Jacobian by cofactors, reference gradients,
+the same quadrature), summed into the same block array, one cell after the other; the numpy path
+sums each chunk by bincount, so the two agree to round-off (tested), not bit for bit. Without
+numba, ``AVAILABLE`` is False and nothing here is called.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+try:  # pragma: no cover - depends on the environment
+    import numba
+
+    AVAILABLE = True
+except ImportError:  # pragma: no cover
+    numba = None
+    AVAILABLE = False
+
+
+def _jit(f):
+    if numba is None:  # pragma: no cover
+        return f
+    return numba.njit(cache=True, nogil=True)(f)
+
+
+@_jit
+def _geometry(p, t, c, inv):
+    """Fill inv (d, d) with J^{-1} of cell c (inv[k, a]); return |det J|."""
+    d = p.shape[0]
+    if d == 2:
+        e00 = p[0, t[1, c]] - p[0, t[0, c]]
+        e01 = p[1, t[1, c]] - p[1, t[0, c]]
+        e10 = p[0, t[2, c]] - p[0, t[0, c]]
+        e11 = p[1, t[2, c]] - p[1, t[0, c]]
+        det = e00 * e11 - e01 * e10
+        inv[0, 0] = e11 / det
+        inv[0, 1] = -e10 / det
+        inv[1, 0] = -e01 / det
+        inv[1, 1] = e00 / det
+        return abs(det)
+    x0 = p[0, t[0, c]]
+    y0 = p[1, t[0, c]]
+    z0 = p[2, t[0, c]]
+    ax, ay, az = p[0, t[1, c]] - x0, p[1, t[1, c]] - y0, p[2, t[1, c]] - z0
+    bx, by, bz = p[0, t[2, c]] - x0, p[1, t[2, c]] - y0, p[2, t[2, c]] - z0
+    cx, cy, cz = p[0, t[3, c]] - x0, p[1, t[3, c]] - y0, p[2, t[3, c]] - z0
+    # rows of J^{-1}: (b x c, c x a, a x b) / det, J = [a b c]
+    r0x, r0y, r0z = by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx
+    r1x, r1y, r1z = cy * az - cz * ay, cz * ax - cx * az, cx * ay - cy * ax
+    r2x, r2y, r2z = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    det = ax * r0x + ay * r0y + az * r0z
+    inv[0, 0], inv[0, 1], inv[0, 2] = r0x / det, r0y / det, r0z / det
+    inv[1, 0], inv[1, 1], inv[1, 2] = r1x / det, r1y / det, r1z / det
+    inv[2, 0], inv[2, 1], inv[2, 2] = r2x / det, r2y / det, r2z / det
+    return abs(det)
+
+
+@_jit
+def _cell_positions(ed, c, diag, upper, lower, pair_ids, pi, pj, pos):
+    nbf = ed.shape[0]
+    for i in range(nbf):
+        pos[i, i] = diag[ed[i, c]]
+    for k in range(pi.size):
+        i = pi[k]
+        j = pj[k]
+        u = pair_ids[c, k]
+        if ed[i, c] < ed[j, c]:
+            pos[i, j] = upper[u]
+            pos[j, i] = lower[u]
+        else:
+            pos[i, j] = lower[u]
+            pos[j, i] = upper[u]
+
+
+@_jit
+def _stiffness(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref, lam, mu,
+               blocks):
+    d = p.shape[0]
+    nbf = ed.shape[0]
+    nq = wref.size
+    inv = np.empty((d, d))
+    G = np.empty((nq, nbf, d))
+    pos = np.empty((nbf, nbf), dtype=np.int64)
+    loc = np.empty((d, d))
+    for o in range(order.size):
+        c = order[o]
+        det = _geometry(p, t, c, inv)
+        for q in range(nq):
+            for i in range(nbf):
+                for a in range(d):
+                    s = 0.0
+                    for k in range(d):
+                        s += dref[q, i, k] * inv[k, a]
+                    G[q, i, a] = s
+        _cell_positions(ed, c, diag, upper, lower, pair_ids, pi, pj, pos)
+        # block (j, i) is the transpose of block (i, j): compute i <= j only
+        for i in range(nbf):
+            for j in range(i, nbf):
+                for a in range(d):
+                    for b in range(d):
+                        loc[a, b] = 0.0
+                for q in range(nq):
+                    w = det * wref[q]
+                    dot = 0.0
+                    for k in range(d):
+                        dot += G[q, i, k] * G[q, j, k]
+                    for a in range(d):
+                        for b in range(d):
+                            v = lam * G[q, i, a] * G[q, j, b] + mu * G[q, i, b] * G[q, j, a]
+                            if a == b:
+                                v += mu * dot
+                            loc[a, b] += w * v
+                r = pos[i, j]
+                for a in range(d):
+                    for b in range(d):
+                        blocks[r, a, b] += loc[a, b]
+                if j != i:
+                    r = pos[j, i]
+                    for a in range(d):
+                        for b in range(d):
+                            blocks[r, b, a] += loc[a, b]
+
+
+@_jit
+def _mass(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, mref, out):
+    d = p.shape[0]
+    nbf = ed.shape[0]
+    inv = np.empty((d, d))
+    pos = np.empty((nbf, nbf), dtype=np.int64)
+    for o in range(order.size):
+        c = order[o]
+        det = _geometry(p, t, c, inv)
+        _cell_positions(ed, c, diag, upper, lower, pair_ids, pi, pj, pos)
+        for i in range(nbf):
+            for j in range(nbf):
+                out[pos[i, j]] += det * mref[i, j]
+
+
+def _pattern_args(pattern):
+    return (pattern.diag, pattern.upper, pattern.lower, pattern.pair_ids,
+            pattern.pi.astype(np.int64), pattern.pj.astype(np.int64), pattern.cell_order)
+
+
+def stiffness_blocks(p, t, ed, pattern, dref, wref, lam, mu, blocks) -> None:
+    """blocks += K's element blocks (see VectorSpace.stiffness_blocks)."""
+    _stiffness(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(t),
+               np.ascontiguousarray(ed), *_pattern_args(pattern),
+               np.ascontiguousarray(dref, dtype=float), np.ascontiguousarray(wref, dtype=float),
+               float(lam), float(mu), blocks)
+
+
+def scalar_mass(p, t, ed, pattern, mref, out) -> None:
+    """out += the scalar mass |det J| mref of every cell."""
+    _mass(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(t),
+          np.ascontiguousarray(ed), *_pattern_args(pattern),
+          np.ascontiguousarray(mref, dtype=float), out)
