@@ -436,15 +436,22 @@ class ELDStepper:
         self._A_te = te0
         self._A_stored = None
         self._ref: dict | None = None  # what the solver's stored factorization was built from
+        # with linear damping and no user matrix, A(te) restricted to the free nodes is
+        # gathered from the blocks of K and the scalar mass (VectorSpace.restricted_combination):
+        # A itself and its row and column slices (0.6 GB each at a million unknowns) are
+        # never formed
+        self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar),
+                                                     c.scalar_dofs)
+        self._lean = self.D.matrix is None
         if self.form == "regularized":
             self.kind = resolve_kind(solver, self.I.size, p.space.dim)
-            rbm = p.space.rigid_body_modes()[self.I] if self.kind == "amg" else None
+            rbm = p.space.rigid_body_modes(free_nodes) if self.kind == "amg" else None
             self.solver = ReferenceSolver(self.kind, spd=True, near_nullspace=rbm, rtol=linear_rtol)
             self.lifting = make_lifting(self.lifting_kind, c, p.K)
             if self.lifting_kind == "nodal":
                 # B^- g = S^T g: products with lifted data only touch the columns of Gamma_D
-                self._M_C = p.M[:, c.dofs].tocsr()
-                self._K_C = p.K[:, c.dofs].tocsr()
+                self._M_C = p.space.symmetric_columns(p.M, c.scalar_dofs)
+                self._K_C = p.space.symmetric_columns(p.K, c.scalar_dofs)
         else:
             self.kind = resolve_kind(solver, p.space.ndofs + c.m, p.space.dim)
             if self.kind == "amg":
@@ -565,7 +572,20 @@ class ELDStepper:
             A = (A + (1.0 / te) * D.matrix).tocsr()
         return A
 
+    def _coefficients(self, te: float) -> tuple[float, float]:
+        """(c_mass, c_stiff) of A(te) = c_mass M + c_stiff K (+ E/te)."""
+        D = self.D
+        return self.rho / te**2 + D.mass_coef / te, 1.0 + D.stiffness_coef / te
+
+    def _restricted(self, te: float):
+        """A(te) on the free nodes, a BlockMatrix gathered from K and the scalar mass."""
+        c_mass, c_stiff = self._coefficients(te)
+        p = self.problem
+        return p.space.restricted_combination(p.K, c_stiff, c_mass, self._free_nodes)
+
     def _operator_matrix(self, te: float):
+        if self._lean and self.form == "regularized":
+            return self._restricted(te)
         A = self._step_matrix(te)
         if self.form == "regularized":
             return A[self.I][:, self.I].tocsr()
@@ -642,6 +662,8 @@ class ELDStepper:
         A function of (te, v) alone, so that a checkpoint can name it (variable steps with
         linear damping: by value arrays on a fixed pattern, :meth:`_pattern_parts`)."""
         variable_steps = self.n_steps is None or self.steps is not None
+        if v is None and self._lean and self.form == "regularized":
+            return self._restricted(te)
         if v is None and variable_steps:
             indices, indptr, shape, parts = self._pattern_parts()
             D = self.D
@@ -658,7 +680,11 @@ class ELDStepper:
         return self._kkt(A)
 
     def _factor(self, te: float, v: np.ndarray | None) -> None:
-        self.solver.factor(self._system_matrix(te, v))
+        if v is None and self._lean and self.form == "regularized" and te == self._A_te:
+            # the stored step matrix itself: no second copy for the solver
+            self.solver.factor(self._A_stored)
+        else:
+            self.solver.factor(self._system_matrix(te, v))
         self._ref = {"tau_eff": float(te), "v": None if v is None else v.copy()}
 
     def _assembler(self, te: float, v: np.ndarray | None):
