@@ -359,6 +359,14 @@ class VectorSpace:
         else:
             from skfem.assembly import Dofs
 
+            from .eld_mesh import with_fast_edges, with_fast_facets
+
+            # scikit-fem numbers the P2 dofs by the mesh edges (3D) or facets (2D); build them
+            # by one sort of int64 keys instead of its np.unique over rows
+            if self.dim == 3:
+                with_fast_edges(mesh)
+            else:
+                with_fast_facets(mesh)
             self._dofs = Dofs(mesh, self.element)
             self.element_dofs = np.asarray(self._dofs.element_dofs)
             self.n_scalar = int(self._dofs.N)
