@@ -56,6 +56,10 @@ from ..errors import check_int, check_positive, check_real, fail
 
 #: element-matrix entries (floats) per chunk of cells in the numpy assembly (32 MB)
 CHUNK_ENTRIES = 2**22
+#: the compiled loops are used from this much work on (d^2 nbf^2 nq per cell, summed): below,
+#: importing numba and loading its cached kernels (about a second) costs more than the numpy
+#: assembly saves (3D: from about 120k P1 or 5k P2 tetrahedra)
+NUMBA_MIN_WORK = 2**24
 
 
 def lame_from_young(E: float, nu: float) -> tuple[float, float]:
@@ -89,9 +93,14 @@ def check_simplex_mesh(mesh, name: str = "mesh") -> int:
                "must be a scikit-fem MeshTri or MeshTet (P1/P2 simplices)")
 
 
-def use_numba() -> bool:
-    """True if the compiled kernels are used: numba importable and ROTHE_NO_NUMBA unset/0."""
+def use_numba(work: int | None = None) -> bool:
+    """True if the compiled kernels are used for an assembly of this much ``work``
+    (:data:`NUMBA_MIN_WORK`; None: whatever the size): numba importable and ROTHE_NO_NUMBA
+    unset or 0. ROTHE_NUMBA=1 uses them at any size (tests, benchmarks)."""
     if os.environ.get("ROTHE_NO_NUMBA", "0") not in ("", "0"):
+        return False
+    forced = os.environ.get("ROTHE_NUMBA", "0") not in ("", "0")
+    if work is not None and work < NUMBA_MIN_WORK and not forced:
         return False
     from . import _assembly_numba
 
@@ -154,6 +163,8 @@ def _reference(element, dim: int, degree: int) -> _Reference:
             nbf=nbf, grad_weights=np.asarray(W, dtype=float),
             grads=np.ascontiguousarray(grads.transpose(2, 0, 1)),
             mass=np.einsum("iq,jq,q->ij", vals, vals, Wm))
+        m = _REFERENCES[key].mass
+        m[...] = 0.5 * (m + m.T)  # exactly symmetric
     return _REFERENCES[key]
 
 
@@ -437,6 +448,14 @@ class VectorSpace:
         t = np.asarray(self.mesh.t)[:, cells]
         return affine_geometry(np.asarray(self.mesh.p), t)
 
+    @property
+    def compiled_assembly(self) -> bool:
+        """Whether the matrices of this space are assembled by the numba loops (see
+        :func:`use_numba`; the work is d^2 nbf^2 nq per cell)."""
+        ref = self._ref
+        work = self.dim**2 * ref.nbf**2 * ref.grad_weights.size * self.element_dofs.shape[1]
+        return use_numba(work)
+
     # -- quadrature (scikit-fem bases, for fields, loads and errors) -----------------------------
     @cached_property
     def grad_basis(self):
@@ -486,7 +505,7 @@ class VectorSpace:
         d, ref = self.dim, self._ref
         pat = self.pattern
         blocks = np.zeros((pat.nnz, d, d))
-        if use_numba():
+        if self.compiled_assembly:
             from . import _assembly_numba
 
             _assembly_numba.stiffness_blocks(
@@ -494,28 +513,27 @@ class VectorSpace:
                 np.asarray(self.element_dofs), pat, ref.grads, ref.grad_weights, lam, mu, blocks)
             return blocks
         nbf = ref.nbf
-        flat = blocks.reshape(pat.nnz, d * d)
-        component = np.arange(d * d).reshape(1, 1, d, d, 1)
+        flat = blocks.reshape(-1)
+        ab = np.arange(d)[:, None, None] * d + np.arange(d)[None, None, :]  # a d + b, (d, 1, d)
         for cells in self._chunks(d * d * nbf * nbf):
             inv, det = self._geometry(cells)
-            # element arrays with the cell axis last: local[i, j, a, b, c] = block (a, b) of
-            # the pair (i, j) of cell c
-            local = np.zeros((nbf, nbf, d, d, det.size))
-            for q, weight in enumerate(ref.grad_weights):
-                # g[i, a, c] = sum_k dref[q, i, k] invJ[k, a, c] (gradients at point q)
-                g = np.tensordot(ref.grads[q], inv, axes=(1, 0))
-                gw = g * (weight * det)
-                # P[i, j, a, b] = w d_a phi_i d_b phi_j
-                P = gw[:, None, :, None, :] * g[None, :, None, :, :]
-                local += lam * P
-                local += mu * P.swapaxes(2, 3)
-                dot = np.einsum("ijkkc->ijc", P)
-                for a in range(d):
-                    local[:, :, a, a] += mu * dot
-                del P
-            positions = self._chunk_map(cells).transpose(1, 2, 0)  # (i, j, c)
-            _scatter_chunk(flat, positions[:, :, None, None, :] * (d * d) + component, local,
-                           premultiplied=True)
+            C = det.size
+            # G[c, q, i d + a] = sum_k dref[q, i, k] invJ[k, a, c]: gradients at the points
+            G = np.einsum("qik,kac->cqia", ref.grads, inv).reshape(C, -1, nbf * d)
+            # the weights split evenly (w > 0) keep S, hence K, exactly symmetric
+            G *= np.sqrt(det[:, None] * ref.grad_weights)[:, :, None]
+            # S[c, i, a, j, b] = int d_a phi_i d_b phi_j (one small matmul per cell)
+            S = np.matmul(G.transpose(0, 2, 1), G).reshape(C, nbf, d, nbf, d)
+            del G
+            local = lam * S
+            local += mu * S.transpose(0, 1, 4, 3, 2)
+            trace = mu * np.einsum("ciaja->cij", S)
+            del S
+            for a in range(d):
+                local[:, :, a, :, a] += trace
+            # entry (i, a, j, b) of cell c goes to block (a, b) of position (c, i, j)
+            index = (self._chunk_map(cells) * (d * d))[:, :, None, :, None] + ab
+            _scatter_chunk(flat, index, local)
         return blocks
 
     def stiffness(self, lam: float, mu: float, format: str = "csr"):
@@ -527,7 +545,7 @@ class VectorSpace:
         """Values of the scalar mass int phi_i phi_j on the scalar pattern (exact)."""
         ref = self._ref
         out = np.zeros(self.nnz_scalar)
-        if use_numba():
+        if self.compiled_assembly:
             from . import _assembly_numba
 
             _assembly_numba.scalar_mass(np.asarray(self.mesh.p), np.asarray(self.mesh.t),
