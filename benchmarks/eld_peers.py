@@ -78,7 +78,7 @@ class _PeakSampler:
 
 
 def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: str,
-                rtol: float, save: str | None) -> dict:
+                rtol: float, save: str | None, tau: float = TAU) -> dict:
     """One rothe run in this process; returns the measurements (printed as one JSON line)."""
     import numpy as np
     import skfem  # noqa: F401  (imported before the clocks start, as the peer imports dolfinx)
@@ -104,7 +104,7 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
     problem = ELDProblem(mesh, Material.from_young(1000.0, 0.3, 1.0, dim=3), degree=degree,
                          damping=RayleighDamping(0.0, 0.002),
                          dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
-                         T=steps * TAU, name="eld-beam")
+                         T=steps * tau, name="eld-beam")
     t_problem = time.perf_counter() - t0
     memory["problem (space, M, K, constraint)"] = sampler.checkpoint()
     out["ndofs"] = problem.space.ndofs
@@ -116,7 +116,7 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
         stamps.append((time.perf_counter(), result.counters.get("krylov_iterations", 0)))
 
     t0 = time.perf_counter()
-    stepper = ELDStepper(problem, form, TAU, data=data, solver=solver, store_fields=False,
+    stepper = ELDStepper(problem, form, tau, data=data, solver=solver, store_fields=False,
                          observer=observer, linear_rtol=rtol)
     t_stepper = time.perf_counter() - t0
     memory["stepper (step matrix, solver setup)"] = sampler.checkpoint()
@@ -133,7 +133,7 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
     t0 = time.perf_counter()
     state = stepper.initial_state()
     stepper.record_initial(traj, state)
-    evolve(stepper, UniformController(TAU), state, traj, tau_min=TAU)
+    evolve(stepper, UniformController(tau), state, traj, tau_min=tau)
     t_end = time.perf_counter()
     memory["time steps"] = sampler.checkpoint()
     times = [s for s, _ in stamps]
@@ -149,7 +149,7 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
     out["balance_residual_max"] = float(np.max(np.abs(traj["balance_residual"])))
     out["memory_mb"] = {k: {"rss": v[0], "peak": v[1]} for k, v in memory.items()}
     if save:
-        np.savez(save, t=np.arange(1, len(reaction) + 1) * TAU, reaction=reaction)
+        np.savez(save, t=np.arange(1, len(reaction) + 1) * tau, reaction=reaction)
     return out
 
 
@@ -184,10 +184,10 @@ def run_child(cmd: list[str], cwd: Path | None = None) -> dict:
 
 
 def rothe_cmd(n, degree=1, form="regularized", solver="amg", steps=10, data="points",
-              rtol=1e-8, save=None) -> list[str]:
+              rtol=1e-8, save=None, tau=TAU) -> list[str]:
     cmd = ["nice", sys.executable, str(Path(__file__).resolve()), "--child", "--n", str(n),
            "--degree", str(degree), "--form", form, "--solver", solver, "--steps", str(steps),
-           "--data", data, "--rtol", str(rtol)]
+           "--data", data, "--rtol", str(rtol), "--tau", str(tau)]
     if save:
         cmd += ["--save", str(save)]
     return cmd
@@ -315,6 +315,23 @@ def agreement(work: Path, peer_dir: Path | None, n: int, steps: int) -> list[str
         parts.append(diff[-1])
         lines.append(f"{label:<28} " + " ".join(f"{x:>10.2e}" if i != 2 else f"{x:>15.2e}"
                                                 for i, x in enumerate(parts)))
+    # the regularized form and the original one (= the peer's strong Dirichlet) are both first
+    # order in tau: their difference halves with tau
+    diffs = []
+    for tau in (TAU, TAU / 2):
+        k = int(round(steps * TAU / tau))
+        files = {}
+        for form in ("regularized", "original"):
+            files[form] = work / f"halving_{form}_{k}.npz"
+            run_child(rothe_cmd(n, form=form, solver="direct", steps=k, save=files[form],
+                                tau=tau), cwd=work)
+        a, b = (np.load(files[f]) for f in ("regularized", "original"))
+        mask = a["t"] > 0.6 + 1e-12
+        d = np.abs(a["reaction"][:, 2] - b["reaction"][:, 2]) / scale
+        diffs.append((tau, d.max(), d[mask].max() if np.any(mask) else float("nan")))
+    lines.append("rothe regularized - original (relative to max |R_peer|): " + "; ".join(
+        f"tau = {tau:g}: all t {m:.2e}, t > 0.6 {m6:.2e}" for tau, m, m6 in diffs)
+        + f"; ratio {diffs[0][1] / diffs[1][1]:.2f} and {diffs[0][2] / diffs[1][2]:.2f}")
     return lines
 
 
@@ -343,10 +360,11 @@ def main(argv=None) -> int:
     parser.add_argument("--data", default="points", help=argparse.SUPPRESS)
     parser.add_argument("--rtol", type=float, default=1e-8, help=argparse.SUPPRESS)
     parser.add_argument("--save", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--tau", type=float, default=TAU, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(rothe_child(args.n, args.degree, args.form, args.solver, args.steps,
-                                     args.data, args.rtol, args.save)))
+                                     args.data, args.rtol, args.save, args.tau)))
         return 0
 
     quick = args.quick

@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sp
 
 from rothe.eld import ELDStepper, RayleighDamping, UserDamping, beam_problem, run_eld
-from rothe.eld.solvers import ReferenceSolver
+from rothe.eld.solvers import ConstrainedSolver, ReferenceSolver
 
 
 @pytest.mark.parametrize("degree", [1, 2])
@@ -61,3 +61,32 @@ def test_amg_and_lu_give_the_same_reactions():
     R_amg, R_lu = np.array(amg["reaction_left"]), np.array(lu["reaction_left"])
     assert np.abs(R_amg - R_lu).max() <= 1e-7 * np.abs(R_lu).max()
     assert np.abs(amg["balance_residual"]).max() <= 1e-8 * np.abs(amg["energy"]).max()
+
+
+def test_condensed_bordered_solve_equals_the_kkt_solution():
+    problem = beam_problem(2, damping=RayleighDamping(0.2, 0.01), T=0.02)
+    stepper = ELDStepper(problem, "original", 0.01, solver="direct")
+    c, n = problem.constraint, problem.space.ndofs
+    A = ((1e4 + 0.2 / 0.01) * problem.M + (1.0 + 0.01 / 0.01) * problem.K).tocsr()
+    kkt = stepper._kkt(A).tocsc()
+    rng = np.random.default_rng(3)
+    b = rng.standard_normal(n + c.m)
+    z = sp.linalg.spsolve(kkt, b)
+    for solver in (stepper.solver, ConstrainedSolver(c, "direct")):
+        if not solver.factored:
+            solver.factor(stepper._kkt(A))  # the Newton path hands over the bordered matrix
+        assert np.linalg.norm(solver.solve_reference(b) - z) <= 1e-10 * np.linalg.norm(z)
+    amg = ConstrainedSolver(c, "amg", near_nullspace=problem.space.rigid_body_modes(
+        np.setdiff1d(np.arange(problem.space.n_scalar), c.scalar_dofs)), rtol=1e-12)
+    amg.factor(A)
+    assert np.linalg.norm(amg.solve_reference(b) - z) <= 1e-8 * np.linalg.norm(z)
+
+
+def test_original_form_runs_with_amg_and_matches_lu():
+    problem = beam_problem(3, damping=RayleighDamping(0.0, 0.002), T=0.05)
+    amg = run_eld(problem, "original", 0.01, solver="amg", store_fields=False,
+                  linear_rtol=1e-11)
+    lu = run_eld(problem, "original", 0.01, solver="direct", store_fields=False)
+    assert amg.meta["linear_solver"]["kind"] == "amg"
+    R_amg, R_lu = np.array(amg["reaction_left"]), np.array(lu["reaction_left"])
+    assert np.abs(R_amg - R_lu).max() <= 1e-7 * np.abs(R_lu).max()

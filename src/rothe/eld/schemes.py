@@ -186,7 +186,7 @@ from .constraint import LIFTINGS, make_lifting
 from .control import FixedStepController, adaptive_controller
 from .data import DATA_MODES, DataNoise, StepData
 from .problem import ELDProblem
-from .solvers import ReferenceSolver, SolveFailed, SolverStats, resolve_kind
+from .solvers import ConstrainedSolver, ReferenceSolver, SolveFailed, SolverStats, resolve_kind
 
 FORMS = ("regularized", "original")
 SCHEMES = ("euler", "bdf2")
@@ -453,16 +453,19 @@ class ELDStepper:
                 self._M_C = p.space.symmetric_columns(p.M, c.scalar_dofs)
                 self._K_C = p.space.symmetric_columns(p.K, c.scalar_dofs)
         else:
-            self.kind = resolve_kind(solver, p.space.ndofs + c.m, p.space.dim)
-            if self.kind == "amg":
-                raise fail("solver", solver if solver != "auto" else "auto (amg at this size)",
-                           "the original form's saddle-point system is solved by sparse LU only; "
-                           "use the regularized form for AMG")
-            self.solver = ReferenceSolver("direct", spd=False, rtol=linear_rtol)
+            # the bordered system is solved by condensing the constraint (ConstrainedSolver):
+            # the size of A_II, and LU or AMG of A_II both apply
+            self.kind = resolve_kind(solver, self.I.size, p.space.dim)
+            rbm = p.space.rigid_body_modes(free_nodes) if self.kind == "amg" else None
+            self.solver = ConstrainedSolver(c, self.kind, near_nullspace=rbm, rtol=linear_rtol)
             self.lifting = None
         # A(tau_eff) of the first step, restricted to ker B (regularized) or full (original);
-        # at a million unknowns every matrix of this size costs 0.6 GB: keep only this one
-        self._A_stored = self._operator_matrix(te0)
+        # at a million unknowns every matrix of this size costs 0.6 GB: keep only this one (the
+        # lean original form keeps none: its products with A(te) go through M and K)
+        if self._lean and self.form == "original":
+            self._A_te = None
+        else:
+            self._A_stored = self._operator_matrix(te0)
         if self.D.is_linear:
             self._factor(te0, None)
         self.initial_factorizations = self.solver.stats.factorizations
@@ -683,6 +686,16 @@ class ELDStepper:
         if v is None and self._lean and self.form == "regularized" and te == self._A_te:
             # the stored step matrix itself: no second copy for the solver
             self.solver.factor(self._A_stored)
+        elif v is None and self._lean and self.form == "original":
+            # A_II and the thin blocks of A on the constrained dofs, for the condensed solve
+            # (A is symmetric: its rows on the constrained dofs are the transposed columns)
+            p = self.problem
+            c = p.constraint
+            c_mass, c_stiff = self._coefficients(te)
+            A_C = (c_mass * p.space.symmetric_columns(p.M, c.scalar_dofs)
+                   + c_stiff * p.space.symmetric_columns(p.K, c.scalar_dofs)).tocsr()
+            A_IC = A_C[self.I]
+            self.solver.factor_parts(self._restricted(te), A_IC, A_IC.T, A_C[c.dofs])
         else:
             self.solver.factor(self._system_matrix(te, v))
         self._ref = {"tau_eff": float(te), "v": None if v is None else v.copy()}
