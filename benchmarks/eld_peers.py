@@ -81,7 +81,8 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
                 rtol: float, save: str | None, tau: float = TAU) -> dict:
     """One rothe run in this process; returns the measurements (printed as one JSON line)."""
     import numpy as np
-    import skfem  # noqa: F401  (imported before the clocks start, as the peer imports dolfinx)
+    import pyamg  # noqa: F401  (imported before the clocks start, as the peer imports dolfinx)
+    import skfem  # noqa: F401
 
     from rothe.control.controllers import UniformController
     from rothe.eld import DirichletData, ELDProblem, ELDStepper, Material, RayleighDamping
@@ -156,9 +157,16 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
 # -- running children ----------------------------------------------------------------------------
 
 def run_child(cmd: list[str], cwd: Path | None = None) -> dict:
-    """Run a child process and return its JSON line plus ``peak_mb`` = its ru_maxrss."""
+    """Run a child process and return its JSON line plus ``peak_mb`` = its ru_maxrss.
+
+    A leading ``ENV=VALUE`` word of ``cmd`` is set in the child's environment."""
+    env = dict(os.environ)
+    while cmd and "=" in cmd[0] and not cmd[0].startswith("/"):
+        key, value = cmd[0].split("=", 1)
+        env[key] = value
+        cmd = cmd[1:]
     proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, env=env)
     out_chunks: list[str] = []
     err_chunks: list[str] = []
 
@@ -349,6 +357,8 @@ def main(argv=None) -> int:
     parser.add_argument("--skip-amg", action="store_true")
     parser.add_argument("--skip-agreement", action="store_true")
     parser.add_argument("--no-peer", action="store_true")
+    parser.add_argument("--numpy-too", action="store_true",
+                        help="AMG case: also rothe with the numpy assembly (ROTHE_NO_NUMBA=1)")
     parser.add_argument("--peer-dir", default=None, help="folder of eld_beam_dolfinx.py")
     parser.add_argument("--out", default=str(REPO / "rothe-out" / "eld_peers"))
     # child mode (one rothe run)
@@ -407,6 +417,9 @@ def main(argv=None) -> int:
     if not args.skip_amg:
         case = f"P1 N={n_amg} AMG"
         rothe_runs = [("rothe regularized, pyamg", rothe_cmd(n_amg, steps=args.steps))]
+        if args.numpy_too:
+            rothe_runs.append(("rothe reg., pyamg, no numba",
+                               ["ROTHE_NO_NUMBA=1"] + rothe_cmd(n_amg, steps=args.steps)))
         peer_runs = ([("peer strong, GAMG", peer_cmd(peer_dir, n_amg, "gamg", args.steps))]
                      if peer_dir else [])
         b = timing_case(case, rothe_runs, peer_runs, repeats, work, peer_dir, rows)
