@@ -207,3 +207,21 @@ def test_space_construction_is_cheap_and_lazy():
     V.mass()
     assert "pattern" in V.__dict__ and "quad_basis" not in V.__dict__
     assert sp.issparse(V.scalar_mass())
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_block_matrix_product_is_scipys_bit_for_bit(dim, monkeypatch):
+    V = el.VectorSpace(_mesh(dim, perm_seed=6, jiggle=0.05), 2)
+    K = V.stiffness(1.7, 0.9, format="bsr")
+    x = np.random.default_rng(1).standard_normal(V.ndofs)
+    reference = sp.bsr_matrix(K) @ x
+    monkeypatch.setenv("ROTHE_NO_NUMBA", "1")
+    assert np.array_equal(K @ x, reference)
+    if NUMBA:
+        monkeypatch.delenv("ROTHE_NO_NUMBA")
+        monkeypatch.setenv("ROTHE_NUMBA", "1")  # the compiled product at any size
+        assert np.array_equal(K @ x, reference)
+        A = V.restricted_combination(K, 1.1, 30.0, np.arange(1, V.n_scalar, 2))
+        assert isinstance(A, el.BlockMatrix)
+        y = np.random.default_rng(2).standard_normal(A.shape[0])
+        assert np.array_equal(A @ y, sp.bsr_matrix(A) @ y)
