@@ -684,7 +684,10 @@ class ELDStepper:
 
     def _factor(self, te: float, v: np.ndarray | None) -> None:
         if v is None and self._lean and self.form == "regularized" and te == self._A_te:
-            # the stored step matrix itself: no second copy for the solver
+            # the stored step matrix itself: no second copy for the solver; the AMG setup is
+            # the peak of a large run, so first free what only assemblies need
+            if self.kind == "amg":
+                self.problem.space.release_assembly_caches()
             self.solver.factor(self._A_stored)
         elif v is None and self._lean and self.form == "original":
             # A_II and the thin blocks of A on the constrained dofs, for the condensed solve
@@ -695,7 +698,11 @@ class ELDStepper:
             A_C = (c_mass * p.space.symmetric_columns(p.M, c.scalar_dofs)
                    + c_stiff * p.space.symmetric_columns(p.K, c.scalar_dofs)).tocsr()
             A_IC = A_C[self.I]
-            self.solver.factor_parts(self._restricted(te), A_IC, A_IC.T, A_C[c.dofs])
+            A_II = self._restricted(te)
+            if self.kind == "amg":
+                p.space.release_assembly_caches()
+            self.solver.factor_parts(A_II, A_IC, A_IC.T, A_C[c.dofs])
+            del A_II
         else:
             self.solver.factor(self._system_matrix(te, v))
         self._ref = {"tau_eff": float(te), "v": None if v is None else v.copy()}

@@ -471,6 +471,14 @@ class VectorSpace:
         t = np.asarray(self.mesh.t)[:, cells]
         return affine_geometry(np.asarray(self.mesh.p), t)
 
+    def release_assembly_caches(self) -> None:
+        """Drop what only further assemblies need: the pattern's map from cells to entries
+        (cell pair numbers, positions, cell order) and the cached scalar mass values (about
+        120 MB at a million P1 unknowns). The matrices already built keep the pattern's index
+        arrays they share; a later assembly rebuilds the rest (one sort)."""
+        self.__dict__.pop("pattern", None)
+        self.__dict__.pop("scalar_mass_values", None)
+
     @property
     def compiled_assembly(self) -> bool:
         """Whether the matrices of this space are assembled by the numba loops (see
