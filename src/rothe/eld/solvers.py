@@ -2,8 +2,10 @@
 
 Every step of the scheme solves a system with the same matrix when the damping is linear,
 A = (rho/tau^2) M + C/tau + K (restricted to ker B in the regularized form, bordered by B in the
-original one), so it is factored once and each step is a back-substitution (PERFORMANCE-NOTES:
-a back-substitution is 7-25x cheaper than a factorization). With nonlinear damping the Newton
+original one), so it is factored once and each step is a back-substitution (measured with
+``python benchmarks/eld_peers.py``, 3D P1 beam, 56,355 dofs: SuperLU factorization 38 s, a step
+0.24-0.30 s; ``python benchmarks/eld.py --part steps``: a linear step costs 1.0-2.2
+back-substitutions, see docs/eld.md). With nonlinear damping the Newton
 matrices J = A + N'(v)/tau stay close to A: they are solved by a Krylov method preconditioned with
 the stored factorization of a reference matrix, which is rebuilt from the current J only when the
 Krylov method needs more than ``max_krylov`` iterations.
@@ -11,8 +13,9 @@ Krylov method needs more than ``max_krylov`` iterations.
 Kinds:
 - ``direct``: scipy ``splu`` with the symmetric ``MMD_AT_PLUS_A`` ordering; Krylov = CG for SPD
   matrices, GMRES for the saddle-point matrices of the original form;
-- ``amg``: pyamg smoothed aggregation with the rigid-body modes as near-null space (without them
-  AMG needs about 4.5x more iterations on elasticity), CG accelerated. SPD matrices only.
+- ``amg``: pyamg smoothed aggregation with the rigid-body modes as near-null space (the
+  aggregation must reproduce the kernel of the elasticity operator on the coarse levels: Vanek,
+  Mandel & Brezina, Computing 56 (1996) 179-196), CG accelerated. SPD matrices only.
 """
 
 from __future__ import annotations
@@ -55,7 +58,9 @@ class SolveFailed(RuntimeError):
 def resolve_kind(kind: str, n: int, dim: int) -> str:
     """'auto': sparse LU in 2D up to 200k unknowns and in 3D up to 30k, AMG above.
 
-    (3D LU: 8.7 s and 0.8 GB at 28k dofs, 103 s and 4.3 GB at 89k; PERFORMANCE-NOTES.)
+    3D LU fill grows fast: ``python benchmarks/eld_peers.py`` measured SuperLU at 56,355 dofs
+    (P1 beam, N = 16) at 38 s and 0.98 GB peak, while the AMG setup of the 1,075,275-dof beam
+    took 18 s at 2.6 GB peak (docs/eld.md, "Linear algebra and scale").
     """
     if kind not in SOLVERS:
         raise fail("solver", kind, "must be one of " + ", ".join(SOLVERS))
@@ -218,33 +223,6 @@ class ReferenceSolver:
             return None
         return x
 
-    # -- checkpoint protocol (rothe.io.checkpoint) ---------------------------------------------
-    def checkpoint_state(self, *, reference: bool = True) -> dict:
-        """Counters and, with ``reference``, the matrix the stored factorization was built from
-        (the factorization changes Krylov results in the last bits, so it is rebuilt from it)."""
-        from dataclasses import asdict
-
-        from ..nonlinear.linear import sparse_state
-
-        ref = None
-        blocksize = None
-        if reference and self._prec is not None and self._A is not None:
-            if sp.issparse(self._A) and self._A.format == "bsr":
-                # AMG aggregates the blocks as nodes: rebuild it from the same BSR matrix
-                blocksize = [int(b) for b in self._A.blocksize]
-            ref = sparse_state(sp.csr_matrix(self._A) if not sp.issparse(self._A)
-                               or self._A.format not in ("csr", "csc") else self._A)
-        return {"stats": asdict(self.stats), "reference": ref, "blocksize": blocksize}
-
-    def restore_state(self, data: dict) -> None:
-        from ..nonlinear.linear import sparse_from_state
-
-        if data["reference"] is not None:
-            A = sparse_from_state(data["reference"])
-            if data.get("blocksize"):
-                A = A.tobsr(blocksize=tuple(data["blocksize"]))
-            self.factor(A)
-        self.stats = SolverStats(**data["stats"])
 
 class ConstrainedSolver(ReferenceSolver):
     """The bordered systems of the original form, solved by condensing the constraint.
@@ -259,9 +237,10 @@ class ConstrainedSolver(ReferenceSolver):
     lam = M_G^{-1} (f_C - A_CI u_I - A_CC u_C)  (M_G symmetric): one solve with A_II, the
     matrix of the regularized form, plus two solves with the small boundary mass. This is what
     strong Dirichlet conditions do in a general FE code; it replaces the LU of the indefinite
-    bordered matrix (1.6x the time and 1.4x the memory of the regularized form's LU, and no AMG
-    possible) by the SPD solver of A_II (``direct`` or ``amg``). The answer is the KKT
-    solution up to round-off (tested).
+    bordered matrix (no AMG possible) by the SPD solver of A_II (``direct`` or ``amg``), so both
+    forms cost the same (``python benchmarks/eld_peers.py``, 56,355 dofs: SuperLU setup 39.9 s
+    against 38.3 s for the regularized form, peak 983 MB for both). The answer is the KKT
+    solution up to round-off (tested; the reactions equal the strong-Dirichlet peer's to 6e-12).
 
     ``factor`` accepts the bordered matrix (n + m square, from the Newton path) or A itself
     (n square); :meth:`factor_parts` takes A_II, A_IC, A_CI, A_CC directly (the lean path at
