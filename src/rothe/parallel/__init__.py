@@ -1,0 +1,26 @@
+"""Independent runs in this process or on Dask: tasks, the executor, and parameter sweeps.
+
+- :mod:`rothe.parallel.tasks`: :class:`Task` (a picklable run: a module-level function and its
+  arguments, or the argv of a ``rothe run`` command), :class:`TaskResult` and
+  :func:`execute_task` (what happens around a run wherever it executes);
+- :mod:`rothe.parallel.executor`: :class:`Executor` (in-process, a local Dask cluster of worker
+  processes, or an existing Dask scheduler), the ``--workers``/``--scheduler`` options;
+- :mod:`rothe.parallel.sweep`: ``rothe sweep run <example> --param NAME=V1,V2,...``.
+
+Dask (``pip install "rothe[dask]"``) is imported only when a cluster is used. See
+``docs/scaling.md``.
+"""
+
+from .executor import (
+    Executor,
+    add_parallel_options,
+    dask_available,
+    default_workers,
+    executor_from_args,
+    run_tasks,
+)
+from .tasks import Task, TaskFailed, TaskResult, cli_task, execute_task, task_environment
+
+__all__ = ["Executor", "Task", "TaskFailed", "TaskResult", "add_parallel_options", "cli_task",
+           "dask_available", "default_workers", "execute_task", "executor_from_args",
+           "run_tasks", "task_environment"]

@@ -1,0 +1,357 @@
+"""Where independent runs execute: in this process, or on a Dask cluster.
+
+:class:`Executor` maps a list of :class:`~rothe.parallel.tasks.Task` to their
+:class:`~rothe.parallel.tasks.TaskResult`, in the order of the tasks, whatever order they finish:
+
+- ``Executor(workers=1)``: one after another in this process (Dask is not imported);
+- ``Executor(workers=N)``: a ``distributed.LocalCluster`` of N worker *processes* with one thread
+  each (the runs are GIL-bound Python with single-threaded BLAS), started for the map (or for the
+  ``with`` block) and closed afterwards;
+- ``Executor(scheduler=ADDRESS)`` (or a ``distributed.Client``, or a cluster object such as
+  dask-jobqueue's ``SLURMCluster``): an existing cluster; the executor only connects.
+
+Failure semantics: a run that fails is a result with its status, never an exception here (see
+:func:`~rothe.parallel.tasks.execute_task`). A task whose worker dies (killed, out of memory) is
+re-run once on another worker: the local cluster's scheduler allows one worker death per task
+(``allowed_failures=1``); a second death makes the result ``lost``. Tasks are also submitted with
+Dask ``retries=1``, which covers exceptions raised outside the run itself (e.g. unpickling on the
+worker); a run's own failure is deterministic and not retried. Expensive tasks (``Task.cost``)
+are started first.
+
+Progress: on a terminal a bar of runs done / total; otherwise (logs, CI) one line per finished
+run (and, in-process, one per started run), so a log says which run of how many is going.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import os
+import re
+import sys
+import time
+import uuid
+
+from ..errors import RotheInputError, check_int, fail
+from .tasks import Task, TaskResult, execute_task
+
+#: seconds to wait for an existing scheduler (``--scheduler``) before giving up
+CONNECT_TIMEOUT_S = 5.0
+INSTALL_HINT = 'pip install "rothe[dask]"'
+
+
+def dask_available() -> bool:
+    """Whether dask.distributed can be imported (without importing it)."""
+    if "distributed" in sys.modules:  # None there: the import is blocked
+        return sys.modules["distributed"] is not None
+    try:
+        return importlib.util.find_spec("distributed") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def cpu_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return os.cpu_count() or 1
+
+
+def default_workers() -> int:
+    """``ROTHE_WORKERS`` if set, else the number of cores when Dask is installed, else 1."""
+    env = os.environ.get("ROTHE_WORKERS")
+    if env:
+        try:
+            return check_int("ROTHE_WORKERS", int(env), minimum=1)
+        except ValueError:
+            raise fail("ROTHE_WORKERS", env, "must be an integer >= 1") from None
+    return cpu_count() if dask_available() else 1
+
+
+def _import_distributed(what: str):
+    try:
+        import distributed
+    except ImportError:
+        raise RotheInputError(f"{what} needs dask.distributed: {INSTALL_HINT}") from None
+    return distributed
+
+
+def local_cluster(n_workers: int, **kwargs):
+    """The ``distributed.LocalCluster`` of ``--workers N``: N worker processes with one thread
+    each, no dashboard, and one retry for a task whose worker dies (``allowed_failures=1``)."""
+    distributed = _import_distributed(f"--workers {n_workers}")
+    options = dict(n_workers=n_workers, threads_per_worker=1, processes=True,
+                   dashboard_address=None, silence_logs=logging.ERROR,
+                   scheduler_kwargs={"allowed_failures": 1})
+    options.update(kwargs)
+    return distributed.LocalCluster(**options)
+
+
+class _Progress:
+    """Runs done / total: a tqdm bar on a terminal, else one plain line per event."""
+
+    def __init__(self, total: int, title: str, enabled: bool, where: str):
+        self.total, self.title, self.done = total, title, 0
+        self.enabled = enabled and total > 0
+        self.bar = None
+        if not self.enabled:
+            return
+        if sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=title, unit="run", file=sys.stderr,
+                            dynamic_ncols=True, leave=True)
+        else:
+            self._line(f"{total} run{'s' if total != 1 else ''}, {where}")
+
+    def _line(self, text: str) -> None:
+        print(f"{self.title}: {text}", file=sys.stderr, flush=True)
+
+    def started(self, index: int, task: Task) -> None:
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.set_postfix_str(task.key, refresh=True)
+        else:
+            self._line(f"run {index + 1}/{self.total} started: {task.key}")
+
+    def finished(self, result: TaskResult) -> None:
+        self.done += 1
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix_str(f"{result.key}: {result.status}", refresh=True)
+            return
+        where = "" if result.worker == "in-process" else f", {result.worker}"
+        text = f"{self.done}/{self.total} done: {result.key}: {result.status}"
+        if result.message:
+            text += f" ({result.message[:200]})"
+        self._line(f"{text} [{result.seconds:.1f} s{where}]")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+class Executor:
+    """Runs tasks in-process (``workers=1``) or on Dask (``workers > 1`` or ``scheduler``)."""
+
+    def __init__(self, workers: int | None = None, scheduler=None, *, progress: bool = True,
+                 title: str = "rothe"):
+        if workers is None:
+            workers = 1 if scheduler is not None else default_workers()
+        self.workers = check_int("--workers", workers, minimum=1)
+        self.scheduler = scheduler
+        self.progress = progress
+        self.title = title
+        self._client = None
+        self._owned: list = []  # client and cluster this executor started (closed by it)
+        self._depth = 0
+
+    @property
+    def in_process(self) -> bool:
+        return self.scheduler is None and self.workers == 1
+
+    def describe(self) -> str:
+        if self.in_process:
+            return "in-process"
+        if self.scheduler is None:
+            return f"local Dask cluster of {self.workers} worker processes"
+        addr = getattr(self.scheduler, "scheduler_address", self.scheduler)
+        if not isinstance(addr, str):
+            addr = getattr(getattr(self.scheduler, "scheduler", None), "address", "a Dask client")
+        return f"Dask scheduler {addr}"
+
+    # -- cluster lifetime ----------------------------------------------------------------------
+    def __enter__(self):
+        # re-entrant: a function handed an executor that its caller already entered may enter
+        # it again; only the outermost exit closes what was started
+        self._depth += 1
+        if not self.in_process:
+            try:
+                self._connect()
+            except BaseException:
+                self._depth -= 1
+                raise
+        return self
+
+    def __exit__(self, *exc):
+        self._depth -= 1
+        if self._depth == 0:
+            self.close()
+
+    def close(self) -> None:
+        while self._owned:
+            obj = self._owned.pop()
+            try:
+                obj.close()
+            except Exception:  # pragma: no cover - closing is best effort
+                pass
+        self._client = None
+
+    def _connect(self):
+        if self._client is not None:
+            return self._client
+        distributed = _import_distributed(
+            "--scheduler" if self.scheduler is not None else f"--workers {self.workers}")
+        if self.scheduler is None:
+            cluster = local_cluster(self.workers)
+            self._owned.append(cluster)
+            self._client = distributed.Client(cluster)
+            self._owned.append(self._client)
+        elif isinstance(self.scheduler, distributed.Client):
+            self._client = self.scheduler
+        else:
+            target = self.scheduler
+            if isinstance(target, str) and not target.strip():
+                raise fail("--scheduler", target, "must be a scheduler address "
+                           "(e.g. tcp://host:8786)")
+            try:
+                self._client = distributed.Client(target, timeout=f"{CONNECT_TIMEOUT_S:g}s")
+            except (OSError, ValueError, TypeError) as exc:
+                raise fail("--scheduler", str(target),
+                           f"cannot connect within {CONNECT_TIMEOUT_S:g} s "
+                           f"({' '.join(str(exc).split())})") from None
+            self._owned.append(self._client)
+        return self._client
+
+    # -- mapping -------------------------------------------------------------------------------
+    def map(self, tasks: list[Task]) -> list[TaskResult]:
+        """Run every task; results in the order of ``tasks``."""
+        tasks = list(tasks)
+        keys = [t.key for t in tasks]
+        if len(set(keys)) != len(keys):
+            dup = next(k for k in keys if keys.count(k) > 1)
+            raise ValueError(f"task keys must be unique, {dup!r} appears twice")
+        if self.in_process:
+            return self._map_in_process(tasks)
+        started_here = self._client is None
+        try:
+            client = self._connect()
+            return self._map_dask(client, tasks)
+        finally:
+            if started_here:
+                self.close()
+
+    def _map_in_process(self, tasks):
+        progress = _Progress(len(tasks), self.title, self.progress, "in-process")
+        results = []
+        try:
+            for i, task in enumerate(tasks):
+                progress.started(i, task)
+                results.append(execute_task(task))
+                progress.finished(results[-1])
+        finally:
+            progress.close()
+        return results
+
+    def _map_dask(self, client, tasks):
+        """Submit in order of decreasing cost, at most one task per worker thread at a time.
+
+        Holding the rest back on this side (instead of handing all to the scheduler) keeps
+        the longest-first order exact and never queues a run behind another on a worker, where
+        a worker's death would count against it too (the scheduler counts every task assigned
+        to a dead worker); a slot that frees up is refilled at once, and workers that join
+        later (a SLURM job that starts) are used within a second.
+        """
+        import distributed
+
+        progress = _Progress(len(tasks), self.title, self.progress, self.describe())
+        token = uuid.uuid4().hex[:8]
+        pending = sorted(range(len(tasks)), key=lambda i: -float(tasks[i].cost))  # stable
+        pending.reverse()  # pop() takes the most expensive
+        running: dict = {}  # future -> task index
+        results: list[TaskResult | None] = [None] * len(tasks)
+        started: dict[int, float] = {}
+        try:
+            while pending or running:
+                threads = max(sum(client.nthreads().values()), 1)
+                while pending and len(running) < threads:
+                    i = pending.pop()
+                    key = f"rothe-{_safe_key(tasks[i].key)}-{token}-{i}"
+                    fut = client.submit(execute_task, tasks[i], key=key, retries=1, pure=False)
+                    running[fut] = i
+                    started[i] = time.perf_counter()
+                try:
+                    done, _ = distributed.wait(list(running), timeout=1.0,
+                                               return_when="FIRST_COMPLETED")
+                except TimeoutError:  # nothing finished within 1 s: look for new workers
+                    continue
+                for fut in done:
+                    i = running.pop(fut)
+                    results[i] = self._result(fut, tasks[i], time.perf_counter() - started[i])
+                    progress.finished(results[i])
+        except BaseException:
+            client.cancel(list(running))
+            raise
+        finally:
+            progress.close()
+        return results
+
+    @staticmethod
+    def _result(fut, task: Task, seconds: float) -> TaskResult:
+        import distributed
+
+        try:
+            return fut.result()
+        except distributed.KilledWorker as exc:
+            return TaskResult(task.key, "lost", "its worker died twice while running it (killed, "
+                              f"e.g. out of memory): {' '.join(str(exc).split())}",
+                              seconds=seconds, worker="")
+        except Exception as exc:  # e.g. the task could not be unpickled on the worker
+            return TaskResult(task.key, "error", f"{type(exc).__name__}: {exc}",
+                              seconds=seconds, worker="")
+        finally:
+            # forget it on the cluster now: a finished run held there would be run again if
+            # its worker died later (the scheduler recomputes lost results that are wanted)
+            fut.release()
+
+
+def _safe_key(key: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.=+-]+", "_", key)[:80]
+
+
+def run_tasks(tasks, *, workers: int | None = 1, scheduler=None, progress: bool = False,
+              title: str = "rothe") -> list[TaskResult]:
+    """Shorthand for ``Executor(workers, scheduler, progress=..., title=...).map(tasks)``."""
+    return Executor(workers, scheduler, progress=progress, title=title).map(tasks)
+
+
+# -- CLI options ----------------------------------------------------------------------------------
+
+def add_parallel_options(parser) -> None:
+    """``--workers N`` and ``--scheduler ADDRESS`` for commands that run independent runs."""
+    parser.add_argument(
+        "--workers", type=int, default=None,
+        help="run the independent runs on a local Dask cluster of N worker processes "
+             "(default: the number of cores if Dask is installed, else 1; 1 = one after another "
+             "in this process, no Dask; env ROTHE_WORKERS sets the default)")
+    parser.add_argument(
+        "--scheduler", default=None,
+        help="address of an existing Dask scheduler (e.g. tcp://host:8786) to run on instead")
+
+
+def executor_from_args(args, title: str) -> Executor:
+    """The executor of ``--workers``/``--scheduler``; bad values are one-line input errors."""
+    workers = args.workers
+    if workers is not None:
+        workers = check_int("--workers", workers, minimum=1)
+    if args.scheduler is not None:
+        if workers is not None:
+            raise fail("--workers", workers, "cannot be combined with --scheduler (the cluster "
+                       "has its own workers)")
+        if not args.scheduler.strip():
+            raise fail("--scheduler", args.scheduler, "must be a scheduler address "
+                       "(e.g. tcp://host:8786)")
+    if workers is not None and workers > 1 and not dask_available():
+        raise RotheInputError(f"--workers {workers} needs dask.distributed: {INSTALL_HINT} "
+                              "(or --workers 1)")
+    if args.scheduler is not None and not dask_available():
+        raise RotheInputError(f"--scheduler needs dask.distributed: {INSTALL_HINT}")
+    return Executor(workers, args.scheduler, progress=not getattr(args, "quiet", False),
+                    title=title)
+
+
+__all__ = ["CONNECT_TIMEOUT_S", "Executor", "add_parallel_options", "dask_available",
+           "default_workers", "executor_from_args", "local_cluster", "run_tasks"]
