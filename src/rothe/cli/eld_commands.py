@@ -21,6 +21,7 @@ import sys
 import numpy as np
 
 from ..errors import check_choice, check_int, check_positive, described, fail
+from ..parallel.executor import add_parallel_options, executor_from_args
 from .common import (
     add_output_options,
     given,
@@ -348,10 +349,8 @@ class RunEldMMS:
         add_output_options(parser, self.name)
         add_run_options(parser)
 
-    def execute(self, args) -> int:
-        from ..eld.examples import mms_errors, mms_problem
-        from ..eld.schemes import run_eld
-
+    def validate(self, args):
+        """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
         check_eld_step("--tau", args.tau, args.T)
         check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
@@ -366,7 +365,13 @@ class RunEldMMS:
         parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
         if not parts:
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
-        damping = _make_damping(args)
+        return form, tau, scheme, control, tol, keep, n, parts, _make_damping(args)
+
+    def execute(self, args) -> int:
+        from ..eld.examples import mms_errors, mms_problem
+        from ..eld.schemes import run_eld
+
+        form, tau, scheme, control, tol, keep, n, parts, damping = self.validate(args)
         problem, exact = mms_problem(n, args.degree, damping=damping, rho=args.rho, lam=args.lam,
                                      mu=args.mu, T=args.T, dirichlet=parts, start=args.start,
                                      load_quadrature=args.load_quadrature)
@@ -433,11 +438,8 @@ class RunEldBeam:
         add_output_options(parser, self.name)
         add_run_options(parser)
 
-    def execute(self, args) -> int:
-        from ..eld.examples import beam_problem
-        from ..eld.schemes import run_eld
-        from ..io.eld_output import EldXdmfWriter
-
+    def validate(self, args):
+        """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
         check_eld_step("--tau", args.tau, args.T)
         check_beam_size(check_int("--n", args.n, minimum=1), args.length, args.degree,
@@ -448,7 +450,14 @@ class RunEldBeam:
         n = check_int("--n", args.n, minimum=1)
         every = check_int("--save-every", args.save_every, minimum=1)
         keep = check_int("--keep-every", args.keep_every, minimum=1)
-        damping = _make_damping(args)
+        return form, tau, scheme, control, tol, n, every, keep, _make_damping(args)
+
+    def execute(self, args) -> int:
+        from ..eld.examples import beam_problem
+        from ..eld.schemes import run_eld
+        from ..io.eld_output import EldXdmfWriter
+
+        form, tau, scheme, control, tol, n, every, keep, damping = self.validate(args)
         problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,
                                damping=damping, amplitude=args.amplitude, t_move=args.t_move,
                                T=args.T, degree=args.degree)
@@ -542,6 +551,7 @@ class StudyEldConvergence:
         _mms_options(parser)
         parser.set_defaults(n=4)
         add_output_options(parser, self.name)
+        add_parallel_options(parser)
 
     def execute(self, args) -> int:
         from ..eld.studies import convergence_study, format_convergence_table
@@ -555,12 +565,13 @@ class StudyEldConvergence:
         halvings = check_int("--halvings", args.halvings, minimum=1)
         n = check_int("--n", args.n, minimum=1)
         damping = _make_damping(args)
+        executor = executor_from_args(args, f"rothe study {self.name}")
         out = output_dir(args, self.name)
         study = convergence_study(form, tau0=args.tau0, halvings=halvings, n=n,
                                   degree=args.degree, damping=damping, rho=args.rho,
                                   lam=args.lam, mu=args.mu, T=args.T, data=args.data,
                                   lifting=args.lifting, scheme=scheme,
-                                  progress=progress_of(args))
+                                  progress=progress_of(args), executor=executor)
         table = format_convergence_table(study)
         write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
@@ -582,7 +593,7 @@ class StudyEldConvergence:
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")
-        return 0
+        return 0 if all("status" not in r for r in study["rows"]) else 1
 
 
 @command("study", "eld-perturbation")
@@ -605,6 +616,7 @@ class StudyEldPerturbation:
         _scheme_option(parser)
         _damping_options(parser)
         add_output_options(parser, self.name)
+        add_parallel_options(parser)
 
     def execute(self, args) -> int:
         from ..eld.studies import format_perturbation_table, perturbation_study
@@ -628,10 +640,12 @@ class StudyEldPerturbation:
         scheme = check_choice("--scheme", args.scheme, SCHEMES)
         n = check_int("--n", args.n, minimum=1)
         damping = _make_damping(args)
+        executor = executor_from_args(args, f"rothe study {self.name}")
         out = output_dir(args, self.name)
         study = perturbation_study(taus, delta=args.delta, targets=targets, n=n,
                                    degree=args.degree, damping=damping, seed=args.seed,
-                                   scheme=scheme, progress=progress_of(args))
+                                   scheme=scheme, progress=progress_of(args),
+                                   executor=executor)
         table = format_perturbation_table(study)
         write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
@@ -646,4 +660,4 @@ class StudyEldPerturbation:
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")
-        return 0
+        return 0 if "failed" not in study else 1

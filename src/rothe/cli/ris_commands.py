@@ -10,12 +10,14 @@ import numpy as np
 
 from ..control.controllers import CONTROLS
 from ..errors import (
+    RunFailed,
     check_choice,
     check_decreasing,
     check_positive,
     described,
     fail,
 )
+from ..parallel.executor import add_parallel_options, executor_from_args
 from ..stepping.ris import run_nested, run_ris
 from .common import (
     add_output_options,
@@ -353,34 +355,61 @@ class RunRIS1D(RISRunBase):
         return errors_against_exact(traj["s"], traj["t"], traj["z"])
 
 
+def compare_ris_1d_row(control: str, tol: float | None, tau: float, uniform: bool) -> dict:
+    """One run of ``compare ris-1d`` (a task: builds Example 7.1 itself); its table row."""
+    from ..parallel import TaskFailed
+    from ..problems.ris_1d import errors_against_exact, example_7_1
+
+    try:
+        traj = run_ris(example_7_1(), control, tol=tol, tau=tau)
+        failure = None
+    except RunFailed as exc:  # keep the table: a failed run is a row with its status
+        traj, failure = exc.trajectory, exc
+    if traj is None or len(traj) == 0:
+        row = {"control": control, "tol": tol, "tau0": tau}
+    else:
+        row = ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
+        if uniform:
+            row["tau0"] = tau
+    row["status"] = "completed" if failure is None else f"failed: {failure}"
+    if failure is not None:
+        raise TaskFailed(str(failure), value=row)
+    return row
+
+
 def compare_ris_1d(
     tols=(1e-3, 1e-4, 1e-5, 1e-6),
     taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001),
     tau0=0.1,
     controls=("adaptive", "order2"),
+    executor=None,
 ) -> list[dict]:
-    """Run adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.1; one row each."""
-    from ..problems.ris_1d import errors_against_exact, example_7_1
+    """Run adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.1; one row each.
 
-    problem = example_7_1()
-    rows = []
-    for control in controls:
-        for tol in tols:
-            traj = run_ris(problem, control, tol=tol, tau=tau0)
-            rows.append(
-                ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
-            )
-    for tau in taus:
-        traj = run_ris(problem, "uniform", tol=None, tau=tau)
-        row = ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
-        row["tau0"] = tau
-        rows.append(row)
-    return rows
+    The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
+    one after another in this process); a run that fails is a row with its status.
+    """
+    from ..parallel import Executor, Task
+
+    tasks = [Task(f"{c} tol={tol:g}", compare_ris_1d_row,
+                  {"control": c, "tol": tol, "tau": tau0, "uniform": False}, cost=tol**-0.5)
+             for c in controls for tol in tols]
+    tasks += [Task(f"uniform tau={tau:g}", compare_ris_1d_row,
+                   {"control": "uniform", "tol": None, "tau": tau, "uniform": True}, cost=1 / tau)
+              for tau in taus]
+    results = (executor or Executor(1, progress=False)).map(tasks)
+    return [r.value if isinstance(r.value, dict) else
+            {"control": t.kwargs["control"], "tol": t.kwargs["tol"], "tau0": t.kwargs["tau"],
+             "status": f"{r.status}: {r.message}"}
+            for t, r in zip(tasks, results, strict=True)]
 
 
 def uniform_work_at_error(rows, key="error_linf"):
-    """Fit log(inner solves) = a + b log(error) over the uniform rows; returns a callable."""
-    u = [r for r in rows if r["control"] == "uniform"]
+    """Fit log(inner solves) = a + b log(error) over the completed uniform rows; returns a
+    callable (None with fewer than two such rows)."""
+    u = [r for r in rows if r["control"] == "uniform" and r["status"] == "completed"]
+    if len(u) < 2:
+        return None
     x = np.log([r[key] for r in u])
     y = np.log([r["inner_solves"] for r in u])
     b, a = np.polyfit(x, y, 1)
@@ -397,6 +426,9 @@ def format_table(rows, work_fit=None) -> str:
     lines = [head, "-" * len(head)]
     for r in rows:
         par = r["tau0"] if r["control"] == "uniform" else r["tol"]
+        if "accepted_steps" not in r:  # a run that produced nothing: its status only
+            lines.append(f"{r['control']:<9} {par:>8.0e}  {r['status']}")
+            continue
         line = (
             f"{r['control']:<9} {par:>8.0e} {r['accepted_steps']:>8d} {r['rejected_steps']:>8d} "
             f"{r['inner_solves']:>7d} {r['error_l2']:>9.2e} {r['error_linf']:>9.2e} "
@@ -405,10 +437,12 @@ def format_table(rows, work_fit=None) -> str:
         if work_fit is not None:
             ratio = (
                 r["inner_solves"] / work_fit(r["error_linf"])
-                if r["control"] != "uniform"
+                if r["control"] != "uniform" and r["status"] == "completed"
                 else math.nan
             )
             line += f" {ratio:>20.2f}" if math.isfinite(ratio) else f" {'':>20}"
+        if r["status"] != "completed":
+            line += "  " + r["status"]
         lines.append(line)
     return "\n".join(lines)
 
@@ -427,14 +461,16 @@ class CompareRIS1D:
             default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001],
         )
         add_output_options(parser, "compare-ris-1d")
+        add_parallel_options(parser)
 
     def execute(self, args) -> int:
         tols = [check_positive("--tols", x) for x in args.tols]
         taus = [check_step("--taus", x, RunRIS1D.T) for x in args.taus]
         if len(taus) < 2:
             raise fail("--taus", ",".join(map(str, taus)), "needs at least two step sizes")
+        executor = executor_from_args(args, "rothe compare ris-1d")
         out = output_dir(args, "compare-ris-1d")
-        rows = compare_ris_1d(tols, taus)
+        rows = compare_ris_1d(tols, taus, executor=executor)
         fit = uniform_work_at_error(rows)
         table = format_table(rows, fit)
         write_table(out, table + "\n")
@@ -443,11 +479,11 @@ class CompareRIS1D:
             from ..plotting.ris import plot_error_vs_work
 
             plot_error_vs_work(
-                rows,
+                [r for r in rows if r["status"] == "completed"],
                 out / "fig3_error_vs_steps.png",
                 title="Example 7.1: error against number of steps",
             )
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")
-        return 0
+        return 0 if all(r["status"] == "completed" for r in rows) else 1

@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from ..errors import check_choice, check_int, check_positive, fail
+from ..parallel.executor import add_parallel_options, executor_from_args
 from .common import (
     add_output_options,
     given,
@@ -288,27 +289,52 @@ class RunRIS3D(_RunRISFem):
 
 # -- compare ris-2d (Fig. 5) --------------------------------------------------------------------
 
-def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
-                   tau0: float = 0.1, controls=("adaptive", "order2"), mesh=None,
-                   progress: bool = False) -> list[dict]:
-    """Adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.2; one row each."""
+def compare_ris_2d_row(n: int, mesh, control: str, tol: float | None, tau: float,
+                       progress=False) -> dict:
+    """One run of ``compare ris-2d`` (a task: builds Example 7.2 itself); its table row."""
     from ..errors import RunFailed
+    from ..parallel import TaskFailed
     from ..problems.ris_fem import describe_branch, example_7_2
     from ..stepping.ris import run_ris
 
     problem = example_7_2(n, mesh)
+    try:
+        traj = run_ris(problem, control, tol=tol, tau=tau, progress=progress)
+        failure = None
+    except RunFailed as exc:  # keep the table: a failed run is a row with its status
+        traj, failure = exc.trajectory, exc
+    row = ris_summary(traj, "ris-2d", describe_branch(problem, traj))
+    row.update(tau0=tau, status="completed" if failure is None else f"failed: {failure}",
+               n_nodes=problem.n_nodes)
+    if failure is not None:
+        raise TaskFailed(str(failure), value=row)
+    return row
+
+
+def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
+                   tau0: float = 0.1, controls=("adaptive", "order2"), mesh=None,
+                   progress=False, executor=None) -> list[dict]:
+    """Adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.2; one row each.
+
+    The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
+    one after another in this process); a run that fails is a row with its status.
+    """
+    from ..parallel import Executor, Task
+
     runs = [(c, tol, tau0) for c in controls for tol in tols] + [("uniform", None, t) for t in taus]
-    rows = []
-    for control, tol, tau in runs:
-        try:
-            traj = run_ris(problem, control, tol=tol, tau=tau, progress=progress)
-            status = "completed"
-        except RunFailed as exc:  # keep the table: a failed run is a row with its status
-            traj, status = exc.trajectory, f"failed: {exc}"
-        row = ris_summary(traj, "ris-2d", describe_branch(problem, traj))
-        row.update(tau0=tau, status=status, n_nodes=problem.n_nodes)
-        rows.append(row)
-    return rows
+    # a run's own progress only in this process (a worker's stderr is not the user's)
+    inner_progress = progress if executor is None or executor.in_process else False
+    tasks = [Task(f"{c} tol={tol:g}" if tol is not None else f"{c} tau={tau:g}",
+                  compare_ris_2d_row,
+                  {"n": n, "mesh": mesh, "control": c, "tol": tol, "tau": tau,
+                   "progress": inner_progress},
+                  cost=1 / tau if tol is None else tol**-0.5)
+             for c, tol, tau in runs]
+    results = (executor or Executor(1, progress=False)).map(tasks)
+    return [r.value if isinstance(r.value, dict) else
+            {"control": t.kwargs["control"], "tol": t.kwargs["tol"], "tau0": t.kwargs["tau"],
+             "status": f"{r.status}: {r.message}"}
+            for t, r in zip(tasks, results, strict=True)]
 
 
 def uniform_steps_at_residual(rows, key: str = "sum_residual"):
@@ -334,6 +360,9 @@ def format_table(rows, fit=None) -> str:
     lines = [head, "-" * len(head)]
     for r in rows:
         par = r["tau0"] if r["control"] == "uniform" else r["tol"]
+        if "accepted_steps" not in r:  # a run that produced nothing (error, lost): status only
+            lines.append(f"{r['control']:<9} {par:>8.3g}  {r['status']}")
+            continue
         jumps = format_jump_times(r["viscous_jumps"], shown=2, sep=",")
         line = (f"{r['control']:<9} {par:>8.3g} {r['accepted_steps']:>8d} "
                 f"{r['rejected_steps']:>8d} {r['inner_solves']:>7d} {r['newton_iterations']:>7d} "
@@ -373,6 +402,7 @@ class CompareRIS2D:
         parser.add_argument("--tau", type=parse_float("--tau"), default=0.1,
                             help="first step of adaptive/order2 (default 0.1)")
         add_output_options(parser, "compare-ris-2d")
+        add_parallel_options(parser)
 
     def execute(self, args) -> int:
         from ..fem.mesh import load_mesh
@@ -391,18 +421,20 @@ class CompareRIS2D:
         if args.mesh is None:
             check_memory("--n", n, grid_nodes(n, 2), RIS_BYTES_PER_NODE[2])
         mesh = load_mesh(args.mesh, dim=2) if args.mesh is not None else None
+        executor = executor_from_args(args, "rothe compare ris-2d")
         out = output_dir(args, "compare-ris-2d")
         t0 = time.perf_counter()
         rows = compare_ris_2d(n, tols, taus, tau0, tuple(controls), mesh,
-                              progress=progress_of(args))
+                              progress=progress_of(args), executor=executor)
         fit = uniform_steps_at_residual(rows)
         table = format_table(rows, fit)
         write_table(out, table + "\n")
-        summary = {"example": "ris-2d", "n_nodes": rows[0]["n_nodes"], "rows": rows,
+        n_nodes = next((r["n_nodes"] for r in rows if "n_nodes" in r), None)
+        summary = {"example": "ris-2d", "n_nodes": n_nodes, "rows": rows,
                    "wall_time_s": time.perf_counter() - t0, "peak_memory_mb": peak_memory_mb()}
         if fit is not None:
             for r in rows:
-                if r["control"] != "uniform" and r["sum_residual"] > 0:
+                if r["control"] != "uniform" and r.get("sum_residual", 0) > 0:
                     r["uniform_steps_same_residual"] = fit(r["sum_residual"])
         write_summary(out, summary)
         if not args.no_plots:
@@ -410,7 +442,7 @@ class CompareRIS2D:
 
             plot_residual_vs_steps(
                 [r for r in rows if r["status"] == "completed"], out / "fig5_residuals.png",
-                title=f"Example 7.2 ({rows[0]['n_nodes']} nodes): residuals against steps")
+                title=f"Example 7.2 ({n_nodes} nodes): residuals against steps")
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")

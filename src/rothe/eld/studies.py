@@ -73,43 +73,84 @@ def check_noise_targets(name: str, targets) -> tuple[str, ...]:
 
 
 def fitted_rate(taus, errors) -> float | None:
-    """Least-squares slope of log(error) against log(tau) (None if an error is not positive)."""
-    errors = np.asarray(errors, float)
-    if not np.all(errors > 0) or not np.all(np.isfinite(errors)):
+    """Least-squares slope of log(error) against log(tau) over the runs that completed (NaN: a
+    run that failed); None if an error is not positive or fewer than two runs completed."""
+    taus, errors = np.asarray(taus, float), np.asarray(errors, float)
+    done = ~np.isnan(errors)
+    e = errors[done]
+    if done.sum() < 2 or not np.all(e > 0) or not np.all(np.isfinite(e)):
         return None
-    x, y = np.log(np.asarray(taus, float)), np.log(errors)
-    return float(np.polyfit(x, y, 1)[0])
+    return float(np.polyfit(np.log(taus[done]), np.log(e), 1)[0])
+
+
+def convergence_run(form: str, tau: float, *, n: int, degree: int, damping, rho: float,
+                    lam: float, mu: float, T: float, data: str, lifting: str, scheme: str,
+                    progress=False) -> dict:
+    """One run of :func:`convergence_study` (a task: builds the problem itself): its row, with
+    the problem's ``ndofs`` and ``damping`` description under ``"_problem"``."""
+    problem, exact = mms_problem(n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)
+    t0 = time.perf_counter()
+    traj = run_eld(problem, form, tau, scheme=scheme, data=data, lifting=lifting,
+                   progress=progress)
+    err = mms_errors(problem, exact, traj)
+    st = traj.stats
+    return {"tau": tau, "steps": st.accepted_steps, "newton_iterations": st.newton_iterations,
+            "backsolves": traj.meta["linear_solver"]["backsolves"],
+            "seconds": time.perf_counter() - t0, **err,
+            "_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}}
+
+
+def _problem_meta(results, n, degree, damping, **kw) -> dict:
+    """ndofs and damping of the study's problem: from a run, else built here (all failed)."""
+    for r in results:
+        if isinstance(r.value, dict) and "_problem" in r.value:
+            return r.value["_problem"]
+    problem, _ = mms_problem(n, degree, damping=damping, **kw)
+    return {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}
+
+
+_ERRORS = ("u_l2", "u_h1", "v_l2", "v_h1", "lam_l2", "u_l2_max", "v_l2_max", "lam_l2_max")
 
 
 def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings: int = 5,
                       n: int = 4, degree: int = 2, damping=None, rho: float = 1.0,
                       lam: float = 2.0, mu: float = 1.0, T: float = 1.0, data: str = "points",
                       lifting: str = "nodal", scheme: str = "euler",
-                      progress: bool = False) -> dict:
+                      progress: bool = False, executor=None) -> dict:
     """Errors at T of u, v (L2, H1) and lambda (L2(Gamma_D)), and the maxima over the steps of
-    the L2 errors, for tau0 / 2^k, k = 0..halvings."""
+    the L2 errors, for tau0 / 2^k, k = 0..halvings.
+
+    The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
+    one after another in this process). A run that fails is a row with its ``status`` and NaN
+    errors; the orders are fitted over the completed runs.
+    """
+    from ..parallel import Executor, Task
+
     if form not in FORMS:
         raise fail("form", form, "must be one of " + ", ".join(FORMS))
     tau0 = check_positive("tau0", tau0)
     halvings = check_halvings("halvings", halvings, tau0, T)
-    problem, exact = mms_problem(n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)
     taus = [tau0 / 2**k for k in range(halvings + 1)]
+    # a run's own progress only in this process (a worker's stderr is not the user's)
+    inner_progress = progress if executor is None or executor.in_process else False
+    common = dict(n=n, degree=degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T, data=data,
+                  lifting=lifting, scheme=scheme, progress=inner_progress)
+    tasks = [Task(f"{form} tau={tau:g}", convergence_run, {"form": form, "tau": tau, **common},
+                  cost=1 / tau) for tau in taus]
+    results = (executor or Executor(1, progress=False)).map(tasks)
+    meta = _problem_meta(results, n, degree, damping, rho=rho, lam=lam, mu=mu, T=T)
     rows = []
-    for tau in taus:
-        t0 = time.perf_counter()
-        traj = run_eld(problem, form, tau, scheme=scheme, data=data, lifting=lifting,
-                       progress=progress)
-        err = mms_errors(problem, exact, traj)
-        st = traj.stats
-        rows.append({"tau": tau, "steps": st.accepted_steps,
-                     "newton_iterations": st.newton_iterations,
-                     "backsolves": traj.meta["linear_solver"]["backsolves"],
-                     "seconds": time.perf_counter() - t0, **err})
+    for tau, res in zip(taus, results, strict=True):
+        if res.completed:
+            rows.append({k: v for k, v in res.value.items() if k != "_problem"})
+        else:
+            rows.append({"tau": tau, "status": f"{res.status}: {res.message}",
+                         **{f"error_{x}": float("nan") for x in _ERRORS}})
     out = {
         "example": "eld-mms", "form": form, "scheme": scheme, "n": n, "degree": degree,
         "data": data,
-        "lifting": lifting, "ndofs": problem.space.ndofs,
-        "damping": problem.damping.describe(),
+        "lifting": lifting, "ndofs": meta["ndofs"],
+        "damping": meta["damping"],
         "tau": taus,
         "error_u": [r["error_u_l2"] for r in rows],
         "error_u_h1": [r["error_u_h1"] for r in rows],
@@ -135,15 +176,20 @@ def format_convergence_table(study: dict) -> str:
              f"P{study['degree']}, n = {study['n']} ({study['ndofs']} dofs), data by "
              f"{study['data']}; errors at T and maxima over the steps", head, "-" * len(head)]
     for r in study["rows"]:
+        if "steps" not in r:  # a run that failed
+            lines.append(f"{r['tau']:>9.5f}  {r['status']}")
+            continue
         lines.append(f"{r['tau']:>9.5f} {r['steps']:>6d} {r['newton_iterations']:>7d} "
                      f"{r['error_u_l2']:>11.3e} {r['error_u_h1']:>10.3e} {r['error_v_l2']:>11.3e} "
                      f"{r['error_v_h1']:>10.3e} {r['error_lam_l2']:>13.3e} "
                      f"{r['error_u_l2_max']:>10.3e} {r['error_v_l2_max']:>10.3e} "
                      f"{r['error_lam_l2_max']:>10.3e} {r['seconds']:>8.2f}")
-    lines.append(f"fitted orders at T: u {study['rate_u']:.3f} (H1 {study['rate_u_h1']:.3f}), "
-                 f"v {study['rate_v']:.3f} (H1 {study['rate_v_h1']:.3f}), "
-                 f"lambda {study['rate_lam']:.3f}; max over steps: u {study['rate_u_max']:.3f}, "
-                 f"v {study['rate_v_max']:.3f}, lambda {study['rate_lam_max']:.3f}")
+    r = {k: "n/a" if v is None else f"{v:.3f}" for k, v in study.items()
+         if k.startswith("rate_")}
+    lines.append(f"fitted orders at T: u {r['rate_u']} (H1 {r['rate_u_h1']}), "
+                 f"v {r['rate_v']} (H1 {r['rate_v_h1']}), "
+                 f"lambda {r['rate_lam']}; max over steps: u {r['rate_u_max']}, "
+                 f"v {r['rate_v_max']}, lambda {r['rate_lam_max']}")
     return "\n".join(lines)
 
 
@@ -159,10 +205,24 @@ def _amplifications(problem, base, pert, delta: float) -> tuple[float, float, fl
     return amp, amp_v, amp_u
 
 
+def perturbation_run(form: str, tau: float, *, delta: float, targets, n: int, degree: int,
+                     damping, seed: int, T: float, scheme: str, progress=False) -> dict:
+    """One (tau, form) of :func:`perturbation_study` (a task: builds the problem itself): the
+    unperturbed run and one perturbed run per target; the amplifications by target."""
+    problem, _ = mms_problem(n, degree, damping=damping, T=T)
+    base = run_eld(problem, form, tau, scheme=scheme, progress=progress)
+    out = {"_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}}
+    for target in targets:
+        pert = run_eld(problem, form, tau, scheme=scheme, progress=progress,
+                       noise=DataNoise(delta, target, seed))
+        out[target] = _amplifications(problem, base, pert, delta)
+    return out
+
+
 def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, delta: float = 1e-6,
                        targets=("G", "G_dot", "G_ddot", "F"), forms=FORMS, n: int = 6,
                        degree: int = 1, damping=None, seed: int = 0, T: float = 1.0,
-                       scheme: str = "euler", progress: bool = False) -> dict:
+                       scheme: str = "euler", progress: bool = False, executor=None) -> dict:
     """Amplification of delta-noise in each datum alone (G, G_dot, G_ddot, F) for each tau and
     form.
 
@@ -171,29 +231,46 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
     fitted slopes ``slope_<name>`` (None where the amplification is 0: the original form does
     not use G_dot, G_ddot); the amplifications under noise in G are repeated at the top level
     as ``amp_regularized``, ``amp_original``, ...
+
+    Each (tau, form) is an independent task of ``executor`` (:class:`rothe.parallel.Executor`;
+    default: one after another in this process). A (tau, form) whose runs fail gets NaN
+    amplifications and is listed under ``"failed"``.
     """
+    from ..parallel import Executor, Task
+
     taus = [check_positive("taus", t) for t in taus]
     delta = check_delta("delta", delta)
     targets = check_noise_targets("targets", targets)
     seed = check_int("seed", seed, minimum=0)
-    problem, _ = mms_problem(n, degree, damping=damping, T=T)
+    # a run's own progress only in this process (a worker's stderr is not the user's)
+    inner_progress = progress if executor is None or executor.in_process else False
+    tasks = [Task(f"{form} tau={tau:g}", perturbation_run,
+                  {"form": form, "tau": tau, "delta": delta, "targets": tuple(targets), "n": n,
+                   "degree": degree, "damping": damping, "seed": seed, "T": T,
+                   "scheme": scheme, "progress": inner_progress},
+                  cost=(1 + len(targets)) / tau)
+             for tau in taus for form in forms]
+    t0 = time.perf_counter()
+    results = (executor or Executor(1, progress=False)).map(tasks)
+    meta = _problem_meta(results, n, degree, damping, T=T)
     out = {"example": "eld-mms", "scheme": scheme, "n": n, "degree": degree,
-           "ndofs": problem.space.ndofs, "targets": list(targets),
-           "damping": problem.damping.describe(), "tau": taus, "delta": delta, "seed": seed,
+           "ndofs": meta["ndofs"], "targets": list(targets),
+           "damping": meta["damping"], "tau": taus, "delta": delta, "seed": seed,
            "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"}}
     tables = {t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in forms}
               for t in targets}
-    t0 = time.perf_counter()
-    for tau in taus:
-        for form in forms:
-            base = run_eld(problem, form, tau, scheme=scheme, progress=progress)
-            for target in targets:
-                pert = run_eld(problem, form, tau, scheme=scheme, progress=progress,
-                               noise=DataNoise(delta, target, seed))
-                amp, amp_v, amp_u = _amplifications(problem, base, pert, delta)
-                tables[target][f"amp_{form}"].append(amp)
-                tables[target][f"amp_v_{form}"].append(amp_v)
-                tables[target][f"amp_u_{form}"].append(amp_u)
+    nan = (float("nan"),) * 3
+    failed = []
+    for task, res in zip(tasks, results, strict=True):
+        form = task.kwargs["form"]
+        if not res.completed:
+            failed.append({"tau": task.kwargs["tau"], "form": form,
+                           "status": f"{res.status}: {res.message}"})
+        for target in targets:
+            amp, amp_v, amp_u = res.value[target] if res.completed else nan
+            tables[target][f"amp_{form}"].append(amp)
+            tables[target][f"amp_v_{form}"].append(amp_v)
+            tables[target][f"amp_u_{form}"].append(amp_u)
     for target, table in tables.items():
         for name in list(table):
             table[f"slope_{name}"] = fitted_rate(taus, table[name])
@@ -203,6 +280,8 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
             out[f"amp_{form}"] = tables["G"][f"amp_{form}"]
             out[f"amp_v_{form}"] = tables["G"][f"amp_v_{form}"]
             out[f"amp_u_{form}"] = tables["G"][f"amp_u_{form}"]
+    if failed:
+        out["failed"] = failed
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -239,4 +318,6 @@ def format_perturbation_table(study: dict) -> str:
                            for k, v in table.items() if k.startswith("slope_"))
         lines.append(f"log-log slopes in tau: {slopes}")
         lines.append("")
+    for f in study.get("failed", ()):
+        lines.append(f"tau = {f['tau']:g}, {f['form']}: {f['status']}")
     return "\n".join(lines).rstrip()
