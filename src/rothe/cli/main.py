@@ -1,4 +1,5 @@
-"""The ``rothe`` command line: ``rothe run|compare|study <name> [options]``, ``rothe resume DIR``.
+"""The ``rothe`` command line: ``rothe run|compare|study|sweep <name> [options]``,
+``rothe resume DIR``.
 
 Commands are registered by modules under :mod:`rothe.cli` with :func:`rothe.cli.registry.command`;
 each has ``configure(parser)`` and ``execute(args) -> int``. Errors a user can cause (bad values,
@@ -57,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"rothe {__version__}")
-    verbs = parser.add_subparsers(dest="verb", metavar="{run,compare,study,resume}",
+    verbs = parser.add_subparsers(dest="verb",
+                                  metavar="{" + ",".join([*registry.VERBS, "resume"]) + "}",
                                   parser_class=_Parser)
     verbs.required = True
     for verb, help_text in registry.VERBS.items():

@@ -12,9 +12,11 @@ VERBS = {
     "run": "run one example and write results and figures",
     "compare": "run several controllers on one example and compare them",
     "study": "run a parameter study (convergence, perturbation)",
+    "sweep": "run a command over the Cartesian product of option values, in parallel",
 }
 
-MODULES = ("rothe.cli.ris_commands", "rothe.cli.ris_fem_commands", "rothe.cli.eld_commands")
+MODULES = ("rothe.cli.ris_commands", "rothe.cli.ris_fem_commands", "rothe.cli.eld_commands",
+           "rothe.cli.sweep_commands")
 
 _COMMANDS: dict[str, dict[str, object]] = {verb: {} for verb in VERBS}
 
