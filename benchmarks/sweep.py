@@ -68,13 +68,14 @@ def compare_bench(n: int, workers, base: Path) -> list[dict]:
 
 def study_bench(taus: list[float], workers, base: Path) -> list[dict]:
     rows = []
-    targets = 2  # G and F (the default)
-    model = [(1 + targets) / tau for tau in taus for _form in (0, 1)]
     for w in workers:
         argv = ["study", "eld-perturbation", "--workers", str(w)]
         if taus != DEFAULT_TAUS:
             argv += ["--taus", ",".join(f"{t:g}" for t in taus)]
         wall, cpu, summary = run(argv, base / f"study-w{w}")
+        # one task per (tau, form): the unperturbed run and one run per perturbed datum
+        targets = len(summary.get("targets", ("G", "F")))
+        model = [(1 + targets) / tau for tau in taus for _form in (0, 1)]
         rows.append({"command": "study eld-perturbation" + ("" if taus == DEFAULT_TAUS else
                                                             " (--taus " + ",".join(
                                                                 f"{t:g}" for t in taus) + ")"),
