@@ -27,7 +27,7 @@ from .common import (
     write_table,
 )
 from .registry import command
-from .ris_commands import RISRunBase, check_step, ris_summary
+from .ris_commands import RISRunBase, check_step, ris_summary, run_cost
 
 #: ReusableSolver.kind_used for each resolved method (kept in sync by tests/ris_fem/test_cli.py)
 LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa"}
@@ -328,7 +328,7 @@ def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
                   compare_ris_2d_row,
                   {"n": n, "mesh": mesh, "control": c, "tol": tol, "tau": tau,
                    "progress": inner_progress},
-                  cost=1 / tau if tol is None else tol**-0.5)
+                  cost=run_cost(tol, tau))
              for c, tol, tau in runs]
     results = (executor or Executor(1, progress=False)).map(tasks)
     return [r.value if isinstance(r.value, dict) else
