@@ -330,12 +330,12 @@ def run_tasks(tasks, *, workers: int | None = 1, scheduler=None, progress: bool 
 def add_parallel_options(parser) -> None:
     """``--workers N`` and ``--scheduler ADDRESS`` for commands that run independent runs."""
     parser.add_argument(
-        "--workers", type=int, default=None,
+        "--workers", type=int, default=None, metavar="N",
         help="run the independent runs on a local Dask cluster of N worker processes "
              "(default: the number of cores if Dask is installed, else 1; 1 = one after another "
              "in this process, no Dask; env ROTHE_WORKERS sets the default)")
     parser.add_argument(
-        "--scheduler", default=None,
+        "--scheduler", default=None, metavar="ADDRESS",
         help="address of an existing Dask scheduler (e.g. tcp://host:8786) to run on instead")
 
 
