@@ -128,7 +128,8 @@ def test_lost_worker_is_retried_once(tmp_path, cluster):
     out = tmp_path / "killed"
     argv = ["run", "ris-1d", "--tol", "1e-3", "--no-plots", "--quiet"]
     with Client(cluster) as client:
-        ex = Executor(scheduler=client, progress=False)
+        # a cluster without workers (its nannies gave up) fails the test instead of hanging it
+        ex = Executor(scheduler=client, progress=False, no_worker_timeout=60)
         killed = []
 
         def kill_worker_running_it():
@@ -153,6 +154,17 @@ def test_lost_worker_is_retried_once(tmp_path, cluster):
     assert_npz_equal(out / "trajectory.npz", tmp_path / "serial" / "trajectory.npz")
     assert second[0].status == "lost" and "died twice" in second[0].message
     assert second[1].status == "completed" and second[1].value == {"x": 4}
+
+
+def test_runs_on_a_cluster_without_workers_are_lost_after_the_timeout():
+    distributed = pytest.importorskip("distributed")
+    with executor_module.local_cluster(0) as empty, distributed.Client(empty) as client:
+        t0 = time.perf_counter()
+        res = Executor(scheduler=client, progress=False, no_worker_timeout=1.0).map(
+            [Task("a", dict, {"x": 1}), Task("b", dict, {"x": 2})])
+    assert [r.status for r in res] == ["lost", "lost"] and time.perf_counter() - t0 < 30
+    assert res[0].message == ("no worker left on the cluster for 1 s (the worker processes died "
+                              "and were not restarted)")
 
 
 # -- bad input: one line, exit 2, nothing run ---------------------------------------------------

@@ -37,6 +37,8 @@ from .tasks import Task, TaskResult, execute_task
 
 #: seconds to wait for an existing scheduler (``--scheduler``) before giving up
 CONNECT_TIMEOUT_S = 5.0
+#: seconds a local cluster may have no worker at all before the waiting runs are lost
+LOCAL_NO_WORKER_TIMEOUT_S = 120.0
 INSTALL_HINT = 'pip install "rothe[dask]"'
 
 
@@ -87,7 +89,10 @@ def local_cluster(n_workers: int, **kwargs):
 
     options = dict(n_workers=n_workers, threads_per_worker=1, processes=True,
                    dashboard_address=None, silence_logs=logging.ERROR,
-                   scheduler_kwargs={"allowed_failures": 1})
+                   # no dashboard; the scheduler's HTTP endpoints (health, metrics) on a free
+                   # port instead of 8787, which another cluster on the machine may hold
+                   scheduler_kwargs={"allowed_failures": 1, "dashboard": False,
+                                     "dashboard_address": ":0"})
     options.update(kwargs)
     # the nannies copy the configuration when they are made (and pass it to restarted workers)
     with dask.config.set({"distributed.worker.profile.enabled": False}):
@@ -145,13 +150,19 @@ class Executor:
     """Runs tasks in-process (``workers=1``) or on Dask (``workers > 1`` or ``scheduler``)."""
 
     def __init__(self, workers: int | None = None, scheduler=None, *, progress: bool = True,
-                 title: str = "rothe"):
+                 title: str = "rothe", no_worker_timeout: float | None = None):
         if workers is None:
             workers = 1 if scheduler is not None else default_workers()
         self.workers = check_int("--workers", workers, minimum=1)
         self.scheduler = scheduler
         self.progress = progress
         self.title = title
+        # with no worker at all for this long, the runs still waiting are reported lost; by
+        # default only on the local cluster (whose workers cannot come back once their nannies
+        # gave up); an existing cluster may be waiting for its jobs to start
+        if no_worker_timeout is None and scheduler is None:
+            no_worker_timeout = LOCAL_NO_WORKER_TIMEOUT_S
+        self.no_worker_timeout = no_worker_timeout
         self._client = None
         self._owned: list = []  # client and cluster this executor started (closed by it)
         self._depth = 0
@@ -271,9 +282,19 @@ class Executor:
         running: dict = {}  # future -> task index
         results: list[TaskResult | None] = [None] * len(tasks)
         started: dict[int, float] = {}
+        no_workers_since = None
         try:
             while pending or running:
-                threads = max(sum(client.nthreads().values()), 1)
+                threads = sum(client.nthreads().values())
+                if threads == 0 and self.no_worker_timeout is not None:
+                    now = time.perf_counter()
+                    no_workers_since = no_workers_since or now
+                    if now - no_workers_since > self.no_worker_timeout:
+                        self._give_up(client, tasks, pending, running, results, progress)
+                        break
+                else:
+                    no_workers_since = None
+                threads = max(threads, 1)
                 while pending and len(running) < threads:
                     i = pending.pop()
                     key = f"rothe-{_safe_key(tasks[i].key)}-{token}-{i}"
@@ -295,6 +316,17 @@ class Executor:
         finally:
             progress.close()
         return results
+
+    def _give_up(self, client, tasks, pending, running, results, progress) -> None:
+        """No worker for ``no_worker_timeout`` seconds: every run not finished is lost."""
+        message = (f"no worker left on the cluster for {self.no_worker_timeout:g} s "
+                   "(the worker processes died and were not restarted)")
+        client.cancel(list(running))
+        for i in list(running.values()) + pending:
+            results[i] = TaskResult(tasks[i].key, "lost", message, worker="")
+            progress.finished(results[i])
+        running.clear()
+        pending.clear()
 
     @staticmethod
     def _result(fut, task: Task, seconds: float) -> TaskResult:
@@ -360,5 +392,6 @@ def executor_from_args(args, title: str) -> Executor:
                     title=title)
 
 
-__all__ = ["CONNECT_TIMEOUT_S", "Executor", "add_parallel_options", "dask_available",
-           "default_workers", "executor_from_args", "local_cluster", "run_tasks"]
+__all__ = ["CONNECT_TIMEOUT_S", "LOCAL_NO_WORKER_TIMEOUT_S", "Executor", "add_parallel_options",
+           "dask_available", "default_workers", "executor_from_args", "local_cluster",
+           "run_tasks"]
