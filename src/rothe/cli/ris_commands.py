@@ -416,7 +416,8 @@ def compare_ris_1d(
 def uniform_work_at_error(rows, key="error_linf"):
     """Fit log(inner solves) = a + b log(error) over the completed uniform rows; returns a
     callable (None with fewer than two such rows)."""
-    u = [r for r in rows if r["control"] == "uniform" and r["status"] == "completed"]
+    u = [r for r in rows if r["control"] == "uniform"
+         and r.get("status", "completed") == "completed"]
     if len(u) < 2:
         return None
     x = np.log([r[key] for r in u])
@@ -446,11 +447,11 @@ def format_table(rows, work_fit=None) -> str:
         if work_fit is not None:
             ratio = (
                 r["inner_solves"] / work_fit(r["error_linf"])
-                if r["control"] != "uniform" and r["status"] == "completed"
+                if r["control"] != "uniform" and r.get("status", "completed") == "completed"
                 else math.nan
             )
             line += f" {ratio:>20.2f}" if math.isfinite(ratio) else f" {'':>20}"
-        if r["status"] != "completed":
+        if r.get("status", "completed") != "completed":
             line += "  " + r["status"]
         lines.append(line)
     return "\n".join(lines)
