@@ -168,12 +168,20 @@ def _dispatch(parser, argv: list[str]) -> int:
                 f"{argv[0]}: got {argv[1]!r}, must be one of {_known(argv[0])}"
             )
     try:
-        args = parser.parse_args(argv)
+        args = parse_command(parser, argv)
     except SystemExit as exc:  # --help, --version: argparse printed them and exits
         return int(exc.code or 0)
+    return int(args._command.execute(args) or 0)
+
+
+def parse_command(parser, argv: list[str]):
+    """The namespace of one command line as ``rothe`` executes it, with the command line
+    (``_argv``) and the options written on it (``_given``); also used by ``rothe sweep``, which
+    parses and executes every run's command line itself."""
+    args = parser.parse_args(argv)
     args._argv = list(argv)
     args._given = given_options(argv)
-    return int(args._command.execute(args) or 0)
+    return args
 
 
 def given_options(argv: list[str]) -> frozenset[str]:

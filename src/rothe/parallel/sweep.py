@@ -35,6 +35,8 @@ from .tasks import TaskResult, cli_task
 #: options the sweep sets for every run itself
 RESERVED = {"--out": "the sweep gives every run its own folder under the sweep's --out",
             "--quiet": "every run is quiet (the sweep reports progress)",
+            "--resume": "every run has its own folder and checkpoint (rothe resume <run folder> "
+                        "continues one)",
             "--help": "not an option of a run"}
 _TRUE = ("true", "yes", "on", "1")
 _FALSE = ("false", "no", "off", "0")
@@ -180,12 +182,12 @@ def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> Non
     """Parse every run's argv with the CLI and run the command's own ``validate``; the first
     refusal is one line naming the run. Fills ``run.parsed`` (the values as the command sees
     them)."""
-    from ..cli.main import build_parser
+    from ..cli.main import build_parser, parse_command
 
     full = build_parser()
     for run in runs:
         try:
-            args = full.parse_args(run.argv)
+            args = parse_command(full, run.argv)
             validate = getattr(args._command, "validate", None)
             if validate is not None:
                 validate(args)

@@ -138,27 +138,29 @@ def execute_task(task: Task) -> TaskResult:
 # -- CLI runs as tasks ----------------------------------------------------------------------------
 
 def run_command(argv: list[str], out: str | None = None) -> dict | None:
-    """Parse and execute one ``rothe`` command line; return its summary.json (or None).
+    """Parse and execute one ``rothe`` command line; return the summary.json it wrote (or None).
 
     Exceptions propagate (classified by :func:`execute_task`); a run that fails midway still
-    hands back the summary it wrote (status ``failed``), read only if written by this run.
+    hands back the summary it wrote (status ``failed``). Only a summary this run wrote counts:
+    ``out/summary.json``, or ``out/incomplete/summary.json`` where a run that does not complete
+    leaves the completed result of an earlier run in place (:mod:`rothe.cli.session`).
     """
-    from ..cli.main import build_parser
+    from ..cli.main import build_parser, parse_command
 
-    args = build_parser().parse_args(list(argv))
-    path = Path(out) / "summary.json" if out is not None else None
+    args = parse_command(build_parser(), list(argv))
+    paths = ([Path(out) / "summary.json", Path(out) / "incomplete" / "summary.json"]
+             if out is not None else [])
 
-    def stamp():
-        return path.stat().st_mtime_ns if path is not None and path.is_file() else None
+    def stamps():
+        return [p.stat().st_mtime_ns if p.is_file() else None for p in paths]
 
-    before = stamp()
+    before = stamps()
 
     def summary():
-        # a summary left by an earlier run in the same folder is not this run's
-        now = stamp()
-        if now is None or now == before:
-            return None
-        return json.loads(path.read_text())
+        for path, old, new in zip(paths, before, stamps(), strict=True):
+            if new is not None and new != old:  # written by this run
+                return json.loads(path.read_text())
+        return None
 
     try:
         code = int(args._command.execute(args) or 0)
