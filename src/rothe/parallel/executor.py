@@ -87,8 +87,10 @@ def local_cluster(n_workers: int, **kwargs):
     distributed = _import_distributed(f"--workers {n_workers}")
     import dask
 
+    # Dask's own log lines (a worker's heartbeat that meets the closing scheduler, a task marked
+    # failed after its workers died) only repeat what the results report, with tracebacks
     options = dict(n_workers=n_workers, threads_per_worker=1, processes=True,
-                   dashboard_address=None, silence_logs=logging.ERROR,
+                   dashboard_address=None, silence_logs=logging.CRITICAL,
                    # no dashboard; the scheduler's HTTP endpoints (health, metrics) on a free
                    # port instead of 8787, which another cluster on the machine may hold
                    scheduler_kwargs={"allowed_failures": 1, "dashboard": False,
