@@ -142,3 +142,71 @@ def test_compare_keeps_the_rows_that_worked(tmp_path, capsys, no_dask):
     table = (out / "table.txt").read_text()
     assert table.count("failed: step size fell below") == 2
     assert "run 6/6 started: uniform tau=0.05" in err and "6/6 done" in err
+
+
+def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(tmp_path, capsys,
+                                                                      no_dask, monkeypatch):
+    """SIGTERM while the second of three runs steps: that run writes its checkpoint and results
+    so far, the sweep starts no further run, writes the table of what it has and exits 143;
+    ``--continue`` then keeps the completed run, finishes the interrupted one exactly like an
+    uninterrupted run, and runs the one that had not started."""
+    import os
+    import signal
+
+    from rothe.stepping import interrupt
+
+    entered = []
+    real_enter = interrupt.interruptible.__enter__
+
+    def enter_and_signal(self):
+        guard = real_enter(self)
+        if self.hard_second:  # the session of a run command, around the whole run
+            entered.append(1)
+            if len(entered) == 2:
+                os.kill(os.getpid(), signal.SIGTERM)  # only sets the guard's flag
+        return guard
+
+    monkeypatch.setattr(interrupt.interruptible, "__enter__", enter_and_signal)
+    out = tmp_path / "sweep"
+    code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param",
+                                "tol=1e-2,1e-3,1e-4", "--no-plots", "--workers", "1",
+                                "--out", out)
+    assert code == 143 and len(entered) == 2
+    assert err.strip().splitlines()[-1].startswith(
+        "rothe: sweep interrupted by SIGTERM: 1 of 3 runs completed; table so far in ")
+    assert err.strip().endswith("the same command with --continue continues the sweep")
+    rows = read_csv(out / "sweep.csv")
+    assert [r["status"] for r in rows] == ["completed", "interrupted", "pending"]
+    assert rows[1]["message"] == ("stopped by SIGTERM; continue it with: rothe resume "
+                                  f"{out / 'tol=1e-3'}")
+    assert rows[1]["accepted_steps"] != ""  # the interrupted run's summary so far
+    assert rows[2]["message"] == "not started (sweep stopped by SIGTERM)"
+    assert json.loads((out / "sweep.json").read_text())["interrupted"] == "SIGTERM"
+    assert not (out / "tol=1e-4").exists()
+    assert signal.getsignal(signal.SIGTERM) in (signal.SIG_DFL, None)  # handlers restored
+    monkeypatch.setattr(interrupt.interruptible, "__enter__", real_enter)
+    first = (out / "tol=1e-2" / "summary.json").stat().st_mtime_ns
+    # --continue: the completed run is kept, the interrupted one resumes, the third runs
+    code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param",
+                                "tol=1e-2,1e-3,1e-4", "--no-plots", "--workers", "1",
+                                "--out", out, "--continue")
+    assert code == 0, err
+    rows = read_csv(out / "sweep.csv")
+    assert [r["status"] for r in rows] == ["completed"] * 3
+    assert [r["sessions"] for r in rows] == ["1", "2", "1"]
+    assert (out / "tol=1e-2" / "summary.json").stat().st_mtime_ns == first  # not run again
+    assert main(["run", "ris-1d", "--tol", "1e-3", "--no-plots", "--quiet",
+                 "--out", str(tmp_path / "serial")]) == 0
+    with np.load(out / "tol=1e-3" / "trajectory.npz") as a, \
+            np.load(tmp_path / "serial" / "trajectory.npz") as b:
+        for k in a.files:
+            if k not in ("stats_wall_time_s", "meta"):  # meta counts the sessions
+                assert np.array_equal(a[k], b[k]), k
+    # a run whose checkpoint was made with other options is refused, the others still run
+    code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param", "tol=1e-2,1e-5",
+                                "--no-plots", "--workers", "1", "--out", out, "--continue",
+                                "--simpson", "4")
+    rows = read_csv(out / "sweep.csv")
+    assert code == 1 and [r["status"] for r in rows] == ["error", "completed"]
+    assert "the command line differs from the checkpoint's: --simpson 4 (checkpoint: 8)" in (
+        rows[0]["message"])

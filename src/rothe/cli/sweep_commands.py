@@ -18,7 +18,7 @@ from .registry import command
 
 #: the sweep's own options; everything else after the example is passed to every run
 _VALUED = ("--param", "--out", "--plot", "--workers", "--scheduler")
-_FLAGS = ("--quiet", "-h", "--help")
+_FLAGS = ("--quiet", "--continue", "-h", "--help")
 
 
 class _OwnParser(argparse.ArgumentParser):
@@ -39,6 +39,10 @@ def _sweep_options(parser) -> None:
                              "parameters")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress and no table on the terminal")
+    parser.add_argument("--continue", dest="continue_sweep", action="store_true",
+                        help="continue a sweep stopped earlier into the same --out: completed "
+                             "runs are kept, interrupted or killed runs resume from their "
+                             "checkpoints, the others run")
     add_parallel_options(parser)
 
 
@@ -87,7 +91,8 @@ class SweepRunCommand:
         own = _OwnParser(prog="rothe sweep run", allow_abbrev=False, add_help=False)
         _sweep_options(own)
         own.set_defaults(**{k: getattr(args, k) for k in
-                            ("out", "plot", "quiet", "workers", "scheduler")})
+                            ("out", "plot", "quiet", "workers", "scheduler",
+                             "continue_sweep")})
         opts = own.parse_args(own_tokens)
         params = list(args.param) + list(opts.param)
         plot = parse_plot(opts.plot)
@@ -95,7 +100,7 @@ class SweepRunCommand:
         executor = executor_from_args(opts, title)
         # run_sweep plans and validates every run before the executor connects or anything runs
         result = run_sweep(args.example, params, fixed, out=opts.out, executor=executor,
-                           plot=plot)
+                           plot=plot, continue_sweep=opts.continue_sweep)
         resolved = result.params
         for col in result.missing_plot_columns:
             print(f"rothe: warning: --plot: no column {col!r} in the table (see "

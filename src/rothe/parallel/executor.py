@@ -20,6 +20,13 @@ are started first.
 
 Progress: on a terminal a bar of runs done / total; otherwise (logs, CI) one line per finished
 run (and, in-process, one per started run), so a log says which run of how many is going.
+
+Signals: during a map (in the main thread) SIGINT and SIGTERM stop it with
+:class:`~rothe.errors.RunInterrupted` instead of killing the process (the default for SIGTERM),
+so that the cluster is closed and the caller can keep what finished (:attr:`Executor.finished`,
+:attr:`Executor.started`). A run under way in this process handles the signal itself (its
+session writes a checkpoint and its results so far, then the map stops); runs on Dask workers are
+cancelled and keep their last checkpoint. A second signal ends the process at once.
 """
 
 from __future__ import annotations
@@ -28,11 +35,14 @@ import importlib.util
 import logging
 import os
 import re
+import signal
 import sys
+import threading
 import time
 import uuid
 
-from ..errors import RotheInputError, check_int, fail
+from ..errors import RotheInputError, RunInterrupted, check_int, fail
+from ..stepping import interrupt
 from .tasks import Task, TaskResult, execute_task
 
 #: seconds to wait for an existing scheduler (``--scheduler``) before giving up
@@ -148,6 +158,32 @@ class _Progress:
             self.bar.close()
 
 
+class _StopOnSignals:
+    """For one map, in the main thread: SIGINT/SIGTERM raise RunInterrupted where the map is
+    (waiting for the cluster, or between two in-process runs); a second signal gets the system
+    default (ends the process) while the map cleans up. A run's own session installs its own
+    handlers while it runs and restores these afterwards."""
+
+    def __enter__(self):
+        self.previous = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in interrupt.SIGNALS:
+                self.previous[sig] = signal.getsignal(sig)
+                signal.signal(sig, self._handler)
+        return self
+
+    @staticmethod
+    def _handler(signum, frame):  # noqa: ARG004 - signal API
+        for sig in interrupt.SIGNALS:
+            signal.signal(sig, signal.SIG_DFL)
+        raise RunInterrupted(f"interrupted by {interrupt.signal_name(signum)}", signum=signum)
+
+    def __exit__(self, *exc):
+        for sig, prev in self.previous.items():
+            signal.signal(sig, prev if prev is not None else signal.SIG_DFL)
+        return False
+
+
 class Executor:
     """Runs tasks in-process (``workers=1``) or on Dask (``workers > 1`` or ``scheduler``)."""
 
@@ -168,6 +204,10 @@ class Executor:
         self._client = None
         self._owned: list = []  # client and cluster this executor started (closed by it)
         self._depth = 0
+        #: of the last map, also when it was interrupted: the result of every task that
+        #: finished (None for the others), in task order, and the indices of the tasks started
+        self.finished: list[TaskResult | None] = []
+        self.started: set[int] = set()
 
     @property
     def in_process(self) -> bool:
@@ -244,24 +284,28 @@ class Executor:
         if len(set(keys)) != len(keys):
             dup = next(k for k in keys if keys.count(k) > 1)
             raise ValueError(f"task keys must be unique, {dup!r} appears twice")
-        if self.in_process:
-            return self._map_in_process(tasks)
-        started_here = self._client is None
-        try:
-            client = self._connect()
-            return self._map_dask(client, tasks)
-        finally:
-            if started_here:
-                self.close()
+        self.finished = [None] * len(tasks)
+        self.started = set()
+        with _StopOnSignals():
+            if self.in_process:
+                return self._map_in_process(tasks)
+            started_here = self._client is None
+            try:
+                client = self._connect()
+                return self._map_dask(client, tasks)
+            finally:
+                if started_here:
+                    self.close()
 
     def _map_in_process(self, tasks):
         progress = _Progress(len(tasks), self.title, self.progress, "in-process")
-        results = []
+        results = self.finished
         try:
             for i, task in enumerate(tasks):
                 progress.started(i, task)
-                results.append(execute_task(task))
-                progress.finished(results[-1])
+                self.started.add(i)
+                results[i] = execute_task(task)
+                progress.finished(results[i])
         finally:
             progress.close()
         return results
@@ -282,7 +326,7 @@ class Executor:
         pending = sorted(range(len(tasks)), key=lambda i: -float(tasks[i].cost))  # stable
         pending.reverse()  # pop() takes the most expensive
         running: dict = {}  # future -> task index
-        results: list[TaskResult | None] = [None] * len(tasks)
+        results = self.finished
         started: dict[int, float] = {}
         no_workers_since = None
         try:
@@ -303,6 +347,7 @@ class Executor:
                     fut = client.submit(execute_task, tasks[i], key=key, retries=1, pure=False)
                     running[fut] = i
                     started[i] = time.perf_counter()
+                    self.started.add(i)
                 try:
                     done, _ = distributed.wait(list(running), timeout=1.0,
                                                return_when="FIRST_COMPLETED")

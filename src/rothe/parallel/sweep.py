@@ -24,11 +24,13 @@ import json
 import math
 import os
 import re
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import RotheInputError, fail
+from ..errors import RotheInputError, RunInterrupted, fail
+from ..stepping.interrupt import signal_name
 from .executor import Executor
 from .tasks import TaskResult, cli_task
 
@@ -199,6 +201,32 @@ def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> Non
             run.parsed[p.name] = value if value is not None else run.values[p.name]
 
 
+def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
+    """``--continue``: every run whose folder holds a resumable checkpoint (the run was
+    interrupted or killed, or it completed) gets ``--resume=<its folder>``: an unfinished run
+    continues from its checkpoint, a completed one is not run again (its summary is its row). The
+    run's session refuses a checkpoint made with other options (status ``error``, the message
+    says which). Runs without a checkpoint, or whose checkpoint is of a failed run, run anew.
+    Returns what happens to each run: ``resume`` | ``run``."""
+    from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
+
+    what = {}
+    for run in runs:
+        ckpt_dir = Path(run.out) / CHECKPOINT_SUBDIR
+        status = None
+        if (ckpt_dir / MAIN).is_file():
+            try:
+                status = load_checkpoint(ckpt_dir, check_version=False, header_only=True).status
+            except CheckpointError:
+                status = None  # unreadable: the run starts over (nothing resumable is lost)
+        if status in ("running", "interrupted", "completed"):
+            run.argv.append(f"--resume={run.out}")
+            what[run.name] = "resume"
+        else:
+            what[run.name] = "run"
+    return what
+
+
 def sweep_tasks(runs: list[SweepRun]):
     return [cli_task(run.name, run.argv, out=run.out) for run in runs]
 
@@ -322,9 +350,10 @@ class SweepResult:
 
 
 def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run",
-                  out=None) -> tuple[list[SweepRun], list[SweepParam], Path]:
+                  out=None, continue_sweep: bool = False
+                  ) -> tuple[list[SweepRun], list[SweepParam], Path]:
     """Plan and validate a sweep (nothing runs): ``params`` as ``NAME=V1,V2`` strings or a dict
-    ``{name: [values]}``."""
+    ``{name: [values]}``; ``continue_sweep``: see :func:`continue_runs`."""
     if isinstance(params, dict):
         params = [f"{k}={';'.join(map(str, v))}" if any(',' in str(x) for x in v)
                   else f"{k}={','.join(map(str, v))}" for k, v in params.items()]
@@ -332,26 +361,37 @@ def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str
     resolved = resolve_params(parser, verb, example, list(params))
     out = Path(out) if out is not None else Path("rothe-out") / f"sweep-{example}"
     runs = plan_sweep(verb, example, resolved, [str(a) for a in fixed], out)
+    if continue_sweep:
+        continue_runs(runs)
     validate_runs(runs, parser, resolved)
     return runs, resolved, out
 
 
 def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run", out=None,
-              executor: Executor | None = None, plot: str | tuple | None = None) -> SweepResult:
+              executor: Executor | None = None, plot: str | tuple | None = None,
+              continue_sweep: bool = False) -> SweepResult:
     """Run a sweep (Python API of ``rothe sweep``): plan, validate, run, collect, write.
 
     ``executor`` defaults to in-process; e.g. ``Executor(workers=4)`` or
-    ``Executor(scheduler=cluster)`` with a dask-jobqueue cluster.
+    ``Executor(scheduler=cluster)`` with a dask-jobqueue cluster. ``continue_sweep`` (CLI
+    ``--continue``): continue a sweep stopped earlier in the same ``out`` (completed runs are
+    kept, interrupted or killed ones resume from their checkpoints; :func:`continue_runs`).
     """
     xy = parse_plot(plot) if isinstance(plot, str) or plot is None else tuple(plot)
-    runs, resolved, out = prepare_sweep(example, params, fixed, verb=verb, out=out)
+    runs, resolved, out = prepare_sweep(example, params, fixed, verb=verb, out=out,
+                                        continue_sweep=continue_sweep)
     executor = executor or Executor(1, progress=False)
     t0 = time.perf_counter()
+    interrupted = None
     with executor:  # connects (or starts the cluster) before any folder is made
         if out.exists() and not out.is_dir():
             raise fail("--out", str(out), "must be a directory (a file of that name exists)")
         out.mkdir(parents=True, exist_ok=True)
-        results = executor.map(sweep_tasks(runs))
+        try:
+            results = executor.map(sweep_tasks(runs))
+        except KeyboardInterrupt as exc:  # SIGINT/SIGTERM: keep the table of what finished
+            interrupted = exc
+            results = interrupted_results(runs, executor, exc)
     rows = collect_rows(runs, results)
     for run, res in zip(runs, results, strict=True):
         if res.detail and Path(run.out).is_dir():
@@ -365,7 +405,15 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
         "completed": sum(r["status"] == "completed" for r in rows),
         "wall_time_s": time.perf_counter() - t0,
     }
+    if interrupted is not None:
+        signum = getattr(interrupted, "signum", signal.SIGINT)
+        meta["interrupted"] = signal_name(signum)
     csv_path, json_path = write_table(out, rows, meta)
+    if interrupted is not None:
+        raise RunInterrupted(
+            f"sweep interrupted by {meta['interrupted']}: {meta['completed']} of {len(rows)} "
+            f"runs completed; table so far in {csv_path}; the same command with --continue "
+            "continues the sweep", signum=signum) from None
     figure, missing = None, []
     if xy is not None:
         cols = table_columns(rows)
@@ -382,10 +430,43 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
     return SweepResult(rows, out, csv_path, json_path, figure, missing, resolved)
 
 
+def interrupted_results(runs: list[SweepRun], executor: Executor,
+                        exc: BaseException) -> list[TaskResult]:
+    """The results of a map stopped by a signal: those that finished, ``interrupted`` for runs
+    under way (with the summary of their results so far, where the run wrote one: in-process the
+    run's session does), ``pending`` for runs that never started."""
+    name = signal_name(getattr(exc, "signum", signal.SIGINT))
+    finished = executor.finished if len(executor.finished) == len(runs) else [None] * len(runs)
+    results = []
+    for i, (run, res) in enumerate(zip(runs, finished, strict=True)):
+        if res is not None:
+            results.append(res)
+        elif i in executor.started:
+            results.append(TaskResult(
+                run.name, "interrupted", f"stopped by {name}; continue it with: rothe resume "
+                f"{run.out}", value=_interrupted_summary(Path(run.out)), worker=""))
+        else:
+            results.append(TaskResult(run.name, "pending", f"not started (sweep stopped by "
+                                      f"{name})", worker=""))
+    return results
+
+
+def _interrupted_summary(folder: Path) -> dict | None:
+    for path in (folder / "summary.json", folder / "incomplete" / "summary.json"):
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(summary, dict) and summary.get("status") == "interrupted":
+            return summary
+    return None
+
+
 def _file_part(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name)
 
 
 __all__ = ["SweepParam", "SweepResult", "SweepRun", "collect_rows", "command_parser",
-           "format_rows", "parse_plot", "plan_sweep", "prepare_sweep", "resolve_params",
-           "run_name", "run_sweep", "split_param", "sweep_tasks", "validate_runs", "write_table"]
+           "continue_runs", "format_rows", "interrupted_results", "parse_plot", "plan_sweep",
+           "prepare_sweep", "resolve_params", "run_name", "run_sweep", "split_param",
+           "sweep_tasks", "validate_runs", "write_table"]

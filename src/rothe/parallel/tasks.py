@@ -10,7 +10,9 @@ run: it returns a :class:`TaskResult` with a status,
   raised by the function with what it computed so far);
 - ``error``: bad input found only when the run started (:class:`~rothe.errors.RotheInputError`)
   or an unexpected exception (type, message and traceback kept);
-- ``lost`` is set by the executor when the worker running the task died twice.
+- ``lost`` is set by the executor when the worker running the task died twice;
+- ``interrupted`` / ``pending``: set by a sweep stopped by SIGINT/SIGTERM for the runs under
+  way / not started (:func:`rothe.parallel.sweep.interrupted_results`).
 
 Bit-identical results wherever a task runs: :func:`task_environment` gives every task the same
 process state, whatever ran before it in that process: BLAS and OpenMP limited to one thread
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import json
 import random
+import signal
 import sys
 import time
 import traceback
@@ -34,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import RotheInputError, RunFailed
+from ..errors import RotheInputError, RunFailed, RunInterrupted
 
-STATUSES = ("completed", "failed", "error", "lost")
+STATUSES = ("completed", "failed", "error", "lost", "interrupted", "pending")
 
 
 @dataclass
@@ -141,7 +144,10 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
     """Parse and execute one ``rothe`` command line; return the summary.json it wrote (or None).
 
     Exceptions propagate (classified by :func:`execute_task`); a run that fails midway still
-    hands back the summary it wrote (status ``failed``). Only a summary this run wrote counts:
+    hands back the summary it wrote (status ``failed``). A run stopped by SIGINT/SIGTERM (its
+    session wrote its checkpoint and results so far and returned 130/143) raises
+    :class:`~rothe.errors.RunInterrupted`: the signal was meant for the whole sweep, whose
+    executor stops instead of starting the next run. Only a summary this run wrote counts:
     ``out/summary.json``, or ``out/incomplete/summary.json`` where a run that does not complete
     leaves the completed result of an earlier run in place (:mod:`rothe.cli.session`).
     """
@@ -166,9 +172,21 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
         code = int(args._command.execute(args) or 0)
     except RunFailed as exc:
         raise TaskFailed(str(exc), value=summary()) from exc
+    if code - 128 in (signal.SIGINT, signal.SIGTERM):
+        raise RunInterrupted(f"interrupted by {signal.Signals(code - 128).name}",
+                             signum=code - 128)
     if code != 0:
         raise TaskFailed(f"exit status {code}", value=summary())
-    return summary()
+    done = summary()
+    if done is None and getattr(args, "resume", None) is not None and paths:
+        # resumed a run that had already completed: nothing ran, its summary is its result
+        try:
+            earlier = json.loads(paths[0].read_text())
+        except (OSError, ValueError):
+            earlier = None
+        if isinstance(earlier, dict) and earlier.get("status") == "completed":
+            done = earlier
+    return done
 
 
 def cli_task(key: str, argv: list[str], out: str | None = None, cost: float = 1.0) -> Task:
