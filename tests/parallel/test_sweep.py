@@ -21,6 +21,7 @@ from rothe.cli.main import main
 from rothe.parallel import Executor, Task
 from rothe.parallel import executor as executor_module
 
+NEEDS_DASK = 'the cluster tests need dask: pip install "rothe[dask]"'
 #: summary fields that measure time or memory or name the run (its folder, its checkpoint, its
 #: session id), not the computation
 UNTIMED = {"wall_time_s", "peak_memory_mb", "setup_time_s", "checkpoint", "run_id"}
@@ -51,7 +52,7 @@ def computed(summary: dict) -> dict:
 
 @pytest.fixture(scope="module")
 def cluster():
-    pytest.importorskip("distributed", reason="the cluster tests need dask")
+    pytest.importorskip("distributed", reason=NEEDS_DASK)
     with executor_module.local_cluster(2) as cl:  # the cluster of --workers 2
         yield cl
 
@@ -158,7 +159,7 @@ def test_lost_worker_is_retried_once(tmp_path, cluster):
 
 
 def test_runs_on_a_cluster_without_workers_are_lost_after_the_timeout():
-    distributed = pytest.importorskip("distributed")
+    distributed = pytest.importorskip("distributed", reason=NEEDS_DASK)
     with executor_module.local_cluster(0) as empty, distributed.Client(empty) as client:
         t0 = time.perf_counter()
         res = Executor(scheduler=client, progress=False, no_worker_timeout=1.0).map(
@@ -197,7 +198,7 @@ def test_bad_sweep_input_is_one_line_before_any_run(tmp_path, capsys, args, mess
 
 
 def test_unreachable_scheduler_is_refused_quickly(tmp_path, capsys, monkeypatch):
-    pytest.importorskip("distributed")
+    pytest.importorskip("distributed", reason=NEEDS_DASK)
     monkeypatch.setattr(executor_module, "CONNECT_TIMEOUT_S", 1.0)
     out = tmp_path / "sweep"
     t0 = time.perf_counter()
