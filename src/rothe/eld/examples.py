@@ -317,3 +317,70 @@ def beam_problem(n: int = 4, *, length: float = 4.0, E: float = 1000.0, nu: floa
     return ELDProblem(mesh, material, degree=degree, damping=damping,
                       dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
                       T=T, name="eld-beam")
+
+
+# -- the pulse (space adaptivity) --------------------------------------------------------------
+
+class BoundaryPulse:
+    """G(t, x) = (A s(t) w(y), 0) on the left side: a short push localized around y = y0.
+
+    s(t) = sin^4(pi t / t_pulse) for t <= t_pulse, 0 after (C^2: s, s', s'' vanish at 0 and at
+    t_pulse, so u0 = v0 = 0 are consistent and G_ddot is continuous); w(y) = exp(-((y -
+    y0)/width)^2)."""
+
+    def __init__(self, amplitude: float = 0.01, t_pulse: float = 0.1, y0: float = 0.5,
+                 width: float = 0.1):
+        self.A = float(amplitude)
+        self.t_pulse = check_positive("t_pulse", t_pulse)
+        self.y0 = float(y0)
+        self.width = check_positive("width", width)
+
+    def _s(self, t, order):
+        if t <= 0.0 or t >= self.t_pulse:
+            return 0.0
+        k = math.pi / self.t_pulse
+        s, c = math.sin(k * t), math.cos(k * t)
+        if order == 0:
+            return s**4
+        if order == 1:
+            return 4.0 * k * s**3 * c
+        return k * k * (12.0 * s * s * c * c - 4.0 * s**4)
+
+    def _field(self, t, x, order):
+        out = np.zeros((2,) + x.shape[1:])
+        out[0] = self.A * self._s(t, order) * np.exp(-((x[1] - self.y0) / self.width) ** 2)
+        return out
+
+    def G(self, t, x):
+        return self._field(t, x, 0)
+
+    def G_dot(self, t, x):
+        return self._field(t, x, 1)
+
+    def G_ddot(self, t, x):
+        return self._field(t, x, 2)
+
+
+def rectangle(nx: int, ny: int, length: float = 2.0, height: float = 1.0):
+    """[0, length] x [0, height] with nx x ny cells of two triangles, named faces."""
+    from skfem import MeshTri
+
+    return eld_mesh.tag_box_faces(MeshTri.init_tensor(np.linspace(0.0, length, nx + 1),
+                                                      np.linspace(0.0, height, ny + 1)))
+
+
+def pulse_problem(n: int = 4, degree: int = 2, *, length: float = 2.0, amplitude: float = 0.01,
+                  t_pulse: float = 0.1, width: float = 0.1, b: float = 0.001, rho: float = 1.0,
+                  lam: float = 2.0, mu: float = 1.0, T: float = 0.8) -> ELDProblem:
+    """The pulse (:class:`BoundaryPulse`): the rectangle [0, length] x [0, 1] with round(length
+    n) x n cells, the left side held and pushed by G around y = 1/2, the other sides free, at
+    rest at t = 0; Rayleigh damping b K (b = 0.001, it damps the mesh's highest modes). With
+    lam = 2, mu = rho = 1 the pressure wave (speed sqrt((lam + 2 mu)/rho) = 2) crosses the
+    length 2 in t = 1, the shear wave (speed 1) follows; a front of width ~ 2 t_pulse = 0.2."""
+    material = Material(rho=rho, lam=lam, mu=mu, dim=2)
+    pulse = BoundaryPulse(amplitude, t_pulse, 0.5, width)
+    n = int(n)
+    mesh = rectangle(max(1, round(length * n)), n, length, 1.0)
+    return ELDProblem(mesh, material, degree=degree, damping=RayleighDamping(0.0, b),
+                      dirichlet={"left": DirichletData(pulse.G, pulse.G_dot, pulse.G_ddot)},
+                      T=T, name="eld-pulse")

@@ -114,6 +114,10 @@ class ELDProblem:
                  dirichlet: dict, traction: dict | None = None, body_force=None, u0=None, v0=None,
                  T: float = 1.0, name: str = "eld", load_quadrature: int | None = None):
         self.name = name
+        # what on_mesh needs to build the same problem on another mesh (space adaptivity)
+        self._data = dict(material=material, degree=degree, damping=damping,
+                          dirichlet=dirichlet, traction=traction, body_force=body_force,
+                          u0=u0, v0=v0, T=T, name=name, load_quadrature=load_quadrature)
         self.space = VectorSpace(mesh, degree)
         if not isinstance(material, Material):
             raise fail("material", type(material).__name__, "must be a rothe.eld.Material")
@@ -163,6 +167,28 @@ class ELDProblem:
         self._part_points = {p: sp_.doflocs[:, sp_.scalar_dofs_on((p,), "dirichlet")]
                              for p in self.dirichlet}
         self.derivative_info = self._derivative_info()
+
+    def on_mesh(self, mesh) -> ELDProblem:
+        """The same problem (material, damping, data, T) on another mesh with the same named
+        boundary parts (space adaptivity: :mod:`rothe.eld.space`).
+
+        Initial data given as callables are interpolated on the new mesh; given as dof
+        vectors they cannot be, and the new problem gets u0 = G(0) on Gamma_D and 0 elsewhere,
+        v0 = 0 (consistent, Remark 2.2). An adaptive run never starts from them: its state is
+        transferred from the previous mesh."""
+        data = dict(self._data)
+        arrays = [k for k in ("u0", "v0")
+                  if data[k] is not None and not callable(data[k])]
+        for k in arrays:
+            data[k] = None
+        with warnings.catch_warnings():  # the derivative notes were given for the first mesh
+            warnings.simplefilter("ignore")
+            new = ELDProblem(mesh, **data)
+        if "u0" in arrays:
+            c = new.constraint
+            new.u0 = c.embed(new.G(0.0))
+        new._data = dict(self._data)
+        return new
 
     # -- initial data ---------------------------------------------------------------------------
     def _initial(self, value, name: str) -> np.ndarray:

@@ -313,6 +313,7 @@ class ELDState:
     products: dict
     ledger: EnergyLedger
     energy_norm_max: float = 0.0  # S_j: scale of the error estimate (module docstring)
+    mesh_id: int = 0  # the mesh the fields live on (space adaptivity, rothe.eld.space)
 
     @property
     def s(self) -> float:  # the evolve loop's curve parameter: here the time
@@ -1351,7 +1352,8 @@ class ELDStepper:
             boundary.update(G=vals.G, G_1=b["G"], G_dot=vals.G_dot, G_dot_1=b["G_dot"])
         new = ELDState(t=t_new, j=state.j + 1, tau_prev=tau, fields=fields, boundary=boundary,
                        products=products, ledger=ledger,
-                       energy_norm_max=max(state.energy_norm_max, norm_new))
+                       energy_norm_max=max(state.energy_norm_max, norm_new),
+                       mesh_id=state.mesh_id)
         return new, est
 
     # -- recording ------------------------------------------------------------------------------
@@ -1392,6 +1394,7 @@ class ELDStepper:
             "products": {k: w.copy() for k, w in state.products.items()},
             "ledger": {k: float(v) for k, v in asdict(state.ledger).items()},
             "energy_norm_max": float(state.energy_norm_max),
+            "mesh_id": int(state.mesh_id),
             "error_scale": None if self.error_scale is None else float(self.error_scale),
             "solver_reference": None if ref is None else {
                 "tau_eff": ref["tau_eff"], "v": None if ref["v"] is None else ref["v"].copy()},
@@ -1431,7 +1434,8 @@ class ELDStepper:
             boundary={k: np.asarray(w, dtype=float).copy() for k, w in data["boundary"].items()},
             products={k: np.asarray(w, dtype=float).copy() for k, w in data["products"].items()},
             ledger=EnergyLedger(**data["ledger"]),
-            energy_norm_max=float(data["energy_norm_max"]))
+            energy_norm_max=float(data["energy_norm_max"]),
+            mesh_id=int(data.get("mesh_id", 0)))
 
 
 @dataclass
@@ -1501,7 +1505,8 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
                     keep_every: int = 1, observer=None, linear_rtol: float = 1e-10,
                     tau_min: float | None = None, tau_max: float | None = None,
                     start: str = "taylor", error_scale: float | None = None,
-                    meta: dict | None = None, checkpoint=None, resume=None) -> ELDRun:
+                    meta: dict | None = None, checkpoint=None, resume=None,
+                    space=None) -> ELDRun:
     """Validate the options, build stepper and controller, record the initial state
     (the arguments of :func:`run_eld`); with ``resume``, restore stepper, controller,
     trajectory and state from the checkpoint instead."""
@@ -1512,10 +1517,17 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
         tol = check_positive("tol", tol)
     elif tol is not None:
         raise fail("tol", tol, "is used by control='adaptive' only (this run has uniform steps)")
-    stepper = ELDStepper(problem, form, tau, scheme=scheme, control=control, steps=steps,
-                         data=data, lifting=lifting, solver=solver, newton=newton, noise=noise,
-                         store_fields=store_fields, keep_every=keep_every, observer=observer,
-                         linear_rtol=linear_rtol, start=start, error_scale=error_scale)
+    stepper_kwargs = dict(form=form, tau=tau, scheme=scheme, control=control, steps=steps,
+                          data=data, lifting=lifting, solver=solver, newton=newton, noise=noise,
+                          store_fields=store_fields, keep_every=keep_every, observer=observer,
+                          linear_rtol=linear_rtol, start=start, error_scale=error_scale)
+    if space is None:
+        stepper = ELDStepper(problem, **stepper_kwargs)
+    else:
+        from .space import SpaceAdaptiveStepper, check_space_options
+
+        space = check_space_options(space, data=data, noise=noise, form=form)
+        stepper = SpaceAdaptiveStepper(problem, space, stepper_kwargs)
     info = {"example": problem.name, "form": form, "scheme": scheme, "control": control,
             "tau": stepper.tau, "n_steps": stepper.n_steps, "data": data,
             "lifting": lifting if form == "regularized" else None, "solver": stepper.kind,
@@ -1526,6 +1538,8 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
         info["control"] = "given steps"
     if noise is not None:
         info["noise"] = noise.describe()
+    if space is not None:
+        info["space"] = space.describe()
     if control == "adaptive":
         tau_min = 1e-10 * problem.T if tau_min is None else check_positive("tau_min", tau_min)
         tau_max = problem.T if tau_max is None else check_positive("tau_max", tau_max)
@@ -1551,7 +1565,8 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
         steps=stepper.steps, data=data, lifting=lifting, solver=solver,
         newton=asdict(stepper.newton), noise=None if noise is None else noise.describe(),
         store_fields=store_fields, keep_every=stepper.keep_every, linear_rtol=linear_rtol,
-        tau_min=tau_min, tau_max=tau_max, start=start, error_scale=error_scale)
+        tau_min=tau_min, tau_max=tau_max, start=start, error_scale=error_scale,
+        **({} if space is None else {"space": space.describe()}))
     rc = RunCheckpointing("run_eld", problem, arguments, checkpoint, resume)
     try:
         restored = rc.restored
@@ -1575,6 +1590,8 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
                 traj.meta["error_scale"] = stepper.error_scale
             stepper.record_initial(traj, state)
             traj.stats.linear_factorizations += stepper.initial_factorizations
+        if space is not None:
+            traj.space = stepper  # the meshes and the kept fields (ragged across meshes)
         if rc.checkpointer is not None:
             rc.checkpointer.register(traj)
     except BaseException:
@@ -1591,7 +1608,7 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
             progress=False, linear_rtol: float = 1e-10, tau_min: float | None = None,
             tau_max: float | None = None, start: str = "taylor",
             error_scale: float | None = None, meta: dict | None = None, checkpoint=None,
-            resume=None) -> Trajectory:
+            resume=None, space=None) -> Trajectory:
     """Run Euler (3.4) or BDF2 from t = 0 to T (module docstring).
 
     ``control='uniform'``: n = T/tau equal steps (or the given ``steps``); ``'adaptive'``: tau is
@@ -1617,13 +1634,21 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     sums the sessions). An ``observer`` that keeps state, such as an output writer, is passed
     as a checkpoint attachment so that it is restored too. SIGINT / SIGTERM raise
     :class:`~rothe.errors.RunInterrupted` with the trajectory so far (and a checkpoint).
+
+    ``space``: a :class:`rothe.fem.adapt.SpaceAdaptivity` adapts the mesh after every
+    ``adapt_every``-th accepted step (:mod:`rothe.eld.space`; data ``'points'``, no noise);
+    None (default) keeps the mesh. The trajectory then also has the point series ``mesh_id``,
+    ``ndofs``, ``cells``, the step series ``space_estimate``, ``kept_mesh_id`` with the kept
+    states, and ``traj.space`` (the :class:`~rothe.eld.space.SpaceAdaptiveStepper`: the meshes
+    in ``.series``, the kept fields in ``.kept``, the log in ``.adaptations``); ``u, v, a, lam``
+    are not series of the trajectory then (they live on different meshes).
     """
     run = prepare_eld_run(problem, form, tau, scheme=scheme, control=control, tol=tol,
                           steps=steps, data=data, lifting=lifting, solver=solver, newton=newton,
                           noise=noise, store_fields=store_fields, keep_every=keep_every,
                           observer=observer, linear_rtol=linear_rtol, tau_min=tau_min,
                           tau_max=tau_max, start=start, error_scale=error_scale, meta=meta,
-                          checkpoint=checkpoint, resume=resume)
+                          checkpoint=checkpoint, resume=resume, space=space)
     final = run.evolve(progress=progress)
     traj = run.trajectory
     traj.final_state = final  # not saved to .npz: the last state and the stepper, for callers

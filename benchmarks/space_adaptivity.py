@@ -1,0 +1,193 @@
+"""Space-adaptive vs uniform meshes at equal error, per family (issue 8).
+
+    python benchmarks/space_adaptivity.py [--quick] [--family eld|ris|all]
+
+ELD (:func:`eld`): ``rothe run eld-pulse``'s problem (:func:`rothe.eld.examples.pulse_problem`:
+the rectangle [0, 2] x [0, 1], P2, the left side pushed by a short pulse localized around
+y = 1/2, a wave front crossing the body), BDF2 with the same uniform step tau for every run.
+Runs: uniform meshes n = 4, 8, 16 (, 32) cells across (every uniform refinement halves h),
+adaptive runs (``SpaceAdaptivity``, adapt after every step, refine_fraction 0.5,
+coarsen_fraction 0.05) for several ``space_tol``, and a reference on the uniform mesh two
+refinements finer than the finest compared one, all in this run. Error: the largest over the
+output times t = 0.1, 0.2, ..., T of the L2 error of u against the reference, relative to
+the largest L2 norm of the reference's u:
+
+    err = max_k ||I u_h(t_k) - u_ref(t_k)||_L2 / max_k ||u_ref(t_k)||_L2,
+
+with I the P2 interpolation onto the reference mesh (exact: every mesh here is nested in the
+reference mesh). With the same tau everywhere the time error is common to all runs and the
+comparison is one of the spatial discretizations. Work: dofs summed over the steps (the dofs of
+the mesh each step is computed on); seconds are wall seconds of the run (2 shared cores: noisy);
+``peak MB`` is the process's peak resident memory after the run (monotone; the runs go from
+small to large and the reference last).
+
+The last line per family: ``work ratio adaptive/uniform at equal error: X``, X = summed dofs of
+the adaptive run with the smallest error inside the range of the uniform errors, divided by
+the summed dofs the uniform meshes need for that error (log-log interpolation between the two
+uniform runs around it).
+
+RIS: added by the RIS half of issue 8 (``ris`` below).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import resource
+import time
+
+import numpy as np
+
+
+def peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def interpolate_to(points, cells, degree, ref_doflocs):
+    """The sparse P``degree`` interpolation from the mesh (points, cells) to the reference's
+    scalar dof locations (scikit-fem probes; exact for nested meshes)."""
+    from skfem import Basis, ElementTriP1, ElementTriP2, MeshTri
+
+    mesh = MeshTri(np.ascontiguousarray(points.T), np.ascontiguousarray(cells.T))
+    basis = Basis(mesh, ElementTriP2() if degree == 2 else ElementTriP1())
+    return basis.probes(ref_doflocs)
+
+
+def log_interp_work(err, uniform):
+    """Summed dofs the uniform runs need for error ``err`` (log-log between neighbours), or
+    None outside their range. ``uniform``: [(error, work)], any order."""
+    pts = sorted(uniform)  # by error
+    for (e0, w0), (e1, w1) in zip(pts, pts[1:], strict=False):
+        if e0 <= err <= e1:
+            if e1 == e0:
+                return min(w0, w1)
+            s = (math.log(err) - math.log(e0)) / (math.log(e1) - math.log(e0))
+            return math.exp(math.log(w0) + s * (math.log(w1) - math.log(w0)))
+    return None
+
+
+def eld(quick: bool) -> float | None:
+    from rothe.eld import run_eld
+    from rothe.eld.examples import pulse_problem
+    from rothe.fem.adapt import SpaceAdaptivity
+
+    T, tau = (0.6, 0.01) if quick else (0.8, 0.005)
+    uniform_n = (4, 8, 16) if quick else (4, 8, 16, 32)
+    ref_n = uniform_n[-1] * 2 if quick else uniform_n[-1] * 2
+    tols = (3e-3, 1.5e-3, 8e-4) if quick else (2e-3, 1e-3, 5e-4, 2.5e-4)
+    max_dofs = 40_000 if quick else 200_000
+    every = round(0.1 / tau)
+    base = dict(form="regularized", tau=tau, scheme="bdf2", keep_every=every)
+    print(f"ELD pulse: P2, BDF2, tau = {tau:g}, T = {T:g}, outputs every {every} steps; "
+          f"reference: uniform n = {ref_n}")
+
+    runs = []
+
+    def run(label, n0, space):
+        problem = pulse_problem(n0, T=T)
+        t0 = time.perf_counter()
+        traj = run_eld(problem, space=space, **base)
+        secs = time.perf_counter() - t0
+        if space is None:
+            mesh = problem.space.mesh
+            states = [(mesh.p.T, mesh.t.T, u) for u in traj["u"]]
+            dofs = problem.space.ndofs * (len(traj["t"]) - 1)
+            final = problem.space.ndofs
+        else:
+            sp_ = traj.space
+            states = [(*sp_.series.mesh(m), u)
+                      for m, u in zip(traj["kept_mesh_id"], sp_.kept["u"], strict=True)]
+            dofs = int(np.sum(traj["ndofs"][1:]))
+            final = int(traj["ndofs"][-1])
+        rec = {"label": label, "states": states, "times": traj["kept_t"], "dofs": dofs,
+               "final": final, "max": int(np.max(traj["ndofs"])) if "ndofs" in traj else final,
+               "steps": len(traj["t"]) - 1, "seconds": secs, "peak": peak_mb(),
+               "balance": float(np.max(np.abs(traj["balance_residual"])))}
+        runs.append(rec)
+        return rec
+
+    for n in uniform_n:
+        run(f"uniform n={n}", n, None)
+    for tol in tols:
+        run(f"adaptive tol={tol:g}", uniform_n[0],
+            SpaceAdaptivity(space_tol=tol, refine_fraction=0.5, coarsen_fraction=0.05,
+                            max_dofs=max_dofs, adapt_every=1))
+    ref = run(f"reference n={ref_n}", ref_n, None)
+
+    from rothe.fem.elasticity import VectorSpace
+
+    ref_problem = pulse_problem(ref_n, T=T)
+    ref_space: VectorSpace = ref_problem.space
+    Ms = ref_space.grad_basis  # noqa: F841 - the scalar mass below
+    from skfem import BilinearForm, Basis
+
+    @BilinearForm
+    def mass(u, v, w):
+        return u * v
+
+    M = mass.assemble(Basis(ref_space.mesh, ref_space.element))
+    doflocs = ref_space.doflocs
+
+    def l2(U):  # U (n_scalar, 2)
+        return math.sqrt(float(sum(U[:, c] @ (M @ U[:, c]) for c in range(2))))
+
+    ref_states = [u.reshape(-1, 2) for (_, _, u) in ref["states"]]
+    ref_norm = max(l2(U) for U in ref_states)
+    for r in runs[:-1]:
+        cache, worst = {}, 0.0
+        for k, (p, c, u) in enumerate(r["states"]):
+            key = (p.shape, c.shape, float(p.sum()), int(c.sum()))
+            if key not in cache:
+                cache[key] = interpolate_to(p, c, 2, doflocs)
+            U = cache[key] @ u.reshape(-1, 2)
+            worst = max(worst, l2(U - ref_states[k]))
+        r["error"] = worst / ref_norm
+
+    print(f"  {'run':<22} {'steps':>5} {'dofs final':>10} {'dofs max':>9} {'dofs summed':>12} "
+          f"{'rel. L2 err':>11} {'seconds':>8} {'peak MB':>8} {'balance':>9}")
+    for r in runs:
+        err = f"{r['error']:11.3e}" if "error" in r else f"{'(ref)':>11}"
+        print(f"  {r['label']:<22} {r['steps']:>5} {r['final']:>10} {r['max']:>9} "
+              f"{r['dofs']:>12} {err} {r['seconds']:>8.1f} {r['peak']:>8.0f} "
+              f"{r['balance']:>9.1e}")
+    uniform = [(r["error"], r["dofs"]) for r in runs if r["label"].startswith("uniform")]
+    useconds = [(r["error"], r["seconds"]) for r in runs if r["label"].startswith("uniform")]
+    best = None
+    for r in runs:
+        if not r["label"].startswith("adaptive"):
+            continue
+        w = log_interp_work(r["error"], uniform)
+        s = log_interp_work(r["error"], useconds)
+        ratio = None if w is None else r["dofs"] / w
+        sratio = None if s is None else r["seconds"] / s
+        print(f"  {r['label']:<22} uniform dofs summed at equal error: "
+              + ("outside the uniform range" if w is None else
+                 f"{w:12.0f}  ratio {ratio:.3f}  (seconds ratio {sratio:.3f})"))
+        if ratio is not None and (best is None or r["error"] < best[0]):
+            best = (r["error"], ratio)
+    X = None if best is None else best[1]
+    print("work ratio adaptive/uniform at equal error: "
+          + ("n/a (no adaptive error inside the uniform range)" if X is None else f"{X:.3f}"))
+    return X
+
+
+def ris(quick: bool) -> float | None:  # the RIS half of issue 8 fills this in
+    print("RIS front: not part of this branch (i8-ris adds it)")
+    return None
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller sizes (< 3 min)")
+    parser.add_argument("--family", default="all", choices=("eld", "ris", "all"))
+    args = parser.parse_args(argv)
+    t0 = time.perf_counter()
+    if args.family in ("eld", "all"):
+        eld(args.quick)
+    if args.family in ("ris", "all"):
+        ris(args.quick)
+    print(f"total {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,329 @@
+"""Space adaptivity of elastodynamics runs: a new mesh after every k-th accepted step.
+
+``run_eld(problem, ..., space=SpaceAdaptivity(...))`` drives a :class:`SpaceAdaptiveStepper`
+on the shared evolve loop. It wraps the :class:`~rothe.eld.schemes.ELDStepper` of the current
+mesh (which does the steps) and, after every ``adapt_every``-th accepted step j that is not
+the last, adapts the mesh (SPEC Sec. 7, issue 8; the perturbation view of Altmann 2015,
+Theorem 4.5 / Remark 4.2, with the transfer error as a perturbation of the history):
+
+1. **indicators** of the accepted step on its own mesh (:func:`rothe.estimators.eld_indicator.
+   eld_indicators_for`, the residual estimator: cell residual of the momentum equation with the
+   scheme's acceleration a^j and velocity v^j, jumps of the normal stress sigma(u + b v) n across
+   interior facets, traction mismatch on Neumann facets), with the reaction rho (alpha_0/tau_j)^2
+   of the step (alpha_0 = 1 Euler, 3/2 BDF2);
+2. **marking and adaptation** (:func:`rothe.fem.adapt.adapt_mesh`: Doerfler refinement while
+   eta > space_tol, coarsening of the cells that carry a coarsen_fraction share, max_dofs);
+   nothing changed -> nothing else happens (the run is the fixed-mesh run bit for bit);
+3. **transfer** of every history vector (u, v, a and the scheme's x, y, b with their t_{j-1}
+   values, whatever BDF2 needs) by the nodal interpolation T of the adaptation layer (exact on
+   refinement, an injection on coarsening), of the multiplier by the trace transfer;
+4. a **new problem and stepper** on the new mesh (:meth:`ELDProblem.on_mesh`; the stepper's
+   constructor re-checks the step bound tau < rho/d0 of Lemma 3.2). Regularized form: the
+   lifting is rebuilt, u_1 = u - B^- G with the new B^- (transferring u_1 itself would carry the
+   old mesh's lifting, docs/adaptivity.md); the current displacement, velocity and acceleration
+   take the data on the new Dirichlet nodes, u^j|Gamma = G(t_j), v^j|Gamma = G_dot(t_j),
+   a^j|Gamma = G_ddot(t_j) (exactly what the scheme has at the old nodes, so the constraint
+   B u = G holds on the new boundary), the t_{j-1} history keeps its transferred trace.
+   Original form: u^j|Gamma = G(t_j), the rest transferred;
+5. :meth:`ELDStepper.adopt`: the energy change E(T u) - E(u) is booked as ``transfer`` in the
+   ledger, so the balance closes to round-off over the whole run.
+
+A transfer that fails (an exception, a non-finite field or energy) is never accepted: the mesh
+hierarchy is rolled back and the run stops with :class:`~rothe.errors.RunFailed` (its result
+so far and a checkpoint on the last mesh remain).
+
+Because the evolve loop has no hook after acceptance, the adaptation runs in :meth:`record`
+(called once per accepted step) and replaces the accepted state's contents in place (the loop
+holds that object); a step is always computed, estimated and recorded on the mesh it was
+computed on, and the transfer's energy appears in the ledger of the next step.
+
+Bookkeeping: point series ``mesh_id``, ``ndofs``, ``cells`` (the mesh each state was computed
+on), step series ``space_estimate`` (eta of the step, NaN when not adapted after it); every
+distinct mesh once in :attr:`series` (:class:`rothe.io.mesh_series.MeshSeries`); the kept
+fields u, v, a, lambda live on different meshes and are kept in :attr:`kept` (lists, with
+``kept_mesh_id`` in the trajectory), written to ``trajectory.npz`` by
+:func:`rothe.io.eld_output.write_eld_result`. Checkpoints hold the inner stepper's state, the
+mesh hierarchy, the mesh series and the kept fields; a resumed run continues bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields as dataclass_fields
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import RotheInputError, RunFailed, fail
+from ..fem.adapt import AdaptiveMesh, SpaceAdaptivity, adapt_mesh, check_adaptable, free_transfer
+from ..io.mesh_series import MeshSeries
+from .schemes import ELDState, ELDStepper
+
+#: the kept fields (ragged across meshes)
+KEPT = ("u", "v", "a", "lam")
+
+
+def check_space_options(space, *, data: str, noise, form: str) -> SpaceAdaptivity:
+    """``space`` must be a SpaceAdaptivity; data 'points' and no noise (one-line errors)."""
+    if not isinstance(space, SpaceAdaptivity):
+        raise fail("space", type(space).__name__, "must be a rothe.fem.adapt.SpaceAdaptivity "
+                   "(or None for a fixed mesh)")
+    if data != "points":
+        raise fail("data", data, "must be 'points' with space adaptivity (the data of t_j is "
+                   "re-evaluated on the new Dirichlet nodes after a mesh change)")
+    if noise is not None:
+        raise fail("noise", noise.describe() if hasattr(noise, "describe") else noise,
+                   "is not supported with space adaptivity (noise vectors live on one mesh)")
+    return space
+
+
+class SpaceAdaptiveStepper:
+    """An :class:`ELDStepper` on a mesh that changes between steps (module docstring).
+
+    Parameters
+    ----------
+    problem : ELDProblem on a triangle or tetrahedron mesh (the initial mesh)
+    options : SpaceAdaptivity
+    stepper_kwargs : the arguments of ELDStepper after ``problem`` (form, tau, scheme, ...)
+    """
+
+    def __init__(self, problem, options: SpaceAdaptivity, stepper_kwargs: dict):
+        check_adaptable(problem.space.mesh, "--adapt-space" if options.naming == "cli"
+                        else "space")
+        self.options = options
+        kwargs = dict(stepper_kwargs)
+        self.store_fields = bool(kwargs.pop("store_fields", True))
+        self.keep_every = int(kwargs.get("keep_every", 1))
+        self.observer = kwargs.pop("observer", None)
+        self.kwargs = kwargs
+        self.problem = problem
+        self.inner = ELDStepper(problem, store_fields=False, **kwargs)
+        self.keep_every = self.inner.keep_every
+        self.amesh = AdaptiveMesh(problem.space.mesh)
+        self.degree, self.components = problem.space.degree, problem.space.dim
+        options.check_mesh(self.amesh, self.degree, self.components)
+        self.series = MeshSeries()
+        mesh = problem.space.mesh
+        self.series.add(0, mesh.p.T, mesh.t.T)
+        self.kept: dict[str, list] = {k: [] for k in KEPT}
+        self.adaptations: list[dict] = []
+        self._pending_factorizations = 0
+
+    # -- delegation to the stepper of the current mesh --------------------------------------------
+    def __getattr__(self, name):
+        # only reached for attributes not defined here: scheme, form, order, max_ratio, tau,
+        # n_steps, steps, kind, solver, error_scale, bound, T, ...
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def max_step(self, tau_prev):
+        return self.inner.max_step(tau_prev)
+
+    def finished(self, state) -> bool:
+        return self.inner.finished(state)
+
+    def limit(self, state, tau):
+        return self.inner.limit(state, tau)
+
+    def overshoot(self, state, attempts):
+        return self.inner.overshoot(state, attempts)
+
+    def pick_landing(self, state, attempts):
+        return self.inner.pick_landing(state, attempts)
+
+    def where(self, state, result=None) -> dict:
+        info = self.inner.where(state, result)
+        info["mesh_id"] = int(state.mesh_id)
+        return info
+
+    def progress_fields(self, state) -> dict:
+        out = self.inner.progress_fields(state)
+        out["dofs"] = self.problem.space.ndofs
+        return out
+
+    def step(self, state, tau, s_end=None):
+        return self.inner.step(state, tau, s_end)
+
+    def initial_state(self) -> ELDState:
+        return self.inner.initial_state()
+
+    # -- recording and adaptation ---------------------------------------------------------------
+    def _mesh_record(self, state) -> dict:
+        return {"mesh_id": int(state.mesh_id),
+                "ndofs": int(self.problem.space.ndofs),
+                "cells": int(self.problem.space.mesh.t.shape[1])}
+
+    def _keep(self, traj, state) -> None:
+        traj.append(kept_step=state.j, kept_t=state.t, kept_mesh_id=state.mesh_id)
+        for name, w in (("u", state.u), ("v", state.v), ("a", state.fields["a"]),
+                        ("lam", state.lam)):
+            self.kept[name].append(np.array(w, dtype=float))
+
+    def record_initial(self, traj, state) -> None:
+        self.inner.record_initial(traj, state)
+        traj.append(**self._mesh_record(state))
+        if self.store_fields:
+            self._keep(traj, state)
+
+    def record(self, traj, result) -> None:
+        st = result.state
+        self.inner.record(traj, result)
+        traj.append(**self._mesh_record(st))
+        if self.store_fields and (st.j % self.keep_every == 0 or self.inner.finished(st)):
+            self._keep(traj, st)
+        if self.observer is not None:
+            self.observer(st, result)
+        estimate = math.nan
+        if self.options.due(st.j) and not self.inner.finished(st):
+            estimate = self._adapt(st, result.tau)
+        traj.append(space_estimate=estimate)
+        if self._pending_factorizations:
+            traj.stats.linear_factorizations += self._pending_factorizations
+            self._pending_factorizations = 0
+
+    def indicators(self, state, tau: float):
+        """Cell indicators of the accepted step that ended at ``state`` (module docstring)."""
+        from ..estimators.eld_indicator import eld_indicators_for
+
+        f = state.fields
+        a0 = 1.0 if self.inner.scheme == "euler" else 1.5
+        rho = self.problem.material.rho
+        return eld_indicators_for(self.problem, state.t, f["u"], f["v"], f["a"],
+                                  reaction=rho * (a0 / tau) ** 2)
+
+    def _adapt(self, state: ELDState, tau: float) -> float:
+        """Adapt after the accepted ``state``; replaces its contents in place when the mesh
+        changed. Returns the estimate eta of the step."""
+        j = state.j
+        try:
+            ind = self.indicators(state, tau)
+        except Exception as exc:  # noqa: BLE001 - any failure stops the run cleanly
+            raise RunFailed(f"space adaptivity: the error indicators after step {j} (t = "
+                            f"{state.t:.6g}) failed: {exc}", where=self.where(state)) from exc
+        eta = np.asarray(ind.eta, dtype=float)
+        if not np.all(np.isfinite(eta)):
+            raise RunFailed(f"space adaptivity: non-finite error indicators after step {j} "
+                            f"(t = {state.t:.6g}); the mesh is not changed",
+                            where=self.where(state))
+        snapshot = self.amesh.checkpoint_state()
+        old_id = int(state.mesh_id)
+        try:
+            change = adapt_mesh(self.amesh, eta, self.options, degree=self.degree,
+                                components=self.components)
+            if not change.changed:
+                return float(ind.estimate)
+            new_problem, new_inner, new_state = self._transfer(state, change)
+        except Exception as exc:  # noqa: BLE001 - a failed transfer is never accepted
+            self.amesh = AdaptiveMesh.restore_state(snapshot)
+            if isinstance(exc, RotheInputError) and not isinstance(exc, RunFailed):
+                detail = str(exc)
+            else:
+                detail = f"{type(exc).__name__}: {exc}"
+            raise RunFailed(f"space adaptivity: the transfer to the new mesh after step {j} "
+                            f"(t = {state.t:.6g}) failed ({detail}); the run stops on mesh "
+                            f"{old_id}", where=self.where(state)) from exc
+        old_energy = state.ledger.energy
+        # the accepted step stays what it was; the loop holds `state`: take over the new contents
+        for fld in dataclass_fields(ELDState):
+            setattr(state, fld.name, getattr(new_state, fld.name))
+        self.series.add(self.amesh.mesh_id, self.amesh.points, self.amesh.cells)
+        self.problem, self.inner = new_problem, new_inner
+        self.adaptations.append({
+            "step": j, "t": float(state.t), "from_mesh": old_id, "to_mesh": int(state.mesh_id),
+            "estimate": float(ind.estimate), "bisections": int(change.bisections),
+            "merges": int(change.merges), "cells": int(self.amesh.n_cells),
+            "ndofs": int(new_problem.space.ndofs),
+            "transfer_energy": float(state.ledger.energy - old_energy)})
+        return float(ind.estimate)
+
+    def _transfer(self, state: ELDState, change):
+        """(problem, stepper, state) on the new mesh (module docstring, steps 3-5)."""
+        p_old = self.problem
+        T = change.transfer(self.degree, self.components)
+        problem = p_old.on_mesh(self.amesh.mesh)
+        kwargs = dict(self.kwargs)
+        kwargs["error_scale"] = self.inner.error_scale
+        inner = ELDStepper(problem, store_fields=False, **kwargs)
+        # the solver's counters continue; the new stepper's first factorization is counted
+        inner.solver.stats = replace(self.inner.solver.stats)
+        inner.solver.stats.factorizations += inner.initial_factorizations
+        self._pending_factorizations += inner.initial_factorizations
+        inner._last_newton = self.inner._last_newton
+        T_gamma = free_transfer(T, p_old.constraint.dofs, problem.constraint.dofs)
+        mapped = state.mapped(T, T_gamma)
+        f = mapped.fields
+        C = problem.constraint.dofs
+        t = state.t
+        if inner.form == "regularized":
+            lift = inner.lifting
+            current = {"u": ("x", problem.G(t)), "v": ("y", problem.G_dot(t)),
+                       "a": ("b", problem.G_ddot(t))}
+            for full, (name, g) in current.items():
+                w = f[full] - lift(g)
+                w[C] = 0.0
+                f[name] = w
+                f[full] = w + lift(g)
+            for full, name in (("u_1", "x_1"), ("v_1", "y_1")):
+                if full in f:  # the history keeps its transferred trace
+                    w = f[full] - lift(f[full][C])
+                    w[C] = 0.0
+                    f[name] = w
+        else:
+            f["u"][C] = problem.G(t)
+            f["x"] = f["u"]
+        for name, w in list(f.items()) + list(mapped.boundary.items()):
+            if not np.all(np.isfinite(w)):
+                raise FloatingPointError(f"the transferred {name} has NaN or inf entries")
+        new = inner.adopt(mapped)
+        new.mesh_id = int(self.amesh.mesh_id)
+        if not math.isfinite(new.ledger.energy):
+            raise FloatingPointError("the energy of the transferred state is not finite")
+        return problem, inner, new
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def checkpoint_state(self, state) -> dict:
+        """The inner stepper's state, the mesh hierarchy, the mesh series, the kept fields and
+        the log of adaptations (arrays and plain values)."""
+        return {
+            "format": "rothe-eld-space-1",
+            "inner": self.inner.checkpoint_state(state),
+            "amesh": self.amesh.checkpoint_state(),
+            "adapted": bool(self.adaptations),
+            "series": self.series.checkpoint_state(),
+            "kept": {k: [w.copy() for w in v] for k, v in self.kept.items()},
+            "adaptations": [dict(a) for a in self.adaptations],
+        }
+
+    def restore_state(self, data: dict) -> ELDState:
+        if data.get("format") != "rothe-eld-space-1":
+            raise RotheInputError(f"checkpoint: got format {data.get('format')!r}, must be "
+                                  "'rothe-eld-space-1' (a space-adaptive ELD run)")
+        self.amesh = AdaptiveMesh.restore_state(data["amesh"])
+        self.series = MeshSeries.restore_state(data["series"])
+        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]]
+                     for k in KEPT}
+        self.adaptations = [dict(a) for a in data["adaptations"]]
+        if int(data["inner"].get("mesh_id", 0)) != 0:
+            self.problem = self.problem.on_mesh(self.amesh.mesh)
+            kwargs = dict(self.kwargs)
+            kwargs["error_scale"] = data["inner"].get("error_scale")
+            self.inner = ELDStepper(self.problem, store_fields=False, **kwargs)
+        return self.inner.restore_state(data["inner"])
+
+    # -- outputs --------------------------------------------------------------------------------
+    def npz_arrays(self, traj) -> dict:
+        """The meshes (every distinct one once, ``MeshSeries.npz_arrays`` keyed by the kept
+        states' mesh ids) and the kept fields as one concatenation per field with offsets:
+        ``u[k] = kept_u[kept_u_offsets[k]:kept_u_offsets[k + 1]]`` on mesh ``kept_mesh_id[k]``
+        (interleaved vector dofs of P``degree``; ``lam`` on that mesh's constrained dofs)."""
+        ids = np.asarray(traj["kept_mesh_id"] if "kept_mesh_id" in traj else [], dtype=np.int64)
+        out = self.series.npz_arrays(ids)
+        for name in KEPT:
+            parts = self.kept[name]
+            sizes = np.array([w.size for w in parts], dtype=np.int64)
+            out[f"kept_{name}"] = np.concatenate(parts) if parts else np.zeros(0)
+            out[f"kept_{name}_offsets"] = np.concatenate([[0], np.cumsum(sizes)])
+        out["degree"] = np.asarray(self.degree)
+        out["dim"] = np.asarray(self.components)
+        return out
