@@ -68,23 +68,33 @@ def log_interp_work(err, uniform):
 
 def eld(quick: bool) -> float | None:
     from rothe.eld import run_eld
-    from rothe.eld.examples import pulse_problem
-    from rothe.fem.adapt import SpaceAdaptivity
+    from rothe.eld.examples import pulse_problem, rectangle
+    from rothe.fem.adapt import AdaptiveMesh, SpaceAdaptivity
 
     T, tau = (0.6, 0.01) if quick else (0.8, 0.005)
-    uniform_n = (4, 8, 16) if quick else (4, 8, 16, 32)
-    ref_n = uniform_n[-1] * 2 if quick else uniform_n[-1] * 2
+    n0 = 4
+    levels = (0, 1, 2) if quick else (0, 1, 2, 3)  # uniform refinements of the n0 mesh
+    ref_level = levels[-1] + 2
     tols = (3e-3, 1.5e-3, 8e-4) if quick else (2e-3, 1e-3, 5e-4, 2.5e-4)
-    max_dofs = 40_000 if quick else 200_000
     every = round(0.1 / tau)
     base = dict(form="regularized", tau=tau, scheme="bdf2", keep_every=every)
+
+    def mesh_at(level):  # the bisection hierarchy's uniform meshes: all nested
+        amesh = AdaptiveMesh(rectangle(2 * n0, n0))
+        if level:
+            amesh.uniform(2 * level)  # two bisection generations halve h
+        return amesh.mesh
+
+    max_dofs = AdaptiveMesh(mesh_at(ref_level)).ndofs(2, 2)
     print(f"ELD pulse: P2, BDF2, tau = {tau:g}, T = {T:g}, outputs every {every} steps; "
-          f"reference: uniform n = {ref_n}")
+          f"uniform meshes: n = {n0} refined {list(levels)} times; reference refined "
+          f"{ref_level} times ({max_dofs} dofs); adaptive: at most {2 * ref_level} bisections "
+          "per initial cell (nested in the reference mesh)")
 
     runs = []
 
-    def run(label, n0, space):
-        problem = pulse_problem(n0, T=T)
+    def run(label, level, space):
+        problem = pulse_problem(T=T, mesh=mesh_at(level))
         t0 = time.perf_counter()
         traj = run_eld(problem, space=space, **base)
         secs = time.perf_counter() - t0
@@ -106,20 +116,17 @@ def eld(quick: bool) -> float | None:
         runs.append(rec)
         return rec
 
-    for n in uniform_n:
-        run(f"uniform n={n}", n, None)
+    for level in levels:
+        run(f"uniform n={n0 * 2**level}", level, None)
     for tol in tols:
-        run(f"adaptive tol={tol:g}", uniform_n[0],
+        run(f"adaptive tol={tol:g}", 0,
             SpaceAdaptivity(space_tol=tol, refine_fraction=0.5, coarsen_fraction=0.05,
-                            max_dofs=max_dofs, adapt_every=1))
-    ref = run(f"reference n={ref_n}", ref_n, None)
+                            max_dofs=max_dofs, adapt_every=1, max_level=2 * ref_level))
+    ref = run(f"reference n={n0 * 2**ref_level}", ref_level, None)
 
-    from rothe.fem.elasticity import VectorSpace
+    from skfem import Basis, BilinearForm
 
-    ref_problem = pulse_problem(ref_n, T=T)
-    ref_space: VectorSpace = ref_problem.space
-    Ms = ref_space.grad_basis  # noqa: F841 - the scalar mass below
-    from skfem import BilinearForm, Basis
+    ref_space = pulse_problem(T=T, mesh=mesh_at(ref_level)).space
 
     @BilinearForm
     def mass(u, v, w):

@@ -1,4 +1,4 @@
-"""CLI commands for elastodynamics: ``rothe run eld-mms|eld-beam``,
+"""CLI commands for elastodynamics: ``rothe run eld-mms|eld-beam|eld-pulse``,
 ``rothe study eld-convergence|eld-perturbation``.
 
 Outputs: ``summary.json``, ``trajectory.npz`` (runs: with the mesh,
@@ -74,6 +74,65 @@ def _check_control(args) -> tuple[str, str, float | None]:
     elif tol is not None:
         raise fail("--tol", tol, "is used by --control adaptive only (this run has uniform steps)")
     return scheme, control, tol
+
+
+#: the options of space adaptivity (all with --adapt-space only)
+SPACE_OPTIONS = ("--space-tol", "--refine-fraction", "--coarsen-fraction", "--max-dofs",
+                 "--adapt-every")
+
+
+def _space_options(parser, on: bool = False) -> None:
+    import argparse
+
+    parser.add_argument("--adapt-space", action=argparse.BooleanOptionalAction if on
+                        else "store_true", default=on,
+                        help="adapt the mesh (refine and coarsen by bisection) after every "
+                             "--adapt-every-th step, by the residual indicator (docs/eld.md)"
+                             + ("; on by default, --no-adapt-space keeps the mesh" if on
+                                else ""))
+    parser.add_argument("--space-tol", type=parse_float("--space-tol"), default=None,
+                        help="tolerance of the estimate eta of a step (refine while above; "
+                             "required with --adapt-space)")
+    parser.add_argument("--refine-fraction", type=parse_float("--refine-fraction"),
+                        default=None, help="Doerfler bulk fraction of eta^2 to refine, in (0, 1) "
+                                           "(default 0.5)")
+    parser.add_argument("--coarsen-fraction", type=parse_float("--coarsen-fraction"),
+                        default=None, help="share of max(eta, space-tol)^2 the coarsened cells "
+                                           "may carry, in (0, 1) (default 0.05)")
+    parser.add_argument("--max-dofs", type=int, default=None,
+                        help="cap on the dofs of an adapted mesh (default none)")
+    parser.add_argument("--adapt-every", type=int, default=None,
+                        help="adapt after every k-th accepted step (default 1)")
+
+
+def space_adaptivity(args, default_tol: float | None = None):
+    """The SpaceAdaptivity of the --adapt-space options, or None (one-line errors naming the
+    options; an option without --adapt-space is refused)."""
+    values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in SPACE_OPTIONS}
+    if not args.adapt_space:
+        for option, value in values.items():
+            if value is not None:
+                raise fail(option, value, "is used by --adapt-space only (this run keeps its "
+                                          "mesh)")
+        return None
+    from ..fem.adapt import SpaceAdaptivity
+
+    if values["--space-tol"] is None:
+        if default_tol is None:
+            raise fail("--space-tol", None, "must be given (> 0) with --adapt-space")
+        values["--space-tol"] = default_tol
+    kw = {"space_tol": values["--space-tol"], "max_dofs": values["--max-dofs"]}
+    for key, option, default in (("refine_fraction", "--refine-fraction", 0.5),
+                                 ("coarsen_fraction", "--coarsen-fraction", 0.05),
+                                 ("adapt_every", "--adapt-every", 1)):
+        kw[key] = default if values[option] is None else values[option]
+    return SpaceAdaptivity(naming="cli", **kw)
+
+
+def _check_space(args, space) -> None:
+    if space is not None and args.data != "points":
+        raise fail("--data", args.data, "must be points with --adapt-space (the data of t_j is "
+                                        "re-evaluated on the new Dirichlet nodes)")
 
 
 def _keep_option(parser, default: int) -> None:
@@ -311,7 +370,28 @@ def run_summary(traj, example: str) -> dict:
                 summary[f"{key}_final"] = traj[key][-1].tolist()
     if "energy" in traj:
         summary.update(energy_summary(traj))
+    space = getattr(traj, "space", None)
+    if space is not None:
+        summary.update(space_summary(traj))
     return summary
+
+
+def space_summary(traj) -> dict:
+    """Dofs over the run and the adaptations of a space-adaptive run."""
+    sp = traj.space
+    dofs = np.asarray(traj["ndofs"])
+    return {
+        "space": traj.meta.get("space"),
+        "adaptations": len(sp.adaptations),
+        "meshes": len(sp.series.ids),
+        "ndofs": int(dofs[-1]),
+        "ndofs_initial": int(dofs[0]),
+        "ndofs_max": int(dofs.max()),
+        "ndofs_summed_over_steps": int(dofs[1:].sum()),
+        "bisections": int(sum(a["bisections"] for a in sp.adaptations)),
+        "merges": int(sum(a["merges"] for a in sp.adaptations)),
+        "transfer_energy": float(traj["transfer"][-1]),
+    }
 
 
 MMS_KEYS = ("example", "form", "scheme", "control", "tau", "accepted_steps", "rejected_steps",
@@ -346,6 +426,7 @@ class RunEldMMS:
                             help="exact | rest: initial data u(0), u'(0) of the solution, or zero "
                                  "(inconsistent with G(0): refused, Remark 2.2)")
         _mms_options(parser)
+        _space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -365,6 +446,7 @@ class RunEldMMS:
         parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
         if not parts:
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
+        _check_space(args, space_adaptivity(args))
         return form, tau, scheme, control, tol, keep, n, parts, _make_damping(args)
 
     def execute(self, args) -> int:
@@ -372,6 +454,7 @@ class RunEldMMS:
         from ..eld.schemes import run_eld
 
         form, tau, scheme, control, tol, keep, n, parts, damping = self.validate(args)
+        space = space_adaptivity(args)
         problem, exact = mms_problem(n, args.degree, damping=damping, rho=args.rho, lam=args.lam,
                                      mu=args.mu, T=args.T, dirichlet=parts, start=args.start,
                                      load_quadrature=args.load_quadrature)
@@ -382,7 +465,7 @@ class RunEldMMS:
                 return 0
             outcome = session.run(lambda **kw: run_eld(
                 problem, form, tau, scheme=scheme, control=control, tol=tol, steps=args.steps,
-                data=args.data, lifting=args.lifting, keep_every=keep, **kw))
+                data=args.data, lifting=args.lifting, keep_every=keep, space=space, **kw))
             results = session.results_dir(outcome.status)
             traj = outcome.result
             completed = outcome.status == "completed"
@@ -435,6 +518,7 @@ class RunEldBeam:
         _keep_option(parser, 5)
         _damping_options(parser, default_b=0.002)
         parser.set_defaults(damping="rayleigh")
+        _space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -450,6 +534,7 @@ class RunEldBeam:
         n = check_int("--n", args.n, minimum=1)
         every = check_int("--save-every", args.save_every, minimum=1)
         keep = check_int("--keep-every", args.keep_every, minimum=1)
+        space_adaptivity(args)
         return form, tau, scheme, control, tol, n, every, keep, _make_damping(args)
 
     def execute(self, args) -> int:
@@ -458,6 +543,7 @@ class RunEldBeam:
         from ..io.eld_output import EldXdmfWriter
 
         form, tau, scheme, control, tol, n, every, keep, damping = self.validate(args)
+        space = space_adaptivity(args)
         problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,
                                damping=damping, amplitude=args.amplitude, t_move=args.t_move,
                                T=args.T, degree=args.degree)
@@ -469,8 +555,10 @@ class RunEldBeam:
             stream = session.checkpoint_dir / "stream"
             if session.resume is None:  # segments of an earlier run are not this run's
                 shutil.rmtree(stream, ignore_errors=True)
-            writer = EldXdmfWriter(stream, problem, name="beam")
-            if session.resume is None:
+            # a fixed mesh streams XDMF as it goes; an adaptive run writes one VTU per kept
+            # state on its own mesh at the end (rothe.io.eld_output)
+            writer = None if space is not None else EldXdmfWriter(stream, problem, name="beam")
+            if session.resume is None and writer is not None:
                 writer.write(0.0, problem.u0, problem.v0, None)
 
             def observer(state, result):
@@ -478,25 +566,29 @@ class RunEldBeam:
                 if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
                     writer.write(state.t, state.u, state.v, result.lam)
 
-            session.checkpoint.attachments = {"xdmf": writer}
+            if writer is not None:
+                session.checkpoint.attachments = {"xdmf": writer}
             outcome = session.run(lambda **kw: run_eld(
                 problem, form, tau, scheme=scheme, control=control, tol=tol,
-                solver=args.solver, keep_every=keep, observer=observer, linear_rtol=1e-8,
+                solver=args.solver, keep_every=keep,
+                observer=None if writer is None else observer, linear_rtol=1e-8, space=space,
                 **kw))
             results = session.results_dir(outcome.status)
             traj = outcome.result
             completed = outcome.status == "completed"
             if traj is not None:
                 with session.outputs(outcome.status) as stage:
-                    writer.export(stage)
+                    if writer is not None:
+                        writer.export(stage)
                     summary = run_summary(traj, self.name)
                     summary.update(
                         n=n, degree=args.degree, length=args.length, E=args.E, nu=args.nu,
                         amplitude=args.amplitude, t_move=args.t_move,
                         seconds_per_step=traj.stats.wall_time_s
-                        / max(traj.stats.accepted_steps, 1),
-                        xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written,
-                    )
+                        / max(traj.stats.accepted_steps, 1))
+                    if writer is not None:
+                        summary.update(xdmf=[p.name for p in writer.paths],
+                                       xdmf_steps=writer.steps_written)
                     e = None
                     if traj.stats.accepted_steps:
                         summary.update(_beam_reactions(traj))
@@ -506,9 +598,9 @@ class RunEldBeam:
                             e["dissipated_numerical"] / put_in if put_in > 0 else None)
                     session.annotate(summary, outcome)
                     _write_run(args, stage, self.name, traj, summary, label, problem,
-                               xdmf=False, plots=completed)
+                               xdmf=writer is None, plots=completed)
             code = session.finish(outcome, results)
-            if completed:
+            if completed and writer is not None:
                 writer.discard()
         if completed:
             _print_run(args, results, self.name, summary,
@@ -525,6 +617,102 @@ class RunEldBeam:
                     print(f"note: coarse mesh for the reactions: the sideways reactions are "
                           f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of "
                           "R_z, zero for the exact solution; use --degree 2 or a larger --n")
+        return code
+
+
+#: eld-pulse defaults (benchmarks/space_adaptivity.py)
+PULSE_SPACE_TOL = 1e-3
+PULSE_MAX_DOFS = 100_000
+
+
+@command("run", "eld-pulse")
+class RunEldPulse:
+    help = ("A 2D body hit by a short boundary pulse: the wave front crosses the body, adaptive "
+            "meshes refine on it and coarsen behind it (space adaptivity)")
+    name = "eld-pulse"
+
+    def configure(self, parser) -> None:
+        parser.add_argument("--form", default="regularized", help="regularized | original")
+        _scheme_option(parser)
+        parser.set_defaults(scheme="bdf2")
+        parser.add_argument("--tau", type=parse_float("--tau"), default=0.005,
+                            help="time step; must divide T (default 0.005); the first step with "
+                                 "--control adaptive")
+        _control_options(parser)
+        parser.add_argument("--n", type=int, default=4,
+                            help="cells across the height of the initial mesh (default 4; "
+                                 "round(length*n) along)")
+        parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2)")
+        parser.add_argument("--length", type=parse_float("--length"), default=2.0,
+                            help="length of the body [0, length] x [0, 1] (default 2)")
+        parser.add_argument("--T", type=parse_float("--T"), default=0.8,
+                            help="end time (default 0.8: the pressure front crosses 80 %%)")
+        parser.add_argument("--amplitude", type=parse_float("--amplitude"), default=0.01,
+                            help="peak displacement of the pulse (default 0.01)")
+        parser.add_argument("--t-pulse", type=parse_float("--t-pulse"), default=0.1,
+                            help="duration of the pulse (default 0.1)")
+        parser.add_argument("--width", type=parse_float("--width"), default=0.1,
+                            help="width of the pushed part around y = 1/2 (default 0.1)")
+        parser.add_argument("--lam", type=parse_float("--lam"), default=2.0, help="Lamé lambda")
+        parser.add_argument("--mu", type=parse_float("--mu"), default=1.0, help="Lamé mu")
+        parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density")
+        parser.add_argument("--b", type=parse_float("--b"), default=0.001,
+                            help="Rayleigh stiffness-proportional damping b (default 0.001)")
+        parser.add_argument("--lifting", default="nodal",
+                            help="right inverse of B for the regularized form: nodal | harmonic")
+        _keep_option(parser, 10)
+        _space_options(parser, on=True)
+        add_output_options(parser, self.name)
+        add_run_options(parser)
+
+    def execute(self, args) -> int:
+        from ..eld.examples import pulse_problem
+        from ..eld.schemes import run_eld
+
+        check_eld_step("--tau", args.tau, args.T)
+        form = check_choice("--form", args.form, FORMS)
+        tau = check_positive("--tau", args.tau)
+        scheme, control, tol = _check_control(args)
+        keep = check_int("--keep-every", args.keep_every, minimum=1)
+        n = check_int("--n", args.n, minimum=1)
+        if args.degree not in (1, 2):
+            raise fail("--degree", args.degree, "must be 1 or 2")
+        length = check_positive("--length", args.length)
+        check_mms_size(max(n, round(n * length)), args.degree)
+        for option in ("--t-pulse", "--width", "--lam", "--mu", "--rho"):
+            check_positive(option, getattr(args, option.lstrip("-").replace("-", "_")))
+        space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL)
+        if space is not None and args.max_dofs is None:
+            space.max_dofs = PULSE_MAX_DOFS
+        problem = pulse_problem(n, args.degree, length=length, amplitude=args.amplitude,
+                                t_pulse=args.t_pulse, width=args.width, b=args.b,
+                                rho=args.rho, lam=args.lam, mu=args.mu, T=args.T)
+        label = (f"eld-pulse, {scheme}, {form}, "
+                 + (f"space_tol={space.space_tol:g}" if space else "fixed mesh"))
+        session = RunSession(args, self.name)
+        with session:
+            if _already_completed(session):
+                return 0
+            outcome = session.run(lambda **kw: run_eld(
+                problem, form, tau, scheme=scheme, control=control, tol=tol,
+                lifting=args.lifting, keep_every=keep, space=space, **kw))
+            results = session.results_dir(outcome.status)
+            traj = outcome.result
+            completed = outcome.status == "completed"
+            if traj is not None:
+                with session.outputs(outcome.status) as stage:
+                    summary = run_summary(traj, self.name)
+                    summary.update(n=n, degree=args.degree, length=length,
+                                   t_pulse=args.t_pulse, width=args.width)
+                    session.annotate(summary, outcome)
+                    _write_run(args, stage, self.name, traj, summary, label, problem,
+                               plots=completed)
+            code = session.finish(outcome, results)
+        if completed:
+            _print_run(args, results, self.name, summary,
+                       ("example", "form", "scheme", "tau", "accepted_steps", "ndofs_initial",
+                        "ndofs", "ndofs_max", "ndofs_summed_over_steps", "adaptations",
+                        "meshes", "bisections", "merges", "transfer_energy", "wall_time_s"))
         return code
 
 

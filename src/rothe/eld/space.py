@@ -54,20 +54,60 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import RotheInputError, RunFailed, fail
-from ..fem.adapt import AdaptiveMesh, SpaceAdaptivity, adapt_mesh, check_adaptable, free_transfer
+from ..errors import RotheInputError, RunFailed, described, fail
+from ..fem.adapt import (
+    AdaptiveMesh,
+    SpaceAdaptivity,
+    adapt_mesh,
+    check_adaptable,
+    doerfler_marking,
+    free_transfer,
+)
 from ..io.mesh_series import MeshSeries
 from .schemes import ELDState, ELDStepper
 
 #: the kept fields (ragged across meshes)
 KEPT = ("u", "v", "a", "lam")
+#: adaptation rounds after a step at most: the first refines and coarsens, the others refine
+#: while the estimate on the new mesh is above space_tol
+REFINE_ROUNDS = 3
+
+
+def dirichlet_data_indicator(problem, t: float) -> np.ndarray:
+    """Squared data indicator per cell: sum over the Dirichlet facets F of the cell of
+    h_F^{-1} ||G(t) - I_h G(t)||_{L2(F)}^2 (the energy of the lifted interpolation error of
+    the data, a layer one cell wide: the perturbation of the data of Theorem 4.5 that the
+    residual indicator does not see). Vectorized over the facets of each part;
+    h_F = |F|^(1/(d-1))."""
+    space = problem.space
+    c = problem.constraint
+    d = space.dim
+    mesh = space.mesh
+    out = np.zeros(mesh.t.shape[1])
+    full = np.zeros((space.n_scalar, d))
+    full[c.scalar_dofs] = problem.G(t).reshape(-1, d)
+    for part, data in problem.dirichlet.items():
+        facets = space.facets((part,), "dirichlet")
+        if facets.size == 0:
+            continue
+        q = space.facet_quadrature((part,), intorder=2 * space.degree + 2, name="dirichlet")
+        _, nf, nq = q.x.shape
+        ih = np.stack([np.einsum("ifq,if->fq", q.values, full[q.dofs, k]) for k in range(d)])
+        x = q.x.reshape(d, -1)
+        g = np.asarray(data.G(float(t), x), dtype=float)
+        g = np.broadcast_to(g.reshape(d, -1) if g.ndim > 1 else g[:, None], x.shape)
+        err2 = np.sum((g.reshape(d, nf, nq) - ih) ** 2, axis=0)
+        measure = q.dx.sum(axis=1)
+        h = measure ** (1.0 / (d - 1)) if d > 2 else measure
+        np.add.at(out, mesh.f2t[0, facets], (err2 * q.dx).sum(axis=1) / h)
+    return out
 
 
 def check_space_options(space, *, data: str, noise, form: str) -> SpaceAdaptivity:
     """``space`` must be a SpaceAdaptivity; data 'points' and no noise (one-line errors)."""
     if not isinstance(space, SpaceAdaptivity):
-        raise fail("space", type(space).__name__, "must be a rothe.fem.adapt.SpaceAdaptivity "
-                   "(or None for a fixed mesh)")
+        raise fail("space", described(type(space).__name__),
+                   "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
     if data != "points":
         raise fail("data", data, "must be 'points' with space adaptivity (the data of t_j is "
                    "re-evaluated on the new Dirichlet nodes after a mesh change)")
@@ -182,38 +222,62 @@ class SpaceAdaptiveStepper:
             traj.stats.linear_factorizations += self._pending_factorizations
             self._pending_factorizations = 0
 
-    def indicators(self, state, tau: float):
-        """Cell indicators of the accepted step that ended at ``state`` (module docstring)."""
+    def indicators(self, problem, state, tau: float, t_next: float) -> np.ndarray:
+        """eta_K of the accepted step that ended at ``state`` on ``problem``'s mesh (module
+        docstring): the residual indicator with the reaction rho (alpha_0/tau)^2, plus the
+        Dirichlet data term of the next step, eta_K^2 += sum_{F in Gamma_D, F in K}
+        h_F^{-1} ||G(t_next) - I_h G(t_next)||_F^2 (:func:`dirichlet_data_indicator`)."""
         from ..estimators.eld_indicator import eld_indicators_for
 
         f = state.fields
         a0 = 1.0 if self.inner.scheme == "euler" else 1.5
-        rho = self.problem.material.rho
-        return eld_indicators_for(self.problem, state.t, f["u"], f["v"], f["a"],
-                                  reaction=rho * (a0 / tau) ** 2)
+        rho = problem.material.rho
+        ind = eld_indicators_for(problem, state.t, f["u"], f["v"], f["a"],
+                                 reaction=rho * (a0 / tau) ** 2)
+        eta2 = np.asarray(ind.eta, dtype=float) ** 2 + dirichlet_data_indicator(problem, t_next)
+        return np.sqrt(eta2)
 
     def _adapt(self, state: ELDState, tau: float) -> float:
         """Adapt after the accepted ``state``; replaces its contents in place when the mesh
-        changed. Returns the estimate eta of the step."""
+        changed. Returns the estimate eta of the step on its own mesh.
+
+        Round 1 marks by :meth:`SpaceAdaptivity.mark` (refine and coarsen); while the estimate
+        of the transferred state on the new mesh is still above space_tol, up to
+        :data:`REFINE_ROUNDS` - 1 more rounds refine only (a front that moved by more than a
+        cell per step is caught up at once instead of one bisection per step)."""
         j = state.j
-        try:
-            ind = self.indicators(state, tau)
-        except Exception as exc:  # noqa: BLE001 - any failure stops the run cleanly
-            raise RunFailed(f"space adaptivity: the error indicators after step {j} (t = "
-                            f"{state.t:.6g}) failed: {exc}", where=self.where(state)) from exc
-        eta = np.asarray(ind.eta, dtype=float)
-        if not np.all(np.isfinite(eta)):
-            raise RunFailed(f"space adaptivity: non-finite error indicators after step {j} "
-                            f"(t = {state.t:.6g}); the mesh is not changed",
-                            where=self.where(state))
+        t_next = min(state.t + tau, self.inner.T)
+        opts = self.options
         snapshot = self.amesh.checkpoint_state()
         old_id = int(state.mesh_id)
+        estimate = math.nan
         try:
-            change = adapt_mesh(self.amesh, eta, self.options, degree=self.degree,
-                                components=self.components)
-            if not change.changed:
-                return float(ind.estimate)
-            new_problem, new_inner, new_state = self._transfer(state, change)
+            problem, work, changes = self.problem, state, []
+            for r in range(REFINE_ROUNDS):
+                eta = self.indicators(problem, work, tau, t_next)
+                if not np.all(np.isfinite(eta)):
+                    raise FloatingPointError("non-finite error indicators")
+                est = float(np.sqrt(np.sum(eta * eta)))
+                if r == 0:
+                    estimate = est
+                    change = adapt_mesh(self.amesh, eta, opts, degree=self.degree,
+                                        components=self.components)
+                else:
+                    if est <= opts.space_tol:
+                        break
+                    change = self.amesh.adapt(
+                        refine=doerfler_marking(eta, opts.refine_fraction),
+                        max_dofs=opts.max_dofs, degree=self.degree,
+                        components=self.components, priority=eta, max_level=opts.max_level)
+                if not change.changed:
+                    break
+                new_problem = problem.on_mesh(self.amesh.mesh)
+                work = self._map(work, change, problem, new_problem)
+                problem = new_problem
+                changes.append(change)
+            if not changes:
+                return estimate
+            inner, new_state = self._new_stepper(problem, work)
         except Exception as exc:  # noqa: BLE001 - a failed transfer is never accepted
             self.amesh = AdaptiveMesh.restore_state(snapshot)
             if isinstance(exc, RotheInputError) and not isinstance(exc, RunFailed):
@@ -228,20 +292,42 @@ class SpaceAdaptiveStepper:
         for fld in dataclass_fields(ELDState):
             setattr(state, fld.name, getattr(new_state, fld.name))
         self.series.add(self.amesh.mesh_id, self.amesh.points, self.amesh.cells)
-        self.problem, self.inner = new_problem, new_inner
+        self.problem, self.inner = problem, inner
         self.adaptations.append({
             "step": j, "t": float(state.t), "from_mesh": old_id, "to_mesh": int(state.mesh_id),
-            "estimate": float(ind.estimate), "bisections": int(change.bisections),
-            "merges": int(change.merges), "cells": int(self.amesh.n_cells),
-            "ndofs": int(new_problem.space.ndofs),
+            "estimate": estimate, "rounds": len(changes),
+            "bisections": int(sum(c.bisections for c in changes)),
+            "merges": int(sum(c.merges for c in changes)), "cells": int(self.amesh.n_cells),
+            "ndofs": int(problem.space.ndofs),
             "transfer_energy": float(state.ledger.energy - old_energy)})
-        return float(ind.estimate)
+        return estimate
 
-    def _transfer(self, state: ELDState, change):
-        """(problem, stepper, state) on the new mesh (module docstring, steps 3-5)."""
-        p_old = self.problem
+    def _map(self, state: ELDState, change, p_old, problem) -> ELDState:
+        """Every field through the transfer T, the boundary vectors through its trace part;
+        u, v, a at t_j take G, G_dot, G_ddot(t_j) on the new Dirichlet nodes (module
+        docstring, step 3)."""
         T = change.transfer(self.degree, self.components)
-        problem = p_old.on_mesh(self.amesh.mesh)
+        T_gamma = free_transfer(T, p_old.constraint.dofs, problem.constraint.dofs)
+        mapped = state.mapped(T, T_gamma)
+        f = mapped.fields
+        C = problem.constraint.dofs
+        t = state.t
+        if self.inner.form == "regularized":
+            for name, g in (("u", problem.G(t)), ("v", problem.G_dot(t)),
+                            ("a", problem.G_ddot(t))):
+                f[name][C] = g
+        else:
+            f["u"][C] = problem.G(t)
+            f["x"] = f["u"].copy()
+        for name, w in list(f.items()) + list(mapped.boundary.items()):
+            if not np.all(np.isfinite(w)):
+                raise FloatingPointError(f"the transferred {name} has NaN or inf entries")
+        return replace(mapped, mesh_id=int(self.amesh.mesh_id))
+
+    def _new_stepper(self, problem, mapped: ELDState):
+        """The stepper on the new mesh (its constructor re-checks tau < rho/d0) and the state
+        it adopts: regularized form, x, y, b and the t_{j-1} history rebuilt with the new
+        lifting (module docstring, steps 4-5)."""
         kwargs = dict(self.kwargs)
         kwargs["error_scale"] = self.inner.error_scale
         inner = ELDStepper(problem, store_fields=False, **kwargs)
@@ -250,36 +336,22 @@ class SpaceAdaptiveStepper:
         inner.solver.stats.factorizations += inner.initial_factorizations
         self._pending_factorizations += inner.initial_factorizations
         inner._last_newton = self.inner._last_newton
-        T_gamma = free_transfer(T, p_old.constraint.dofs, problem.constraint.dofs)
-        mapped = state.mapped(T, T_gamma)
         f = mapped.fields
         C = problem.constraint.dofs
-        t = state.t
         if inner.form == "regularized":
             lift = inner.lifting
-            current = {"u": ("x", problem.G(t)), "v": ("y", problem.G_dot(t)),
-                       "a": ("b", problem.G_ddot(t))}
-            for full, (name, g) in current.items():
-                w = f[full] - lift(g)
-                w[C] = 0.0
-                f[name] = w
-                f[full] = w + lift(g)
-            for full, name in (("u_1", "x_1"), ("v_1", "y_1")):
-                if full in f:  # the history keeps its transferred trace
-                    w = f[full] - lift(f[full][C])
+            for full, name in (("u", "x"), ("v", "y"), ("a", "b"), ("u_1", "x_1"),
+                               ("v_1", "y_1")):
+                if full in f:
+                    g = f[full][C].copy()
+                    w = f[full] - lift(g)
                     w[C] = 0.0
                     f[name] = w
-        else:
-            f["u"][C] = problem.G(t)
-            f["x"] = f["u"]
-        for name, w in list(f.items()) + list(mapped.boundary.items()):
-            if not np.all(np.isfinite(w)):
-                raise FloatingPointError(f"the transferred {name} has NaN or inf entries")
+                    f[full] = w + lift(g)
         new = inner.adopt(mapped)
-        new.mesh_id = int(self.amesh.mesh_id)
         if not math.isfinite(new.ledger.energy):
             raise FloatingPointError("the energy of the transferred state is not finite")
-        return problem, inner, new
+        return inner, new
 
     # -- checkpoints ----------------------------------------------------------------------------
     def checkpoint_state(self, state) -> dict:

@@ -156,6 +156,9 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if getattr(traj, "space", None) is not None:
+        return write_adaptive_eld_result(traj, out, name=name, paraview=xdmf, figures=figures,
+                                         npz=npz, title=title)
     paths: dict = {}
     if npz:
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
@@ -180,4 +183,61 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
 
         paths["figures"] = [plot_energy_balance(traj, out / "fig_energy.png", title=title),
                             plot_reactions(traj, out / "fig_reaction.png", title=title)]
+    return paths
+
+
+def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: bool = True,
+                              figures: bool = True, npz: bool = True, title: str = "") -> dict:
+    """The outputs of a space-adaptive run (``run_eld(..., space=...)``, :mod:`rothe.eld.space`):
+
+    - ``trajectory.npz``: the series of the run (with ``mesh_id``, ``ndofs``, ``cells`` per
+      state and ``kept_mesh_id`` per kept state), every distinct mesh once
+      (``mesh_ids``, ``mesh_points_<id>``, ``mesh_cells_<id>``, ``state_mesh_id`` = the kept
+      states' mesh ids; :class:`rothe.io.mesh_series.MeshSeries`) and the kept fields
+      ``kept_u``, ``kept_v``, ``kept_a``, ``kept_lam`` concatenated with ``kept_<f>_offsets``
+      (state k: ``kept_u[off[k]:off[k + 1]]``, interleaved P``degree`` dofs of its mesh in
+      scikit-fem's numbering, vertices first);
+    - ``<name>.pvd`` with ``<name>_000000.vtu`` ...: one VTU per kept state on its own mesh
+      (point data ``u``, ``v`` at the vertices), the ``.pvd`` index with the times: ParaView
+      plays the states with their meshes (File > Open the .pvd);
+    - ``fig_energy.png``, ``fig_reaction.png``, ``fig_dofs.png`` (dofs against t) and, in 2D,
+      ``fig_mesh.png`` (four kept states: mesh and |u|).
+    """
+    from ..io.mesh_series import write_vtu_series
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sp = traj.space
+    paths: dict = {}
+    if npz:
+        paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=sp.npz_arrays(traj))
+    kept = "kept_t" in traj and len(sp.kept["u"]) > 0
+    ids = np.asarray(traj["kept_mesh_id"], dtype=np.int64) if kept else np.zeros(0, np.int64)
+    d = sp.components
+
+    def vertex(w, mesh_id):
+        nv = len(sp.series.mesh(mesh_id)[0])
+        return np.asarray(w).reshape(-1, d)[:nv]
+
+    if paraview and kept:
+        data = [{"u": vertex(u, m), "v": vertex(v, m)}
+                for u, v, m in zip(sp.kept["u"], sp.kept["v"], ids, strict=True)]
+        paths["pvd"] = write_vtu_series(out, name, sp.series, ids, traj["kept_t"], data)
+    if figures:
+        from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
+        from ..plotting.eld import plot_energy_balance, plot_reactions
+
+        figs = [plot_energy_balance(traj, out / "fig_energy.png", title=title),
+                plot_reactions(traj, out / "fig_reaction.png", title=title)]
+        plot_dofs(out / "fig_dofs.png", traj["t"], traj["ndofs"], title=title)
+        figs.append(out / "fig_dofs.png")
+        if kept and d == 2:
+            k = len(ids)
+            picks = sorted({round(i * (k - 1) / 3) for i in range(4)})
+            norms = [np.linalg.norm(vertex(u, m), axis=1) for u, m in zip(sp.kept["u"], ids,
+                                                                          strict=True)]
+            plot_mesh_snapshots(out / "fig_mesh.png", sp.series, ids, traj["kept_t"], norms,
+                                picks, title=title)
+            figs.append(out / "fig_mesh.png")
+        paths["figures"] = figs
     return paths

@@ -1,0 +1,241 @@
+"""Space-adaptive ELD runs (rothe.eld.space): constraint and lifting after every change, the
+ledger closing with the transfer term, nothing marked = the fixed mesh bit for bit, coarsening
+behind the pulse, bad input, checkpoint/resume bit for bit."""
+
+from __future__ import annotations
+
+import signal
+
+import numpy as np
+import pytest
+
+from rothe.eld import prepare_eld_run, run_eld
+from rothe.eld.examples import mms_problem, pulse_problem
+from rothe.eld.space import SpaceAdaptiveStepper
+from rothe.errors import RotheInputError, RunFailed, RunInterrupted
+from rothe.fem.adapt import SpaceAdaptivity
+from rothe.io.checkpoint import CheckpointOptions, load_checkpoint
+
+PULSE = dict(form="regularized", tau=0.02, scheme="bdf2")
+
+
+def pulse(T=0.4):
+    return pulse_problem(2, T=T)
+
+
+def adaptivity(**kw):
+    opts = dict(space_tol=2e-3, refine_fraction=0.5, coarsen_fraction=0.05, max_dofs=6000,
+                adapt_every=1)
+    opts.update(kw)
+    return SpaceAdaptivity(**opts)
+
+
+@pytest.fixture(scope="module")
+def pulse_run():
+    """One coarse adaptive pulse run, with every transfer checked as it happens."""
+    problem = pulse()
+    run = prepare_eld_run(problem, space=adaptivity(), **PULSE)
+    stepper: SpaceAdaptiveStepper = run.stepper
+    checks = []
+    original = stepper._new_stepper
+
+    def checked(new_problem, mapped):
+        inner, new = original(new_problem, mapped)
+        c = new_problem.constraint
+        t = new.t
+        lift = inner.lifting
+        f = new.fields
+        checks.append({
+            # B u = G(t_j) (and v, a: G_dot, G_ddot) on the new Dirichlet nodes, exactly
+            "u": np.max(np.abs(c.restrict(f["u"]) - new_problem.G(t))),
+            "v": np.max(np.abs(c.restrict(f["v"]) - new_problem.G_dot(t))),
+            "a": np.max(np.abs(c.restrict(f["a"]) - new_problem.G_ddot(t))),
+            # the regularized unknowns with the new lifting: u = x + B^- G, x = 0 on Gamma_D
+            "x": np.max(np.abs(f["u"] - f["x"] - lift(new_problem.G(t)))),
+            "y": np.max(np.abs(f["v"] - f["y"] - lift(new_problem.G_dot(t)))),
+            "b": np.max(np.abs(f["a"] - f["b"] - lift(new_problem.G_ddot(t)))),
+            "x_gamma": np.max(np.abs(c.restrict(f["x"]))),
+            "sizes": {k: w.size == new_problem.space.ndofs for k, w in f.items()},
+            "lam": new.boundary["lam"].size == c.m,
+            "bound": inner.bound == problem.step_bound(),
+        })
+        return inner, new
+
+    stepper._new_stepper = checked
+    run.evolve()
+    return run, checks
+
+
+def test_constraint_and_lifting_hold_after_every_change(pulse_run):
+    run, checks = pulse_run
+    assert len(checks) >= 5
+    for c in checks:
+        assert c["u"] == 0.0 and c["v"] == 0.0 and c["a"] == 0.0
+        assert c["x"] <= 1e-15 and c["y"] <= 1e-13 and c["b"] <= 1e-10
+        assert c["x_gamma"] == 0.0
+        assert all(c["sizes"].values()) and c["lam"] and c["bound"]
+    # every later step keeps the constraint on its own mesh
+    traj = run.trajectory
+    sp = traj.space
+    final = run.state
+    p = sp.problem
+    assert np.array_equal(p.constraint.restrict(final.u), p.G(final.t))
+    assert final.mesh_id == traj["mesh_id"][-1] and final.mesh_id in sp.series
+
+
+def test_ledger_closes_with_the_transfer_term(pulse_run):
+    run, _ = pulse_run
+    traj = run.trajectory
+    scale = np.max(np.abs(traj["energy"]))
+    residual = np.max(np.abs(traj["balance_residual"]))
+    assert residual <= 1e-12 * scale
+    transfer = traj["transfer"][-1]
+    # the transfer term is needed: without it the balance would be off by far more
+    assert abs(transfer) > 1e6 * residual
+    log = run.stepper.adaptations
+    assert np.isclose(sum(a["transfer_energy"] for a in log), transfer, rtol=1e-10,
+                      atol=1e-16)
+
+
+def test_meshes_stored_once_and_ids_per_state(pulse_run):
+    run, _ = pulse_run
+    traj = run.trajectory
+    sp = traj.space
+    ids = traj["mesh_id"]
+    assert len(ids) == len(traj["t"]) and ids[0] == 0
+    assert set(np.unique(ids)) <= set(sp.series.ids)
+    assert len(sp.series.ids) == len(set(sp.series.ids)) == 1 + len(sp.adaptations)
+    assert sp.series.ids == [0] + [a["to_mesh"] for a in sp.adaptations]
+    for m, u in zip(traj["kept_mesh_id"], sp.kept["u"], strict=True):
+        points, cells = sp.series.mesh(m)
+        n_edges = len({tuple(sorted(e)) for c in cells for e in ((c[0], c[1]), (c[1], c[2]),
+                                                                 (c[0], c[2]))})
+        assert u.size == 2 * (len(points) + n_edges)  # P2 on that mesh
+    arrays = sp.npz_arrays(traj)
+    assert np.array_equal(arrays["state_mesh_id"], traj["kept_mesh_id"])
+    off = arrays["kept_u_offsets"]
+    assert np.array_equal(arrays["kept_u"][off[-2]:off[-1]], sp.kept["u"][-1])
+
+
+def test_coarsening_returns_to_coarser_cells_after_the_pulse_passed(pulse_run):
+    run, _ = pulse_run
+    traj = run.trajectory
+    sp = traj.space
+    assert sum(a["merges"] for a in sp.adaptations) > 0
+
+    def cells_near_left(mesh_id):
+        points, cells = sp.series.mesh(mesh_id)
+        return int(np.sum(points[cells].mean(axis=1)[:, 0] < 0.25))
+
+    ids = traj["mesh_id"]
+    near = np.array([cells_near_left(m) for m in ids])
+    peak = int(np.argmax(near))
+    # refined while the pulse is emitted (t <= 0.1), coarsened once the front has left:
+    # at T = 0.4 the pressure front is 0.6 away from the pushed side
+    assert traj["t"][peak] <= 0.2 and near[peak] >= 10 * near[0]
+    assert near[-1] <= 0.7 * near[peak]
+    assert np.all(np.diff(near[peak:]) <= 0.05 * near[peak])  # no regrowth
+
+
+def test_nothing_marked_equals_the_fixed_mesh_bit_for_bit():
+    problem, _ = mms_problem(3, 2, T=0.2)
+    opts = dict(form="regularized", tau=0.05, scheme="bdf2")
+    fixed = run_eld(problem, **opts)
+    adaptive = run_eld(problem, space=SpaceAdaptivity(space_tol=1e30, adapt_every=1), **opts)
+    assert adaptive.space.adaptations == []
+    for key in fixed.keys():
+        if key in ("u", "v", "a", "lam"):
+            kept = adaptive.space.kept[key]
+            assert all(np.array_equal(x, y) for x, y in zip(fixed[key], kept, strict=True))
+        else:
+            assert np.array_equal(fixed[key], adaptive[key]), key
+    assert np.array_equal(fixed.final_state.u, adaptive.final_state.u)
+    assert np.all(adaptive["mesh_id"] == 0)
+
+
+def test_adaptive_time_steps_with_space_adaptivity():
+    traj = run_eld(pulse(0.08), "regularized", 0.01, scheme="bdf2", control="adaptive",
+                   tol=1e-2, space=adaptivity(adapt_every=2, max_dofs=2000))
+    assert traj.space.adaptations
+    assert all(a["step"] % 2 == 0 for a in traj.space.adaptations)
+    assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
+    assert len(set(traj["tau"].tolist())) > 1
+
+
+def test_a_failed_transfer_is_never_accepted(monkeypatch):
+    problem = pulse(0.2)
+    run = prepare_eld_run(problem, space=adaptivity(), **PULSE)
+    stepper = run.stepper
+
+    def broken(new_problem, mapped):
+        raise FloatingPointError("the transferred u has NaN or inf entries")
+
+    monkeypatch.setattr(stepper, "_new_stepper", broken)
+    with pytest.raises(RunFailed, match=r"space adaptivity: the transfer to the new mesh after "
+                                        r"step 1 .* failed .*NaN.*; the run stops on mesh 0"):
+        run.evolve()
+    # the hierarchy is rolled back: the last accepted state and the mesh agree
+    assert stepper.amesh.mesh_id == 0 and stepper.problem is problem
+    # step 1 is recorded on mesh 0 (it was computed and accepted there), nothing after it
+    assert len(run.trajectory["t"]) == 2 and np.all(run.trajectory["mesh_id"] == 0)
+
+
+def test_bad_input_one_line():
+    problem = pulse(0.2)
+    with pytest.raises(RotheInputError, match=r"^max_dofs: got 10, must be >= the \d+ dofs of "
+                                              r"the initial mesh$"):
+        run_eld(problem, space=adaptivity(max_dofs=10), **PULSE)
+    with pytest.raises(RotheInputError, match=r"^data: got 'differenced', must be 'points' "
+                                              r"with space adaptivity"):
+        run_eld(problem, data="differenced", space=adaptivity(), **PULSE)
+    with pytest.raises(RotheInputError, match=r"^space: got dict, must be a "
+                                              r"rothe.fem.adapt.SpaceAdaptivity"):
+        run_eld(problem, space={"space_tol": 1}, **PULSE)
+    with pytest.raises(RotheInputError, match=r"^space_tol: got 0, must be > 0$"):
+        SpaceAdaptivity(space_tol=0)
+
+
+def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch):
+    import os
+
+    from rothe.eld import ELDStepper
+
+    problem = pulse(0.2)
+
+    def make_run(**kw):
+        return run_eld(problem, space=adaptivity(), **PULSE, **kw)
+
+    full = make_run()
+    ckpt = tmp_path / "c"
+    original = ELDStepper.step
+    resume = None
+    for k in (4, 3):  # interrupted twice, each time after adaptations on a refined mesh
+        calls = [0]
+
+        def step(self, state, tau, s_end=None, k=k, calls=calls):
+            calls[0] += 1
+            if calls[0] == k:
+                os.kill(os.getpid(), signal.SIGINT)
+            return original(self, state, tau, s_end)
+
+        monkeypatch.setattr(ELDStepper, "step", step)
+        with pytest.raises(RunInterrupted):
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        assert load_checkpoint(ckpt).status == "interrupted"
+        resume = ckpt
+    monkeypatch.setattr(ELDStepper, "step", original)
+    resumed = make_run(resume=ckpt)
+    assert set(full.keys()) == set(resumed.keys())
+    for key in full.keys():  # space_estimate is NaN after the steps not adapted after
+        assert np.array_equal(full[key], resumed[key], equal_nan=True), key
+    a, b = full.space, resumed.space
+    assert a.series.ids == b.series.ids and len(a.series.ids) > 2
+    for i in a.series.ids:
+        assert all(np.array_equal(x, y) for x, y in zip(a.series.mesh(i), b.series.mesh(i),
+                                                        strict=True))
+    for key in a.kept:
+        assert all(np.array_equal(x, y) for x, y in zip(a.kept[key], b.kept[key], strict=True))
+    assert a.adaptations == b.adaptations
+    sa, sb = full.stats.as_dict(), resumed.stats.as_dict()
+    sa.pop("wall_time_s"), sb.pop("wall_time_s")
+    assert sa == sb
