@@ -239,3 +239,69 @@ def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch
     sa, sb = full.stats.as_dict(), resumed.stats.as_dict()
     sa.pop("wall_time_s"), sb.pop("wall_time_s")
     assert sa == sb
+
+
+# -- command line --------------------------------------------------------------------------------
+
+def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
+    import json
+
+    import meshio
+
+    from rothe.cli.main import main
+    from rothe.io.mesh_series import MeshSeries
+
+    out = tmp_path / "pulse"
+    code = main(["run", "eld-pulse", "--n", "2", "--T", "0.06", "--tau", "0.02",
+                 "--keep-every", "1", "--max-dofs", "3000", "--out", str(out)])
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["adaptations"] >= 1 and s["meshes"] == s["adaptations"] + 1
+    assert s["ndofs"] > s["ndofs_initial"] and s["balance_residual_max"] < 1e-12
+    data = np.load(out / "trajectory.npz")
+    series, ids = MeshSeries.from_npz(data)
+    assert np.array_equal(ids, data["kept_mesh_id"]) and len(series.ids) == s["meshes"]
+    off = data["kept_u_offsets"]
+    for k, m in enumerate(ids):
+        points, cells = series.mesh(m)
+        vtu = meshio.read(out / f"pulse_{k:06d}.vtu")
+        assert len(vtu.points) == len(points) and len(vtu.cells[0].data) == len(cells)
+        u = data["kept_u"][off[k]:off[k + 1]].reshape(-1, 2)[:len(points)]
+        assert np.array_equal(vtu.point_data["u"][:, :2], u)
+    assert (out / "pulse.pvd").is_file()
+    for fig in ("fig_dofs.png", "fig_mesh.png", "fig_energy.png"):
+        assert (out / fig).is_file(), fig
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "eld-pulse", "--space-tol", "0"], r"--space-tol: got 0, must be > 0"),
+    (["run", "eld-pulse", "--refine-fraction", "1"], r"--refine-fraction: got 1, must be in"),
+    (["run", "eld-pulse", "--refine-fraction", "0.8", "--coarsen-fraction", "0.3"],
+     r"--refine-fraction \+ --coarsen-fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1"),
+    (["run", "eld-pulse", "--max-dofs", "10"], r"--max-dofs: got 10, must be >= the 306 dofs"),
+    (["run", "eld-pulse", "--adapt-every", "0"], r"--adapt-every: got 0, must be an integer"),
+    (["run", "eld-pulse", "--no-adapt-space", "--max-dofs", "1000"],
+     r"--max-dofs: got 1000, is used by --adapt-space only"),
+    (["run", "eld-mms", "--adapt-space"], r"--space-tol: got None, must be given"),
+    (["run", "eld-mms", "--adapt-space", "--space-tol", "1", "--data", "means"],
+     r"--data: got 'means', must be points with --adapt-space"),
+])
+def test_cli_bad_space_options_one_line_exit_2(tmp_path, capsys, args, message):
+    import re
+
+    from rothe.cli.main import main
+
+    code = main(args + ["--T", "0.02", "--tau", "0.01", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert re.search(message, err), err
+
+
+def test_a_quadrilateral_mesh_is_refused_naming_adapt_space():
+    from skfem import MeshQuad
+
+    from rothe.fem.adapt import check_adaptable
+
+    with pytest.raises(RotheInputError, match=r"^--adapt-space: got a mesh of quadrilaterals, "
+                                              r"needs triangles \(2D\) or tetrahedra \(3D\)"):
+        check_adaptable(MeshQuad())
