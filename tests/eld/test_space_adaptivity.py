@@ -92,9 +92,13 @@ def test_ledger_closes_with_the_transfer_term(pulse_run):
     transfer = traj["transfer"][-1]
     # the transfer term is needed: without it the balance would be off by far more
     assert abs(transfer) > 1e6 * residual
-    log = run.stepper.adaptations
-    assert np.isclose(sum(a["transfer_energy"] for a in log), transfer, rtol=1e-10,
-                      atol=1e-16)
+    # booked exactly at the steps after a mesh change: an adaptation after the previous step
+    # or a refinement of the step's own mesh
+    increments = np.diff(traj["transfer"])
+    adapted_after = {a["step"] for a in run.stepper.adaptations}
+    changed = np.array([(j - 1) in adapted_after for j in range(1, len(increments) + 1)])
+    changed |= traj["step_refinements"] > 0
+    assert np.all(increments[~changed] == 0.0) and np.any(increments[changed] != 0.0)
 
 
 def test_meshes_stored_once_and_ids_per_state(pulse_run):
@@ -104,8 +108,9 @@ def test_meshes_stored_once_and_ids_per_state(pulse_run):
     ids = traj["mesh_id"]
     assert len(ids) == len(traj["t"]) and ids[0] == 0
     assert set(np.unique(ids)) <= set(sp.series.ids)
-    assert len(sp.series.ids) == len(set(sp.series.ids)) == 1 + len(sp.adaptations)
-    assert sp.series.ids == [0] + [a["to_mesh"] for a in sp.adaptations]
+    # every mesh once: those the steps were computed on and those adapted to after a step
+    assert len(sp.series.ids) == len(set(sp.series.ids))
+    assert set(sp.series.ids) == set(ids.tolist()) | {a["to_mesh"] for a in sp.adaptations}
     for m, u in zip(traj["kept_mesh_id"], sp.kept["u"], strict=True):
         points, cells = sp.series.mesh(m)
         n_edges = len({tuple(sorted(e)) for c in cells for e in ((c[0], c[1]), (c[1], c[2]),
@@ -256,7 +261,7 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
                  "--keep-every", "1", "--max-dofs", "3000", "--out", str(out)])
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
-    assert s["adaptations"] >= 1 and s["meshes"] == s["adaptations"] + 1
+    assert s["adaptations"] >= 1 and s["meshes"] >= s["adaptations"] + 1
     assert s["ndofs"] > s["ndofs_initial"] and s["balance_residual_max"] < 1e-12
     data = np.load(out / "trajectory.npz")
     series, ids = MeshSeries.from_npz(data)

@@ -70,7 +70,9 @@ from .schemes import ELDState, ELDStepper
 KEPT = ("u", "v", "a", "lam")
 #: adaptation rounds after a step at most: the first refines and coarsens, the others refine
 #: while the estimate on the new mesh is above space_tol
-REFINE_ROUNDS = 3
+REFINE_ROUNDS = 1
+#: refinements of a step's own mesh at most, each followed by solving the step again
+STEP_ROUNDS = 3
 
 
 def dirichlet_data_indicator(problem, t: float) -> np.ndarray:
@@ -148,6 +150,8 @@ class SpaceAdaptiveStepper:
         self.kept: dict[str, list] = {k: [] for k in KEPT}
         self.adaptations: list[dict] = []
         self._pending_factorizations = 0
+        self._base = None  # (state, mesh hierarchy, problem, stepper) before in-step refinement
+        self._step_refinements = 0
 
     # -- delegation to the stepper of the current mesh --------------------------------------------
     def __getattr__(self, name):
@@ -183,7 +187,59 @@ class SpaceAdaptiveStepper:
         return out
 
     def step(self, state, tau, s_end=None):
-        return self.inner.step(state, tau, s_end)
+        """One step; while its estimate on its mesh exceeds space_tol, the mesh is refined
+        (Doerfler, no coarsening) and the step is solved again from the previous state
+        transferred to the refined mesh, at most :data:`STEP_ROUNDS` times (the
+        solve-estimate-mark-refine loop of the step: a wave that enters a coarse region, or
+        the data of a boundary pulse, is resolved in the step that creates it). The result is
+        that of the last solve; ``result.counters['dofs']`` sums the dofs of every solve."""
+        self._restore_base(state)
+        original = state
+        result = self.inner.step(state, tau, s_end)
+        dofs = self.problem.space.ndofs
+        opts = self.options
+        for _ in range(STEP_ROUNDS):
+            if not result.converged or result.state is None:
+                break
+            try:
+                eta = self.indicators(self.problem, result.state, tau, result.state.t)
+            except Exception:  # noqa: BLE001 - no estimate, no refinement: the step stands
+                break
+            if not np.all(np.isfinite(eta)) or np.sqrt(np.sum(eta * eta)) <= opts.space_tol:
+                break
+            base = self._base
+            if base is None or base[0] is not original:
+                base = (original, self.amesh.checkpoint_state(), self.problem, self.inner)
+            before = self.amesh.checkpoint_state() if self._step_refinements else base[1]
+            try:
+                change = self.amesh.adapt(
+                    refine=doerfler_marking(eta, opts.refine_fraction),
+                    max_dofs=opts.max_dofs, degree=self.degree, components=self.components,
+                    priority=eta, max_level=opts.max_level)
+                if not change.changed:
+                    break
+                problem = self.problem.on_mesh(self.amesh.mesh)
+                mapped = self._map(state, change, self.problem, problem)
+                inner, moved = self._new_stepper(problem, mapped)
+            except Exception:  # noqa: BLE001 - a failed transfer is not used: the step stands
+                self.amesh = AdaptiveMesh.restore_state(before)
+                break
+            self._base = base
+            self.problem, self.inner, state = problem, inner, moved
+            self._step_refinements += 1
+            result = self.inner.step(state, tau, s_end)
+            dofs += problem.space.ndofs
+        result.counters["dofs"] = dofs
+        return result
+
+    def _restore_base(self, state) -> None:
+        """A step retried (rejected by the time controller) from a state whose mesh was refined
+        during the rejected attempt: back to that state's mesh and stepper."""
+        base = self._base
+        if base is not None and base[0] is state and state.mesh_id != self.amesh.mesh_id:
+            self.amesh = AdaptiveMesh.restore_state(base[1])
+            self.problem, self.inner = base[2], base[3]
+            self._step_refinements = 0  # counted for the attempt that is accepted
 
     def initial_state(self) -> ELDState:
         return self.inner.initial_state()
@@ -208,8 +264,13 @@ class SpaceAdaptiveStepper:
 
     def record(self, traj, result) -> None:
         st = result.state
+        self._base = None  # accepted: the state's mesh is the current one
+        self.series.add(st.mesh_id, self.amesh.points, self.amesh.cells)
         self.inner.record(traj, result)
         traj.append(**self._mesh_record(st))
+        traj.append(step_dofs=int(result.counters.get("dofs", self.problem.space.ndofs)),
+                    step_refinements=self._step_refinements)
+        self._step_refinements = 0
         if self.store_fields and (st.j % self.keep_every == 0 or self.inner.finished(st)):
             self._keep(traj, st)
         if self.observer is not None:
@@ -357,6 +418,7 @@ class SpaceAdaptiveStepper:
     def checkpoint_state(self, state) -> dict:
         """The inner stepper's state, the mesh hierarchy, the mesh series, the kept fields and
         the log of adaptations (arrays and plain values)."""
+        self._restore_base(state)  # e.g. interrupted after a rejected, refined attempt
         return {
             "format": "rothe-eld-space-1",
             "inner": self.inner.checkpoint_state(state),
