@@ -28,6 +28,11 @@ Theorem 4.5 / Remark 4.2, with the transfer error as a perturbation of the histo
 5. :meth:`ELDStepper.adopt`: the energy change E(T u) - E(u) is booked as ``transfer`` in the
    ledger, so the balance closes to round-off over the whole run.
 
+Within a step (:meth:`SpaceAdaptiveStepper.step`): while the step's estimate on its own mesh
+exceeds space_tol, the mesh is refined (Doerfler, no coarsening) and the step solved again from
+the previous state transferred to the refined mesh, at most :data:`STEP_ROUNDS` times; a step
+rejected by the time controller goes back to its previous state's mesh.
+
 A transfer that fails (an exception, a non-finite field or energy) is never accepted: the mesh
 hierarchy is rolled back and the run stops with :class:`~rothe.errors.RunFailed` (its result
 so far and a checkpoint on the last mesh remain).
@@ -38,7 +43,8 @@ holds that object); a step is always computed, estimated and recorded on the mes
 computed on, and the transfer's energy appears in the ledger of the next step.
 
 Bookkeeping: point series ``mesh_id``, ``ndofs``, ``cells`` (the mesh each state was computed
-on), step series ``space_estimate`` (eta of the step, NaN when not adapted after it); every
+on), step series ``space_estimate`` (eta of the step, NaN when not adapted after it), ``step_dofs``
+(the dofs of every solve of the step summed), ``step_refinements``; every
 distinct mesh once in :attr:`series` (:class:`rothe.io.mesh_series.MeshSeries`); the kept
 fields u, v, a, lambda live on different meshes and are kept in :attr:`kept` (lists, with
 ``kept_mesh_id`` in the trajectory), written to ``trajectory.npz`` by
