@@ -310,3 +310,17 @@ def test_a_quadrilateral_mesh_is_refused_naming_adapt_space():
     with pytest.raises(RotheInputError, match=r"^--adapt-space: got a mesh of quadrilaterals, "
                                               r"needs triangles \(2D\) or tetrahedra \(3D\)"):
         check_adaptable(MeshQuad())
+
+
+def test_3d_tetrahedra_adapt_with_the_ledger_closing():
+    from rothe.eld.examples import beam_problem
+
+    problem = beam_problem(1, length=2.0, T=0.03, degree=1)
+    traj = run_eld(problem, "regularized", 0.01, space=adaptivity(space_tol=1e-5,
+                                                                  max_dofs=1500))
+    sp = traj.space
+    assert sp.adaptations or np.any(traj["step_refinements"] > 0)
+    assert traj["ndofs"].max() > traj["ndofs"][0] and traj["ndofs"].max() <= 1500
+    assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
+    final, p = traj.final_state, sp.problem
+    assert np.array_equal(p.constraint.restrict(final.u), p.G(final.t))
