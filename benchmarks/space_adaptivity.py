@@ -56,9 +56,8 @@ def peak_mb() -> float:
 def interpolate_to(points, cells, degree, ref_doflocs):
     """The sparse P``degree`` interpolation from the mesh (points, cells) to the reference's
     scalar dof locations (scikit-fem probes; exact for nested meshes)."""
-    from skfem import Basis, ElementTriP1, ElementTriP2, MeshTri
-
     import scipy.sparse as sp
+    from skfem import Basis, ElementTriP1, ElementTriP2, MeshTri
 
     mesh = MeshTri(np.ascontiguousarray(points.T), np.ascontiguousarray(cells.T))
     basis = Basis(mesh, ElementTriP2() if degree == 2 else ElementTriP1())
