@@ -665,10 +665,8 @@ class RunEldPulse:
         add_output_options(parser, self.name)
         add_run_options(parser)
 
-    def execute(self, args) -> int:
-        from ..eld.examples import pulse_problem
-        from ..eld.schemes import run_eld
-
+    def validate(self, args):
+        """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_eld_step("--tau", args.tau, args.T)
         form = check_choice("--form", args.form, FORMS)
         tau = check_positive("--tau", args.tau)
@@ -684,6 +682,13 @@ class RunEldPulse:
         space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL)
         if space is not None and args.max_dofs is None:
             space.max_dofs = PULSE_MAX_DOFS
+        return form, tau, scheme, control, tol, keep, n, length, space
+
+    def execute(self, args) -> int:
+        from ..eld.examples import pulse_problem
+        from ..eld.schemes import run_eld
+
+        form, tau, scheme, control, tol, keep, n, length, space = self.validate(args)
         problem = pulse_problem(n, args.degree, length=length, amplitude=args.amplitude,
                                 t_pulse=args.t_pulse, width=args.width, b=args.b,
                                 rho=args.rho, lam=args.lam, mu=args.mu, T=args.T)
