@@ -217,6 +217,10 @@ class RISRunBase(ABC):
         """InnerOptions for the run (None: the solver's defaults)."""
         return None
 
+    def run_options(self, args) -> dict:
+        """Extra keyword arguments of run_ris / run_nested (e.g. ``space``); none by default."""
+        return {}
+
     # ------------------------------------------------------------------------------------------
     def validate(self, args):
         control = check_choice("--control", args.control, CONTROLS)
@@ -257,6 +261,7 @@ class RISRunBase(ABC):
             inner=self.inner_options(args),
             keep_every=args.keep_every,
         )
+        common.update(self.run_options(args))
 
         def run(**kw):
             if control == "nested":

@@ -1,10 +1,18 @@
-"""CLI commands for finite-element RIS: ``run ris-2d``, ``run ris-3d``, ``compare ris-2d``.
+"""CLI commands for finite-element RIS: ``run ris-2d``, ``run ris-3d``, ``run ris-front``,
+``compare ris-2d``.
 
 ``run ris-2d`` is Example 7.2 of Andreia & Meyer (2022) on an N x N grid of the unit square
 (default N = 40: 1681 nodes) or on any 2D mesh file; ``run ris-3d`` the same energy on the unit
 cube or a 3D mesh file. Besides the outputs of every run (summary.json, trajectory.npz, figures)
 they write the mesh into trajectory.npz (``nodes``, ``cells``), ``solution.xdmf`` + ``.h5`` (z
 over s, for ParaView), the Fig. 4 analogue and snapshots of z. ``compare ris-2d`` draws Fig. 5.
+``run ris-front`` is a phase front crossing the unit square (space adaptivity pays there).
+
+``--adapt-space`` (with ``--space-tol``, ``--refine-fraction``, ``--coarsen-fraction``,
+``--max-dofs``, ``--adapt-every``) adapts the mesh between steps
+(:mod:`rothe.stepping.ris_space`); the run then writes every distinct mesh into trajectory.npz,
+``solution.pvd`` + one VTU per state (its own mesh) instead of solution.xdmf, the dofs against
+t and s (``fig_dofs.png``) and snapshots of mesh and z (``fig_mesh_snapshots.png``).
 """
 
 from __future__ import annotations
@@ -105,6 +113,47 @@ def check_memory(option: str, value, count: int, bytes_each: float, what: str = 
                                   f"more than the {_bytes(have)} of memory available")
 
 
+#: the options of space adaptivity (refused without --adapt-space)
+SPACE_OPTIONS = ("--space-tol", "--refine-fraction", "--coarsen-fraction", "--max-dofs",
+                 "--adapt-every")
+
+
+def add_space_options(parser, default_tol: float) -> None:
+    parser.add_argument("--adapt-space", action="store_true",
+                        help="adapt the mesh between steps (bisection: refine where the step's "
+                             "residual indicator is large, coarsen where the front has passed)")
+    parser.add_argument("--space-tol", type=parse_float("--space-tol"), default=None,
+                        help=f"refine while the estimate exceeds it (default {default_tol:g})")
+    parser.add_argument("--refine-fraction", type=parse_float("--refine-fraction"), default=0.5,
+                        help="Doerfler bulk fraction of eta^2 to refine (default 0.5)")
+    parser.add_argument("--coarsen-fraction", type=parse_float("--coarsen-fraction"),
+                        default=0.05, help="share of max(eta, space_tol)^2 the coarsened cells "
+                                           "may carry (default 0.05)")
+    parser.add_argument("--max-dofs", type=int, default=None,
+                        help="cap on the nodes of an adapted mesh (default: none)")
+    parser.add_argument("--adapt-every", type=int, default=1,
+                        help="adapt after every K-th accepted step (default 1)")
+
+
+def space_from_args(args, default_tol: float):
+    """The SpaceAdaptivity of ``--adapt-space`` (None without it); options validated (exit 2)
+    and refused when given without --adapt-space."""
+    from ..fem.adapt import SpaceAdaptivity, check_adaptable
+
+    if not args.adapt_space:
+        for option in SPACE_OPTIONS:
+            if given(args, option):
+                value = getattr(args, option.lstrip("-").replace("-", "_"))
+                raise fail(option, value, "is only used with --adapt-space")
+        return None
+    if args.mesh is not None:  # before loading: a quadrilateral/mixed file is named as such
+        check_adaptable(args.mesh, "--adapt-space")
+    return SpaceAdaptivity(
+        space_tol=default_tol if args.space_tol is None else args.space_tol,
+        refine_fraction=args.refine_fraction, coarsen_fraction=args.coarsen_fraction,
+        max_dofs=args.max_dofs, adapt_every=args.adapt_every, naming="cli")
+
+
 def _as_option_error(exc, args):
     """A problem-level input error caused by --z0 or --amplitude, renamed after the option."""
     text = str(exc)
@@ -133,6 +182,10 @@ class _RunRISFem(RISRunBase):
     dim = 2
     default_tau = 0.1
     default_n = 40
+    default_z0 = 0.0
+    default_amplitude = -200.0
+    #: default --space-tol (the indicator overestimates the energy error about 5x)
+    default_space_tol = 1.0
 
     def add_example_options(self, parser) -> None:
         what = "N x N cells of the unit square" if self.dim == 2 else "N^3 cubes of the unit cube"
@@ -146,11 +199,11 @@ class _RunRISFem(RISRunBase):
                             help="comma-separated boundary parts (gmsh physical groups, or left,"
                                  "right,bottom,top" + (",front,back" if self.dim == 3 else "")
                                  + " on the grid) where z = 0; default: the whole boundary")
-        parser.add_argument("--z0", type=parse_float("--z0"), default=0.0,
-                            help="initial state at every interior node (default 0)")
-        parser.add_argument("--amplitude", type=parse_float("--amplitude"), default=-200.0,
-                            help="load <l(t), z> = A t^3 int z (default A = -200; its sign picks "
-                                 "the branch z < 0 or z > 0)")
+        parser.add_argument("--z0", type=parse_float("--z0"), default=self.default_z0,
+                            help=f"initial state at every interior node (default "
+                                 f"{self.default_z0:g})")
+        parser.add_argument("--amplitude", type=parse_float("--amplitude"),
+                            default=self.default_amplitude, help=self.amplitude_help)
         parser.add_argument("--linear-solver", default="auto",
                             help="auto | direct | amg: solver of the Newton systems (default auto: "
                                  "sparse LU up to 400k unknowns in 2D, 50k in 3D, "
@@ -163,7 +216,11 @@ class _RunRISFem(RISRunBase):
                             help="time axis of solution.xdmf (ParaView's time slider): s "
                                  "(default: the curve parameter, every state incl. the viscous "
                                  "jumps) | t (physical time: one state per t, a jump shows as "
-                                 "its end state)")
+                                 "its end state); with --adapt-space the same for solution.pvd")
+        add_space_options(parser, self.default_space_tol)
+
+    amplitude_help = ("load <l(t), z> = A t^3 int z (default A = -200; its sign picks the branch "
+                      "z < 0 or z > 0)")
 
     # hooks -----------------------------------------------------------------------------------
     def validate(self, args):
@@ -181,13 +238,22 @@ class _RunRISFem(RISRunBase):
         n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
         if args.mesh is None:
             check_memory("--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim])
+        self._space = space_from_args(args, self.default_space_tol)
         return super().validate(args)
+
+    def run_options(self, args) -> dict:
+        return {} if self._space is None else {"space": self._space}
+
+    def make_problem(self, n, mesh, args, dirichlet):
+        from ..problems.ris_fem import example_7_2, example_7_2_3d
+
+        factory = example_7_2 if self.dim == 2 else example_7_2_3d
+        return factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
 
     # hooks -----------------------------------------------------------------------------------
     def build_problem(self, args):
         from ..errors import RotheInputError
         from ..fem.mesh import load_mesh
-        from ..problems.ris_fem import example_7_2, example_7_2_3d
 
         n = args.n if args.n is not None else self.default_n
         mesh = None
@@ -196,12 +262,16 @@ class _RunRISFem(RISRunBase):
         dirichlet = None
         if args.dirichlet is not None:
             dirichlet = [x.strip() for x in args.dirichlet.split(",") if x.strip()]
-        factory = example_7_2 if self.dim == 2 else example_7_2_3d
         t0 = time.perf_counter()
         try:
-            problem = factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
+            problem = self.make_problem(n, mesh, args, dirichlet)
         except RotheInputError as exc:
             raise _as_option_error(exc, args) from None
+        if self._space is not None:
+            problem.check_movable("--adapt-space")
+            if self._space.max_dofs is not None and self._space.max_dofs < problem.n_nodes:
+                raise fail("--max-dofs", self._space.max_dofs,
+                           f"must be >= the {problem.n_nodes} dofs of the initial mesh")
         self._setup_time = time.perf_counter() - t0
         self._grid = None if mesh is not None else n
         return problem
@@ -226,6 +296,14 @@ class _RunRISFem(RISRunBase):
             "amplitude": args.amplitude,
         }
         extra.update(describe_branch(problem, traj))
+        if traj.meshes is not None:
+            dofs = np.asarray(traj["n_dofs"])
+            extra.update(adapt_space=self._space.describe(),
+                         space_adaptations=traj.meta.get("space_adaptations"),
+                         transfer_failures=traj.meta.get("transfer_failures"),
+                         n_meshes=len(traj.meshes), n_dofs_final=int(dofs[-1]),
+                         n_dofs_max=int(dofs.max()), dofs_summed=int(dofs[1:].sum()),
+                         transfer_energy_sum=float(np.sum(traj["transfer_energy"])))
         return extra
 
     def summary_at_end(self, args) -> dict:
@@ -237,6 +315,8 @@ class _RunRISFem(RISRunBase):
                 "linear_solver", "peak_memory_mb")
 
     def npz_extra(self, problem) -> dict:
+        if self._space is not None:  # the meshes are in the trajectory's mesh series
+            return {}
         return {"nodes": problem.nodes, "cells": problem.cells}
 
     def write_extra(self, args, problem, traj, out) -> None:
@@ -244,6 +324,17 @@ class _RunRISFem(RISRunBase):
         from ..stepping.ris import stored_states
 
         s, t, z = stored_states(traj)
+        if traj.meshes is not None:
+            from ..io.mesh_series import write_vtu_series
+
+            ids = np.asarray(traj["z_mesh_id"])
+            keep = (last_state_per_time(t, problem.T) if getattr(args, "xdmf_time", "s") == "t"
+                    else np.arange(len(z)))
+            times, other = (t, s) if getattr(args, "xdmf_time", "s") == "t" else (s, t)
+            write_vtu_series(out, "solution", traj.meshes, ids[keep], times[keep],
+                             [{"z": z[i], "t" if other is t else "s": np.full(len(z[i]), other[i])}
+                              for i in keep])
+            return
         if getattr(args, "xdmf_time", "s") == "t":
             keep = last_state_per_time(t, problem.T)
             write_series(out / "solution.xdmf", problem.nodes, problem.cells, t[keep],
@@ -265,6 +356,15 @@ class _RunRISFem(RISRunBase):
         from ..stepping.ris import stored_states
 
         s, t, z = stored_states(traj)
+        if traj.meshes is not None:
+            from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
+            from ..plotting.ris_fem import snapshot_indices
+
+            plot_dofs(out / "fig_dofs.png", traj["t"], traj["n_dofs"], s=traj["s"],
+                      title=f"{self.name}: unknowns of the adapted meshes")
+            plot_mesh_snapshots(out / "fig_mesh_snapshots.png", traj.meshes, traj["z_mesh_id"],
+                                t, z, snapshot_indices(s), title=label)
+            return
         plot_snapshots(problem.nodes, problem.cells, s, t, z, out / "fig_snapshots.png",
                        title=label)
 
@@ -285,6 +385,43 @@ class RunRIS3D(_RunRISFem):
     name = "ris-3d"
     dim = 3
     default_n = 12
+
+
+@command("run", "ris-front")
+class RunRISFront(_RunRISFem):
+    help = ("A phase front crossing the unit square (double well of Example 7.2, a load growing "
+            "from a corner): the example for --adapt-space")
+    name = "ris-front"
+    dim = 2
+    default_n = 16
+    default_tau = 0.02
+    default_z0 = 1.0
+    default_amplitude = -120.0
+    default_space_tol = 1.0
+    amplitude_help = ("plateau A of the load density A/2 (1 + tanh((v t - |x|)/w)) (default "
+                      "-120: beyond max |g'| = 73.9 + kappa, so the state flips to the well "
+                      "near -1 behind the front)")
+
+    def add_example_options(self, parser) -> None:
+        super().add_example_options(parser)
+        parser.add_argument("--coefficient", type=parse_float("--coefficient"), default=None,
+                            help="c of 1/2 int c |grad z|^2 (default 0.1; the interface is "
+                                 "about sqrt(c/192) wide)")
+
+    def validate(self, args):
+        from ..problems.ris_fem import FRONT_DEFAULTS
+
+        self._coefficient = check_positive(
+            "--coefficient",
+            FRONT_DEFAULTS["coefficient"] if args.coefficient is None else args.coefficient)
+        return super().validate(args)
+
+    def make_problem(self, n, mesh, args, dirichlet):
+        from ..problems.ris_fem import example_front
+
+        return example_front(n, mesh, amplitude=args.amplitude, z0=args.z0,
+                             coefficient=self._coefficient,
+                             dirichlet=("right",) if dirichlet is None else dirichlet)
 
 
 # -- compare ris-2d (Fig. 5) --------------------------------------------------------------------
@@ -449,5 +586,5 @@ class CompareRIS2D:
         return 0 if all(r["status"] == "completed" for r in rows) else 1
 
 
-__all__ = ["RunRIS2D", "RunRIS3D", "CompareRIS2D", "compare_ris_2d", "format_table",
+__all__ = ["RunRIS2D", "RunRIS3D", "RunRISFront", "CompareRIS2D", "compare_ris_2d", "format_table",
            "linear_solver_used", "uniform_steps_at_residual"]

@@ -54,7 +54,7 @@ import numpy as np
 
 from ..errors import RotheInputError, check_positive
 from .atomic import atomic_path, remove_stale_temporaries
-from .trajectory import RunStatistics, Trajectory
+from .trajectory import RAGGED_LENGTHS, RunStatistics, Trajectory
 
 FORMAT = "rothe-checkpoint"
 FORMAT_VERSION = 1
@@ -310,7 +310,9 @@ class Checkpoint:
             try:
                 with np.load(path, allow_pickle=False) as data:
                     for key, count in seg["counts"].items():
-                        values = data[key]
+                        if key.endswith(RAGGED_LENGTHS):
+                            continue
+                        values = traj.unpacked(data, key)
                         if len(values) != count:
                             raise ValueError(f"{key}: {len(values)} entries, expected {count}")
                         traj.extend(key, list(values))
@@ -531,18 +533,20 @@ class Checkpointer:
         traj_records = []
         for i, traj in enumerate(self.trajectories):
             saved = self._saved[i]
-            fresh = {}
+            fresh, counts = {}, {}
             for key in traj.keys():
                 start = saved.get(key, 0)
                 entries = traj.entries(key)
-                if len(entries) > start:
-                    fresh[key] = np.stack([np.asarray(e) for e in entries[start:]])
+                if len(entries) > start:  # ragged series (varying meshes): flat + lengths
+                    packed = traj.packed(key, start)
+                    fresh.update(packed)
+                    counts.update(dict.fromkeys(packed, len(entries) - start))
             segs = list(self._segments[i])
             if fresh:
                 name = f"traj{i}-{seq:06d}.npz"
                 with atomic_path(self.directory / name) as tmp:
                     np.savez(tmp, **fresh)
-                seg = {"file": name, "counts": {k: int(len(v)) for k, v in fresh.items()}}
+                seg = {"file": name, "counts": counts}
                 segs.append(seg)
                 new_segments.append((i, seg))
             traj_records.append({"meta": normalized(traj.meta), "stats": traj.stats.as_dict(),

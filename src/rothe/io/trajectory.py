@@ -7,6 +7,14 @@ A :class:`Trajectory` holds named series. *Point* series have one entry per acce
 linear-solver work and the wall time. ``save_npz`` writes every series as an array plus the
 statistics under ``stats_<name>`` and ``meta`` as a JSON string, atomically (a temporary file in
 the same directory, then a rename: a kill leaves the previous file or the new one).
+
+*Ragged* series (:meth:`Trajectory.set_ragged`) hold 1-D entries of varying length: z of a run
+whose mesh changes between steps. ``t["z"]`` is then a list of arrays; the ``.npz`` stores
+``z_flat`` (the entries concatenated) and ``z_offsets`` (entry i is
+``z_flat[z_offsets[i]:z_offsets[i + 1]]``), and ``load_npz`` rebuilds the list. A trajectory
+with ``meshes`` (a :class:`rothe.io.mesh_series.MeshSeries`) also stores every distinct mesh
+once and ``state_mesh_id``, the mesh of every stored z (the ``z_mesh_id`` series). Runs on a
+fixed mesh keep the plain format (``z`` one (K + 1, n) array).
 """
 
 from __future__ import annotations
@@ -35,13 +43,44 @@ class RunStatistics:
         return asdict(self)
 
 
+#: key suffix of the entry lengths of a ragged series in a checkpoint segment
+RAGGED_LENGTHS = "__lengths"
+
+
 class Trajectory:
     """Named per-step series plus statistics and metadata."""
 
     def __init__(self, meta: dict | None = None):
         self._series: dict[str, list] = {}
+        self._ragged: set[str] = set()
         self.stats = RunStatistics()
         self.meta: dict = dict(meta or {})
+        #: every distinct mesh of a run whose mesh changes (MeshSeries), else None
+        self.meshes = None
+
+    def set_ragged(self, *names: str) -> None:
+        """Let these series hold 1-D entries of varying length (module docstring)."""
+        self._ragged.update(names)
+
+    def is_ragged(self, name: str) -> bool:
+        return name in self._ragged
+
+    def packed(self, name: str, start: int = 0) -> dict[str, np.ndarray]:
+        """Entries ``start:`` of one series as arrays: ``{name: stacked}``, or for a ragged
+        series ``{name: concatenated, name + RAGGED_LENGTHS: lengths}`` (checkpoint segments)."""
+        entries = [np.asarray(e) for e in self._series.get(name, [])[start:]]
+        if name not in self._ragged:
+            return {name: np.stack(entries)}
+        return {name: np.concatenate(entries) if entries else np.zeros(0),
+                name + RAGGED_LENGTHS: np.array([e.size for e in entries], dtype=np.int64)}
+
+    def unpacked(self, data, name: str) -> list:
+        """The entries of ``name`` from arrays written by :meth:`packed` (marks it ragged)."""
+        if name + RAGGED_LENGTHS not in data:
+            return list(data[name])
+        self._ragged.add(name)
+        lengths = np.asarray(data[name + RAGGED_LENGTHS], dtype=np.int64)
+        return np.split(np.asarray(data[name]), np.cumsum(lengths)[:-1]) if lengths.size else []
 
     def append(self, **values) -> None:
         for key, value in values.items():
@@ -56,6 +95,8 @@ class Trajectory:
         self._series.setdefault(name, []).extend(values)
 
     def __getitem__(self, name: str) -> np.ndarray:
+        if name in self._ragged:  # entries of varying length: a list of arrays
+            return [np.asarray(e) for e in self._series[name]]
         return np.array(self._series[name])
 
     def __contains__(self, name: str) -> bool:
@@ -68,7 +109,19 @@ class Trajectory:
         return len(self._series.get("tau", []))
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {k: np.array(v) for k, v in self._series.items()}
+        out = {}
+        for k, v in self._series.items():
+            if k in self._ragged:
+                sizes = [np.asarray(e).size for e in v]
+                out[f"{k}_flat"] = (np.concatenate([np.asarray(e, dtype=float).ravel() for e in v])
+                                    if v else np.zeros(0))
+                out[f"{k}_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+            else:
+                out[k] = np.array(v)
+        if self.meshes is not None:
+            ids = self._series.get("z_mesh_id", [])
+            out.update(self.meshes.npz_arrays(np.array(ids, dtype=np.int64)))
+        return out
 
     def save_npz(self, path, extra: dict | None = None) -> Path:
         """Write every series, the statistics and ``meta`` to ``path`` (atomically)."""
@@ -90,7 +143,25 @@ class Trajectory:
     def load_npz(cls, path) -> Trajectory:
         traj = cls()
         with np.load(path, allow_pickle=False) as f:
+            files = set(f.files)
+            if "mesh_ids" in files:
+                from .mesh_series import MeshSeries
+
+                traj.meshes, _ = MeshSeries.from_npz(f)
             for key in f.files:
+                if key in ("mesh_ids", "state_mesh_id") or key.startswith(("mesh_points_",
+                                                                              "mesh_cells_")):
+                    continue
+                if key.endswith("_flat") and key[:-5] + "_offsets" in files:
+                    name = key[:-5]
+                    off = f[name + "_offsets"]
+                    flat = f[key]
+                    traj._series[name] = [flat[a:b] for a, b in zip(off[:-1], off[1:],
+                                                                     strict=True)]
+                    traj._ragged.add(name)
+                    continue
+                if key.endswith("_offsets") and key[:-8] + "_flat" in files:
+                    continue
                 if key == "meta":
                     traj.meta = json.loads(str(f[key]))
                 elif key.startswith("stats_"):

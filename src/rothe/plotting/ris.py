@@ -21,14 +21,15 @@ def plot_path(traj, path, exact=None, title="", component=None) -> Path:
     s, t, z = stored_states(traj)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     axes[0].plot(traj["s"], traj["t"], "-", lw=1.4, label="numerical")
-    if z.ndim == 2 and z.shape[1] == 1:
+    ragged = isinstance(z, list)  # states on different meshes (space adaptivity)
+    if not ragged and z.ndim == 2 and z.shape[1] == 1:
         z1 = z[:, 0]
         axes[1].plot(s, z1, "-", lw=1.4, label="numerical")
-    elif component is not None:
+    elif component is not None and not ragged:
         axes[1].plot(s, z[:, component], "-", lw=1.4, label=f"z[{component}]")
     else:
-        axes[1].plot(s, z.max(axis=1), "-", lw=1.2, label="max z")
-        axes[1].plot(s, z.min(axis=1), "-", lw=1.2, label="min z")
+        axes[1].plot(s, [np.max(v) for v in z], "-", lw=1.2, label="max z")
+        axes[1].plot(s, [np.min(v) for v in z], "-", lw=1.2, label="min z")
     if exact is not None:
         ss = np.linspace(0, max(s[-1], 16.0), 801)
         te, ze = exact(ss)

@@ -42,6 +42,7 @@ Sign conventions are those of :class:`rothe.problems.ris.RISProblem`: D_z I = A 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -144,6 +145,11 @@ class FERISProblem(RISProblem):
         parts (``mesh.boundaries``) where z = 0; the rest of the boundary is natural (Neumann).
     load_rate : callable, optional
         t -> dl/dt in the same form as ``load``.
+    load_density : callable, optional
+        (t, x) -> load density at the points x (shape (d, n_points)) instead of ``load``
+        (``load=None``): <l(t), phi_i> = m_i l(t, x_i) (lumped, exact for affine densities
+        times constants). A density is what lets a problem move to another mesh
+        (:meth:`on_mesh`, space adaptivity); ``load_density_rate`` likewise for dl/dt.
     """
 
     def __init__(
@@ -161,7 +167,14 @@ class FERISProblem(RISProblem):
         dirichlet=None,
         load_rate: Callable[[float], object] | None = None,
         name: str = "ris-fem",
+        load_density: Callable[[float, np.ndarray], object] | None = None,
+        load_density_rate: Callable[[float, np.ndarray], object] | None = None,
     ):
+        # what on_mesh needs to build the same problem on another mesh
+        self._spec = dict(g=g, dg=dg, d2g=d2g, load=load, kappa=kappa, coefficient=coefficient,
+                          T=T, dirichlet=dirichlet, load_rate=load_rate, name=name,
+                          load_density=load_density, load_density_rate=load_density_rate)
+        self.coefficient = coefficient
         self.mesh = check_mesh(mesh)
         self.dim = mesh_dim(mesh)
         T = check_positive("T", T)
@@ -186,6 +199,17 @@ class FERISProblem(RISProblem):
 
         m_all = lumped_mass(mesh)
         self.m_all = m_all
+        if load_density is not None:
+            if load is not None:
+                raise bad("load", "a load together with load_density",
+                          "give one of them (load=None with a density)")
+            load = _nodal_from_density(load_density, mesh, m_all, "load_density")
+            if load_density_rate is not None:
+                load_rate = _nodal_from_density(load_density_rate, mesh, m_all,
+                                                "load_density_rate")
+        elif load is None:
+            raise bad("load", "None", "must be a callable t -> density or nodal functionals "
+                                      "(or give load_density)")
         m = m_all[free]
         K = stiffness(mesh, coefficient)
         A = sp.csr_matrix(K[free][:, free])
@@ -218,6 +242,34 @@ class FERISProblem(RISProblem):
             # connected part of the mesh has a Dirichlet node (checked above, in O(n))
             check_coercivity=False,
         )
+
+    # -- another mesh (space adaptivity) ------------------------------------------------------
+    def check_movable(self, name: str = "--adapt-space") -> None:
+        """Refuse data tied to this mesh: nodal-functional loads and per-cell coefficients.
+
+        A problem moves to another mesh (:meth:`on_mesh`) only with data defined on the domain:
+        a load density (a number per t, or ``load_density``), a number or a callable c(x).
+        """
+        spec = self._spec
+        if spec["load_density"] is None:
+            val = np.asarray(spec["load"](0.0), dtype=float)
+            if val.ndim != 0:
+                raise bad(name, "a load given as nodal functionals of one mesh",
+                          "needs a load density (a number per t, or load_density(t, x)) so "
+                          "that the load can be evaluated on every adapted mesh")
+        c = spec["coefficient"]
+        if not callable(c) and np.ndim(c) != 0:
+            raise bad(name, "a coefficient given per cell of one mesh",
+                      "needs a number or a callable c(x)")
+
+    def on_mesh(self, mesh) -> FERISProblem:
+        """The same problem (g, load, kappa, c, T, Dirichlet parts, name) on ``mesh``, z0 = 0.
+
+        Used after every change of an adaptive mesh; :meth:`check_movable` says whether the
+        data allow it. The caller sets the state (the transferred z_k) itself.
+        """
+        self.check_movable()
+        return FERISProblem(mesh, z0=0.0, **self._spec)
 
     # -- data ----------------------------------------------------------------------------------
     def _load_vector(self, fn, t: float, label: str) -> np.ndarray:
@@ -297,6 +349,22 @@ class FERISProblem(RISProblem):
     @property
     def cells(self) -> np.ndarray:
         return self.mesh.t.T.copy()
+
+
+def _nodal_from_density(density, mesh, m_all: np.ndarray, label: str):
+    """t -> nodal functionals m_i l(t, x_i) of a density l(t, x) (lumped)."""
+    x = np.asarray(mesh.p, dtype=float)
+
+    def nodal(t):
+        val = np.asarray(density(t, x), dtype=float)
+        if val.ndim == 0:
+            return float(val) * m_all
+        if val.shape != (x.shape[1],):
+            raise DataError(f"{label}(t={t:g}): got an array of shape {val.shape}, must be one "
+                            f"value per point ({x.shape[1]})")
+        return val * m_all
+
+    return nodal
 
 
 def _finite_data(name: str, values) -> None:
@@ -468,6 +536,16 @@ def catch_up_steps(traj, rel: float = 1e-8) -> int:
     return in_runs - sum(j["steps"] for j in viscous_jumps(traj, rel))
 
 
+def nodal_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Lumped P1 mass m_i = int phi_i = sum of |K| / (d + 1) over the cells at node i."""
+    points, cells = np.asarray(points, dtype=float), np.asarray(cells)
+    d = points.shape[1]
+    edges = points[cells[:, 1:]] - points[cells[:, :1]]  # (nc, d, d)
+    vol = np.abs(np.linalg.det(edges)) / math.factorial(d)
+    return np.bincount(cells.ravel(), weights=np.repeat(vol / (d + 1), d + 1),
+                       minlength=len(points))
+
+
 def describe_branch(problem: FERISProblem, traj) -> dict:
     """Energy, range and mean of the final state and the viscous jumps: which branch a run took.
 
@@ -477,7 +555,10 @@ def describe_branch(problem: FERISProblem, traj) -> dict:
     """
     z = traj["z"][-1]
     jumps = viscous_jumps(traj)
-    mean = float(problem.m_all @ z) / float(problem.m_all.sum())
+    m_all = problem.m_all
+    if getattr(traj, "meshes", None) is not None:  # space adaptivity: the last state's mesh
+        m_all = nodal_volumes(*traj.meshes.mesh(traj["z_mesh_id"][-1]))
+    mean = float(m_all @ z) / float(m_all.sum())
     zmin, zmax = float(z.min()), float(z.max())
     sign = "z <= 0" if zmax <= 1e-12 else ("z >= 0" if zmin >= -1e-12 else "z changes sign")
     energy = float(traj["energy"][-1])
@@ -495,3 +576,61 @@ def describe_branch(problem: FERISProblem, traj) -> dict:
                    f"{len(jumps)} viscous jump(s) at t = {jt}"
                    + (f" (+{catch} catch-up step(s) with t' = 0)" if catch else "")),
     }
+
+
+# -- a phase front that crosses the domain (space adaptivity) -----------------------------------
+
+#: parameters of :func:`example_front`: load plateau, front speed and width, stiffness c
+FRONT_DEFAULTS = {"amplitude": -120.0, "speed": 1.6, "width": 0.04, "coefficient": 0.1}
+
+
+def front_load_density(amplitude: float, speed: float, width: float, corner=(0.0, 0.0)):
+    """l(t, x) = A / 2 (1 + tanh((v t - |x - x_c|) / w)): a load that grows from a corner.
+
+    A plateau of height A behind a circle of radius v t around the corner x_c, falling to 0
+    over a width w ahead of it. Returns (density, its t-derivative)."""
+    xc = np.asarray(corner, dtype=float)
+
+    def radius(x):
+        return np.sqrt(np.sum((x - xc.reshape(-1, *([1] * (x.ndim - 1)))) ** 2, axis=0))
+
+    def density(t, x):
+        return 0.5 * amplitude * (1.0 + np.tanh((speed * t - radius(x)) / width))
+
+    def rate(t, x):
+        return 0.5 * amplitude * speed / width / np.cosh((speed * t - radius(x)) / width) ** 2
+
+    return density, rate
+
+
+def example_front(n: int = 32, mesh=None, *, amplitude: float = FRONT_DEFAULTS["amplitude"],
+                  speed: float = FRONT_DEFAULTS["speed"], width: float = FRONT_DEFAULTS["width"],
+                  coefficient: float = FRONT_DEFAULTS["coefficient"], kappa: float = 1.0,
+                  z0: float = 1.0, T: float = 1.0, dirichlet=("right",),
+                  pattern: str = "tensor", name: str = "ris-front") -> FERISProblem:
+    """A phase front crossing the unit square: the double well of (7.2) under a growing load.
+
+    Not in the paper; built for space adaptivity. Omega = (0,1)^2, g(z) = 48 (1 - z^2)^2,
+    R = kappa ||.||_{L1}, V = L2 (lumped), I = 1/2 int c |grad z|^2 + int g(z) - <l, z>, the
+    state starts in the well z0 = 1, and the load density of :func:`front_load_density` grows
+    from the corner (0, 0) at speed ``speed`` (it covers the far corner at t = sqrt(2)/speed
+    < T). Where the load falls below -(max |g'| on [0, 1] + kappa) = -74.9 (A < 0), the state
+    leaves the well near z = 1 for the well near z = -1: a phase front, as steep as c is small
+    (interface width about sqrt(c / 192) = 0.023 for c = 0.1), sweeps across the domain. z = 0
+    on the side ``right`` (natural boundary on the others): a static boundary layer there, the
+    front is the only moving steep feature. On a uniform grid the front needs a fine h
+    everywhere; an adaptive mesh only along the front, coarsening behind it.
+    """
+    coefficient = check_positive("coefficient", coefficient)
+    density, rate = front_load_density(check_real("amplitude", amplitude),
+                                       check_positive("speed", speed),
+                                       check_positive("width", width))
+    mesh = unit_square(n, pattern) if mesh is None else mesh
+    if mesh_dim(mesh) != 2:
+        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+                  "must be 2D (triangles) for ris-front")
+    return FERISProblem(
+        mesh, g_7_2, dg_7_2, d2g_7_2, load=None, load_density=density,
+        load_density_rate=rate, kappa=kappa, coefficient=coefficient, z0=z0, T=T,
+        dirichlet=None if dirichlet is None else list(dirichlet), name=name,
+    )

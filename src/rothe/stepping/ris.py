@@ -137,8 +137,17 @@ class RISStepper:
         simpson_subintervals: int = 8,
         S: float | None = None,
         keep_every: int = 1,
+        space=None,
     ):
         self.problem = problem
+        # space adaptivity (rothe.stepping.ris_space): None keeps the mesh of ``problem``
+        self.space = None
+        if space is not None:
+            from .ris_space import RISSpaceAdaptivity
+
+            self.space = RISSpaceAdaptivity(problem, space)
+        self._inner = inner
+        self._start: tuple[float, np.ndarray] | None = None  # (t, z) the attempts start from
         # z of every keep_every-th accepted state (and of the last): 8 MB per state at 10^6 nodes
         self.keep_every = check_int("keep_every", keep_every, minimum=1)
         self.solver = BallStepSolver(problem, inner)
@@ -263,6 +272,7 @@ class RISStepper:
     def _step(self, state: RISState, tau: float, s_end: float | None) -> RISStepResult:
         p = self.problem
         self._last_tau = tau
+        self._start = (state.t, state.z)
         lin = self.solver.linear.stats
         before = (lin.factorizations, lin.solves, lin.krylov_iterations)
         hint = None
@@ -311,8 +321,11 @@ class RISStepper:
     def record(self, traj: Trajectory, result: RISStepResult) -> None:
         st = result.state
         self._previous = (st.z, result.increment, result.tau)
+        space = self.space
         if st.k % self.keep_every == 0:
             traj.append(z=self.problem.full_state(st.z), z_step=st.k)
+            if space is not None:
+                traj.append(z_mesh_id=space.mesh_id)
         traj.append(
             s=st.s,
             t=st.t,
@@ -329,9 +342,34 @@ class RISStepper:
             step_norm=result.step_norm,
             newton_iterations=result.counters.get("newton_iterations", 0),
         )
+        if space is not None:
+            traj.append(mesh_id=space.mesh_id, n_dofs=self.problem.n)
+            traj.append(transfer_energy=self._adapt_after(result))
+
+    def _adapt_after(self, result: RISStepResult) -> float:
+        """Adapt the mesh after the accepted step ``result`` when due (and the run goes on):
+        the step's indicators on its own mesh, then the problem and z_k on the new mesh
+        (:mod:`rothe.stepping.ris_space`). The state is updated in place (it is the evolve
+        loop's current state). Returns I(t_k, T z_k) - I(t_k, z_k), 0 when nothing changed."""
+        st = result.state
+        if not self.space.options.due(st.k) or self.finished(st):
+            return 0.0
+        t_prev, z_prev = self._start
+        out = self.space.adapt(self.problem, t_prev, z_prev, st.z, result.lam, result.increment)
+        if out is None:
+            return 0.0
+        problem, z_new, d_new = out
+        transfer_energy = problem.energy(st.t, z_new) - result.energy
+        self.problem = problem
+        self.solver = BallStepSolver(problem, self._inner)
+        st.z = z_new
+        self._previous = (z_new, d_new, result.tau)
+        return float(transfer_energy)
 
     def where(self, state: RISState, result: RISStepResult | None) -> dict:
         info = {"step": state.k + 1, "s": state.s, "t": state.t}
+        if self.space is not None:
+            info.update(mesh_id=self.space.mesh_id, dofs=int(self.problem.n))
         if result is not None:
             info.update(
                 tau=result.tau, I1=result.I1, I2=result.I2, code=result.code, kkt=result.kkt
@@ -339,7 +377,10 @@ class RISStepper:
         return info
 
     def progress_fields(self, state: RISState) -> dict:
-        return {"s": f"{state.s:.5g}", "t": f"{state.t:.5g}", "tau": f"{self._last_tau:.2g}"}
+        fields = {"s": f"{state.s:.5g}", "t": f"{state.t:.5g}", "tau": f"{self._last_tau:.2g}"}
+        if self.space is not None:
+            fields["dofs"] = str(self.problem.n)
+        return fields
 
     def progress_position(self, state: RISState) -> tuple[str, float, float]:
         """How far the run is: s/S when it stops at a given S, t/T otherwise."""
@@ -357,15 +398,24 @@ class RISStepper:
             z_prev, d_prev, tau_prev = self._previous
             previous = {"increment": d_prev, "tau": float(tau_prev),
                         "of_this_state": z_prev is state.z}
-        return {"stepper": "ris", "s": float(state.s), "t": float(state.t), "z": state.z,
+        data = {"stepper": "ris", "s": float(state.s), "t": float(state.t), "z": state.z,
                 "k": int(state.k), "last_tau": float(self._last_tau), "previous": previous,
                 "linear": self.solver.linear.checkpoint_state(),
                 "monitor": self.monitor.checkpoint_state()}
+        if self.space is not None:  # the mesh hierarchy and the series of meshes so far
+            data["space"] = self.space.checkpoint_state()
+        return data
 
     def restore_state(self, data: dict) -> RISState:
         if data.get("stepper") != "ris":
             raise ValueError(f"restore_state: a {data.get('stepper')!r} stepper's state given to "
                              "a RIS stepper")
+        if self.space is not None:
+            if data.get("space") is None:
+                raise ValueError("restore_state: a fixed-mesh state given to a space-adaptive "
+                                 "RIS stepper")
+            self.problem = self.space.restore_state(data["space"])
+            self.solver = BallStepSolver(self.problem, self._inner)
         state = RISState(s=float(data["s"]), t=float(data["t"]),
                          z=np.array(data["z"], dtype=float), k=int(data["k"]))
         self._last_tau = float(data["last_tau"])
@@ -392,13 +442,24 @@ FAILURE_HINTS = {
 }
 
 
-def initial_trajectory(problem: RISProblem, meta: dict | None = None) -> Trajectory:
+def initial_trajectory(problem: RISProblem, meta: dict | None = None,
+                       space=None) -> Trajectory:
+    """The trajectory with the initial state; ``space`` (the stepper's RISSpaceAdaptivity):
+    z is a ragged series, every state records its mesh id and dofs, the meshes are kept."""
     traj = Trajectory(meta=meta)
     traj.append(
         s=0.0, t=0.0, z=problem.full_state(problem.z0), z_step=0,
         energy=problem.energy(0.0, problem.z0),
     )
+    if space is not None:
+        _space_trajectory(traj, space)
+        traj.append(z_mesh_id=0, mesh_id=0, n_dofs=problem.n)
     return traj
+
+
+def _space_trajectory(traj: Trajectory, space) -> None:
+    traj.set_ragged("z")
+    traj.meshes = space.series
 
 
 def stored_states(traj: Trajectory):
@@ -412,7 +473,9 @@ def _keep_last_z(problem, stepper: RISStepper, traj: Trajectory, state: RISState
     """With keep_every > 1: make sure z of the last state is kept (once)."""
     steps = traj.entries("z_step")
     if not steps or int(steps[-1]) != state.k:
-        traj.append(z=problem.full_state(state.z), z_step=state.k)
+        traj.append(z=stepper.problem.full_state(state.z), z_step=state.k)
+        if stepper.space is not None:
+            traj.append(z_mesh_id=stepper.space.mesh_id)
 
 
 def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress, checkpointer):
@@ -430,6 +493,10 @@ def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress,
         raise
     finally:
         traj.meta["linear_solver"] = stepper.solver.linear.kind_used
+        if stepper.space is not None:
+            traj.meta["space_adaptations"] = stepper.space.adaptations
+            traj.meta["transfer_failures"] = stepper.space.transfer_failures
+            traj.meta["final_mesh_id"] = stepper.space.mesh_id
     _keep_last_z(problem, stepper, traj, state)
     traj.meta["landing"] = landing_record(stepper, state)
     return state
@@ -458,8 +525,17 @@ def run_ris(
     keep_every: int = 1,
     checkpoint=None,
     resume=None,
+    space=None,
 ) -> Trajectory:
     """Run the scheme from (0, 0, z0) until t reaches T (or s reaches S).
+
+    ``space``: a :class:`~rothe.fem.adapt.SpaceAdaptivity` adapts the P1 mesh of a
+    :class:`~rothe.problems.ris_fem.FERISProblem` after every ``adapt_every``-th accepted step
+    (:mod:`rothe.stepping.ris_space`); None keeps the problem's mesh (the run is then exactly
+    the fixed-mesh one). With it, ``traj["z"]`` is a list (one array per stored state, on its
+    mesh), ``z_mesh_id`` / ``mesh_id`` / ``n_dofs`` say which mesh each state lives on,
+    ``transfer_energy`` per step the energy change by the transfer, and ``traj.meshes`` keeps
+    every distinct mesh once.
 
     ``keep_every = k`` keeps z of every k-th accepted state and of the last one (the other series
     are kept for every step; ``z_step`` says which steps z holds, :func:`stored_states`).
@@ -480,24 +556,30 @@ def run_ris(
     controller = make_controller(
         control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max, grid=grid
     )
-    stepper = RISStepper(problem, inner, simpson_subintervals, S=S, keep_every=keep_every)
+    stepper = RISStepper(problem, inner, simpson_subintervals, S=S, keep_every=keep_every,
+                         space=space)
     info = {"example": problem.name, "control": controller.name, "tol": tol, "tau0": tau}
+    if space is not None:
+        info["space"] = space.describe()
     info.update(meta or {})
+    extra = {} if space is None else {"space": space.describe()}
     arguments = run_arguments(
         control=control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max,
         grid=None if grid is None else np.asarray(grid, dtype=float), S=S,
         inner=asdict(inner or InnerOptions()), simpson_subintervals=simpson_subintervals,
-        keep_every=keep_every)
+        keep_every=keep_every, **extra)
     with RunCheckpointing("run_ris", problem, arguments, checkpoint, resume) as rc:
         cp, restored = rc.checkpointer, rc.restored
         if restored is not None:
             traj = restored.trajectory(0)
             traj.meta.update(info)
             state = stepper.restore_state(restored.state["stepper"])
+            if stepper.space is not None:
+                _space_trajectory(traj, stepper.space)
             controller.restore_state(restored.state["controller"])
             traj.meta["sessions"] = restored.sessions + 1
         else:
-            traj = initial_trajectory(problem, info)
+            traj = initial_trajectory(problem, info, stepper.space)
             state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
         if cp is not None:
             cp.register(traj)
@@ -543,19 +625,22 @@ def run_nested(
     keep_every: int = 1,
     checkpoint=None,
     resume=None,
+    space=None,
 ) -> list[Trajectory]:
     """Alg. 6.2: runs for tol_1 > tol_2 > ...; run n never steps over a grid point of runs < n.
 
     ``checkpoint`` / ``resume`` as for :func:`run_ris`; a checkpoint holds the finished runs and
-    the state of the one under way.
+    the state of the one under way. ``space`` as for :func:`run_ris`: every run adapts its own
+    mesh hierarchy from the problem's mesh.
     """
     from ..errors import check_decreasing
 
     tols = check_decreasing("tols", tols)
+    extra = {} if space is None else {"space": space.describe()}
     arguments = run_arguments(
         tols=tols, tau=tau, tau_min=tau_min, tau_max=tau_max,
         inner=asdict(inner or InnerOptions()), simpson_subintervals=simpson_subintervals,
-        keep_every=keep_every)
+        keep_every=keep_every, **extra)
     with RunCheckpointing("run_nested", problem, arguments, checkpoint, resume) as rc:
         cp, restored = rc.checkpointer, rc.restored
         runs: list[Trajectory] = []
@@ -563,6 +648,11 @@ def run_nested(
         if restored is not None:
             start = int(restored.state["run"]["nested_index"])
             runs = [restored.trajectory(i) for i in range(start)]
+            if space is not None:  # the finished runs' meshes are in the checkpoint's context
+                from ..io.mesh_series import MeshSeries
+
+                for r, data in zip(runs, restored.state["run"].get("series", []), strict=False):
+                    r.meshes = MeshSeries.restore_state(data)
             if cp is not None:
                 for r in runs:
                     cp.register(r)
@@ -575,21 +665,28 @@ def run_nested(
             controller = make_controller("nested" if nested else "adaptive", tol=tol, tau=tau,
                                          tau_min=tau_min, tau_max=tau_max,
                                          grid=grid if nested else None)
-            stepper = RISStepper(problem, inner, simpson_subintervals, keep_every=keep_every)
+            stepper = RISStepper(problem, inner, simpson_subintervals, keep_every=keep_every,
+                                 space=space)
             info = {"example": problem.name, "control": controller.name, "tol": tol,
                     "tau0": tau, "nested_index": i}
+            if space is not None:
+                info["space"] = space.describe()
             if cp is not None:
                 cp.context = {"nested_index": i}
+                if space is not None:
+                    cp.context["series"] = [r.meshes.checkpoint_state() for r in runs]
             if restored is not None and i == start:
                 traj = restored.trajectory(i)
                 traj.meta.update(info)
                 traj.meta["sessions"] = restored.sessions + 1
                 state = stepper.restore_state(restored.state["stepper"])
+                if stepper.space is not None:
+                    _space_trajectory(traj, stepper.space)
                 controller.restore_state(restored.state["controller"])
                 if cp is not None:
                     cp.register(traj)
             else:
-                traj = initial_trajectory(problem, info)
+                traj = initial_trajectory(problem, info, stepper.space)
                 state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
                 if cp is not None:
                     cp.register(traj)
@@ -604,6 +701,8 @@ def run_nested(
             grid = np.union1d(grid, traj["s"][1:])
         if cp is not None:
             cp.context = {"nested_index": len(tols)}
+            if space is not None:
+                cp.context["series"] = [r.meshes.checkpoint_state() for r in runs]
             last = runs[-1]
             cp.save_or_warn(status="completed", where={"accepted_steps": last.stats.accepted_steps,
                                                "s": float(last["s"][-1]),
