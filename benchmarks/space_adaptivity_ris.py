@@ -97,7 +97,7 @@ def run_ris_family(quick: bool) -> float:
     # same tau for every run; the adaptive meshes start from the n0 x n0 grid and refine at
     # most to the reference's cell size (max_level bisections: h_ref = h0 / 2^(level/2))
     if quick:
-        tau, n_ref, uniform_n, n0 = 0.05, 48, (6, 12, 24), 6
+        tau, n_ref, uniform_n, n0 = 0.05, 48, (6, 12, 24, 36), 6
         tols = (4.0, 1.0)
     else:
         tau, n_ref, uniform_n, n0 = 0.05, 64, (8, 16, 32, 48), 8
