@@ -50,34 +50,42 @@ def test_kill_9_at_random_instants_then_resume_is_bit_identical(tmp_path):
     ref = run_ris(example_7_2(6), "adaptive", tol=1e-3, tau=0.1,
                   inner=InnerOptions(linear_solver="auto"))
     duration = time.perf_counter() - t0 + 1.5  # + interpreter start and imports
-    out = tmp_path / "run"
-    run = ROTHE + ["run", "ris-2d", "--n", "6", "--tol", "1e-3", "--out", str(out), "--quiet",
-                   "--no-plots", "--checkpoint-every", "0.05"]
-    resume = ROTHE + ["resume", str(out), "--quiet"]
+    # A kill that lands after the last step (the measured duration is only an estimate on a
+    # loaded machine) interrupts nothing that resume must redo; such kills do not count, and
+    # the attempt is repeated with earlier kill instants until one lands inside the run.
     rng = random.Random(20261123)
-    proc = subprocess.Popen(run, cwd=tmp_path)
-    kills, log = 0, []
-    try:
-        while kills < 3:
-            delay = rng.uniform(0.3, 0.9) * duration
-            try:
-                proc.wait(timeout=delay)
-                break  # finished before the kill
-            except subprocess.TimeoutExpired:
+    for attempt in range(4):
+        out = tmp_path / f"run{attempt}"
+        run = ROTHE + ["run", "ris-2d", "--n", "6", "--tol", "1e-3", "--out", str(out),
+                       "--quiet", "--no-plots", "--checkpoint-every", "0.05"]
+        resume = ROTHE + ["resume", str(out), "--quiet"]
+        proc = subprocess.Popen(run, cwd=tmp_path)
+        kills, inside, log = 0, 0, []
+        try:
+            while kills < 3:
+                delay = rng.uniform(0.3, 0.9) * duration * 0.5**attempt
+                try:
+                    proc.wait(timeout=delay)
+                    break  # finished before the kill
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+                    kills += 1
+                where, status = "no checkpoint yet", None
+                with contextlib.suppress(CheckpointError):
+                    ck = load_checkpoint(out)
+                    where, status = ck.describe_where(), ck.status
+                inside += status not in (None, "completed")  # resume redoes steps
+                log.append(f"kill after {delay:.2f} s: {where} ({status})")
+                proc = subprocess.Popen(resume if (out / "checkpoint" / MAIN).exists() else run,
+                                        cwd=tmp_path)
+            assert proc.wait(timeout=300) == 0, log
+        finally:
+            if proc.poll() is None:
                 proc.kill()
-                proc.wait()
-                kills += 1
-            where = "no checkpoint yet"
-            with contextlib.suppress(CheckpointError):
-                where = load_checkpoint(out).describe_where()
-            log.append(f"kill after {delay:.2f} s: {where}")
-            proc = subprocess.Popen(resume if (out / "checkpoint" / MAIN).exists() else run,
-                                    cwd=tmp_path)
-        assert proc.wait(timeout=300) == 0, log
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert kills >= 1, log
+        if inside:
+            break
+    assert inside >= 1, log
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "completed" and s["sessions"] >= 2, log
     with np.load(out / "trajectory.npz") as f:
