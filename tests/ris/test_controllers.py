@@ -1,5 +1,8 @@
-"""Step controllers on the shared evolve loop: Alg. 3.2, Alg. 6.2 (nested), order2, uniform."""
+"""Step controllers on the shared evolve loop: Alg. 3.2, Alg. 6.2 (nested), order2, regime,
+uniform; their decisions on designed error sequences and their checkpoint round trips."""
 
+import copy
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -7,21 +10,42 @@ import pytest
 
 from rothe import RunFailed, run_nested, run_ris
 from rothe.control.controllers import (
+    CONTROLS,
     AdaptiveController,
     Order2Controller,
+    RegimeController,
     UniformController,
     make_controller,
+    step_regime,
 )
+from rothe.io.trajectory import Trajectory
 from rothe.problems.ris_1d import example_7_1
+from rothe.stepping.evolve import evolve
+from rothe.stepping.ris import RISState, RISStepper, initial_trajectory
 
 
-def result(tau, I1, I2, converged=True):
-    return SimpleNamespace(
+def result(tau, I1, I2, converged=True, step_norm=None):
+    r = SimpleNamespace(
         tau=tau,
         converged=converged,
         code="converged" if converged else "max_iterations",
         errors={"I1": I1, "I2": I2},
     )
+    if step_norm is not None:
+        r.step_norm = step_norm
+    return r
+
+
+def slip(tau, e, I2=0.0, converged=True):
+    return result(tau, e, I2, converged, step_norm=0.5 * tau)
+
+
+def jump(tau, e):
+    return result(tau, 0.0, e, step_norm=tau)
+
+
+def stick(tau, e):
+    return result(tau, e, 0.0, step_norm=0.0)
 
 
 def test_alg_3_2_accept_double_keep_halve():
@@ -112,3 +136,195 @@ def test_run_lands_on_T():
         traj = run_ris(example_7_1(), control, tol=tol, tau=0.07)
         assert traj["t"][-1] == pytest.approx(5.0, abs=1e-9)
         assert traj["t"][-2] < 5.0
+
+
+def test_step_regime_from_the_increment():
+    assert step_regime(stick(0.1, 0.0)) == "stick"
+    assert step_regime(jump(0.1, 0.0)) == "jump"
+    assert step_regime(slip(0.1, 0.0)) == "slip"
+    assert step_regime(result(0.1, 0.0, 0.0)) == "slip"  # a stepper without step_norm
+
+
+def test_regime_accepts_as_alg_3_2_and_equidistributes():
+    c = RegimeController(tol=1e-4, tau0=0.1)  # target theta * tol = 5e-5
+    d = c.decide(slip(0.1, 4e-5))  # C = 4e-3: tau = sqrt(5e-5 / 4e-3)
+    assert d.accept and d.next_tau == pytest.approx(math.sqrt(5e-5 / 4e-3))
+    # a smaller error right after: the larger constant of the last two steps (period-2 guard)
+    d = c.decide(slip(0.1, 1e-6))
+    assert d.accept and d.next_tau == pytest.approx(math.sqrt(5e-5 / 4e-3))
+    d = c.decide(slip(0.1, 1e-4))  # I1 = tol is not < tol: rejected, tau (5e-5/1e-4)^(1/2)
+    assert not d.accept and d.next_tau == pytest.approx(0.1 * math.sqrt(0.5))
+    d = c.decide(slip(0.1, 1e-3, I2=2e-4))  # e = max(I1, I2)
+    assert not d.accept and d.next_tau == pytest.approx(0.1 * math.sqrt(5e-5 / 1e-3))
+    d = c.decide(slip(0.1, 1.0))
+    assert not d.accept and d.next_tau == pytest.approx(0.01)
+    d = c.decide(slip(0.1, 0.0, converged=False))  # a failed solve is never accepted
+    assert not d.accept and d.next_tau == pytest.approx(0.025)
+
+
+def test_regime_grows_by_at_most_grow_and_respects_tau_max():
+    c = RegimeController(tol=1e-4, tau0=0.1, tau_max=0.3)
+    d = c.decide(stick(0.1, 0.0))  # zero residual (stable sticking): grow, clamped to tau_max
+    assert d.accept and d.next_tau == pytest.approx(0.3)
+    c = RegimeController(tol=1e-4, tau0=0.1)
+    assert c.decide(stick(0.1, 0.0)).next_tau == pytest.approx(0.4)
+    assert c.decide(stick(0.4, 0.0)).next_tau == pytest.approx(1.6)
+    d = c.decide(slip(1.6, 9e-5))  # a new regime: its own constant, no memory of sticking
+    assert d.accept and d.next_tau == pytest.approx(1.6 * math.sqrt(5e-5 / 9e-5))
+
+
+def test_regime_measures_the_order_from_a_rejection_and_its_retry():
+    """The viscous jump of Example 7.2 has I2 ~ tau^3: the exponent comes from the two attempts."""
+    c = RegimeController(tol=1e-5, tau0=0.02)  # target 5e-6
+    d = c.decide(jump(0.02, 10 * 0.02**3))  # 8e-5 >= tol; p = 2 so far
+    assert not d.accept and d.next_tau == pytest.approx(0.02 * math.sqrt(5e-6 / 8e-5))
+    tau = d.next_tau  # 0.005
+    d = c.decide(jump(tau, 10 * tau**3))  # accepted; the pair gives p = 3 and C = 10
+    assert d.accept and d.next_tau == pytest.approx((5e-6 / 10) ** (1 / 3))
+    assert c.checkpoint_state()["_models"]["jump"]["p"] == pytest.approx(3.0)
+    assert c.checkpoint_state()["_models"].get("slip") is None
+
+
+def test_regime_floor_keeps_tau_above_half_the_tau_squared_step():
+    """(5.7): after an accepted step, never below min(grow tau, sqrt(theta tol / C2) / 2)."""
+    c = RegimeController(tol=1e-4, tau0=0.02)  # target 5e-5
+    d = c.decide(jump(0.02, 1.6e-3))
+    tau = d.next_tau
+    d = c.decide(jump(tau, 5e-7))  # measured order 4.7, clipped to 4: tau (100)^(1/4) = 3.16 tau
+    assert d.accept
+    assert d.next_tau == pytest.approx(min(4 * tau, 0.5 * tau * math.sqrt(5e-5 / 5e-7)))
+    assert d.next_tau > 3.2 * tau
+
+
+def test_regime_leaves_sticking_at_the_target_residual():
+    """While sticking, I1 = L (s_end - s*)^2 / 2 (L = 1 here): two rejections locate s*."""
+    c = RegimeController(tol=1e-3, tau0=0.4)  # target 5e-4
+
+    def stuck_until_2(s, tau):
+        return stick(tau, 0.5 * max(s + tau - 2.0, 0.0) ** 2)
+
+    s = 1.9
+    tau, _ = c.propose(s)
+    assert not c.decide(stuck_until_2(s, tau)).accept  # ends at 2.3
+    tau, _ = c.propose(s)
+    assert c.decide(stuck_until_2(s, tau)).accept  # ends before 2: I1 = 0
+    s += tau
+    tau, _ = c.propose(s)
+    assert not c.decide(stuck_until_2(s, tau)).accept  # the second sample
+    tau, _ = c.propose(s)
+    assert s + tau == pytest.approx(2.0 + math.sqrt(2 * 5e-4))
+    assert stuck_until_2(s, tau).errors["I1"] == pytest.approx(5e-4)
+    assert c.decide(stuck_until_2(s, tau)).accept
+
+
+def test_regime_inputs_are_validated():
+    with pytest.raises(ValueError, match=r"theta: got 1, must be < 1"):
+        RegimeController(tol=1e-4, tau0=0.1, theta=1.0)
+    with pytest.raises(ValueError, match=r"grow: got 1, must be > 1"):
+        RegimeController(tol=1e-4, tau0=0.1, grow=1.0)
+    with pytest.raises(ValueError, match=r"tol: got 0, must be > 0"):
+        make_controller("regime", tol=0.0, tau=0.1)
+    with pytest.raises(ValueError, match=r"tau_min: got 0.5, must be <= tau"):
+        make_controller("regime", tol=1e-4, tau=0.1, tau_min=0.5)
+    with pytest.raises(ValueError, match=r"control: got 'bogus', must be one of .*regime"):
+        make_controller("bogus", tol=1e-4, tau=0.1)
+    assert "regime" in CONTROLS
+
+
+# -- checkpoint protocol (issue 10) ---------------------------------------------------------------
+
+SEQUENCE = [slip(0.1, 4e-5), slip(0.11, 1e-6), slip(0.1, 2e-4), slip(0.05, 2e-5),
+            jump(0.05, 3e-4), jump(0.02, 1e-6), stick(0.4, 0.0), stick(1.6, 0.0),
+            slip(0.1, 0.0, converged=False), slip(0.02, 3e-5), jump(0.03, 2e-5)]
+
+
+def _build(control):
+    if control == "nested":
+        return make_controller("nested", tol=1e-4, tau=0.1, grid=np.array([0.05, 0.3, 0.7]))
+    return make_controller(control, tol=None if control == "uniform" else 1e-4, tau=0.1)
+
+
+@pytest.mark.parametrize("control", ["uniform", "adaptive", "nested", "order2", "regime"])
+def test_controller_checkpoint_round_trip_on_a_designed_sequence(control):
+    """Checkpoint after k decisions, deepcopy, restore into a fresh controller: both decide the
+    rest of the sequence identically (decisions and proposals, to the bit)."""
+    for k in range(len(SEQUENCE)):
+        a = _build(control)
+        s = 0.0
+        for r in SEQUENCE[:k]:
+            a.propose(s)
+            if a.decide(r).accept:
+                s += r.tau
+        data = copy.deepcopy(a.checkpoint_state())
+        b = _build(control)
+        b.restore_state(data)
+        for r in SEQUENCE[k:]:
+            pa, pb = a.propose(s), b.propose(s)
+            assert pa == pb
+            da, db = a.decide(r), b.decide(r)
+            assert (da.accept, da.next_tau) == (db.accept, db.next_tau)
+            if da.accept:
+                s += r.tau
+
+
+def _plain_data(x):
+    if isinstance(x, dict):
+        return all(isinstance(k, str) and _plain_data(v) for k, v in x.items())
+    if isinstance(x, list):
+        return all(_plain_data(v) for v in x)
+    return x is None or isinstance(x, (bool, int, float, str, np.ndarray))
+
+
+@pytest.mark.parametrize("control", ["uniform", "adaptive", "nested", "order2", "regime"])
+def test_controller_checkpoint_holds_only_plain_data(control):
+    c = _build(control)
+    for r in SEQUENCE[:6]:
+        c.propose(0.0)
+        c.decide(r)
+    assert _plain_data(c.checkpoint_state())
+
+
+def test_restore_into_a_different_controller_fails():
+    data = _build("regime").checkpoint_state()
+    with pytest.raises(ValueError, match=r"controller state: got 'regime', must come from a "
+                                         r"'order2' controller"):
+        _build("order2").restore_state(data)
+    other = make_controller("regime", tol=1e-5, tau=0.1)
+    with pytest.raises(ValueError, match=r"controller state tol: got 0.0001, must equal"):
+        other.restore_state(data)
+
+
+class _Stop:
+    """Stop the evolve loop after a number of accepted steps (the stepper is shared)."""
+
+    def __init__(self, stepper, steps):
+        self._stepper, self._stop = stepper, steps
+
+    def __getattr__(self, name):
+        return getattr(self._stepper, name)
+
+    def finished(self, state):
+        return state.k >= self._stop or self._stepper.finished(state)
+
+
+@pytest.mark.parametrize("control", ["uniform", "adaptive", "order2", "regime"])
+def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
+    """Example 7.1: k steps, checkpoint the controller, restore a fresh one, finish the run:
+    the same trajectory as the uninterrupted run, to the bit (the stepper continues as is)."""
+    problem = example_7_1()
+    tol = None if control == "uniform" else 1e-4
+    full = initial_trajectory(problem)
+    evolve(RISStepper(problem), make_controller(control, tol=tol, tau=0.1),
+           RISState(0.0, 0.0, problem.z0.copy()), full)
+    stepper = RISStepper(problem)
+    first = make_controller(control, tol=tol, tau=0.1)
+    traj = initial_trajectory(problem)
+    state = evolve(_Stop(stepper, 40), first, RISState(0.0, 0.0, problem.z0.copy()), traj)
+    assert state.k == 40
+    second = make_controller(control, tol=tol, tau=0.1)
+    second.restore_state(copy.deepcopy(first.checkpoint_state()))
+    evolve(stepper, second, state, traj)
+    assert len(traj) == len(full) > 40
+    for key in ("s", "t", "z", "tau", "I1", "I2", "lam"):
+        assert np.array_equal(traj[key], full[key]), key
+    assert isinstance(traj, Trajectory)
