@@ -49,7 +49,8 @@ def test_run_ris_1d_writes_results_and_figures(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "control, extra",
-    [("uniform", ["--tau", "0.05"]), ("order2", []), ("nested", ["--tols", "1e-2,1e-3"])],
+    [("uniform", ["--tau", "0.05"]), ("order2", []), ("regime", []),
+     ("nested", ["--tols", "1e-2,1e-3"])],
 )
 def test_run_ris_1d_other_controls(tmp_path, control, extra):
     out = tmp_path / control
@@ -89,7 +90,8 @@ def test_run_ris_1d_other_controls(tmp_path, control, extra):
         ),
         (
             ["--control", "fast"],
-            "rothe: error: --control: got 'fast', must be one of adaptive, uniform, nested, order2",
+            "rothe: error: --control: got 'fast', must be one of adaptive, uniform, nested, "
+            "order2, regime",
         ),
         (
             ["--tau", "0.1", "--tau-min", "0.5"],
@@ -160,4 +162,4 @@ def test_compare_ris_1d_table_and_figure(tmp_path, capsys):
     assert "solves/uniform@Linf" in printed and printed.count("uniform") >= 3
     assert (out / "fig3_error_vs_steps.png").exists()
     rows = json.loads((out / "summary.json").read_text())["rows"]
-    assert {r["control"] for r in rows} == {"adaptive", "order2", "uniform"}
+    assert {r["control"] for r in rows} == {"adaptive", "order2", "regime", "uniform"}

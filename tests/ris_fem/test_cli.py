@@ -160,23 +160,71 @@ def test_failed_run_keeps_the_trajectory(tmp_path, capsys):
     assert read_series(out / "solution.xdmf")[3]["z"].shape[0] == summary["accepted_steps"] + 1
 
 
-def test_compare_ris_2d_table_and_figure(tmp_path, capsys):
+def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
     out = tmp_path / "cmp"
-    code, stdout, err = run_cli(capsys, "compare", "ris-2d", "--n", "4", "--tols", "1e-3,1e-4",
-                                "--taus", "0.02,0.01", "--controls", "adaptive", "--out",
-                                str(out))
+    # the uniform residuals (2.1 ... 0.52) bracket tol = 1e-2 (0.75), not 3e-3 (0.41)
+    code, stdout, err = run_cli(capsys, "compare", "ris-2d", "--n", "4", "--tols", "1e-2,3e-3",
+                                "--taus", "0.02,0.01,0.005", "--controls", "adaptive,regime",
+                                "--out", str(out))
     assert code == 0, err
     table = (out / "table.txt").read_text()
     assert table.strip() == stdout.split("wrote")[0].strip()
     rows = json.loads((out / "summary.json").read_text())["rows"]
-    assert [r["control"] for r in rows] == ["adaptive", "adaptive", "uniform", "uniform"]
+    assert [r["control"] for r in rows] == ["adaptive"] * 2 + ["regime"] * 2 + ["uniform"] * 3
     assert all(r["status"] == "completed" for r in rows)
-    # adaptive rows carry the uniform steps needed for the same global residual
-    assert all(r["uniform_steps_same_residual"] > 0 for r in rows[:2])
-    assert "acc/unif" in table and (out / "fig5_residuals.png").exists()
+    assert "solves/u" in table and "equidistribution bound" in table
+    assert (out / "fig5_residuals.png").exists()
     # the uniform scheme's global residual halves with the step
-    u = [r["sum_residual"] for r in rows[2:]]
-    assert 1.7 < u[0] / u[1] < 2.3
+    u = [r["sum_residual"] for r in rows[4:]]
+    assert 1.7 < u[0] / u[1] < 2.3 and 1.7 < u[1] / u[2] < 2.3
+    cmp = json.loads((out / "compare.json").read_text())
+    keys = ["control", "tol", "tau", "accepted", "rejected", "solves", "newton", "seconds",
+            "local_residual", "global_residual", "ratio_steps", "ratio_solves", "ratio_seconds"]
+    assert all(list(r) == keys for r in cmp["rows"])
+    for r, s in zip(cmp["rows"], rows, strict=True):
+        assert (r["control"], r["accepted"], r["solves"]) == (s["control"], s["accepted_steps"],
+                                                             s["inner_solves"])
+        assert r["global_residual"] == s["sum_residual"]
+        assert r["local_residual"] == s["max_residual"]
+    uniform = [r for r in cmp["rows"] if r["control"] == "uniform"]
+    assert all(r["tol"] is None and r["ratio_steps"] is None and r["ratio_solves"] is None
+               and r["ratio_seconds"] is None for r in uniform)
+    # the ratios: log-log interpolation between the bracketing uniform runs, by hand
+    g = np.log([r["global_residual"] for r in uniform])[::-1]
+    for r in cmp["rows"][:4]:
+        x = np.log(r["global_residual"])
+        if not g[0] <= x <= g[-1]:
+            assert r["ratio_steps"] is None and r["ratio_solves"] is None
+            continue
+        for work, ratio in (("accepted", "ratio_steps"), ("solves", "ratio_solves"),
+                            ("seconds", "ratio_seconds")):
+            w = np.log([u[work] for u in uniform])[::-1]
+            i = int(np.searchsorted(g, x).clip(1, len(g) - 1))
+            expected = np.exp(w[i - 1] + (w[i] - w[i - 1]) * (x - g[i - 1]) / (g[i] - g[i - 1]))
+            assert r[ratio] == pytest.approx(r[work] / expected, rel=1e-12)
+    assert [r["ratio_solves"] is not None for r in cmp["rows"][:4]] == [True, False] * 2
+    bound = cmp["equidistribution_bound"]
+    assert bound["tau"] == 0.005 and 0.3 < bound["ratio_steps"] < 1.0
+
+
+def test_compare_rows_null_outside_the_uniform_range():
+    from rothe.cli.ris_fem_commands import compare_rows
+
+    def row(control, G, acc, tau0=0.1, tol=1e-4):
+        return {"control": control, "tol": tol, "tau0": tau0, "accepted_steps": acc,
+                "rejected_steps": 0, "inner_solves": acc, "newton_iterations": 2 * acc,
+                "wall_time_s": 0.01 * acc, "max_residual": G / acc, "sum_residual": G,
+                "status": "completed"}
+
+    rows = [row("regime", 0.5, 10), row("regime", 0.05, 50), row("regime", 2.0, 5),
+            row("uniform", 1.0, 100, tau0=0.01, tol=None),
+            row("uniform", 0.1, 1000, tau0=0.001, tol=None)]
+    out = compare_rows(rows)
+    # G = 0.5 between 1.0 (100 steps) and 0.1 (1000): log-log gives 100 * 2 = 200 steps
+    assert out[0]["ratio_steps"] == pytest.approx(10 / 200)
+    assert out[0]["ratio_seconds"] == pytest.approx(0.1 / 2.0)
+    assert out[1]["ratio_steps"] is None and out[2]["ratio_solves"] is None  # outside the range
+    assert out[3]["ratio_steps"] is None and out[3]["tol"] is None and out[3]["tau"] == 0.01
 
 
 def test_compare_bad_input(tmp_path, capsys):
@@ -186,4 +234,4 @@ def test_compare_bad_input(tmp_path, capsys):
     code, _, err = run_cli(capsys, "compare", "ris-2d", "--controls", "nested", "--out",
                            str(tmp_path))
     assert code == 2 and err.strip() == ("rothe: error: --controls: got 'nested', must be one of "
-                                         "adaptive, order2")
+                                         "adaptive, order2, regime")

@@ -100,6 +100,7 @@ CONTROL_OPTIONS = {
     "adaptive": ("--tol",),
     "order2": ("--tol",),
     "nested": ("--tols",),
+    "regime": ("--tol",),
 }
 #: the options that only some controls read (--tau, --tau-min, ... are read by all)
 CONTROL_SPECIFIC = ("--tol", "--tols")
@@ -134,6 +135,103 @@ def check_step(option: str, value, T: float, tau_min: float = 1e-12) -> float:
     if tau > T:
         raise fail(option, tau, f"must be <= T (= {T:g}), the end time of the run")
     return tau
+# -- work against residual: the ratios of compare ris-2d (issue 12), shared with the benchmarks --
+
+#: the keys of a row of compare.json, in this order
+COMPARE_KEYS = ("control", "tol", "tau", "accepted", "rejected", "solves", "newton", "seconds",
+                "local_residual", "global_residual", "ratio_steps", "ratio_solves",
+                "ratio_seconds")
+
+
+def equidistribution_bound(residuals) -> float | None:
+    """(sum_k sqrt(J_k))^2 / (M sum_k J_k) over the pair means J_k = (I_k + I_{k+1}) / 2 of the
+    residuals I_k = I1^k + I2^k of a uniform run (M = N - 1 pairs).
+
+    A lower bound for the accepted steps of *any* step sequence, as a fraction of the uniform
+    run's, at the same global residual G, when the residual of a step is I = C(s) tau^2 with a
+    density C(s) that the steps do not change (Lemma 5.3): by Cauchy-Schwarz,
+    (sum_k sqrt(I_k))^2 <= N sum_k I_k = N G, and sum_k sqrt(I_k) = sum_k sqrt(C(s_k)) tau_k
+    ~ int sqrt(C) ds is the same for every sequence; equality holds when all I_k are equal. For a
+    uniform run, sqrt(C_k) tau = sqrt(I_k), so its own steps give C. Pair means, because in slip
+    the time increments carry a period-2 oscillation, dt_k = tau - v dt_{k-1} (neutral in
+    Example 7.1, v = 1): single residuals alternate between two levels at a fixed density --
+    there I1 = L dt_k (dt_{k-1} + dt_k) / 2, whose sum over a pair does not depend on the phase --
+    and Cauchy-Schwarz over the raw steps would give a bound no step sequence reaches (0.19
+    instead of the 0.375 of Example 7.1). None without residual.
+    """
+    I = np.maximum(np.asarray(residuals, dtype=float), 0.0)
+    if I.size < 2 or I.sum() <= 0.0:
+        return None
+    J = 0.5 * (I[1:] + I[:-1])
+    return float(np.sum(np.sqrt(J)) ** 2 / (J.size * J.sum()))
+
+
+#: work measures of a run (key of its summary row) and the ratio they enter in compare.json
+WORK_RATIOS = (("accepted_steps", "ratio_steps"), ("inner_solves", "ratio_solves"),
+               ("wall_time_s", "ratio_seconds"))
+
+
+def uniform_work_interpolant(rows, work: str, key: str = "sum_residual"):
+    """Work of the uniform scheme at a given global residual, interpolated log-log between the
+    two uniform runs whose residuals bracket it; None outside their range (no extrapolation).
+
+    Returns a callable residual -> work or None, or None if fewer than two uniform runs completed.
+    """
+    u = sorted((r[key], r[work]) for r in rows
+               if r["control"] == "uniform" and r.get("status", "completed") == "completed"
+               and r.get(key, 0) > 0 and r.get(work, 0) > 0)
+    if len(u) < 2:
+        return None
+    x = np.log([g for g, _ in u])
+    y = np.log([w for _, w in u])
+
+    def work_at(residual: float) -> float | None:
+        if not residual > 0:
+            return None
+        lx = math.log(residual)
+        # a residual equal to the smallest/largest uniform one (to round-off) is in range
+        if lx < x[0] - 1e-12 or lx > x[-1] + 1e-12:
+            return None
+        return float(np.exp(np.interp(lx, x, y)))
+
+    return work_at
+
+
+def compare_rows(rows) -> list[dict]:
+    """The rows of compare.json (keys :data:`COMPARE_KEYS`, in that order) from summary rows.
+
+    ``ratio_steps``, ``ratio_solves``, ``ratio_seconds``: the run's accepted steps, inner solves
+    and seconds divided by the uniform scheme's at the same global residual sum_k(I1 + I2)
+    (:func:`uniform_work_interpolant`); null for the uniform rows, for a residual outside the
+    uniform runs' range, and for a run that did not complete.
+    """
+    interp = {ratio: uniform_work_interpolant(rows, work) for work, ratio in WORK_RATIOS}
+    out = []
+    for r in rows:
+        uniform = r["control"] == "uniform"
+        # a run that produced nothing (an error, a lost task) has its status only: nulls
+        row = {
+            "control": r["control"],
+            "tol": None if uniform else r["tol"],
+            "tau": r["tau0"],
+            "accepted": r.get("accepted_steps"),
+            "rejected": r.get("rejected_steps"),
+            "solves": r.get("inner_solves"),
+            "newton": r.get("newton_iterations"),
+            "seconds": r.get("wall_time_s"),
+            "local_residual": r.get("max_residual"),
+            "global_residual": r.get("sum_residual"),
+        }
+        for work, ratio in WORK_RATIOS:
+            fn = interp[ratio]
+            base = None
+            if (not uniform and fn is not None and r.get("status", "completed") == "completed"
+                    and work in r):
+                base = fn(r["sum_residual"])
+            row[ratio] = None if base is None else r[work] / base
+        assert tuple(row) == COMPARE_KEYS
+        out.append(row)
+    return out
 
 
 class RISRunBase(ABC):
@@ -151,13 +249,14 @@ class RISRunBase(ABC):
         parser.add_argument(
             "--control",
             default="adaptive",
-            help="adaptive | uniform | nested | order2 (default adaptive)",
+            help="adaptive | uniform | nested | order2 | regime (default adaptive; regime: "
+            "every step at the same residual, Alg. 3.2's acceptance)",
         )
         parser.add_argument(
             "--tol",
             type=parse_float("--tol"),
             default=1e-4,
-            help="residual tolerance of adaptive/order2 (default 1e-4)",
+            help="residual tolerance of adaptive/order2/regime (default 1e-4)",
         )
         parser.add_argument(
             "--tols",
@@ -393,10 +492,10 @@ def compare_ris_1d(
     tols=(1e-3, 1e-4, 1e-5, 1e-6),
     taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001),
     tau0=0.1,
-    controls=("adaptive", "order2"),
+    controls=("adaptive", "order2", "regime"),
     executor=None,
 ) -> list[dict]:
-    """Run adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.1; one row each.
+    """Run the ``controls`` over ``tols`` and uniform over ``taus`` on Example 7.1; one row each.
 
     The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
     one after another in this process); a run that fails is a row with its status.
@@ -464,7 +563,8 @@ def format_table(rows, work_fit=None) -> str:
 
 @command("compare", "ris-1d")
 class CompareRIS1D:
-    help = "Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2 vs uniform (Ex. 7.1)"
+    help = ("Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2/regime vs uniform "
+            "(Ex. 7.1)")
 
     def configure(self, parser) -> None:
         parser.add_argument(

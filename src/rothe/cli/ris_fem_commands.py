@@ -5,7 +5,9 @@
 (default N = 40: 1681 nodes) or on any 2D mesh file; ``run ris-3d`` the same energy on the unit
 cube or a 3D mesh file. Besides the outputs of every run (summary.json, trajectory.npz, figures)
 they write the mesh into trajectory.npz (``nodes``, ``cells``), ``solution.xdmf`` + ``.h5`` (z
-over s, for ParaView), the Fig. 4 analogue and snapshots of z. ``compare ris-2d`` draws Fig. 5.
+over s, for ParaView), the Fig. 4 analogue and snapshots of z. ``compare ris-2d`` draws Fig. 5
+and writes ``compare.json``: one row per run with its work and the work ratios to the uniform
+scheme at the same global residual (:func:`compare_rows`).
 ``run ris-front`` is a phase front crossing the unit square (space adaptivity pays there).
 
 ``--adapt-space`` (with ``--space-tol``, ``--refine-fraction``, ``--coarsen-fraction``,
@@ -17,13 +19,16 @@ t and s (``fig_dofs.png``) and snapshots of mesh and z (``fig_mesh_snapshots.png
 
 from __future__ import annotations
 
+import json
 import time
 
 import numpy as np
 
 from ..errors import check_choice, check_int, check_positive, fail
+from ..io.atomic import atomic_write_text
 from ..parallel.executor import add_parallel_options, executor_from_args
 from .common import (
+    _jsonable,
     add_output_options,
     given,
     output_dir,
@@ -35,13 +40,25 @@ from .common import (
     write_table,
 )
 from .registry import command
-from .ris_commands import RISRunBase, check_step, ris_summary, run_cost
+from .ris_commands import (
+    COMPARE_KEYS,
+    RISRunBase,
+    check_step,
+    compare_rows,
+    equidistribution_bound,
+    ris_summary,
+    run_cost,
+    uniform_work_interpolant,
+)
 
 #: ReusableSolver.kind_used for each resolved method (kept in sync by tests/ris_fem/test_cli.py)
 LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa"}
-#: uniform steps of ``compare ris-2d``: 0.01 / 2^k, k = 0..7, so that the uniform global residuals
-#: (about 1.2 ... 0.01 on Example 7.2) bracket those of adaptive at tol = 1e-4 ... 1e-6
-COMPARE_TAUS = tuple(0.01 / 2**k for k in range(8))
+#: uniform steps of ``compare ris-2d``: 0.01 / 2^k, k = 0..8, so that the uniform global residuals
+#: (about 1.2 ... 0.0047 on Example 7.2, 40 x 40) bracket those of adaptive, order2 and regime at
+#: tol = 1e-4 ... 1e-6 (0.093 ... 0.0083); k = 7 alone (0.0095) left tol = 1e-6 unbracketed
+COMPARE_TAUS = tuple(0.01 / 2**k for k in range(9))
+#: the step controllers ``compare ris-2d`` runs besides uniform
+COMPARE_CONTROLS = ("adaptive", "order2", "regime")
 
 
 def linear_solver_used(traj, problem, method: str = "auto") -> str:
@@ -428,7 +445,10 @@ class RunRISFront(_RunRISFem):
 
 def compare_ris_2d_row(n: int, mesh, control: str, tol: float | None, tau: float,
                        progress=False) -> dict:
-    """One run of ``compare ris-2d`` (a task: builds Example 7.2 itself); its table row."""
+    """One run of ``compare ris-2d`` (a task: builds Example 7.2 itself); its table row.
+
+    A uniform row also holds its ``equidistribution_bound`` (:func:`equidistribution_bound`).
+    """
     from ..errors import RunFailed
     from ..parallel import TaskFailed
     from ..problems.ris_fem import describe_branch, example_7_2
@@ -443,15 +463,18 @@ def compare_ris_2d_row(n: int, mesh, control: str, tol: float | None, tau: float
     row = ris_summary(traj, "ris-2d", describe_branch(problem, traj))
     row.update(tau0=tau, status="completed" if failure is None else f"failed: {failure}",
                n_nodes=problem.n_nodes)
+    if control == "uniform":
+        row["equidistribution_bound"] = equidistribution_bound(traj["I1"] + traj["I2"])
     if failure is not None:
         raise TaskFailed(str(failure), value=row)
     return row
 
 
 def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
-                   tau0: float = 0.1, controls=("adaptive", "order2"), mesh=None,
+                   tau0: float = 0.1, controls=COMPARE_CONTROLS, mesh=None,
                    progress=False, executor=None) -> list[dict]:
-    """Adaptive/order2 over ``tols`` and uniform over ``taus`` on Example 7.2; one row each.
+    """The ``controls`` over ``tols`` and uniform over ``taus`` on Example 7.2; one row each
+    (:func:`compare_ris_2d_row`).
 
     The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
     one after another in this process); a run that fails is a row with its status.
@@ -474,28 +497,21 @@ def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
             for t, r in zip(tasks, results, strict=True)]
 
 
-def uniform_steps_at_residual(rows, key: str = "sum_residual"):
-    """Fit log(accepted steps) = a + b log(residual) over the uniform rows; returns a callable."""
-    u = [r for r in rows if r["control"] == "uniform" and r["status"] == "completed"
-         and r[key] > 0]
-    if len(u) < 2:
-        return None
-    x = np.log([r[key] for r in u])
-    y = np.log([r["accepted_steps"] for r in u])
-    b, a = np.polyfit(x, y, 1)
-    return lambda res: float(np.exp(a + b * np.log(res)))
-
-
-def format_table(rows, fit=None) -> str:
+def format_table(rows) -> str:
+    """The table of ``compare ris-2d``: one line per run, work ratios from :func:`compare_rows`."""
     from ..problems.ris_fem import format_jump_times
 
+    ratios = compare_rows(rows)
     head = (f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
             f"{'newton':>7} {'max_k(I1+I2)':>12} {'sum_k(I1+I2)':>12} {'energy':>10} "
-            f"{'z_min':>8} {'z_max':>8} {'viscous jumps at t':<18} {'seconds':>8}")
-    if fit is not None:
-        head += f" {'acc/unif':>8} {'solves/unif':>11}"
+            f"{'z_min':>8} {'z_max':>8} {'viscous jumps at t':<18} {'seconds':>8} "
+            f"{'steps/u':>7} {'solves/u':>8} {'sec/u':>6}")
     lines = [head, "-" * len(head)]
-    for r in rows:
+
+    def fmt(x, width):
+        return f"{x:>{width}.3f}" if x is not None else f"{'-':>{width}}"
+
+    for r, q in zip(rows, ratios, strict=True):
         par = r["tau0"] if r["control"] == "uniform" else r["tol"]
         if "accepted_steps" not in r:  # a run that produced nothing (error, lost): status only
             lines.append(f"{r['control']:<9} {par:>8.3g}  {r['status']}")
@@ -505,39 +521,53 @@ def format_table(rows, fit=None) -> str:
                 f"{r['rejected_steps']:>8d} {r['inner_solves']:>7d} {r['newton_iterations']:>7d} "
                 f"{r['max_residual']:>12.3e} {r['sum_residual']:>12.3e} "
                 f"{r['energy_final']:>10.4f} {r['z_min']:>8.4f} {r['z_max']:>8.4f} "
-                f"{jumps:<18} {r['wall_time_s']:>8.2f}")
-        if fit is not None and r["control"] != "uniform" and r["sum_residual"] > 0:
-            nu = fit(r["sum_residual"])
-            line += f" {r['accepted_steps'] / nu:>8.2f} {r['inner_solves'] / nu:>11.2f}"
+                f"{jumps:<18} {r['wall_time_s']:>8.2f} {fmt(q['ratio_steps'], 7)} "
+                f"{fmt(q['ratio_solves'], 8)} {fmt(q['ratio_seconds'], 6)}")
         if r["status"] != "completed":
             line += "  " + r["status"]
         lines.append(line)
-    if fit is not None:
-        lines.append("")
-        lines.append("acc/unif, solves/unif: accepted steps (inner solves) of the run divided by "
-                     "the accepted steps the uniform scheme needs for the same global residual "
-                     "sum_k(I1+I2) (log-log fit over the uniform rows)")
+    lines.append("")
+    lines.append("steps/u, solves/u, sec/u: accepted steps, inner solves and seconds of the run "
+                 "divided by the uniform scheme's at the same global residual sum_k(I1+I2), "
+                 "interpolated log-log between the two uniform runs that bracket it ('-': uniform, "
+                 "or outside their range)")
+    bound = finest_uniform_bound(rows)
+    if bound is not None:
+        lines.append(f"equidistribution bound (finest uniform run, tau = {bound[0]:.3g}): no step "
+                     f"sequence needs fewer than {bound[1]:.3f} of uniform's accepted steps (hence "
+                     "solves) at equal global residual while I ~ C(s) tau^2")
     return "\n".join(lines)
+
+
+def finest_uniform_bound(rows):
+    """(tau, bound) of the completed uniform run with the smallest step, or None."""
+    u = [r for r in rows if r["control"] == "uniform" and r["status"] == "completed"
+         and r.get("equidistribution_bound") is not None]
+    if not u:
+        return None
+    r = min(u, key=lambda r: r["tau0"])
+    return r["tau0"], r["equidistribution_bound"]
 
 
 @command("compare", "ris-2d")
 class CompareRIS2D:
-    help = ("Fig. 5 of Andreia & Meyer: local and global residual against steps, adaptive/order2 "
-            "vs uniform (Example 7.2)")
+    help = ("Fig. 5 of Andreia & Meyer: local and global residual against steps, adaptive, order2 "
+            "and regime vs uniform (Example 7.2); compare.json with the work ratios")
 
     def configure(self, parser) -> None:
         parser.add_argument("--n", type=int, default=None,
                             help="N x N grid (default 40: 1681 nodes)")
         parser.add_argument("--mesh", default=None, help="2D mesh file instead of the grid")
         parser.add_argument("--tols", type=parse_float_list("--tols"), default=[1e-4, 1e-5, 1e-6],
-                            help="tolerances of adaptive and order2 (default 1e-4,1e-5,1e-6)")
+                            help="tolerances of the step controllers (default 1e-4,1e-5,1e-6)")
         parser.add_argument("--taus", type=parse_float_list("--taus"),
                             default=list(COMPARE_TAUS),
-                            help="steps of the uniform scheme (default 0.01/2^k, k = 0..7)")
-        parser.add_argument("--controls", default="adaptive,order2",
-                            help="step controllers besides uniform (default adaptive,order2)")
+                            help="steps of the uniform scheme (default 0.01/2^k, k = 0..8)")
+        parser.add_argument("--controls", default=",".join(COMPARE_CONTROLS),
+                            help="step controllers besides uniform, from adaptive, order2, regime "
+                                 "(default all three)")
         parser.add_argument("--tau", type=parse_float("--tau"), default=0.1,
-                            help="first step of adaptive/order2 (default 0.1)")
+                            help="first step of the step controllers (default 0.1)")
         add_output_options(parser, "compare-ris-2d")
         add_parallel_options(parser)
 
@@ -551,7 +581,7 @@ class CompareRIS2D:
             raise fail("--taus", ",".join(map(str, taus)), "needs at least two step sizes")
         controls = [c.strip() for c in args.controls.split(",") if c.strip()]
         for c in controls:
-            check_choice("--controls", c, ("adaptive", "order2"))
+            check_choice("--controls", c, COMPARE_CONTROLS)
         if args.mesh is not None and args.n is not None:
             raise fail("--n", args.n, "cannot be combined with --mesh")
         n = check_int("--n", args.n if args.n is not None else 40, minimum=2)
@@ -563,17 +593,18 @@ class CompareRIS2D:
         t0 = time.perf_counter()
         rows = compare_ris_2d(n, tols, taus, tau0, tuple(controls), mesh,
                               progress=progress_of(args), executor=executor)
-        fit = uniform_steps_at_residual(rows)
-        table = format_table(rows, fit)
+        table = format_table(rows)
         write_table(out, table + "\n")
         n_nodes = next((r["n_nodes"] for r in rows if "n_nodes" in r), None)
         summary = {"example": "ris-2d", "n_nodes": n_nodes, "rows": rows,
                    "wall_time_s": time.perf_counter() - t0, "peak_memory_mb": peak_memory_mb()}
-        if fit is not None:
-            for r in rows:
-                if r["control"] != "uniform" and r.get("sum_residual", 0) > 0:
-                    r["uniform_steps_same_residual"] = fit(r["sum_residual"])
         write_summary(out, summary)
+        bound = finest_uniform_bound(rows)
+        atomic_write_text(out / "compare.json", json.dumps(_jsonable({
+            "example": "ris-2d", "n_nodes": n_nodes, "rows": compare_rows(rows),
+            "equidistribution_bound": None if bound is None else {"tau": bound[0],
+                                                                  "ratio_steps": bound[1]},
+        }), indent=2) + "\n")
         if not args.no_plots:
             from ..plotting.ris import plot_residual_vs_steps
 
@@ -586,5 +617,6 @@ class CompareRIS2D:
         return 0 if all(r["status"] == "completed" for r in rows) else 1
 
 
-__all__ = ["RunRIS2D", "RunRIS3D", "RunRISFront", "CompareRIS2D", "compare_ris_2d", "format_table",
-           "linear_solver_used", "uniform_steps_at_residual"]
+__all__ = ["COMPARE_KEYS", "RunRIS2D", "RunRIS3D", "RunRISFront", "CompareRIS2D", "compare_ris_2d",
+           "compare_rows", "equidistribution_bound", "format_table", "linear_solver_used",
+           "uniform_work_interpolant"]

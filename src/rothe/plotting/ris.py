@@ -101,21 +101,27 @@ def plot_error_vs_work(rows, path, title="") -> Path:
 
 
 def plot_residual_vs_steps(rows, path, title="") -> Path:
-    """Fig. 5 analogue: local max_k(I1+I2) and global sum_k(I1+I2) against the number of steps."""
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    """Fig. 5 analogue: local max_k(I1+I2) and global sum_k(I1+I2) against the number of steps,
+    and the global residual against the number of inner solves (accepted + rejected attempts)."""
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     groups = {}
     for r in rows:
         groups.setdefault(r["control"], []).append(r)
-    styles = {"uniform": "o", "adaptive": "s", "order2": "^"}
+    styles = {"uniform": "o", "adaptive": "s", "order2": "^", "regime": "D"}
     for name, rs in groups.items():
         rs = sorted(rs, key=lambda r: r["accepted_steps"])
         n = [r["accepted_steps"] for r in rs]
-        axes[0].loglog(n, [r["max_residual"] for r in rs], "-" + styles.get(name, "x"), label=name)
-        axes[1].loglog(n, [r["sum_residual"] for r in rs], "-" + styles.get(name, "x"), label=name)
+        style = "-" + styles.get(name, "x")
+        axes[0].loglog(n, [r["max_residual"] for r in rs], style, label=name)
+        axes[1].loglog(n, [r["sum_residual"] for r in rs], style, label=name)
+        axes[2].loglog([r["inner_solves"] for r in rs], [r["sum_residual"] for r in rs], style,
+                       label=name)
     axes[0].set_ylabel(r"local residual $\max_k (I_1^k + I_2^k)$")
     axes[1].set_ylabel(r"global residual $\sum_k (I_1^k + I_2^k)$")
-    for ax in axes:
-        ax.set_xlabel("number of steps")
+    axes[2].set_ylabel(r"global residual $\sum_k (I_1^k + I_2^k)$")
+    for ax, xlabel in zip(axes, ("number of steps", "number of steps", "inner solves"),
+                          strict=True):
+        ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
     if title:
