@@ -1,15 +1,24 @@
-"""Example 7.2 at paper size and far beyond: work, residuals, cost per step, memory.
+"""Example 7.2 at paper size and far beyond: work, residuals, cost per step and per solve, 3D.
 
-    python benchmarks/ris_2d.py              # everything (about half an hour on 2 cores)
-    python benchmarks/ris_2d.py --quick      # a smaller version (N = 80, 160) to try it out
+    python benchmarks/ris_2d.py              # everything (about an hour on 2 quiet cores)
+    python benchmarks/ris_2d.py --quick      # a smaller version (N = 16; N = 80, 160) to try it out
+    python benchmarks/ris_2d.py --part 1     # or 2, 3d; --sizes 160,640 and --control for part 2
 
-Part 1, paper size (40 x 40 cells, 1681 nodes): adaptive at tol 1e-4, 1e-5, 1e-6 and uniform at
-several tau: steps, rejected, inner solves, Newton iterations, wall time, local residual
-max_k(I1+I2) and global residual sum_k(I1+I2).
+Part 1, paper size (40 x 40 cells, 1681 nodes): the table of ``rothe compare ris-2d`` --
+adaptive (Alg. 3.2), order2 and regime at tol 1e-4, 1e-5, 1e-6 and uniform at tau = 0.01/2^k,
+k = 0..8: steps, rejected, inner solves, Newton iterations, local residual max_k(I1+I2), global
+residual sum_k(I1+I2), seconds, and the work ratios to uniform at the same global residual
+(interpolated log-log between the bracketing uniform runs), with the equidistribution bound
+(the least fraction of uniform's steps any step sequence can need while I ~ C(s) tau^2). Then
+where the inner solves go: accepted / rejected attempts by regime of the attempt (sticking,
+viscous jump, slip, the first step of a new regime = switch, and the attempts of a step shortened
+to land on T), and the share of Newton iterations spent in rejected attempts.
+Target (issue 12): regime <= 1/4 of uniform's solves and <= 1/3 of its steps at equal global
+residual, every accepted step with I1, I2 < tol.
 
 Part 2, scale: on N x N grids (N = 160, 640, 1000; 1000 is 10^6 nodes), each N in its own
 process so that its peak memory is its own. Two representative phases, 10 accepted steps each
-with the adaptive controller (tol 1e-5):
+with one controller (``--control``, default regime; tol 1e-5):
 
 * jump: from z = 0 at t = 0.17 (exact on every mesh: z = 0 sticks until t ~ 0.1725), i.e. the
   end of sticking and the first steps of the viscous jump (ball active, indefinite Hessian);
@@ -20,9 +29,12 @@ with the adaptive controller (tol 1e-5):
   change"), then the 10 measured steps follow.
 
 Every cost is divided by the time of one sparse LU factorization + solve of the stiffness
-matrix A on the same mesh, measured in the same process (splu, MMD_AT_PLUS_A). Targets: at most 5
-on the 640 x 640 grid; 10^6 nodes in under 4 GB; cost per step growing no faster than about
-N^2 log N^2.
+matrix A on the same mesh, measured in the same process (splu, MMD_AT_PLUS_A): per accepted
+step (target <= 5 at 640 x 640) and per inner solve (target <= 2 at 640 x 640, issue 12);
+10^6 nodes in under 4 GB; cost per step growing no faster than about N^2 log N^2.
+
+Part 3D: the energy of Example 7.2 on the unit cube (P1 tetrahedra, 8^3 cubes, 343 unknowns):
+the part 1 table for tol 1e-4, 1e-5 and uniform tau = 0.01/2^k, k = 0..6.
 """
 
 from __future__ import annotations
@@ -42,35 +54,132 @@ def peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-# -- part 1 -------------------------------------------------------------------------------------
-def paper_size(quick: bool) -> None:
-    from rothe import run_ris
-    from rothe.problems.ris_fem import example_7_2
+# -- parts 1 and 3D ------------------------------------------------------------------------------
+CATEGORIES = ("stick", "jump", "slip", "switch", "landing")
 
-    problem = example_7_2(40)
-    print("Part 1: Example 7.2 on the 40 x 40 grid (1681 nodes), tau0 = 0.01 for adaptive\n")
-    head = (
-        f"{'control':<9} {'tol/tau':>8} {'steps':>6} {'rejected':>8} {'solves':>7} "
-        f"{'Newton':>7} {'seconds':>8} {'local res':>10} {'global res':>10} "
-        f"{'t_final':>7} {'E_final':>9}"
-    )
+
+class _Attempts:
+    """Wraps the stepper and the controller of one run and files every attempt in a category.
+
+    An attempt belongs to its regime (rothe.control.controllers.step_regime), or to ``switch``
+    when its regime differs from that of the last accepted step, or to ``landing`` when it is
+    one of the attempts of a step shortened to land on T; a failed solve counts in its regime.
+    """
+
+    def __init__(self, stepper, controller):
+        self.stepper, self.controller = stepper, controller
+        self.pending = []
+        self.counts = {c: [0, 0] for c in CATEGORIES}  # accepted, rejected
+        self.newton = [0, 0]  # Newton iterations of accepted / of rejected attempts
+        self._last = None
+
+    def step(self, state, tau, s_end=None):
+        result = self.stepper.step(state, tau, s_end)
+        self.pending.append(result)
+        return result
+
+    def decide(self, result):
+        from rothe.control.controllers import step_regime
+
+        decision = self.controller.decide(result)
+        group, self.pending = self.pending, []
+        for r in group:
+            accepted = decision.accept and r is result
+            regime = step_regime(r)
+            if len(group) > 1:
+                category = "landing"
+            elif self._last is not None and regime != self._last:
+                category = "switch"
+            else:
+                category = regime
+            self.counts[category][0 if accepted else 1] += 1
+            self.newton[0 if accepted else 1] += int(r.counters.get("newton_iterations", 0))
+        if decision.accept:
+            self._last = step_regime(result)
+        return decision
+
+
+class _Proxy:
+    """Forward everything to ``inner`` except the given overrides."""
+
+    def __init__(self, inner, **overrides):
+        self._inner = inner
+        self.__dict__.update(overrides)
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+
+def run_logged(problem, control, tol, tau, example):
+    """One run as rothe.stepping.ris.run_ris does it, with every attempt filed (_Attempts)."""
+    from rothe.cli.ris_commands import ris_summary
+    from rothe.cli.ris_fem_commands import equidistribution_bound
+    from rothe.control.controllers import make_controller
+    from rothe.problems.ris_fem import describe_branch
+    from rothe.stepping.evolve import evolve
+    from rothe.stepping.ris import RISState, RISStepper, initial_trajectory
+
+    controller = make_controller(control, tol=tol, tau=tau)
+    stepper = RISStepper(problem)
+    log = _Attempts(stepper, controller)
+    traj = initial_trajectory(problem, {"control": controller.name, "tol": tol, "tau0": tau})
+    evolve(_Proxy(stepper, step=log.step), _Proxy(controller, decide=log.decide),
+           RISState(0.0, 0.0, problem.z0.copy()), traj)
+    row = ris_summary(traj, example, describe_branch(problem, traj))
+    row.update(tau0=tau, status="completed", n_nodes=problem.n_nodes)
+    if control == "uniform":
+        row["equidistribution_bound"] = equidistribution_bound(traj["I1"] + traj["I2"])
+    return row, log
+
+
+def work_table(problem, example, controls, tols, taus, tau0=0.1) -> None:
+    from rothe.cli.ris_fem_commands import format_table
+
+    runs = [(c, tol, tau0) for c in controls for tol in tols]
+    runs += [("uniform", None, tau) for tau in taus]
+    rows, logs = [], []
+    for control, tol, tau in runs:
+        row, log = run_logged(problem, control, tol, tau, example)
+        rows.append(row)
+        logs.append(log)
+    print(format_table(rows))
+    print("\nWhere the inner solves go: accepted/rejected attempts by category (see the docstring)")
+    head = (f"{'control':<9} {'tol/tau':>8} " + " ".join(f"{c:>13}" for c in CATEGORIES)
+            + f" {'solves':>7} {'Newton in rejected':>18}")
     print(head)
     print("-" * len(head))
-    runs = [("adaptive", tol, 0.01) for tol in ((1e-4, 1e-5) if quick else (1e-4, 1e-5, 1e-6))]
-    runs += [
-        ("uniform", None, tau) for tau in ((1e-2, 5e-3) if quick else (1e-2, 5e-3, 2e-3, 1e-3))
-    ]
-    for control, tol, tau in runs:
-        traj = run_ris(problem, control, tol=tol, tau=tau)
-        st = traj.stats
-        res = traj["I1"] + traj["I2"]
-        par = tol if control != "uniform" else tau
-        print(
-            f"{control:<9} {par:>8.0e} {st.accepted_steps:>6} {st.rejected_steps:>8} "
-            f"{st.inner_solves:>7} {st.newton_iterations:>7} {st.wall_time_s:>8.2f} "
-            f"{res.max():>10.3e} {res.sum():>10.3e} {traj['t'][-1]:>7.4f} "
-            f"{traj['energy'][-1]:>9.3f}"
-        )
+    for row, log in zip(rows, logs, strict=True):
+        par = row["tau0"] if row["control"] == "uniform" else row["tol"]
+        cells = " ".join(f"{log.counts[c][0]:>7}/{log.counts[c][1]:<5}" for c in CATEGORIES)
+        newton = sum(log.newton)
+        share = log.newton[1] / newton if newton else 0.0
+        print(f"{row['control']:<9} {par:>8.3g} {cells} {row['inner_solves']:>7} "
+              f"{share:>17.1%}")
+
+
+def paper_size(quick: bool) -> None:
+    from rothe.cli.ris_fem_commands import COMPARE_CONTROLS, COMPARE_TAUS
+    from rothe.problems.ris_fem import example_7_2
+
+    n = 16 if quick else 40
+    problem = example_7_2(n)
+    print(f"Part 1: Example 7.2 on the {n} x {n} grid ({problem.n_nodes} nodes), first step 0.1 "
+          "for the step controllers\n")
+    tols = (1e-4, 1e-5) if quick else (1e-4, 1e-5, 1e-6)
+    taus = COMPARE_TAUS[:8] if quick else COMPARE_TAUS
+    work_table(problem, "ris-2d", COMPARE_CONTROLS, tols, taus)
+
+
+def cube(quick: bool) -> None:
+    from rothe.cli.ris_fem_commands import COMPARE_CONTROLS
+    from rothe.problems.ris_fem import example_7_2_3d
+
+    n = 4 if quick else 8
+    problem = example_7_2_3d(n)
+    print(f"\nPart 3D: the energy of Example 7.2 on the unit cube, {n}^3 cubes "
+          f"({problem.n} unknowns), first step 0.1 for the step controllers\n")
+    taus = tuple(0.01 / 2**k for k in range(5 if quick else 7))
+    work_table(problem, "ris-3d", COMPARE_CONTROLS, (1e-4,) if quick else (1e-4, 1e-5), taus)
 
 
 # -- part 2 (one process per N) -------------------------------------------------------------------
@@ -108,10 +217,10 @@ def _slip_state(n_fine: int):
     return float(traj["s"][k]), float(traj["t"][k]), z_fine, float(traj["tau"][k])
 
 
-def measure(n: int, solver: str, phase: str, steps: int) -> dict:
+def measure(n: int, solver: str, phase: str, steps: int, control: str = "regime") -> dict:
     import scipy.sparse.linalg as spla
 
-    from rothe.control.controllers import AdaptiveController
+    from rothe.control.controllers import make_controller
     from rothe.io.trajectory import Trajectory
     from rothe.nonlinear.ris_inner import InnerOptions
     from rothe.problems.ris_fem import example_7_2
@@ -138,7 +247,7 @@ def measure(n: int, solver: str, phase: str, steps: int) -> dict:
         state = RISState(s=s0, t=t_start, z=z)
     stepper = RISStepper(problem, InnerOptions(linear_solver=solver))
     traj = Trajectory()
-    controller = AdaptiveController(1e-5, tau0)
+    controller = make_controller(control, tol=1e-5, tau=tau0)
     warm = {"warmup_s": 0.0, "warmup_accepted": 0, "warmup_rejected": 0}
     if phase == "slip":
         t0 = time.perf_counter()
@@ -158,6 +267,7 @@ def measure(n: int, solver: str, phase: str, steps: int) -> dict:
     t_rest = time.perf_counter() - t0
     st = traj.stats
     per_step = (t_first + t_rest) / st.accepted_steps
+    per_solve = (t_first + t_rest) / st.inner_solves
     return {
         "N": n,
         "nodes": problem.n_nodes,
@@ -169,6 +279,10 @@ def measure(n: int, solver: str, phase: str, steps: int) -> dict:
         "first_step_s": t_first,
         "per_step_s": per_step,
         "ratio": per_step / t_lu,
+        "control": control,
+        "solves": st.inner_solves,
+        "per_solve_s": per_solve,
+        "ratio_solve": per_solve / t_lu,
         "accepted": st.accepted_steps,
         "rejected": st.rejected_steps,
         "newton": st.newton_iterations,
@@ -180,16 +294,16 @@ def measure(n: int, solver: str, phase: str, steps: int) -> dict:
     }
 
 
-def scale(quick: bool) -> None:
-    sizes = (80, 160) if quick else (160, 640, 1000)
+def scale(quick: bool, sizes=None, control: str = "regime") -> None:
+    sizes = tuple(sizes) if sizes else ((80, 160) if quick else (160, 640, 1000))
     print(
-        "\nPart 2: cost per accepted step on N x N grids (adaptive, tol 1e-5; "
-        "ratio = seconds per accepted step / one LU factorization + solve of A)\n"
+        f"\nPart 2: cost per accepted step and per inner solve on N x N grids ({control}, "
+        "tol 1e-5; LU = seconds / one LU factorization + solve of A)\n"
     )
     head = (
         f"{'N':>5} {'unknowns':>9} {'phase':>5} {'solver':>6} {'LU(A) s':>8} {'1st step s':>10} "
-        f"{'s/step':>7} {'ratio':>6} {'acc':>4} {'rej':>4} {'Newton':>6} {'fact':>5} "
-        f"{'Krylov':>6} {'peak MB':>8}"
+        f"{'s/step':>7} {'LU/step':>7} {'solves':>6} {'s/solve':>7} {'LU/solve':>8} {'acc':>4} "
+        f"{'rej':>4} {'Newton':>6} {'fact':>5} {'Krylov':>6} {'peak MB':>8}"
     )
     print(head)
     print("-" * len(head))
@@ -198,7 +312,7 @@ def scale(quick: bool) -> None:
         for phase in ("jump", "slip"):
             for solver in ("direct", "amg"):
                 out = subprocess.run(
-                    [sys.executable, __file__, "--one", str(n), solver, phase],
+                    [sys.executable, __file__, "--one", str(n), solver, phase, control],
                     capture_output=True,
                     text=True,
                     check=True,
@@ -207,7 +321,8 @@ def scale(quick: bool) -> None:
                 rows.append(r)
                 print(
                     f"{r['N']:>5} {r['unknowns']:>9} {phase:>5} {solver:>6} {r['lu_s']:>8.3f} "
-                    f"{r['first_step_s']:>10.2f} {r['per_step_s']:>7.2f} {r['ratio']:>6.2f} "
+                    f"{r['first_step_s']:>10.2f} {r['per_step_s']:>7.2f} {r['ratio']:>7.2f} "
+                    f"{r['solves']:>6} {r['per_solve_s']:>7.2f} {r['ratio_solve']:>8.2f} "
                     f"{r['accepted']:>4} {r['rejected']:>4} {r['newton']:>6} "
                     f"{r['factorizations']:>5} {r['krylov']:>6} {r['peak_mb']:>8.0f}",
                     flush=True,
@@ -240,17 +355,24 @@ def scale(quick: bool) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--one", nargs=3, metavar=("N", "SOLVER", "PHASE"), help=argparse.SUPPRESS)
-    parser.add_argument("--part", choices=("1", "2", "all"), default="all")
+    parser.add_argument("--one", nargs=4, metavar=("N", "SOLVER", "PHASE", "CONTROL"),
+                        help=argparse.SUPPRESS)
+    parser.add_argument("--part", choices=("1", "2", "3d", "all"), default="all")
+    parser.add_argument("--sizes", default=None, help="grids N of part 2, e.g. 160,640")
+    parser.add_argument("--control", default="regime",
+                        help="step controller of part 2 (default regime)")
     args = parser.parse_args()
     if args.one:
-        n, solver, phase = int(args.one[0]), args.one[1], args.one[2]
-        print(json.dumps(measure(n, solver, phase, steps=10)))
+        n, solver, phase, control = int(args.one[0]), args.one[1], args.one[2], args.one[3]
+        print(json.dumps(measure(n, solver, phase, steps=10, control=control)))
         return
     if args.part in ("1", "all"):
         paper_size(args.quick)
     if args.part in ("2", "all"):
-        scale(args.quick)
+        sizes = [int(x) for x in args.sizes.split(",")] if args.sizes else None
+        scale(args.quick, sizes, args.control)
+    if args.part in ("3d", "all"):
+        cube(args.quick)
 
 
 if __name__ == "__main__":

@@ -197,7 +197,8 @@ def test_regime_floor_keeps_tau_above_half_the_tau_squared_step():
 
 
 def test_regime_leaves_sticking_at_the_target_residual():
-    """While sticking, I1 = L (s_end - s*)^2 / 2 (L = 1 here): two rejections locate s*."""
+    """While sticking, I1 = L (s_end - s*)^2 / 2 (L = 1 here): two rejections locate s*, and the
+    step that leaves sticking aims at crossing_fraction * theta * tol."""
     c = RegimeController(tol=1e-3, tau0=0.4)  # target 5e-4
 
     def stuck_until_2(s, tau):
@@ -212,8 +213,9 @@ def test_regime_leaves_sticking_at_the_target_residual():
     tau, _ = c.propose(s)
     assert not c.decide(stuck_until_2(s, tau)).accept  # the second sample
     tau, _ = c.propose(s)
-    assert s + tau == pytest.approx(2.0 + math.sqrt(2 * 5e-4))
-    assert stuck_until_2(s, tau).errors["I1"] == pytest.approx(5e-4)
+    q = c.crossing_fraction
+    assert s + tau == pytest.approx(2.0 + math.sqrt(2 * q * 5e-4))
+    assert stuck_until_2(s, tau).errors["I1"] == pytest.approx(q * 5e-4)
     assert c.decide(stuck_until_2(s, tau)).accept
 
 
