@@ -181,8 +181,8 @@ def test_regime_measures_the_order_from_a_rejection_and_its_retry():
     tau = d.next_tau  # 0.005
     d = c.decide(jump(tau, 10 * tau**3))  # accepted; the pair gives p = 3 and C = 10
     assert d.accept and d.next_tau == pytest.approx((5e-6 / 10) ** (1 / 3))
-    assert c.checkpoint_state()["_models"]["jump"]["p"] == pytest.approx(3.0)
-    assert c.checkpoint_state()["_models"].get("slip") is None
+    assert c.checkpoint_state()["models"]["jump"]["p"] == pytest.approx(3.0)
+    assert c.checkpoint_state()["models"].get("slip") is None
 
 
 def test_regime_floor_keeps_tau_above_half_the_tau_squared_step():
@@ -288,12 +288,9 @@ def test_controller_checkpoint_holds_only_plain_data(control):
 
 def test_restore_into_a_different_controller_fails():
     data = _build("regime").checkpoint_state()
-    with pytest.raises(ValueError, match=r"controller state: got 'regime', must come from a "
-                                         r"'order2' controller"):
+    with pytest.raises(ValueError, match=r"restore_state: a 'regime' controller's state given "
+                                         r"to a 'order2' controller"):
         _build("order2").restore_state(data)
-    other = make_controller("regime", tol=1e-5, tau=0.1)
-    with pytest.raises(ValueError, match=r"controller state tol: got 0.0001, must equal"):
-        other.restore_state(data)
 
 
 class _Stop:
