@@ -225,6 +225,11 @@ def test_compare_rows_null_outside_the_uniform_range():
     assert out[0]["ratio_seconds"] == pytest.approx(0.1 / 2.0)
     assert out[1]["ratio_steps"] is None and out[2]["ratio_solves"] is None  # outside the range
     assert out[3]["ratio_steps"] is None and out[3]["tol"] is None and out[3]["tau"] == 0.01
+    # a run that produced nothing (a lost task): its status only, nulls in compare.json
+    lost = {"control": "regime", "tol": 1e-5, "tau0": 0.1, "status": "lost: worker died"}
+    out = compare_rows(rows + [lost])
+    assert list(out[-1]) == list(out[0]) and out[-1]["solves"] is None
+    assert out[-1]["ratio_solves"] is None and out[0]["ratio_steps"] == pytest.approx(10 / 200)
 
 
 def test_compare_bad_input(tmp_path, capsys):
