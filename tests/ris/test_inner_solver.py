@@ -110,3 +110,19 @@ def test_viscous_jump_lands_on_sphere_with_positive_multiplier():
         grad = z - 3.2 + problem.dF(res.z)[0]
         assert res.lam == pytest.approx((-grad - 1.0) / tau, rel=1e-9)
         assert res.lam > 0
+
+
+def test_first_jump_step_just_past_the_end_of_sticking_leaves_the_saddle_at_once():
+    """Example 7.2 at t = 0.171 (the onset of the jump is t* = 200^(-1/3) = 0.170998): the excess
+    of |D_z I| over r is ~1e-5 of r, so the iterates escape z = 0 slowly; once their direction
+    has negative curvature the ray to the sphere is taken (8 iterations and 7 factorizations
+    without it on 32 x 32, 22 and 18 on 320 x 320)."""
+    from rothe.problems.ris_fem import example_7_2
+
+    p = example_7_2(32)
+    solver = BallStepSolver(p, InnerOptions(linear_solver="direct"))
+    res = solver.solve(0.171, p.z0.copy(), 0.004)
+    assert res.converged and res.kkt_residual <= res.tolerance
+    assert p.norm_V(res.d) == pytest.approx(0.004, rel=1e-10) and res.lam > 100  # the jump
+    assert res.J_final < res.J_start  # (3.2)
+    assert res.iterations <= 6 and solver.linear.stats.factorizations <= 4
