@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from rothe import BallStepSolver, InnerOptions, RISProblem
@@ -61,6 +61,9 @@ def independent_kkt(problem, t, zprev, res, tau):
     sparse=st.booleans(),
     coupled=st.booleans(),
 )
+# a node set moving from rest on which the active-set Hessian is indefinite: Newton aimed back at
+# the saddle, the orthant projection kept the node at rest, and 100 iterations crept (max_iterations)
+@example(seed=57242, n=3, tau=1.0, t=0.75, sparse=True, coupled=True)
 def test_every_step_satisfies_lemma_4_1(seed, n, tau, t, sparse, coupled):
     problem, rng = random_problem(seed, n, sparse, coupled)
     zprev = rng.uniform(-1.5, 1.5, n)
