@@ -66,10 +66,10 @@ def test_bare_rothe_prints_usage_and_every_command(capsys):
 @pytest.mark.parametrize("argv, line", [
     (["--control", "nested", "--tol", "1e-6"],
      "rothe: error: --tol: got 1e-06, is not used by --control nested (it reads --tols); "
-     "--tol is for --control adaptive or order2"),
+     "--tol is for --control adaptive or order2 or regime"),
     (["--control", "uniform", "--tol", "1e-9"],
      "rothe: error: --tol: got 1e-09, is not used by --control uniform (no tolerance: its step "
-     "is --tau); --tol is for --control adaptive or order2"),
+     "is --tau); --tol is for --control adaptive or order2 or regime"),
     (["--control", "order2", "--tols", "1e-3,1e-4"],
      "rothe: error: --tols: got 0.001,0.0001, is not used by --control order2 (it reads --tol); "
      "--tols is for --control nested"),
