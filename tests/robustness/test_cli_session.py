@@ -20,6 +20,7 @@ from .conftest import assert_same_trajectory
 
 RIS2D = ["run", "ris-2d", "--n", "4", "--tol", "1e-3", "--no-plots", "--quiet"]
 RIS1D = ["run", "ris-1d", "--tol", "1e-3", "--no-plots", "--quiet"]
+RIS2D_REGIME = RIS2D + ["--control", "regime"]  # 489 attempts
 
 
 def _run(argv, capsys):
@@ -37,13 +38,15 @@ def _lines(err: str) -> list[str]:
 
 
 @pytest.mark.parametrize("cmd, sig, status", [(RIS2D, signal.SIGINT, 130),
-                                              (RIS1D, signal.SIGTERM, 143)], ids=["INT", "TERM"])
+                                              (RIS1D, signal.SIGTERM, 143),
+                                              (RIS2D_REGIME, signal.SIGINT, 130)],
+                         ids=["INT", "TERM", "INT-regime"])
 def test_signal_writes_results_so_far_and_a_checkpoint_then_resume_is_bit_identical(
         tmp_path, capsys, signal_at_attempt, cmd, sig, status):
     ref = tmp_path / "ref"
     assert _run(cmd + ["--out", ref], capsys)[0] == 0
     out = tmp_path / "run"
-    signal_at_attempt(RISStepper, 200 if cmd is RIS2D else 60, sig)
+    signal_at_attempt(RISStepper, 200 if cmd[1] == "ris-2d" else 60, sig)
     code, _, err = _run(cmd + ["--out", out], capsys)
     assert code == status
     line, = _lines(err)

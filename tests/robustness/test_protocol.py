@@ -57,6 +57,10 @@ def _assert_same(a: Trajectory, b: Trajectory):
     ("uniform", "7.1", {"tau": 0.05}, 25),
     ("nested", "7.1", {"tol": 1e-4, "grid": np.linspace(0.05, 15.0, 300)}, 30),
     ("adaptive", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 70),
+    # regime: right after the step out of sticking (its onset samples, models) and in slip
+    ("regime", "7.1", {"tol": 1e-3}, 20),
+    ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 3),
+    ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 60),
 ])
 def test_ris_stepper_and_controller_round_trip(control, problem, kw, k):
     make = (lambda: example_7_1()) if problem == "7.1" else (lambda: example_7_2(6, T=0.3))
