@@ -21,6 +21,7 @@ docs/ris.md, docs/ris_fem.md and docs/eld.md in the source distribution, and the
 from .control.controllers import (
     AdaptiveController,
     Order2Controller,
+    RegimeController,
     UniformController,
     make_controller,
 )
@@ -38,6 +39,7 @@ __all__ = [
     "BallStepSolver",
     "InnerOptions",
     "Order2Controller",
+    "RegimeController",
     "RISProblem",
     "RISStepper",
     "RotheInputError",
