@@ -62,7 +62,8 @@ def independent_kkt(problem, t, zprev, res, tau):
     coupled=st.booleans(),
 )
 # a node set moving from rest on which the active-set Hessian is indefinite: Newton aimed back at
-# the saddle, the orthant projection kept the node at rest, and 100 iterations crept (max_iterations)
+# the saddle, the orthant projection kept the node at rest, and 100 iterations crept
+# (max_iterations before the fix)
 @example(seed=57242, n=3, tau=1.0, t=0.75, sparse=True, coupled=True)
 def test_every_step_satisfies_lemma_4_1(seed, n, tau, t, sparse, coupled):
     problem, rng = random_problem(seed, n, sparse, coupled)
