@@ -136,12 +136,13 @@ def test_compare_keeps_the_rows_that_worked(tmp_path, capsys, no_dask):
     rows = json.loads((out / "summary.json").read_text())["rows"]
     assert [(r["control"], r["status"].split(":")[0]) for r in rows] == [
         ("adaptive", "failed"), ("adaptive", "completed"), ("order2", "failed"),
-        ("order2", "completed"), ("uniform", "completed"), ("uniform", "completed")]
+        ("order2", "completed"), ("regime", "failed"), ("regime", "completed"),
+        ("uniform", "completed"), ("uniform", "completed")]
     assert rows[0]["status"].startswith("failed: step size fell below tau_min")
     assert rows[0]["accepted_steps"] >= 1  # what the failed run computed is in its row
     table = (out / "table.txt").read_text()
-    assert table.count("failed: step size fell below") == 2
-    assert "run 6/6 started: uniform tau=0.05" in err and "6/6 done" in err
+    assert table.count("failed: step size fell below") == 3  # adaptive, order2, regime
+    assert "run 8/8 started: uniform tau=0.05" in err and "8/8 done" in err
 
 
 def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(tmp_path, capsys,

@@ -327,3 +327,14 @@ def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
     for key in ("s", "t", "z", "tau", "I1", "I2", "lam"):
         assert np.array_equal(traj[key], full[key]), key
     assert isinstance(traj, Trajectory)
+
+
+def test_regime_with_a_denormal_tolerance_stops_below_tau_min():
+    """tol = 1e-320: the step out of sticking (delta ~ sqrt(tol)) and tau^p underflow; the run
+    must stop like the other controllers' (RunFailed naming tau_min), not divide by zero."""
+    from rothe.errors import RunFailed
+    from rothe.problems.ris_1d import example_7_1
+    from rothe.stepping.ris import run_ris
+
+    with pytest.raises(RunFailed, match="step size fell below tau_min"):
+        run_ris(example_7_1(), "regime", tol=1e-320, tau=0.1)

@@ -339,7 +339,9 @@ class RegimeController(StepController):
         if crossing is not None and s <= crossing[0]:
             # from before the onset: a step >= delta (the floor behind (5.7)); the rejected
             # attempts ended beyond its end (their I1 >= tol > q theta tol)
-            sigma = self._clamp(crossing[0] + crossing[1] - s)
+            # never below tau_min (a denormal tol gives a delta of 1e-161): such a step is then
+            # rejected and the run stops with 'step size fell below tau_min' like the others
+            sigma = self._clamp(max(crossing[0] + crossing[1] - s, self.tau_min))
         return sigma, None
 
     def _sticking_crossing(self) -> tuple[float, float] | None:
@@ -394,11 +396,11 @@ class RegimeController(StepController):
             return Decision(False, self.sigma, f"I1={I1:.3g}, I2={I2:.3g} >= tol={self.tol:g}")
         self._rejected = None
         history = model["history"] if regime == self._last_regime else []
-        C = e / tau**p
-        C2 = e / tau**2  # the quotient that Lemma 5.3 bounds
+        C = _quotient(e, tau, p)
+        C2 = _quotient(e, tau, 2.0)  # the quotient that Lemma 5.3 bounds
         for e_j, tau_j in history[-1:]:
-            C = max(C, e_j / tau_j**p)
-            C2 = max(C2, e_j / tau_j**2)
+            C = max(C, _quotient(e_j, tau_j, p))
+            C2 = max(C2, _quotient(e_j, tau_j, 2.0))
         model["history"] = (history + [[e, tau]])[-2:]
         self._last_regime = regime
         ideal = self.grow * tau if C == 0.0 else (target / C) ** (1.0 / p)
@@ -429,6 +431,12 @@ class RegimeController(StepController):
                                                    "regime": str(rej["regime"])}
         self._s = float(data["s"])
         self._onset_samples = [[float(a), float(b)] for a, b in data["onset_samples"]]
+
+
+def _quotient(e: float, tau: float, p: float) -> float:
+    """e / tau^p, inf where tau^p underflows (tiny steps of tiny tolerances)."""
+    tp = tau**p
+    return e / tp if tp > 0.0 else (0.0 if e == 0.0 else math.inf)
 
 
 def make_controller(
