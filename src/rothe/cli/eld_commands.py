@@ -48,6 +48,16 @@ BEAM_SIDEWAYS_NOTE = 0.02
 CONTROLS = ("uniform", "adaptive")
 
 
+def _run_step_options(parser, tau_default: float) -> None:
+    """--form, --scheme, --tau and --control/--tol: every eld run command steps the same way."""
+    parser.add_argument("--form", default="regularized", help="regularized | original")
+    _scheme_option(parser)
+    parser.add_argument("--tau", type=parse_float("--tau"), default=tau_default,
+                        help=f"time step; must divide T (default {tau_default:g}); the first "
+                             "step with --control adaptive")
+    _control_options(parser)
+
+
 def _scheme_option(parser) -> None:
     parser.add_argument("--scheme", default="euler",
                         help="euler | bdf2: implicit Euler (3.4), the paper's scheme (default), or "
@@ -406,12 +416,7 @@ class RunEldMMS:
     name = "eld-mms"
 
     def configure(self, parser) -> None:
-        parser.add_argument("--form", default="regularized", help="regularized | original")
-        _scheme_option(parser)
-        parser.add_argument("--tau", type=parse_float("--tau"), default=0.01,
-                            help="time step; must divide T (default 0.01); the first step with "
-                                 "--control adaptive")
-        _control_options(parser)
+        _run_step_options(parser, 0.01)
         parser.add_argument("--steps", type=parse_float_list("--steps"), default=None,
                             help="a given step sequence tau_1,...,tau_n summing to T (instead of "
                                  "--tau; BDF2: ratios below 1 + sqrt(2))")
@@ -632,13 +637,8 @@ class RunEldPulse:
     name = "eld-pulse"
 
     def configure(self, parser) -> None:
-        parser.add_argument("--form", default="regularized", help="regularized | original")
-        _scheme_option(parser)
+        _run_step_options(parser, 0.005)
         parser.set_defaults(scheme="bdf2")
-        parser.add_argument("--tau", type=parse_float("--tau"), default=0.005,
-                            help="time step; must divide T (default 0.005); the first step with "
-                                 "--control adaptive")
-        _control_options(parser)
         parser.add_argument("--n", type=int, default=4,
                             help="cells across the height of the initial mesh (default 4; "
                                  "round(length*n) along)")

@@ -228,7 +228,23 @@ def multiplier_quadrature(problem: ELDProblem) -> MultiplierQuadrature:
 
 # -- the fast ramp -----------------------------------------------------------------------------
 
-class SmoothStep:
+class _DirichletMotion:
+    """G, G_dot, G_ddot of a boundary motion from one ``_field(t, x, order)`` (order 0, 1, 2)."""
+
+    def _field(self, t, x, order):
+        raise NotImplementedError
+
+    def G(self, t, x):
+        return self._field(t, x, 0)
+
+    def G_dot(self, t, x):
+        return self._field(t, x, 1)
+
+    def G_ddot(self, t, x):
+        return self._field(t, x, 2)
+
+
+class SmoothStep(_DirichletMotion):
     """G(t) = (0, A (1 + tanh((t - t0)/w))/2) with its first and second derivatives (2D)."""
 
     def __init__(self, amplitude: float = 0.1, t0: float = 0.5, width: float = 0.005):
@@ -250,15 +266,6 @@ class SmoothStep:
         out[1] = self._s(t, order)
         return out
 
-    def G(self, t, x):
-        return self._field(t, x, 0)
-
-    def G_dot(self, t, x):
-        return self._field(t, x, 1)
-
-    def G_ddot(self, t, x):
-        return self._field(t, x, 2)
-
 
 def ramp_problem(n: int = 4, degree: int = 2, *, amplitude: float = 0.1, t_ramp: float = 0.5,
                  width: float = 0.005, b: float = 0.01, rho: float = 1.0, lam: float = 2.0,
@@ -276,7 +283,7 @@ def ramp_problem(n: int = 4, degree: int = 2, *, amplitude: float = 0.1, t_ramp:
 
 # -- the cantilever ----------------------------------------------------------------------------
 
-class EndMotion:
+class EndMotion(_DirichletMotion):
     """G(t) = (0, 0, A (1 - cos(2 pi t / t_move)) / 2) for t <= t_move, else 0 (H^2 in time)."""
 
     def __init__(self, amplitude: float = 0.1, t_move: float = 0.5):
@@ -298,15 +305,6 @@ class EndMotion:
         out[2] = self._z(t, order)
         return out
 
-    def G(self, t, x):
-        return self._field(t, x, 0)
-
-    def G_dot(self, t, x):
-        return self._field(t, x, 1)
-
-    def G_ddot(self, t, x):
-        return self._field(t, x, 2)
-
 
 def beam_problem(n: int = 4, *, length: float = 4.0, E: float = 1000.0, nu: float = 0.3,
                  rho: float = 1.0, damping: Damping | None = None, amplitude: float = 0.1,
@@ -323,7 +321,7 @@ def beam_problem(n: int = 4, *, length: float = 4.0, E: float = 1000.0, nu: floa
 
 # -- the pulse (space adaptivity) --------------------------------------------------------------
 
-class BoundaryPulse:
+class BoundaryPulse(_DirichletMotion):
     """G(t, x) = (A s(t) w(y), 0) on the left side: a short push localized around y = y0.
 
     s(t) = sin^4(pi t / t_pulse) for t <= t_pulse, 0 after (C^2: s, s', s'' vanish at 0 and at
@@ -352,15 +350,6 @@ class BoundaryPulse:
         out = np.zeros((2,) + x.shape[1:])
         out[0] = self.A * self._s(t, order) * np.exp(-((x[1] - self.y0) / self.width) ** 2)
         return out
-
-    def G(self, t, x):
-        return self._field(t, x, 0)
-
-    def G_dot(self, t, x):
-        return self._field(t, x, 1)
-
-    def G_ddot(self, t, x):
-        return self._field(t, x, 2)
 
 
 def rectangle(nx: int, ny: int, length: float = 2.0, height: float = 1.0):
