@@ -4,18 +4,27 @@ Two families, each with its own API:
 
 * Rate-independent systems with non-convex energy (Andreia & Meyer 2022): parametrized
   balanced-viscosity solutions by the local incremental stationary scheme with uniform,
-  adaptive (Alg. 3.2), nested (Alg. 6.2) and order2 step control. Exported here:
+  adaptive (Alg. 3.2), nested (Alg. 6.2), order2 and regime step control. Exported here:
   ``RISProblem`` (I(t, z) = 1/2 <Az, z> + F(z) - <l(t), z> in R^n), ``run_ris``,
   ``run_nested``, the controllers, ``Trajectory``; finite elements in
   ``rothe.problems.ris_fem`` (``FERISProblem``, ``example_7_2``) and ``rothe.fem.mesh``
   (``unit_square``, ``load_mesh``).
 * Elastodynamics with time-dependent Dirichlet constraints as operator DAEs (Altmann 2015):
-  ``rothe.eld`` (``run_eld``, ``ELDProblem``, ``Material``, the damping classes,
-  ``DirichletData``); see ``help(rothe.eld)``.
+  ``rothe.eld`` (``run_eld`` with implicit Euler or BDF2 and uniform or adaptive steps,
+  ``ELDProblem``, ``Material``, the damping classes, ``DirichletData``); see
+  ``help(rothe.eld)``.
 
-Command line: ``rothe`` lists the commands (``rothe run ris-1d``, ``rothe run eld-beam``, ...);
-``rothe <verb> <name> --help`` their options. Documentation with the papers' equation numbers:
-docs/ris.md, docs/ris_fem.md and docs/eld.md in the source distribution, and the docstrings.
+Shared by both: meshes that change between steps (``rothe.fem.adapt.SpaceAdaptivity``, passed
+as ``space=`` to ``run_ris`` and ``run_eld``; indicators in ``rothe.estimators``), checkpoints
+and resume (``checkpoint=`` / ``resume=`` of the run functions), ParaView output and figures
+(``rothe.io``, ``rothe.plotting``), and sweeps, compares and studies on Dask
+(``rothe.parallel.sweep.run_sweep``).
+
+Command line: ``rothe`` lists the commands (``rothe run ris-1d``, ``rothe run eld-beam``,
+``rothe sweep``, ``rothe resume``, ...); ``rothe <verb> <name> --help`` their options.
+Documentation with the papers' equation numbers: docs/ris.md, docs/ris_fem.md, docs/eld.md,
+docs/adaptivity.md, docs/robustness.md and docs/scaling.md in the source distribution, and the
+docstrings.
 """
 
 from .control.controllers import (
