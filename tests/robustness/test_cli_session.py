@@ -73,18 +73,28 @@ def test_signal_writes_results_so_far_and_a_checkpoint_then_resume_is_bit_identi
 
 
 def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
+    d = tmp_path / "run"
+
+    def snapshot():
+        return {p.relative_to(d): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
     def refused(argv, match):
+        before = snapshot() if d.exists() else None
         code, out, err = _run(argv, capsys)
         assert code == 2, err
         line, = _lines(err)
         assert line.startswith("rothe: error: ") and __import__("re").search(match, line), line
+        # a refused resume writes nothing: the earlier result and its checkpoint are untouched
+        if before is not None:
+            assert snapshot() == before
 
     refused(["resume", tmp_path / "missing"], r"missing: no such directory")
     (tmp_path / "empty").mkdir()
     refused(["resume", tmp_path / "empty"], r"empty: no checkpoint here")
-    d = tmp_path / "run"
+    assert list((tmp_path / "empty").iterdir()) == []
     assert _run(["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet", "--no-plots"],
                 capsys)[0] == 0
+    assert {"summary.json", "trajectory.npz"} <= {p.name for p in d.iterdir()}
     refused(["run", "ris-1d", "--tol", "1e-5", "--resume", d],
             r"--resume .*run: the command line differs from the checkpoint's: --tol 1e-05 "
             r"\(checkpoint: 0\.001\)")
@@ -92,6 +102,7 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
                                                r"'rothe run ris-2d'")
     refused(["run", "ris-1d", "--tol", "1e-3", "--resume", d, "--out", tmp_path / "x"],
             r"--out: got .*x', must be the resumed directory")
+    assert not (tmp_path / "x").exists()
     ckpt = d / "checkpoint" / MAIN
     with np.load(ckpt, allow_pickle=False) as f:
         data = {k: f[k] for k in f.files}
@@ -104,8 +115,6 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
     raw = ckpt.read_bytes()
     ckpt.write_bytes(raw[:100])
     refused(["resume", d], r"checkpoint\.npz: not a readable checkpoint \(truncated or damaged")
-    before = {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()}
-    assert {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()} == before
 
 
 def test_stopped_before_the_first_accepted_step(tmp_path, capsys, monkeypatch):
