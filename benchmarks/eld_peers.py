@@ -18,8 +18,9 @@ Cases (all P1 unless said otherwise):
   forms, pyamg smoothed aggregation (BSR, rigid-body modes), CG to 1e-8 (the original form's
   constraint condensed, so that its system is the peer's), against the peer's strong Dirichlet
   with CG + GAMG (rigid-body near-null space), rtol 1e-8; both start CG from 2u^{j-1} - u^{j-2}.
-- LU, N = 16 (56,355 dofs), 10 steps: rothe regularized and original form (bordered KKT) with
-  SuperLU, against the peer's strong Dirichlet and its bordered KKT with MUMPS.
+- LU, N = 16 (56,355 dofs), 10 steps: rothe regularized and original form (the original form
+  condensed onto the free dofs, see rothe.eld.schemes) with SuperLU, against the peer's strong
+  Dirichlet and its bordered KKT with MUMPS.
 - P2 at N = 22 (1,075,275 dofs): rothe only (the peer's script builds P1 only).
 - agreement, N = 16, 200 steps (T = 2): the reaction at the moved end, sum over the constrained
   dofs of the residual (peer, strong Dirichlet) against -int lambda ds (rothe), step by step.

@@ -91,7 +91,8 @@ SPACE_OPTIONS = ("--space-tol", "--refine-fraction", "--coarsen-fraction", "--ma
                  "--adapt-every")
 
 
-def _space_options(parser, on: bool = False) -> None:
+def _space_options(parser, on: bool = False, default_tol: float | None = None,
+                   default_max_dofs: int | None = None) -> None:
     import argparse
 
     parser.add_argument("--adapt-space", action=argparse.BooleanOptionalAction if on
@@ -102,7 +103,8 @@ def _space_options(parser, on: bool = False) -> None:
                                 else ""))
     parser.add_argument("--space-tol", type=parse_float("--space-tol"), default=None,
                         help="tolerance of the estimate eta of a step (refine while above; "
-                             "required with --adapt-space)")
+                             + ("required with --adapt-space)" if default_tol is None
+                                else f"default {default_tol:g})"))
     parser.add_argument("--refine-fraction", type=parse_float("--refine-fraction"),
                         default=None, help="Doerfler bulk fraction of eta^2 to refine, in (0, 1) "
                                            "(default 0.5)")
@@ -110,7 +112,9 @@ def _space_options(parser, on: bool = False) -> None:
                         default=None, help="share of max(eta, space-tol)^2 the coarsened cells "
                                            "may carry, in (0, 1) (default 0.05)")
     parser.add_argument("--max-dofs", type=int, default=None,
-                        help="cap on the dofs of an adapted mesh (default none)")
+                        help="cap on the dofs of an adapted mesh (default "
+                             + ("none)" if default_max_dofs is None
+                                else f"{default_max_dofs:,})".replace(",", " ")))
     parser.add_argument("--adapt-every", type=int, default=None,
                         help="adapt after every k-th accepted step (default 1)")
 
@@ -251,9 +255,9 @@ def check_beam_size(n: int, length: float, degree: int, solver: str) -> None:
                      what="unknowns")
 
 
-def _mms_options(parser) -> None:
-    parser.add_argument("--n", type=int, default=8,
-                        help="cells per side of the unit square (default 8)")
+def _mms_options(parser, n: int = 8) -> None:
+    parser.add_argument("--n", type=int, default=n,
+                        help=f"cells per side of the unit square (default {n})")
     parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2: exact in space)")
     parser.add_argument("--lam", type=parse_float("--lam"), default=2.0,
                         help="Lamé lambda (default 2)")
@@ -661,7 +665,8 @@ class RunEldPulse:
         parser.add_argument("--lifting", default="nodal",
                             help="right inverse of B for the regularized form: nodal | harmonic")
         _keep_option(parser, 10)
-        _space_options(parser, on=True)
+        _space_options(parser, on=True, default_tol=PULSE_SPACE_TOL,
+                       default_max_dofs=PULSE_MAX_DOFS)
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -741,8 +746,7 @@ class StudyEldConvergence:
                             help="largest step (default 0.1)")
         parser.add_argument("--halvings", type=int, default=5,
                             help="times tau is halved (default 5)")
-        _mms_options(parser)
-        parser.set_defaults(n=4)
+        _mms_options(parser, n=4)
         add_output_options(parser, self.name)
         add_parallel_options(parser)
 
@@ -791,8 +795,8 @@ class StudyEldConvergence:
 
 @command("study", "eld-perturbation")
 class StudyEldPerturbation:
-    help = ("Theorem 4.5: amplification of delta-noise in G and in F by both forms, "
-            "for tau from 1e-1 to 1e-3")
+    help = ("Theorem 4.5: amplification of delta-noise in each of G, G', G'' and F alone by "
+            "both forms, for tau from 1e-1 to 1e-3")
     name = "eld-perturbation"
 
     def configure(self, parser) -> None:
