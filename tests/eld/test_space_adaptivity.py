@@ -324,3 +324,25 @@ def test_3d_tetrahedra_adapt_with_the_ledger_closing():
     assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
     final, p = traj.final_state, sp.problem
     assert np.array_equal(p.constraint.restrict(final.u), p.G(final.t))
+
+
+def test_cli_default_cap_on_the_adapted_mesh():
+    # without a cap a --space-tol below what the time step allows refines until memory runs out
+    import argparse
+
+    from rothe.cli.eld_commands import ELD_MAX_DOFS, fit_default_cap, space_adaptivity
+
+    def args(**given):
+        base = dict(adapt_space=True, space_tol=1e-3, refine_fraction=None,
+                    coarsen_fraction=None, max_dofs=None, adapt_every=None)
+        return argparse.Namespace(**{**base, **given})
+
+    a = args()
+    space = space_adaptivity(a, default_max_dofs=ELD_MAX_DOFS["2d"])
+    assert space.max_dofs == 200_000
+    fit_default_cap(a, space, 150_000)  # an initial mesh finer than half the cap
+    assert space.max_dofs == 300_000
+    a = args(max_dofs=5_000)
+    space = space_adaptivity(a, default_max_dofs=ELD_MAX_DOFS["3d"])
+    fit_default_cap(a, space, 150_000)  # the user's cap is the user's (run_eld checks it)
+    assert space.max_dofs == 5_000

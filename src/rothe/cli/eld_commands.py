@@ -114,14 +114,23 @@ def _space_options(parser, on: bool = False, default_tol: float | None = None,
     parser.add_argument("--max-dofs", type=int, default=None,
                         help="cap on the dofs of an adapted mesh (default "
                              + ("none)" if default_max_dofs is None
-                                else f"{default_max_dofs:,})".replace(",", " ")))
+                                else f"{default_max_dofs:,}".replace(",", " ")
+                                + ", or twice the initial mesh's dofs when that is more)"))
     parser.add_argument("--adapt-every", type=int, default=None,
                         help="adapt after every k-th accepted step (default 1)")
 
 
-def space_adaptivity(args, default_tol: float | None = None):
+#: default --max-dofs of eld-mms (2D) and eld-beam (3D): a --space-tol below what the time
+#: step's error allows (the indicator sees the step's residual, time error included) refines
+#: without end, until memory runs out; twice the initial mesh's dofs when that is more
+ELD_MAX_DOFS = {"2d": 200_000, "3d": 300_000}
+
+
+def space_adaptivity(args, default_tol: float | None = None,
+                     default_max_dofs: int | None = None):
     """The SpaceAdaptivity of the --adapt-space options, or None (one-line errors naming the
-    options; an option without --adapt-space is refused)."""
+    options; an option without --adapt-space is refused). ``default_max_dofs`` applies when
+    --max-dofs is not given (see :func:`fit_default_cap`)."""
     values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in SPACE_OPTIONS}
     if not args.adapt_space:
         for option, value in values.items():
@@ -135,12 +144,21 @@ def space_adaptivity(args, default_tol: float | None = None):
         if default_tol is None:
             raise fail("--space-tol", None, "must be given (> 0) with --adapt-space")
         values["--space-tol"] = default_tol
+    if values["--max-dofs"] is None:
+        values["--max-dofs"] = default_max_dofs
     kw = {"space_tol": values["--space-tol"], "max_dofs": values["--max-dofs"]}
     for key, option, default in (("refine_fraction", "--refine-fraction", 0.5),
                                  ("coarsen_fraction", "--coarsen-fraction", 0.05),
                                  ("adapt_every", "--adapt-every", 1)):
         kw[key] = default if values[option] is None else values[option]
     return SpaceAdaptivity(naming="cli", **kw)
+
+
+def fit_default_cap(args, space, ndofs: int) -> None:
+    """The default cap for an initial mesh finer than it: twice its dofs (a --max-dofs the user
+    gave is checked against the initial mesh by run_eld instead)."""
+    if space is not None and args.max_dofs is None and space.max_dofs is not None:
+        space.max_dofs = max(space.max_dofs, 2 * int(ndofs))
 
 
 def _check_space(args, space) -> None:
@@ -435,7 +453,7 @@ class RunEldMMS:
                             help="exact | rest: initial data u(0), u'(0) of the solution, or zero "
                                  "(inconsistent with G(0): refused, Remark 2.2)")
         _mms_options(parser)
-        _space_options(parser)
+        _space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -455,7 +473,7 @@ class RunEldMMS:
         parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
         if not parts:
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
-        _check_space(args, space_adaptivity(args))
+        _check_space(args, space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"]))
         return form, tau, scheme, control, tol, keep, n, parts, _make_damping(args)
 
     def execute(self, args) -> int:
@@ -463,10 +481,11 @@ class RunEldMMS:
         from ..eld.schemes import run_eld
 
         form, tau, scheme, control, tol, keep, n, parts, damping = self.validate(args)
-        space = space_adaptivity(args)
+        space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"])
         problem, exact = mms_problem(n, args.degree, damping=damping, rho=args.rho, lam=args.lam,
                                      mu=args.mu, T=args.T, dirichlet=parts, start=args.start,
                                      load_quadrature=args.load_quadrature)
+        fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-mms, {scheme}, {form}, " + (f"tol={tol:g}" if tol else f"tau={tau:g}")
         session = RunSession(args, self.name)
         with session:
@@ -527,7 +546,7 @@ class RunEldBeam:
         _keep_option(parser, 5)
         _damping_options(parser, default_b=0.002)
         parser.set_defaults(damping="rayleigh")
-        _space_options(parser)
+        _space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -543,7 +562,7 @@ class RunEldBeam:
         n = check_int("--n", args.n, minimum=1)
         every = check_int("--save-every", args.save_every, minimum=1)
         keep = check_int("--keep-every", args.keep_every, minimum=1)
-        space_adaptivity(args)
+        space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
         return form, tau, scheme, control, tol, n, every, keep, _make_damping(args)
 
     def execute(self, args) -> int:
@@ -552,10 +571,11 @@ class RunEldBeam:
         from ..io.eld_output import EldXdmfWriter
 
         form, tau, scheme, control, tol, n, every, keep, damping = self.validate(args)
-        space = space_adaptivity(args)
+        space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
         problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,
                                damping=damping, amplitude=args.amplitude, t_move=args.t_move,
                                T=args.T, degree=args.degree)
+        fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-beam, {scheme}, {form}, tau={tau:g}, {problem.space.ndofs} dofs"
         session = RunSession(args, self.name)
         with session:
@@ -684,9 +704,8 @@ class RunEldPulse:
         check_mms_size(max(n, round(n * length)), args.degree)
         for option in ("--t-pulse", "--width", "--lam", "--mu", "--rho"):
             check_positive(option, getattr(args, option.lstrip("-").replace("-", "_")))
-        space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL)
-        if space is not None and args.max_dofs is None:
-            space.max_dofs = PULSE_MAX_DOFS
+        space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL,
+                                 default_max_dofs=PULSE_MAX_DOFS)
         return form, tau, scheme, control, tol, keep, n, length, space
 
     def execute(self, args) -> int:
@@ -697,6 +716,7 @@ class RunEldPulse:
         problem = pulse_problem(n, args.degree, length=length, amplitude=args.amplitude,
                                 t_pulse=args.t_pulse, width=args.width, b=args.b,
                                 rho=args.rho, lam=args.lam, mu=args.mu, T=args.T)
+        fit_default_cap(args, space, problem.space.ndofs)
         label = (f"eld-pulse, {scheme}, {form}, "
                  + (f"space_tol={space.space_tol:g}" if space else "fixed mesh"))
         session = RunSession(args, self.name)

@@ -135,7 +135,7 @@ SPACE_OPTIONS = ("--space-tol", "--refine-fraction", "--coarsen-fraction", "--ma
                  "--adapt-every")
 
 
-def add_space_options(parser, default_tol: float) -> None:
+def add_space_options(parser, default_tol: float, default_max_dofs: int) -> None:
     parser.add_argument("--adapt-space", action="store_true",
                         help="adapt the mesh between steps (bisection: refine where the step's "
                              "residual indicator is large, coarsen where the front has passed)")
@@ -147,12 +147,16 @@ def add_space_options(parser, default_tol: float) -> None:
                         default=0.05, help="share of max(eta, space_tol)^2 the coarsened cells "
                                            "may carry (default 0.05)")
     parser.add_argument("--max-dofs", type=int, default=None,
-                        help="cap on the nodes of an adapted mesh (default: none)")
+                        help=f"cap on the nodes of an adapted mesh (default "
+                             f"{default_max_dofs:_}".replace("_", " ") + ", or twice the "
+                             "initial mesh's nodes when that is more: the indicator of a "
+                             "non-smooth state never falls below --space-tol, and without a "
+                             "cap the mesh grows until memory runs out)")
     parser.add_argument("--adapt-every", type=int, default=1,
                         help="adapt after every K-th accepted step (default 1)")
 
 
-def space_from_args(args, default_tol: float):
+def space_from_args(args, default_tol: float, default_max_dofs: int):
     """The SpaceAdaptivity of ``--adapt-space`` (None without it); options validated (exit 2)
     and refused when given without --adapt-space."""
     from ..fem.adapt import SpaceAdaptivity, check_adaptable
@@ -168,7 +172,8 @@ def space_from_args(args, default_tol: float):
     return SpaceAdaptivity(
         space_tol=default_tol if args.space_tol is None else args.space_tol,
         refine_fraction=args.refine_fraction, coarsen_fraction=args.coarsen_fraction,
-        max_dofs=args.max_dofs, adapt_every=args.adapt_every, naming="cli")
+        max_dofs=default_max_dofs if args.max_dofs is None else args.max_dofs,
+        adapt_every=args.adapt_every, naming="cli")
 
 
 def _as_option_error(exc, args):
@@ -203,6 +208,10 @@ class _RunRISFem(RISRunBase):
     default_amplitude = -200.0
     #: default --space-tol (the indicator overestimates the energy error about 5x)
     default_space_tol = 1.0
+    #: default --max-dofs: Example 7.2's state has kinks (sticking/moving interfaces) that keep
+    #: the estimate above any tolerance, so an uncapped 3D run went from 27 to 740 000 unknowns
+    #: (4.7 GB) before t = 0.64 at --n 4
+    default_max_dofs = 100_000
 
     def add_example_options(self, parser) -> None:
         what = "N x N cells of the unit square" if self.dim == 2 else "N^3 cubes of the unit cube"
@@ -234,7 +243,7 @@ class _RunRISFem(RISRunBase):
                                  "(default: the curve parameter, every state incl. the viscous "
                                  "jumps) | t (physical time: one state per t, a jump shows as "
                                  "its end state); with --adapt-space the same for solution.pvd")
-        add_space_options(parser, self.default_space_tol)
+        add_space_options(parser, self.default_space_tol, self.default_max_dofs)
 
     amplitude_help = ("load <l(t), z> = A t^3 int z (default A = -200; its sign picks the branch "
                       "z < 0 or z > 0)")
@@ -255,7 +264,10 @@ class _RunRISFem(RISRunBase):
         n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
         if args.mesh is None:
             check_memory("--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim])
-        self._space = space_from_args(args, self.default_space_tol)
+        self._space = space_from_args(args, self.default_space_tol, self.default_max_dofs)
+        if self._space is not None and args.max_dofs is not None:
+            check_memory("--max-dofs", args.max_dofs, args.max_dofs,
+                         RIS_BYTES_PER_NODE[self.dim])
         return super().validate(args)
 
     def run_options(self, args) -> dict:
@@ -286,7 +298,9 @@ class _RunRISFem(RISRunBase):
             raise _as_option_error(exc, args) from None
         if self._space is not None:
             problem.check_movable("--adapt-space")
-            if self._space.max_dofs is not None and self._space.max_dofs < problem.n_nodes:
+            if args.max_dofs is None:  # the default cap, for a --mesh finer than it
+                self._space.max_dofs = max(self._space.max_dofs, 2 * problem.n_nodes)
+            elif self._space.max_dofs < problem.n_nodes:
                 raise fail("--max-dofs", self._space.max_dofs,
                            f"must be >= the {problem.n_nodes} dofs of the initial mesh")
         self._setup_time = time.perf_counter() - t0
@@ -402,6 +416,7 @@ class RunRIS3D(_RunRISFem):
     name = "ris-3d"
     dim = 3
     default_n = 12
+    default_max_dofs = 50_000
 
 
 @command("run", "ris-front")
