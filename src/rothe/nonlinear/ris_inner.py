@@ -27,8 +27,9 @@ viscous jumps happen). Each iteration
 4. falls back to a forward-backward step with the proximal map of R + I_tau in the m-weighted
    inner product -- soft-thresholding followed by radial scaling onto the ball -- whenever the
    Newton candidate does not decrease J (non-convex F, indefinite Hessian) or sends a node that
-   starts moving from rest back against its predicted sign (Newton aiming at a saddle of the
-   active-set problem: projected, that node would never move). Repeated failures
+   starts moving from rest back against its predicted sign where the shifted Hessian has no
+   positive curvature along the nodes sent back (Newton aiming at a saddle of the active-set
+   problem: projected, that node would never move). Repeated failures
    shift the Hessian by nu*M (Levenberg style), which the solver relaxes again after successes.
 
 The multiplier is read off the converged point: on the sphere, lambda is the least-squares
