@@ -187,6 +187,12 @@ def test_runs_on_a_cluster_without_workers_are_lost_after_the_timeout():
     (["--param", "tol=1e-3", "--workers", "0"], "--workers: got 0, must be an integer >= 1"),
     (["--param", "tol=1e-3", "--plot", "tol"], "--plot: got 'tol', must name two columns X,Y"),
     ([], "--param: none given"),
+    (["--param", "tol=1e-3", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9"],
+     "--workers: got 2, cannot be combined with --scheduler"),
+    (["--param", "tol=1e-3", "--scheduler", ""], "--scheduler: got '', must be a scheduler "
+                                                 "address"),
+    (["--param", "tol=1e-3,1e-3"], "--param: got 'tol=1e-3,1e-3', repeats a value"),
+    (["--param", "tol=1e-3", "--param", "tol=1e-4"], "--param: got 'tol', is given twice"),
 ])
 def test_bad_sweep_input_is_one_line_before_any_run(tmp_path, capsys, args, message):
     out = tmp_path / "sweep"
