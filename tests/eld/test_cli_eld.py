@@ -82,6 +82,20 @@ def test_study_eld_convergence(tmp_path, capsys):
     assert len(s["error_u"]) == 3 and len(s["error_v"]) == 3
     assert s["rate_u"] > 0.8 and s["rate_v"] > 0.7
     assert "fitted orders" in stdout and (out / "table.txt").is_file()
+    # the multiplier's errors are kept too, and fall with tau
+    assert len(s["error_lam"]) == 3 and s["error_lam"][-1] < s["error_lam"][0]
+
+
+def test_study_eld_convergence_bdf2_summary(tmp_path, capsys):
+    out = tmp_path / "conv2"
+    code, _, _ = _run(["study", "eld-convergence", "--scheme", "bdf2", "--n", "2", "--halvings",
+                       "2", "--out", str(out), "--no-plots"], capsys)
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["tau"] == [0.1, 0.05, 0.025]
+    for key in ("error_u", "error_v", "error_lam"):
+        assert len(s[key]) == 3 and s[key][-1] < s[key][0], key
+    assert s["rate_u"] > 1.5 and s["rate_v"] > 1.5
 
 
 def test_study_eld_perturbation(tmp_path, capsys):
