@@ -248,3 +248,19 @@ def test_linear_damping_factors_once_and_backsubstitutes_per_step():
         assert info["factorizations"] == 1
         assert info["backsolves"] == 20  # one per step
         assert traj.stats.newton_iterations == 0
+
+
+@pytest.mark.parametrize("scheme, order", [("euler", 1.0), ("bdf2", 2.0)])
+def test_multiplier_depends_on_the_lifting_at_the_order_of_the_scheme(scheme, order):
+    """docs/eld.md: with point data the regularized solution, lambda included, changes with the
+    lifting at O(tau) (Euler) and O(tau^2) (BDF2); only data="differenced" makes it independent
+    (test_regularized_with_differenced_data_reproduces_the_original_form)."""
+    problem, _ = mms_problem(2, 2)
+    gaps = []
+    for tau in (0.1, 0.05, 0.025):
+        lam = [run_eld(problem, "regularized", tau, scheme=scheme, lifting=lifting)["lam"]
+               for lifting in ("nodal", "harmonic")]
+        gaps.append(float(np.max(np.abs(lam[0] - lam[1]))))
+    assert gaps[0] > 1e-4  # a real difference, far above the solver tolerance
+    rates = np.log2(np.array(gaps[:-1]) / np.array(gaps[1:]))
+    assert np.all(rates > order - 0.3) and np.all(rates < order + 0.5), (gaps, rates)
