@@ -24,9 +24,15 @@ def random_problem(seed, n, sparse=False, coupled_F=False):
         F = lambda z: float(a @ (1 - z**2) ** 2)  # noqa: E731
         dF = lambda z: -4 * a * z * (1 - z**2)  # noqa: E731
         d2F = lambda z: a * (12 * z**2 - 4)  # noqa: E731
+    return with_random_data(rng, sp.csr_matrix(A) if sparse else A, F, dF, d2F), rng
+
+
+def with_random_data(rng, A, F, dF, d2F):
+    """The RIS problem of A and F with a random affine load, weights and start (n = len(A))."""
+    n = A.shape[0]
     b0, b1 = rng.standard_normal(n), 3 * rng.standard_normal(n)
-    problem = RISProblem(
-        sp.csr_matrix(A) if sparse else A,
+    return RISProblem(
+        A,
         F,
         dF,
         d2F,
@@ -36,7 +42,6 @@ def random_problem(seed, n, sparse=False, coupled_F=False):
         z0=rng.uniform(-1.5, 1.5, n),
         T=1.0,
     )
-    return problem, rng
 
 
 def independent_kkt(problem, t, zprev, res, tau):
@@ -138,19 +143,8 @@ def convex_problem(seed, n):
     B = rng.standard_normal((n, n))
     A = B @ B.T / n + 0.05 * np.eye(n)
     a = rng.uniform(0.1, 1.0, n)
-    b0, b1 = rng.standard_normal(n), 3 * rng.standard_normal(n)
-    problem = RISProblem(
-        A,
-        lambda z: float(0.5 * a @ z**2),
-        lambda z: a * z,
-        lambda z: a.copy(),
-        load=lambda t: b0 + b1 * t,
-        dissipation_weights=rng.uniform(0.1, 2.0, n),
-        metric_weights=rng.uniform(0.2, 2.0, n),
-        z0=rng.uniform(-1.5, 1.5, n),
-        T=1.0,
-    )
-    return problem, rng
+    return with_random_data(rng, A, lambda z: float(0.5 * a @ z**2), lambda z: a * z,
+                            lambda z: a.copy()), rng
 
 
 @settings(max_examples=80, deadline=None)
