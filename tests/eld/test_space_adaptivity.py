@@ -330,7 +330,8 @@ def test_cli_default_cap_on_the_adapted_mesh():
     # without a cap a --space-tol below what the time step allows refines until memory runs out
     import argparse
 
-    from rothe.cli.eld_commands import ELD_MAX_DOFS, fit_default_cap, space_adaptivity
+    from rothe.cli.common import fit_default_cap
+    from rothe.cli.eld_commands import ELD_MAX_DOFS, space_adaptivity
 
     def args(**given):
         base = dict(adapt_space=True, space_tol=1e-3, refine_fraction=None,

@@ -84,6 +84,14 @@ def given(args, option: str) -> bool:
     return option in getattr(args, "_given", ())
 
 
+def fit_default_cap(args, space, initial: int) -> None:
+    """--adapt-space without --max-dofs: the command's default cap, or twice the initial mesh's
+    dofs (nodes, for RIS) when that is more. A --max-dofs the user gave is checked against the
+    initial mesh where the run starts instead."""
+    if space is not None and args.max_dofs is None and space.max_dofs is not None:
+        space.max_dofs = max(space.max_dofs, 2 * int(initial))
+
+
 def peak_memory_mb() -> float:
     """Peak resident memory of this process in MB (ru_maxrss is KiB on Linux, bytes on macOS)."""
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -24,6 +24,7 @@ from ..errors import check_choice, check_int, check_positive, described, fail
 from ..parallel.executor import add_parallel_options, executor_from_args
 from .common import (
     add_output_options,
+    fit_default_cap,
     given,
     output_dir,
     parse_float,
@@ -130,7 +131,7 @@ def space_adaptivity(args, default_tol: float | None = None,
                      default_max_dofs: int | None = None):
     """The SpaceAdaptivity of the --adapt-space options, or None (one-line errors naming the
     options; an option without --adapt-space is refused). ``default_max_dofs`` applies when
-    --max-dofs is not given (see :func:`fit_default_cap`)."""
+    --max-dofs is not given (see :func:`rothe.cli.common.fit_default_cap`)."""
     values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in SPACE_OPTIONS}
     if not args.adapt_space:
         for option, value in values.items():
@@ -152,13 +153,6 @@ def space_adaptivity(args, default_tol: float | None = None,
                                  ("adapt_every", "--adapt-every", 1)):
         kw[key] = default if values[option] is None else values[option]
     return SpaceAdaptivity(naming="cli", **kw)
-
-
-def fit_default_cap(args, space, ndofs: int) -> None:
-    """The default cap for an initial mesh finer than it: twice its dofs (a --max-dofs the user
-    gave is checked against the initial mesh by run_eld instead)."""
-    if space is not None and args.max_dofs is None and space.max_dofs is not None:
-        space.max_dofs = max(space.max_dofs, 2 * int(ndofs))
 
 
 def _check_space(args, space) -> None:

@@ -30,6 +30,7 @@ from ..parallel.executor import add_parallel_options, executor_from_args
 from .common import (
     _jsonable,
     add_output_options,
+    fit_default_cap,
     given,
     output_dir,
     parse_float,
@@ -298,9 +299,8 @@ class _RunRISFem(RISRunBase):
             raise _as_option_error(exc, args) from None
         if self._space is not None:
             problem.check_movable("--adapt-space")
-            if args.max_dofs is None:  # the default cap, for a --mesh finer than it
-                self._space.max_dofs = max(self._space.max_dofs, 2 * problem.n_nodes)
-            elif self._space.max_dofs < problem.n_nodes:
+            fit_default_cap(args, self._space, problem.n_nodes)
+            if self._space.max_dofs < problem.n_nodes:
                 raise fail("--max-dofs", self._space.max_dofs,
                            f"must be >= the {problem.n_nodes} dofs of the initial mesh")
         self._setup_time = time.perf_counter() - t0
