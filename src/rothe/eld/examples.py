@@ -32,6 +32,7 @@ t <= t_move, then 0; the end x = L and the sides free. The multiplier on x = 0 i
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 
 import numpy as np
 
@@ -228,11 +229,12 @@ def multiplier_quadrature(problem: ELDProblem) -> MultiplierQuadrature:
 
 # -- the fast ramp -----------------------------------------------------------------------------
 
-class _DirichletMotion:
+class _DirichletMotion(ABC):
     """G, G_dot, G_ddot of a boundary motion from one ``_field(t, x, order)`` (order 0, 1, 2)."""
 
+    @abstractmethod
     def _field(self, t, x, order):
-        raise NotImplementedError
+        """The motion's value (order 0) or its first / second time derivative at (t, x)."""
 
     def G(self, t, x):
         return self._field(t, x, 0)
