@@ -92,14 +92,14 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="small meshes only")
     ap.add_argument("--steps", type=int, default=5, help="measured front steps per mesh")
     args = ap.parse_args()
-    from rothe.fem import eld_mesh
+    from rothe.fem import mesh as meshes
 
-    cases = [("2D 1e5", lambda: eld_mesh.unit_square(224), 3)]
+    cases = [("2D 1e5", lambda: meshes.unit_square(224, named=True), 3)]
     if args.quick:
-        cases.append(("3D 3e4", lambda: eld_mesh.box(17, 17, 17), 3))
+        cases.append(("3D 3e4", lambda: meshes.box(17, 17, 17), 3))
     else:
-        cases.append(("2D 1e6", lambda: eld_mesh.unit_square(708), 3))
-        cases.append(("3D 1e5", lambda: eld_mesh.box(26, 26, 26), 3))
+        cases.append(("2D 1e6", lambda: meshes.unit_square(708, named=True), 3))
+        cases.append(("3D 1e5", lambda: meshes.box(26, 26, 26), 3))
     head = (f"{'mesh':<7} {'cells0':>8} {'cells':>8} {'bisect':>7} {'merge':>7} {'setup':>7} "
             f"{'adapt':>7} {'mesh':>7} {'T P1':>7} {'T P2':>7} {'T P2vec':>8} {'K P1':>7} "
             f"{'LU':>7} "

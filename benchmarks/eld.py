@@ -62,7 +62,7 @@ from rothe.eld import (
 )
 from rothe.eld.examples import multiplier_quadrature
 from rothe.eld.studies import fitted_rate
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 
 
 def peak_mb() -> float:
@@ -286,7 +286,7 @@ def part_dissipation(taus=(0.1, 0.01, 0.001)) -> list[dict]:
     def zero(t, x):
         return np.zeros_like(x)
 
-    problem = ELDProblem(eld_mesh.unit_square(16), exact.material, degree=1, damping=NoDamping(),
+    problem = ELDProblem(meshes.unit_square(16, named=True), exact.material, degree=1, damping=NoDamping(),
                          dirichlet={"left": DirichletData(held, zero, zero)},
                          u0=lambda x: exact.u(0.0, x), v0=lambda x: exact.u_dot(0.0, x), T=1.0)
     print(f"undamped, no loads, constant G (left held at u(0)), P1, n = 16 "

@@ -6,7 +6,7 @@
 
 The problem is the ``eld-beam`` cantilever (3D, E = 1000, nu = 0.3, rho = 1, Rayleigh damping
 a = 0, b = 0.002, the end x = 0 moved by G(t) = (0, 0, A (1 - cos(2 pi t/0.5))/2), A = 0.1), on
-the identical tetrahedral mesh (rothe builds it with ``eld_mesh.box``; the peer reads the same
+the identical tetrahedral mesh (rothe builds it with ``meshes.box``; the peer reads the same
 arrays exported by the peer's ``export_beam_mesh.py``) with the same time steps (implicit Euler,
 tau = 0.01). Every run is its own process, so that its peak resident memory (``ru_maxrss`` of
 the child, from ``os.wait4``) is its own; tools alternate within each repeat, so that the load
@@ -90,9 +90,9 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
     import skfem  # noqa: F401
 
     from rothe.eld import DirichletData, ELDProblem, ELDStepper, Material, RayleighDamping
-    from rothe.eld.control import FixedStepController
+    from rothe.stepping.controllers import FixedStepController
     from rothe.eld.examples import EndMotion
-    from rothe.fem import eld_mesh
+    from rothe.fem import mesh as meshes
     from rothe.io.trajectory import Trajectory
     from rothe.stepping.evolve import evolve
 
@@ -101,7 +101,7 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
     out = {"tool": "rothe", "n": n, "degree": degree, "form": form, "solver": solver,
            "data": data}
     t0 = time.perf_counter()
-    mesh = eld_mesh.box(4 * n, n, n, 4.0, 1.0, 1.0)
+    mesh = meshes.box(4 * n, n, n, 4.0, 1.0, 1.0)
     out["mesh_s"] = time.perf_counter() - t0
     memory["mesh"] = sampler.checkpoint()
 

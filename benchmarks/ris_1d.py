@@ -32,7 +32,7 @@ from rothe.cli.ris_commands import (
     ris_summary,
     uniform_work_at_error,
 )
-from rothe.problems.ris_1d import errors_against_exact, example_7_1
+from rothe.ris.examples import errors_against_exact, example_7_1
 
 CONTROLS = ("adaptive", "order2", "regime")
 TOLS = (1e-3, 1e-4, 1e-5, 1e-6)

@@ -64,7 +64,7 @@ CATEGORIES = ("stick", "jump", "slip", "switch", "landing")
 class _Attempts:
     """Wraps the stepper and the controller of one run and files every attempt in a category.
 
-    An attempt belongs to its regime (rothe.control.controllers.step_regime), or to ``switch``
+    An attempt belongs to its regime (rothe.ris.controllers.step_regime), or to ``switch``
     when its regime differs from that of the last accepted step, or to ``landing`` when it is
     one of the attempts of a step shortened to land on T; a failed solve counts in its regime.
     """
@@ -82,7 +82,7 @@ class _Attempts:
         return result
 
     def decide(self, result):
-        from rothe.control.controllers import step_regime
+        from rothe.ris.controllers import step_regime
 
         decision = self.controller.decide(result)
         group, self.pending = self.pending, []
@@ -114,13 +114,13 @@ class _Proxy:
 
 
 def run_logged(problem, control, tol, tau, example):
-    """One run as rothe.stepping.ris.run_ris does it, with every attempt filed (_Attempts)."""
+    """One run as rothe.ris.stepper.run_ris does it, with every attempt filed (_Attempts)."""
     from rothe.cli.ris_commands import ris_summary
     from rothe.cli.ris_fem_commands import equidistribution_bound
-    from rothe.control.controllers import make_controller
-    from rothe.problems.ris_fem import describe_branch
+    from rothe.ris.controllers import make_controller
+    from rothe.ris.fem_problem import describe_branch
     from rothe.stepping.evolve import evolve
-    from rothe.stepping.ris import RISState, RISStepper, initial_trajectory
+    from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
 
     controller = make_controller(control, tol=tol, tau=tau)
     stepper = RISStepper(problem)
@@ -162,7 +162,7 @@ def work_table(problem, example, controls, tols, taus, tau0=0.1) -> None:
 
 def paper_size(quick: bool) -> None:
     from rothe.cli.ris_fem_commands import COMPARE_CONTROLS, COMPARE_TAUS
-    from rothe.problems.ris_fem import example_7_2
+    from rothe.ris.fem_problem import example_7_2
 
     n = 16 if quick else 40
     problem = example_7_2(n)
@@ -175,7 +175,7 @@ def paper_size(quick: bool) -> None:
 
 def cube(quick: bool) -> None:
     from rothe.cli.ris_fem_commands import COMPARE_CONTROLS
-    from rothe.problems.ris_fem import example_7_2_3d
+    from rothe.ris.fem_problem import example_7_2_3d
 
     n = 4 if quick else 8
     problem = example_7_2_3d(n)
@@ -208,7 +208,7 @@ def _slip_state(n_fine: int):
     from matplotlib.tri import LinearTriInterpolator, Triangulation
 
     from rothe import run_ris
-    from rothe.problems.ris_fem import example_7_2
+    from rothe.ris.fem_problem import example_7_2
 
     coarse = example_7_2(40)
     traj = run_ris(coarse, "adaptive", tol=1e-4, tau=0.01)
@@ -223,12 +223,12 @@ def _slip_state(n_fine: int):
 def measure(n: int, solver: str, phase: str, steps: int, control: str = "regime") -> dict:
     import scipy.sparse.linalg as spla
 
-    from rothe.control.controllers import make_controller
+    from rothe.ris.controllers import make_controller
     from rothe.io.trajectory import Trajectory
-    from rothe.nonlinear.ris_inner import InnerOptions
-    from rothe.problems.ris_fem import example_7_2
+    from rothe.ris.inner import InnerOptions
+    from rothe.ris.fem_problem import example_7_2
     from rothe.stepping.evolve import evolve, single_threaded_blas
-    from rothe.stepping.ris import RISState, RISStepper
+    from rothe.ris.stepper import RISState, RISStepper
 
     t0 = time.perf_counter()
     problem = example_7_2(n)

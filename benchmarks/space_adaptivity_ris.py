@@ -4,7 +4,7 @@
 
 (to be joined into ``benchmarks/space_adaptivity.py --family ris``: :func:`run_ris_family`).
 
-Problem: :func:`rothe.problems.ris_fem.example_front` (a phase front sweeping the unit square,
+Problem: :func:`rothe.ris.fem_problem.example_front` (a phase front sweeping the unit square,
 c = 0.1), all runs with the same uniform step tau in s, so that the runs differ only in space.
 Runs, all in this process:
 
@@ -31,9 +31,9 @@ import matplotlib.tri as mtri
 import numpy as np
 
 from rothe.fem.adapt import SpaceAdaptivity
-from rothe.nonlinear.ris_inner import InnerOptions
-from rothe.problems.ris_fem import example_front, nodal_volumes
-from rothe.stepping.ris import run_ris
+from rothe.ris.inner import InnerOptions
+from rothe.ris.fem_problem import example_front, nodal_volumes
+from rothe.ris.stepper import run_ris
 
 TIMES = (0.25, 0.5, 0.75)
 DIRECT = InnerOptions(linear_solver="direct")

@@ -7,7 +7,7 @@ Two families, each with its own API:
   adaptive (Alg. 3.2), nested (Alg. 6.2), order2 and regime step control. Exported here:
   ``RISProblem`` (I(t, z) = 1/2 <Az, z> + F(z) - <l(t), z> in R^n), ``run_ris``,
   ``run_nested``, the controllers, ``Trajectory``; finite elements in
-  ``rothe.problems.ris_fem`` (``FERISProblem``, ``example_7_2``) and ``rothe.fem.mesh``
+  ``rothe.ris.fem_problem`` (``FERISProblem``, ``example_7_2``) and ``rothe.fem.mesh``
   (``unit_square``, ``load_mesh``).
 * Elastodynamics with time-dependent Dirichlet constraints as operator DAEs (Altmann 2015):
   ``rothe.eld`` (``run_eld`` with implicit Euler or BDF2 and uniform or adaptive steps,
@@ -27,19 +27,14 @@ docs/adaptivity.md, docs/robustness.md and docs/scaling.md in the source distrib
 docstrings.
 """
 
-from .control.controllers import (
-    AdaptiveController,
-    Order2Controller,
-    RegimeController,
-    UniformController,
-    make_controller,
-)
+from .ris.controllers import AdaptiveController, Order2Controller, RegimeController, make_controller
+from .stepping.controllers import UniformController
 from .errors import RotheInputError, RunFailed
 from .io.trajectory import RunStatistics, Trajectory
-from .nonlinear.ris_inner import BallStepSolver, InnerOptions
-from .problems.ris import RISProblem
+from .ris.inner import BallStepSolver, InnerOptions
+from .ris.problem import RISProblem
 from .stepping.evolve import evolve
-from .stepping.ris import RISStepper, run_nested, run_ris
+from .ris.stepper import RISStepper, run_nested, run_ris
 
 __version__ = "0.1.0"
 

@@ -16,7 +16,7 @@ import pytest
 from rothe import __version__
 from rothe.cli.main import main
 from rothe.cli.registry import commands, load_all
-from rothe.control.controllers import CONTROLS
+from rothe.ris.controllers import CONTROLS
 
 
 def run_cli(capsys, *argv):
@@ -173,7 +173,7 @@ def test_nan_load_midway_is_a_failed_run_that_keeps_its_trajectory(tmp_path, cap
     """FERISProblem raised an input error (exit 2) and discarded the steps computed so far."""
     import numpy as np
 
-    from rothe.problems import ris_fem
+    from rothe.ris import fem_problem as ris_fem
 
     def factory(n, mesh, **kw):
         # NaN on (0.5, 0.52): between the nine times the problem checks when it is built

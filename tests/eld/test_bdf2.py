@@ -19,7 +19,7 @@ from rothe.eld.examples import multiplier_quadrature
 from rothe.eld.schemes import BDF2_ZERO_STABILITY, max_step_for
 from rothe.eld.studies import fitted_rate
 from rothe.errors import RotheInputError
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 
 TAUS = (0.1, 0.05, 0.025, 0.0125)
 
@@ -134,7 +134,7 @@ def test_step_sequences_are_checked():
 
 
 def _free_vibration(n=4):
-    mesh = eld_mesh.unit_square(n)
+    mesh = meshes.unit_square(n, named=True)
     material = Material(rho=1.0, lam=2.0, mu=1.0, dim=2)
 
     def zero(t, x):

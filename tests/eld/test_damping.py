@@ -16,10 +16,10 @@ from rothe.eld.damping import (
     saturating_velocity_jacobian,
 )
 from rothe.errors import RotheInputError
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem.elasticity import VectorSpace
 
-_SPACE = VectorSpace(eld_mesh.unit_square(3), 2)
+_SPACE = VectorSpace(meshes.unit_square(3, named=True), 2)
 _M = _SPACE.mass()
 _K = _SPACE.stiffness(2.0, 1.0)
 

@@ -7,12 +7,12 @@ from skfem import Basis, BilinearForm, ElementVector, MeshQuad, MeshTet, MeshTri
 from skfem.models.elasticity import linear_elasticity
 
 from rothe.errors import RotheInputError
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem.elasticity import VectorSpace, lame_from_young
 
 
 def _mesh(dim, n=3):
-    return eld_mesh.unit_square(n) if dim == 2 else eld_mesh.box(n, n, n)
+    return meshes.unit_square(n, named=True) if dim == 2 else meshes.box(n, n, n)
 
 
 @pytest.mark.parametrize("dim,degree", [(2, 1), (2, 2), (3, 1), (3, 2)])
@@ -65,7 +65,7 @@ def _static_error(n, degree):
         grad_div = np.stack([-pi**2 * s + 2 * Y, pi**2 * c + 2 * X])
         return -mu * lap - (lam + mu) * grad_div
 
-    V = VectorSpace(eld_mesh.unit_square(n), degree)
+    V = VectorSpace(meshes.unit_square(n, named=True), degree)
     K = V.stiffness(lam, mu)
     F = V.load_from_quad(force(V.quad_points))
     fixed = V.vector_dofs(V.scalar_dofs_on(("left", "right", "bottom", "top")))
@@ -87,7 +87,7 @@ def test_static_convergence_orders(degree, order):
 
 
 def test_constant_traction_integrates_to_the_force():
-    V = VectorSpace(eld_mesh.unit_square(5), 2)
+    V = VectorSpace(meshes.unit_square(5, named=True), 2)
     q = V.facet_quadrature(("right",))
     g = np.broadcast_to(np.array([3.0, -2.0])[:, None, None], q.x.shape)
     load = q.integrate_against_basis(g, V.n_scalar)
@@ -96,19 +96,19 @@ def test_constant_traction_integrates_to_the_force():
 
 
 def test_boundary_dofs_of_p2_include_edge_midpoints():
-    V = VectorSpace(eld_mesh.unit_square(4), 2)
+    V = VectorSpace(meshes.unit_square(4, named=True), 2)
     dofs = V.scalar_dofs_on(("left",))
     assert dofs.size == 9  # 5 vertices and 4 edge midpoints on x = 0
     assert np.allclose(V.doflocs[0, dofs], 0.0)
 
 
 def test_bad_inputs_are_one_line_errors():
-    V = VectorSpace(eld_mesh.unit_square(2), 1)
+    V = VectorSpace(meshes.unit_square(2, named=True), 1)
     with pytest.raises(RotheInputError,
                        match=r"^parts: got 'lft', must be one of bottom, left, right, top"):
         V.scalar_dofs_on(("lft",))
     with pytest.raises(RotheInputError, match="degree: got 3, must be 1 or 2"):
-        VectorSpace(eld_mesh.unit_square(2), 3)
+        VectorSpace(meshes.unit_square(2, named=True), 3)
     with pytest.raises(RotheInputError,
                        match="mesh: got 'MeshQuad1', must be a scikit-fem MeshTri or MeshTet"):
         VectorSpace(MeshQuad(), 1)
@@ -119,10 +119,10 @@ def test_bad_inputs_are_one_line_errors():
 
 
 def test_box_mesh_has_six_named_faces():
-    mesh = eld_mesh.box(4, 2, 3, length=2.0)
+    mesh = meshes.box(4, 2, 3, length=2.0)
     assert sorted(mesh.boundaries) == ["back", "bottom", "front", "left", "right", "top"]
     assert isinstance(mesh, MeshTet)
     # each face of the box: 2 triangles per square
     assert len(mesh.boundaries["left"]) == 2 * 2 * 3
     assert len(mesh.boundaries["right"]) == 2 * 2 * 3
-    assert isinstance(eld_mesh.unit_square(2), MeshTri)
+    assert isinstance(meshes.unit_square(2, named=True), MeshTri)

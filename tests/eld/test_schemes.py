@@ -19,7 +19,7 @@ from rothe.eld import (
 )
 from rothe.eld.studies import fitted_rate
 from rothe.errors import RotheInputError, RunFailed
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 
 TAUS = (0.1, 0.05, 0.025, 0.0125)
 
@@ -113,7 +113,7 @@ def zero(t, x):
 
 
 def _free_vibration(form, damping=None):
-    mesh = eld_mesh.unit_square(4)
+    mesh = meshes.unit_square(4, named=True)
     material = Material(rho=1.0, lam=2.0, mu=1.0, dim=2)
     return ELDProblem(mesh, material, degree=1, damping=damping,
                       dirichlet={"left": DirichletData(zero, zero, zero)},
@@ -179,7 +179,7 @@ def test_bad_inputs_are_one_line_errors():
         Material(rho=1.0, lam=1.0, mu=0.0)
     with pytest.raises(RotheInputError, match=r"^lam: got -2, must be > -2 mu / d = -0.666667"):
         Material(rho=1.0, lam=-2.0, mu=1.0, dim=3)
-    mesh = eld_mesh.unit_square(2)
+    mesh = meshes.unit_square(2, named=True)
     mat = Material(1.0, 1.0, 1.0)
     with pytest.raises(RotheInputError, match=r"^traction: got 'left', is also a Dirichlet part"):
         ELDProblem(mesh, mat, dirichlet={"left": lambda t, x: 0 * x},

@@ -1,4 +1,4 @@
-"""Space-adaptive ELD runs (rothe.eld.space): constraint and lifting after every change, the
+"""Space-adaptive ELD runs (rothe.eld.adapt): constraint and lifting after every change, the
 ledger closing with the transfer term, nothing marked = the fixed mesh bit for bit, coarsening
 behind the pulse, bad input, checkpoint/resume bit for bit."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from rothe.eld import prepare_eld_run, run_eld
 from rothe.eld.examples import mms_problem, pulse_problem
-from rothe.eld.space import SpaceAdaptiveStepper
+from rothe.eld.adapt import SpaceAdaptiveStepper
 from rothe.errors import RotheInputError, RunFailed, RunInterrupted
 from rothe.fem.adapt import SpaceAdaptivity
 from rothe.io.checkpoint import CheckpointOptions, load_checkpoint

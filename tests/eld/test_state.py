@@ -19,7 +19,7 @@ from rothe.eld import (
     run_eld,
 )
 from rothe.errors import RotheInputError, RunFailed
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.io.trajectory import Trajectory
 from rothe.stepping.evolve import evolve
 
@@ -125,7 +125,7 @@ def test_transfer_interface_maps_every_history_vector_and_books_the_energy_chang
 
 
 def _square(body_force=None, dirichlet=None, damping=None):
-    mesh = eld_mesh.unit_square(2)
+    mesh = meshes.unit_square(2, named=True)
     material = Material(rho=1.0, lam=2.0, mu=1.0, dim=2)
 
     def zero(t, x):

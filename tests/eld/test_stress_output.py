@@ -8,7 +8,7 @@ import pytest
 
 from rothe.cli.main import main
 from rothe.eld import Material, StressEvaluator, mms_problem, run_eld, von_mises, write_eld_result
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem.elasticity import VectorSpace
 
 
@@ -32,7 +32,7 @@ def test_stress_of_a_homogeneous_deformation(dim, degree):
     rng = np.random.default_rng(dim * 10 + degree)
     grad = rng.uniform(-0.3, 0.3, (dim, dim))
     shift = rng.uniform(-1, 1, dim)
-    mesh = eld_mesh.unit_square(3) if dim == 2 else eld_mesh.box(2, 2, 2)
+    mesh = meshes.unit_square(3, named=True) if dim == 2 else meshes.box(2, 2, 2)
     space = VectorSpace(mesh, degree)
     lam, mu = 1.7, 0.6
     u = space.interpolate(lambda x: grad @ x + shift[:, None])

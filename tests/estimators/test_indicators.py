@@ -7,19 +7,16 @@ import pytest
 
 from rothe.eld.examples import mms_problem
 from rothe.errors import RotheInputError
-from rothe.estimators.efficiency import (
-    ScalarField,
-    dofs_for_error,
-    elasticity_study,
-    ris_study,
-)
-from rothe.estimators.eld_indicator import eld_indicators, eld_indicators_for
-from rothe.estimators.ris_indicator import ris_indicators, ris_indicators_for
-from rothe.estimators.simplex import SimplexEvaluator
-from rothe.fem import eld_mesh
+from rothe.fem.adapt.efficiency import ScalarField, dofs_for_error
+from rothe.eld.efficiency import elasticity_study
+from rothe.ris.efficiency import ris_study
+from rothe.eld.indicator import eld_indicators, eld_indicators_for
+from rothe.ris.indicator import ris_indicators, ris_indicators_for
+from rothe.fem.simplex import SimplexEvaluator
+from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh
 from rothe.fem.elasticity import VectorSpace
-from rothe.problems.ris_fem import example_7_2
+from rothe.ris.fem_problem import example_7_2
 
 
 def polynomial_profile(dim: int, degree: int) -> ScalarField:
@@ -74,7 +71,7 @@ def test_eld_indicator_for_the_damped_manufactured_problem_vanishes_on_the_exact
 
 
 def test_eld_indicator_input_errors():
-    space = VectorSpace(eld_mesh.unit_square(2), 1)
+    space = VectorSpace(meshes.unit_square(2, named=True), 1)
     with pytest.raises(RotheInputError, match=r"^u: got an array of shape \(5,\), must be an"):
         eld_indicators(space.mesh, 1, 1.0, 1.0, np.zeros(5))
     with pytest.raises(RotheInputError, match=r"^mu: got 0, must be > 0$"):
@@ -83,7 +80,7 @@ def test_eld_indicator_input_errors():
 
 def test_ris_indicator_measures_the_stability_violation_of_a_sticking_state():
     """z = z_prev = 0 (sticking): no jumps; the cell residual is max(|l - g'(0)| - kappa, 0)."""
-    mesh = AdaptiveMesh(eld_mesh.unit_square(3)).mesh
+    mesh = AdaptiveMesh(meshes.unit_square(3, named=True)).mesh
     zero = np.zeros(mesh.p.shape[1])
     stable = ris_indicators(mesh, zero, zero, dg=lambda z: 0 * z, load=0.8, kappa=1.0)
     assert stable.estimate == 0.0

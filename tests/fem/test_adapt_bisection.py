@@ -11,7 +11,7 @@ from scipy.spatial import Delaunay
 from skfem import Basis, ElementTetP2, ElementTriP2, MeshHex, MeshQuad, MeshTet, MeshTri
 
 from rothe.errors import RotheInputError
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh, check_adaptable
 from rothe.fem.adapt.topology import (
     barycentric,
@@ -55,8 +55,8 @@ def check_parts_on_sides(am):
 
 
 MESHES = {
-    "square": lambda: eld_mesh.unit_square(3),
-    "box": lambda: eld_mesh.box(2, 2, 2),
+    "square": lambda: meshes.unit_square(3, named=True),
+    "box": lambda: meshes.box(2, 2, 2),
     "delaunay2": lambda: delaunay_mesh(2, 40, 0),
     "delaunay3": lambda: delaunay_mesh(3, 40, 1),
 }
@@ -89,7 +89,7 @@ def test_refinement_is_conforming_nested_and_counts_dofs(name):
 
 def test_scikit_fem_structures_match():
     """Facets, t2f injected into the mesh and the P2 dof numbering equal scikit-fem's own."""
-    for m0, element in ((eld_mesh.unit_square(2), ElementTriP2), (eld_mesh.box(1, 1, 1),
+    for m0, element in ((meshes.unit_square(2, named=True), ElementTriP2), (meshes.box(1, 1, 1),
                                                                  ElementTetP2)):
         am = AdaptiveMesh(m0)
         am.refine(np.arange(0, am.n_cells, 2))
@@ -152,7 +152,7 @@ def test_cycle_of_refinement_edges_is_refined_and_coarsened():
 
 def test_a_front_that_passes_leaves_the_initial_mesh():
     """Refine at a point moving across the square, coarsen everything else every step."""
-    m0 = eld_mesh.unit_square(4)
+    m0 = meshes.unit_square(4, named=True)
     am = AdaptiveMesh(m0)
     sizes = []
     for x in np.linspace(-0.2, 1.2, 29):
@@ -193,7 +193,7 @@ def test_shape_regularity_of_repeated_local_refinement():
 
 
 def test_checkpoint_round_trip_is_bit_identical():
-    for m0 in (eld_mesh.unit_square(3), delaunay_mesh(3, 20, 2)):
+    for m0 in (meshes.unit_square(3, named=True), delaunay_mesh(3, 20, 2)):
         am = AdaptiveMesh(m0)
         rng = np.random.default_rng(5)
         for _ in range(3):
@@ -216,7 +216,7 @@ def test_checkpoint_round_trip_is_bit_identical():
 
 
 def test_max_dofs_cap_refines_the_largest_indicators_first():
-    m0 = eld_mesh.unit_square(4)
+    m0 = meshes.unit_square(4, named=True)
     am = AdaptiveMesh(m0)
     c = centroids(am)
     eta = np.exp(-10 * np.linalg.norm(c - [0.2, 0.3], axis=1))
@@ -235,7 +235,7 @@ def test_max_dofs_cap_refines_the_largest_indicators_first():
 
 
 def test_max_level_and_subdomains():
-    m0 = eld_mesh.unit_square(2)
+    m0 = meshes.unit_square(2, named=True)
     left_cells = np.flatnonzero(m0.p[0, m0.t].mean(axis=0) < 0.5)
     from dataclasses import replace
 
@@ -300,7 +300,7 @@ def test_adaptation_refuses_meshes_it_cannot_bisect():
 
 
 def test_nothing_marked_changes_nothing():
-    am = AdaptiveMesh(eld_mesh.box(1, 1, 1))
+    am = AdaptiveMesh(meshes.box(1, 1, 1))
     mesh = am.mesh
     change = am.adapt(refine=np.zeros(am.n_cells, dtype=bool), coarsen=[])
     assert not change.changed and am.mesh_id == 0 and am.mesh is mesh

@@ -6,7 +6,7 @@ import numpy as np
 
 from rothe.eld import DirichletData, ELDProblem, Material, RayleighDamping, prepare_eld_run
 from rothe.eld.examples import ManufacturedSolution
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh, free_transfer
 from rothe.io.trajectory import Trajectory
 from rothe.stepping.evolve import evolve
@@ -34,7 +34,7 @@ def run_until(run, k):
 
 
 def test_refine_map_adopt_and_continue():
-    amesh = AdaptiveMesh(eld_mesh.unit_square(3))
+    amesh = AdaptiveMesh(meshes.unit_square(3, named=True))
     problem, exact = mms_on(amesh.mesh)
     options = dict(form="regularized", tau=0.05, scheme="bdf2")
     fixed = prepare_eld_run(problem, **options)

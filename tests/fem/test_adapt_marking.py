@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rothe.errors import RotheInputError
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh
 from rothe.fem.adapt.marking import (
     SpaceAdaptivity,
@@ -91,7 +91,7 @@ def test_cli_names_and_the_dof_cap_of_the_initial_mesh():
         SpaceAdaptivity(space_tol=-1, naming="cli")
     with pytest.raises(RotheInputError, match=r"^--adapt-every: got 0, must be an integer >= 1"):
         SpaceAdaptivity(space_tol=1, adapt_every=0, naming="cli")
-    am = AdaptiveMesh(eld_mesh.unit_square(4))
+    am = AdaptiveMesh(meshes.unit_square(4, named=True))
     dofs = am.ndofs(2, 2)  # 2 * (25 + 56) = 162
     assert dofs == 162
     with pytest.raises(RotheInputError,
@@ -101,7 +101,7 @@ def test_cli_names_and_the_dof_cap_of_the_initial_mesh():
 
 
 def test_adapt_mesh_under_the_cap():
-    am = AdaptiveMesh(eld_mesh.unit_square(4))
+    am = AdaptiveMesh(meshes.unit_square(4, named=True))
     opts = SpaceAdaptivity(space_tol=1e-3, refine_fraction=0.5, coarsen_fraction=0.1,
                            max_dofs=400)
     rng = np.random.default_rng(0)

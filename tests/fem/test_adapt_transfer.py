@@ -10,10 +10,10 @@ from hypothesis import strategies as st
 from skfem import Basis, ElementTetP1, ElementTetP2, ElementTriP1, ElementTriP2
 
 from rothe.eld.constraint import DirichletConstraint
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh, free_transfer, transfer_vectors
 from rothe.fem.elasticity import VectorSpace
-from rothe.problems.ris_fem import example_7_2
+from rothe.ris.fem_problem import example_7_2
 
 ELEMENTS = {(2, 1): ElementTriP1, (2, 2): ElementTriP2, (3, 1): ElementTetP1,
             (3, 2): ElementTetP2}
@@ -31,7 +31,7 @@ def old_field_at_new_nodes(old_mesh, new_mesh, dim, degree, u):
        seed=st.integers(0, 2**31), fraction=st.floats(0.05, 0.9), rounds=st.integers(1, 3))
 def test_refinement_transfer_reproduces_the_old_function(dim, degree, seed, fraction, rounds):
     rng = np.random.default_rng(seed)
-    am = AdaptiveMesh(eld_mesh.unit_square(2) if dim == 2 else eld_mesh.box(1, 1, 1))
+    am = AdaptiveMesh(meshes.unit_square(2, named=True) if dim == 2 else meshes.box(1, 1, 1))
     for _ in range(rounds - 1):
         am.refine(rng.random(am.n_cells) < fraction)
     old_mesh = am.mesh
@@ -52,7 +52,7 @@ def test_refinement_transfer_reproduces_the_old_function(dim, degree, seed, frac
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_coarsening_transfer_is_an_injection(dim):
-    am = AdaptiveMesh(eld_mesh.unit_square(2) if dim == 2 else eld_mesh.box(1, 1, 1))
+    am = AdaptiveMesh(meshes.unit_square(2, named=True) if dim == 2 else meshes.box(1, 1, 1))
     rng = np.random.default_rng(2)
     for _ in range(3):
         am.refine(rng.random(am.n_cells) < 0.5)
@@ -72,7 +72,7 @@ def test_coarsening_transfer_is_an_injection(dim):
 
 
 def test_mixed_adaptation_interpolates_and_unchanged_cells_map_exactly():
-    am = AdaptiveMesh(eld_mesh.unit_square(4))
+    am = AdaptiveMesh(meshes.unit_square(4, named=True))
     rng = np.random.default_rng(4)
     for _ in range(3):
         am.refine(rng.random(am.n_cells) < 0.4)
@@ -94,7 +94,7 @@ def test_mixed_adaptation_interpolates_and_unchanged_cells_map_exactly():
 
 def test_quadratic_fields_are_reproduced_through_refine_and_coarsen():
     """A global quadratic is a P2 function on every mesh: refine, coarsen, refine -- exact."""
-    am = AdaptiveMesh(eld_mesh.box(1, 1, 1))
+    am = AdaptiveMesh(meshes.box(1, 1, 1))
 
     def quad(x):
         return 1 + x[0] - 2 * x[1] * x[2] + 3 * x[0] ** 2
@@ -116,7 +116,7 @@ def test_dirichlet_values_hold_after_every_change():
     refinement up to the interpolation error of the old mesh (the history keeps the old
     interpolant of G; the stepper rebuilds u2 from G on the new mesh); coarsening adds no
     deviation."""
-    am = AdaptiveMesh(eld_mesh.unit_square(3))
+    am = AdaptiveMesh(meshes.unit_square(3, named=True))
 
     def G_quadratic(x):
         return np.array([x[1] ** 2, 1 - x[1] + 0.5 * x[1] ** 2])
@@ -148,7 +148,7 @@ def test_dirichlet_values_hold_after_every_change():
 
 def test_ris_state_on_free_nodes():
     """z on the free P1 nodes of an FE-RIS problem: Tf = T[new_free][:, old_free]."""
-    am = AdaptiveMesh(eld_mesh.unit_square(4))
+    am = AdaptiveMesh(meshes.unit_square(4, named=True))
     old = example_7_2(mesh=am.mesh)
     rng = np.random.default_rng(1)
     z = rng.standard_normal(old.free.size)
@@ -164,7 +164,7 @@ def test_ris_state_on_free_nodes():
 def test_refinement_keeps_the_energy_coarsening_changes_it():
     """E(u) = 1/2 u.Ku + 1/2 u.Mu is the same after a refinement transfer (the same function);
     after coarsening it is the energy of the interpolant (the ELD ledger's transfer term)."""
-    am = AdaptiveMesh(eld_mesh.unit_square(4))
+    am = AdaptiveMesh(meshes.unit_square(4, named=True))
     space = VectorSpace(am.mesh, 2)
 
     def energy(space, u):

@@ -18,7 +18,7 @@ from skfem import (
 from skfem.models.elasticity import linear_elasticity
 
 from rothe.fem import elasticity as el
-from rothe.fem import eld_mesh
+from rothe.fem import mesh as meshes
 from rothe.fem._assembly_numba import AVAILABLE as NUMBA
 
 CASES = [(2, 1), (2, 2), (3, 1), (3, 2)]
@@ -44,7 +44,7 @@ def _mesh(dim, perm_seed=None, jiggle=0.0):
         t = t[rng.permutation(t.shape[0])]  # local vertex order scrambled too
     cls = MeshTri if dim == 2 else MeshTet
     mesh = cls(p, t)
-    return eld_mesh.tag_box_faces(mesh)
+    return meshes.tag_box_faces(mesh)
 
 
 def _skfem_matrices(mesh, dim, degree, lam, mu):
@@ -190,18 +190,18 @@ def test_boundary_mass_equals_facet_quadrature(dim, degree):
 def test_mesh_entities_equal_scikit_fems(dim):
     mesh = _mesh(dim, perm_seed=7)
     for indices in (mesh.elem.refdom.facets, getattr(mesh.elem.refdom, "edges", None)):
-        ours = eld_mesh.build_entities(mesh.t, indices, mesh.p.shape[1])
+        ours = meshes.build_entities(mesh.t, indices, mesh.p.shape[1])
         theirs = mesh.build_entities(mesh.t, indices)
         for a, b in zip(ours, theirs, strict=True):
             assert (a is None and b is None) or (np.array_equal(a, b) and a.dtype == b.dtype)
     fresh = (MeshTri if dim == 2 else MeshTet)(mesh.p, mesh.t)
-    tagged = eld_mesh.tag_box_faces(fresh)
+    tagged = meshes.tag_box_faces(fresh)
     assert np.array_equal(np.sort(np.concatenate(list(tagged.boundaries.values()))),
                           (MeshTri if dim == 2 else MeshTet)(mesh.p, mesh.t).boundary_facets())
 
 
 def test_space_construction_is_cheap_and_lazy():
-    V = el.VectorSpace(eld_mesh.box(2, 2, 2), 1)
+    V = el.VectorSpace(meshes.box(2, 2, 2), 1)
     # no pattern, no scikit-fem basis until a matrix or a quadrature field is asked for
     assert "pattern" not in V.__dict__ and "grad_basis" not in V.__dict__
     V.mass()

@@ -37,12 +37,13 @@ def test_unit_square_and_cube_sizes():
     assert np.allclose(c.p[2, sides["back"]], 1.0) and np.allclose(c.p[1, sides["bottom"]], 0.0)
 
 
-@pytest.mark.parametrize("n", [1, 0, -3])
-def test_grid_needs_n_at_least_2(n):
-    with pytest.raises(RotheInputError, match=rf"^n: got {n}, must be an integer >= 2$"):
+@pytest.mark.parametrize("n", [0, -3])
+def test_grid_needs_n_at_least_1(n):
+    with pytest.raises(RotheInputError, match=rf"^n: got {n}, must be an integer >= 1$"):
         unit_square(n)
-    with pytest.raises(RotheInputError, match=r"^n: got .*, must be an integer >= 2$"):
+    with pytest.raises(RotheInputError, match=r"^n: got .*, must be an integer >= 1$"):
         unit_cube(n)
+    assert unit_square(1).t.shape == (3, 2) and unit_cube(1).t.shape == (4, 6)
 
 
 def test_unknown_pattern():
@@ -116,12 +117,12 @@ def test_vtu_xdmf_2d_points_with_z_column_and_unused_nodes(tmp_path, monkeypatch
 
 
 def test_missing_unreadable_and_wrong_meshes(tmp_path):
-    with pytest.raises(RotheInputError, match=r"^--mesh: got '.*nope.msh', no such file$"):
+    with pytest.raises(RotheInputError, match=r"^mesh: got '.*nope.msh', no such file$"):
         load_mesh(tmp_path / "nope.msh")
     bad = tmp_path / "bad.msh"
     bad.write_text("this is not a mesh\n")
     with pytest.raises(RotheInputError,
-                       match=r"^--mesh: got '.*bad.msh', is not a mesh meshio can read"):
+                       match=r"^mesh: got '.*bad.msh', is not a mesh meshio can read"):
         load_mesh(bad)
     unknown = tmp_path / "mesh.xyz123"
     unknown.write_text("1 2 3\n")

@@ -9,19 +9,19 @@ import numpy as np
 import pytest
 
 from rothe import RunFailed, run_nested, run_ris
-from rothe.control.controllers import (
+from rothe.ris.controllers import (
     CONTROLS,
     AdaptiveController,
     Order2Controller,
     RegimeController,
-    UniformController,
     make_controller,
     step_regime,
 )
+from rothe.stepping.controllers import UniformController
 from rothe.io.trajectory import Trajectory
-from rothe.problems.ris_1d import example_7_1
+from rothe.ris.examples import example_7_1
 from rothe.stepping.evolve import evolve
-from rothe.stepping.ris import RISState, RISStepper, initial_trajectory
+from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
 
 
 def result(tau, I1, I2, converged=True, step_norm=None):
@@ -333,8 +333,8 @@ def test_regime_with_a_denormal_tolerance_stops_below_tau_min():
     """tol = 1e-320: the step out of sticking (delta ~ sqrt(tol)) and tau^p underflow; the run
     must stop like the other controllers' (RunFailed naming tau_min), not divide by zero."""
     from rothe.errors import RunFailed
-    from rothe.problems.ris_1d import example_7_1
-    from rothe.stepping.ris import run_ris
+    from rothe.ris.examples import example_7_1
+    from rothe.ris.stepper import run_ris
 
     with pytest.raises(RunFailed, match="step size fell below tau_min"):
         run_ris(example_7_1(), "regime", tol=1e-320, tau=0.1)

@@ -5,7 +5,7 @@ import pytest
 
 from rothe import run_ris
 from rothe.cli.ris_commands import uniform_work_at_error
-from rothe.problems.ris_1d import errors_against_exact, exact_solution, example_7_1
+from rothe.ris.examples import errors_against_exact, exact_solution, example_7_1
 
 
 @pytest.fixture(scope="module")

@@ -106,7 +106,7 @@ def test_sticking_step_costs_no_linear_solve():
 
 def test_viscous_jump_lands_on_sphere_with_positive_multiplier():
     """Ex. 7.1 at t = 2.2, z = -2: no stable state nearby, so the step is a jump of length tau."""
-    from rothe.problems.ris_1d import example_7_1
+    from rothe.ris.examples import example_7_1
 
     problem = example_7_1()
     solver = BallStepSolver(problem)
@@ -126,7 +126,7 @@ def test_first_jump_step_just_past_the_end_of_sticking_leaves_the_saddle_at_once
     of |D_z I| over r is ~1e-5 of r, so the iterates escape z = 0 slowly; once their direction
     has negative curvature the ray to the sphere is taken (8 iterations and 7 factorizations
     without it on 32 x 32, 22 and 18 on 320 x 320)."""
-    from rothe.problems.ris_fem import example_7_2
+    from rothe.ris.fem_problem import example_7_2
 
     p = example_7_2(32)
     solver = BallStepSolver(p, InnerOptions(linear_solver="direct"))

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rothe import RISProblem
-from rothe.problems.ris_1d import example_7_1
+from rothe.ris.examples import example_7_1
 
 
 def make(**overrides):

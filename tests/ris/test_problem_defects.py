@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from rothe import RISProblem, RunFailed, run_ris
 from rothe.errors import RotheInputError
-from rothe.problems import ris_1d
+from rothe.ris import examples as ris_1d
 
 
 def readme_problem(**overrides):
@@ -112,7 +112,7 @@ def test_fe_problem_needs_a_dirichlet_node_on_every_part_of_the_mesh():
     from skfem import MeshTri
 
     from rothe.fem.mesh import unit_square
-    from rothe.problems.ris_fem import FERISProblem, d2g_7_2, dg_7_2, g_7_2
+    from rothe.ris.fem_problem import FERISProblem, d2g_7_2, dg_7_2, g_7_2
 
     a = unit_square(3)
     b = MeshTri(a.p + np.array([[3.0], [0.0]]), a.t)  # a second square, apart from the first
@@ -148,7 +148,7 @@ def test_wrong_dF_stops_with_a_message_naming_the_cause(check):
 
 def test_stagnation_monitor_state_round_trip():
     """Checkpoint protocol: the monitor's state is plain data and restores exactly."""
-    from rothe.stepping.ris import RISState, RISStepper, StagnationMonitor
+    from rothe.ris.stepper import RISState, RISStepper, StagnationMonitor
 
     stepper = RISStepper(example_7_1())
     state = RISState(s=0.0, t=0.0, z=np.array([-2.0]))
@@ -166,7 +166,7 @@ def test_stagnation_monitor_state_round_trip():
 
 def test_nan_load_midway_keeps_the_trajectory():
     from rothe.fem.mesh import unit_square
-    from rothe.problems.ris_fem import FERISProblem, d2g_7_2, dg_7_2, g_7_2
+    from rothe.ris.fem_problem import FERISProblem, d2g_7_2, dg_7_2, g_7_2
 
     problem = FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2,
                            load=lambda t: np.nan if 0.5 < t < 0.52 else -200.0 * t**3)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from rothe import RISProblem, run_ris
-from rothe.estimators.residuals import simpson_weights, step_residuals
-from rothe.problems.ris_1d import example_7_1
-from rothe.stepping.ris import RISState, RISStepper
+from rothe.ris.residuals import simpson_weights, step_residuals
+from rothe.ris.examples import example_7_1
+from rothe.ris.stepper import RISState, RISStepper
 
 
 @pytest.mark.parametrize("n", [2, 4, 8, 16])

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from rothe import Trajectory, run_ris
-from rothe.problems.ris_1d import example_7_1
-from rothe.stepping.ris import stored_states
+from rothe.ris.examples import example_7_1
+from rothe.ris.stepper import stored_states
 
 
 def test_keep_every_keeps_every_kth_and_the_last_state(tmp_path):

@@ -20,8 +20,8 @@ import pytest
 
 from rothe.cli.ris_fem_commands import equidistribution_bound, uniform_work_interpolant
 from rothe.fem.scalar import lumped_mass
-from rothe.problems.ris_fem import describe_branch, example_7_2, example_7_2_3d, viscous_jumps
-from rothe.stepping.ris import run_nested, run_ris
+from rothe.ris.fem_problem import describe_branch, example_7_2, example_7_2_3d, viscous_jumps
+from rothe.ris.stepper import run_nested, run_ris
 
 UNIFORM_TAUS = (0.005, 0.0025, 0.00125, 0.000625)
 

@@ -16,7 +16,7 @@ from rothe.errors import RotheInputError
 from rothe.fem.mesh import load_mesh, unit_cube, unit_square
 from rothe.fem.scalar import lumped_mass, stiffness
 from rothe.io.trajectory import Trajectory
-from rothe.problems.ris_fem import (
+from rothe.ris.fem_problem import (
     FERISProblem,
     catch_up_steps,
     check_pointwise_derivatives,
@@ -24,6 +24,7 @@ from rothe.problems.ris_fem import (
     dg_7_2,
     example_7_2,
     example_7_2_3d,
+    example_front,
     g_7_2,
     viscous_jumps,
 )
@@ -102,10 +103,12 @@ def test_named_dirichlet_parts_and_z0_forms():
 
 # -- bad inputs ----------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("n", [1, 0])
+@pytest.mark.parametrize("n", [1, 0, -3])
 def test_grid_smaller_than_2(n):
-    with pytest.raises(RotheInputError, match=rf"^n: got {n}, must be an integer >= 2$"):
-        example_7_2(n)
+    """A grid of one cell per side has no interior node: refused by every built-in RIS grid."""
+    for example in (example_7_2, example_7_2_3d, example_front):
+        with pytest.raises(RotheInputError, match=rf"^n: got {n}, must be an integer >= 2$"):
+            example(n)
 
 
 def test_wrong_first_derivative():

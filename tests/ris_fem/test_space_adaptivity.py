@@ -17,16 +17,16 @@ import numpy as np
 import pytest
 
 from rothe.cli.main import main
-from rothe.control.controllers import make_controller
+from rothe.ris.controllers import make_controller
 from rothe.errors import RotheInputError, RunInterrupted
 from rothe.fem.adapt import AdaptiveMesh, SpaceAdaptivity, free_transfer
 from rothe.io.checkpoint import CheckpointOptions
 from rothe.io.trajectory import Trajectory
-from rothe.nonlinear.ris_inner import InnerOptions
-from rothe.problems.ris_1d import example_7_1
-from rothe.problems.ris_fem import FERISProblem, example_7_2, example_front, g_7_2
+from rothe.ris.inner import InnerOptions
+from rothe.ris.examples import example_7_1
+from rothe.ris.fem_problem import FERISProblem, example_7_2, example_front, g_7_2
 from rothe.stepping.evolve import evolve
-from rothe.stepping.ris import RISState, RISStepper, initial_trajectory, run_ris
+from rothe.ris.stepper import RISState, RISStepper, initial_trajectory, run_ris
 
 DIRECT = InnerOptions(linear_solver="direct")
 
@@ -105,7 +105,7 @@ def test_every_step_of_an_adapted_run_is_kkt_exact_on_its_mesh(checked_steps, co
 
 
 def test_nested_control_adapts_every_run(checked_steps):
-    from rothe.stepping.ris import run_nested
+    from rothe.ris.stepper import run_nested
 
     p = example_front(4, T=0.1)
     runs = run_nested(p, [2e-2, 1e-2], tau=0.05, inner=DIRECT,

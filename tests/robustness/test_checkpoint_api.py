@@ -16,10 +16,10 @@ from rothe.io.checkpoint import (
     CheckpointOptions,
     load_checkpoint,
 )
-from rothe.nonlinear.ris_inner import InnerOptions
-from rothe.problems.ris_1d import example_7_1
-from rothe.problems.ris_fem import example_7_2
-from rothe.stepping.ris import RISStepper
+from rothe.ris.inner import InnerOptions
+from rothe.ris.examples import example_7_1
+from rothe.ris.fem_problem import example_7_2
+from rothe.ris.stepper import RISStepper
 
 from .conftest import assert_same_trajectory
 

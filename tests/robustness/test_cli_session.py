@@ -14,7 +14,7 @@ import pytest
 
 from rothe.cli.main import main
 from rothe.io.checkpoint import MAIN, load_checkpoint
-from rothe.stepping.ris import RISStepper
+from rothe.ris.stepper import RISStepper
 
 from .conftest import assert_same_trajectory
 
@@ -140,7 +140,7 @@ def test_stopped_before_the_first_accepted_step(tmp_path, capsys, monkeypatch):
 
 def test_resume_refuses_a_checkpoint_written_from_python(tmp_path, capsys):
     from rothe import run_ris
-    from rothe.problems.ris_1d import example_7_1
+    from rothe.ris.examples import example_7_1
 
     run_ris(example_7_1(), "adaptive", tol=1e-2, checkpoint=tmp_path / "c")
     code, _, err = _run(["resume", tmp_path / "c"], capsys)

@@ -57,7 +57,7 @@ def _square(damping):
     import scipy.sparse as sp
 
     from rothe.eld import DirichletData, ELDProblem, Material, UserDamping
-    from rothe.fem import eld_mesh
+    from rothe.fem import mesh as meshes
 
     def zero(t, x):
         return np.zeros_like(x)
@@ -65,7 +65,7 @@ def _square(damping):
     c = {"one": 1.0, "two": 2.0}[damping]
     user = UserDamping(force=lambda v: c * v, jacobian=lambda v: c * sp.identity(v.size),
                        d0=0.0)
-    return ELDProblem(eld_mesh.unit_square(2), Material(rho=1.0, lam=2.0, mu=1.0, dim=2),
+    return ELDProblem(meshes.unit_square(2, named=True), Material(rho=1.0, lam=2.0, mu=1.0, dim=2),
                       degree=1, damping=user, dirichlet={"left": DirichletData(zero, zero, zero)},
                       v0=lambda x: np.stack([x[0], 0 * x[0]]), T=0.5)
 

@@ -11,15 +11,15 @@ import copy
 import numpy as np
 import pytest
 
-from rothe.control.controllers import make_controller
+from rothe.ris.controllers import make_controller
 from rothe.io.checkpoint import encode
 from rothe.io.trajectory import Trajectory
-from rothe.nonlinear.linear import ReusableSolver
-from rothe.nonlinear.ris_inner import InnerOptions
-from rothe.problems.ris_1d import example_7_1
-from rothe.problems.ris_fem import example_7_2
+from rothe.fem.linear import ReusableSolver
+from rothe.ris.inner import InnerOptions
+from rothe.ris.examples import example_7_1
+from rothe.ris.fem_problem import example_7_2
 from rothe.stepping.evolve import evolve
-from rothe.stepping.ris import RISState, RISStepper, initial_trajectory
+from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
 
 
 class StopAfter:

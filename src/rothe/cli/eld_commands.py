@@ -2,7 +2,7 @@
 ``rothe study eld-convergence|eld-perturbation``.
 
 Outputs: ``summary.json``, ``trajectory.npz`` (runs: with the mesh,
-the kept u, v, a, lambda and the dof layout, see :mod:`rothe.io.eld_output`), a table (studies),
+the kept u, v, a, lambda and the dof layout, see :mod:`rothe.eld.output`), a table (studies),
 PNG figures unless ``--no-plots``, and for every run XDMF for ParaView (u, v, Cauchy and von
 Mises stresses, lambda). Bad input is one line and exit status 2 (raised as RotheInputError by
 the library where the value enters, e.g. tau >= rho/d0 by the stepper before the first step).
@@ -310,7 +310,7 @@ def _write_run(args, out, name, traj, summary, label, problem, xdmf: bool = True
     """What every ELD run writes into ``out`` (its staging directory): trajectory.npz (with the
     mesh), XDMF of the kept states (unless streamed already), the energy and reaction figures
     (completed runs), summary.json last."""
-    from ..io.eld_output import write_eld_result
+    from ..eld.output import write_eld_result
 
     write_eld_result(traj, problem, out, name=name.replace("eld-", ""),
                      xdmf=xdmf and "kept_t" in traj,
@@ -562,7 +562,7 @@ class RunEldBeam:
     def execute(self, args) -> int:
         from ..eld.examples import beam_problem
         from ..eld.schemes import run_eld
-        from ..io.eld_output import EldXdmfWriter
+        from ..eld.output import EldXdmfWriter
 
         form, tau, scheme, control, tol, n, every, keep, damping = self.validate(args)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
@@ -579,7 +579,7 @@ class RunEldBeam:
             if session.resume is None:  # segments of an earlier run are not this run's
                 shutil.rmtree(stream, ignore_errors=True)
             # a fixed mesh streams XDMF as it goes; an adaptive run writes one VTU per kept
-            # state on its own mesh at the end (rothe.io.eld_output)
+            # state on its own mesh at the end (rothe.eld.output)
             writer = None if space is not None else EldXdmfWriter(stream, problem, name="beam")
             if session.resume is None and writer is not None:
                 writer.write(0.0, problem.u0, problem.v0, None)
@@ -788,7 +788,7 @@ class StudyEldConvergence:
         study["peak_memory_mb"] = peak_memory_mb()
         write_summary(out, study)
         if not args.no_plots:
-            from ..plotting.eld import plot_convergence
+            from ..eld.figures import plot_convergence
 
             plot_convergence(
                 study["tau"],
@@ -862,7 +862,7 @@ class StudyEldPerturbation:
         study["peak_memory_mb"] = peak_memory_mb()
         write_summary(out, study)
         if not args.no_plots:
-            from ..plotting.eld import plot_perturbation
+            from ..eld.figures import plot_perturbation
 
             for target in targets:
                 plot_perturbation(study["tau"], study[target],

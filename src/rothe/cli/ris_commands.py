@@ -8,7 +8,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from ..control.controllers import CONTROLS
+from ..ris.controllers import CONTROLS
 from ..errors import (
     RunFailed,
     check_choice,
@@ -18,7 +18,7 @@ from ..errors import (
     fail,
 )
 from ..parallel.executor import add_parallel_options, executor_from_args
-from ..stepping.ris import run_nested, run_ris
+from ..ris.stepper import run_nested, run_ris
 from .common import (
     add_output_options,
     given,
@@ -74,7 +74,7 @@ def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
         "linear_factorizations": st.linear_factorizations,
         "landing_retries": st.landing_retries,
         "t_final": float(traj["t"][-1]),
-        # how the run ended: on T within 1e-10 max(1, T), or at S (rothe.stepping.ris)
+        # how the run ended: on T within 1e-10 max(1, T), or at S (rothe.ris.stepper)
         "landing": meta.get("landing"),
         "s_final": float(traj["s"][-1]),
         "max_residual": float(res.max()) if res.size else 0.0,
@@ -419,7 +419,7 @@ class RISRunBase(ABC):
         return {}
 
     def plot(self, args, problem, runs, out) -> None:
-        from ..plotting.ris import plot_path, plot_steps
+        from ..ris.figures import plot_path, plot_steps
 
         traj = runs[-1]
         label = f"{self.name}, {traj.meta.get('control')}"
@@ -444,17 +444,17 @@ class RunRIS1D(RISRunBase):
         return super().validate(args)
 
     def build_problem(self, args):
-        from ..problems.ris_1d import example_7_1
+        from ..ris.examples import example_7_1
 
         return example_7_1()
 
     def exact(self):
-        from ..problems.ris_1d import exact_solution
+        from ..ris.examples import exact_solution
 
         return exact_solution
 
     def extra_summary(self, args, problem, traj) -> dict:
-        from ..problems.ris_1d import errors_against_exact
+        from ..ris.examples import errors_against_exact
 
         return errors_against_exact(traj["s"], traj["t"], traj["z"])
 
@@ -469,7 +469,7 @@ def run_cost(tol: float | None, tau: float) -> float:
 def compare_ris_1d_row(control: str, tol: float | None, tau: float, uniform: bool) -> dict:
     """One run of ``compare ris-1d`` (a task: builds Example 7.1 itself); its table row."""
     from ..parallel import TaskFailed
-    from ..problems.ris_1d import errors_against_exact, example_7_1
+    from ..ris.examples import errors_against_exact, example_7_1
 
     try:
         traj = run_ris(example_7_1(), control, tol=tol, tau=tau)
@@ -591,7 +591,7 @@ class CompareRIS1D:
         write_table(out, table + "\n")
         write_summary(out, {"example": "ris-1d", "rows": rows})
         if not args.no_plots:
-            from ..plotting.ris import plot_error_vs_work
+            from ..ris.figures import plot_error_vs_work
 
             plot_error_vs_work(
                 [r for r in rows if r["status"] == "completed"],

@@ -12,7 +12,7 @@ scheme at the same global residual (:func:`compare_rows`).
 
 ``--adapt-space`` (with ``--space-tol``, ``--refine-fraction``, ``--coarsen-fraction``,
 ``--max-dofs``, ``--adapt-every``) adapts the mesh between steps
-(:mod:`rothe.stepping.ris_space`); the run then writes every distinct mesh into trajectory.npz,
+(:mod:`rothe.ris.adapt`); the run then writes every distinct mesh into trajectory.npz,
 ``solution.pvd`` + one VTU per state (its own mesh) instead of solution.xdmf, the dofs against
 t and s (``fig_dofs.png``) and snapshots of mesh and z (``fig_mesh_snapshots.png``).
 """
@@ -66,13 +66,13 @@ def linear_solver_used(traj, problem, method: str = "auto") -> str:
     """The linear solver of the run's Newton systems.
 
     Taken from ``traj.meta['linear_solver']`` when the stepper records it; otherwise the kind
-    that :class:`~rothe.nonlinear.linear.ReusableSolver` selects for this many unknowns (its
+    that :class:`~rothe.fem.linear.ReusableSolver` selects for this many unknowns (its
     choice is a deterministic function of the method and the size, so this is what ran).
     """
     if traj.meta.get("linear_solver"):
         return str(traj.meta["linear_solver"])
-    from ..nonlinear.linear import ReusableSolver
-    from ..nonlinear.ris_inner import InnerOptions, amg_threshold_for
+    from ..fem.linear import ReusableSolver
+    from ..ris.inner import InnerOptions, amg_threshold_for
 
     o = InnerOptions(linear_solver=method)
     solver = ReusableSolver(o.linear_solver, amg_threshold=amg_threshold_for(problem, o))
@@ -252,7 +252,7 @@ class _RunRISFem(RISRunBase):
     # hooks -----------------------------------------------------------------------------------
     def validate(self, args):
         from ..fem.mesh import DUPLICATE_NODES
-        from ..nonlinear.linear import LINEAR_SOLVERS
+        from ..fem.linear import LINEAR_SOLVERS
 
         check_choice("--linear-solver", args.linear_solver, LINEAR_SOLVERS)
         check_choice("--duplicate-nodes", args.duplicate_nodes, DUPLICATE_NODES)
@@ -275,7 +275,7 @@ class _RunRISFem(RISRunBase):
         return {} if self._space is None else {"space": self._space}
 
     def make_problem(self, n, mesh, args, dirichlet):
-        from ..problems.ris_fem import example_7_2, example_7_2_3d
+        from ..ris.fem_problem import example_7_2, example_7_2_3d
 
         factory = example_7_2 if self.dim == 2 else example_7_2_3d
         return factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
@@ -288,7 +288,8 @@ class _RunRISFem(RISRunBase):
         n = args.n if args.n is not None else self.default_n
         mesh = None
         if args.mesh is not None:
-            mesh = load_mesh(args.mesh, dim=self.dim, duplicate_nodes=args.duplicate_nodes)
+            mesh = load_mesh(args.mesh, dim=self.dim, name="--mesh",
+                             duplicate_nodes=args.duplicate_nodes)
         dirichlet = None
         if args.dirichlet is not None:
             dirichlet = [x.strip() for x in args.dirichlet.split(",") if x.strip()]
@@ -308,12 +309,12 @@ class _RunRISFem(RISRunBase):
         return problem
 
     def inner_options(self, args):
-        from ..nonlinear.ris_inner import InnerOptions
+        from ..ris.inner import InnerOptions
 
         return InnerOptions(linear_solver=args.linear_solver)
 
     def extra_summary(self, args, problem, traj) -> dict:
-        from ..problems.ris_fem import describe_branch
+        from ..ris.fem_problem import describe_branch
 
         extra = {
             "mesh": args.mesh if args.mesh is not None else f"{self._grid}^{self.dim} grid",
@@ -352,7 +353,7 @@ class _RunRISFem(RISRunBase):
 
     def write_extra(self, args, problem, traj, out) -> None:
         from ..io.xdmf import write_series
-        from ..stepping.ris import stored_states
+        from ..ris.stepper import stored_states
 
         s, t, z = stored_states(traj)
         if traj.meshes is not None:
@@ -375,8 +376,8 @@ class _RunRISFem(RISRunBase):
                          {"t": t})
 
     def plot(self, args, problem, runs, out) -> None:
-        from ..plotting.ris import plot_path
-        from ..plotting.ris_fem import plot_fig4, plot_snapshots
+        from ..ris.figures import plot_path
+        from ..ris.figures import plot_fig4, plot_snapshots
 
         traj = runs[-1]
         label = f"{self.name}, {problem.n_nodes} nodes, {traj.meta.get('control')}"
@@ -384,12 +385,12 @@ class _RunRISFem(RISRunBase):
             label += f", tol={traj.meta['tol']:g}"
         plot_fig4(runs, out / "fig4_steps.png", title=f"{self.name}: physical time and step size")
         plot_path(traj, out / "fig1_path.png", title=label)
-        from ..stepping.ris import stored_states
+        from ..ris.stepper import stored_states
 
         s, t, z = stored_states(traj)
         if traj.meshes is not None:
             from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
-            from ..plotting.ris_fem import snapshot_indices
+            from ..ris.figures import snapshot_indices
 
             plot_dofs(out / "fig_dofs.png", traj["t"], traj["n_dofs"], s=traj["s"],
                       title=f"{self.name}: unknowns of the adapted meshes")
@@ -441,7 +442,7 @@ class RunRISFront(_RunRISFem):
                                  "about sqrt(c/192) wide)")
 
     def validate(self, args):
-        from ..problems.ris_fem import FRONT_DEFAULTS
+        from ..ris.fem_problem import FRONT_DEFAULTS
 
         self._coefficient = check_positive(
             "--coefficient",
@@ -449,7 +450,7 @@ class RunRISFront(_RunRISFem):
         return super().validate(args)
 
     def make_problem(self, n, mesh, args, dirichlet):
-        from ..problems.ris_fem import example_front
+        from ..ris.fem_problem import example_front
 
         return example_front(n, mesh, amplitude=args.amplitude, z0=args.z0,
                              coefficient=self._coefficient,
@@ -466,8 +467,8 @@ def compare_ris_2d_row(n: int, mesh, control: str, tol: float | None, tau: float
     """
     from ..errors import RunFailed
     from ..parallel import TaskFailed
-    from ..problems.ris_fem import describe_branch, example_7_2
-    from ..stepping.ris import run_ris
+    from ..ris.fem_problem import describe_branch, example_7_2
+    from ..ris.stepper import run_ris
 
     problem = example_7_2(n, mesh)
     try:
@@ -514,7 +515,7 @@ def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
 
 def format_table(rows) -> str:
     """The table of ``compare ris-2d``: one line per run, work ratios from :func:`compare_rows`."""
-    from ..problems.ris_fem import format_jump_times
+    from ..ris.fem_problem import format_jump_times
 
     ratios = compare_rows(rows)
     head = (f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
@@ -602,7 +603,7 @@ class CompareRIS2D:
         n = check_int("--n", args.n if args.n is not None else 40, minimum=2)
         if args.mesh is None:
             check_memory("--n", n, grid_nodes(n, 2), RIS_BYTES_PER_NODE[2])
-        mesh = load_mesh(args.mesh, dim=2) if args.mesh is not None else None
+        mesh = load_mesh(args.mesh, dim=2, name="--mesh") if args.mesh is not None else None
         executor = executor_from_args(args, "rothe compare ris-2d")
         out = output_dir(args, "compare-ris-2d")
         t0 = time.perf_counter()
@@ -621,7 +622,7 @@ class CompareRIS2D:
                                                                   "ratio_steps": bound[1]},
         }), indent=2) + "\n")
         if not args.no_plots:
-            from ..plotting.ris import plot_residual_vs_steps
+            from ..ris.figures import plot_residual_vs_steps
 
             plot_residual_vs_steps(
                 [r for r in rows if r["status"] == "completed"], out / "fig5_residuals.png",

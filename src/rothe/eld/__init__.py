@@ -13,7 +13,7 @@ the perturbation behaviour of Theorem 4.5, stresses (:mod:`rothe.eld.stress`) an
 ParaView (:func:`write_eld_result`). See ``docs/eld.md``.
 """
 
-from ..io.eld_output import write_eld_result
+from .output import write_eld_result
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .damping import (
     Damping,

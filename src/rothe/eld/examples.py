@@ -37,7 +37,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from ..errors import check_choice, check_positive
-from ..fem import eld_mesh
+from ..fem import mesh as meshes
 from .damping import Damping, NonlinearDamping, RayleighDamping
 from .materials import Material
 from .problem import DirichletData, ELDProblem
@@ -152,7 +152,7 @@ def mms_problem(n: int = 8, degree: int = 2, *, damping: Damping | None = None, 
     material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     damping = damping if damping is not None else NonlinearDamping(b=0.01, d0=0.5, d_nl=1.0)
     exact = ManufacturedSolution(material, damping)
-    mesh = eld_mesh.unit_square(n)
+    mesh = meshes.unit_square(n, named=True)
     dirichlet = tuple(dirichlet)
     data = DirichletData(exact.u, exact.u_dot, exact.u_ddot)
     names = sorted((mesh.boundaries or {}).keys())
@@ -275,7 +275,7 @@ def ramp_problem(n: int = 4, degree: int = 2, *, amplitude: float = 0.1, t_ramp:
     """The unit square with its left side moved by a fast smoothed step (module docstring)."""
     material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     step = SmoothStep(amplitude, t_ramp, width)
-    mesh = eld_mesh.unit_square(n)
+    mesh = meshes.unit_square(n, named=True)
     g0 = step.G(0.0, np.zeros((2, 1)))[:, 0]
     return ELDProblem(mesh, material, degree=degree, damping=RayleighDamping(0.0, b),
                       dirichlet={"left": DirichletData(step.G, step.G_dot, step.G_ddot)},
@@ -314,7 +314,7 @@ def beam_problem(n: int = 4, *, length: float = 4.0, E: float = 1000.0, nu: floa
     """The cantilever: n cells across the unit cross-section, round(length * n) along it."""
     material = Material.from_young(E, nu, rho, dim=3)
     nx = max(1, int(round(length * n)))
-    mesh = eld_mesh.box(nx, n, n, length, 1.0, 1.0)
+    mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
     motion = EndMotion(amplitude, t_move)
     return ELDProblem(mesh, material, degree=degree, damping=damping,
                       dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
@@ -358,7 +358,7 @@ def rectangle(nx: int, ny: int, length: float = 2.0, height: float = 1.0):
     """[0, length] x [0, height] with nx x ny cells of two triangles, named faces."""
     from skfem import MeshTri
 
-    return eld_mesh.tag_box_faces(MeshTri.init_tensor(np.linspace(0.0, length, nx + 1),
+    return meshes.tag_box_faces(MeshTri.init_tensor(np.linspace(0.0, length, nx + 1),
                                                       np.linspace(0.0, height, ny + 1)))
 
 

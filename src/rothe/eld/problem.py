@@ -170,7 +170,7 @@ class ELDProblem:
 
     def on_mesh(self, mesh) -> ELDProblem:
         """The same problem (material, damping, data, T) on another mesh with the same named
-        boundary parts (space adaptivity: :mod:`rothe.eld.space`).
+        boundary parts (space adaptivity: :mod:`rothe.eld.adapt`).
 
         Initial data given as callables are interpolated on the new mesh; given as dof
         vectors they cannot be, and the new problem gets u0 = G(0) on Gamma_D and 0 elsewhere,

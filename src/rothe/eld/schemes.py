@@ -184,7 +184,8 @@ from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
 from ..stepping.evolve import evolve, single_threaded_blas
 from .constraint import LIFTINGS, make_lifting
-from .control import FixedStepController, adaptive_controller
+from ..stepping.controllers import FixedStepController
+from .controllers import adaptive_controller
 from .data import DATA_MODES, DataNoise, StepData
 from .problem import ELDProblem
 from .solvers import ConstrainedSolver, ReferenceSolver, SolveFailed, SolverStats, resolve_kind
@@ -314,7 +315,7 @@ class ELDState:
     products: dict
     ledger: EnergyLedger
     energy_norm_max: float = 0.0  # S_j: scale of the error estimate (module docstring)
-    mesh_id: int = 0  # the mesh the fields live on (space adaptivity, rothe.eld.space)
+    mesh_id: int = 0  # the mesh the fields live on (space adaptivity, rothe.eld.adapt)
 
     @property
     def s(self) -> float:  # the evolve loop's curve parameter: here the time
@@ -1525,7 +1526,7 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
     if space is None:
         stepper = ELDStepper(problem, **stepper_kwargs)
     else:
-        from .space import SpaceAdaptiveStepper, check_space_options
+        from .adapt import SpaceAdaptiveStepper, check_space_options
 
         space = check_space_options(space, data=data, noise=noise, form=form)
         stepper = SpaceAdaptiveStepper(problem, space, stepper_kwargs)
@@ -1628,7 +1629,7 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     ``traj.controller`` are attached (not saved). Raises :class:`RunFailed` (with
     ``.trajectory``) if a step cannot be solved or its state or data is not finite.
 
-    ``checkpoint`` / ``resume``: as for :func:`rothe.stepping.ris.run_ris` (a directory or
+    ``checkpoint`` / ``resume``: as for :func:`rothe.ris.stepper.run_ris` (a directory or
     :class:`~rothe.io.checkpoint.CheckpointOptions`; a checkpoint written by ``run_eld`` with
     the same arguments and problem). A resumed run, with any scheme and control, returns the
     trajectory of the uninterrupted run bit for bit (statistics too, but the wall time, which
@@ -1637,10 +1638,10 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     :class:`~rothe.errors.RunInterrupted` with the trajectory so far (and a checkpoint).
 
     ``space``: a :class:`rothe.fem.adapt.SpaceAdaptivity` adapts the mesh after every
-    ``adapt_every``-th accepted step (:mod:`rothe.eld.space`; data ``'points'``, no noise);
+    ``adapt_every``-th accepted step (:mod:`rothe.eld.adapt`; data ``'points'``, no noise);
     None (default) keeps the mesh. The trajectory then also has the point series ``mesh_id``,
     ``ndofs``, ``cells``, the step series ``space_estimate``, ``kept_mesh_id`` with the kept
-    states, and ``traj.space`` (the :class:`~rothe.eld.space.SpaceAdaptiveStepper`: the meshes
+    states, and ``traj.space`` (the :class:`~rothe.eld.adapt.SpaceAdaptiveStepper`: the meshes
     in ``.series``, the kept fields in ``.kept``, the log in ``.adaptations``); ``u, v, a, lam``
     are not series of the trajectory then (they live on different meshes).
     """

@@ -123,7 +123,7 @@ class ReferenceSolver:
         else:
             import pyamg
 
-            from ..nonlinear.linear import reproducible_random
+            from ..fem.linear import reproducible_random
 
             # BSR (d x d blocks) is kept: pyamg then aggregates nodes, not single components
             if not (sp.issparse(A) and A.format in ("bsr", "csr")):

@@ -53,6 +53,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import check_int, check_positive, check_real, fail
+from .mesh import check_simplex_mesh, with_fast_edges, with_fast_facets
 
 #: element-matrix entries (floats) per chunk of cells in the numpy assembly (32 MB)
 CHUNK_ENTRIES = 2**22
@@ -79,18 +80,6 @@ def _scalar_element(dim: int, degree: int):
 
     return {(2, 1): ElementTriP1, (2, 2): ElementTriP2,
             (3, 1): ElementTetP1, (3, 2): ElementTetP2}[(dim, degree)]()
-
-
-def check_simplex_mesh(mesh, name: str = "mesh") -> int:
-    """Spatial dimension of a scikit-fem triangle/tetrahedron mesh (else a one-line error)."""
-    from skfem import MeshTet, MeshTri
-
-    if isinstance(mesh, MeshTri):
-        return 2
-    if isinstance(mesh, MeshTet):
-        return 3
-    raise fail(name, type(mesh).__name__,
-               "must be a scikit-fem MeshTri or MeshTet (P1/P2 simplices)")
 
 
 def use_numba(work: int | None = None) -> bool:
@@ -392,8 +381,6 @@ class VectorSpace:
             self.n_scalar = int(mesh.p.shape[1])
         else:
             from skfem.assembly import Dofs
-
-            from .eld_mesh import with_fast_edges, with_fast_facets
 
             # scikit-fem numbers the P2 dofs by the mesh edges (3D) or facets (2D); build them
             # by one sort of int64 keys instead of its np.unique over rows

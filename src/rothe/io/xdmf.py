@@ -53,7 +53,7 @@ import numpy as np
 from ..errors import OutputWriteError
 from .atomic import TMP_PREFIX, atomic_path, atomic_write_bytes, atomic_write_text
 
-#: by nodes per cell (lines: the Dirichlet boundary of a 2D body, rothe.io.eld_output)
+#: by nodes per cell (lines: the Dirichlet boundary of a 2D body, rothe.eld.output)
 TOPOLOGY = {2: "Polyline", 3: "Triangle", 4: "Tetrahedron"}
 XINCLUDE = "http://www.w3.org/2001/XInclude"
 # written as xmlns:xi (ElementTree would call it ns0 otherwise)

@@ -144,7 +144,7 @@ def check_adaptable(mesh, name: str = "--adapt-space"):
     if isinstance(mesh, (str, Path)):
         from ..mesh import _read_meshio
 
-        mesh = _read_meshio(Path(mesh))
+        mesh = _read_meshio(Path(mesh), "mesh")
     if hasattr(mesh, "cells") and hasattr(mesh, "points") and not hasattr(mesh, "t"):
         types = {b.type for b in mesh.cells}
         other = sorted(types & set(_OTHER_VOLUME))
@@ -222,7 +222,7 @@ class AdaptiveMesh:
     ----------
     mesh : skfem.MeshTri | skfem.MeshTet
         Any conforming initial mesh (built-in grids, ``rothe.fem.mesh.load_mesh``,
-        ``rothe.fem.eld_mesh``); its named boundary parts and subdomains are inherited by every
+        ``rothe.fem.mesh``); its named boundary parts and subdomains are inherited by every
         mesh of the hierarchy.
 
     Attributes and methods (shapes: d the dimension, nc cells, nv vertices):

@@ -213,7 +213,7 @@ def free_transfer(T: sp.spmatrix, old_free: np.ndarray, new_free: np.ndarray) ->
     """The transfer restricted to free dofs: rows ``new_free``, columns ``old_free``.
 
     For a state stored on the free dofs only with zeros on the Dirichlet dofs (RIS: z on the
-    free P1 nodes of :class:`~rothe.problems.ris_fem.FERISProblem`), ``z_new = Tf @ z_old``
+    free P1 nodes of :class:`~rothe.ris.fem_problem.FERISProblem`), ``z_new = Tf @ z_old``
     equals ``(T @ full(z_old))[new_free]`` because the dropped columns multiply zeros.
     """
     T = sp.csr_matrix(T)

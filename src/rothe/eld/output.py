@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import TMP_PREFIX
-from .xdmf import StreamedSeries
+from ..io.atomic import TMP_PREFIX
+from ..io.xdmf import StreamedSeries
 
 
 def mesh_arrays(problem) -> dict:
@@ -66,7 +66,7 @@ class EldXdmfWriter:
     checkpoint)."""
 
     def __init__(self, work_dir, problem, name: str = "eld"):
-        from ..eld.stress import StressEvaluator
+        from .stress import StressEvaluator
 
         self.problem = problem
         space = problem.space
@@ -97,7 +97,7 @@ class EldXdmfWriter:
 
     def write(self, t: float, u: np.ndarray, v: np.ndarray, lam: np.ndarray | None) -> None:
         space = self.problem.space
-        from ..eld.stress import von_mises
+        from .stress import von_mises
 
         sigma = self.stresses.stress(u)
         vm = von_mises(sigma)
@@ -179,7 +179,7 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
         finally:
             shutil.rmtree(work, ignore_errors=True)
     if figures:
-        from ..plotting.eld import plot_energy_balance, plot_reactions
+        from .figures import plot_energy_balance, plot_reactions
 
         paths["figures"] = [plot_energy_balance(traj, out / "fig_energy.png", title=title),
                             plot_reactions(traj, out / "fig_reaction.png", title=title)]
@@ -188,7 +188,7 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
 
 def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: bool = True,
                               figures: bool = True, npz: bool = True, title: str = "") -> dict:
-    """The outputs of a space-adaptive run (``run_eld(..., space=...)``, :mod:`rothe.eld.space`):
+    """The outputs of a space-adaptive run (``run_eld(..., space=...)``, :mod:`rothe.eld.adapt`):
 
     - ``trajectory.npz``: the series of the run (with ``mesh_id``, ``ndofs``, ``cells`` per
       state and ``kept_mesh_id`` per kept state), every distinct mesh once
@@ -225,7 +225,7 @@ def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: boo
         paths["pvd"] = write_vtu_series(out, name, sp.series, ids, traj["kept_t"], data)
     if figures:
         from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
-        from ..plotting.eld import plot_energy_balance, plot_reactions
+        from .figures import plot_energy_balance, plot_reactions
 
         figs = [plot_energy_balance(traj, out / "fig_energy.png", title=title),
                 plot_reactions(traj, out / "fig_reaction.png", title=title)]

@@ -6,7 +6,7 @@ mesh (which does the steps) and, after every ``adapt_every``-th accepted step j 
 the last, adapts the mesh (SPEC Sec. 7, issue 8; the perturbation view of Altmann 2015,
 Theorem 4.5 / Remark 4.2, with the transfer error as a perturbation of the history):
 
-1. **indicators** of the accepted step on its own mesh (:func:`rothe.estimators.eld_indicator.
+1. **indicators** of the accepted step on its own mesh (:func:`rothe.eld.indicator.
    eld_indicators_for`, the residual estimator: cell residual of the momentum equation with the
    scheme's acceleration a^j and velocity v^j, jumps of the normal stress sigma(u + b v) n across
    interior facets, traction mismatch on Neumann facets), with the reaction rho (alpha_0/tau_j)^2
@@ -48,7 +48,7 @@ on), step series ``space_estimate`` (eta of the step, NaN when not adapted after
 distinct mesh once in :attr:`series` (:class:`rothe.io.mesh_series.MeshSeries`); the kept
 fields u, v, a, lambda live on different meshes and are kept in :attr:`kept` (lists, with
 ``kept_mesh_id`` in the trajectory), written to ``trajectory.npz`` by
-:func:`rothe.io.eld_output.write_eld_result`. Checkpoints hold the inner stepper's state, the
+:func:`rothe.eld.output.write_eld_result`. Checkpoints hold the inner stepper's state, the
 mesh hierarchy, the mesh series and the kept fields; a resumed run continues bit for bit.
 """
 
@@ -294,7 +294,7 @@ class SpaceAdaptiveStepper:
         docstring): the residual indicator with the reaction rho (alpha_0/tau)^2, plus the
         Dirichlet data term of the next step, eta_K^2 += sum_{F in Gamma_D, F in K}
         h_F^{-1} ||G(t_next) - I_h G(t_next)||_F^2 (:func:`dirichlet_data_indicator`)."""
-        from ..estimators.eld_indicator import eld_indicators_for
+        from .indicator import eld_indicators_for
 
         f = state.fields
         a0 = 1.0 if self.inner.scheme == "euler" else 1.5

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ris import RISProblem
+from .problem import RISProblem
 
 S_EXACT = 16.0
 BREAKPOINTS = np.array([0.0, 2.0, 10.0, 16.0])

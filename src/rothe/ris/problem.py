@@ -28,14 +28,7 @@ from collections.abc import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import (
-    DataError,
-    RotheInputError,
-    check_finite_array,
-    check_positive,
-    described,
-    fail,
-)
+from ..errors import DataError, RotheInputError, check_finite_array, check_positive, described, fail
 
 ArrayFn = Callable[[np.ndarray], np.ndarray]
 

@@ -27,7 +27,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..fem.adapt.topology import (
+from .adapt.topology import (
     FacetTopology,
     barycentric_gradients,
     cell_diameters,

@@ -4,7 +4,7 @@ Andreia & Meyer (2022), Alg. 3.2 with Example 1.4 discretized by P1 elements: ev
 is a stationary problem on whatever mesh the step uses. After the accepted step k on mesh M_k
 (and only if the run goes on):
 
-1. cell indicators of the step on M_k (:func:`rothe.estimators.ris_indicator.ris_indicators_for`:
+1. cell indicators of the step on M_k (:func:`rothe.ris.indicator.ris_indicators_for`:
    the residual of (3.1) by Lemma 4.1 with z_{k-1}, z_k, lambda_k and the load at t_{k-1}, plus
    the jumps of c grad z_k . n);
 2. marking and adaptation (:func:`rothe.fem.adapt.adapt_mesh`: Doerfler refinement, coarsening
@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import RotheInputError
-from ..estimators.ris_indicator import ris_indicators_for
+from .indicator import ris_indicators_for
 from ..fem.adapt import AdaptiveMesh, SpaceAdaptivity, adapt_mesh, free_transfer
 
 
@@ -49,7 +49,7 @@ def _mesh_series():
 class RISSpaceAdaptivity:
     """The adaptive mesh of one RIS run, its mesh series, and the adaptation after a step.
 
-    ``problem`` is the run's initial :class:`~rothe.problems.ris_fem.FERISProblem`; it is kept
+    ``problem`` is the run's initial :class:`~rothe.ris.fem_problem.FERISProblem`; it is kept
     (not rebuilt) until the first change, so a run in which nothing is ever marked is the
     fixed-mesh run bit for bit.
     """

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import check_nonnegative, described, fail
 from ..fem.scalar import cell_coefficient
-from .simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
+from ..fem.simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
 
 
 def ris_indicators(mesh, z: np.ndarray, z_prev: np.ndarray, *, dg, load, kappa: float = 1.0,
@@ -142,7 +142,7 @@ def _box_part_mask(mesh, ev, parts) -> np.ndarray:
 def ris_indicators_for(problem, t_prev: float, z: np.ndarray, z_prev: np.ndarray,
                        lam: float = 0.0, *, coefficient=1.0, reaction: float = 0.0,
                        evaluator: SimplexEvaluator | None = None) -> CellIndicators:
-    """:func:`ris_indicators` for a :class:`~rothe.problems.ris_fem.FERISProblem` step.
+    """:func:`ris_indicators` for a :class:`~rothe.ris.fem_problem.FERISProblem` step.
 
     ``z``, ``z_prev`` on the free nodes (the problem's unknowns); the load is the problem's
     load at t_{k-1} (nodal functionals -> P1 density by the lumped mass). ``coefficient``

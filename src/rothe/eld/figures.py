@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import plt
-from .common import save_figure as _save
+from ..plotting.common import plt
+from ..plotting.common import save_figure as _save
 
 
 def plot_energy_balance(traj, path, title: str = "") -> Path:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import check_int
-from ..problems.ris import RISProblem
+from .problem import RISProblem
 
 
 @dataclass

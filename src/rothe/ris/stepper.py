@@ -17,14 +17,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..control.controllers import make_controller
+from .controllers import make_controller
 from ..errors import DataError, RunFailed, RunInterrupted, check_int, check_positive, fail
-from ..estimators.residuals import step_residuals
+from .residuals import step_residuals
 from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
-from ..nonlinear.ris_inner import BallStepSolver, InnerOptions
-from ..problems.ris import RISProblem
-from .evolve import evolve
+from .inner import BallStepSolver, InnerOptions
+from .problem import RISProblem
+from ..stepping.evolve import evolve
 
 
 @dataclass
@@ -140,10 +140,10 @@ class RISStepper:
         space=None,
     ):
         self.problem = problem
-        # space adaptivity (rothe.stepping.ris_space): None keeps the mesh of ``problem``
+        # space adaptivity (rothe.ris.adapt): None keeps the mesh of ``problem``
         self.space = None
         if space is not None:
-            from .ris_space import RISSpaceAdaptivity
+            from .adapt import RISSpaceAdaptivity
 
             self.space = RISSpaceAdaptivity(problem, space)
         self._inner = inner
@@ -349,7 +349,7 @@ class RISStepper:
     def _adapt_after(self, result: RISStepResult) -> float:
         """Adapt the mesh after the accepted step ``result`` when due (and the run goes on):
         the step's indicators on its own mesh, then the problem and z_k on the new mesh
-        (:mod:`rothe.stepping.ris_space`). The state is updated in place (it is the evolve
+        (:mod:`rothe.ris.adapt`). The state is updated in place (it is the evolve
         loop's current state). Returns I(t_k, T z_k) - I(t_k, z_k), 0 when nothing changed."""
         st = result.state
         if not self.space.options.due(st.k) or self.finished(st):
@@ -530,8 +530,8 @@ def run_ris(
     """Run the scheme from (0, 0, z0) until t reaches T (or s reaches S).
 
     ``space``: a :class:`~rothe.fem.adapt.SpaceAdaptivity` adapts the P1 mesh of a
-    :class:`~rothe.problems.ris_fem.FERISProblem` after every ``adapt_every``-th accepted step
-    (:mod:`rothe.stepping.ris_space`); None keeps the problem's mesh (the run is then exactly
+    :class:`~rothe.ris.fem_problem.FERISProblem` after every ``adapt_every``-th accepted step
+    (:mod:`rothe.ris.adapt`); None keeps the problem's mesh (the run is then exactly
     the fixed-mesh one). With it, ``traj["z"]`` is a list (one array per stored state, on its
     mesh), ``z_mesh_id`` / ``mesh_id`` / ``n_dofs`` say which mesh each state lives on,
     ``transfer_energy`` per step the energy change by the transfer, and ``traj.meshes`` keeps

@@ -37,7 +37,7 @@ Load
     since m_i = int phi_i) -- or a vector of nodal functionals over all nodes (values at the
     Dirichlet nodes are ignored). Example 7.2: <l(t), z> = -200 t^3 int z, i.e. c = -200 t^3.
 
-Sign conventions are those of :class:`rothe.problems.ris.RISProblem`: D_z I = A z + F'(z) - l(t).
+Sign conventions are those of :class:`rothe.ris.problem.RISProblem`: D_z I = A z + F'(z) - l(t).
 """
 
 from __future__ import annotations
@@ -52,12 +52,13 @@ from ..errors import (
     DataError,
     RotheInputError,
     check_finite_array,
+    check_int,
     check_positive,
     check_real,
 )
 from ..fem.mesh import bad, check_mesh, describe, mesh_dim, unit_cube, unit_square
 from ..fem.scalar import boundary_nodes, lumped_mass, split_dofs, stiffness
-from .ris import RISProblem
+from .problem import RISProblem
 
 #: points where g', g'' are compared with finite differences of g and g' (irrational-ish, so
 #: that kinks of a piecewise g at round numbers are not hit)
@@ -431,8 +432,8 @@ def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, ka
     -200; T = 1; z0 = 0; R = ||.||_{L1}, V = L2, both lumped. g is even, so ``amplitude`` > 0
     (or ``z0`` of the other sign) gives the mirrored branch z -> -z.
     """
-    return _energy_7_2_on(unit_square(n, pattern) if mesh is None else mesh, 2, amplitude, z0,
-                          kappa, T, dirichlet, name)
+    mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
+    return _energy_7_2_on(mesh, 2, amplitude, z0, kappa, T, dirichlet, name)
 
 
 def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
@@ -443,8 +444,13 @@ def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
     Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
     paper: it shows that nothing in the discretization or the solver depends on d.
     """
-    return _energy_7_2_on(unit_cube(n) if mesh is None else mesh, 3, amplitude, z0, kappa, T,
-                          dirichlet, name)
+    mesh = unit_cube(_grid_cells(n)) if mesh is None else mesh
+    return _energy_7_2_on(mesh, 3, amplitude, z0, kappa, T, dirichlet, name)
+
+
+def _grid_cells(n) -> int:
+    """n cells per side of a built-in grid: at least 2, so that there is an interior node."""
+    return check_int("n", n, minimum=2)
 
 
 def _energy_7_2_on(mesh, dim, amplitude, z0, kappa, T, dirichlet, name) -> FERISProblem:
@@ -625,7 +631,7 @@ def example_front(n: int = 32, mesh=None, *, amplitude: float = FRONT_DEFAULTS["
     density, rate = front_load_density(check_real("amplitude", amplitude),
                                        check_positive("speed", speed),
                                        check_positive("width", width))
-    mesh = unit_square(n, pattern) if mesh is None else mesh
+    mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
     if mesh_dim(mesh) != 2:
         raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
                   "must be 2D (triangles) for ris-front")
