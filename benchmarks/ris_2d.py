@@ -186,19 +186,6 @@ def cube(quick: bool) -> None:
 
 
 # -- part 2 (one process per N) -------------------------------------------------------------------
-class _Limited:
-    """Stop the evolve loop after a number of accepted steps."""
-
-    def __init__(self, stepper, steps):
-        self._stepper, self._stop = stepper, steps
-
-    def __getattr__(self, name):
-        return getattr(self._stepper, name)
-
-    def finished(self, state):
-        return state.k >= self._stop or self._stepper.finished(state)
-
-
 def _slip_state(n_fine: int):
     """The 40 x 40 adaptive solution at t ~ 0.5, interpolated to the n_fine x n_fine grid.
 
@@ -254,7 +241,7 @@ def measure(n: int, solver: str, phase: str, steps: int, control: str = "regime"
     warm = {"warmup_s": 0.0, "warmup_accepted": 0, "warmup_rejected": 0}
     if phase == "slip":
         t0 = time.perf_counter()
-        state = evolve(_Limited(stepper, state.k + 5), controller, state, traj)
+        state = evolve(stepper, controller, state, traj, max_steps=5)
         warm = {
             "warmup_s": time.perf_counter() - t0,
             "warmup_accepted": traj.stats.accepted_steps,
@@ -263,10 +250,10 @@ def measure(n: int, solver: str, phase: str, steps: int, control: str = "regime"
         traj = Trajectory()
     # the first accepted step alone, then nine more
     t0 = time.perf_counter()
-    state = evolve(_Limited(stepper, state.k + 1), controller, state, traj)
+    state = evolve(stepper, controller, state, traj, max_steps=1)
     t_first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    evolve(_Limited(stepper, state.k + steps - 1), controller, state, traj)
+    evolve(stepper, controller, state, traj, max_steps=steps - 1)
     t_rest = time.perf_counter() - t0
     st = traj.stats
     per_step = (t_first + t_rest) / st.accepted_steps

@@ -293,19 +293,6 @@ def test_restore_into_a_different_controller_fails():
         _build("order2").restore_state(data)
 
 
-class _Stop:
-    """Stop the evolve loop after a number of accepted steps (the stepper is shared)."""
-
-    def __init__(self, stepper, steps):
-        self._stepper, self._stop = stepper, steps
-
-    def __getattr__(self, name):
-        return getattr(self._stepper, name)
-
-    def finished(self, state):
-        return state.k >= self._stop or self._stepper.finished(state)
-
-
 @pytest.mark.parametrize("control", ["uniform", "adaptive", "order2", "regime"])
 def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
     """Example 7.1: k steps, checkpoint the controller, restore a fresh one, finish the run:
@@ -318,7 +305,7 @@ def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
     stepper = RISStepper(problem)
     first = make_controller(control, tol=tol, tau=0.1)
     traj = initial_trajectory(problem)
-    state = evolve(_Stop(stepper, 40), first, RISState(0.0, 0.0, problem.z0.copy()), traj)
+    state = evolve(stepper, first, RISState(0.0, 0.0, problem.z0.copy()), traj, max_steps=40)
     assert state.k == 40
     second = make_controller(control, tol=tol, tau=0.1)
     second.restore_state(copy.deepcopy(first.checkpoint_state()))

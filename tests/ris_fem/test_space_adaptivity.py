@@ -65,18 +65,19 @@ def check_step_on_its_mesh(problem, t_prev, z_prev, result):
 
 @pytest.fixture
 def checked_steps(monkeypatch):
-    """Wrap RISStepper.record: check every accepted step on the mesh it was computed on (before
-    the adaptation that record triggers) and count the meshes the steps used."""
+    """Wrap RISStepper.record: check every accepted step on the mesh it was computed on (the
+    adapt step before the record may have moved the run to another one) and count the meshes
+    the steps used."""
     seen = {"steps": 0, "mesh_ids": set()}
     original = RISStepper.record
 
-    def record(self, traj, result):
+    def record(self, traj, result, state):
         t_prev, z_prev = self._start
-        check_step_on_its_mesh(self.problem, t_prev, z_prev, result)
+        check_step_on_its_mesh(result.problem, t_prev, z_prev, result)
         seen["steps"] += 1
         if self.space is not None:
-            seen["mesh_ids"].add(self.space.mesh_id)
-        return original(self, traj, result)
+            seen["mesh_ids"].add(result.mesh_id)
+        return original(self, traj, result, state)
 
     monkeypatch.setattr(RISStepper, "record", record)
     return seen

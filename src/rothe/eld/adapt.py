@@ -268,7 +268,11 @@ class SpaceAdaptiveStepper:
         if self.store_fields:
             self._keep(traj, state)
 
-    def record(self, traj, result) -> None:
+    def adapt(self, state, result):
+        """The evolve loop's adapt step; the adaptation itself still runs in :meth:`record`."""
+        return state
+
+    def record(self, traj, result, state=None) -> None:
         st = result.state
         self._base = None  # accepted: the state's mesh is the current one
         self.series.add(st.mesh_id, self.amesh.points, self.amesh.cells)

@@ -1358,8 +1358,12 @@ class ELDStepper:
                        mesh_id=state.mesh_id)
         return new, est
 
+    def adapt(self, state: ELDState, result: ELDStepResult) -> ELDState:
+        """The adapt step of the evolve loop: a fixed mesh, so the accepted state itself."""
+        return state
+
     # -- recording ------------------------------------------------------------------------------
-    def record(self, traj: Trajectory, result: ELDStepResult) -> None:
+    def record(self, traj: Trajectory, result: ELDStepResult, state=None) -> None:
         st = result.state
         L = st.ledger
         rec = dict(

@@ -17,6 +17,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..timing import PhaseTimes
+from .adapt import RISAdaptivity, RISAdaptStep
 from .controllers import make_controller
 from ..errors import DataError, RunFailed, RunInterrupted, check_int, check_positive, fail
 from .residuals import step_residuals
@@ -54,6 +56,10 @@ class RISStepResult:
     step_norm: float = 0.0  # ||z_k - z_{k-1}||_V
     increment: np.ndarray | None = None  # z_k - z_{k-1}
     counters: dict = field(default_factory=dict)
+    # the problem (and its mesh) the step was computed on: the record of the step uses it
+    # after the adapt step has moved the run to another mesh
+    problem: object = field(default=None, repr=False)
+    mesh_id: int = 0
 
     @property
     def errors(self) -> dict:
@@ -140,12 +146,12 @@ class RISStepper:
         space=None,
     ):
         self.problem = problem
+        self.times = PhaseTimes()  # estimate, mark, refine, rebuild, transfer (the adapt step)
         # space adaptivity (rothe.ris.adapt): None keeps the mesh of ``problem``
         self.space = None
         if space is not None:
-            from .adapt import RISSpaceAdaptivity
-
-            self.space = RISSpaceAdaptivity(problem, space)
+            self.space = RISAdaptivity(problem, space, times=self.times)
+        self._adapted: RISAdaptStep | None = None  # what the last adapt step did
         self._inner = inner
         self._start: tuple[float, np.ndarray] | None = None  # (t, z) the attempts start from
         # z of every keep_every-th accepted state (and of the last): 8 MB per state at 10^6 nodes
@@ -316,16 +322,39 @@ class RISStepper:
             step_norm=nd,
             increment=res.d,
             counters=counters,
+            problem=p,
+            mesh_id=self.space.mesh_id if self.space is not None else 0,
         )
 
-    def record(self, traj: Trajectory, result: RISStepResult) -> None:
+    def adapt(self, state: RISState, result: RISStepResult) -> RISState:
+        """The adapt step after the accepted ``result`` (:mod:`rothe.ris.adapt`): with space
+        adaptivity, when due and the run goes on, the problem and z_k on a new mesh (a new
+        state; the accepted one is never changed); otherwise ``state`` itself."""
+        self._adapted = None
+        if self.space is None or not self.space.options.due(state.k) or self.finished(state):
+            return state
+        t_prev, z_prev = self._start
+        out = self.space.adapt(self.problem, t_prev, z_prev, state.z, result.lam,
+                               result.increment, state.t, result.energy)
+        self._adapted = out
+        if not out.changed:
+            return state
+        self.problem = out.problem
+        self.solver = BallStepSolver(out.problem, self._inner)
+        return RISState(s=state.s, t=state.t, z=out.z, k=state.k)
+
+    def record(self, traj: Trajectory, result: RISStepResult, state: RISState) -> None:
+        """The accepted step ``result`` (on its own mesh) and, with space adaptivity, what the
+        adapt step did (``transfer_energy``); ``state`` is the state the run goes on from."""
         st = result.state
-        self._previous = (st.z, result.increment, result.tau)
+        adapted = self._adapted
+        increment = adapted.increment if adapted is not None else result.increment
+        self._previous = (state.z, increment, result.tau)
         space = self.space
         if st.k % self.keep_every == 0:
-            traj.append(z=self.problem.full_state(st.z), z_step=st.k)
+            traj.append(z=result.problem.full_state(st.z), z_step=st.k)
             if space is not None:
-                traj.append(z_mesh_id=space.mesh_id)
+                traj.append(z_mesh_id=result.mesh_id)
         traj.append(
             s=st.s,
             t=st.t,
@@ -343,28 +372,8 @@ class RISStepper:
             newton_iterations=result.counters.get("newton_iterations", 0),
         )
         if space is not None:
-            traj.append(mesh_id=space.mesh_id, n_dofs=self.problem.n)
-            traj.append(transfer_energy=self._adapt_after(result))
-
-    def _adapt_after(self, result: RISStepResult) -> float:
-        """Adapt the mesh after the accepted step ``result`` when due (and the run goes on):
-        the step's indicators on its own mesh, then the problem and z_k on the new mesh
-        (:mod:`rothe.ris.adapt`). The state is updated in place (it is the evolve
-        loop's current state). Returns I(t_k, T z_k) - I(t_k, z_k), 0 when nothing changed."""
-        st = result.state
-        if not self.space.options.due(st.k) or self.finished(st):
-            return 0.0
-        t_prev, z_prev = self._start
-        out = self.space.adapt(self.problem, t_prev, z_prev, st.z, result.lam, result.increment)
-        if out is None:
-            return 0.0
-        problem, z_new, d_new = out
-        transfer_energy = problem.energy(st.t, z_new) - result.energy
-        self.problem = problem
-        self.solver = BallStepSolver(problem, self._inner)
-        st.z = z_new
-        self._previous = (z_new, d_new, result.tau)
-        return float(transfer_energy)
+            traj.append(mesh_id=result.mesh_id, n_dofs=result.problem.n)
+            traj.append(transfer_energy=adapted.transfer_energy if adapted is not None else 0.0)
 
     def where(self, state: RISState, result: RISStepResult | None) -> dict:
         info = {"step": state.k + 1, "s": state.s, "t": state.t}
