@@ -286,7 +286,8 @@ def part_dissipation(taus=(0.1, 0.01, 0.001)) -> list[dict]:
     def zero(t, x):
         return np.zeros_like(x)
 
-    problem = ELDProblem(meshes.unit_square(16, named=True), exact.material, degree=1, damping=NoDamping(),
+    problem = ELDProblem(meshes.unit_square(16, named=True), exact.material, degree=1,
+                         damping=NoDamping(),
                          dirichlet={"left": DirichletData(held, zero, zero)},
                          u0=lambda x: exact.u(0.0, x), v0=lambda x: exact.u_dot(0.0, x), T=1.0)
     print(f"undamped, no loads, constant G (left held at u(0)), P1, n = 16 "

@@ -90,10 +90,10 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
     import skfem  # noqa: F401
 
     from rothe.eld import DirichletData, ELDProblem, ELDStepper, Material, RayleighDamping
-    from rothe.stepping.controllers import FixedStepController
     from rothe.eld.examples import EndMotion
     from rothe.fem import mesh as meshes
     from rothe.io.trajectory import Trajectory
+    from rothe.stepping.controllers import FixedStepController
     from rothe.stepping.evolve import evolve
 
     sampler = _PeakSampler()

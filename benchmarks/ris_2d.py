@@ -119,8 +119,8 @@ def run_logged(problem, control, tol, tau, example):
     from rothe.cli.ris_fem_commands import equidistribution_bound
     from rothe.ris.controllers import make_controller
     from rothe.ris.fem_problem import describe_branch
-    from rothe.stepping.evolve import evolve
     from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
+    from rothe.stepping.evolve import evolve
 
     controller = make_controller(control, tol=tol, tau=tau)
     stepper = RISStepper(problem)
@@ -210,12 +210,12 @@ def _slip_state(n_fine: int):
 def measure(n: int, solver: str, phase: str, steps: int, control: str = "regime") -> dict:
     import scipy.sparse.linalg as spla
 
-    from rothe.ris.controllers import make_controller
     from rothe.io.trajectory import Trajectory
-    from rothe.ris.inner import InnerOptions
+    from rothe.ris.controllers import make_controller
     from rothe.ris.fem_problem import example_7_2
-    from rothe.stepping.evolve import evolve, single_threaded_blas
+    from rothe.ris.inner import InnerOptions
     from rothe.ris.stepper import RISState, RISStepper
+    from rothe.stepping.evolve import evolve, single_threaded_blas
 
     t0 = time.perf_counter()
     problem = example_7_2(n)

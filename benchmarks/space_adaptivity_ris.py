@@ -31,8 +31,8 @@ import matplotlib.tri as mtri
 import numpy as np
 
 from rothe.fem.adapt import SpaceAdaptivity
-from rothe.ris.inner import InnerOptions
 from rothe.ris.fem_problem import example_front, nodal_volumes
+from rothe.ris.inner import InnerOptions
 from rothe.ris.stepper import run_ris
 
 TIMES = (0.25, 0.5, 0.75)

@@ -27,14 +27,14 @@ docs/adaptivity.md, docs/robustness.md and docs/scaling.md in the source distrib
 docstrings.
 """
 
-from .ris.controllers import AdaptiveController, Order2Controller, RegimeController, make_controller
-from .stepping.controllers import UniformController
 from .errors import RotheInputError, RunFailed
 from .io.trajectory import RunStatistics, Trajectory
+from .ris.controllers import AdaptiveController, Order2Controller, RegimeController, make_controller
 from .ris.inner import BallStepSolver, InnerOptions
 from .ris.problem import RISProblem
-from .stepping.evolve import evolve
 from .ris.stepper import RISStepper, run_nested, run_ris
+from .stepping.controllers import UniformController
+from .stepping.evolve import evolve
 
 __version__ = "0.1.0"
 

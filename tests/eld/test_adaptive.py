@@ -6,10 +6,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from rothe.stepping.controllers import ErrorNormController
 from rothe.eld import NonlinearDamping, mms_problem, ramp_problem, run_eld, step_coefficients
 from rothe.eld.schemes import BDF2_RATIO_CAP, BOUND_SAFETY
 from rothe.errors import RotheInputError
+from rothe.stepping.controllers import ErrorNormController
 
 
 @dataclass

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from rothe.eld import prepare_eld_run, run_eld
-from rothe.eld.examples import mms_problem, pulse_problem
 from rothe.eld.adapt import SpaceAdaptiveStepper
+from rothe.eld.examples import mms_problem, pulse_problem
 from rothe.errors import RotheInputError, RunFailed, RunInterrupted
 from rothe.fem.adapt import SpaceAdaptivity
 from rothe.io.checkpoint import CheckpointOptions, load_checkpoint

@@ -5,18 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rothe.eld.examples import mms_problem
-from rothe.errors import RotheInputError
-from rothe.fem.adapt.efficiency import ScalarField, dofs_for_error
 from rothe.eld.efficiency import elasticity_study
-from rothe.ris.efficiency import ris_study
+from rothe.eld.examples import mms_problem
 from rothe.eld.indicator import eld_indicators, eld_indicators_for
-from rothe.ris.indicator import ris_indicators, ris_indicators_for
-from rothe.fem.simplex import SimplexEvaluator
+from rothe.errors import RotheInputError
 from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh
+from rothe.fem.adapt.efficiency import ScalarField, dofs_for_error
 from rothe.fem.elasticity import VectorSpace
+from rothe.fem.simplex import SimplexEvaluator
+from rothe.ris.efficiency import ris_study
 from rothe.ris.fem_problem import example_7_2
+from rothe.ris.indicator import ris_indicators, ris_indicators_for
 
 
 def polynomial_profile(dim: int, degree: int) -> ScalarField:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from rothe import RunFailed, run_nested, run_ris
+from rothe.io.trajectory import Trajectory
 from rothe.ris.controllers import (
     CONTROLS,
     AdaptiveController,
@@ -17,11 +18,10 @@ from rothe.ris.controllers import (
     make_controller,
     step_regime,
 )
-from rothe.stepping.controllers import UniformController
-from rothe.io.trajectory import Trajectory
 from rothe.ris.examples import example_7_1
-from rothe.stepping.evolve import evolve
 from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
+from rothe.stepping.controllers import UniformController
+from rothe.stepping.evolve import evolve
 
 
 def result(tau, I1, I2, converged=True, step_norm=None):

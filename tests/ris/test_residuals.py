@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from rothe import RISProblem, run_ris
-from rothe.ris.residuals import simpson_weights, step_residuals
 from rothe.ris.examples import example_7_1
+from rothe.ris.residuals import simpson_weights, step_residuals
 from rothe.ris.stepper import RISState, RISStepper
 
 

@@ -56,8 +56,8 @@ def test_run_ris_2d_outputs(tmp_path, capsys):
 def test_reported_linear_solver_is_the_one_that_ran(method):
     """summary.json names the solver from the size rule; it must match what the solver used."""
     from rothe.cli.ris_fem_commands import linear_solver_used
-    from rothe.ris.inner import InnerOptions
     from rothe.ris.fem_problem import example_7_2
+    from rothe.ris.inner import InnerOptions
     from rothe.ris.stepper import RISState, RISStepper
 
     p = example_7_2(6)

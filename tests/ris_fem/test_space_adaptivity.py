@@ -17,16 +17,16 @@ import numpy as np
 import pytest
 
 from rothe.cli.main import main
-from rothe.ris.controllers import make_controller
 from rothe.errors import RotheInputError, RunInterrupted
 from rothe.fem.adapt import AdaptiveMesh, SpaceAdaptivity, free_transfer
 from rothe.io.checkpoint import CheckpointOptions
 from rothe.io.trajectory import Trajectory
-from rothe.ris.inner import InnerOptions
+from rothe.ris.controllers import make_controller
 from rothe.ris.examples import example_7_1
 from rothe.ris.fem_problem import FERISProblem, example_7_2, example_front, g_7_2
-from rothe.stepping.evolve import evolve
+from rothe.ris.inner import InnerOptions
 from rothe.ris.stepper import RISState, RISStepper, initial_trajectory, run_ris
+from rothe.stepping.evolve import evolve
 
 DIRECT = InnerOptions(linear_solver="direct")
 

@@ -16,9 +16,9 @@ from rothe.io.checkpoint import (
     CheckpointOptions,
     load_checkpoint,
 )
-from rothe.ris.inner import InnerOptions
 from rothe.ris.examples import example_7_1
 from rothe.ris.fem_problem import example_7_2
+from rothe.ris.inner import InnerOptions
 from rothe.ris.stepper import RISStepper
 
 from .conftest import assert_same_trajectory

@@ -20,8 +20,8 @@ import pytest
 
 from rothe import run_ris
 from rothe.io.checkpoint import MAIN, CheckpointError, load_checkpoint
-from rothe.ris.inner import InnerOptions
 from rothe.ris.fem_problem import example_7_2
+from rothe.ris.inner import InnerOptions
 
 ROTHE = [sys.executable, "-m", "rothe.cli.main"]
 

@@ -11,15 +11,15 @@ import copy
 import numpy as np
 import pytest
 
-from rothe.ris.controllers import make_controller
+from rothe.fem.linear import ReusableSolver
 from rothe.io.checkpoint import encode
 from rothe.io.trajectory import Trajectory
-from rothe.fem.linear import ReusableSolver
-from rothe.ris.inner import InnerOptions
+from rothe.ris.controllers import make_controller
 from rothe.ris.examples import example_7_1
 from rothe.ris.fem_problem import example_7_2
-from rothe.stepping.evolve import evolve
+from rothe.ris.inner import InnerOptions
 from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
+from rothe.stepping.evolve import evolve
 
 
 class StopAfter:

@@ -561,8 +561,8 @@ class RunEldBeam:
 
     def execute(self, args) -> int:
         from ..eld.examples import beam_problem
-        from ..eld.schemes import run_eld
         from ..eld.output import EldXdmfWriter
+        from ..eld.schemes import run_eld
 
         form, tau, scheme, control, tol, n, every, keep, damping = self.validate(args)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])

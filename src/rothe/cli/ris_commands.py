@@ -8,7 +8,6 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from ..ris.controllers import CONTROLS
 from ..errors import (
     RunFailed,
     check_choice,
@@ -18,6 +17,7 @@ from ..errors import (
     fail,
 )
 from ..parallel.executor import add_parallel_options, executor_from_args
+from ..ris.controllers import CONTROLS
 from ..ris.stepper import run_nested, run_ris
 from .common import (
     add_output_options,

@@ -251,8 +251,8 @@ class _RunRISFem(RISRunBase):
 
     # hooks -----------------------------------------------------------------------------------
     def validate(self, args):
-        from ..fem.mesh import DUPLICATE_NODES
         from ..fem.linear import LINEAR_SOLVERS
+        from ..fem.mesh import DUPLICATE_NODES
 
         check_choice("--linear-solver", args.linear_solver, LINEAR_SOLVERS)
         check_choice("--duplicate-nodes", args.duplicate_nodes, DUPLICATE_NODES)
@@ -376,8 +376,7 @@ class _RunRISFem(RISRunBase):
                          {"t": t})
 
     def plot(self, args, problem, runs, out) -> None:
-        from ..ris.figures import plot_path
-        from ..ris.figures import plot_fig4, plot_snapshots
+        from ..ris.figures import plot_fig4, plot_path, plot_snapshots
 
         traj = runs[-1]
         label = f"{self.name}, {problem.n_nodes} nodes, {traj.meta.get('control')}"

@@ -13,7 +13,6 @@ the perturbation behaviour of Theorem 4.5, stresses (:mod:`rothe.eld.stress`) an
 ParaView (:func:`write_eld_result`). See ``docs/eld.md``.
 """
 
-from .output import write_eld_result
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .damping import (
     Damping,
@@ -27,6 +26,7 @@ from .damping import (
 from .data import DataNoise, StepData
 from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem, ramp_problem
 from .materials import Material
+from .output import write_eld_result
 from .problem import DirichletData, ELDProblem
 from .schemes import (
     ELDRun,

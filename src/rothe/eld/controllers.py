@@ -1,6 +1,7 @@
 """Step controllers of the elastodynamics runs (all on the shared evolve loop).
 
-- :class:`~rothe.stepping.controllers.FixedStepController`: the steps are given (``control='uniform'``: n = T/tau equal
+- :class:`~rothe.stepping.controllers.FixedStepController`: the steps are given
+  (``control='uniform'``: n = T/tau equal
   steps; or a user's sequence ``steps=[tau_1, ..., tau_n]``). Every step is accepted; a step
   that failed (Newton or a linear solve did not converge, or the state is not finite) stops the
   run with :class:`~rothe.errors.RunFailed` naming the step: a fixed grid has no other step to

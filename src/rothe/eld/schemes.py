@@ -182,9 +182,9 @@ from ..errors import (
 )
 from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
+from ..stepping.controllers import FixedStepController
 from ..stepping.evolve import evolve, single_threaded_blas
 from .constraint import LIFTINGS, make_lifting
-from ..stepping.controllers import FixedStepController
 from .controllers import adaptive_controller
 from .data import DATA_MODES, DataNoise, StepData
 from .problem import ELDProblem

@@ -47,8 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .problem import RISProblem
 from ..fem.linear import ReusableSolver, SingularSystem
+from .problem import RISProblem
 
 _EPS = np.finfo(float).eps
 

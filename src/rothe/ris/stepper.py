@@ -17,16 +17,16 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..errors import DataError, RunFailed, RunInterrupted, check_int, check_positive, fail
+from ..io.checkpoint import RunCheckpointing, run_arguments
+from ..io.trajectory import Trajectory
+from ..stepping.evolve import evolve
 from ..timing import PhaseTimes
 from .adapt import RISAdaptivity, RISAdaptStep
 from .controllers import make_controller
-from ..errors import DataError, RunFailed, RunInterrupted, check_int, check_positive, fail
-from .residuals import step_residuals
-from ..io.checkpoint import RunCheckpointing, run_arguments
-from ..io.trajectory import Trajectory
 from .inner import BallStepSolver, InnerOptions
 from .problem import RISProblem
-from ..stepping.evolve import evolve
+from .residuals import step_residuals
 
 
 @dataclass
