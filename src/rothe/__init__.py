@@ -18,7 +18,7 @@ Shared by both: meshes that change between steps (``rothe.fem.adapt.SpaceAdaptiv
 as ``space=`` to ``run_ris`` and ``run_eld``; indicators in ``rothe.estimators``), checkpoints
 and resume (``checkpoint=`` / ``resume=`` of the run functions), ParaView output and figures
 (``rothe.io``, ``rothe.plotting``), and sweeps, compares and studies on Dask
-(``rothe.parallel.sweep.run_sweep``).
+(``rothe.cli.sweep.run_sweep``).
 
 Command line: ``rothe`` lists the commands (``rothe run ris-1d``, ``rothe run eld-beam``,
 ``rothe sweep``, ``rothe resume``, ...); ``rothe <verb> <name> --help`` their options.

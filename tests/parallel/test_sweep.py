@@ -126,7 +126,7 @@ def test_lost_worker_is_retried_once(tmp_path, cluster):
 
     from distributed import Client
 
-    from rothe.parallel import cli_task
+    from rothe.cli.tasks import cli_task
 
     out = tmp_path / "killed"
     argv = ["run", "ris-1d", "--tol", "1e-3", "--no-plots", "--quiet"]

@@ -114,7 +114,8 @@ def test_amplitude_sign_and_z0_are_options(tmp_path, capsys):
     (["--mesh", "GARBAGE"], r"--mesh: got '.*garbage.msh', is not a mesh meshio can read"),
     (["--mesh", "TETS"], r"--mesh: got '.*tets.vtu', has no triangle cells \(found: tetra\)"),
     (["--mesh", "GARBAGE", "--n", "8"], r"--n: got 8, cannot be combined with --mesh"),
-    (["--dirichlet", "inlet"], r"dirichlet: got 'inlet', must be one of bottom, left, right, top"),
+    (["--dirichlet", "inlet"],
+     r"--dirichlet: got 'inlet', must be one of bottom, left, right, top"),
     (["--linear-solver", "cholesky"], r"--linear-solver: got 'cholesky', must be one of auto, "
                                       r"direct, amg"),
     (["--tol", "-1"], r"--tol: got -1, must be > 0"),
