@@ -10,6 +10,8 @@ BDF2 start.
     python benchmarks/eld.py --part dissipation   # E(T)/E(0), Euler vs BDF2
     python benchmarks/eld.py --part reactions     # eld-beam: reactions, dissipation, meshes
     python benchmarks/eld.py --part start         # BDF2 starts: largest multiplier error
+    python benchmarks/eld.py --quick              # small per-step costs and seconds per run
+                                                  # (before/after comparisons, ~1 minute)
 
 Part "adaptive": :func:`rothe.eld.ramp_problem` (unit square, P2, n = 4: the left side moved by
 0.1 (1 + tanh((t - 0.5)/0.005))/2, Rayleigh b = 0.01, T = 1), regularized form. Reference: uniform
@@ -346,6 +348,54 @@ def part_reactions() -> list[dict]:
     return rows
 
 
+# -- quick: the same code paths at small sizes, for before/after comparisons ------------------
+
+def part_quick(repeats: int = 3) -> list[dict]:
+    """Seconds of a few small runs (the best of ``repeats``): uniform Euler and BDF2 in both
+    forms, nonlinear damping, adaptive steps, and space adaptivity on the pulse (the adapt
+    step: estimate, mark, refine, rebuild, transfer)."""
+    from rothe.eld.examples import pulse_problem
+    from rothe.fem.adapt import SpaceAdaptivity
+
+    mms = mms_problem(16, 2, damping=RayleighDamping(0.1, 0.01))[0]
+    mms_nl = mms_problem(16, 2)[0]
+    beam = beam_problem(4, damping=RayleighDamping(0.0, 0.002), T=0.5)
+    ramp = ramp_problem(4, 2)
+    space = SpaceAdaptivity(space_tol=1e-3, refine_fraction=0.5, coarsen_fraction=0.05,
+                            max_dofs=3000, adapt_every=1)
+    cases = [
+        ("2D P2 n=16 Rayleigh, Euler, regularized", lambda: run_eld(mms, "regularized", 0.01)),
+        ("2D P2 n=16 Rayleigh, BDF2, original",
+         lambda: run_eld(mms, "original", 0.01, scheme="bdf2")),
+        ("2D P2 n=16 nonlinear, Euler, regularized", lambda: run_eld(mms_nl, "regularized", 0.01)),
+        ("3D P2 beam n=4, BDF2, regularized",
+         lambda: run_eld(beam, "regularized", 0.01, scheme="bdf2", store_fields=False)),
+        ("ramp P2 n=4, adaptive BDF2 tol 1e-5",
+         lambda: run_eld(ramp, "regularized", 0.01, scheme="bdf2", control="adaptive",
+                         tol=1e-5)),
+        ("pulse P2 n=4, T=0.2, adapt-space",
+         lambda: run_eld(pulse_problem(4, T=0.2), "regularized", 0.01, scheme="bdf2",
+                         keep_every=10, space=space)),
+    ]
+    head = f"{'case':<44} {'steps':>6} {'solves':>7} {'seconds':>8} {'s/step':>9}"
+    print(head)
+    print("-" * len(head))
+    rows = []
+    for label, run in cases:
+        best, traj = np.inf, None
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            traj = run()
+            best = min(best, time.perf_counter() - t0)
+        st = traj.stats
+        rows.append({"case": label, "steps": st.accepted_steps, "solves": st.inner_solves,
+                     "seconds": best})
+        print(f"{label:<44} {st.accepted_steps:>6d} {st.inner_solves:>7d} {best:>8.3f} "
+              f"{best / st.accepted_steps:>9.2e}", flush=True)
+    print(f"{'total':<44} {'':>6} {'':>7} {sum(r['seconds'] for r in rows):>8.3f}")
+    return rows
+
+
 # -- the BDF2 start -------------------------------------------------------------------------------
 
 def part_start(taus=(0.0025, 0.00125, 0.000625, 0.0003125)) -> dict:
@@ -385,9 +435,15 @@ def main(argv=None) -> int:
     parser.add_argument("--beam-n", type=int, default=44, help="beam cells across (default 44)")
     parser.add_argument("--beam-steps", type=int, default=5)
     parser.add_argument("--beam-child", nargs=2, type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--quick", action="store_true",
+                        help="only a few small runs, best of 3 (before/after comparisons)")
     args = parser.parse_args(argv)
     if args.beam_child:
         print(json.dumps(beam_child(*args.beam_child)))
+        return 0
+    if args.quick:
+        print("Seconds of small runs (best of 3)")
+        part_quick()
         return 0
     if args.part in ("all", "steps"):
         print("Per-step cost against one back-substitution with the same factorization")
