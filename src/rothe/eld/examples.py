@@ -167,15 +167,26 @@ def mms_problem(n: int = 8, degree: int = 2, *, damping: Damping | None = None, 
     return problem, exact
 
 
-def mms_errors(problem: ELDProblem, exact: ManufacturedSolution, traj) -> dict:
-    """Errors at T of u and v (L2, H1) and of lambda (L2(Gamma_D)); with kept fields also the
-    maxima over the kept states t > 0 (``error_u_l2_max``, ``error_v_l2_max``,
-    ``error_lam_l2_max``)."""
-    if getattr(traj, "space", None) is not None:  # space-adaptive: the final mesh's problem
-        problem = traj.space.problem
+def mms_errors(exact: ManufacturedSolution, result) -> dict:
+    """Errors at T of u and v (L2, H1) and of lambda (L2(Gamma_D)) of a run of the
+    manufactured problem; with kept fields (on a fixed mesh) also the maxima over the kept
+    states t > 0 (``error_u_l2_max``, ``error_v_l2_max``, ``error_lam_l2_max``).
+
+    Parameters
+    ----------
+    exact : ManufacturedSolution
+    result : ELDResult
+        What :func:`rothe.eld.run_eld` returned (its final state on its final mesh).
+
+    Returns
+    -------
+    dict
+    """
+    problem = result.problem
+    traj = result.trajectory
     space = problem.space
     T = float(traj["t"][-1])
-    state = getattr(traj, "final_state", None)
+    state = result.state
     u = state.u if state is not None else traj["u"][-1]
     v = state.v if state is not None else traj["v"][-1]
     lam = state.lam if state is not None else traj["lam"][-1]

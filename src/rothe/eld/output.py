@@ -1,5 +1,6 @@
 """Outputs of elastodynamics runs: ParaView (XDMF + HDF5), ``trajectory.npz`` with the mesh, and
-figures; :func:`write_eld_result` writes all of them for a result of :func:`rothe.eld.run_eld`.
+figures; :func:`write_eld_result` writes all of them for a result of :func:`rothe.eld.run_eld`
+(an :class:`~rothe.eld.run.ELDResult`).
 
 ParaView files (two XDMF time series with HDF5 heavy data, :mod:`rothe.io.xdmf`; meshio's
 ``TimeSeriesReader`` reads them):
@@ -139,7 +140,7 @@ class EldXdmfWriter:
         self._bnd.checkpoint_state()
 
 
-def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = True,
+def write_eld_result(result, out_dir, *, name: str = "eld", xdmf: bool = True,
                      figures: bool = True, npz: bool = True, title: str = "") -> dict:
     """Write the outputs of a :func:`rothe.eld.run_eld` result into ``out_dir``.
 
@@ -149,16 +150,35 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
       kept state (the run needs ``store_fields=True``; ``keep_every`` thins them);
     - ``fig_energy.png`` (the energy identity term by term) and ``fig_reaction.png``.
 
-    Returns the written paths by kind. Example::
+    A space-adaptive run (``result.meshes``) is written by :func:`write_adaptive_eld_result`.
 
-        traj = run_eld(problem, "regularized", 0.01, scheme="bdf2", keep_every=5)
-        write_eld_result(traj, problem, "my-run")
+    Parameters
+    ----------
+    result : ELDResult
+        What :func:`rothe.eld.run_eld` returned (or :meth:`rothe.eld.run.ELDRun.result` of a run
+        that stopped).
+    out_dir : path
+    name : str
+        The base name of the ParaView files.
+    xdmf, figures, npz : bool
+        Which outputs to write.
+    title : str
+        The figures' title.
+
+    Returns
+    -------
+    dict
+        The written paths by kind. Example::
+
+            result = run_eld(problem, scheme=BDF2(), control=Uniform(0.01), keep_every=5)
+            write_eld_result(result, "my-run")
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if getattr(traj, "space", None) is not None:
-        return write_adaptive_eld_result(traj, out, name=name, paraview=xdmf, figures=figures,
-                                         npz=npz, title=title)
+    if result.meshes is not None:
+        return write_adaptive_eld_result(result, out, name=name, paraview=xdmf,
+                                         figures=figures, npz=npz, title=title)
+    traj, problem = result.trajectory, result.problem
     paths: dict = {}
     if npz:
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
@@ -186,9 +206,10 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
     return paths
 
 
-def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: bool = True,
+def write_adaptive_eld_result(result, out_dir, *, name: str = "eld", paraview: bool = True,
                               figures: bool = True, npz: bool = True, title: str = "") -> dict:
-    """The outputs of a space-adaptive run (``run_eld(..., space=...)``, :mod:`rothe.eld.adapt`):
+    """The outputs of a space-adaptive run (``run_eld(..., adapt=...)``, :mod:`rothe.eld.adapt`)
+    into ``out_dir``; returns the written paths by kind:
 
     - ``trajectory.npz``: the series of the run (with ``mesh_id``, ``ndofs``, ``cells`` per
       state and ``kept_mesh_id`` per kept state), every distinct mesh once
@@ -207,7 +228,7 @@ def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: boo
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    sp = traj.space
+    traj, sp = result.trajectory, result.meshes
     paths: dict = {}
     if npz:
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=sp.npz_arrays(traj))
