@@ -1,0 +1,415 @@
+"""Space-adaptive ELD runs (rothe.eld.adapt): constraint and lifting after every change, the
+ledger closing with the transfer term, nothing marked = the fixed mesh bit for bit, coarsening
+behind the pulse, the adapt step (a new state, the accepted one untouched; its phases timed),
+bad input, checkpoint/resume bit for bit."""
+
+from __future__ import annotations
+
+import copy
+import signal
+
+import numpy as np
+import pytest
+
+from rothe.eld import BDF2, Differenced, ImplicitEuler, Regularized, prepare_eld_run, run_eld
+from rothe.eld.examples import mms_problem, pulse_problem
+from rothe.errors import RotheInputError, RunFailed, RunInterrupted
+from rothe.fem.adapt import SpaceAdaptivity
+from rothe.io.checkpoint import CheckpointOptions, load_checkpoint
+from rothe.stepping.controllers import Adaptive, Uniform
+
+PULSE = dict(form=Regularized(), control=Uniform(0.02), scheme=BDF2())
+
+
+def pulse(T=0.4):
+    return pulse_problem(2, T=T)
+
+
+def adaptivity(**kw):
+    opts = dict(space_tol=2e-3, refine_fraction=0.5, coarsen_fraction=0.05, max_dofs=6000,
+                adapt_every=1)
+    opts.update(kw)
+    return SpaceAdaptivity(**opts)
+
+
+@pytest.fixture(scope="module")
+def pulse_run():
+    """One coarse adaptive pulse run, with every transfer checked as it happens."""
+    problem = pulse()
+    run = prepare_eld_run(problem, adapt=adaptivity(), **PULSE)
+    family = run.stepper.adaptivity
+    checks = []
+    original = family.transfer
+
+    def checked(state, change, system, new_system):
+        new = original(state, change, system, new_system)
+        new_problem = new_system.problem
+        c = new_problem.constraint
+        t = new.t
+        lift = new_system.lifting
+        f = new.fields
+        checks.append({
+            # B u = G(t_j) (and v, a: G_dot, G_ddot) on the new Dirichlet nodes, exactly
+            "u": np.max(np.abs(c.restrict(f["u"]) - new_problem.G(t))),
+            "v": np.max(np.abs(c.restrict(f["v"]) - new_problem.G_dot(t))),
+            "a": np.max(np.abs(c.restrict(f["a"]) - new_problem.G_ddot(t))),
+            # the regularized unknowns with the new lifting: u = x + B^- G, x = 0 on Gamma_D
+            "x": np.max(np.abs(f["u"] - f["x"] - lift(new_problem.G(t)))),
+            "y": np.max(np.abs(f["v"] - f["y"] - lift(new_problem.G_dot(t)))),
+            "b": np.max(np.abs(f["a"] - f["b"] - lift(new_problem.G_ddot(t)))),
+            "x_gamma": np.max(np.abs(c.restrict(f["x"]))),
+            "sizes": {k: w.size == new_problem.space.ndofs for k, w in f.items()},
+            "lam": new.boundary["lam"].size == c.m,
+            "bound": new_problem.step_bound() == problem.step_bound(),
+        })
+        return new
+
+    family.transfer = checked
+    result = run.evolve()
+    return run, result, checks
+
+
+def test_constraint_and_lifting_hold_after_every_change(pulse_run):
+    run, result, checks = pulse_run
+    assert len(checks) >= 5
+    for c in checks:
+        assert c["u"] == 0.0 and c["v"] == 0.0 and c["a"] == 0.0
+        assert c["x"] <= 1e-15 and c["y"] <= 1e-13 and c["b"] <= 1e-10
+        assert c["x_gamma"] == 0.0
+        assert all(c["sizes"].values()) and c["lam"] and c["bound"]
+    # every later step keeps the constraint on its own mesh
+    traj = result.trajectory
+    sp = result.meshes
+    final = result.state
+    p = result.problem
+    assert np.array_equal(p.constraint.restrict(final.u), p.G(final.t))
+    assert final.mesh_id == traj["mesh_id"][-1] and final.mesh_id in sp.series
+
+
+def test_ledger_closes_with_the_transfer_term(pulse_run):
+    _, result, _ = pulse_run
+    traj = result.trajectory
+    scale = np.max(np.abs(traj["energy"]))
+    residual = np.max(np.abs(traj["balance_residual"]))
+    assert residual <= 1e-12 * scale
+    transfer = traj["transfer"][-1]
+    # the transfer term is needed: without it the balance would be off by far more
+    assert abs(transfer) > 1e6 * residual
+    # booked exactly at the steps after a mesh change: an adaptation after the previous step
+    # or a refinement of the step's own mesh
+    increments = np.diff(traj["transfer"])
+    adapted_after = {a["step"] for a in result.meshes.adaptations}
+    changed = np.array([(j - 1) in adapted_after for j in range(1, len(increments) + 1)])
+    changed |= traj["step_refinements"] > 0
+    assert np.all(increments[~changed] == 0.0) and np.any(increments[changed] != 0.0)
+
+
+def test_meshes_stored_once_and_ids_per_state(pulse_run):
+    _, result, _ = pulse_run
+    traj = result.trajectory
+    sp = result.meshes
+    ids = traj["mesh_id"]
+    assert len(ids) == len(traj["t"]) and ids[0] == 0
+    assert set(np.unique(ids)) <= set(sp.series.ids)
+    # every mesh once: those the steps were computed on and those adapted to after a step
+    assert len(sp.series.ids) == len(set(sp.series.ids))
+    assert set(sp.series.ids) == set(ids.tolist()) | {a["to_mesh"] for a in sp.adaptations}
+    for m, u in zip(traj["kept_mesh_id"], sp.kept["u"], strict=True):
+        points, cells = sp.series.mesh(m)
+        n_edges = len({tuple(sorted(e)) for c in cells for e in ((c[0], c[1]), (c[1], c[2]),
+                                                                 (c[0], c[2]))})
+        assert u.size == 2 * (len(points) + n_edges)  # P2 on that mesh
+    arrays = sp.npz_arrays(traj)
+    assert np.array_equal(arrays["state_mesh_id"], traj["kept_mesh_id"])
+    off = arrays["kept_u_offsets"]
+    assert np.array_equal(arrays["kept_u"][off[-2]:off[-1]], sp.kept["u"][-1])
+
+
+def test_coarsening_returns_to_coarser_cells_after_the_pulse_passed(pulse_run):
+    _, result, _ = pulse_run
+    traj = result.trajectory
+    sp = result.meshes
+    assert sum(a["merges"] for a in sp.adaptations) > 0
+
+    def cells_near_left(mesh_id):
+        points, cells = sp.series.mesh(mesh_id)
+        return int(np.sum(points[cells].mean(axis=1)[:, 0] < 0.25))
+
+    ids = traj["mesh_id"]
+    near = np.array([cells_near_left(m) for m in ids])
+    peak = int(np.argmax(near))
+    # refined while the pulse is emitted (t <= 0.1), coarsened once the front has left:
+    # at T = 0.4 the pressure front is 0.6 away from the pushed side
+    assert traj["t"][peak] <= 0.2 and near[peak] >= 10 * near[0]
+    assert near[-1] <= 0.7 * near[peak]
+    assert np.all(np.diff(near[peak:]) <= 0.05 * near[peak])  # no regrowth
+
+
+def test_nothing_marked_equals_the_fixed_mesh_bit_for_bit():
+    problem, _ = mms_problem(3, 2, T=0.2)
+    opts = dict(control=Uniform(0.05), scheme=BDF2())
+    fixed_run = run_eld(problem, **opts)
+    adaptive_run = run_eld(problem, adapt=SpaceAdaptivity(space_tol=1e30, adapt_every=1), **opts)
+    fixed, adaptive = fixed_run.trajectory, adaptive_run.trajectory
+    assert adaptive_run.meshes.adaptations == []
+    for key in fixed.keys():
+        if key in ("u", "v", "a", "lam"):
+            kept = adaptive_run.meshes.kept[key]
+            assert all(np.array_equal(x, y) for x, y in zip(fixed[key], kept, strict=True))
+        else:
+            assert np.array_equal(fixed[key], adaptive[key]), key
+    assert np.array_equal(fixed_run.state.u, adaptive_run.state.u)
+    assert np.all(adaptive["mesh_id"] == 0)
+
+
+def test_adaptive_time_steps_with_space_adaptivity():
+    result = run_eld(pulse(0.08), scheme=BDF2(), control=Adaptive(1e-2, tau=0.01),
+                     adapt=adaptivity(adapt_every=2, max_dofs=2000))
+    traj = result.trajectory
+    assert result.meshes.adaptations
+    assert all(a["step"] % 2 == 0 for a in result.meshes.adaptations)
+    assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
+    assert len(set(traj["tau"].tolist())) > 1
+
+
+def _fields_of(state):
+    return {"t": state.t, "j": state.j, "mesh_id": state.mesh_id,
+            "ledger": copy.deepcopy(state.ledger),
+            **{f"f_{k}": w.copy() for k, w in state.fields.items()},
+            **{f"b_{k}": w.copy() for k, w in state.boundary.items()},
+            **{f"p_{k}": w.copy() for k, w in state.products.items()}}
+
+
+def _same(a, b) -> bool:
+    return a.keys() == b.keys() and all(
+        np.array_equal(a[k], b[k]) if isinstance(a[k], np.ndarray) else a[k] == b[k] for k in a)
+
+
+@pytest.mark.parametrize("scheme", [ImplicitEuler(), BDF2()], ids=["euler", "bdf2"])
+def test_the_adapt_step_returns_a_new_state_and_never_changes_the_accepted_one(scheme):
+    problem = pulse(0.2)
+    run = prepare_eld_run(problem, adapt=adaptivity(), control=Uniform(0.02), scheme=scheme)
+    stepper = run.stepper
+    state, changed = run.state, 0
+    for _ in range(6):
+        result = stepper.step(state, 0.02)
+        accepted = result.state
+        before = _fields_of(accepted)
+        arrays = {k: w for k, w in accepted.fields.items()}
+        new = stepper.adapt(accepted, result)
+        # the accepted state is what the step computed, bit for bit, and its arrays are its own
+        assert _same(before, _fields_of(accepted))
+        assert all(accepted.fields[k] is w for k, w in arrays.items())
+        if new is accepted:  # nothing changed: the same object, on the step's mesh
+            assert stepper.adaptivity.mesh_id == accepted.mesh_id
+        else:
+            changed += 1
+            assert new.mesh_id == stepper.adaptivity.mesh_id != accepted.mesh_id
+            assert all(new.fields[k] is not w for k, w in arrays.items())
+            assert new.fields["u"].size == stepper.problem.space.ndofs
+            # the step keeps its own mesh in the record; the new state goes on
+            assert result.system.problem is not stepper.problem
+            assert new.ledger.transfer != accepted.ledger.transfer
+            assert (new.t, new.j, new.tau_prev) == (accepted.t, accepted.j, accepted.tau_prev)
+        stepper.record(run.trajectory, result, new)
+        state = new
+    assert changed >= 2 and len(stepper.meshes.adaptations) == changed
+    traj = run.trajectory
+    assert len(traj["mesh_id"]) == len(traj["t"]) == 7
+    assert len(traj["space_estimate"]) == 6 and np.all(np.isfinite(traj["space_estimate"]))
+
+
+def test_the_seconds_of_every_phase_are_in_the_statistics(tmp_path):
+    problem = pulse(0.1)
+    result = run_eld(problem, adapt=adaptivity(), **PULSE)
+    seconds = result.statistics.seconds
+    for phase in ("estimate", "mark", "refine", "rebuild", "transfer", "factor", "solve",
+                  "step", "adapt", "record"):
+        assert seconds.get(phase, 0.0) > 0.0, phase
+    # nested phases: the solves happen inside the steps
+    assert seconds["step"] >= seconds["solve"]
+    path = result.trajectory.save_npz(tmp_path / "t.npz")
+    with np.load(path) as data:
+        assert data["stats_seconds_rebuild"] > 0 and data["stats_seconds_factor"] > 0
+
+
+def test_a_failed_transfer_is_never_accepted(monkeypatch):
+    problem = pulse(0.2)
+    run = prepare_eld_run(problem, adapt=adaptivity(), **PULSE)
+    stepper = run.stepper
+
+    def broken(state, change, system, new_system):
+        raise FloatingPointError("the transferred u has NaN or inf entries")
+
+    monkeypatch.setattr(stepper.adaptivity, "transfer", broken)
+    with pytest.raises(RunFailed, match=r"space adaptivity: the transfer to the new mesh after "
+                                        r"step 1 .* failed .*NaN.*; the run stops on mesh 0"):
+        run.evolve()
+    # the hierarchy is rolled back: the last accepted state and the mesh agree
+    assert stepper.adaptivity.mesh_id == 0 and stepper.problem is problem
+    # step 1 is recorded on mesh 0 (it was computed and accepted there), nothing after it
+    assert len(run.trajectory["t"]) == 2 and np.all(run.trajectory["mesh_id"] == 0)
+
+
+def test_bad_input_one_line():
+    problem = pulse(0.2)
+    with pytest.raises(RotheInputError, match=r"^max_dofs: got 10, must be >= the \d+ dofs of "
+                                              r"the initial mesh$"):
+        run_eld(problem, adapt=adaptivity(max_dofs=10), **PULSE)
+    with pytest.raises(RotheInputError, match=r"^data: got 'differenced', must be 'points' "
+                                              r"with space adaptivity"):
+        run_eld(problem, data=Differenced(), adapt=adaptivity(), **PULSE)
+    with pytest.raises(RotheInputError, match=r"^adapt: got dict, must be a "
+                                              r"rothe.fem.adapt.SpaceAdaptivity"):
+        run_eld(problem, adapt={"space_tol": 1}, **PULSE)
+    with pytest.raises(RotheInputError, match=r"^space_tol: got 0, must be > 0$"):
+        SpaceAdaptivity(space_tol=0)
+
+
+def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch):
+    import os
+
+    from rothe.eld import ELDStepper
+
+    problem = pulse(0.2)
+
+    def make_run(**kw):
+        return run_eld(problem, adapt=adaptivity(), **PULSE, **kw)
+
+    full_run = make_run()
+    full = full_run.trajectory
+    ckpt = tmp_path / "c"
+    original = ELDStepper.step
+    resume = None
+    for k in (4, 3):  # interrupted twice, each time after adaptations on a refined mesh
+        calls = [0]
+
+        def step(self, state, tau, s_end=None, k=k, calls=calls):
+            calls[0] += 1
+            if calls[0] == k:
+                os.kill(os.getpid(), signal.SIGINT)
+            return original(self, state, tau, s_end)
+
+        monkeypatch.setattr(ELDStepper, "step", step)
+        with pytest.raises(RunInterrupted):
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        assert load_checkpoint(ckpt).status == "interrupted"
+        resume = ckpt
+    monkeypatch.setattr(ELDStepper, "step", original)
+    resumed_run = make_run(resume=ckpt)
+    resumed = resumed_run.trajectory
+    assert set(full.keys()) == set(resumed.keys())
+    for key in full.keys():  # space_estimate is NaN after the steps not adapted after
+        assert np.array_equal(full[key], resumed[key], equal_nan=True), key
+    a, b = full_run.meshes, resumed_run.meshes
+    assert a.series.ids == b.series.ids and len(a.series.ids) > 2
+    for i in a.series.ids:
+        assert all(np.array_equal(x, y) for x, y in zip(a.series.mesh(i), b.series.mesh(i),
+                                                        strict=True))
+    for key in a.kept:
+        assert all(np.array_equal(x, y) for x, y in zip(a.kept[key], b.kept[key], strict=True))
+    assert a.adaptations == b.adaptations
+    assert full.stats.untimed() == resumed.stats.untimed()
+
+
+# -- command line --------------------------------------------------------------------------------
+
+def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
+    import json
+
+    import meshio
+
+    from rothe.cli.main import main
+    from rothe.io.mesh_series import MeshSeries
+
+    out = tmp_path / "pulse"
+    code = main(["run", "eld-pulse", "--n", "2", "--T", "0.06", "--tau", "0.02",
+                 "--keep-every", "1", "--max-dofs", "3000", "--out", str(out)])
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["adaptations"] >= 1 and s["meshes"] >= s["adaptations"] + 1
+    assert s["ndofs"] > s["ndofs_initial"] and s["balance_residual_max"] < 1e-12
+    data = np.load(out / "trajectory.npz")
+    series, ids = MeshSeries.from_npz(data)
+    assert np.array_equal(ids, data["kept_mesh_id"]) and len(series.ids) == s["meshes"]
+    off = data["kept_u_offsets"]
+    for k, m in enumerate(ids):
+        points, cells = series.mesh(m)
+        vtu = meshio.read(out / f"pulse_{k:06d}.vtu")
+        assert len(vtu.points) == len(points) and len(vtu.cells[0].data) == len(cells)
+        u = data["kept_u"][off[k]:off[k + 1]].reshape(-1, 2)[:len(points)]
+        assert np.array_equal(vtu.point_data["u"][:, :2], u)
+    assert (out / "pulse.pvd").is_file()
+    for fig in ("fig_dofs.png", "fig_mesh.png", "fig_energy.png"):
+        assert (out / fig).is_file(), fig
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "eld-pulse", "--space-tol", "0"], r"--space-tol: got 0, must be > 0"),
+    (["run", "eld-pulse", "--refine-fraction", "1"], r"--refine-fraction: got 1, must be in"),
+    (["run", "eld-pulse", "--refine-fraction", "0.8", "--coarsen-fraction", "0.3"],
+     r"--refine-fraction \+ --coarsen-fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1"),
+    (["run", "eld-pulse", "--max-dofs", "10"], r"--max-dofs: got 10, must be >= the 306 dofs"),
+    (["run", "eld-pulse", "--adapt-every", "0"], r"--adapt-every: got 0, must be an integer"),
+    (["run", "eld-pulse", "--no-adapt-space", "--max-dofs", "1000"],
+     r"--max-dofs: got 1000, is used by --adapt-space only"),
+    (["run", "eld-mms", "--adapt-space"], r"--space-tol: got None, must be given"),
+    (["run", "eld-mms", "--adapt-space", "--space-tol", "1", "--data", "means"],
+     r"--data: got 'means', must be points with --adapt-space"),
+])
+def test_cli_bad_space_options_one_line_exit_2(tmp_path, capsys, args, message):
+    import re
+
+    from rothe.cli.main import main
+
+    code = main(args + ["--T", "0.02", "--tau", "0.01", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert re.search(message, err), err
+
+
+def test_a_quadrilateral_mesh_is_refused_naming_adapt_space():
+    from skfem import MeshQuad
+
+    from rothe.fem.adapt import check_adaptable
+
+    with pytest.raises(RotheInputError, match=r"^--adapt-space: got a mesh of quadrilaterals, "
+                                              r"needs triangles \(2D\) or tetrahedra \(3D\)"):
+        check_adaptable(MeshQuad())
+
+
+def test_3d_tetrahedra_adapt_with_the_ledger_closing():
+    from rothe.eld.examples import beam_problem
+
+    problem = beam_problem(1, length=2.0, T=0.03, degree=1)
+    result = run_eld(problem, control=Uniform(0.01), adapt=adaptivity(space_tol=1e-5,
+                                                                      max_dofs=1500))
+    traj = result.trajectory
+    assert result.meshes.adaptations or np.any(traj["step_refinements"] > 0)
+    assert traj["ndofs"].max() > traj["ndofs"][0] and traj["ndofs"].max() <= 1500
+    assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
+    final, p = result.state, result.problem
+    assert np.array_equal(p.constraint.restrict(final.u), p.G(final.t))
+
+
+def test_cli_default_cap_on_the_adapted_mesh():
+    # without a cap a --space-tol below what the time step allows refines until memory runs out
+    import argparse
+
+    from rothe.cli.common import fit_default_cap
+    from rothe.cli.eld_options import ELD_MAX_DOFS, space_adaptivity
+
+    def args(**given):
+        base = dict(adapt_space=True, space_tol=1e-3, refine_fraction=None,
+                    coarsen_fraction=None, max_dofs=None, adapt_every=None)
+        return argparse.Namespace(**{**base, **given})
+
+    a = args()
+    space = space_adaptivity(a, default_max_dofs=ELD_MAX_DOFS["2d"])
+    assert space.max_dofs == 200_000
+    fit_default_cap(a, space, 150_000)  # an initial mesh finer than half the cap
+    assert space.max_dofs == 300_000
+    a = args(max_dofs=5_000)
+    space = space_adaptivity(a, default_max_dofs=ELD_MAX_DOFS["3d"])
+    fit_default_cap(a, space, 150_000)  # the user's cap is the user's (run_eld checks it)
+    assert space.max_dofs == 5_000

@@ -1,0 +1,59 @@
+"""The studies (rothe.eld.studies): Theorem 4.5 at test size (data perturbations in both forms
+over two decades of tau) and the convergence study with the scheme and form objects."""
+
+import numpy as np
+import pytest
+
+from rothe.eld import BDF2, Original, RayleighDamping
+from rothe.eld.studies import convergence_study, perturbation_study
+from rothe.errors import RotheInputError
+
+TAUS = (0.1, 0.01, 0.001)
+
+
+@pytest.fixture(scope="module")
+def noise_in_G():
+    return perturbation_study(TAUS, targets=("G",), n=3, degree=1,
+                              damping=RayleighDamping(a=0.1, b=0.01))
+
+
+def test_multiplier_amplification_bounded_for_regularized_growing_for_original(noise_in_G):
+    reg = np.array(noise_in_G["amp_regularized"])
+    orig = np.array(noise_in_G["amp_original"])
+    # regularized: bounded by a constant over two decades of tau
+    assert reg.max() / reg.min() <= 3.0
+    # original: grows by at least 10x (about tau^-1.5 ... tau^-2, SPEC 5)
+    assert orig[-1] / orig[0] >= 10.0
+    assert noise_in_G["G"]["slope_amp_original"] <= -1.4
+    assert abs(noise_in_G["G"]["slope_amp_regularized"]) <= 0.3
+
+
+def test_velocity_amplification_follows_the_same_pattern_and_u_does_not(noise_in_G):
+    table = noise_in_G["G"]
+    v_reg, v_orig = np.array(table["amp_v_regularized"]), np.array(table["amp_v_original"])
+    assert v_reg.max() / v_reg.min() <= 5.0
+    assert v_orig[-1] / v_orig[0] >= 10.0  # about 1/tau
+    u_reg, u_orig = np.array(table["amp_u_regularized"]), np.array(table["amp_u_original"])
+    # the displacement in L2 does not show the index: both bounded
+    assert u_orig.max() / u_orig.min() <= 3.0 and u_reg.max() / u_reg.min() <= 3.0
+
+
+def test_noise_in_the_load_affects_both_forms_alike():
+    study = perturbation_study((0.1, 0.01), targets=("F",), n=3, degree=1,
+                               damping=RayleighDamping(a=0.1, b=0.01))
+    table = study["F"]
+    for key in ("amp", "amp_v", "amp_u"):
+        reg, orig = np.array(table[f"{key}_regularized"]), np.array(table[f"{key}_original"])
+        assert np.allclose(reg, orig, rtol=0.02), key
+
+
+def test_convergence_study_takes_the_scheme_and_form_objects():
+    study = convergence_study(Original(), tau0=0.1, halvings=2, n=2, degree=2,
+                              damping=RayleighDamping(a=0.1, b=0.01), scheme=BDF2())
+    assert (study["form"], study["scheme"], study["data"], study["lifting"]) == (
+        "original", "bdf2", "points", None)
+    assert study["tau"] == [0.1, 0.05, 0.025] and study["rate_u"] >= 1.8
+    with pytest.raises(RotheInputError, match=r"^form: got 'original', must be Regularized"):
+        convergence_study("original", halvings=1)
+    with pytest.raises(RotheInputError, match=r"^scheme: got 'bdf2', must be ImplicitEuler"):
+        perturbation_study((0.1, 0.05), scheme="bdf2")
