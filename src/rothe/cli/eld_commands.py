@@ -286,6 +286,7 @@ MMS_KEYS = ("example", "form", "scheme", "control", "tau", "accepted_steps", "re
 
 @command("run", "eld-mms")
 class RunEldMMS(EldRunCommand):
+    """``rothe run eld-mms``: the manufactured solution (errors of u, v, lambda)."""
     help = ("Manufactured solution on the unit square: time-dependent Dirichlet data by a "
             "multiplier, traction, nonlinear damping (Altmann 2015, scheme (3.4))")
     name = "eld-mms"
@@ -346,6 +347,7 @@ class RunEldMMS(EldRunCommand):
 
 @command("run", "eld-beam")
 class RunEldBeam(EldRunCommand):
+    """``rothe run eld-beam``: the cantilever, XDMF streamed while it runs."""
     help = ("3D cantilever (E=1000, nu=0.3, rho=1): one end held and moved by G(t), the other "
             "free; the multiplier is the reaction at the held end (XDMF for ParaView)")
     name = "eld-beam"
@@ -435,6 +437,7 @@ class RunEldBeam(EldRunCommand):
 
 @command("run", "eld-pulse")
 class RunEldPulse(EldRunCommand):
+    """``rothe run eld-pulse``: the boundary pulse on adaptive meshes."""
     help = ("A 2D body hit by a short boundary pulse: the wave front crosses the body, adaptive "
             "meshes refine on it and coarsen behind it (space adaptivity)")
     name = "eld-pulse"
@@ -535,6 +538,7 @@ def _beam_reactions(traj) -> dict:
 
 @command("study", "eld-convergence")
 class StudyEldConvergence:
+    """``rothe study eld-convergence``: order in tau on the manufactured solution."""
     help = "Order in tau of both forms on the manufactured solution (tau halved repeatedly)"
     name = "eld-convergence"
 
@@ -593,6 +597,7 @@ class StudyEldConvergence:
 
 @command("study", "eld-perturbation")
 class StudyEldPerturbation:
+    """``rothe study eld-perturbation``: Theorem 4.5, the amplification of noise."""
     help = ("Theorem 4.5: amplification of delta-noise in each of G, G', G'' and F alone by "
             "both forms, for tau from 1e-1 to 1e-3")
     name = "eld-perturbation"

@@ -79,18 +79,21 @@ def step_options(parser, tau_default: float, scheme_default: str = SCHEME_DEFAUL
 
 
 def form_option(parser, default: str = FORM_DEFAULT) -> None:
+    """--form (its default stated in the help)."""
     parser.add_argument("--form", default=default,
                         help=f"{' | '.join(FORMS)}: the index-1 form (2.8) or the index-3 form "
                              f"(2.7) (default {default})")
 
 
 def scheme_option(parser, default: str = SCHEME_DEFAULT) -> None:
+    """--scheme (its default stated in the help)."""
     parser.add_argument("--scheme", default=default,
                         help="euler | bdf2: implicit Euler (3.4), the paper's scheme, or "
                              f"variable-step BDF2 (second order) (default {default})")
 
 
 def control_options(parser) -> None:
+    """--control and --tol."""
     parser.add_argument("--control", default=CONTROLS[0],
                         help="uniform | adaptive: equal steps tau (must divide T), or steps chosen "
                              "by the local error estimate (then --tau is the first step) "
@@ -109,6 +112,7 @@ def data_options(parser) -> None:
 
 
 def lifting_option(parser) -> None:
+    """--lifting (its default stated in the help)."""
     parser.add_argument("--lifting", default=LIFTING_DEFAULT,
                         help=f"right inverse of B for the regularized form: {' | '.join(LIFTINGS)} "
                              f"(default {LIFTING_DEFAULT})")
@@ -143,12 +147,14 @@ def space_options(parser, on: bool = False, default_tol: float | None = None,
 
 
 def keep_option(parser, default: int) -> None:
+    """--keep-every with the command's default."""
     parser.add_argument("--keep-every", type=int, default=default,
                         help=f"keep u, v, a, lambda of every k-th step in trajectory.npz and the "
                              f"XDMF files (default {default}; t = 0 and the last step always)")
 
 
 def damping_options(parser, default: str = "nonlinear", default_b: float = 0.01) -> None:
+    """--damping (with the command's default) and its parameters."""
     parser.add_argument("--damping", default=default,
                         help="nonlinear | rayleigh | none (nonlinear: D v = b K v - d0 M v + "
                              f"d_nl v/sqrt(1+|v|^2/v_ref^2)) (default {default})")

@@ -38,7 +38,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import check_choice, check_int, check_nonnegative, described, fail
+from ..errors import (
+    check_choice,
+    check_instance,
+    check_int,
+    check_nonnegative,
+    described,
+    fail,
+)
 
 #: the data a DataNoise may perturb, with their random streams
 NOISE_TARGETS = ("G", "G_dot", "G_ddot", "F")
@@ -73,6 +80,7 @@ class DataNoise:
         return self.delta * rng.uniform(-1.0, 1.0, n)
 
     def perturbs(self, datum: str) -> bool:
+        """Whether ``datum`` ('G', 'G_dot', 'G_ddot' or 'F') is perturbed."""
         return datum in self.targets
 
     def datum_noise(self, datum: str, j: int, n: int) -> np.ndarray | None:
@@ -87,11 +95,15 @@ class DataNoise:
                      for k in ("G", "G_dot", "G_ddot"))
 
     def load_noise(self, j: int, M) -> np.ndarray | None:
+        """The noise of step j in F: M r with r uniform in [-delta, delta] (None if F is not
+        perturbed).
+        """
         if "F" not in self.targets:
             return None
         return M @ self._uniform(j, _STREAM["F"], M.shape[0])
 
     def describe(self) -> dict:
+        """delta, the targets and the seed (for meta data and checkpoints)."""
         return {"delta": self.delta, "target": list(self.targets), "seed": self.seed}
 
 
@@ -222,9 +234,8 @@ DATA_MODES = {"points": Points, "means": Means, "differenced": Differenced}
 
 def as_data_mode(data) -> DataMode:
     """``data`` if it is a :class:`DataMode`, else a one-line error naming ``data``."""
-    if not isinstance(data, DataMode):
-        raise fail("data", data, "must be Points(), Means() or Differenced() (rothe.eld.data)")
-    return data
+    return check_instance("data", data, DataMode,
+                          "Points(), Means() or Differenced() (rothe.eld.data)")
 
 
 @dataclass

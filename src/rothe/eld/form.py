@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..errors import check_choice, fail
+from ..errors import check_choice, check_instance
 from .constraint import LIFTINGS
 
 
@@ -81,7 +81,5 @@ DEFAULT_FORM = Regularized()
 
 def as_form(form) -> Form:
     """``form`` if it is a :class:`Form`, else a one-line error naming ``form``."""
-    if not isinstance(form, Form):
-        raise fail("form", form, "must be Regularized(lifting=...) or Original() "
-                   "(rothe.eld.form)")
-    return form
+    return check_instance("form", form, Form,
+                          "Regularized(lifting=...) or Original() (rothe.eld.form)")

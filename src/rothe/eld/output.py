@@ -40,8 +40,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import described, fail
 from ..io.atomic import TMP_PREFIX
+from ..io.mesh_series import write_vtu_series
 from ..io.xdmf import StreamedSeries
+from .stress import StressEvaluator, von_mises
 
 
 def mesh_arrays(problem) -> dict:
@@ -67,8 +70,6 @@ class EldXdmfWriter:
     checkpoint)."""
 
     def __init__(self, work_dir, problem, name: str = "eld"):
-        from .stress import StressEvaluator
-
         self.problem = problem
         space = problem.space
         mesh = space.mesh
@@ -97,9 +98,8 @@ class EldXdmfWriter:
         return np.column_stack([values, np.zeros(len(values))])
 
     def write(self, t: float, u: np.ndarray, v: np.ndarray, lam: np.ndarray | None) -> None:
+        """Stream the state at t: u, v, the stresses and (if given) lambda."""
         space = self.problem.space
-        from .stress import von_mises
-
         sigma = self.stresses.stress(u)
         vm = von_mises(sigma)
         sigma_nodal = self.stresses.nodal(sigma)
@@ -117,10 +117,12 @@ class EldXdmfWriter:
 
     # -- checkpoint protocol (attachment of the run's checkpoint) ---------------------------------
     def checkpoint_state(self) -> dict:
+        """Both series' segments so far and the number of steps written."""
         return {"body": self._body.checkpoint_state(), "boundary": self._bnd.checkpoint_state(),
                 "steps_written": self.steps_written}
 
     def restore_state(self, data: dict) -> None:
+        """Continue the series of a checkpoint (the segments it names)."""
         self._body.restore_state(data["body"])
         self._bnd.restore_state(data["boundary"])
         self.steps_written = int(data["steps_written"])
@@ -184,9 +186,7 @@ def write_eld_result(result, out_dir, *, name: str = "eld", xdmf: bool = True,
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
     if xdmf:
         if "kept_t" not in traj:
-            from ..errors import described, fail
-
-            raise fail("traj", described("a run without stored fields"),
+            raise fail("result", described("a run without stored fields"),
                        "must come from run_eld(..., store_fields=True) to write XDMF")
         # segments in a hidden work directory beside the results, then both series atomically
         work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{name}.parts"
@@ -199,6 +199,7 @@ def write_eld_result(result, out_dir, *, name: str = "eld", xdmf: bool = True,
         finally:
             shutil.rmtree(work, ignore_errors=True)
     if figures:
+        # matplotlib is imported only for the figures
         from .figures import plot_energy_balance, plot_reactions
 
         paths["figures"] = [plot_energy_balance(traj, out / "fig_energy.png", title=title),
@@ -224,8 +225,6 @@ def write_adaptive_eld_result(result, out_dir, *, name: str = "eld", paraview: b
     - ``fig_energy.png``, ``fig_reaction.png``, ``fig_dofs.png`` (dofs against t) and, in 2D,
       ``fig_mesh.png`` (four kept states: mesh and |u|).
     """
-    from ..io.mesh_series import write_vtu_series
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     traj, sp = result.trajectory, result.meshes
@@ -245,6 +244,7 @@ def write_adaptive_eld_result(result, out_dir, *, name: str = "eld", paraview: b
                 for u, v, m in zip(sp.kept["u"], sp.kept["v"], ids, strict=True)]
         paths["pvd"] = write_vtu_series(out, name, sp.series, ids, traj["kept_t"], data)
     if figures:
+        # matplotlib is imported only for the figures
         from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
         from .figures import plot_energy_balance, plot_reactions
 

@@ -42,7 +42,7 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
-from ..errors import check_choice, fail
+from ..errors import check_choice, check_instance, fail
 
 #: BDF2 starts: the Taylor history (default), the same without the cubic Gamma_D term, and one
 #: implicit Euler step (the last two only to show why not; :mod:`rothe.eld.start`)
@@ -229,7 +229,5 @@ DEFAULT_SCHEME = ImplicitEuler()
 
 def as_scheme(scheme) -> Scheme:
     """``scheme`` if it is a :class:`Scheme`, else a one-line error naming ``scheme``."""
-    if not isinstance(scheme, Scheme):
-        raise fail("scheme", scheme, "must be ImplicitEuler() or BDF2(start=...) "
-                   "(rothe.eld.scheme)")
-    return scheme
+    return check_instance("scheme", scheme, Scheme,
+                          "ImplicitEuler() or BDF2(start=...) (rothe.eld.scheme)")

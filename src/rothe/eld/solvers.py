@@ -149,6 +149,7 @@ class ReferenceSolver:
 
     @property
     def factored(self) -> bool:
+        """Whether a reference factorization (or AMG hierarchy) is stored."""
         return self._prec is not None
 
     def solve_reference(self, b: np.ndarray, x0=None) -> np.ndarray:

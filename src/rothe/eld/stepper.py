@@ -55,7 +55,15 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from ..errors import RotheInputError, RunFailed, check_int, check_positive, described, fail
+from ..errors import (
+    RotheInputError,
+    RunFailed,
+    check_instance,
+    check_int,
+    check_positive,
+    described,
+    fail,
+)
 from ..fem.adapt.cycle import AdaptationFailed
 from ..io.trajectory import Trajectory
 from ..stepping.controllers import Adaptive, Given, Uniform
@@ -121,10 +129,9 @@ def _dot(a, b) -> float:
 
 def as_control(control):
     """``control`` if it is a step-control object of elastodynamics, else a one-line error."""
-    if not isinstance(control, (Uniform, Given, Adaptive)):
-        raise fail("control", control, "must be Uniform(tau), Given(steps) or Adaptive(tol, "
-                   "tau=...) (rothe.stepping.controllers)")
-    return control
+    return check_instance("control", control, (Uniform, Given, Adaptive),
+                          "Uniform(tau), Given(steps) or Adaptive(tol, tau=...) "
+                          "(rothe.stepping.controllers)")
 
 
 class ELDStepper:
@@ -559,17 +566,18 @@ class ELDStepper:
             return f["x"]
         return f["x"] + (tau / state.tau_prev) * (f["x"] - f["x_1"])
 
-    def _step_regularized(self, state: ELDState, vals, coeffs, tau):
+    def _step_parts(self, state: ELDState, vals, coeffs, tau):
+        """What both forms' steps start from: the system, the problem, rho, the dofs, alpha_0,
+        tau_eff, the lifted data, the history terms and the damping operator."""
         system = self.system
-        p, rho = system.problem, system.rho
-        I = system.I
-        n = p.space.ndofs
         a0 = coeffs[0]
-        te = tau / a0
-        lifted = system.lifted(vals)
+        return (system, system.problem, system.rho, system.problem.space.ndofs, a0, tau / a0,
+                system.lifted(vals), self._history(state, coeffs), system.D)
+
+    def _step_regularized(self, state: ELDState, vals, coeffs, tau):
+        system, p, rho, n, a0, te, lifted, h, D = self._step_parts(state, vals, coeffs, tau)
+        I = system.I
         (u2, _, Ku2), (v2, Mv2, Kv2), (w2, Mw2, _) = lifted
-        h = self._history(state, coeffs)
-        D = system.D
         guess = self._guess(state, tau)[I]
         if D.is_linear:
             # A(te) x = F - rho M (alpha_0 h_x/tau^2 + h_y/tau + w2) - C (h_x/tau + v2) - K u2
@@ -610,16 +618,9 @@ class ELDStepper:
         return cache["k"], its
 
     def _step_original(self, state: ELDState, vals, coeffs, tau):
-        system = self.system
-        p, rho = system.problem, system.rho
+        system, p, rho, n, a0, te, lifted, h, D = self._step_parts(state, vals, coeffs, tau)
         c = p.constraint
-        n = p.space.ndofs
-        a0 = coeffs[0]
-        te = tau / a0
-        lifted = system.lifted(vals)
         g_rhs = c.boundary_mass @ vals.G
-        h = self._history(state, coeffs)
-        D = system.D
         if D.is_linear:
             rhs_u = (vals.F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
                      - D.mass_coef * h["Mx"] / tau - D.stiffness_coef * h["Kx"] / tau)

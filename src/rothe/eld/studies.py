@@ -58,6 +58,7 @@ def check_halvings(name: str, halvings, tau0: float, T: float) -> int:
 
 
 def check_delta(name: str, delta) -> float:
+    """A noise size 0 < delta <= MAX_DELTA (one line naming ``name``)."""
     delta = check_positive(name, delta)
     if delta > MAX_DELTA:
         raise fail(name, delta, f"must be <= {MAX_DELTA:g} (noise small against the data, "
@@ -195,6 +196,7 @@ def convergence_study(form: Form = DEFAULT_FORM, *, tau0: float = 0.1, halvings:
 
 
 def format_convergence_table(study: dict) -> str:
+    """The convergence study as a table: errors at T and maxima per tau, fitted orders."""
     head = (f"{'tau':>9} {'steps':>6} {'newton':>7} {'|u-u_h| L2':>11} {'H1':>10} "
             f"{'|v-v_h| L2':>11} {'H1':>10} {'|lam| L2(G_D)':>13} {'max_j u':>10} "
             f"{'max_j v':>10} {'max_j lam':>10} {'seconds':>8}")
@@ -323,6 +325,7 @@ _WHAT = {
 
 
 def format_perturbation_table(study: dict) -> str:
+    """The perturbation study as a table per datum: amplifications per tau and form, slopes."""
     lines = []
     present = [t for t in NOISE_TARGETS if t in study]
     first = study[present[0]]
