@@ -251,6 +251,22 @@ def test_a_failed_transfer_is_never_accepted(monkeypatch):
     assert len(run.trajectory["t"]) == 2 and np.all(run.trajectory["mesh_id"] == 0)
 
 
+def test_non_finite_indicators_stop_the_run_on_the_last_mesh(monkeypatch):
+    import rothe.eld.adapt as adapt_module
+
+    problem = pulse(0.2)
+    run = prepare_eld_run(problem, adapt=adaptivity(), **PULSE)
+    monkeypatch.setattr(adapt_module, "dirichlet_data_indicator",
+                        lambda problem, t: np.full(problem.space.mesh.t.shape[1], np.nan))
+    with pytest.raises(RunFailed, match=r"^space adaptivity: the transfer to the new mesh after "
+                                        r"step 1 \(t = 0.02\) failed \(FloatingPointError: "
+                                        r"non-finite error indicators\); the run stops on mesh 0$"):
+        run.evolve()
+    traj = run.trajectory
+    assert traj.stats.accepted_steps == 1 and np.all(traj["step_refinements"] == 0)
+    assert "space_estimate" not in traj  # the adapt step of step 1 did not complete
+
+
 def test_bad_input_one_line():
     problem = pulse(0.2)
     with pytest.raises(RotheInputError, match=r"^max_dofs: got 10, must be >= the \d+ dofs of "

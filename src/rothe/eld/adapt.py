@@ -227,8 +227,11 @@ class ELDAdaptivity:
         rho = problem.material.rho
         ind = eld_indicators_for(problem, state.t, f["u"], f["v"], f["a"],
                                  reaction=rho * (self.alpha0 / tau) ** 2)
-        eta2 = np.asarray(ind.eta, dtype=float) ** 2 + dirichlet_data_indicator(problem, t_next)
-        return np.sqrt(eta2)
+        eta = np.sqrt(np.asarray(ind.eta, dtype=float) ** 2
+                      + dirichlet_data_indicator(problem, t_next))
+        if not np.all(np.isfinite(eta)):  # the run stops naming it (ELDStepper.adapt)
+            raise FloatingPointError("non-finite error indicators")
+        return eta
 
     def rebuild(self, system, mesh):
         """The system of the same problem on ``mesh`` (counters continued; its first

@@ -57,7 +57,18 @@ _GAUSS2 = (0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0))
 @dataclass
 class DataNoise:
     """delta-sized noise in one datum (``target='G'``, ``'G_dot'``, ``'G_ddot'`` or ``'F'``) or in
-    several at once (``target=('G', 'G_dot', 'G_ddot')``: the separate data of (4.6))."""
+    several at once (``target=('G', 'G_dot', 'G_ddot')``: the separate data of (4.6)).
+
+    Parameters
+    ----------
+    delta : float >= 0
+        The size of the noise (uniform in [-delta, delta] per constrained dof; the load noise is
+        M r with r uniform in [-delta, delta]).
+    target : str or tuple of str
+        The perturbed data, among ``'G'``, ``'G_dot'``, ``'G_ddot'``, ``'F'``.
+    seed : int >= 0
+        The noise of step j depends only on (seed, j, datum).
+    """
 
     delta: float
     target: str | tuple = "G"

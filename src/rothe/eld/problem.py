@@ -100,17 +100,29 @@ class ELDProblem:
 
     Parameters
     ----------
-    mesh : skfem.MeshTri | skfem.MeshTet with named boundary parts
+    mesh : skfem.MeshTri or skfem.MeshTet
+        With named boundary parts (``rothe.fem.mesh``: ``unit_square(n, named=True)``, ``box``,
+        ``tag_box_faces``, ``load_mesh``).
     material : Material
-    degree : 1 | 2
-    damping : Damping (default none)
-    dirichlet : dict part -> callable G(t, x) or DirichletData. Where two parts share nodes,
-        the part listed last sets their values.
-    traction : dict part -> callable g(t, x, n)
-    body_force : callable f(t, x) or None
-    u0, v0 : initial displacement and velocity
-    T : end time
-    load_quadrature : degree of the quadrature rule for body force and tractions (default 2p)
+    degree : {1, 2}
+        Vector P1 or P2 elements.
+    damping : Damping, optional
+        Default: none.
+    dirichlet : dict
+        part -> callable G(t, x) or DirichletData. Where two parts share nodes, the part listed
+        last sets their values.
+    traction : dict, optional
+        part -> callable g(t, x, n).
+    body_force : callable f(t, x), optional
+    u0, v0 : callable, dof vector or None
+        Initial displacement and velocity (None: zero); u0 must match G(0) on the Dirichlet
+        parts (Remark 2.2, checked before the first step).
+    T : float
+        End time.
+    name : str
+        The problem's name in outputs.
+    load_quadrature : int, optional
+        Degree of the quadrature rule for body force and tractions (default 2p).
     """
 
     def __init__(self, mesh, material: Material, *, degree: int = 1, damping: Damping | None = None,
