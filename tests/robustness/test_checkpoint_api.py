@@ -104,11 +104,12 @@ def test_run_nested_resumes_inside_the_second_run(tmp_path, signal_at_attempt):
 
 def test_run_eld_sigterm_and_resume(tmp_path, signal_at_attempt):
     from rothe.eld import ELDStepper, make_damping, mms_problem, run_eld
+    from rothe.stepping.controllers import Uniform
 
     p, _ = mms_problem(3, 2, damping=make_damping("nonlinear", b=0.01, d0=0.5))
 
     def make_run(**kw):
-        return run_eld(p, "regularized", 0.01, **kw)
+        return run_eld(p, control=Uniform(0.01), **kw).trajectory
 
     full = make_run()
     resumed = _interrupted_thrice(make_run, ELDStepper, signal_at_attempt, tmp_path / "c",

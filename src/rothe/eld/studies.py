@@ -25,9 +25,16 @@ import time
 import numpy as np
 
 from ..errors import check_int, check_positive, fail
-from .data import NOISE_TARGETS, DataNoise
+from ..parallel import Executor, Task
+from ..stepping.controllers import Uniform
+from .data import DEFAULT_DATA, NOISE_TARGETS, DataMode, DataNoise
 from .examples import mms_errors, mms_problem
-from .schemes import FORMS, run_eld
+from .form import DEFAULT_FORM, Form, Original, Regularized, as_form
+from .run import run_eld
+from .scheme import DEFAULT_SCHEME, Scheme, as_scheme
+
+#: the forms of the perturbation study, by their names in its tables
+FORMS = (Regularized(), Original())
 
 #: most steps of the finest run of a convergence study (T / (tau0 / 2^halvings))
 MAX_STUDY_STEPS = 10**6
@@ -51,6 +58,7 @@ def check_halvings(name: str, halvings, tau0: float, T: float) -> int:
 
 
 def check_delta(name: str, delta) -> float:
+    """A noise size 0 < delta <= MAX_DELTA (one line naming ``name``)."""
     delta = check_positive(name, delta)
     if delta > MAX_DELTA:
         raise fail(name, delta, f"must be <= {MAX_DELTA:g} (noise small against the data, "
@@ -83,16 +91,17 @@ def fitted_rate(taus, errors) -> float | None:
     return float(np.polyfit(np.log(taus[done]), np.log(e), 1)[0])
 
 
-def convergence_run(form: str, tau: float, *, n: int, degree: int, damping, rho: float,
-                    lam: float, mu: float, T: float, data: str, lifting: str, scheme: str,
+def convergence_run(form: Form, tau: float, *, n: int, degree: int, damping, rho: float,
+                    lam: float, mu: float, T: float, data: DataMode, scheme: Scheme,
                     progress=False) -> dict:
     """One run of :func:`convergence_study` (a task: builds the problem itself): its row, with
     the problem's ``ndofs`` and ``damping`` description under ``"_problem"``."""
     problem, exact = mms_problem(n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)
     t0 = time.perf_counter()
-    traj = run_eld(problem, form, tau, scheme=scheme, data=data, lifting=lifting,
-                   progress=progress)
-    err = mms_errors(problem, exact, traj)
+    result = run_eld(problem, scheme=scheme, form=form, control=Uniform(tau), data=data,
+                     progress=progress)
+    err = mms_errors(exact, result)
+    traj = result.trajectory
     st = traj.stats
     return {"tau": tau, "steps": st.accepted_steps, "newton_iterations": st.newton_iterations,
             "backsolves": traj.meta["linear_solver"]["backsolves"],
@@ -112,10 +121,10 @@ def _problem_meta(results, n, degree, damping, **kw) -> dict:
 _ERRORS = ("u_l2", "u_h1", "v_l2", "v_h1", "lam_l2", "u_l2_max", "v_l2_max", "lam_l2_max")
 
 
-def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings: int = 5,
+def convergence_study(form: Form = DEFAULT_FORM, *, tau0: float = 0.1, halvings: int = 5,
                       n: int = 4, degree: int = 2, damping=None, rho: float = 1.0,
-                      lam: float = 2.0, mu: float = 1.0, T: float = 1.0, data: str = "points",
-                      lifting: str = "nodal", scheme: str = "euler",
+                      lam: float = 2.0, mu: float = 1.0, T: float = 1.0,
+                      data: DataMode = DEFAULT_DATA, scheme: Scheme = DEFAULT_SCHEME,
                       progress: bool = False, executor=None) -> dict:
     """Errors at T of u, v (L2, H1) and lambda (L2(Gamma_D)), and the maxima over the steps of
     the L2 errors, for tau0 / 2^k, k = 0..halvings.
@@ -123,19 +132,38 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
     The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
     one after another in this process). A run that fails is a row with its ``status`` and NaN
     errors; the orders are fitted over the completed runs.
-    """
-    from ..parallel import Executor, Task
 
-    if form not in FORMS:
-        raise fail("form", form, "must be one of " + ", ".join(FORMS))
+    Parameters
+    ----------
+    form : Regularized or Original
+    tau0 : float
+        The largest step.
+    halvings : int
+        Times tau0 is halved.
+    n, degree : int
+        The manufactured problem's mesh and element (:func:`rothe.eld.mms_problem`).
+    damping, rho, lam, mu, T
+        Its damping, material and end time.
+    data : DataMode
+    scheme : ImplicitEuler or BDF2
+    progress : bool
+    executor : rothe.parallel.Executor, optional
+
+    Returns
+    -------
+    dict
+        ``tau``, ``error_u``, ``error_v``, ``error_lam`` and their maxima over the steps
+        ``error_*_max``, H1 errors, fitted ``rate_*``, the ``rows`` of the runs.
+    """
+    form, scheme = as_form(form), as_scheme(scheme)
     tau0 = check_positive("tau0", tau0)
     halvings = check_halvings("halvings", halvings, tau0, T)
     taus = [tau0 / 2**k for k in range(halvings + 1)]
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
     common = dict(n=n, degree=degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T, data=data,
-                  lifting=lifting, scheme=scheme, progress=inner_progress)
-    tasks = [Task(f"{form} tau={tau:g}", convergence_run, {"form": form, "tau": tau, **common},
+                  scheme=scheme, progress=inner_progress)
+    tasks = [Task(f"{form.name} tau={tau:g}", convergence_run, {"form": form, "tau": tau, **common},
                   cost=1 / tau) for tau in taus]
     results = (executor or Executor(1, progress=False)).map(tasks)
     meta = _problem_meta(results, n, degree, damping, rho=rho, lam=lam, mu=mu, T=T)
@@ -147,9 +175,8 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
             rows.append({"tau": tau, "status": f"{res.status}: {res.message}",
                          **{f"error_{x}": float("nan") for x in _ERRORS}})
     out = {
-        "example": "eld-mms", "form": form, "scheme": scheme, "n": n, "degree": degree,
-        "data": data,
-        "lifting": lifting, "ndofs": meta["ndofs"],
+        "example": "eld-mms", "form": form.name, "scheme": scheme.name, "n": n,
+        "degree": degree, "data": data.name, "lifting": form.lifting, "ndofs": meta["ndofs"],
         "damping": meta["damping"],
         "tau": taus,
         "error_u": [r["error_u_l2"] for r in rows],
@@ -169,6 +196,7 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
 
 
 def format_convergence_table(study: dict) -> str:
+    """The convergence study as a table: errors at T and maxima per tau, fitted orders."""
     head = (f"{'tau':>9} {'steps':>6} {'newton':>7} {'|u-u_h| L2':>11} {'H1':>10} "
             f"{'|v-v_h| L2':>11} {'H1':>10} {'|lam| L2(G_D)':>13} {'max_j u':>10} "
             f"{'max_j v':>10} {'max_j lam':>10} {'seconds':>8}")
@@ -205,16 +233,16 @@ def _amplifications(problem, base, pert, delta: float) -> tuple[float, float, fl
     return amp, amp_v, amp_u
 
 
-def perturbation_run(form: str, tau: float, *, delta: float, targets, n: int, degree: int,
-                     damping, seed: int, T: float, scheme: str, progress=False) -> dict:
+def perturbation_run(form: Form, tau: float, *, delta: float, targets, n: int, degree: int,
+                     damping, seed: int, T: float, scheme: Scheme, progress=False) -> dict:
     """One (tau, form) of :func:`perturbation_study` (a task: builds the problem itself): the
     unperturbed run and one perturbed run per target; the amplifications by target."""
     problem, _ = mms_problem(n, degree, damping=damping, T=T)
-    base = run_eld(problem, form, tau, scheme=scheme, progress=progress)
+    options = dict(scheme=scheme, form=form, control=Uniform(tau), progress=progress)
+    base = run_eld(problem, **options).trajectory
     out = {"_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}}
     for target in targets:
-        pert = run_eld(problem, form, tau, scheme=scheme, progress=progress,
-                       noise=DataNoise(delta, target, seed))
+        pert = run_eld(problem, noise=DataNoise(delta, target, seed), **options).trajectory
         out[target] = _amplifications(problem, base, pert, delta)
     return out
 
@@ -222,9 +250,10 @@ def perturbation_run(form: str, tau: float, *, delta: float, targets, n: int, de
 def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, delta: float = 1e-6,
                        targets=("G", "G_dot", "G_ddot", "F"), forms=FORMS, n: int = 6,
                        degree: int = 1, damping=None, seed: int = 0, T: float = 1.0,
-                       scheme: str = "euler", progress: bool = False, executor=None) -> dict:
+                       scheme: Scheme = DEFAULT_SCHEME, progress: bool = False,
+                       executor=None) -> dict:
     """Amplification of delta-noise in each datum alone (G, G_dot, G_ddot, F) for each tau and
-    form.
+    form (``forms``: Regularized and Original objects; the tables name them by ``form.name``).
 
     Returns ``{"tau": [...], "delta": delta, "<target>": table, ...}`` where each table holds
     ``amp_<form>`` (multiplier), ``amp_v_<form>``, ``amp_u_<form>`` (lists over tau) and the
@@ -236,15 +265,15 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
     default: one after another in this process). A (tau, form) whose runs fail gets NaN
     amplifications and is listed under ``"failed"``.
     """
-    from ..parallel import Executor, Task
-
+    forms = tuple(as_form(f) for f in forms)
+    scheme = as_scheme(scheme)
     taus = [check_positive("taus", t) for t in taus]
     delta = check_delta("delta", delta)
     targets = check_noise_targets("targets", targets)
     seed = check_int("seed", seed, minimum=0)
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
-    tasks = [Task(f"{form} tau={tau:g}", perturbation_run,
+    tasks = [Task(f"{form.name} tau={tau:g}", perturbation_run,
                   {"form": form, "tau": tau, "delta": delta, "targets": tuple(targets), "n": n,
                    "degree": degree, "damping": damping, "seed": seed, "T": T,
                    "scheme": scheme, "progress": inner_progress},
@@ -253,16 +282,17 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
     t0 = time.perf_counter()
     results = (executor or Executor(1, progress=False)).map(tasks)
     meta = _problem_meta(results, n, degree, damping, T=T)
-    out = {"example": "eld-mms", "scheme": scheme, "n": n, "degree": degree,
+    out = {"example": "eld-mms", "scheme": scheme.name, "n": n, "degree": degree,
            "ndofs": meta["ndofs"], "targets": list(targets),
            "damping": meta["damping"], "tau": taus, "delta": delta, "seed": seed,
            "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"}}
-    tables = {t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in forms}
+    names = [f.name for f in forms]
+    tables = {t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in names}
               for t in targets}
     nan = (float("nan"),) * 3
     failed = []
     for task, res in zip(tasks, results, strict=True):
-        form = task.kwargs["form"]
+        form = task.kwargs["form"].name
         if not res.completed:
             failed.append({"tau": task.kwargs["tau"], "form": form,
                            "status": f"{res.status}: {res.message}"})
@@ -276,7 +306,7 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
             table[f"slope_{name}"] = fitted_rate(taus, table[name])
         out[target] = table
     if "G" in tables:
-        for form in forms:
+        for form in names:
             out[f"amp_{form}"] = tables["G"][f"amp_{form}"]
             out[f"amp_v_{form}"] = tables["G"][f"amp_v_{form}"]
             out[f"amp_u_{form}"] = tables["G"][f"amp_u_{form}"]
@@ -295,10 +325,11 @@ _WHAT = {
 
 
 def format_perturbation_table(study: dict) -> str:
+    """The perturbation study as a table per datum: amplifications per tau and form, slopes."""
     lines = []
     present = [t for t in NOISE_TARGETS if t in study]
     first = study[present[0]]
-    forms = [f for f in FORMS if f"amp_{f}" in first]
+    forms = [f.name for f in FORMS if f"amp_{f.name}" in first]
     for target in present:
         table = study[target]
         lines.append(f"scheme {study.get('scheme', 'euler')}, {_WHAT[target]}, delta = "
