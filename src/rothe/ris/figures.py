@@ -9,6 +9,7 @@ import matplotlib.tri as mtri
 import numpy as np
 
 from ..plotting.common import plt, save_figure
+from .run import stored_states
 
 
 def plot_path(traj, path, exact=None, title="", component=None) -> Path:
@@ -17,8 +18,6 @@ def plot_path(traj, path, exact=None, title="", component=None) -> Path:
     For vector states, z^ is shown as its min, max and V-mean over the nodes unless
     ``component`` selects one entry.
     """
-    from .stepper import stored_states
-
     s, t, z = stored_states(traj)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     axes[0].plot(traj["s"], traj["t"], "-", lw=1.4, label="numerical")
