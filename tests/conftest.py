@@ -1,4 +1,4 @@
-"""Fixtures for the finite-element tests: gmsh files written by the test itself (no binaries)."""
+"""Fixtures shared by the test folders: gmsh files written by the test itself (no binaries)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 
 def load_gmsh_text():
-    path = Path(__file__).with_name("gmsh_text.py")
+    path = Path(__file__).parent / "fem" / "gmsh_text.py"
     spec = importlib.util.spec_from_file_location("rothe_tests_gmsh_text", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
