@@ -271,15 +271,15 @@ class _RunRISFem(RISRunBase):
         n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
         if args.mesh is None:
             check_memory("--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim])
-        self._space = space_from_args(args, self.default_space_tol, self.default_max_dofs)
-        if self._space is not None and args.max_dofs is not None:
+        self._adapt = space_from_args(args, self.default_space_tol, self.default_max_dofs)
+        if self._adapt is not None and args.max_dofs is not None:
             check_memory("--max-dofs", args.max_dofs, args.max_dofs,
                          RIS_BYTES_PER_NODE[self.dim])
         return super().validate(args)
 
     def run_options(self, args) -> dict:
         """``adapt=`` with --adapt-space."""
-        return {} if self._space is None else {"adapt": self._space}
+        return {} if self._adapt is None else {"adapt": self._adapt}
 
     def make_problem(self, n, mesh, args, dirichlet):
         """Example 7.2 (or its 3D analogue) on the grid or the mesh."""
@@ -302,11 +302,11 @@ class _RunRISFem(RISRunBase):
             problem = self.make_problem(n, mesh, args, dirichlet)
         except RotheInputError as exc:
             raise _as_option_error(exc, args) from None
-        if self._space is not None:
+        if self._adapt is not None:
             problem.check_movable()
-            fit_default_cap(args, self._space, problem.n_nodes)
-            if self._space.max_dofs < problem.n_nodes:
-                raise fail("--max-dofs", self._space.max_dofs,
+            fit_default_cap(args, self._adapt, problem.n_nodes)
+            if self._adapt.max_dofs < problem.n_nodes:
+                raise fail("--max-dofs", self._adapt.max_dofs,
                            f"must be >= the {problem.n_nodes} dofs of the initial mesh")
         self._setup_time = time.perf_counter() - t0
         self._grid = None if mesh is not None else n
@@ -332,7 +332,7 @@ class _RunRISFem(RISRunBase):
         extra.update(describe_branch(problem, traj))
         if traj.meshes is not None:
             dofs = np.asarray(traj["n_dofs"])
-            extra.update(adapt_space=self._space.describe(),
+            extra.update(adapt_space=self._adapt.describe(),
                          space_adaptations=traj.meta.get("space_adaptations"),
                          transfer_failures=traj.meta.get("transfer_failures"),
                          n_meshes=len(traj.meshes), n_dofs_final=int(dofs[-1]),
@@ -352,7 +352,7 @@ class _RunRISFem(RISRunBase):
 
     def npz_extra(self, problem) -> dict:
         """``nodes`` and ``cells`` of a fixed mesh."""
-        if self._space is not None:  # the meshes are in the trajectory's mesh series
+        if self._adapt is not None:  # the meshes are in the trajectory's mesh series
             return {}
         return {"nodes": problem.nodes, "cells": problem.cells}
 

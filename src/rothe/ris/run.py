@@ -28,7 +28,7 @@ from ..fem.adapt import SpaceAdaptivity
 from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.mesh_series import MeshSeries
 from ..io.trajectory import RunStatistics, Trajectory
-from ..stepping.controllers import Adaptive, Uniform
+from ..stepping.controllers import Adaptive
 from ..stepping.evolve import evolve
 from .controllers import (
     AdaptiveController,
@@ -181,16 +181,10 @@ def _where(traj: Trajectory, state: RISState) -> dict:
             "s": float(state.s), "t": float(state.t)}
 
 
-def _control_name(control) -> str:
-    """The name of a step control as in ``meta['control']`` and the checkpoint's arguments."""
-    return {Uniform: "uniform", Adaptive: "adaptive", Order2: "order2",
-            Regime: "regime"}[type(control)]
-
-
-def _control_arguments(control) -> dict:
+def _control_arguments(control, name: str) -> dict:
     """What identifies a run's step control in its checkpoint: name, tol, step range, knobs."""
     tau, tau_min, tau_max = step_range(control)
-    out = {"control": _control_name(control), "tol": getattr(control, "tol", None), "tau": tau,
+    out = {"control": name, "tol": getattr(control, "tol", None), "tau": tau,
            "tau_min": tau_min, "tau_max": tau_max}
     if isinstance(control, Order2):
         out["safety"] = control.safety
@@ -202,7 +196,7 @@ def _control_arguments(control) -> dict:
 def _run_info(problem: RISProblem, name: str, tol, tau: float, adapt) -> dict:
     """``traj.meta`` of a run: the example, the control, its tolerance and first step."""
     info = {"example": problem.name, "control": name, "tol": tol, "tau0": tau}
-    if adapt is not None:
+    if adapt is not None:  # under the key trajectories have always had (results unchanged)
         info["space"] = adapt.describe()
     return info
 
@@ -307,7 +301,7 @@ def run_ris(
     info.update(meta or {})
     extra = {} if adapt is None else {"adapt": adapt.describe()}
     arguments = run_arguments(
-        **_control_arguments(control), S=S, inner=asdict(inner or InnerOptions()),
+        **_control_arguments(control, controller.name), S=S, inner=asdict(inner or InnerOptions()),
         simpson_subintervals=simpson_subintervals, keep_every=keep_every, **extra)
     with RunCheckpointing("run_ris", problem, arguments, checkpoint, resume) as rc:
         cp = rc.checkpointer
