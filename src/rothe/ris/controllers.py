@@ -416,12 +416,9 @@ class Regime:
 
     Parameters
     ----------
-    tol : float > 0
-        Accept a step iff I1 < tol and I2 < tol.
-    tau : float > 0, optional
-        The first step (None: 0.1).
-    tau_min, tau_max : float > 0, optional
-        The range of the steps (None: 1e-12 and no upper bound).
+    tol, tau, tau_min, tau_max
+        As for :class:`Order2`: accept iff I1 < tol and I2 < tol; the first step (None: 0.1)
+        and the range of the steps (None: 1e-12 and no upper bound).
     theta : float in (0, 1)
         Every step aims at the residual theta tol.
     grow : float > 1
