@@ -16,7 +16,7 @@ import pytest
 from rothe import __version__
 from rothe.cli.main import main
 from rothe.cli.registry import commands, load_all
-from rothe.ris.controllers import CONTROLS
+from rothe.cli.ris_commands import CONTROLS
 
 
 def run_cli(capsys, *argv):
@@ -173,15 +173,17 @@ def test_nan_load_midway_is_a_failed_run_that_keeps_its_trajectory(tmp_path, cap
     """FERISProblem raised an input error (exit 2) and discarded the steps computed so far."""
     import numpy as np
 
-    from rothe.ris import fem_problem as ris_fem
+    from rothe.fem.mesh import unit_square
+    from rothe.ris import examples
+    from rothe.ris.fem_problem import FERISProblem
 
     def factory(n, mesh, **kw):
         # NaN on (0.5, 0.52): between the nine times the problem checks when it is built
-        return ris_fem.FERISProblem(
-            ris_fem.unit_square(n), ris_fem.g_7_2, ris_fem.dg_7_2, ris_fem.d2g_7_2,
+        return FERISProblem(
+            unit_square(n), examples.g_7_2, examples.dg_7_2, examples.d2g_7_2,
             load=lambda t: np.nan if 0.5 < t < 0.52 else -200.0 * t**3, name="ris-2d")
 
-    monkeypatch.setattr(ris_fem, "example_7_2", factory)
+    monkeypatch.setattr(examples, "example_7_2", factory)
     out = tmp_path / "o"
     line = one_line_error(capsys, "run", "ris-2d", "--n", "4", "--no-plots", "--out", str(out),
                           status=1)

@@ -11,14 +11,16 @@ import copy
 import numpy as np
 import pytest
 
+from rothe.cli.ris_commands import control_object
 from rothe.fem.linear import ReusableSolver
 from rothe.io.checkpoint import encode
 from rothe.io.trajectory import Trajectory
-from rothe.ris.controllers import make_controller
-from rothe.ris.examples import example_7_1
-from rothe.ris.fem_problem import example_7_2
+from rothe.ris.controllers import Order2, build_controller
+from rothe.ris.examples import example_7_1, example_7_2
 from rothe.ris.inner import InnerOptions
-from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
+from rothe.ris.run import initial_trajectory
+from rothe.ris.stepper import RISState, RISStepper
+from rothe.stepping.controllers import Uniform
 from rothe.stepping.evolve import evolve
 
 
@@ -37,7 +39,9 @@ class StopAfter:
 
 def _ris_parts(problem, control, **kw):
     grid = kw.pop("grid", None)
-    controller = make_controller(control, tol=kw.get("tol"), tau=kw.get("tau", 0.1), grid=grid)
+    spec = control_object("adaptive" if control == "nested" else control, tol=kw.get("tol"),
+                          tau=kw.get("tau", 0.1))
+    controller = build_controller(spec, grid=grid)
     stepper = RISStepper(problem, kw.get("inner"))
     return stepper, controller
 
@@ -70,7 +74,7 @@ def test_ris_stepper_and_controller_round_trip(control, problem, kw, k):
     # k steps, then a checkpoint dict, deep-copied, restored into fresh objects
     stepper, controller = _ris_parts(p, control, **dict(kw))
     part = initial_trajectory(p)
-    state = evolve(StopAfter(stepper, k), controller, RISState(0.0, 0.0, p.z0.copy()), part)
+    state = evolve(stepper, controller, RISState(0.0, 0.0, p.z0.copy()), part, max_steps=k)
     assert state.k == k
     saved = copy.deepcopy({"stepper": stepper.checkpoint_state(state),
                            "controller": controller.checkpoint_state()})
@@ -93,7 +97,7 @@ def test_restoring_the_stored_lu_is_what_makes_the_ris_continuation_exact():
     evolve(stepper, controller, RISState(0.0, 0.0, p.z0.copy()), full)
     stepper, controller = _ris_parts(p, "adaptive", **kw)
     part = initial_trajectory(p)
-    state = evolve(StopAfter(stepper, 70), controller, RISState(0.0, 0.0, p.z0.copy()), part)
+    state = evolve(stepper, controller, RISState(0.0, 0.0, p.z0.copy()), part, max_steps=70)
     saved = copy.deepcopy(stepper.checkpoint_state(state))
     assert saved["linear"]["reference"] is not None  # an LU is stored at step 70
     saved["linear"]["reference"] = None
@@ -183,5 +187,5 @@ def test_encode_refuses_what_would_need_pickle():
     with pytest.raises(TypeError, match=r"state.a\[1\]: array of dtype object"):
         encode({"a": [np.zeros(2), np.array([None])]}, {})
     with pytest.raises(ValueError, match="uniform"):  # a controller refuses another's state
-        make_controller("order2", tol=1e-3, tau=0.1).restore_state(
-            make_controller("uniform", tau=0.1).checkpoint_state())
+        build_controller(Order2(1e-3, tau=0.1)).restore_state(
+            build_controller(Uniform(0.1)).checkpoint_state())
