@@ -26,13 +26,21 @@ def run_cli(capsys, *argv):
 
 def test_run_ris_2d_outputs(tmp_path, capsys):
     out = tmp_path / "r"
-    code, stdout, err = run_cli(capsys, "run", "ris-2d", "--n", "6", "--tol", "1e-3",
-                                "--out", str(out))
+    code, stdout, err = run_cli(
+        capsys, "run", "ris-2d", "--n", "6", "--tol", "1e-3", "--out", str(out)
+    )
     assert code == 0, err
     assert "branch" in stdout and "linear_solver" in stdout
     files = {p.name for p in out.iterdir()}
-    assert {"summary.json", "trajectory.npz", "solution.xdmf", "solution.h5", "fig4_steps.png",
-            "fig_snapshots.png", "fig1_path.png"} <= files
+    assert {
+        "summary.json",
+        "trajectory.npz",
+        "solution.xdmf",
+        "solution.h5",
+        "fig4_steps.png",
+        "fig_snapshots.png",
+        "fig1_path.png",
+    } <= files
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_nodes"] == 49 and summary["n_unknowns"] == 25
     assert summary["linear_solver"] == "splu" and summary["peak_memory_mb"] > 10
@@ -73,12 +81,29 @@ def test_reported_linear_solver_is_the_one_that_ran(method):
 
 
 def test_run_ris_2d_from_gmsh_with_named_dirichlet_part(tmp_path, capsys, gmsh_text):
-    msh = gmsh_text.write_msh41(tmp_path / "sq.msh", unit_square(6),
-                                lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"))
+    msh = gmsh_text.write_msh41(
+        tmp_path / "sq.msh",
+        unit_square(6),
+        lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"),
+    )
     out = tmp_path / "g"
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(msh), "--dirichlet", "left",
-                           "--control", "uniform", "--tau", "0.05", "--no-plots", "--quiet",
-                           "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--mesh",
+        str(msh),
+        "--dirichlet",
+        "left",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.05",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["mesh"] == str(msh) and summary["n_unknowns"] == 42
@@ -90,8 +115,9 @@ def test_run_ris_2d_from_gmsh_with_named_dirichlet_part(tmp_path, capsys, gmsh_t
 
 def test_run_ris_3d(tmp_path, capsys):
     out = tmp_path / "c"
-    code, _, err = run_cli(capsys, "run", "ris-3d", "--n", "3", "--tol", "1e-3", "--quiet",
-                           "--out", str(out))
+    code, _, err = run_cli(
+        capsys, "run", "ris-3d", "--n", "3", "--tol", "1e-3", "--quiet", "--out", str(out)
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_nodes"] == 64 and summary["example"] == "ris-3d"
@@ -102,39 +128,65 @@ def test_run_ris_3d(tmp_path, capsys):
 
 def test_amplitude_sign_and_z0_are_options(tmp_path, capsys):
     out = tmp_path / "p"
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--n", "4", "--amplitude", "200",
-                           "--control", "uniform", "--tau", "0.05", "--no-plots", "--quiet",
-                           "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--amplitude",
+        "200",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.05",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["z_min"] == 0.0 and summary["z_max"] > 1.2 and summary["amplitude"] == 200.0
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--n", "1"], r"--n: got 1, must be an integer >= 2"),
-    (["--n", "x"], r"argument --n: invalid int value: 'x'"),
-    (["--mesh", "NOFILE.msh"], r"--mesh: got 'NOFILE.msh', no such file"),
-    (["--mesh", "GARBAGE"], r"--mesh: got '.*garbage.msh', is not a mesh meshio can read"),
-    (["--mesh", "TETS"], r"--mesh: got '.*tets.vtu', has no triangle cells \(found: tetra\)"),
-    (["--mesh", "GARBAGE", "--n", "8"], r"--n: got 8, cannot be combined with --mesh"),
-    (["--dirichlet", "inlet"],
-     r"--dirichlet: got 'inlet', must be one of bottom, left, right, top"),
-    (["--linear-solver", "cholesky"], r"--linear-solver: got 'cholesky', must be one of auto, "
-                                      r"direct, amg"),
-    (["--tol", "-1"], r"--tol: got -1, must be > 0"),
-    (["--amplitude", "nan"], r"argument --amplitude: got 'nan', must be finite"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--n", "1"], r"--n: got 1, must be an integer >= 2"),
+        (["--n", "x"], r"argument --n: invalid int value: 'x'"),
+        (["--mesh", "NOFILE.msh"], r"--mesh: got 'NOFILE.msh', no such file"),
+        (["--mesh", "GARBAGE"], r"--mesh: got '.*garbage.msh', is not a mesh meshio can read"),
+        (["--mesh", "TETS"], r"--mesh: got '.*tets.vtu', has no triangle cells \(found: tetra\)"),
+        (["--mesh", "GARBAGE", "--n", "8"], r"--n: got 8, cannot be combined with --mesh"),
+        (
+            ["--dirichlet", "inlet"],
+            r"--dirichlet: got 'inlet', must be one of bottom, left, right, top",
+        ),
+        (
+            ["--linear-solver", "cholesky"],
+            r"--linear-solver: got 'cholesky', must be one of auto, "
+            r"direct, amg",
+        ),
+        (["--tol", "-1"], r"--tol: got -1, must be > 0"),
+        (["--amplitude", "nan"], r"argument --amplitude: got 'nan', must be finite"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, argv, message):
     import meshio
 
     (tmp_path / "garbage.msh").write_text("not a mesh\n")
     c = unit_cube(2)
     meshio.write(tmp_path / "tets.vtu", meshio.Mesh(c.p.T, [("tetra", c.t.T)]))
-    subst = {"NOFILE.msh": "NOFILE.msh", "GARBAGE": str(tmp_path / "garbage.msh"),
-             "TETS": str(tmp_path / "tets.vtu")}
+    subst = {
+        "NOFILE.msh": "NOFILE.msh",
+        "GARBAGE": str(tmp_path / "garbage.msh"),
+        "TETS": str(tmp_path / "tets.vtu"),
+    }
     argv = [subst.get(a, a) for a in argv]
-    code, stdout, err = run_cli(capsys, "run", "ris-2d", *argv, "--out", str(tmp_path / "o"),
-                                "--quiet")
+    code, stdout, err = run_cli(
+        capsys, "run", "ris-2d", *argv, "--out", str(tmp_path / "o"), "--quiet"
+    )
     assert code == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -145,17 +197,40 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, argv, message):
 
 
 def test_exit_status_2_from_the_real_command(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "rothe.cli.main", "run", "ris-2d", "--mesh",
-                           str(tmp_path / "missing.msh")], capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rothe.cli.main",
+            "run",
+            "ris-2d",
+            "--mesh",
+            str(tmp_path / "missing.msh"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
-        f"rothe: error: --mesh: got '{tmp_path / 'missing.msh'}', no such file"]
+        f"rothe: error: --mesh: got '{tmp_path / 'missing.msh'}', no such file"
+    ]
 
 
 def test_failed_run_keeps_the_trajectory(tmp_path, capsys):
     out = tmp_path / "f"
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--n", "4", "--tau-min", "0.05",
-                           "--no-plots", "--quiet", "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--tau-min",
+        "0.05",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert code == 1
     assert err.strip().startswith("rothe: run failed: step size fell below tau_min = 0.05")
     summary = json.loads((out / "summary.json").read_text())
@@ -169,9 +244,21 @@ def test_failed_run_keeps_the_trajectory(tmp_path, capsys):
 def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
     out = tmp_path / "cmp"
     # the uniform residuals (2.1 ... 0.52) bracket tol = 1e-2 (0.75), not 3e-3 (0.41)
-    code, stdout, err = run_cli(capsys, "compare", "ris-2d", "--n", "4", "--tols", "1e-2,3e-3",
-                                "--taus", "0.02,0.01,0.005", "--controls", "adaptive,regime",
-                                "--out", str(out))
+    code, stdout, err = run_cli(
+        capsys,
+        "compare",
+        "ris-2d",
+        "--n",
+        "4",
+        "--tols",
+        "1e-2,3e-3",
+        "--taus",
+        "0.02,0.01,0.005",
+        "--controls",
+        "adaptive,regime",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     table = (out / "table.txt").read_text()
     assert table.strip() == stdout.split("wrote")[0].strip()
@@ -184,17 +271,38 @@ def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
     u = [r["sum_residual"] for r in rows[4:]]
     assert 1.7 < u[0] / u[1] < 2.3 and 1.7 < u[1] / u[2] < 2.3
     cmp = json.loads((out / "compare.json").read_text())
-    keys = ["control", "tol", "tau", "accepted", "rejected", "solves", "newton", "seconds",
-            "local_residual", "global_residual", "ratio_steps", "ratio_solves", "ratio_seconds"]
+    keys = [
+        "control",
+        "tol",
+        "tau",
+        "accepted",
+        "rejected",
+        "solves",
+        "newton",
+        "seconds",
+        "local_residual",
+        "global_residual",
+        "ratio_steps",
+        "ratio_solves",
+        "ratio_seconds",
+    ]
     assert all(list(r) == keys for r in cmp["rows"])
     for r, s in zip(cmp["rows"], rows, strict=True):
-        assert (r["control"], r["accepted"], r["solves"]) == (s["control"], s["accepted_steps"],
-                                                             s["inner_solves"])
+        assert (r["control"], r["accepted"], r["solves"]) == (
+            s["control"],
+            s["accepted_steps"],
+            s["inner_solves"],
+        )
         assert r["global_residual"] == s["sum_residual"]
         assert r["local_residual"] == s["max_residual"]
     uniform = [r for r in cmp["rows"] if r["control"] == "uniform"]
-    assert all(r["tol"] is None and r["ratio_steps"] is None and r["ratio_solves"] is None
-               and r["ratio_seconds"] is None for r in uniform)
+    assert all(
+        r["tol"] is None
+        and r["ratio_steps"] is None
+        and r["ratio_solves"] is None
+        and r["ratio_seconds"] is None
+        for r in uniform
+    )
     # the ratios: log-log interpolation between the bracketing uniform runs, by hand
     g = np.log([r["global_residual"] for r in uniform])[::-1]
     for r in cmp["rows"][:4]:
@@ -202,8 +310,11 @@ def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
         if not g[0] <= x <= g[-1]:
             assert r["ratio_steps"] is None and r["ratio_solves"] is None
             continue
-        for work, ratio in (("accepted", "ratio_steps"), ("solves", "ratio_solves"),
-                            ("seconds", "ratio_seconds")):
+        for work, ratio in (
+            ("accepted", "ratio_steps"),
+            ("solves", "ratio_solves"),
+            ("seconds", "ratio_seconds"),
+        ):
             w = np.log([u[work] for u in uniform])[::-1]
             i = int(np.searchsorted(g, x).clip(1, len(g) - 1))
             expected = np.exp(w[i - 1] + (w[i] - w[i - 1]) * (x - g[i - 1]) / (g[i] - g[i - 1]))
@@ -215,15 +326,19 @@ def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
 
 def test_compare_bad_input(tmp_path, capsys):
     code, _, err = run_cli(capsys, "compare", "ris-2d", "--taus", "0.1", "--out", str(tmp_path))
-    assert code == 2 and err.strip() == ("rothe: error: --taus: got '0.1', needs at least two step "
-                                         "sizes")
-    code, _, err = run_cli(capsys, "compare", "ris-2d", "--controls", "nested", "--out",
-                           str(tmp_path))
-    assert code == 2 and err.strip() == ("rothe: error: --controls: got 'nested', must be one of "
-                                         "adaptive, order2, regime")
+    assert code == 2 and err.strip() == (
+        "rothe: error: --taus: got '0.1', needs at least two step sizes"
+    )
+    code, _, err = run_cli(
+        capsys, "compare", "ris-2d", "--controls", "nested", "--out", str(tmp_path)
+    )
+    assert code == 2 and err.strip() == (
+        "rothe: error: --controls: got 'nested', must be one of adaptive, order2, regime"
+    )
 
 
 # -- FE-RIS defects on the command line (issue 10) -------------------------------------------------
+
 
 def cracked_square(n: int = 8):
     """unit_square(n) cut along x = 1/2 for 0.3 < y < 0.7: the cells right of the cut use copies
@@ -249,12 +364,14 @@ def test_duplicate_nodes_refused_merged_or_kept(tmp_path, capsys, gmsh_text):
     cracked, plain = cracked_square(4)
     path = gmsh_text.write_msh22(tmp_path / "crack.msh", cracked, wall)
     # accepted before, with another energy (-45.6 instead of -102.3 on this grid, tol 1e-3)
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(path), "--out",
-                           str(tmp_path / "a"))
+    code, _, err = run_cli(
+        capsys, "run", "ris-2d", "--mesh", str(path), "--out", str(tmp_path / "a")
+    )
     assert code == 2 and err.strip() == (
         f"rothe: error: --mesh: got '{path}', has 1 pair(s) of coincident nodes used by "
         "different cells (the first at (0.5, 0.5)): the mesh is cut there like a crack; "
-        "--duplicate-nodes merge glues them, keep takes the cut as intended")
+        "--duplicate-nodes merge glues them, keep takes the cut as intended"
+    )
     energies = {}
     for how, mesh in (("merge", str(path)), ("keep", str(path)), (None, None)):
         out = tmp_path / str(how)
@@ -262,8 +379,20 @@ def test_duplicate_nodes_refused_merged_or_kept(tmp_path, capsys, gmsh_text):
             argv = ["--n", "4"]
         else:
             argv = ["--mesh", mesh, "--duplicate-nodes", how]
-        code, _, err = run_cli(capsys, "run", "ris-2d", *argv, "--control", "uniform",
-                               "--tau", "0.1", "--no-plots", "--quiet", "--out", str(out))
+        code, _, err = run_cli(
+            capsys,
+            "run",
+            "ris-2d",
+            *argv,
+            "--control",
+            "uniform",
+            "--tau",
+            "0.1",
+            "--no-plots",
+            "--quiet",
+            "--out",
+            str(out),
+        )
         assert code == 0, err
         energies[how] = json.loads((out / "summary.json").read_text())["energy_final"]
     assert energies["merge"] == pytest.approx(energies[None], rel=1e-9)
@@ -288,8 +417,23 @@ def test_load_mesh_merge_gives_the_uncut_mesh(tmp_path, gmsh_text):
 @pytest.mark.parametrize("axis", ["s", "t"])
 def test_xdmf_time_axis(tmp_path, capsys, axis):
     out = tmp_path / axis
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--n", "4", "--control", "uniform", "--tau",
-                           "0.1", "--no-plots", "--quiet", "--xdmf-time", axis, "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--no-plots",
+        "--quiet",
+        "--xdmf-time",
+        axis,
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     with np.load(out / "trajectory.npz") as f:
         s, t, z = f["s"], f["t"], f["z"]
@@ -311,11 +455,24 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
     figure shows one plateau, the summary said n_viscous_jumps 318 and printed 318 times."""
     from skfem import MeshTri
 
-    path = gmsh_text.write_msh22(tmp_path / "disk.msh", MeshTri.init_circle(4),
-                                 lambda mid: np.where(mid[0] < 0, "wall", "free"))
+    path = gmsh_text.write_msh22(
+        tmp_path / "disk.msh",
+        MeshTri.init_circle(4),
+        lambda mid: np.where(mid[0] < 0, "wall", "free"),
+    )
     out = tmp_path / "o"
-    code, stdout, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(path), "--dirichlet",
-                                "wall", "--no-plots", "--out", str(out))
+    code, stdout, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--mesh",
+        str(path),
+        "--dirichlet",
+        "wall",
+        "--no-plots",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_nodes"] == 545
@@ -328,19 +485,28 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
 
 # -- --adapt-space (issue 8) -----------------------------------------------------------------------
 
-@pytest.mark.parametrize("argv, message", [
-    (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is only used with --adapt-space"),
-    (["--adapt-space", "--refine-fraction", "1.5"],
-     E + r"--refine-fraction: got 1.5, must be in \(0, 1\)"),
-    (["--adapt-space", "--space-tol", "0"], E + r"--space-tol: got 0(\.0)?, must be > 0"),
-    (["--adapt-space", "--adapt-every", "0"], E + r"--adapt-every: got 0, must be an integ"),
-    (["--adapt-space", "--refine-fraction", "0.7", "--coarsen-fraction", "0.4"],
-     E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1"),
-    (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
-])
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is only used with --adapt-space"),
+        (
+            ["--adapt-space", "--refine-fraction", "1.5"],
+            E + r"--refine-fraction: got 1.5, must be in \(0, 1\)",
+        ),
+        (["--adapt-space", "--space-tol", "0"], E + r"--space-tol: got 0(\.0)?, must be > 0"),
+        (["--adapt-space", "--adapt-every", "0"], E + r"--adapt-every: got 0, must be an integ"),
+        (
+            ["--adapt-space", "--refine-fraction", "0.7", "--coarsen-fraction", "0.4"],
+            E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1",
+        ),
+        (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
+    ],
+)
 def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
-    code, out, err = run_cli(capsys, "run", "ris-front", "--n", "4", "--out",
-                             str(tmp_path / "o"), *argv)
+    code, out, err = run_cli(
+        capsys, "run", "ris-front", "--n", "4", "--out", str(tmp_path / "o"), *argv
+    )
     assert code == 2 and err.count("\n") == 1, err
     assert __import__("re").match(message, err), err
 
@@ -352,8 +518,9 @@ def test_cli_refuses_a_quadrilateral_mesh(capsys, tmp_path):
     path = tmp_path / "quads.vtu"
     meshio.write(str(path), meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3], [1, 4, 5, 2]]))]))
     capsys.readouterr()  # meshio's warning about 2D points
-    code, out, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(path), "--adapt-space",
-                             "--out", str(tmp_path / "o"))
+    code, out, err = run_cli(
+        capsys, "run", "ris-2d", "--mesh", str(path), "--adapt-space", "--out", str(tmp_path / "o")
+    )
     assert code == 2 and err.count("\n") == 1, err
     assert err.startswith("rothe: error: --adapt-space: got a mesh of quadrilaterals"), err
 
@@ -364,9 +531,25 @@ def test_cli_run_writes_meshes_pvd_and_figures(capsys, tmp_path):
     from rothe.io.mesh_series import read_pvd
 
     out = tmp_path / "front"
-    code, stdout, err = run_cli(capsys, "run", "ris-front", "--n", "4", "--adapt-space",
-                                "--control", "uniform", "--tau", "0.1", "--max-dofs", "300",
-                                "--space-tol", "3", "--out", str(out), "--quiet")
+    code, stdout, err = run_cli(
+        capsys,
+        "run",
+        "ris-front",
+        "--n",
+        "4",
+        "--adapt-space",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--max-dofs",
+        "300",
+        "--space-tol",
+        "3",
+        "--out",
+        str(out),
+        "--quiet",
+    )
     assert code == 0, err
     traj = Trajectory.load_npz(out / "trajectory.npz")
     assert traj.meshes is not None and len(traj.meshes) > 1
@@ -385,9 +568,24 @@ def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
     import json
 
     out = tmp_path / "cube"
-    code, _, err = run_cli(capsys, "run", "ris-3d", "--n", "3", "--adapt-space", "--control",
-                           "uniform", "--tau", "0.1", "--max-dofs", "400", "--out", str(out),
-                           "--quiet", "--no-plots")
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-3d",
+        "--n",
+        "3",
+        "--adapt-space",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--max-dofs",
+        "400",
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plots",
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["adapt_space"]["max_dofs"] == 400
@@ -401,8 +599,9 @@ def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
     assert np.all(traj["descent"] >= 0.0)
 
 
-@pytest.mark.parametrize("command, cap", [("ris-2d", 100_000), ("ris-front", 100_000),
-                                          ("ris-3d", 50_000)])
+@pytest.mark.parametrize(
+    "command, cap", [("ris-2d", 100_000), ("ris-front", 100_000), ("ris-3d", 50_000)]
+)
 def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
     # Example 7.2's state has kinks that keep the estimate above any --space-tol: uncapped, a
     # 3D run at --n 4 went from 27 to 740 000 unknowns (4.7 GB) before t = 0.64
@@ -415,8 +614,12 @@ def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
     add_space_options(parser, 1.0, cap)
     space = space_from_args(parser.parse_args(["--adapt-space"]), 1.0, cap)
     assert space.max_dofs == cap
-    assert space_from_args(parser.parse_args(["--adapt-space", "--max-dofs", "500"]), 1.0,
-                           cap).max_dofs == 500
+    assert (
+        space_from_args(
+            parser.parse_args(["--adapt-space", "--max-dofs", "500"]), 1.0, cap
+        ).max_dofs
+        == 500
+    )
     capsys.readouterr()
     try:
         main(["run", command, "--help"])

@@ -17,13 +17,24 @@ def _run(argv, capsys):
 
 def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):
     out = tmp_path / "mms"
-    code, stdout, _ = _run(["run", "eld-mms", "--tau", "0.05", "--n", "2", "--out", str(out)],
-                           capsys)
+    code, stdout, _ = _run(
+        ["run", "eld-mms", "--tau", "0.05", "--n", "2", "--out", str(out)], capsys
+    )
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
-    for key in ("error_u_l2", "error_u_h1", "error_v_l2", "error_v_h1", "error_lam_l2",
-                "accepted_steps", "rejected_steps", "newton_iterations", "wall_time_s",
-                "balance_residual_max", "reaction_left_final"):
+    for key in (
+        "error_u_l2",
+        "error_u_h1",
+        "error_v_l2",
+        "error_v_h1",
+        "error_lam_l2",
+        "accepted_steps",
+        "rejected_steps",
+        "newton_iterations",
+        "wall_time_s",
+        "balance_residual_max",
+        "reaction_left_final",
+    ):
         assert key in summary, key
     assert summary["lam_norm"] == "L2(Gamma_D)"
     assert summary["accepted_steps"] == 20 and summary["status"] == "completed"
@@ -41,30 +52,49 @@ def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):
 
 
 def test_quiet_prints_nothing(tmp_path, capsys):
-    code, stdout, stderr = _run(["run", "eld-mms", "--tau", "0.1", "--n", "2", "--quiet",
-                                 "--no-plots", "--out", str(tmp_path)], capsys)
+    code, stdout, stderr = _run(
+        [
+            "run",
+            "eld-mms",
+            "--tau",
+            "0.1",
+            "--n",
+            "2",
+            "--quiet",
+            "--no-plots",
+            "--out",
+            str(tmp_path),
+        ],
+        capsys,
+    )
     assert code == 0 and stdout == "" and stderr == ""
     assert not (tmp_path / "fig_energy.png").exists()
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--rho", "1", "--d0", "2", "--tau", "0.6"],
-     "tau: got 0.6, must be < rho/d0 = 0.5 (Lemma 3.2"),
-    (["--rho", "-1"], "rho: got -1, must be > 0"),
-    (["--mu", "-1"], "mu: got -1, must be > 0"),
-    (["--lam", "-1.5"], "lam: got -1.5, must be > -2 mu / d = -1"),
-    (["--dirichlet", "lft"], "dirichlet: got 'lft', must be one of bottom, left, right, top"),
-    (["--start", "rest"], "u0: got max|u0 - G(0)| = 0.5 on the Dirichlet parts left"),
-    (["--tau", "0.3"], "tau: got 0.3, must divide T = 1 into equal steps"),
-    (["--form", "index3"], "--form: got 'index3', must be one of regularized, original"),
-    (["--damping", "viscous"], "--damping: got 'viscous', must be one of none, rayleigh"),
-    (["--d0", "-1"], "d0: got -1, must be >= 0"),
-    (["--degree", "3"], "degree: got 3, must be 1 or 2"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (
+            ["--rho", "1", "--d0", "2", "--tau", "0.6"],
+            "tau: got 0.6, must be < rho/d0 = 0.5 (Lemma 3.2",
+        ),
+        (["--rho", "-1"], "rho: got -1, must be > 0"),
+        (["--mu", "-1"], "mu: got -1, must be > 0"),
+        (["--lam", "-1.5"], "lam: got -1.5, must be > -2 mu / d = -1"),
+        (["--dirichlet", "lft"], "dirichlet: got 'lft', must be one of bottom, left, right, top"),
+        (["--start", "rest"], "u0: got max|u0 - G(0)| = 0.5 on the Dirichlet parts left"),
+        (["--tau", "0.3"], "tau: got 0.3, must divide T = 1 into equal steps"),
+        (["--form", "index3"], "--form: got 'index3', must be one of regularized, original"),
+        (["--damping", "viscous"], "--damping: got 'viscous', must be one of none, rayleigh"),
+        (["--d0", "-1"], "d0: got -1, must be >= 0"),
+        (["--degree", "3"], "degree: got 3, must be 1 or 2"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_status_2(tmp_path, capsys, args, message):
     out = tmp_path / "bad"
-    code, _, stderr = _run(["run", "eld-mms", "--n", "2", "--out", str(out), "--quiet"] + args,
-                           capsys)
+    code, _, stderr = _run(
+        ["run", "eld-mms", "--n", "2", "--out", str(out), "--quiet"] + args, capsys
+    )
     assert code == 2
     lines = stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("rothe: error: ")
@@ -74,8 +104,20 @@ def test_bad_input_is_one_line_and_exit_status_2(tmp_path, capsys, args, message
 
 def test_study_eld_convergence(tmp_path, capsys):
     out = tmp_path / "conv"
-    code, stdout, _ = _run(["study", "eld-convergence", "--n", "2", "--halvings", "2",
-                            "--out", str(out), "--no-plots"], capsys)
+    code, stdout, _ = _run(
+        [
+            "study",
+            "eld-convergence",
+            "--n",
+            "2",
+            "--halvings",
+            "2",
+            "--out",
+            str(out),
+            "--no-plots",
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["tau"] == [0.1, 0.05, 0.025]
@@ -88,8 +130,22 @@ def test_study_eld_convergence(tmp_path, capsys):
 
 def test_study_eld_convergence_bdf2_summary(tmp_path, capsys):
     out = tmp_path / "conv2"
-    code, _, _ = _run(["study", "eld-convergence", "--scheme", "bdf2", "--n", "2", "--halvings",
-                       "2", "--out", str(out), "--no-plots"], capsys)
+    code, _, _ = _run(
+        [
+            "study",
+            "eld-convergence",
+            "--scheme",
+            "bdf2",
+            "--n",
+            "2",
+            "--halvings",
+            "2",
+            "--out",
+            str(out),
+            "--no-plots",
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["tau"] == [0.1, 0.05, 0.025]
@@ -100,29 +156,73 @@ def test_study_eld_convergence_bdf2_summary(tmp_path, capsys):
 
 def test_study_eld_perturbation(tmp_path, capsys):
     out = tmp_path / "pert"
-    code, stdout, _ = _run(["study", "eld-perturbation", "--taus", "0.1,0.01", "--n", "2",
-                            "--targets", "G", "--damping", "rayleigh", "--out", str(out)],
-                           capsys)
+    code, stdout, _ = _run(
+        [
+            "study",
+            "eld-perturbation",
+            "--taus",
+            "0.1,0.01",
+            "--n",
+            "2",
+            "--targets",
+            "G",
+            "--damping",
+            "rayleigh",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["tau"] == [0.1, 0.01]
-    for key in ("amp_regularized", "amp_original", "amp_v_regularized", "amp_v_original",
-                "amp_u_regularized", "amp_u_original"):
+    for key in (
+        "amp_regularized",
+        "amp_original",
+        "amp_v_regularized",
+        "amp_v_original",
+        "amp_u_regularized",
+        "amp_u_original",
+    ):
         assert len(s[key]) == 2, key
     assert s["amp_original"][1] > 5 * s["amp_original"][0]
     assert (out / "fig_perturbation_G.png").is_file()
-    code, _, stderr = _run(["study", "eld-perturbation", "--taus", "0.1", "--out", str(out)],
-                           capsys)
+    code, _, stderr = _run(
+        ["study", "eld-perturbation", "--taus", "0.1", "--out", str(out)], capsys
+    )
     assert code == 2 and "needs at least two step sizes" in stderr
 
 
 def test_run_eld_beam_writes_xdmf_of_u_v_and_the_multiplier(tmp_path, capsys):
     out = tmp_path / "beam"
-    code, _, _ = _run(["run", "eld-beam", "--n", "1", "--T", "0.1", "--tau", "0.01",
-                       "--save-every", "2", "--out", str(out), "--quiet"], capsys)
+    code, _, _ = _run(
+        [
+            "run",
+            "eld-beam",
+            "--n",
+            "1",
+            "--T",
+            "0.1",
+            "--tau",
+            "0.01",
+            "--save-every",
+            "2",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        capsys,
+    )
     assert code == 0
-    for name in ("beam.xdmf", "beam.h5", "beam_multiplier.xdmf", "beam_multiplier.h5",
-                 "fig_reaction.png", "summary.json", "trajectory.npz"):
+    for name in (
+        "beam.xdmf",
+        "beam.h5",
+        "beam_multiplier.xdmf",
+        "beam_multiplier.h5",
+        "fig_reaction.png",
+        "summary.json",
+        "trajectory.npz",
+    ):
         assert (out / name).is_file(), name
     with meshio.xdmf.TimeSeriesReader(str(out / "beam_multiplier.xdmf")) as reader:
         reader.read_points_cells()
@@ -138,8 +238,22 @@ def test_run_eld_beam_writes_xdmf_of_u_v_and_the_multiplier(tmp_path, capsys):
 
 def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(tmp_path, capsys):
     out = tmp_path / "coarse"
-    code, stdout, _ = _run(["run", "eld-beam", "--n", "1", "--degree", "1", "--T", "0.3",
-                            "--no-plots", "--out", str(out)], capsys)
+    code, stdout, _ = _run(
+        [
+            "run",
+            "eld-beam",
+            "--n",
+            "1",
+            "--degree",
+            "1",
+            "--T",
+            "0.3",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 0
     assert "numerical dissipation: " in stdout and "put in by the support" in stdout
     assert "note: coarse mesh for the reactions: the sideways reactions are" in stdout
@@ -151,37 +265,62 @@ def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(tmp_path, caps
     assert data["kept_step"][-1] == 30
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--scheme", "bdf3"], "--scheme: got 'bdf3', must be one of euler, bdf2"),
-    (["--control", "adaptive", "--tol", "0"], "--tol: got 0, must be > 0"),
-    (["--control", "adaptive", "--tol", "-1"], "--tol: got -1, must be > 0"),
-    (["--tol", "1e-3"], "--tol: got 0.001, is used by --control adaptive only"),
-    (["--scheme", "bdf2", "--steps", "0.1,0.3,0.6"],
-     "steps: got tau_2/tau_1 = 3, must be < 1 + sqrt(2) = 2.41421 (zero-stability"),
-    (["--scheme", "bdf2", "--d0", "2", "--tau", "0.8"],
-     "tau: got 0.8, must be < 1.5 rho/d0 = 0.75 (Lemma 3.2 for BDF2"),
-    # the CLI refuses it before the library would (i10-defects): at most 1e7 steps of T
-    (["--tau", "1e-320"], "--tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps"),
-    (["--scheme", "bdf2", "--data", "means"], "data: got 'means', with scheme bdf2 must be"),
-    (["--load-quadrature", "0"], "load_quadrature: got 0, must be an integer >= 1"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--scheme", "bdf3"], "--scheme: got 'bdf3', must be one of euler, bdf2"),
+        (["--control", "adaptive", "--tol", "0"], "--tol: got 0, must be > 0"),
+        (["--control", "adaptive", "--tol", "-1"], "--tol: got -1, must be > 0"),
+        (["--tol", "1e-3"], "--tol: got 0.001, is used by --control adaptive only"),
+        (
+            ["--scheme", "bdf2", "--steps", "0.1,0.3,0.6"],
+            "steps: got tau_2/tau_1 = 3, must be < 1 + sqrt(2) = 2.41421 (zero-stability",
+        ),
+        (
+            ["--scheme", "bdf2", "--d0", "2", "--tau", "0.8"],
+            "tau: got 0.8, must be < 1.5 rho/d0 = 0.75 (Lemma 3.2 for BDF2",
+        ),
+        # the CLI refuses it before the library would (i10-defects): at most 1e7 steps of T
+        (["--tau", "1e-320"], "--tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps"),
+        (["--scheme", "bdf2", "--data", "means"], "data: got 'means', with scheme bdf2 must be"),
+        (["--load-quadrature", "0"], "load_quadrature: got 0, must be an integer >= 1"),
+    ],
+)
 def test_bad_eld_options_are_one_line_and_exit_2(tmp_path, capsys, args, message):
-    code, _, err = _run(["run", "eld-mms", "--n", "2", "--quiet", "--out", str(tmp_path)] + args,
-                        capsys)
+    code, _, err = _run(
+        ["run", "eld-mms", "--n", "2", "--quiet", "--out", str(tmp_path)] + args, capsys
+    )
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and message in lines[0], err
 
 
 def test_perturbation_study_refuses_an_unknown_datum(tmp_path, capsys):
-    code, _, err = _run(["study", "eld-perturbation", "--targets", "G,H", "--out",
-                         str(tmp_path)], capsys)
+    code, _, err = _run(
+        ["study", "eld-perturbation", "--targets", "G,H", "--out", str(tmp_path)], capsys
+    )
     assert code == 2 and "--targets: got 'H', must be one of G, G_dot, G_ddot, F" in err
 
 
 def test_adaptive_bdf2_run_from_the_run(tmp_path, capsys):
     out = tmp_path / "adaptive"
-    code, stdout, _ = _run(["run", "eld-mms", "--n", "2", "--scheme", "bdf2", "--control",
-                            "adaptive", "--tol", "1e-3", "--no-plots", "--out", str(out)], capsys)
+    code, stdout, _ = _run(
+        [
+            "run",
+            "eld-mms",
+            "--n",
+            "2",
+            "--scheme",
+            "bdf2",
+            "--control",
+            "adaptive",
+            "--tol",
+            "1e-3",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["scheme"] == "bdf2" and s["control"] == "adaptive" and s["tol"] == 1e-3
@@ -192,21 +331,45 @@ def test_adaptive_bdf2_run_from_the_run(tmp_path, capsys):
 
 def test_beam_overflow_is_a_failed_run(tmp_path, capsys):
     out = tmp_path / "beam"
-    code, _, err = _run(["run", "eld-beam", "--n", "1", "--degree", "1", "--T", "0.05",
-                         "--amplitude", "1e300", "--quiet", "--no-plots", "--out", str(out)],
-                        capsys)
+    code, _, err = _run(
+        [
+            "run",
+            "eld-beam",
+            "--n",
+            "1",
+            "--degree",
+            "1",
+            "--T",
+            "0.05",
+            "--amplitude",
+            "1e300",
+            "--quiet",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 1 and "non-finite" in err
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "failed" and "non-finite" in s["failure"]
 
 
-@pytest.mark.parametrize("command, option, default", [
-    ("eld-pulse", "--scheme", "bdf2"), ("eld-mms", "--scheme", "euler"),
-    ("eld-beam", "--scheme", "euler"), ("eld-beam", "--damping", "rayleigh"),
-    ("eld-mms", "--damping", "nonlinear"), ("eld-mms", "--form", "regularized"),
-    ("eld-mms", "--control", "uniform"), ("eld-mms", "--data", "points"),
-    ("eld-mms", "--lifting", "nodal"), ("eld-beam", "--solver", "auto"),
-])
+@pytest.mark.parametrize(
+    "command, option, default",
+    [
+        ("eld-pulse", "--scheme", "bdf2"),
+        ("eld-mms", "--scheme", "euler"),
+        ("eld-beam", "--scheme", "euler"),
+        ("eld-beam", "--damping", "rayleigh"),
+        ("eld-mms", "--damping", "nonlinear"),
+        ("eld-mms", "--form", "regularized"),
+        ("eld-mms", "--control", "uniform"),
+        ("eld-mms", "--data", "points"),
+        ("eld-mms", "--lifting", "nodal"),
+        ("eld-beam", "--solver", "auto"),
+    ],
+)
 def test_help_states_the_default_the_command_runs(capsys, command, option, default):
     """eld-pulse --help said the scheme defaults to implicit Euler while it ran BDF2."""
     from rothe.cli.main import build_parser
@@ -217,9 +380,13 @@ def test_help_states_the_default_the_command_runs(capsys, command, option, defau
     with pytest.raises(SystemExit):
         parser.parse_args(["run", command, "--help"])
     lines = capsys.readouterr().out.splitlines()
-    start = next(i for i, line in enumerate(lines)
-                 if line.startswith(f"  {option} {option.lstrip('-').upper()}"))
-    end = next(i for i in range(start + 1, len(lines) + 1)
-               if i == len(lines) or lines[i].startswith("  -"))
+    start = next(
+        i
+        for i, line in enumerate(lines)
+        if line.startswith(f"  {option} {option.lstrip('-').upper()}")
+    )
+    end = next(
+        i for i in range(start + 1, len(lines) + 1) if i == len(lines) or lines[i].startswith("  -")
+    )
     block = " ".join(" ".join(lines[start:end]).split())
     assert f"(default {default})" in block, block

@@ -110,8 +110,9 @@ def test_adaptive_error_follows_the_tolerance():
     problem, exact = mms_problem(2, 2)
     errs, steps = [], []
     for tol in (1e-3, 1e-5):
-        result = run_eld(problem, scheme=BDF2(), control=Adaptive(tol, tau=0.01),
-                         store_fields=False)
+        result = run_eld(
+            problem, scheme=BDF2(), control=Adaptive(tol, tau=0.01), store_fields=False
+        )
         errs.append(mms_errors(exact, result)["error_u_l2"])
         steps.append(result.statistics.accepted_steps)
     # local error ~ tau^3 ~ tol: 100x smaller tol, about 100^(1/3) = 4.6x more steps
@@ -136,9 +137,16 @@ def test_differenced_data_step_control_does_not_depend_on_the_lifting(scheme):
     lifting's unknowns used to see the data quotients' jump after a step cut and drove tau below
     tau_min on this run (mms n=3, BDF2, tol 1e-4)."""
     problem, _ = mms_problem(3, 2)
-    runs = {lifting: run_eld(problem, form=Regularized(lifting), scheme=scheme,
-                             control=Adaptive(1e-4, tau=0.02), data=Differenced()).trajectory
-            for lifting in ("nodal", "harmonic")}
+    runs = {
+        lifting: run_eld(
+            problem,
+            form=Regularized(lifting),
+            scheme=scheme,
+            control=Adaptive(1e-4, tau=0.02),
+            data=Differenced(),
+        ).trajectory
+        for lifting in ("nodal", "harmonic")
+    }
     nodal, harmonic = runs["nodal"], runs["harmonic"]
     n_nodal, n_harmonic = nodal.stats.accepted_steps, harmonic.stats.accepted_steps
     assert abs(n_harmonic - n_nodal) <= 0.1 * n_nodal

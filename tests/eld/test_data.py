@@ -28,8 +28,11 @@ def test_noise_in_one_datum_changes_only_that_datum(datum):
             assert diff > 1e-5
         else:
             assert diff == 0.0, name
-    with pytest.raises(RotheInputError, match=r"^noise target: got 'H', must be one of G, "
-                       "G_dot, G_ddot, F"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^noise target: got 'H', must be one of G, "
+        "G_dot, G_ddot, F",
+    ):
         DataNoise(1e-3, "H")
     with pytest.raises(RotheInputError, match=r"^seed: got -1, must be an integer >= 0"):
         DataNoise(1e-3, "G", seed=-1)
@@ -55,25 +58,36 @@ def test_the_modes_evaluate_points_means_and_the_schemes_quotients():
     assert np.allclose(means.G_dot, (problem.G(t1) - problem.G(t0)) / 0.1)
     assert np.array_equal(means.G, points.G)
     # differenced: the Euler quotients of the history kept in the state's boundary vectors
-    history = Differenced().history({"G": problem.G(t0), "G_dot": problem.G_dot(t0)},
-                                    (1.0, -1.0, 0.0))
+    history = Differenced().history(
+        {"G": problem.G(t0), "G_dot": problem.G_dot(t0)}, (1.0, -1.0, 0.0)
+    )
     diff = StepData(problem, Differenced()).at(3, t0, t1, (1.0, -1.0, 0.0), history)
     assert np.allclose(diff.G_dot, (problem.G(t1) - problem.G(t0)) / 0.1)
     assert np.allclose(diff.G_ddot, (diff.G_dot - problem.G_dot(t0)) / 0.1)
     assert Points().history({}, (1.0, -1.0, 0.0)) is None
-    assert set(Differenced().next_history({"G": 1, "G_dot": 2}, diff)) == {"G", "G_1", "G_dot",
-                                                                          "G_dot_1"}
+    assert set(Differenced().next_history({"G": 1, "G_dot": 2}, diff)) == {
+        "G",
+        "G_1",
+        "G_dot",
+        "G_dot_1",
+    }
 
 
 def test_data_modes_refuse_bad_input_in_one_line_naming_the_parameter():
     problem, _ = mms_problem(2, 1)
-    with pytest.raises(RotheInputError, match=r"^data: got 'mean', must be Points\(\), "
-                                              r"Means\(\) or Differenced\(\)") as info:
+    with pytest.raises(
+        RotheInputError,
+        match=r"^data: got 'mean', must be Points\(\), "
+        r"Means\(\) or Differenced\(\)",
+    ) as info:
         run_eld(problem, data="mean")
     assert info.value.parameter == "data" and len(str(info.value).splitlines()) == 1
     # step means are first-order data: refused with BDF2, accepted by Euler
-    with pytest.raises(RotheInputError, match=r"^data: got 'means', with scheme bdf2 must be "
-                                              r"points or differenced \(step means"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^data: got 'means', with scheme bdf2 must be "
+        r"points or differenced \(step means",
+    ):
         run_eld(problem, scheme=BDF2(), data=Means())
     Means().check(ImplicitEuler())
     with pytest.raises(RotheInputError, match=r"^noise: got 'str', must be a rothe.eld.DataNoise"):

@@ -51,13 +51,17 @@ def test_the_bdf2_start_chooses_the_first_step():
 
 
 def test_scheme_objects_refuse_bad_input_in_one_line_naming_the_parameter():
-    with pytest.raises(RotheInputError, match=r"^start: got 'taylor3', must be one of "
-                                              + ", ".join(STARTS) + "$") as info:
+    with pytest.raises(
+        RotheInputError, match=r"^start: got 'taylor3', must be one of " + ", ".join(STARTS) + "$"
+    ) as info:
         BDF2(start="taylor3")
     assert info.value.parameter == "start"
     problem, _ = mms_problem(2, 1)
-    with pytest.raises(RotheInputError, match=r"^scheme: got 'bdf3', must be ImplicitEuler\(\) "
-                                              r"or BDF2\(start=\.\.\.\)") as info:
+    with pytest.raises(
+        RotheInputError,
+        match=r"^scheme: got 'bdf3', must be ImplicitEuler\(\) "
+        r"or BDF2\(start=\.\.\.\)",
+    ) as info:
         run_eld(problem, scheme="bdf3")
     assert info.value.parameter == "scheme" and len(str(info.value).splitlines()) == 1
     with pytest.raises(RotheInputError, match=r"^scheme: got <class"):

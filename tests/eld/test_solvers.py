@@ -15,7 +15,8 @@ def test_amg_setup_is_reproducible_and_leaves_numpys_generator_alone():
     stepper = ELDStepper(problem, control=Uniform(0.01), solver="direct")
     A = stepper.system.A_II
     rbm = problem.space.rigid_body_modes(
-        np.setdiff1d(np.arange(problem.space.n_scalar), problem.constraint.scalar_dofs))
+        np.setdiff1d(np.arange(problem.space.n_scalar), problem.constraint.scalar_dofs)
+    )
     b = A @ np.linspace(-1.0, 1.0, A.shape[0])
     np.random.seed(7)
     state = np.random.get_state()
@@ -37,8 +38,10 @@ def test_condensed_bordered_solve_equals_the_kkt_solution():
     problem = beam_problem(2, damping=RayleighDamping(0.2, 0.01), T=0.02)
     stepper = ELDStepper(problem, form=Original(), control=Uniform(0.01), solver="direct")
     system = stepper.system
-    assert isinstance(system, OriginalSystem) and system.size == problem.space.ndofs + \
-        problem.constraint.m
+    assert (
+        isinstance(system, OriginalSystem)
+        and system.size == problem.space.ndofs + problem.constraint.m
+    )
     c, n = problem.constraint, problem.space.ndofs
     A = ((1e4 + 0.2 / 0.01) * problem.M + (1.0 + 0.01 / 0.01) * problem.K).tocsr()
     kkt = system._kkt(A).tocsc()
@@ -49,7 +52,13 @@ def test_condensed_bordered_solve_equals_the_kkt_solution():
         if not solver.factored:
             solver.factor(system._kkt(A))  # the Newton path hands over the bordered matrix
         assert np.linalg.norm(solver.solve_reference(b) - z) <= 1e-10 * np.linalg.norm(z)
-    amg = ConstrainedSolver(c, "amg", near_nullspace=problem.space.rigid_body_modes(
-        np.setdiff1d(np.arange(problem.space.n_scalar), c.scalar_dofs)), rtol=1e-12)
+    amg = ConstrainedSolver(
+        c,
+        "amg",
+        near_nullspace=problem.space.rigid_body_modes(
+            np.setdiff1d(np.arange(problem.space.n_scalar), c.scalar_dofs)
+        ),
+        rtol=1e-12,
+    )
     amg.factor(A)
     assert np.linalg.norm(amg.solve_reference(b) - z) <= 1e-8 * np.linalg.norm(z)

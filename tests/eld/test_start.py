@@ -21,9 +21,12 @@ from rothe.stepping.controllers import Adaptive, Uniform
 
 def _max_lambda_errors(problem, exact, taus, start):
     """The largest multiplier error over all steps (mms_errors' ``error_lam_l2_max``)."""
-    return [mms_errors(exact, run_eld(problem, form=Original(), control=Uniform(tau),
-                                      scheme=BDF2(start=start)))["error_lam_l2_max"]
-            for tau in taus]
+    return [
+        mms_errors(
+            exact, run_eld(problem, form=Original(), control=Uniform(tau), scheme=BDF2(start=start))
+        )["error_lam_l2_max"]
+        for tau in taus
+    ]
 
 
 def test_the_start_keeps_the_multiplier_second_order_at_every_step():
@@ -72,6 +75,9 @@ def test_error_scale_and_inconsistent_initial_data():
     norm0 = np.sqrt(2.0 * state.ledger.energy)
     assert stepper.error_scale == pytest.approx(max(norm0, data_scale(stepper.system, 1.0)))
     assert state.energy_norm_max == stepper.error_scale
-    with pytest.raises(RotheInputError, match=r"^u0: got max\|u0 - G\(0\)\| = 0.5 on the "
-                       "Dirichlet parts left, must equal G\\(0\\)"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^u0: got max\|u0 - G\(0\)\| = 0.5 on the "
+        "Dirichlet parts left, must equal G\\(0\\)",
+    ):
         run_eld(mms_problem(2, 1, start="rest")[0], control=Uniform(0.1))

@@ -26,15 +26,31 @@ from rothe.stepping.results import ResultCode
 
 CASES = [
     ("euler, uniform, linear", dict(form=Regularized(), control=Uniform(0.05)), "rayleigh"),
-    ("bdf2, uniform, nonlinear, original",
-     dict(form=Original(), control=Uniform(0.05), scheme=BDF2()), "nonlinear"),
-    ("bdf2, adaptive, nonlinear", dict(form=Regularized(), control=Adaptive(1e-4, tau=0.02),
-                                       scheme=BDF2()), "nonlinear"),
-    ("bdf2, given steps, differenced, harmonic",
-     dict(form=Regularized("harmonic"), scheme=BDF2(), data=Differenced(),
-          control=Given(np.r_[np.full(5, 0.05), np.full(10, 0.075)])), "rayleigh"),
-    ("euler, adaptive, linear", dict(form=Original(), control=Adaptive(1e-3, tau=0.05)),
-     "rayleigh"),
+    (
+        "bdf2, uniform, nonlinear, original",
+        dict(form=Original(), control=Uniform(0.05), scheme=BDF2()),
+        "nonlinear",
+    ),
+    (
+        "bdf2, adaptive, nonlinear",
+        dict(form=Regularized(), control=Adaptive(1e-4, tau=0.02), scheme=BDF2()),
+        "nonlinear",
+    ),
+    (
+        "bdf2, given steps, differenced, harmonic",
+        dict(
+            form=Regularized("harmonic"),
+            scheme=BDF2(),
+            data=Differenced(),
+            control=Given(np.r_[np.full(5, 0.05), np.full(10, 0.075)]),
+        ),
+        "rayleigh",
+    ),
+    (
+        "euler, adaptive, linear",
+        dict(form=Original(), control=Adaptive(1e-3, tau=0.05)),
+        "rayleigh",
+    ),
 ]
 
 
@@ -45,8 +61,9 @@ def _problem(kind):
 
 def _run_until(run, k):
     """The prepared run's first k accepted steps (the evolve loop's ``max_steps``)."""
-    return evolve(run.stepper, run.controller, run.state, run.trajectory, tau_min=run.tau_min,
-                  max_steps=k)
+    return evolve(
+        run.stepper, run.controller, run.state, run.trajectory, tau_min=run.tau_min, max_steps=k
+    )
 
 
 @pytest.mark.parametrize("label,options,damping", CASES, ids=[c[0] for c in CASES])
@@ -58,8 +75,12 @@ def test_checkpoint_round_trip_continues_bit_for_bit(label, options, damping):
     run = prepare_eld_run(problem, **options)
     state = _run_until(run, k)
     assert state.j == k
-    saved = copy.deepcopy({"stepper": run.stepper.checkpoint_state(state),
-                           "controller": run.controller.checkpoint_state()})
+    saved = copy.deepcopy(
+        {
+            "stepper": run.stepper.checkpoint_state(state),
+            "controller": run.controller.checkpoint_state(),
+        }
+    )
     _plain(saved)
     fresh = prepare_eld_run(problem, **options)
     resumed = fresh.stepper.restore_state(saved["stepper"])
@@ -67,7 +88,7 @@ def test_checkpoint_round_trip_continues_bit_for_bit(label, options, damping):
     rest = Trajectory()
     final = evolve(fresh.stepper, fresh.controller, resumed, rest, tau_min=fresh.tau_min)
     for key in ("u", "v", "a", "lam", "kept_t"):
-        assert np.array_equal(np.asarray(full[key])[k + 1:], rest[key]), key
+        assert np.array_equal(np.asarray(full[key])[k + 1 :], rest[key]), key
     for key in ("tau", "local_error", "energy", "balance_residual", "numerical_dissipation"):
         n_rest = len(rest[key])
         assert np.array_equal(full[key][-n_rest:], rest[key]), key
@@ -92,11 +113,17 @@ def test_restore_refuses_a_foreign_checkpoint():
     run = prepare_eld_run(problem, scheme=BDF2(), control=Uniform(0.05))
     data = run.stepper.checkpoint_state(run.state)
     other = prepare_eld_run(problem, control=Uniform(0.05))
-    with pytest.raises(RotheInputError, match=r"^checkpoint: got scheme 'bdf2', this run has "
-                       "'euler'"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^checkpoint: got scheme 'bdf2', this run has "
+        "'euler'",
+    ):
         other.stepper.restore_state(data)
-    with pytest.raises(RotheInputError, match=r"^checkpoint: got format 'rothe-eld-state-1', "
-                                              r"must be 'rothe-eld-state-2'"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^checkpoint: got format 'rothe-eld-state-1', "
+        r"must be 'rothe-eld-state-2'",
+    ):
         other.stepper.restore_state(dict(data, format="rothe-eld-state-1"))
 
 

@@ -30,8 +30,11 @@ from rothe.stepping.controllers import Adaptive, Given, Uniform
 
 def test_step_bound_of_lemma_3_2_is_checked_before_any_step():
     problem, _ = mms_problem(2, 1, damping=NonlinearDamping(d0=2.0))
-    with pytest.raises(RotheInputError, match=r"^tau: got 0.5, must be < rho/d0 = 0.5 "
-                       r"\(Lemma 3.2"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^tau: got 0.5, must be < rho/d0 = 0.5 "
+        r"\(Lemma 3.2",
+    ):
         run_eld(problem, control=Uniform(0.5))
     traj = run_eld(problem, form=Original(), control=Uniform(0.25)).trajectory  # runs
     assert len(traj["t"]) == 5
@@ -42,22 +45,31 @@ def test_step_bound_of_lemma_3_2_is_checked_before_any_step():
 
 def test_bdf2_step_bound_is_checked_before_any_step():
     problem, _ = mms_problem(2, 1, damping=NonlinearDamping(d0=2.0))  # rho/d0 = 0.5
-    with pytest.raises(RotheInputError, match=r"^tau: got 0.8, must be < 1.5 rho/d0 = 0.75 "
-                       r"\(Lemma 3.2 for BDF2"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^tau: got 0.8, must be < 1.5 rho/d0 = 0.75 "
+        r"\(Lemma 3.2 for BDF2",
+    ):
         run_eld(problem, control=Uniform(0.8), scheme=BDF2())
     # 0.5 is refused by Euler but solvable for BDF2 (tau/alpha = 1/3 < 1/2)
     traj = run_eld(problem, form=Original(), control=Uniform(0.5), scheme=BDF2()).trajectory
     assert len(traj["t"]) == 3
-    with pytest.raises(RotheInputError, match=r"^steps: got tau_1 = 0.8, must satisfy "
-                       r"tau_j/alpha_j < rho/d0 = 0.5 \(alpha_j = 1.5"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^steps: got tau_1 = 0.8, must satisfy "
+        r"tau_j/alpha_j < rho/d0 = 0.5 \(alpha_j = 1.5",
+    ):
         run_eld(problem, scheme=BDF2(), control=Given([0.8, 0.2]))
 
 
 def test_step_sequences_are_checked():
     problem, _ = mms_problem(2, 1)
     limit = f"{BDF2_ZERO_STABILITY:.6g}"
-    with pytest.raises(RotheInputError, match=rf"^steps: got tau_3/tau_2 = 2.5, must be < 1 \+ "
-                       rf"sqrt\(2\) = {limit} \(zero-stability"):
+    with pytest.raises(
+        RotheInputError,
+        match=rf"^steps: got tau_3/tau_2 = 2.5, must be < 1 \+ "
+        rf"sqrt\(2\) = {limit} \(zero-stability",
+    ):
         run_eld(problem, scheme=BDF2(), control=Given([0.1, 0.1, 0.25, 0.55]))
     # Euler has no ratio limit
     traj = run_eld(problem, control=Given([0.1, 0.1, 0.25, 0.55])).trajectory
@@ -70,29 +82,35 @@ def test_step_sequences_are_checked():
 
 def test_absurd_tau_is_one_line():
     problem, _ = mms_problem(2, 1)
-    with pytest.raises(RotheInputError, match=r"^tau: got 9.99989e-321, must divide T = 1 into "
-                       r"equal steps \(T/tau = inf\)"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^tau: got 9.99989e-321, must divide T = 1 into "
+        r"equal steps \(T/tau = inf\)",
+    ):
         run_eld(problem, control=Uniform(1e-320))
     assert math.isinf(1.0 / 1e-320)
     with pytest.raises(RotheInputError, match=r"^tau: got 1e\+300, must be < rho/d0"):
         run_eld(problem, control=Uniform(1e300))
-    with pytest.raises(RotheInputError, match=r"^tau: got 0.3, must divide T = 1 into equal "
-                                              r"steps"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^tau: got 0.3, must divide T = 1 into equal "
+        r"steps",
+    ):
         run_eld(problem, control=Uniform(0.3))
 
 
 def test_failed_newton_solve_stops_the_run_without_accepting_the_step():
     problem, _ = mms_problem(2, 1)
-    with pytest.raises(RunFailed, match="Newton's method did not converge in 1 iterations at "
-                       "step 1") as info:
+    with pytest.raises(
+        RunFailed, match="Newton's method did not converge in 1 iterations at step 1"
+    ) as info:
         run_eld(problem, control=Uniform(0.1), newton=NewtonOptions(tol=1e-15, max_iter=1))
     exc = info.value
     assert exc.where["step"] == 1 and exc.where["t"] == 0.0
     assert len(exc.trajectory["t"]) == 1  # only the initial state
     assert exc.trajectory.stats.accepted_steps == 0
     # the step's result: not converged, its code and message
-    stepper = ELDStepper(problem, control=Uniform(0.1), newton=NewtonOptions(tol=1e-15,
-                                                                             max_iter=1))
+    stepper = ELDStepper(problem, control=Uniform(0.1), newton=NewtonOptions(tol=1e-15, max_iter=1))
     result = stepper.step(stepper.initial_state(), 0.1)
     assert not result.converged and result.state is None and result.code is ELDCode.NEWTON
     assert result.code == "newton" and result.message.startswith(ELDCode.NEWTON.message)
@@ -105,10 +123,17 @@ def _square(body_force=None, dirichlet=None, damping=None):
     def zero(t, x):
         return np.zeros_like(x)
 
-    return ELDProblem(mesh, material, degree=1, damping=damping,
-                      dirichlet={"left": dirichlet or DirichletData(zero, zero, zero)},
-                      body_force=body_force, u0=None,
-                      v0=lambda x: np.stack([x[0], 0 * x[0]]), T=1.0)
+    return ELDProblem(
+        mesh,
+        material,
+        degree=1,
+        damping=damping,
+        dirichlet={"left": dirichlet or DirichletData(zero, zero, zero)},
+        body_force=body_force,
+        u0=None,
+        v0=lambda x: np.stack([x[0], 0 * x[0]]),
+        T=1.0,
+    )
 
 
 @pytest.mark.parametrize("adaptive", [False, True], ids=["uniform", "adaptive"])
@@ -118,8 +143,11 @@ def test_non_finite_data_midway_stops_the_run_without_accepting_the_step(adaptiv
 
     problem = _square(body_force=force)
     control = Adaptive(1e-3, tau=0.1) if adaptive else Uniform(0.1)
-    with pytest.raises(RunFailed, match=r"^non-finite data at step \d+ \(t = 0\.[56]\d*\): "
-                       r"the load F"):
+    with pytest.raises(
+        RunFailed,
+        match=r"^non-finite data at step \d+ \(t = 0\.[56]\d*\): "
+        r"the load F",
+    ):
         run_eld(problem, scheme=BDF2(), control=control)
 
     def G(t, x):
@@ -135,12 +163,16 @@ def test_non_finite_data_midway_stops_the_run_without_accepting_the_step(adaptiv
 @pytest.mark.parametrize("scheme", [ImplicitEuler(), BDF2()], ids=["euler", "bdf2"])
 def test_non_finite_state_is_a_failed_step(scheme):
     """Finite data whose response overflows (as eld-beam --amplitude 1e300 did)."""
+
     def force(t, x):
         return np.full_like(x, 1e308 if t > 0.45 else 0.0)
 
     problem = _square(body_force=force)
-    with pytest.raises(RunFailed, match=r"^non-finite state at step 5 \(t = 0.5, tau = 0.1\): "
-                       r".* has NaN or inf entries; the step is not accepted") as info:
+    with pytest.raises(
+        RunFailed,
+        match=r"^non-finite state at step 5 \(t = 0.5, tau = 0.1\): "
+        r".* has NaN or inf entries; the step is not accepted",
+    ) as info:
         run_eld(problem, scheme=scheme, control=Uniform(0.1))
     traj = info.value.trajectory
     assert traj.stats.accepted_steps == 4 and np.all(np.isfinite(traj["energy"]))
@@ -152,14 +184,15 @@ def test_non_finite_state_is_a_failed_step(scheme):
         return v * (np.nan if calls["n"] > 12 else 1.0)
 
     damping = UserDamping(force=nan_later, jacobian=lambda v: sp.identity(v.size), d0=0.0)
-    with pytest.raises(RunFailed, match="(Newton's method did not converge|non-finite state)"
-                       ".*the step is not accepted") as info:
+    with pytest.raises(
+        RunFailed,
+        match="(Newton's method did not converge|non-finite state).*the step is not accepted",
+    ) as info:
         run_eld(_square(damping=damping), scheme=scheme, control=Uniform(0.1))
     assert np.all(np.isfinite(info.value.trajectory["u"]))
 
 
-@pytest.mark.parametrize("scheme,order", [(ImplicitEuler(), 1), (BDF2(), 2)],
-                         ids=["euler", "bdf2"])
+@pytest.mark.parametrize("scheme,order", [(ImplicitEuler(), 1), (BDF2(), 2)], ids=["euler", "bdf2"])
 def test_local_error_estimate_has_the_order_of_the_local_error(scheme, order):
     """local_error ~ tau^(p+1) on a smooth solution: halving tau divides it by 2^(p+1)."""
     problem, _ = mms_problem(2, 2)
@@ -175,12 +208,16 @@ def test_local_error_estimate_has_the_order_of_the_local_error(scheme, order):
 def test_stepper_options_refuse_bad_input_in_one_line_naming_the_parameter():
     problem, _ = mms_problem(2, 1)
     for kwargs, pattern in (
-            (dict(control="uniform"), r"^control: got 'uniform', must be Uniform\(tau\), "
-                                      r"Given\(steps\) or Adaptive\(tol, tau=\.\.\.\)"),
-            (dict(newton={"tol": 1e-8}), r"^newton: got dict, must be a rothe.eld.NewtonOptions"),
-            (dict(keep_every=0), r"^keep_every: got 0, must be an integer >= 1$"),
-            (dict(error_scale=-1.0), r"^error_scale: got -1, must be > 0$"),
-            (dict(solver="gmres"), r"^solver: got 'gmres', must be one of auto, direct, amg$")):
+        (
+            dict(control="uniform"),
+            r"^control: got 'uniform', must be Uniform\(tau\), "
+            r"Given\(steps\) or Adaptive\(tol, tau=\.\.\.\)",
+        ),
+        (dict(newton={"tol": 1e-8}), r"^newton: got dict, must be a rothe.eld.NewtonOptions"),
+        (dict(keep_every=0), r"^keep_every: got 0, must be an integer >= 1$"),
+        (dict(error_scale=-1.0), r"^error_scale: got -1, must be > 0$"),
+        (dict(solver="gmres"), r"^solver: got 'gmres', must be one of auto, direct, amg$"),
+    ):
         with pytest.raises(RotheInputError, match=pattern) as info:
             ELDStepper(problem, **kwargs)
         assert info.value.parameter == pattern[1:].split(":")[0]

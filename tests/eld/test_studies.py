@@ -13,8 +13,9 @@ TAUS = (0.1, 0.01, 0.001)
 
 @pytest.fixture(scope="module")
 def noise_in_G():
-    return perturbation_study(TAUS, targets=("G",), n=3, degree=1,
-                              damping=RayleighDamping(a=0.1, b=0.01))
+    return perturbation_study(
+        TAUS, targets=("G",), n=3, degree=1, damping=RayleighDamping(a=0.1, b=0.01)
+    )
 
 
 def test_multiplier_amplification_bounded_for_regularized_growing_for_original(noise_in_G):
@@ -39,8 +40,9 @@ def test_velocity_amplification_follows_the_same_pattern_and_u_does_not(noise_in
 
 
 def test_noise_in_the_load_affects_both_forms_alike():
-    study = perturbation_study((0.1, 0.01), targets=("F",), n=3, degree=1,
-                               damping=RayleighDamping(a=0.1, b=0.01))
+    study = perturbation_study(
+        (0.1, 0.01), targets=("F",), n=3, degree=1, damping=RayleighDamping(a=0.1, b=0.01)
+    )
     table = study["F"]
     for key in ("amp", "amp_v", "amp_u"):
         reg, orig = np.array(table[f"{key}_regularized"]), np.array(table[f"{key}_original"])
@@ -48,10 +50,21 @@ def test_noise_in_the_load_affects_both_forms_alike():
 
 
 def test_convergence_study_takes_the_scheme_and_form_objects():
-    study = convergence_study(Original(), tau0=0.1, halvings=2, n=2, degree=2,
-                              damping=RayleighDamping(a=0.1, b=0.01), scheme=BDF2())
+    study = convergence_study(
+        Original(),
+        tau0=0.1,
+        halvings=2,
+        n=2,
+        degree=2,
+        damping=RayleighDamping(a=0.1, b=0.01),
+        scheme=BDF2(),
+    )
     assert (study["form"], study["scheme"], study["data"], study["lifting"]) == (
-        "original", "bdf2", "points", None)
+        "original",
+        "bdf2",
+        "points",
+        None,
+    )
     assert study["tau"] == [0.1, 0.05, 0.025] and study["rate_u"] >= 1.8
     with pytest.raises(RotheInputError, match=r"^form: got 'original', must be Regularized"):
         convergence_study("original", halvings=1)

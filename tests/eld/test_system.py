@@ -40,16 +40,18 @@ def test_step_matrix_is_the_restriction_of_the_full_one(degree):
     assert abs(M_C - problem.M[:, C]).max() == 0
     # a user damping matrix takes the general path: same matrix
     C_user = sp.csr_matrix(0.3 * problem.M + 0.01 * problem.K)
-    problem.damping_op = UserDamping(matrix=C_user, d0=0.0).operator(problem.space, problem.M,
-                                                                      problem.K)
+    problem.damping_op = UserDamping(matrix=C_user, d0=0.0).operator(
+        problem.space, problem.M, problem.K
+    )
     user = ELDStepper(problem, control=Uniform(tau), solver="direct")
     assert abs(user.system.A_II - expected).max() <= 1e-12 * abs(expected).max()
 
 
 def test_amg_and_lu_give_the_same_reactions():
     problem = beam_problem(3, damping=RayleighDamping(0.0, 0.002), T=0.1)
-    amg = run_eld(problem, control=Uniform(0.01), solver="amg", store_fields=False,
-                  linear_rtol=1e-10).trajectory
+    amg = run_eld(
+        problem, control=Uniform(0.01), solver="amg", store_fields=False, linear_rtol=1e-10
+    ).trajectory
     lu = run_eld(problem, control=Uniform(0.01), solver="direct", store_fields=False).trajectory
     R_amg, R_lu = np.array(amg["reaction_left"]), np.array(lu["reaction_left"])
     assert np.abs(R_amg - R_lu).max() <= 1e-7 * np.abs(R_lu).max()
@@ -58,10 +60,17 @@ def test_amg_and_lu_give_the_same_reactions():
 
 def test_original_form_runs_with_amg_and_matches_lu():
     problem = beam_problem(3, damping=RayleighDamping(0.0, 0.002), T=0.05)
-    amg = run_eld(problem, form=Original(), control=Uniform(0.01), solver="amg",
-                  store_fields=False, linear_rtol=1e-11).trajectory
-    lu = run_eld(problem, form=Original(), control=Uniform(0.01), solver="direct",
-                 store_fields=False).trajectory
+    amg = run_eld(
+        problem,
+        form=Original(),
+        control=Uniform(0.01),
+        solver="amg",
+        store_fields=False,
+        linear_rtol=1e-11,
+    ).trajectory
+    lu = run_eld(
+        problem, form=Original(), control=Uniform(0.01), solver="direct", store_fields=False
+    ).trajectory
     assert amg.meta["linear_solver"]["kind"] == "amg"
     R_amg, R_lu = np.array(amg["reaction_left"]), np.array(lu["reaction_left"])
     assert np.abs(R_amg - R_lu).max() <= 1e-7 * np.abs(R_lu).max()
@@ -81,10 +90,8 @@ def test_linear_damping_factors_once_and_backsubstitutes_per_step():
 
 def test_a_system_rebuilt_on_a_new_problem_continues_the_counters():
     problem, _ = mms_problem(2, 2, damping=RayleighDamping(a=0.1, b=0.01))
-    system = ELDSystem.build(problem, Regularized("harmonic"), tau_eff=0.01,
-                             variable_steps=False)
-    assert system.initial_factorizations == 1 and system.reference == {"tau_eff": 0.01,
-                                                                        "v": None}
+    system = ELDSystem.build(problem, Regularized("harmonic"), tau_eff=0.01, variable_steps=False)
+    assert system.initial_factorizations == 1 and system.reference == {"tau_eff": 0.01, "v": None}
     system.solver.stats.backsolves = 7
     other, _ = mms_problem(3, 2, damping=RayleighDamping(a=0.1, b=0.01))
     new = system.rebuilt(other)

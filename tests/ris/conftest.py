@@ -33,9 +33,17 @@ def readme_problem(**overrides) -> RISProblem:
 
 def ris_1d_problem(**overrides) -> RISProblem:
     """Example 7.1 built by hand, with any argument of RISProblem replaced."""
-    kw = dict(A=np.array([[1.0]]), F=examples.p, dF=examples.dp, d2F=examples.d2p,
-              load=lambda t: np.array([t + 1.0]), dissipation_weights=1.0, metric_weights=1.0,
-              z0=np.array([-2.0]), T=5.0)
+    kw = dict(
+        A=np.array([[1.0]]),
+        F=examples.p,
+        dF=examples.dp,
+        d2F=examples.d2p,
+        load=lambda t: np.array([t + 1.0]),
+        dissipation_weights=1.0,
+        metric_weights=1.0,
+        z0=np.array([-2.0]),
+        T=5.0,
+    )
     kw.update(overrides)
     return RISProblem(**kw)
 

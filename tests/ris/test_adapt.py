@@ -98,8 +98,9 @@ def test_every_step_of_an_adapted_run_is_kkt_exact_on_its_mesh(checked_steps, co
 
 def test_nested_control_adapts_every_run(checked_steps):
     p = example_front(4, T=0.1)
-    results = run_nested(p, Nested([2e-2, 1e-2], tau=0.05), inner=DIRECT,
-                         adapt=front_options(max_dofs=200))
+    results = run_nested(
+        p, Nested([2e-2, 1e-2], tau=0.05), inner=DIRECT, adapt=front_options(max_dofs=200)
+    )
     runs = [r.trajectory for r in results]
     assert all(r.meshes is r.trajectory.meshes and r.meshes is not None for r in results)
     assert len(runs) == 2 and all(r.meta["space_adaptations"] >= 1 for r in runs)
@@ -134,8 +135,12 @@ def test_transfer_is_exact_on_refinement():
 def test_nothing_marked_is_the_fixed_mesh_run_bit_for_bit():
     p = example_7_2(5, T=0.4)
     fixed = run_ris(p, Adaptive(1e-3, tau=0.1), inner=DIRECT).trajectory
-    same = run_ris(p, Adaptive(1e-3, tau=0.1), inner=DIRECT,
-                   adapt=SpaceAdaptivity(space_tol=1e9, coarsen_fraction=1e-300)).trajectory
+    same = run_ris(
+        p,
+        Adaptive(1e-3, tau=0.1),
+        inner=DIRECT,
+        adapt=SpaceAdaptivity(space_tol=1e9, coarsen_fraction=1e-300),
+    ).trajectory
     assert same.meta["space_adaptations"] == 0 and len(fixed) == len(same) > 5
     for key in fixed.keys():
         a, b = fixed[key], same[key]
@@ -148,8 +153,9 @@ def test_the_front_example_coarsens_behind_its_front():
     """The refined band follows the front: the dofs rise while it crosses and fall after it
     passed; the final mesh has cells of the initial level where the front was."""
     p = example_front(4, T=1.0)
-    traj = run_ris(p, Uniform(0.1), inner=DIRECT,
-                   adapt=front_options(max_dofs=400, space_tol=3.0)).trajectory
+    traj = run_ris(
+        p, Uniform(0.1), inner=DIRECT, adapt=front_options(max_dofs=400, space_tol=3.0)
+    ).trajectory
     dofs = np.asarray(traj["n_dofs"])
     peak = int(np.argmax(dofs))
     assert dofs[peak] > 2 * dofs[0]
@@ -166,8 +172,13 @@ def test_bad_input_is_refused_with_one_line():
         run_ris(p, Adaptive(1e-4), adapt={"space_tol": 1.0})
     with pytest.raises(RotheInputError, match=r"^adapt: got a RISProblem problem"):
         run_ris(example_7_1(), Adaptive(1e-4), adapt=SpaceAdaptivity(space_tol=1.0))
-    nodal = FERISProblem(p.mesh, g_7_2, lambda z: -192 * z * (1 - z * z),
-                         lambda z: 576 * z * z - 192, load=lambda t: -200 * t**3 * p.m_all)
+    nodal = FERISProblem(
+        p.mesh,
+        g_7_2,
+        lambda z: -192 * z * (1 - z * z),
+        lambda z: 576 * z * z - 192,
+        load=lambda t: -200 * t**3 * p.m_all,
+    )
     with pytest.raises(RotheInputError, match=r"^adapt: got a load given as nodal functionals"):
         run_ris(nodal, Adaptive(1e-4), adapt=SpaceAdaptivity(space_tol=1.0))
     with pytest.raises(RotheInputError, match=r"^max_dofs: got 10, must be >= the 25 dofs"):
@@ -203,8 +214,7 @@ def test_checkpoint_round_trip_continues_bit_for_bit():
     b = _run_to(stepper2, controller2, b_traj, state2, None)
     assert np.array_equal(a.z, b.z) and a.s == b.s and a.t == b.t
     for key in a_traj.keys():
-        assert all(np.array_equal(x, y) for x, y in zip(a_traj[key], b_traj[key],
-                                                         strict=True)), key
+        assert all(np.array_equal(x, y) for x, y in zip(a_traj[key], b_traj[key], strict=True)), key
     assert stepper2.adaptivity.mesh_id == stepper.adaptivity.mesh_id
 
 
@@ -212,8 +222,9 @@ def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
     p = example_front(4, T=0.15)
 
     def make_run(**kw):
-        return run_ris(p, Adaptive(1e-2, tau=0.05), inner=DIRECT,
-                       adapt=front_options(max_dofs=250), **kw).trajectory
+        return run_ris(
+            p, Adaptive(1e-2, tau=0.05), inner=DIRECT, adapt=front_options(max_dofs=250), **kw
+        ).trajectory
 
     full = make_run()
     original = RISStepper.step
@@ -234,12 +245,13 @@ def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
     resumed = make_run(resume=ckpt)
     assert resumed.meta["sessions"] == 3 and full.meta["space_adaptations"] >= 2
     for key in full.keys():
-        assert all(np.array_equal(x, y) for x, y in zip(full[key], resumed[key],
-                                                         strict=True)), key
+        assert all(np.array_equal(x, y) for x, y in zip(full[key], resumed[key], strict=True)), key
     assert full.meshes.ids == resumed.meshes.ids
     for k in full.meshes.ids:
-        assert all(np.array_equal(x, y) for x, y in zip(full.meshes.mesh(k),
-                                                         resumed.meshes.mesh(k), strict=True))
+        assert all(
+            np.array_equal(x, y)
+            for x, y in zip(full.meshes.mesh(k), resumed.meshes.mesh(k), strict=True)
+        )
     a = full.arrays()
     b = resumed.arrays()
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
@@ -250,12 +262,10 @@ def test_the_adapt_step_records_the_seconds_of_each_phase(tmp_path):
     refine, rebuild and transfer (the adapt cycle), factor and solve, and the loop's own step,
     adapt and record; they are written as stats_seconds_<phase>."""
     p = example_front(4, T=0.15)
-    result = run_ris(p, Adaptive(1e-2, tau=0.05), inner=DIRECT,
-                     adapt=front_options(max_dofs=250))
+    result = run_ris(p, Adaptive(1e-2, tau=0.05), inner=DIRECT, adapt=front_options(max_dofs=250))
     seconds = result.statistics.seconds
     assert result.trajectory.meta["space_adaptations"] >= 2
-    for phase in ("estimate", "mark", "refine", "rebuild", "transfer", "step", "adapt",
-                  "record"):
+    for phase in ("estimate", "mark", "refine", "rebuild", "transfer", "step", "adapt", "record"):
         assert phase in seconds and seconds[phase] > 0.0, phase
     # the adapt step's phases happen inside the loop's adapt phase
     inner = sum(seconds[k] for k in ("estimate", "mark", "refine", "rebuild", "transfer"))
@@ -266,4 +276,3 @@ def test_the_adapt_step_records_the_seconds_of_each_phase(tmp_path):
     # a fixed mesh has no adapt phases
     fixed = run_ris(p, Adaptive(1e-2, tau=0.05), inner=DIRECT).statistics.seconds
     assert not {"estimate", "mark", "refine", "rebuild", "transfer"} & set(fixed)
-

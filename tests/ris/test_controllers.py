@@ -29,8 +29,12 @@ from rothe.stepping.controllers import Adaptive, Uniform, UniformController
 from rothe.stepping.evolve import evolve
 
 #: the step-control object of each control, at tolerance 1e-4 and first step 0.1
-OBJECTS = {"uniform": lambda: Uniform(0.1), "adaptive": lambda: Adaptive(1e-4, tau=0.1),
-           "order2": lambda: Order2(1e-4, tau=0.1), "regime": lambda: Regime(1e-4, tau=0.1)}
+OBJECTS = {
+    "uniform": lambda: Uniform(0.1),
+    "adaptive": lambda: Adaptive(1e-4, tau=0.1),
+    "order2": lambda: Order2(1e-4, tau=0.1),
+    "regime": lambda: Regime(1e-4, tau=0.1),
+}
 
 
 def result(tau, I1, I2, converged=True, step_norm=None):
@@ -97,10 +101,14 @@ def test_uniform_only_rejects_failed_solves_then_resumes():
         (lambda: Adaptive(-1e-3, tau=0.1), r"^tol: got -0.001, must be > 0$"),
         (lambda: Order2(1e-3, tau=0.0), r"^tau: got 0, must be > 0$"),
         (lambda: Uniform(-1.0), r"^tau: got -1, must be > 0$"),
-        (lambda: Adaptive(1e-3, tau=0.1, tau_min=0.2),
-         r"^tau_min: got 0.2, must be <= the first step tau = 0.1$"),
-        (lambda: Uniform(0.1, tau_min=0.2),
-         r"^tau_min: got 0.2, must be <= the first step tau = 0.1$"),
+        (
+            lambda: Adaptive(1e-3, tau=0.1, tau_min=0.2),
+            r"^tau_min: got 0.2, must be <= the first step tau = 0.1$",
+        ),
+        (
+            lambda: Uniform(0.1, tau_min=0.2),
+            r"^tau_min: got 0.2, must be <= the first step tau = 0.1$",
+        ),
     ],
 )
 def test_controller_inputs_are_validated(make, match):
@@ -108,34 +116,53 @@ def test_controller_inputs_are_validated(make, match):
         make()
 
 
-@pytest.mark.parametrize("make, parameter, match", [
-    (lambda: Uniform(0.0), "tau", r"^tau: got 0, must be > 0$"),
-    (lambda: Uniform(0.1, tau_min=-1.0), "tau_min", r"^tau_min: got -1, must be > 0$"),
-    (lambda: Adaptive(float("nan")), "tol", r"^tol: got nan, must be"),
-    (lambda: Adaptive(1e-4, tau=0.1, tau_max=0.05), "tau_max",
-     r"^tau_max: got 0.05, must be >= the first step tau = 0.1$"),
-    (lambda: Order2(0.0), "tol", r"^tol: got 0, must be > 0$"),
-    (lambda: Order2(1e-4, tau=-0.1), "tau", r"^tau: got -0.1, must be > 0$"),
-    (lambda: Order2(1e-4, tau=0.1, tau_min=0.5), "tau_min",
-     r"^tau_min: got 0.5, must be <= the first step tau = 0.1$"),
-    (lambda: Order2(1e-4, safety=0.0), "safety", r"^safety: got 0, must be > 0$"),
-    (lambda: Regime(-1.0), "tol", r"^tol: got -1, must be > 0$"),
-    (lambda: Regime(1e-4, tau=0.0), "tau", r"^tau: got 0, must be > 0$"),
-    (lambda: Regime(1e-4, theta=1.0), "theta",
-     r"^theta: got 1, must be < 1 \(the target theta \* tol is below tol\)$"),
-    (lambda: Regime(1e-4, theta=0.0), "theta", r"^theta: got 0, must be > 0$"),
-    (lambda: Regime(1e-4, grow=1.0), "grow", r"^grow: got 1, must be > 1$"),
-    (lambda: Nested([1e-3, 1e-2]), "tols",
-     r"^tols: got '0.001,0.01', must be strictly decreasing$"),
-    (lambda: Nested(1e-3), "tols", r"^tols: got a float, must be a sequence of decreasing "),
-    (lambda: Nested("1e-3"), "tols", r"^tols: got a str, must be a sequence of decreasing "),
-    (lambda: Nested([1e-3, -1e-4]), "tols", r"^tols: got "),
-    (lambda: Nested([1e-3], tau=0.0), "tau", r"^tau: got 0, must be > 0$"),
-    (lambda: Nested([1e-3], tau=0.1, tau_min=1.0), "tau_min",
-     r"^tau_min: got 1, must be <= the first step tau = 0.1$"),
-])
+@pytest.mark.parametrize(
+    "make, parameter, match",
+    [
+        (lambda: Uniform(0.0), "tau", r"^tau: got 0, must be > 0$"),
+        (lambda: Uniform(0.1, tau_min=-1.0), "tau_min", r"^tau_min: got -1, must be > 0$"),
+        (lambda: Adaptive(float("nan")), "tol", r"^tol: got nan, must be"),
+        (
+            lambda: Adaptive(1e-4, tau=0.1, tau_max=0.05),
+            "tau_max",
+            r"^tau_max: got 0.05, must be >= the first step tau = 0.1$",
+        ),
+        (lambda: Order2(0.0), "tol", r"^tol: got 0, must be > 0$"),
+        (lambda: Order2(1e-4, tau=-0.1), "tau", r"^tau: got -0.1, must be > 0$"),
+        (
+            lambda: Order2(1e-4, tau=0.1, tau_min=0.5),
+            "tau_min",
+            r"^tau_min: got 0.5, must be <= the first step tau = 0.1$",
+        ),
+        (lambda: Order2(1e-4, safety=0.0), "safety", r"^safety: got 0, must be > 0$"),
+        (lambda: Regime(-1.0), "tol", r"^tol: got -1, must be > 0$"),
+        (lambda: Regime(1e-4, tau=0.0), "tau", r"^tau: got 0, must be > 0$"),
+        (
+            lambda: Regime(1e-4, theta=1.0),
+            "theta",
+            r"^theta: got 1, must be < 1 \(the target theta \* tol is below tol\)$",
+        ),
+        (lambda: Regime(1e-4, theta=0.0), "theta", r"^theta: got 0, must be > 0$"),
+        (lambda: Regime(1e-4, grow=1.0), "grow", r"^grow: got 1, must be > 1$"),
+        (
+            lambda: Nested([1e-3, 1e-2]),
+            "tols",
+            r"^tols: got '0.001,0.01', must be strictly decreasing$",
+        ),
+        (lambda: Nested(1e-3), "tols", r"^tols: got a float, must be a sequence of decreasing "),
+        (lambda: Nested("1e-3"), "tols", r"^tols: got a str, must be a sequence of decreasing "),
+        (lambda: Nested([1e-3, -1e-4]), "tols", r"^tols: got "),
+        (lambda: Nested([1e-3], tau=0.0), "tau", r"^tau: got 0, must be > 0$"),
+        (
+            lambda: Nested([1e-3], tau=0.1, tau_min=1.0),
+            "tau_min",
+            r"^tau_min: got 1, must be <= the first step tau = 0.1$",
+        ),
+    ],
+)
 def test_every_control_object_refuses_bad_input_in_one_line_naming_the_parameter(
-        make, parameter, match):
+    make, parameter, match
+):
     with pytest.raises(RotheInputError, match=match) as info:
         make()
     assert info.value.parameter == parameter
@@ -157,8 +184,11 @@ def test_control_objects_keep_what_they_were_given_and_build_their_controllers()
     assert isinstance(c, AdaptiveController) and c.name == "nested"
     assert np.array_equal(c.grid, [0.1, 0.3])
     assert Nested((1e-2, 1e-3)).tols == (1e-2, 1e-3)
-    with pytest.raises(RotheInputError, match=r"^control: got 'adaptive', must be a step-control "
-                                              r"object: Uniform\(tau\), Adaptive\(tol\)"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^control: got 'adaptive', must be a step-control "
+        r"object: Uniform\(tau\), Adaptive\(tol\)",
+    ):
         build_controller("adaptive")
 
 
@@ -298,9 +328,19 @@ def test_regime_inputs_are_validated():
 
 # -- checkpoint protocol (issue 10) ---------------------------------------------------------------
 
-SEQUENCE = [slip(0.1, 4e-5), slip(0.11, 1e-6), slip(0.1, 2e-4), slip(0.05, 2e-5),
-            jump(0.05, 3e-4), jump(0.02, 1e-6), stick(0.4, 0.0), stick(1.6, 0.0),
-            slip(0.1, 0.0, converged=False), slip(0.02, 3e-5), jump(0.03, 2e-5)]
+SEQUENCE = [
+    slip(0.1, 4e-5),
+    slip(0.11, 1e-6),
+    slip(0.1, 2e-4),
+    slip(0.05, 2e-5),
+    jump(0.05, 3e-4),
+    jump(0.02, 1e-6),
+    stick(0.4, 0.0),
+    stick(1.6, 0.0),
+    slip(0.1, 0.0, converged=False),
+    slip(0.02, 3e-5),
+    jump(0.03, 2e-5),
+]
 
 
 def _build(control):
@@ -351,8 +391,11 @@ def test_controller_checkpoint_holds_only_plain_data(control):
 
 def test_restore_into_a_different_controller_fails():
     data = _build("regime").checkpoint_state()
-    with pytest.raises(ValueError, match=r"restore_state: a 'regime' controller's state given "
-                                         r"to a 'order2' controller"):
+    with pytest.raises(
+        ValueError,
+        match=r"restore_state: a 'regime' controller's state given "
+        r"to a 'order2' controller",
+    ):
         _build("order2").restore_state(data)
 
 
@@ -362,8 +405,12 @@ def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
     the same trajectory as the uninterrupted run, to the bit (the stepper continues as is)."""
     problem = example_7_1()
     full = initial_trajectory(problem)
-    evolve(RISStepper(problem), build_controller(OBJECTS[control]()),
-           RISState(0.0, 0.0, problem.z0.copy()), full)
+    evolve(
+        RISStepper(problem),
+        build_controller(OBJECTS[control]()),
+        RISState(0.0, 0.0, problem.z0.copy()),
+        full,
+    )
     stepper = RISStepper(problem)
     first = build_controller(OBJECTS[control]())
     traj = initial_trajectory(problem)

@@ -50,11 +50,13 @@ def test_the_examples_of_docs_ris_md_run(tmp_path, monkeypatch):
 def test_the_examples_of_docs_ris_fem_md_run(tmp_path, monkeypatch):
     path = ROOT / "docs" / "ris_fem.md"
     quick, adapted = [b for b in _blocks(path) if "run_ris" in b]
-    ns = _run(quick, path, tmp_path, monkeypatch,
-              shrink=[("example_7_2(n=40)", "example_7_2(n=6)")])
+    ns = _run(
+        quick, path, tmp_path, monkeypatch, shrink=[("example_7_2(n=40)", "example_7_2(n=6)")]
+    )
     assert ns["z_nodes"].shape == (49,) and ns["mine"].n == 31**2
-    ns = _run(adapted, path, tmp_path, monkeypatch,
-              shrink=[("example_front(8)", "example_front(4)")])
+    ns = _run(
+        adapted, path, tmp_path, monkeypatch, shrink=[("example_front(8)", "example_front(4)")]
+    )
     result = ns["result"]
     assert len(result.meshes.ids) > 1 and np.max(result.trajectory["n_dofs"]) <= 400
     assert result.statistics.seconds["refine"] > 0

@@ -16,8 +16,9 @@ RIS_BAND = (1.3, 8.0)
 @pytest.mark.parametrize("dim, max_dofs", [(2, 1500), (3, 250)])
 def test_ris_efficiency_band(dim, max_dofs):
     for adaptive in (False, True):
-        rows = ris_study(dim, "front", adaptive=adaptive, max_dofs=max_dofs,
-                         n0=4 if dim == 2 else 2)
+        rows = ris_study(
+            dim, "front", adaptive=adaptive, max_dofs=max_dofs, n0=4 if dim == 2 else 2
+        )
         eff = np.array([r["efficiency"] for r in rows])
         assert all(r["positive"] for r in rows)
         assert RIS_BAND[0] <= eff.min() and eff.max() <= RIS_BAND[1], eff

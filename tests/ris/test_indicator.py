@@ -18,8 +18,9 @@ def test_ris_indicator_measures_the_stability_violation_of_a_sticking_state():
     stable = ris_indicators(mesh, zero, zero, dg=lambda z: 0 * z, load=0.8, kappa=1.0)
     assert stable.estimate == 0.0
     ev = SimplexEvaluator(mesh, 1, cell_order=4, facet_order=1)
-    unstable = ris_indicators(mesh, zero, zero, dg=lambda z: 0 * z, load=-1.5, kappa=1.0,
-                              evaluator=ev)
+    unstable = ris_indicators(
+        mesh, zero, zero, dg=lambda z: 0 * z, load=-1.5, kappa=1.0, evaluator=ev
+    )
     assert np.allclose(unstable.eta**2, ev.h**2 * 0.5**2 * ev.vol, rtol=1e-12)
     assert np.all(unstable.jump == 0) and np.all(unstable.boundary == 0)
 

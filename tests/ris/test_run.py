@@ -38,7 +38,6 @@ def test_keep_every_must_be_positive():
         run_ris(example_7_1(), Adaptive(1e-3, tau=0.1), keep_every=0)
 
 
-
 def test_run_ris_returns_the_trajectory_the_final_state_and_the_statistics():
     result = run_ris(example_7_1(), Regime(1e-3, tau=0.2))
     assert isinstance(result, RISResult) and isinstance(result.state, RISState)
@@ -60,25 +59,40 @@ def test_run_ris_returns_the_trajectory_the_final_state_and_the_statistics():
     assert run_ris(example_7_1(), Uniform(0.5)).trajectory.meta["tol"] is None
 
 
-@pytest.mark.parametrize("control, match", [
-    ("adaptive", r"^control: got 'adaptive', must be a step-control object: Uniform\(tau\), "
-                 r"Adaptive\(tol\) \(rothe.stepping.controllers\), Order2\(tol\) or "
-                 r"Regime\(tol\) \(rothe.ris.controllers\)$"),
-    (1e-4, r"^control: got a float, must be a step-control object"),
-    (Nested([1e-2, 1e-3]), r"^control: got a Nested, must be a step-control object: .*; "
-                           r"run_nested runs a Nested sequence of tolerances$"),
-])
+@pytest.mark.parametrize(
+    "control, match",
+    [
+        (
+            "adaptive",
+            r"^control: got 'adaptive', must be a step-control object: Uniform\(tau\), "
+            r"Adaptive\(tol\) \(rothe.stepping.controllers\), Order2\(tol\) or "
+            r"Regime\(tol\) \(rothe.ris.controllers\)$",
+        ),
+        (1e-4, r"^control: got a float, must be a step-control object"),
+        (
+            Nested([1e-2, 1e-3]),
+            r"^control: got a Nested, must be a step-control object: .*; "
+            r"run_nested runs a Nested sequence of tolerances$",
+        ),
+    ],
+)
 def test_run_ris_refuses_what_is_not_the_control_of_one_run(control, match):
     with pytest.raises(RotheInputError, match=match) as info:
         run_ris(example_7_1(), control)
     assert info.value.parameter == "control"
 
 
-@pytest.mark.parametrize("control, match", [
-    ([1e-2, 1e-3], r"^control: got a list, must be Nested\(tols\) \(rothe.ris.controllers\); "
-                   r"the control of a single run goes to run_ris$"),
-    (Adaptive(1e-3), r"^control: got a Adaptive, must be Nested\(tols\)"),
-])
+@pytest.mark.parametrize(
+    "control, match",
+    [
+        (
+            [1e-2, 1e-3],
+            r"^control: got a list, must be Nested\(tols\) \(rothe.ris.controllers\); "
+            r"the control of a single run goes to run_ris$",
+        ),
+        (Adaptive(1e-3), r"^control: got a Adaptive, must be Nested\(tols\)"),
+    ],
+)
 def test_run_nested_refuses_what_is_not_a_nested_control(control, match):
     with pytest.raises(RotheInputError, match=match):
         run_nested(example_7_1(), control)
@@ -98,10 +112,13 @@ def test_run_nested_returns_one_result_per_tolerance():
 def test_a_stop_after_failed_inner_solves_names_the_likely_cause():
     """No iteration allowed: sticking steps converge at once (d = 0 is stationary), the first
     step of the jump at t = 2 cannot; the stop below tau_min says what the code means."""
-    with pytest.raises(RunFailed, match=r"^step size fell below tau_min = 0\.03 at step \d+ .*"
-                                        r"inner solve failed \(max_iterations\)\); the inner "
-                                        r"solver cannot reach stationarity: dF or d2F probably "
-                                        r"does not belong to F") as info:
+    with pytest.raises(
+        RunFailed,
+        match=r"^step size fell below tau_min = 0\.03 at step \d+ .*"
+        r"inner solve failed \(max_iterations\)\); the inner "
+        r"solver cannot reach stationarity: dF or d2F probably "
+        r"does not belong to F",
+    ) as info:
         run_ris(example_7_1(), Uniform(0.1, tau_min=0.03), inner=InnerOptions(max_iter=0))
     assert info.value.where["code"] == "max_iterations"
     assert info.value.where["code"] is RISCode.MAX_ITERATIONS
@@ -110,11 +127,15 @@ def test_a_stop_after_failed_inner_solves_names_the_likely_cause():
 
 # -- the run ends on T (it ended at t = 1.0001418 for T = 1) --------------------------------------
 
-@pytest.mark.parametrize("control", [
-    Adaptive(1e-5, tau=0.05),  # the README's call
-    Order2(1e-5, tau=0.05),
-    Uniform(0.013),
-])
+
+@pytest.mark.parametrize(
+    "control",
+    [
+        Adaptive(1e-5, tau=0.05),  # the README's call
+        Order2(1e-5, tau=0.05),
+        Uniform(0.013),
+    ],
+)
 def test_readme_example_ends_on_T(control):
     result = run_ris(readme_problem(), control)
     traj = result.trajectory

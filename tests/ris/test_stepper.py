@@ -23,6 +23,7 @@ from .conftest import DIRECT, readme_problem, ris_1d_problem
 
 # -- a wrong dF: stagnation is detected and named (spun to the 10^6-attempt cap before) ----------
 
+
 def wrong_for_positive_z(z):
     """dF of Example 7.1, doubled where z > 0: the derivative check's test points near z0 = -2
     do not see it."""
@@ -33,8 +34,11 @@ def wrong_for_positive_z(z):
 @pytest.mark.parametrize("check", [True, False])
 def test_wrong_dF_stops_with_a_message_naming_the_cause(check):
     problem = ris_1d_problem(dF=wrong_for_positive_z, check_derivatives=check)
-    with pytest.raises(RunFailed, match=r"^no progress: 200 step attempts advanced s by .* at "
-                                        r"t = 2\.0.* dF or d2F probably does not belong to F") as e:
+    with pytest.raises(
+        RunFailed,
+        match=r"^no progress: 200 step attempts advanced s by .* at "
+        r"t = 2\.0.* dF or d2F probably does not belong to F",
+    ) as e:
         run_ris(problem, Adaptive(1e-4, tau=0.1))
     traj = e.value.trajectory
     assert traj is not None and 2.0 <= traj["t"][-1] < 2.1  # the steps before the jump are kept
@@ -57,11 +61,20 @@ def test_stagnation_monitor_state_round_trip():
 
 # -- data that turns bad midway: a failed run that keeps its steps ---------------------------------
 
+
 def test_nan_load_midway_keeps_the_trajectory():
-    problem = FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2,
-                           load=lambda t: np.nan if 0.5 < t < 0.52 else -200.0 * t**3)
-    with pytest.raises(RunFailed, match=r"^load\(t=0\.5\d*\): got nan, must be finite \(no NaN "
-                                        r"or inf\) \(at step \d+, s = ") as e:
+    problem = FERISProblem(
+        unit_square(4),
+        g_7_2,
+        dg_7_2,
+        d2g_7_2,
+        load=lambda t: np.nan if 0.5 < t < 0.52 else -200.0 * t**3,
+    )
+    with pytest.raises(
+        RunFailed,
+        match=r"^load\(t=0\.5\d*\): got nan, must be finite \(no NaN "
+        r"or inf\) \(at step \d+, s = ",
+    ) as e:
         run_ris(problem, Adaptive(1e-4, tau=0.1))
     traj = e.value.trajectory
     assert len(traj) == e.value.where["step"] - 1 and traj["t"][-1] <= 0.5
@@ -70,6 +83,7 @@ def test_nan_load_midway_keeps_the_trajectory():
 def test_load_undefined_beyond_T_only_shortens_the_last_step():
     """An attempt that overshoots T into times where the load is not defined is a failed
     attempt, not a failed run."""
+
     def load(t):
         if t > 1.0 + 1e-9:
             raise ValueError("no data after T")
@@ -82,6 +96,7 @@ def test_load_undefined_beyond_T_only_shortens_the_last_step():
 def test_an_attempt_beyond_T_without_data_is_a_failed_attempt_with_its_code():
     """The load raises beyond T: the attempt that overshoots is not converged, its code is
     RISCode.DATA_BEYOND_T (the string value stays "data_beyond_T"), and the state is kept."""
+
     def load(t):
         if t > 1.0 + 1e-9:
             raise ValueError("no data after T")

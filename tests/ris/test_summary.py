@@ -55,11 +55,25 @@ def test_equidistribution_bound_over_pair_means():
 
 
 def test_finest_uniform_bound_and_the_fit_of_uniform_work():
-    rows = [{"control": "uniform", "status": "completed", "tau0": 0.01,
-             "equidistribution_bound": 0.6, "error_linf": 1e-2, "inner_solves": 100},
-            {"control": "uniform", "status": "completed", "tau0": 0.001,
-             "equidistribution_bound": 0.5, "error_linf": 1e-3, "inner_solves": 1000},
-            {"control": "regime", "status": "completed", "tau0": 0.1}]
+    rows = [
+        {
+            "control": "uniform",
+            "status": "completed",
+            "tau0": 0.01,
+            "equidistribution_bound": 0.6,
+            "error_linf": 1e-2,
+            "inner_solves": 100,
+        },
+        {
+            "control": "uniform",
+            "status": "completed",
+            "tau0": 0.001,
+            "equidistribution_bound": 0.5,
+            "error_linf": 1e-3,
+            "inner_solves": 1000,
+        },
+        {"control": "regime", "status": "completed", "tau0": 0.1},
+    ]
     assert finest_uniform_bound(rows) == (0.001, 0.5)
     assert finest_uniform_bound(rows[2:]) is None
     fit = uniform_work_at_error(rows)
@@ -69,14 +83,27 @@ def test_finest_uniform_bound_and_the_fit_of_uniform_work():
 
 def test_compare_rows_null_outside_the_uniform_range():
     def row(control, G, acc, tau0=0.1, tol=1e-4):
-        return {"control": control, "tol": tol, "tau0": tau0, "accepted_steps": acc,
-                "rejected_steps": 0, "inner_solves": acc, "newton_iterations": 2 * acc,
-                "wall_time_s": 0.01 * acc, "max_residual": G / acc, "sum_residual": G,
-                "status": "completed"}
+        return {
+            "control": control,
+            "tol": tol,
+            "tau0": tau0,
+            "accepted_steps": acc,
+            "rejected_steps": 0,
+            "inner_solves": acc,
+            "newton_iterations": 2 * acc,
+            "wall_time_s": 0.01 * acc,
+            "max_residual": G / acc,
+            "sum_residual": G,
+            "status": "completed",
+        }
 
-    rows = [row("regime", 0.5, 10), row("regime", 0.05, 50), row("regime", 2.0, 5),
-            row("uniform", 1.0, 100, tau0=0.01, tol=None),
-            row("uniform", 0.1, 1000, tau0=0.001, tol=None)]
+    rows = [
+        row("regime", 0.5, 10),
+        row("regime", 0.05, 50),
+        row("regime", 2.0, 5),
+        row("uniform", 1.0, 100, tau0=0.01, tol=None),
+        row("uniform", 0.1, 1000, tau0=0.001, tol=None),
+    ]
     out = compare_rows(rows)
     # G = 0.5 between 1.0 (100 steps) and 0.1 (1000): log-log gives 100 * 2 = 200 steps
     assert out[0]["ratio_steps"] == pytest.approx(10 / 200)

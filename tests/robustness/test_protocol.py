@@ -39,8 +39,9 @@ class StopAfter:
 
 def _ris_parts(problem, control, **kw):
     grid = kw.pop("grid", None)
-    spec = control_object("adaptive" if control == "nested" else control, tol=kw.get("tol"),
-                          tau=kw.get("tau", 0.1))
+    spec = control_object(
+        "adaptive" if control == "nested" else control, tol=kw.get("tol"), tau=kw.get("tau", 0.1)
+    )
     controller = build_controller(spec, grid=grid)
     stepper = RISStepper(problem, kw.get("inner"))
     return stepper, controller
@@ -53,17 +54,20 @@ def _assert_same(a: Trajectory, b: Trajectory):
     assert a.stats.untimed() == b.stats.untimed()
 
 
-@pytest.mark.parametrize("control, problem, kw, k", [
-    ("adaptive", "7.1", {"tol": 1e-3}, 20),
-    ("order2", "7.1", {"tol": 1e-3}, 20),
-    ("uniform", "7.1", {"tau": 0.05}, 25),
-    ("nested", "7.1", {"tol": 1e-4, "grid": np.linspace(0.05, 15.0, 300)}, 30),
-    ("adaptive", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 70),
-    # regime: right after the step out of sticking (its onset samples, models) and in slip
-    ("regime", "7.1", {"tol": 1e-3}, 20),
-    ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 3),
-    ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 60),
-])
+@pytest.mark.parametrize(
+    "control, problem, kw, k",
+    [
+        ("adaptive", "7.1", {"tol": 1e-3}, 20),
+        ("order2", "7.1", {"tol": 1e-3}, 20),
+        ("uniform", "7.1", {"tau": 0.05}, 25),
+        ("nested", "7.1", {"tol": 1e-4, "grid": np.linspace(0.05, 15.0, 300)}, 30),
+        ("adaptive", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 70),
+        # regime: right after the step out of sticking (its onset samples, models) and in slip
+        ("regime", "7.1", {"tol": 1e-3}, 20),
+        ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 3),
+        ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 60),
+    ],
+)
 def test_ris_stepper_and_controller_round_trip(control, problem, kw, k):
     make = (lambda: example_7_1()) if problem == "7.1" else (lambda: example_7_2(6, T=0.3))
     p = make()
@@ -76,8 +80,9 @@ def test_ris_stepper_and_controller_round_trip(control, problem, kw, k):
     part = initial_trajectory(p)
     state = evolve(stepper, controller, RISState(0.0, 0.0, p.z0.copy()), part, max_steps=k)
     assert state.k == k
-    saved = copy.deepcopy({"stepper": stepper.checkpoint_state(state),
-                           "controller": controller.checkpoint_state()})
+    saved = copy.deepcopy(
+        {"stepper": stepper.checkpoint_state(state), "controller": controller.checkpoint_state()}
+    )
     encode(saved, {})  # only arrays, numbers, str, None, dicts and lists
     del stepper, controller
     stepper2, controller2 = _ris_parts(p, control, **dict(kw))
@@ -119,19 +124,22 @@ def test_reusable_solver_round_trip_rebuilds_the_same_lu():
     data = copy.deepcopy(s1.checkpoint_state())
     s2 = ReusableSolver("direct")
     s2.restore_state(data)
-    x1, = s1.solve(K, [b], rtol=1e-8)
-    x2, = s2.solve(K, [b], rtol=1e-8)
+    (x1,) = s1.solve(K, [b], rtol=1e-8)
+    (x2,) = s2.solve(K, [b], rtol=1e-8)
     assert np.array_equal(x1, x2)
     assert s1.stats.as_dict() == s2.stats.as_dict()
 
 
-@pytest.mark.parametrize("form, damping, options", [
-    ("regularized", "nonlinear", {}),
-    ("original", "nonlinear", {}),
-    ("regularized", "rayleigh", {}),
-    ("original", "nonlinear", {"scheme": "bdf2", "tol": 1e-4}),
-    ("regularized", "rayleigh", {"scheme": "bdf2", "data": "differenced"}),
-])
+@pytest.mark.parametrize(
+    "form, damping, options",
+    [
+        ("regularized", "nonlinear", {}),
+        ("original", "nonlinear", {}),
+        ("regularized", "rayleigh", {}),
+        ("original", "nonlinear", {"scheme": "bdf2", "tol": 1e-4}),
+        ("regularized", "rayleigh", {"scheme": "bdf2", "data": "differenced"}),
+    ],
+)
 def test_eld_stepper_round_trip(form, damping, options):
     """The stepper and the controller that run_eld uses (prepare_eld_run): Euler and BDF2,
     uniform and adaptive steps. The step data keeps no history of its own (the differenced
@@ -154,22 +162,25 @@ def test_eld_stepper_round_trip(form, damping, options):
         form=Regularized() if form == "regularized" else Original(),
         scheme=BDF2() if options.get("scheme") == "bdf2" else ImplicitEuler(),
         control=Adaptive(options["tol"], tau=0.02) if "tol" in options else Uniform(0.02),
-        data=Differenced() if options.get("data") == "differenced" else Points())
+        data=Differenced() if options.get("data") == "differenced" else Points(),
+    )
 
     def fresh():
         return prepare_eld_run(p, **objects)
 
     run_full = fresh()
     full = run_full.trajectory
-    evolve(run_full.stepper, run_full.controller, run_full.state, full,
-           tau_min=run_full.tau_min)
+    evolve(run_full.stepper, run_full.controller, run_full.state, full, tau_min=run_full.tau_min)
     run = fresh()
     part = run.trajectory
-    state = evolve(run.stepper, run.controller, run.state, part, tau_min=run.tau_min,
-                   max_steps=17)
+    state = evolve(run.stepper, run.controller, run.state, part, tau_min=run.tau_min, max_steps=17)
     assert state.j == 17
-    saved = copy.deepcopy({"stepper": run.stepper.checkpoint_state(state),
-                           "controller": run.controller.checkpoint_state()})
+    saved = copy.deepcopy(
+        {
+            "stepper": run.stepper.checkpoint_state(state),
+            "controller": run.controller.checkpoint_state(),
+        }
+    )
     encode(saved, {})
     run2 = fresh()
     state2 = run2.stepper.restore_state(saved["stepper"])
@@ -178,7 +189,8 @@ def test_eld_stepper_round_trip(form, damping, options):
     _assert_same(full, part)
     a, b = vars(run_full.stepper.system.solver.stats), vars(run2.stepper.system.solver.stats)
     assert {k: v for k, v in a.items() if k != "setup_seconds"} == {
-        k: v for k, v in b.items() if k != "setup_seconds"}
+        k: v for k, v in b.items() if k != "setup_seconds"
+    }
 
 
 def test_encode_refuses_what_would_need_pickle():
@@ -188,4 +200,5 @@ def test_encode_refuses_what_would_need_pickle():
         encode({"a": [np.zeros(2), np.array([None])]}, {})
     with pytest.raises(ValueError, match="uniform"):  # a controller refuses another's state
         build_controller(Order2(1e-3, tau=0.1)).restore_state(
-            build_controller(Uniform(0.1)).checkpoint_state())
+            build_controller(Uniform(0.1)).checkpoint_state()
+        )

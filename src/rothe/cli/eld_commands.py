@@ -85,6 +85,7 @@ PULSE_MAX_DOFS = 100_000
 
 # -- summaries ----------------------------------------------------------------------------------
 
+
 def energy_summary(traj) -> dict:
     """The energy identity at T, term by term (:mod:`rothe.eld.state`)."""
     e0 = float(traj["energy"][0])
@@ -99,9 +100,11 @@ def energy_summary(traj) -> dict:
         "dissipated_numerical": float(traj["numerical_dissipation"][-1]),
         "dissipated_numerical_G": float(traj["numerical_dissipation_G"][-1]),
         "step_change": float(traj["step_change"][-1]),
-        "numerical_boundary_term": float(traj["numerical_dissipation"][-1]
-                                         - traj["numerical_dissipation_G"][-1]
-                                         - traj["step_change"][-1]),
+        "numerical_boundary_term": float(
+            traj["numerical_dissipation"][-1]
+            - traj["numerical_dissipation_G"][-1]
+            - traj["step_change"][-1]
+        ),
         "data_mismatch": float(traj["data_mismatch"][-1]),
         "residual_work": float(traj["residual_work"][-1]),
         "transfer": float(traj["transfer"][-1]),
@@ -200,6 +203,7 @@ def meshes_summary(result: ELDResult) -> dict:
 
 # -- the run sequence -----------------------------------------------------------------------------
 
+
 class EldRunCommand:
     """Base of the ELD run commands: the one run sequence (run -> stage -> annotate -> write ->
     finish, :meth:`run`)."""
@@ -222,8 +226,10 @@ class EldRunCommand:
         completed, summary = False, None
         with session:
             if session.already_completed:
-                print(f"rothe: {session.out}: the run already completed; its results are there",
-                      file=sys.stderr)
+                print(
+                    f"rothe: {session.out}: the run already completed; its results are there",
+                    file=sys.stderr,
+                )
                 return 0
             writer = None if stream is None else stream(session, options)
             prepared = []
@@ -243,15 +249,19 @@ class EldRunCommand:
                         writer.export(stage)
                     summary = run_summary(result, self.name)
                     if writer is not None:
-                        summary.update(xdmf=[p.name for p in writer.paths],
-                                       xdmf_steps=writer.steps_written)
+                        summary.update(
+                            xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written
+                        )
                     summarize(summary, result, completed)
                     session.annotate(summary, outcome)
-                    write_eld_result(result, stage, name=self.name.replace("eld-", ""),
-                                     xdmf=writer is None and "kept_t" in result.trajectory,
-                                     figures=(completed and not args.no_plots
-                                              and "energy" in result.trajectory),
-                                     title=label)
+                    write_eld_result(
+                        result,
+                        stage,
+                        name=self.name.replace("eld-", ""),
+                        xdmf=writer is None and "kept_t" in result.trajectory,
+                        figures=(completed and not args.no_plots and "energy" in result.trajectory),
+                        title=label,
+                    )
                     write_summary(stage, summary)
             code = session.finish(outcome, results)
             if completed and writer is not None:
@@ -279,34 +289,64 @@ def _result_of(outcome, prepared: list, problem) -> ELDResult | None:
 
 # -- the run commands -------------------------------------------------------------------------
 
-MMS_KEYS = ("example", "form", "scheme", "control", "tau", "accepted_steps", "rejected_steps",
-            "ndofs", "newton_per_step", "error_u_l2", "error_u_h1", "error_v_l2", "error_v_h1",
-            "error_lam_l2", "error_lam_l2_max", "wall_time_s")
+MMS_KEYS = (
+    "example",
+    "form",
+    "scheme",
+    "control",
+    "tau",
+    "accepted_steps",
+    "rejected_steps",
+    "ndofs",
+    "newton_per_step",
+    "error_u_l2",
+    "error_u_h1",
+    "error_v_l2",
+    "error_v_h1",
+    "error_lam_l2",
+    "error_lam_l2_max",
+    "wall_time_s",
+)
 
 
 @command("run", "eld-mms")
 class RunEldMMS(EldRunCommand):
     """``rothe run eld-mms``: the manufactured solution (errors of u, v, lambda)."""
-    help = ("Manufactured solution on the unit square: time-dependent Dirichlet data by a "
-            "multiplier, traction, nonlinear damping (Altmann 2015, scheme (3.4))")
+
+    help = (
+        "Manufactured solution on the unit square: time-dependent Dirichlet data by a "
+        "multiplier, traction, nonlinear damping (Altmann 2015, scheme (3.4))"
+    )
     name = "eld-mms"
     keys = MMS_KEYS
 
     def configure(self, parser) -> None:
         step_options(parser, 0.01)
-        parser.add_argument("--steps", type=parse_float_list("--steps"), default=None,
-                            help="a given step sequence tau_1,...,tau_n summing to T (instead of "
-                                 "--tau; BDF2: ratios below 1 + sqrt(2))")
-        parser.add_argument("--load-quadrature", type=int, default=None,
-                            help="degree of the quadrature of body force and tractions "
-                                 "(default 2 * degree)")
+        parser.add_argument(
+            "--steps",
+            type=parse_float_list("--steps"),
+            default=None,
+            help="a given step sequence tau_1,...,tau_n summing to T (instead of "
+            "--tau; BDF2: ratios below 1 + sqrt(2))",
+        )
+        parser.add_argument(
+            "--load-quadrature",
+            type=int,
+            default=None,
+            help="degree of the quadrature of body force and tractions (default 2 * degree)",
+        )
         keep_option(parser, 1)
-        parser.add_argument("--dirichlet", default="left",
-                            help="comma-separated Dirichlet parts (default left); "
-                                 "traction on the rest")
-        parser.add_argument("--start", default="exact",
-                            help="exact | rest: initial data u(0), u'(0) of the solution, or zero "
-                                 "(inconsistent with G(0): refused, Remark 2.2) (default exact)")
+        parser.add_argument(
+            "--dirichlet",
+            default="left",
+            help="comma-separated Dirichlet parts (default left); traction on the rest",
+        )
+        parser.add_argument(
+            "--start",
+            default="exact",
+            help="exact | rest: initial data u(0), u'(0) of the solution, or zero "
+            "(inconsistent with G(0): refused, Remark 2.2) (default exact)",
+        )
         mms_options(parser)
         space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
         add_output_options(parser, self.name)
@@ -329,52 +369,97 @@ class RunEldMMS(EldRunCommand):
 
     def execute(self, args) -> int:
         objects, keep, n, parts, damping, space = self.validate(args)
-        problem, exact = mms_problem(n, args.degree, damping=damping, rho=args.rho, lam=args.lam,
-                                     mu=args.mu, T=args.T, dirichlet=parts, start=args.start,
-                                     load_quadrature=args.load_quadrature)
+        problem, exact = mms_problem(
+            n,
+            args.degree,
+            damping=damping,
+            rho=args.rho,
+            lam=args.lam,
+            mu=args.mu,
+            T=args.T,
+            dirichlet=parts,
+            start=args.start,
+            load_quadrature=args.load_quadrature,
+        )
         fit_default_cap(args, space, problem.space.ndofs)
-        label = (f"eld-mms, {objects['scheme'].name}, {objects['form'].name}, "
-                 + (f"tol={args.tol:g}" if args.tol else f"tau={args.tau:g}"))
+        label = f"eld-mms, {objects['scheme'].name}, {objects['form'].name}, " + (
+            f"tol={args.tol:g}" if args.tol else f"tau={args.tau:g}"
+        )
 
         def summarize(summary, result, completed):
             summary.update(n=n, degree=args.degree, dirichlet=list(parts))
             if completed:
                 summary.update(mms_errors(exact, result))
 
-        return self.run(args, problem, dict(objects, keep_every=keep, adapt=space), label,
-                        summarize)
+        return self.run(
+            args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
+        )
 
 
 @command("run", "eld-beam")
 class RunEldBeam(EldRunCommand):
     """``rothe run eld-beam``: the cantilever, XDMF streamed while it runs."""
-    help = ("3D cantilever (E=1000, nu=0.3, rho=1): one end held and moved by G(t), the other "
-            "free; the multiplier is the reaction at the held end (XDMF for ParaView)")
+
+    help = (
+        "3D cantilever (E=1000, nu=0.3, rho=1): one end held and moved by G(t), the other "
+        "free; the multiplier is the reaction at the held end (XDMF for ParaView)"
+    )
     name = "eld-beam"
-    keys = ("example", "form", "scheme", "tau", "accepted_steps", "ndofs", "linear_solver",
-            "krylov_iterations", "seconds_per_step", "peak_memory_mb", "reaction_left_final",
-            "reaction_left_max_abs", "wall_time_s")
+    keys = (
+        "example",
+        "form",
+        "scheme",
+        "tau",
+        "accepted_steps",
+        "ndofs",
+        "linear_solver",
+        "krylov_iterations",
+        "seconds_per_step",
+        "peak_memory_mb",
+        "reaction_left_final",
+        "reaction_left_max_abs",
+        "wall_time_s",
+    )
 
     def configure(self, parser) -> None:
         step_options(parser, 0.01)
-        parser.add_argument("--n", type=int, default=BEAM_DEFAULT_N,
-                            help=f"cells across the unit cross-section (default {BEAM_DEFAULT_N}); "
-                                 "round(length*n) along the beam")
-        parser.add_argument("--length", type=parse_float("--length"), default=4.0,
-                            help="beam length (default 4)")
-        parser.add_argument("--degree", type=int, default=BEAM_DEFAULT_DEGREE,
-                            help=f"1 or 2 (default {BEAM_DEFAULT_DEGREE})")
-        parser.add_argument("--T", type=parse_float("--T"), default=2.0,
-                            help="end time (default 2)")
+        parser.add_argument(
+            "--n",
+            type=int,
+            default=BEAM_DEFAULT_N,
+            help=f"cells across the unit cross-section (default {BEAM_DEFAULT_N}); "
+            "round(length*n) along the beam",
+        )
+        parser.add_argument(
+            "--length", type=parse_float("--length"), default=4.0, help="beam length (default 4)"
+        )
+        parser.add_argument(
+            "--degree",
+            type=int,
+            default=BEAM_DEFAULT_DEGREE,
+            help=f"1 or 2 (default {BEAM_DEFAULT_DEGREE})",
+        )
+        parser.add_argument(
+            "--T", type=parse_float("--T"), default=2.0, help="end time (default 2)"
+        )
         parser.add_argument("--E", type=parse_float("--E"), default=1000.0, help="Young's modulus")
         parser.add_argument("--nu", type=parse_float("--nu"), default=0.3, help="Poisson ratio")
-        parser.add_argument("--amplitude", type=parse_float("--amplitude"), default=0.1,
-                            help="end displacement (z) of the held end's motion (default 0.1)")
-        parser.add_argument("--t-move", type=parse_float("--t-move"), default=0.5,
-                            help="duration of the motion; held still afterwards (default 0.5)")
+        parser.add_argument(
+            "--amplitude",
+            type=parse_float("--amplitude"),
+            default=0.1,
+            help="end displacement (z) of the held end's motion (default 0.1)",
+        )
+        parser.add_argument(
+            "--t-move",
+            type=parse_float("--t-move"),
+            default=0.5,
+            help="duration of the motion; held still afterwards (default 0.5)",
+        )
         parser.add_argument("--solver", default="auto", help="auto | direct | amg (default auto)")
-        parser.add_argument("--save-every", type=int, default=5,
-                            help="write every k-th step to XDMF (default 5)")
+        parser.add_argument(
+            "--save-every", type=int, default=5, help="write every k-th step to XDMF (default 5)"
+        )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
         space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
@@ -385,8 +470,7 @@ class RunEldBeam(EldRunCommand):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
         check_eld_step("--tau", args.tau, args.T)
-        check_beam_size(check_int("--n", args.n, minimum=1), args.length, args.degree,
-                        args.solver)
+        check_beam_size(check_int("--n", args.n, minimum=1), args.length, args.degree, args.solver)
         objects = run_objects(args)
         n = check_int("--n", args.n, minimum=1)
         every = check_int("--save-every", args.save_every, minimum=1)
@@ -396,80 +480,147 @@ class RunEldBeam(EldRunCommand):
 
     def execute(self, args) -> int:
         objects, n, every, keep, damping, space = self.validate(args)
-        problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,
-                               damping=damping, amplitude=args.amplitude, t_move=args.t_move,
-                               T=args.T, degree=args.degree)
+        problem = beam_problem(
+            n,
+            length=args.length,
+            E=args.E,
+            nu=args.nu,
+            rho=args.rho,
+            damping=damping,
+            amplitude=args.amplitude,
+            t_move=args.t_move,
+            T=args.T,
+            degree=args.degree,
+        )
         fit_default_cap(args, space, problem.space.ndofs)
-        label = (f"eld-beam, {objects['scheme'].name}, {objects['form'].name}, "
-                 f"tau={args.tau:g}, {problem.space.ndofs} dofs")
-        options = dict(objects, solver=args.solver, keep_every=keep, linear_rtol=1e-8,
-                       adapt=space)
+        label = (
+            f"eld-beam, {objects['scheme'].name}, {objects['form'].name}, "
+            f"tau={args.tau:g}, {problem.space.ndofs} dofs"
+        )
+        options = dict(objects, solver=args.solver, keep_every=keep, linear_rtol=1e-8, adapt=space)
 
         def summarize(summary, result, completed):
             traj = result.trajectory
-            summary.update(n=n, degree=args.degree, length=args.length, E=args.E, nu=args.nu,
-                           amplitude=args.amplitude, t_move=args.t_move,
-                           seconds_per_step=traj.stats.wall_time_s
-                           / max(traj.stats.accepted_steps, 1))
+            summary.update(
+                n=n,
+                degree=args.degree,
+                length=args.length,
+                E=args.E,
+                nu=args.nu,
+                amplitude=args.amplitude,
+                t_move=args.t_move,
+                seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
+            )
             if traj.stats.accepted_steps:
                 summary.update(_beam_reactions(traj))
                 put_in = summary["work_support"] + summary["work_loads"]
                 summary["numerical_dissipation_fraction"] = (
-                    summary["dissipated_numerical"] / put_in if put_in > 0 else None)
+                    summary["dissipated_numerical"] / put_in if put_in > 0 else None
+                )
 
         # a fixed mesh streams XDMF as it goes (checkpointed with the run); an adaptive run
         # writes one VTU per kept state on its own mesh at the end (rothe.eld.output)
-        stream = None if space is not None else (
-            lambda session, opts: _beam_stream(session, problem, opts, every))
+        stream = (
+            None
+            if space is not None
+            else (lambda session, opts: _beam_stream(session, problem, opts, every))
+        )
         return self.run(args, problem, options, label, summarize, stream)
 
     def report(self, args, summary) -> None:
         put_in = summary["work_support"] + summary["work_loads"]
         sideways = summary["reaction_sideways_over_z"]
-        print(f"numerical dissipation: {summary['dissipated_numerical']:.4g} of the "
-              f"{put_in:.4g} put in by the support and the loads (physical damping "
-              f"{summary['dissipated_physical']:.4g})")
+        print(
+            f"numerical dissipation: {summary['dissipated_numerical']:.4g} of the "
+            f"{put_in:.4g} put in by the support and the loads (physical damping "
+            f"{summary['dissipated_physical']:.4g})"
+        )
         if max(sideways) > BEAM_SIDEWAYS_NOTE:
-            print(f"note: coarse mesh for the reactions: the sideways reactions are "
-                  f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of "
-                  "R_z, zero for the exact solution; use --degree 2 or a larger --n")
+            print(
+                f"note: coarse mesh for the reactions: the sideways reactions are "
+                f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of "
+                "R_z, zero for the exact solution; use --degree 2 or a larger --n"
+            )
 
 
 @command("run", "eld-pulse")
 class RunEldPulse(EldRunCommand):
     """``rothe run eld-pulse``: the boundary pulse on adaptive meshes."""
-    help = ("A 2D body hit by a short boundary pulse: the wave front crosses the body, adaptive "
-            "meshes refine on it and coarsen behind it (space adaptivity)")
+
+    help = (
+        "A 2D body hit by a short boundary pulse: the wave front crosses the body, adaptive "
+        "meshes refine on it and coarsen behind it (space adaptivity)"
+    )
     name = "eld-pulse"
-    keys = ("example", "form", "scheme", "tau", "accepted_steps", "ndofs_initial", "ndofs",
-            "ndofs_max", "ndofs_summed_over_steps", "adaptations", "meshes", "bisections",
-            "merges", "transfer_energy", "wall_time_s")
+    keys = (
+        "example",
+        "form",
+        "scheme",
+        "tau",
+        "accepted_steps",
+        "ndofs_initial",
+        "ndofs",
+        "ndofs_max",
+        "ndofs_summed_over_steps",
+        "adaptations",
+        "meshes",
+        "bisections",
+        "merges",
+        "transfer_energy",
+        "wall_time_s",
+    )
 
     def configure(self, parser) -> None:
         step_options(parser, 0.005, scheme_default="bdf2")
-        parser.add_argument("--n", type=int, default=4,
-                            help="cells across the height of the initial mesh (default 4; "
-                                 "round(length*n) along)")
+        parser.add_argument(
+            "--n",
+            type=int,
+            default=4,
+            help="cells across the height of the initial mesh (default 4; round(length*n) along)",
+        )
         parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2)")
-        parser.add_argument("--length", type=parse_float("--length"), default=2.0,
-                            help="length of the body [0, length] x [0, 1] (default 2)")
-        parser.add_argument("--T", type=parse_float("--T"), default=0.8,
-                            help="end time (default 0.8: the pressure front crosses 80 %%)")
-        parser.add_argument("--amplitude", type=parse_float("--amplitude"), default=0.01,
-                            help="peak displacement of the pulse (default 0.01)")
-        parser.add_argument("--t-pulse", type=parse_float("--t-pulse"), default=0.1,
-                            help="duration of the pulse (default 0.1)")
-        parser.add_argument("--width", type=parse_float("--width"), default=0.1,
-                            help="width of the pushed part around y = 1/2 (default 0.1)")
+        parser.add_argument(
+            "--length",
+            type=parse_float("--length"),
+            default=2.0,
+            help="length of the body [0, length] x [0, 1] (default 2)",
+        )
+        parser.add_argument(
+            "--T",
+            type=parse_float("--T"),
+            default=0.8,
+            help="end time (default 0.8: the pressure front crosses 80 %%)",
+        )
+        parser.add_argument(
+            "--amplitude",
+            type=parse_float("--amplitude"),
+            default=0.01,
+            help="peak displacement of the pulse (default 0.01)",
+        )
+        parser.add_argument(
+            "--t-pulse",
+            type=parse_float("--t-pulse"),
+            default=0.1,
+            help="duration of the pulse (default 0.1)",
+        )
+        parser.add_argument(
+            "--width",
+            type=parse_float("--width"),
+            default=0.1,
+            help="width of the pushed part around y = 1/2 (default 0.1)",
+        )
         parser.add_argument("--lam", type=parse_float("--lam"), default=2.0, help="Lamé lambda")
         parser.add_argument("--mu", type=parse_float("--mu"), default=1.0, help="Lamé mu")
         parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density")
-        parser.add_argument("--b", type=parse_float("--b"), default=0.001,
-                            help="Rayleigh stiffness-proportional damping b (default 0.001)")
+        parser.add_argument(
+            "--b",
+            type=parse_float("--b"),
+            default=0.001,
+            help="Rayleigh stiffness-proportional damping b (default 0.001)",
+        )
         lifting_option(parser)
         keep_option(parser, 10)
-        space_options(parser, on=True, default_tol=PULSE_SPACE_TOL,
-                      default_max_dofs=PULSE_MAX_DOFS)
+        space_options(parser, on=True, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS)
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -485,25 +636,37 @@ class RunEldPulse(EldRunCommand):
         check_mms_size(max(n, round(n * length)), args.degree)
         for option in ("--t-pulse", "--width", "--lam", "--mu", "--rho"):
             check_positive(option, getattr(args, option.lstrip("-").replace("-", "_")))
-        space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL,
-                                 default_max_dofs=PULSE_MAX_DOFS)
+        space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS)
         return objects, keep, n, length, space
 
     def execute(self, args) -> int:
         objects, keep, n, length, space = self.validate(args)
-        problem = pulse_problem(n, args.degree, length=length, amplitude=args.amplitude,
-                                t_pulse=args.t_pulse, width=args.width, b=args.b,
-                                rho=args.rho, lam=args.lam, mu=args.mu, T=args.T)
+        problem = pulse_problem(
+            n,
+            args.degree,
+            length=length,
+            amplitude=args.amplitude,
+            t_pulse=args.t_pulse,
+            width=args.width,
+            b=args.b,
+            rho=args.rho,
+            lam=args.lam,
+            mu=args.mu,
+            T=args.T,
+        )
         fit_default_cap(args, space, problem.space.ndofs)
-        label = (f"eld-pulse, {objects['scheme'].name}, {objects['form'].name}, "
-                 + (f"space_tol={space.space_tol:g}" if space else "fixed mesh"))
+        label = f"eld-pulse, {objects['scheme'].name}, {objects['form'].name}, " + (
+            f"space_tol={space.space_tol:g}" if space else "fixed mesh"
+        )
 
         def summarize(summary, result, completed):
-            summary.update(n=n, degree=args.degree, length=length, t_pulse=args.t_pulse,
-                           width=args.width)
+            summary.update(
+                n=n, degree=args.degree, length=length, t_pulse=args.t_pulse, width=args.width
+            )
 
-        return self.run(args, problem, dict(objects, keep_every=keep, adapt=space), label,
-                        summarize)
+        return self.run(
+            args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
+        )
 
 
 def _beam_stream(session, problem, options: dict, every: int) -> EldXdmfWriter:
@@ -536,19 +699,23 @@ def _beam_reactions(traj) -> dict:
 
 # -- studies --------------------------------------------------------------------------------------
 
+
 @command("study", "eld-convergence")
 class StudyEldConvergence:
     """``rothe study eld-convergence``: order in tau on the manufactured solution."""
+
     help = "Order in tau of both forms on the manufactured solution (tau halved repeatedly)"
     name = "eld-convergence"
 
     def configure(self, parser) -> None:
         form_option(parser)
         scheme_option(parser)
-        parser.add_argument("--tau0", type=parse_float("--tau0"), default=0.1,
-                            help="largest step (default 0.1)")
-        parser.add_argument("--halvings", type=int, default=5,
-                            help="times tau is halved (default 5)")
+        parser.add_argument(
+            "--tau0", type=parse_float("--tau0"), default=0.1, help="largest step (default 0.1)"
+        )
+        parser.add_argument(
+            "--halvings", type=int, default=5, help="times tau is halved (default 5)"
+        )
         mms_options(parser, n=4)
         add_output_options(parser, self.name)
         add_parallel_options(parser)
@@ -566,10 +733,22 @@ class StudyEldConvergence:
         damping = damping_of(args)
         executor = executor_from_args(args, f"rothe study {self.name}")
         out = output_dir(args, self.name)
-        study = convergence_study(form, tau0=args.tau0, halvings=halvings, n=n,
-                                  degree=args.degree, damping=damping, rho=args.rho,
-                                  lam=args.lam, mu=args.mu, T=args.T, data=data, scheme=scheme,
-                                  progress=progress_of(args), executor=executor)
+        study = convergence_study(
+            form,
+            tau0=args.tau0,
+            halvings=halvings,
+            n=n,
+            degree=args.degree,
+            damping=damping,
+            rho=args.rho,
+            lam=args.lam,
+            mu=args.mu,
+            T=args.T,
+            data=data,
+            scheme=scheme,
+            progress=progress_of(args),
+            executor=executor,
+        )
         table = format_convergence_table(study)
         write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
@@ -580,15 +759,24 @@ class StudyEldConvergence:
 
             plot_convergence(
                 study["tau"],
-                {"u L2": study["error_u"], "u H1": study["error_u_h1"], "v L2": study["error_v"],
-                 "lambda L2(G_D)": study["error_lam"],
-                 "max_j lambda": study["error_lam_max"]},
+                {
+                    "u L2": study["error_u"],
+                    "u H1": study["error_u_h1"],
+                    "v L2": study["error_v"],
+                    "lambda L2(G_D)": study["error_lam"],
+                    "max_j lambda": study["error_lam_max"],
+                },
                 out / "fig_convergence.png",
-                rates={"u L2": study["rate_u"], "u H1": study["rate_u_h1"],
-                       "v L2": study["rate_v"], "lambda L2(G_D)": study["rate_lam"],
-                       "max_j lambda": study["rate_lam_max"]},
+                rates={
+                    "u L2": study["rate_u"],
+                    "u H1": study["rate_u_h1"],
+                    "v L2": study["rate_v"],
+                    "lambda L2(G_D)": study["rate_lam"],
+                    "max_j lambda": study["rate_lam_max"],
+                },
                 title=f"eld-mms, {scheme.name}, {form.name}, P{study['degree']}",
-                order=scheme.order)
+                order=scheme.order,
+            )
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")
@@ -598,21 +786,34 @@ class StudyEldConvergence:
 @command("study", "eld-perturbation")
 class StudyEldPerturbation:
     """``rothe study eld-perturbation``: Theorem 4.5, the amplification of noise."""
-    help = ("Theorem 4.5: amplification of delta-noise in each of G, G', G'' and F alone by "
-            "both forms, for tau from 1e-1 to 1e-3")
+
+    help = (
+        "Theorem 4.5: amplification of delta-noise in each of G, G', G'' and F alone by "
+        "both forms, for tau from 1e-1 to 1e-3"
+    )
     name = "eld-perturbation"
 
     def configure(self, parser) -> None:
-        parser.add_argument("--taus", type=parse_float_list("--taus"),
-                            default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001],
-                            help="step sizes (default 0.1,0.05,0.02,0.01,0.005,0.002,0.001)")
-        parser.add_argument("--delta", type=parse_float("--delta"), default=1e-6,
-                            help="size of the noise (default 1e-6)")
+        parser.add_argument(
+            "--taus",
+            type=parse_float_list("--taus"),
+            default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001],
+            help="step sizes (default 0.1,0.05,0.02,0.01,0.005,0.002,0.001)",
+        )
+        parser.add_argument(
+            "--delta",
+            type=parse_float("--delta"),
+            default=1e-6,
+            help="size of the noise (default 1e-6)",
+        )
         parser.add_argument("--n", type=int, default=6, help="cells per side (default 6)")
         parser.add_argument("--degree", type=int, default=1, help="1 or 2 (default 1)")
         parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-        parser.add_argument("--targets", default="G,G_dot,G_ddot,F",
-                            help="the data perturbed, each alone (default G,G_dot,G_ddot,F)")
+        parser.add_argument(
+            "--targets",
+            default="G,G_dot,G_ddot,F",
+            help="the data perturbed, each alone (default G,G_dot,G_ddot,F)",
+        )
         scheme_option(parser)
         damping_options(parser)
         add_output_options(parser, self.name)
@@ -629,8 +830,9 @@ class StudyEldPerturbation:
             raise fail("--taus", ",".join(map(str, args.taus)), "needs at least two step sizes")
         targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
         if not targets:
-            raise fail("--targets", args.targets, "must name at least one of "
-                       + ", ".join(NOISE_TARGETS))
+            raise fail(
+                "--targets", args.targets, "must name at least one of " + ", ".join(NOISE_TARGETS)
+            )
         for t in targets:
             check_choice("--targets", t, NOISE_TARGETS)
         scheme = scheme_of(args)
@@ -638,10 +840,18 @@ class StudyEldPerturbation:
         damping = damping_of(args)
         executor = executor_from_args(args, f"rothe study {self.name}")
         out = output_dir(args, self.name)
-        study = perturbation_study(taus, delta=args.delta, targets=targets, n=n,
-                                   degree=args.degree, damping=damping, seed=args.seed,
-                                   scheme=scheme, progress=progress_of(args),
-                                   executor=executor)
+        study = perturbation_study(
+            taus,
+            delta=args.delta,
+            targets=targets,
+            n=n,
+            degree=args.degree,
+            damping=damping,
+            seed=args.seed,
+            scheme=scheme,
+            progress=progress_of(args),
+            executor=executor,
+        )
         table = format_perturbation_table(study)
         write_table(out, table + "\n")
         study["peak_memory_mb"] = peak_memory_mb()
@@ -651,10 +861,12 @@ class StudyEldPerturbation:
             from ..eld.figures import plot_perturbation
 
             for target in targets:
-                plot_perturbation(study["tau"], study[target],
-                                  out / f"fig_perturbation_{target}.png",
-                                  title=f"{scheme.name}: noise in {target}, delta = "
-                                        f"{args.delta:g}")
+                plot_perturbation(
+                    study["tau"],
+                    study[target],
+                    out / f"fig_perturbation_{target}.png",
+                    title=f"{scheme.name}: noise in {target}, delta = {args.delta:g}",
+                )
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")

@@ -107,10 +107,17 @@ def check_control_options(args, control: str) -> None:
             value = getattr(args, option.lstrip("-").replace("-", "_"))
             if isinstance(value, list):
                 value = described(",".join(f"{v:g}" for v in value))
-            reads = ("it reads " + ", ".join(control_options(control))
-                     if control_options(control) else "no tolerance: its step is --tau")
-            raise fail(option, value, f"is not used by --control {control} ({reads}); "
-                                      f"{option} is for --control {' or '.join(users)}")
+            reads = (
+                "it reads " + ", ".join(control_options(control))
+                if control_options(control)
+                else "no tolerance: its step is --tau"
+            )
+            raise fail(
+                option,
+                value,
+                f"is not used by --control {control} ({reads}); "
+                f"{option} is for --control {' or '.join(users)}",
+            )
 
 
 def check_step(option: str, value, T: float, tau_min: float = 1e-12) -> float:
@@ -121,6 +128,8 @@ def check_step(option: str, value, T: float, tau_min: float = 1e-12) -> float:
     if tau > T:
         raise fail(option, tau, f"must be <= T (= {T:g}), the end time of the run")
     return tau
+
+
 class RISRunBase(ABC):
     """Shared ``run`` logic; subclasses provide the problem and example-specific output."""
 
@@ -221,8 +230,12 @@ class RISRunBase(ABC):
         T = self.end_time(args)
         smallest = STEP_FLOOR * max(1.0, T)
         if tau_min < smallest:
-            raise fail("--tau-min", tau_min, f"must be >= {smallest:g} (1e-14 max(1, T): a "
-                                             "smaller step vanishes in the round-off of s)")
+            raise fail(
+                "--tau-min",
+                tau_min,
+                f"must be >= {smallest:g} (1e-14 max(1, T): a "
+                "smaller step vanishes in the round-off of s)",
+            )
         if tau > T:
             raise fail("--tau", tau, f"must be <= T (= {T:g}), the end time of the run")
         if tau_min > tau:
@@ -261,15 +274,18 @@ class RISRunBase(ABC):
 
         with session:
             if session.already_completed:
-                print(f"rothe: {session.out}: the run already completed; its results are there",
-                      file=sys.stderr)
+                print(
+                    f"rothe: {session.out}: the run already completed; its results are there",
+                    file=sys.stderr,
+                )
                 return 0
             outcome = session.run(run)
             results = session.results_dir(outcome.status)
             if outcome.status == "completed" or outcome.result is not None:
                 with session.outputs(outcome.status) as stage:
-                    summary = self.write_results(args, problem, outcome, stage, session,
-                                                 control, tols, tau)
+                    summary = self.write_results(
+                        args, problem, outcome, stage, session, control, tols, tau
+                    )
             code = session.finish(outcome, results)
         if outcome.status == "completed" and not args.quiet:
             print(f"rothe run {self.name}: wrote {results}/")
@@ -336,9 +352,11 @@ class RunRIS1D(RISRunBase):
     def validate(self, args):
         """--keep-every must be 1 (the errors need every state); then the common checks."""
         if args.keep_every != 1:
-            raise fail("--keep-every", args.keep_every,
-                       "must be 1 for ris-1d (one unknown; the errors against (7.1) need every "
-                       "state)")
+            raise fail(
+                "--keep-every",
+                args.keep_every,
+                "must be 1 for ris-1d (one unknown; the errors against (7.1) need every state)",
+            )
         return super().validate(args)
 
     def build_problem(self, args):
@@ -371,8 +389,9 @@ def compare_ris_1d_row(control: str, tol: float | None, tau: float, uniform: boo
     if traj is None or len(traj) == 0:
         row = {"control": control, "tol": tol, "tau0": tau}
     else:
-        row = ris_summary(traj, "ris-1d",
-                          examples.errors_against_exact(traj["s"], traj["t"], traj["z"]))
+        row = ris_summary(
+            traj, "ris-1d", examples.errors_against_exact(traj["s"], traj["t"], traj["z"])
+        )
         if uniform:
             row["tau0"] = tau
     row["status"] = "completed" if failure is None else f"failed: {failure}"
@@ -393,19 +412,37 @@ def compare_ris_1d(
     The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
     one after another in this process); a run that fails is a row with its status.
     """
-    tasks = [Task(f"{c} tol={tol:g}", compare_ris_1d_row,
-                  {"control": c, "tol": tol, "tau": tau0, "uniform": False},
-                  cost=run_cost(tol, tau0))
-             for c in controls for tol in tols]
-    tasks += [Task(f"uniform tau={tau:g}", compare_ris_1d_row,
-                   {"control": "uniform", "tol": None, "tau": tau, "uniform": True},
-                   cost=run_cost(None, tau))
-              for tau in taus]
+    tasks = [
+        Task(
+            f"{c} tol={tol:g}",
+            compare_ris_1d_row,
+            {"control": c, "tol": tol, "tau": tau0, "uniform": False},
+            cost=run_cost(tol, tau0),
+        )
+        for c in controls
+        for tol in tols
+    ]
+    tasks += [
+        Task(
+            f"uniform tau={tau:g}",
+            compare_ris_1d_row,
+            {"control": "uniform", "tol": None, "tau": tau, "uniform": True},
+            cost=run_cost(None, tau),
+        )
+        for tau in taus
+    ]
     results = (executor or Executor(1, progress=False)).map(tasks)
-    return [r.value if isinstance(r.value, dict) else
-            {"control": t.kwargs["control"], "tol": t.kwargs["tol"], "tau0": t.kwargs["tau"],
-             "status": f"{r.status}: {r.message}"}
-            for t, r in zip(tasks, results, strict=True)]
+    return [
+        r.value
+        if isinstance(r.value, dict)
+        else {
+            "control": t.kwargs["control"],
+            "tol": t.kwargs["tol"],
+            "tau0": t.kwargs["tau"],
+            "status": f"{r.status}: {r.message}",
+        }
+        for t, r in zip(tasks, results, strict=True)
+    ]
 
 
 def format_table(rows, work_fit=None) -> str:
@@ -445,8 +482,10 @@ def format_table(rows, work_fit=None) -> str:
 class CompareRIS1D:
     """``rothe compare ris-1d``: the controllers against uniform steps on Example 7.1."""
 
-    help = ("Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2/regime vs uniform "
-            "(Ex. 7.1)")
+    help = (
+        "Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2/regime vs uniform "
+        "(Ex. 7.1)"
+    )
 
     def configure(self, parser) -> None:
         """--tols, --taus, the outputs and the executor."""

@@ -105,14 +105,24 @@ def check_adapt(adapt, *, data, noise) -> SpaceAdaptivity:
     """``adapt`` must be a SpaceAdaptivity, the data :class:`~rothe.eld.data.Points` and no
     noise (one-line errors naming ``adapt``, ``data``, ``noise``)."""
     if not isinstance(adapt, SpaceAdaptivity):
-        raise fail("adapt", described(type(adapt).__name__),
-                   "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
+        raise fail(
+            "adapt",
+            described(type(adapt).__name__),
+            "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)",
+        )
     if not isinstance(data, Points):
-        raise fail("data", data.name, "must be 'points' with space adaptivity (the data of t_j "
-                   "is re-evaluated on the new Dirichlet nodes after a mesh change)")
+        raise fail(
+            "data",
+            data.name,
+            "must be 'points' with space adaptivity (the data of t_j "
+            "is re-evaluated on the new Dirichlet nodes after a mesh change)",
+        )
     if noise is not None:
-        raise fail("noise", noise.describe() if hasattr(noise, "describe") else noise,
-                   "is not supported with space adaptivity (noise vectors live on one mesh)")
+        raise fail(
+            "noise",
+            noise.describe() if hasattr(noise, "describe") else noise,
+            "is not supported with space adaptivity (noise vectors live on one mesh)",
+        )
     return adapt
 
 
@@ -143,8 +153,12 @@ class ELDMeshes:
     def keep(self, traj, state) -> None:
         """Keep u, v, a, lambda of ``state`` (on its mesh) and record it in ``traj``."""
         traj.append(kept_step=state.j, kept_t=state.t, kept_mesh_id=state.mesh_id)
-        for name, w in (("u", state.u), ("v", state.v), ("a", state.fields["a"]),
-                        ("lam", state.lam)):
+        for name, w in (
+            ("u", state.u),
+            ("v", state.v),
+            ("a", state.fields["a"]),
+            ("lam", state.lam),
+        ):
             self.kept[name].append(np.array(w, dtype=float))
 
     def npz_arrays(self, traj) -> dict:
@@ -165,15 +179,16 @@ class ELDMeshes:
 
     def checkpoint_state(self) -> dict:
         """The series, the kept fields and the log (arrays and plain values)."""
-        return {"series": self.series.checkpoint_state(),
-                "kept": {k: [w.copy() for w in v] for k, v in self.kept.items()},
-                "adaptations": [dict(a) for a in self.adaptations]}
+        return {
+            "series": self.series.checkpoint_state(),
+            "kept": {k: [w.copy() for w in v] for k, v in self.kept.items()},
+            "adaptations": [dict(a) for a in self.adaptations],
+        }
 
     def restore_state(self, data: dict) -> None:
         """Put back what :meth:`checkpoint_state` returned."""
         self.series = MeshSeries.restore_state(data["series"])
-        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]]
-                     for k in KEPT}
+        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]] for k in KEPT}
         self.adaptations = [dict(a) for a in data["adaptations"]]
 
 
@@ -198,8 +213,9 @@ class ELDAdaptivity:
         self.options = options
         self.alpha0 = scheme.alpha0
         space = problem.space
-        self.adaptation = MeshAdaptation(space.mesh, options, degree=space.degree,
-                                         components=space.dim, times=times)
+        self.adaptation = MeshAdaptation(
+            space.mesh, options, degree=space.degree, components=space.dim, times=times
+        )
         self.meshes = ELDMeshes(space.degree, space.dim)
         self.meshes.series.add(0, space.mesh.p.T, space.mesh.t.T)
         #: factorizations of systems built since the last record (the trajectory's statistics)
@@ -225,10 +241,12 @@ class ELDAdaptivity:
         problem = system.problem
         f = state.fields
         rho = problem.material.rho
-        ind = eld_indicators_for(problem, state.t, f["u"], f["v"], f["a"],
-                                 reaction=rho * (self.alpha0 / tau) ** 2)
-        eta = np.sqrt(np.asarray(ind.eta, dtype=float) ** 2
-                      + dirichlet_data_indicator(problem, t_next))
+        ind = eld_indicators_for(
+            problem, state.t, f["u"], f["v"], f["a"], reaction=rho * (self.alpha0 / tau) ** 2
+        )
+        eta = np.sqrt(
+            np.asarray(ind.eta, dtype=float) ** 2 + dirichlet_data_indicator(problem, t_next)
+        )
         if not np.all(np.isfinite(eta)):  # the run stops naming it (ELDStepper.adapt)
             raise FloatingPointError("non-finite error indicators")
         return eta
@@ -254,8 +272,11 @@ class ELDAdaptivity:
         t = state.t
         lift = new_system.lifting
         if lift is not None:
-            for name, g in (("u", new_problem.G(t)), ("v", new_problem.G_dot(t)),
-                            ("a", new_problem.G_ddot(t))):
+            for name, g in (
+                ("u", new_problem.G(t)),
+                ("v", new_problem.G_dot(t)),
+                ("a", new_problem.G_ddot(t)),
+            ):
                 f[name][C] = g
         else:
             f["u"][C] = new_problem.G(t)
@@ -264,8 +285,7 @@ class ELDAdaptivity:
             finite_or_fail(name, w)
         mapped.mesh_id = self.mesh_id
         if lift is not None:
-            for full, name in (("u", "x"), ("v", "y"), ("a", "b"), ("u_1", "x_1"),
-                               ("v_1", "y_1")):
+            for full, name in (("u", "x"), ("v", "y"), ("a", "b"), ("u_1", "x_1"), ("v_1", "y_1")):
                 if full in f:
                     g = f[full][C].copy()
                     w = f[full] - lift(g)
@@ -279,8 +299,7 @@ class ELDAdaptivity:
     # -- checkpoints ----------------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
         """The mesh hierarchy, the series, the kept fields and the log."""
-        return {"amesh": self.adaptation.amesh.checkpoint_state(),
-                **self.meshes.checkpoint_state()}
+        return {"amesh": self.adaptation.amesh.checkpoint_state(), **self.meshes.checkpoint_state()}
 
     def restore_state(self, data: dict) -> None:
         """Put back what :meth:`checkpoint_state` returned."""

@@ -78,8 +78,11 @@ class DataNoise:
         self.delta = check_nonnegative("delta", self.delta)
         targets = (self.target,) if isinstance(self.target, str) else tuple(self.target)
         if not targets:
-            raise fail("noise target", described("()"), "must name at least one of "
-                       + ", ".join(NOISE_TARGETS))
+            raise fail(
+                "noise target",
+                described("()"),
+                "must name at least one of " + ", ".join(NOISE_TARGETS),
+            )
         for t in targets:
             check_choice("noise target", t, NOISE_TARGETS)
         self.target = targets[0] if len(targets) == 1 else targets
@@ -102,8 +105,10 @@ class DataNoise:
 
     def constraint_noise(self, j: int, m: int) -> tuple:
         """(theta^j, xi^j, vartheta^j): the noise in G, G_dot, G_ddot (zeros where unperturbed)."""
-        return tuple(self._uniform(j, _STREAM[k], m) if k in self.targets else np.zeros(m)
-                     for k in ("G", "G_dot", "G_ddot"))
+        return tuple(
+            self._uniform(j, _STREAM[k], m) if k in self.targets else np.zeros(m)
+            for k in ("G", "G_dot", "G_ddot")
+        )
 
     def load_noise(self, j: int, M) -> np.ndarray | None:
         """The noise of step j in F: M r with r uniform in [-delta, delta] (None if F is not
@@ -186,14 +191,20 @@ class Means(DataMode):
     def derivatives(self, problem, G, t_prev, t, coefficients, history, noise):
         xi, vartheta = noise
         tau = t - t_prev
-        return ((problem.G(t) - problem.G(t_prev)) / tau + xi,
-                (problem.G_dot(t) - problem.G_dot(t_prev)) / tau + vartheta)
+        return (
+            (problem.G(t) - problem.G(t_prev)) / tau + xi,
+            (problem.G_dot(t) - problem.G_dot(t_prev)) / tau + vartheta,
+        )
 
     def check(self, scheme) -> None:
         if scheme.order > 1:
-            raise fail("data", self.name, f"with scheme {scheme.name} must be points or "
-                       "differenced (step means are first-order data: they sit O(tau) away from "
-                       "t_j)")
+            raise fail(
+                "data",
+                self.name,
+                f"with scheme {scheme.name} must be points or "
+                "differenced (step means are first-order data: they sit O(tau) away from "
+                "t_j)",
+            )
 
 
 @dataclass(frozen=True)
@@ -233,8 +244,12 @@ class Differenced(DataMode):
         return {"G_1": U1[dofs], "G_dot": V0[dofs], "G_dot_1": V1[dofs]}
 
     def next_history(self, boundary, values):
-        return {"G": values.G, "G_1": boundary["G"], "G_dot": values.G_dot,
-                "G_dot_1": boundary["G_dot"]}
+        return {
+            "G": values.G,
+            "G_1": boundary["G"],
+            "G_dot": values.G_dot,
+            "G_dot_1": boundary["G_dot"],
+        }
 
 
 #: the data mode of a run that names none
@@ -245,8 +260,9 @@ DATA_MODES = {"points": Points, "means": Means, "differenced": Differenced}
 
 def as_data_mode(data) -> DataMode:
     """``data`` if it is a :class:`DataMode`, else a one-line error naming ``data``."""
-    return check_instance("data", data, DataMode,
-                          "Points(), Means() or Differenced() (rothe.eld.data)")
+    return check_instance(
+        "data", data, DataMode, "Points(), Means() or Differenced() (rothe.eld.data)"
+    )
 
 
 @dataclass
@@ -282,8 +298,7 @@ class StepData:
         p = self.problem
         return p.G(0.0), self.mode.initial_velocity(p)
 
-    def at(self, j: int, t_prev: float, t: float, coefficients=None, history=None
-           ) -> StepValues:
+    def at(self, j: int, t_prev: float, t: float, coefficients=None, history=None) -> StepValues:
         """The data of step j on (t_prev, t].
 
         ``coefficients`` (alpha_0, alpha_1, alpha_2) and ``history`` (a dict with ``G``, ``G_1``,
@@ -301,6 +316,7 @@ class StepData:
         else:
             theta = xi = vartheta = 0.0
         G = p.G(t) + theta
-        G_dot, G_ddot = self.mode.derivatives(p, G, t_prev, t, coefficients, history,
-                                              (xi, vartheta))
+        G_dot, G_ddot = self.mode.derivatives(
+            p, G, t_prev, t, coefficients, history, (xi, vartheta)
+        )
         return StepValues(F=F, G=G, G_dot=G_dot, G_ddot=G_ddot)

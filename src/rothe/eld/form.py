@@ -81,5 +81,6 @@ DEFAULT_FORM = Regularized()
 
 def as_form(form) -> Form:
     """``form`` if it is a :class:`Form`, else a one-line error naming ``form``."""
-    return check_instance("form", form, Form,
-                          "Regularized(lifting=...) or Original() (rothe.eld.form)")
+    return check_instance(
+        "form", form, Form, "Regularized(lifting=...) or Original() (rothe.eld.form)"
+    )

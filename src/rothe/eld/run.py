@@ -112,8 +112,14 @@ class ELDRun:
     def result(self) -> ELDResult:
         """The result so far: the trajectory, the current state, the stepper, the controller,
         the problem on the current mesh and the series of meshes."""
-        return ELDResult(self.trajectory, self.state, self.stepper, self.controller,
-                         self.stepper.problem, self.stepper.meshes)
+        return ELDResult(
+            self.trajectory,
+            self.state,
+            self.stepper,
+            self.controller,
+            self.stepper.problem,
+            self.stepper.meshes,
+        )
 
     def evolve(self, progress=False) -> ELDResult:
         """Run to the end on the shared evolve loop.
@@ -130,11 +136,22 @@ class ELDRun:
         cp = self.checkpointer
         try:
             if cp is not None and not self.resumed and cp.sequence == 0:
-                cp.save_or_warn(self.stepper, self.controller, self.state,
-                                where=_eld_where(self.trajectory, self.state))
+                cp.save_or_warn(
+                    self.stepper,
+                    self.controller,
+                    self.state,
+                    where=_eld_where(self.trajectory, self.state),
+                )
             try:
-                final = evolve(self.stepper, self.controller, self.state, self.trajectory,
-                               tau_min=self.tau_min, progress=progress, checkpointer=cp)
+                final = evolve(
+                    self.stepper,
+                    self.controller,
+                    self.state,
+                    self.trajectory,
+                    tau_min=self.tau_min,
+                    progress=progress,
+                    checkpointer=cp,
+                )
             except RunFailed as exc:
                 exc.trajectory = self.trajectory
                 raise
@@ -142,8 +159,13 @@ class ELDRun:
                 _finish_meta(self.trajectory, self.stepper)
             self.state = final
             if cp is not None:
-                cp.save_or_warn(self.stepper, self.controller, final, status="completed",
-                                where=_eld_where(self.trajectory, final))
+                cp.save_or_warn(
+                    self.stepper,
+                    self.controller,
+                    final,
+                    status="completed",
+                    where=_eld_where(self.trajectory, final),
+                )
         finally:
             self.close()
         return self.result()
@@ -154,13 +176,26 @@ class ELDRun:
             self.checkpointing.close()
 
 
-def prepare_eld_run(problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
-                    form: Form = DEFAULT_FORM, control=DEFAULT_CONTROL,
-                    data: DataMode = DEFAULT_DATA, adapt=None, solver: str = "auto",
-                    newton: NewtonOptions | None = None, noise: DataNoise | None = None,
-                    store_fields: bool = True, keep_every: int = 1, observer=None,
-                    linear_rtol: float = 1e-10, error_scale: float | None = None,
-                    meta: dict | None = None, checkpoint=None, resume=None) -> ELDRun:
+def prepare_eld_run(
+    problem: ELDProblem,
+    *,
+    scheme: Scheme = DEFAULT_SCHEME,
+    form: Form = DEFAULT_FORM,
+    control=DEFAULT_CONTROL,
+    data: DataMode = DEFAULT_DATA,
+    adapt=None,
+    solver: str = "auto",
+    newton: NewtonOptions | None = None,
+    noise: DataNoise | None = None,
+    store_fields: bool = True,
+    keep_every: int = 1,
+    observer=None,
+    linear_rtol: float = 1e-10,
+    error_scale: float | None = None,
+    meta: dict | None = None,
+    checkpoint=None,
+    resume=None,
+) -> ELDRun:
     """Validate the options, build stepper and controller, record the initial state (the
     arguments of :func:`run_eld`); with ``resume``, restore stepper, controller, trajectory and
     state from the checkpoint instead.
@@ -170,18 +205,40 @@ def prepare_eld_run(problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
     ELDRun
         Run it with :meth:`ELDRun.evolve`.
     """
-    stepper = ELDStepper(problem, scheme=scheme, form=form, control=control, data=data,
-                         solver=solver, newton=newton, noise=noise, store_fields=store_fields,
-                         keep_every=keep_every, observer=observer, linear_rtol=linear_rtol,
-                         error_scale=error_scale, adapt=adapt)
+    stepper = ELDStepper(
+        problem,
+        scheme=scheme,
+        form=form,
+        control=control,
+        data=data,
+        solver=solver,
+        newton=newton,
+        noise=noise,
+        store_fields=store_fields,
+        keep_every=keep_every,
+        observer=observer,
+        linear_rtol=linear_rtol,
+        error_scale=error_scale,
+        adapt=adapt,
+    )
     scheme, form, control, data = stepper.scheme, stepper.form, stepper.control, stepper.data_mode
     adaptive = isinstance(control, Adaptive)
     control_name = "adaptive" if adaptive else "uniform"
-    info = {"example": problem.name, "form": form.name, "scheme": scheme.name,
-            "control": control_name, "tau": stepper.tau, "n_steps": stepper.n_steps,
-            "data": data.name, "lifting": form.lifting, "solver": stepper.system.kind,
-            "step_bound": problem.step_bound(), "keep_every": stepper.keep_every,
-            "start": scheme.describe()["start"], "problem": problem.describe()}
+    info = {
+        "example": problem.name,
+        "form": form.name,
+        "scheme": scheme.name,
+        "control": control_name,
+        "tau": stepper.tau,
+        "n_steps": stepper.n_steps,
+        "data": data.name,
+        "lifting": form.lifting,
+        "solver": stepper.system.kind,
+        "step_bound": problem.step_bound(),
+        "keep_every": stepper.keep_every,
+        "start": scheme.describe()["start"],
+        "problem": problem.describe(),
+    }
     if isinstance(control, Given):
         info["control"] = "given steps"
     if noise is not None:
@@ -198,10 +255,15 @@ def prepare_eld_run(problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
             raise fail("tau_max", tau_max, f"must be >= the first step tau = {stepper.tau:g}")
         if tau_min > stepper.tau:
             raise fail("tau_min", tau_min, f"must be <= the first step tau = {stepper.tau:g}")
-        controller = adaptive_controller(stepper, tol, stepper.tau, tau_min=tau_min,
-                                         tau_max=tau_max)
-        info.update(tol=tol, tau_min=tau_min, tau_max=tau_max,
-                    ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None)
+        controller = adaptive_controller(
+            stepper, tol, stepper.tau, tau_min=tau_min, tau_max=tau_max
+        )
+        info.update(
+            tol=tol,
+            tau_min=tau_min,
+            tau_max=tau_max,
+            ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None,
+        )
         loop_tau_min = tau_min
     else:
         if stepper.steps is not None:
@@ -212,12 +274,26 @@ def prepare_eld_run(problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
     info.update(meta or {})
     # what a checkpoint must match to be resumed (the stepper's values after validation)
     arguments = run_arguments(
-        form=form.name, scheme=scheme.name, control=control_name, tol=tol, tau=stepper.tau,
-        steps=stepper.steps, data=data.name, lifting=form.lifting, solver=solver,
-        newton=asdict(stepper.newton), noise=None if noise is None else noise.describe(),
-        store_fields=store_fields, keep_every=stepper.keep_every, linear_rtol=linear_rtol,
-        tau_min=tau_min, tau_max=tau_max, start=scheme.describe()["start"],
-        error_scale=error_scale, **({} if adapt is None else {"adapt": adapt.describe()}))
+        form=form.name,
+        scheme=scheme.name,
+        control=control_name,
+        tol=tol,
+        tau=stepper.tau,
+        steps=stepper.steps,
+        data=data.name,
+        lifting=form.lifting,
+        solver=solver,
+        newton=asdict(stepper.newton),
+        noise=None if noise is None else noise.describe(),
+        store_fields=store_fields,
+        keep_every=stepper.keep_every,
+        linear_rtol=linear_rtol,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        start=scheme.describe()["start"],
+        error_scale=error_scale,
+        **({} if adapt is None else {"adapt": adapt.describe()}),
+    )
     rc = RunCheckpointing("run_eld", problem, arguments, checkpoint, resume)
     try:
         restored = rc.restored
@@ -249,13 +325,27 @@ def prepare_eld_run(problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
     return ELDRun(stepper, controller, traj, state, loop_tau_min, rc)
 
 
-def run_eld(problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
-            form: Form = DEFAULT_FORM, control=DEFAULT_CONTROL, data: DataMode = DEFAULT_DATA,
-            adapt=None, solver: str = "auto", newton: NewtonOptions | None = None,
-            noise: DataNoise | None = None, store_fields: bool = True, keep_every: int = 1,
-            observer=None, progress=False, linear_rtol: float = 1e-10,
-            error_scale: float | None = None, meta: dict | None = None, checkpoint=None,
-            resume=None) -> ELDResult:
+def run_eld(
+    problem: ELDProblem,
+    *,
+    scheme: Scheme = DEFAULT_SCHEME,
+    form: Form = DEFAULT_FORM,
+    control=DEFAULT_CONTROL,
+    data: DataMode = DEFAULT_DATA,
+    adapt=None,
+    solver: str = "auto",
+    newton: NewtonOptions | None = None,
+    noise: DataNoise | None = None,
+    store_fields: bool = True,
+    keep_every: int = 1,
+    observer=None,
+    progress=False,
+    linear_rtol: float = 1e-10,
+    error_scale: float | None = None,
+    meta: dict | None = None,
+    checkpoint=None,
+    resume=None,
+) -> ELDResult:
     """Run implicit Euler (3.4) or BDF2 from t = 0 to T on the shared evolve loop.
 
     Parameters
@@ -311,23 +401,44 @@ def run_eld(problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
     data is not finite, :class:`~rothe.errors.RunInterrupted` on SIGINT / SIGTERM, and
     :class:`~rothe.errors.RotheInputError` (one line naming the parameter) for bad input.
     """
-    run = prepare_eld_run(problem, scheme=scheme, form=form, control=control, data=data,
-                          adapt=adapt, solver=solver, newton=newton, noise=noise,
-                          store_fields=store_fields, keep_every=keep_every, observer=observer,
-                          linear_rtol=linear_rtol, error_scale=error_scale, meta=meta,
-                          checkpoint=checkpoint, resume=resume)
+    run = prepare_eld_run(
+        problem,
+        scheme=scheme,
+        form=form,
+        control=control,
+        data=data,
+        adapt=adapt,
+        solver=solver,
+        newton=newton,
+        noise=noise,
+        store_fields=store_fields,
+        keep_every=keep_every,
+        observer=observer,
+        linear_rtol=linear_rtol,
+        error_scale=error_scale,
+        meta=meta,
+        checkpoint=checkpoint,
+        resume=resume,
+    )
     return run.evolve(progress=progress)
 
 
 def _eld_where(traj: Trajectory, state: ELDState) -> dict:
-    return {"accepted_steps": traj.stats.accepted_steps, "s": float(state.t),
-            "t": float(state.t), "j": int(state.j)}
+    return {
+        "accepted_steps": traj.stats.accepted_steps,
+        "s": float(state.t),
+        "t": float(state.t),
+        "j": int(state.j),
+    }
 
 
 def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:
     system = stepper.system
     s = system.solver.stats
     traj.meta["linear_solver"] = {
-        "kind": system.kind, "factorizations": s.factorizations, "backsolves": s.backsolves,
-        "krylov_iterations": s.krylov_iterations, "setup_seconds": s.setup_seconds,
+        "kind": system.kind,
+        "factorizations": s.factorizations,
+        "backsolves": s.backsolves,
+        "krylov_iterations": s.krylov_iterations,
+        "setup_seconds": s.setup_seconds,
     }

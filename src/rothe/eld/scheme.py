@@ -85,8 +85,7 @@ class Scheme(ABC):
     g_weight: float = 0.0
 
     @abstractmethod
-    def coefficients(self, tau: float, tau_prev: float | None = None
-                     ) -> tuple[float, float, float]:
+    def coefficients(self, tau: float, tau_prev: float | None = None) -> tuple[float, float, float]:
         """(alpha_0, alpha_1, alpha_2) of the step tau after the step tau_prev (None: the
         first step, with a fictitious equal step before it).
 
@@ -161,8 +160,11 @@ class ImplicitEuler(Scheme):
 
     def check_step(self, tau, bound):
         if not tau < bound:
-            raise fail("tau", tau, f"must be < rho/d0 = {bound:g} (Lemma 3.2: unique "
-                       "solvability of the Euler steps)")
+            raise fail(
+                "tau",
+                tau,
+                f"must be < rho/d0 = {bound:g} (Lemma 3.2: unique solvability of the Euler steps)",
+            )
 
 
 @dataclass(frozen=True)
@@ -208,9 +210,13 @@ class BDF2(Scheme):
 
     def check_step(self, tau, bound):
         if not tau / 1.5 < bound:
-            raise fail("tau", tau, f"must be < 1.5 rho/d0 = {1.5 * bound:g} (Lemma 3.2 for "
-                       "BDF2: tau_j/alpha_j < rho/d0 with alpha_j = (1 + 2 omega)/(1 + omega) "
-                       "= 1.5 for equal steps)")
+            raise fail(
+                "tau",
+                tau,
+                f"must be < 1.5 rho/d0 = {1.5 * bound:g} (Lemma 3.2 for "
+                "BDF2: tau_j/alpha_j < rho/d0 with alpha_j = (1 + 2 omega)/(1 + omega) "
+                "= 1.5 for equal steps)",
+            )
 
     def first_step(self) -> Scheme:
         return ImplicitEuler() if self.start == "euler" else self
@@ -229,5 +235,6 @@ DEFAULT_SCHEME = ImplicitEuler()
 
 def as_scheme(scheme) -> Scheme:
     """``scheme`` if it is a :class:`Scheme`, else a one-line error naming ``scheme``."""
-    return check_instance("scheme", scheme, Scheme,
-                          "ImplicitEuler() or BDF2(start=...) (rothe.eld.scheme)")
+    return check_instance(
+        "scheme", scheme, Scheme, "ImplicitEuler() or BDF2(start=...) (rothe.eld.scheme)"
+    )

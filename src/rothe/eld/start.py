@@ -53,8 +53,9 @@ def _dot(a, b) -> float:
     return float(a @ b)
 
 
-def consistent_acceleration(system, t: float, u: np.ndarray, v: np.ndarray,
-                            G_ddot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def consistent_acceleration(
+    system, t: float, u: np.ndarray, v: np.ndarray, G_ddot: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(a, lambda) from (2.7a) at time t for given u, v: a = G_ddot on Gamma_D and
     rho M_II a_I = (F(t) - D(v) - K u)_I - rho M_IC G_ddot (CG with the diagonal of M, a
     mass matrix is well conditioned), lambda from the Gamma_D rows.
@@ -123,8 +124,11 @@ def _initial_state(system, where: dict) -> ELDState:
             raise fail(name, "non-finite values", "must be finite (the initial data)")
     a0, lam0 = consistent_acceleration(system, 0.0, p.u0, vc, Gdd0)
     if not (np.all(np.isfinite(a0)) and np.all(np.isfinite(lam0))):
-        raise RunFailed("non-finite initial state: the consistent acceleration or multiplier "
-                        "at t = 0 has NaN or inf entries (overflow?)", where=where)
+        raise RunFailed(
+            "non-finite initial state: the consistent acceleration or multiplier "
+            "at t = 0 has NaN or inf entries (overflow?)",
+            where=where,
+        )
     if system.lifting is not None:  # regularized: split by the lifting
         u2, v2, w2 = system.lifting.lift_many([G0, Gd0, Gdd0])
         x = p.u0 - u2
@@ -140,8 +144,15 @@ def _initial_state(system, where: dict) -> ELDState:
     fields = {"x": x, "y": y, "b": b, "u": u, "v": v, "a": a0}
     boundary = {"lam": lam0}
     boundary.update(system.data.mode.initial_history(G0, Gd0))
-    state = ELDState(t=0.0, j=0, tau_prev=None, fields=fields, boundary=boundary,
-                     products={}, ledger=EnergyLedger())
+    state = ELDState(
+        t=0.0,
+        j=0,
+        tau_prev=None,
+        fields=fields,
+        boundary=boundary,
+        products={},
+        ledger=EnergyLedger(),
+    )
     system.fill_products(state)
     Ku, Mv = state.products["Ku"], state.products["Mv"]
     kin, el = 0.5 * system.rho * _dot(v, Mv), 0.5 * _dot(u, Ku)
@@ -218,10 +229,16 @@ def with_prehistory(system, scheme, state: ELDState, tau: float) -> ELDState:
     kin = 0.5 * rho * _dot(V0, pr["Mv"])
     # C^0 with mu_0 = 1/2 (the fictitious equal history)
     dv, du = V0 - V1, u0 - U1
-    L = replace(L, kinetic=kin, mismatch=L.mismatch - (kin - L.kinetic),
-                g_zd_kin=rho * _dot(pr["Mv"], dv),
-                g_sq_kin=rho * _dot(pr["Mv"] - p.M @ V1, dv),
-                g_zd_el=_dot(pr["Ku"], du), g_sq_el=_dot(pr["Ku"] - p.K @ U1, du), g_mu=0.5)
+    L = replace(
+        L,
+        kinetic=kin,
+        mismatch=L.mismatch - (kin - L.kinetic),
+        g_zd_kin=rho * _dot(pr["Mv"], dv),
+        g_sq_kin=rho * _dot(pr["Mv"] - p.M @ V1, dv),
+        g_zd_el=_dot(pr["Ku"], du),
+        g_sq_el=_dot(pr["Ku"] - p.K @ U1, du),
+        g_mu=0.5,
+    )
     C0 = 0.5 * (L.g_zd_kin + L.g_zd_el) + 0.25 * (L.g_sq_kin + L.g_sq_el)
     new.ledger = replace(L, boundary_C=C0, boundary_C0=C0)
     return new

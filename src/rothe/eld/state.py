@@ -65,9 +65,17 @@ from ..stepping.results import ResultCode
 
 #: cached products: name -> (matrix, field)
 PRODUCTS = {
-    "Mx": ("M", "x"), "Kx": ("K", "x"), "Mx_1": ("M", "x_1"), "Kx_1": ("K", "x_1"),
-    "My": ("M", "y"), "Ky": ("K", "y"), "My_1": ("M", "y_1"), "Ky_1": ("K", "y_1"),
-    "Mb": ("M", "b"), "Ku": ("K", "u"), "Mv": ("M", "v"),
+    "Mx": ("M", "x"),
+    "Kx": ("K", "x"),
+    "Mx_1": ("M", "x_1"),
+    "Kx_1": ("K", "x_1"),
+    "My": ("M", "y"),
+    "Ky": ("K", "y"),
+    "My_1": ("M", "y_1"),
+    "Ky_1": ("K", "y_1"),
+    "Mb": ("M", "b"),
+    "Ku": ("K", "u"),
+    "Mv": ("M", "v"),
 }
 
 
@@ -105,18 +113,37 @@ class EnergyLedger:
     def residual(self) -> float:
         """E^j - E^0 - (work + work_reaction - dissipated + residual_work - numerical - mismatch
         + transfer)."""
-        return self.energy - self.initial - (
-            self.work + self.work_reaction - self.dissipated + self.residual_work
-            - self.numerical - self.mismatch + self.transfer)
+        return (
+            self.energy
+            - self.initial
+            - (
+                self.work
+                + self.work_reaction
+                - self.dissipated
+                + self.residual_work
+                - self.numerical
+                - self.mismatch
+                + self.transfer
+            )
+        )
 
     def record(self) -> dict:
         """The trajectory's point series of the energy identity at this state."""
-        return dict(kinetic=self.kinetic, elastic=self.elastic, energy=self.energy,
-                    work=self.work, work_reaction=self.work_reaction,
-                    dissipated=self.dissipated, numerical_dissipation=self.numerical,
-                    numerical_dissipation_G=self.numerical_G, step_change=self.step_change,
-                    data_mismatch=self.mismatch, residual_work=self.residual_work,
-                    transfer=self.transfer, balance_residual=self.residual)
+        return dict(
+            kinetic=self.kinetic,
+            elastic=self.elastic,
+            energy=self.energy,
+            work=self.work,
+            work_reaction=self.work_reaction,
+            dissipated=self.dissipated,
+            numerical_dissipation=self.numerical,
+            numerical_dissipation_G=self.numerical_G,
+            step_change=self.step_change,
+            data_mismatch=self.mismatch,
+            residual_work=self.residual_work,
+            transfer=self.transfer,
+            balance_residual=self.residual,
+        )
 
 
 @dataclass

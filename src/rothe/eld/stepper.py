@@ -129,9 +129,12 @@ def _dot(a, b) -> float:
 
 def as_control(control):
     """``control`` if it is a step-control object of elastodynamics, else a one-line error."""
-    return check_instance("control", control, (Uniform, Given, Adaptive),
-                          "Uniform(tau), Given(steps) or Adaptive(tol, tau=...) "
-                          "(rothe.stepping.controllers)")
+    return check_instance(
+        "control",
+        control,
+        (Uniform, Given, Adaptive),
+        "Uniform(tau), Given(steps) or Adaptive(tol, tau=...) (rothe.stepping.controllers)",
+    )
 
 
 class ELDStepper:
@@ -163,12 +166,24 @@ class ELDStepper:
         Adapt the mesh between steps (:mod:`rothe.eld.adapt`).
     """
 
-    def __init__(self, problem: ELDProblem, *, scheme: Scheme = DEFAULT_SCHEME,
-                 form: Form = DEFAULT_FORM, control=DEFAULT_CONTROL,
-                 data: DataMode = DEFAULT_DATA, solver: str = "auto",
-                 newton: NewtonOptions | None = None, noise=None, store_fields: bool = True,
-                 keep_every: int = 1, observer=None, linear_rtol: float = 1e-10,
-                 error_scale: float | None = None, adapt=None):
+    def __init__(
+        self,
+        problem: ELDProblem,
+        *,
+        scheme: Scheme = DEFAULT_SCHEME,
+        form: Form = DEFAULT_FORM,
+        control=DEFAULT_CONTROL,
+        data: DataMode = DEFAULT_DATA,
+        solver: str = "auto",
+        newton: NewtonOptions | None = None,
+        noise=None,
+        store_fields: bool = True,
+        keep_every: int = 1,
+        observer=None,
+        linear_rtol: float = 1e-10,
+        error_scale: float | None = None,
+        adapt=None,
+    ):
         self.scheme = as_scheme(scheme)
         self.form = as_form(form)
         self.control = as_control(control)
@@ -177,8 +192,9 @@ class ELDStepper:
         if adapt is not None:
             check_adapt(adapt, data=self.data_mode, noise=noise)
         if newton is not None and not isinstance(newton, NewtonOptions):
-            raise fail("newton", described(type(newton).__name__),
-                       "must be a rothe.eld.NewtonOptions")
+            raise fail(
+                "newton", described(type(newton).__name__), "must be a rothe.eld.NewtonOptions"
+            )
         self.newton = newton or NewtonOptions()
         self.store_fields = bool(store_fields)
         self.keep_every = check_int("keep_every", keep_every, minimum=1)
@@ -189,19 +205,28 @@ class ELDStepper:
         self.max_ratio = self.scheme.ratio_cap
         self._setup_grid()
         problem.check_initial_consistency()
-        self.error_scale = (None if error_scale is None
-                            else check_positive("error_scale", error_scale))
+        self.error_scale = (
+            None if error_scale is None else check_positive("error_scale", error_scale)
+        )
         self.times = PhaseTimes()  # factor, solve; estimate ... transfer of the adapt step
         # the first step's effective step: the stored factorization's matrix
         self.system = ELDSystem.build(
-            problem, self.form, tau_eff=self.tau / self.scheme.alpha0,
-            variable_steps=self.n_steps is None or self.steps is not None, solver=solver,
-            linear_rtol=linear_rtol, data=self.data_mode, noise=noise, times=self.times)
+            problem,
+            self.form,
+            tau_eff=self.tau / self.scheme.alpha0,
+            variable_steps=self.n_steps is None or self.steps is not None,
+            solver=solver,
+            linear_rtol=linear_rtol,
+            data=self.data_mode,
+            noise=noise,
+            times=self.times,
+        )
         self.initial_factorizations = self.system.initial_factorizations
         # with differenced data the harmonic lifting's unknowns see the jumps of the data
         # quotients after a step cut: the estimate is taken from u, v, a instead (_complete)
-        self._estimate_on_fields = (isinstance(self.data_mode, Differenced)
-                                    and isinstance(self.system.lifting, HarmonicLifting))
+        self._estimate_on_fields = isinstance(self.data_mode, Differenced) and isinstance(
+            self.system.lifting, HarmonicLifting
+        )
         self._last_newton = 0
         self.adaptivity = None
         if adapt is not None:
@@ -229,8 +254,9 @@ class ELDStepper:
             ratio = T / tau
             n = round(ratio) if math.isfinite(ratio) and ratio < 2**62 else -1
             if n < 1 or abs(ratio - n) > 1e-9 * max(1.0, ratio):
-                raise fail("tau", tau, f"must divide T = {T:g} into equal steps "
-                           f"(T/tau = {ratio:.6g})")
+                raise fail(
+                    "tau", tau, f"must divide T = {T:g} into equal steps (T/tau = {ratio:.6g})"
+                )
             self.n_steps = int(n)
             self.tau_uniform = tau
             return
@@ -246,22 +272,29 @@ class ELDStepper:
         arr = np.asarray(steps, dtype=float).ravel()
         total = float(arr.sum())
         if abs(total - self.T) > 1e-10 * self.T:
-            raise fail("steps", described(f"steps summing to {total:.12g}"),
-                       f"must sum to T = {self.T:g}")
+            raise fail(
+                "steps", described(f"steps summing to {total:.12g}"), f"must sum to T = {self.T:g}"
+            )
         tau_prev = None
         limit = self.scheme.zero_stability
         for k, tau in enumerate(arr):
             if tau_prev is not None and math.isfinite(limit):
                 ratio = tau / tau_prev
                 if not ratio < limit:
-                    raise fail("steps", described(f"tau_{k + 1}/tau_{k} = {ratio:.6g}"),
-                               f"must be < 1 + sqrt(2) = {limit:.6g} (zero-stability "
-                               "of variable-step BDF2)")
+                    raise fail(
+                        "steps",
+                        described(f"tau_{k + 1}/tau_{k} = {ratio:.6g}"),
+                        f"must be < 1 + sqrt(2) = {limit:.6g} (zero-stability "
+                        "of variable-step BDF2)",
+                    )
             a0 = self.scheme.coefficients(tau, tau_prev)[0]
             if not tau / a0 < self.bound:
-                raise fail("steps", described(f"tau_{k + 1} = {tau:g}"),
-                           f"must satisfy tau_j/alpha_j < rho/d0 = {self.bound:g} (alpha_j = "
-                           f"{a0:.6g}; Lemma 3.2)")
+                raise fail(
+                    "steps",
+                    described(f"tau_{k + 1} = {tau:g}"),
+                    f"must satisfy tau_j/alpha_j < rho/d0 = {self.bound:g} (alpha_j = "
+                    f"{a0:.6g}; Lemma 3.2)",
+                )
             tau_prev = tau
         return arr
 
@@ -288,12 +321,10 @@ class ELDStepper:
         """The state at t = 0 (:mod:`rothe.eld.start`; raises RunFailed if the consistent
         acceleration or multiplier at t = 0 is not finite, e.g. after an overflow). With
         adaptive steps and no ``error_scale`` given, sets the error scale."""
-        where = {"step": 0, "s": 0.0, "t": 0.0, "form": self.form.name,
-                 "scheme": self.scheme.name}
+        where = {"step": 0, "s": 0.0, "t": 0.0, "form": self.form.name, "scheme": self.scheme.name}
         # BLAS level-1 calls outside the evolve loop: single-threaded as inside it
         # (rothe.stepping.evolve.single_threaded_blas; threaded dots spin on busy cores)
-        with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore",
-                                                 divide="ignore"):
+        with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             state = initial_state(self.system, where)
             norm0 = state.energy_norm_max
             if self.error_scale is None and isinstance(self.control, Adaptive):
@@ -309,10 +340,22 @@ class ELDStepper:
     def record_initial(self, traj: Trajectory, state: ELDState) -> None:
         """Record the initial state (energies and, if kept, its fields)."""
         L = state.ledger
-        traj.append(t=0.0, kinetic=L.kinetic, elastic=L.elastic, energy=L.energy, work=0.0,
-                    work_reaction=0.0, dissipated=0.0, numerical_dissipation=0.0,
-                    numerical_dissipation_G=0.0, step_change=0.0, data_mismatch=0.0,
-                    residual_work=0.0, transfer=0.0, balance_residual=0.0)
+        traj.append(
+            t=0.0,
+            kinetic=L.kinetic,
+            elastic=L.elastic,
+            energy=L.energy,
+            work=0.0,
+            work_reaction=0.0,
+            dissipated=0.0,
+            numerical_dissipation=0.0,
+            numerical_dissipation_G=0.0,
+            step_change=0.0,
+            data_mismatch=0.0,
+            residual_work=0.0,
+            transfer=0.0,
+            balance_residual=0.0,
+        )
         if self.adaptivity is not None:
             traj.append(**self._mesh_record(state, self.system))
         if self.store_fields:
@@ -322,13 +365,22 @@ class ELDStepper:
         if self.adaptivity is not None:
             self.adaptivity.meshes.keep(traj, state)
             return
-        traj.append(kept_step=state.j, kept_t=state.t, u=state.u.copy(), v=state.v.copy(),
-                    a=state.fields["a"].copy(), lam=state.lam.copy())
+        traj.append(
+            kept_step=state.j,
+            kept_t=state.t,
+            u=state.u.copy(),
+            v=state.v.copy(),
+            a=state.fields["a"].copy(),
+            lam=state.lam.copy(),
+        )
 
     @staticmethod
     def _mesh_record(state: ELDState, system) -> dict:
-        return {"mesh_id": int(state.mesh_id), "ndofs": int(system.problem.space.ndofs),
-                "cells": int(system.problem.space.mesh.t.shape[1])}
+        return {
+            "mesh_id": int(state.mesh_id),
+            "ndofs": int(system.problem.space.ndofs),
+            "cells": int(system.problem.space.mesh.t.shape[1]),
+        }
 
     # -- evolve-loop interface ------------------------------------------------------------------
     def finished(self, state: ELDState) -> bool:
@@ -358,9 +410,14 @@ class ELDStepper:
         return attempts[-1]
 
     def _where(self, state: ELDState, result=None) -> dict:
-        info = {"step": state.j + 1, "s": state.t, "t": state.t,
-                "tau": result.tau if result is not None else self.tau,
-                "form": self.form.name, "scheme": self.scheme.name}
+        info = {
+            "step": state.j + 1,
+            "s": state.t,
+            "t": state.t,
+            "tau": result.tau if result is not None else self.tau,
+            "form": self.form.name,
+            "scheme": self.scheme.name,
+        }
         if result is not None:
             info["newton_iterations"] = result.newton_iterations
         return info
@@ -414,9 +471,13 @@ class ELDStepper:
             if base is None or base[0] is not original:
                 base = (original, adaptation.amesh.checkpoint_state(), self.system)
             try:
-                out = adaptation.cycle(self.adaptivity, self.system,
-                                       (result.state, tau, result.state.t), state,
-                                       refine_only=True)
+                out = adaptation.cycle(
+                    self.adaptivity,
+                    self.system,
+                    (result.state, tau, result.state.t),
+                    state,
+                    refine_only=True,
+                )
             except AdaptationFailed:  # no estimate or no transfer: the step stands
                 break
             if not out.changed:
@@ -443,13 +504,20 @@ class ELDStepper:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return self._solve(state, tau)
 
-    def _failed(self, state, tau, code: ELDCode, message, its=0, counters=None
-                ) -> ELDStepResult:
+    def _failed(self, state, tau, code: ELDCode, message, its=0, counters=None) -> ELDStepResult:
         where = self._where(state)
         where.update(tau=tau, newton_iterations=its)
-        return ELDStepResult(state=None, tau=tau, newton_iterations=its, converged=False,
-                             code=code, message=message, where=where, counters=counters or {},
-                             system=self.system)
+        return ELDStepResult(
+            state=None,
+            tau=tau,
+            newton_iterations=its,
+            converged=False,
+            code=code,
+            message=message,
+            where=where,
+            counters=counters or {},
+            system=self.system,
+        )
 
     def _solve(self, state: ELDState, tau: float) -> ELDStepResult:
         system = self.system
@@ -464,28 +532,41 @@ class ELDStepper:
         a0 = coeffs[0]
         limit = self.scheme.zero_stability
         if math.isfinite(limit) and state.j > 0 and not tau / state.tau_prev < limit:
-            raise RunFailed(f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
-                            f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
-                            where=self._where(state))
+            raise RunFailed(
+                f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
+                f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
+                where=self._where(state),
+            )
         if not tau / a0 < self.bound:
-            raise RunFailed(f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
-                            f"{self.bound:g} (Lemma 3.2)", where=self._where(state))
+            raise RunFailed(
+                f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
+                f"{self.bound:g} (Lemma 3.2)",
+                where=self._where(state),
+            )
         hist = self.data_mode.history(state.boundary, coeffs)
         vals = system.data.at(j, state.t, t_new, coeffs, hist)
         bad = vals.first_nonfinite()
         if bad is not None:
-            what = {"F": "the load F (body force, tractions)", "G": "the Dirichlet data G",
-                    "G_dot": "G_dot", "G_ddot": "G_ddot"}[bad]
-            raise RunFailed(f"non-finite data at step {j} (t = {t_new:.6g}): {what} has NaN or "
-                            "inf entries", where=self._where(state))
+            what = {
+                "F": "the load F (body force, tractions)",
+                "G": "the Dirichlet data G",
+                "G_dot": "G_dot",
+                "G_ddot": "G_ddot",
+            }[bad]
+            raise RunFailed(
+                f"non-finite data at step {j} (t = {t_new:.6g}): {what} has NaN or inf entries",
+                where=self._where(state),
+            )
         st = system.solver.stats
         before = (st.factorizations, st.backsolves, st.krylov_iterations, st.solves)
 
         def counters():
-            return {"newton_iterations": its,
-                    "linear_factorizations": st.factorizations - before[0],
-                    "linear_solves": st.backsolves - before[1],
-                    "krylov_iterations": st.krylov_iterations - before[2]}
+            return {
+                "newton_iterations": its,
+                "linear_factorizations": st.factorizations - before[0],
+                "linear_solves": st.backsolves - before[1],
+                "krylov_iterations": st.krylov_iterations - before[2],
+            }
 
         its = 0
         try:
@@ -494,27 +575,51 @@ class ELDStepper:
             else:
                 k, its = self._step_original(state, vals, coeffs, tau)
         except SolveFailed as exc:
-            return self._failed(state, tau, ELDCode.LINEAR_SOLVE,
-                                f"{ELDCode.LINEAR_SOLVE.message} at step {j} (t = {t_new:.6g}, "
-                                f"tau = {tau:g}): {exc}; the step is not accepted", its,
-                                counters())
+            return self._failed(
+                state,
+                tau,
+                ELDCode.LINEAR_SOLVE,
+                f"{ELDCode.LINEAR_SOLVE.message} at step {j} (t = {t_new:.6g}, "
+                f"tau = {tau:g}): {exc}; the step is not accepted",
+                its,
+                counters(),
+            )
         except _NewtonFailed as exc:
             its = exc.iterations
             return self._failed(
-                state, tau, ELDCode.NEWTON, f"{ELDCode.NEWTON.message} in {exc.iterations} "
+                state,
+                tau,
+                ELDCode.NEWTON,
+                f"{ELDCode.NEWTON.message} in {exc.iterations} "
                 f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = "
-                f"{exc.rnorm:.3g}); the step is not accepted", its, counters())
+                f"{exc.rnorm:.3g}); the step is not accepted",
+                its,
+                counters(),
+            )
         self._last_newton = its
         new, result_extra = self._complete(state, k, vals, coeffs, tau, t_new, scheme)
         if new is None:
-            return self._failed(state, tau, ELDCode.NON_FINITE,
-                                f"{ELDCode.NON_FINITE.message} at step {j} (t = {t_new:.6g}, "
-                                f"tau = {tau:g}): {result_extra} has NaN or inf entries; the "
-                                "step is not accepted", its, counters())
+            return self._failed(
+                state,
+                tau,
+                ELDCode.NON_FINITE,
+                f"{ELDCode.NON_FINITE.message} at step {j} (t = {t_new:.6g}, "
+                f"tau = {tau:g}): {result_extra} has NaN or inf entries; the "
+                "step is not accepted",
+                its,
+                counters(),
+            )
         c = system.problem.constraint
-        return ELDStepResult(state=new, tau=tau, lam=new.lam, reactions=c.reactions(new.lam),
-                             newton_iterations=its, estimate=result_extra,
-                             counters=counters(), system=system)
+        return ELDStepResult(
+            state=new,
+            tau=tau,
+            lam=new.lam,
+            reactions=c.reactions(new.lam),
+            newton_iterations=its,
+            estimate=result_extra,
+            counters=counters(),
+            system=system,
+        )
 
     # -- the two forms --------------------------------------------------------------------------
     @staticmethod
@@ -522,8 +627,14 @@ class ELDStepper:
         """h_x = alpha_1 x^{j-1} + alpha_2 x^{j-2} and h_y, with their M and K products."""
         _, a1, a2 = coeffs
         f, pr = state.fields, state.products
-        h = {"x": a1 * f["x"], "Mx": a1 * pr["Mx"], "Kx": a1 * pr["Kx"],
-             "y": a1 * f["y"], "My": a1 * pr["My"], "Ky": a1 * pr["Ky"]}
+        h = {
+            "x": a1 * f["x"],
+            "Mx": a1 * pr["Mx"],
+            "Kx": a1 * pr["Kx"],
+            "y": a1 * f["y"],
+            "My": a1 * pr["My"],
+            "Ky": a1 * pr["Ky"],
+        }
         if a2:
             for key, name in (("x", "x_1"), ("y", "y_1")):
                 h[key] = h[key] + a2 * f[name]
@@ -542,8 +653,14 @@ class ELDStepper:
         k["b"] = (a0 * k["y"] + h["y"]) / tau
         k["Mb"] = (a0 * k["My"] + h["My"]) / tau
         if u2 is None:
-            k["u"], k["Ku"], k["v"], k["Mv"], k["a"], k["Ma"] = x, Kx, k["y"], k["My"], k["b"], \
-                k["Mb"]
+            k["u"], k["Ku"], k["v"], k["Mv"], k["a"], k["Ma"] = (
+                x,
+                Kx,
+                k["y"],
+                k["My"],
+                k["b"],
+                k["Mb"],
+            )
             Kv = k["Ky"]
         else:
             k["u"], k["Ku"] = x + u2, Kx + Ku2
@@ -571,8 +688,17 @@ class ELDStepper:
         tau_eff, the lifted data, the history terms and the damping operator."""
         system = self.system
         a0 = coeffs[0]
-        return (system, system.problem, system.rho, system.problem.space.ndofs, a0, tau / a0,
-                system.lifted(vals), self._history(state, coeffs), system.D)
+        return (
+            system,
+            system.problem,
+            system.rho,
+            system.problem.space.ndofs,
+            a0,
+            tau / a0,
+            system.lifted(vals),
+            self._history(state, coeffs),
+            system.D,
+        )
 
     def _step_regularized(self, state: ELDState, vals, coeffs, tau):
         system, p, rho, n, a0, te, lifted, h, D = self._step_parts(state, vals, coeffs, tau)
@@ -581,9 +707,13 @@ class ELDStepper:
         guess = self._guess(state, tau)[I]
         if D.is_linear:
             # A(te) x = F - rho M (alpha_0 h_x/tau^2 + h_y/tau + w2) - C (h_x/tau + v2) - K u2
-            rhs = (vals.F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau + Mw2)
-                   - D.mass_coef * (h["Mx"] / tau + Mv2)
-                   - D.stiffness_coef * (h["Kx"] / tau + Kv2) - Ku2)
+            rhs = (
+                vals.F
+                - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau + Mw2)
+                - D.mass_coef * (h["Mx"] / tau + Mv2)
+                - D.stiffness_coef * (h["Kx"] / tau + Kv2)
+                - Ku2
+            )
             if D.matrix is not None:
                 rhs = rhs - D.matrix @ (h["x"] / tau + v2)
             xI = system.solve_linear(rhs[I], te, guess)
@@ -622,8 +752,12 @@ class ELDStepper:
         c = p.constraint
         g_rhs = c.boundary_mass @ vals.G
         if D.is_linear:
-            rhs_u = (vals.F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
-                     - D.mass_coef * h["Mx"] / tau - D.stiffness_coef * h["Kx"] / tau)
+            rhs_u = (
+                vals.F
+                - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
+                - D.mass_coef * h["Mx"] / tau
+                - D.stiffness_coef * h["Kx"] / tau
+            )
             if D.matrix is not None:
                 rhs_u = rhs_u - D.matrix @ (h["x"] / tau)
             z = system.solve_linear(np.concatenate([rhs_u, g_rhs]), te)
@@ -650,8 +784,7 @@ class ELDStepper:
 
             def matvec(z):
                 u, lam = z[:n], z[n:]
-                return np.concatenate([system.apply_A(u, te) + action(u) / te + B.T @ lam,
-                                       B @ u])
+                return np.concatenate([system.apply_A(u, te) + action(u) / te + B.T @ lam, B @ u])
 
             op = spla.LinearOperator((n + m, n + m), matvec=matvec, dtype=float)
             return op, system.assembler(te, v)
@@ -703,8 +836,7 @@ class ELDStepper:
         raise _NewtonFailed(opts.max_iter, float(rnorm))
 
     # -- the new state: multiplier, ledger, estimate ---------------------------------------------
-    def _complete(self, state: ELDState, k: dict, vals, coeffs, tau: float, t_new: float,
-                  scheme):
+    def _complete(self, state: ELDState, k: dict, vals, coeffs, tau: float, t_new: float, scheme):
         """The state after the step, or (None, name) if a field is not finite."""
         system = self.system
         p = system.problem
@@ -716,8 +848,7 @@ class ELDStepper:
             lam = k["lam"]
         else:
             # (3.4a) tested with V^c: the residual on the constrained rows is B^T lambda
-            lam = c.multiplier_from_residual(vals.F[C] - rho * k["Ma"][C] - k["Dv"][C]
-                                             - k["Ku"][C])
+            lam = c.multiplier_from_residual(vals.F[C] - rho * k["Ma"][C] - k["Dv"][C] - k["Ku"][C])
         for name, w in (("u", k["u"]), ("v", k["v"]), ("a", k["a"]), ("lambda", lam)):
             if not np.all(np.isfinite(w)):
                 return None, name
@@ -751,15 +882,24 @@ class ELDStepper:
         if not math.isfinite(kin + el):
             return None, "the energy E = 1/2 rho v.M v + 1/2 u.K u"
         ledger = replace(
-            L, kinetic=kin, elastic=el,
+            L,
+            kinetic=kin,
+            elastic=el,
             work=L.work + tau * _dot(vals.F, v),
             work_reaction=L.work_reaction - tau * _dot(lam, Bv),
             dissipated=L.dissipated + tau * _dot(Dv, v),
-            numerical=L.numerical + N, mismatch=L.mismatch + X,
+            numerical=L.numerical + N,
+            mismatch=L.mismatch + X,
             residual_work=L.residual_work + tau * _dot(R, v),
-            numerical_G=L.numerical_G + N_G, step_change=L.step_change + S,
-            boundary_C=C_new, g_zd_kin=zd_kin, g_sq_kin=sq_kin, g_zd_el=zd_el, g_sq_el=sq_el,
-            g_mu=mu)
+            numerical_G=L.numerical_G + N_G,
+            step_change=L.step_change + S,
+            boundary_C=C_new,
+            g_zd_kin=zd_kin,
+            g_sq_kin=sq_kin,
+            g_zd_el=zd_el,
+            g_sq_el=sq_el,
+            g_mu=mu,
+        )
         # local error estimate (trapezoidal residuals, module docstring)
         Kr = k["Kx"] - pr["Kx"] - 0.5 * tau * (k["Ky"] + pr["Ky"])
         rx = k["x"] - f["x"] - 0.5 * tau * (k["y"] + f["y"])
@@ -781,19 +921,49 @@ class ELDStepper:
         omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
         norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
         scale = max(state.energy_norm_max, norm_new, 1e-300)
-        est = scheme.estimate_factor(omega) * math.sqrt(
-            max(_dot(rx, Kr) + rho * _dot(ry, Mr), 0.0)) / scale
-        fields = {"x": k["x"], "x_1": f["x"], "y": k["y"], "y_1": f["y"], "b": k["b"],
-                  "u": u, "u_1": f["u"], "v": v, "v_1": f["v"], "a": k["a"]}
-        products = {"Mx": k["Mx"], "Kx": k["Kx"], "Mx_1": pr["Mx"], "Kx_1": pr["Kx"],
-                    "My": k["My"], "Ky": k["Ky"], "My_1": pr["My"], "Ky_1": pr["Ky"],
-                    "Mb": k["Mb"], "Ku": Ku, "Mv": Mv}
+        est = (
+            scheme.estimate_factor(omega)
+            * math.sqrt(max(_dot(rx, Kr) + rho * _dot(ry, Mr), 0.0))
+            / scale
+        )
+        fields = {
+            "x": k["x"],
+            "x_1": f["x"],
+            "y": k["y"],
+            "y_1": f["y"],
+            "b": k["b"],
+            "u": u,
+            "u_1": f["u"],
+            "v": v,
+            "v_1": f["v"],
+            "a": k["a"],
+        }
+        products = {
+            "Mx": k["Mx"],
+            "Kx": k["Kx"],
+            "Mx_1": pr["Mx"],
+            "Kx_1": pr["Kx"],
+            "My": k["My"],
+            "Ky": k["Ky"],
+            "My_1": pr["My"],
+            "Ky_1": pr["Ky"],
+            "Mb": k["Mb"],
+            "Ku": Ku,
+            "Mv": Mv,
+        }
         boundary = {"lam": lam}
         boundary.update(self.data_mode.next_history(state.boundary, vals))
-        new = ELDState(t=t_new, j=state.j + 1, tau_prev=tau, fields=fields, boundary=boundary,
-                       products=products, ledger=ledger,
-                       energy_norm_max=max(state.energy_norm_max, norm_new),
-                       mesh_id=state.mesh_id)
+        new = ELDState(
+            t=t_new,
+            j=state.j + 1,
+            tau_prev=tau,
+            fields=fields,
+            boundary=boundary,
+            products=products,
+            ledger=ledger,
+            energy_norm_max=max(state.energy_norm_max, norm_new),
+            mesh_id=state.mesh_id,
+        )
         return new, est
 
     # -- the adapt step -------------------------------------------------------------------------
@@ -817,28 +987,40 @@ class ELDStepper:
             try:
                 out = ad.adaptation.cycle(ad, self.system, (state, result.tau, t_next), state)
             except AdaptationFailed as exc:
-                raise RunFailed(f"space adaptivity: the transfer to the new mesh after step "
-                                f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
-                                f"on mesh {old_id}", where=self.where(state)) from exc
+                raise RunFailed(
+                    f"space adaptivity: the transfer to the new mesh after step "
+                    f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
+                    f"on mesh {old_id}",
+                    where=self.where(state),
+                ) from exc
             estimate = out.estimate
             if out.changed:
                 new = out.state
                 self.system = out.problem
                 ad.register_mesh()
-                ad.meshes.adaptations.append({
-                    "step": state.j, "t": float(state.t), "from_mesh": old_id,
-                    "to_mesh": int(new.mesh_id), "estimate": estimate, "rounds": 1,
-                    "bisections": out.bisections, "merges": out.merges,
-                    "cells": int(ad.adaptation.amesh.n_cells),
-                    "ndofs": int(self.problem.space.ndofs),
-                    "transfer_energy": float(new.ledger.energy - state.ledger.energy)})
+                ad.meshes.adaptations.append(
+                    {
+                        "step": state.j,
+                        "t": float(state.t),
+                        "from_mesh": old_id,
+                        "to_mesh": int(new.mesh_id),
+                        "estimate": estimate,
+                        "rounds": 1,
+                        "bisections": out.bisections,
+                        "merges": out.merges,
+                        "cells": int(ad.adaptation.amesh.n_cells),
+                        "ndofs": int(self.problem.space.ndofs),
+                        "transfer_energy": float(new.ledger.energy - state.ledger.energy),
+                    }
+                )
                 state = new
         self._adapted = estimate
         return state
 
     # -- recording ------------------------------------------------------------------------------
-    def record(self, traj: Trajectory, result: ELDStepResult, state: ELDState | None = None
-               ) -> None:
+    def record(
+        self, traj: Trajectory, result: ELDStepResult, state: ELDState | None = None
+    ) -> None:
         """Record the accepted step ``result`` on the mesh it was computed on (energies, tau,
         the estimate, the multiplier's norm, the reactions; kept fields every ``keep_every``-th
         step; with space adaptivity its mesh, dofs and what the adapt step did). ``state`` is
@@ -846,11 +1028,21 @@ class ELDStepper:
         st = result.state
         L = st.ledger
         rec = dict(
-            t=st.t, kinetic=L.kinetic, elastic=L.elastic, energy=L.energy, work=L.work,
-            work_reaction=L.work_reaction, dissipated=L.dissipated,
-            numerical_dissipation=L.numerical, numerical_dissipation_G=L.numerical_G,
-            step_change=L.step_change, data_mismatch=L.mismatch, residual_work=L.residual_work,
-            transfer=L.transfer, balance_residual=L.residual, tau=result.tau,
+            t=st.t,
+            kinetic=L.kinetic,
+            elastic=L.elastic,
+            energy=L.energy,
+            work=L.work,
+            work_reaction=L.work_reaction,
+            dissipated=L.dissipated,
+            numerical_dissipation=L.numerical,
+            numerical_dissipation_G=L.numerical_G,
+            step_change=L.step_change,
+            data_mismatch=L.mismatch,
+            residual_work=L.residual_work,
+            transfer=L.transfer,
+            balance_residual=L.residual,
+            tau=result.tau,
             local_error=result.estimate,
             lam_norm=result.system.problem.constraint.l2_norm(result.lam),
             newton_iterations=result.newton_iterations,
@@ -861,8 +1053,10 @@ class ELDStepper:
         ad = self.adaptivity
         if ad is not None:
             traj.append(**self._mesh_record(st, result.system))
-            traj.append(step_dofs=int(result.counters.get("dofs", result.system.ndofs)),
-                        step_refinements=result.refinements)
+            traj.append(
+                step_dofs=int(result.counters.get("dofs", result.system.ndofs)),
+                step_refinements=result.refinements,
+            )
         if self.store_fields and (st.j % self.keep_every == 0 or self.finished(st)):
             self._keep(traj, st)
         if self.observer is not None:
@@ -885,8 +1079,12 @@ class ELDStepper:
             self._back_to_mesh_of(state)  # e.g. interrupted after a rejected, refined attempt
         system = self.system
         return {
-            "format": CHECKPOINT_FORMAT, "scheme": self.scheme.name, "form": self.form.name,
-            "t": float(state.t), "j": int(state.j), "tau_prev": state.tau_prev,
+            "format": CHECKPOINT_FORMAT,
+            "scheme": self.scheme.name,
+            "form": self.form.name,
+            "t": float(state.t),
+            "j": int(state.j),
+            "tau_prev": state.tau_prev,
             "fields": {k: w.copy() for k, w in state.fields.items()},
             "boundary": {k: w.copy() for k, w in state.boundary.items()},
             "products": {k: w.copy() for k, w in state.products.items()},
@@ -906,22 +1104,24 @@ class ELDStepper:
         from the checkpoint's (the refactorization is not counted: the uninterrupted run did not
         do it)."""
         if data.get("format") != CHECKPOINT_FORMAT:
-            raise RotheInputError(f"checkpoint: got format {data.get('format')!r}, must be "
-                                  f"{CHECKPOINT_FORMAT!r}")
+            raise RotheInputError(
+                f"checkpoint: got format {data.get('format')!r}, must be {CHECKPOINT_FORMAT!r}"
+            )
         for key, mine in (("scheme", self.scheme.name), ("form", self.form.name)):
             if data[key] != mine:
-                raise RotheInputError(f"checkpoint: got {key} {data[key]!r}, this run has "
-                                      f"{mine!r}")
+                raise RotheInputError(f"checkpoint: got {key} {data[key]!r}, this run has {mine!r}")
         if (data.get("adapt") is None) != (self.adaptivity is None):
             kind = "a fixed-mesh" if data.get("adapt") is None else "a space-adaptive"
-            raise RotheInputError(f"checkpoint: got {kind} run's state, this run "
-                                  + ("adapts its mesh" if self.adaptivity is not None
-                                     else "keeps its mesh"))
+            raise RotheInputError(
+                f"checkpoint: got {kind} run's state, this run "
+                + ("adapts its mesh" if self.adaptivity is not None else "keeps its mesh")
+            )
         if self.adaptivity is not None:
             self.adaptivity.restore_state(data["adapt"])
             if int(data["mesh_id"]) != 0:
                 self.system = self.system.rebuilt(
-                    self.system.problem.on_mesh(self.adaptivity.adaptation.mesh))
+                    self.system.problem.on_mesh(self.adaptivity.adaptation.mesh)
+                )
         self.system.restore_reference(data["solver_reference"])
         if data.get("solver_stats") is not None:
             self.system.solver.stats = SolverStats(**data["solver_stats"])
@@ -930,10 +1130,13 @@ class ELDStepper:
         self._last_newton = int(data.get("last_newton", 0))
         tp = data["tau_prev"]
         return ELDState(
-            t=float(data["t"]), j=int(data["j"]), tau_prev=None if tp is None else float(tp),
+            t=float(data["t"]),
+            j=int(data["j"]),
+            tau_prev=None if tp is None else float(tp),
             fields={k: np.asarray(w, dtype=float).copy() for k, w in data["fields"].items()},
             boundary={k: np.asarray(w, dtype=float).copy() for k, w in data["boundary"].items()},
             products={k: np.asarray(w, dtype=float).copy() for k, w in data["products"].items()},
             ledger=EnergyLedger(**data["ledger"]),
             energy_norm_max=float(data["energy_norm_max"]),
-            mesh_id=int(data.get("mesh_id", 0)))
+            mesh_id=int(data.get("mesh_id", 0)),
+        )

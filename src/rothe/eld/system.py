@@ -84,9 +84,18 @@ class ELDSystem:
     #: the right inverse B^- (regularized form), None in the original form
     lifting = None
 
-    def __init__(self, problem, *, tau_eff: float, variable_steps: bool, solver: str = "auto",
-                 linear_rtol: float = 1e-10, data=None, noise=None,
-                 times: PhaseTimes | None = None):
+    def __init__(
+        self,
+        problem,
+        *,
+        tau_eff: float,
+        variable_steps: bool,
+        solver: str = "auto",
+        linear_rtol: float = 1e-10,
+        data=None,
+        noise=None,
+        times: PhaseTimes | None = None,
+    ):
         self.problem = p = problem
         self.times = times if times is not None else PhaseTimes()
         self.data = StepData(p, data, noise)
@@ -99,8 +108,7 @@ class ELDSystem:
         self._A_stored = None
         self._parts = None
         self._ref: dict | None = None  # what the solver's stored factorization was built from
-        self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar),
-                                                     c.scalar_dofs)
+        self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar), c.scalar_dofs)
         self._lean = self.D.matrix is None
         self.kind = resolve_kind(solver, self.I.size, p.space.dim)
         rbm = p.space.rigid_body_modes(free_nodes) if self.kind == "amg" else None
@@ -159,8 +167,9 @@ class ELDSystem:
     def _step_matrix(self, te: float) -> sp.csr_matrix:
         """A(te) = (rho/te^2) M + C/te + K with C = a_M M + a_K K (+ E), without forming C."""
         p, D = self.problem, self.D
-        A = ((self.rho / te**2 + D.mass_coef / te) * p.M
-             + (1.0 + D.stiffness_coef / te) * p.K).tocsr()
+        A = (
+            (self.rho / te**2 + D.mass_coef / te) * p.M + (1.0 + D.stiffness_coef / te) * p.K
+        ).tocsr()
         if D.matrix is not None:
             A = (A + (1.0 / te) * D.matrix).tocsr()
         return A
@@ -174,8 +183,9 @@ class ELDSystem:
     def _apply_full(self, full: np.ndarray, te: float) -> np.ndarray:
         """A(te) times a full dof vector."""
         p, D = self.problem, self.D
-        out = (self.rho / te**2 + D.mass_coef / te) * (p.M @ full) \
-            + (1.0 + D.stiffness_coef / te) * (p.K @ full)
+        out = (self.rho / te**2 + D.mass_coef / te) * (p.M @ full) + (
+            1.0 + D.stiffness_coef / te
+        ) * (p.K @ full)
         if D.matrix is not None:
             out = out + (D.matrix @ full) / te
         return out
@@ -191,23 +201,31 @@ class ELDSystem:
             P.sum_duplicates()
             P.sort_indices()
             ncol = P.shape[1]
-            keys = np.repeat(np.arange(P.shape[0], dtype=np.int64), np.diff(P.indptr)) * ncol \
+            keys = (
+                np.repeat(np.arange(P.shape[0], dtype=np.int64), np.diff(P.indptr)) * ncol
                 + P.indices
+            )
 
             def on_pattern(X):
                 X = sp.csr_matrix(X)
                 X.sum_duplicates()
-                xk = np.repeat(np.arange(X.shape[0], dtype=np.int64), np.diff(X.indptr)) * ncol \
+                xk = (
+                    np.repeat(np.arange(X.shape[0], dtype=np.int64), np.diff(X.indptr)) * ncol
                     + X.indices
+                )
                 out = np.zeros(keys.size)
                 out[np.searchsorted(keys, xk)] = X.data
                 return out
 
             border = self._pattern_border()
-            parts = {"M": on_pattern(self._system_of(p.M)), "K": on_pattern(self._system_of(p.K)),
-                     "E": on_pattern(self._system_of(E)),
-                     "B": None if border is None
-                     else on_pattern(self._system_of(sp.csr_matrix((n, n)), border))}
+            parts = {
+                "M": on_pattern(self._system_of(p.M)),
+                "K": on_pattern(self._system_of(p.K)),
+                "E": on_pattern(self._system_of(E)),
+                "B": None
+                if border is None
+                else on_pattern(self._system_of(sp.csr_matrix((n, n)), border)),
+            }
             self._parts = (P.indices.copy(), P.indptr.copy(), P.shape, parts)
         return self._parts
 
@@ -218,8 +236,11 @@ class ELDSystem:
         if v is None and self.variable_steps:
             indices, indptr, shape, parts = self._pattern_parts()
             D = self.D
-            data = ((self.rho / te**2 + D.mass_coef / te) * parts["M"]
-                    + (1.0 + D.stiffness_coef / te) * parts["K"] + (1.0 / te) * parts["E"])
+            data = (
+                (self.rho / te**2 + D.mass_coef / te) * parts["M"]
+                + (1.0 + D.stiffness_coef / te) * parts["K"]
+                + (1.0 / te) * parts["E"]
+            )
             if parts["B"] is not None:
                 data = data + parts["B"]
             return sp.csr_matrix((data, indices.copy(), indptr.copy()), shape=shape)
@@ -241,6 +262,7 @@ class ELDSystem:
     def assembler(self, te: float, v: np.ndarray | None):
         """A callable that assembles the matrix of key (te, v) for the solver (when its Krylov
         iterations stall) and remembers that key."""
+
         def assemble():
             self._ref = {"tau_eff": float(te), "v": None if v is None else v.copy()}
             return self._system_matrix(te, v)
@@ -278,13 +300,22 @@ class ELDSystem:
         """Refactor the matrix of the key ``ref`` (a checkpoint's) unless it is stored already."""
         if ref is None:
             return
-        same = (self._ref is not None and self._ref["tau_eff"] == ref["tau_eff"]
-                and ((self._ref["v"] is None and ref["v"] is None)
-                     or (self._ref["v"] is not None and ref["v"] is not None
-                         and np.array_equal(self._ref["v"], ref["v"]))))
+        same = (
+            self._ref is not None
+            and self._ref["tau_eff"] == ref["tau_eff"]
+            and (
+                (self._ref["v"] is None and ref["v"] is None)
+                or (
+                    self._ref["v"] is not None
+                    and ref["v"] is not None
+                    and np.array_equal(self._ref["v"], ref["v"])
+                )
+            )
+        )
         if not same:
-            self.factor(ref["tau_eff"], None if ref["v"] is None
-                        else np.asarray(ref["v"], dtype=float))
+            self.factor(
+                ref["tau_eff"], None if ref["v"] is None else np.asarray(ref["v"], dtype=float)
+            )
 
     # -- products and the energy of a state -----------------------------------------------------
     def fill_products(self, state: ELDState, names=None) -> None:
@@ -302,8 +333,9 @@ class ELDSystem:
         """Take over a state mapped from another mesh (:meth:`ELDState.mapped`): a new state
         with the cached products of this mesh's M and K, the energy and the G-form pieces of the
         ledger recomputed; the energy change is booked as ``transfer``."""
-        state = replace(state, products={}, fields=dict(state.fields),
-                        boundary=dict(state.boundary))
+        state = replace(
+            state, products={}, fields=dict(state.fields), boundary=dict(state.boundary)
+        )
         self.fill_products(state)
         p = self.problem
         f, pr = state.fields, state.products
@@ -333,13 +365,16 @@ class RegularizedSystem(ELDSystem):
         self._thin = None
         if isinstance(self.lifting, NodalLifting):
             # B^- g = S^T g: products with lifted data only touch the columns of Gamma_D
-            self._thin = (problem.space.symmetric_columns(problem.M, c.scalar_dofs),
-                          problem.space.symmetric_columns(problem.K, c.scalar_dofs))
+            self._thin = (
+                problem.space.symmetric_columns(problem.M, c.scalar_dofs),
+                problem.space.symmetric_columns(problem.K, c.scalar_dofs),
+            )
         super().__init__(problem, **kwargs)
 
     def _make_solver(self, near_nullspace, rtol):
-        return ReferenceSolver(self.kind, spd=True, near_nullspace=near_nullspace, rtol=rtol,
-                               times=self.times)
+        return ReferenceSolver(
+            self.kind, spd=True, near_nullspace=near_nullspace, rtol=rtol, times=self.times
+        )
 
     @property
     def size(self) -> int:
@@ -416,8 +451,13 @@ class OriginalSystem(ELDSystem):
         super().__init__(problem, **kwargs)
 
     def _make_solver(self, near_nullspace, rtol):
-        return ConstrainedSolver(self.problem.constraint, self.kind,
-                                 near_nullspace=near_nullspace, rtol=rtol, times=self.times)
+        return ConstrainedSolver(
+            self.problem.constraint,
+            self.kind,
+            near_nullspace=near_nullspace,
+            rtol=rtol,
+            times=self.times,
+        )
 
     def _store_first_matrix(self, te):
         # the lean original form keeps no matrix: its products with A(te) go through M and K
@@ -456,8 +496,10 @@ class OriginalSystem(ELDSystem):
             p = self.problem
             c = p.constraint
             c_mass, c_stiff = self.coefficients(te)
-            A_C = (c_mass * p.space.symmetric_columns(p.M, c.scalar_dofs)
-                   + c_stiff * p.space.symmetric_columns(p.K, c.scalar_dofs)).tocsr()
+            A_C = (
+                c_mass * p.space.symmetric_columns(p.M, c.scalar_dofs)
+                + c_stiff * p.space.symmetric_columns(p.K, c.scalar_dofs)
+            ).tocsr()
             A_IC = A_C[self.I]
             A_II = self._restricted(te)
             if self.kind == "amg":

@@ -247,8 +247,9 @@ class RegimeController(StepController):
     #: 1/100 gave 0.12-0.23 of uniform's solves at equal L-infinity error instead of 0.12-0.38.
     crossing_fraction = 0.01
 
-    def __init__(self, tol, tau0, tau_min=1e-12, tau_max=math.inf, theta: float = 0.5,
-                 grow: float = 4.0):
+    def __init__(
+        self, tol, tau0, tau_min=1e-12, tau_max=math.inf, theta: float = 0.5, grow: float = 4.0
+    ):
         super().__init__(tau0, tau_min, tau_max)
         self.tol = check_positive("tol", tol)
         self.theta = check_positive("theta", theta)
@@ -351,9 +352,10 @@ class RegimeController(StepController):
 
     def _extra_state(self) -> dict:
         return {
-            "models": {r: {"p": float(m["p"]), "history": [[float(e), float(t)]
-                                                           for e, t in m["history"]]}
-                       for r, m in self._models.items()},
+            "models": {
+                r: {"p": float(m["p"]), "history": [[float(e), float(t)] for e, t in m["history"]]}
+                for r, m in self._models.items()
+            },
             "last_regime": self._last_regime,
             "rejected": None if self._rejected is None else dict(self._rejected),
             "s": float(self._s),
@@ -361,13 +363,17 @@ class RegimeController(StepController):
         }
 
     def _restore_extra(self, data: dict) -> None:
-        self._models = {r: {"p": float(m["p"]), "history": [[float(e), float(t)]
-                                                            for e, t in m["history"]]}
-                        for r, m in data["models"].items()}
+        self._models = {
+            r: {"p": float(m["p"]), "history": [[float(e), float(t)] for e, t in m["history"]]}
+            for r, m in data["models"].items()
+        }
         self._last_regime = data["last_regime"]
         rej = data["rejected"]
-        self._rejected = None if rej is None else {"tau": float(rej["tau"]), "e": float(rej["e"]),
-                                                   "regime": str(rej["regime"])}
+        self._rejected = (
+            None
+            if rej is None
+            else {"tau": float(rej["tau"]), "e": float(rej["e"]), "regime": str(rej["regime"])}
+        )
         self._s = float(data["s"])
         self._onset_samples = [[float(a), float(b)] for a, b in data["onset_samples"]]
 
@@ -379,6 +385,7 @@ def _quotient(e: float, tau: float, p: float) -> float:
 
 
 # -- step control as the user asks for it: validated objects (Uniform, Adaptive: stepping) -------
+
 
 @dataclass(frozen=True)
 class Order2:
@@ -470,8 +477,11 @@ class Nested:
 
     def __post_init__(self):
         if isinstance(self.tols, (str, bytes)) or not hasattr(self.tols, "__len__"):
-            raise fail("tols", described(f"a {type(self.tols).__name__}"),
-                       "must be a sequence of decreasing tolerances")
+            raise fail(
+                "tols",
+                described(f"a {type(self.tols).__name__}"),
+                "must be a sequence of decreasing tolerances",
+            )
         object.__setattr__(self, "tols", tuple(check_decreasing("tols", self.tols)))
         _check_step_range(self)
 
@@ -485,8 +495,11 @@ def step_range(control) -> tuple[float, float, float]:
     tau = control.tau if control.tau is not None else DEFAULT_TAU
     tau_min = getattr(control, "tau_min", None)
     tau_max = getattr(control, "tau_max", None)
-    return (tau, DEFAULT_TAU_MIN if tau_min is None else tau_min,
-            DEFAULT_TAU_MAX if tau_max is None else tau_max)
+    return (
+        tau,
+        DEFAULT_TAU_MIN if tau_min is None else tau_min,
+        DEFAULT_TAU_MAX if tau_max is None else tau_max,
+    )
 
 
 def check_control(control) -> None:
@@ -494,12 +507,15 @@ def check_control(control) -> None:
     if isinstance(control, RUN_CONTROLS):
         return
     what = repr(control) if isinstance(control, str) else f"a {type(control).__name__}"
-    hint = ("; run_nested runs a Nested sequence of tolerances" if isinstance(control, Nested)
-            else "")
-    raise fail("control", described(what),
-               "must be a step-control object: Uniform(tau), Adaptive(tol) "
-               "(rothe.stepping.controllers), Order2(tol) or Regime(tol) (rothe.ris.controllers)"
-               + hint)
+    hint = (
+        "; run_nested runs a Nested sequence of tolerances" if isinstance(control, Nested) else ""
+    )
+    raise fail(
+        "control",
+        described(what),
+        "must be a step-control object: Uniform(tau), Adaptive(tol) "
+        "(rothe.stepping.controllers), Order2(tol) or Regime(tol) (rothe.ris.controllers)" + hint,
+    )
 
 
 def build_controller(control, grid=None) -> StepController:
@@ -512,6 +528,7 @@ def build_controller(control, grid=None) -> StepController:
     if isinstance(control, Order2):
         return Order2Controller(control.tol, tau, tau_min, tau_max, safety=control.safety)
     if isinstance(control, Regime):
-        return RegimeController(control.tol, tau, tau_min, tau_max, theta=control.theta,
-                                grow=control.grow)
+        return RegimeController(
+            control.tol, tau, tau_min, tau_max, theta=control.theta, grow=control.grow
+        )
     return AdaptiveController(control.tol, tau, tau_min, tau_max, grid=grid)

@@ -124,6 +124,7 @@ def errors_against_exact(s_num, t_num, z_num) -> dict:
 
 # -- Example 7.2 and its 3D analogue ----------------------------------------------------------
 
+
 def g_7_2(z):
     """g(z) = 48 (1 - z^2)^2, the double well of (7.2)."""
     return 48.0 * (1.0 - z * z) ** 2
@@ -139,9 +140,18 @@ def d2g_7_2(z):
     return 576.0 * z * z - 192.0
 
 
-def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, kappa: float = 1.0,
-                T: float = 1.0, dirichlet=None, pattern: str = "tensor",
-                name: str = "ris-2d") -> FERISProblem:
+def example_7_2(
+    n: int = 40,
+    mesh=None,
+    *,
+    amplitude: float = -200.0,
+    z0=0.0,
+    kappa: float = 1.0,
+    T: float = 1.0,
+    dirichlet=None,
+    pattern: str = "tensor",
+    name: str = "ris-2d",
+) -> FERISProblem:
     """Example 7.2 of Andreia & Meyer (2022), Sec. 7.2.
 
     Omega = (0,1)^2 (an n x n-cell grid, (n+1)^2 nodes; 1681 nodes for the default n = 40) or
@@ -153,9 +163,17 @@ def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, ka
     return _energy_7_2_on(mesh, 2, amplitude, z0, kappa, T, dirichlet, name)
 
 
-def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
-                   kappa: float = 1.0, T: float = 1.0, dirichlet=None,
-                   name: str = "ris-3d") -> FERISProblem:
+def example_7_2_3d(
+    n: int = 12,
+    mesh=None,
+    *,
+    amplitude: float = -200.0,
+    z0=0.0,
+    kappa: float = 1.0,
+    T: float = 1.0,
+    dirichlet=None,
+    name: str = "ris-3d",
+) -> FERISProblem:
     """The energy of Example 7.2 on the unit cube (n^3 cubes, 6 tetrahedra each) or a 3D mesh.
 
     Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
@@ -175,13 +193,23 @@ def _energy_7_2_on(mesh, dim, amplitude, z0, kappa, T, dirichlet, name) -> FERIS
     amplitude = check_real("amplitude", amplitude)
     if mesh_dim(mesh) != dim:
         cells = "triangles" if dim == 2 else "tetrahedra"
-        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-                  f"must be {dim}D ({cells}) for {name}")
+        raise bad(
+            "mesh",
+            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+            f"must be {dim}D ({cells}) for {name}",
+        )
     return FERISProblem(
-        mesh, g_7_2, dg_7_2, d2g_7_2,
+        mesh,
+        g_7_2,
+        dg_7_2,
+        d2g_7_2,
         load=lambda t: amplitude * t**3,
         load_rate=lambda t: 3.0 * amplitude * t**2,
-        kappa=kappa, z0=z0, T=T, dirichlet=dirichlet, name=name,
+        kappa=kappa,
+        z0=z0,
+        T=T,
+        dirichlet=dirichlet,
+        name=name,
     )
 
 
@@ -210,11 +238,21 @@ def front_load_density(amplitude: float, speed: float, width: float, corner=(0.0
     return density, rate
 
 
-def example_front(n: int = 32, mesh=None, *, amplitude: float = FRONT_DEFAULTS["amplitude"],
-                  speed: float = FRONT_DEFAULTS["speed"], width: float = FRONT_DEFAULTS["width"],
-                  coefficient: float = FRONT_DEFAULTS["coefficient"], kappa: float = 1.0,
-                  z0: float = 1.0, T: float = 1.0, dirichlet=("right",),
-                  pattern: str = "tensor", name: str = "ris-front") -> FERISProblem:
+def example_front(
+    n: int = 32,
+    mesh=None,
+    *,
+    amplitude: float = FRONT_DEFAULTS["amplitude"],
+    speed: float = FRONT_DEFAULTS["speed"],
+    width: float = FRONT_DEFAULTS["width"],
+    coefficient: float = FRONT_DEFAULTS["coefficient"],
+    kappa: float = 1.0,
+    z0: float = 1.0,
+    T: float = 1.0,
+    dirichlet=("right",),
+    pattern: str = "tensor",
+    name: str = "ris-front",
+) -> FERISProblem:
     """A phase front crossing the unit square: the double well of (7.2) under a growing load.
 
     Not in the paper; built for space adaptivity. Omega = (0,1)^2, g(z) = 48 (1 - z^2)^2,
@@ -229,15 +267,30 @@ def example_front(n: int = 32, mesh=None, *, amplitude: float = FRONT_DEFAULTS["
     everywhere; an adaptive mesh only along the front, coarsening behind it.
     """
     coefficient = check_positive("coefficient", coefficient)
-    density, rate = front_load_density(check_real("amplitude", amplitude),
-                                       check_positive("speed", speed),
-                                       check_positive("width", width))
+    density, rate = front_load_density(
+        check_real("amplitude", amplitude),
+        check_positive("speed", speed),
+        check_positive("width", width),
+    )
     mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
     if mesh_dim(mesh) != 2:
-        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-                  "must be 2D (triangles) for ris-front")
+        raise bad(
+            "mesh",
+            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+            "must be 2D (triangles) for ris-front",
+        )
     return FERISProblem(
-        mesh, g_7_2, dg_7_2, d2g_7_2, load=None, load_density=density,
-        load_density_rate=rate, kappa=kappa, coefficient=coefficient, z0=z0, T=T,
-        dirichlet=None if dirichlet is None else list(dirichlet), name=name,
+        mesh,
+        g_7_2,
+        dg_7_2,
+        d2g_7_2,
+        load=None,
+        load_density=density,
+        load_density_rate=rate,
+        kappa=kappa,
+        coefficient=coefficient,
+        z0=z0,
+        T=T,
+        dirichlet=None if dirichlet is None else list(dirichlet),
+        name=name,
     )

@@ -55,8 +55,10 @@ _EPS = np.finfo(float).eps
 
 #: what the three failures of an inner solve most likely mean (one text for the two that say
 #: the solver cannot reach stationarity)
-_NOT_STATIONARY = ("the inner solver cannot reach stationarity: dF or d2F probably does not "
-                   "belong to F (check_derivatives=True compares them with finite differences)")
+_NOT_STATIONARY = (
+    "the inner solver cannot reach stationarity: dF or d2F probably does not "
+    "belong to F (check_derivatives=True compares them with finite differences)"
+)
 
 
 class RISCode(ResultCode):
@@ -73,8 +75,13 @@ class RISCode(ResultCode):
     MAX_ITERATIONS = "max_iterations", _NOT_STATIONARY
     STALLED = "stalled", _NOT_STATIONARY
     NONFINITE = "nonfinite", "F, dF, d2F or the load gave a non-finite value (overflow or NaN)"
-    DATA_BEYOND_T = "data_beyond_T", ("the load cannot be evaluated beyond T, where the attempt "
-                                      "overshot: the step is shortened to land on T")
+    DATA_BEYOND_T = (
+        "data_beyond_T",
+        (
+            "the load cannot be evaluated beyond T, where the attempt "
+            "overshot: the step is shortened to land on T"
+        ),
+    )
 
     @property
     def successful(self) -> bool:
@@ -560,8 +567,9 @@ class BallStepSolver:
         self._A_reduced = (active.copy(), A_AA)
         return A_AA
 
-    def _line_search(self, st: InnerState, cand, hess_F, sphere: bool = False,
-                     full_only: bool = False) -> bool:
+    def _line_search(
+        self, st: InnerState, cand, hess_F, sphere: bool = False, full_only: bool = False
+    ) -> bool:
         """Line search along d -> cand (retracting onto the sphere when it is active)."""
         p = self.p
         d = st.d

@@ -84,14 +84,18 @@ class RISResult:
         return self.trajectory.meshes
 
 
-def initial_trajectory(problem: RISProblem, meta: dict | None = None,
-                       adaptivity=None) -> Trajectory:
+def initial_trajectory(
+    problem: RISProblem, meta: dict | None = None, adaptivity=None
+) -> Trajectory:
     """The trajectory with the initial state. With ``adaptivity`` (the stepper's
     :class:`~rothe.ris.adapt.RISAdaptivity`) z is a ragged series, every state records its mesh
     id and dofs, and the meshes are kept."""
     traj = Trajectory(meta=meta)
     traj.append(
-        s=0.0, t=0.0, z=problem.full_state(problem.z0), z_step=0,
+        s=0.0,
+        t=0.0,
+        z=problem.full_state(problem.z0),
+        z_step=0,
         energy=problem.energy(0.0, problem.z0),
     )
     if adaptivity is not None:
@@ -148,12 +152,27 @@ def _failure_hint(code) -> str | None:
         return None
 
 
-def _evolve(stepper: RISStepper, controller, traj: Trajectory, state: RISState, *, tau_min,
-            progress, checkpointer) -> RISState:
+def _evolve(
+    stepper: RISStepper,
+    controller,
+    traj: Trajectory,
+    state: RISState,
+    *,
+    tau_min,
+    progress,
+    checkpointer,
+) -> RISState:
     """The evolve loop, then the run's records in ``traj.meta`` (also when it stops)."""
     try:
-        state = evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress,
-                       checkpointer=checkpointer)
+        state = evolve(
+            stepper,
+            controller,
+            state,
+            traj,
+            tau_min=tau_min,
+            progress=progress,
+            checkpointer=checkpointer,
+        )
     except RunInterrupted as exc:
         if exc.state is not None:
             _keep_last_z(stepper, traj, exc.state)
@@ -177,15 +196,24 @@ def _evolve(stepper: RISStepper, controller, traj: Trajectory, state: RISState, 
 
 def _where(traj: Trajectory, state: RISState) -> dict:
     st = traj.stats
-    return {"accepted_steps": st.accepted_steps, "rejected_steps": st.rejected_steps,
-            "s": float(state.s), "t": float(state.t)}
+    return {
+        "accepted_steps": st.accepted_steps,
+        "rejected_steps": st.rejected_steps,
+        "s": float(state.s),
+        "t": float(state.t),
+    }
 
 
 def _control_arguments(control, name: str) -> dict:
     """What identifies a run's step control in its checkpoint: name, tol, step range, knobs."""
     tau, tau_min, tau_max = step_range(control)
-    out = {"control": name, "tol": getattr(control, "tol", None), "tau": tau,
-           "tau_min": tau_min, "tau_max": tau_max}
+    out = {
+        "control": name,
+        "tol": getattr(control, "tol", None),
+        "tau": tau,
+        "tau_min": tau_min,
+        "tau_max": tau_max,
+    }
     if isinstance(control, Order2):
         out["safety"] = control.safety
     if isinstance(control, Regime):
@@ -201,8 +229,15 @@ def _run_info(problem: RISProblem, name: str, tol, tau: float, adapt) -> dict:
     return info
 
 
-def _start(problem: RISProblem, stepper: RISStepper, controller, info: dict, restored,
-           index: int, checkpointer):
+def _start(
+    problem: RISProblem,
+    stepper: RISStepper,
+    controller,
+    info: dict,
+    restored,
+    index: int,
+    checkpointer,
+):
     """The trajectory and the state of run ``index``: restored from the checkpoint or new."""
     if restored is not None:
         traj = restored.trajectory(index)
@@ -295,22 +330,30 @@ def run_ris(
     """
     controller = build_controller(control)
     tau, tau_min, _ = step_range(control)
-    stepper = RISStepper(problem, inner, simpson_subintervals, S=S, keep_every=keep_every,
-                         adapt=adapt)
+    stepper = RISStepper(
+        problem, inner, simpson_subintervals, S=S, keep_every=keep_every, adapt=adapt
+    )
     info = _run_info(problem, controller.name, getattr(control, "tol", None), tau, adapt)
     info.update(meta or {})
     extra = {} if adapt is None else {"adapt": adapt.describe()}
     arguments = run_arguments(
-        **_control_arguments(control, controller.name), S=S, inner=asdict(inner or InnerOptions()),
-        simpson_subintervals=simpson_subintervals, keep_every=keep_every, **extra)
+        **_control_arguments(control, controller.name),
+        S=S,
+        inner=asdict(inner or InnerOptions()),
+        simpson_subintervals=simpson_subintervals,
+        keep_every=keep_every,
+        **extra,
+    )
     with RunCheckpointing("run_ris", problem, arguments, checkpoint, resume) as rc:
         cp = rc.checkpointer
         traj, state = _start(problem, stepper, controller, info, rc.restored, 0, cp)
-        state = _evolve(stepper, controller, traj, state, tau_min=tau_min, progress=progress,
-                        checkpointer=cp)
+        state = _evolve(
+            stepper, controller, traj, state, tau_min=tau_min, progress=progress, checkpointer=cp
+        )
         if cp is not None:
-            cp.save_or_warn(stepper, controller, state, status="completed",
-                            where=_where(traj, state))
+            cp.save_or_warn(
+                stepper, controller, state, status="completed", where=_where(traj, state)
+            )
     return RISResult(traj, state, control, traj.meta["landing"])
 
 
@@ -353,15 +396,25 @@ def run_nested(
     """
     if not isinstance(control, Nested):
         what = repr(control) if isinstance(control, str) else f"a {type(control).__name__}"
-        raise fail("control", described(what), "must be Nested(tols) (rothe.ris.controllers); "
-                                               "the control of a single run goes to run_ris")
+        raise fail(
+            "control",
+            described(what),
+            "must be Nested(tols) (rothe.ris.controllers); "
+            "the control of a single run goes to run_ris",
+        )
     tols = list(control.tols)
     tau, tau_min, tau_max = step_range(control)
     extra = {} if adapt is None else {"adapt": adapt.describe()}
     arguments = run_arguments(
-        tols=tols, tau=tau, tau_min=tau_min, tau_max=tau_max,
-        inner=asdict(inner or InnerOptions()), simpson_subintervals=simpson_subintervals,
-        keep_every=keep_every, **extra)
+        tols=tols,
+        tau=tau,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        inner=asdict(inner or InnerOptions()),
+        simpson_subintervals=simpson_subintervals,
+        keep_every=keep_every,
+        **extra,
+    )
     with RunCheckpointing("run_nested", problem, arguments, checkpoint, resume) as rc:
         cp, restored = rc.checkpointer, rc.restored
         results: list[RISResult] = []
@@ -374,41 +427,61 @@ def run_nested(
             grid = np.union1d(grid, r.trajectory["s"][1:])
         for i in range(start, len(tols)):
             tol = tols[i]
-            controller = AdaptiveController(tol, tau, tau_min, tau_max,
-                                            grid=grid if i > 0 else None)
-            stepper = RISStepper(problem, inner, simpson_subintervals, keep_every=keep_every,
-                                 adapt=adapt)
+            controller = AdaptiveController(
+                tol, tau, tau_min, tau_max, grid=grid if i > 0 else None
+            )
+            stepper = RISStepper(
+                problem, inner, simpson_subintervals, keep_every=keep_every, adapt=adapt
+            )
             info = _run_info(problem, controller.name, tol, tau, adapt)
             info["nested_index"] = i
             if cp is not None:
                 cp.context = _nested_context(i, results, adapt)
-            traj, state = _start(problem, stepper, controller, info,
-                                 restored if i == start else None, i, cp)
+            traj, state = _start(
+                problem, stepper, controller, info, restored if i == start else None, i, cp
+            )
             try:
-                state = _evolve(stepper, controller, traj, state, tau_min=tau_min,
-                                progress=progress, checkpointer=cp)
+                state = _evolve(
+                    stepper,
+                    controller,
+                    traj,
+                    state,
+                    tau_min=tau_min,
+                    progress=progress,
+                    checkpointer=cp,
+                )
             except RunFailed as exc:
                 exc.where["nested_tol"] = tol
                 raise
-            run_control = Adaptive(tol, tau=control.tau, tau_min=control.tau_min,
-                                   tau_max=control.tau_max)
+            run_control = Adaptive(
+                tol, tau=control.tau, tau_min=control.tau_min, tau_max=control.tau_max
+            )
             results.append(RISResult(traj, state, run_control, traj.meta["landing"]))
             grid = np.union1d(grid, traj["s"][1:])
         if cp is not None:
             cp.context = _nested_context(len(tols), results, adapt)
             last = results[-1].trajectory
-            cp.save_or_warn(status="completed", where={"accepted_steps": last.stats.accepted_steps,
-                                                       "s": float(last["s"][-1]),
-                                                       "t": float(last["t"][-1])})
+            cp.save_or_warn(
+                status="completed",
+                where={
+                    "accepted_steps": last.stats.accepted_steps,
+                    "s": float(last["s"][-1]),
+                    "t": float(last["t"][-1]),
+                },
+            )
     return results
 
 
 def _nested_context(index: int, results: list[RISResult], adapt) -> dict:
     """The driver's part of a nested checkpoint: the run under way, the final states of the
     finished runs and (with ``adapt``) their meshes."""
-    context = {"nested_index": index,
-               "states": [{"s": float(r.state.s), "t": float(r.state.t), "z": r.state.z,
-                           "k": int(r.state.k)} for r in results]}
+    context = {
+        "nested_index": index,
+        "states": [
+            {"s": float(r.state.s), "t": float(r.state.t), "z": r.state.z, "k": int(r.state.k)}
+            for r in results
+        ],
+    }
     if adapt is not None:
         context["series"] = [r.meshes.checkpoint_state() for r in results]
     return context
@@ -425,9 +498,14 @@ def _restored_runs(restored, count: int, control: Nested, adapt, checkpointer) -
         if checkpointer is not None:
             checkpointer.register(traj)
         data = context["states"][i]
-        state = RISState(s=float(data["s"]), t=float(data["t"]),
-                         z=np.array(data["z"], dtype=float), k=int(data["k"]))
-        run_control = Adaptive(control.tols[i], tau=control.tau, tau_min=control.tau_min,
-                               tau_max=control.tau_max)
+        state = RISState(
+            s=float(data["s"]),
+            t=float(data["t"]),
+            z=np.array(data["z"], dtype=float),
+            k=int(data["k"]),
+        )
+        run_control = Adaptive(
+            control.tols[i], tau=control.tau, tau_min=control.tau_min, tau_max=control.tau_max
+        )
         out.append(RISResult(traj, state, run_control, traj.meta["landing"]))
     return out

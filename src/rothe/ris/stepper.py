@@ -115,26 +115,35 @@ class StagnationMonitor:
         if remaining > 0 and gained < self.min_rate * remaining:
             if self.failed:
                 codes = ", ".join(f"{k} {v}" for k, v in sorted(self.codes.items()))
-                cause = (f"{self.failed} of them with a failed inner solve ({codes}): dF or d2F "
-                         "probably does not belong to F (check_derivatives=True compares them "
-                         "with finite differences), or F is not smooth enough for the Newton "
-                         "solver")
+                cause = (
+                    f"{self.failed} of them with a failed inner solve ({codes}): dF or d2F "
+                    "probably does not belong to F (check_derivatives=True compares them "
+                    "with finite differences), or F is not smooth enough for the Newton "
+                    "solver"
+                )
             else:
-                cause = ("all solves converged: the step control keeps the steps tiny; check "
-                         "dF against F and the coercivity of the energy")
+                cause = (
+                    "all solves converged: the step control keeps the steps tiny; check "
+                    "dF against F and the coercivity of the energy"
+                )
             raise RunFailed(
                 f"no progress: {self.window} step attempts advanced s by {gained:.3g} at "
                 f"t = {state.t:.6g} (T = {T:g}; at this rate the run needs more than "
                 f"{self.window / self.min_rate:.0e} attempts); {cause}",
-                where=dict(where, stagnation_window=self.window, s_gained=gained,
-                           failed_solves=self.failed),
+                where=dict(
+                    where, stagnation_window=self.window, s_gained=gained, failed_solves=self.failed
+                ),
             )
         self.attempts, self.s_start, self.failed, self.codes = 0, state.s, 0, {}
 
     def checkpoint_state(self) -> dict:
         """The window: attempts, s at its start, failed solves and their codes."""
-        return {"attempts": self.attempts, "s_start": self.s_start, "failed": self.failed,
-                "codes": dict(self.codes)}
+        return {
+            "attempts": self.attempts,
+            "s_start": self.s_start,
+            "failed": self.failed,
+            "codes": dict(self.codes),
+        }
 
     def restore_state(self, data: dict) -> None:
         """Put back what :meth:`checkpoint_state` returned."""
@@ -280,18 +289,31 @@ class RISStepper:
                 where.update(tau=tau, data_error=str(exc))
                 raise RunFailed(
                     f"{exc} (at step {where['step']}, s = {state.s:.6g}, t = {state.t:.6g}, "
-                    f"tau = {tau:.3g})", where=where) from None
+                    f"tau = {tau:.3g})",
+                    where=where,
+                ) from None
         self.monitor.observe(state, result, self.problem.T, self.where(state, result))
         return result
 
-    def _failed_attempt(self, state: RISState, tau: float, s_end,
-                        code: RISCode) -> RISStepResult:
+    def _failed_attempt(self, state: RISState, tau: float, s_end, code: RISCode) -> RISStepResult:
         nan = math.nan
         return RISStepResult(
-            state=RISState(s=s_end if s_end is not None else state.s + tau, t=nan, z=state.z,
-                           k=state.k + 1),
-            tau=tau, converged=False, code=code, lam=nan, kkt=nan, kkt_tol=nan, I1=nan,
-            I2=nan, I1_err=nan, I2_err=nan, J_start=nan, J_final=nan, energy=nan,
+            state=RISState(
+                s=s_end if s_end is not None else state.s + tau, t=nan, z=state.z, k=state.k + 1
+            ),
+            tau=tau,
+            converged=False,
+            code=code,
+            lam=nan,
+            kkt=nan,
+            kkt_tol=nan,
+            I1=nan,
+            I2=nan,
+            I1_err=nan,
+            I2_err=nan,
+            J_start=nan,
+            J_final=nan,
+            energy=nan,
             increment=np.zeros_like(state.z),
         )
 
@@ -355,8 +377,16 @@ class RISStepper:
         if adaptivity is None or not adaptivity.options.due(state.k) or self.finished(state):
             return state
         t_prev, z_prev = self._start
-        out = adaptivity.adapt(self.problem, t_prev, z_prev, state.z, result.lam,
-                               result.increment, state.t, result.energy)
+        out = adaptivity.adapt(
+            self.problem,
+            t_prev,
+            z_prev,
+            state.z,
+            result.lam,
+            result.increment,
+            state.t,
+            result.energy,
+        )
         self._adapted = out
         if not out.changed:
             return state
@@ -428,12 +458,22 @@ class RISStepper:
         previous = None
         if self._previous is not None:
             z_prev, d_prev, tau_prev = self._previous
-            previous = {"increment": d_prev, "tau": float(tau_prev),
-                        "of_this_state": z_prev is state.z}
-        data = {"stepper": "ris", "s": float(state.s), "t": float(state.t), "z": state.z,
-                "k": int(state.k), "last_tau": float(self._last_tau), "previous": previous,
-                "linear": self.solver.linear.checkpoint_state(),
-                "monitor": self.monitor.checkpoint_state()}
+            previous = {
+                "increment": d_prev,
+                "tau": float(tau_prev),
+                "of_this_state": z_prev is state.z,
+            }
+        data = {
+            "stepper": "ris",
+            "s": float(state.s),
+            "t": float(state.t),
+            "z": state.z,
+            "k": int(state.k),
+            "last_tau": float(self._last_tau),
+            "previous": previous,
+            "linear": self.solver.linear.checkpoint_state(),
+            "monitor": self.monitor.checkpoint_state(),
+        }
         if self.adaptivity is not None:  # the mesh hierarchy and the series of meshes so far
             data["adapt"] = self.adaptivity.checkpoint_state()
         return data
@@ -441,23 +481,33 @@ class RISStepper:
     def restore_state(self, data: dict) -> RISState:
         """The state of :meth:`checkpoint_state`, with the stepper's own parts put back."""
         if data.get("stepper") != "ris":
-            raise ValueError(f"restore_state: a {data.get('stepper')!r} stepper's state given to "
-                             "a RIS stepper")
+            raise ValueError(
+                f"restore_state: a {data.get('stepper')!r} stepper's state given to a RIS stepper"
+            )
         if self.adaptivity is not None:
             if data.get("adapt") is None:
-                raise ValueError("restore_state: a fixed-mesh state given to a RIS stepper with "
-                                 "meshes that change between steps")
+                raise ValueError(
+                    "restore_state: a fixed-mesh state given to a RIS stepper with "
+                    "meshes that change between steps"
+                )
             self.problem = self.adaptivity.restore_state(data["adapt"])
             self.solver = BallStepSolver(self.problem, self._inner)
-        state = RISState(s=float(data["s"]), t=float(data["t"]),
-                         z=np.array(data["z"], dtype=float), k=int(data["k"]))
+        state = RISState(
+            s=float(data["s"]),
+            t=float(data["t"]),
+            z=np.array(data["z"], dtype=float),
+            k=int(data["k"]),
+        )
         self._last_tau = float(data["last_tau"])
         prev = data["previous"]
         if prev is None:
             self._previous = None
         else:  # the hint applies only to the state it was recorded with (see step)
-            self._previous = (state.z if prev["of_this_state"] else None,
-                              np.array(prev["increment"], dtype=float), float(prev["tau"]))
+            self._previous = (
+                state.z if prev["of_this_state"] else None,
+                np.array(prev["increment"], dtype=float),
+                float(prev["tau"]),
+            )
         self.solver.linear.restore_state(data["linear"])
         if data.get("monitor") is not None:  # absent in checkpoints of earlier versions
             self.monitor.restore_state(data["monitor"])

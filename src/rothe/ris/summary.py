@@ -81,9 +81,21 @@ def ris_summary(traj: Trajectory, example: str, extra: dict | None = None) -> di
 # -- work against residual: the ratios of compare ris-2d (issue 12) ---------------------------
 
 #: the keys of a row of compare.json, in this order
-COMPARE_KEYS = ("control", "tol", "tau", "accepted", "rejected", "solves", "newton", "seconds",
-                "local_residual", "global_residual", "ratio_steps", "ratio_solves",
-                "ratio_seconds")
+COMPARE_KEYS = (
+    "control",
+    "tol",
+    "tau",
+    "accepted",
+    "rejected",
+    "solves",
+    "newton",
+    "seconds",
+    "local_residual",
+    "global_residual",
+    "ratio_steps",
+    "ratio_solves",
+    "ratio_seconds",
+)
 
 
 def equidistribution_bound(residuals) -> float | None:
@@ -110,8 +122,11 @@ def equidistribution_bound(residuals) -> float | None:
 
 
 #: work measures of a run (key of its summary row) and the ratio they enter in compare.json
-WORK_RATIOS = (("accepted_steps", "ratio_steps"), ("inner_solves", "ratio_solves"),
-               ("wall_time_s", "ratio_seconds"))
+WORK_RATIOS = (
+    ("accepted_steps", "ratio_steps"),
+    ("inner_solves", "ratio_solves"),
+    ("wall_time_s", "ratio_seconds"),
+)
 
 
 def uniform_work_interpolant(rows, work: str, key: str = "sum_residual"):
@@ -120,9 +135,14 @@ def uniform_work_interpolant(rows, work: str, key: str = "sum_residual"):
 
     Returns a callable residual -> work or None, or None if fewer than two uniform runs completed.
     """
-    u = sorted((r[key], r[work]) for r in rows
-               if r["control"] == "uniform" and r.get("status", "completed") == "completed"
-               and r.get(key, 0) > 0 and r.get(work, 0) > 0)
+    u = sorted(
+        (r[key], r[work])
+        for r in rows
+        if r["control"] == "uniform"
+        and r.get("status", "completed") == "completed"
+        and r.get(key, 0) > 0
+        and r.get(work, 0) > 0
+    )
     if len(u) < 2:
         return None
     x = np.log([g for g, _ in u])
@@ -168,8 +188,12 @@ def compare_rows(rows) -> list[dict]:
         for work, ratio in WORK_RATIOS:
             fn = interp[ratio]
             base = None
-            if (not uniform and fn is not None and r.get("status", "completed") == "completed"
-                    and work in r):
+            if (
+                not uniform
+                and fn is not None
+                and r.get("status", "completed") == "completed"
+                and work in r
+            ):
                 base = fn(r["sum_residual"])
             row[ratio] = None if base is None else r[work] / base
         assert tuple(row) == COMPARE_KEYS
@@ -181,8 +205,13 @@ def finest_uniform_bound(rows) -> tuple[float, float] | None:
     """(tau, bound) of the completed uniform run with the smallest step, or None.
 
     The rows are those of a comparison whose uniform rows hold ``equidistribution_bound``."""
-    u = [r for r in rows if r["control"] == "uniform" and r["status"] == "completed"
-         and r.get("equidistribution_bound") is not None]
+    u = [
+        r
+        for r in rows
+        if r["control"] == "uniform"
+        and r["status"] == "completed"
+        and r.get("equidistribution_bound") is not None
+    ]
     if not u:
         return None
     r = min(u, key=lambda r: r["tau0"])
@@ -192,8 +221,9 @@ def finest_uniform_bound(rows) -> tuple[float, float] | None:
 def uniform_work_at_error(rows, key="error_linf"):
     """Fit log(inner solves) = a + b log(error) over the completed uniform rows; returns a
     callable (None with fewer than two such rows)."""
-    u = [r for r in rows if r["control"] == "uniform"
-         and r.get("status", "completed") == "completed"]
+    u = [
+        r for r in rows if r["control"] == "uniform" and r.get("status", "completed") == "completed"
+    ]
     if len(u) < 2:
         return None
     x = np.log([r[key] for r in u])
@@ -203,6 +233,7 @@ def uniform_work_at_error(rows, key="error_linf"):
 
 
 # -- which stationary branch a run followed -----------------------------------------------------
+
 
 def _zero_dt_runs(traj, rel: float):
     """(starts, ends, tiny) of the maximal runs of accepted steps with t_k - t_{k-1} <= rel tau_k.
@@ -247,8 +278,7 @@ def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
         before = np.nonzero(~tiny[:a])[0]
         if before.size and s[b] - s[a] <= tau[before[-1]] * (1 + 1e-9):
             continue
-        out.append({"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]),
-                    "steps": steps})
+        out.append({"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]), "steps": steps})
     return out
 
 
@@ -282,8 +312,9 @@ def nodal_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     d = points.shape[1]
     edges = points[cells[:, 1:]] - points[cells[:, :1]]  # (nc, d, d)
     vol = np.abs(np.linalg.det(edges)) / math.factorial(d)
-    return np.bincount(cells.ravel(), weights=np.repeat(vol / (d + 1), d + 1),
-                       minlength=len(points))
+    return np.bincount(
+        cells.ravel(), weights=np.repeat(vol / (d + 1), d + 1), minlength=len(points)
+    )
 
 
 def describe_branch(problem: FERISProblem, traj) -> dict:
@@ -312,7 +343,9 @@ def describe_branch(problem: FERISProblem, traj) -> dict:
         "n_viscous_jumps": len(jumps),
         "viscous_jumps": jumps,
         "catch_up_steps": catch,
-        "branch": (f"{sign}, z in [{zmin:.4g}, {zmax:.4g}], mean {mean:.4g}, energy {energy:.6g}, "
-                   f"{len(jumps)} viscous jump(s) at t = {jt}"
-                   + (f" (+{catch} catch-up step(s) with t' = 0)" if catch else "")),
+        "branch": (
+            f"{sign}, z in [{zmin:.4g}, {zmax:.4g}], mean {mean:.4g}, energy {energy:.6g}, "
+            f"{len(jumps)} viscous jump(s) at t = {jt}"
+            + (f" (+{catch} catch-up step(s) with t' = 0)" if catch else "")
+        ),
     }

@@ -24,11 +24,12 @@ import numpy as np
 from ..mesh import barycentric_gradients
 
 #: local facets (as vertex lists) of a cell in scikit-fem order
-SKFEM_FACETS = {2: np.array([[0, 1], [1, 2], [0, 2]]),
-                3: np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])}
+SKFEM_FACETS = {
+    2: np.array([[0, 1], [1, 2], [0, 2]]),
+    3: np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]),
+}
 #: local edges of a cell in scikit-fem order (for triangles the edges are the facets)
-SKFEM_EDGES = {2: SKFEM_FACETS[2],
-               3: np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])}
+SKFEM_EDGES = {2: SKFEM_FACETS[2], 3: np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])}
 
 
 def opposite_faces(d: int) -> np.ndarray:
@@ -95,8 +96,9 @@ def edge_structures(t: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarra
     return entities(t, SKFEM_EDGES[d], n_points)
 
 
-def lagrange_dofs(t: np.ndarray, n_points: int, degree: int,
-                  t2e: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+def lagrange_dofs(
+    t: np.ndarray, n_points: int, degree: int, t2e: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
     """(element_dofs (n_local, nc), n_dofs) of scalar P1/P2 in scikit-fem's numbering."""
     if degree == 1:
         return np.asarray(t, dtype=np.int64), int(n_points)
@@ -142,13 +144,17 @@ def lagrange_gradients(lam: np.ndarray, glam: np.ndarray, degree: int) -> np.nda
         return np.broadcast_to(g, glam.shape[:2] + lam.shape[1:])
     d = lam.shape[0] - 1
     vert = (4.0 * lam - 1.0)[:, None] * g
-    edge = np.stack([4.0 * (lam[a][None] * g[b] + lam[b][None] * g[a])
-                     for a, b in SKFEM_EDGES[d]])
+    edge = np.stack([4.0 * (lam[a][None] * g[b] + lam[b][None] * g[a]) for a, b in SKFEM_EDGES[d]])
     return np.concatenate([vert, edge], axis=0)
 
 
-def barycentric(points: np.ndarray, p: np.ndarray, t: np.ndarray, cells: np.ndarray,
-                glam: np.ndarray | None = None) -> np.ndarray:
+def barycentric(
+    points: np.ndarray,
+    p: np.ndarray,
+    t: np.ndarray,
+    cells: np.ndarray,
+    glam: np.ndarray | None = None,
+) -> np.ndarray:
     """Barycentric coordinates (d+1, k) of points (d, k) in cells[i] (indices into t)."""
     if glam is None:
         glam, _ = barycentric_gradients(p, t[:, cells])
@@ -219,5 +225,6 @@ class FacetTopology:
         self.boundary_cells = cell_of[first[bnd]]
         self.boundary_local = local_of[first[bnd]]
         if np.any(counts > 2):
-            raise ValueError("mesh: a facet is shared by more than two cells (not a manifold "
-                             "simplicial mesh)")
+            raise ValueError(
+                "mesh: a facet is shared by more than two cells (not a manifold simplicial mesh)"
+            )
