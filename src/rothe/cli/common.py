@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RotheInputError, check_int, check_positive, fail
+from ..io.atomic import TMP_PREFIX, atomic_write_text, check_writable
 from ..parallel.executor import INSTALL_HINT, Executor, dask_available
 from ..stepping.progress import ProgressOptions
 
@@ -39,7 +40,6 @@ def add_output_options(parser, name: str) -> None:
 
 def output_dir(args, name: str) -> Path:
     """The output directory, created and checked for writability (errors name --out)."""
-    from ..io.atomic import check_writable
 
     out = Path(args.out) if args.out else Path("rothe-out") / name
     return check_writable(out, "--out")
@@ -116,7 +116,6 @@ def _jsonable(value):
 def write_summary(out: Path, summary: dict) -> Path:
     """Write ``out/summary.json`` atomically. In a run's staging directory (see
     :mod:`rothe.io.outputs`) the summary also lists the files of the result (``files``)."""
-    from ..io.atomic import TMP_PREFIX, atomic_write_text
 
     out = Path(out)
     if out.name.startswith(TMP_PREFIX):
@@ -129,7 +128,6 @@ def write_summary(out: Path, summary: dict) -> Path:
 
 def write_table(out: Path, text: str, name: str = "table.txt") -> Path:
     """Write a table (text) atomically."""
-    from ..io.atomic import atomic_write_text
 
     return atomic_write_text(Path(out) / name, text)
 

@@ -14,13 +14,17 @@ file, exit status 1, the earlier files unchanged.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from pathlib import Path
 
 from .. import __version__
 from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
+from ..io.checkpoint import CheckpointError, load_checkpoint
 from . import registry
+from .common import parse_float
+from .session import _run_dir
 
 
 class _Parser(argparse.ArgumentParser):
@@ -89,7 +93,6 @@ class Resume:
 
     @staticmethod
     def configure(parser) -> None:
-        from .common import parse_float
 
         parser.add_argument(
             "dir", metavar="DIR", help="the run's output directory (holding checkpoint/)"
@@ -112,8 +115,6 @@ class Resume:
         )
 
     def execute(self, args) -> int:
-        from ..io.checkpoint import CheckpointError, load_checkpoint
-        from .session import _run_dir
 
         ckpt = load_checkpoint(args.dir, header_only=True)
         ckpt.require_resumable()
@@ -244,7 +245,6 @@ def _one_line_warning(message, category, filename, lineno, line=None):
 def _stdout_to_devnull() -> None:
     """After a broken pipe: send what Python still flushes at exit to /dev/null (else it prints
     'Exception ignored ... BrokenPipeError')."""
-    import os
 
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)

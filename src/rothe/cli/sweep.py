@@ -29,9 +29,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..cli.common import _jsonable as conv
 from ..errors import RotheInputError, RunInterrupted, fail
+from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
 from ..parallel.executor import Executor
 from ..parallel.tasks import TaskResult
+from ..plotting.sweep import plot_sweep
 from ..stepping.interrupt import signal_name
 from . import registry
 from .tasks import cli_task
@@ -216,7 +219,6 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
     run's session refuses a checkpoint made with other options (status ``error``, the message
     says which). Runs without a checkpoint, or whose checkpoint is of a failed run, run anew.
     Returns what happens to each run: ``resume`` | ``run``."""
-    from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
 
     what = {}
     for run in runs:
@@ -264,7 +266,6 @@ def _same(a, b) -> bool:
 
 
 def _jsonable(value):
-    from ..cli.common import _jsonable as conv
 
     return conv(value)
 
@@ -453,8 +454,6 @@ def run_sweep(
         cols = table_columns(rows)
         missing = [c for c in xy if c not in cols]
         if not missing:
-            from ..plotting.sweep import plot_sweep
-
             x, y = xy
             group = [p.name for p in resolved if p.name != x]
             if x not in {p.name for p in resolved} and group:

@@ -15,6 +15,7 @@ import sys
 from ..errors import RotheInputError
 from .common import add_parallel_options, executor_from_args
 from .registry import command
+from .sweep import format_rows, parse_plot, run_sweep
 
 #: the sweep's own options; everything else after the example is passed to every run
 _VALUED = ("--param", "--out", "--plot", "--workers", "--scheduler")
@@ -105,7 +106,6 @@ class SweepRunCommand:
         self._parser = parser
 
     def execute(self, args) -> int:
-        from .sweep import format_rows, parse_plot, run_sweep
 
         own_tokens, fixed = split_sweep_args(list(args.run_options))
         if "-h" in own_tokens or "--help" in own_tokens:

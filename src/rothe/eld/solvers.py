@@ -29,6 +29,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import fail
+from ..fem.linear import reproducible_random
 from ..stepping.evolve import single_threaded_blas
 from ..timing import PhaseTimes
 
@@ -138,9 +139,7 @@ class ReferenceSolver:
             self._prec = lu.solve
             self._ml = None
         else:
-            import pyamg
-
-            from ..fem.linear import reproducible_random
+            import pyamg  # heavy: imported when first needed (start-up time)
 
             # BSR (d x d blocks) is kept: pyamg then aggregates nodes, not single components
             if not (sp.issparse(A) and A.format in ("bsr", "csr")):

@@ -159,7 +159,7 @@ class ReusableSolver:
             self._prec = lu.solve
             self.kind_used = "splu"
         else:
-            import pyamg
+            import pyamg  # heavy: imported when first needed (start-up time)
 
             with reproducible_random():
                 ml = pyamg.smoothed_aggregation_solver(Kc, max_coarse=500)

@@ -27,6 +27,7 @@ from functools import cached_property
 
 import numpy as np
 
+from ..errors import fail
 from .adapt.topology import (
     FacetTopology,
     barycentric_gradients,
@@ -39,8 +40,12 @@ from .adapt.topology import (
 
 def _rule(dim_ref: int, order: int) -> tuple[np.ndarray, np.ndarray]:
     """Barycentric points (dim_ref + 1, nq) and weights summing to 1 on a reference simplex."""
-    from skfem.quadrature import get_quadrature
-    from skfem.refdom import RefLine, RefTet, RefTri
+    from skfem.quadrature import get_quadrature  # heavy: imported when first needed (start-up time)
+    from skfem.refdom import (  # heavy: imported when first needed (start-up time)
+        RefLine,
+        RefTet,
+        RefTri,
+    )
 
     if dim_ref == 0:
         return np.ones((1, 1)), np.ones(1)
@@ -211,8 +216,6 @@ class SimplexEvaluator:
         sel = np.zeros(self.topology.facets.shape[1], dtype=bool)
         for part in parts:
             if part not in known:
-                from ..errors import fail
-
                 names = ", ".join(sorted(known)) or "(the mesh has no named parts)"
                 raise fail("parts", part, f"must be one of {names}")
             sel[np.asarray(known[part], dtype=np.int64)] = True

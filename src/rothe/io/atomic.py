@@ -22,9 +22,10 @@ import contextlib
 import os
 import re
 import secrets
+import shutil
 from pathlib import Path
 
-from ..errors import OutputWriteError
+from ..errors import OutputWriteError, fail
 
 TMP_PREFIX = ".rothe-tmp-"
 _TMP_RE = re.compile(r"^\.rothe-tmp-(\d+)-[0-9a-f]+-")
@@ -116,7 +117,6 @@ def remove_stale_temporaries(directory) -> int:
     Only names of the form ``.rothe-tmp-<pid>-...`` whose process no longer exists are touched.
     Returns how many were removed.
     """
-    import shutil
 
     directory = Path(directory)
     removed = 0
@@ -148,7 +148,6 @@ def check_writable(directory, name: str = "directory") -> Path:
     Meant to run before the first step, so that a read-only or missing location is refused
     at once instead of after the whole run.
     """
-    from ..errors import fail
 
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():

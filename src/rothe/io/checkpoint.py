@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import RotheInputError, check_positive
+from ..errors import OutputWriteError, RotheInputError, check_positive
 from .atomic import atomic_path, remove_stale_temporaries
 from .trajectory import RAGGED_LENGTHS, RunStatistics, Trajectory
 
@@ -78,6 +78,8 @@ class CheckpointError(RotheInputError):
 
 
 def package_version() -> str:
+    """The version of rothe that writes the checkpoint."""
+    # here, not at the top: rothe/__init__ imports this package while it is being imported
     from .. import __version__
 
     return __version__
@@ -85,11 +87,11 @@ def package_version() -> str:
 
 def library_versions() -> dict:
     """Versions of the libraries whose rounding a bit-for-bit continuation depends on."""
-    import scipy
+    import scipy  # heavy: imported when first needed (start-up time)
 
     out = {"numpy": np.__version__, "scipy": scipy.__version__}
     try:
-        import pyamg
+        import pyamg  # heavy: imported when first needed (start-up time)
 
         out["pyamg"] = pyamg.__version__
     except ImportError:  # pragma: no cover - a dependency
@@ -149,7 +151,7 @@ def normalized(value):
 
 def digest(*items) -> str:
     """A short SHA-256 of arrays / sparse matrices / numbers (dtype, shape and bytes)."""
-    import scipy.sparse as sp
+    import scipy.sparse as sp  # heavy: imported when first needed (start-up time)
 
     h = hashlib.sha256()
     for item in items:
@@ -407,7 +409,7 @@ class DirectoryLock:
 
     def acquire(self) -> DirectoryLock:
         try:
-            import fcntl
+            import fcntl  # POSIX only: elsewhere the lock is a no-op
         except ImportError:  # pragma: no cover - not POSIX
             return self
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -604,7 +606,6 @@ class Checkpointer:
         """:meth:`save`, but a write error (a full disk) is a warning, not the end of the run:
         the previous checkpoint stays valid, the run goes on, and the results are still written
         (or fail with their own error). Warns once per run."""
-        from ..errors import OutputWriteError
 
         try:
             return self.save(*args, **kwargs)

@@ -22,6 +22,7 @@ file with changing grids would not read back with the library we depend on.
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -172,7 +173,7 @@ def write_vtu_series(
     each is written atomically, the ``.pvd`` last (it is what a reader opens), so an interrupted
     write leaves the previous index valid. Returns the path of the ``.pvd``.
     """
-    import meshio
+    import meshio  # heavy: imported when first needed (start-up time)
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -215,7 +216,6 @@ def write_vtu_series(
 
 def read_pvd(path) -> tuple[np.ndarray, list[Path]]:
     """(times, VTU paths) listed in a ``.pvd`` collection written by :func:`write_vtu_series`."""
-    import xml.etree.ElementTree as ET
 
     path = Path(path)
     root = ET.parse(path).getroot()

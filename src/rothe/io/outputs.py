@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import secrets
 import shutil
 from pathlib import Path
 
@@ -45,7 +46,6 @@ class OutputSet:
     """``with OutputSet(out) as stage: write files into stage`` -- committed on success."""
 
     def __init__(self, directory):
-        import secrets
 
         self.directory = Path(directory)
         self.staging = self.directory / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-staging"

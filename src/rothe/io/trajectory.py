@@ -25,6 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_path
+from .mesh_series import MeshSeries
+
 
 @dataclass
 class RunStatistics:
@@ -150,7 +153,6 @@ class Trajectory:
 
     def save_npz(self, path, extra: dict | None = None) -> Path:
         """Write every series, the statistics and ``meta`` to ``path`` (atomically)."""
-        from .atomic import atomic_path
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -174,8 +176,6 @@ class Trajectory:
         with np.load(path, allow_pickle=False) as f:
             files = set(f.files)
             if "mesh_ids" in files:
-                from .mesh_series import MeshSeries
-
                 traj.meshes, _ = MeshSeries.from_npz(f)
             for key in f.files:
                 if key in ("mesh_ids", "state_mesh_id") or key.startswith(

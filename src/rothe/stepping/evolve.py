@@ -60,7 +60,10 @@ def single_threaded_blas():
     imported first (environment variables would be too late then).
     """
     try:
-        from threadpoolctl import threadpool_limits
+        # heavy: imported when first needed (start-up time of the command line)
+        from threadpoolctl import (
+            threadpool_limits,  # heavy: imported when first needed (start-up time)
+        )
     except ImportError:  # pragma: no cover - a declared dependency
         return nullcontext()
     return threadpool_limits(limits=1, user_api="blas")

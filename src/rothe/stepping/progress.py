@@ -92,7 +92,7 @@ class Progress:
 
     def _make_bar(self, pos):
         try:
-            from tqdm import tqdm
+            from tqdm import tqdm  # heavy: imported when first needed (start-up time)
         except ImportError:  # pragma: no cover - tqdm is a dependency
             return None
         if pos is None:
