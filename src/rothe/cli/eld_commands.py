@@ -37,8 +37,8 @@ from .common import (
     add_output_options,
     add_parallel_options,
     executor_from_args,
+    float_option,
     output_dir,
-    parse_float,
     parse_float_list,
     peak_memory_mb,
     print_summary,
@@ -425,29 +425,25 @@ class RunEldBeam(EldRunCommand):
             help=f"cells across the unit cross-section (default {BEAM_DEFAULT_N}); "
             "round(length*n) along the beam",
         )
-        parser.add_argument(
-            "--length", type=parse_float("--length"), default=4.0, help="beam length (default 4)"
-        )
+        float_option(parser, "--length", default=4.0, help="beam length (default 4)")
         parser.add_argument(
             "--degree",
             type=int,
             default=BEAM_DEFAULT_DEGREE,
             help=f"1 or 2 (default {BEAM_DEFAULT_DEGREE})",
         )
-        parser.add_argument(
-            "--T", type=parse_float("--T"), default=2.0, help="end time (default 2)"
-        )
-        parser.add_argument("--E", type=parse_float("--E"), default=1000.0, help="Young's modulus")
-        parser.add_argument("--nu", type=parse_float("--nu"), default=0.3, help="Poisson ratio")
-        parser.add_argument(
+        float_option(parser, "--T", default=2.0, help="end time (default 2)")
+        float_option(parser, "--E", default=1000.0, help="Young's modulus")
+        float_option(parser, "--nu", default=0.3, help="Poisson ratio")
+        float_option(
+            parser,
             "--amplitude",
-            type=parse_float("--amplitude"),
             default=0.1,
             help="end displacement (z) of the held end's motion (default 0.1)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--t-move",
-            type=parse_float("--t-move"),
             default=0.5,
             help="duration of the motion; held still afterwards (default 0.5)",
         )
@@ -574,42 +570,42 @@ class RunEldPulse(EldRunCommand):
             help="cells across the height of the initial mesh (default 4; round(length*n) along)",
         )
         parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2)")
-        parser.add_argument(
+        float_option(
+            parser,
             "--length",
-            type=parse_float("--length"),
             default=2.0,
             help="length of the body [0, length] x [0, 1] (default 2)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--T",
-            type=parse_float("--T"),
             default=0.8,
             help="end time (default 0.8: the pressure front crosses 80 %%)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--amplitude",
-            type=parse_float("--amplitude"),
             default=0.01,
             help="peak displacement of the pulse (default 0.01)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--t-pulse",
-            type=parse_float("--t-pulse"),
             default=0.1,
             help="duration of the pulse (default 0.1)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--width",
-            type=parse_float("--width"),
             default=0.1,
             help="width of the pushed part around y = 1/2 (default 0.1)",
         )
-        parser.add_argument("--lam", type=parse_float("--lam"), default=2.0, help="Lamé lambda")
-        parser.add_argument("--mu", type=parse_float("--mu"), default=1.0, help="Lamé mu")
-        parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density")
-        parser.add_argument(
+        float_option(parser, "--lam", default=2.0, help="Lamé lambda")
+        float_option(parser, "--mu", default=1.0, help="Lamé mu")
+        float_option(parser, "--rho", default=1.0, help="density")
+        float_option(
+            parser,
             "--b",
-            type=parse_float("--b"),
             default=0.001,
             help="Rayleigh stiffness-proportional damping b (default 0.001)",
         )
@@ -707,9 +703,7 @@ class StudyEldConvergence:
     def configure(self, parser) -> None:
         form_option(parser)
         scheme_option(parser)
-        parser.add_argument(
-            "--tau0", type=parse_float("--tau0"), default=0.1, help="largest step (default 0.1)"
-        )
+        float_option(parser, "--tau0", default=0.1, help="largest step (default 0.1)")
         parser.add_argument(
             "--halvings", type=int, default=5, help="times tau is halved (default 5)"
         )
@@ -797,9 +791,9 @@ class StudyEldPerturbation:
             default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001],
             help="step sizes (default 0.1,0.05,0.02,0.01,0.005,0.002,0.001)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--delta",
-            type=parse_float("--delta"),
             default=1e-6,
             help="size of the noise (default 1e-6)",
         )

@@ -89,23 +89,23 @@ class Resume:
 
     @staticmethod
     def configure(parser) -> None:
-        from .common import parse_float
+        from .common import float_option
 
         parser.add_argument(
             "dir", metavar="DIR", help="the run's output directory (holding checkpoint/)"
         )
         parser.add_argument("--quiet", action="store_true", help="no progress and no summary")
         parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
-        parser.add_argument(
+        float_option(
+            parser,
             "--checkpoint-every",
-            type=parse_float("--checkpoint-every"),
             default=None,
             metavar="SECONDS",
             help="checkpoint interval (default: the recorded one)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--progress-every",
-            type=parse_float("--progress-every"),
             default=None,
             metavar="SECONDS",
             help="progress line interval in logs (default: the recorded one)",

@@ -39,7 +39,7 @@ from ..io.checkpoint import (
 )
 from ..io.outputs import OutputSet, read_summary
 from ..stepping import interrupt
-from .common import parse_float, progress_of, write_summary
+from .common import float_option, progress_of, write_summary
 
 #: options that change where and how results are shown, never the results themselves
 PRESENTATION = (
@@ -61,9 +61,9 @@ INCOMPLETE = "incomplete"
 
 def add_run_options(parser) -> None:
     """``--checkpoint-every``, ``--resume`` and ``--discard-checkpoint`` of the run commands."""
-    parser.add_argument(
+    float_option(
+        parser,
         "--checkpoint-every",
-        type=parse_float("--checkpoint-every"),
         default=60.0,
         metavar="SECONDS",
         help="write a checkpoint to OUT/checkpoint every SECONDS of wall time "
