@@ -24,6 +24,7 @@ from ..stepping.progress import ProgressOptions
 
 
 def add_output_options(parser, name: str) -> None:
+    """--out (default rothe-out/<name>), --no-plots, --quiet and --progress-every."""
     parser.add_argument("--out", default=None, help=f"output directory (default rothe-out/{name})")
     parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
@@ -149,6 +150,7 @@ def write_table(out: Path, text: str, name: str = "table.txt") -> Path:
 
 
 def print_summary(summary: dict, keys) -> None:
+    """Print the fields ``keys`` of ``summary`` that it has, one per line (floats with 6 digits)."""
     width = max(len(k) for k in keys)
     for k in keys:
         if k in summary:

@@ -316,6 +316,9 @@ class RunEldMMS(EldRunCommand):
     keys = MMS_KEYS
 
     def configure(self, parser) -> None:
+        """The step options, --steps, --load-quadrature, --keep-every, --dirichlet, --start, the
+        manufactured solution's options, the space options and the outputs.
+        """
         step_options(parser, 0.01)
         parser.add_argument(
             "--steps",
@@ -363,6 +366,7 @@ class RunEldMMS(EldRunCommand):
         return objects, keep, n, parts, damping_of(args), space
 
     def execute(self, args) -> int:
+        """Build the manufactured solution, run it as a session; the summary adds its errors."""
         objects, keep, n, parts, damping, space = self.validate(args)
         problem, exact = mms_problem(
             n,
@@ -417,6 +421,9 @@ class RunEldBeam(EldRunCommand):
     )
 
     def configure(self, parser) -> None:
+        """The step options, the beam's mesh, material, support motion and damping, the space
+        options and the outputs.
+        """
         step_options(parser, 0.01)
         parser.add_argument(
             "--n",
@@ -470,6 +477,7 @@ class RunEldBeam(EldRunCommand):
         return objects, n, every, keep, damping_of(args), space
 
     def execute(self, args) -> int:
+        """Build the cantilever, run it as a session (XDMF streamed while it runs)."""
         objects, n, every, keep, damping, space = self.validate(args)
         problem = beam_problem(
             n,
@@ -519,6 +527,9 @@ class RunEldBeam(EldRunCommand):
         return self.run(args, problem, options, label, summarize, stream)
 
     def report(self, args, summary) -> None:
+        """Print the numerical dissipation against the work put in, and a note when the sideways
+        reactions show a too coarse mesh.
+        """
         put_in = summary["work_support"] + summary["work_loads"]
         sideways = summary["reaction_sideways_over_z"]
         print(
@@ -562,6 +573,9 @@ class RunEldPulse(EldRunCommand):
     )
 
     def configure(self, parser) -> None:
+        """The step options (BDF2 by default), the body, the pulse, the material and damping,
+        --lifting, --keep-every, the space options (on by default) and the outputs.
+        """
         step_options(parser, 0.005, scheme_default="bdf2")
         parser.add_argument(
             "--n",
@@ -633,6 +647,7 @@ class RunEldPulse(EldRunCommand):
         return objects, keep, n, length, space
 
     def execute(self, args) -> int:
+        """Build the pulse problem and run it as a session."""
         objects, keep, n, length, space = self.validate(args)
         problem = pulse_problem(
             n,
@@ -701,6 +716,9 @@ class StudyEldConvergence:
     name = "eld-convergence"
 
     def configure(self, parser) -> None:
+        """--form, --scheme, --tau0, --halvings, the manufactured solution's options, the outputs
+        and the executor.
+        """
         form_option(parser)
         scheme_option(parser)
         float_option(parser, "--tau0", default=0.1, help="largest step (default 0.1)")
@@ -712,6 +730,9 @@ class StudyEldConvergence:
         add_parallel_options(parser)
 
     def execute(self, args) -> int:
+        """Run the convergence study (tau halved ``--halvings`` times); write its table and
+        figures.
+        """
         check_damping_options(args)
         check_eld_step("--tau0", args.tau0, args.T)
         check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
@@ -785,6 +806,9 @@ class StudyEldPerturbation:
     name = "eld-perturbation"
 
     def configure(self, parser) -> None:
+        """--taus, --delta, --n, --degree, --seed, --targets, --scheme, the damping, the outputs and
+        the executor.
+        """
         parser.add_argument(
             "--taus",
             type=parse_float_list("--taus"),
@@ -811,6 +835,9 @@ class StudyEldPerturbation:
         add_parallel_options(parser)
 
     def execute(self, args) -> int:
+        """Run the perturbation study of Theorem 4.5 for every ``--taus``; write its table and
+        figures.
+        """
         check_damping_options(args)
         for t in args.taus:
             check_eld_step("--taus", t, 1.0)

@@ -52,6 +52,13 @@ def command_list() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``rothe``: one subparser per verb, one per registered command under it, and
+    ``resume``.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+    """
     registry.load_all()
     parser = _Parser(
         prog="rothe",
@@ -89,6 +96,7 @@ class Resume:
 
     @staticmethod
     def configure(parser) -> None:
+        """DIR, --quiet, --no-plots, --checkpoint-every and --progress-every."""
         from .common import float_option
 
         parser.add_argument(
@@ -112,6 +120,7 @@ class Resume:
         )
 
     def execute(self, args) -> int:
+        """Re-run the command line recorded in DIR's checkpoint with --out DIR --resume DIR."""
         from ..io.checkpoint import CheckpointError, load_checkpoint
         from .session import _run_dir
 

@@ -264,6 +264,7 @@ class RunSession:
             return None
 
     def outputs(self, status: str) -> OutputSet:
+        """The set of output files of this run, committed together into :meth:`results_dir`."""
         return OutputSet(self.results_dir(status))
 
     def annotate(self, summary: dict, outcome: Outcome) -> dict:

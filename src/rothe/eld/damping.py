@@ -173,6 +173,7 @@ class NoDamping(Damping):
         return DampingConstants(0.0, 0.0, 0.0, 0.0)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """No damping: the operator of M and K with zero coefficients."""
         return DampingOperator(M, K)
 
 
@@ -190,6 +191,7 @@ class RayleighDamping(Damping):
         return DampingConstants(0.0, self.b, self.b, self.a)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """The linear operator a M + b K."""
         return DampingOperator(M, K, mass_coef=self.a, stiffness_coef=self.b)
 
     def describe(self) -> dict:
@@ -235,6 +237,9 @@ class NonlinearDamping(Damping):
         return -self.d0 * v + self.d_nl * saturating_velocity(v, self.v_ref)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """The operator b K - d0 M plus d_nl N(v), with N's Jacobian (assembled and as an
+        action).
+        """
         linear = dict(mass_coef=-self.d0, stiffness_coef=self.b)
         if self.d_nl == 0.0:
             return DampingOperator(M, K, **linear)
@@ -310,6 +315,9 @@ class UserDamping(Damping):
         return DampingConstants(self.d0, self.d1, self.d2, 0.0)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """The given matrix C (shape checked against M), or the given force D(v) with its
+        Jacobian.
+        """
         if self.matrix is not None:
             C = sp.csr_matrix(self.matrix)
             if C.shape != M.shape:

@@ -78,6 +78,7 @@ class CheckpointError(RotheInputError):
 
 
 def package_version() -> str:
+    """The version of rothe (recorded in, and required of, every checkpoint)."""
     from .. import __version__
 
     return __version__
@@ -130,6 +131,7 @@ def encode(obj, arrays: dict, where: str = "state"):
 
 
 def decode(obj, arrays):
+    """The inverse of :func:`encode`: ``{'__array__': key}`` replaced by ``arrays[key]``."""
     if isinstance(obj, dict):
         if len(obj) == 1 and "__array__" in obj:
             return arrays[obj["__array__"]]
@@ -227,6 +229,7 @@ class Checkpoint:
         return self._state
 
     def describe_where(self) -> str:
+        """Where the run stopped, e.g. ``'accepted_steps = 12, t = 0.3'``."""
         w = self.where
         parts = [
             f"{k} = {w[k]:.6g}" if isinstance(w.get(k), float) else f"{k} = {w[k]}"
@@ -237,6 +240,7 @@ class Checkpoint:
 
     # -- checks -----------------------------------------------------------------------------
     def require_version(self) -> None:
+        """Refuse (:class:`CheckpointError`) a checkpoint written by another version of rothe."""
         mine, theirs = package_version(), self.header.get("rothe_version")
         if theirs != mine:
             raise CheckpointError(
@@ -245,6 +249,9 @@ class Checkpoint:
             )
 
     def warn_if_libraries_differ(self) -> None:
+        """Warn (:class:`CheckpointWarning`) if numpy, scipy, ... differ from those that wrote
+        it.
+        """
         old, new = self.header.get("libraries") or {}, library_versions()
         diff = [f"{k} {old[k]} -> {new.get(k)}" for k in sorted(old) if old[k] != new.get(k)]
         if diff:
@@ -257,6 +264,7 @@ class Checkpoint:
             )
 
     def require_resumable(self) -> None:
+        """Refuse (:class:`CheckpointError`) the checkpoint of a run that failed."""
         if self.status == "failed":
             w = self.where
             raise CheckpointError(
@@ -294,6 +302,9 @@ class Checkpoint:
         return len(self.header.get("trajectories", []))
 
     def trajectory(self, i: int) -> Trajectory:
+        """The ``i``-th registered trajectory: its meta data, statistics and series from the
+        segment files.
+        """
         rec = self.header["trajectories"][i]
         traj = Trajectory(meta=rec.get("meta"))
         for f in fields(RunStatistics):
@@ -406,6 +417,9 @@ class DirectoryLock:
         self.key = None
 
     def acquire(self) -> DirectoryLock:
+        """Take the lock (re-entrant within the process); :class:`CheckpointError` naming the
+        holder's pid if another process holds it. Returns the lock.
+        """
         try:
             import fcntl
         except ImportError:  # pragma: no cover - not POSIX
@@ -434,6 +448,7 @@ class DirectoryLock:
         return self
 
     def release(self) -> None:
+        """Release one acquisition; the lock file is unlocked with the last one."""
         if self.key is None:
             return
         key, self.key = self.key, None
@@ -522,6 +537,7 @@ class Checkpointer:
         return i
 
     def due(self) -> bool:
+        """True when ``every`` seconds have passed since the last checkpoint."""
         return time.monotonic() - self._last >= self.every
 
     # -- saving -----------------------------------------------------------------------------
@@ -629,9 +645,11 @@ class Checkpointer:
                         os.unlink(entry.path)
 
     def close(self) -> None:
+        """Release the directory lock."""
         self._lock.release()
 
     def restore_attachments(self, restored: Checkpoint) -> None:
+        """Restore every attachment from its state in the checkpoint ``restored``."""
         saved = restored.state.get("attachments") or {}
         for name, obj in self.attachments.items():
             if name in saved:
@@ -696,6 +714,7 @@ class RunCheckpointing:
         return self.restored is not None
 
     def close(self) -> None:
+        """Release the checkpoint directory (if the run writes checkpoints)."""
         if self.checkpointer is not None:
             self.checkpointer.close()
 

@@ -43,6 +43,8 @@ from ..errors import RunFailed, check_positive, described, fail
 
 @dataclass
 class Decision:
+    """A controller's verdict on a step: ``accept``, the next step ``next_tau`` and a ``reason``."""
+
     accept: bool
     next_tau: float
     reason: str = ""
@@ -80,6 +82,7 @@ class StepController(ABC):
         return {"controller": self.name, "sigma": float(self.sigma), **self._extra_state()}
 
     def restore_state(self, data: dict) -> None:
+        """Put back :meth:`checkpoint_state` (a ValueError for another controller's state)."""
         if data.get("controller") != self.name:
             raise ValueError(
                 f"restore_state: a {data.get('controller')!r} controller's state "
@@ -110,9 +113,11 @@ class UniformController(StepController):
         self._retry: float | None = None
 
     def propose(self, s):
+        """tau0, or half the failed step after a failed solve."""
         return (self._retry if self._retry is not None else self.tau0), None
 
     def decide(self, result) -> Decision:
+        """Accept every converged step (next: tau0); reject a failed one (next: half of it)."""
         if not result.converged:
             self._retry = result.tau / 2
             return Decision(False, self._retry, f"inner solve failed ({result.code})")
@@ -144,24 +149,30 @@ class FixedStepController:
 
     @classmethod
     def uniform(cls, tau: float, n: int) -> FixedStepController:
+        """``n`` equal steps ``tau``."""
         return cls(tau=tau, n=n)
 
     def step_size(self, k: int) -> float:
+        """tau_{k+1}: the k-th step (0-based) of the sequence, or the equal step."""
         return self.tau_uniform if self.steps is None else float(self.steps[k])
 
     def propose(self, s):
+        """The next step of the sequence (the last one again after its end)."""
         return self.step_size(min(self.k, self.n - 1)), None
 
     def decide(self, result) -> Decision:
+        """Accept every converged step; a failed solve raises :class:`RunFailed`."""
         if not result.converged:
             raise RunFailed(result.message, where=result.where)
         self.k += 1
         return Decision(True, self.step_size(min(self.k, self.n - 1)), "fixed step")
 
     def checkpoint_state(self) -> dict:
+        """The name and the index of the next step."""
         return {"controller": self.name, "k": int(self.k)}
 
     def restore_state(self, data: dict) -> None:
+        """Put back :meth:`checkpoint_state` (a ValueError for another controller's state)."""
         if data.get("controller") != self.name:
             raise ValueError(
                 f"restore_state: a {data.get('controller')!r} controller's state "
@@ -240,9 +251,16 @@ class ErrorNormController(StepController):
         return tau
 
     def propose(self, s):
+        """The nominal step sigma."""
         return self.sigma, None
 
     def decide(self, result) -> Decision:
+        """With err = est / tol and ideal = safety err^(-1/(p+1)): accept if err <= 1, next step
+        tau min(fac_max, max(fac_min, ideal)) (growth 1 right after a rejection); else reject, next
+        tau min(0.9, max(fac_min, ideal)); a failed solve or a non-finite estimate: tau fac_fail.
+        Every next step is limited to tau_max, max_ratio times the last accepted step and the step
+        bound.
+        """
         tau = result.tau
         if not result.converged:
             self.last_rejected = True

@@ -51,6 +51,7 @@ class ScalarField:
         return ScalarField(value, grad, hess)
 
     def shifted(self, c: float) -> ScalarField:
+        """phi + c (same gradient and Hessian)."""
         return ScalarField(lambda x: self.value(x) + c, self.grad, self.hess)
 
 
@@ -141,6 +142,9 @@ def cube_bubble(d: int) -> ScalarField:
 
 
 def profile_field(d: int, name, width: float = 0.05) -> ScalarField:
+    """The profile phi by name: ``'bump'`` (:func:`bump`), ``'front'`` (:func:`front` of
+    ``width``), or a :class:`ScalarField` itself.
+    """
     if isinstance(name, ScalarField):
         return name
     if name == "bump":
@@ -151,7 +155,9 @@ def profile_field(d: int, name, width: float = 0.05) -> ScalarField:
 
 
 def initial_mesh(d: int, n0: int, tagged: bool):
-
+    """The unit square (d = 2) or cube (d = 3) with ``n0`` cells per side; ``tagged``: with
+    named boundary parts (left, right, ...; the cube as :func:`~rothe.fem.mesh.box`).
+    """
     if tagged:
         return unit_square(n0, named=True) if d == 2 else box(n0, n0, n0)
     return unit_square(n0) if d == 2 else unit_cube(n0)
