@@ -708,6 +708,19 @@ def _beam_reactions(traj) -> dict:
 # -- studies --------------------------------------------------------------------------------------
 
 
+def write_study(args, out, study: dict, table: str, draw) -> None:
+    """The outputs of an ELD study: ``table.txt``, ``summary.json`` (the study with the peak
+    memory), the figures (``draw()``, unless --no-plots) and, unless --quiet, the table."""
+    write_table(out, table + "\n")
+    study["peak_memory_mb"] = peak_memory_mb()
+    write_summary(out, study)
+    if not args.no_plots:
+        draw()
+    if not args.quiet:
+        print(table)
+        print(f"wrote {out}/")
+
+
 @command("study", "eld-convergence")
 class StudyEldConvergence:
     """``rothe study eld-convergence``: order in tau on the manufactured solution."""
@@ -762,10 +775,8 @@ class StudyEldConvergence:
             executor=executor,
         )
         table = format_convergence_table(study)
-        write_table(out, table + "\n")
-        study["peak_memory_mb"] = peak_memory_mb()
-        write_summary(out, study)
-        if not args.no_plots:
+
+        def draw():
             # matplotlib is imported only for the figures
             from ..eld.figures import plot_convergence
 
@@ -789,9 +800,8 @@ class StudyEldConvergence:
                 title=f"eld-mms, {scheme.name}, {form.name}, P{study['degree']}",
                 order=scheme.order,
             )
-        if not args.quiet:
-            print(table)
-            print(f"wrote {out}/")
+
+        write_study(args, out, study, table, draw)
         return 0 if all("status" not in r for r in study["rows"]) else 1
 
 
@@ -871,10 +881,8 @@ class StudyEldPerturbation:
             executor=executor,
         )
         table = format_perturbation_table(study)
-        write_table(out, table + "\n")
-        study["peak_memory_mb"] = peak_memory_mb()
-        write_summary(out, study)
-        if not args.no_plots:
+
+        def draw():
             # matplotlib is imported only for the figures
             from ..eld.figures import plot_perturbation
 
@@ -885,7 +893,6 @@ class StudyEldPerturbation:
                     out / f"fig_perturbation_{target}.png",
                     title=f"{scheme.name}: noise in {target}, delta = {args.delta:g}",
                 )
-        if not args.quiet:
-            print(table)
-            print(f"wrote {out}/")
+
+        write_study(args, out, study, table, draw)
         return 0 if "failed" not in study else 1
