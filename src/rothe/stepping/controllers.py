@@ -50,6 +50,15 @@ class Decision:
     reason: str = ""
 
 
+def _check_owner(controller, data: dict) -> None:
+    """Refuse (ValueError) the checkpoint state of another kind of controller."""
+    if data.get("controller") != controller.name:
+        raise ValueError(
+            f"restore_state: a {data.get('controller')!r} controller's state "
+            f"given to a {controller.name!r} controller"
+        )
+
+
 class StepController(ABC):
     """Base class: holds tau_min / tau_max and the nominal step sigma."""
 
@@ -83,11 +92,7 @@ class StepController(ABC):
 
     def restore_state(self, data: dict) -> None:
         """Put back :meth:`checkpoint_state` (a ValueError for another controller's state)."""
-        if data.get("controller") != self.name:
-            raise ValueError(
-                f"restore_state: a {data.get('controller')!r} controller's state "
-                f"given to a {self.name!r} controller"
-            )
+        _check_owner(self, data)
         self.sigma = float(data["sigma"])
         self._restore_extra(data)
 
@@ -173,11 +178,7 @@ class FixedStepController:
 
     def restore_state(self, data: dict) -> None:
         """Put back :meth:`checkpoint_state` (a ValueError for another controller's state)."""
-        if data.get("controller") != self.name:
-            raise ValueError(
-                f"restore_state: a {data.get('controller')!r} controller's state "
-                f"given to a {self.name!r} controller"
-            )
+        _check_owner(self, data)
         self.k = int(data["k"])
 
 
