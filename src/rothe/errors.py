@@ -22,6 +22,15 @@ class RotheInputError(ValueError):
 
     ``parameter``: the name the message starts with (``tau`` in ``tau: got 0, must be > 0``),
     or None when the message names no single parameter.
+
+    Parameters
+    ----------
+    message : str
+        The one-line message, ``'<parameter>: got <value>, must be ...'``.
+    parameter : str, optional
+        The parameter it names first.
+    mentions : sequence of str
+        The other parameters the message names (the command line renames them all to options).
     """
 
     def __init__(self, message: str, parameter: str | None = None, mentions: Sequence[str] = ()):
@@ -65,6 +74,14 @@ class RunFailed(RuntimeError):
 
     ``where`` holds the context (step, s, t, tau, residuals); the trajectory computed so far is
     attached as ``trajectory`` so that callers can still write it to disk.
+
+    Parameters
+    ----------
+    message : str
+    where : dict, optional
+        The context where the run stopped.
+    trajectory : Trajectory, optional
+        The trajectory computed so far.
     """
 
     def __init__(self, message: str, where: dict | None = None, trajectory=None):

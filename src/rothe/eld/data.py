@@ -299,7 +299,16 @@ class StepValues:
 
 
 class StepData:
-    """Evaluates the data of a step from t_prev to t (see the module docstring)."""
+    """Evaluates the data of a step from t_prev to t (see the module docstring).
+
+    Parameters
+    ----------
+    problem : ELDProblem
+    mode : DataMode, optional
+        Points (default), Means or Differenced.
+    noise : DataNoise, optional
+        The perturbation of the data (Theorem 4.5).
+    """
 
     def __init__(self, problem, mode: DataMode | None = None, noise: DataNoise | None = None):
         self.problem = problem

@@ -91,7 +91,20 @@ class ELDRun:
 
     ``checkpointing`` (a :class:`~rothe.io.checkpoint.RunCheckpointing`, or None) holds the
     lock on the checkpoint directory from :func:`prepare_eld_run` until :meth:`evolve` ends or
-    :meth:`close` is called."""
+    :meth:`close` is called.
+
+    Parameters
+    ----------
+    stepper : ELDStepper
+    controller
+        The step controller.
+    trajectory : Trajectory
+    state : ELDState
+        The state to continue from.
+    tau_min : float
+        The evolve loop's smallest step.
+    checkpointing : RunCheckpointing, optional
+    """
 
     stepper: ELDStepper
     controller: object
@@ -200,6 +213,14 @@ def prepare_eld_run(
     """Validate the options, build stepper and controller, record the initial state (the
     arguments of :func:`run_eld`); with ``resume``, restore stepper, controller, trajectory and
     state from the checkpoint instead.
+
+    Parameters
+    ----------
+    problem : ELDProblem
+    scheme, form, control, data, adapt, solver, newton, noise
+        As in :func:`run_eld`.
+    store_fields, keep_every, observer, linear_rtol, error_scale, meta, checkpoint, resume
+        As in :func:`run_eld`.
 
     Returns
     -------

@@ -91,7 +91,13 @@ RAGGED_LENGTHS = "__lengths"
 
 
 class Trajectory:
-    """Named per-step series plus statistics and metadata."""
+    """Named per-step series plus statistics and metadata.
+
+    Parameters
+    ----------
+    meta : dict, optional
+        Meta data of the run (saved as JSON with the series).
+    """
 
     def __init__(self, meta: dict | None = None):
         self._series: dict[str, list] = {}

@@ -64,7 +64,22 @@ def d2p(z):
 
 
 def example_7_1(T: float = 5.0) -> RISProblem:
-    """The RIS of Example 7.1 (1 unknown)."""
+    """The RIS of Example 7.1 (1 unknown).
+
+    I(t, z) = 1/2 z^2 - (t + 1) z + p(z) with p of :func:`p`, R(v) = |v|, V = R, z0 = -2 (the
+    paper prints f with a sign convention under which (7.1) is not a solution; this is the
+    energy for which it is): sticking at -2 until t = 2, a viscous jump to 6, then slip along
+    z = t + 4 (the exact solution (7.1), :func:`exact_solution`).
+
+    Parameters
+    ----------
+    T : float
+        The end time (default 5).
+
+    Returns
+    -------
+    RISProblem
+    """
     return RISProblem(
         A=np.array([[1.0]]),
         F=p,
@@ -283,6 +298,33 @@ def example_front(
     on the side ``right`` (natural boundary on the others): a static boundary layer there, the
     front is the only moving steep feature. On a uniform grid the front needs a fine h
     everywhere; an adaptive mesh only along the front, coarsening behind it.
+
+    Parameters
+    ----------
+    n : int
+        Cells per side of the built-in grid; ignored with ``mesh``.
+    mesh : skfem.MeshTri, optional
+        Any 2D mesh instead of the grid.
+    amplitude, speed, width : float
+        The load plateau A, front speed v and width w of :func:`front_load_density`.
+    coefficient : float
+        The stiffness c of 1/2 int c |grad z|^2.
+    kappa : float
+        R = kappa ||.||_{L1}.
+    z0 : float
+        The initial state.
+    T : float
+        The end time.
+    dirichlet : sequence of str
+        The boundary parts where z = 0.
+    pattern : str
+        The triangulation of the grid (:func:`rothe.fem.mesh.unit_square`).
+    name : str
+        The problem's name.
+
+    Returns
+    -------
+    FERISProblem
     """
     coefficient = check_positive("coefficient", coefficient)
     density, rate = front_load_density(

@@ -109,6 +109,13 @@ class UniformController(StepController):
     Residuals are computed but never cause rejection. If an inner solve fails, the step is
     rejected and retried with half the step (then the nominal tau resumes): a failed solve is
     never an accepted step.
+
+    Parameters
+    ----------
+    tau0 : float > 0
+        The step tau.
+    tau_min : float
+        The run stops where a retry would go below it.
     """
 
     name = "uniform"
@@ -300,7 +307,15 @@ class ErrorNormController(StepController):
 class Uniform:
     """Equal steps ``tau`` (RIS: in s, a failed solve retried with half the step, the run
     stopping where that would go below ``tau_min``, None: the family's default; ELD: in t,
-    T/tau must be an integer, a failed step stops the run)."""
+    T/tau must be an integer, a failed step stops the run).
+
+    Parameters
+    ----------
+    tau : float > 0
+        The step.
+    tau_min : float, optional
+        RIS only: the smallest step a failed solve may be retried with (None: the default).
+    """
 
     tau: float
     tau_min: float | None = None
@@ -343,6 +358,15 @@ class Adaptive:
     with steps from the scheme's order (:class:`ErrorNormController`). ``tau``: the first step
     (None: the family's default); steps stay in [tau_min, tau_max] (None: the family's
     defaults).
+
+    Parameters
+    ----------
+    tol : float > 0
+        The tolerance of the family's error measure.
+    tau : float, optional
+        The first step (None: the family's default).
+    tau_min, tau_max : float, optional
+        The range of the steps (None: the family's defaults); tau_min <= tau <= tau_max.
     """
 
     tol: float
