@@ -708,6 +708,26 @@ def _beam_reactions(traj) -> dict:
 # -- studies --------------------------------------------------------------------------------------
 
 
+def run_study(name: str, args, study_fn, *positional, **options):
+    """Run ``study_fn(*positional, **options)`` on the manufactured solution of the command line
+    (``--n``, ``--degree``, the damping) with its progress and executor (``rothe study
+    <name>``); returns the study and the output directory."""
+    n = check_int("--n", args.n, minimum=1)
+    damping = damping_of(args)
+    executor = executor_from_args(args, f"rothe study {name}")
+    out = output_dir(args, name)
+    study = study_fn(
+        *positional,
+        n=n,
+        degree=args.degree,
+        damping=damping,
+        progress=progress_of(args),
+        executor=executor,
+        **options,
+    )
+    return study, out
+
+
 def write_study(args, out, study: dict, table: str, draw) -> None:
     """The outputs of an ELD study: ``table.txt``, ``summary.json`` (the study with the peak
     memory), the figures (``draw()``, unless --no-plots) and, unless --quiet, the table."""
@@ -753,26 +773,20 @@ class StudyEldConvergence:
         form = form_of(args)
         scheme = scheme_of(args)
         halvings = check_int("--halvings", args.halvings, minimum=1)
-        n = check_int("--n", args.n, minimum=1)
         data = data_of(args)
-        damping = damping_of(args)
-        executor = executor_from_args(args, f"rothe study {self.name}")
-        out = output_dir(args, self.name)
-        study = convergence_study(
+        study, out = run_study(
+            self.name,
+            args,
+            convergence_study,
             form,
             tau0=args.tau0,
             halvings=halvings,
-            n=n,
-            degree=args.degree,
-            damping=damping,
             rho=args.rho,
             lam=args.lam,
             mu=args.mu,
             T=args.T,
             data=data,
             scheme=scheme,
-            progress=progress_of(args),
-            executor=executor,
         )
         table = format_convergence_table(study)
 
@@ -864,21 +878,15 @@ class StudyEldPerturbation:
         for t in targets:
             check_choice("--targets", t, NOISE_TARGETS)
         scheme = scheme_of(args)
-        n = check_int("--n", args.n, minimum=1)
-        damping = damping_of(args)
-        executor = executor_from_args(args, f"rothe study {self.name}")
-        out = output_dir(args, self.name)
-        study = perturbation_study(
+        study, out = run_study(
+            self.name,
+            args,
+            perturbation_study,
             taus,
             delta=args.delta,
             targets=targets,
-            n=n,
-            degree=args.degree,
-            damping=damping,
             seed=args.seed,
             scheme=scheme,
-            progress=progress_of(args),
-            executor=executor,
         )
         table = format_perturbation_table(study)
 
