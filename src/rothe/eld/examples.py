@@ -369,10 +369,8 @@ def ramp_problem(
         A, t_ramp and w of G(t) (module docstring).
     b : float
         The Rayleigh damping b K.
-    rho, lam, mu : float
-        Density and Lamé constants.
-    T : float
-        The end time.
+    rho, lam, mu, T : float
+        As in :func:`mms_problem`.
 
     Returns
     -------

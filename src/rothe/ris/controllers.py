@@ -140,12 +140,8 @@ class Order2Controller(StepController):
 
     Parameters
     ----------
-    tol : float > 0
-        The tolerance of I1 and I2.
-    tau0 : float > 0
-        The first step.
-    tau_min, tau_max : float
-        The range of the steps.
+    tol, tau0, tau_min, tau_max : float
+        As in :class:`AdaptiveController`.
     safety : float
         The safety factor of the proposal.
     """
@@ -262,12 +258,8 @@ class RegimeController(StepController):
 
     Parameters
     ----------
-    tol : float > 0
-        The tolerance of I1 and I2.
-    tau0 : float > 0
-        The first step.
-    tau_min, tau_max : float
-        The range of the steps.
+    tol, tau0, tau_min, tau_max : float
+        As in :class:`AdaptiveController`.
     theta : float
         Every step aims at the residual theta tol.
     grow : float
