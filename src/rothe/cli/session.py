@@ -34,6 +34,7 @@ from ..io.checkpoint import (
     CheckpointError,
     CheckpointOptions,
     DirectoryLock,
+    changed_keys,
     load_checkpoint,
     normalized,
 )
@@ -189,8 +190,7 @@ class RunSession:
         old, new = rec.get("args", {}), result_arguments(self.args)
         diff = [
             f"{_option(k)} {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-            for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k)
+            for k in changed_keys(old, new)
         ]
         if diff:
             raise CheckpointError(

@@ -194,6 +194,12 @@ def checkpoint_dir(path) -> Path:
     return path / CHECKPOINT_SUBDIR
 
 
+def changed_keys(old: dict, new: dict) -> list:
+    """The keys of either dict whose values differ (a key missing in one counts as None),
+    sorted: what a resume reports as changed."""
+    return [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+
+
 def _fmt(value) -> str:
     if isinstance(value, float):
         return f"{value:g}"
@@ -279,8 +285,7 @@ class Checkpoint:
         old, new = self.header.get("arguments", {}), normalized(arguments)
         diff = [
             f"{k} = {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-            for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k)
+            for k in changed_keys(old, new)
         ]
         if diff:
             raise CheckpointError(
