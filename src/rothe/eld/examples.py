@@ -361,15 +361,11 @@ def ramp_problem(
 
     Parameters
     ----------
-    n : int
-        Cells per side.
-    degree : int
-        1 or 2.
     amplitude, t_ramp, width : float
         A, t_ramp and w of G(t) (module docstring).
     b : float
         The Rayleigh damping b K.
-    rho, lam, mu, T : float
+    n, degree, rho, lam, mu, T
         As in :func:`mms_problem`.
 
     Returns
