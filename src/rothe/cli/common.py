@@ -25,12 +25,13 @@ from ..stepping.progress import ProgressOptions
 
 
 def add_output_options(parser, name: str) -> None:
+    """--out (default rothe-out/<name>), --no-plots, --quiet and --progress-every."""
     parser.add_argument("--out", default=None, help=f"output directory (default rothe-out/{name})")
     parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
-    parser.add_argument(
+    float_option(
+        parser,
         "--progress-every",
-        type=parse_float("--progress-every"),
         default=30.0,
         metavar="SECONDS",
         help="when stderr is not a terminal (a log): one progress line every "
@@ -66,6 +67,20 @@ def parse_float(name: str):
         return value
 
     return conv
+
+
+def float_option(parser, name: str, **kwargs) -> None:
+    """Add the option ``name`` taking one finite number (:func:`parse_float`) to ``parser``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser or argument group
+    name : str
+        The option, e.g. ``"--tau"``.
+    **kwargs
+        The other arguments of ``add_argument`` (``default``, ``help``, ``metavar``, ...).
+    """
+    parser.add_argument(name, type=parse_float(name), **kwargs)
 
 
 def parse_float_list(name: str):
@@ -133,6 +148,7 @@ def write_table(out: Path, text: str, name: str = "table.txt") -> Path:
 
 
 def print_summary(summary: dict, keys) -> None:
+    """Print the fields ``keys`` of ``summary`` that it has, one per line (floats with 6 digits)."""
     width = max(len(k) for k in keys)
     for k in keys:
         if k in summary:

@@ -23,7 +23,7 @@ from .. import __version__
 from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
 from ..io.checkpoint import CheckpointError, load_checkpoint
 from . import registry
-from .common import parse_float
+from .common import float_option
 from .session import _run_dir
 
 
@@ -56,6 +56,13 @@ def command_list() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``rothe``: one subparser per verb, one per registered command under it, and
+    ``resume``.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+    """
     registry.load_all()
     parser = _Parser(
         prog="rothe",
@@ -93,28 +100,30 @@ class Resume:
 
     @staticmethod
     def configure(parser) -> None:
+        """DIR, --quiet, --no-plots, --checkpoint-every and --progress-every."""
 
         parser.add_argument(
             "dir", metavar="DIR", help="the run's output directory (holding checkpoint/)"
         )
         parser.add_argument("--quiet", action="store_true", help="no progress and no summary")
         parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
-        parser.add_argument(
+        float_option(
+            parser,
             "--checkpoint-every",
-            type=parse_float("--checkpoint-every"),
             default=None,
             metavar="SECONDS",
             help="checkpoint interval (default: the recorded one)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--progress-every",
-            type=parse_float("--progress-every"),
             default=None,
             metavar="SECONDS",
             help="progress line interval in logs (default: the recorded one)",
         )
 
     def execute(self, args) -> int:
+        """Re-run the command line recorded in DIR's checkpoint with --out DIR --resume DIR."""
 
         ckpt = load_checkpoint(args.dir, header_only=True)
         ckpt.require_resumable()

@@ -238,6 +238,7 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
 
 
 def sweep_tasks(runs: list[SweepRun]):
+    """One :func:`~rothe.cli.tasks.cli_task` per run of the sweep (its argv and folder)."""
     return [cli_task(run.name, run.argv, out=run.out) for run in runs]
 
 
@@ -279,6 +280,7 @@ def _write_atomic(path: Path, text: str) -> Path:
 
 
 def table_columns(rows: list[dict]) -> list[str]:
+    """The keys of all rows, in the order they first occur."""
     cols: list[str] = []
     for row in rows:
         cols += [k for k in row if k not in cols]
@@ -312,6 +314,7 @@ def write_table(out: Path, rows: list[dict], meta: dict) -> tuple[Path, Path]:
 
 
 def parse_plot(text: str | None) -> tuple[str, str] | None:
+    """``--plot X,Y`` as the pair (X, Y); None for None; one line naming --plot otherwise."""
     if text is None:
         return None
     cols = [c.strip() for c in text.split(",")]
@@ -345,6 +348,11 @@ def format_rows(rows: list[dict], params: list[SweepParam], extra=()) -> str:
 
 @dataclass
 class SweepResult:
+    """What :func:`run_sweep` returns: the rows, the sweep's folder, the paths of ``sweep.csv``
+    and ``sweep.json``, the figure (None without ``plot`` or when a column is missing), the
+    ``plot`` columns no row has, and the swept parameters.
+    """
+
     rows: list[dict]
     out: Path
     csv: Path

@@ -86,12 +86,17 @@ def split_sweep_args(tokens: list[str]) -> tuple[list[str], list[str]]:
 
 @command("sweep", "run")
 class SweepRunCommand:
+    """``rothe sweep run <example>``: a ``rothe run`` command over the Cartesian product of
+    ``--param`` values (:func:`rothe.cli.sweep.run_sweep`).
+    """
+
     help = (
         "the Cartesian product of option values of a run command (--param NAME=V1,V2,...), "
         "in parallel; one table of all summaries"
     )
 
     def configure(self, parser) -> None:
+        """The example, the sweep's own options and the options passed to every run."""
         parser.add_argument("example", help="the example of `rothe run` to sweep, e.g. ris-2d")
         _sweep_options(parser)
         parser.add_argument(
@@ -106,6 +111,7 @@ class SweepRunCommand:
         self._parser = parser
 
     def execute(self, args) -> int:
+        """Split the sweep's options from the runs', run the sweep and print its table."""
 
         own_tokens, fixed = split_sweep_args(list(args.run_options))
         if "-h" in own_tokens or "--help" in own_tokens:

@@ -48,6 +48,10 @@ AMG_DEFAULTS = dict(
 
 @dataclass
 class SolverStats:
+    """Counters of a linear solver: factorizations (LU or AMG setups), backsolves (applications of
+    the stored factorization or V-cycles), Krylov iterations, systems solved and setup seconds.
+    """
+
     factorizations: int = 0  # LU factorizations or AMG setups
     backsolves: int = 0  # applications of the stored factorization / V-cycles
     krylov_iterations: int = 0

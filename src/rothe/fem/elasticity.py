@@ -446,6 +446,7 @@ class VectorSpace:
         return self.pattern.nnz
 
     def scalar_matrix(self, values: np.ndarray) -> sp.csr_matrix:
+        """The scalar n x n CSR matrix with ``values`` on the scalar sparsity pattern."""
         n = self.n_scalar
         return sp.csr_matrix((values, self.pattern_cols, self.pattern_indptr), shape=(n, n))
 
@@ -533,6 +534,7 @@ class VectorSpace:
 
     @cached_property
     def cell_volumes(self) -> np.ndarray:
+        """|K| of every cell (|det J| / d!)."""
         t = np.asarray(self.mesh.t)
         return affine_geometry(np.asarray(self.mesh.p), t)[1] / math.factorial(self.dim)
 
@@ -605,6 +607,7 @@ class VectorSpace:
         return out
 
     def scalar_mass(self) -> sp.csr_matrix:
+        """The scalar mass matrix int phi_i phi_j (CSR, exact)."""
         return self.scalar_matrix(self.scalar_mass_values)
 
     def kron_identity(self, values: np.ndarray) -> sp.csr_matrix:
@@ -794,6 +797,7 @@ class VectorSpace:
 
     # -- boundary -------------------------------------------------------------------------------
     def part_names(self) -> list[str]:
+        """The names of the mesh's boundary parts, sorted."""
         return sorted((self.mesh.boundaries or {}).keys())
 
     def facets(self, parts, name: str = "parts") -> np.ndarray:
@@ -826,6 +830,9 @@ class VectorSpace:
     def facet_quadrature(
         self, parts, intorder: int | None = None, name: str = "parts"
     ) -> FacetQuadrature:
+        """A :class:`FacetQuadrature` on the named boundary parts (degree ``intorder``, default 2p;
+        ``name`` is the parameter an unknown part's error names).
+        """
         from skfem import FacetBasis  # heavy: imported when first needed (start-up time)
 
         facets = self.facets(parts, name)

@@ -178,6 +178,7 @@ def check_simplex_mesh(mesh, name: str = "mesh") -> int:
 
 
 def mesh_dim(mesh) -> int:
+    """The space dimension d of a mesh (2: triangles, 3: tetrahedra)."""
     return int(mesh.p.shape[0])
 
 
@@ -470,16 +471,19 @@ def _boundary_parts(m, blocks, dim, new_index) -> dict[str, np.ndarray]:
 
 
 def boundary_part_names(mesh) -> list[str]:
+    """The names of the mesh's boundary parts, sorted (empty without named parts)."""
     return sorted((mesh.boundaries or {}).keys())
 
 
 def describe(mesh) -> str:
+    """``'<nodes> nodes, <cells> triangles'`` (or tetrahedra), for messages."""
     d = mesh_dim(mesh)
     kind = "triangles" if d == 2 else "tetrahedra"
     return f"{mesh.p.shape[1]} nodes, {mesh.t.shape[1]} {kind}"
 
 
 def require_dim(mesh, dim: int, name: str = "mesh"):
+    """``mesh`` if it is ``dim``-dimensional, else a one-line error naming ``name``."""
     d = mesh_dim(mesh)
     if d != dim:
         raise RotheInputError(

@@ -74,6 +74,9 @@ class CellIndicators:
         return float(np.sqrt(np.sum(self.eta**2)))
 
     def describe(self) -> dict:
+        """The estimate, the cell, jump and boundary parts ((sum of squares)^(1/2) each) and the
+        largest eta_K.
+        """
         return {
             "estimate": self.estimate,
             "cell": float(np.sqrt(self.cell.sum())),
@@ -102,6 +105,7 @@ class SimplexEvaluator:
 
     @cached_property
     def topology(self) -> FacetTopology:
+        """The facet topology (:class:`FacetTopology`) of the evaluator's mesh."""
         return FacetTopology(self.p, self.t)
 
     # -- cells ----------------------------------------------------------------------------------

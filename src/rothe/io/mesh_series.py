@@ -63,6 +63,9 @@ class MeshSeries:
         self._meshes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def add(self, mesh_id: int, points, cells) -> None:
+        """Store the mesh (points (n, d), cells (nc, d+1)) under ``mesh_id`` (copied; an id
+        already present is ignored).
+        """
         mesh_id = int(mesh_id)
         if mesh_id < 0:
             raise ValueError(f"mesh_id must be >= 0, got {mesh_id}")
@@ -78,6 +81,7 @@ class MeshSeries:
         return len(self._meshes)
 
     def mesh(self, mesh_id) -> tuple[np.ndarray, np.ndarray]:
+        """(points, cells) of ``mesh_id`` (a KeyError listing the ids if it is not stored)."""
         try:
             return self._meshes[int(mesh_id)]
         except KeyError:
@@ -137,6 +141,7 @@ class MeshSeries:
 
     @classmethod
     def restore_state(cls, data) -> MeshSeries:
+        """The series from :meth:`checkpoint_state`'s dict."""
         series = cls()
         for k in np.asarray(data["ids"], dtype=np.int64):
             series.add(int(k), data["points"][str(k)], data["cells"][str(k)])

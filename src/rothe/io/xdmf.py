@@ -271,6 +271,9 @@ class StreamedSeries:
         return {"segments": list(self.segments), "steps": [dict(s) for s in self.steps]}
 
     def restore_state(self, data: dict) -> None:
+        """Continue from :meth:`checkpoint_state`: the open segment discarded, the segments and
+        steps recorded then restored.
+        """
         if self._open is not None:
             self._open.discard()
             self._open = None

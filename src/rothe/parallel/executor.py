@@ -63,6 +63,7 @@ def dask_available() -> bool:
 
 
 def cpu_count() -> int:
+    """The CPUs this process may run on (its affinity; ``os.cpu_count()`` where there is none)."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - macOS, Windows
@@ -226,6 +227,9 @@ class Executor:
         return self.scheduler is None and self.workers == 1
 
     def describe(self) -> str:
+        """In-process, a local Dask cluster of n workers, or the scheduler's address (for the
+        summary of a sweep).
+        """
         if self.in_process:
             return "in-process"
         if self.scheduler is None:
@@ -254,6 +258,7 @@ class Executor:
             self.close()
 
     def close(self) -> None:
+        """Close the Dask client and cluster this executor started (not one it was given)."""
         while self._owned:
             obj = self._owned.pop()
             try:

@@ -234,6 +234,9 @@ class MeshChange:
         return transfer_matrix(self, degree=degree, components=components)
 
     def describe(self) -> dict:
+        """The sizes of the two meshes and what changed (mesh ids, cells, vertices, bisections,
+        merges, removed vertices), for statistics and summaries.
+        """
         return {
             "old_mesh_id": self.old_mesh_id,
             "new_mesh_id": self.new_mesh_id,
