@@ -27,6 +27,7 @@ NEUTRAL = (
     "rothe.parallel",
     "rothe.errors",
     "rothe.timing",
+    "rothe._version",
 )
 
 

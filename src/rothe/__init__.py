@@ -34,6 +34,7 @@ docs/ris.md, docs/ris_fem.md, docs/eld.md, docs/adaptivity.md, docs/robustness.m
 docs/scaling.md in the source distribution, and the docstrings.
 """
 
+from ._version import __version__ as __version__
 from .errors import RotheInputError, RunFailed
 from .io.trajectory import RunStatistics, Trajectory
 from .ris.controllers import (
@@ -50,8 +51,6 @@ from .ris.run import RISResult, run_nested, run_ris
 from .ris.stepper import RISStepper
 from .stepping.controllers import Adaptive, Given, Uniform, UniformController
 from .stepping.evolve import evolve
-
-__version__ = "0.2.0"
 
 __all__ = [
     "Adaptive",

@@ -19,7 +19,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from .. import __version__
+from .._version import __version__
 from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
 from ..io.checkpoint import CheckpointError, load_checkpoint
 from . import registry

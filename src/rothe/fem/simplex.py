@@ -28,7 +28,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import fail
-from .adapt.topology import (
+from .topology import (
     FacetTopology,
     barycentric_gradients,
     cell_diameters,

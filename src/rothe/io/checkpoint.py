@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._version import __version__
 from ..errors import OutputWriteError, RotheInputError, check_positive
 from .atomic import atomic_path, remove_stale_temporaries
 from .trajectory import RAGGED_LENGTHS, RunStatistics, Trajectory
@@ -79,9 +80,6 @@ class CheckpointError(RotheInputError):
 
 def package_version() -> str:
     """The version of rothe (recorded in, and required of, every checkpoint)."""
-    # here, not at the top: rothe/__init__ imports this package while it is being imported
-    from .. import __version__
-
     return __version__
 
 

@@ -25,9 +25,9 @@ from ..fem.adapt.efficiency import (
     front,
     refinement_study,
 )
-from ..fem.adapt.topology import lagrange_values
 from ..fem.scalar import boundary_nodes, lumped_mass, stiffness
 from ..fem.simplex import SimplexEvaluator
+from ..fem.topology import lagrange_values
 from .examples import d2g_7_2, dg_7_2
 from .indicator import ris_indicators
 

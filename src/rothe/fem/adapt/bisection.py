@@ -94,7 +94,7 @@ import numpy as np
 
 from ...errors import check_int, described, fail
 from ..mesh import _read_meshio
-from .topology import (
+from ..topology import (
     SKFEM_FACETS,
     FacetTopology,
     barycentric_gradients,

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ...errors import fail
-from .topology import (
+from ..topology import (
     barycentric,
     edge_structures,
     lagrange_dofs,
