@@ -183,6 +183,9 @@ def eld_indicators_for(problem, t: float, u: np.ndarray, velocity: np.ndarray | 
 
     space = problem.space
     m = problem.material
+    if getattr(problem, "cell_material", None) is not None:
+        raise fail("material", "a PiecewiseMaterial", "must be one Material for the space "
+                   "adaptivity indicator (per-cell constants: not yet supported)")
     damp = problem.damping
     kw = {}
     if isinstance(damp, RayleighDamping):
@@ -201,7 +204,7 @@ def eld_indicators_for(problem, t: float, u: np.ndarray, velocity: np.ndarray | 
         return lambda x, n: g(float(t), x, n)
 
     traction = {part: at_t(g) for part, (g, _) in problem._traction.items()}
-    return eld_indicators(space.mesh, space.degree, m.lam, m.mu, u, rho=m.rho, accel=accel,
+    return eld_indicators(space.mesh, space.degree, m.lam_eff, m.mu, u, rho=m.rho, accel=accel,
                           velocity=velocity, body_force=body, traction=traction,
                           dirichlet_parts=problem.constraint.parts, reaction=reaction,
                           evaluator=evaluator, **kw)
