@@ -137,7 +137,7 @@ class ReactionSensor(Sensor):
         d = system.body.space.dim
         if self.part not in c.parts:
             raise fail(f"{name}.part", self.part, "must be a constrained part (prescribed or "
-                       "coupled): " + ", ".join(c.parts))
+                       "coupled): " + ", ".join(sorted(c.parts)))
         w = c._reaction_weights[self.part]  # int_P lambda_c ds = w . lambda_c
         axes = list(range(d)) if self.axes is None else self.axes
         Y = np.zeros((len(axes), c.m))
@@ -195,7 +195,9 @@ class Controller(ABC):
         self.n_inputs = self.Y_u.shape[0]
         mc = self.component.size
         E = np.eye(mc, self.outputs) if self._directions is None else \
-            np.asarray(self._directions, dtype=float).reshape(mc, -1)
+            np.asarray(self._directions, dtype=float)
+        if E.ndim == 1:  # one output: a column
+            E = E[:, None]
         if E.shape != (mc, self.outputs):
             raise fail(f"{label}.directions", described(f"an array of shape {E.shape}"),
                        f"must have shape ({mc}, {self.outputs}) (component coordinates x "
