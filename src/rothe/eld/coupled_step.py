@@ -250,6 +250,33 @@ class CoupledStepSystem:
         return x0 - self.X @ q, q, z
 
 
+def coupled_modes(system: CoupledProblem, count: int = 6, lifting: str = "nodal"):
+    """The undamped natural modes of the coupled system (no controllers): the generalized
+    eigenproblem of K and M restricted to the constraint, u = P^T x_I + Phi q,
+
+        T^T blkdiag(K, K_q) T  v = w^2  T^T blkdiag(rho M, M_q) T  v,   T = [P^T, Phi],
+
+    solved densely (small problems: tests, the examples' reference frequencies and initial
+    data). Returns (w (count,), u modes (n, count), q modes (r, count)), w ascending."""
+    kern = CoupledStepSystem(system, lifting)
+    n, I, r = system.body.space.ndofs, kern.I, kern.r
+    T = np.zeros((n, I.size + r))
+    T[I, np.arange(I.size)] = 1.0
+    T[:, I.size:] = kern.Phi
+    Kq = np.zeros((r, r))
+    for cmp in system.components:
+        if not cmp.is_linear:
+            raise fail("components", cmp.name, "must be linear for natural modes")
+        sl = system.slice(cmp)
+        Kq[sl, sl] = cmp.stiffness
+    KT = T.T @ (kern.K @ T)
+    KT[I.size:, I.size:] += Kq
+    MT = T.T @ (kern.rho * (kern.M @ T))
+    MT[I.size:, I.size:] += kern.Mq
+    w2, V = sla.eigh(0.5 * (KT + KT.T), 0.5 * (MT + MT.T), subset_by_index=[0, count - 1])
+    return np.sqrt(np.maximum(w2, 0.0)), T @ V, V[I.size:]
+
+
 def _taylor(x0, v0, a0, h):
     """(x(-h), v(-h)) of the quadratic Taylor polynomial."""
     return x0 - h * v0 + 0.5 * h * h * a0, v0 - h * a0
@@ -270,10 +297,11 @@ def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = 
     form : 'regularized' (g', g'' of the known data evaluated: prescribed G_dot, G_ddot) or
         'original' (nodal lifting, the known data differenced: the original form (2.7))
     noise : callable j -> (theta, xi, vartheta), each (r,) or None: perturbations of the
-        coordinates that enter the coupling data at step j (the component's outputs seen by
-        the body). Regularized form: g = ... + Gamma (q + theta), g' = ... + Gamma (p + xi),
-        g'' = ... + Gamma (pdot + vartheta); original form: only theta (its quotients enter
-        through the differenced data).
+        coordinates that enter the coupling data at step j = 1..n (the component's outputs
+        seen by the body; the initial state is exact). Regularized form:
+        g = ... + Gamma (q + theta), g' = ... + Gamma (p + xi), g'' = ... + Gamma (pdot +
+        vartheta); original form: only theta (its quotients enter through the differenced
+        data).
     watch : sparse (k, n) rows, recorded on u at every step (``watch_u``) and on v
         (``watch_v``)
 
@@ -303,8 +331,12 @@ def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = 
     comps_linear = all(cmp.is_linear for cmp in system.components)
     ctrls = system.controllers
 
+    Cmat = D.linear  # small problems: C assembled once
+    BT = c.B.T.tocsr()
+    rhoM = (rho * M).tocsr()
+
     def C_apply(v):
-        return D.linear_apply(v)
+        return Cmat @ v
 
     def comp_force(t, q, p):
         return system.force(t, q, p)
@@ -320,10 +352,9 @@ def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = 
     # -- initial state: consistent u0, v0 trace, accelerations (the index-1 system) -----------
     q0, p0 = system.q0, system.p0
     z0 = np.concatenate([k.z0 for k in ctrls]) if ctrls else np.zeros(0)
-    th0, xi0, vt0 = noise_at(0)
-    gk0 = body.G(0.0) + Gam @ th0
-    gdk0 = body.G_dot(0.0) + Gam @ xi0
-    gddk0 = body.G_ddot(0.0) + Gam @ vt0
+    gk0 = body.G(0.0)  # (noise from the first step on: the initial state is exact)
+    gdk0 = body.G_dot(0.0)
+    gddk0 = body.G_ddot(0.0)
     system.check_initial_consistency()
     u0 = body.u0.copy()
     u0[c.dofs] = gk0 + Gam @ q0
@@ -444,7 +475,7 @@ def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = 
         v_k = c_x + kern.lift(gdk) + Phi @ c_q
         a_k = kap * c_x + c_y + kern.lift(gddk) + Phi @ (kap * c_q + c_p)
         F = body.load(t)
-        r_k = rho * (M @ a_k) + C_apply(v_k) + K @ u_k - F
+        r_k = rhoM @ a_k + C_apply(v_k) + K @ u_k - F
         kern.factor(kap * kap, kap, 1.0, 1.0, kap, kap)
         y_k = (kern.Y_u @ u_k + kern.Y_v @ v_k - kern._LZ.T @ r_k) if kern.k_in else np.zeros(0)
         pd_k = kap * c_q + c_p  # pdot = kappa^2 q + pd_k
@@ -481,9 +512,9 @@ def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = 
         u = x + kern.lift(gk + Gam @ q)
         v = y + kern.lift(gdk + Gam @ p)
         a = b + kern.lift(gddk + Gam @ pdot)
-        res = rho * (M @ a) + C_apply(v) + K @ u - F
+        res = rhoM @ a + C_apply(v) + K @ u - F
         lam = kern.multiplier(res)
-        R = res + c.B.T @ lam  # algebraic residual of the body rows (solver tolerance)
+        R = res + BT @ lam  # algebraic residual of the body rows (solver tolerance)
         ys = kern.Y_u @ u + kern.Y_v @ v + kern.Y_lam @ lam if kern.k_in else np.zeros(0)
         w = kern.Cc @ z + kern.Dc @ ys if kern.o else np.zeros(0)
         Rq = (Mqs @ pdot + comp_force(t, q, p) - Gam.T @ (c.boundary_mass @ lam)
@@ -501,7 +532,6 @@ def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = 
             dprev = h[-1] - h[-2] if al2 != 0.0 else 0.0 * dz
             return out_ + now @ (W @ ((al0 - 1.0) * dz - al2 * dprev))
 
-        rhoM = rho * M
         num = N("v", v, rhoM) + N("u", u, K) + N("p", p, Mqs) + N("q", q, Kq_lin)
         mism = tau * (rhoM @ (a - quot("v", v))) @ v + tau * (K @ u) @ (v - quot("u", u))
         # the components' quotients are exact (p = delta q, pdot = delta p), no mismatch

@@ -256,12 +256,14 @@ def beam_tip_mass_equation(lam: float, mass_ratio: float) -> float:
     return 1.0 + c * ch + mass_ratio * lam * (c * sh - s * ch)
 
 
-def _controlled_char(s, L, E, rho, A, m_b, k_b, H):
-    """det of the 3 x 3 system in (a, b, W) of the controlled bar (module docstring)."""
-    c = np.sqrt(E / rho)
+def _controlled_char(s, L, E, rho, A, m_b, k_b, H, b=0.0):
+    """det of the 3 x 3 system in (a, b, W) of the controlled bar (module docstring); with
+    Kelvin-Voigt damping sigma = E (eps + b eps') the modulus is E (1 + b s)."""
+    Es = E * (1.0 + b * s)
+    c = np.sqrt(Es / rho + 0j)
     z = s * L / c
     ch, sh = np.cosh(z), np.sinh(z)
-    EA = E * A
+    EA = Es * A
     # phi = a cosh(s x/c) + b sinh(s x/c); phi'(x) = (s/c)(a sinh + b cosh)
     M = np.array([
         [1.0, 0.0, -1.0],  # phi(0) = W
@@ -275,16 +277,18 @@ def _controlled_char(s, L, E, rho, A, m_b, k_b, H):
 
 def controlled_bar_roots(length: float, E: float, rho: float, *, area: float = 1.0,
                          base_mass: float, base_stiffness: float = 0.0, H=None,
-                         count: int = 2) -> np.ndarray:
+                         kelvin_voigt: float = 0.0, count: int = 2) -> np.ndarray:
     """The roots s = -alpha + i w of the controlled bar (module docstring) near the first
     ``count`` uncontrolled frequencies; H(s) the feedback's transfer function from the tip
-    displacement to the actuator force (None: no feedback)."""
+    displacement to the actuator force (None: no feedback); ``kelvin_voigt`` b of the bar's
+    stiffness-proportional damping (Rayleigh b K: the modulus E (1 + b s))."""
     L = check_positive("length", length)
     E = check_positive("E", E)
     rho = check_positive("rho", rho)
     A = check_positive("area", area)
     mb = check_positive("base_mass", base_mass)
     kb = float(base_stiffness)
+    kv = float(kelvin_voigt)
     H0 = (lambda s: 0.0) if H is None else H
     free = bar_frequencies(L, E, rho, area=A, left=Attachment.mass_spring(mb, kb),
                            right="free", count=count + (1 if kb == 0 else 0))
@@ -294,10 +298,10 @@ def controlled_bar_roots(length: float, E: float, rho: float, *, area: float = 1
     for w in free:
         s = 1j * w
         for _ in range(100):
-            f = _controlled_char(s, L, E, rho, A, mb, kb, H0)
+            f = _controlled_char(s, L, E, rho, A, mb, kb, H0, kv)
             h = 1e-7 * abs(s)
-            df = (_controlled_char(s + h, L, E, rho, A, mb, kb, H0)
-                  - _controlled_char(s - h, L, E, rho, A, mb, kb, H0)) / (2 * h)
+            df = (_controlled_char(s + h, L, E, rho, A, mb, kb, H0, kv)
+                  - _controlled_char(s - h, L, E, rho, A, mb, kb, H0, kv)) / (2 * h)
             step = f / df
             s = s - step
             if abs(step) < 1e-13 * abs(s):
