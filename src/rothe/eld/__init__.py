@@ -11,9 +11,33 @@ with Dirichlet data enforced weakly by a Lagrange multiplier (the boundary react
 nonlinear damping with the constants of (2.5), the step bound of Lemma 3.2, energy bookkeeping,
 the perturbation behaviour of Theorem 4.5, stresses (:mod:`rothe.eld.stress`) and outputs for
 ParaView (:func:`write_eld_result`). See ``docs/eld.md``.
+
+Coupled systems (``docs/coupling.md``, issue 19): components (:mod:`rothe.eld.components`),
+couplings B u = G(t, q) and :class:`CoupledProblem` (:mod:`rothe.eld.coupling`), sensors and
+controllers (:mod:`rothe.eld.control`), the bordered coupled step (:mod:`rothe.eld.coupled_step`),
+interfaces between bodies (:mod:`rothe.eld.interface`), several materials
+(:class:`PiecewiseMaterial`), analytic references (:mod:`rothe.eld.frequencies`).
 """
 
+from .components import (
+    Component,
+    LinearComponent,
+    MassSpringDamper,
+    PointMass,
+    RigidBody,
+    TunedMassDamper,
+    UserComponent,
+)
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
+from .control import LinearController, PointSensor, ReactionSensor, UserController
+from .coupled_step import CoupledStepSystem, coupled_modes, run_coupled_reference
+from .coupling import (
+    CoupledProblem,
+    Coupling,
+    RigidMotion,
+    Translation,
+    UserCoupling,
+)
 from .damping import (
     Damping,
     DampingConstants,
@@ -25,7 +49,8 @@ from .damping import (
 )
 from .data import DataNoise, StepData
 from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem, ramp_problem
-from .materials import Material
+from .interface import Interface
+from .materials import Material, PiecewiseMaterial
 from .output import write_eld_result
 from .problem import DirichletData, ELDProblem
 from .schemes import (
@@ -41,6 +66,27 @@ from .stress import StressEvaluator, cauchy_stress, von_mises
 from .studies import convergence_study, perturbation_study
 
 __all__ = [
+    "Component",
+    "CoupledProblem",
+    "CoupledStepSystem",
+    "Coupling",
+    "Interface",
+    "LinearComponent",
+    "LinearController",
+    "MassSpringDamper",
+    "PiecewiseMaterial",
+    "PointMass",
+    "PointSensor",
+    "ReactionSensor",
+    "RigidBody",
+    "RigidMotion",
+    "Translation",
+    "TunedMassDamper",
+    "UserComponent",
+    "UserController",
+    "UserCoupling",
+    "coupled_modes",
+    "run_coupled_reference",
     "Damping",
     "DampingConstants",
     "DataNoise",

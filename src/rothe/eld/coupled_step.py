@@ -54,6 +54,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import RunFailed, check_positive, fail
+from ..stepping.evolve import single_threaded_blas
 from .constraint import HarmonicLifting, NodalLifting
 from .coupling import CoupledProblem
 
@@ -285,6 +286,16 @@ def _taylor(x0, v0, a0, h):
 def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = None, *,
                           scheme: str = "euler", form: str = "regularized",
                           lifting: str = "nodal", noise=None, watch=None) -> dict:
+    """Uniform steps of the coupled scheme (see :func:`_run`), with BLAS on one thread as in
+    the evolve loop (threaded level-1 BLAS spin-waits on busy cores)."""
+    with single_threaded_blas():
+        return _run(system, tau, T, scheme=scheme, form=form, lifting=lifting, noise=noise,
+                    watch=watch)
+
+
+def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
+         scheme: str = "euler", form: str = "regularized",
+         lifting: str = "nodal", noise=None, watch=None) -> dict:
     """Uniform steps of the coupled scheme (module docstring) from t = 0 to T.
 
     Parameters
