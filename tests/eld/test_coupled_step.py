@@ -304,3 +304,18 @@ def test_refusals_of_the_coupled_step():
         run_coupled_reference(CoupledProblem(ELDProblem(_strip(4), BAR,
                                                         dirichlet={"left": _zero}),
                                              [tip], [Translation("right", tip)]), 0.3)
+
+
+def test_the_example_of_docs_coupling_runs(capsys):
+    import re
+    from pathlib import Path
+
+    doc = Path(__file__).resolve().parents[2] / "docs" / "coupling.md"
+    code = re.search(r"```python\n(.*?)```", doc.read_text(), re.S).group(1)
+    namespace: dict = {}
+    exec(compile(code, str(doc), "exec"), namespace)  # noqa: S102 - our own documentation
+    res, w = namespace["res"], namespace["w"]
+    exact = bar_frequencies(1.0, 100.0, 1.0, area=0.25, right=Attachment.point_mass(0.25))
+    assert np.min(np.abs(w - exact[0])) < 1e-6 * exact[0]
+    assert np.abs(res["balance"]).max() < 1e-12 * res["energy"][0]
+    assert "8.6033" in capsys.readouterr().out
