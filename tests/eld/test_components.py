@@ -27,8 +27,9 @@ def _cloud(dim, n=40, seed=3):
     if dim == 2:
         J = float(np.sum(m * (r**2).sum(axis=0)))
     else:
-        J = np.einsum("k,k,ab->ab", m, (r**2).sum(axis=0), np.eye(3)) \
-            - np.einsum("k,ak,bk->ab", m, r, r)
+        J = np.einsum("k,k,ab->ab", m, (r**2).sum(axis=0), np.eye(3)) - np.einsum(
+            "k,ak,bk->ab", m, r, r
+        )
     return x, m, mass, xc, J
 
 
@@ -89,8 +90,14 @@ def _pendulum_jac(t, q, p):
 
 
 def test_user_component_with_correct_jacobians_is_accepted():
-    c = UserComponent(np.eye(2), _pendulum_force, _pendulum_jac, q0=[0.3, 0.1], p0=[0.2, 0],
-                      potential=lambda q: 1 - np.cos(q[0]) + q[1] ** 4 / 4)
+    c = UserComponent(
+        np.eye(2),
+        _pendulum_force,
+        _pendulum_jac,
+        q0=[0.3, 0.1],
+        p0=[0.2, 0],
+        potential=lambda q: 1 - np.cos(q[0]) + q[1] ** 4 / 4,
+    )
     assert not c.is_linear
     assert c.potential(np.array([0.0, 0.0])) == 0.0
 
@@ -103,32 +110,54 @@ def test_bad_component_input_is_one_line_each():
         return fq, fp
 
     cases = [
-        (lambda: LinearComponent([[1.0, 0.5], [0.0, 1.0]]),
-         r"^mass: got a non-symmetric matrix \(max \|M - M\^T\| = 0\.5\), must be symmetric "
-         r"positive definite$"),
-        (lambda: LinearComponent([[1.0, 1.0], [1.0, 1.0]]),
-         r"^mass: got a singular or indefinite matrix \(smallest eigenvalue .*\), must be "
-         r"symmetric positive definite$"),
-        (lambda: LinearComponent([[1.0, 0], [0, -1.0]]),
-         r"^mass: got a singular or indefinite matrix"),
-        (lambda: LinearComponent(np.eye(2), stiffness=[[1.0, 2.0], [0.0, 1.0]]),
-         r"^stiffness: got a non-symmetric matrix .*must be symmetric \(a potential force\)$"),
-        (lambda: LinearComponent(np.eye(2), damping=np.ones(3)),
-         r"^damping: got an array of shape \(3,\), must be a number, a vector of length 2"),
+        (
+            lambda: LinearComponent([[1.0, 0.5], [0.0, 1.0]]),
+            r"^mass: got a non-symmetric matrix \(max \|M - M\^T\| = 0\.5\), must be symmetric "
+            r"positive definite$",
+        ),
+        (
+            lambda: LinearComponent([[1.0, 1.0], [1.0, 1.0]]),
+            r"^mass: got a singular or indefinite matrix \(smallest eigenvalue .*\), must be "
+            r"symmetric positive definite$",
+        ),
+        (
+            lambda: LinearComponent([[1.0, 0], [0, -1.0]]),
+            r"^mass: got a singular or indefinite matrix",
+        ),
+        (
+            lambda: LinearComponent(np.eye(2), stiffness=[[1.0, 2.0], [0.0, 1.0]]),
+            r"^stiffness: got a non-symmetric matrix .*must be symmetric \(a potential force\)$",
+        ),
+        (
+            lambda: LinearComponent(np.eye(2), damping=np.ones(3)),
+            r"^damping: got an array of shape \(3,\), must be a number, a vector of length 2",
+        ),
         (lambda: PointMass(0.0), r"^mass: got 0, must be > 0$"),
         (lambda: PointMass(1.0, dim=4), r"^dim: got 4, must be 2 or 3$"),
-        (lambda: RigidBody(1.0, [[1, 0, 0], [0, 1, 0], [0, 0, -1]], [0, 0, 0], dim=3),
-         r"^inertia: got a singular or indefinite matrix"),
-        (lambda: RigidBody(1.0, 1.0, [0, 0, 0], dim=2), r"^center: got an array of shape "
-         r"\(3,\), must have shape \(2,\)$"),
-        (lambda: UserComponent(np.eye(2), _pendulum_force, wrong, q0=[0.3, 0.1]),
-         r"^jacobians: got a Jacobian that disagrees with finite differences of force in q at "
-         r"\(0\.3, 0\.1\) \(max error .* against scale .*\), must be its derivative$"),
-        (lambda: UserComponent(np.eye(2), _pendulum_force, _pendulum_jac,
-                               potential=lambda q: np.cos(q[0])),
-         r"^potential: got a Jacobian that disagrees with finite differences of potential"),
-        (lambda: UserComponent(np.eye(2), lambda t, q, p: np.zeros(3), _pendulum_jac),
-         r"^force: got values of shape \(3,\), must return finite values of shape \(2,\)$"),
+        (
+            lambda: RigidBody(1.0, [[1, 0, 0], [0, 1, 0], [0, 0, -1]], [0, 0, 0], dim=3),
+            r"^inertia: got a singular or indefinite matrix",
+        ),
+        (
+            lambda: RigidBody(1.0, 1.0, [0, 0, 0], dim=2),
+            r"^center: got an array of shape "
+            r"\(3,\), must have shape \(2,\)$",
+        ),
+        (
+            lambda: UserComponent(np.eye(2), _pendulum_force, wrong, q0=[0.3, 0.1]),
+            r"^jacobians: got a Jacobian that disagrees with finite differences of force in q at "
+            r"\(0\.3, 0\.1\) \(max error .* against scale .*\), must be its derivative$",
+        ),
+        (
+            lambda: UserComponent(
+                np.eye(2), _pendulum_force, _pendulum_jac, potential=lambda q: np.cos(q[0])
+            ),
+            r"^potential: got a Jacobian that disagrees with finite differences of potential",
+        ),
+        (
+            lambda: UserComponent(np.eye(2), lambda t, q, p: np.zeros(3), _pendulum_jac),
+            r"^force: got values of shape \(3,\), must return finite values of shape \(2,\)$",
+        ),
     ]
     for make, message in cases:
         with pytest.raises(RotheInputError, match=message) as info:

@@ -29,8 +29,7 @@ BAR = Material.from_young(100.0, 0.0, 1.0, dim=2, plane="stress")  # nu = 0: an 
 
 
 def _strip(nx, ny=1):
-    return tag_box_faces(MeshTri.init_tensor(np.linspace(0, L, nx + 1),
-                                             np.linspace(0, H, ny + 1)))
+    return tag_box_faces(MeshTri.init_tensor(np.linspace(0, L, nx + 1), np.linspace(0, H, ny + 1)))
 
 
 def _zero(t, x):
@@ -66,17 +65,28 @@ def _shaken_tip(degree=2, nx=6, controllers=False, T=0.5):
     damping, a body force; optionally a PD controller on the tip mass fed by the tip velocity
     and the reaction on 'left'."""
     mat = Material.from_young(100.0, 0.3, 1.0, dim=2, plane="stress")
-    tip = MassSpringDamper(0.3, [30.0, 5.0], 0.2, name="tip",
-                           load=lambda t: np.array([0.0, -0.3 * np.sin(t)]))
+    tip = MassSpringDamper(
+        0.3, [30.0, 5.0], 0.2, name="tip", load=lambda t: np.array([0.0, -0.3 * np.sin(t)])
+    )
     ctrls = []
     if controllers:
-        ctrls = [LinearController.pd(0.5, 0.1, PointSensor([0.5, H / 2], "velocity"), tip,
-                                     filter_time=0.02),
-                 LinearController(None, None, None, [[0.05, 0.0]], ReactionSensor("left"), tip,
-                                  directions=[0.0, 1.0])]
-    problem = ELDProblem(_strip(nx), mat, degree=degree, damping=RayleighDamping(0.1, 0.002),
-                         dirichlet={"left": DirichletData(_shake, _shake_dot, _shake_ddot)},
-                         body_force=lambda t, x: np.stack([0 * x[0], -0.1 + 0 * x[0]]), T=T)
+        ctrls = [
+            LinearController.pd(
+                0.5, 0.1, PointSensor([0.5, H / 2], "velocity"), tip, filter_time=0.02
+            ),
+            LinearController(
+                None, None, None, [[0.05, 0.0]], ReactionSensor("left"), tip, directions=[0.0, 1.0]
+            ),
+        ]
+    problem = ELDProblem(
+        _strip(nx),
+        mat,
+        degree=degree,
+        damping=RayleighDamping(0.1, 0.002),
+        dirichlet={"left": DirichletData(_shake, _shake_dot, _shake_ddot)},
+        body_force=lambda t, x: np.stack([0 * x[0], -0.1 + 0 * x[0]]),
+        T=T,
+    )
     return CoupledProblem(problem, [tip], [Translation("right", tip)], ctrls)
 
 
@@ -114,9 +124,11 @@ def test_tip_mass_frequencies_converge_to_the_transcendental_equation(degree, or
     errors = []
     for nx in (4, 8, 16):
         tip = PointMass(m)
-        system = CoupledProblem(ELDProblem(_strip(nx), BAR, degree=degree,
-                                           dirichlet={"left": _zero}),
-                                [tip], [Translation("right", tip)])
+        system = CoupledProblem(
+            ELDProblem(_strip(nx), BAR, degree=degree, dirichlet={"left": _zero}),
+            [tip],
+            [Translation("right", tip)],
+        )
         w, _, q = coupled_modes(system, 12)
         axial = w[np.abs(q[0]) > 10 * np.abs(q[1])]  # the tip moves along the bar
         errors.append([np.min(np.abs(axial - e)) / e for e in exact])
@@ -131,17 +143,22 @@ def test_frequency_measured_from_a_run_converges_in_tau():
     discrete frequency up to BDF2's phase error O(tau^2); the energy is kept to O(tau^2)."""
     m = 0.25
     tip0 = PointMass(m)
-    base = CoupledProblem(ELDProblem(_strip(8), BAR, degree=2, dirichlet={"left": _zero}),
-                          [tip0], [Translation("right", tip0)])
+    base = CoupledProblem(
+        ELDProblem(_strip(8), BAR, degree=2, dirichlet={"left": _zero}),
+        [tip0],
+        [Translation("right", tip0)],
+    )
     w, U, Q = coupled_modes(base, 12)
     k = int(np.argmax(np.abs(Q[0]) > 10 * np.abs(Q[1])))
     exact = bar_frequencies(L, 100.0, 1.0, area=H, right=Attachment.point_mass(m), count=1)[0]
     assert w[k] == pytest.approx(exact, rel=1e-6)
     scale = 0.01 / np.abs(Q[:, k]).max()
     tip = PointMass(m, q0=Q[:, k] * scale)
-    system = CoupledProblem(ELDProblem(_strip(8), BAR, degree=2, dirichlet={"left": _zero},
-                                       u0=U[:, k] * scale, T=2.0),
-                            [tip], [Translation("right", tip)])
+    system = CoupledProblem(
+        ELDProblem(_strip(8), BAR, degree=2, dirichlet={"left": _zero}, u0=U[:, k] * scale, T=2.0),
+        [tip],
+        [Translation("right", tip)],
+    )
     freq, energy = [], []
     for tau in (0.01, 0.005):
         res = run_coupled_reference(system, tau, scheme="bdf2")
@@ -160,14 +177,23 @@ def test_rigid_limit_a_stiff_body_on_a_mass_spring():
     k, m = 50.0, 2.0
     stiff = Material.from_young(1e5, 0.0, 1.0, dim=2, plane="stress")
     base = MassSpringDamper(m, [k, 1e4], p0=[1.0, 0.0], name="base")
-    system = CoupledProblem.from_body(_strip(4), stiff, components=[base],
-                                      couplings=[Translation("left", base)],
-                                      v0=lambda x: np.stack([1 + 0 * x[0], 0 * x[0]]), T=3.0)
+    system = CoupledProblem.from_body(
+        _strip(4),
+        stiff,
+        components=[base],
+        couplings=[Translation("left", base)],
+        v0=lambda x: np.stack([1 + 0 * x[0], 0 * x[0]]),
+        T=3.0,
+    )
     res = run_coupled_reference(system, 0.005, scheme="bdf2")
     w = _crossing_frequency(res["t"], res["q"][:, 0])
     assert w == pytest.approx(rigid_limit_frequency(k, m, H * L), rel=5e-4)
-    assert w == pytest.approx(bar_frequencies(L, 1e5, 1.0, area=H, left=Attachment.mass_spring(
-        m, k), right="free", count=1)[0], rel=5e-4)
+    assert w == pytest.approx(
+        bar_frequencies(
+            L, 1e5, 1.0, area=H, left=Attachment.mass_spring(m, k), right="free", count=1
+        )[0],
+        rel=5e-4,
+    )
     assert np.abs(res["balance"]).max() < 1e-10 * res["energy"][0]
 
 
@@ -181,9 +207,13 @@ def test_orders_in_tau_for_u_q_and_lambda(form):
         errors = []
         for n in (20, 40, 80):
             res = run_coupled_reference(system, 0.5 / n, scheme=scheme, form=form)
-            errors.append([np.abs(res["u"] - ref["u"]).max(),
-                           np.abs(res["q"][-1] - ref["q"][-1]).max(),
-                           system.constraint.l2_norm(res["lam"] - ref["lam"])])
+            errors.append(
+                [
+                    np.abs(res["u"] - ref["u"]).max(),
+                    np.abs(res["q"][-1] - ref["q"][-1]).max(),
+                    system.constraint.l2_norm(res["lam"] - ref["lam"]),
+                ]
+            )
         errors = np.array(errors)
         orders = np.log2(errors[:-1] / errors[1:])
         assert orders[-1].min() > low, (scheme, orders)
@@ -202,13 +232,19 @@ def test_noise_in_the_components_outputs_theorem_4_5():
         rows = []
         for n in (4, 40, 400):
             rng = np.random.default_rng(5)
-            vals = {j: tuple(delta * rng.uniform(-1, 1, 2) for _ in range(3))
-                    for j in range(1, n + 1)}
+            vals = {
+                j: tuple(delta * rng.uniform(-1, 1, 2) for _ in range(3)) for j in range(1, n + 1)
+            }
             clean = run_coupled_reference(system, 0.1 / n, scheme="bdf2", form=form)
-            noisy = run_coupled_reference(system, 0.1 / n, scheme="bdf2", form=form,
-                                          noise=vals.__getitem__)
-            rows.append([np.abs(noisy["lam_norm"] - clean["lam_norm"]).max() / delta,
-                         np.abs(noisy["p"] - clean["p"]).max() / delta])
+            noisy = run_coupled_reference(
+                system, 0.1 / n, scheme="bdf2", form=form, noise=vals.__getitem__
+            )
+            rows.append(
+                [
+                    np.abs(noisy["lam_norm"] - clean["lam_norm"]).max() / delta,
+                    np.abs(noisy["p"] - clean["p"]).max() / delta,
+                ]
+            )
         amp[form] = np.array(rows)
     slope = np.log10(amp["original"][1:] / amp["original"][:-1])  # per decade of 1/tau
     assert slope[-1, 0] > 1.8 and slope[-1, 1] > 0.8
@@ -225,23 +261,43 @@ def test_velocity_feedback_decay_rate_matches_the_controlled_bar():
 
     def system(gain, q0=None, u0=None):
         base = MassSpringDamper(mb, [kb, 1e4], q0=q0, name="base")
-        ctrl = LinearController.pd(gain, 0.0, PointSensor([L, H / 2], "velocity", axes=[0]),
-                                   base, directions=[[1.0], [0.0]])
-        return CoupledProblem.from_body(_strip(8), BAR, degree=2,
-                                        damping=RayleighDamping(0.0, b), components=[base],
-                                        couplings=[Translation("left", base)],
-                                        controllers=[ctrl], u0=u0, T=6.0)
+        ctrl = LinearController.pd(
+            gain,
+            0.0,
+            PointSensor([L, H / 2], "velocity", axes=[0]),
+            base,
+            directions=[[1.0], [0.0]],
+        )
+        return CoupledProblem.from_body(
+            _strip(8),
+            BAR,
+            degree=2,
+            damping=RayleighDamping(0.0, b),
+            components=[base],
+            couplings=[Translation("left", base)],
+            controllers=[ctrl],
+            u0=u0,
+            T=6.0,
+        )
 
     w, U, Q = coupled_modes(_uncontrolled(mb, kb), 6)
     k = int(np.argmax(np.abs(Q[0]) > 10 * np.abs(Q[1])))
     scale = 0.01 / np.abs(Q[:, k]).max()
-    res = run_coupled_reference(system(kv, Q[:, k] * scale, U[:, k] * scale), 0.005,
-                                scheme="bdf2")
+    res = run_coupled_reference(system(kv, Q[:, k] * scale, U[:, k] * scale), 0.005, scheme="bdf2")
     t, y = res["t"], res["q"][:, 0]
     peaks = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] > y[2:])) + 1
     rate = -np.polyfit(t[peaks], np.log(y[peaks]), 1)[0]
-    root = controlled_bar_roots(L, 100.0, 1.0, area=H, base_mass=mb, base_stiffness=kb,
-                                H=lambda s: kv * s, kelvin_voigt=b, count=1)[0]
+    root = controlled_bar_roots(
+        L,
+        100.0,
+        1.0,
+        area=H,
+        base_mass=mb,
+        base_stiffness=kb,
+        H=lambda s: kv * s,
+        kelvin_voigt=b,
+        count=1,
+    )[0]
     assert rate == pytest.approx(-root.real, rel=0.01)
     assert _crossing_frequency(t, y) == pytest.approx(root.imag, rel=2e-3)
     assert res["work_controllers"][-1] < 0  # the controller takes energy out
@@ -250,8 +306,9 @@ def test_velocity_feedback_decay_rate_matches_the_controlled_bar():
 
 def _uncontrolled(mb, kb):
     base = MassSpringDamper(mb, [kb, 1e4], name="base")
-    return CoupledProblem.from_body(_strip(8), BAR, degree=2, components=[base],
-                                    couplings=[Translation("left", base)])
+    return CoupledProblem.from_body(
+        _strip(8), BAR, degree=2, components=[base], couplings=[Translation("left", base)]
+    )
 
 
 def test_one_back_substitution_per_step_and_r_per_factorization():
@@ -287,23 +344,44 @@ def test_nonlinear_component_by_newton_on_the_border_alone():
 
 def test_refusals_of_the_coupled_step():
     tip = PointMass(1.0)
-    nonlinear = CoupledProblem(ELDProblem(_strip(4), BAR, damping=NonlinearDamping(),
-                                          dirichlet={"left": _zero}),
-                               [tip], [Translation("right", tip)])
-    with pytest.raises(RotheInputError, match=r"^damping: got .*, must be linear for the "
-                                              r"coupled step"):
+    nonlinear = CoupledProblem(
+        ELDProblem(_strip(4), BAR, damping=NonlinearDamping(), dirichlet={"left": _zero}),
+        [tip],
+        [Translation("right", tip)],
+    )
+    with pytest.raises(
+        RotheInputError,
+        match=r"^damping: got .*, must be linear for the "
+        r"coupled step",
+    ):
         CoupledStepSystem(nonlinear)
-    curved = CoupledProblem(ELDProblem(_strip(4), BAR, dirichlet={"left": _zero}), [tip], [
-        UserCoupling("right", tip, lambda t, q, x: np.broadcast_to((q + q**2)[:, None], x.shape),
-                     lambda t, q, x: np.broadcast_to(np.diag(1 + 2 * q)[:, None, :],
-                                                     (2, x.shape[1], 2)))])
-    with pytest.raises(RotheInputError, match=r"^couplings: got 'a nonlinear coupling', must "
-                                              r"be linear here"):
+    curved = CoupledProblem(
+        ELDProblem(_strip(4), BAR, dirichlet={"left": _zero}),
+        [tip],
+        [
+            UserCoupling(
+                "right",
+                tip,
+                lambda t, q, x: np.broadcast_to((q + q**2)[:, None], x.shape),
+                lambda t, q, x: np.broadcast_to(np.diag(1 + 2 * q)[:, None, :], (2, x.shape[1], 2)),
+            )
+        ],
+    )
+    with pytest.raises(
+        RotheInputError,
+        match=r"^couplings: got 'a nonlinear coupling', must "
+        r"be linear here",
+    ):
         CoupledStepSystem(curved)
     with pytest.raises(RotheInputError, match=r"^tau: got 0\.3, must divide T = 1"):
-        run_coupled_reference(CoupledProblem(ELDProblem(_strip(4), BAR,
-                                                        dirichlet={"left": _zero}),
-                                             [tip], [Translation("right", tip)]), 0.3)
+        run_coupled_reference(
+            CoupledProblem(
+                ELDProblem(_strip(4), BAR, dirichlet={"left": _zero}),
+                [tip],
+                [Translation("right", tip)],
+            ),
+            0.3,
+        )
 
 
 def test_the_example_of_docs_coupling_runs(capsys):

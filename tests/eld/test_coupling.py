@@ -15,7 +15,9 @@ MAT = Material(rho=1.0, lam=1.0, mu=1.0)
 
 
 def _strip(nx=8, ny=2):
-    return tag_box_faces(MeshTri.init_tensor(np.linspace(0, 2, nx + 1), np.linspace(0, .5, ny + 1)))
+    return tag_box_faces(
+        MeshTri.init_tensor(np.linspace(0, 2, nx + 1), np.linspace(0, 0.5, ny + 1))
+    )
 
 
 def _zero(t, x):
@@ -24,8 +26,9 @@ def _zero(t, x):
 
 def _system(degree=2, with_left=True):
     body = RigidBody(2.0, 0.1, [2.2, 0.25], reference=[2.0, 0.25])
-    problem = ELDProblem(_strip(), MAT, degree=degree,
-                         dirichlet={"left": _zero} if with_left else {"bottom": _zero})
+    problem = ELDProblem(
+        _strip(), MAT, degree=degree, dirichlet={"left": _zero} if with_left else {"bottom": _zero}
+    )
     return CoupledProblem(problem, [body], [RigidMotion("right", body)]), body
 
 
@@ -61,13 +64,19 @@ def test_action_equals_reaction_for_a_rigid_body(degree):
 def test_translation_data_derivatives_and_lifted_modes():
     mass = PointMass(1.0)
     stage = MassSpringDamper(1.0, 4.0, name="stage")
-    problem = ELDProblem(_strip(), MAT, degree=2,
-                         dirichlet={"left": lambda t, x: np.stack([t + 0 * x[0], 0 * x[0]])})
+    problem = ELDProblem(
+        _strip(), MAT, degree=2, dirichlet={"left": lambda t, x: np.stack([t + 0 * x[0], 0 * x[0]])}
+    )
     # 'left' is moved in y by the stage's second coordinate, 'right' by the mass
     system = CoupledProblem.from_body(
-        _strip(), MAT, components=[stage, mass],
-        couplings=[Translation("left", stage, coordinates=[1], directions=[[0.0], [1.0]]),
-                   Translation("right", mass)])
+        _strip(),
+        MAT,
+        components=[stage, mass],
+        couplings=[
+            Translation("left", stage, coordinates=[1], directions=[[0.0], [1.0]]),
+            Translation("right", mass),
+        ],
+    )
     Gam = system.gamma().toarray()
     left = 2 * system.constraint.part_positions["left"]
     assert np.array_equal(Gam[left + 1, 1], np.ones(left.size)) and np.all(Gam[left, :] == 0)
@@ -103,6 +112,7 @@ def _rotation(theta):
 
 def _finite_rotation(x0):
     """G = a + (R(theta) - I)(x - x0): a rigid motion with a finite rotation (nonlinear)."""
+
     def G(t, q, x):
         r = x - x0[:, None]
         return q[:2, None] + (_rotation(q[2]) - np.eye(2)) @ r
@@ -116,7 +126,7 @@ def _finite_rotation(x0):
         return J
 
     def curvature(t, q, p, x):  # G_qq[p, p] = p_theta^2 R''(theta) r = -p_theta^2 R r
-        return -p[2] ** 2 * (_rotation(q[2]) @ (x - x0[:, None]))
+        return -(p[2] ** 2) * (_rotation(q[2]) @ (x - x0[:, None]))
 
     return G, G_q, curvature
 
@@ -127,25 +137,34 @@ def test_curvature_terms_of_a_nonlinear_coupling_give_the_second_time_derivative
     x0 = np.array([2.0, 0.25])
     G, G_q, curv = _finite_rotation(x0)
     body = RigidBody(1.0, 0.1, x0)
-    system = CoupledProblem(ELDProblem(_strip(), MAT, dirichlet={"left": _zero}), [body],
-                            [UserCoupling("right", body, G, G_q, curvature=curv)])
+    system = CoupledProblem(
+        ELDProblem(_strip(), MAT, dirichlet={"left": _zero}),
+        [body],
+        [UserCoupling("right", body, G, G_q, curvature=curv)],
+    )
     assert not system.is_linear
 
     def path(t):  # q(t), q'(t), q''(t)
-        return (np.array([0.1 * t, -0.05 * t**2, 0.8 * np.sin(2 * t)]),
-                np.array([0.1, -0.1 * t, 1.6 * np.cos(2 * t)]),
-                np.array([0.0, -0.1, -3.2 * np.sin(2 * t)]))
+        return (
+            np.array([0.1 * t, -0.05 * t**2, 0.8 * np.sin(2 * t)]),
+            np.array([0.1, -0.1 * t, 1.6 * np.cos(2 * t)]),
+            np.array([0.0, -0.1, -3.2 * np.sin(2 * t)]),
+        )
 
     t, h = 0.4, 1e-4
     q, p, pd = path(t)
     fd1 = (system.g(t + h, path(t + h)[0]) - system.g(t - h, path(t - h)[0])) / (2 * h)
-    fd2 = (system.g(t + h, path(t + h)[0]) - 2 * system.g(t, q)
-           + system.g(t - h, path(t - h)[0])) / h**2
+    fd2 = (
+        system.g(t + h, path(t + h)[0]) - 2 * system.g(t, q) + system.g(t - h, path(t - h)[0])
+    ) / h**2
     assert np.abs(system.g_dot(t, q, p) - fd1).max() < 1e-8
     assert np.abs(system.g_ddot(t, q, p, pd) - fd2).max() < 1e-5
     # without the curvature term G'' misses p_theta^2 R r
-    no_curv = CoupledProblem(ELDProblem(_strip(), MAT, dirichlet={"left": _zero}), [body],
-                             [UserCoupling("right", body, G, G_q)])
+    no_curv = CoupledProblem(
+        ELDProblem(_strip(), MAT, dirichlet={"left": _zero}),
+        [body],
+        [UserCoupling("right", body, G, G_q)],
+    )
     assert np.abs(no_curv.g_ddot(t, q, p, pd) - fd2).max() > 0.1
 
 
@@ -166,14 +185,16 @@ def test_power_of_the_constraint_forces_vanishes_for_scleronomic_couplings():
 @pytest.mark.filterwarnings("ignore:G_d")
 def test_a_body_held_only_by_couplings():
     mass = MassSpringDamper(1.0, 1.0)
-    system = CoupledProblem.from_body(_strip(), MAT, components=[mass],
-                                      couplings=[Translation("bottom", mass)], T=2.0)
+    system = CoupledProblem.from_body(
+        _strip(), MAT, components=[mass], couplings=[Translation("bottom", mass)], T=2.0
+    )
     assert system.constraint.parts == ("bottom",) and system.body.T == 2.0
     with pytest.raises(RotheInputError, match=r"^couplings: got \[\], must hold at least one"):
         CoupledProblem.from_body(_strip(), MAT, components=[mass], couplings=[])
     with pytest.raises(RotheInputError, match=r"^lamda: got an unknown keyword, must be one of"):
-        CoupledProblem.from_body(_strip(), MAT, components=[mass],
-                                 couplings=[Translation("bottom", mass)], lamda=1.0)
+        CoupledProblem.from_body(
+            _strip(), MAT, components=[mass], couplings=[Translation("bottom", mass)], lamda=1.0
+        )
 
 
 @pytest.mark.filterwarnings("ignore:G_d")
@@ -181,8 +202,9 @@ def test_bad_coupling_input_is_one_line_each():
     mass = PointMass(1.0)
     other = PointMass(2.0, name="other")
     body3 = RigidBody(1.0, 1.0, [0, 0, 0], dim=3)
-    loaded = ELDProblem(_strip(), MAT, dirichlet={"left": _zero},
-                        traction={"right": lambda t, x, n: 0 * x})
+    loaded = ELDProblem(
+        _strip(), MAT, dirichlet={"left": _zero}, traction={"right": lambda t, x, n: 0 * x}
+    )
     plain = ELDProblem(_strip(), MAT, dirichlet={"left": _zero})
     x0 = np.array([2.0, 0.25])
     G, G_q, curv = _finite_rotation(x0)
@@ -194,39 +216,75 @@ def test_bad_coupling_input_is_one_line_each():
         return J
 
     cases = [
-        (lambda: CoupledProblem(plain, [mass], [Translation("tip", mass)]),
-         r"^couplings\[0\]\.part: got 'tip', must be one of bottom, left, right, top \(boundary "
-         r"parts of the mesh\)$"),
-        (lambda: CoupledProblem(loaded, [mass], [Translation("right", mass)]),
-         r"^couplings\[0\]\.part: got 'right', also carries a traction; a coupled part is held"),
-        (lambda: CoupledProblem(plain, [mass], [Translation("left", mass)]),
-         r"^couplings\[0\]\.part: got 'left', also carries prescribed Dirichlet data; a part is "
-         r"either prescribed or coupled$"),
-        (lambda: CoupledProblem(plain, [mass], [Translation("bottom", mass)]),
-         r"^couplings\[0\]\.part: got 'bottom', shares 1 node\(s\) with the constrained part "
-         r"'left'; coupled parts must not touch other constrained parts$"),
-        (lambda: CoupledProblem(plain, [mass], [Translation("right", other)]),
-         r"^couplings\[0\]\.component: got 'other', must be one of the system's components: "
-         r"mass$"),
-        (lambda: CoupledProblem(plain, [mass, mass], []),
-         r"^components\[1\]\.name: got 'mass', must be unique in the system$"),
-        (lambda: CoupledProblem(plain, [mass], [Translation("right", mass),
-                                                Translation("right", mass)]),
-         r"^couplings\[1\]\.part: got 'right', is already coupled \(couplings\[0\]\)$"),
-        (lambda: CoupledProblem(plain, [body3], [RigidMotion("right", body3)]),
-         r"^body: got a 3D rigid body, must have the mesh's dimension 2$"),
-        (lambda: CoupledProblem(plain, [body], [UserCoupling("right", body, G, bad_G_q)]),
-         r"^G_q: got a Jacobian that disagrees with finite differences of G in q at "),
-        (lambda: CoupledProblem(plain, [body], [UserCoupling(
-            "right", body, G, G_q, curvature=lambda t, q, p, x: 2 * curv(t, q, p, x))]),
-         r"^curvature: got a Jacobian that disagrees with finite differences of G_q p along p"),
-        (lambda: CoupledProblem(plain, [PointMass(1.0, q0=[0.01, 0.0])],
-                                [Translation("right", PointMass(1.0))]),
-         r"^couplings\[0\]\.component: got 'mass', must be one of the system's components"),
-        (lambda: Translation("right", mass, coordinates=[2]),
-         r"^coordinates: got 2, must be an index of the component's 2 coordinates$"),
-        (lambda: RigidMotion("right", mass), r"^body: got 'PointMass', must be a "
-                                             r"rothe.eld.RigidBody$"),
+        (
+            lambda: CoupledProblem(plain, [mass], [Translation("tip", mass)]),
+            r"^couplings\[0\]\.part: got 'tip', must be one of bottom, left, right, top \(boundary "
+            r"parts of the mesh\)$",
+        ),
+        (
+            lambda: CoupledProblem(loaded, [mass], [Translation("right", mass)]),
+            r"^couplings\[0\]\.part: got 'right', also carries a traction; a coupled part is held",
+        ),
+        (
+            lambda: CoupledProblem(plain, [mass], [Translation("left", mass)]),
+            r"^couplings\[0\]\.part: got 'left', also carries prescribed Dirichlet data; a part is "
+            r"either prescribed or coupled$",
+        ),
+        (
+            lambda: CoupledProblem(plain, [mass], [Translation("bottom", mass)]),
+            r"^couplings\[0\]\.part: got 'bottom', shares 1 node\(s\) with the constrained part "
+            r"'left'; coupled parts must not touch other constrained parts$",
+        ),
+        (
+            lambda: CoupledProblem(plain, [mass], [Translation("right", other)]),
+            r"^couplings\[0\]\.component: got 'other', must be one of the system's components: "
+            r"mass$",
+        ),
+        (
+            lambda: CoupledProblem(plain, [mass, mass], []),
+            r"^components\[1\]\.name: got 'mass', must be unique in the system$",
+        ),
+        (
+            lambda: CoupledProblem(
+                plain, [mass], [Translation("right", mass), Translation("right", mass)]
+            ),
+            r"^couplings\[1\]\.part: got 'right', is already coupled \(couplings\[0\]\)$",
+        ),
+        (
+            lambda: CoupledProblem(plain, [body3], [RigidMotion("right", body3)]),
+            r"^body: got a 3D rigid body, must have the mesh's dimension 2$",
+        ),
+        (
+            lambda: CoupledProblem(plain, [body], [UserCoupling("right", body, G, bad_G_q)]),
+            r"^G_q: got a Jacobian that disagrees with finite differences of G in q at ",
+        ),
+        (
+            lambda: CoupledProblem(
+                plain,
+                [body],
+                [
+                    UserCoupling(
+                        "right", body, G, G_q, curvature=lambda t, q, p, x: 2 * curv(t, q, p, x)
+                    )
+                ],
+            ),
+            r"^curvature: got a Jacobian that disagrees with finite differences of G_q p along p",
+        ),
+        (
+            lambda: CoupledProblem(
+                plain, [PointMass(1.0, q0=[0.01, 0.0])], [Translation("right", PointMass(1.0))]
+            ),
+            r"^couplings\[0\]\.component: got 'mass', must be one of the system's components",
+        ),
+        (
+            lambda: Translation("right", mass, coordinates=[2]),
+            r"^coordinates: got 2, must be an index of the component's 2 coordinates$",
+        ),
+        (
+            lambda: RigidMotion("right", mass),
+            r"^body: got 'PointMass', must be a "
+            r"rothe.eld.RigidBody$",
+        ),
     ]
     for make, message in cases:
         with pytest.raises(RotheInputError, match=message) as info:
@@ -234,8 +292,11 @@ def test_bad_coupling_input_is_one_line_each():
         assert "\n" not in str(info.value)
     moved = PointMass(1.0, q0=[0.01, 0.0])
     system = CoupledProblem(plain, [moved], [Translation("right", moved)])
-    with pytest.raises(RotheInputError, match=r"^u0: got max\|u0 - G\(0, q0\)\| = 0\.01 on the "
-                                              r"part 'right', must equal G\(0, q0\) there"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^u0: got max\|u0 - G\(0, q0\)\| = 0\.01 on the "
+        r"part 'right', must equal G\(0, q0\) there",
+    ):
         system.check_initial_consistency()
     system.body.u0 = system.consistent_u0()
     assert system.check_initial_consistency() == 0.0

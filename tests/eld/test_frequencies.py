@@ -30,15 +30,21 @@ def test_tip_mass_roots_are_the_table_values():
 def test_bar_frequencies_clamped_free_and_with_a_tip_mass():
     L, E, rho, A = 2.0, 100.0, 1.0, 0.25
     c = np.sqrt(E / rho)
-    assert np.allclose(bar_frequencies(L, E, rho) * L / c, [np.pi / 2, 3 * np.pi / 2,
-                                                            5 * np.pi / 2], rtol=1e-12)
+    assert np.allclose(
+        bar_frequencies(L, E, rho) * L / c, [np.pi / 2, 3 * np.pi / 2, 5 * np.pi / 2], rtol=1e-12
+    )
     m = 0.5
     w = bar_frequencies(L, E, rho, area=A, right=Attachment.point_mass(m))
     assert np.allclose(w * L / c, tip_mass_roots(rho * A * L / m), rtol=1e-11)
     # the same mass given as a component, and the mass-spring limits: a very stiff spring is
     # the rigid tip mass, a very soft one the free tip (plus the mass's own slow mode)
-    assert np.allclose(bar_frequencies(L, E, rho, area=A, right=Attachment.of(
-        MassSpringDamper(m, 0.0, dim=2), at=0), count=3), w, rtol=1e-11)
+    assert np.allclose(
+        bar_frequencies(
+            L, E, rho, area=A, right=Attachment.of(MassSpringDamper(m, 0.0, dim=2), at=0), count=3
+        ),
+        w,
+        rtol=1e-11,
+    )
     stiff = bar_frequencies(L, E, rho, area=A, right=Attachment.suspended(1e-9, m, 1e9))
     assert np.allclose(stiff, w, rtol=1e-6)
     soft = bar_frequencies(L, E, rho, area=A, right=Attachment.suspended(1e-9, m, 1e-2), count=2)
@@ -54,8 +60,7 @@ def test_beam_frequencies_clamped_free_and_with_a_tip_mass():
     for ratio, first in ((1.0, 1.24792), (0.2, 1.61640)):
         root = brentq(beam_tip_mass_equation, 0.5, 1.875, args=(ratio,))
         assert root == pytest.approx(first, abs=2e-5)
-        w = beam_frequencies(2.0, 3.0, 0.5, right=Attachment.point_mass(ratio * 0.5 * 2.0),
-                             count=1)
+        w = beam_frequencies(2.0, 3.0, 0.5, right=Attachment.point_mass(ratio * 0.5 * 2.0), count=1)
         assert (0.5 * w[0] ** 2 / 3.0) ** 0.25 * 2.0 == pytest.approx(root, rel=1e-10)
 
 
@@ -64,9 +69,16 @@ def test_rigid_limit_of_a_bar_on_a_mass_spring():
     with an error O(1/E)."""
     k, m = 50.0, 2.0
     w_rigid = rigid_limit_frequency(k, m, 1.0)
-    errors = [abs(bar_frequencies(1.0, E, 1.0, left=Attachment.mass_spring(m, k),
-                                  right="free", count=1)[0] / w_rigid - 1)
-              for E in (1e3, 1e4, 1e5)]
+    errors = [
+        abs(
+            bar_frequencies(1.0, E, 1.0, left=Attachment.mass_spring(m, k), right="free", count=1)[
+                0
+            ]
+            / w_rigid
+            - 1
+        )
+        for E in (1e3, 1e4, 1e5)
+    ]
     assert errors[0] < 1e-3 and errors[2] < 1e-5
     assert errors[0] / errors[1] == pytest.approx(10.0, rel=0.02)
 
@@ -80,14 +92,14 @@ def test_first_mode_decay_rate_under_velocity_feedback():
     assert np.abs(free.real).max() < 1e-10 * np.abs(free).max()
     ratios = []
     for kv in (0.2, 0.05):
-        H = (lambda s, kv=kv: kv * s)  # noqa: E731
+        H = lambda s, kv=kv: kv * s  # noqa: E731
         roots = controlled_bar_roots(1.0, 100.0, 1.0, H=H, count=2, **setup)
         ratios.append(-roots[0].real / first_mode_decay_rate(1.0, 100.0, 1.0, H=H, **setup))
         assert roots[0].real < 0 < roots[1].real
     assert abs(ratios[1] - 1) < 1e-5 and abs(ratios[0] - 1) / abs(ratios[1] - 1) > 8
     # PD with a filtered derivative: the derivative part adds inertia, not damping, to first
     # order; the decay comes from kp
-    H = (lambda s: s * (0.05 + 0.01 * s / (1 + 1e-3 * s)))  # noqa: E731
+    H = lambda s: s * (0.05 + 0.01 * s / (1 + 1e-3 * s))  # noqa: E731
     alpha = first_mode_decay_rate(1.0, 100.0, 1.0, H=H, **setup)
     roots = controlled_bar_roots(1.0, 100.0, 1.0, H=H, count=1, **setup)
     assert -roots[0].real == pytest.approx(alpha, rel=0.05)
@@ -95,12 +107,18 @@ def test_first_mode_decay_rate_under_velocity_feedback():
 
 def test_bad_frequency_input_is_one_line():
     for make, message in [
-        (lambda: bar_frequencies(1.0, 1.0, 1.0, left="free"),
-         r"^left: got 'free', and right both free: the bar is not held"),
-        (lambda: bar_frequencies(1.0, 1.0, 1.0, right="hinged"),
-         r"^right: got 'hinged', must be 'clamped', 'free' or an Attachment$"),
-        (lambda: Attachment(np.eye(2), np.zeros((2, 2)), at=2),
-         r"^at: got 2, must be a coordinate index 0\.\.1$"),
+        (
+            lambda: bar_frequencies(1.0, 1.0, 1.0, left="free"),
+            r"^left: got 'free', and right both free: the bar is not held",
+        ),
+        (
+            lambda: bar_frequencies(1.0, 1.0, 1.0, right="hinged"),
+            r"^right: got 'hinged', must be 'clamped', 'free' or an Attachment$",
+        ),
+        (
+            lambda: Attachment(np.eye(2), np.zeros((2, 2)), at=2),
+            r"^at: got 2, must be a coordinate index 0\.\.1$",
+        ),
         (lambda: tip_mass_roots(-1.0), r"^mass_ratio: got -1, must be > 0$"),
     ]:
         with pytest.raises(RotheInputError, match=message):

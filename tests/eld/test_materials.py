@@ -16,15 +16,15 @@ from rothe.fem.mesh import tag_box_faces
 
 
 def _bar(nx=8, ny=2, length=2.0, height=0.25):
-    return tag_box_faces(MeshTri.init_tensor(np.linspace(0, length, nx + 1),
-                                             np.linspace(0, height, ny + 1)))
+    return tag_box_faces(
+        MeshTri.init_tensor(np.linspace(0, length, nx + 1), np.linspace(0, height, ny + 1))
+    )
 
 
 def _halves(mesh, at=1.0):
     """Subdomains 'a' (centroid x < at) and 'b'."""
     c = mesh.p[:, mesh.t].mean(axis=1)
-    return mesh.with_subdomains({"a": np.flatnonzero(c[0] < at),
-                                 "b": np.flatnonzero(c[0] >= at)})
+    return mesh.with_subdomains({"a": np.flatnonzero(c[0] < at), "b": np.flatnonzero(c[0] >= at)})
 
 
 @pytest.mark.parametrize("degree", [1, 2])
@@ -32,9 +32,12 @@ def test_all_regions_with_one_material_assemble_the_single_material_matrices(deg
     mesh = _halves(_bar())
     steel = Material.from_young(E=200.0, nu=0.3, rho=7.8, dim=2)
     one = ELDProblem(mesh, steel, degree=degree, dirichlet={"left": lambda t, x: 0 * x})
-    two = ELDProblem(mesh, PiecewiseMaterial({"steel": steel}, regions={"a": "steel",
-                                                                        "b": "steel"}),
-                     degree=degree, dirichlet={"left": lambda t, x: 0 * x})
+    two = ELDProblem(
+        mesh,
+        PiecewiseMaterial({"steel": steel}, regions={"a": "steel", "b": "steel"}),
+        degree=degree,
+        dirichlet={"left": lambda t, x: 0 * x},
+    )
     assert abs(one.K - two.K).max() <= 1e-13 * abs(one.K).max()
     assert abs(one.M - two.M).max() == 0.0
     assert two.material.rho == 7.8
@@ -46,11 +49,20 @@ def test_two_material_bar_static_displacement_is_the_analytic_one():
     piecewise linear, so P1 is exact when x = 1 is a mesh line."""
     mesh = _halves(_bar(nx=8, ny=2))
     E1, E2, P = 100.0, 25.0, 0.3
-    mats = PiecewiseMaterial({"stiff": Material.from_young(E1, 0.0, 1.0, dim=2),
-                              "soft": Material.from_young(E2, 0.0, 2.0, dim=2)},
-                             regions={"a": "stiff", "b": "soft"})
-    problem = ELDProblem(mesh, mats, degree=1, dirichlet={"left": lambda t, x: 0 * x},
-                         traction={"right": lambda t, x, n: np.stack([P + 0 * x[0], 0 * x[0]])})
+    mats = PiecewiseMaterial(
+        {
+            "stiff": Material.from_young(E1, 0.0, 1.0, dim=2),
+            "soft": Material.from_young(E2, 0.0, 2.0, dim=2),
+        },
+        regions={"a": "stiff", "b": "soft"},
+    )
+    problem = ELDProblem(
+        mesh,
+        mats,
+        degree=1,
+        dirichlet={"left": lambda t, x: 0 * x},
+        traction={"right": lambda t, x, n: np.stack([P + 0 * x[0], 0 * x[0]])},
+    )
     c = problem.constraint
     K = problem.K.tocsr()
     u = np.zeros(problem.space.ndofs)
@@ -86,8 +98,9 @@ def test_plane_models_give_their_energy_for_a_uniform_strain(plane):
 
 def test_piecewise_stresses_use_each_cells_constants():
     mesh = _halves(_bar())
-    mats = PiecewiseMaterial({"x": Material(1.0, 1.0, 1.0), "y": Material(1.0, 3.0, 2.0)},
-                             regions={"a": "x", "b": "y"})
+    mats = PiecewiseMaterial(
+        {"x": Material(1.0, 1.0, 1.0), "y": Material(1.0, 3.0, 2.0)}, regions={"a": "x", "b": "y"}
+    )
     V = VectorSpace(mesh, 1)
     u = np.ascontiguousarray((0.01 * V.doflocs).T).ravel()  # eps = 0.01 I, tr = 0.02
     s = StressEvaluator(V, mats).stress(u)
@@ -99,8 +112,10 @@ def test_piecewise_stresses_use_each_cells_constants():
 
 def test_regions_by_predicate_of_the_centroids():
     mesh = _bar()
-    mats = PiecewiseMaterial({"x": Material(1.0, 1.0, 1.0), "y": Material(4.0, 1.0, 1.0)},
-                             regions={lambda c: c[0] < 1.0: "x", lambda c: c[0] >= 1.0: "y"})
+    mats = PiecewiseMaterial(
+        {"x": Material(1.0, 1.0, 1.0), "y": Material(4.0, 1.0, 1.0)},
+        regions={lambda c: c[0] < 1.0: "x", lambda c: c[0] >= 1.0: "y"},
+    )
     cells = mats.on_mesh(mesh)
     assert set(np.unique(cells.rho)) == {1.0, 4.0}
     assert cells.density_weight.max() == 1.0 and mats.rho == 4.0
@@ -110,11 +125,15 @@ def test_gmsh_cell_physical_groups_are_subdomains_and_material_regions(tmp_path)
     points = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0], [2, 1, 0]], float)
     tris = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
     lines = np.array([[0, 3]])
-    m = meshio.Mesh(points, [("triangle", tris), ("line", lines)],
-                    cell_data={"gmsh:physical": [np.array([1, 1, 2, 2]), np.array([3])],
-                               "gmsh:geometrical": [np.array([1, 1, 2, 2]), np.array([3])]},
-                    field_data={"core": np.array([1, 2]), "shell": np.array([2, 2]),
-                                "clamp": np.array([3, 1])})
+    m = meshio.Mesh(
+        points,
+        [("triangle", tris), ("line", lines)],
+        cell_data={
+            "gmsh:physical": [np.array([1, 1, 2, 2]), np.array([3])],
+            "gmsh:geometrical": [np.array([1, 1, 2, 2]), np.array([3])],
+        },
+        field_data={"core": np.array([1, 2]), "shell": np.array([2, 2]), "clamp": np.array([3, 1])},
+    )
     path = tmp_path / "two.msh"
     m.write(path, file_format="gmsh22", binary=False)
     mesh = meshes.load_mesh(path)
@@ -136,28 +155,48 @@ def test_bad_material_input_is_one_line_each():
     mesh = _halves(_bar())
     one = Material(1.0, 1.0, 1.0)
     cases = [
-        (lambda: PiecewiseMaterial({"x": one}, regions={"a": "x"}).on_mesh(mesh),
-         r"^materials: got 16 of 32 cells in no region with a material \(the first at "
-         r"\(1\.083, 0\.08333\)\), every cell must be in one of the regions a$"),
-        (lambda: PiecewiseMaterial({"x": one}, regions={"c": "x"}).on_mesh(mesh),
-         r"^regions: got 'c', must be one of the mesh's subdomains: a, b$"),
-        (lambda: PiecewiseMaterial({"x": one}, regions={"a": "y"}),
-         r"^regions\['a'\]: got 'y', must be one of the materials: x$"),
-        (lambda: PiecewiseMaterial({"x": one, "y": Material(1.0, 1.0, 2.0)},
-                                   regions={"a": "x", lambda c: c[0] < 2: "y"}).on_mesh(mesh),
-         r"^regions: got '<lambda>', must not overlap a region of another material: 16 cells"),
-        (lambda: PiecewiseMaterial({"x": one, "y": Material(1.0, 1.0, 1.0, dim=3)}),
-         r"^materials\['y'\]: got dim 3, plane 'strain', must match the other materials"),
+        (
+            lambda: PiecewiseMaterial({"x": one}, regions={"a": "x"}).on_mesh(mesh),
+            r"^materials: got 16 of 32 cells in no region with a material \(the first at "
+            r"\(1\.083, 0\.08333\)\), every cell must be in one of the regions a$",
+        ),
+        (
+            lambda: PiecewiseMaterial({"x": one}, regions={"c": "x"}).on_mesh(mesh),
+            r"^regions: got 'c', must be one of the mesh's subdomains: a, b$",
+        ),
+        (
+            lambda: PiecewiseMaterial({"x": one}, regions={"a": "y"}),
+            r"^regions\['a'\]: got 'y', must be one of the materials: x$",
+        ),
+        (
+            lambda: PiecewiseMaterial(
+                {"x": one, "y": Material(1.0, 1.0, 2.0)},
+                regions={"a": "x", lambda c: c[0] < 2: "y"},
+            ).on_mesh(mesh),
+            r"^regions: got '<lambda>', must not overlap a region of another material: 16 cells",
+        ),
+        (
+            lambda: PiecewiseMaterial({"x": one, "y": Material(1.0, 1.0, 1.0, dim=3)}),
+            r"^materials\['y'\]: got dim 3, plane 'strain', must match the other materials",
+        ),
         (lambda: PiecewiseMaterial({}), r"^materials: got \{\}, must map at least one name"),
-        (lambda: Material(1.0, -0.7, 1.0, plane="stress"),
-         r"^lam: got -0\.7, must be > -2 mu / 3 = -0\.666667 for plane stress"),
-        (lambda: Material(1.0, 1.0, 1.0, dim=3, plane="stress"),
-         r"^plane: got 'stress', must be 'strain' \(the default\) in 3D"),
-        (lambda: Material(1.0, 1.0, 1.0, plane="shell"),
-         r"^plane: got 'shell', must be one of strain, stress$"),
-        (lambda: VectorSpace(mesh, 1).stiffness(np.ones(3), 1.0),
-         r"^lam: got an array of shape \(3,\), must be a number or one value per cell, "
-         r"shape \(32,\)$"),
+        (
+            lambda: Material(1.0, -0.7, 1.0, plane="stress"),
+            r"^lam: got -0\.7, must be > -2 mu / 3 = -0\.666667 for plane stress",
+        ),
+        (
+            lambda: Material(1.0, 1.0, 1.0, dim=3, plane="stress"),
+            r"^plane: got 'stress', must be 'strain' \(the default\) in 3D",
+        ),
+        (
+            lambda: Material(1.0, 1.0, 1.0, plane="shell"),
+            r"^plane: got 'shell', must be one of strain, stress$",
+        ),
+        (
+            lambda: VectorSpace(mesh, 1).stiffness(np.ones(3), 1.0),
+            r"^lam: got an array of shape \(3,\), must be a number or one value per cell, "
+            r"shape \(32,\)$",
+        ),
     ]
     for make, message in cases:
         with pytest.raises(RotheInputError, match=message) as info:

@@ -58,14 +58,22 @@ def check_spd(name: str, M, size: int | None = None) -> np.ndarray:
     scale = max(float(np.max(np.abs(A))), 1e-300)
     asym = float(np.max(np.abs(A - A.T)))
     if asym > SYMMETRY_TOL * scale:
-        raise fail(name, described(f"a non-symmetric matrix (max |M - M^T| = {asym:.3g})"),
-                   "must be symmetric positive definite")
+        raise fail(
+            name,
+            described(f"a non-symmetric matrix (max |M - M^T| = {asym:.3g})"),
+            "must be symmetric positive definite",
+        )
     A = 0.5 * (A + A.T)
     eig = np.linalg.eigvalsh(A)
     if not eig[0] > 1e-12 * max(eig[-1], 0.0):
-        raise fail(name, described(f"a singular or indefinite matrix (smallest eigenvalue "
-                                   f"{eig[0]:.3g}, largest {eig[-1]:.3g})"),
-                   "must be symmetric positive definite")
+        raise fail(
+            name,
+            described(
+                f"a singular or indefinite matrix (smallest eigenvalue "
+                f"{eig[0]:.3g}, largest {eig[-1]:.3g})"
+            ),
+            "must be symmetric positive definite",
+        )
     return A
 
 
@@ -77,16 +85,22 @@ def _matrix(name: str, value, size: int, symmetric: bool = False) -> np.ndarray:
     elif A.ndim == 1 and A.shape == (size,):
         A = np.diag(A)
     if A.shape != (size, size):
-        raise fail(name, described(f"an array of shape {np.shape(value)}"),
-                   f"must be a number, a vector of length {size} or a ({size}, {size}) matrix")
+        raise fail(
+            name,
+            described(f"an array of shape {np.shape(value)}"),
+            f"must be a number, a vector of length {size} or a ({size}, {size}) matrix",
+        )
     if not np.all(np.isfinite(A)):
         raise fail(name, described("non-finite entries"), "must be finite")
     if symmetric:
         scale = max(float(np.max(np.abs(A))), 1e-300)
         asym = float(np.max(np.abs(A - A.T)))
         if asym > SYMMETRY_TOL * scale:
-            raise fail(name, described(f"a non-symmetric matrix (max |K - K^T| = {asym:.3g})"),
-                       "must be symmetric (a potential force)")
+            raise fail(
+                name,
+                described(f"a non-symmetric matrix (max |K - K^T| = {asym:.3g})"),
+                "must be symmetric (a potential force)",
+            )
         A = 0.5 * (A + A.T)
     return A
 
@@ -98,15 +112,25 @@ def _vector(name: str, value, size: int) -> np.ndarray:
     if v.ndim == 0:
         v = np.full(size, float(v))
     if v.shape != (size,):
-        raise fail(name, described(f"an array of shape {np.shape(value)}"),
-                   f"must have shape ({size},)")
+        raise fail(
+            name, described(f"an array of shape {np.shape(value)}"), f"must have shape ({size},)"
+        )
     if not np.all(np.isfinite(v)):
         raise fail(name, described("non-finite entries"), "must be finite")
     return v.copy()
 
 
-def check_jacobian(name: str, f, jac, x0: np.ndarray, of: str, *, samples: int = 3,
-                   seed: int = 19, scale: float | None = None) -> None:
+def check_jacobian(
+    name: str,
+    f,
+    jac,
+    x0: np.ndarray,
+    of: str,
+    *,
+    samples: int = 3,
+    seed: int = 19,
+    scale: float | None = None,
+) -> None:
     """Compare ``jac(x)`` (an (k, n) matrix) with central differences of ``f`` at ``x0`` and
     at ``samples - 1`` random points around it, along random directions.
 
@@ -126,14 +150,19 @@ def check_jacobian(name: str, f, jac, x0: np.ndarray, of: str, *, samples: int =
         ex = J @ v
         err = ref = 0.0
         for h in (1e-5 * s, 1e-7 * s):
-            num = (np.asarray(f(x + h * v), dtype=float) - np.asarray(f(x - h * v), dtype=float)) \
-                / (2 * h)
+            num = (
+                np.asarray(f(x + h * v), dtype=float) - np.asarray(f(x - h * v), dtype=float)
+            ) / (2 * h)
             if num.shape != ex.shape:
-                raise fail(name, described(f"a Jacobian of shape {J.shape}"),
-                           f"must map a direction of shape {x0.shape} to {num.shape}")
+                raise fail(
+                    name,
+                    described(f"a Jacobian of shape {J.shape}"),
+                    f"must map a direction of shape {x0.shape} to {num.shape}",
+                )
             err = float(np.max(np.abs(ex - num), initial=0.0))
-            ref = max(1.0, float(np.max(np.abs(num), initial=0.0)),
-                      float(np.max(np.abs(ex), initial=0.0)))
+            ref = max(
+                1.0, float(np.max(np.abs(num), initial=0.0)), float(np.max(np.abs(ex), initial=0.0))
+            )
             if err <= FD_TOL * ref:
                 break
         else:
@@ -141,7 +170,9 @@ def check_jacobian(name: str, f, jac, x0: np.ndarray, of: str, *, samples: int =
             raise RotheInputError(
                 f"{name}: got a Jacobian that disagrees with finite differences of {of} at "
                 f"({where}) (max error {err:.3g} against scale {ref:.3g}), must be its "
-                f"derivative", name)
+                f"derivative",
+                name,
+            )
 
 
 class Component(ABC):
@@ -193,8 +224,12 @@ class Component(ABC):
         return 0.5 * float(p @ (self.mass @ p))
 
     def describe(self) -> dict:
-        return {"type": type(self).__name__, "name": self.name, "size": self.size,
-                "coordinates": list(self.coordinates)}
+        return {
+            "type": type(self).__name__,
+            "name": self.name,
+            "size": self.size,
+            "coordinates": list(self.coordinates),
+        }
 
 
 class LinearComponent(Component):
@@ -211,16 +246,27 @@ class LinearComponent(Component):
     name : str
     """
 
-    def __init__(self, mass, stiffness=None, damping=None, *, load=None, q0=None, p0=None,
-                 coordinates=None, name: str = "component"):
+    def __init__(
+        self,
+        mass,
+        stiffness=None,
+        damping=None,
+        *,
+        load=None,
+        q0=None,
+        p0=None,
+        coordinates=None,
+        name: str = "component",
+    ):
         M = np.asarray(mass, dtype=float)
         if M.ndim == 1:
             M = np.diag(M)
         self.mass = check_spd("mass", M)
         m = self.size = self.mass.shape[0]
         self.name = str(name)
-        self.stiffness = _matrix("stiffness", 0.0 if stiffness is None else stiffness, m,
-                                 symmetric=True)
+        self.stiffness = _matrix(
+            "stiffness", 0.0 if stiffness is None else stiffness, m, symmetric=True
+        )
         self.damping = _matrix("damping", 0.0 if damping is None else damping, m)
         if load is not None and not callable(load):
             raise fail("load", type(load).__name__, "must be a callable t -> forces")
@@ -247,8 +293,9 @@ class LinearComponent(Component):
             return np.zeros(self.size)
         f = np.asarray(self._load(float(t)), dtype=float)
         if f.shape != (self.size,):
-            raise fail("load", described(f"values of shape {f.shape}"),
-                       f"must return shape ({self.size},)")
+            raise fail(
+                "load", described(f"values of shape {f.shape}"), f"must return shape ({self.size},)"
+            )
         return f
 
     def potential(self, q):
@@ -270,12 +317,12 @@ class PointMass(LinearComponent):
 
     ``load``: callable t -> (d,) force (e.g. gravity ``lambda t: [0, -m g]``)."""
 
-    def __init__(self, mass: float, dim: int = 2, *, load=None, q0=None, p0=None,
-                 name: str = "mass"):
+    def __init__(
+        self, mass: float, dim: int = 2, *, load=None, q0=None, p0=None, name: str = "mass"
+    ):
         d = _dim(dim)
         m = check_positive("mass", mass)
-        super().__init__(m * np.eye(d), load=load, q0=q0, p0=p0, coordinates=_AXES[:d],
-                         name=name)
+        super().__init__(m * np.eye(d), load=load, q0=q0, p0=p0, coordinates=_AXES[:d], name=name)
 
 
 class MassSpringDamper(LinearComponent):
@@ -284,14 +331,25 @@ class MassSpringDamper(LinearComponent):
     ``stiffness``, ``damping``: number (isotropic), length-d vector (per axis) or d x d matrix.
     Coordinates: the displacement of the mass (d)."""
 
-    def __init__(self, mass: float, stiffness, damping=0.0, dim: int = 2, *, load=None,
-                 q0=None, p0=None, name: str = "mass_spring"):
+    def __init__(
+        self,
+        mass: float,
+        stiffness,
+        damping=0.0,
+        dim: int = 2,
+        *,
+        load=None,
+        q0=None,
+        p0=None,
+        name: str = "mass_spring",
+    ):
         d = _dim(dim)
         m = check_positive("mass", mass)
         K = _matrix("stiffness", stiffness, d, symmetric=True)
         C = _matrix("damping", damping, d)
-        super().__init__(m * np.eye(d), K, C, load=load, q0=q0, p0=p0, coordinates=_AXES[:d],
-                         name=name)
+        super().__init__(
+            m * np.eye(d), K, C, load=load, q0=q0, p0=p0, coordinates=_AXES[:d], name=name
+        )
 
 
 class TunedMassDamper(LinearComponent):
@@ -306,9 +364,21 @@ class TunedMassDamper(LinearComponent):
     mu = m_a / M on a mode of modal mass M and frequency w: k = m_a (w/(1 + mu))^2,
     c = 2 m_a (w/(1 + mu)) sqrt(3 mu / (8 (1 + mu))) (:func:`den_hartog`)."""
 
-    def __init__(self, carrier_mass: float, absorber_mass: float, stiffness, damping=0.0,
-                 dim: int = 2, *, ground_stiffness=0.0, ground_damping=0.0, load=None, q0=None,
-                 p0=None, name: str = "tmd"):
+    def __init__(
+        self,
+        carrier_mass: float,
+        absorber_mass: float,
+        stiffness,
+        damping=0.0,
+        dim: int = 2,
+        *,
+        ground_stiffness=0.0,
+        ground_damping=0.0,
+        load=None,
+        q0=None,
+        p0=None,
+        name: str = "tmd",
+    ):
         d = _dim(dim)
         mc = check_positive("carrier_mass", carrier_mass)
         ma = check_positive("absorber_mass", absorber_mass)
@@ -319,8 +389,7 @@ class TunedMassDamper(LinearComponent):
         M = np.diag(np.r_[np.full(d, mc), np.full(d, ma)])
         K = np.block([[k + kg, -k], [-k, k]])
         C = np.block([[c + cg, -c], [-c, c]])
-        names = tuple(f"carrier_{a}" for a in _AXES[:d]) + tuple(f"absorber_{a}"
-                                                                  for a in _AXES[:d])
+        names = tuple(f"carrier_{a}" for a in _AXES[:d]) + tuple(f"absorber_{a}" for a in _AXES[:d])
         super().__init__(M, K, C, load=load, q0=q0, p0=p0, coordinates=names, name=name)
 
 
@@ -375,9 +444,21 @@ class RigidBody(LinearComponent):
     load : callable t -> (m,) generalized force (force, then moment about x_ref)
     """
 
-    def __init__(self, mass: float, inertia, center, *, reference=None, dim: int = 2,
-                 stiffness=None, damping=None, load=None, q0=None, p0=None,
-                 name: str = "rigid_body"):
+    def __init__(
+        self,
+        mass: float,
+        inertia,
+        center,
+        *,
+        reference=None,
+        dim: int = 2,
+        stiffness=None,
+        damping=None,
+        load=None,
+        q0=None,
+        p0=None,
+        name: str = "rigid_body",
+    ):
         d = _dim(dim)
         m = check_positive("mass", mass)
         xc = _vector("center", center, d)
@@ -397,14 +478,23 @@ class RigidBody(LinearComponent):
         self.reference = xr
         self.body_mass = m
         rot = ("theta",) if d == 2 else ("theta_x", "theta_y", "theta_z")
-        super().__init__(M, stiffness, damping, load=load, q0=q0, p0=p0,
-                         coordinates=tuple(f"a_{a}" for a in _AXES[:d]) + rot, name=name)
+        super().__init__(
+            M,
+            stiffness,
+            damping,
+            load=load,
+            q0=q0,
+            p0=p0,
+            coordinates=tuple(f"a_{a}" for a in _AXES[:d]) + rot,
+            name=name,
+        )
         self.dim = d
 
     def displacement(self, q: np.ndarray, x: np.ndarray) -> np.ndarray:
         """a + theta x (x - x_ref) at points x (d, k): shape (d, k)."""
-        R = rigid_motion_matrix(self.dim, np.asarray(x, dtype=float).reshape(self.dim, -1),
-                                self.reference)
+        R = rigid_motion_matrix(
+            self.dim, np.asarray(x, dtype=float).reshape(self.dim, -1), self.reference
+        )
         return np.einsum("dkm,m->dk", R, np.asarray(q, dtype=float))
 
 
@@ -447,9 +537,21 @@ class UserComponent(Component):
     linear : declare f = K q + C p with constant K, C (the Jacobians at (0, q0, p0) are used)
     """
 
-    def __init__(self, mass, force, jacobians, *, load=None, potential=None, q0=None, p0=None,
-                 coordinates=None, linear: bool = False, name: str = "component",
-                 check: bool = True):
+    def __init__(
+        self,
+        mass,
+        force,
+        jacobians,
+        *,
+        load=None,
+        potential=None,
+        q0=None,
+        p0=None,
+        coordinates=None,
+        linear: bool = False,
+        name: str = "component",
+        check: bool = True,
+    ):
         self.mass = check_spd("mass", mass)
         m = self.size = self.mass.shape[0]
         self.name = str(name)
@@ -470,22 +572,42 @@ class UserComponent(Component):
         self._linear = bool(linear)
         f0 = np.asarray(force(0.0, self.q0, self.p0), dtype=float)
         if f0.shape != (m,) or not np.all(np.isfinite(f0)):
-            raise fail("force", described(f"values of shape {f0.shape}"
-                                          + ("" if np.all(np.isfinite(f0)) else ", non-finite")),
-                       f"must return finite values of shape ({m},)")
+            raise fail(
+                "force",
+                described(
+                    f"values of shape {f0.shape}"
+                    + ("" if np.all(np.isfinite(f0)) else ", non-finite")
+                ),
+                f"must return finite values of shape ({m},)",
+            )
         if check:
             q0, p0 = self.q0, self.p0
-            check_jacobian("jacobians", lambda q: self._force(0.0, q, p0),
-                           lambda q: self._jac(0.0, q, p0)[0], q0, "force in q")
-            check_jacobian("jacobians", lambda p: self._force(0.0, q0, p),
-                           lambda p: self._jac(0.0, q0, p)[1], p0, "force in p")
+            check_jacobian(
+                "jacobians",
+                lambda q: self._force(0.0, q, p0),
+                lambda q: self._jac(0.0, q, p0)[0],
+                q0,
+                "force in q",
+            )
+            check_jacobian(
+                "jacobians",
+                lambda p: self._force(0.0, q0, p),
+                lambda p: self._jac(0.0, q0, p)[1],
+                p0,
+                "force in p",
+            )
             if potential is not None:
-                check_jacobian("potential", lambda q: np.atleast_1d(self._potential(q)),
-                               lambda q: self._conservative(q)[None, :], q0,
-                               "potential (its gradient must be the force at p = 0)")
+                check_jacobian(
+                    "potential",
+                    lambda q: np.atleast_1d(self._potential(q)),
+                    lambda q: self._conservative(q)[None, :],
+                    q0,
+                    "potential (its gradient must be the force at p = 0)",
+                )
         if self._linear:
-            self.stiffness, self.damping = (np.asarray(J, dtype=float)
-                                            for J in jacobians(0.0, self.q0, self.p0))
+            self.stiffness, self.damping = (
+                np.asarray(J, dtype=float) for J in jacobians(0.0, self.q0, self.p0)
+            )
 
     def _conservative(self, q):
         return np.asarray(self._force(0.0, q, np.zeros(self.size)), dtype=float)
@@ -508,4 +630,3 @@ class UserComponent(Component):
 
     def potential(self, q):
         return None if self._potential is None else float(self._potential(q))
-

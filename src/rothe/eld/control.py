@@ -63,8 +63,11 @@ def locate(space, point: np.ndarray, name: str = "point", tol: float = 1e-10):
         lo, hi = p.min(axis=1), p.max(axis=1)
         box = " x ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
         where = ", ".join(f"{v:g}" for v in x)
-        raise fail(name, described(f"({where})"), f"must lie in the body (a mesh in the "
-                                                  f"bounding box {box}; the point is in no cell)")
+        raise fail(
+            name,
+            described(f"({where})"),
+            f"must lie in the body (a mesh in the bounding box {box}; the point is in no cell)",
+        )
     return best, X[:, best]
 
 
@@ -87,8 +90,11 @@ class PointSensor(Sensor):
     def __init__(self, point, quantity: str = "displacement", axes=None):
         x = np.asarray(point, dtype=float).ravel()
         if x.size not in (2, 3) or not np.all(np.isfinite(x)):
-            raise fail("point", described(f"{np.asarray(point).tolist()}"),
-                       "must be a finite point in 2D or 3D")
+            raise fail(
+                "point",
+                described(f"{np.asarray(point).tolist()}"),
+                "must be a finite point in 2D or 3D",
+            )
         if quantity not in QUANTITIES:
             raise fail("quantity", quantity, "must be one of " + ", ".join(QUANTITIES))
         self.point = x
@@ -102,24 +108,34 @@ class PointSensor(Sensor):
         space = system.body.space
         d = space.dim
         if self.point.size != d:
-            raise fail(f"{name}.point", described(f"a {self.point.size}D point"),
-                       f"must be a point in {d}D like the mesh")
+            raise fail(
+                f"{name}.point",
+                described(f"a {self.point.size}D point"),
+                f"must be a point in {d}D like the mesh",
+            )
         cell, X = locate(space, self.point, f"{name}.point")
         nbf = space.element_dofs.shape[0]
-        phi = np.array([float(np.ravel(space.element.lbasis(X[:, None], i)[0])[0])
-                        for i in range(nbf)])
+        phi = np.array(
+            [float(np.ravel(space.element.lbasis(X[:, None], i)[0])[0]) for i in range(nbf)]
+        )
         dofs = space.element_dofs[:, cell]
         axes = list(range(d)) if self.axes is None else self.axes
         rows = np.repeat(np.arange(len(axes)), nbf)
         cols = (d * dofs[None, :] + np.asarray(axes)[:, None]).ravel()
-        Y = sp.csr_matrix((np.tile(phi, len(axes)), (rows, cols)),
-                          shape=(len(axes), space.ndofs))
-        return {"u": Y if self.quantity == "displacement" else None,
-                "v": Y if self.quantity == "velocity" else None, "lam": None}
+        Y = sp.csr_matrix((np.tile(phi, len(axes)), (rows, cols)), shape=(len(axes), space.ndofs))
+        return {
+            "u": Y if self.quantity == "displacement" else None,
+            "v": Y if self.quantity == "velocity" else None,
+            "lam": None,
+        }
 
     def describe(self):
-        return {"type": "PointSensor", "point": self.point.tolist(), "quantity": self.quantity,
-                "axes": self.axes}
+        return {
+            "type": "PointSensor",
+            "point": self.point.tolist(),
+            "quantity": self.quantity,
+            "axes": self.axes,
+        }
 
 
 class ReactionSensor(Sensor):
@@ -136,8 +152,11 @@ class ReactionSensor(Sensor):
         c = system.constraint
         d = system.body.space.dim
         if self.part not in c.parts:
-            raise fail(f"{name}.part", self.part, "must be a constrained part (prescribed or "
-                       "coupled): " + ", ".join(sorted(c.parts)))
+            raise fail(
+                f"{name}.part",
+                self.part,
+                "must be a constrained part (prescribed or coupled): " + ", ".join(sorted(c.parts)),
+            )
         w = c._reaction_weights[self.part]  # int_P lambda_c ds = w . lambda_c
         axes = list(range(d)) if self.axes is None else self.axes
         Y = np.zeros((len(axes), c.m))
@@ -166,11 +185,15 @@ class Controller(ABC):
             raise fail("sensors", [], "must hold at least one sensor")
         for k, s in enumerate(sensors):
             if not isinstance(s, Sensor):
-                raise fail(f"sensors[{k}]", type(s).__name__, "must be a PointSensor or "
-                           "ReactionSensor")
+                raise fail(
+                    f"sensors[{k}]", type(s).__name__, "must be a PointSensor or ReactionSensor"
+                )
         if not isinstance(component, Component):
-            raise fail("component", type(component).__name__,
-                       "must be the rothe.eld component the controller acts on")
+            raise fail(
+                "component",
+                type(component).__name__,
+                "must be the rothe.eld component the controller acts on",
+            )
         self.sensors = sensors
         self.component = component
         self.name = str(name)
@@ -180,28 +203,39 @@ class Controller(ABC):
         """Check the sensors and the actuated component against ``system``, build the output
         rows Y_u, Y_v, Y_lam and the actuation matrix E (component size x outputs)."""
         if id(self.component) not in {id(c) for c in system.components}:
-            raise fail(f"{label}.component", self.component.name,
-                       "must be one of the system's components: "
-                       + (", ".join(c.name for c in system.components) or "(none)"))
+            raise fail(
+                f"{label}.component",
+                self.component.name,
+                "must be one of the system's components: "
+                + (", ".join(c.name for c in system.components) or "(none)"),
+            )
         parts = [s.rows(system, f"{label}.sensors[{k}]") for k, s in enumerate(self.sensors)]
         n, m = system.body.space.ndofs, system.constraint.m
 
         def stack(key, cols):
-            blocks = [p[key] if p[key] is not None else sp.csr_matrix((s.size, cols))
-                      for p, s in zip(parts, self.sensors, strict=True)]
+            blocks = [
+                p[key] if p[key] is not None else sp.csr_matrix((s.size, cols))
+                for p, s in zip(parts, self.sensors, strict=True)
+            ]
             return sp.vstack(blocks, format="csr")
 
         self.Y_u, self.Y_v, self.Y_lam = stack("u", n), stack("v", n), stack("lam", m)
         self.n_inputs = self.Y_u.shape[0]
         mc = self.component.size
-        E = np.eye(mc, self.outputs) if self._directions is None else \
-            np.asarray(self._directions, dtype=float)
+        E = (
+            np.eye(mc, self.outputs)
+            if self._directions is None
+            else np.asarray(self._directions, dtype=float)
+        )
         if E.ndim == 1:  # one output: a column
             E = E[:, None]
         if E.shape != (mc, self.outputs):
-            raise fail(f"{label}.directions", described(f"an array of shape {E.shape}"),
-                       f"must have shape ({mc}, {self.outputs}) (component coordinates x "
-                       "controller outputs)")
+            raise fail(
+                f"{label}.directions",
+                described(f"an array of shape {E.shape}"),
+                f"must have shape ({mc}, {self.outputs}) (component coordinates x "
+                "controller outputs)",
+            )
         self.E = E
         self._check(label)
 
@@ -226,9 +260,13 @@ class Controller(ABC):
         """(h_z, h_y, k_z, k_y)."""
 
     def describe(self) -> dict:
-        return {"type": type(self).__name__, "name": self.name, "states": self.size,
-                "component": self.component.name,
-                "sensors": [s.describe() for s in self.sensors]}
+        return {
+            "type": type(self).__name__,
+            "name": self.name,
+            "states": self.size,
+            "component": self.component.name,
+            "sensors": [s.describe() for s in self.sensors],
+        }
 
 
 class LinearController(Controller):
@@ -244,8 +282,9 @@ class LinearController(Controller):
     z0 : initial state (default 0)
     """
 
-    def __init__(self, A, B, C, D, sensors, component, *, directions=None, z0=None,
-                 name: str = "controller"):
+    def __init__(
+        self, A, B, C, D, sensors, component, *, directions=None, z0=None, name: str = "controller"
+    ):
         self._mats = (A, B, C, D)
         Dm = np.atleast_2d(np.asarray(D, dtype=float))
         self.outputs = Dm.shape[0]
@@ -263,8 +302,11 @@ class LinearController(Controller):
             if X.size == int(np.prod(shape)) and X.size:
                 X = X.reshape(shape)
             if X.shape != shape:
-                raise fail(f"{label}.{name}", described(f"an array of shape {X.shape}"),
-                           f"must have shape {shape} (states {s}, inputs {k}, outputs {o})")
+                raise fail(
+                    f"{label}.{name}",
+                    described(f"an array of shape {X.shape}"),
+                    f"must have shape {shape} (states {s}, inputs {k}, outputs {o})",
+                )
             if not np.all(np.isfinite(X)):
                 raise fail(f"{label}.{name}", described("non-finite entries"), "must be finite")
             return X
@@ -282,23 +324,44 @@ class LinearController(Controller):
         return self.A, self.B, self.C, self.D
 
     @classmethod
-    def pd(cls, kp: float, kd: float, sensor: Sensor, component: Component, *,
-           filter_time: float | None = None, directions=None, name: str = "pd"):
+    def pd(
+        cls,
+        kp: float,
+        kd: float,
+        sensor: Sensor,
+        component: Component,
+        *,
+        filter_time: float | None = None,
+        directions=None,
+        name: str = "pd",
+    ):
         """w = -(kp y + kd y'), y' by the filtered derivative (y - z)/T_f with z' = (y - z)/T_f
         (one state; without ``filter_time`` kd must be 0: static feedback w = -kp y).
         For a velocity sensor, kp is a damper (-kp v) and kd an inertance."""
         kp = float(kp)
         kd = check_nonnegative("kd", kd)
         if not isinstance(sensor, Sensor) or sensor.size is None:
-            raise fail("sensor", type(sensor).__name__, "must be a sensor of known size (a "
-                       "PointSensor, or a ReactionSensor with axes)")
+            raise fail(
+                "sensor",
+                type(sensor).__name__,
+                "must be a sensor of known size (a PointSensor, or a ReactionSensor with axes)",
+            )
         eye = np.eye(sensor.size)
         if kd == 0.0:
-            return cls(None, None, None, -kp * eye, sensor, component, directions=directions,
-                       name=name)
+            return cls(
+                None, None, None, -kp * eye, sensor, component, directions=directions, name=name
+            )
         Tf = check_positive("filter_time", filter_time)
-        return cls(-eye / Tf, eye / Tf, kd * eye / Tf, -(kp + kd / Tf) * eye, sensor, component,
-                   directions=directions, name=name)
+        return cls(
+            -eye / Tf,
+            eye / Tf,
+            kd * eye / Tf,
+            -(kp + kd / Tf) * eye,
+            sensor,
+            component,
+            directions=directions,
+            name=name,
+        )
 
 
 class UserController(Controller):
@@ -310,8 +373,19 @@ class UserController(Controller):
 
     is_linear = False
 
-    def __init__(self, rhs, output, jacobians, sensors, component, *, z0, outputs: int,
-                 directions=None, name: str = "controller"):
+    def __init__(
+        self,
+        rhs,
+        output,
+        jacobians,
+        sensors,
+        component,
+        *,
+        z0,
+        outputs: int,
+        directions=None,
+        name: str = "controller",
+    ):
         for label, f in (("rhs", rhs), ("output", output), ("jacobians", jacobians)):
             if not callable(f):
                 raise fail(label, type(f).__name__, "must be a callable (t, z, y)")
@@ -327,18 +401,30 @@ class UserController(Controller):
         h0 = np.asarray(self._h(0.0, z0, y0), dtype=float)
         w0 = np.asarray(self._k(0.0, z0, y0), dtype=float)
         if h0.shape != (s,) or w0.shape != (self.outputs,):
-            raise fail(f"{label}.rhs", described(f"shapes {h0.shape} and {w0.shape}"),
-                       f"must return ({s},) (rhs) and ({self.outputs},) (output)")
+            raise fail(
+                f"{label}.rhs",
+                described(f"shapes {h0.shape} and {w0.shape}"),
+                f"must return ({s},) (rhs) and ({self.outputs},) (output)",
+            )
         x0 = np.concatenate([z0, y0])
 
         def split(x):
             return x[:s], x[s:]
 
-        check_jacobian(f"{label}.jacobians", lambda x: self._h(0.0, *split(x)),
-                       lambda x: np.hstack(self._jac(0.0, *split(x))[:2]), x0, "rhs in (z, y)")
-        check_jacobian(f"{label}.jacobians", lambda x: self._k(0.0, *split(x)),
-                       lambda x: np.hstack(self._jac(0.0, *split(x))[2:]), x0,
-                       "output in (z, y)")
+        check_jacobian(
+            f"{label}.jacobians",
+            lambda x: self._h(0.0, *split(x)),
+            lambda x: np.hstack(self._jac(0.0, *split(x))[:2]),
+            x0,
+            "rhs in (z, y)",
+        )
+        check_jacobian(
+            f"{label}.jacobians",
+            lambda x: self._k(0.0, *split(x)),
+            lambda x: np.hstack(self._jac(0.0, *split(x))[2:]),
+            x0,
+            "output in (z, y)",
+        )
 
     def rhs(self, t, z, y):
         return np.asarray(self._h(float(t), z, y), dtype=float)
@@ -347,5 +433,4 @@ class UserController(Controller):
         return np.asarray(self._k(float(t), z, y), dtype=float)
 
     def jacobians(self, t, z, y):
-        return tuple(np.atleast_2d(np.asarray(J, dtype=float))
-                     for J in self._jac(float(t), z, y))
+        return tuple(np.atleast_2d(np.asarray(J, dtype=float)) for J in self._jac(float(t), z, y))

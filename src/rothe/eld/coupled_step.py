@@ -88,12 +88,18 @@ class CoupledStepSystem:
             raise fail("system", type(system).__name__, "must be a rothe.eld.CoupledProblem")
         body = system.body
         if not body.damping_op.is_linear:
-            raise fail("damping", body.damping.describe().get("type", "nonlinear"),
-                       "must be linear for the coupled step (nonlinear body damping: the body's "
-                       "Newton refactors A_II, and X with it)")
+            raise fail(
+                "damping",
+                body.damping.describe().get("type", "nonlinear"),
+                "must be linear for the coupled step (nonlinear body damping: the body's "
+                "Newton refactors A_II, and X with it)",
+            )
         if not all(cp.is_linear for cp in system.couplings):
-            raise fail("couplings", "a nonlinear coupling", "must be linear here (G affine in q: "
-                       "the border Phi = L Gamma constant)")
+            raise fail(
+                "couplings",
+                "a nonlinear coupling",
+                "must be linear here (G affine in q: the border Phi = L Gamma constant)",
+            )
         self.system = system
         self.body = body
         c = self.constraint = system.constraint
@@ -128,23 +134,33 @@ class CoupledStepSystem:
         si = ki = oi = 0
         for k in ctrls:
             A, B, C, D = k.jacobians(0.0, k.z0, np.zeros(k.n_inputs))
-            self.Bc[si:si + k.size, ki:ki + k.n_inputs] = B
-            self.Cc[oi:oi + k.outputs, si:si + k.size] = C
-            self.Dc[oi:oi + k.outputs, ki:ki + k.n_inputs] = D
-            self.E[system.slice(k.component), oi:oi + k.outputs] = k.E
+            self.Bc[si : si + k.size, ki : ki + k.n_inputs] = B
+            self.Cc[oi : oi + k.outputs, si : si + k.size] = C
+            self.Dc[oi : oi + k.outputs, ki : ki + k.n_inputs] = D
+            self.E[system.slice(k.component), oi : oi + k.outputs] = k.E
             si, ki, oi = si + k.size, ki + k.n_inputs, oi + k.outputs
         # M_G^{-1} Y_lam^T lifted: the multiplier rows of the sensors as body vectors
         if self.k_in:
-            Z = np.column_stack([c.multiplier_from_residual(col)
-                                 for col in self.Y_lam.T.toarray().T]) \
-                if self.Y_lam.nnz else np.zeros((m, self.k_in))
-            self._LZ = np.column_stack(self.lifting.lift_many([Z[:, j] for j in
-                                                               range(self.k_in)])) \
-                if self.Y_lam.nnz else np.zeros((n, self.k_in))
+            Z = (
+                np.column_stack(
+                    [c.multiplier_from_residual(col) for col in self.Y_lam.T.toarray().T]
+                )
+                if self.Y_lam.nnz
+                else np.zeros((m, self.k_in))
+            )
+            self._LZ = (
+                np.column_stack(self.lifting.lift_many([Z[:, j] for j in range(self.k_in)]))
+                if self.Y_lam.nnz
+                else np.zeros((n, self.k_in))
+            )
         else:
             self._LZ = np.zeros((n, 0))
-        self.stats = {"factorizations": 0, "back_substitutions": 0, "schur_solves": 0,
-                      "newton_iterations": 0}
+        self.stats = {
+            "factorizations": 0,
+            "back_substitutions": 0,
+            "schur_solves": 0,
+            "newton_iterations": 0,
+        }
         self._key = None
 
     # -- the lifting and its transpose -----------------------------------------------------------
@@ -172,8 +188,9 @@ class CoupledStepSystem:
             A = A + cc * D.matrix
         return sp.csr_matrix(A)
 
-    def factor(self, cm: float, cc: float, ck: float, wu: float, wv: float,
-               kappa_z: float | None) -> None:
+    def factor(
+        self, cm: float, cc: float, ck: float, wu: float, wv: float, kappa_z: float | None
+    ) -> None:
         """Factor A_II of A = cm rho M + cc C + ck K and build the border: X = A_II^{-1}
         (A Phi)_I (r back-substitutions), W = wu Y_u + wv Y_v - Y_lam M_G^{-1} L^T A, V, the
         part of the Schur complement that does not depend on the components' Jacobian.
@@ -263,7 +280,7 @@ def coupled_modes(system: CoupledProblem, count: int = 6, lifting: str = "nodal"
     n, I, r = system.body.space.ndofs, kern.I, kern.r
     T = np.zeros((n, I.size + r))
     T[I, np.arange(I.size)] = 1.0
-    T[:, I.size:] = kern.Phi
+    T[:, I.size :] = kern.Phi
     Kq = np.zeros((r, r))
     for cmp in system.components:
         if not cmp.is_linear:
@@ -271,11 +288,11 @@ def coupled_modes(system: CoupledProblem, count: int = 6, lifting: str = "nodal"
         sl = system.slice(cmp)
         Kq[sl, sl] = cmp.stiffness
     KT = T.T @ (kern.K @ T)
-    KT[I.size:, I.size:] += Kq
+    KT[I.size :, I.size :] += Kq
     MT = T.T @ (kern.rho * (kern.M @ T))
-    MT[I.size:, I.size:] += kern.Mq
+    MT[I.size :, I.size :] += kern.Mq
     w2, V = sla.eigh(0.5 * (KT + KT.T), 0.5 * (MT + MT.T), subset_by_index=[0, count - 1])
-    return np.sqrt(np.maximum(w2, 0.0)), T @ V, V[I.size:]
+    return np.sqrt(np.maximum(w2, 0.0)), T @ V, V[I.size :]
 
 
 def _taylor(x0, v0, a0, h):
@@ -283,19 +300,36 @@ def _taylor(x0, v0, a0, h):
     return x0 - h * v0 + 0.5 * h * h * a0, v0 - h * a0
 
 
-def run_coupled_reference(system: CoupledProblem, tau: float, T: float | None = None, *,
-                          scheme: str = "euler", form: str = "regularized",
-                          lifting: str = "nodal", noise=None, watch=None) -> dict:
+def run_coupled_reference(
+    system: CoupledProblem,
+    tau: float,
+    T: float | None = None,
+    *,
+    scheme: str = "euler",
+    form: str = "regularized",
+    lifting: str = "nodal",
+    noise=None,
+    watch=None,
+) -> dict:
     """Uniform steps of the coupled scheme (see :func:`_run`), with BLAS on one thread as in
     the evolve loop (threaded level-1 BLAS spin-waits on busy cores)."""
     with single_threaded_blas():
-        return _run(system, tau, T, scheme=scheme, form=form, lifting=lifting, noise=noise,
-                    watch=watch)
+        return _run(
+            system, tau, T, scheme=scheme, form=form, lifting=lifting, noise=noise, watch=watch
+        )
 
 
-def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
-         scheme: str = "euler", form: str = "regularized",
-         lifting: str = "nodal", noise=None, watch=None) -> dict:
+def _run(
+    system: CoupledProblem,
+    tau: float,
+    T: float | None = None,
+    *,
+    scheme: str = "euler",
+    form: str = "regularized",
+    lifting: str = "nodal",
+    noise=None,
+    watch=None,
+) -> dict:
     """Uniform steps of the coupled scheme (module docstring) from t = 0 to T.
 
     Parameters
@@ -356,9 +390,11 @@ def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
         if noise is None:
             return np.zeros(r), np.zeros(r), np.zeros(r)
         th, xi, vt = noise(j)
-        return (np.zeros(r) if th is None else np.asarray(th, float),
-                np.zeros(r) if xi is None or form == "original" else np.asarray(xi, float),
-                np.zeros(r) if vt is None or form == "original" else np.asarray(vt, float))
+        return (
+            np.zeros(r) if th is None else np.asarray(th, float),
+            np.zeros(r) if xi is None or form == "original" else np.asarray(xi, float),
+            np.zeros(r) if vt is None or form == "original" else np.asarray(vt, float),
+        )
 
     # -- initial state: consistent u0, v0 trace, accelerations (the index-1 system) -----------
     q0, p0 = system.q0, system.p0
@@ -398,15 +434,33 @@ def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
         return x_, y_, gu - Gam @ q_, gv - Gam @ p_
 
     x_0, y_0, gk_0, gdk_0 = split(u0, v0, q0, p0)
-    hist = {"x": [x_0], "y": [y_0], "q": [q0], "p": [p0], "z": [z0], "gk": [gk_0],
-            "gdk": [gdk_0], "u": [u0], "v": [v0]}
+    hist = {
+        "x": [x_0],
+        "y": [y_0],
+        "q": [q0],
+        "p": [p0],
+        "z": [z0],
+        "gk": [gk_0],
+        "gdk": [gdk_0],
+        "u": [u0],
+        "v": [v0],
+    }
     if scheme == "bdf2":
         um, vm = _taylor(u0, v0, a0, tau)
         qm, pm = _taylor(q0, p0, pdot0, tau)
         zm = z0 - tau * zdot0
         xm, ym, gkm, gdkm = split(um, vm, qm, pm)
-        for key, val in (("x", xm), ("y", ym), ("q", qm), ("p", pm), ("z", zm), ("gk", gkm),
-                         ("gdk", gdkm), ("u", um), ("v", vm)):
+        for key, val in (
+            ("x", xm),
+            ("y", ym),
+            ("q", qm),
+            ("p", pm),
+            ("z", zm),
+            ("gk", gkm),
+            ("gdk", gdkm),
+            ("u", um),
+            ("v", vm),
+        ):
             hist[key].insert(0, val)
 
     Mqs = system.mass()
@@ -424,14 +478,45 @@ def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
         return 0.5 * rho * v_ @ (M @ v_) + 0.5 * u_ @ (K @ u_), kin + 0.5 * q_ @ (Kq_lin @ q_)
 
     Eb, Ec = energies(u0, v0, q0, p0)
-    out = {k: [] for k in ("t", "q", "p", "z", "lam_norm", "energy", "energy_body",
-                           "energy_components", "work", "work_components", "work_controllers",
-                           "work_prescribed", "dissipated", "numerical_dissipation",
-                           "data_mismatch", "residual_work", "balance", "watch_u", "watch_v",
-                           "residual_body", "residual_components")}
-    ledger = dict.fromkeys(("work", "work_components", "work_controllers", "work_prescribed",
-                            "dissipated", "numerical_dissipation", "data_mismatch",
-                            "residual_work"), 0.0)
+    out = {
+        k: []
+        for k in (
+            "t",
+            "q",
+            "p",
+            "z",
+            "lam_norm",
+            "energy",
+            "energy_body",
+            "energy_components",
+            "work",
+            "work_components",
+            "work_controllers",
+            "work_prescribed",
+            "dissipated",
+            "numerical_dissipation",
+            "data_mismatch",
+            "residual_work",
+            "balance",
+            "watch_u",
+            "watch_v",
+            "residual_body",
+            "residual_components",
+        )
+    }
+    ledger = dict.fromkeys(
+        (
+            "work",
+            "work_components",
+            "work_controllers",
+            "work_prescribed",
+            "dissipated",
+            "numerical_dissipation",
+            "data_mismatch",
+            "residual_work",
+        ),
+        0.0,
+    )
     reactions = {part: [] for part in c.parts}
 
     def record(t, u_, v_, q_, p_, z_, lam_, Eb_, Ec_, balance):
@@ -497,8 +582,10 @@ def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
             Jq = kap * kap * Mqs + kap * Cq_lin + Kq_lin
             x_I, q, z = kern.solve(-r_k[I], rhs_q, kern.Bc @ y_k - c_z if s else np.zeros(0), Jq)
         else:
-            def residual(x_I, q_, z_, t=t, pd_k=pd_k, r_k=r_k, y_k=y_k, f_ext=f_ext, c_q=c_q,
-                         kap=kap):
+
+            def residual(
+                x_I, q_, z_, t=t, pd_k=pd_k, r_k=r_k, y_k=y_k, f_ext=f_ext, c_q=c_q, kap=kap
+            ):
                 p_ = kap * q_ + c_q
                 pdot_ = kap * kap * q_ + pd_k
                 X = np.zeros(n)
@@ -511,9 +598,13 @@ def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
                 fq, fp = system.force_jacobians(t, q_, p_)
                 return res, kap * kap * Mqs + kap * fp + fq
 
-            x_I, q, z = kern.solve(-r_k[I], f_ext - Mqs @ pd_k - Phi.T @ r_k + kern.E @ w_k,
-                                   kern.Bc @ y_k - c_z if s else np.zeros(0),
-                                   kap * kap * Mqs, residual=residual)
+            x_I, q, z = kern.solve(
+                -r_k[I],
+                f_ext - Mqs @ pd_k - Phi.T @ r_k + kern.E @ w_k,
+                kern.Bc @ y_k - c_z if s else np.zeros(0),
+                kap * kap * Mqs,
+                residual=residual,
+            )
         x = np.zeros(n)
         x[I] = x_I
         y = kap * x + c_x
@@ -528,8 +619,8 @@ def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
         R = res + BT @ lam  # algebraic residual of the body rows (solver tolerance)
         ys = kern.Y_u @ u + kern.Y_v @ v + kern.Y_lam @ lam if kern.k_in else np.zeros(0)
         w = kern.Cc @ z + kern.Dc @ ys if kern.o else np.zeros(0)
-        Rq = (Mqs @ pdot + comp_force(t, q, p) - Gam.T @ (c.boundary_mass @ lam)
-              - f_ext - kern.E @ w)
+        Rq = Mqs @ pdot + comp_force(t, q, p) - Gam.T @ (c.boundary_mass @ lam) - f_ext - kern.E @ w
+
         # -- ledger (docs/coupling.md, Sec. 5) ----------------------------------------------------
         def quot(key, now, al0=al0, al1=al1, al2=al2):
             h = hist[key]
@@ -558,17 +649,33 @@ def _run(system: CoupledProblem, tau: float, T: float | None = None, *,
         ledger["data_mismatch"] += mism
         ledger["residual_work"] += tau * R @ v + tau * Rq @ p
         Eb, Ec = energies(u, v, q, p)
-        out["residual_body"].append(float(np.abs(R).max() / max(1.0, np.abs(F).max(),
-                                                                  np.abs(K @ u).max())))
+        out["residual_body"].append(
+            float(np.abs(R).max() / max(1.0, np.abs(F).max(), np.abs(K @ u).max()))
+        )
         out["residual_components"].append(float(np.abs(Rq).max(initial=0.0)))
         balance = (Eb + Ec - E_start) - (
-            ledger["work"] + ledger["work_components"] + ledger["work_controllers"]
-            + ledger["work_prescribed"] - ledger["dissipated"] + ledger["residual_work"]
-            - ledger["numerical_dissipation"] - ledger["data_mismatch"])
+            ledger["work"]
+            + ledger["work_components"]
+            + ledger["work_controllers"]
+            + ledger["work_prescribed"]
+            - ledger["dissipated"]
+            + ledger["residual_work"]
+            - ledger["numerical_dissipation"]
+            - ledger["data_mismatch"]
+        )
         record(t, u, v, q, p, z, lam, Eb, Ec, balance)
         x_now, y_now, gk_now, gdk_now = x, y, gk, gdk
-        for key, val in (("x", x_now), ("y", y_now), ("q", q), ("p", p), ("z", z),
-                         ("gk", gk_now), ("gdk", gdk_now), ("u", u), ("v", v)):
+        for key, val in (
+            ("x", x_now),
+            ("y", y_now),
+            ("q", q),
+            ("p", p),
+            ("z", z),
+            ("gk", gk_now),
+            ("gdk", gdk_now),
+            ("u", u),
+            ("v", v),
+        ):
             hist[key].append(val)
             if len(hist[key]) > 3:
                 hist[key].pop(0)

@@ -75,8 +75,11 @@ class Coupling(ABC):
         if not isinstance(part, str) or not part:
             raise fail("part", part, "must name a boundary part of the mesh")
         if not isinstance(component, Component):
-            raise fail("component", type(component).__name__,
-                       "must be a rothe.eld component (PointMass, RigidBody, ...)")
+            raise fail(
+                "component",
+                type(component).__name__,
+                "must be a rothe.eld component (PointMass, RigidBody, ...)",
+            )
         self.part = part
         self.component = component
 
@@ -91,8 +94,9 @@ class Coupling(ABC):
     def jacobian(self, t: float, q: np.ndarray, x: np.ndarray) -> np.ndarray:
         """dG/dq at (t, q, x), shape (d, k, m)."""
 
-    def second_derivatives(self, t: float, q: np.ndarray, p: np.ndarray,
-                           x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def second_derivatives(
+        self, t: float, q: np.ndarray, p: np.ndarray, x: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(G_t, G_tt + 2 G_tq p + G_qq[p, p], nothing else) -- the terms of G' and G'' that
         are not g_q q' and g_q q'': (G_t, curvature), each (d, k). Zero for linear couplings."""
         z = np.zeros((x.shape[0], x.shape[1]))
@@ -103,12 +107,14 @@ class Coupling(ABC):
         G' = G_t + G_q p, G'' = curvature + G_q pdot."""
         J = self.jacobian(t, q, x)
         G_t, curv, _ = self.second_derivatives(t, q, p, x)
-        return (self.values(t, q, x), G_t + np.einsum("dkm,m->dk", J, p),
-                curv + np.einsum("dkm,m->dk", J, pdot))
+        return (
+            self.values(t, q, x),
+            G_t + np.einsum("dkm,m->dk", J, p),
+            curv + np.einsum("dkm,m->dk", J, pdot),
+        )
 
     def describe(self) -> dict:
-        return {"type": type(self).__name__, "part": self.part,
-                "component": self.component.name}
+        return {"type": type(self).__name__, "part": self.part, "component": self.component.name}
 
 
 class Translation(Coupling):
@@ -126,13 +132,19 @@ class Translation(Coupling):
 
     def __init__(self, part: str, component: Component, coordinates=None, directions=None):
         super().__init__(part, component)
-        self._coords = None if coordinates is None else [
-            check_int("coordinates", c) for c in np.atleast_1d(coordinates)]
+        self._coords = (
+            None
+            if coordinates is None
+            else [check_int("coordinates", c) for c in np.atleast_1d(coordinates)]
+        )
         if self._coords is not None:
             for c in self._coords:
                 if not 0 <= c < component.size:
-                    raise fail("coordinates", c, f"must be an index of the component's "
-                               f"{component.size} coordinates")
+                    raise fail(
+                        "coordinates",
+                        c,
+                        f"must be an index of the component's {component.size} coordinates",
+                    )
         self._directions = None if directions is None else np.asarray(directions, dtype=float)
 
     def _matrix(self, d: int) -> np.ndarray:
@@ -140,12 +152,16 @@ class Translation(Coupling):
         m = self.component.size
         coords = list(range(d)) if self._coords is None else self._coords
         if self._coords is None and m < d:
-            raise fail("coordinates", None, f"must be given: the component has {m} < d = {d} "
-                                            "coordinates")
+            raise fail(
+                "coordinates", None, f"must be given: the component has {m} < d = {d} coordinates"
+            )
         D = np.eye(d) if self._directions is None else self._directions
         if D.shape != (d, len(coords)):
-            raise fail("directions", described(f"an array of shape {D.shape}"),
-                       f"must have shape ({d}, {len(coords)})")
+            raise fail(
+                "directions",
+                described(f"an array of shape {D.shape}"),
+                f"must have shape ({d}, {len(coords)})",
+            )
         P = np.zeros((d, m))
         P[:, coords] = D
         return P
@@ -173,8 +189,11 @@ class RigidMotion(Coupling):
     def jacobian(self, t, q, x):
         body = self.component
         if x.shape[0] != body.dim:
-            raise fail("body", described(f"a {body.dim}D rigid body"),
-                       f"must have the mesh's dimension {x.shape[0]}")
+            raise fail(
+                "body",
+                described(f"a {body.dim}D rigid body"),
+                f"must have the mesh's dimension {x.shape[0]}",
+            )
         return rigid_motion_matrix(body.dim, x, body.reference)
 
 
@@ -196,8 +215,17 @@ class UserCoupling(Coupling):
     G_q along p.
     """
 
-    def __init__(self, part: str, component: Component, G, G_q, *, G_t=None, curvature=None,
-                 linear: bool = False):
+    def __init__(
+        self,
+        part: str,
+        component: Component,
+        G,
+        G_q,
+        *,
+        G_t=None,
+        curvature=None,
+        linear: bool = False,
+    ):
         super().__init__(part, component)
         for label, f in (("G", G), ("G_q", G_q), ("G_t", G_t), ("curvature", curvature)):
             if f is not None and not callable(f):
@@ -216,8 +244,7 @@ class UserCoupling(Coupling):
     def second_derivatives(self, t, q, p, x):
         z = np.zeros(x.shape)
         G_t = z if self._Gt is None else np.asarray(self._Gt(float(t), q, x), dtype=float)
-        curv = z if self._curv is None else np.asarray(self._curv(float(t), q, p, x),
-                                                       dtype=float)
+        curv = z if self._curv is None else np.asarray(self._curv(float(t), q, p, x), dtype=float)
         return G_t, curv, z.copy()
 
     def check(self, x: np.ndarray) -> None:
@@ -227,27 +254,44 @@ class UserCoupling(Coupling):
         shape = (x.shape[0], x.shape[1])
         G0 = self.values(0.0, q0, x)
         if G0.shape != shape or not np.all(np.isfinite(G0)):
-            raise fail("G", described(f"values of shape {G0.shape}"),
-                       f"must return finite values of shape {shape} for points {x.shape}")
+            raise fail(
+                "G",
+                described(f"values of shape {G0.shape}"),
+                f"must return finite values of shape {shape} for points {x.shape}",
+            )
         J0 = self.jacobian(0.0, q0, x)
         if J0.shape != shape + (comp.size,):
-            raise fail("G_q", described(f"an array of shape {J0.shape}"),
-                       f"must have shape {shape + (comp.size,)}")
-        check_jacobian("G_q", lambda q: self.values(0.0, q, x).ravel(),
-                       lambda q: self.jacobian(0.0, q, x).reshape(-1, comp.size), q0, "G in q")
+            raise fail(
+                "G_q",
+                described(f"an array of shape {J0.shape}"),
+                f"must have shape {shape + (comp.size,)}",
+            )
+        check_jacobian(
+            "G_q",
+            lambda q: self.values(0.0, q, x).ravel(),
+            lambda q: self.jacobian(0.0, q, x).reshape(-1, comp.size),
+            q0,
+            "G in q",
+        )
         if self._Gt is not None:
-            check_jacobian("G_t", lambda t: self.values(t[0], q0, x).ravel(),
-                           lambda t: self._Gt(t[0], q0, x).reshape(-1, 1), np.zeros(1),
-                           "G in t")
+            check_jacobian(
+                "G_t",
+                lambda t: self.values(t[0], q0, x).ravel(),
+                lambda t: self._Gt(t[0], q0, x).reshape(-1, 1),
+                np.zeros(1),
+                "G in t",
+            )
         if self._curv is not None and self._Gt is None:
             # curvature = G_qq[p, p]: the derivative of G_q p along p
             rng = np.random.default_rng(7)
             p = rng.standard_normal(comp.size)
-            check_jacobian("curvature",
-                           lambda s: np.einsum("dkm,m->dk", self.jacobian(0.0, q0 + s[0] * p, x),
-                                               p).ravel(),
-                           lambda s: self._curv(0.0, q0 + s[0] * p, p, x).reshape(-1, 1),
-                           np.zeros(1), "G_q p along p")
+            check_jacobian(
+                "curvature",
+                lambda s: np.einsum("dkm,m->dk", self.jacobian(0.0, q0 + s[0] * p, x), p).ravel(),
+                lambda s: self._curv(0.0, q0 + s[0] * p, p, x).reshape(-1, 1),
+                np.zeros(1),
+                "G_q p along p",
+            )
 
 
 class _Placeholder(DirichletData):
@@ -288,23 +332,46 @@ class CoupledProblem:
     def __init__(self, problem: ELDProblem, components, couplings, controllers=()):
         if not isinstance(problem, ELDProblem):
             raise fail("problem", type(problem).__name__, "must be a rothe.eld.ELDProblem")
-        self._setup(problem.space.mesh, dict(problem._data), problem, components, couplings,
-                    controllers)
+        self._setup(
+            problem.space.mesh, dict(problem._data), problem, components, couplings, controllers
+        )
 
     @classmethod
-    def from_body(cls, mesh, material, *, components, couplings, controllers=(),
-                  dirichlet=None, **body) -> CoupledProblem:
+    def from_body(
+        cls, mesh, material, *, components, couplings, controllers=(), dirichlet=None, **body
+    ) -> CoupledProblem:
         """Build the body and the system at once; unlike an ELDProblem the body may have no
         prescribed Dirichlet data (``dirichlet`` empty or None) when couplings hold it.
         ``body``: the other keyword arguments of :class:`~rothe.eld.problem.ELDProblem`."""
-        allowed = {"degree", "damping", "traction", "body_force", "u0", "v0", "T", "name",
-                   "load_quadrature"}
+        allowed = {
+            "degree",
+            "damping",
+            "traction",
+            "body_force",
+            "u0",
+            "v0",
+            "T",
+            "name",
+            "load_quadrature",
+        }
         for key in body:
             if key not in allowed:
-                raise fail(key, described("an unknown keyword"),
-                           "must be one of " + ", ".join(sorted(allowed)))
-        data = dict(degree=1, damping=None, traction=None, body_force=None, u0=None, v0=None,
-                    T=1.0, name="eld", load_quadrature=None)
+                raise fail(
+                    key,
+                    described("an unknown keyword"),
+                    "must be one of " + ", ".join(sorted(allowed)),
+                )
+        data = dict(
+            degree=1,
+            damping=None,
+            traction=None,
+            body_force=None,
+            u0=None,
+            v0=None,
+            T=1.0,
+            name="eld",
+            load_quadrature=None,
+        )
         data.update(body, material=material, dirichlet=dict(dirichlet or {}))
         self = cls.__new__(cls)
         self._setup(mesh, data, None, components, couplings, controllers)
@@ -336,24 +403,37 @@ class CoupledProblem:
                 raise fail(f"couplings[{k}]", type(cp).__name__, "must be a rothe.eld Coupling")
             if cp.part not in known:
                 allowed = ", ".join(sorted(known)) if known else "(the mesh has no named parts)"
-                raise fail(label, cp.part, f"must be one of {allowed} (boundary parts of the "
-                                           "mesh)")
+                raise fail(label, cp.part, f"must be one of {allowed} (boundary parts of the mesh)")
             if cp.part in traction:
-                raise fail(label, cp.part, "also carries a traction; a coupled part is held by "
-                                           "its component, not loaded")
+                raise fail(
+                    label,
+                    cp.part,
+                    "also carries a traction; a coupled part is held by its component, not loaded",
+                )
             if cp.part in prescribed:
-                raise fail(label, cp.part, "also carries prescribed Dirichlet data; a part is "
-                                           "either prescribed or coupled")
+                raise fail(
+                    label,
+                    cp.part,
+                    "also carries prescribed Dirichlet data; a part is "
+                    "either prescribed or coupled",
+                )
             if cp.part in seen:
                 raise fail(label, cp.part, f"is already coupled (couplings[{seen[cp.part]}])")
             seen[cp.part] = k
             if id(cp.component) not in {id(c) for c in self.components}:
-                raise fail(f"couplings[{k}].component", cp.component.name,
-                           "must be one of the system's components: "
-                           + (", ".join(c.name for c in self.components) or "(none)"))
+                raise fail(
+                    f"couplings[{k}].component",
+                    cp.component.name,
+                    "must be one of the system's components: "
+                    + (", ".join(c.name for c in self.components) or "(none)"),
+                )
         if not prescribed and not self.couplings:
-            raise fail("couplings", [], "must hold at least one part when the problem has no "
-                                        "prescribed Dirichlet data (a free body: Sec. 2.2)")
+            raise fail(
+                "couplings",
+                [],
+                "must hold at least one part when the problem has no "
+                "prescribed Dirichlet data (a free body: Sec. 2.2)",
+            )
         data["dirichlet"] = {**prescribed, **{cp.part: _Placeholder() for cp in self.couplings}}
         if problem is not None and not self.couplings:
             self.body = problem
@@ -367,9 +447,12 @@ class CoupledProblem:
             for other, od in dofs.items():
                 n = np.intersect1d(dofs[p], od).size if other != p else 0
                 if n:
-                    raise fail(f"couplings[{k}].part", p,
-                               f"shares {n} node(s) with the constrained part {other!r}; "
-                               "coupled parts must not touch other constrained parts")
+                    raise fail(
+                        f"couplings[{k}].part",
+                        p,
+                        f"shares {n} node(s) with the constrained part {other!r}; "
+                        "coupled parts must not touch other constrained parts",
+                    )
         self.constraint = self.body.constraint
         c = self.constraint
         d = space.dim
@@ -377,7 +460,7 @@ class CoupledProblem:
         for cp in self.couplings:
             pos = c.part_positions[cp.part]
             self._points[cp.part] = space.doflocs[:, c.scalar_dofs[pos]]
-            self._rows[cp.part] = (d * pos[None, :] + np.arange(d)[:, None])  # (d, k)
+            self._rows[cp.part] = d * pos[None, :] + np.arange(d)[:, None]  # (d, k)
             if isinstance(cp, UserCoupling):
                 cp.check(self._points[cp.part])
             else:
@@ -393,20 +476,20 @@ class CoupledProblem:
 
     @property
     def q0(self) -> np.ndarray:
-        return np.concatenate([c.q0 for c in self.components]) if self.components else \
-            np.zeros(0)
+        return np.concatenate([c.q0 for c in self.components]) if self.components else np.zeros(0)
 
     @property
     def p0(self) -> np.ndarray:
-        return np.concatenate([c.p0 for c in self.components]) if self.components else \
-            np.zeros(0)
+        return np.concatenate([c.p0 for c in self.components]) if self.components else np.zeros(0)
 
     @property
     def is_linear(self) -> bool:
         """Linear components, couplings and controllers: one bordered linear solve per step."""
-        return (all(c.is_linear for c in self.components)
-                and all(cp.is_linear for cp in self.couplings)
-                and all(getattr(k, "is_linear", True) for k in self.controllers))
+        return (
+            all(c.is_linear for c in self.components)
+            and all(cp.is_linear for cp in self.couplings)
+            and all(getattr(k, "is_linear", True) for k in self.controllers)
+        )
 
     def mass(self) -> np.ndarray:
         """blkdiag(M_q) over the components, (r, r)."""
@@ -483,10 +566,16 @@ class CoupledProblem:
             rows.append(R[keep])
             cols.append(C[keep])
             vals.append(J[keep])
-        G = sp.csr_matrix((np.concatenate(vals) if vals else np.zeros(0),
-                           (np.concatenate(rows) if rows else np.zeros(0, int),
-                            np.concatenate(cols) if cols else np.zeros(0, int))),
-                          shape=(self.constraint.m, self.size))
+        G = sp.csr_matrix(
+            (
+                np.concatenate(vals) if vals else np.zeros(0),
+                (
+                    np.concatenate(rows) if rows else np.zeros(0, int),
+                    np.concatenate(cols) if cols else np.zeros(0, int),
+                ),
+            ),
+            shape=(self.constraint.m, self.size),
+        )
         if all(cp.is_linear for cp in self.couplings):
             self._gamma_cache = G
         return G
@@ -501,8 +590,9 @@ class CoupledProblem:
         return np.column_stack(lifting.lift_many([G[:, k] for k in range(G.shape[1])]))
 
     # -- forces ---------------------------------------------------------------------------------
-    def generalized_reaction(self, lam: np.ndarray, t: float = 0.0,
-                             q: np.ndarray | None = None) -> np.ndarray:
+    def generalized_reaction(
+        self, lam: np.ndarray, t: float = 0.0, q: np.ndarray | None = None
+    ) -> np.ndarray:
         """Gamma^T M_G lambda (r,): the force of the multiplier *on* the components
         (+(dG/dq)^T lambda; it stands as -Gamma^T M_G lambda on the left of (C.1b))."""
         return self.gamma(t, q).T @ (self.constraint.boundary_mass @ np.asarray(lam))
@@ -519,12 +609,15 @@ class CoupledProblem:
         body, c = self.body, self.constraint
         g0 = self.g(0.0, self.q0)
         su0 = c.restrict(body.u0)
-        scale = max(1.0, float(np.max(np.abs(g0), initial=0.0)),
-                    float(np.max(np.abs(body.u0), initial=0.0)))
+        scale = max(
+            1.0, float(np.max(np.abs(g0), initial=0.0)), float(np.max(np.abs(body.u0), initial=0.0))
+        )
         worst, where = 0.0, None
         for part in c.parts:
-            rows = (self.body.space.dim * c.part_positions[part][:, None]
-                    + np.arange(self.body.space.dim)[None, :]).ravel()
+            rows = (
+                self.body.space.dim * c.part_positions[part][:, None]
+                + np.arange(self.body.space.dim)[None, :]
+            ).ravel()
             err = float(np.max(np.abs(su0[rows] - g0[rows]), initial=0.0))
             if err > worst:
                 worst, where = err, part
@@ -532,7 +625,8 @@ class CoupledProblem:
             raise RotheInputError(
                 f"u0: got max|u0 - G(0, q0)| = {worst:.3g} on the part {where!r}, must equal "
                 f"G(0, q0) there within {tol * scale:.3g} (consistent initial data, Remark 2.2)",
-                "u0")
+                "u0",
+            )
         return worst
 
     def consistent_u0(self) -> np.ndarray:
@@ -553,10 +647,12 @@ class CoupledProblem:
         return kin, pot
 
     def describe(self) -> dict:
-        return {"components": [c.describe() for c in self.components],
-                "couplings": [cp.describe() for cp in self.couplings],
-                "controllers": [k.describe() for k in self.controllers],
-                "coordinates": self.size}
+        return {
+            "components": [c.describe() for c in self.components],
+            "couplings": [cp.describe() for cp in self.couplings],
+            "controllers": [k.describe() for k in self.controllers],
+            "coordinates": self.size,
+        }
 
 
 def _rebuild(mesh, problem: ELDProblem | None, data: dict) -> ELDProblem:

@@ -74,8 +74,9 @@ class Attachment:
         self.mass = check_spd("mass", np.atleast_2d(np.asarray(self.mass, dtype=float)))
         m = self.mass.shape[0]
         K = np.asarray(self.stiffness, dtype=float)
-        self.stiffness = np.zeros((m, m)) + (K if K.ndim == 2 else np.diag(np.atleast_1d(K))
-                                             if K.size == m else float(K) * np.eye(m))
+        self.stiffness = np.zeros((m, m)) + (
+            K if K.ndim == 2 else np.diag(np.atleast_1d(K)) if K.size == m else float(K) * np.eye(m)
+        )
         self.at = check_int("at", self.at)
         if not 0 <= self.at < m:
             raise fail("at", self.at, f"must be a coordinate index 0..{m - 1}")
@@ -99,8 +100,11 @@ class Attachment:
     @classmethod
     def suspended(cls, m_end: float, m: float, k: float) -> Attachment:
         """A mass m_end at the end carrying a mass m on a spring k (a tuned mass damper)."""
-        return cls(np.diag([check_positive("m_end", m_end), check_positive("mass", m)]),
-                   np.array([[k, -k], [-k, k]], dtype=float), at=0)
+        return cls(
+            np.diag([check_positive("m_end", m_end), check_positive("mass", m)]),
+            np.array([[k, -k], [-k, k]], dtype=float),
+            at=0,
+        )
 
 
 def _end(name, value):
@@ -120,16 +124,24 @@ def _find_roots(f, w_max: float, count: int, n_grid: int) -> np.ndarray:
         if vals[k] == 0.0:
             roots.append(w[k])
         elif vals[k] * vals[k + 1] < 0:
-            roots.append(brentq(f, w[k], w[k + 1], xtol=1e-14 * w[k + 1], rtol=1e-15,
-                                maxiter=200))
+            roots.append(brentq(f, w[k], w[k + 1], xtol=1e-14 * w[k + 1], rtol=1e-15, maxiter=200))
         if len(roots) == count:
             break
     return np.asarray(roots)
 
 
-def bar_frequencies(length: float, E: float, rho: float, *, area: float = 1.0,
-                    left="clamped", right="free", count: int = 3,
-                    w_max: float | None = None, n_grid: int = 4000) -> np.ndarray:
+def bar_frequencies(
+    length: float,
+    E: float,
+    rho: float,
+    *,
+    area: float = 1.0,
+    left="clamped",
+    right="free",
+    count: int = 3,
+    w_max: float | None = None,
+    n_grid: int = 4000,
+) -> np.ndarray:
     """The first ``count`` angular frequencies of a longitudinal bar with the given ends
     (module docstring): 'clamped', 'free' or an :class:`Attachment` at each end."""
     L = check_positive("length", length)
@@ -167,7 +179,7 @@ def bar_frequencies(length: float, E: float, rho: float, *, area: float = 1.0,
                 M[row, off + end.at] = -1.0
                 row += 1
                 # (K - w^2 M) q - sgn N e_at = 0
-                M[row:row + m, off:off + m] = end.stiffness - w * w * end.mass
+                M[row : row + m, off : off + m] = end.stiffness - w * w * end.mass
                 M[row + end.at, :2] -= sgn * EA * dphi
                 row += m
         return np.linalg.det(M)
@@ -183,8 +195,17 @@ def tip_mass_roots(mass_ratio: float, count: int = 3) -> np.ndarray:
     w_k = x_k c / L."""
     mu = check_positive("mass_ratio", mass_ratio)
     count = check_int("count", count, minimum=1)
-    return np.array([brentq(lambda x: x * np.sin(x) - mu * np.cos(x), k * np.pi,
-                            k * np.pi + np.pi / 2, xtol=1e-15) for k in range(count)])
+    return np.array(
+        [
+            brentq(
+                lambda x: x * np.sin(x) - mu * np.cos(x),
+                k * np.pi,
+                k * np.pi + np.pi / 2,
+                xtol=1e-15,
+            )
+            for k in range(count)
+        ]
+    )
 
 
 def rigid_limit_frequency(stiffness: float, *masses: float) -> float:
@@ -195,9 +216,17 @@ def rigid_limit_frequency(stiffness: float, *masses: float) -> float:
     return float(np.sqrt(k / m))
 
 
-def beam_frequencies(length: float, EI: float, rho_A: float, *, left="clamped",
-                     right="free", count: int = 3, w_max: float | None = None,
-                     n_grid: int = 4000) -> np.ndarray:
+def beam_frequencies(
+    length: float,
+    EI: float,
+    rho_A: float,
+    *,
+    left="clamped",
+    right="free",
+    count: int = 3,
+    w_max: float | None = None,
+    n_grid: int = 4000,
+) -> np.ndarray:
     """The first angular frequencies of an Euler-Bernoulli beam (bending stiffness EI, mass
     per length rho_A) with 'clamped', 'free' or :class:`Attachment` ends (translational:
     module docstring)."""
@@ -213,10 +242,14 @@ def beam_frequencies(length: float, EI: float, rho_A: float, *, left="clamped",
     def derivs(b, x):
         """(4, 4): rows w, w', w'', w''' of the basis cos, sin, cosh, sinh (beta x)."""
         c, s, ch, sh = np.cos(b * x), np.sin(b * x), np.cosh(b * x), np.sinh(b * x)
-        return np.array([[c, s, ch, sh],
-                         [-b * s, b * c, b * sh, b * ch],
-                         [-b**2 * c, -b**2 * s, b**2 * ch, b**2 * sh],
-                         [b**3 * s, -b**3 * c, b**3 * sh, b**3 * ch]])
+        return np.array(
+            [
+                [c, s, ch, sh],
+                [-b * s, b * c, b * sh, b * ch],
+                [-(b**2) * c, -(b**2) * s, b**2 * ch, b**2 * sh],
+                [b**3 * s, -(b**3) * c, b**3 * sh, b**3 * ch],
+            ]
+        )
 
     def det(w):
         b = (rA * w * w / EI) ** 0.25
@@ -225,10 +258,10 @@ def beam_frequencies(length: float, EI: float, rho_A: float, *, left="clamped",
         for x, end, off, sgn in ((0.0, left, 4, -1.0), (L, right, 4 + m0, +1.0)):
             D = derivs(b, x) / np.array([1.0, b, b**2, b**3])[:, None] / np.cosh(b * L)
             if end == "clamped":
-                M[row:row + 2, :4] = D[:2]
+                M[row : row + 2, :4] = D[:2]
                 row += 2
             elif end == "free":
-                M[row:row + 2, :4] = D[2:]
+                M[row : row + 2, :4] = D[2:]
                 row += 2
             else:
                 m = end.mass.shape[0]
@@ -238,8 +271,9 @@ def beam_frequencies(length: float, EI: float, rho_A: float, *, left="clamped",
                 row += 2
                 # (K - w^2 M) q = (force of the beam on the component) e_at, i.e. with the
                 # rows scaled like D: (K - w^2 M)/(E I b^3 cosh(bL)) q - sgn D[3] e_at = 0
-                M[row:row + m, off:off + m] = (end.stiffness - w * w * end.mass) \
-                    / (EI * b**3 * np.cosh(b * L))
+                M[row : row + m, off : off + m] = (end.stiffness - w * w * end.mass) / (
+                    EI * b**3 * np.cosh(b * L)
+                )
                 M[row + end.at, :4] -= sgn * D[3]
                 row += m
         return np.linalg.det(M)
@@ -265,19 +299,31 @@ def _controlled_char(s, L, E, rho, A, m_b, k_b, H, b=0.0):
     ch, sh = np.cosh(z), np.sinh(z)
     EA = Es * A
     # phi = a cosh(s x/c) + b sinh(s x/c); phi'(x) = (s/c)(a sinh + b cosh)
-    M = np.array([
-        [1.0, 0.0, -1.0],  # phi(0) = W
-        [sh, ch, 0.0],  # phi'(L) = 0 (divided by s/c)
-        [0.0, -EA * s / c, m_b * s * s + k_b],  # (m_b s^2 + k_b) W - E A phi'(0) + H phi(L)
-    ], dtype=complex)
+    M = np.array(
+        [
+            [1.0, 0.0, -1.0],  # phi(0) = W
+            [sh, ch, 0.0],  # phi'(L) = 0 (divided by s/c)
+            [0.0, -EA * s / c, m_b * s * s + k_b],  # (m_b s^2 + k_b) W - E A phi'(0) + H phi(L)
+        ],
+        dtype=complex,
+    )
     M[2, 0] += H(s) * ch
     M[2, 1] += H(s) * sh
     return np.linalg.det(M) / np.cosh(z)
 
 
-def controlled_bar_roots(length: float, E: float, rho: float, *, area: float = 1.0,
-                         base_mass: float, base_stiffness: float = 0.0, H=None,
-                         kelvin_voigt: float = 0.0, count: int = 2) -> np.ndarray:
+def controlled_bar_roots(
+    length: float,
+    E: float,
+    rho: float,
+    *,
+    area: float = 1.0,
+    base_mass: float,
+    base_stiffness: float = 0.0,
+    H=None,
+    kelvin_voigt: float = 0.0,
+    count: int = 2,
+) -> np.ndarray:
     """The roots s = -alpha + i w of the controlled bar (module docstring) near the first
     ``count`` uncontrolled frequencies; H(s) the feedback's transfer function from the tip
     displacement to the actuator force (None: no feedback); ``kelvin_voigt`` b of the bar's
@@ -290,8 +336,15 @@ def controlled_bar_roots(length: float, E: float, rho: float, *, area: float = 1
     kb = float(base_stiffness)
     kv = float(kelvin_voigt)
     H0 = (lambda s: 0.0) if H is None else H
-    free = bar_frequencies(L, E, rho, area=A, left=Attachment.mass_spring(mb, kb),
-                           right="free", count=count + (1 if kb == 0 else 0))
+    free = bar_frequencies(
+        L,
+        E,
+        rho,
+        area=A,
+        left=Attachment.mass_spring(mb, kb),
+        right="free",
+        count=count + (1 if kb == 0 else 0),
+    )
     if kb == 0:
         free = free[free > 1e-9 * free.max()][:count]
     out = []
@@ -300,8 +353,10 @@ def controlled_bar_roots(length: float, E: float, rho: float, *, area: float = 1
         for _ in range(100):
             f = _controlled_char(s, L, E, rho, A, mb, kb, H0, kv)
             h = 1e-7 * abs(s)
-            df = (_controlled_char(s + h, L, E, rho, A, mb, kb, H0, kv)
-                  - _controlled_char(s - h, L, E, rho, A, mb, kb, H0, kv)) / (2 * h)
+            df = (
+                _controlled_char(s + h, L, E, rho, A, mb, kb, H0, kv)
+                - _controlled_char(s - h, L, E, rho, A, mb, kb, H0, kv)
+            ) / (2 * h)
             step = f / df
             s = s - step
             if abs(step) < 1e-13 * abs(s):
@@ -312,8 +367,7 @@ def controlled_bar_roots(length: float, E: float, rho: float, *, area: float = 1
     return np.asarray(out)
 
 
-def bar_mode(length: float, E: float, rho: float, w: float, *, area: float = 1.0,
-             n: int = 2001):
+def bar_mode(length: float, E: float, rho: float, w: float, *, area: float = 1.0, n: int = 2001):
     """Base and tip amplitudes (W, U) and the modal mass of the mode of the base-mounted,
     free-tipped bar at frequency w, normalized to W = 1: phi = cos(beta (L - x))/cos(beta L).
     Returns (W, U, rho A int phi^2 dx)."""
@@ -325,12 +379,28 @@ def bar_mode(length: float, E: float, rho: float, w: float, *, area: float = 1.0
     return 1.0, float(phi[-1]), rho * area * integral
 
 
-def first_mode_decay_rate(length: float, E: float, rho: float, *, area: float = 1.0,
-                          base_mass: float, base_stiffness: float = 0.0, H) -> float:
+def first_mode_decay_rate(
+    length: float,
+    E: float,
+    rho: float,
+    *,
+    area: float = 1.0,
+    base_mass: float,
+    base_stiffness: float = 0.0,
+    H,
+) -> float:
     """alpha_1 = Re[H(i w_1)/(i w_1)] W_1 U_1 / (2 m_1) (module docstring): the first-order
     decay rate of the first mode under feedback H (for small gains)."""
-    w1 = controlled_bar_roots(length, E, rho, area=area, base_mass=base_mass,
-                              base_stiffness=base_stiffness, H=None, count=1)[0].imag
+    w1 = controlled_bar_roots(
+        length,
+        E,
+        rho,
+        area=area,
+        base_mass=base_mass,
+        base_stiffness=base_stiffness,
+        H=None,
+        count=1,
+    )[0].imag
     W, U, m_bar = bar_mode(length, E, rho, w1, area=area)
     m1 = base_mass * W**2 + m_bar
     return float((H(1j * w1) / (1j * w1)).real * W * U / (2 * m1))

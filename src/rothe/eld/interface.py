@@ -53,8 +53,9 @@ DEFAULT_TOL = 1e-8
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(4)
 _GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W
 _a, _b, _c, _d = 0.445948490915965, 0.091576213509771, 0.111690794839005, 0.054975871827661
-_TRI_X = np.array([[_a, _a], [1 - 2 * _a, _a], [_a, 1 - 2 * _a],
-                   [_b, _b], [1 - 2 * _b, _b], [_b, 1 - 2 * _b]])
+_TRI_X = np.array(
+    [[_a, _a], [1 - 2 * _a, _a], [_a, 1 - 2 * _a], [_b, _b], [1 - 2 * _b, _b], [_b, 1 - 2 * _b]]
+)
 _TRI_W = np.array([_c, _c, _c, _d, _d, _d])  # weights sum to 1/2 (the reference area)
 
 
@@ -84,8 +85,16 @@ def facet_basis(dim: int, degree: int, bary: np.ndarray) -> np.ndarray:
         l0, l1 = bary
         return np.stack([l0 * (2 * l0 - 1), l1 * (2 * l1 - 1), 4 * l0 * l1])
     l0, l1, l2 = bary
-    return np.stack([l0 * (2 * l0 - 1), l1 * (2 * l1 - 1), l2 * (2 * l2 - 1),
-                     4 * l0 * l1, 4 * l1 * l2, 4 * l0 * l2])
+    return np.stack(
+        [
+            l0 * (2 * l0 - 1),
+            l1 * (2 * l1 - 1),
+            l2 * (2 * l2 - 1),
+            4 * l0 * l1,
+            4 * l1 * l2,
+            4 * l0 * l2,
+        ]
+    )
 
 
 def _clip(poly: np.ndarray, count: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
@@ -135,15 +144,27 @@ class Interface:
     method : the method used ('matching' or 'mortar')
     """
 
-    def __init__(self, space1, part1: str, space2, part2: str, *, method: str = "auto",
-                 tol: float = DEFAULT_TOL, name: str = "interface"):
+    def __init__(
+        self,
+        space1,
+        part1: str,
+        space2,
+        part2: str,
+        *,
+        method: str = "auto",
+        tol: float = DEFAULT_TOL,
+        name: str = "interface",
+    ):
         space1 = getattr(space1, "space", space1)
         space2 = getattr(space2, "space", space2)
         if method not in METHODS:
             raise fail(f"{name}.method", method, "must be one of " + ", ".join(METHODS))
         if space1.dim != space2.dim:
-            raise fail(f"{name}.space2", described(f"a {space2.dim}D body"),
-                       f"must have the dimension of body 1 ({space1.dim}D)")
+            raise fail(
+                f"{name}.space2",
+                described(f"a {space2.dim}D body"),
+                f"must have the dimension of body 1 ({space1.dim}D)",
+            )
         self.space1, self.space2 = space1, space2
         self.part1, self.part2 = part1, part2
         self.name = name
@@ -152,10 +173,14 @@ class Interface:
         self.dofs1 = space1.scalar_dofs_on((part1,), f"{name}.part1")
         self.dofs2 = space2.scalar_dofs_on((part2,), f"{name}.part2")
         if self.facets1.size == 0 or self.facets2.size == 0:
-            raise fail(f"{name}.part1" if self.facets1.size == 0 else f"{name}.part2",
-                       part1 if self.facets1.size == 0 else part2, "must have facets")
-        self.h = min(self._sizes(space1, self.facets1).min(),
-                     self._sizes(space2, self.facets2).min())
+            raise fail(
+                f"{name}.part1" if self.facets1.size == 0 else f"{name}.part2",
+                part1 if self.facets1.size == 0 else part2,
+                "must have facets",
+            )
+        self.h = min(
+            self._sizes(space1, self.facets1).min(), self._sizes(space2, self.facets2).min()
+        )
         self.abs_tol = tol * self.h
         self.method = method
         pairing = self._pair()
@@ -164,7 +189,9 @@ class Interface:
                 f"{name}: got parts {part1!r} and {part2!r} whose nodes do not pair up within "
                 f"{self.abs_tol:.3g} ({self._unpaired} of {self.dofs1.size} nodes of {part1!r} "
                 "have no partner), must be matching meshes; method='mortar' glues "
-                "non-matching ones", name)
+                "non-matching ones",
+                name,
+            )
         self.D = self._side1_mass()
         if pairing is not None and method != "mortar":
             k1, k2 = self.dofs1.size, self.dofs2.size
@@ -180,7 +207,8 @@ class Interface:
                     f"{name}: got parts {part1!r} (body 1) and {part2!r} (body 2) that do not "
                     f"touch: {100 * covered / area:.3g} % of {part1!r} lies on {part2!r} "
                     f"(nearest distance {d:.3g}, tolerance {self.abs_tol:.3g}), must cover it",
-                    name)
+                    name,
+                )
             lu = spla.splu(sp.csc_matrix(self.D))
             Pi = lu.solve(self.M12.toarray())
             Pi[np.abs(Pi) < 1e-14 * max(np.abs(Pi).max(), 1e-300)] = 0.0
@@ -197,8 +225,14 @@ class Interface:
         e1, e2 = p[:, v[1]] - p[:, v[0]], p[:, v[2]] - p[:, v[0]]
         if measure:
             return 0.5 * np.linalg.norm(np.cross(e1, e2, axis=0), axis=0)
-        return np.min([np.linalg.norm(e1, axis=0), np.linalg.norm(e2, axis=0),
-                       np.linalg.norm(e2 - e1, axis=0)], axis=0)
+        return np.min(
+            [
+                np.linalg.norm(e1, axis=0),
+                np.linalg.norm(e2, axis=0),
+                np.linalg.norm(e2 - e1, axis=0),
+            ],
+            axis=0,
+        )
 
     def _gap(self) -> float:
         x1 = self.space1.doflocs[:, self.dofs1].T
@@ -213,8 +247,9 @@ class Interface:
         ok = dist <= self.abs_tol
         self._unpaired = int((~ok).sum())
         if self._unpaired or np.unique(k).size != k.size or x1.shape[0] != x2.shape[0]:
-            self._unpaired = max(self._unpaired, 1) if x1.shape[0] != x2.shape[0] else \
-                self._unpaired
+            self._unpaired = (
+                max(self._unpaired, 1) if x1.shape[0] != x2.shape[0] else self._unpaired
+            )
             return None
         return k
 
@@ -237,8 +272,11 @@ class Interface:
         r2 = np.linalg.norm(X2 - c2[:, None], axis=2).max()
         lists = cKDTree(c1).query_ball_point(c2, r1 + r2 + self.abs_tol)
         i2 = np.repeat(np.arange(len(lists)), [len(lst) for lst in lists])
-        i1 = np.concatenate([np.asarray(lst, dtype=np.int64) for lst in lists]) \
-            if len(i2) else np.zeros(0, dtype=np.int64)
+        i1 = (
+            np.concatenate([np.asarray(lst, dtype=np.int64) for lst in lists])
+            if len(i2)
+            else np.zeros(0, dtype=np.int64)
+        )
         loc1 = np.searchsorted(self.dofs1, facet_dofs(s1, self.facets1))
         loc2 = np.searchsorted(self.dofs2, facet_dofs(s2, self.facets2))
         A, B = X1[i1], X2[i2]  # (P, d, d)
@@ -252,8 +290,9 @@ class Interface:
         local = np.einsum("ipq,kpq,pq->pik", phi, psi, w)
         rows = np.broadcast_to(loc1[:, i1].T[:, :, None], local.shape)
         cols = np.broadcast_to(loc2[:, i2].T[:, None, :], local.shape)
-        M12 = sp.coo_matrix((local.ravel(), (rows.ravel(), cols.ravel())),
-                            shape=(self.dofs1.size, self.dofs2.size)).tocsr()
+        M12 = sp.coo_matrix(
+            (local.ravel(), (rows.ravel(), cols.ravel())), shape=(self.dofs1.size, self.dofs2.size)
+        ).tocsr()
         return M12, float(w.sum())
 
     def _segments(self, A, B):
@@ -301,11 +340,15 @@ class Interface:
         t0 = np.broadcast_to(poly[:, :1], (P, k.size, 2))
         t1, t2 = poly[:, k], poly[:, k + 1]
         valid = (k[None, :] + 1) < count[:, None]
-        jac = (t1[..., 0] - t0[..., 0]) * (t2[..., 1] - t0[..., 1]) \
-            - (t1[..., 1] - t0[..., 1]) * (t2[..., 0] - t0[..., 0])
+        jac = (t1[..., 0] - t0[..., 0]) * (t2[..., 1] - t0[..., 1]) - (t1[..., 1] - t0[..., 1]) * (
+            t2[..., 0] - t0[..., 0]
+        )
         jac = np.where(valid, np.abs(jac), 0.0)  # (P, k) reference (A) Jacobians
-        q = (t0[:, :, None] + _TRI_X[None, None, :, :1] * (t1 - t0)[:, :, None]
-             + _TRI_X[None, None, :, 1:] * (t2 - t0)[:, :, None])  # (P, k, 6, 2) on A
+        q = (
+            t0[:, :, None]
+            + _TRI_X[None, None, :, :1] * (t1 - t0)[:, :, None]
+            + _TRI_X[None, None, :, 1:] * (t2 - t0)[:, :, None]
+        )  # (P, k, 6, 2) on A
         w = jac[:, :, None] * _TRI_W[None, None] * area2[:, None, None]
         q = q.reshape(P, -1, 2)
         w = w.reshape(P, -1)
@@ -339,9 +382,13 @@ class Interface:
         off = np.setdiff1d(np.arange(n1), on)
         m = off.size
         eye1 = sp.csr_matrix((np.ones(m), (off, np.arange(m))), shape=(n1, m))
-        S2 = sp.csr_matrix((np.ones(d * self.dofs2.size),
-                            (np.arange(d * self.dofs2.size), s2.vector_dofs(self.dofs2))),
-                           shape=(d * self.dofs2.size, n2))
+        S2 = sp.csr_matrix(
+            (
+                np.ones(d * self.dofs2.size),
+                (np.arange(d * self.dofs2.size), s2.vector_dofs(self.dofs2)),
+            ),
+            shape=(d * self.dofs2.size, n2),
+        )
         E1 = sp.csr_matrix((np.ones(on.size), (on, np.arange(on.size))), shape=(n1, on.size))
         top = sp.hstack([eye1, E1 @ self.vector(self.Pi) @ S2])
         bottom = sp.hstack([sp.csr_matrix((n2, m)), sp.identity(n2, format="csr")])
@@ -354,5 +401,10 @@ class Interface:
         return (T.T @ sp.block_diag([sp.csr_matrix(A1), sp.csr_matrix(A2)]) @ T).tocsr()
 
     def describe(self) -> dict:
-        return {"part1": self.part1, "part2": self.part2, "method": self.method,
-                "nodes1": int(self.dofs1.size), "nodes2": int(self.dofs2.size)}
+        return {
+            "part1": self.part1,
+            "part2": self.part2,
+            "method": self.method,
+            "nodes1": int(self.dofs1.size),
+            "nodes2": int(self.dofs2.size),
+        }

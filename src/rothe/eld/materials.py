@@ -56,21 +56,28 @@ class Material:
         if self.plane not in PLANES:
             raise fail("plane", self.plane, "must be one of " + ", ".join(PLANES))
         if self.dim == 3 and self.plane != "strain":
-            raise fail("plane", self.plane, "must be 'strain' (the default) in 3D: plane "
-                                            "stress is a 2D model")
+            raise fail(
+                "plane",
+                self.plane,
+                "must be 'strain' (the default) in 3D: plane stress is a 2D model",
+            )
         if self.plane == "stress":
             bound = -2.0 * self.mu / 3.0
             if not lam > bound:
-                raise fail("lam", lam, f"must be > -2 mu / 3 = {bound:g} for plane stress "
-                                       "(an admissible 3D material)")
+                raise fail(
+                    "lam",
+                    lam,
+                    f"must be > -2 mu / 3 = {bound:g} for plane stress (an admissible 3D material)",
+                )
         else:
             bound = -2.0 * self.mu / self.dim
             if not lam > bound:
                 raise fail("lam", lam, f"must be > -2 mu / d = {bound:g} (positive bulk modulus)")
 
     @classmethod
-    def from_young(cls, E: float, nu: float, rho: float, dim: int = 3,
-                   plane: str = "strain") -> Material:
+    def from_young(
+        cls, E: float, nu: float, rho: float, dim: int = 3, plane: str = "strain"
+    ) -> Material:
         """From Young's modulus E > 0 and Poisson ratio -1 < nu < 1/2."""
         lam, mu = lame_from_young(E, nu)
         return cls(rho=rho, lam=lam, mu=mu, dim=dim, plane=plane)
@@ -149,24 +156,27 @@ class PiecewiseMaterial:
             raise fail("materials", self.materials, "must map at least one name to a Material")
         for name, m in self.materials.items():
             if not isinstance(m, Material):
-                raise fail(f"materials[{name!r}]", type(m).__name__,
-                           "must be a rothe.eld.Material")
+                raise fail(f"materials[{name!r}]", type(m).__name__, "must be a rothe.eld.Material")
         first = next(iter(self.materials.values()))
         for name, m in self.materials.items():
             if (m.dim, m.plane) != (first.dim, first.plane):
-                raise fail(f"materials[{name!r}]", described(f"dim {m.dim}, plane {m.plane!r}"),
-                           f"must match the other materials (dim {first.dim}, plane "
-                           f"{first.plane!r})")
-        regions = ({n: n for n in self.materials} if self.regions is None
-                   else dict(self.regions))
+                raise fail(
+                    f"materials[{name!r}]",
+                    described(f"dim {m.dim}, plane {m.plane!r}"),
+                    f"must match the other materials (dim {first.dim}, plane {first.plane!r})",
+                )
+        regions = {n: n for n in self.materials} if self.regions is None else dict(self.regions)
         if not regions:
             raise fail("regions", regions, "must assign at least one region")
         for region, name in regions.items():
             if not (isinstance(region, str) or callable(region)):
                 raise fail("regions", region, "keys must be subdomain names or callables")
             if name not in self.materials:
-                raise fail(f"regions[{region!r}]", name, "must be one of the materials: "
-                           + ", ".join(map(str, self.materials)))
+                raise fail(
+                    f"regions[{region!r}]",
+                    name,
+                    "must be one of the materials: " + ", ".join(map(str, self.materials)),
+                )
         object.__setattr__(self, "regions", regions)
         object.__setattr__(self, "names", tuple(self.materials))
         if self.reference_density is not None:
@@ -216,19 +226,26 @@ class PiecewiseMaterial:
             if clash.size:
                 other = self.names[which[clash[0]]]
                 x = ", ".join(f"{v:.4g}" for v in p[:, t[:, clash[0]]].mean(axis=1))
-                raise fail("regions", label, f"must not overlap a region of another material: "
-                           f"{clash.size} cells (the first at ({x})) are both {name!r} and "
-                           f"{other!r}")
+                raise fail(
+                    "regions",
+                    label,
+                    f"must not overlap a region of another material: "
+                    f"{clash.size} cells (the first at ({x})) are both {name!r} and "
+                    f"{other!r}",
+                )
             which[cells] = k
         missing = np.flatnonzero(which < 0)
         if missing.size:
             x = ", ".join(f"{v:.4g}" for v in p[:, t[:, missing[0]]].mean(axis=1))
-            regions = ", ".join(r if isinstance(r, str) else getattr(r, "__name__", "callable")
-                                for r in self.regions)
+            regions = ", ".join(
+                r if isinstance(r, str) else getattr(r, "__name__", "callable")
+                for r in self.regions
+            )
             raise RotheInputError(
                 f"materials: got {missing.size} of {ne} cells in no region with a material (the "
                 f"first at ({x})), every cell must be in one of the regions {regions}",
-                "materials")
+                "materials",
+            )
         mats = [self.materials[n] for n in self.names]
         lam = np.array([m.lam_eff for m in mats])[which]
         mu = np.array([m.mu for m in mats])[which]
@@ -236,7 +253,11 @@ class PiecewiseMaterial:
         return CellMaterial(lam=lam, mu=mu, rho=rho, rho_ref=self.rho, names=which)
 
     def describe(self) -> dict:
-        return {"materials": {n: m.describe() for n, m in self.materials.items()},
-                "regions": {(r if isinstance(r, str) else getattr(r, "__name__", "callable")): n
-                            for r, n in self.regions.items()},
-                "rho_ref": self.rho}
+        return {
+            "materials": {n: m.describe() for n, m in self.materials.items()},
+            "regions": {
+                (r if isinstance(r, str) else getattr(r, "__name__", "callable")): n
+                for r, n in self.regions.items()
+            },
+            "rho_ref": self.rho,
+        }

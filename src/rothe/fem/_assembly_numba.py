@@ -75,8 +75,9 @@ def _cell_positions(ed, c, diag, upper, lower, pair_ids, pi, pj, pos):
 
 
 @_jit
-def _stiffness(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref, lam_c, mu_c,
-               blocks):
+def _stiffness(
+    p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref, lam_c, mu_c, blocks
+):
     d = p.shape[0]
     nbf = ed.shape[0]
     nq = wref.size
@@ -141,19 +142,32 @@ def _mass(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, mref, weight_c,
 
 
 def _pattern_args(pattern):
-    return (pattern.diag, pattern.upper, pattern.lower, pattern.pair_ids,
-            pattern.pi.astype(np.int64), pattern.pj.astype(np.int64), pattern.cell_order)
+    return (
+        pattern.diag,
+        pattern.upper,
+        pattern.lower,
+        pattern.pair_ids,
+        pattern.pi.astype(np.int64),
+        pattern.pj.astype(np.int64),
+        pattern.cell_order,
+    )
 
 
 def stiffness_blocks(p, t, ed, pattern, dref, wref, lam, mu, blocks) -> None:
     """blocks += K's element blocks (see VectorSpace.stiffness_blocks); ``lam``, ``mu`` are
     per-cell arrays (n_cells,) (a constant is passed as a constant array: the same products,
     hence the same bits)."""
-    _stiffness(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(t),
-               np.ascontiguousarray(ed), *_pattern_args(pattern),
-               np.ascontiguousarray(dref, dtype=float), np.ascontiguousarray(wref, dtype=float),
-               np.ascontiguousarray(lam, dtype=float), np.ascontiguousarray(mu, dtype=float),
-               blocks)
+    _stiffness(
+        np.ascontiguousarray(p, dtype=float),
+        np.ascontiguousarray(t),
+        np.ascontiguousarray(ed),
+        *_pattern_args(pattern),
+        np.ascontiguousarray(dref, dtype=float),
+        np.ascontiguousarray(wref, dtype=float),
+        np.ascontiguousarray(lam, dtype=float),
+        np.ascontiguousarray(mu, dtype=float),
+        blocks,
+    )
 
 
 def scalar_mass(p, t, ed, pattern, mref, out, weight=None) -> None:
@@ -161,12 +175,19 @@ def scalar_mass(p, t, ed, pattern, mref, out, weight=None) -> None:
     |det J| * 1.0 is |det J| exactly)."""
     ne = np.asarray(t).shape[1]
     w = np.ones(ne) if weight is None else np.ascontiguousarray(weight, dtype=float)
-    _mass(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(t),
-          np.ascontiguousarray(ed), *_pattern_args(pattern),
-          np.ascontiguousarray(mref, dtype=float), w, out)
+    _mass(
+        np.ascontiguousarray(p, dtype=float),
+        np.ascontiguousarray(t),
+        np.ascontiguousarray(ed),
+        *_pattern_args(pattern),
+        np.ascontiguousarray(mref, dtype=float),
+        w,
+        out,
+    )
 
 
 # -- BSR products (bit for bit scipy's bsr_matvec: the same sums in the same order) -------------
+
 
 @_jit
 def _bsr_matvec_3(indptr, indices, data, x, y):
