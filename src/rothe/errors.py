@@ -11,6 +11,7 @@ command) and exits with status 2. Validation happens once, where the value enter
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -23,18 +24,29 @@ class RotheInputError(ValueError):
     or None when the message names no single parameter.
     """
 
-    def __init__(self, message: str, parameter: str | None = None):
+    def __init__(self, message: str, parameter: str | None = None, mentions: Sequence[str] = ()):
         super().__init__(message)
         self.parameter = parameter
+        #: other parameters the message names after the first (e.g. the second of a pair)
+        self.mentions = tuple(mentions)
 
-    def renamed(self, name: str) -> RotheInputError:
+    def renamed(self, name: str, others: dict[str, str] | None = None) -> RotheInputError:
         """The same error naming ``name`` (e.g. the CLI option ``--tau``) instead of the
-        parameter; unchanged if the message does not start with the parameter's name."""
+        parameter, and each of ``mentions`` by its entry in ``others`` (parameter -> option);
+        unchanged where the message does not start with the parameter's name."""
         message = str(self)
-        prefix = f"{self.parameter}: "
-        if self.parameter is None or not message.startswith(prefix):
+        lead = None if self.parameter is None else re.escape(self.parameter) + r"(?=[: ])"
+        if name is not None and lead is not None and re.match(lead, message):
+            message = name + message[len(self.parameter) :]
+        else:
+            name = self.parameter
+        for mention in self.mentions:
+            option = (others or {}).get(mention)
+            if option is not None:
+                message = re.sub(rf"(?<![\w-]){re.escape(mention)}(?![\w-])", option, message)
+        if message == str(self):
             return self
-        out = type(self)(f"{name}: {message[len(prefix) :]}", name)
+        out = type(self)(message, name, self.mentions)
         out.__cause__ = self.__cause__
         return out
 

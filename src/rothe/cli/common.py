@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import check_positive
+from ..errors import RotheInputError, check_int, check_positive, fail
+from ..parallel.executor import INSTALL_HINT, Executor, dask_available
 from ..stepping.progress import ProgressOptions
 
 
@@ -92,14 +93,6 @@ def given(args, option: str) -> bool:
     return option in getattr(args, "_given", ())
 
 
-def fit_default_cap(args, space, initial: int) -> None:
-    """--adapt-space without --max-dofs: the command's default cap, or twice the initial mesh's
-    dofs (nodes, for RIS) when that is more. A --max-dofs the user gave is checked against the
-    initial mesh where the run starts instead."""
-    if space is not None and args.max_dofs is None and space.max_dofs is not None:
-        space.max_dofs = max(space.max_dofs, 2 * int(initial))
-
-
 def peak_memory_mb() -> float:
     """Peak resident memory of this process in MB (ru_maxrss is KiB on Linux, bytes on macOS)."""
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -149,3 +142,52 @@ def print_summary(summary: dict, keys) -> None:
             if isinstance(v, float):
                 v = f"{v:.6g}"
             print(f"  {k:<{width}}  {v}")
+
+
+# -- parallel runs: --workers, --scheduler ---------------------------------------------------
+
+
+def add_parallel_options(parser) -> None:
+    """``--workers N`` and ``--scheduler ADDRESS`` for commands that run independent runs."""
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run the independent runs on a local Dask cluster of N worker processes "
+        "(default: the number of cores if Dask is installed, else 1; 1 = one after another "
+        "in this process, no Dask; env ROTHE_WORKERS sets the default)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="address of an existing Dask scheduler (e.g. tcp://host:8786) to run on instead",
+    )
+
+
+def executor_from_args(args, title: str) -> Executor:
+    """The executor of ``--workers``/``--scheduler``; bad values are one-line input errors."""
+    workers = args.workers
+    if workers is not None:
+        workers = check_int("--workers", workers, minimum=1)
+    if args.scheduler is not None:
+        if workers is not None:
+            raise fail(
+                "--workers",
+                workers,
+                "cannot be combined with --scheduler (the cluster has its own workers)",
+            )
+        if not args.scheduler.strip():
+            raise fail(
+                "--scheduler", args.scheduler, "must be a scheduler address (e.g. tcp://host:8786)"
+            )
+    if workers is not None and workers > 1 and not dask_available():
+        raise RotheInputError(
+            f"--workers {workers} needs dask.distributed: {INSTALL_HINT} (or --workers 1)"
+        )
+    if args.scheduler is not None and not dask_available():
+        raise RotheInputError(f"--scheduler needs dask.distributed: {INSTALL_HINT}")
+    return Executor(
+        workers, args.scheduler, progress=not getattr(args, "quiet", False), title=title
+    )

@@ -18,7 +18,6 @@ SIGTERM with ``status: interrupted`` and exits 130 / 143.
 from __future__ import annotations
 
 import shutil
-import sys
 
 import numpy as np
 
@@ -33,10 +32,11 @@ from ..eld.studies import (
     perturbation_study,
 )
 from ..errors import check_choice, check_int, check_positive, fail
-from ..parallel.executor import add_parallel_options, executor_from_args
+from .adapt_options import add_space_options, fit_default_cap, space_adaptivity
 from .common import (
     add_output_options,
-    fit_default_cap,
+    add_parallel_options,
+    executor_from_args,
     output_dir,
     parse_float,
     parse_float_list,
@@ -65,12 +65,10 @@ from .eld_options import (
     run_objects,
     scheme_of,
     scheme_option,
-    space_adaptivity,
-    space_options,
     step_options,
 )
 from .registry import command
-from .session import RunSession, add_run_options
+from .session import add_run_options, run_sequence
 
 #: eld-beam: P2 with 3 cells across (3675 dofs): sideways reactions 0.4 % / 0.3 % (Euler) and
 #: 0.5 % / 0.7 % (BDF2) of R_z, R_z within 0.03 % of n = 4 (P1 n = 3: 17 % / 27 %)
@@ -222,51 +220,48 @@ class EldRunCommand:
         ``summarize(summary, result, completed)`` adds the command's fields to the summary;
         ``stream(session, options)`` opens a writer that streams the steps while the run goes
         (it may set ``options``'s observer; None: the outputs are written at the end)."""
-        session = RunSession(args, self.name)
-        completed, summary = False, None
-        with session:
-            if session.already_completed:
-                print(
-                    f"rothe: {session.out}: the run already completed; its results are there",
-                    file=sys.stderr,
-                )
-                return 0
-            writer = None if stream is None else stream(session, options)
-            prepared = []
+        streams = []  # the stream writer, once the session is open
+        prepared = []
 
-            def start(checkpoint, resume, progress):
-                run = prepare_eld_run(problem, checkpoint=checkpoint, resume=resume, **options)
-                prepared.append(run)
-                return run.evolve(progress=progress)
+        def prepare(session):
+            if stream is not None:
+                streams.append(stream(session, options))
 
-            outcome = session.run(start)
-            results = session.results_dir(outcome.status)
-            completed = outcome.status == "completed"
+        def start(checkpoint, resume, progress):
+            run = prepare_eld_run(problem, checkpoint=checkpoint, resume=resume, **options)
+            prepared.append(run)
+            return run.evolve(progress=progress)
+
+        def write(stage, outcome):
             result = _result_of(outcome, prepared, problem)
-            if result is not None:
-                with session.outputs(outcome.status) as stage:
-                    if writer is not None:
-                        writer.export(stage)
-                    summary = run_summary(result, self.name)
-                    if writer is not None:
-                        summary.update(
-                            xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written
-                        )
-                    summarize(summary, result, completed)
-                    session.annotate(summary, outcome)
-                    write_eld_result(
-                        result,
-                        stage,
-                        name=self.name.replace("eld-", ""),
-                        xdmf=writer is None and "kept_t" in result.trajectory,
-                        figures=(completed and not args.no_plots and "energy" in result.trajectory),
-                        title=label,
-                    )
-                    write_summary(stage, summary)
-            code = session.finish(outcome, results)
-            if completed and writer is not None:
-                writer.discard()
-        if completed and not args.quiet:
+            if result is None:
+                return None
+            writer = streams[0] if streams else None
+            if writer is not None:
+                writer.export(stage)
+            summary = run_summary(result, self.name)
+            if writer is not None:
+                summary.update(xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written)
+            completed = outcome.status == "completed"
+            summarize(summary, result, completed)
+            write_eld_result(
+                result,
+                stage,
+                name=self.name.replace("eld-", ""),
+                xdmf=writer is None and "kept_t" in result.trajectory,
+                figures=(completed and not args.no_plots and "energy" in result.trajectory),
+                title=label,
+            )
+            return summary
+
+        def discard():
+            if streams:
+                streams[0].discard()
+
+        code, outcome, results, summary = run_sequence(
+            args, self.name, start, write, prepare=prepare, completed=discard
+        )
+        if outcome is not None and outcome.status == "completed" and not args.quiet:
             print(f"rothe run {self.name}: wrote {results}/")
             print_summary(summary, self.keys)
             print(format_energy_balance(summary))
@@ -348,7 +343,7 @@ class RunEldMMS(EldRunCommand):
             "(inconsistent with G(0): refused, Remark 2.2) (default exact)",
         )
         mms_options(parser)
-        space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
+        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -462,7 +457,7 @@ class RunEldBeam(EldRunCommand):
         )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
-        space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
+        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -620,7 +615,9 @@ class RunEldPulse(EldRunCommand):
         )
         lifting_option(parser)
         keep_option(parser, 10)
-        space_options(parser, on=True, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS)
+        add_space_options(
+            parser, on=True, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS
+        )
         add_output_options(parser, self.name)
         add_run_options(parser)
 

@@ -202,10 +202,11 @@ def execute(args) -> int:
     try:
         return int(args._command.execute(args) or 0)
     except RotheInputError as exc:
-        option = getattr(args, "_options", {}).get(exc.parameter)
-        if option is None:
+        table = getattr(args, "_options", {})
+        renamed = exc.renamed(table.get(exc.parameter), table)
+        if renamed is exc:
             raise
-        raise exc.renamed(option) from exc.__cause__
+        raise renamed from exc.__cause__
 
 
 def _dispatch(parser, argv: list[str]) -> int:

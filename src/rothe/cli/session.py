@@ -39,7 +39,7 @@ from ..io.checkpoint import (
 )
 from ..io.outputs import OutputSet, read_summary
 from ..stepping import interrupt
-from .common import parse_float, progress_of
+from .common import parse_float, progress_of, write_summary
 
 #: options that change where and how results are shown, never the results themselves
 PRESENTATION = (
@@ -312,6 +312,43 @@ class RunSession:
             )
             return exc.exit_status
         raise exc
+
+
+def run_sequence(args, name: str, run, write, *, prepare=None, completed=None):
+    """The one run sequence of every ``rothe run`` command: run (or resume) -> stage -> write
+    -> annotate -> summary last -> finish.
+
+    ``run(checkpoint=, resume=, progress=)`` runs the problem (:meth:`RunSession.run`);
+    ``write(stage, outcome) -> summary | None`` writes the result into the staging directory
+    (also of a failed or interrupted run with a trajectory), returning the summary, which is
+    annotated (:meth:`RunSession.annotate`) and written last; ``prepare(session)`` runs first
+    inside the session (e.g. opens a stream writer); ``completed()`` after a completed run's
+    results are committed. Returns ``(exit status, outcome, results directory, summary)``;
+    ``outcome`` is None when a resumed run had already completed (nothing is done).
+    """
+    session = RunSession(args, name)
+    summary = None
+    with session:
+        if session.already_completed:
+            print(
+                f"rothe: {session.out}: the run already completed; its results are there",
+                file=sys.stderr,
+            )
+            return 0, None, session.out, None
+        if prepare is not None:
+            prepare(session)
+        outcome = session.run(run)
+        results = session.results_dir(outcome.status)
+        if outcome.status == "completed" or outcome.result is not None:
+            with session.outputs(outcome.status) as stage:
+                summary = write(stage, outcome)
+                if summary is not None:
+                    session.annotate(summary, outcome)
+                    write_summary(stage, summary)
+        code = session.finish(outcome, results)
+        if outcome.status == "completed" and completed is not None:
+            completed()
+    return code, outcome, results, summary
 
 
 def _run_dir(path: Path) -> Path:

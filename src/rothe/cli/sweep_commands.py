@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from ..errors import RotheInputError
-from ..parallel.executor import add_parallel_options, executor_from_args
+from .common import add_parallel_options, executor_from_args
 from .registry import command
 
 #: the sweep's own options; everything else after the example is passed to every run

@@ -139,10 +139,11 @@ def remove_stale_temporaries(directory) -> int:
     return removed
 
 
-def check_writable(directory, option: str = "--out") -> Path:
+def check_writable(directory, name: str = "directory") -> Path:
     """Create ``directory`` if needed and prove that files can be created and renamed in it.
 
-    Raises :class:`~rothe.errors.RotheInputError` naming ``option``, e.g. ``--out: got
+    Raises :class:`~rothe.errors.RotheInputError` naming ``name`` (the caller's parameter; the
+    command line passes its option), e.g. ``--out: got
     '/proc/x', cannot create or write this directory ([Errno 2] No such file or directory)``.
     Meant to run before the first step, so that a read-only or missing location is refused
     at once instead of after the whole run.
@@ -151,7 +152,7 @@ def check_writable(directory, option: str = "--out") -> Path:
 
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
-        raise fail(option, str(directory), "must be a directory (a file of that name exists)")
+        raise fail(name, str(directory), "must be a directory (a file of that name exists)")
     try:
         directory.mkdir(parents=True, exist_ok=True)
         probe = temporary_name(directory / "write-test")
@@ -166,7 +167,7 @@ def check_writable(directory, option: str = "--out") -> Path:
         reason = exc.strerror or str(exc)
         code = f"[Errno {exc.errno}] " if exc.errno is not None else ""
         raise fail(
-            option,
+            name,
             str(directory),
             f"cannot create or write files in this directory ({code}{reason})",
         ) from None

@@ -21,8 +21,9 @@ The JSON document (format ``rothe-checkpoint``, ``format_version`` 1) records
 - ``rothe_version``, ``run_id``, ``sequence`` (checkpoints written), ``sessions`` (1 + resumes),
   ``status`` (running | interrupted | failed | completed), ``where`` (step, s, t of the state);
 - ``api`` (``run_ris``, ``run_nested``, ``run_eld``) and its ``arguments``, a ``fingerprint`` of
-  the problem (:func:`problem_fingerprint`: hashes of the assembled matrices, z0 / u0, v0, a few
-  load evaluations), and ``record`` (the caller's, e.g. the command line);
+  the problem (:func:`problem_fingerprint`, the problem's own ``fingerprint()``: hashes of the
+  assembled matrices, z0 / u0, v0, a few load evaluations), and ``record`` (the caller's, e.g.
+  the command line);
 - ``state``: ``stepper`` (``stepper.checkpoint_state(state)``), ``controller``
   (``controller.checkpoint_state()``), ``run`` (the driver's context, e.g. which nested run is
   going) and ``attachments`` (objects such as the XDMF stream writer);
@@ -165,64 +166,19 @@ def digest(*items) -> str:
 
 
 def problem_fingerprint(problem) -> dict:
-    """Cheap hashes that identify a problem: assembled matrices, initial data, a few loads.
+    """The problem's own ``fingerprint() -> dict`` of cheap hashes, normalized for JSON.
 
-    A problem may provide its own ``fingerprint() -> dict`` (e.g. with an adaptive mesh);
-    otherwise RIS problems (``A``, ``z0``, ``load``) and ELD problems (``M``, ``K``,
-    ``constraint``) are recognized. Each entry is compared separately on resume, so the refusal
-    can say what differs.
+    Every problem supplies it (``RISProblem``, ``FERISProblem``, ``ELDProblem``: assembled
+    matrices, initial data, a few loads): this layer knows no family. Each entry is compared
+    separately on resume, so the refusal can say what differs.
     """
     custom = getattr(problem, "fingerprint", None)
-    if callable(custom):
-        return normalized(dict(custom()))
-    T = float(problem.T)
-    times = (0.0, T / 3.0, T)
-    if hasattr(problem, "A") and hasattr(problem, "z0"):
-        z0 = problem.z0
-        z1 = z0 + 0.5
-        fp = {
-            "class": type(problem).__name__,
-            "n": int(problem.n),
-            "T": T,
-            "A": digest(problem.A),
-            "z0": digest(z0),
-            "weights": digest(problem.r, problem.m),
-            "load": digest(*[problem.load(t) for t in times]),
-            "F": digest(
-                np.array([problem.F(z0), problem.F(z1)]),
-                problem.dF(z0),
-                problem.dF(z1),
-                problem.d2F(z0),
-                problem.d2F(z1),
-            ),
-        }
-        if hasattr(problem, "nodes") and hasattr(problem, "cells"):
-            fp["mesh"] = digest(problem.nodes, problem.cells)
-        return fp
-    if hasattr(problem, "M") and hasattr(problem, "K") and hasattr(problem, "constraint"):
-        c = problem.constraint
-        return {
-            "class": type(problem).__name__,
-            "ndofs": int(problem.space.ndofs),
-            "T": T,
-            "M": digest(problem.M),
-            "K": digest(problem.K),
-            "B": digest(c.B, c.dofs),
-            "initial": digest(problem.u0, problem.v0),
-            "load": digest(*[problem.load(t) for t in times]),
-            "G": digest(*[problem.G(t) for t in times]),
-            # the damping force at a fixed velocity (a user's damping function is not described)
-            "damping": digest(problem.damping_op.apply(np.sin(np.arange(problem.space.ndofs)))),
-            "description": digest(
-                np.frombuffer(
-                    json.dumps(problem.describe(), sort_keys=True, default=str).encode(), np.uint8
-                )
-            ),
-        }
-    raise TypeError(
-        f"cannot fingerprint a {type(problem).__name__}: give it a fingerprint() "
-        "method returning a dict of hashes"
-    )
+    if not callable(custom):
+        raise TypeError(
+            f"cannot fingerprint a {type(problem).__name__}: give it a fingerprint() "
+            "method returning a dict of hashes"
+        )
+    return normalized(dict(custom()))
 
 
 # -- the checkpoint on disk -------------------------------------------------------------------

@@ -141,14 +141,15 @@ _SKFEM_KINDS = {
 }
 
 
-def check_adaptable(mesh, name: str = "--adapt-space"):
+def check_adaptable(mesh, name: str = "mesh"):
     """Return ``mesh`` if bisection can adapt it, else raise a one-line error naming ``name``.
 
     Accepts a scikit-fem mesh (``MeshTri`` / ``MeshTet``; a ``MeshQuad``, ``MeshHex``, ...
     is refused with its cell type), a ``meshio.Mesh`` or a path to a file meshio reads: any
     volume cell other than linear triangles/tetrahedra is refused, and a file mixing them with
     other cells is named "a mixed mesh (...)". Boundary cells (lines in 2D, triangles next to
-    tetrahedra in 3D) are fine. ``name`` defaults to the CLI option ``--adapt-space``.
+    tetrahedra in 3D) are fine. ``name`` is the caller's parameter (the command line passes
+    its option ``--adapt-space``).
     """
     from pathlib import Path
 
@@ -269,7 +270,7 @@ class AdaptiveMesh:
     """
 
     def __init__(self, mesh, *, name: str = "mesh"):
-        check_adaptable(mesh, "--adapt-space")
+        check_adaptable(mesh, name)
         p = np.asarray(mesh.p, dtype=float)
         t = np.asarray(mesh.t, dtype=np.int64)
         d = p.shape[0]
