@@ -24,8 +24,9 @@ checkpoints), :mod:`~rothe.eld.run` (the driver), :mod:`~rothe.eld.adapt` (space
 Coupled systems (``docs/coupling.md``, issue 19): components (:mod:`rothe.eld.components`),
 couplings B u = G(t, q) and :class:`CoupledProblem` (:mod:`rothe.eld.coupling`), sensors and
 controllers (:mod:`rothe.eld.control`), the bordered coupled step (:mod:`rothe.eld.coupled_step`),
-interfaces between bodies (:mod:`rothe.eld.interface`), several materials
-(:class:`PiecewiseMaterial`), analytic references (:mod:`rothe.eld.frequencies`).
+coupled runs on the evolve loop (:func:`run_coupled`, :mod:`rothe.eld.coupled_run`), interfaces
+between bodies (:mod:`rothe.eld.interface`), several materials (:class:`PiecewiseMaterial`),
+analytic references (:mod:`rothe.eld.frequencies`).
 """
 
 from .adapt import ELDMeshes
@@ -40,6 +41,7 @@ from .components import (
 )
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .control import LinearController, PointSensor, ReactionSensor, UserController
+from .coupled_run import CoupledResult, CoupledStepper, run_coupled
 from .coupled_step import CoupledStepSystem, coupled_modes, run_coupled_reference
 from .coupling import (
     CoupledProblem,
@@ -76,6 +78,8 @@ __all__ = [
     "BDF2",
     "Component",
     "CoupledProblem",
+    "CoupledResult",
+    "CoupledStepper",
     "CoupledStepSystem",
     "Coupling",
     "Damping",
@@ -132,6 +136,7 @@ __all__ = [
     "cauchy_stress",
     "convergence_study",
     "coupled_modes",
+    "run_coupled",
     "make_damping",
     "mms_errors",
     "mms_problem",
