@@ -31,7 +31,7 @@ state (q, p, z next to the fields), a different result (the components' trajecto
 whole-system ledger), and today neither ``data=`` (the prescribed part's data are taken at the
 step's points) nor ``adapt=`` (space adaptivity) nor checkpoints; ``run_eld`` accepting a
 CoupledProblem would have to refuse half its keywords for one kind of problem. When the coupled
-step moves into :class:`~rothe.eld.stepper.ELDStepper` (docs/coupling.md, Sec. 11), this
+step moves into :class:`~rothe.eld.stepper.ELDStepper` (docs/coupling.md, Sec. 12), this
 function becomes run_eld's branch with the same signature.
 """
 
@@ -326,7 +326,7 @@ class CoupledStepper:
                 None,
                 tau,
                 converged=False,
-                code=ELDCode.NEWTON,
+                code=ELDCode.NEWTON if isinstance(exc, RunFailed) else ELDCode.LINEAR_SOLVE,
                 message=f"coupled step at t = {state.t + tau:.6g} failed: {exc}",
                 where=self.where(state, None),
                 counters=self._counters(before),
