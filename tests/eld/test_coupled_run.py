@@ -40,6 +40,8 @@ def test_uniform_steps_equal_the_reference_integrator(scheme, form):
     np.testing.assert_allclose(
         res.state.lam, ref["lam"], rtol=0, atol=1e-10 * np.abs(ref["lam"]).max()
     )
+    # the coupling holds at every accepted state (both forms: the trace is lifted from q)
+    assert tr["constraint"].shape == (21,) and tr["constraint"].max() < 1e-14
     # the reaction on the tie acts on the tip: its trajectory is recorded too
     assert tr["reaction_right"].shape == (21, 2)
     assert np.abs(tr["reaction_right"]).max() > 0

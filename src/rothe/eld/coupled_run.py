@@ -98,6 +98,7 @@ class CoupledStepResult:
     balance: float = 0.0
     residual_body: float = 0.0
     residual_components: float = 0.0
+    constraint: float = 0.0
     reactions: dict = field(default_factory=dict)
     counters: dict = field(default_factory=dict)
     converged: bool = True
@@ -123,8 +124,9 @@ class CoupledResult:
         energy_components, work, work_components, work_controllers, work_prescribed,
         dissipated, numerical_dissipation, data_mismatch, residual_work, balance`` (the ledger
         of docs/coupling.md Sec. 5; ``balance`` its mismatch, round-off), ``residual_body,
-        residual_components``, and with ``watch`` ``watch_u, watch_v``; step series ``tau,
-        local_error``; ``stats`` and ``meta``.
+        residual_components``, ``constraint`` (max |S u - G(t) - Gamma q| / max(1, max |u|):
+        the coupling B u = G(t, q) at every accepted state), and with ``watch`` ``watch_u,
+        watch_v``; step series ``tau, local_error``; ``stats`` and ``meta``.
     state : CoupledState
         The final state (fields u, v, a, lam of the body).
     stepper : CoupledStepper
@@ -524,6 +526,10 @@ class CoupledStepper:
                 np.abs(R).max() / max(1.0, np.abs(F).max(), np.abs(K @ u).max())
             ),
             "residual_components": float(np.abs(Rq).max(initial=0.0)),
+            "constraint": float(
+                np.abs(u[c.dofs] - gk - Gam @ q).max(initial=0.0)
+                / max(1.0, np.abs(u).max(initial=0.0))
+            ),
             "reactions": c.reactions(lam),
         }
         return new, info
@@ -569,7 +575,9 @@ class CoupledStepper:
         return {"t": f"{state.t:.4g}", "newton": self._last_newton}
 
     # -- records ---------------------------------------------------------------------------------
-    def record_state(self, traj: Trajectory, state: CoupledState, reactions, balance, rb, rc):
+    def record_state(
+        self, traj: Trajectory, state: CoupledState, reactions, balance, rb, rc, constraint=0.0
+    ):
         Eb, Ec = self._energies(state.u, state.v, state.q, state.p)
         values = {
             "t": state.t,
@@ -583,6 +591,7 @@ class CoupledStepper:
             "balance": balance,
             "residual_body": rb,
             "residual_components": rc,
+            "constraint": constraint,
             **state.ledger,
             **{f"reaction_{part}": R for part, R in reactions.items()},
         }
@@ -592,7 +601,11 @@ class CoupledStepper:
         traj.append(**values)
 
     def record_initial(self, traj: Trajectory, state: CoupledState) -> None:
-        self.record_state(traj, state, self.c.reactions(state.lam), 0.0, 0.0, 0.0)
+        c = self.c
+        g0 = self.body.G(0.0) + self.kern.Gamma @ state.q
+        constraint = np.abs(state.u[c.dofs] - g0).max(initial=0.0)
+        constraint /= max(1.0, np.abs(state.u).max(initial=0.0))
+        self.record_state(traj, state, c.reactions(state.lam), 0.0, 0.0, 0.0, float(constraint))
 
     def record(self, traj: Trajectory, result: CoupledStepResult, state: CoupledState) -> None:
         self.record_state(
@@ -602,6 +615,7 @@ class CoupledStepper:
             result.balance,
             result.residual_body,
             result.residual_components,
+            result.constraint,
         )
         traj.append(tau=result.tau, local_error=result.estimate)
 
