@@ -15,13 +15,9 @@ from rothe.fem.mesh import load_mesh, unit_cube, unit_square
 from rothe.io.trajectory import Trajectory
 from rothe.io.xdmf import read_series
 
+from ..conftest import run_cli
+
 E = r"^rothe: error: "
-
-
-def run_cli(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_run_ris_2d_outputs(tmp_path, capsys):

@@ -6,13 +6,11 @@ import meshio
 import numpy as np
 import pytest
 
-from rothe.cli.main import main
+from ..conftest import run_cli
 
 
 def _run(argv, capsys):
-    code = main(argv)
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
+    return run_cli(capsys, *argv)
 
 
 def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):

@@ -17,7 +17,7 @@ import os
 
 from ..errors import fail
 from ..fem.adapt import SpaceAdaptivity
-from .common import parse_float
+from .common import float_option
 
 #: the options of space adaptivity (refused without --adapt-space)
 SPACE_OPTIONS = (
@@ -57,23 +57,23 @@ def add_space_options(
         f"accepted step, by {indicator}"
         + ("; on by default, --no-adapt-space keeps the mesh" if on else ""),
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--space-tol",
-        type=parse_float("--space-tol"),
         default=None,
         help="tolerance of the estimate eta of a step (refine while above; "
         + ("required with --adapt-space)" if default_tol is None else f"default {default_tol:g})"),
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--refine-fraction",
-        type=parse_float("--refine-fraction"),
         default=None,
         help="Doerfler bulk fraction of eta^2 to refine, in (0, 1) "
         f"(default {MARKING_DEFAULTS['refine_fraction']:g})",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--coarsen-fraction",
-        type=parse_float("--coarsen-fraction"),
         default=None,
         help="share of max(eta, space-tol)^2 the coarsened cells may carry, in (0, 1) "
         f"(default {MARKING_DEFAULTS['coarsen_fraction']:g})",

@@ -19,17 +19,19 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RotheInputError, check_int, check_positive, fail
+from ..io.atomic import TMP_PREFIX, atomic_write_text, check_writable
 from ..parallel.executor import INSTALL_HINT, Executor, dask_available
 from ..stepping.progress import ProgressOptions
 
 
 def add_output_options(parser, name: str) -> None:
+    """--out (default rothe-out/<name>), --no-plots, --quiet and --progress-every."""
     parser.add_argument("--out", default=None, help=f"output directory (default rothe-out/{name})")
     parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
-    parser.add_argument(
+    float_option(
+        parser,
         "--progress-every",
-        type=parse_float("--progress-every"),
         default=30.0,
         metavar="SECONDS",
         help="when stderr is not a terminal (a log): one progress line every "
@@ -39,7 +41,6 @@ def add_output_options(parser, name: str) -> None:
 
 def output_dir(args, name: str) -> Path:
     """The output directory, created and checked for writability (errors name --out)."""
-    from ..io.atomic import check_writable
 
     out = Path(args.out) if args.out else Path("rothe-out") / name
     return check_writable(out, "--out")
@@ -66,6 +67,20 @@ def parse_float(name: str):
         return value
 
     return conv
+
+
+def float_option(parser, name: str, **kwargs) -> None:
+    """Add the option ``name`` taking one finite number (:func:`parse_float`) to ``parser``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser or argument group
+    name : str
+        The option, e.g. ``"--tau"``.
+    **kwargs
+        The other arguments of ``add_argument`` (``default``, ``help``, ``metavar``, ...).
+    """
+    parser.add_argument(name, type=parse_float(name), **kwargs)
 
 
 def parse_float_list(name: str):
@@ -116,7 +131,6 @@ def _jsonable(value):
 def write_summary(out: Path, summary: dict) -> Path:
     """Write ``out/summary.json`` atomically. In a run's staging directory (see
     :mod:`rothe.io.outputs`) the summary also lists the files of the result (``files``)."""
-    from ..io.atomic import TMP_PREFIX, atomic_write_text
 
     out = Path(out)
     if out.name.startswith(TMP_PREFIX):
@@ -129,12 +143,12 @@ def write_summary(out: Path, summary: dict) -> Path:
 
 def write_table(out: Path, text: str, name: str = "table.txt") -> Path:
     """Write a table (text) atomically."""
-    from ..io.atomic import atomic_write_text
 
     return atomic_write_text(Path(out) / name, text)
 
 
 def print_summary(summary: dict, keys) -> None:
+    """Print the fields ``keys`` of ``summary`` that it has, one per line (floats with 6 digits)."""
     width = max(len(k) for k in keys)
     for k in keys:
         if k in summary:

@@ -24,7 +24,7 @@ from ..eld.studies import check_delta, check_halvings, check_noise_targets
 from ..errors import check_choice, check_int, check_positive, described, fail
 from ..stepping.controllers import Adaptive, Given, Uniform
 from .adapt_options import check_memory
-from .common import given, parse_float
+from .common import float_option, given
 
 #: the schemes and forms by their names on the command line
 SCHEMES = {"euler": ImplicitEuler, "bdf2": BDF2}
@@ -67,9 +67,9 @@ def step_options(parser, tau_default: float, scheme_default: str = SCHEME_DEFAUL
     """--form, --scheme, --tau and --control/--tol: every eld run command steps the same way."""
     form_option(parser)
     scheme_option(parser, scheme_default)
-    parser.add_argument(
+    float_option(
+        parser,
         "--tau",
-        type=parse_float("--tau"),
         default=tau_default,
         help=f"time step; must divide T (default {tau_default:g}); the first "
         "step with --control adaptive",
@@ -106,9 +106,9 @@ def control_options(parser) -> None:
         "by the local error estimate (then --tau is the first step) "
         f"(default {CONTROLS[0]})",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--tol",
-        type=parse_float("--tol"),
         default=None,
         help="tolerance of --control adaptive: local error in the energy norm "
         "relative to the run's energy-norm scale",
@@ -155,34 +155,34 @@ def damping_options(parser, default: str = "nonlinear", default_b: float = 0.01)
         help="nonlinear | rayleigh | none (nonlinear: D v = b K v - d0 M v + "
         f"d_nl v/sqrt(1+|v|^2/v_ref^2)) (default {default})",
     )
-    parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density (default 1)")
-    parser.add_argument(
+    float_option(parser, "--rho", default=1.0, help="density (default 1)")
+    float_option(
+        parser,
         "--d0",
-        type=parse_float("--d0"),
         default=0.5,
         help="L2 anti-damping constant d0 of the nonlinear damping (default 0.5)",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--d-nl",
-        type=parse_float("--d-nl"),
         default=1.0,
         help="coefficient d_nl of the saturating part (default 1)",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--v-ref",
-        type=parse_float("--v-ref"),
         default=1.0,
         help="saturation velocity v_ref (default 1)",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--b",
-        type=parse_float("--b"),
         default=default_b,
         help=f"stiffness-proportional coefficient b (default {default_b:g})",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--a",
-        type=parse_float("--a"),
         default=0.0,
         help="mass-proportional coefficient a of Rayleigh damping (default 0)",
     )
@@ -194,11 +194,9 @@ def mms_options(parser, n: int = 8) -> None:
         "--n", type=int, default=n, help=f"cells per side of the unit square (default {n})"
     )
     parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2: exact in space)")
-    parser.add_argument(
-        "--lam", type=parse_float("--lam"), default=2.0, help="Lamé lambda (default 2)"
-    )
-    parser.add_argument("--mu", type=parse_float("--mu"), default=1.0, help="Lamé mu (default 1)")
-    parser.add_argument("--T", type=parse_float("--T"), default=1.0, help="end time (default 1)")
+    float_option(parser, "--lam", default=2.0, help="Lamé lambda (default 2)")
+    float_option(parser, "--mu", default=1.0, help="Lamé mu (default 1)")
+    float_option(parser, "--T", default=1.0, help="end time (default 1)")
     data_options(parser)
     damping_options(parser)
 

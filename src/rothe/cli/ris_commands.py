@@ -27,9 +27,9 @@ from .common import (
     add_output_options,
     add_parallel_options,
     executor_from_args,
+    float_option,
     given,
     output_dir,
-    parse_float,
     parse_float_list,
     print_summary,
     write_summary,
@@ -149,9 +149,9 @@ class RISRunBase(ABC):
             help="adaptive | uniform | nested | order2 | regime (default adaptive; regime: "
             "every step at the same residual, Alg. 3.2's acceptance)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tol",
-            type=parse_float("--tol"),
             default=1e-4,
             help="residual tolerance of adaptive/order2/regime (default 1e-4)",
         )
@@ -161,15 +161,15 @@ class RISRunBase(ABC):
             default=None,
             help="decreasing tolerances for --control nested (default 1e-3,1e-4,1e-5)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tau",
-            type=parse_float("--tau"),
             default=None,
             help=f"fixed step (uniform) or first step (default {self.default_tau})",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tau-min",
-            type=parse_float("--tau-min"),
             default=1e-12,
             help="smallest step before the run stops with an error (default 1e-12)",
         )
@@ -418,6 +418,12 @@ def compare_ris_1d(
         )
         for tau in taus
     ]
+    return compare_rows_of(tasks, executor)
+
+
+def compare_rows_of(tasks, executor=None) -> list[dict]:
+    """Run the tasks of a ``compare ris-*`` command (one ``Executor`` process when ``executor``
+    is None); a task that failed gives a row with its control, tol, tau0 and status."""
     results = (executor or Executor(1, progress=False)).map(tasks)
     return [
         r.value

@@ -31,7 +31,7 @@ from ..fem.mesh import DUPLICATE_NODES, load_mesh
 from ..io.atomic import atomic_write_text
 from ..io.mesh_series import write_vtu_series
 from ..io.xdmf import write_series
-from ..parallel import Executor, Task, TaskFailed
+from ..parallel import Task, TaskFailed
 from ..ris import examples
 from ..ris.inner import InnerOptions, amg_threshold_for
 from ..ris.run import run_ris, stored_states
@@ -54,9 +54,9 @@ from .common import (
     add_output_options,
     add_parallel_options,
     executor_from_args,
+    float_option,
     given,
     output_dir,
-    parse_float,
     parse_float_list,
     peak_memory_mb,
     progress_of,
@@ -64,7 +64,7 @@ from .common import (
     write_table,
 )
 from .registry import command
-from .ris_commands import RISRunBase, check_step, control_object, run_cost
+from .ris_commands import RISRunBase, check_step, compare_rows_of, control_object, run_cost
 
 #: ReusableSolver.kind_used for each resolved method (kept in sync by tests/cli/test_cli_ris_fem.py)
 LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa"}
@@ -173,15 +173,15 @@ class _RunRISFem(RISRunBase):
             + (",front,back" if self.dim == 3 else "")
             + " on the grid) where z = 0; default: the whole boundary",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--z0",
-            type=parse_float("--z0"),
             default=self.default_z0,
             help=f"initial state at every interior node (default {self.default_z0:g})",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--amplitude",
-            type=parse_float("--amplitude"),
             default=self.default_amplitude,
             help=self.amplitude_help,
         )
@@ -467,9 +467,9 @@ class RunRISFront(_RunRISFem):
     def add_example_options(self, parser) -> None:
         """The options of ris-2d and --coefficient."""
         super().add_example_options(parser)
-        parser.add_argument(
+        float_option(
+            parser,
             "--coefficient",
-            type=parse_float("--coefficient"),
             default=None,
             help="c of 1/2 int c |grad z|^2 (default 0.1; the interface is about sqrt(c/192) wide)",
         )
@@ -560,18 +560,7 @@ def compare_ris_2d(
         )
         for c, tol, tau in runs
     ]
-    results = (executor or Executor(1, progress=False)).map(tasks)
-    return [
-        r.value
-        if isinstance(r.value, dict)
-        else {
-            "control": t.kwargs["control"],
-            "tol": t.kwargs["tol"],
-            "tau0": t.kwargs["tau"],
-            "status": f"{r.status}: {r.message}",
-        }
-        for t, r in zip(tasks, results, strict=True)
-    ]
+    return compare_rows_of(tasks, executor)
 
 
 def format_table(rows) -> str:
@@ -655,9 +644,9 @@ class CompareRIS2D:
             help="step controllers besides uniform, from adaptive, order2, regime "
             "(default all three)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tau",
-            type=parse_float("--tau"),
             default=0.1,
             help="first step of the step controllers (default 0.1)",
         )

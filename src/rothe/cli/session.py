@@ -34,12 +34,13 @@ from ..io.checkpoint import (
     CheckpointError,
     CheckpointOptions,
     DirectoryLock,
+    changed_keys,
     load_checkpoint,
     normalized,
 )
 from ..io.outputs import OutputSet, read_summary
 from ..stepping import interrupt
-from .common import parse_float, progress_of, write_summary
+from .common import float_option, progress_of, write_summary
 
 #: options that change where and how results are shown, never the results themselves
 PRESENTATION = (
@@ -61,9 +62,9 @@ INCOMPLETE = "incomplete"
 
 def add_run_options(parser) -> None:
     """``--checkpoint-every``, ``--resume`` and ``--discard-checkpoint`` of the run commands."""
-    parser.add_argument(
+    float_option(
+        parser,
         "--checkpoint-every",
-        type=parse_float("--checkpoint-every"),
         default=60.0,
         metavar="SECONDS",
         help="write a checkpoint to OUT/checkpoint every SECONDS of wall time "
@@ -189,8 +190,7 @@ class RunSession:
         old, new = rec.get("args", {}), result_arguments(self.args)
         diff = [
             f"{_option(k)} {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-            for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k)
+            for k in changed_keys(old, new)
         ]
         if diff:
             raise CheckpointError(
@@ -264,6 +264,7 @@ class RunSession:
             return None
 
     def outputs(self, status: str) -> OutputSet:
+        """The set of output files of this run, committed together into :meth:`results_dir`."""
         return OutputSet(self.results_dir(status))
 
     def annotate(self, summary: dict, outcome: Outcome) -> dict:

@@ -38,6 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import check_nonnegative, check_positive, described, fail
+from ..fem.elasticity import affine_geometry
 from .components import Component, check_jacobian
 
 QUANTITIES = ("displacement", "velocity")
@@ -50,8 +51,6 @@ def locate(space, point: np.ndarray, name: str = "point", tol: float = 1e-10):
     smallest barycentric coordinate is largest wins, and it must be >= -tol (relative to
     the cell): otherwise the point is outside the body and a one-line error names ``name``.
     """
-    from ..fem.elasticity import affine_geometry
-
     p, t = np.asarray(space.mesh.p), np.asarray(space.mesh.t)
     x = np.asarray(point, dtype=float)
     inv, _ = affine_geometry(p, t)  # invJ[k, a, c]

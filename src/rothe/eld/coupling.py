@@ -47,6 +47,7 @@ matrix Gamma = g_q (constrained dofs x all coordinates).
 
 from __future__ import annotations
 
+import warnings
 from abc import ABC, abstractmethod
 
 import numpy as np
@@ -659,8 +660,6 @@ def _rebuild(mesh, problem: ELDProblem | None, data: dict) -> ELDProblem:
     """The body problem with the coupled parts added to its constraint (zero placeholder data).
     Rebuilt from an existing problem, its initial data are taken over as they are (dof vectors
     stay dof vectors)."""
-    import warnings
-
     data = dict(data)
     if problem is None:
         return ELDProblem(mesh, **data)

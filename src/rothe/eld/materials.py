@@ -39,7 +39,19 @@ PLANES = ("strain", "stress")
 @dataclass(frozen=True)
 class Material:
     """rho > 0, mu > 0, lam > -2 mu / dim (dim = 2 plane strain, or 3); plane stress in 2D
-    (``plane="stress"``) needs lam > -2 mu / 3 (see the module docstring)."""
+    (``plane="stress"``) needs lam > -2 mu / 3 (see the module docstring).
+
+    Parameters
+    ----------
+    rho : float
+        Density.
+    lam, mu : float
+        Lamé constants.
+    dim : int
+        2 or 3.
+    plane : {'strain', 'stress'}
+        The 2D model (default plane strain; a 3D material is 'strain').
+    """
 
     rho: float
     lam: float

@@ -22,19 +22,22 @@ import contextlib
 import os
 import re
 import secrets
+import shutil
 from pathlib import Path
 
-from ..errors import OutputWriteError
+from ..errors import OutputWriteError, fail
 
 TMP_PREFIX = ".rothe-tmp-"
 _TMP_RE = re.compile(r"^\.rothe-tmp-(\d+)-[0-9a-f]+-")
 
 
 def temporary_name(path: Path) -> Path:
+    """The temporary name ``.rothe-tmp-<pid>-<token>-<name>`` beside ``path``."""
     return path.with_name(f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{path.name}")
 
 
 def fsync_file(path) -> None:
+    """Flush ``path``'s data to the disk (``os.fsync``)."""
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -57,6 +60,7 @@ def fsync_dir(path) -> None:
 
 
 def unlink_quietly(path) -> None:
+    """Remove ``path``; no error if it cannot be removed (e.g. it does not exist)."""
     with contextlib.suppress(OSError):
         os.unlink(path)
 
@@ -88,6 +92,7 @@ def atomic_path(path, *, fsync: bool = True):
 
 
 def atomic_write_bytes(path, data: bytes, *, fsync: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically (module docstring); returns ``path``."""
     path = Path(path)
     with atomic_path(path, fsync=fsync) as tmp, open(tmp, "wb") as f:
         f.write(data)
@@ -95,6 +100,7 @@ def atomic_write_bytes(path, data: bytes, *, fsync: bool = True) -> Path:
 
 
 def atomic_write_text(path, text: str, *, fsync: bool = True) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically; returns ``path``."""
     return atomic_write_bytes(path, text.encode("utf-8"), fsync=fsync)
 
 
@@ -116,7 +122,6 @@ def remove_stale_temporaries(directory) -> int:
     Only names of the form ``.rothe-tmp-<pid>-...`` whose process no longer exists are touched.
     Returns how many were removed.
     """
-    import shutil
 
     directory = Path(directory)
     removed = 0
@@ -148,7 +153,6 @@ def check_writable(directory, name: str = "directory") -> Path:
     Meant to run before the first step, so that a read-only or missing location is refused
     at once instead of after the whole run.
     """
-    from ..errors import fail
 
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():

@@ -53,7 +53,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import RotheInputError, check_positive
+from .._version import __version__
+from ..errors import OutputWriteError, RotheInputError, check_positive
 from .atomic import atomic_path, remove_stale_temporaries
 from .trajectory import RAGGED_LENGTHS, RunStatistics, Trajectory
 
@@ -78,18 +79,17 @@ class CheckpointError(RotheInputError):
 
 
 def package_version() -> str:
-    from .. import __version__
-
+    """The version of rothe (recorded in, and required of, every checkpoint)."""
     return __version__
 
 
 def library_versions() -> dict:
     """Versions of the libraries whose rounding a bit-for-bit continuation depends on."""
-    import scipy
+    import scipy  # heavy: imported when first needed (start-up time)
 
     out = {"numpy": np.__version__, "scipy": scipy.__version__}
     try:
-        import pyamg
+        import pyamg  # heavy: imported when first needed (start-up time)
 
         out["pyamg"] = pyamg.__version__
     except ImportError:  # pragma: no cover - a dependency
@@ -130,6 +130,7 @@ def encode(obj, arrays: dict, where: str = "state"):
 
 
 def decode(obj, arrays):
+    """The inverse of :func:`encode`: ``{'__array__': key}`` replaced by ``arrays[key]``."""
     if isinstance(obj, dict):
         if len(obj) == 1 and "__array__" in obj:
             return arrays[obj["__array__"]]
@@ -149,7 +150,7 @@ def normalized(value):
 
 def digest(*items) -> str:
     """A short SHA-256 of arrays / sparse matrices / numbers (dtype, shape and bytes)."""
-    import scipy.sparse as sp
+    import scipy.sparse as sp  # heavy: imported when first needed (start-up time)
 
     h = hashlib.sha256()
     for item in items:
@@ -192,6 +193,12 @@ def checkpoint_dir(path) -> Path:
     return path / CHECKPOINT_SUBDIR
 
 
+def changed_keys(old: dict, new: dict) -> list:
+    """The keys of either dict whose values differ (a key missing in one counts as None),
+    sorted: what a resume reports as changed."""
+    return [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+
+
 def _fmt(value) -> str:
     if isinstance(value, float):
         return f"{value:g}"
@@ -227,6 +234,7 @@ class Checkpoint:
         return self._state
 
     def describe_where(self) -> str:
+        """Where the run stopped, e.g. ``'accepted_steps = 12, t = 0.3'``."""
         w = self.where
         parts = [
             f"{k} = {w[k]:.6g}" if isinstance(w.get(k), float) else f"{k} = {w[k]}"
@@ -237,6 +245,7 @@ class Checkpoint:
 
     # -- checks -----------------------------------------------------------------------------
     def require_version(self) -> None:
+        """Refuse (:class:`CheckpointError`) a checkpoint written by another version of rothe."""
         mine, theirs = package_version(), self.header.get("rothe_version")
         if theirs != mine:
             raise CheckpointError(
@@ -245,6 +254,9 @@ class Checkpoint:
             )
 
     def warn_if_libraries_differ(self) -> None:
+        """Warn (:class:`CheckpointWarning`) if numpy, scipy, ... differ from those that wrote
+        it.
+        """
         old, new = self.header.get("libraries") or {}, library_versions()
         diff = [f"{k} {old[k]} -> {new.get(k)}" for k in sorted(old) if old[k] != new.get(k)]
         if diff:
@@ -257,6 +269,7 @@ class Checkpoint:
             )
 
     def require_resumable(self) -> None:
+        """Refuse (:class:`CheckpointError`) the checkpoint of a run that failed."""
         if self.status == "failed":
             w = self.where
             raise CheckpointError(
@@ -271,8 +284,7 @@ class Checkpoint:
         old, new = self.header.get("arguments", {}), normalized(arguments)
         diff = [
             f"{k} = {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-            for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k)
+            for k in changed_keys(old, new)
         ]
         if diff:
             raise CheckpointError(
@@ -294,6 +306,9 @@ class Checkpoint:
         return len(self.header.get("trajectories", []))
 
     def trajectory(self, i: int) -> Trajectory:
+        """The ``i``-th registered trajectory: its meta data, statistics and series from the
+        segment files.
+        """
         rec = self.header["trajectories"][i]
         traj = Trajectory(meta=rec.get("meta"))
         for f in fields(RunStatistics):
@@ -406,8 +421,11 @@ class DirectoryLock:
         self.key = None
 
     def acquire(self) -> DirectoryLock:
+        """Take the lock (re-entrant within the process); :class:`CheckpointError` naming the
+        holder's pid if another process holds it. Returns the lock.
+        """
         try:
-            import fcntl
+            import fcntl  # POSIX only: elsewhere the lock is a no-op
         except ImportError:  # pragma: no cover - not POSIX
             return self
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -434,6 +452,7 @@ class DirectoryLock:
         return self
 
     def release(self) -> None:
+        """Release one acquisition; the lock file is unlocked with the last one."""
         if self.key is None:
             return
         key, self.key = self.key, None
@@ -522,6 +541,7 @@ class Checkpointer:
         return i
 
     def due(self) -> bool:
+        """True when ``every`` seconds have passed since the last checkpoint."""
         return time.monotonic() - self._last >= self.every
 
     # -- saving -----------------------------------------------------------------------------
@@ -604,7 +624,6 @@ class Checkpointer:
         """:meth:`save`, but a write error (a full disk) is a warning, not the end of the run:
         the previous checkpoint stays valid, the run goes on, and the results are still written
         (or fail with their own error). Warns once per run."""
-        from ..errors import OutputWriteError
 
         try:
             return self.save(*args, **kwargs)
@@ -629,9 +648,11 @@ class Checkpointer:
                         os.unlink(entry.path)
 
     def close(self) -> None:
+        """Release the directory lock."""
         self._lock.release()
 
     def restore_attachments(self, restored: Checkpoint) -> None:
+        """Restore every attachment from its state in the checkpoint ``restored``."""
         saved = restored.state.get("attachments") or {}
         for name, obj in self.attachments.items():
             if name in saved:
@@ -696,6 +717,7 @@ class RunCheckpointing:
         return self.restored is not None
 
     def close(self) -> None:
+        """Release the checkpoint directory (if the run writes checkpoints)."""
         if self.checkpointer is not None:
             self.checkpointer.close()
 

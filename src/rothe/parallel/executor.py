@@ -63,6 +63,7 @@ def dask_available() -> bool:
 
 
 def cpu_count() -> int:
+    """The CPUs this process may run on (its affinity; ``os.cpu_count()`` where there is none)."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - macOS, Windows
@@ -82,7 +83,7 @@ def default_workers() -> int:
 
 def _import_distributed(what: str):
     try:
-        import distributed
+        import distributed  # heavy: imported when first needed (start-up time)
     except ImportError:
         raise RotheInputError(f"{what} needs dask.distributed: {INSTALL_HINT}") from None
     return distributed
@@ -95,7 +96,7 @@ def local_cluster(n_workers: int, **kwargs):
     The workers' statistical profiler is off: it only feeds the dashboard, and sampling the
     run's stack every 10 ms cost about 1.5 % of a core per worker."""
     distributed = _import_distributed(f"workers={n_workers}")
-    import dask
+    import dask  # heavy: imported when first needed (start-up time)
 
     # Dask's own log lines (a worker's heartbeat that meets the closing scheduler, a task marked
     # failed after its workers died) only repeat what the results report, with tracebacks
@@ -125,7 +126,7 @@ class _Progress:
         if not self.enabled:
             return
         if sys.stderr.isatty():
-            from tqdm import tqdm
+            from tqdm import tqdm  # heavy: imported when first needed (start-up time)
 
             self.bar = tqdm(
                 total=total, desc=title, unit="run", file=sys.stderr, dynamic_ncols=True, leave=True
@@ -226,6 +227,9 @@ class Executor:
         return self.scheduler is None and self.workers == 1
 
     def describe(self) -> str:
+        """In-process, a local Dask cluster of n workers, or the scheduler's address (for the
+        summary of a sweep).
+        """
         if self.in_process:
             return "in-process"
         if self.scheduler is None:
@@ -254,6 +258,7 @@ class Executor:
             self.close()
 
     def close(self) -> None:
+        """Close the Dask client and cluster this executor started (not one it was given)."""
         while self._owned:
             obj = self._owned.pop()
             try:
@@ -335,7 +340,7 @@ class Executor:
         to a dead worker); a slot that frees up is refilled at once, and workers that join
         later (a SLURM job that starts) are used within a second.
         """
-        import distributed
+        import distributed  # heavy: imported when first needed (start-up time)
 
         progress = _Progress(len(tasks), self.title, self.progress, self.describe())
         token = uuid.uuid4().hex[:8]
@@ -396,7 +401,7 @@ class Executor:
 
     @staticmethod
     def _result(fut, task: Task, seconds: float) -> TaskResult:
-        import distributed
+        import distributed  # heavy: imported when first needed (start-up time)
 
         try:
             return fut.result()

@@ -181,6 +181,7 @@ class SpaceAdaptivity:
         return refine, coarsen
 
     def describe(self) -> dict:
+        """The options as in a trajectory's meta data and a summary."""
         return {
             "space_tol": self.space_tol,
             "refine_fraction": self.refine_fraction,
