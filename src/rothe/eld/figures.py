@@ -110,3 +110,29 @@ def plot_perturbation(taus, table: dict, path, title: str = "") -> Path:
     if title:
         fig.suptitle(title, fontsize=10)
     return _save(fig, path)
+
+
+def plot_tip_mass(traj, path, title: str = "") -> Path:
+    """A coupled run (:func:`rothe.eld.run_coupled`): the component's coordinates q(t) and the
+    reactions -int lambda ds on every constrained part over time."""
+    t = traj["t"]
+    q = np.asarray(traj["q"])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    names = "xyz"
+    for c in range(q.shape[1]):
+        axes[0].plot(t, q[:, c], label=f"q_{names[c]}")
+    axes[0].set_xlabel("t")
+    axes[0].set_ylabel("tip mass displacement q")
+    axes[0].legend(fontsize=8)
+    for key in [k for k in traj.keys() if k.startswith("reaction_")]:
+        R = traj[key]
+        for c in range(R.shape[1]):
+            axes[1].plot(t, R[:, c], label=f"{key[len('reaction_') :]}: R_{names[c]}")
+    axes[1].set_xlabel("t")
+    axes[1].set_ylabel(r"reaction force $-\int \lambda\, ds$")
+    axes[1].legend(fontsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)

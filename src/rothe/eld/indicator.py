@@ -209,6 +209,13 @@ def eld_indicators_for(
     """
     space = problem.space
     m = problem.material
+    if getattr(problem, "cell_material", None) is not None:
+        raise fail(
+            "material",
+            "a PiecewiseMaterial",
+            "must be one Material for the space "
+            "adaptivity indicator (per-cell constants: not yet supported)",
+        )
     damp = problem.damping
     kw = {}
     if isinstance(damp, RayleighDamping):
@@ -230,7 +237,7 @@ def eld_indicators_for(
     return eld_indicators(
         space.mesh,
         space.degree,
-        m.lam,
+        m.lam_eff,
         m.mu,
         u,
         rho=m.rho,

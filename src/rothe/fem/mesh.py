@@ -18,8 +18,10 @@ Files
     :func:`load_mesh` reads anything meshio reads (gmsh ``.msh`` 2.2/4.x, ``.vtu``, ``.xdmf``,
     ...), keeps the triangle (2D) or tetrahedron (3D) cells and turns gmsh physical groups
     (``gmsh:physical`` cell data + ``field_data`` names) or meshio ``cell_sets`` on the facet
-    cells (lines in 2D, triangles in 3D) into named boundary parts. Nodes used by no cell are
-    dropped (gmsh files often keep geometry points).
+    cells (lines in 2D, triangles in 3D) into named boundary parts, and those on the volume
+    cells into named subdomains (``mesh.subdomains``: cell indices, the material regions of
+    :class:`rothe.eld.materials.PiecewiseMaterial`). Nodes used by no cell are dropped (gmsh
+    files often keep geometry points).
 
 Checks (:func:`check_mesh`): finite coordinates, cell indices in range, no degenerate cell
 (|volume| > 1e-12 * h^d for the cell's longest edge h). Every failure is a one-line
@@ -330,7 +332,8 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh", duplicate_nodes:
 
     ``dim`` = 2 or 3 asks for that cell type; ``None`` takes tetrahedra if there are any, else
     triangles. Named boundary parts come from gmsh physical groups (``$PhysicalNames``) or
-    meshio cell sets on the facet cells; unnamed physical tags are called ``tag<k>``.
+    meshio cell sets on the facet cells, named subdomains (``mesh.subdomains``, cell indices)
+    from those on the volume cells; unnamed physical tags are called ``tag<k>``.
 
     ``duplicate_nodes``: what to do with coincident nodes (closer than 1e-12 of the diameter)
     used by different cells. Such a mesh is cut there -- a crack: the cells on the two sides
@@ -420,15 +423,57 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh", duplicate_nodes:
     mesh = cls(p, t, validate=False)
     check_mesh(mesh, name)
     parts = _boundary_parts(m, blocks, dim, new_index)
-    if parts:
-        facets = mesh.facets.T  # (nf, dim), each row sorted
-        bnd = {}
-        for part, rows in parts.items():
-            idx = _match_rows(rows, facets) if len(rows) else np.empty(0, dtype=np.int64)
-            # kept even when empty, so that choosing it for Dirichlet data gets a clear error
-            bnd[part] = np.unique(idx[idx >= 0]).astype(np.int64)
-        mesh = cls(p, mesh.t, _boundaries=bnd, validate=False)
+    subdomains = _subdomains(m, dim)
+    if parts or subdomains:
+        bnd = None
+        if parts:
+            facets = mesh.facets.T  # (nf, dim), each row sorted
+            bnd = {}
+            for part, rows in parts.items():
+                idx = _match_rows(rows, facets) if len(rows) else np.empty(0, dtype=np.int64)
+                # kept even when empty, so that choosing it for Dirichlet data gets a clear error
+                bnd[part] = np.unique(idx[idx >= 0]).astype(np.int64)
+        mesh = cls(p, mesh.t, _boundaries=bnd, _subdomains=subdomains or None, validate=False)
     return mesh
+
+
+def _subdomains(m, dim) -> dict[str, np.ndarray]:
+    """Cell indices of every named group on the volume cells (gmsh physical groups of
+    dimension ``dim``, unnamed ones ``tag<k>``, tag 0 -- no group -- skipped, and meshio cell
+    sets): the material regions.
+
+    Cell k of the mesh is row k of the volume blocks stacked in file order (as in
+    :func:`load_mesh`)."""
+    ctype = CELL_TYPE[dim]
+    offsets, start = [], 0
+    for block in m.cells:
+        offsets.append(start)
+        if block.type == ctype:
+            start += len(block.data)
+    out: dict[str, list[np.ndarray]] = {}
+    tags_by_block = m.cell_data.get("gmsh:physical") if m.cell_data else None
+    names = {}
+    for key, val in (m.field_data or {}).items():
+        val = np.asarray(val).ravel()
+        if val.size >= 2 and int(val[1]) == dim:
+            names[int(val[0])] = key
+    if tags_by_block is not None:
+        for block, tags, off in zip(m.cells, tags_by_block, offsets, strict=True):
+            if block.type != ctype:
+                continue
+            tags = np.asarray(tags).ravel()
+            for tag in np.unique(tags):
+                if tag == 0:  # gmsh's "in no physical group" (meshio writes it for untagged)
+                    continue
+                label = names.get(int(tag), f"tag{int(tag)}")
+                out.setdefault(label, []).append(off + np.flatnonzero(tags == tag))
+    for label, per_block in (m.cell_sets or {}).items():
+        if label.startswith("gmsh:"):
+            continue
+        for block, ids, off in zip(m.cells, per_block, offsets, strict=True):
+            if block.type == ctype and ids is not None and len(ids):
+                out.setdefault(label, []).append(off + np.asarray(ids, dtype=np.int64))
+    return {k: np.unique(np.concatenate(v)).astype(np.int64) for k, v in out.items()}
 
 
 def _boundary_parts(m, blocks, dim, new_index) -> dict[str, np.ndarray]:
