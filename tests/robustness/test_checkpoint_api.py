@@ -123,7 +123,7 @@ def test_checkpoint_file_format_needs_no_pickle_and_segments_are_incremental(tmp
     traj = run_ris(p, "adaptive", tol=1e-2, checkpoint=CheckpointOptions(tmp_path, 1e-9))
     with np.load(tmp_path / MAIN, allow_pickle=False) as f:
         header = json.loads(f["__checkpoint__"].tobytes().decode())
-    assert header["format"] == "rothe-checkpoint" and header["format_version"] == 1
+    assert header["format"] == "rothe-checkpoint" and header["format_version"] == 2
     assert header["api"] == "run_ris" and header["arguments"]["tol"] == 1e-2
     assert header["status"] == "completed"
     assert {"A", "z0", "load", "F"} <= set(header["fingerprint"])
