@@ -46,6 +46,14 @@ CASES = [
     (["run", "ris-2d", "--mesh", "{huge.vtu}"], 2,
      "rothe: error: --mesh: got '{huge.vtu}', has node coordinates up to 1e+200 in magnitude, "
      "must be at most 1e+100 (squared lengths and volumes would overflow; rescale the mesh)"),
+    *[(["run", name, "--out", out], 2,
+       f"rothe: error: --out: got {out!r}, must name a directory (omit --out for "
+       f"rothe-out/{name})")
+      for name in ("ris-1d", "ris-2d", "ris-3d", "ris-front", "eld-mms", "eld-beam")
+      for out in ("", " ")],
+    (["compare", "ris-1d", "--out", ""], 2,
+     "rothe: error: --out: got '', must name a directory (omit --out for "
+     "rothe-out/compare-ris-1d)"),
 ]
 
 
@@ -61,7 +69,8 @@ def case_id(case) -> str:
 
 
 @pytest.mark.parametrize("argv, status, line", CASES, ids=[case_id(c) for c in CASES])
-def test_bad_input_is_one_line(tmp_path, capsys, argv, status, line):
+def test_bad_input_is_one_line(tmp_path, capsys, monkeypatch, argv, status, line):
+    monkeypatch.chdir(tmp_path)  # the default rothe-out/<name> would appear here
     for name, write in FILES.items():
         if any("{" + name + "}" in a for a in argv):
             write(tmp_path / name)
@@ -75,4 +84,4 @@ def test_bad_input_is_one_line(tmp_path, capsys, argv, status, line):
     assert "Traceback" not in err and err.strip().splitlines() == [materialize(tmp_path, line)]
     assert code == status
     if status == 2:
-        assert not (tmp_path / "out").exists()
+        assert not (tmp_path / "out").exists() and not (tmp_path / "rothe-out").exists()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import check_positive
+from ..errors import check_positive, fail
 from ..stepping.progress import ProgressOptions
 
 
@@ -32,12 +32,22 @@ def add_output_options(parser, name: str) -> None:
                              "SECONDS (default 30); on a terminal a progress bar")
 
 
+def out_path(args, name: str) -> Path:
+    """``--out``, or ``rothe-out/<name>`` when it is not given; an empty or blank ``--out ''``
+    is refused (it wrote into the default folder without a word)."""
+    out = getattr(args, "out", None)
+    if out is None:
+        return Path("rothe-out") / name
+    if not str(out).strip():
+        raise fail("--out", out, f"must name a directory (omit --out for rothe-out/{name})")
+    return Path(out)
+
+
 def output_dir(args, name: str) -> Path:
     """The output directory, created and checked for writability (errors name --out)."""
     from ..io.atomic import check_writable
 
-    out = Path(args.out) if args.out else Path("rothe-out") / name
-    return check_writable(out, "--out")
+    return check_writable(out_path(args, name), "--out")
 
 
 def progress_of(args) -> ProgressOptions:

@@ -39,7 +39,7 @@ from ..io.checkpoint import (
 )
 from ..io.outputs import OutputSet, read_summary
 from ..stepping import interrupt
-from .common import parse_float, progress_of
+from .common import out_path, parse_float, progress_of
 
 #: options that change where and how results are shown, never the results themselves
 PRESENTATION = ("out", "no_plots", "quiet", "resume", "checkpoint_every", "progress_every",
@@ -118,7 +118,7 @@ class RunSession:
         self.args = args
         self.name = name
         self.command = f"{args.verb} {args.name}"
-        self.out = Path(args.out) if args.out else Path("rothe-out") / name
+        self.out = out_path(args, name)
         self.resume = None
         if args.resume is not None:
             given = Path(args.resume)
