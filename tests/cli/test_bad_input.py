@@ -54,6 +54,9 @@ CASES = [
     (["compare", "ris-1d", "--out", ""], 2,
      "rothe: error: --out: got '', must name a directory (omit --out for "
      "rothe-out/compare-ris-1d)"),
+    # refused by the ELD run after the session took OUT/checkpoint/.lock: nothing is left
+    (["run", "eld-mms", "--tau", "0.3"], 2,
+     "rothe: error: --tau: got 0.3, must divide T = 1 into equal steps (T/tau = 3.33333)"),
 ]
 
 

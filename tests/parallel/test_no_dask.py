@@ -170,9 +170,12 @@ def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(tmp_pat
 
     monkeypatch.setattr(interrupt.interruptible, "__enter__", enter_and_signal)
     out = tmp_path / "sweep"
+    # --keep-checkpoint: the completed runs keep theirs, so that the last --continue below
+    # meets a checkpoint made with other options (without it a completed run is recognized by
+    # its summary and run anew with the new options: tests/cli/test_session.py)
     code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param",
                                 "tol=1e-2,1e-3,1e-4", "--no-plots", "--workers", "1",
-                                "--out", out)
+                                "--out", out, "--keep-checkpoint")
     assert code == 143 and len(entered) == 2
     assert err.strip().splitlines()[-1].startswith(
         "rothe: sweep interrupted by SIGTERM: 1 of 3 runs completed; table so far in ")
@@ -191,7 +194,7 @@ def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(tmp_pat
     # --continue: the completed run is kept, the interrupted one resumes, the third runs
     code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param",
                                 "tol=1e-2,1e-3,1e-4", "--no-plots", "--workers", "1",
-                                "--out", out, "--continue")
+                                "--out", out, "--continue", "--keep-checkpoint")
     assert code == 0, err
     rows = read_csv(out / "sweep.csv")
     assert [r["status"] for r in rows] == ["completed"] * 3
@@ -207,7 +210,7 @@ def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(tmp_pat
     # a run whose checkpoint was made with other options is refused, the others still run
     code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param", "tol=1e-2,1e-5",
                                 "--no-plots", "--workers", "1", "--out", out, "--continue",
-                                "--simpson", "4")
+                                "--simpson", "4", "--keep-checkpoint")
     rows = read_csv(out / "sweep.csv")
     assert code == 1 and [r["status"] for r in rows] == ["error", "completed"]
     assert "the command line differs from the checkpoint's: --simpson 4 (checkpoint: 8)" in (

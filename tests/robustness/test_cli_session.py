@@ -92,8 +92,8 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     refused(["resume", tmp_path / "empty"], r"empty: no checkpoint here")
     assert list((tmp_path / "empty").iterdir()) == []
-    assert _run(["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet", "--no-plots"],
-                capsys)[0] == 0
+    assert _run(["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet", "--no-plots",
+                 "--keep-checkpoint"], capsys)[0] == 0
     assert {"summary.json", "trajectory.npz"} <= {p.name for p in d.iterdir()}
     refused(["run", "ris-1d", "--tol", "1e-5", "--resume", d],
             r"--resume .*run: the command line differs from the checkpoint's: --tol 1e-05 "

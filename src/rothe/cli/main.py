@@ -98,9 +98,17 @@ class Resume:
                             help="progress line interval in logs (default: the recorded one)")
 
     def execute(self, args) -> int:
-        from ..io.checkpoint import CheckpointError, load_checkpoint
+        from ..io.checkpoint import MAIN, CheckpointError, checkpoint_dir, load_checkpoint
+        from ..io.outputs import read_summary
         from .session import _run_dir
 
+        run_dir = _run_dir(Path(args.dir))
+        if (run_dir.is_dir() and not (checkpoint_dir(run_dir) / MAIN).is_file()
+                and (read_summary(run_dir) or {}).get("status") == "completed"):
+            # a completed run removes its checkpoint (unless --keep-checkpoint): nothing to do
+            print(f"rothe: {run_dir}: the run already completed; its results are there",
+                  file=sys.stderr)
+            return 0
         ckpt = load_checkpoint(args.dir, header_only=True)
         ckpt.require_resumable()
         argv = ckpt.record.get("argv")
@@ -108,7 +116,6 @@ class Resume:
             raise CheckpointError(f"{args.dir}: the checkpoint was written by {ckpt.api}() from "
                                   f"Python, not by a rothe command: resume it with "
                                   f"{ckpt.api}(..., resume={str(args.dir)!r})")
-        run_dir = _run_dir(Path(args.dir))
         new_argv = list(argv) + ["--out", str(run_dir), "--resume", str(run_dir)]
         if args.quiet:
             new_argv.append("--quiet")

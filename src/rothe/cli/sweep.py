@@ -31,7 +31,7 @@ from pathlib import Path
 
 from ..errors import RotheInputError, RunInterrupted, fail
 from ..parallel.executor import Executor
-from ..parallel.tasks import TaskResult
+from ..parallel.tasks import Task, TaskResult
 from ..stepping.interrupt import signal_name
 from . import registry
 from .tasks import cli_task
@@ -65,6 +65,9 @@ class SweepRun:
     argv: list[str]
     out: str
     parsed: dict  # the parameter values as the command's parser converted them
+    #: ``--continue``: the summary of this run's completed result already in its folder (the
+    #: run is not started again; its checkpoint was removed when it completed)
+    done: dict | None = None
 
 
 def split_param(text: str) -> tuple[str, list[str]]:
@@ -203,12 +206,17 @@ def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> Non
 
 def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
     """``--continue``: every run whose folder holds a resumable checkpoint (the run was
-    interrupted or killed, or it completed) gets ``--resume=<its folder>``: an unfinished run
-    continues from its checkpoint, a completed one is not run again (its summary is its row). The
-    run's session refuses a checkpoint made with other options (status ``error``, the message
-    says which). Runs without a checkpoint, or whose checkpoint is of a failed run, run anew.
-    Returns what happens to each run: ``resume`` | ``run``."""
+    interrupted or killed, or it completed with ``--keep-checkpoint``) gets
+    ``--resume=<its folder>``: an unfinished run continues from its checkpoint, a completed one
+    is not run again (its summary is its row). The run's session refuses a checkpoint made with
+    other options (status ``error``, the message says which). A run whose folder holds the
+    completed result of the same command line (``summary.json``: status ``completed`` and the
+    same ``argv``; a completed run removes its checkpoint) is ``done``: not started, its summary
+    is its row. The other runs, and those whose checkpoint is of a failed run, run anew.
+    Returns what happens to each run: ``resume`` | ``done`` | ``run``."""
     from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
+    from ..io.outputs import read_summary
+    from .session import strip_argv
 
     what = {}
     for run in runs:
@@ -219,16 +227,27 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
                 status = load_checkpoint(ckpt_dir, check_version=False, header_only=True).status
             except CheckpointError:
                 status = None  # unreadable: the run starts over (nothing resumable is lost)
+        earlier = read_summary(run.out) if status is None else None
         if status in ("running", "interrupted", "completed"):
             run.argv.append(f"--resume={run.out}")
             what[run.name] = "resume"
+        elif (earlier is not None and earlier.get("status") == "completed"
+              and earlier.get("argv") == strip_argv(run.argv)):
+            run.done = earlier
+            what[run.name] = "done"
         else:
             what[run.name] = "run"
     return what
 
 
+def earlier_result(summary: dict) -> dict:
+    """The task of a run completed before ``--continue``: its summary is its value."""
+    return summary
+
+
 def sweep_tasks(runs: list[SweepRun]):
-    return [cli_task(run.name, run.argv, out=run.out) for run in runs]
+    return [cli_task(run.name, run.argv, out=run.out) if run.done is None
+            else Task(run.name, earlier_result, {"summary": run.done}) for run in runs]
 
 
 def collect_rows(runs: list[SweepRun], results: list[TaskResult]) -> list[dict]:
@@ -238,7 +257,7 @@ def collect_rows(runs: list[SweepRun], results: list[TaskResult]) -> list[dict]:
         row = {"run": run.name, **run.parsed, "status": res.status, "message": res.message}
         summary = res.value if isinstance(res.value, dict) else {}
         for key, value in summary.items():
-            if key == "status":
+            if key in ("status", "command", "argv"):  # the run's command line: its folder says it
                 continue
             if key in row:
                 if _same(row[key], value):
