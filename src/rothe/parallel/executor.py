@@ -69,14 +69,31 @@ def cpu_count() -> int:
         return os.cpu_count() or 1
 
 
+def check_workers(name: str, workers) -> int:
+    """A local cluster's worker count: an integer from 1 to the cores this process may use.
+
+    Every worker is a process running one single-threaded run, so workers beyond the cores only
+    share them (each run slower, the total no faster) and multiply the memory; --workers 1000
+    started 1000 processes and failed after 106 s with a "Nanny failed to start" traceback. A
+    larger cluster is reached with ``scheduler`` (``--scheduler``) instead."""
+    n = check_int(name, workers, minimum=1)
+    cores = cpu_count()
+    if n > cores:
+        raise fail(name, n, f"must be at most {cores} (the cores this process may use; a worker "
+                   "runs one single-threaded run, more workers than cores only share them; "
+                   "--scheduler runs on a larger cluster)")
+    return n
+
+
 def default_workers() -> int:
     """``ROTHE_WORKERS`` if set, else the number of cores when Dask is installed, else 1."""
     env = os.environ.get("ROTHE_WORKERS")
     if env:
         try:
-            return check_int("ROTHE_WORKERS", int(env), minimum=1)
+            n = int(env)
         except ValueError:
             raise fail("ROTHE_WORKERS", env, "must be an integer >= 1") from None
+        return check_workers("ROTHE_WORKERS", n)
     return cpu_count() if dask_available() else 1
 
 
@@ -191,7 +208,8 @@ class Executor:
                  title: str = "rothe", no_worker_timeout: float | None = None):
         if workers is None:
             workers = 1 if scheduler is not None else default_workers()
-        self.workers = check_int("--workers", workers, minimum=1)
+        self.workers = (check_int("--workers", workers, minimum=1) if scheduler is not None
+                        else check_workers("--workers", workers))
         self.scheduler = scheduler
         self.progress = progress
         self.title = title
@@ -423,6 +441,8 @@ def executor_from_args(args, title: str) -> Executor:
     workers = args.workers
     if workers is not None:
         workers = check_int("--workers", workers, minimum=1)
+        if args.scheduler is None:
+            workers = check_workers("--workers", workers)
     if args.scheduler is not None:
         if workers is not None:
             raise fail("--workers", workers, "cannot be combined with --scheduler (the cluster "
