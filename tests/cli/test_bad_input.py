@@ -9,6 +9,10 @@ subprocesses and counts the cases handled.
 
 from __future__ import annotations
 
+import errno
+import os
+import pathlib
+
 import meshio
 import numpy as np
 import pytest
@@ -35,7 +39,12 @@ FILES = {
     "huge.vtu": _square(scale=1e200),
 }
 
-#: (argv, exit status, stderr line); the command line gets --out {out} --quiet --no-plots
+CORES = len(os.sched_getaffinity(0))
+TOLS = ",".join(f"{x:.6g}" for x in np.geomspace(1e-2, 1e-5, 60))
+TAUS = ",".join(f"{x:.6g}" for x in np.geomspace(0.5, 0.01, 90))
+
+#: (argv, exit status, stderr line); a run gets --quiet --no-plots, and --out {out} unless the
+#: case gives one; the files are in the current directory (relative names work)
 CASES = [
     (["run", "ris-2d", "--mesh", "{nan.vtu}"], 2,
      "rothe: error: --mesh: got '{nan.vtu}', has a non-finite node coordinate (nan), "
@@ -54,6 +63,31 @@ CASES = [
     (["compare", "ris-1d", "--out", ""], 2,
      "rothe: error: --out: got '', must name a directory (omit --out for "
      "rothe-out/compare-ris-1d)"),
+    # sweeps: every run's input files before the first run; the worker count and the number of
+    # runs before any cluster starts
+    (["sweep", "run", "ris-2d", "--param", "mesh=good.vtu,nonexistent.msh", "--out", "{out}"],
+     2, "rothe: error: sweep run mesh=nonexistent.msh: --mesh: got 'nonexistent.msh', no such "
+        "file"),
+    (["sweep", "run", "ris-2d", "--param", "mesh=good.vtu,nan.vtu", "--out", "{out}"],
+     2, "rothe: error: sweep run mesh=nan.vtu: --mesh: got 'nan.vtu', has a non-finite node "
+        "coordinate (nan), coordinates must be finite"),
+    (["sweep", "run", "ris-2d", "--param", "tol=1e-2,1e-3", "--mesh", ".", "--out", "{out}"],
+     2, "rothe: error: sweep run tol=1e-2: --mesh: got '.', is a directory, must be a file"),
+    (["sweep", "run", "ris-1d", "--param", "tol=1e-3,1e-4", "--workers", "1000", "--out",
+      "{out}"], 2,
+     f"rothe: error: --workers: got 1000, must be at most {CORES} (the cores this process may "
+     "use; a worker runs one single-threaded run, more workers than cores only share them; "
+     "--scheduler runs on a larger cluster)"),
+    (["sweep", "run", "ris-1d", "--param", f"tol={TOLS}", "--param", f"tau={TAUS}", "--out",
+      "{out}"], 2,
+     "rothe: error: --param: 5400 runs (60 tol x 90 tau), more than 1000: pass --yes to start "
+     "them all"),
+    (["sweep", "run", "ris-1d", "--param", "tol=1e-3", "--out", ""], 2,
+     "rothe: error: --out: got '', must name a directory (omit --out for "
+     "rothe-out/sweep-ris-1d)"),
+    (["sweep", "run", "ris-1d", "--param", "tol=1e-3", "--out", "/proc/sweep"], 2,
+     "rothe: error: --out: got '/proc/sweep', cannot create or write files in this directory "
+     "([Errno 2] No such file or directory)"),
     # refused by the ELD run after the session took OUT/checkpoint/.lock: nothing is left
     (["run", "eld-mms", "--tau", "0.3"], 2,
      "rothe: error: --tau: got 0.3, must divide T = 1 into equal steps (T/tau = 3.33333)"),
@@ -71,20 +105,45 @@ def case_id(case) -> str:
     return " ".join(argv)[:60]
 
 
-@pytest.mark.parametrize("argv, status, line", CASES, ids=[case_id(c) for c in CASES])
-def test_bad_input_is_one_line(tmp_path, capsys, monkeypatch, argv, status, line):
+def prepare(tmp_path, monkeypatch, argv) -> list[str]:
+    """Write the files into tmp_path (the current directory) and complete the command line."""
     monkeypatch.chdir(tmp_path)  # the default rothe-out/<name> would appear here
     for name, write in FILES.items():
-        if any("{" + name + "}" in a for a in argv):
-            write(tmp_path / name)
+        write(tmp_path / name)
     argv = [materialize(tmp_path, a) for a in argv]
-    if "sweep" not in argv[:1]:
+    if argv[0] == "sweep":
+        argv += ["--no-plots", "--workers", "1"] if "--workers" not in argv else ["--no-plots"]
+    else:
         argv += ["--quiet", "--no-plots"]
-    if not any(a.startswith("--out") for a in argv):
+    if "--out" not in argv:
         argv += ["--out", str(tmp_path / "out")]
+    return argv
+
+
+@pytest.mark.parametrize("argv, status, line", CASES, ids=[case_id(c) for c in CASES])
+def test_bad_input_is_one_line(tmp_path, capsys, monkeypatch, argv, status, line):
+    argv = prepare(tmp_path, monkeypatch, argv)
     code = main(argv)
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.strip().splitlines() == [materialize(tmp_path, line)]
     assert code == status
     if status == 2:
         assert not (tmp_path / "out").exists() and not (tmp_path / "rothe-out").exists()
+
+
+def test_sweep_out_on_a_read_only_file_system_is_one_line(tmp_path, capsys, monkeypatch):
+    """An OSError (EROFS) from mkdir was a traceback, after the cluster had started."""
+    argv = prepare(tmp_path, monkeypatch, ["sweep", "run", "ris-1d", "--param", "tol=1e-3",
+                                           "--out", "{out}"])
+    real_mkdir = pathlib.Path.mkdir
+
+    def mkdir(self, *args, **kwargs):
+        if self.name == "out":
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+        return real_mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "mkdir", mkdir)
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"rothe: error: --out: got '{tmp_path / 'out'}', cannot create or write files in this "
+        "directory ([Errno 30] Read-only file system)"]

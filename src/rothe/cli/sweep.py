@@ -42,6 +42,12 @@ RESERVED = {"--out": "the sweep gives every run its own folder under the sweep's
             "--resume": "every run has its own folder and checkpoint (rothe resume <run folder> "
                         "continues one)",
             "--help": "not an option of a run"}
+#: options whose value names an input file, checked for every run before any run starts (a
+#: command adds its own with a ``file_options`` attribute: option strings); a mesh is also read
+#: (once per file), so that a file the run would refuse stops the sweep before the first run
+FILE_OPTIONS = ("--mesh",)
+#: a sweep of more runs than this needs ``--yes`` (``max_runs`` of :func:`run_sweep`)
+CONFIRM_ABOVE = 1000
 _TRUE = ("true", "yes", "on", "1")
 _FALSE = ("false", "no", "off", "0")
 
@@ -183,16 +189,62 @@ def _scalar(value):
     return value if isinstance(value, (int, float, str, bool)) or value is None else None
 
 
+def check_input_file(option: str, value) -> None:
+    """One line naming ``option`` unless ``value`` names a readable regular file."""
+    path = Path(str(value))
+    if not str(value).strip():
+        raise fail(option, str(value), "must name a file")
+    if not path.exists():
+        raise fail(option, str(value), "no such file")
+    if path.is_dir():
+        raise fail(option, str(value), "is a directory, must be a file")
+    if not path.is_file():
+        raise fail(option, str(value), "is not a regular file (a FIFO, socket or device)")
+    try:
+        with open(path, "rb") as f:
+            f.read(1)
+    except OSError as exc:
+        raise fail(option, str(value), f"cannot be read ({exc.strerror or exc})") from None
+
+
+def _check_mesh_file(args, value, seen: set) -> None:
+    """Read a --mesh file as the run will (triangles or tetrahedra by the command's ``dim``,
+    its --duplicate-nodes), once per file and settings."""
+    from ..fem.mesh import load_mesh
+
+    dim = getattr(args._command, "dim", None)
+    duplicates = getattr(args, "duplicate_nodes", None) or "error"
+    key = (str(value), dim, duplicates)
+    if key not in seen:
+        seen.add(key)
+        load_mesh(value, dim=dim, name="--mesh", duplicate_nodes=duplicates)
+
+
+def _check_files(args, parser, seen: set) -> None:
+    options = FILE_OPTIONS + tuple(getattr(args._command, "file_options", ()))
+    actions = parser._option_string_actions
+    for option in options:
+        if option in actions:
+            value = getattr(args, actions[option].dest, None)
+            if value is not None:
+                check_input_file(option, value)
+                if option == "--mesh":
+                    _check_mesh_file(args, value, seen)
+
+
 def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> None:
-    """Parse every run's argv with the CLI and run the command's own ``validate``; the first
-    refusal is one line naming the run. Fills ``run.parsed`` (the values as the command sees
-    them)."""
+    """Parse every run's argv with the CLI, check its input files (:data:`FILE_OPTIONS`: a
+    sweep over ``mesh=good.msh,missing.msh`` must not find the missing file after the good
+    runs) and run the command's own ``validate``; the first refusal is one line naming the run.
+    Fills ``run.parsed`` (the values as the command sees them)."""
     from .main import build_parser, parse_command  # main imports this module's command
 
     full = build_parser()
+    seen: set = set()
     for run in runs:
         try:
             args = parse_command(full, run.argv)
+            _check_files(args, parser, seen)
             validate = getattr(args._command, "validate", None)
             if validate is not None:
                 validate(args)
@@ -368,18 +420,34 @@ class SweepResult:
         return all(r["status"] == "completed" for r in self.rows)
 
 
+def check_run_count(runs: list[SweepRun], params: list[SweepParam],
+                    max_runs: int | None) -> None:
+    """More than ``max_runs`` runs: one line saying how many (and of what), asking for --yes."""
+    if max_runs is None or len(runs) <= max_runs:
+        return
+    sizes = " x ".join(f"{len(p.values)} {p.name}" for p in params)
+    raise RotheInputError(f"--param: {len(runs)} runs ({sizes}), more than {max_runs}: pass "
+                          "--yes to start them all", "param")
+
+
 def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run",
-                  out=None, continue_sweep: bool = False
+                  out=None, continue_sweep: bool = False, max_runs: int | None = None
                   ) -> tuple[list[SweepRun], list[SweepParam], Path]:
     """Plan and validate a sweep (nothing runs): ``params`` as ``NAME=V1,V2`` strings or a dict
-    ``{name: [values]}``; ``continue_sweep``: see :func:`continue_runs`."""
+    ``{name: [values]}``; ``continue_sweep``: see :func:`continue_runs`; ``max_runs``: refuse
+    a sweep of more runs (:func:`check_run_count`; the CLI's limit is :data:`CONFIRM_ABOVE`
+    without ``--yes``)."""
     if isinstance(params, dict):
         params = [f"{k}={';'.join(map(str, v))}" if any(',' in str(x) for x in v)
                   else f"{k}={','.join(map(str, v))}" for k, v in params.items()]
     parser = command_parser(verb, example)
     resolved = resolve_params(parser, verb, example, list(params))
+    if out is not None and not str(out).strip():  # Path('') would be '.'
+        raise fail("--out", str(out), f"must name a directory (omit --out for "
+                   f"rothe-out/sweep-{example})")
     out = Path(out) if out is not None else Path("rothe-out") / f"sweep-{example}"
     runs = plan_sweep(verb, example, resolved, [str(a) for a in fixed], out)
+    check_run_count(runs, resolved, max_runs)
     if continue_sweep:
         continue_runs(runs)
     validate_runs(runs, parser, resolved)
@@ -388,7 +456,7 @@ def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str
 
 def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run", out=None,
               executor: Executor | None = None, plot: str | tuple | None = None,
-              continue_sweep: bool = False) -> SweepResult:
+              continue_sweep: bool = False, max_runs: int | None = None) -> SweepResult:
     """Run a sweep (Python API of ``rothe sweep``): plan, validate, run, collect, write.
 
     ``executor`` defaults to in-process; e.g. ``Executor(workers=4)`` or
@@ -398,14 +466,18 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
     """
     xy = parse_plot(plot) if isinstance(plot, str) or plot is None else tuple(plot)
     runs, resolved, out = prepare_sweep(example, params, fixed, verb=verb, out=out,
-                                        continue_sweep=continue_sweep)
+                                        continue_sweep=continue_sweep, max_runs=max_runs)
     executor = executor or Executor(1, progress=False)
+    if executor.scheduler is None and executor.workers > len(runs) >= 1:
+        executor.workers = len(runs)  # a local worker without a run would only start and idle
+    check_writable_sweep(out)
     t0 = time.perf_counter()
     interrupted = None
-    with executor:  # connects (or starts the cluster) before any folder is made
-        if out.exists() and not out.is_dir():
-            raise fail("--out", str(out), "must be a directory (a file of that name exists)")
-        out.mkdir(parents=True, exist_ok=True)
+    with executor:  # connects (or starts the cluster) once --out is known to be writable
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise fail("--out", str(out), f"cannot create this directory ({exc})") from None
         try:
             results = executor.map(sweep_tasks(runs))
         except KeyboardInterrupt as exc:  # SIGINT/SIGTERM: keep the table of what finished
@@ -447,6 +519,22 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
             figure = plot_sweep(rows, x, y, group, out / f"sweep_{_file_part(y)}_vs_"
                                 f"{_file_part(x)}.png", title=f"rothe sweep {verb} {example}")
     return SweepResult(rows, out, csv_path, json_path, figure, missing, resolved)
+
+
+def check_writable_sweep(out: Path) -> None:
+    """Prove that the sweep's folder can be created and written before any cluster starts: a
+    read-only file system or a missing parent is one line naming --out (it was an OSError
+    traceback from mkdir, after the cluster had started). A folder made only for the check is
+    removed again (a sweep that cannot start leaves nothing)."""
+    from ..io.atomic import check_writable
+
+    missing = [p for p in (out, *out.parents) if not p.exists()]
+    check_writable(out, "--out")
+    for p in missing:  # innermost first
+        try:
+            p.rmdir()
+        except OSError:
+            break
 
 
 def interrupted_results(runs: list[SweepRun], executor: Executor,

@@ -15,10 +15,11 @@ import sys
 from ..errors import RotheInputError
 from ..parallel.executor import add_parallel_options, executor_from_args
 from .registry import command
+from .sweep import CONFIRM_ABOVE
 
 #: the sweep's own options; everything else after the example is passed to every run
 _VALUED = ("--param", "--out", "--plot", "--workers", "--scheduler")
-_FLAGS = ("--quiet", "--continue", "-h", "--help")
+_FLAGS = ("--quiet", "--continue", "--yes", "-h", "--help")
 
 
 class _OwnParser(argparse.ArgumentParser):
@@ -43,6 +44,9 @@ def _sweep_options(parser) -> None:
                         help="continue a sweep stopped earlier into the same --out: completed "
                              "runs are kept, interrupted or killed runs resume from their "
                              "checkpoints, the others run")
+    parser.add_argument("--yes", action="store_true",
+                        help=f"start a sweep of more than {CONFIRM_ABOVE} runs (without it such a "
+                             "sweep is refused, saying how many runs it has)")
     add_parallel_options(parser)
 
 
@@ -92,7 +96,7 @@ class SweepRunCommand:
         _sweep_options(own)
         own.set_defaults(**{k: getattr(args, k) for k in
                             ("out", "plot", "quiet", "workers", "scheduler",
-                             "continue_sweep")})
+                             "continue_sweep", "yes")})
         opts = own.parse_args(own_tokens)
         params = list(args.param) + list(opts.param)
         plot = parse_plot(opts.plot)
@@ -100,7 +104,8 @@ class SweepRunCommand:
         executor = executor_from_args(opts, title)
         # run_sweep plans and validates every run before the executor connects or anything runs
         result = run_sweep(args.example, params, fixed, out=opts.out, executor=executor,
-                           plot=plot, continue_sweep=opts.continue_sweep)
+                           plot=plot, continue_sweep=opts.continue_sweep,
+                           max_runs=None if opts.yes else CONFIRM_ABOVE)
         resolved = result.params
         for col in result.missing_plot_columns:
             print(f"rothe: warning: --plot: no column {col!r} in the table (see "
