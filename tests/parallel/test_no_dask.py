@@ -79,6 +79,7 @@ def test_workers_1_needs_no_dask_and_writes_the_table(tmp_path, capsys, no_dask)
 def test_default_without_dask_is_in_process(no_dask, monkeypatch):
     assert executor_module.default_workers() == 1 and Executor().in_process
     monkeypatch.setenv("ROTHE_WORKERS", "3")
+    monkeypatch.setattr(executor_module, "cpu_count", lambda: 4)  # at most the cores (issue 21)
     assert executor_module.default_workers() == 3
 
 
