@@ -6,9 +6,11 @@ each has ``configure(parser)`` and ``execute(args) -> int``. Errors a user can c
 unknown names, missing files, a checkpoint that cannot be resumed, an ``--out`` that cannot be
 written) print one line ``rothe: error: ...`` and exit with status 2, no traceback; a run that
 fails midway (e.g. step size below tau_min) prints one line and exits with status 1 after writing
-what it computed; a run stopped by SIGINT / SIGTERM writes its results so far and a checkpoint and
-exits with 130 / 143; an output that cannot be written (e.g. a full disk) is one line naming the
-file, exit status 1, the earlier files unchanged.
+what it computed; a run stopped by SIGINT / SIGTERM / SIGHUP / SIGQUIT writes its results so far
+and a checkpoint and exits with 130 / 143 / 129 / 131 (:mod:`rothe.stepping.interrupt`); SIGUSR1
+makes a run write a checkpoint at its next step boundary and go on; an output that cannot be
+written (e.g. a full disk) is one line naming the file, exit status 1, the earlier files
+unchanged.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
+from ..stepping import interrupt
 from . import registry
 
 
@@ -265,6 +268,9 @@ def _main(argv=None) -> int:
         return 2
     saved_format = warnings.formatwarning
     warnings.formatwarning = _one_line_warning
+    # SIGUSR1 (a scheduler's "time limit ahead") asks for a checkpoint: it must never end the
+    # process, also not while a run is being set up or between the runs of a sweep
+    interrupt.keep_checkpoint_requests()
     try:
         return _dispatch(build_parser(), argv)
     except RotheInputError as exc:

@@ -21,7 +21,7 @@ are started first.
 Progress: on a terminal a bar of runs done / total; otherwise (logs, CI) one line per finished
 run (and, in-process, one per started run), so a log says which run of how many is going.
 
-Signals: during a map (in the main thread) SIGINT and SIGTERM stop it with
+Signals: during a map (in the main thread) SIGINT, SIGTERM, SIGHUP and SIGQUIT stop it with
 :class:`~rothe.errors.RunInterrupted` instead of killing the process (the default for SIGTERM),
 so that the cluster is closed and the caller can keep what finished (:attr:`Executor.finished`,
 :attr:`Executor.started`). A run under way in this process handles the signal itself (its
@@ -192,7 +192,9 @@ class _StopOnSignals:
     @staticmethod
     def _handler(signum, frame):  # noqa: ARG004 - signal API
         for sig in interrupt.SIGNALS:
-            signal.signal(sig, signal.SIG_DFL)
+            # a hang-up often comes twice (kernel and shell): never escalate on it
+            hup = sig == getattr(signal, "SIGHUP", None)
+            signal.signal(sig, signal.SIG_IGN if hup else signal.SIG_DFL)
         raise RunInterrupted(f"interrupted by {interrupt.signal_name(signum)}", signum=signum)
 
     def __exit__(self, *exc):
