@@ -305,7 +305,7 @@ def test_eld_beam_interrupted_leaves_consistent_xdmf_and_resumes_bit_for_bit(
     s = _summary(out)
     assert s["status"] == "interrupted" and s["accepted_steps"] == 37  # the step under way
     assert s["xdmf_steps"] == 19  # t = 0 and every second step up to 36
-    for name, steps in (("beam", 19), ("beam_multiplier", 18)):
+    for name, steps in (("beam", 19), ("beam_multiplier", 19)):  # one time axis (issue 21)
         with meshio.xdmf.TimeSeriesReader(str(out / f"{name}.xdmf")) as reader:
             reader.read_points_cells()
             assert reader.num_steps == steps
@@ -321,7 +321,9 @@ def test_eld_beam_interrupted_leaves_consistent_xdmf_and_resumes_bit_for_bit(
             datasets = [k for k in keys if isinstance(a[k], h5py.Dataset)]
             assert len(datasets) > 50
             for k in datasets:
-                assert np.array_equal(a[k][()], b[k][()]), (name, k)
+                x, y = a[k][()], b[k][()]
+                # lambda at t = 0 is NaN (not given before the run): NaN where the other is
+                assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), (name, k)
     assert (ref / "beam.xdmf").read_text() == (out / "beam.xdmf").read_text()
     with np.load(ref / "trajectory.npz") as a, np.load(out / "trajectory.npz") as b:
         assert_same_trajectory(a, b)

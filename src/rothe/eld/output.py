@@ -10,7 +10,8 @@ ParaView files (two XDMF time series with HDF5 heavy data, :mod:`rothe.io.xdmf`;
   Cauchy stress sigma(u) = lam tr(eps) I + 2 mu eps; in 2D plane strain with sigma_zz =
   lam tr(eps)) and ``von_mises``. See :mod:`rothe.eld.stress`.
 - ``<name>_multiplier.xdmf``: the facets of Gamma_D with point data ``lambda`` (the multiplier,
-  a traction density) and ``reaction_density = -lambda`` (the traction the support exerts).
+  a traction density) and ``reaction_density = -lambda`` (the traction the support exerts), at
+  the same times as the body (a frame written without a multiplier holds NaN).
 
 ``trajectory.npz`` (:func:`mesh_arrays` are added to the trajectory's series):
 
@@ -108,10 +109,12 @@ class EldXdmfWriter:
             {"u": self._vec3(space.vertex_values(u)), "v": self._vec3(space.vertex_values(v)),
              "stress_nodal": sigma_nodal.reshape(-1, 9), "von_mises_nodal": vm_nodal},
             cell_fields={"stress": sigma.reshape(-1, 9), "von_mises": vm})
-        if lam is not None:
-            L = np.asarray(lam).reshape(-1, space.dim)[self._lam_rows]
-            self._bnd.write_step(float(t), {"lambda": self._vec3(L),
-                                            "reaction_density": self._vec3(-L)})
+        # both series on one time axis: without a multiplier at t (lam None: the command line's
+        # frame at t = 0, written before the run computes lambda^0) the frame holds NaN
+        L = (np.full((len(self._lam_rows), space.dim), np.nan) if lam is None
+             else np.asarray(lam).reshape(-1, space.dim)[self._lam_rows])
+        self._bnd.write_step(float(t), {"lambda": self._vec3(L),
+                                        "reaction_density": self._vec3(-L)})
         self.steps_written += 1
 
     # -- checkpoint protocol (attachment of the run's checkpoint) ---------------------------------
