@@ -240,7 +240,7 @@ def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: boo
             norms = [np.linalg.norm(vertex(u, m), axis=1) for u, m in zip(sp.kept["u"], ids,
                                                                           strict=True)]
             plot_mesh_snapshots(out / "fig_mesh.png", sp.series, ids, traj["kept_t"], norms,
-                                picks, title=title)
+                                picks, title=title, label=r"$|u|$ (displacement)")
             figs.append(out / "fig_mesh.png")
         paths["figures"] = figs
     return paths
