@@ -52,7 +52,7 @@ def test_a_completed_run_removes_its_checkpoint_and_says_how_to_keep_it(tmp_path
     assert _run(capsys, *RIS1D, "--out", out) == (0, "")
     assert sorted(p.name for p in out.iterdir()) == ["summary.json", "trajectory.npz"]
     s = _summary(out)
-    assert s["status"] == "completed" and "checkpoint" not in s
+    assert s["status"] == "completed" and s["checkpoint"] is None
     assert s["command"] == "run ris-1d" and s["argv"] == RIS1D
     # resuming it does nothing, without a checkpoint too
     code, err = _run(capsys, "resume", out)

@@ -259,8 +259,9 @@ class RunSession:
         if ckpt is not None:
             summary["run_id"] = ckpt.run_id
             summary["sessions"] = ckpt.sessions
-            if outcome.status != "completed" or self.keeps_checkpoint:
-                summary["checkpoint"] = str(self.checkpoint_dir)
+            kept = outcome.status != "completed" or self.keeps_checkpoint
+            # None: removed when the run completed (the key stays: tables keep their columns)
+            summary["checkpoint"] = str(self.checkpoint_dir) if kept else None
             if ckpt.sessions > 1:
                 summary["wall_time_note"] = (f"wall_time_s sums {ckpt.sessions} sessions (the "
                                              "run was resumed)")
