@@ -46,9 +46,15 @@ TIMEOUT = 600.0
 def _rothe(argv, cwd):
     env = dict(os.environ, PYTHONPATH=str(SRC))
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "rothe.cli.main", *argv], cwd=cwd, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rothe.cli.main", *argv],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         _, err = proc.communicate(timeout=TIMEOUT)
     except subprocess.TimeoutExpired:
@@ -61,9 +67,11 @@ def _rothe(argv, cwd):
 def _doctored_checkpoints(work: Path) -> list[tuple[str, list[str], int, str]]:
     """An interrupted ris-1d checkpoint, edited three ways (as the fuzzer did)."""
     base = work / "ckpt"
-    code, err, _ = _rothe(["run", "ris-1d", "--tol", "1e-3", "--no-plots", "--quiet",
-                           "--out", str(base)]
-                          + (["--keep-checkpoint"] if SRC == ROOT / "src" else []), work)
+    code, err, _ = _rothe(
+        ["run", "ris-1d", "--tol", "1e-3", "--no-plots", "--quiet", "--out", str(base)]
+        + (["--keep-checkpoint"] if SRC == ROOT / "src" else []),
+        work,
+    )
     assert code == 0, err  # an older rothe keeps the checkpoint anyway
     main = base / "checkpoint" / "checkpoint.npz"
     cases = []
@@ -78,19 +86,22 @@ def _doctored_checkpoints(work: Path) -> list[tuple[str, list[str], int, str]]:
         stepper = header["state"]["stepper"]
         if name == "no state":
             del header["state"]
-            line = f"rothe: error: {path.relative_to(work)}: not a readable checkpoint (no " \
-                   "'state' entry)"
+            line = (
+                f"rothe: error: {path.relative_to(work)}: not a readable checkpoint (no "
+                "'state' entry)"
+            )
         else:
             if name == "shorter z":
                 ref = stepper["z"]["__array__"]
                 data[ref] = data[ref][:-1]
             else:
                 stepper["z"] = "hello"
-            line = (f"rothe: error: --resume {path.relative_to(work)}: not a readable "
-                    "checkpoint (its state differs from what rothe wrote: edited or damaged "
-                    "after it was written)")
-        np.savez(path, __checkpoint__=np.frombuffer(json.dumps(header).encode(), np.uint8),
-                 **data)
+            line = (
+                f"rothe: error: --resume {path.relative_to(work)}: not a readable "
+                "checkpoint (its state differs from what rothe wrote: edited or damaged "
+                "after it was written)"
+            )
+        np.savez(path, __checkpoint__=np.frombuffer(json.dumps(header).encode(), np.uint8), **data)
         cases.append((f"resume, checkpoint with {name}", ["resume", d.name, "--quiet"], 2, line))
     assert main.exists()
     return cases
@@ -129,15 +140,21 @@ def main() -> int:
             shutil.rmtree(work / "out", ignore_errors=True)
             code, err, seconds = _rothe(argv, work)
             lines = err.strip().splitlines()
-            ok = (code == status and lines == [line] and "Traceback" not in err
-                  and (status != 2 or not (work / "out").exists()))
+            ok = (
+                code == status
+                and lines == [line]
+                and "Traceback" not in err
+                and (status != 2 or not (work / "out").exists())
+            )
             total += 1
             handled += ok
             print(f"{'ok ' if ok else 'BAD'} {seconds:5.1f} s  exit {code!s:>4}  {name}")
             if not ok:
                 print(f"      expected exit {status}: {line}\n      got: {err.strip()[-600:]}")
-    print(f"{handled} of {total} bad inputs handled (one line, the right exit status, nothing "
-          "left behind)")
+    print(
+        f"{handled} of {total} bad inputs handled (one line, the right exit status, nothing "
+        "left behind)"
+    )
     return 0 if handled == total else 1
 
 

@@ -24,14 +24,33 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT = ["run", "ris-front", "--adapt-space", "--n", "8", "--max-dofs", "400", "--tol", "1e-3",
-           "--checkpoint-every", "0.3"]
+DEFAULT = [
+    "run",
+    "ris-front",
+    "--adapt-space",
+    "--n",
+    "8",
+    "--max-dofs",
+    "400",
+    "--tol",
+    "1e-3",
+    "--checkpoint-every",
+    "0.3",
+]
 
 
 def measure(src: Path, argv: list[str], out: Path, keep: bool) -> dict:
     env = dict(os.environ, PYTHONPATH=str(src))
-    cmd = [sys.executable, "-m", "rothe.cli.main", *argv, "--out", str(out), "--quiet",
-           "--no-plots"] + (["--keep-checkpoint"] if keep else [])
+    cmd = [
+        sys.executable,
+        "-m",
+        "rothe.cli.main",
+        *argv,
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plots",
+    ] + (["--keep-checkpoint"] if keep else [])
     proc = subprocess.Popen(cmd, env=env)
     main = out / "checkpoint" / "checkpoint.npz"
     wchar = peak = 0
@@ -50,10 +69,14 @@ def measure(src: Path, argv: list[str], out: Path, keep: bool) -> dict:
         time.sleep(0.05)
     summary = json.loads((out / "summary.json").read_text())
     ckpt = out / "checkpoint"
-    return {"exit": proc.returncode, "accepted_steps": summary.get("accepted_steps"),
-            "written_MB": wchar / 1e6, "peak_checkpoint_npz_MB": peak / 1e6,
-            "checkpoint_dir_MB": sum(p.stat().st_size for p in ckpt.iterdir()) / 1e6,
-            "files_in_checkpoint_dir": len(list(ckpt.iterdir()))}
+    return {
+        "exit": proc.returncode,
+        "accepted_steps": summary.get("accepted_steps"),
+        "written_MB": wchar / 1e6,
+        "peak_checkpoint_npz_MB": peak / 1e6,
+        "checkpoint_dir_MB": sum(p.stat().st_size for p in ckpt.iterdir()) / 1e6,
+        "files_in_checkpoint_dir": len(list(ckpt.iterdir())),
+    }
 
 
 def main() -> int:

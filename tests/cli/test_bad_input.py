@@ -28,6 +28,7 @@ def _square(scale=1.0, bad=None):
         if bad is not None:
             pts[4, 0] = bad
         meshio.write(path, meshio.Mesh(pts, [("triangle", ref.t.T)]))
+
     return write
 
 
@@ -46,51 +47,109 @@ TAUS = ",".join(f"{x:.6g}" for x in np.geomspace(0.5, 0.01, 90))
 #: (argv, exit status, stderr line); a run gets --quiet --no-plots, and --out {out} unless the
 #: case gives one; the files are in the current directory (relative names work)
 CASES = [
-    (["run", "ris-2d", "--mesh", "{nan.vtu}"], 2,
-     "rothe: error: --mesh: got '{nan.vtu}', has a non-finite node coordinate (nan), "
-     "coordinates must be finite"),
-    (["run", "ris-2d", "--mesh", "{inf.vtu}"], 2,
-     "rothe: error: --mesh: got '{inf.vtu}', has a non-finite node coordinate (inf), "
-     "coordinates must be finite"),
-    (["run", "ris-2d", "--mesh", "{huge.vtu}"], 2,
-     "rothe: error: --mesh: got '{huge.vtu}', has node coordinates up to 1e+200 in magnitude, "
-     "must be at most 1e+100 (squared lengths and volumes would overflow; rescale the mesh)"),
-    *[(["run", name, "--out", out], 2,
-       f"rothe: error: --out: got {out!r}, must name a directory (omit --out for "
-       f"rothe-out/{name})")
-      for name in ("ris-1d", "ris-2d", "ris-3d", "ris-front", "eld-mms", "eld-beam")
-      for out in ("", " ")],
-    (["compare", "ris-1d", "--out", ""], 2,
-     "rothe: error: --out: got '', must name a directory (omit --out for "
-     "rothe-out/compare-ris-1d)"),
+    (
+        ["run", "ris-2d", "--mesh", "{nan.vtu}"],
+        2,
+        "rothe: error: --mesh: got '{nan.vtu}', has a non-finite node coordinate (nan), "
+        "coordinates must be finite",
+    ),
+    (
+        ["run", "ris-2d", "--mesh", "{inf.vtu}"],
+        2,
+        "rothe: error: --mesh: got '{inf.vtu}', has a non-finite node coordinate (inf), "
+        "coordinates must be finite",
+    ),
+    (
+        ["run", "ris-2d", "--mesh", "{huge.vtu}"],
+        2,
+        "rothe: error: --mesh: got '{huge.vtu}', has node coordinates up to 1e+200 in magnitude, "
+        "must be at most 1e+100 (squared lengths and volumes would overflow; rescale the mesh)",
+    ),
+    *[
+        (
+            ["run", name, "--out", out],
+            2,
+            f"rothe: error: --out: got {out!r}, must name a directory (omit --out for "
+            f"rothe-out/{name})",
+        )
+        for name in ("ris-1d", "ris-2d", "ris-3d", "ris-front", "eld-mms", "eld-beam")
+        for out in ("", " ")
+    ],
+    (
+        ["compare", "ris-1d", "--out", ""],
+        2,
+        "rothe: error: --out: got '', must name a directory (omit --out for "
+        "rothe-out/compare-ris-1d)",
+    ),
     # sweeps: every run's input files before the first run; the worker count and the number of
     # runs before any cluster starts
-    (["sweep", "run", "ris-2d", "--param", "mesh=good.vtu,nonexistent.msh", "--out", "{out}"],
-     2, "rothe: error: sweep run mesh=nonexistent.msh: --mesh: got 'nonexistent.msh', no such "
-        "file"),
-    (["sweep", "run", "ris-2d", "--param", "mesh=good.vtu,nan.vtu", "--out", "{out}"],
-     2, "rothe: error: sweep run mesh=nan.vtu: --mesh: got 'nan.vtu', has a non-finite node "
-        "coordinate (nan), coordinates must be finite"),
-    (["sweep", "run", "ris-2d", "--param", "tol=1e-2,1e-3", "--mesh", ".", "--out", "{out}"],
-     2, "rothe: error: sweep run tol=1e-2: --mesh: got '.', is a directory, must be a file"),
-    (["sweep", "run", "ris-1d", "--param", "tol=1e-3,1e-4", "--workers", "1000", "--out",
-      "{out}"], 2,
-     f"rothe: error: --workers: got 1000, must be at most {CORES} (the cores this process may "
-     "use; a worker runs one single-threaded run, more workers than cores only share them; "
-     "--scheduler runs on a larger cluster)"),
-    (["sweep", "run", "ris-1d", "--param", f"tol={TOLS}", "--param", f"tau={TAUS}", "--out",
-      "{out}"], 2,
-     "rothe: error: --param: 5400 runs (60 tol x 90 tau), more than 1000: pass --yes to start "
-     "them all"),
-    (["sweep", "run", "ris-1d", "--param", "tol=1e-3", "--out", ""], 2,
-     "rothe: error: --out: got '', must name a directory (omit --out for "
-     "rothe-out/sweep-ris-1d)"),
-    (["sweep", "run", "ris-1d", "--param", "tol=1e-3", "--out", "/proc/sweep"], 2,
-     "rothe: error: --out: got '/proc/sweep', cannot create or write files in this directory "
-     "([Errno 2] No such file or directory)"),
+    (
+        ["sweep", "run", "ris-2d", "--param", "mesh=good.vtu,nonexistent.msh", "--out", "{out}"],
+        2,
+        "rothe: error: sweep run mesh=nonexistent.msh: --mesh: got 'nonexistent.msh', no such file",
+    ),
+    (
+        ["sweep", "run", "ris-2d", "--param", "mesh=good.vtu,nan.vtu", "--out", "{out}"],
+        2,
+        "rothe: error: sweep run mesh=nan.vtu: --mesh: got 'nan.vtu', has a non-finite node "
+        "coordinate (nan), coordinates must be finite",
+    ),
+    (
+        ["sweep", "run", "ris-2d", "--param", "tol=1e-2,1e-3", "--mesh", ".", "--out", "{out}"],
+        2,
+        "rothe: error: sweep run tol=1e-2: --mesh: got '.', is a directory, must be a file",
+    ),
+    (
+        [
+            "sweep",
+            "run",
+            "ris-1d",
+            "--param",
+            "tol=1e-3,1e-4",
+            "--workers",
+            "1000",
+            "--out",
+            "{out}",
+        ],
+        2,
+        f"rothe: error: --workers: got 1000, must be at most {CORES} (the cores this process may "
+        "use; a worker runs one single-threaded run, more workers than cores only share them; "
+        "--scheduler runs on a larger cluster)",
+    ),
+    (
+        [
+            "sweep",
+            "run",
+            "ris-1d",
+            "--param",
+            f"tol={TOLS}",
+            "--param",
+            f"tau={TAUS}",
+            "--out",
+            "{out}",
+        ],
+        2,
+        "rothe: error: --param: 5400 runs (60 tol x 90 tau), more than 1000: pass --yes to start "
+        "them all",
+    ),
+    (
+        ["sweep", "run", "ris-1d", "--param", "tol=1e-3", "--out", ""],
+        2,
+        "rothe: error: --out: got '', must name a directory (omit --out for "
+        "rothe-out/sweep-ris-1d)",
+    ),
+    (
+        ["sweep", "run", "ris-1d", "--param", "tol=1e-3", "--out", "/proc/sweep"],
+        2,
+        "rothe: error: --out: got '/proc/sweep', cannot create or write files in this directory "
+        "([Errno 2] No such file or directory)",
+    ),
     # refused by the ELD run after the session took OUT/checkpoint/.lock: nothing is left
-    (["run", "eld-mms", "--tau", "0.3"], 2,
-     "rothe: error: --tau: got 0.3, must divide T = 1 into equal steps (T/tau = 3.33333)"),
+    (
+        ["run", "eld-mms", "--tau", "0.3"],
+        2,
+        "rothe: error: --tau: got 0.3, must divide T = 1 into equal steps (T/tau = 3.33333)",
+    ),
 ]
 
 
@@ -133,8 +192,9 @@ def test_bad_input_is_one_line(tmp_path, capsys, monkeypatch, argv, status, line
 
 def test_sweep_out_on_a_read_only_file_system_is_one_line(tmp_path, capsys, monkeypatch):
     """An OSError (EROFS) from mkdir was a traceback, after the cluster had started."""
-    argv = prepare(tmp_path, monkeypatch, ["sweep", "run", "ris-1d", "--param", "tol=1e-3",
-                                           "--out", "{out}"])
+    argv = prepare(
+        tmp_path, monkeypatch, ["sweep", "run", "ris-1d", "--param", "tol=1e-3", "--out", "{out}"]
+    )
     real_mkdir = pathlib.Path.mkdir
 
     def mkdir(self, *args, **kwargs):
@@ -146,4 +206,5 @@ def test_sweep_out_on_a_read_only_file_system_is_one_line(tmp_path, capsys, monk
     assert main(argv) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         f"rothe: error: --out: got '{tmp_path / 'out'}', cannot create or write files in this "
-        "directory ([Errno 30] Read-only file system)"]
+        "directory ([Errno 30] Read-only file system)"
+    ]

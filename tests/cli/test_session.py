@@ -56,8 +56,10 @@ def test_a_completed_run_removes_its_checkpoint_and_says_how_to_keep_it(tmp_path
     assert s["command"] == "run ris-1d" and s["argv"] == RIS1D
     # resuming it does nothing, without a checkpoint too
     code, err = _run(capsys, "resume", out)
-    assert code == 0 and err.strip() == f"rothe: {out}: the run already completed; its " \
-                                        "results are there"
+    assert (
+        code == 0
+        and err.strip() == f"rothe: {out}: the run already completed; its results are there"
+    )
 
 
 def test_keep_checkpoint_keeps_it_and_does_not_change_the_results(tmp_path, capsys):
@@ -83,10 +85,13 @@ def test_an_interrupted_run_keeps_its_checkpoint(tmp_path, capsys, signal_at_att
     assert not (out / "checkpoint").exists() and _summary(out)["sessions"] == 2
 
 
-@pytest.mark.parametrize("argv", [
-    ["run", "eld-mms", "--tau", "0.3"],
-    ["run", "eld-mms", "--tau", "1e300"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "eld-mms", "--tau", "0.3"],
+        ["run", "eld-mms", "--tau", "1e300"],
+    ],
+)
 def test_input_refused_after_the_session_started_leaves_nothing(tmp_path, capsys, argv):
     """The ELD run checks tau against T and rho/d0 after the session took OUT/checkpoint/.lock:
     that left OUT/checkpoint/.lock behind."""
@@ -98,22 +103,35 @@ def test_input_refused_after_the_session_started_leaves_nothing(tmp_path, capsys
 
 def test_sweep_continue_keeps_completed_runs_without_their_checkpoints(tmp_path, capsys):
     out = tmp_path / "sweep"
-    argv = ["sweep", "run", "ris-1d", "--param", "tol=1e-2,1e-3", "--no-plots", "--workers",
-            "1", "--quiet", "--out", out]
+    argv = [
+        "sweep",
+        "run",
+        "ris-1d",
+        "--param",
+        "tol=1e-2,1e-3",
+        "--no-plots",
+        "--workers",
+        "1",
+        "--quiet",
+        "--out",
+        out,
+    ]
     assert _run(capsys, *argv)[0] == 0
     assert not list(out.glob("*/checkpoint"))
     stamps = {p: p.stat().st_mtime_ns for p in out.glob("*/summary.json")}
     (out / "tol=1e-3" / "summary.json").unlink()  # as if this run had never finished
     assert _run(capsys, *argv, "--continue")[0] == 0
-    assert (out / "tol=1e-2" / "summary.json").stat().st_mtime_ns == \
-        stamps[out / "tol=1e-2" / "summary.json"]  # not run again
+    assert (out / "tol=1e-2" / "summary.json").stat().st_mtime_ns == stamps[
+        out / "tol=1e-2" / "summary.json"
+    ]  # not run again
     rows = {r["run"]: r for r in json.loads((out / "sweep.json").read_text())["rows"]}
     assert [rows[k]["status"] for k in ("tol=1e-2", "tol=1e-3")] == ["completed"] * 2
     assert "argv" not in rows["tol=1e-2"] and rows["tol=1e-2"]["accepted_steps"] > 0
     # another command line in the same folder is not mistaken for the completed run
     assert _run(capsys, *argv[:-2], "--tau", "0.05", "--out", out, "--continue")[0] == 0
-    assert (out / "tol=1e-2" / "summary.json").stat().st_mtime_ns != \
-        stamps[out / "tol=1e-2" / "summary.json"]
+    assert (out / "tol=1e-2" / "summary.json").stat().st_mtime_ns != stamps[
+        out / "tol=1e-2" / "summary.json"
+    ]
 
 
 def test_checkpoint_file_is_gone_but_a_removed_checkpoint_is_never_half_removed(tmp_path):

@@ -20,9 +20,24 @@ import pytest
 
 from rothe.io.checkpoint import MAIN, load_checkpoint
 
-RUN = [sys.executable, "-m", "rothe.cli.main", "run", "ris-2d", "--n", "24", "--control",
-       "regime", "--tol", "1e-5", "--no-plots", "--checkpoint-every", "0.5",
-       "--progress-every", "0.2"]
+RUN = [
+    sys.executable,
+    "-m",
+    "rothe.cli.main",
+    "run",
+    "ris-2d",
+    "--n",
+    "24",
+    "--control",
+    "regime",
+    "--tol",
+    "1e-5",
+    "--no-plots",
+    "--checkpoint-every",
+    "0.5",
+    "--progress-every",
+    "0.2",
+]
 
 
 def _wait_for_progress(out: Path, proc, accepted: int = 20, timeout: float = 120.0) -> None:
@@ -48,8 +63,14 @@ def _terminal_session():
 def test_a_dropped_terminal_stops_the_run_like_sigterm(tmp_path):
     out = tmp_path / "run"
     master, slave = pty.openpty()
-    proc = subprocess.Popen(RUN + ["--out", str(out)], stdin=slave, stdout=slave, stderr=slave,
-                            preexec_fn=_terminal_session, cwd=tmp_path)
+    proc = subprocess.Popen(
+        RUN + ["--out", str(out)],
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        preexec_fn=_terminal_session,
+        cwd=tmp_path,
+    )
     os.close(slave)
     try:
         _wait_for_progress(out, proc)
@@ -66,9 +87,13 @@ def test_a_dropped_terminal_stops_the_run_like_sigterm(tmp_path):
     assert s["where"]["accepted_steps"] == s["accepted_steps"] > 0
     ckpt = load_checkpoint(out)
     assert ckpt.status == "interrupted" and ckpt.where["signal"] == "SIGHUP"
-    done = subprocess.run([sys.executable, "-m", "rothe.cli.main", "resume", str(out),
-                           "--quiet"], capture_output=True, text=True, timeout=600,
-                          cwd=tmp_path)
+    done = subprocess.run(
+        [sys.executable, "-m", "rothe.cli.main", "resume", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     assert json.loads((out / "summary.json").read_text())["sessions"] == 2
 
@@ -77,8 +102,7 @@ def test_a_dropped_terminal_stops_the_run_like_sigterm(tmp_path):
 def test_quit_and_hangup_of_a_logged_run(tmp_path, sig, status):
     out = tmp_path / "run"
     with open(tmp_path / "log", "w") as log:
-        proc = subprocess.Popen(RUN + ["--out", str(out)], stdout=log, stderr=log,
-                                cwd=tmp_path)
+        proc = subprocess.Popen(RUN + ["--out", str(out)], stdout=log, stderr=log, cwd=tmp_path)
         try:
             _wait_for_progress(out, proc)
             proc.send_signal(sig)
@@ -95,11 +119,26 @@ def test_quit_and_hangup_of_a_logged_run(tmp_path, sig, status):
 
 def test_sigusr1_writes_a_checkpoint_and_the_run_completes(tmp_path):
     out = tmp_path / "run"
-    argv = [sys.executable, "-m", "rothe.cli.main", "run", "ris-2d", "--n", "16", "--control",
-            "regime", "--tol", "1e-4", "--no-plots", "--checkpoint-every", "1000"]
+    argv = [
+        sys.executable,
+        "-m",
+        "rothe.cli.main",
+        "run",
+        "ris-2d",
+        "--n",
+        "16",
+        "--control",
+        "regime",
+        "--tol",
+        "1e-4",
+        "--no-plots",
+        "--checkpoint-every",
+        "1000",
+    ]
     with open(tmp_path / "log", "w") as log:
-        proc = subprocess.Popen(argv + ["--out", str(out), "--keep-checkpoint"], stdout=log,
-                                stderr=log, cwd=tmp_path)
+        proc = subprocess.Popen(
+            argv + ["--out", str(out), "--keep-checkpoint"], stdout=log, stderr=log, cwd=tmp_path
+        )
         try:
             end = time.monotonic() + 120
             while not (out / "checkpoint" / MAIN).exists() and time.monotonic() < end:

@@ -29,5 +29,5 @@ def test_body_and_multiplier_series_have_the_same_times(tmp_path):
     t_bnd, data = _times(tmp_path / bnd.name)
     assert t_body == t_bnd == [0.0, 0.05, 0.1]
     assert np.all(np.isnan(data[0]["lambda"]))  # not given at t = 0: NaN, not left out
-    assert np.all(data[1]["lambda"][:, :problem.space.dim] == 1.0)
+    assert np.all(data[1]["lambda"][:, : problem.space.dim] == 1.0)
     assert np.array_equal(data[2]["reaction_density"], -data[2]["lambda"])

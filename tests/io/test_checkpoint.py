@@ -50,8 +50,9 @@ class GrowingMeshes:
 
 
 def _checkpointer(path, restored=None):
-    return Checkpointer(CheckpointOptions(path), api="test", arguments={}, fingerprint={},
-                        restored=restored)
+    return Checkpointer(
+        CheckpointOptions(path), api="test", arguments={}, fingerprint={}, restored=restored
+    )
 
 
 def _sizes(path):
@@ -102,13 +103,18 @@ def test_a_resumed_checkpointer_adopts_the_meshes_already_written(tmp_path):
     cp = _checkpointer(tmp_path, restored=restored)
     cp.save(again, None, x)
     assert {n for n in _sizes(tmp_path) if n.startswith("arrays-")} == {
-        n for n in files if n.startswith("arrays-")}  # nothing rewritten
+        n for n in files if n.startswith("arrays-")
+    }  # nothing rewritten
     again.add_mesh(3)
     cp.save(again, None, x)
     cp.close()
     assert len([n for n in _sizes(tmp_path) if n.startswith("arrays-")]) == 4
-    assert MeshSeries.restore_state(load_checkpoint(tmp_path).state["stepper"]["series"]).ids \
-        == [0, 1, 2, 3]
+    assert MeshSeries.restore_state(load_checkpoint(tmp_path).state["stepper"]["series"]).ids == [
+        0,
+        1,
+        2,
+        3,
+    ]
 
 
 def test_frozen_is_a_read_only_owned_copy_and_idempotent():
@@ -126,8 +132,9 @@ def _edit(path, change):
         data = {k: f[k] for k in f.files}
     header = json.loads(data.pop("__checkpoint__").tobytes().decode())
     change(header, data)
-    np.savez(path / MAIN, __checkpoint__=np.frombuffer(json.dumps(header).encode(), np.uint8),
-             **data)
+    np.savez(
+        path / MAIN, __checkpoint__=np.frombuffer(json.dumps(header).encode(), np.uint8), **data
+    )
 
 
 def _x_ref(header):
@@ -136,24 +143,31 @@ def _x_ref(header):
 
 EDITS = {
     "no state": (lambda h, a: h.pop("state"), "(no 'state' entry)"),
-    "no stepper state": (lambda h, a: h["state"].pop("stepper"),
-                         "(its state has no 'stepper')"),
-    "state not a dict": (lambda h, a: h.update(state=[1, 2]),
-                         "('state' is a list, must be a dict)"),
-    "status unknown": (lambda h, a: h.update(status="paused"),
-                       "(status 'paused' is not one of running, interrupted, failed, "
-                       "completed)"),
-    "array missing": (lambda h, a: a.pop(_x_ref(h)),
-                      "(its state refers to an array 'a0' that is not stored)"),
-    "vector shorter": (lambda h, a: a.update({_x_ref(h): a[_x_ref(h)][:-1]}),
-                       "(its state differs from what rothe wrote: edited or damaged after it "
-                       "was written)"),
-    "vector replaced by a string": (lambda h, a: h["state"]["stepper"].update(x="hello"),
-                                    "(its state differs from what rothe wrote: edited or "
-                                    "damaged after it was written)"),
-    "stepper state null": (lambda h, a: h["state"].update(stepper=None),
-                           "(its state differs from what rothe wrote: edited or damaged after "
-                           "it was written)"),
+    "no stepper state": (lambda h, a: h["state"].pop("stepper"), "(its state has no 'stepper')"),
+    "state not a dict": (
+        lambda h, a: h.update(state=[1, 2]),
+        "('state' is a list, must be a dict)",
+    ),
+    "status unknown": (
+        lambda h, a: h.update(status="paused"),
+        "(status 'paused' is not one of running, interrupted, failed, completed)",
+    ),
+    "array missing": (
+        lambda h, a: a.pop(_x_ref(h)),
+        "(its state refers to an array 'a0' that is not stored)",
+    ),
+    "vector shorter": (
+        lambda h, a: a.update({_x_ref(h): a[_x_ref(h)][:-1]}),
+        "(its state differs from what rothe wrote: edited or damaged after it was written)",
+    ),
+    "vector replaced by a string": (
+        lambda h, a: h["state"]["stepper"].update(x="hello"),
+        "(its state differs from what rothe wrote: edited or damaged after it was written)",
+    ),
+    "stepper state null": (
+        lambda h, a: h["state"].update(stepper=None),
+        "(its state differs from what rothe wrote: edited or damaged after it was written)",
+    ),
 }
 
 
@@ -186,19 +200,31 @@ def test_an_edited_mesh_file_is_refused_too(tmp_path):
     with pytest.raises(CheckpointError, match="its state differs from what rothe wrote"):
         load_checkpoint(tmp_path)
     arrays.unlink()
-    with pytest.raises(CheckpointError, match=r"arrays-000001\.npz: an array file of the "
-                                              r"checkpoint is missing or damaged"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"arrays-000001\.npz: an array file of the "
+        r"checkpoint is missing or damaged",
+    ):
         load_checkpoint(tmp_path)
 
 
-@pytest.mark.parametrize("value, message", [
-    (np.arange(2.0), "checkpoint state stepper.x: 2 entries, this problem has 3 (the checkpoint "
-                     "is of another problem, or damaged)"),
-    (np.zeros((3, 2)), "checkpoint state stepper.x: an array of shape (3, 2) and dtype float64, "
-                       "must be a vector of real numbers"),
-    ("hello", "checkpoint state stepper.x: a str, must be a vector of real numbers"),
-    (None, "checkpoint state stepper.x: a NoneType, must be a vector of real numbers"),
-])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (
+            np.arange(2.0),
+            "checkpoint state stepper.x: 2 entries, this problem has 3 (the checkpoint "
+            "is of another problem, or damaged)",
+        ),
+        (
+            np.zeros((3, 2)),
+            "checkpoint state stepper.x: an array of shape (3, 2) and dtype float64, "
+            "must be a vector of real numbers",
+        ),
+        ("hello", "checkpoint state stepper.x: a str, must be a vector of real numbers"),
+        (None, "checkpoint state stepper.x: a NoneType, must be a vector of real numbers"),
+    ],
+)
 def test_restored_vector_names_the_entry_that_does_not_fit(value, message):
     with pytest.raises(CheckpointError) as info:
         restored_vector({"x": value}, "x", 3)
@@ -231,8 +257,9 @@ def test_run_checkpointing_restore_turns_a_state_that_does_not_fit_into_one_line
     with pytest.raises(CheckpointError) as info:
         rc.restore(_Stepper())
     rc.close()
-    assert str(info.value).startswith(f"{tmp_path}: the checkpoint's state does not fit this "
-                                      "run (ValueError: matmul: ")
+    assert str(info.value).startswith(
+        f"{tmp_path}: the checkpoint's state does not fit this run (ValueError: matmul: "
+    )
 
 
 @pytest.mark.parametrize("where", ["checkpoint", "resume"])
@@ -241,8 +268,10 @@ def test_an_uncreatable_checkpoint_directory_names_the_parameter(tmp_path, where
     if where == "checkpoint":
         with pytest.raises(RotheInputError) as info:
             RunCheckpointing("test", _Problem(), {}, checkpoint="/proc/ckpt")
-        assert str(info.value) == ("checkpoint: got '/proc/ckpt', cannot create or write files "
-                                   "in this directory ([Errno 2] No such file or directory)")
+        assert str(info.value) == (
+            "checkpoint: got '/proc/ckpt', cannot create or write files "
+            "in this directory ([Errno 2] No such file or directory)"
+        )
         assert info.value.parameter == "checkpoint"
         return
     rc = RunCheckpointing("test", _Problem(), {}, checkpoint=tmp_path)

@@ -16,8 +16,9 @@ def test_more_workers_than_cores_are_refused(monkeypatch):
     assert Executor(4, progress=False).workers == 4
     with pytest.raises(RotheInputError) as info:
         Executor(1000, progress=False)
-    assert str(info.value).startswith("--workers: got 1000, must be at most 4 (the cores this "
-                                      "process may use;")
+    assert str(info.value).startswith(
+        "--workers: got 1000, must be at most 4 (the cores this process may use;"
+    )
     monkeypatch.setenv("ROTHE_WORKERS", "9")
     with pytest.raises(RotheInputError, match=r"^ROTHE_WORKERS: got 9, must be at most 4 "):
         executor_module.default_workers()
@@ -36,9 +37,13 @@ def test_a_sweep_starts_no_more_local_workers_than_runs(tmp_path, monkeypatch):
 
     monkeypatch.setattr(executor_module, "cpu_count", lambda: 8)
     ex = Executor(8, progress=False)
-    monkeypatch.setattr(Executor, "map", lambda self, tasks: [
-        executor_module.TaskResult(t.key, "completed", "", value={}) for t in tasks])
+    monkeypatch.setattr(
+        Executor,
+        "map",
+        lambda self, tasks: [
+            executor_module.TaskResult(t.key, "completed", "", value={}) for t in tasks
+        ],
+    )
     monkeypatch.setattr(Executor, "_connect", lambda self: None)
-    sweep.run_sweep("ris-1d", ["tol=1e-2,1e-3"], ["--no-plots"], out=tmp_path / "s",
-                    executor=ex)
+    sweep.run_sweep("ris-1d", ["tol=1e-2,1e-3"], ["--no-plots"], out=tmp_path / "s", executor=ex)
     assert ex.workers == 2

@@ -30,8 +30,12 @@ def captured(monkeypatch):
         figures.append(fig)
         return path
 
-    for module, name in ((ris_figures, "save_figure"), (adapt, "save_figure"),
-                         (eld_figures, "_save"), (common, "save_figure")):
+    for module, name in (
+        (ris_figures, "save_figure"),
+        (adapt, "save_figure"),
+        (eld_figures, "_save"),
+        (common, "save_figure"),
+    ):
         monkeypatch.setattr(module, name, keep)
     return figures
 
@@ -110,16 +114,25 @@ def test_mesh_snapshots_label_their_colour_bar_and_state_the_mesh_sizes(tmp_path
     amesh.refine(np.linalg.norm(centers, axis=1) < 0.5)
     series.add(1, amesh.points, amesh.cells)
     values = [series.mesh(k)[0][:, 0] for k in (0, 1)]
-    plot_mesh_snapshots(tmp_path / "m.png", series, [0, 1], [0.0, 0.5], values, [0, 1],
-                        title="eld-pulse", label="|u|")
+    plot_mesh_snapshots(
+        tmp_path / "m.png",
+        series,
+        [0, 1],
+        [0.0, 0.5],
+        values,
+        [0, 1],
+        title="eld-pulse",
+        label="|u|",
+    )
     (fig,) = captured
     _check_readable(fig, min_fill=0.5)
     n0, n1 = len(series.mesh(0)[0]), len(series.mesh(1)[0])
-    assert fig._suptitle.get_text() == f"eld-pulse: |u| on the adapted meshes ({n0}-{n1} " \
-                                       "vertices)"
+    assert fig._suptitle.get_text() == f"eld-pulse: |u| on the adapted meshes ({n0}-{n1} vertices)"
     assert _colorbars(fig)[0].get_ylabel() == "|u|"
-    assert [ax.get_title() for ax in _panels(fig)] == [f"t = 0, {n0} vertices",
-                                                        f"t = 0.5, {n1} vertices"]
+    assert [ax.get_title() for ax in _panels(fig)] == [
+        f"t = 0, {n0} vertices",
+        f"t = 0.5, {n1} vertices",
+    ]
     # a 2:1 strip: the canvas follows the domain (it was 3.4 high for any domain)
     width, height = fig.get_size_inches()
     assert height < 0.45 * width
@@ -132,9 +145,18 @@ def test_energy_figure_labels_both_panels(tmp_path, captured):
     traj = Trajectory()
     for k in range(5):
         t = 0.1 * k
-        traj.append(t=t, kinetic=t, elastic=t * t, energy=t + t * t, work=0.0,
-                    work_reaction=t + t * t, dissipated=0.0, numerical_dissipation=0.0,
-                    data_mismatch=0.0, balance_residual=1e-15)
+        traj.append(
+            t=t,
+            kinetic=t,
+            elastic=t * t,
+            energy=t + t * t,
+            work=0.0,
+            work_reaction=t + t * t,
+            dissipated=0.0,
+            numerical_dissipation=0.0,
+            data_mismatch=0.0,
+            balance_residual=1e-15,
+        )
     plot_energy_balance(traj, tmp_path / "e.png", title="eld-beam")
     (fig,) = captured
     _check_readable(fig, min_fill=0.6)

@@ -79,8 +79,11 @@ class LongStepper:
             self.cache = float(np.sum(x))
             time.sleep(self.pause)
             interrupt.check()
-        return Result(State(state.s + tau, state.t + tau, x, state.k + 1), tau,
-                      counters={"newton_iterations": self.iterations})
+        return Result(
+            State(state.s + tau, state.t + tau, x, state.k + 1),
+            tau,
+            counters={"newton_iterations": self.iterations},
+        )
 
     def abandon(self, state):
         self.abandoned += 1
@@ -117,8 +120,9 @@ class LongStepper:
 
     def restore_state(self, data):
         self.cache = float(data["cache"])
-        return State(float(data["s"]), float(data["t"]), restored_vector(data, "x", 3),
-                     int(data["k"]))
+        return State(
+            float(data["s"]), float(data["t"]), restored_vector(data, "x", 3), int(data["k"])
+        )
 
 
 class NoUndo(LongStepper):
@@ -222,8 +226,10 @@ def test_without_abandon_the_abandoned_attempt_leaks_into_the_resumed_run(tmp_pa
     assert not np.array_equal(resumed["x"], full["x"])
 
 
-@pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143),
-                                         (signal.SIGHUP, 129), (signal.SIGQUIT, 131)])
+@pytest.mark.parametrize(
+    "sig, status",
+    [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129), (signal.SIGQUIT, 131)],
+)
 def test_every_stop_signal_stops_the_run_with_128_plus_its_number(sig, status):
     signal_after(0.5, sig)
     with pytest.raises(RunInterrupted) as info:
@@ -236,16 +242,20 @@ def test_every_stop_signal_stops_the_run_with_128_plus_its_number(sig, status):
 def test_sigusr1_writes_a_checkpoint_and_the_run_goes_on(tmp_path):
     stream = io.StringIO()
     signal_after(0.9, signal.SIGUSR1)
-    traj = drive(LongStepper(), checkpoint=tmp_path / "c",
-                 progress=ProgressOptions(enabled=True, stream=stream, terminal=False,
-                                          every_seconds=1e9))
+    traj = drive(
+        LongStepper(),
+        checkpoint=tmp_path / "c",
+        progress=ProgressOptions(enabled=True, stream=stream, terminal=False, every_seconds=1e9),
+    )
     assert len(traj["tau"]) == 10
     ckpt = load_checkpoint(tmp_path / "c")
     assert ckpt.status == "completed" and ckpt.sequence == 3  # start, SIGUSR1, end
     lines = [ln for ln in stream.getvalue().splitlines() if "SIGUSR1" in ln]
     assert len(lines) == 1 and re.fullmatch(
         rf"rothe: SIGUSR1: checkpoint written to {re.escape(str(tmp_path / 'c'))} after [1-9] "
-        r"accepted steps \(s = [\d.]+, t = [\d.]+\); the run goes on", lines[0]), lines
+        r"accepted steps \(s = [\d.]+, t = [\d.]+\); the run goes on",
+        lines[0],
+    ), lines
 
 
 def test_check_does_nothing_outside_a_step():
@@ -270,15 +280,22 @@ CHILD = textwrap.dedent("""
     """)
 
 
-@pytest.mark.parametrize("signals, survives", [
-    ((signal.SIGHUP, signal.SIGHUP, signal.SIGHUP), True),  # kernel + shell: never escalates
-    ((signal.SIGHUP, signal.SIGTERM), False),  # a deliberate second signal does
-    ((signal.SIGQUIT, signal.SIGINT), False),
-    ((signal.SIGUSR1, signal.SIGUSR1), True),  # a checkpoint request never ends a run
-])
+@pytest.mark.parametrize(
+    "signals, survives",
+    [
+        ((signal.SIGHUP, signal.SIGHUP, signal.SIGHUP), True),  # kernel + shell: never escalates
+        ((signal.SIGHUP, signal.SIGTERM), False),  # a deliberate second signal does
+        ((signal.SIGQUIT, signal.SIGINT), False),
+        ((signal.SIGUSR1, signal.SIGUSR1), True),  # a checkpoint request never ends a run
+    ],
+)
 def test_repeated_hangups_do_not_escalate(signals, survives):
-    proc = subprocess.run([sys.executable, "-c", CHILD, *map(str, map(int, signals))],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-c", CHILD, *map(str, map(int, signals))],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     if survives:
         first = next((s for s in signals if s in interrupt.SIGNALS), None)
         assert proc.stdout.split() == ["alive", str(None if first is None else int(first))]
@@ -306,8 +323,12 @@ def test_a_hangup_sends_a_terminal_output_to_dev_null(tmp_path):
     master, slave = pty.openpty()
     log = open(tmp_path / "log", "w")  # noqa: SIM115 - the child's stderr
     try:
-        proc = subprocess.run([sys.executable, "-c", script, str(tmp_path / "result")],
-                              stdout=slave, stderr=log, timeout=60)
+        proc = subprocess.run(
+            [sys.executable, "-c", script, str(tmp_path / "result")],
+            stdout=slave,
+            stderr=log,
+            timeout=60,
+        )
     finally:
         os.close(slave)
         os.close(master)

@@ -37,11 +37,13 @@ from . import registry
 from .tasks import cli_task
 
 #: options the sweep sets for every run itself
-RESERVED = {"--out": "the sweep gives every run its own folder under the sweep's --out",
-            "--quiet": "every run is quiet (the sweep reports progress)",
-            "--resume": "every run has its own folder and checkpoint (rothe resume <run folder> "
-                        "continues one)",
-            "--help": "not an option of a run"}
+RESERVED = {
+    "--out": "the sweep gives every run its own folder under the sweep's --out",
+    "--quiet": "every run is quiet (the sweep reports progress)",
+    "--resume": "every run has its own folder and checkpoint (rothe resume <run folder> "
+    "continues one)",
+    "--help": "not an option of a run",
+}
 #: options whose value names an input file, checked for every run before any run starts (a
 #: command adds its own with a ``file_options`` attribute: option strings); a mesh is also read
 #: (once per file), so that a file the run would refuse stops the sweep before the first run
@@ -114,8 +116,9 @@ def command_parser(verb: str, example: str) -> argparse.ArgumentParser:
 def resolve_params(parser, verb: str, example: str, texts: list[str]) -> list[SweepParam]:
     """Check every ``--param`` against the options of the command."""
     if not texts:
-        raise RotheInputError("--param: none given, needs at least one NAME=V1,V2,... to "
-                              "sweep over")
+        raise RotheInputError(
+            "--param: none given, needs at least one NAME=V1,V2,... to sweep over"
+        )
     options = parser._option_string_actions
     params: list[SweepParam] = []
     for text in texts:
@@ -127,8 +130,11 @@ def resolve_params(parser, verb: str, example: str, texts: list[str]) -> list[Sw
             raise fail("--param", name, f"cannot be swept: {RESERVED[option]}")
         if option not in options:
             names = sorted(o[2:] for o in options if o.startswith("--") and o not in RESERVED)
-            raise fail("--param", name, f"is not an option of 'rothe {verb} {example}' "
-                       f"(its options: {', '.join(names)})")
+            raise fail(
+                "--param",
+                name,
+                f"is not an option of 'rothe {verb} {example}' (its options: {', '.join(names)})",
+            )
         if any(p.option == option for p in params):
             raise fail("--param", name, "is given twice")
         action = options[option]
@@ -136,8 +142,9 @@ def resolve_params(parser, verb: str, example: str, texts: list[str]) -> list[Sw
         if flag:
             for v in values:
                 if v.lower() not in _TRUE + _FALSE:
-                    raise fail("--param", f"{name}={v}", f"{option} takes no value: use "
-                               f"{name}=true,false")
+                    raise fail(
+                        "--param", f"{name}={v}", f"{option} takes no value: use {name}=true,false"
+                    )
         params.append(SweepParam(name.lstrip("-"), option, values, flag))
     return params
 
@@ -153,8 +160,9 @@ def run_name(assignment: list[tuple[str, str]]) -> str:
     return name[:150]
 
 
-def plan_sweep(verb: str, example: str, params: list[SweepParam], fixed: list[str],
-               out: Path) -> list[SweepRun]:
+def plan_sweep(
+    verb: str, example: str, params: list[SweepParam], fixed: list[str], out: Path
+) -> list[SweepRun]:
     """Every run of the product, with its argv and folder (product order, last varies fastest)."""
     both = _fixed_options(fixed) & {p.option for p in params}
     if both:
@@ -283,8 +291,11 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
         if status in ("running", "interrupted", "completed"):
             run.argv.append(f"--resume={run.out}")
             what[run.name] = "resume"
-        elif (earlier is not None and earlier.get("status") == "completed"
-              and earlier.get("argv") == strip_argv(run.argv)):
+        elif (
+            earlier is not None
+            and earlier.get("status") == "completed"
+            and earlier.get("argv") == strip_argv(run.argv)
+        ):
             run.done = earlier
             what[run.name] = "done"
         else:
@@ -298,8 +309,12 @@ def earlier_result(summary: dict) -> dict:
 
 
 def sweep_tasks(runs: list[SweepRun]):
-    return [cli_task(run.name, run.argv, out=run.out) if run.done is None
-            else Task(run.name, earlier_result, {"summary": run.done}) for run in runs]
+    return [
+        cli_task(run.name, run.argv, out=run.out)
+        if run.done is None
+        else Task(run.name, earlier_result, {"summary": run.done})
+        for run in runs
+    ]
 
 
 def collect_rows(runs: list[SweepRun], results: list[TaskResult]) -> list[dict]:
@@ -420,31 +435,44 @@ class SweepResult:
         return all(r["status"] == "completed" for r in self.rows)
 
 
-def check_run_count(runs: list[SweepRun], params: list[SweepParam],
-                    max_runs: int | None) -> None:
+def check_run_count(runs: list[SweepRun], params: list[SweepParam], max_runs: int | None) -> None:
     """More than ``max_runs`` runs: one line saying how many (and of what), asking for --yes."""
     if max_runs is None or len(runs) <= max_runs:
         return
     sizes = " x ".join(f"{len(p.values)} {p.name}" for p in params)
-    raise RotheInputError(f"--param: {len(runs)} runs ({sizes}), more than {max_runs}: pass "
-                          "--yes to start them all", "param")
+    raise RotheInputError(
+        f"--param: {len(runs)} runs ({sizes}), more than {max_runs}: pass --yes to start them all",
+        "param",
+    )
 
 
-def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run",
-                  out=None, continue_sweep: bool = False, max_runs: int | None = None
-                  ) -> tuple[list[SweepRun], list[SweepParam], Path]:
+def prepare_sweep(
+    example: str,
+    params: list[str] | dict,
+    fixed=(),
+    *,
+    verb: str = "run",
+    out=None,
+    continue_sweep: bool = False,
+    max_runs: int | None = None,
+) -> tuple[list[SweepRun], list[SweepParam], Path]:
     """Plan and validate a sweep (nothing runs): ``params`` as ``NAME=V1,V2`` strings or a dict
     ``{name: [values]}``; ``continue_sweep``: see :func:`continue_runs`; ``max_runs``: refuse
     a sweep of more runs (:func:`check_run_count`; the CLI's limit is :data:`CONFIRM_ABOVE`
     without ``--yes``)."""
     if isinstance(params, dict):
-        params = [f"{k}={';'.join(map(str, v))}" if any(',' in str(x) for x in v)
-                  else f"{k}={','.join(map(str, v))}" for k, v in params.items()]
+        params = [
+            f"{k}={';'.join(map(str, v))}"
+            if any("," in str(x) for x in v)
+            else f"{k}={','.join(map(str, v))}"
+            for k, v in params.items()
+        ]
     parser = command_parser(verb, example)
     resolved = resolve_params(parser, verb, example, list(params))
     if out is not None and not str(out).strip():  # Path('') would be '.'
-        raise fail("--out", str(out), f"must name a directory (omit --out for "
-                   f"rothe-out/sweep-{example})")
+        raise fail(
+            "--out", str(out), f"must name a directory (omit --out for rothe-out/sweep-{example})"
+        )
     out = Path(out) if out is not None else Path("rothe-out") / f"sweep-{example}"
     runs = plan_sweep(verb, example, resolved, [str(a) for a in fixed], out)
     check_run_count(runs, resolved, max_runs)
@@ -454,9 +482,18 @@ def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str
     return runs, resolved, out
 
 
-def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run", out=None,
-              executor: Executor | None = None, plot: str | tuple | None = None,
-              continue_sweep: bool = False, max_runs: int | None = None) -> SweepResult:
+def run_sweep(
+    example: str,
+    params: list[str] | dict,
+    fixed=(),
+    *,
+    verb: str = "run",
+    out=None,
+    executor: Executor | None = None,
+    plot: str | tuple | None = None,
+    continue_sweep: bool = False,
+    max_runs: int | None = None,
+) -> SweepResult:
     """Run a sweep (Python API of ``rothe sweep``): plan, validate, run, collect, write.
 
     ``executor`` defaults to in-process; e.g. ``Executor(workers=4)`` or
@@ -465,8 +502,9 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
     kept, interrupted or killed ones resume from their checkpoints; :func:`continue_runs`).
     """
     xy = parse_plot(plot) if isinstance(plot, str) or plot is None else tuple(plot)
-    runs, resolved, out = prepare_sweep(example, params, fixed, verb=verb, out=out,
-                                        continue_sweep=continue_sweep, max_runs=max_runs)
+    runs, resolved, out = prepare_sweep(
+        example, params, fixed, verb=verb, out=out, continue_sweep=continue_sweep, max_runs=max_runs
+    )
     executor = executor or Executor(1, progress=False)
     if executor.scheduler is None and executor.workers > len(runs) >= 1:
         executor.workers = len(runs)  # a local worker without a run would only start and idle
@@ -488,11 +526,16 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
         if res.detail and Path(run.out).is_dir():
             _write_atomic(Path(run.out) / "traceback.txt", res.detail)
     meta = {
-        "command": " ".join(["rothe", "sweep", verb, example, *map(str, fixed)]
-                            + [f"--param {p.name}={','.join(p.values)}" for p in resolved]),
-        "verb": verb, "example": example,
-        "params": {p.name: p.values for p in resolved}, "fixed_options": list(map(str, fixed)),
-        "executor": executor.describe(), "runs": len(rows),
+        "command": " ".join(
+            ["rothe", "sweep", verb, example, *map(str, fixed)]
+            + [f"--param {p.name}={','.join(p.values)}" for p in resolved]
+        ),
+        "verb": verb,
+        "example": example,
+        "params": {p.name: p.values for p in resolved},
+        "fixed_options": list(map(str, fixed)),
+        "executor": executor.describe(),
+        "runs": len(rows),
         "completed": sum(r["status"] == "completed" for r in rows),
         "wall_time_s": time.perf_counter() - t0,
     }
@@ -504,7 +547,9 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
         raise RunInterrupted(
             f"sweep interrupted by {meta['interrupted']}: {meta['completed']} of {len(rows)} "
             f"runs completed; table so far in {csv_path}; the same command with --continue "
-            "continues the sweep", signum=signum) from None
+            "continues the sweep",
+            signum=signum,
+        ) from None
     figure, missing = None, []
     if xy is not None:
         cols = table_columns(rows)
@@ -516,8 +561,14 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
             group = [p.name for p in resolved if p.name != x]
             if x not in {p.name for p in resolved} and group:
                 group = group[1:]  # the first parameter varies along each line
-            figure = plot_sweep(rows, x, y, group, out / f"sweep_{_file_part(y)}_vs_"
-                                f"{_file_part(x)}.png", title=f"rothe sweep {verb} {example}")
+            figure = plot_sweep(
+                rows,
+                x,
+                y,
+                group,
+                out / f"sweep_{_file_part(y)}_vs_{_file_part(x)}.png",
+                title=f"rothe sweep {verb} {example}",
+            )
     return SweepResult(rows, out, csv_path, json_path, figure, missing, resolved)
 
 
@@ -537,8 +588,9 @@ def check_writable_sweep(out: Path) -> None:
             break
 
 
-def interrupted_results(runs: list[SweepRun], executor: Executor,
-                        exc: BaseException) -> list[TaskResult]:
+def interrupted_results(
+    runs: list[SweepRun], executor: Executor, exc: BaseException
+) -> list[TaskResult]:
     """The results of a map stopped by a signal: those that finished, ``interrupted`` for runs
     under way (with the summary of their results so far, where the run wrote one: in-process the
     run's session does), ``pending`` for runs that never started."""
@@ -549,12 +601,19 @@ def interrupted_results(runs: list[SweepRun], executor: Executor,
         if res is not None:
             results.append(res)
         elif i in executor.started:
-            results.append(TaskResult(
-                run.name, "interrupted", f"stopped by {name}; continue it with: rothe resume "
-                f"{run.out}", value=_interrupted_summary(Path(run.out)), worker=""))
+            results.append(
+                TaskResult(
+                    run.name,
+                    "interrupted",
+                    f"stopped by {name}; continue it with: rothe resume {run.out}",
+                    value=_interrupted_summary(Path(run.out)),
+                    worker="",
+                )
+            )
         else:
-            results.append(TaskResult(run.name, "pending", f"not started (sweep stopped by "
-                                      f"{name})", worker=""))
+            results.append(
+                TaskResult(run.name, "pending", f"not started (sweep stopped by {name})", worker="")
+            )
     return results
 
 
@@ -573,7 +632,23 @@ def _file_part(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name)
 
 
-__all__ = ["SweepParam", "SweepResult", "SweepRun", "collect_rows", "command_parser",
-           "continue_runs", "format_rows", "interrupted_results", "parse_plot", "plan_sweep",
-           "prepare_sweep", "resolve_params", "run_name", "run_sweep", "split_param",
-           "sweep_tasks", "validate_runs", "write_table"]
+__all__ = [
+    "SweepParam",
+    "SweepResult",
+    "SweepRun",
+    "collect_rows",
+    "command_parser",
+    "continue_runs",
+    "format_rows",
+    "interrupted_results",
+    "parse_plot",
+    "plan_sweep",
+    "prepare_sweep",
+    "resolve_params",
+    "run_name",
+    "run_sweep",
+    "split_param",
+    "sweep_tasks",
+    "validate_runs",
+    "write_table",
+]

@@ -34,8 +34,9 @@ def _visible_triangles(points: np.ndarray, cells: np.ndarray):
     (faces found by sorting the packed vertex triples: no loop over cells)."""
     if points.shape[1] == 2:
         return points, cells
-    faces = np.concatenate([cells[:, [1, 2, 3]], cells[:, [0, 2, 3]],
-                            cells[:, [0, 1, 3]], cells[:, [0, 1, 2]]])
+    faces = np.concatenate(
+        [cells[:, [1, 2, 3]], cells[:, [0, 2, 3]], cells[:, [0, 1, 3]], cells[:, [0, 1, 2]]]
+    )
     opposite = np.concatenate([cells[:, 0], cells[:, 1], cells[:, 2], cells[:, 3]])
     key = np.sort(faces, axis=1)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
@@ -49,8 +50,16 @@ def _visible_triangles(points: np.ndarray, cells: np.ndarray):
     return points[:, :2], faces[normal[:, 2] > 1e-14 * np.abs(normal).max()]
 
 
-def plot_mesh_snapshots(path, series, state_mesh_id, times, values, indices, title=None,
-                        label: str = "value at the vertices") -> None:
+def plot_mesh_snapshots(
+    path,
+    series,
+    state_mesh_id,
+    times,
+    values,
+    indices,
+    title=None,
+    label: str = "value at the vertices",
+) -> None:
     """Mesh and a vertex field at the states ``indices`` (one panel each): one colour scale
     (its bar labelled ``label``), the cell edges, the vertices of each mesh in its panel's
     title; panels sized by the domain's aspect ratio (no empty margins).
@@ -75,18 +84,17 @@ def plot_mesh_snapshots(path, series, state_mesh_id, times, values, indices, tit
     if hi <= lo:
         hi = lo + 1.0
     pc = None
-    for k, (ax, i, v, (points, cells)) in enumerate(zip(axes, indices, vals, meshes,
-                                                        strict=True)):
+    for k, (ax, i, v, (points, cells)) in enumerate(zip(axes, indices, vals, meshes, strict=True)):
         xy, tri = _visible_triangles(points, cells)
-        pc = ax.tripcolor(xy[:, 0], xy[:, 1], tri, v, shading="gouraud", vmin=lo, vmax=hi,
-                          cmap="viridis")
+        pc = ax.tripcolor(
+            xy[:, 0], xy[:, 1], tri, v, shading="gouraud", vmin=lo, vmax=hi, cmap="viridis"
+        )
         draw_edges(ax, xy[:, 0], xy[:, 1], tri)
         snapshot_axes(ax, first=k == 0)
         ax.set_title(f"t = {times[i]:.4g}, {len(points)} vertices", fontsize=9)
     fig.colorbar(pc, ax=list(axes), shrink=0.9, label=label)
     sizes = [len(p) for p, _ in meshes]
-    span = (f"{min(sizes)}" if min(sizes) == max(sizes)
-            else f"{min(sizes)}-{max(sizes)}")
+    span = f"{min(sizes)}" if min(sizes) == max(sizes) else f"{min(sizes)}-{max(sizes)}"
     what = f"{label} on the adapted meshes ({span} vertices)"
     fig.suptitle(f"{title}: {what}" if title else what, fontsize=10)
     save_figure(fig, path, tight=False)

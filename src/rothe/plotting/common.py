@@ -37,9 +37,13 @@ def snapshot_grid(count: int, extent, panel_width: float = 3.0):
     fill the canvas (no wide empty margins)."""
     lx, ly = (float(e) for e in extent)
     aspect = min(max(ly / lx, 0.15), 3.0) if lx > 0 and ly > 0 else 1.0
-    fig, axes = plt.subplots(1, count, figsize=(panel_width * count + 1.0,
-                                                panel_width * aspect + 0.8),
-                             layout="compressed", squeeze=False)
+    fig, axes = plt.subplots(
+        1,
+        count,
+        figsize=(panel_width * count + 1.0, panel_width * aspect + 0.8),
+        layout="compressed",
+        squeeze=False,
+    )
     return fig, axes[0]
 
 

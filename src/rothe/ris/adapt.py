@@ -68,14 +68,17 @@ class RISAdaptivity:
     fixed-mesh run bit for bit.
     """
 
-    def __init__(self, problem, options: SpaceAdaptivity, *, reaction: str = "lambda",
-                 times=None):
+    def __init__(self, problem, options: SpaceAdaptivity, *, reaction: str = "lambda", times=None):
         if not isinstance(options, SpaceAdaptivity):
-            raise RotheInputError(f"space: got a {type(options).__name__}, must be a "
-                                  "rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
+            raise RotheInputError(
+                f"space: got a {type(options).__name__}, must be a "
+                "rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)"
+            )
         if not hasattr(problem, "on_mesh"):
-            raise RotheInputError(f"space: got a {type(problem).__name__} problem, space "
-                                  "adaptivity needs a finite-element RIS (FERISProblem)")
+            raise RotheInputError(
+                f"space: got a {type(problem).__name__} problem, space "
+                "adaptivity needs a finite-element RIS (FERISProblem)"
+            )
         problem.check_movable("space" if options.naming == "api" else "--adapt-space")
         self.options = options
         self.initial = problem
@@ -103,8 +106,9 @@ class RISAdaptivity:
         """eta_K of the step from (t_prev, z_prev) to z with multiplier lam (module docstring)."""
         t_prev, z_prev, z, lam = target
         reaction = lam if self.reaction == "lambda" else 0.0
-        ind = ris_indicators_for(problem, t_prev, z, z_prev, lam,
-                                 coefficient=problem.coefficient, reaction=reaction)
+        ind = ris_indicators_for(
+            problem, t_prev, z, z_prev, lam, coefficient=problem.coefficient, reaction=reaction
+        )
         return ind.eta
 
     def rebuild(self, problem, mesh):
@@ -121,8 +125,9 @@ class RISAdaptivity:
         return z_new, (P @ increment if increment is not None else None)
 
     # -- after an accepted step ----------------------------------------------------------------
-    def adapt(self, problem, t_prev: float, z_prev, z, lam: float, increment,
-              t: float, energy: float) -> RISAdaptStep:
+    def adapt(
+        self, problem, t_prev: float, z_prev, z, lam: float, increment, t: float, energy: float
+    ) -> RISAdaptStep:
         """The adapt step after a step from (t_prev, z_prev) to z (multiplier lam, energy
         I(t, z)) on ``problem``'s mesh: the same z when nothing changed or the adaptation
         failed (counted in ``transfer_failures``), else z and the increment on the new mesh."""
@@ -140,18 +145,24 @@ class RISAdaptivity:
         z_new, d_new = out.state
         self.adaptations += 1
         self.series.add(self.meshes.mesh_id, self.meshes.amesh.points, self.meshes.amesh.cells)
-        self.last_change = {"mesh_id": self.mesh_id, "estimate": float(out.estimate),
-                            "bisections": out.bisections, "merges": out.merges,
-                            "dofs": int(new_problem.n)}
+        self.last_change = {
+            "mesh_id": self.mesh_id,
+            "estimate": float(out.estimate),
+            "bisections": out.bisections,
+            "merges": out.merges,
+            "dofs": int(new_problem.n),
+        }
         transfer_energy = new_problem.energy(t, z_new) - energy
         return RISAdaptStep(True, new_problem, z_new, d_new, float(transfer_energy))
 
     # -- checkpoint protocol -------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
-        return {"amesh": self.meshes.amesh.checkpoint_state(),
-                "series": self.series.checkpoint_state(),
-                "adaptations": int(self.adaptations),
-                "transfer_failures": int(self.transfer_failures)}
+        return {
+            "amesh": self.meshes.amesh.checkpoint_state(),
+            "series": self.series.checkpoint_state(),
+            "adaptations": int(self.adaptations),
+            "transfer_failures": int(self.transfer_failures),
+        }
 
     def restore_state(self, data: dict):
         """Rebuild the hierarchy and the series; returns the problem on the current mesh."""

@@ -125,13 +125,15 @@ def plot_residual_vs_steps(rows, path, title="") -> Path:
         style = "-" + styles.get(name, "x")
         axes[0].loglog(n, [r["max_residual"] for r in rs], style, label=name)
         axes[1].loglog(n, [r["sum_residual"] for r in rs], style, label=name)
-        axes[2].loglog([r["inner_solves"] for r in rs], [r["sum_residual"] for r in rs], style,
-                       label=name)
+        axes[2].loglog(
+            [r["inner_solves"] for r in rs], [r["sum_residual"] for r in rs], style, label=name
+        )
     axes[0].set_ylabel(r"local residual $\max_k (I_1^k + I_2^k)$")
     axes[1].set_ylabel(r"global residual $\sum_k (I_1^k + I_2^k)$")
     axes[2].set_ylabel(r"global residual $\sum_k (I_1^k + I_2^k)$")
-    for ax, xlabel in zip(axes, ("number of steps", "number of steps", "inner solves"),
-                          strict=True):
+    for ax, xlabel in zip(
+        axes, ("number of steps", "number of steps", "inner solves"), strict=True
+    ):
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
@@ -141,6 +143,7 @@ def plot_residual_vs_steps(rows, path, title="") -> Path:
 
 
 # -- finite-element runs ----------------------------------------------------------------------
+
 
 def plot_fig4(runs, path, title: str = "") -> Path:
     """The step control of each run (one row): the accepted step sizes tau_k against s (left,
@@ -161,8 +164,14 @@ def plot_fig4(runs, path, title: str = "") -> Path:
         if "I1" in traj and "I2" in traj and len(tau):
             residual = np.asarray(traj["I1"]) + np.asarray(traj["I2"])
             positive = residual > 0
-            row[1].semilogy(s[1:][positive], residual[positive], ".", ms=2.5, color="C1",
-                            label=r"$I_1^k + I_2^k$")
+            row[1].semilogy(
+                s[1:][positive],
+                residual[positive],
+                ".",
+                ms=2.5,
+                color="C1",
+                label=r"$I_1^k + I_2^k$",
+            )
             if tol is not None and control != "uniform":
                 row[1].axhline(tol, color="k", ls="--", lw=1, label=f"tol = {tol:g}")
                 row[1].legend(fontsize=8, loc="lower right")
@@ -232,6 +241,9 @@ def plot_snapshots(nodes, cells, s, t, Z, path, count: int = 4, title: str = "")
         ax.set_title(f"s = {s[k]:.4g}, t = {t[k]:.4g}", fontsize=9)
     fig.colorbar(im, ax=list(axes), shrink=0.9, label=r"$z$ (state at the nodes)")
     slice_note = " (mid-plane slice)" if nodes.shape[1] == 3 else ""
-    fig.suptitle((f"{title}: " if title else "") + f"the state z at {len(idx)} points of the "
-                 f"path{slice_note}", fontsize=10)
+    fig.suptitle(
+        (f"{title}: " if title else "") + f"the state z at {len(idx)} points of the "
+        f"path{slice_note}",
+        fontsize=10,
+    )
     return save_figure(fig, path, dpi=110, tight=False)

@@ -154,8 +154,9 @@ class _Loop:
         info.update(where or {})
         try:
             with self.times.phase("checkpoint"):
-                return self.checkpointer.save_or_warn(self.stepper, self.controller,
-                                                      self.state, status=status, where=info)
+                return self.checkpointer.save_or_warn(
+                    self.stepper, self.controller, self.state, status=status, where=info
+                )
         except Exception:
             if quiet:  # the failure being reported matters more than its checkpoint
                 return None
@@ -176,8 +177,12 @@ class _Loop:
             f"interrupted by {name} after {where['accepted_steps']} accepted steps "
             f"(s = {where.get('s', float('nan')):.6g}, t = {where.get('t', float('nan')):.6g}"
             + ("; the step under way was abandoned)" if abandoned else ")"),
-            signum=signum, where=where, trajectory=self.trajectory, checkpoint=path,
-            state=state)
+            signum=signum,
+            where=where,
+            trajectory=self.trajectory,
+            checkpoint=path,
+            state=state,
+        )
 
     def abandon(self, state, counts: dict) -> None:
         """A stop signal abandoned the step under way (StepAbandoned): forget its attempts
@@ -197,8 +202,9 @@ class _Loop:
         asked = interrupt.checkpoint_requested()
         if self.checkpointer is None:
             if asked:
-                self.progress.note("rothe: SIGUSR1: this run writes no checkpoint (none was "
-                                   "asked for)")
+                self.progress.note(
+                    "rothe: SIGUSR1: this run writes no checkpoint (none was asked for)"
+                )
             return
         if asked or self.checkpointer.due():
             path = self.checkpoint("running")
@@ -208,7 +214,8 @@ class _Loop:
                 self.progress.note(
                     f"rothe: SIGUSR1: checkpoint {written} after {w['accepted_steps']} accepted "
                     f"steps (s = {w.get('s', float('nan')):.6g}, t = "
-                    f"{w.get('t', float('nan')):.6g}); the run goes on")
+                    f"{w.get('t', float('nan')):.6g}); the run goes on"
+                )
 
     def run(self, state, tau_min, max_attempts, max_landing_retries, max_steps):
         stepper, controller, trajectory = self.stepper, self.controller, self.trajectory
@@ -289,13 +296,21 @@ class _Loop:
         self._clock()
         if self.progress is not None:
             done = self.state is not None and self.stepper.finished(self.state)
-            self.progress.close(self.state, self.trajectory.stats,
-                                "finished" if done else "stopped")
+            self.progress.close(
+                self.state, self.trajectory.stats, "finished" if done else "stopped"
+            )
 
 
 #: the statistics a step attempt adds to (put back when the step is abandoned)
-_COUNTED = ("inner_solves", "newton_iterations", "fb_steps", "linear_factorizations",
-            "linear_solves", "krylov_iterations", "landing_retries")
+_COUNTED = (
+    "inner_solves",
+    "newton_iterations",
+    "fb_steps",
+    "linear_factorizations",
+    "linear_solves",
+    "krylov_iterations",
+    "landing_retries",
+)
 
 
 def _count(stats, result) -> None:

@@ -53,11 +53,13 @@ import sys
 import threading
 
 #: signals that stop a run (the first is deferred to a step boundary or a check())
-SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
-                if hasattr(signal, name))
+SIGNALS = tuple(
+    getattr(signal, name)
+    for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
+    if hasattr(signal, name)
+)
 #: the signal that asks for a checkpoint now (the run goes on)
-CHECKPOINT_SIGNALS = tuple(getattr(signal, name) for name in ("SIGUSR1",)
-                           if hasattr(signal, name))
+CHECKPOINT_SIGNALS = tuple(getattr(signal, name) for name in ("SIGUSR1",) if hasattr(signal, name))
 _HUP = getattr(signal, "SIGHUP", None)
 _active: _Guard | None = None
 _checkpoint_now = False  # SIGUSR1 arrived and no checkpoint was written since

@@ -87,11 +87,21 @@ class MeshAdaptation:
         Where the phases are timed (a new one by default).
     """
 
-    def __init__(self, mesh, options: SpaceAdaptivity, *, degree: int = 1, components: int = 1,
-                 times: PhaseTimes | None = None):
+    def __init__(
+        self,
+        mesh,
+        options: SpaceAdaptivity,
+        *,
+        degree: int = 1,
+        components: int = 1,
+        times: PhaseTimes | None = None,
+    ):
         if not isinstance(options, SpaceAdaptivity):
-            raise fail("adapt", described(type(options).__name__),
-                       "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
+            raise fail(
+                "adapt",
+                described(type(options).__name__),
+                "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)",
+            )
         self.options = options
         self.degree = int(degree)
         self.components = int(components)
@@ -111,8 +121,7 @@ class MeshAdaptation:
         """Whether to adapt after the accepted step with this (1-based) number."""
         return self.options.due(accepted_steps)
 
-    def cycle(self, family, problem, target, state, *, refine_only: bool = False
-              ) -> Adaptation:
+    def cycle(self, family, problem, target, state, *, refine_only: bool = False) -> Adaptation:
         """One adaptation (module docstring): the indicators of ``target`` on ``problem``'s
         mesh decide the new mesh; ``state`` is what moves to it.
 
@@ -124,13 +133,15 @@ class MeshAdaptation:
             with times.phase("estimate"):
                 eta = np.asarray(family.indicators(problem, target), dtype=float)
             if eta.shape != (self.amesh.n_cells,) or not np.all(np.isfinite(eta)):
-                raise AdaptationFailed("the error indicators are not finite (or not one per "
-                                       "cell)")
+                raise AdaptationFailed("the error indicators are not finite (or not one per cell)")
             estimate = float(np.sqrt(np.sum(eta * eta)))
             with times.phase("mark"):
                 if refine_only:
-                    refine = (doerfler_marking(eta, opts.refine_fraction)
-                              if estimate > opts.space_tol else None)
+                    refine = (
+                        doerfler_marking(eta, opts.refine_fraction)
+                        if estimate > opts.space_tol
+                        else None
+                    )
                     coarsen = None
                 else:
                     refine, coarsen = opts.mark(eta)
@@ -138,10 +149,15 @@ class MeshAdaptation:
                 return Adaptation(False, estimate, eta=eta)
             with times.phase("refine"):
                 change = self.amesh.adapt(
-                    refine=refine, coarsen=coarsen,
+                    refine=refine,
+                    coarsen=coarsen,
                     coarsen_rounds=opts.coarsen_rounds if coarsen is not None else 1,
-                    max_dofs=opts.max_dofs, degree=self.degree, components=self.components,
-                    priority=eta, max_level=opts.max_level)
+                    max_dofs=opts.max_dofs,
+                    degree=self.degree,
+                    components=self.components,
+                    priority=eta,
+                    max_level=opts.max_level,
+                )
             if not change.changed:
                 return Adaptation(False, estimate, eta=eta)
             with times.phase("rebuild"):
