@@ -289,10 +289,11 @@ def test_an_uncreatable_checkpoint_directory_names_the_parameter(tmp_path, where
 
 def test_the_eld_driver_names_the_checkpoint_parameter():
     from rothe.eld import mms_problem, run_eld
+    from rothe.stepping.controllers import Uniform
 
     problem, _ = mms_problem(2)
     with pytest.raises(RotheInputError, match=r"^checkpoint: got '/proc/ckpt', cannot create"):
-        run_eld(problem, tau=0.1, checkpoint="/proc/ckpt")
+        run_eld(problem, control=Uniform(0.1), checkpoint="/proc/ckpt")
 
 
 def test_a_lock_released_with_no_checkpoint_written_leaves_nothing(tmp_path):

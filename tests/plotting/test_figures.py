@@ -67,16 +67,16 @@ def _check_readable(fig, min_fill: float):
 
 
 def _unit_square_run():
+    from rothe.ris import Adaptive, run_ris
     from rothe.ris.fem_problem import example_7_2
-    from rothe.ris.stepper import run_ris
 
     problem = example_7_2(4)
-    return problem, run_ris(problem, "adaptive", tol=1e-2, tau=0.1)
+    return problem, run_ris(problem, Adaptive(tol=1e-2, tau=0.1)).trajectory
 
 
 def test_ris_snapshots_path_and_steps(tmp_path, captured):
     from rothe.ris.figures import plot_fig4, plot_path, plot_snapshots
-    from rothe.ris.stepper import stored_states
+    from rothe.ris.run import stored_states
 
     problem, traj = _unit_square_run()
     s, t, z = stored_states(traj)

@@ -68,6 +68,7 @@ import numpy as np
 
 from ..errors import RotheInputError, check_positive
 from .atomic import atomic_path, check_writable, remove_stale_temporaries
+from .frozen import frozen, is_frozen
 from .trajectory import RAGGED_LENGTHS, RunStatistics, Trajectory
 
 FORMAT = "rothe-checkpoint"
@@ -168,28 +169,6 @@ def decode(obj, arrays):
 def normalized(value):
     """A JSON round trip: what a value looks like after it was written and read back."""
     return json.loads(json.dumps(value, default=str))
-
-
-def frozen(array) -> np.ndarray:
-    """A read-only array that owns its data, with the values of ``array`` (not copied when it
-    already is one).
-
-    The checkpoint writes a frozen array once (into ``arrays-<seq>.npz``) and only refers to it
-    in later checkpoints, as long as the state holds that same object: the contract is that a
-    frozen array never changes. A stepper whose state grows with the run (the meshes of a mesh
-    series, the kept fields of an adaptive run) freezes what it appends and returns the same
-    objects from every ``checkpoint_state``, so that checkpointing costs O(K) in total.
-    """
-    if isinstance(array, np.ndarray) and is_frozen(array):
-        return array
-    out = np.array(array, copy=True)
-    out.setflags(write=False)
-    return out
-
-
-def is_frozen(array) -> bool:
-    """Whether ``array`` is read-only and owns its data (see :func:`frozen`)."""
-    return isinstance(array, np.ndarray) and not array.flags.writeable and array.flags.owndata
 
 
 def _crc(array: np.ndarray) -> int:

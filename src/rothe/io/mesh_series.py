@@ -28,7 +28,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .atomic import atomic_path, atomic_write_text
-from .checkpoint import frozen
+from .frozen import frozen
 
 _CELL_TYPES = {2: "line", 3: "triangle", 4: "tetra"}
 _KEY = re.compile(r"^mesh_points_(\d+)$")
@@ -56,7 +56,7 @@ class MeshSeries:
 
     ``add`` with an id already present is ignored (the caller registers the mesh of every
     accepted state; only a change brings a new id). Arrays are copied on ``add`` and stored
-    read-only (:func:`rothe.io.checkpoint.frozen`), so later changes of the caller's mesh cannot
+    read-only (:func:`rothe.io.frozen.frozen`), so later changes of the caller's mesh cannot
     alter what was stored, and a checkpoint writes every mesh once: ``checkpoint_state`` returns
     the same array objects every time and the checkpointer only refers to those it already
     wrote (O(K) in total for K meshes, not O(K^2)).
