@@ -12,7 +12,7 @@ ParaView files (two XDMF time series with HDF5 heavy data, :mod:`rothe.io.xdmf`;
   lam tr(eps)) and ``von_mises``. See :mod:`rothe.eld.stress`.
 - ``<name>_multiplier.xdmf``: the facets of Gamma_D with point data ``lambda`` (the multiplier,
   a traction density) and ``reaction_density = -lambda`` (the traction the support exerts), at
-  the same times as the body (a frame written without a multiplier holds NaN).
+  the same times as the body (the frame at t = 0 holds the consistent lambda(0)).
 
 ``trajectory.npz`` (:func:`mesh_arrays` are added to the trajectory's series):
 
@@ -99,9 +99,15 @@ class EldXdmfWriter:
             return np.ascontiguousarray(values)
         return np.column_stack([values, np.zeros(len(values))])
 
-    def write(self, t: float, u: np.ndarray, v: np.ndarray, lam: np.ndarray | None) -> None:
-        """Stream the state at t: u, v, the stresses and lambda (NaN if not given)."""
+    def write(self, t: float, u: np.ndarray, v: np.ndarray, lam: np.ndarray) -> None:
+        """Stream the state at t: u, v, the stresses into the body's series and lambda into the
+        multiplier's (both series on one time axis: every frame has both; the frame at t = 0
+        takes the consistent lambda(0), which the run computes with its initial state, see
+        :mod:`rothe.eld.start`)."""
         space = self.problem.space
+        if lam is None:  # a frame without a multiplier would break the common time axis
+            raise fail("lam", None, f"must be the multiplier at t = {float(t):g}")
+        L = np.asarray(lam).reshape(-1, space.dim)[self._lam_rows]
         sigma = self.stresses.stress(u)
         vm = von_mises(sigma)
         sigma_nodal = self.stresses.nodal(sigma)
@@ -115,13 +121,6 @@ class EldXdmfWriter:
                 "von_mises_nodal": vm_nodal,
             },
             cell_fields={"stress": sigma.reshape(-1, 9), "von_mises": vm},
-        )
-        # both series on one time axis: without a multiplier at t (lam None: the command line's
-        # frame at t = 0, written before the run computes lambda^0) the frame holds NaN
-        L = (
-            np.full((len(self._lam_rows), space.dim), np.nan)
-            if lam is None
-            else np.asarray(lam).reshape(-1, space.dim)[self._lam_rows]
         )
         self._bnd.write_step(
             float(t), {"lambda": self._vec3(L), "reaction_density": self._vec3(-L)}

@@ -157,7 +157,9 @@ class ELDStepper:
     keep_every : int
         Keep u, v, a, lambda of every k-th state (and the last).
     observer : callable(state, result), optional
-        Called after every accepted step (e.g. to write XDMF).
+        Called with the initial state (``result`` None; it holds the consistent lambda(0)) and
+        after every accepted step (e.g. to write XDMF). A resumed run does not call it for the
+        initial state again.
     linear_rtol : float
         Relative residual of iterative linear solves.
     error_scale : float, optional
@@ -360,6 +362,8 @@ class ELDStepper:
             traj.append(**self._mesh_record(state, self.system))
         if self.store_fields:
             self._keep(traj, state)
+        if self.observer is not None:  # lambda(0) is known here: an output starts at t = 0
+            self.observer(state, None)
 
     def _keep(self, traj: Trajectory, state: ELDState) -> None:
         if self.adaptivity is not None:
