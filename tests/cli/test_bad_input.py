@@ -150,6 +150,55 @@ CASES = [
         2,
         "rothe: error: --tau: got 0.3, must divide T = 1 into equal steps (T/tau = 3.33333)",
     ),
+    # an option the run does not read: the original form (2.7) has no lifting
+    *[
+        (
+            ["run", "eld-mms", "--lifting", lifting, "--form", "original"],
+            2,
+            f"rothe: error: --lifting: got {lifting!r}, is used by --form regularized only (the "
+            "original form (2.7) has no lifting)",
+        )
+        for lifting in ("harmonic", "nodal")
+    ],
+    # compare: no controls left to compare with uniform
+    *[
+        (
+            ["compare", "ris-2d", "--controls", controls],
+            2,
+            f"rothe: error: --controls: got {controls!r}, must name at least one of adaptive, "
+            "order2, regime (uniform always runs)",
+        )
+        for controls in ("", " , ")
+    ],
+    # a study checks what every run would refuse before its cluster starts (each run failed on
+    # its own after a Dask cluster had started, exit 1 without an error line)
+    (
+        ["study", "eld-convergence", "--tau0", "0.3"],
+        2,
+        "rothe: error: --tau0: got 0.3, must divide T = 1 into equal steps (T/tau = 3.33333)",
+    ),
+    (
+        ["study", "eld-convergence", "--tau0", "1e300"],
+        2,
+        "rothe: error: --tau0: got 1e+300, must be < rho/d0 = 2 (Lemma 3.2: unique solvability "
+        "of the Euler steps)",
+    ),
+    (
+        ["study", "eld-convergence", "--degree", "5"],
+        2,
+        "rothe: error: --degree: got 5, must be 1 or 2",
+    ),
+    (
+        ["study", "eld-convergence", "--rho", "-1"],
+        2,
+        "rothe: error: --rho: got -1, must be > 0",
+    ),
+    (
+        ["study", "eld-convergence", "--scheme", "bdf2", "--data", "means"],
+        2,
+        "rothe: error: --data: got 'means', with scheme bdf2 must be points or differenced (step "
+        "means are first-order data: they sit O(tau) away from t_j)",
+    ),
 ]
 
 

@@ -27,6 +27,7 @@ from ..eld.examples import beam_problem, mms_errors, mms_problem, pulse_problem
 from ..eld.output import EldXdmfWriter, write_eld_result
 from ..eld.run import ELDResult, prepare_eld_run
 from ..eld.studies import (
+    check_uniform_runs,
     convergence_study,
     format_convergence_table,
     format_perturbation_table,
@@ -733,6 +734,19 @@ class StudyEldConvergence:
         n = check_int("--n", args.n, minimum=1)
         data = data_of(args)
         damping = damping_of(args)
+        # what every run would refuse, before the cluster starts or --out is made (issue 21)
+        check_uniform_runs(
+            args.tau0,
+            scheme,
+            data,
+            n,
+            args.degree,
+            damping=damping,
+            rho=args.rho,
+            lam=args.lam,
+            mu=args.mu,
+            T=args.T,
+        )
         executor = executor_from_args(args, f"rothe study {self.name}")
         out = output_dir(args, self.name)
         study = convergence_study(

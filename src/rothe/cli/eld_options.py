@@ -275,9 +275,16 @@ def scheme_of(args):
 
 
 def form_of(args):
-    """The form object of --form (and --lifting, checked whatever the form)."""
+    """The form object of --form (and --lifting, checked whatever the form; given with --form
+    original, which has no lifting, it is refused as an option the run does not read)."""
     name = check_choice("--form", args.form, tuple(FORMS))
     lifting = check_choice("lifting", getattr(args, "lifting", LIFTING_DEFAULT), LIFTINGS)
+    if name == "original" and given(args, "--lifting"):
+        raise fail(
+            "--lifting",
+            lifting,
+            "is used by --form regularized only (the original form (2.7) has no lifting)",
+        )
     return Regularized(lifting) if name == "regularized" else Original()
 
 

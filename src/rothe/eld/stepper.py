@@ -137,6 +137,19 @@ def as_control(control):
     )
 
 
+def uniform_steps(tau: float, T: float, scheme: Scheme, bound: float) -> int:
+    """The number of equal steps tau in [0, T]; refuses (naming ``tau``) a tau that the
+    ``scheme`` cannot take under Lemma 3.2's ``bound`` (:meth:`ELDProblem.step_bound`) or that
+    does not divide T. Also a check before runs start (:func:`rothe.eld.studies`): tau/2^k
+    divides T when tau does, and the bound is hardest for the largest step."""
+    scheme.check_step(tau, bound)
+    ratio = T / tau
+    n = round(ratio) if math.isfinite(ratio) and ratio < 2**62 else -1
+    if n < 1 or abs(ratio - n) > 1e-9 * max(1.0, ratio):
+        raise fail("tau", tau, f"must divide T = {T:g} into equal steps (T/tau = {ratio:.6g})")
+    return int(n)
+
+
 class ELDStepper:
     """One step of Euler or BDF2 in either form (module docstring); the evolve loop drives it.
 
@@ -252,14 +265,7 @@ class ELDStepper:
             return
         if isinstance(control, Uniform):
             self.tau = tau = control.tau
-            self.scheme.check_step(tau, self.bound)
-            ratio = T / tau
-            n = round(ratio) if math.isfinite(ratio) and ratio < 2**62 else -1
-            if n < 1 or abs(ratio - n) > 1e-9 * max(1.0, ratio):
-                raise fail(
-                    "tau", tau, f"must divide T = {T:g} into equal steps (T/tau = {ratio:.6g})"
-                )
-            self.n_steps = int(n)
+            self.n_steps = uniform_steps(tau, T, self.scheme, self.bound)
             self.tau_uniform = tau
             return
         self.tau = tau = DEFAULT_FIRST_STEP if control.tau is None else control.tau
