@@ -68,7 +68,7 @@ def _check_readable(fig, min_fill: float):
 
 def _unit_square_run():
     from rothe.ris import Adaptive, run_ris
-    from rothe.ris.fem_problem import example_7_2
+    from rothe.ris.examples import example_7_2
 
     problem = example_7_2(4)
     return problem, run_ris(problem, Adaptive(tol=1e-2, tau=0.1)).trajectory
