@@ -16,9 +16,12 @@ def test_more_workers_than_cores_are_refused(monkeypatch):
     assert Executor(4, progress=False).workers == 4
     with pytest.raises(RotheInputError) as info:
         Executor(1000, progress=False)
+    # the API names its parameters (the command line renames them: tests/cli/test_bad_input.py)
     assert str(info.value).startswith(
-        "--workers: got 1000, must be at most 4 (the cores this process may use;"
+        "workers: got 1000, must be at most 4 (the cores this process may use;"
     )
+    assert str(info.value).endswith("; scheduler runs on a larger cluster)")
+    assert info.value.parameter == "workers" and info.value.mentions == ("scheduler",)
     monkeypatch.setenv("ROTHE_WORKERS", "9")
     with pytest.raises(RotheInputError, match=r"^ROTHE_WORKERS: got 9, must be at most 4 "):
         executor_module.default_workers()

@@ -1,6 +1,10 @@
-"""Signals during a run (rothe.stepping.interrupt and the evolve loop), issue 21.
+"""Signals during a run (rothe.stepping.interrupt and the evolve loop).
 
-A fake stepper whose steps are long (many inner iterations, each followed by
+The signal guard, deterministically, in child processes: the first SIGINT/SIGTERM is only
+recorded; the second ends the process at once on the command line (hard_second=True) and raises
+KeyboardInterrupt in the Python API (hard_second=False).
+
+Issue 21: a fake stepper whose steps are long (many inner iterations, each followed by
 ``interrupt.check()``, as the ELD Newton loop and the RIS inner solver will call it) shows that a
 stop signal takes effect within one iteration, that the step under way is abandoned (never
 accepted, its attempts not counted), that the checkpoint of the last accepted state resumes bit
@@ -14,6 +18,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import pty
 import re
 import signal
 import subprocess
@@ -34,6 +39,8 @@ from rothe.stepping import interrupt
 from rothe.stepping.controllers import UniformController
 from rothe.stepping.evolve import evolve
 from rothe.stepping.progress import ProgressOptions
+
+from ..conftest import assert_same_trajectory
 
 
 @dataclass
@@ -179,13 +186,6 @@ def _keep_the_terminal(monkeypatch):
     monkeypatch.setattr(interrupt, "_detach_terminal", lambda: None)
 
 
-def _same(a: Trajectory, b: Trajectory):
-    assert set(a.keys()) == set(b.keys())
-    for key in a.keys():
-        assert np.array_equal(a[key], b[key]), key
-    assert a.stats.untimed() == b.stats.untimed()
-
-
 def test_a_signal_inside_a_long_step_takes_effect_within_one_iteration(tmp_path):
     kw = dict(T=0.5, iterations=40, pause=0.02)  # 5 steps of 40 iterations, 0.8 s each
     full = drive(LongStepper(**kw))
@@ -209,7 +209,7 @@ def test_a_signal_inside_a_long_step_takes_effect_within_one_iteration(tmp_path)
     assert ckpt.where["accepted_steps"] == k
     # resumed: the uninterrupted run, bit for bit, statistics too
     resumed = drive(LongStepper(**kw), resume=tmp_path / "c")
-    _same(full, resumed)
+    assert_same_trajectory(full, resumed)
 
 
 def test_without_abandon_the_abandoned_attempt_leaks_into_the_resumed_run(tmp_path):
@@ -318,8 +318,6 @@ def test_a_hangup_sends_a_terminal_output_to_dev_null(tmp_path):
         with open(sys.argv[1], "w") as f:
             f.write(f"{out} {err}")
         """)
-    import pty
-
     master, slave = pty.openpty()
     log = open(tmp_path / "log", "w")  # noqa: SIM115 - the child's stderr
     try:
@@ -344,3 +342,48 @@ def test_evolve_records_abandoned_steps_in_the_checkpoint_header(tmp_path):
     header = load_checkpoint(tmp_path / "c", header_only=True).header
     assert header["where"]["signal"] == "SIGTERM" and header["where"]["abandoned_step"]
     assert json.dumps(header["where"])  # plain JSON
+
+
+# -- the guard of a run: the second signal ----------------------------------------------------
+
+
+GUARD_CHILD = textwrap.dedent("""
+    import os, signal, sys, time
+    from rothe.stepping.interrupt import interruptible, requested
+    first, second, hard = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] == "hard"
+    with interruptible(hard_second=hard):
+        os.kill(os.getpid(), first)
+        time.sleep(0.05)
+        print("recorded", requested(), flush=True)
+        try:
+            os.kill(os.getpid(), second)
+            time.sleep(0.5)
+        except KeyboardInterrupt:
+            print("KeyboardInterrupt", flush=True)
+            sys.exit(0)
+        print("survived the second signal", flush=True)
+    sys.exit(3)
+""")
+
+
+def _child(first, second, mode):
+    return subprocess.run(
+        [sys.executable, "-c", GUARD_CHILD, str(int(first)), str(int(second)), mode],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+@pytest.mark.parametrize("first", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("second", [signal.SIGINT, signal.SIGTERM])
+def test_command_line_guard_second_signal_ends_the_process_at_once(first, second):
+    proc = _child(first, second, "hard")
+    assert proc.stdout.splitlines() == [f"recorded {int(first)}"], proc.stderr
+    assert proc.returncode == -second  # killed by the signal itself, not a Python exit
+
+
+def test_api_guard_second_ctrl_c_raises_keyboard_interrupt():
+    proc = _child(signal.SIGINT, signal.SIGINT, "soft")
+    assert proc.stdout.splitlines() == [f"recorded {int(signal.SIGINT)}", "KeyboardInterrupt"]
+    assert proc.returncode == 0, proc.stderr

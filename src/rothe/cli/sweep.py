@@ -29,11 +29,18 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..cli.common import _jsonable as conv
 from ..errors import RotheInputError, RunInterrupted, fail
+from ..fem.mesh import load_mesh
+from ..io.atomic import check_writable
+from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
+from ..io.outputs import read_summary
 from ..parallel.executor import Executor
 from ..parallel.tasks import Task, TaskResult
+from ..plotting.sweep import plot_sweep
 from ..stepping.interrupt import signal_name
 from . import registry
+from .session import strip_argv
 from .tasks import cli_task
 
 #: options the sweep sets for every run itself
@@ -218,8 +225,6 @@ def check_input_file(option: str, value) -> None:
 def _check_mesh_file(args, value, seen: set) -> None:
     """Read a --mesh file as the run will (triangles or tetrahedra by the command's ``dim``,
     its --duplicate-nodes), once per file and settings."""
-    from ..fem.mesh import load_mesh
-
     dim = getattr(args._command, "dim", None)
     duplicates = getattr(args, "duplicate_nodes", None) or "error"
     key = (str(value), dim, duplicates)
@@ -274,9 +279,6 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
     same ``argv``; a completed run removes its checkpoint) is ``done``: not started, its summary
     is its row. The other runs, and those whose checkpoint is of a failed run, run anew.
     Returns what happens to each run: ``resume`` | ``done`` | ``run``."""
-    from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
-    from ..io.outputs import read_summary
-    from .session import strip_argv
 
     what = {}
     for run in runs:
@@ -309,6 +311,8 @@ def earlier_result(summary: dict) -> dict:
 
 
 def sweep_tasks(runs: list[SweepRun]):
+    """One :func:`~rothe.cli.tasks.cli_task` per run of the sweep (its argv and folder); a run
+    completed before ``--continue`` is a task that returns its summary."""
     return [
         cli_task(run.name, run.argv, out=run.out)
         if run.done is None
@@ -342,7 +346,6 @@ def _same(a, b) -> bool:
 
 
 def _jsonable(value):
-    from ..cli.common import _jsonable as conv
 
     return conv(value)
 
@@ -356,6 +359,7 @@ def _write_atomic(path: Path, text: str) -> Path:
 
 
 def table_columns(rows: list[dict]) -> list[str]:
+    """The keys of all rows, in the order they first occur."""
     cols: list[str] = []
     for row in rows:
         cols += [k for k in row if k not in cols]
@@ -389,6 +393,7 @@ def write_table(out: Path, rows: list[dict], meta: dict) -> tuple[Path, Path]:
 
 
 def parse_plot(text: str | None) -> tuple[str, str] | None:
+    """``--plot X,Y`` as the pair (X, Y); None for None; one line naming --plot otherwise."""
     if text is None:
         return None
     cols = [c.strip() for c in text.split(",")]
@@ -422,6 +427,11 @@ def format_rows(rows: list[dict], params: list[SweepParam], extra=()) -> str:
 
 @dataclass
 class SweepResult:
+    """What :func:`run_sweep` returns: the rows, the sweep's folder, the paths of ``sweep.csv``
+    and ``sweep.json``, the figure (None without ``plot`` or when a column is missing), the
+    ``plot`` columns no row has, and the swept parameters.
+    """
+
     rows: list[dict]
     out: Path
     csv: Path
@@ -555,8 +565,6 @@ def run_sweep(
         cols = table_columns(rows)
         missing = [c for c in xy if c not in cols]
         if not missing:
-            from ..plotting.sweep import plot_sweep
-
             x, y = xy
             group = [p.name for p in resolved if p.name != x]
             if x not in {p.name for p in resolved} and group:
@@ -577,8 +585,6 @@ def check_writable_sweep(out: Path) -> None:
     read-only file system or a missing parent is one line naming --out (it was an OSError
     traceback from mkdir, after the cluster had started). A folder made only for the check is
     removed again (a sweep that cannot start leaves nothing)."""
-    from ..io.atomic import check_writable
-
     missing = [p for p in (out, *out.parents) if not p.exists()]
     check_writable(out, "--out")
     for p in missing:  # innermost first

@@ -22,17 +22,13 @@ from rothe.io.trajectory import is_timing_array
 from rothe.parallel import Executor, Task
 from rothe.parallel import executor as executor_module
 
+from ..conftest import run_cli
+
 NEEDS_DASK = 'the cluster tests need dask: pip install "rothe[dask]"'
 #: summary fields that measure time or memory or name the run (its folder, its checkpoint, its
 #: session id, its command line as spelled: a sweep writes --n=3 where a person wrote --n 3), not
 #: the computation
 UNTIMED = {"wall_time_s", "peak_memory_mb", "setup_time_s", "checkpoint", "run_id", "argv"}
-
-
-def run_cli(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def read_csv(path):
