@@ -21,6 +21,7 @@ def plot_energy_balance(traj, path, title: str = "") -> Path:
     ax.plot(t, traj["energy"], "k", lw=1.6, label="total E")
     ax.set_xlabel("t")
     ax.set_ylabel("energy")
+    ax.set_title("kinetic, elastic and total energy", fontsize=9)
     ax.legend(fontsize=8)
     ax = axes[1]
     e0 = traj["energy"][0]
@@ -32,8 +33,9 @@ def plot_energy_balance(traj, path, title: str = "") -> Path:
     if np.max(np.abs(traj["data_mismatch"])) > 0:
         ax.plot(t, -traj["data_mismatch"], ":", label="- data mismatch")
     res = np.max(np.abs(traj["balance_residual"]))
-    ax.set_title(f"balance residual max {res:.2e}", fontsize=9)
+    ax.set_title(f"energy identity term by term (largest residual {res:.2e})", fontsize=9)
     ax.set_xlabel("t")
+    ax.set_ylabel("energy change, work, dissipation")
     ax.legend(fontsize=7)
     for ax in axes:
         ax.grid(alpha=0.3)
