@@ -32,7 +32,7 @@ Why residual and not Zienkiewicz-Zhu recovery: the residual estimator has proven
 lower bounds on every mesh, including the graded meshes and boundary layers of a moving front;
 ZZ recovery is asymptotically exact on smooth solutions but needs superconvergence, which
 graded bisection meshes and P2 do not give. The efficiency band is measured in
-``benchmarks/adapt_efficiency.py`` and asserted in ``tests/estimators``.
+``benchmarks/adapt_efficiency.py`` and asserted in ``tests/eld/test_indicator.py``.
 
 Works for vector P1 and P2 on triangles (plane strain) and tetrahedra, with the dofs
 interleaved as in :class:`rothe.fem.elasticity.VectorSpace` (component c of scalar dof k is
