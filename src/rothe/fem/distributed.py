@@ -141,11 +141,12 @@ class Partition:
         """The distributed PETSc AIJ matrix (block size d) whose owned rows are those of the
         submesh matrix ``A`` (module docstring)."""
         R = self.owned_rows(A)
-        M = PETSc.Mat().createAIJ(size=((self.n_own, self.n_global), (self.n_own, self.n_global)),
-                                  bsize=self.dim,
-                                  csr=(R.indptr.astype(PETSc.IntType),
-                                       R.indices.astype(PETSc.IntType), R.data),
-                                  comm=self.comm_petsc(PETSc))
+        M = PETSc.Mat().create(comm=self.comm_petsc(PETSc))
+        M.setSizes(((self.n_own, self.n_global), (self.n_own, self.n_global)), bsize=self.dim)
+        M.setType("aij")
+        # setPreallocationCSR copies the arrays (createAIJ(csr=...) may keep pointers to them)
+        M.setPreallocationCSR((R.indptr.astype(PETSc.IntType), R.indices.astype(PETSc.IntType),
+                               R.data))
         M.assemble()
         return M
 
