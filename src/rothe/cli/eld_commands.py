@@ -537,6 +537,9 @@ class RunEldBeam:
         parser.add_argument("--solver", default="auto", help="auto | direct | amg")
         parser.add_argument("--save-every", type=int, default=5,
                             help="write every k-th step to XDMF (default 5)")
+        parser.add_argument("--backend", default="serial",
+                            help="serial | petsc: one process (default), or one mesh on the "
+                                 "processes of mpiexec -n N with PETSc (docs/scaling.md)")
         _keep_option(parser, 5)
         _damping_options(parser, default_b=0.002)
         parser.set_defaults(damping="rayleigh")
@@ -551,6 +554,7 @@ class RunEldBeam:
         check_beam_size(check_int("--n", args.n, minimum=1), args.length, args.degree,
                         args.solver)
         form = check_choice("--form", args.form, FORMS)
+        check_choice("--backend", args.backend, ("serial", "petsc"))
         tau = check_positive("--tau", args.tau)
         scheme, control, tol = _check_control(args)
         n = check_int("--n", args.n, minimum=1)
@@ -564,6 +568,10 @@ class RunEldBeam:
         from ..eld.schemes import run_eld
         from ..eld.output import EldXdmfWriter
 
+        if args.backend == "petsc":  # one mesh on the processes of mpiexec (rothe.eld.distributed)
+            from ..eld.distributed.cli import execute_beam
+
+            return execute_beam(self, args)
         form, tau, scheme, control, tol, n, every, keep, damping = self.validate(args)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
         problem = beam_problem(n, length=args.length, E=args.E, nu=args.nu, rho=args.rho,

@@ -193,6 +193,8 @@ from .solvers import ConstrainedSolver, ReferenceSolver, SolveFailed, SolverStat
 FORMS = ("regularized", "original")
 SCHEMES = ("euler", "bdf2")
 CONTROLS = ("uniform", "adaptive")
+#: where run_eld runs: this process, or one mesh on the processes of mpiexec (PETSc)
+BACKENDS = ("serial", "petsc")
 #: BDF2 starts: the Taylor history of the module docstring (default), the same without the
 #: cubic Gamma_D term, and one implicit Euler step (the last two only to show why not)
 STARTS = ("taylor", "taylor2", "euler")
@@ -1508,10 +1510,13 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
                     tau_min: float | None = None, tau_max: float | None = None,
                     start: str = "taylor", error_scale: float | None = None,
                     meta: dict | None = None, checkpoint=None, resume=None,
-                    space=None) -> ELDRun:
+                    space=None, backend: str = "serial") -> ELDRun:
     """Validate the options, build stepper and controller, record the initial state
     (the arguments of :func:`run_eld`); with ``resume``, restore stepper, controller,
     trajectory and state from the checkpoint instead."""
+    if check_choice("backend", backend, BACKENDS) != "serial":
+        raise fail("backend", backend, "is run by run_eld(..., backend='petsc'); "
+                   "prepare_eld_run prepares serial runs")
     control = check_choice("control", control, CONTROLS)
     if control == "adaptive":
         if tol is None:
@@ -1610,7 +1615,7 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
             progress=False, linear_rtol: float = 1e-10, tau_min: float | None = None,
             tau_max: float | None = None, start: str = "taylor",
             error_scale: float | None = None, meta: dict | None = None, checkpoint=None,
-            resume=None, space=None) -> Trajectory:
+            resume=None, space=None, backend: str = "serial") -> Trajectory:
     """Run Euler (3.4) or BDF2 from t = 0 to T (module docstring).
 
     ``control='uniform'``: n = T/tau equal steps (or the given ``steps``); ``'adaptive'``: tau is
@@ -1645,6 +1650,17 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     in ``.series``, the kept fields in ``.kept``, the log in ``.adaptations``); ``u, v, a, lam``
     are not series of the trajectory then (they live on different meshes).
     """
+    if check_choice("backend", backend, BACKENDS) == "petsc":
+        # one mesh on the processes of mpiexec (rothe.eld.distributed, docs/scaling.md)
+        from .distributed.run import run_eld_petsc
+
+        return run_eld_petsc(problem, form, tau, scheme=scheme, control=control, tol=tol,
+                             steps=steps, data=data, lifting=lifting, solver=solver,
+                             newton=newton, noise=noise, store_fields=store_fields,
+                             keep_every=keep_every, observer=observer, progress=progress,
+                             linear_rtol=linear_rtol, tau_min=tau_min, tau_max=tau_max,
+                             start=start, error_scale=error_scale, meta=meta,
+                             checkpoint=checkpoint, resume=resume, space=space)
     run = prepare_eld_run(problem, form, tau, scheme=scheme, control=control, tol=tol,
                           steps=steps, data=data, lifting=lifting, solver=solver, newton=newton,
                           noise=noise, store_fields=store_fields, keep_every=keep_every,
