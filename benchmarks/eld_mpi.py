@@ -41,9 +41,8 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     """One run of the PETSc backend on the processes of mpiexec; rank 0 prints one JSON line."""
     import resource
 
-    from mpi4py import MPI  # noqa: F401 - before petsc4py (the wheel's order)
-
     import skfem  # noqa: F401
+    from mpi4py import MPI  # noqa: F401 - before petsc4py (the wheel's order)
 
     from rothe.eld.distributed.problem import DistributedELDProblem
     from rothe.eld.distributed.stepper import PetscELDStepper

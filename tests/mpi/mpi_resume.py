@@ -10,9 +10,9 @@ import warnings
 import numpy as np
 from mpi4py import MPI
 
-from rothe.errors import RotheInputError, RunInterrupted
 from rothe.eld.examples import beam_problem
 from rothe.eld.schemes import run_eld
+from rothe.errors import RotheInputError, RunInterrupted
 
 warnings.simplefilter("ignore")
 comm = MPI.COMM_WORLD
