@@ -67,6 +67,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
 
     data = beam_problem(1, damping=RayleighDamping(0.0, 0.002), T=steps * TAU)._data
     problem = DistributedELDProblem(mesh, data, comm)
+    del mesh  # as the command line does: only the partition's submesh stays
     out["ndofs"] = problem.ndofs
     t_problem = clock() - t0
     stamps = []

@@ -121,9 +121,14 @@ class Partition:
         self.rstart = int(d * self.ranges[rank])
         self.n_own = int(self.own_local.size)
         self.n_global = int(d * self.n_scalar)
-        # local vector dof -> distributed global vector dof
+        if d * self.n_scalar >= 2**31:
+            raise RotheInputError(f"mesh: got {d * self.n_scalar} dofs, must be below 2^31 for "
+                                  "PETSc's 32-bit indices (a PETSc built with 64-bit indices "
+                                  "is not supported yet)")
+        # local vector dof -> distributed global vector dof (int32: PETSc's index type, and
+        # the column indices of the owned rows need no second copy)
         self.global_of_local = (d * self.new_scalar[self.keys][:, None]
-                                + np.arange(d)[None, :]).ravel()
+                                + np.arange(d)[None, :]).ravel().astype(np.int32)
         # owned vector dof (in owned order) -> serial vector dof (outputs, checkpoints)
         self.serial_of_own = (d * self.keys[owned_scalar][:, None]
                               + np.arange(d)[None, :]).ravel()

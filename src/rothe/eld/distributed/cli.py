@@ -105,6 +105,7 @@ def execute_beam(command, args) -> int:
     mesh = meshes.box(max(1, int(round(args.length * n))), n, n, args.length, 1.0, 1.0)
     problem = DistributedELDProblem(mesh, data, comm)
     view = OutputView(mesh, problem) if root else None
+    del mesh  # the whole mesh with its facets and edges: rank 0's OutputView keeps what it needs
     if not root:
         problem.partition.gather_serial(problem.u0)  # the collective gathers of OutputView
         problem.partition.gather_serial(problem.v0)

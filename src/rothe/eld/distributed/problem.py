@@ -80,7 +80,6 @@ class DistributedELDProblem:
         MPI, PETSc = require_petsc()
         self.MPI, self.PETSc = MPI, PETSc
         self.comm = comm = MPI.COMM_WORLD if comm is None else comm
-        self.mesh = mesh
         data = dict(data)
         dim = mesh.p.shape[0]
         self.partition = part = Partition(mesh, data.get("degree", 1), comm, dim)
@@ -110,11 +109,15 @@ class DistributedELDProblem:
         self.ndofs = part.n_global
         self.n_own = part.n_own
         own = part.own_local
+        # one matrix at a time into PETSc, each scipy copy dropped at once (the largest arrays
+        # of the process: the peak of the set-up)
         self.M = part.petsc_matrix(lp.M, PETSc)
+        lp.M = lp.damping_op.M = None
         self.K = part.petsc_matrix(lp.K, PETSc)
-        # the submesh's matrices are not needed any more (the largest arrays of the process)
-        lp.M = lp.K = None
-        lp.damping_op.M = lp.damping_op.K = None
+        lp.K = lp.damping_op.K = None
+        lp.space.release_assembly_caches()
+        self._mesh_digest = digest(np.ascontiguousarray(mesh.p), np.ascontiguousarray(mesh.t))
+        self.n_cells = int(mesh.t.shape[1])
         self.u0 = arrays["u0"][part.serial_of_own] if "u0" in arrays else lp.u0[own].copy()
         self.v0 = arrays["v0"][part.serial_of_own] if "v0" in arrays else lp.v0[own].copy()
         self._build_boundary(lp, part)
@@ -201,7 +204,7 @@ class DistributedELDProblem:
     def describe(self) -> dict:
         info = self.local.describe()
         info.update(ndofs=self.ndofs, constrained_dofs=self.constraint.m,
-                    cells=int(self.mesh.t.shape[1]), processes=int(self.comm.size))
+                    cells=self.n_cells, processes=int(self.comm.size))
         return info
 
     def fingerprint(self) -> dict:
@@ -209,8 +212,7 @@ class DistributedELDProblem:
         desc = self.describe()
         desc.pop("processes")
         return {"class": "ELDProblem", "ndofs": int(self.ndofs), "T": float(self.T),
-                "mesh": digest(np.ascontiguousarray(self.mesh.p), np.ascontiguousarray(
-                    self.mesh.t)),
+                "mesh": self._mesh_digest,
                 "description": digest(np.frombuffer(json.dumps(desc, sort_keys=True,
                                                                default=str).encode(), np.uint8))}
 
