@@ -6,28 +6,35 @@ import warnings
 import numpy as np
 from mpi4py import MPI
 
+from rothe.eld.damping import NonlinearDamping
 from rothe.eld.examples import beam_problem
 from rothe.eld.schemes import run_eld
 
 warnings.simplefilter("ignore")
 comm = MPI.COMM_WORLD
 solver = sys.argv[1]
-p = beam_problem(3, degree=1, T=0.1)
+linear = beam_problem(3, degree=1, T=0.1)
+nonlinear = beam_problem(3, degree=1, T=0.1,
+                         damping=NonlinearDamping(b=0.002, d0=0.5, d_nl=1.0, v_ref=0.05))
 out = {}
-for form, scheme, kw in (("regularized", "euler", {}), ("original", "euler", {}),
-                         ("regularized", "bdf2", {}),
-                         ("regularized", "bdf2", {"control": "adaptive", "tol": 1e-3})):
+for p, form, scheme, kw in (
+        (linear, "regularized", "euler", {}), (linear, "original", "euler", {}),
+        (linear, "regularized", "bdf2", {}),
+        (linear, "regularized", "bdf2", {"control": "adaptive", "tol": 1e-3}),
+        (nonlinear, "regularized", "euler", {}), (nonlinear, "original", "bdf2", {})):
     ts = run_eld(p, form, 0.01, scheme=scheme, solver="direct", linear_rtol=1e-12, **kw)
     tp = run_eld(p, form, 0.01, scheme=scheme, solver=solver, linear_rtol=1e-12,
                  backend="petsc", **kw)
     if comm.rank == 0:
         R_s, R_p = ts["reaction_left"][-1], tp["reaction_left"][-1]
         us, up = ts["u"][-1], tp["u"][-1]
-        out[f"{form}-{scheme}-{kw.get('control', 'uniform')}"] = {
+        name = "nonlinear" if p is nonlinear else "rayleigh"
+        out[f"{name}-{form}-{scheme}-{kw.get('control', 'uniform')}"] = {
             "steps": [len(ts["t"]), len(tp["t"])],
             "reaction": float(np.abs(R_s - R_p).max() / np.abs(R_s).max()),
             "u_energy": float(np.sqrt((us - up) @ (p.K @ (us - up)) / (us @ (p.K @ us)))),
             "balance": float(np.max(np.abs(tp["balance_residual"]))),
+            "newton": [ts.stats.newton_iterations, tp.stats.newton_iterations],
             "tau": float(np.abs(np.asarray(ts["tau"]) - np.asarray(tp["tau"])).max())
             if len(ts["tau"]) == len(tp["tau"]) else 1.0,
         }

@@ -66,13 +66,15 @@ def test_distributed_assembly_equals_serial(degree):
 @pytest.mark.parametrize("n,solver", [(1, "direct"), (2, "direct"), (2, "amg")])
 def test_beam_equals_serial(n, solver):
     got = _json(_mpi(n, HERE / "mpi_run.py", solver))
-    assert len(got) == 4
+    assert len(got) == 6
     for case, r in got.items():
         assert r["steps"][0] == r["steps"][1], case
         assert r["reaction"] < 1e-6, (case, r)  # the target; measured ~1e-11
         assert r["u_energy"] < 1e-8, (case, r)
         assert r["balance"] < 1e-10, (case, r)
         assert r["tau"] < 1e-12, (case, r)  # adaptive: the same step sequence
+        if case.startswith("nonlinear"):
+            assert r["newton"][1] >= r["steps"][1] - 1, (case, r)  # Newton did iterate
 
 
 @needs_mpi
@@ -108,14 +110,14 @@ def test_cli_beam_petsc_writes_the_serial_files(tmp_path):
 @needs_mpi
 @pytest.mark.parametrize("extra,says", [
     (["--adapt-space", "--space-tol", "1e-3"], "--adapt-space"),
-    (["--damping", "nonlinear"], "--damping"),
+    (["--backend", "mpi"], "--backend"),
 ])
 def test_cli_refusals(tmp_path, extra, says):
     proc = _mpi(2, "-m", "rothe.cli.main", "run", "eld-beam", "--n", "2", "--degree", "1",
                 "--backend", "petsc", "--out", tmp_path / "o", *extra, check=False)
     assert proc.returncode == 2
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("rothe: error:")]
-    assert lines and says in lines[0] and "petsc" in lines[0]
+    assert lines and says in lines[0] and ("petsc" in lines[0] or "mpi" in lines[0])
 
 
 def test_more_processes_than_the_mesh_allows():

@@ -21,7 +21,7 @@ from __future__ import annotations
 import shutil
 import sys
 
-from ...errors import RotheInputError, RunFailed, RunInterrupted, fail
+from ...errors import RotheInputError, RunFailed, RunInterrupted
 from ...fem.petsc_env import require_petsc
 from ...stepping import interrupt
 
@@ -54,9 +54,6 @@ def check_backend_options(args) -> None:
         if getattr(args, key, None):
             raise RotheInputError(f"--backend petsc: got {what.split(' ')[0]}, not supported "
                                   f"with --backend petsc: {what.split('(', 1)[1].rstrip(')')}")
-    if getattr(args, "damping", "rayleigh") not in ("rayleigh", "none"):
-        raise fail("--damping", args.damping, "must be rayleigh or none with --backend petsc "
-                   "(nonlinear damping is not distributed yet)")
 
 
 def _broadcast_error(comm, fn):

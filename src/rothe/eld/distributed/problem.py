@@ -60,6 +60,29 @@ class GlobalBoundary:
         return float(np.sqrt(max(lam @ (self.boundary_mass @ lam), 0.0)))
 
 
+class DistributedDamping:
+    """The damping operator on owned dof vectors: the linear part's coefficients (the stepper
+    applies C = a_M M + a_K K with the PETSc matrices) and N(v), N'(v) w by the serial
+    quadrature on the overlap submesh after a ghost update (owned rows exact)."""
+
+    def __init__(self, problem):
+        self._problem = problem
+        self._D = D = problem.local.damping_op
+        self.mass_coef, self.stiffness_coef = D.mass_coef, D.stiffness_coef
+        self.matrix = D.matrix
+        self.is_linear = D.is_linear
+
+    def nonlinear_apply(self, v: np.ndarray) -> np.ndarray:
+        p = self._problem
+        return self._D.nonlinear_apply(p.local_values(v))[p.partition.own_local]
+
+    def nonlinear_jacobian_action(self, v: np.ndarray):
+        p = self._problem
+        act = self._D.nonlinear_jacobian_action(p.local_values(v))
+        own = p.partition.own_local
+        return lambda w: act(p.local_values(w))[own]
+
+
 class DistributedELDProblem:
     """The problem on the processes of ``comm`` (module docstring).
 
@@ -122,6 +145,24 @@ class DistributedELDProblem:
         self.v0 = arrays["v0"][part.serial_of_own] if "v0" in arrays else lp.v0[own].copy()
         self._build_boundary(lp, part)
         self.has_loads = lp.has_loads
+        self._ghosts = None
+
+    # -- ghost values (nonlinear damping: quadrature on the overlap submesh) ---------------------
+    def local_values(self, w_own: np.ndarray) -> np.ndarray:
+        """The values of a distributed vector (given by its owned part) at every dof of this
+        process's overlap submesh, in the submesh's numbering: one PETSc scatter (ghost update).
+        Collective."""
+        PETSc, part = self.PETSc, self.partition
+        if self._ghosts is None:
+            g = PETSc.Vec().createMPI((part.n_own, part.n_global), comm=self.comm)
+            loc = PETSc.Vec().createSeq(part.global_of_local.size, comm=PETSc.COMM_SELF)
+            index = PETSc.IS().createGeneral(part.global_of_local, comm=PETSc.COMM_SELF)
+            self._ghosts = (g, loc, PETSc.Scatter().create(g, index, loc, None))
+        g, loc, scatter = self._ghosts
+        g.setArray(w_own)
+        scatter.scatter(g, loc, addv=PETSc.InsertMode.INSERT_VALUES,
+                        mode=PETSc.ScatterMode.FORWARD)
+        return loc.getArray().copy()
 
     # -- Gamma_D --------------------------------------------------------------------------------
     def _build_boundary(self, lp, part) -> None:

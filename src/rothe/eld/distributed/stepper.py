@@ -26,7 +26,10 @@ is S u = g and the multiplier follows from the Gamma_D rows). What is distribute
   are the serial ones up to the order of summation (round-off).
 
 Refused with one line (not distributed here): data 'means'/'differenced', noise, the harmonic
-lifting, nonlinear damping and user damping matrices (see docs/scaling.md).
+lifting and user damping matrices (see docs/scaling.md). Nonlinear damping: Newton's method
+as serial, the corrections by CG with the stored preconditioner of A(tau_eff) on the matrix-free
+J = A + N'(v)/tau_eff (N, N' by the serial quadrature on the overlap submesh after a ghost
+update).
 """
 
 from __future__ import annotations
@@ -66,6 +69,13 @@ class SolveFailed(Exception):
     pass
 
 
+class _NewtonFailed(Exception):
+    def __init__(self, iterations: int, rnorm: float):
+        super().__init__(f"{iterations} iterations, |R| = {rnorm:.3g}")
+        self.iterations = iterations
+        self.rnorm = rnorm
+
+
 class PetscELDStepper:
     """One step of Euler or BDF2 in either form on a :class:`DistributedELDProblem` (module
     docstring); the evolve loop drives it on every process. Parameters as
@@ -103,10 +113,12 @@ class PetscELDStepper:
             raise fail("lifting", lifting, "must be 'nodal' with backend 'petsc' (the harmonic "
                        "lifting is not distributed yet)")
         self.lifting_kind = "nodal" if self.form == "regularized" else None
-        self.D = D = p.damping_op
-        if not D.is_linear or D.matrix is not None:
-            raise fail("damping", p.damping.name, "must be Rayleigh (a M + b K) or none with "
-                       "backend 'petsc' (nonlinear and user damping are not distributed yet)")
+        from .problem import DistributedDamping
+
+        self.D = D = DistributedDamping(p)
+        if D.matrix is not None:
+            raise fail("damping", p.damping.name, "must be Rayleigh, nonlinear or none with "
+                       "backend 'petsc' (a user's damping matrix is not distributed)")
         self.newton = newton or NewtonOptions()
         self.store_fields = bool(store_fields)
         self.keep_every = check_int("keep_every", keep_every, minimum=1)
@@ -302,6 +314,8 @@ class PetscELDStepper:
         Ku = self._mult(p.K, u)
         Kv = self._mult(p.K, v) if D.stiffness_coef else 0.0
         rhs = p.load(t) - (D.mass_coef * Mv + D.stiffness_coef * Kv) - Ku
+        if not D.is_linear:
+            rhs = rhs - D.nonlinear_apply(v)
         a = self._embed(G_ddot)
         r = (rhs - self.rho * self._mult(p.M, a)) / self.rho
         r[self.C] = 0.0
@@ -420,7 +434,7 @@ class PetscELDStepper:
         return info
 
     def progress_fields(self, state: ELDState) -> dict:
-        return {"t": f"{state.t:.4g}", "its": self.stats.krylov_iterations}
+        return {"t": f"{state.t:.4g}", "newton": self._last_newton}
 
     def adapt(self, state, result):
         """The mesh stays (no space adaptivity on this backend): the state unchanged."""
@@ -469,13 +483,19 @@ class PetscELDStepper:
         before = (st.factorizations, st.backsolves, st.krylov_iterations)
 
         def counters():
-            return {"newton_iterations": 0,
+            return {"newton_iterations": self._last_newton,
                     "linear_factorizations": st.factorizations - before[0],
                     "linear_solves": st.backsolves - before[1],
                     "krylov_iterations": st.krylov_iterations - before[2]}
 
+        self._last_newton = 0
         try:
             k = self._solve_step(state, F, (G, Gd, Gdd), coeffs, tau)
+        except _NewtonFailed as exc:
+            return self._failed(
+                state, tau, "newton", f"Newton's method did not converge in {exc.iterations} "
+                f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = {exc.rnorm:.3g}); "
+                "the step is not accepted", exc.iterations, counters())
         except SolveFailed as exc:
             return self._failed(state, tau, "linear-solve", f"linear solve failed at step {j} "
                                 f"(t = {t_new:.6g}, tau = {tau:g}): {exc}; the step is not "
@@ -487,7 +507,8 @@ class PetscELDStepper:
                                 "entries; the step is not accepted", 0, counters())
         c = p.constraint
         return ELDStepResult(state=new, tau=tau, lam=new.lam, reactions=c.reactions(new.lam),
-                             newton_iterations=0, estimate=extra, counters=counters())
+                             newton_iterations=self._last_newton, estimate=extra,
+                             counters=counters())
 
     # -- BDF2 start (schemes._with_prehistory, on the owned dofs) --------------------------------
     def _with_prehistory(self, state: ELDState, tau: float) -> ELDState:
@@ -568,13 +589,18 @@ class PetscELDStepper:
             rhs = (F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau + Mw2)
                    - D.mass_coef * (h["Mx"] / tau + Mv2)
                    - D.stiffness_coef * (h["Kx"] / tau + Kv2) - Ku2)
-            rhs[C] = 0.0
             guess[C] = 0.0
+            if not D.is_linear:
+                return self._newton(state, F, h, coeffs, tau, lifted, guess)
+            rhs[C] = 0.0
             x = self._solve(rhs, te, guess)
             x[C] = 0.0
         else:
             zero = (None, 0.0, 0.0)
             lifted = [zero, zero, zero]
+            if not D.is_linear:
+                guess[C] = G[self.bpos]
+                return self._newton(state, F, h, coeffs, tau, lifted, guess)
             rhs = (F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
                    - D.mass_coef * h["Mx"] / tau - D.stiffness_coef * h["Kx"] / tau)
             # condensed constraint: x_C = g, A_II x_I = rhs_I - A_IC g
@@ -587,6 +613,103 @@ class PetscELDStepper:
             x[C] = gC
         Mx, Kx = self._mult(p.M, x), self._mult(p.K, x)
         return ELDStepper._kinematics(self, h, coeffs, tau, x, Mx, Kx, lifted)
+
+    def _norm(self, w: np.ndarray) -> float:
+        return math.sqrt(max(self._dot(w, w), 0.0))
+
+    def _newton(self, state, F, h, coeffs, tau, lifted, z0):
+        """Newton's method with backtracking for nonlinear damping (schemes._newton, every norm
+        global); the unknown is x with its Gamma_D values fixed (0 regularized, G original: the
+        bordered system condensed), the residual R = rho M a + D(v) + K u - F on the free
+        dofs. Corrections: J dz = -R, J = A(tau_eff) + N'(v)/tau_eff, by CG preconditioned with
+        the stored preconditioner of A(tau_eff) (matrix-free J, as serial)."""
+        p, rho, C = self.problem, self.rho, self.C
+        te = tau / coeffs[0]
+        opts = self.newton
+
+        def residual(x):
+            k = ELDStepper._kinematics(self, h, coeffs, tau, x, self._mult(p.M, x),
+                                       self._mult(p.K, x), lifted)
+            R = rho * k["Ma"] + k["Dv"] + k["Ku"] - F
+            R[C] = 0.0
+            return R, k
+
+        z = z0.copy()
+        z_prev = state.fields["x"]
+        R, k = residual(z)
+        rnorm = self._norm(R)
+        prev_step = None
+        for it in range(1, opts.max_iter + 1):
+            if rnorm == 0.0:
+                self._last_newton = it - 1
+                return k
+            if not math.isfinite(rnorm):
+                raise _NewtonFailed(it - 1, rnorm)
+            dz = self._solve_jacobian(k["v"], -R, te, opts.krylov_rtol)
+            dz[C] = 0.0
+            alpha = 1.0
+            while True:
+                z_new = z + alpha * dz
+                R_new, k_new = residual(z_new)
+                r_new = self._norm(R_new)
+                if r_new <= (1.0 - 1e-4 * alpha) * rnorm or alpha < 1.0 / 64:
+                    break
+                alpha *= 0.5
+            step = alpha * self._norm(dz)
+            z, R, k, rnorm = z_new, R_new, k_new, r_new
+            scale = max(self._norm(z), self._norm(z - z_prev), 1e-300)
+            if prev_step is not None and prev_step > 0 and alpha == 1.0:
+                theta = step / prev_step
+                estimate = step * theta / (1.0 - theta) if theta < 1.0 else math.inf
+            else:
+                estimate = step
+            if estimate <= opts.tol * scale or step == 0.0:
+                self._last_newton = it
+                return k
+            prev_step = step
+        raise _NewtonFailed(opts.max_iter, float(rnorm))
+
+    def _solve_jacobian(self, v, rhs, te, rtol) -> np.ndarray:
+        """(A(te) + N'(v)/te) dz = rhs on the free dofs (identity on Gamma_D), matrix-free."""
+        PETSc, C = self.PETSc, self.C
+        self._set_operator(te)
+        if self._rebuild:
+            self._setup_pc()
+        action = self.D.nonlinear_jacobian_action(v)
+        A = self._A
+
+        class _J:
+            def mult(self, mat, x, y):
+                A.mult(x, y)
+                extra = action(x.getArray(readonly=True).copy()) / te
+                extra[C] = 0.0
+                y.setArray(y.getArray(readonly=True) + extra)
+
+        n, N = self.n, self.problem.ndofs
+        J = PETSc.Mat().createPython(((n, N), (n, N)), context=_J(), comm=self.comm)
+        J.setUp()
+        ksp = self._ksp
+        ksp.setOperators(J, A)
+        ksp.setTolerances(rtol=rtol)
+        try:
+            self._vb.setArray(rhs)
+            self._vx.set(0.0)
+            ksp.solve(self._vb, self._vx)
+            its = ksp.getIterationNumber()
+            reason = ksp.getConvergedReason()
+        finally:
+            ksp.setTolerances(rtol=self.linear_rtol)
+            ksp.setOperators(A, A)
+            J.destroy()
+        self.stats.solves += 1
+        self.stats.backsolves += 1
+        self.stats.krylov_iterations += its
+        if reason < 0:
+            raise SolveFailed(f"PETSc CG on the Newton system did not converge (reason "
+                              f"{reason}, {its} iterations)")
+        if self._pc_its is not None and its > REBUILD_FACTOR * self._pc_its + 2:
+            self._rebuild = True
+        return self._x.copy()
 
     def _complete(self, state, k, F, data, coeffs, tau, t_new, scheme):
         """The state after the step (schemes._complete; every inner product global)."""
@@ -712,7 +835,7 @@ class PetscELDStepper:
             "solver_reference": {"tau_eff": self._pc_te, "v": None},
             "solver_stats": asdict(self.stats),
             "pc_its": self._pc_its,
-            "last_newton": 0,
+            "last_newton": int(self._last_newton),
         }
 
     def restore_state(self, data: dict | None) -> ELDState:
