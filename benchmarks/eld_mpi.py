@@ -53,6 +53,15 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     from rothe.stepping.evolve import evolve
 
     comm = MPI.COMM_WORLD
+    memory = {}
+
+    def mark(phase):
+        """Resident and peak memory (largest over the processes) after a phase, in MB."""
+        with open("/proc/self/status") as f:
+            rss = next(int(ln.split()[1]) for ln in f if ln.startswith("VmRSS")) / 1024.0
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        memory[phase] = {"rss": round(comm.allreduce(rss, op=MPI.MAX)),
+                         "peak": round(comm.allreduce(peak, op=MPI.MAX))}
 
     def clock():
         comm.Barrier()
@@ -62,6 +71,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     t0 = clock()
     mesh = meshes.box(4 * n, n, n, 4.0, 1.0, 1.0)
     out["mesh_s"] = clock() - t0
+    mark("mesh")
     t0 = clock()
     from rothe.eld.damping import RayleighDamping
 
@@ -70,6 +80,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     del mesh  # as the command line does: only the partition's submesh stays
     out["ndofs"] = problem.ndofs
     t_problem = clock() - t0
+    mark("problem (partition, submesh assembly, PETSc M, K)")
     stamps = []
 
     def observer(state, result):
@@ -79,6 +90,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     stepper = PetscELDStepper(problem, "regularized", TAU, solver="amg", store_fields=False,
                               observer=observer, linear_rtol=rtol)
     t_stepper = clock() - t0
+    mark("stepper (A, GAMG setup)")
     out["setup_s"] = comm.allreduce(stepper.stats.setup_seconds, op=MPI.MAX)
     out["assembly_s"] = t_problem + t_stepper - out["setup_s"]
     traj = Trajectory()
@@ -88,11 +100,14 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     evolve(stepper, FixedStepController.uniform(stepper.tau, stepper.n_steps), state, traj,
            tau_min=1e-300)
     t_end = clock()
+    mark("time steps")
     times = [s for s, _ in stamps]
     out["first_step_s"] = times[0] - t0
     out["per_step_after_first_s"] = (times[-1] - times[0]) / max(len(times) - 1, 1)
     out["steps_s"] = t_end - t0
     out["krylov_its_per_step"] = sum(c for _, c in stamps) / len(stamps)
+    out["krylov_s_per_step"] = comm.allreduce(stepper.krylov_seconds, op=MPI.MAX) / len(stamps)
+    out["memory_mb"] = memory
     out["total_s"] = out["mesh_s"] + t_problem + t_stepper + out["steps_s"]
     out["reaction_final"] = np.asarray(traj["reaction_left"][-1]).tolist()
     peaks = comm.gather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, root=0)
@@ -140,7 +155,9 @@ def normalize(tool: str, row: dict, wall: float) -> dict:
     return {"assembly_s": row["assembly_s"], "setup_s": row["setup_s"],
             "step_s": row["per_step_after_first_s"], "first_step_s": row["first_step_s"],
             "its": row["krylov_its_per_step"], "total_s": row["total_s"], "peak_mb": peak,
-            "wall_s": wall, "reaction_z": row["reaction_final"][2], "ndofs": row["ndofs"]}
+            "wall_s": wall, "reaction_z": row["reaction_final"][2], "ndofs": row["ndofs"],
+            "krylov_s": row.get("krylov_s_per_step", float("nan")),
+            "memory_mb": row.get("memory_mb")}
 
 
 def main(argv=None) -> int:
@@ -200,7 +217,8 @@ def main(argv=None) -> int:
                 f.write(json.dumps({"tool": name, "repeat": rep, **r}) + "\n")
             print(f"[{rep}] {name}: {r['step_s']:.2f} s/step, its {r['its']:.1f}, "
                   f"peak {r['peak_mb']:.0f} MB, load {load:.2f}", file=sys.stderr, flush=True)
-    best = {name: {k: (min(v[k] for v in rs) if k != "peak_mb" else max(v[k] for v in rs))
+    best = {name: {k: (max(v[k] for v in rs) if k == "peak_mb" else rs[-1][k]
+                       if k == "memory_mb" else min(v[k] for v in rs))
                    for k in rs[0]} for name, rs in rows.items()}
     ndofs = best["rothe serial"]["ndofs"]
     print(f"P1 beam n = {args.n}, {ndofs:,} dofs, {args.steps} Euler steps, tau = {TAU}, "
@@ -208,12 +226,16 @@ def main(argv=None) -> int:
           + ", ".join(f"{r['load']:.2f}" for rs in rows.values() for r in rs))
     hdr = (f"{'tool':<22}{'assembly s':>11}{'setup s':>9}{'s/step':>8}{'1st s':>7}{'its':>6}"
            f"{'total s':>9}{'peak MB/proc':>13}{'R_z(T)':>13}")
-    print(hdr)
-    print("-" * len(hdr))
+    print(hdr + f"{'CG s/step':>10}")
+    print("-" * (len(hdr) + 10))
     for name, b in best.items():
         print(f"{name:<22}{b['assembly_s']:>11.1f}{b['setup_s']:>9.1f}{b['step_s']:>8.2f}"
               f"{b['first_step_s']:>7.1f}{b['its']:>6.1f}{b['total_s']:>9.1f}"
-              f"{b['peak_mb']:>13.0f}{b['reaction_z']:>13.7g}")
+              f"{b['peak_mb']:>13.0f}{b['reaction_z']:>13.7g}{b['krylov_s']:>10.2f}")
+    for name, b in best.items():
+        if b.get("memory_mb"):
+            print(f"memory of {name} after each phase (MB, largest process: resident / peak): "
+                  + "; ".join(f"{k} {v['rss']}/{v['peak']}" for k, v in b["memory_mb"].items()))
     s = best["rothe serial"]
 
     def ratio(a, b, key):
