@@ -139,3 +139,48 @@ def test_backend_petsc_without_petsc4py_is_one_line(tmp_path):
     err = proc.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("rothe: error: --backend petsc: needs")
     assert "pip install" in err[0]
+
+
+@needs_mpi
+def test_cli_sigterm_on_one_rank_then_resume(tmp_path):
+    """SIGTERM to the last rank of a running command: every rank stops (exit 143) with the
+    partial results; 'rothe resume' refuses 1 process and completes on 2."""
+    import signal
+    import time
+
+    psutil = pytest.importorskip("psutil", reason="psutil finds the ranks of mpiexec")
+    out = tmp_path / "o"
+    cmd = [_mpiexec(), "-n", "2", sys.executable, "-m", "rothe.cli.main", "run", "eld-beam",
+           "--backend", "petsc", "--n", "4", "--degree", "1", "--T", "8", "--quiet",
+           "--out", str(out)]
+    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint" / "checkpoint.npz").is_file():  # the start's checkpoint
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.2)
+        time.sleep(1.0)  # some steps
+        ranks = [p for p in psutil.Process(proc.pid).children(recursive=True)
+                 if "rothe.cli.main" in " ".join(p.cmdline()) and "mpiexec" not in p.name()]
+        assert len(ranks) == 2
+        max(ranks, key=lambda p: p.pid).send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, err[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["signal"] == "SIGTERM"
+    assert 0 < summary["accepted_steps"] < 800
+    one = subprocess.run([_mpiexec(), "-n", "1", sys.executable, "-m", "rothe.cli.main",
+                          "resume", str(out), "--quiet"], env=_env(), capture_output=True,
+                         text=True, timeout=300)
+    assert one.returncode == 2
+    lines = [ln for ln in one.stderr.splitlines() if ln.startswith("rothe: error:")]
+    assert len(lines) == 1 and "written by 2 processes, this run has 1" in lines[0]
+    two = _mpi(2, "-m", "rothe.cli.main", "resume", out, "--quiet")
+    assert two.returncode == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "completed" and summary["accepted_steps"] == 800
+    assert summary["sessions"] == 2

@@ -72,8 +72,9 @@ class DistributedCheckpointer:
 
 
 def _check_resume_processes(resume, comm) -> None:
-    """One line if the checkpoint was written by another number of processes."""
-    if resume is None:
+    """One line if the checkpoint was written by another number of processes. Rank 0's
+    ``resume`` decides (the command line passes it there only)."""
+    if not comm.bcast(resume is not None if comm.rank == 0 else None, root=0):
         return
     msg = None
     if comm.rank == 0:
