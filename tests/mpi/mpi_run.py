@@ -16,20 +16,26 @@ solver = sys.argv[1]
 linear = beam_problem(3, degree=1, T=0.1)
 nonlinear = beam_problem(3, degree=1, T=0.1,
                          damping=NonlinearDamping(b=0.002, d0=0.5, d_nl=1.0, v_ref=0.05))
+quadratic = beam_problem(2, degree=2, T=0.05)
 out = {}
 for p, form, scheme, kw in (
         (linear, "regularized", "euler", {}), (linear, "original", "euler", {}),
         (linear, "regularized", "bdf2", {}),
         (linear, "regularized", "bdf2", {"control": "adaptive", "tol": 1e-3}),
-        (nonlinear, "regularized", "euler", {}), (nonlinear, "original", "bdf2", {})):
-    ts = run_eld(p, form, 0.01, scheme=scheme, solver="direct", linear_rtol=1e-12, **kw)
-    tp = run_eld(p, form, 0.01, scheme=scheme, solver=solver, linear_rtol=1e-12,
+        (nonlinear, "regularized", "euler", {}), (nonlinear, "original", "bdf2", {}),
+        (linear, "regularized", "bdf2", {"steps": [0.01] * 4 + [0.02] * 2 + [0.005] * 4,
+                                         "tau": None}),
+        (quadratic, "original", "euler", {})):
+    tau = kw.pop("tau", 0.01)
+    ts = run_eld(p, form, tau, scheme=scheme, solver="direct", linear_rtol=1e-12, **kw)
+    tp = run_eld(p, form, tau, scheme=scheme, solver=solver, linear_rtol=1e-12,
                  backend="petsc", **kw)
     if comm.rank == 0:
         R_s, R_p = ts["reaction_left"][-1], tp["reaction_left"][-1]
         us, up = ts["u"][-1], tp["u"][-1]
-        name = "nonlinear" if p is nonlinear else "rayleigh"
-        out[f"{name}-{form}-{scheme}-{kw.get('control', 'uniform')}"] = {
+        name = {id(nonlinear): "nonlinear", id(quadratic): "P2"}.get(id(p), "rayleigh")
+        control = "given" if "steps" in kw else kw.get("control", "uniform")
+        out[f"{name}-{form}-{scheme}-{control}"] = {
             "steps": [len(ts["t"]), len(tp["t"])],
             "reaction": float(np.abs(R_s - R_p).max() / np.abs(R_s).max()),
             "u_energy": float(np.sqrt((us - up) @ (p.K @ (us - up)) / (us @ (p.K @ us)))),
