@@ -258,17 +258,12 @@ class PetscELDStepper:
         self._set_operator(te)
         if self._rebuild:
             self._setup_pc()
-        # setArray (not a write into the shared buffer) so that PETSc's cached norms go stale
-        self._vb.setArray(rhs)
-        self._vx.setArray(guess)
-        t0 = time.perf_counter()
-        self._ksp.solve(self._vb, self._vx)
-        self.krylov_seconds += time.perf_counter() - t0
-        its = self._ksp.getIterationNumber()
-        reason = self._ksp.getConvergedReason()
-        self.stats.solves += 1
-        self.stats.backsolves += 1
-        self.stats.krylov_iterations += its
+        its, reason = self._krylov(rhs, guess)
+        if reason < 0 and self._pc_te != te:
+            # a preconditioner built for another tau_eff can fail outright (GAMG's Chebyshev
+            # bounds belong to the old matrix: reason -8, indefinite): rebuild it and retry
+            self._setup_pc()
+            its, reason = self._krylov(rhs, guess)
         if reason < 0:
             raise SolveFailed(f"PETSc CG did not converge (reason {reason}, {its} iterations)")
         if self._pc_its is None and te == self._pc_te:
@@ -276,6 +271,20 @@ class PetscELDStepper:
         elif self._pc_its is not None and its > REBUILD_FACTOR * self._pc_its + 2:
             self._rebuild = True  # the next solve rebuilds for its own A(te)
         return self._x.copy()
+
+    def _krylov(self, rhs: np.ndarray, guess: np.ndarray) -> tuple[int, int]:
+        """One CG solve with the current operators into ``self._x``: (iterations, reason)."""
+        # setArray (not a write into the shared buffer) so that PETSc's cached norms go stale
+        self._vb.setArray(rhs)
+        self._vx.setArray(guess)
+        t0 = time.perf_counter()
+        self._ksp.solve(self._vb, self._vx)
+        self.krylov_seconds += time.perf_counter() - t0
+        its = self._ksp.getIterationNumber()
+        self.stats.solves += 1
+        self.stats.backsolves += 1
+        self.stats.krylov_iterations += its
+        return its, self._ksp.getConvergedReason()
 
     def _mult(self, A, w: np.ndarray) -> np.ndarray:
         self._vin.setArray(w)
@@ -691,21 +700,21 @@ class PetscELDStepper:
         J = PETSc.Mat().createPython(((n, N), (n, N)), context=_J(), comm=self.comm)
         J.setUp()
         ksp = self._ksp
-        ksp.setOperators(J, A)
-        ksp.setTolerances(rtol=rtol)
+        zero = np.zeros(self.n)
         try:
-            self._vb.setArray(rhs)
-            self._vx.set(0.0)
-            ksp.solve(self._vb, self._vx)
-            its = ksp.getIterationNumber()
-            reason = ksp.getConvergedReason()
+            for attempt in range(2):
+                ksp.setOperators(J, A)
+                ksp.setTolerances(rtol=rtol)
+                its, reason = self._krylov(rhs, zero)
+                ksp.setTolerances(rtol=self.linear_rtol)
+                ksp.setOperators(A, A)
+                if reason >= 0 or self._pc_te == te or attempt:
+                    break
+                self._setup_pc()  # built for another tau_eff: rebuild for A(te) and retry
         finally:
             ksp.setTolerances(rtol=self.linear_rtol)
             ksp.setOperators(A, A)
             J.destroy()
-        self.stats.solves += 1
-        self.stats.backsolves += 1
-        self.stats.krylov_iterations += its
         if reason < 0:
             raise SolveFailed(f"PETSc CG on the Newton system did not converge (reason "
                               f"{reason}, {its} iterations)")
@@ -836,7 +845,7 @@ class PetscELDStepper:
             "error_scale": None if self.error_scale is None else float(self.error_scale),
             "solver_reference": {"tau_eff": self._pc_te, "v": None},
             "solver_stats": asdict(self.stats),
-            "pc_its": self._pc_its,
+            "pc_its": self._pc_its, "pc_rebuild": bool(self._rebuild),
             "last_newton": int(self._last_newton),
         }
 
@@ -855,7 +864,8 @@ class PetscELDStepper:
             else:
                 head = {k: data[k] for k in ("t", "j", "tau_prev", "boundary", "ledger",
                                              "energy_norm_max", "error_scale",
-                                             "solver_reference", "solver_stats", "pc_its")}
+                                             "solver_reference", "solver_stats", "pc_its",
+                                             "pc_rebuild")}
                 head["names"] = (sorted(data["fields"]), sorted(data["products"]))
         head = comm.bcast(head, root=0)
         if isinstance(head, Exception):
@@ -870,6 +880,7 @@ class PetscELDStepper:
             self._set_operator(float(te))
             self._setup_pc()
         self._pc_its = head["pc_its"]
+        self._rebuild = bool(head["pc_rebuild"])  # as the uninterrupted run would go on
         self.stats = SolverStats(**head["solver_stats"])
         if head["error_scale"] is not None:
             self.error_scale = float(head["error_scale"])
