@@ -236,6 +236,3 @@ def _finish_meta(traj: Trajectory, stepper: PetscELDStepper) -> None:
         "factorizations": s.factorizations, "backsolves": s.backsolves,
         "krylov_iterations": s.krylov_iterations, "setup_seconds": s.setup_seconds,
     }
-
-
-__all__ = ["DistributedELDProblem", "PetscELDStepper", "run_eld_petsc", "RotheInputError"]
