@@ -60,8 +60,10 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
         with open("/proc/self/status") as f:
             rss = next(int(ln.split()[1]) for ln in f if ln.startswith("VmRSS")) / 1024.0
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-        memory[phase] = {"rss": round(comm.allreduce(rss, op=MPI.MAX)),
-                         "peak": round(comm.allreduce(peak, op=MPI.MAX))}
+        memory[phase] = {
+            "rss": round(comm.allreduce(rss, op=MPI.MAX)),
+            "peak": round(comm.allreduce(peak, op=MPI.MAX)),
+        }
 
     def clock():
         comm.Barrier()
@@ -87,8 +89,15 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
         stamps.append((time.perf_counter(), result.counters.get("krylov_iterations", 0)))
 
     t0 = clock()
-    stepper = PetscELDStepper(problem, "regularized", TAU, solver="amg", store_fields=False,
-                              observer=observer, linear_rtol=rtol)
+    stepper = PetscELDStepper(
+        problem,
+        "regularized",
+        TAU,
+        solver="amg",
+        store_fields=False,
+        observer=observer,
+        linear_rtol=rtol,
+    )
     t_stepper = clock() - t0
     mark("stepper (A, GAMG setup)")
     out["setup_s"] = comm.allreduce(stepper.stats.setup_seconds, op=MPI.MAX)
@@ -97,8 +106,13 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     t0 = clock()
     state = stepper.initial_state()
     stepper.record_initial(traj, state)
-    evolve(stepper, FixedStepController.uniform(stepper.tau, stepper.n_steps), state, traj,
-           tau_min=1e-300)
+    evolve(
+        stepper,
+        FixedStepController.uniform(stepper.tau, stepper.n_steps),
+        state,
+        traj,
+        tau_min=1e-300,
+    )
     t_end = clock()
     mark("time steps")
     times = [s for s, _ in stamps]
@@ -129,15 +143,26 @@ def export_mesh(work: Path, n: int) -> Path:
     left = m.boundaries["left"]
     other = np.setdiff1d(bfac, left)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, points=m.p.T.copy(), tets=m.t.T.astype(np.int64).copy(),
-             left_tris=m.facets[:, left].T.astype(np.int64).copy(),
-             other_tris=m.facets[:, other].T.astype(np.int64).copy(), n=n, nx=4 * n, L=4.0)
+    np.savez(
+        path,
+        points=m.p.T.copy(),
+        tets=m.t.T.astype(np.int64).copy(),
+        left_tris=m.facets[:, left].T.astype(np.int64).copy(),
+        other_tris=m.facets[:, other].T.astype(np.int64).copy(),
+        n=n,
+        nx=4 * n,
+        L=4.0,
+    )
     return path
 
 
 def run(cmd: list[str], cwd: Path) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src") + os.pathsep
-               + os.environ.get("PYTHONPATH", ""), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    env = dict(
+        os.environ,
+        PYTHONPATH=str(REPO / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""),
+        OMP_NUM_THREADS="1",
+        OPENBLAS_NUM_THREADS="1",
+    )
     proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=env)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-3000:]}")
@@ -152,12 +177,20 @@ def normalize(tool: str, row: dict, wall: float) -> dict:
         peak = row.get("peak_rss_mb_max") or row.get("peak_rss_mb_self")
     else:
         peak = row["peak_mb_max"]
-    return {"assembly_s": row["assembly_s"], "setup_s": row["setup_s"],
-            "step_s": row["per_step_after_first_s"], "first_step_s": row["first_step_s"],
-            "its": row["krylov_its_per_step"], "total_s": row["total_s"], "peak_mb": peak,
-            "wall_s": wall, "reaction_z": row["reaction_final"][2], "ndofs": row["ndofs"],
-            "krylov_s": row.get("krylov_s_per_step", float("nan")),
-            "memory_mb": row.get("memory_mb")}
+    return {
+        "assembly_s": row["assembly_s"],
+        "setup_s": row["setup_s"],
+        "step_s": row["per_step_after_first_s"],
+        "first_step_s": row["first_step_s"],
+        "its": row["krylov_its_per_step"],
+        "total_s": row["total_s"],
+        "peak_mb": peak,
+        "wall_s": wall,
+        "reaction_z": row["reaction_final"][2],
+        "ndofs": row["ndofs"],
+        "krylov_s": row.get("krylov_s_per_step", float("nan")),
+        "memory_mb": row.get("memory_mb"),
+    }
 
 
 def main(argv=None) -> int:
@@ -185,24 +218,84 @@ def main(argv=None) -> int:
     if not (peer / "eld_beam_dolfinx011.py").is_file():
         peer = Path("/work/shared/anchors")
     procs = [int(k) for k in args.processes.split(",")]
-    tools = [("rothe serial", [py, str(HERE / "eld_peers.py"), "--child", "--n", str(args.n),
-                               "--degree", "1", "--form", "regularized", "--solver", "amg",
-                               "--steps", str(args.steps), "--data", "points", "--rtol",
-                               str(args.rtol), "--tau", str(TAU)])]
-    have_dolfinx = not args.no_dolfinx and subprocess.run(
-        [py, "-c", "import dolfinx_solver, dolfinx"], capture_output=True).returncode == 0
+    tools = [
+        (
+            "rothe serial",
+            [
+                py,
+                str(HERE / "eld_peers.py"),
+                "--child",
+                "--n",
+                str(args.n),
+                "--degree",
+                "1",
+                "--form",
+                "regularized",
+                "--solver",
+                "amg",
+                "--steps",
+                str(args.steps),
+                "--data",
+                "points",
+                "--rtol",
+                str(args.rtol),
+                "--tau",
+                str(TAU),
+            ],
+        )
+    ]
+    have_dolfinx = (
+        not args.no_dolfinx
+        and subprocess.run(
+            [py, "-c", "import dolfinx_solver, dolfinx"], capture_output=True
+        ).returncode
+        == 0
+    )
     if have_dolfinx:
         export_mesh(work, args.n)
     for k in procs:
-        tools.append((f"rothe petsc N={k}", [mpiexec, "-n", str(k), py, str(Path(__file__)),
-                                             "--child", "--n", str(args.n), "--steps",
-                                             str(args.steps), "--rtol", str(args.rtol)]))
+        tools.append(
+            (
+                f"rothe petsc N={k}",
+                [
+                    mpiexec,
+                    "-n",
+                    str(k),
+                    py,
+                    str(Path(__file__)),
+                    "--child",
+                    "--n",
+                    str(args.n),
+                    "--steps",
+                    str(args.steps),
+                    "--rtol",
+                    str(args.rtol),
+                ],
+            )
+        )
         if have_dolfinx:
-            tools.append((f"dolfinx 0.11 N={k}", [mpiexec, "-n", str(k), py,
-                                                  str(peer / "eld_beam_dolfinx011.py"),
-                                                  "--n", str(args.n), "--mode", "gamg",
-                                                  "--tau", str(TAU), "--steps", str(args.steps),
-                                                  "--rtol", str(args.rtol)]))
+            tools.append(
+                (
+                    f"dolfinx 0.11 N={k}",
+                    [
+                        mpiexec,
+                        "-n",
+                        str(k),
+                        py,
+                        str(peer / "eld_beam_dolfinx011.py"),
+                        "--n",
+                        str(args.n),
+                        "--mode",
+                        "gamg",
+                        "--tau",
+                        str(TAU),
+                        "--steps",
+                        str(args.steps),
+                        "--rtol",
+                        str(args.rtol),
+                    ],
+                )
+            )
     rows: dict[str, list[dict]] = {name: [] for name, _ in tools}
     log = work / "runs.jsonl"
     for rep in range(args.repeats):
@@ -215,35 +308,59 @@ def main(argv=None) -> int:
             rows[name].append(r)
             with open(log, "a") as f:
                 f.write(json.dumps({"tool": name, "repeat": rep, **r}) + "\n")
-            print(f"[{rep}] {name}: {r['step_s']:.2f} s/step, its {r['its']:.1f}, "
-                  f"peak {r['peak_mb']:.0f} MB, load {load:.2f}", file=sys.stderr, flush=True)
-    best = {name: {k: (max(v[k] for v in rs) if k == "peak_mb" else rs[-1][k]
-                       if k == "memory_mb" else min(v[k] for v in rs))
-                   for k in rs[0]} for name, rs in rows.items()}
+            print(
+                f"[{rep}] {name}: {r['step_s']:.2f} s/step, its {r['its']:.1f}, "
+                f"peak {r['peak_mb']:.0f} MB, load {load:.2f}",
+                file=sys.stderr,
+                flush=True,
+            )
+    best = {
+        name: {
+            k: (
+                max(v[k] for v in rs)
+                if k == "peak_mb"
+                else rs[-1][k]
+                if k == "memory_mb"
+                else min(v[k] for v in rs)
+            )
+            for k in rs[0]
+        }
+        for name, rs in rows.items()
+    }
     ndofs = best["rothe serial"]["ndofs"]
-    print(f"P1 beam n = {args.n}, {ndofs:,} dofs, {args.steps} Euler steps, tau = {TAU}, "
-          f"{args.repeats} repeats (min of times, max of peaks); loads "
-          + ", ".join(f"{r['load']:.2f}" for rs in rows.values() for r in rs))
-    hdr = (f"{'tool':<22}{'assembly s':>11}{'setup s':>9}{'s/step':>8}{'1st s':>7}{'its':>6}"
-           f"{'total s':>9}{'peak MB/proc':>13}{'R_z(T)':>13}")
+    print(
+        f"P1 beam n = {args.n}, {ndofs:,} dofs, {args.steps} Euler steps, tau = {TAU}, "
+        f"{args.repeats} repeats (min of times, max of peaks); loads "
+        + ", ".join(f"{r['load']:.2f}" for rs in rows.values() for r in rs)
+    )
+    hdr = (
+        f"{'tool':<22}{'assembly s':>11}{'setup s':>9}{'s/step':>8}{'1st s':>7}{'its':>6}"
+        f"{'total s':>9}{'peak MB/proc':>13}{'R_z(T)':>13}"
+    )
     print(hdr + f"{'CG s/step':>10}")
     print("-" * (len(hdr) + 10))
     for name, b in best.items():
-        print(f"{name:<22}{b['assembly_s']:>11.1f}{b['setup_s']:>9.1f}{b['step_s']:>8.2f}"
-              f"{b['first_step_s']:>7.1f}{b['its']:>6.1f}{b['total_s']:>9.1f}"
-              f"{b['peak_mb']:>13.0f}{b['reaction_z']:>13.7g}{b['krylov_s']:>10.2f}")
+        print(
+            f"{name:<22}{b['assembly_s']:>11.1f}{b['setup_s']:>9.1f}{b['step_s']:>8.2f}"
+            f"{b['first_step_s']:>7.1f}{b['its']:>6.1f}{b['total_s']:>9.1f}"
+            f"{b['peak_mb']:>13.0f}{b['reaction_z']:>13.7g}{b['krylov_s']:>10.2f}"
+        )
     for name, b in best.items():
         if b.get("memory_mb"):
-            print(f"memory of {name} after each phase (MB, largest process: resident / peak): "
-                  + "; ".join(f"{k} {v['rss']}/{v['peak']}" for k, v in b["memory_mb"].items()))
+            print(
+                f"memory of {name} after each phase (MB, largest process: resident / peak): "
+                + "; ".join(f"{k} {v['rss']}/{v['peak']}" for k, v in b["memory_mb"].items())
+            )
     s = best["rothe serial"]
 
     def ratio(a, b, key):
         if a in best and b in best:
             print(f"  {a} / {b}, {key}: {best[a][key] / best[b][key]:.3f}")
 
-    print("ratios (targets: serial <= 0.9 x dolfinx serial; N=2 step <= 0.65 x serial rothe, "
-          "peak/proc <= 0.6 x serial rothe, step <= 1.0 x dolfinx N=2):")
+    print(
+        "ratios (targets: serial <= 0.9 x dolfinx serial; N=2 step <= 0.65 x serial rothe, "
+        "peak/proc <= 0.6 x serial rothe, step <= 1.0 x dolfinx N=2):"
+    )
     ratio("rothe serial", "dolfinx 0.11 N=1", "step_s")
     ratio("rothe petsc N=1", "dolfinx 0.11 N=1", "step_s")
     ratio("rothe petsc N=2", "rothe serial", "step_s")

@@ -49,8 +49,16 @@ class RunInterrupted(KeyboardInterrupt):
     None when the run had no checkpoint); pass that directory as ``resume=`` to continue.
     """
 
-    def __init__(self, message: str, *, signum: int, where: dict | None = None,
-                 trajectory=None, checkpoint=None, state=None):
+    def __init__(
+        self,
+        message: str,
+        *,
+        signum: int,
+        where: dict | None = None,
+        trajectory=None,
+        checkpoint=None,
+        state=None,
+    ):
         super().__init__(message)
         self.signum = int(signum)
         self.where = dict(where or {})

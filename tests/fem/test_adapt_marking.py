@@ -19,8 +19,7 @@ from rothe.fem.adapt.marking import (
 
 
 @settings(max_examples=40, deadline=None)
-@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60),
-       theta=st.floats(0.01, 0.99))
+@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60), theta=st.floats(0.01, 0.99))
 def test_doerfler_set_is_the_smallest_bulk(eta, theta):
     eta = np.array(eta)
     mark = doerfler_marking(eta, theta)
@@ -39,8 +38,7 @@ def test_doerfler_set_is_the_smallest_bulk(eta, theta):
 
 
 @settings(max_examples=40, deadline=None)
-@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60),
-       budget=st.floats(0.0, 200.0))
+@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60), budget=st.floats(0.0, 200.0))
 def test_coarsen_set_is_the_largest_set_of_small_indicators_within_budget(eta, budget):
     eta = np.array(eta)
     mark = coarsen_marking(eta, budget)
@@ -69,18 +67,28 @@ def test_mark_refines_only_above_the_tolerance_and_never_both():
     assert SpaceAdaptivity(1.0, adapt_every=3).due(4) is False
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"space_tol": 0.0}, r"^space_tol: got 0, must be > 0$"),
-    ({"space_tol": -1e-3}, r"^space_tol: got -0.001, must be > 0$"),
-    ({"space_tol": 1.0, "refine_fraction": 1.0}, r"^refine_fraction: got 1, must be in \(0, 1\)$"),
-    ({"space_tol": 1.0, "coarsen_fraction": 0.0},
-     r"^coarsen_fraction: got 0, must be in \(0, 1\)$"),
-    ({"space_tol": 1.0, "refine_fraction": 0.8, "coarsen_fraction": 0.3},
-     r"^refine_fraction \+ coarsen_fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1"),
-    ({"space_tol": 1.0, "adapt_every": 0}, r"^adapt_every: got 0, must be an integer >= 1$"),
-    ({"space_tol": 1.0, "max_dofs": 0}, r"^max_dofs: got 0, must be an integer >= 1$"),
-    ({"space_tol": "x"}, r"^space_tol: got 'x', must be a real number$"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"space_tol": 0.0}, r"^space_tol: got 0, must be > 0$"),
+        ({"space_tol": -1e-3}, r"^space_tol: got -0.001, must be > 0$"),
+        (
+            {"space_tol": 1.0, "refine_fraction": 1.0},
+            r"^refine_fraction: got 1, must be in \(0, 1\)$",
+        ),
+        (
+            {"space_tol": 1.0, "coarsen_fraction": 0.0},
+            r"^coarsen_fraction: got 0, must be in \(0, 1\)$",
+        ),
+        (
+            {"space_tol": 1.0, "refine_fraction": 0.8, "coarsen_fraction": 0.3},
+            r"^refine_fraction \+ coarsen_fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1",
+        ),
+        ({"space_tol": 1.0, "adapt_every": 0}, r"^adapt_every: got 0, must be an integer >= 1$"),
+        ({"space_tol": 1.0, "max_dofs": 0}, r"^max_dofs: got 0, must be an integer >= 1$"),
+        ({"space_tol": "x"}, r"^space_tol: got 'x', must be a real number$"),
+    ],
+)
 def test_bad_options_are_one_line_errors(kwargs, message):
     with pytest.raises(RotheInputError, match=message):
         SpaceAdaptivity(**kwargs)
@@ -94,16 +102,16 @@ def test_cli_names_and_the_dof_cap_of_the_initial_mesh():
     am = AdaptiveMesh(meshes.unit_square(4, named=True))
     dofs = am.ndofs(2, 2)  # 2 * (25 + 56) = 162
     assert dofs == 162
-    with pytest.raises(RotheInputError,
-                       match=r"^--max-dofs: got 100, must be >= the 162 dofs of the initial mesh$"):
+    with pytest.raises(
+        RotheInputError, match=r"^--max-dofs: got 100, must be >= the 162 dofs of the initial mesh$"
+    ):
         SpaceAdaptivity(space_tol=1, max_dofs=100, naming="cli").check_mesh(am, 2, 2)
     assert SpaceAdaptivity(space_tol=1, max_dofs=162).check_mesh(am, 2, 2) == 162
 
 
 def test_adapt_mesh_under_the_cap():
     am = AdaptiveMesh(meshes.unit_square(4, named=True))
-    opts = SpaceAdaptivity(space_tol=1e-3, refine_fraction=0.5, coarsen_fraction=0.1,
-                           max_dofs=400)
+    opts = SpaceAdaptivity(space_tol=1e-3, refine_fraction=0.5, coarsen_fraction=0.1, max_dofs=400)
     rng = np.random.default_rng(0)
     for _ in range(8):
         x = am.points[am.cells].mean(axis=1)

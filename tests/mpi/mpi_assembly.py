@@ -1,4 +1,5 @@
 """Run by test_mpi.py under mpiexec: distributed M, K, M_G and lambda's weights against serial."""
+
 import json
 import sys
 import warnings

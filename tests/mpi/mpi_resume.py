@@ -1,6 +1,7 @@
 """Run by test_mpi.py under mpiexec: SIGTERM on the last rank at step 5, resume, compare.
 
 argv: checkpoint directory, mode ('interrupt-then-resume' | 'resume')."""
+
 import json
 import os
 import signal
@@ -37,9 +38,10 @@ if mode == "interrupt-then-resume":
         out["steps_at_stop"] = len(exc.trajectory["tau"])
     resumed = run_eld(p, "regularized", 0.01, resume=ckpt, **kw)
     if comm.rank == 0:
-        out["equal"] = {k: bool(np.array_equal(np.asarray(full[k]), np.asarray(resumed[k])))
-                        for k in ("t", "u", "v", "lam", "reaction_left", "energy",
-                                  "balance_residual")}
+        out["equal"] = {
+            k: bool(np.array_equal(np.asarray(full[k]), np.asarray(resumed[k])))
+            for k in ("t", "u", "v", "lam", "reaction_left", "energy", "balance_residual")
+        }
 else:
     try:
         run_eld(p, "regularized", 0.01, resume=ckpt, **kw)

@@ -1,4 +1,5 @@
 """Run by test_mpi.py under mpiexec: short beam runs, distributed against serial."""
+
 import json
 import sys
 import warnings
@@ -14,22 +15,26 @@ warnings.simplefilter("ignore")
 comm = MPI.COMM_WORLD
 solver = sys.argv[1]
 linear = beam_problem(3, degree=1, T=0.1)
-nonlinear = beam_problem(3, degree=1, T=0.1,
-                         damping=NonlinearDamping(b=0.002, d0=0.5, d_nl=1.0, v_ref=0.05))
+nonlinear = beam_problem(
+    3, degree=1, T=0.1, damping=NonlinearDamping(b=0.002, d0=0.5, d_nl=1.0, v_ref=0.05)
+)
 quadratic = beam_problem(2, degree=2, T=0.05)
 out = {}
 for p, form, scheme, kw in (
-        (linear, "regularized", "euler", {}), (linear, "original", "euler", {}),
-        (linear, "regularized", "bdf2", {}),
-        (linear, "regularized", "bdf2", {"control": "adaptive", "tol": 1e-3}),
-        (nonlinear, "regularized", "euler", {}), (nonlinear, "original", "bdf2", {}),
-        (linear, "regularized", "bdf2", {"steps": [0.01] * 4 + [0.02] * 2 + [0.005] * 4,
-                                         "tau": None}),
-        (quadratic, "original", "euler", {})):
+    (linear, "regularized", "euler", {}),
+    (linear, "original", "euler", {}),
+    (linear, "regularized", "bdf2", {}),
+    (linear, "regularized", "bdf2", {"control": "adaptive", "tol": 1e-3}),
+    (nonlinear, "regularized", "euler", {}),
+    (nonlinear, "original", "bdf2", {}),
+    (linear, "regularized", "bdf2", {"steps": [0.01] * 4 + [0.02] * 2 + [0.005] * 4, "tau": None}),
+    (quadratic, "original", "euler", {}),
+):
     tau = kw.pop("tau", 0.01)
     ts = run_eld(p, form, tau, scheme=scheme, solver="direct", linear_rtol=1e-12, **kw)
-    tp = run_eld(p, form, tau, scheme=scheme, solver=solver, linear_rtol=1e-12,
-                 backend="petsc", **kw)
+    tp = run_eld(
+        p, form, tau, scheme=scheme, solver=solver, linear_rtol=1e-12, backend="petsc", **kw
+    )
     if comm.rank == 0:
         R_s, R_p = ts["reaction_left"][-1], tp["reaction_left"][-1]
         us, up = ts["u"][-1], tp["u"][-1]
@@ -42,7 +47,8 @@ for p, form, scheme, kw in (
             "balance": float(np.max(np.abs(tp["balance_residual"]))),
             "newton": [ts.stats.newton_iterations, tp.stats.newton_iterations],
             "tau": float(np.abs(np.asarray(ts["tau"]) - np.asarray(tp["tau"])).max())
-            if len(ts["tau"]) == len(tp["tau"]) else 1.0,
+            if len(ts["tau"]) == len(tp["tau"])
+            else 1.0,
         }
 if comm.rank == 0:
     print(json.dumps(out))

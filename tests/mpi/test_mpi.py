@@ -31,13 +31,19 @@ def _mpiexec() -> str | None:
     return str(local) if local.exists() else shutil.which("mpiexec")
 
 
-needs_mpi = pytest.mark.skipif(MISSING is not None or _mpiexec() is None,
-                               reason=f"PETSc backend not available: {MISSING or 'no mpiexec'}")
+needs_mpi = pytest.mark.skipif(
+    MISSING is not None or _mpiexec() is None,
+    reason=f"PETSc backend not available: {MISSING or 'no mpiexec'}",
+)
 
 
 def _env():
-    return dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-                OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    return dict(
+        os.environ,
+        PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+        OMP_NUM_THREADS="1",
+        OPENBLAS_NUM_THREADS="1",
+    )
 
 
 def _mpi(n: int, *args, cwd=None, check=True) -> subprocess.CompletedProcess:
@@ -92,10 +98,25 @@ def test_checkpoint_resume_and_signal_on_one_rank(tmp_path):
 
 @needs_mpi
 def test_cli_beam_petsc_writes_the_serial_files(tmp_path):
-    args = ["-m", "rothe.cli.main", "run", "eld-beam", "--n", "2", "--degree", "1", "--T",
-            "0.05", "--quiet"]
-    subprocess.run([sys.executable, *args, "--out", tmp_path / "s"], check=True, env=_env(),
-                   capture_output=True)
+    args = [
+        "-m",
+        "rothe.cli.main",
+        "run",
+        "eld-beam",
+        "--n",
+        "2",
+        "--degree",
+        "1",
+        "--T",
+        "0.05",
+        "--quiet",
+    ]
+    subprocess.run(
+        [sys.executable, *args, "--out", tmp_path / "s"],
+        check=True,
+        env=_env(),
+        capture_output=True,
+    )
     _mpi(2, *args, "--backend", "petsc", "--out", tmp_path / "p")
     a, b = np.load(tmp_path / "s" / "trajectory.npz"), np.load(tmp_path / "p" / "trajectory.npz")
     assert set(a.files) == set(b.files)
@@ -108,13 +129,31 @@ def test_cli_beam_petsc_writes_the_serial_files(tmp_path):
 
 
 @needs_mpi
-@pytest.mark.parametrize("extra,says", [
-    (["--adapt-space", "--space-tol", "1e-3"], "--adapt-space"),
-    (["--backend", "mpi"], "--backend"),
-])
+@pytest.mark.parametrize(
+    "extra,says",
+    [
+        (["--adapt-space", "--space-tol", "1e-3"], "--adapt-space"),
+        (["--backend", "mpi"], "--backend"),
+    ],
+)
 def test_cli_refusals(tmp_path, extra, says):
-    proc = _mpi(2, "-m", "rothe.cli.main", "run", "eld-beam", "--n", "2", "--degree", "1",
-                "--backend", "petsc", "--out", tmp_path / "o", *extra, check=False)
+    proc = _mpi(
+        2,
+        "-m",
+        "rothe.cli.main",
+        "run",
+        "eld-beam",
+        "--n",
+        "2",
+        "--degree",
+        "1",
+        "--backend",
+        "petsc",
+        "--out",
+        tmp_path / "o",
+        *extra,
+        check=False,
+    )
     assert proc.returncode == 2
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("rothe: error:")]
     assert lines and says in lines[0] and ("petsc" in lines[0] or "mpi" in lines[0])
@@ -129,12 +168,28 @@ def test_more_processes_than_the_mesh_allows():
         Partition(mesh, 1, SimpleNamespace(size=9, rank=0), 3)
 
 
-@pytest.mark.skipif(MISSING is None, reason="petsc4py is installed here: the refusal is for "
-                                            "installs without it")
+@pytest.mark.skipif(
+    MISSING is None, reason="petsc4py is installed here: the refusal is for installs without it"
+)
 def test_backend_petsc_without_petsc4py_is_one_line(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "rothe.cli.main", "run", "eld-beam", "--n", "2",
-                           "--backend", "petsc", "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True, env=_env())
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rothe.cli.main",
+            "run",
+            "eld-beam",
+            "--n",
+            "2",
+            "--backend",
+            "petsc",
+            "--out",
+            str(tmp_path / "o"),
+        ],
+        capture_output=True,
+        text=True,
+        env=_env(),
+    )
     assert proc.returncode == 2
     err = proc.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("rothe: error: --backend petsc: needs")
@@ -150,19 +205,41 @@ def test_cli_sigterm_on_one_rank_then_resume(tmp_path):
 
     psutil = pytest.importorskip("psutil", reason="psutil finds the ranks of mpiexec")
     out = tmp_path / "o"
-    cmd = [_mpiexec(), "-n", "2", sys.executable, "-m", "rothe.cli.main", "run", "eld-beam",
-           "--backend", "petsc", "--n", "4", "--degree", "1", "--T", "8", "--quiet",
-           "--out", str(out)]
-    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    cmd = [
+        _mpiexec(),
+        "-n",
+        "2",
+        sys.executable,
+        "-m",
+        "rothe.cli.main",
+        "run",
+        "eld-beam",
+        "--backend",
+        "petsc",
+        "--n",
+        "4",
+        "--degree",
+        "1",
+        "--T",
+        "8",
+        "--quiet",
+        "--out",
+        str(out),
+    ]
+    proc = subprocess.Popen(
+        cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         deadline = time.monotonic() + 120
         while not (out / "checkpoint" / "checkpoint.npz").is_file():  # the start's checkpoint
             assert time.monotonic() < deadline and proc.poll() is None
             time.sleep(0.2)
         time.sleep(1.0)  # some steps
-        ranks = [p for p in psutil.Process(proc.pid).children(recursive=True)
-                 if "rothe.cli.main" in " ".join(p.cmdline()) and "mpiexec" not in p.name()]
+        ranks = [
+            p
+            for p in psutil.Process(proc.pid).children(recursive=True)
+            if "rothe.cli.main" in " ".join(p.cmdline()) and "mpiexec" not in p.name()
+        ]
         assert len(ranks) == 2
         max(ranks, key=lambda p: p.pid).send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=120)
@@ -173,9 +250,23 @@ def test_cli_sigterm_on_one_rank_then_resume(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["signal"] == "SIGTERM"
     assert 0 < summary["accepted_steps"] < 800
-    one = subprocess.run([_mpiexec(), "-n", "1", sys.executable, "-m", "rothe.cli.main",
-                          "resume", str(out), "--quiet"], env=_env(), capture_output=True,
-                         text=True, timeout=300)
+    one = subprocess.run(
+        [
+            _mpiexec(),
+            "-n",
+            "1",
+            sys.executable,
+            "-m",
+            "rothe.cli.main",
+            "resume",
+            str(out),
+            "--quiet",
+        ],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert one.returncode == 2
     lines = [ln for ln in one.stderr.splitlines() if ln.startswith("rothe: error:")]
     assert len(lines) == 1 and "written by 2 processes, this run has 1" in lines[0]

@@ -83,7 +83,8 @@ class Partition:
             raise RotheInputError(
                 f"processes: got {size}, must be at most the mesh's {min(nv, ncells)} "
                 f"{'vertices' if nv <= ncells else 'cells'} (every process needs a part): "
-                "run on fewer processes or a finer mesh")
+                "run on fewer processes or a finer mesh"
+            )
         owner_v = coordinate_bisection(np.ascontiguousarray(mesh.p.T), size)
         if degree == 1:
             owner_keys = owner_v
@@ -94,8 +95,10 @@ class Partition:
             raise RotheInputError(f"degree: got {degree}, must be 1 or 2")
         counts = np.bincount(owner_keys, minlength=size)
         if np.any(counts == 0):
-            raise RotheInputError(f"processes: got {size}, the mesh leaves a process without "
-                                  "dofs: run on fewer processes or a finer mesh")
+            raise RotheInputError(
+                f"processes: got {size}, the mesh leaves a process without "
+                "dofs: run on fewer processes or a finer mesh"
+            )
         self.ranges = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         order = np.argsort(owner_keys, kind="stable")  # by owner, inside an owner by key
         self.new_scalar = np.empty(order.size, dtype=np.int64)
@@ -122,23 +125,28 @@ class Partition:
         self.n_own = int(self.own_local.size)
         self.n_global = int(d * self.n_scalar)
         if d * self.n_scalar >= 2**31:
-            raise RotheInputError(f"mesh: got {d * self.n_scalar} dofs, must be below 2^31 for "
-                                  "PETSc's 32-bit indices (a PETSc built with 64-bit indices "
-                                  "is not supported yet)")
+            raise RotheInputError(
+                f"mesh: got {d * self.n_scalar} dofs, must be below 2^31 for "
+                "PETSc's 32-bit indices (a PETSc built with 64-bit indices "
+                "is not supported yet)"
+            )
         # local vector dof -> distributed global vector dof (int32: PETSc's index type, and
         # the column indices of the owned rows need no second copy)
-        self.global_of_local = (d * self.new_scalar[self.keys][:, None]
-                                + np.arange(d)[None, :]).ravel().astype(np.int32)
+        self.global_of_local = (
+            (d * self.new_scalar[self.keys][:, None] + np.arange(d)[None, :])
+            .ravel()
+            .astype(np.int32)
+        )
         # owned vector dof (in owned order) -> serial vector dof (outputs, checkpoints)
-        self.serial_of_own = (d * self.keys[owned_scalar][:, None]
-                              + np.arange(d)[None, :]).ravel()
+        self.serial_of_own = (d * self.keys[owned_scalar][:, None] + np.arange(d)[None, :]).ravel()
 
     # -- matrices -------------------------------------------------------------------------------
     def owned_rows(self, A) -> sp.csr_matrix:
         """The owned rows of a submesh matrix, columns in the distributed numbering (sorted)."""
         A = sp.csr_matrix(A)[self.own_local]
-        out = sp.csr_matrix((A.data, self.global_of_local[A.indices], A.indptr),
-                            shape=(self.n_own, self.n_global))
+        out = sp.csr_matrix(
+            (A.data, self.global_of_local[A.indices], A.indptr), shape=(self.n_own, self.n_global)
+        )
         out.sort_indices()
         return out
 
@@ -150,8 +158,9 @@ class Partition:
         M.setSizes(((self.n_own, self.n_global), (self.n_own, self.n_global)), bsize=self.dim)
         M.setType("aij")
         # setPreallocationCSR copies the arrays (createAIJ(csr=...) may keep pointers to them)
-        M.setPreallocationCSR((R.indptr.astype(PETSc.IntType), R.indices.astype(PETSc.IntType),
-                               R.data))
+        M.setPreallocationCSR(
+            (R.indptr.astype(PETSc.IntType), R.indices.astype(PETSc.IntType), R.data)
+        )
         M.assemble()
         return M
 

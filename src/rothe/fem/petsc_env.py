@@ -13,8 +13,10 @@ from __future__ import annotations
 from ..errors import RotheInputError
 
 #: what to install, said once wherever the backend is refused
-INSTALL_HINT = ("pip install 'rothe[mpi]' (mpi4py) plus petsc4py: on Python >= 3.12 "
-                "'pip install dolfinx-solver-real', on a cluster the petsc4py of its PETSc module")
+INSTALL_HINT = (
+    "pip install 'rothe[mpi]' (mpi4py) plus petsc4py: on Python >= 3.12 "
+    "'pip install dolfinx-solver-real', on a cluster the petsc4py of its PETSc module"
+)
 
 
 def require_petsc(option: str = "backend 'petsc'"):
@@ -26,13 +28,15 @@ def require_petsc(option: str = "backend 'petsc'"):
     try:
         from mpi4py import MPI
     except ImportError as exc:
-        raise RotheInputError(f"{option}: needs mpi4py ({exc}); install it: {INSTALL_HINT}"
-                              ) from None
+        raise RotheInputError(
+            f"{option}: needs mpi4py ({exc}); install it: {INSTALL_HINT}"
+        ) from None
     try:
         from petsc4py import PETSc
     except ImportError as exc:
-        raise RotheInputError(f"{option}: needs petsc4py ({exc}); install it: {INSTALL_HINT}"
-                              ) from None
+        raise RotheInputError(
+            f"{option}: needs petsc4py ({exc}); install it: {INSTALL_HINT}"
+        ) from None
     return MPI, PETSc
 
 

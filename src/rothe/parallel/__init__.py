@@ -21,6 +21,17 @@ from .executor import (
 )
 from .tasks import Task, TaskFailed, TaskResult, cli_task, execute_task, task_environment
 
-__all__ = ["Executor", "Task", "TaskFailed", "TaskResult", "add_parallel_options", "cli_task",
-           "dask_available", "default_workers", "execute_task", "executor_from_args",
-           "run_tasks", "task_environment"]
+__all__ = [
+    "Executor",
+    "Task",
+    "TaskFailed",
+    "TaskResult",
+    "add_parallel_options",
+    "cli_task",
+    "dask_available",
+    "default_workers",
+    "execute_task",
+    "executor_from_args",
+    "run_tasks",
+    "task_environment",
+]

@@ -134,11 +134,19 @@ def execute_task(task: Task) -> TaskResult:
         except Exception as exc:  # any other defect of one run must not stop the others
             status, message = "error", f"{type(exc).__name__}: {exc}"
             detail = traceback.format_exc()
-    return TaskResult(task.key, status, _one_line(message), value,
-                      time.perf_counter() - t0, _worker_name(), detail)
+    return TaskResult(
+        task.key,
+        status,
+        _one_line(message),
+        value,
+        time.perf_counter() - t0,
+        _worker_name(),
+        detail,
+    )
 
 
 # -- CLI runs as tasks ----------------------------------------------------------------------------
+
 
 def run_command(argv: list[str], out: str | None = None) -> dict | None:
     """Parse and execute one ``rothe`` command line; return the summary.json it wrote (or None).
@@ -154,8 +162,11 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
     from ..cli.main import build_parser, parse_command
 
     args = parse_command(build_parser(), list(argv))
-    paths = ([Path(out) / "summary.json", Path(out) / "incomplete" / "summary.json"]
-             if out is not None else [])
+    paths = (
+        [Path(out) / "summary.json", Path(out) / "incomplete" / "summary.json"]
+        if out is not None
+        else []
+    )
 
     def stamps():
         return [p.stat().st_mtime_ns if p.is_file() else None for p in paths]
@@ -173,8 +184,7 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
     except RunFailed as exc:
         raise TaskFailed(str(exc), value=summary()) from exc
     if code - 128 in (signal.SIGINT, signal.SIGTERM):
-        raise RunInterrupted(f"interrupted by {signal.Signals(code - 128).name}",
-                             signum=code - 128)
+        raise RunInterrupted(f"interrupted by {signal.Signals(code - 128).name}", signum=code - 128)
     if code != 0:
         raise TaskFailed(f"exit status {code}", value=summary())
     done = summary()
@@ -195,5 +205,13 @@ def cli_task(key: str, argv: list[str], out: str | None = None, cost: float = 1.
     return Task(key, run_command, {"argv": [str(a) for a in argv], "out": out}, cost)
 
 
-__all__ = ["STATUSES", "Task", "TaskFailed", "TaskResult", "cli_task", "execute_task",
-           "run_command", "task_environment"]
+__all__ = [
+    "STATUSES",
+    "Task",
+    "TaskFailed",
+    "TaskResult",
+    "cli_task",
+    "execute_task",
+    "run_command",
+    "task_environment",
+]

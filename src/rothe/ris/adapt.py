@@ -56,11 +56,15 @@ class RISSpaceAdaptivity:
 
     def __init__(self, problem, options: SpaceAdaptivity, *, reaction: str = "lambda"):
         if not isinstance(options, SpaceAdaptivity):
-            raise RotheInputError(f"space: got a {type(options).__name__}, must be a "
-                                  "rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
+            raise RotheInputError(
+                f"space: got a {type(options).__name__}, must be a "
+                "rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)"
+            )
         if not hasattr(problem, "on_mesh"):
-            raise RotheInputError(f"space: got a {type(problem).__name__} problem, space "
-                                  "adaptivity needs a finite-element RIS (FERISProblem)")
+            raise RotheInputError(
+                f"space: got a {type(problem).__name__} problem, space "
+                "adaptivity needs a finite-element RIS (FERISProblem)"
+            )
         problem.check_movable("space" if options.naming == "api" else "--adapt-space")
         self.options = options
         self.initial = problem
@@ -92,8 +96,9 @@ class RISSpaceAdaptivity:
         or (new_problem, z_new, increment_new) on the new mesh.
         """
         reaction = lam if self.reaction == "lambda" else 0.0
-        ind = ris_indicators_for(problem, t_prev, z, z_prev, lam,
-                                 coefficient=problem.coefficient, reaction=reaction)
+        ind = ris_indicators_for(
+            problem, t_prev, z, z_prev, lam, coefficient=problem.coefficient, reaction=reaction
+        )
         before = self.amesh.checkpoint_state()
         try:
             change = adapt_mesh(self.amesh, ind.eta, self.options, degree=1)
@@ -112,16 +117,23 @@ class RISSpaceAdaptivity:
             return None
         self.adaptations += 1
         self.series.add(self.amesh.mesh_id, self.amesh.points, self.amesh.cells)
-        self.last_change = {"mesh_id": self.mesh_id, "estimate": float(ind.estimate),
-                            "bisections": int(change.bisections), "merges": int(change.merges),
-                            "dofs": int(new_problem.n)}
+        self.last_change = {
+            "mesh_id": self.mesh_id,
+            "estimate": float(ind.estimate),
+            "bisections": int(change.bisections),
+            "merges": int(change.merges),
+            "dofs": int(new_problem.n),
+        }
         return new_problem, z_new, d_new
 
     # -- checkpoint protocol -------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
-        return {"amesh": self.amesh.checkpoint_state(), "series": self.series.checkpoint_state(),
-                "adaptations": int(self.adaptations),
-                "transfer_failures": int(self.transfer_failures)}
+        return {
+            "amesh": self.amesh.checkpoint_state(),
+            "series": self.series.checkpoint_state(),
+            "adaptations": int(self.adaptations),
+            "transfer_failures": int(self.transfer_failures),
+        }
 
     def restore_state(self, data: dict):
         """Rebuild the hierarchy and the series; returns the problem on the current mesh."""

@@ -514,8 +514,9 @@ class BallStepSolver:
         self._A_reduced = (active.copy(), A_AA)
         return A_AA
 
-    def _line_search(self, st: InnerState, cand, hess_F, sphere: bool = False,
-                     full_only: bool = False) -> bool:
+    def _line_search(
+        self, st: InnerState, cand, hess_F, sphere: bool = False, full_only: bool = False
+    ) -> bool:
         """Line search along d -> cand (retracting onto the sphere when it is active)."""
         p = self.p
         d = st.d

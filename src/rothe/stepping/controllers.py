@@ -75,8 +75,10 @@ class StepController(ABC):
 
     def restore_state(self, data: dict) -> None:
         if data.get("controller") != self.name:
-            raise ValueError(f"restore_state: a {data.get('controller')!r} controller's state "
-                             f"given to a {self.name!r} controller")
+            raise ValueError(
+                f"restore_state: a {data.get('controller')!r} controller's state "
+                f"given to a {self.name!r} controller"
+            )
         self.sigma = float(data["sigma"])
         self._restore_extra(data)
 
@@ -155,10 +157,11 @@ class FixedStepController:
 
     def restore_state(self, data: dict) -> None:
         if data.get("controller") != self.name:
-            raise ValueError(f"restore_state: a {data.get('controller')!r} controller's state "
-                             f"given to a {self.name!r} controller")
+            raise ValueError(
+                f"restore_state: a {data.get('controller')!r} controller's state "
+                f"given to a {self.name!r} controller"
+            )
         self.k = int(data["k"])
-
 
 
 class ErrorNormController(StepController):
@@ -182,10 +185,22 @@ class ErrorNormController(StepController):
 
     name = "error-norm"
 
-    def __init__(self, tol: float, tau0: float, order: int, *, key: str = "local_error",
-                 safety: float = 0.9, fac_min: float = 0.2, fac_max: float = 2.0,
-                 fac_fail: float = 0.25, max_ratio: float = math.inf, tau_min: float = 1e-12,
-                 tau_max: float = math.inf, step_bound=None):
+    def __init__(
+        self,
+        tol: float,
+        tau0: float,
+        order: int,
+        *,
+        key: str = "local_error",
+        safety: float = 0.9,
+        fac_min: float = 0.2,
+        fac_max: float = 2.0,
+        fac_fail: float = 0.25,
+        max_ratio: float = math.inf,
+        tau_min: float = 1e-12,
+        tau_max: float = math.inf,
+        step_bound=None,
+    ):
         super().__init__(tau0, tau_min, tau_max)
         self.tol = check_positive("tol", tol)
         if int(order) < 1:
@@ -197,8 +212,11 @@ class ErrorNormController(StepController):
         self.fac_max = check_positive("fac_max", fac_max)
         self.fac_fail = check_positive("fac_fail", fac_fail)
         if not self.fac_min < 1.0 < self.fac_max:
-            raise fail("fac_min, fac_max", f"{self.fac_min:g}, {self.fac_max:g}",
-                       "must satisfy fac_min < 1 < fac_max")
+            raise fail(
+                "fac_min, fac_max",
+                f"{self.fac_min:g}, {self.fac_max:g}",
+                "must satisfy fac_min < 1 < fac_max",
+            )
         self.max_ratio = float(max_ratio)
         if not self.max_ratio > 1.0:
             raise fail("max_ratio", max_ratio, "must be > 1")

@@ -40,8 +40,9 @@ class OutputView:
 
         self.space = VectorSpace(mesh, problem.degree)
         self.material = problem.material
-        self.constraint = DirichletConstraint(self.space, tuple(problem.local.dirichlet),
-                                              "dirichlet")
+        self.constraint = DirichletConstraint(
+            self.space, tuple(problem.local.dirichlet), "dirichlet"
+        )
         self.T = problem.T
         part = problem.partition
         self.u0 = part.gather_serial(problem.u0)
@@ -52,8 +53,10 @@ def check_backend_options(args) -> None:
     """One line for an option the backend lacks (the same on every process)."""
     for key, what in _REFUSED:
         if getattr(args, key, None):
-            raise RotheInputError(f"--backend petsc: got {what.split(' ')[0]}, not supported "
-                                  f"with --backend petsc: {what.split('(', 1)[1].rstrip(')')}")
+            raise RotheInputError(
+                f"--backend petsc: got {what.split(' ')[0]}, not supported "
+                f"with --backend petsc: {what.split('(', 1)[1].rstrip(')')}"
+            )
 
 
 def _broadcast_error(comm, fn):
@@ -96,8 +99,17 @@ def execute_beam(command, args) -> int:
     form, tau, scheme, control, tol, n, every, keep, damping = command.validate(args)
     # the beam's data from beam_problem on one cell across (material, damping, G, T: nothing
     # there depends on n), the mesh as beam_problem builds it
-    kwargs = dict(length=args.length, E=args.E, nu=args.nu, rho=args.rho, damping=damping,
-                  amplitude=args.amplitude, t_move=args.t_move, T=args.T, degree=args.degree)
+    kwargs = dict(
+        length=args.length,
+        E=args.E,
+        nu=args.nu,
+        rho=args.rho,
+        damping=damping,
+        amplitude=args.amplitude,
+        t_move=args.t_move,
+        T=args.T,
+        degree=args.degree,
+    )
     data = beam_problem(1, **kwargs)._data
     mesh = meshes.box(max(1, int(round(args.length * n))), n, n, args.length, 1.0, 1.0)
     problem = DistributedELDProblem(mesh, data, comm)
@@ -133,10 +145,21 @@ def execute_beam(command, args) -> int:
                     writer.write(state.t, u, v, result.lam)
 
         def run(checkpoint=None, resume=None, progress=False):
-            return run_eld_petsc(problem, form, tau, scheme=scheme, control=control, tol=tol,
-                                 solver=args.solver, keep_every=keep, observer=observer,
-                                 linear_rtol=1e-8, checkpoint=checkpoint, resume=resume,
-                                 progress=progress)
+            return run_eld_petsc(
+                problem,
+                form,
+                tau,
+                scheme=scheme,
+                control=control,
+                tol=tol,
+                solver=args.solver,
+                keep_every=keep,
+                observer=observer,
+                linear_rtol=1e-8,
+                checkpoint=checkpoint,
+                resume=resume,
+                progress=progress,
+            )
 
         if root:
             outcome = session.run(run)
@@ -159,22 +182,40 @@ def execute_beam(command, args) -> int:
                     writer.export(stage)
                     summary = run_summary(traj, command.name)
                     summary.update(
-                        n=n, degree=args.degree, length=args.length, E=args.E, nu=args.nu,
-                        amplitude=args.amplitude, t_move=args.t_move, backend="petsc",
-                        processes=comm.size, peak_memory_mb=max(peaks),
+                        n=n,
+                        degree=args.degree,
+                        length=args.length,
+                        E=args.E,
+                        nu=args.nu,
+                        amplitude=args.amplitude,
+                        t_move=args.t_move,
+                        backend="petsc",
+                        processes=comm.size,
+                        peak_memory_mb=max(peaks),
                         peak_memory_mb_per_process=peaks,
-                        seconds_per_step=traj.stats.wall_time_s
-                        / max(traj.stats.accepted_steps, 1),
-                        xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written)
+                        seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
+                        xdmf=[p.name for p in writer.paths],
+                        xdmf_steps=writer.steps_written,
+                    )
                     if traj.stats.accepted_steps:
                         summary.update(_beam_reactions(traj))
                         e = energy_summary(traj)
                         put_in = e["work_support"] + e["work_loads"]
                         summary["numerical_dissipation_fraction"] = (
-                            e["dissipated_numerical"] / put_in if put_in > 0 else None)
+                            e["dissipated_numerical"] / put_in if put_in > 0 else None
+                        )
                     session.annotate(summary, outcome)
-                    _write_run(args, stage, command.name, traj, summary, label, view,
-                               xdmf=False, plots=completed)
+                    _write_run(
+                        args,
+                        stage,
+                        command.name,
+                        traj,
+                        summary,
+                        label,
+                        view,
+                        xdmf=False,
+                        plots=completed,
+                    )
             try:
                 code = session.finish(outcome, results)
             except RunFailed as exc:  # raised after the others know the exit status
@@ -189,13 +230,36 @@ def execute_beam(command, args) -> int:
     if pending is not None:
         raise pending
     if root and completed:
-        _print_run(args, results, command.name, summary,
-                   ("example", "form", "scheme", "tau", "accepted_steps", "ndofs", "processes",
-                    "linear_solver", "krylov_iterations", "seconds_per_step", "peak_memory_mb",
-                    "reaction_left_final", "reaction_left_max_abs", "wall_time_s"))
-        if not args.quiet and e is not None and max(summary["reaction_sideways_over_z"]) > \
-                BEAM_SIDEWAYS_NOTE:
-            print("note: coarse mesh for the reactions (sideways reactions above "
-                  f"{100 * BEAM_SIDEWAYS_NOTE:.0f} % of R_z); use --degree 2 or a larger --n")
+        _print_run(
+            args,
+            results,
+            command.name,
+            summary,
+            (
+                "example",
+                "form",
+                "scheme",
+                "tau",
+                "accepted_steps",
+                "ndofs",
+                "processes",
+                "linear_solver",
+                "krylov_iterations",
+                "seconds_per_step",
+                "peak_memory_mb",
+                "reaction_left_final",
+                "reaction_left_max_abs",
+                "wall_time_s",
+            ),
+        )
+        if (
+            not args.quiet
+            and e is not None
+            and max(summary["reaction_sideways_over_z"]) > BEAM_SIDEWAYS_NOTE
+        ):
+            print(
+                "note: coarse mesh for the reactions (sideways reactions above "
+                f"{100 * BEAM_SIDEWAYS_NOTE:.0f} % of R_z); use --degree 2 or a larger --n"
+            )
     sys.stdout.flush()
     return code

@@ -112,8 +112,10 @@ class DistributedELDProblem:
             if given is not None or (value is not None and not callable(value)):
                 arrays[key] = np.asarray(given if given is not None else value, dtype=float)
                 if arrays[key].shape != (part.n_global,):
-                    raise RotheInputError(f"{key}: got an array of shape {arrays[key].shape}, "
-                                          f"must be ({part.n_global},)")
+                    raise RotheInputError(
+                        f"{key}: got an array of shape {arrays[key].shape}, "
+                        f"must be ({part.n_global},)"
+                    )
                 data[key] = None
         with warnings.catch_warnings():
             if comm.rank != 0:  # the notes on differenced G are the same on every process
@@ -160,8 +162,7 @@ class DistributedELDProblem:
             self._ghosts = (g, loc, PETSc.Scatter().create(g, index, loc, None))
         g, loc, scatter = self._ghosts
         g.setArray(w_own)
-        scatter.scatter(g, loc, addv=PETSc.InsertMode.INSERT_VALUES,
-                        mode=PETSc.ScatterMode.FORWARD)
+        scatter.scatter(g, loc, addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
         return loc.getArray().copy()
 
     # -- Gamma_D --------------------------------------------------------------------------------
@@ -182,9 +183,13 @@ class DistributedELDProblem:
         cols = np.searchsorted(all_dofs, serial[Mg.col])
         trip = comm.allgather((rows, cols, Mg.data))
         m = all_dofs.size
-        MG = sp.csr_matrix((np.concatenate([t[2] for t in trip]),
-                            (np.concatenate([t[0] for t in trip]),
-                             np.concatenate([t[1] for t in trip]))), shape=(m, m))
+        MG = sp.csr_matrix(
+            (
+                np.concatenate([t[2] for t in trip]),
+                (np.concatenate([t[0] for t in trip]), np.concatenate([t[1] for t in trip])),
+            ),
+            shape=(m, m),
+        )
         # reaction weights (column sums of the part's boundary mass = row sums: complete on
         # the owned scalar dofs)
         sc_serial = part.keys[c.scalar_dofs]
@@ -230,32 +235,44 @@ class DistributedELDProblem:
         g0 = self.boundary_values(0.0, ("G",))[0]
         u0C = self.gather_boundary(self.u0)[0]
         err = float(np.max(np.abs(u0C - g0))) if g0.size else 0.0
-        scale = max(1.0, float(np.max(np.abs(g0), initial=0.0)),
-                    self.comm.allreduce(float(np.max(np.abs(self.u0), initial=0.0)),
-                                        op=self.MPI.MAX))
+        scale = max(
+            1.0,
+            float(np.max(np.abs(g0), initial=0.0)),
+            self.comm.allreduce(float(np.max(np.abs(self.u0), initial=0.0)), op=self.MPI.MAX),
+        )
         from ..problem import CONSISTENCY_TOL
 
         if not err <= CONSISTENCY_TOL * scale:
             raise RotheInputError(
                 f"u0: got max|u0 - G(0)| = {err:.3g} on the Dirichlet parts "
                 f"{', '.join(self.constraint.parts)}, must equal G(0) there within "
-                f"{CONSISTENCY_TOL * scale:.3g} (consistent initial data, Remark 2.2)")
+                f"{CONSISTENCY_TOL * scale:.3g} (consistent initial data, Remark 2.2)"
+            )
 
     # -- description and identity -----------------------------------------------------------------
     def describe(self) -> dict:
         info = self.local.describe()
-        info.update(ndofs=self.ndofs, constrained_dofs=self.constraint.m,
-                    cells=self.n_cells, processes=int(self.comm.size))
+        info.update(
+            ndofs=self.ndofs,
+            constrained_dofs=self.constraint.m,
+            cells=self.n_cells,
+            processes=int(self.comm.size),
+        )
         return info
 
     def fingerprint(self) -> dict:
         """What a checkpoint must match (:func:`rothe.io.checkpoint.problem_fingerprint`)."""
         desc = self.describe()
         desc.pop("processes")
-        return {"class": "ELDProblem", "ndofs": int(self.ndofs), "T": float(self.T),
-                "mesh": self._mesh_digest,
-                "description": digest(np.frombuffer(json.dumps(desc, sort_keys=True,
-                                                               default=str).encode(), np.uint8))}
+        return {
+            "class": "ELDProblem",
+            "ndofs": int(self.ndofs),
+            "T": float(self.T),
+            "mesh": self._mesh_digest,
+            "description": digest(
+                np.frombuffer(json.dumps(desc, sort_keys=True, default=str).encode(), np.uint8)
+            ),
+        }
 
     @classmethod
     def from_problem(cls, problem: ELDProblem, comm=None) -> DistributedELDProblem:

@@ -61,13 +61,15 @@ class DistributedCheckpointer:
     def due(self) -> bool:
         return bool(self.comm.bcast(self.real.due() if self.real is not None else None, root=0))
 
-    def save_or_warn(self, stepper, controller, state, *, status: str = "running",
-                     where: dict | None = None):
+    def save_or_warn(
+        self, stepper, controller, state, *, status: str = "running", where: dict | None = None
+    ):
         data = stepper.checkpoint_state(state)  # collective gather
         path = None
         if self.real is not None:
-            path = self.real.save_or_warn(_Frozen(data), controller, state, status=status,
-                                          where=where)
+            path = self.real.save_or_warn(
+                _Frozen(data), controller, state, status=status, where=where
+            )
         return self.comm.bcast(None if path is None else str(path), root=0)
 
 
@@ -79,17 +81,17 @@ def _check_resume_processes(resume, comm) -> None:
     msg = None
     if comm.rank == 0:
         try:
-            ck = resume if hasattr(resume, "header") else load_checkpoint(resume,
-                                                                         header_only=True)
+            ck = resume if hasattr(resume, "header") else load_checkpoint(resume, header_only=True)
             args = ck.header.get("arguments", {})
             got = args.get("processes")
             if args.get("backend") != "petsc":
-                msg = ("resume: the checkpoint is of a serial run: resume it without --backend "
-                       "petsc")
+                msg = "resume: the checkpoint is of a serial run: resume it without --backend petsc"
             elif got != comm.size:
-                msg = (f"resume: the checkpoint was written by {got} processes, this run has "
-                       f"{comm.size}: resume with mpiexec -n {got} (the partition fixes the "
-                       "order of every sum)")
+                msg = (
+                    f"resume: the checkpoint was written by {got} processes, this run has "
+                    f"{comm.size}: resume with mpiexec -n {got} (the partition fixes the "
+                    "order of every sum)"
+                )
         except RotheInputError as exc:
             msg = str(exc)
     msg = comm.bcast(msg, root=0)
@@ -97,15 +99,35 @@ def _check_resume_processes(resume, comm) -> None:
         raise RotheInputError(msg)
 
 
-def run_eld_petsc(problem, form: str = "regularized", tau: float = 0.01, *,
-                  scheme: str = "euler", control: str = "uniform", tol: float | None = None,
-                  steps=None, data: str = "points", lifting: str = "nodal",
-                  solver: str = "auto", newton=None, noise=None, store_fields: bool = True,
-                  keep_every: int = 1, observer=None, progress=False,
-                  linear_rtol: float = 1e-10, tau_min: float | None = None,
-                  tau_max: float | None = None, start: str = "taylor",
-                  error_scale: float | None = None, meta: dict | None = None, checkpoint=None,
-                  resume=None, space=None, comm=None) -> Trajectory:
+def run_eld_petsc(
+    problem,
+    form: str = "regularized",
+    tau: float = 0.01,
+    *,
+    scheme: str = "euler",
+    control: str = "uniform",
+    tol: float | None = None,
+    steps=None,
+    data: str = "points",
+    lifting: str = "nodal",
+    solver: str = "auto",
+    newton=None,
+    noise=None,
+    store_fields: bool = True,
+    keep_every: int = 1,
+    observer=None,
+    progress=False,
+    linear_rtol: float = 1e-10,
+    tau_min: float | None = None,
+    tau_max: float | None = None,
+    start: str = "taylor",
+    error_scale: float | None = None,
+    meta: dict | None = None,
+    checkpoint=None,
+    resume=None,
+    space=None,
+    comm=None,
+) -> Trajectory:
     """:func:`rothe.eld.run_eld` on the processes of ``comm`` (module docstring).
 
     ``problem``: a serial :class:`~rothe.eld.problem.ELDProblem` (copied to the processes: for
@@ -114,8 +136,12 @@ def run_eld_petsc(problem, form: str = "regularized", tau: float = 0.01, *,
     ``traj.stepper`` the :class:`PetscELDStepper`.
     """
     if space is not None:
-        raise fail("space", "given", "is not supported with backend 'petsc' (space "
-                   "adaptivity is not distributed): run it serially")
+        raise fail(
+            "space",
+            "given",
+            "is not supported with backend 'petsc' (space "
+            "adaptivity is not distributed): run it serially",
+        )
     if not isinstance(problem, DistributedELDProblem):
         problem = DistributedELDProblem.from_problem(problem, comm)
     comm = problem.comm
@@ -127,17 +153,42 @@ def run_eld_petsc(problem, form: str = "regularized", tau: float = 0.01, *,
     elif tol is not None:
         raise fail("tol", tol, "is used by control='adaptive' only (this run has uniform steps)")
     _check_resume_processes(resume, comm)
-    stepper = PetscELDStepper(problem, form, tau, scheme=scheme, control=control, steps=steps,
-                              data=data, lifting=lifting, solver=solver, newton=newton,
-                              noise=noise, store_fields=store_fields, keep_every=keep_every,
-                              observer=observer, linear_rtol=linear_rtol, start=start,
-                              error_scale=error_scale)
-    info = {"example": problem.name, "form": form, "scheme": scheme, "control": control,
-            "tau": stepper.tau, "n_steps": stepper.n_steps, "data": data,
-            "lifting": lifting if form == "regularized" else None, "solver": stepper.kind,
-            "step_bound": problem.step_bound(), "keep_every": stepper.keep_every,
-            "start": start if scheme == "bdf2" else None, "backend": "petsc",
-            "processes": int(comm.size), "problem": problem.describe()}
+    stepper = PetscELDStepper(
+        problem,
+        form,
+        tau,
+        scheme=scheme,
+        control=control,
+        steps=steps,
+        data=data,
+        lifting=lifting,
+        solver=solver,
+        newton=newton,
+        noise=noise,
+        store_fields=store_fields,
+        keep_every=keep_every,
+        observer=observer,
+        linear_rtol=linear_rtol,
+        start=start,
+        error_scale=error_scale,
+    )
+    info = {
+        "example": problem.name,
+        "form": form,
+        "scheme": scheme,
+        "control": control,
+        "tau": stepper.tau,
+        "n_steps": stepper.n_steps,
+        "data": data,
+        "lifting": lifting if form == "regularized" else None,
+        "solver": stepper.kind,
+        "step_bound": problem.step_bound(),
+        "keep_every": stepper.keep_every,
+        "start": start if scheme == "bdf2" else None,
+        "backend": "petsc",
+        "processes": int(comm.size),
+        "problem": problem.describe(),
+    }
     if steps is not None:
         info["control"] = "given steps"
     if control == "adaptive":
@@ -147,23 +198,46 @@ def run_eld_petsc(problem, form: str = "regularized", tau: float = 0.01, *,
             raise fail("tau_max", tau_max, f"must be >= the first step tau = {stepper.tau:g}")
         if tau_min > stepper.tau:
             raise fail("tau_min", tau_min, f"must be <= the first step tau = {stepper.tau:g}")
-        controller = adaptive_controller(stepper, tol, stepper.tau, tau_min=tau_min,
-                                         tau_max=tau_max)
-        info.update(tol=tol, tau_min=tau_min, tau_max=tau_max,
-                    ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None)
+        controller = adaptive_controller(
+            stepper, tol, stepper.tau, tau_min=tau_min, tau_max=tau_max
+        )
+        info.update(
+            tol=tol,
+            tau_min=tau_min,
+            tau_max=tau_max,
+            ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None,
+        )
         loop_tau_min = tau_min
     else:
-        controller = (FixedStepController(stepper.steps) if stepper.steps is not None
-                      else FixedStepController.uniform(stepper.tau, stepper.n_steps))
+        controller = (
+            FixedStepController(stepper.steps)
+            if stepper.steps is not None
+            else FixedStepController.uniform(stepper.tau, stepper.n_steps)
+        )
         loop_tau_min = 1e-300
     info.update(meta or {})
     arguments = run_arguments(
-        form=form, scheme=scheme, control=control, tol=tol, tau=stepper.tau,
-        steps=stepper.steps, data=data, lifting=lifting, solver=solver,
-        newton=asdict(stepper.newton), noise=None, store_fields=store_fields,
-        keep_every=stepper.keep_every, linear_rtol=linear_rtol, tau_min=tau_min,
-        tau_max=tau_max, start=start, error_scale=error_scale, backend="petsc",
-        processes=int(comm.size))
+        form=form,
+        scheme=scheme,
+        control=control,
+        tol=tol,
+        tau=stepper.tau,
+        steps=stepper.steps,
+        data=data,
+        lifting=lifting,
+        solver=solver,
+        newton=asdict(stepper.newton),
+        noise=None,
+        store_fields=store_fields,
+        keep_every=stepper.keep_every,
+        linear_rtol=linear_rtol,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        start=start,
+        error_scale=error_scale,
+        backend="petsc",
+        processes=int(comm.size),
+    )
     root = comm.rank == 0
     rc = None
     error = None
@@ -205,20 +279,40 @@ def run_eld_petsc(problem, form: str = "regularized", tau: float = 0.01, *,
                 real.register(traj)
             cp = DistributedCheckpointer(comm, real)
             if not resuming:
-                cp.save_or_warn(stepper, controller, state,
-                                where={"accepted_steps": 0, "s": 0.0, "t": 0.0, "j": 0})
+                cp.save_or_warn(
+                    stepper,
+                    controller,
+                    state,
+                    where={"accepted_steps": 0, "s": 0.0, "t": 0.0, "j": 0},
+                )
         try:
-            final = evolve(stepper, controller, state, traj, tau_min=loop_tau_min,
-                           progress=progress if root else False, checkpointer=cp)
+            final = evolve(
+                stepper,
+                controller,
+                state,
+                traj,
+                tau_min=loop_tau_min,
+                progress=progress if root else False,
+                checkpointer=cp,
+            )
         except RunFailed as exc:
             exc.trajectory = traj
             raise
         finally:
             _finish_meta(traj, stepper)
         if cp is not None:
-            cp.save_or_warn(stepper, controller, final, status="completed",
-                            where={"accepted_steps": traj.stats.accepted_steps,
-                                   "s": float(final.t), "t": float(final.t), "j": int(final.j)})
+            cp.save_or_warn(
+                stepper,
+                controller,
+                final,
+                status="completed",
+                where={
+                    "accepted_steps": traj.stats.accepted_steps,
+                    "s": float(final.t),
+                    "t": float(final.t),
+                    "j": int(final.j),
+                },
+            )
     finally:
         if rc is not None:
             rc.close()
@@ -231,8 +325,10 @@ def run_eld_petsc(problem, form: str = "regularized", tau: float = 0.01, *,
 def _finish_meta(traj: Trajectory, stepper: PetscELDStepper) -> None:
     s = stepper.stats
     traj.meta["linear_solver"] = {
-        "kind": stepper.kind, "engine": "PETSc CG + " + ("GAMG" if stepper.kind == "amg"
-                                                        else "MUMPS LU"),
-        "factorizations": s.factorizations, "backsolves": s.backsolves,
-        "krylov_iterations": s.krylov_iterations, "setup_seconds": s.setup_seconds,
+        "kind": stepper.kind,
+        "engine": "PETSc CG + " + ("GAMG" if stepper.kind == "amg" else "MUMPS LU"),
+        "factorizations": s.factorizations,
+        "backsolves": s.backsolves,
+        "krylov_iterations": s.krylov_iterations,
+        "setup_seconds": s.setup_seconds,
     }

@@ -92,12 +92,27 @@ class PetscELDStepper:
     _time_after = ELDStepper._time_after
     max_step = ELDStepper.max_step
 
-    def __init__(self, problem, form: str, tau: float, *, scheme: str = "euler",
-                 control: str = "uniform", steps=None, data: str = "points",
-                 lifting: str = "nodal", solver: str = "auto",
-                 newton: NewtonOptions | None = None, noise=None, store_fields: bool = True,
-                 keep_every: int = 1, observer=None, linear_rtol: float = 1e-10,
-                 start: str = "taylor", error_scale: float | None = None):
+    def __init__(
+        self,
+        problem,
+        form: str,
+        tau: float,
+        *,
+        scheme: str = "euler",
+        control: str = "uniform",
+        steps=None,
+        data: str = "points",
+        lifting: str = "nodal",
+        solver: str = "auto",
+        newton: NewtonOptions | None = None,
+        noise=None,
+        store_fields: bool = True,
+        keep_every: int = 1,
+        observer=None,
+        linear_rtol: float = 1e-10,
+        start: str = "taylor",
+        error_scale: float | None = None,
+    ):
         self.problem = p = problem
         self.comm = p.comm
         self.PETSc = PETSc = p.PETSc
@@ -106,20 +121,32 @@ class PetscELDStepper:
         self.start = check_choice("start", start, STARTS)
         self.control = check_choice("control", control, CONTROLS)
         if data != "points":
-            raise fail("data", data, "must be 'points' with backend 'petsc' (means and "
-                       "differenced data are not distributed yet)")
+            raise fail(
+                "data",
+                data,
+                "must be 'points' with backend 'petsc' (means and "
+                "differenced data are not distributed yet)",
+            )
         if noise is not None:
             raise fail("noise", "given", "is not supported by backend 'petsc'")
         if self.form == "regularized" and lifting != "nodal":
-            raise fail("lifting", lifting, "must be 'nodal' with backend 'petsc' (the harmonic "
-                       "lifting is not distributed yet)")
+            raise fail(
+                "lifting",
+                lifting,
+                "must be 'nodal' with backend 'petsc' (the harmonic "
+                "lifting is not distributed yet)",
+            )
         self.lifting_kind = "nodal" if self.form == "regularized" else None
         from .problem import DistributedDamping
 
         self.D = D = DistributedDamping(p)
         if D.matrix is not None:
-            raise fail("damping", p.damping.name, "must be Rayleigh, nonlinear or none with "
-                       "backend 'petsc' (a user's damping matrix is not distributed)")
+            raise fail(
+                "damping",
+                p.damping.name,
+                "must be Rayleigh, nonlinear or none with "
+                "backend 'petsc' (a user's damping matrix is not distributed)",
+            )
         self.newton = newton or NewtonOptions()
         self.store_fields = bool(store_fields)
         self.keep_every = check_int("keep_every", keep_every, minimum=1)
@@ -140,8 +167,9 @@ class PetscELDStepper:
         self.stats = SolverStats()
         self.krylov_seconds = 0.0  # wall time inside PETSc's CG (benchmarks: per-phase times)
         self._last_newton = 0
-        self.error_scale = (None if error_scale is None
-                            else check_positive("error_scale", error_scale))
+        self.error_scale = (
+            None if error_scale is None else check_positive("error_scale", error_scale)
+        )
         # PETSc objects: vectors on the owned dofs sharing numpy buffers, thin Gamma_D blocks
         self._in = np.zeros(self.n)
         self._vin = PETSc.Vec().createWithArray(self._in, comm=self.comm)
@@ -213,8 +241,7 @@ class PetscELDStepper:
             for q in basis:
                 w = w - self._dot(q, w) * q
             basis.append(w / math.sqrt(self._dot(w, w)))
-        vecs = [self.PETSc.Vec().createWithArray(w.copy(), bsize=d, comm=self.comm)
-                for w in basis]
+        vecs = [self.PETSc.Vec().createWithArray(w.copy(), bsize=d, comm=self.comm) for w in basis]
         return self.PETSc.NullSpace().create(vectors=vecs, comm=self.comm)
 
     def _make_ksp(self):
@@ -351,8 +378,7 @@ class PetscELDStepper:
         return a, lam
 
     def initial_state(self) -> ELDState:
-        with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore",
-                                                 divide="ignore"):
+        with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return self._initial_state()
 
     def _initial_state(self) -> ELDState:
@@ -362,14 +388,16 @@ class PetscELDStepper:
         vc[self.C] = Gd0[self.bpos]
         F0 = p.load(0.0)
         if self._any(not np.all(np.isfinite(F0))) or not (
-                np.all(np.isfinite(Gd0)) and np.all(np.isfinite(Gdd0))):
+            np.all(np.isfinite(Gd0)) and np.all(np.isfinite(Gdd0))
+        ):
             raise fail("initial data", "non-finite values", "must be finite")
         a0, lam0 = self.consistent_acceleration(0.0, p.u0, vc, Gdd0)
         if self._any(not np.all(np.isfinite(a0))) or not np.all(np.isfinite(lam0)):
-            raise RunFailed("non-finite initial state: the consistent acceleration or multiplier "
-                            "at t = 0 has NaN or inf entries (overflow?)",
-                            where={"step": 0, "s": 0.0, "t": 0.0, "form": self.form,
-                                   "scheme": self.scheme})
+            raise RunFailed(
+                "non-finite initial state: the consistent acceleration or multiplier "
+                "at t = 0 has NaN or inf entries (overflow?)",
+                where={"step": 0, "s": 0.0, "t": 0.0, "form": self.form, "scheme": self.scheme},
+            )
         C = self.C
         if self.form == "regularized":
             u2, v2, w2 = self._embed(G0), self._embed(Gd0), self._embed(Gdd0)
@@ -384,8 +412,15 @@ class PetscELDStepper:
             x, y, b = p.u0.copy(), p.v0.copy(), a0.copy()
             u, v = x, p.v0.copy()
         fields = {"x": x, "y": y, "b": b, "u": u, "v": v, "a": a0}
-        state = ELDState(t=0.0, j=0, tau_prev=None, fields=fields, boundary={"lam": lam0},
-                         products={}, ledger=EnergyLedger())
+        state = ELDState(
+            t=0.0,
+            j=0,
+            tau_prev=None,
+            fields=fields,
+            boundary={"lam": lam0},
+            products={},
+            ledger=EnergyLedger(),
+        )
         self._fill_products(state)
         vMv, uKu = self._dots([(v, state.products["Mv"]), (u, state.products["Ku"])])
         kin, el = 0.5 * self.rho * vMv, 0.5 * uKu
@@ -454,8 +489,16 @@ class PetscELDStepper:
     def _failed(self, state, tau, code, message, its=0, counters=None) -> ELDStepResult:
         where = self.where(state)
         where.update(tau=tau, newton_iterations=its)
-        return ELDStepResult(state=None, tau=tau, newton_iterations=its, converged=False,
-                             code=code, message=message, where=where, counters=counters or {})
+        return ELDStepResult(
+            state=None,
+            tau=tau,
+            newton_iterations=its,
+            converged=False,
+            code=code,
+            message=message,
+            where=where,
+            counters=counters or {},
+        )
 
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -472,54 +515,91 @@ class PetscELDStepper:
                 state = self._with_prehistory(state, tau)
         coeffs = step_coefficients(scheme, tau, state.tau_prev)
         a0 = coeffs[0]
-        if self.scheme == "bdf2" and state.j > 0 and not tau / state.tau_prev < \
-                BDF2_ZERO_STABILITY:
-            raise RunFailed(f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
-                            f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
-                            where=self.where(state))
+        if self.scheme == "bdf2" and state.j > 0 and not tau / state.tau_prev < BDF2_ZERO_STABILITY:
+            raise RunFailed(
+                f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
+                f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
+                where=self.where(state),
+            )
         if not tau / a0 < self.bound:
-            raise RunFailed(f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
-                            f"{self.bound:g} (Lemma 3.2)", where=self.where(state))
+            raise RunFailed(
+                f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
+                f"{self.bound:g} (Lemma 3.2)",
+                where=self.where(state),
+            )
         p = self.problem
         F = p.load(t_new)
         G, Gd, Gdd = p.boundary_values(t_new)
-        bad = [name for name, w in (("the Dirichlet data G", G), ("G_dot", Gd),
-                                    ("G_ddot", Gdd)) if not np.all(np.isfinite(w))]
+        bad = [
+            name
+            for name, w in (("the Dirichlet data G", G), ("G_dot", Gd), ("G_ddot", Gdd))
+            if not np.all(np.isfinite(w))
+        ]
         if self._any(not np.all(np.isfinite(F))):
             bad.insert(0, "the load F (body force, tractions)")
         if bad:
-            raise RunFailed(f"non-finite data at step {j} (t = {t_new:.6g}): {bad[0]} has NaN or "
-                            "inf entries", where=self.where(state))
+            raise RunFailed(
+                f"non-finite data at step {j} (t = {t_new:.6g}): {bad[0]} has NaN or inf entries",
+                where=self.where(state),
+            )
         st = self.stats
         before = (st.factorizations, st.backsolves, st.krylov_iterations)
 
         def counters():
-            return {"newton_iterations": self._last_newton,
-                    "linear_factorizations": st.factorizations - before[0],
-                    "linear_solves": st.backsolves - before[1],
-                    "krylov_iterations": st.krylov_iterations - before[2]}
+            return {
+                "newton_iterations": self._last_newton,
+                "linear_factorizations": st.factorizations - before[0],
+                "linear_solves": st.backsolves - before[1],
+                "krylov_iterations": st.krylov_iterations - before[2],
+            }
 
         self._last_newton = 0
         try:
             k = self._solve_step(state, F, (G, Gd, Gdd), coeffs, tau)
         except _NewtonFailed as exc:
             return self._failed(
-                state, tau, "newton", f"Newton's method did not converge in {exc.iterations} "
+                state,
+                tau,
+                "newton",
+                f"Newton's method did not converge in {exc.iterations} "
                 f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = {exc.rnorm:.3g}); "
-                "the step is not accepted", exc.iterations, counters())
+                "the step is not accepted",
+                exc.iterations,
+                counters(),
+            )
         except SolveFailed as exc:
-            return self._failed(state, tau, "linear-solve", f"linear solve failed at step {j} "
-                                f"(t = {t_new:.6g}, tau = {tau:g}): {exc}; the step is not "
-                                "accepted", 0, counters())
+            return self._failed(
+                state,
+                tau,
+                "linear-solve",
+                f"linear solve failed at step {j} "
+                f"(t = {t_new:.6g}, tau = {tau:g}): {exc}; the step is not "
+                "accepted",
+                0,
+                counters(),
+            )
         new, extra = self._complete(state, k, F, (G, Gd, Gdd), coeffs, tau, t_new, scheme)
         if new is None:
-            return self._failed(state, tau, "non-finite", f"non-finite state at step {j} (t = "
-                                f"{t_new:.6g}, tau = {tau:g}): {extra} has NaN or inf "
-                                "entries; the step is not accepted", 0, counters())
+            return self._failed(
+                state,
+                tau,
+                "non-finite",
+                f"non-finite state at step {j} (t = "
+                f"{t_new:.6g}, tau = {tau:g}): {extra} has NaN or inf "
+                "entries; the step is not accepted",
+                0,
+                counters(),
+            )
         c = p.constraint
-        return ELDStepResult(state=new, tau=tau, lam=new.lam, reactions=c.reactions(new.lam),
-                             newton_iterations=self._last_newton, estimate=extra,
-                             counters=counters())
+        return ELDStepResult(
+            state=new,
+            tau=tau,
+            lam=new.lam,
+            reactions=c.reactions(new.lam),
+            newton_iterations=self._last_newton,
+            estimate=extra,
+            counters=counters(),
+        )
 
     # -- BDF2 start (schemes._with_prehistory, on the owned dofs) --------------------------------
     def _with_prehistory(self, state: ELDState, tau: float) -> ELDState:
@@ -531,8 +611,10 @@ class PetscELDStepper:
         vc[C] = p.boundary_values(0.0, ("G_dot",))[0][self.bpos]
         G3 = np.zeros(self.n)
         if self.start == "taylor":
-            g_tau, g_0 = p.boundary_values(tau, ("G_ddot",))[0], p.boundary_values(0.0, (
-                "G_ddot",))[0]
+            g_tau, g_0 = (
+                p.boundary_values(tau, ("G_ddot",))[0],
+                p.boundary_values(0.0, ("G_ddot",))[0],
+            )
             G3[C] = ((g_tau - g_0) / tau)[self.bpos]
 
         def P(s):
@@ -548,20 +630,34 @@ class PetscELDStepper:
             fields.update(x_1=U1, y=V0, y_1=V1)
         fields.update(v=V0, u_1=U1, v_1=V1)
         products = {k: w for k, w in state.products.items() if k not in ("My", "Ky", "Mv")}
-        new = replace(state, tau_prev=tau, fields=fields, boundary=dict(state.boundary),
-                      products=products)
+        new = replace(
+            state, tau_prev=tau, fields=fields, boundary=dict(state.boundary), products=products
+        )
         self._fill_products(new)
         pr = new.products
         L = new.ledger
         dv, du = V0 - V1, u0 - U1
         MV1, KU1 = self._mult(p.M, V1), self._mult(p.K, U1)
-        v0M, zdk, sqk, zde, sqe = self._dots([(V0, pr["Mv"]), (pr["Mv"], dv),
-                                             (pr["Mv"] - MV1, dv), (pr["Ku"], du),
-                                             (pr["Ku"] - KU1, du)])
+        v0M, zdk, sqk, zde, sqe = self._dots(
+            [
+                (V0, pr["Mv"]),
+                (pr["Mv"], dv),
+                (pr["Mv"] - MV1, dv),
+                (pr["Ku"], du),
+                (pr["Ku"] - KU1, du),
+            ]
+        )
         kin = 0.5 * self.rho * v0M
-        L = replace(L, kinetic=kin, mismatch=L.mismatch - (kin - L.kinetic),
-                    g_zd_kin=self.rho * zdk, g_sq_kin=self.rho * sqk, g_zd_el=zde, g_sq_el=sqe,
-                    g_mu=0.5)
+        L = replace(
+            L,
+            kinetic=kin,
+            mismatch=L.mismatch - (kin - L.kinetic),
+            g_zd_kin=self.rho * zdk,
+            g_sq_kin=self.rho * sqk,
+            g_zd_el=zde,
+            g_sq_el=sqe,
+            g_mu=0.5,
+        )
         C0 = 0.5 * (L.g_zd_kin + L.g_zd_el) + 0.25 * (L.g_sq_kin + L.g_sq_el)
         new.ledger = replace(L, boundary_C=C0, boundary_C0=C0)
         return new
@@ -593,13 +689,19 @@ class PetscELDStepper:
         h = self._history(state, coeffs)
         guess = self._guess(state, tau)
         if self.form == "regularized":
-            lifted = [(self._embed(G), None, self._thin(self._K_C, G)),
-                      (self._embed(Gd), self._thin(self._M_C, Gd), self._thin(self._K_C, Gd)),
-                      (self._embed(Gdd), self._thin(self._M_C, Gdd), None)]
+            lifted = [
+                (self._embed(G), None, self._thin(self._K_C, G)),
+                (self._embed(Gd), self._thin(self._M_C, Gd), self._thin(self._K_C, Gd)),
+                (self._embed(Gdd), self._thin(self._M_C, Gdd), None),
+            ]
             (_, _, Ku2), (_, Mv2, Kv2), (_, Mw2, _) = lifted
-            rhs = (F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau + Mw2)
-                   - D.mass_coef * (h["Mx"] / tau + Mv2)
-                   - D.stiffness_coef * (h["Kx"] / tau + Kv2) - Ku2)
+            rhs = (
+                F
+                - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau + Mw2)
+                - D.mass_coef * (h["Mx"] / tau + Mv2)
+                - D.stiffness_coef * (h["Kx"] / tau + Kv2)
+                - Ku2
+            )
             guess[C] = 0.0
             if not D.is_linear:
                 return self._newton(state, F, h, coeffs, tau, lifted, guess)
@@ -612,8 +714,12 @@ class PetscELDStepper:
             if not D.is_linear:
                 guess[C] = G[self.bpos]
                 return self._newton(state, F, h, coeffs, tau, lifted, guess)
-            rhs = (F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
-                   - D.mass_coef * h["Mx"] / tau - D.stiffness_coef * h["Kx"] / tau)
+            rhs = (
+                F
+                - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
+                - D.mass_coef * h["Mx"] / tau
+                - D.stiffness_coef * h["Kx"] / tau
+            )
             # condensed constraint: x_C = g, A_II x_I = rhs_I - A_IC g
             cm, ck = self._coefficients(te)
             rhs = rhs - (cm * self._thin(self._M_C, G) + ck * self._thin(self._K_C, G))
@@ -639,8 +745,9 @@ class PetscELDStepper:
         opts = self.newton
 
         def residual(x):
-            k = ELDStepper._kinematics(self, h, coeffs, tau, x, self._mult(p.M, x),
-                                       self._mult(p.K, x), lifted)
+            k = ELDStepper._kinematics(
+                self, h, coeffs, tau, x, self._mult(p.M, x), self._mult(p.K, x), lifted
+            )
             R = rho * k["Ma"] + k["Dv"] + k["Ku"] - F
             R[C] = 0.0
             return R, k
@@ -716,8 +823,10 @@ class PetscELDStepper:
             ksp.setOperators(A, A)
             J.destroy()
         if reason < 0:
-            raise SolveFailed(f"PETSc CG on the Newton system did not converge (reason "
-                              f"{reason}, {its} iterations)")
+            raise SolveFailed(
+                f"PETSc CG on the Newton system did not converge (reason "
+                f"{reason}, {its} iterations)"
+            )
         if self._pc_its is not None and its > REBUILD_FACTOR * self._pc_its + 2:
             self._rebuild = True
         return self._x.copy()
@@ -733,8 +842,14 @@ class PetscELDStepper:
         r_own = F - rho * k["Ma"] - k["Dv"] - k["Ku"]
         r_C, v_C = p.gather_boundary(r_own, k["v"])
         lam = c.multiplier_from_residual(r_C)
-        bad_local = next((name for name, w in (("u", k["u"]), ("v", k["v"]), ("a", k["a"]))
-                          if not np.all(np.isfinite(w))), None)
+        bad_local = next(
+            (
+                name
+                for name, w in (("u", k["u"]), ("v", k["v"]), ("a", k["a"]))
+                if not np.all(np.isfinite(w))
+            ),
+            None,
+        )
         if self._any(bad_local is not None) or not np.all(np.isfinite(lam)):
             return None, bad_local or "lambda"
         f, pr = state.fields, state.products
@@ -755,8 +870,19 @@ class PetscELDStepper:
         rx = k["x"] - f["x"] - 0.5 * tau * (k["y"] + f["y"])
         Mr = k["My"] - pr["My"] - 0.5 * tau * (k["Mb"] + pr["Mb"])
         ry = k["y"] - f["y"] - 0.5 * tau * (k["b"] + f["b"])
-        pairs += [(Ma, v), (Mv, tdv), (Ku, v), (Ku, tdu), (F, v), (Dv, v), (R, v), (v, Mv),
-                  (u, Ku), (rx, Kr), (ry, Mr)]
+        pairs += [
+            (Ma, v),
+            (Mv, tdv),
+            (Ku, v),
+            (Ku, tdu),
+            (F, v),
+            (Dv, v),
+            (R, v),
+            (v, Mv),
+            (u, Ku),
+            (rx, Kr),
+            (ry, Mr),
+        ]
         s = self._dots(pairs)
         sq_kin, sq_el, zd_kin, zd_el = rho * s[0], s[1], rho * s[2], s[3]
         N = 0.5 * (sq_kin + sq_el) + (a0 - 1.0) * (zd_kin + zd_el)
@@ -777,27 +903,63 @@ class PetscELDStepper:
         if not math.isfinite(kin + el):
             return None, "the energy E = 1/2 rho v.M v + 1/2 u.K u"
         ledger = replace(
-            L, kinetic=kin, elastic=el,
+            L,
+            kinetic=kin,
+            elastic=el,
             work=L.work + tau * F_v,
             work_reaction=L.work_reaction - tau * float(lam @ Bv),
             dissipated=L.dissipated + tau * Dv_v,
-            numerical=L.numerical + N, mismatch=L.mismatch + X,
+            numerical=L.numerical + N,
+            mismatch=L.mismatch + X,
             residual_work=L.residual_work + tau * R_v,
-            numerical_G=L.numerical_G + N_G, step_change=L.step_change + S,
-            boundary_C=C_new, g_zd_kin=zd_kin, g_sq_kin=sq_kin, g_zd_el=zd_el, g_sq_el=sq_el,
-            g_mu=mu)
+            numerical_G=L.numerical_G + N_G,
+            step_change=L.step_change + S,
+            boundary_C=C_new,
+            g_zd_kin=zd_kin,
+            g_sq_kin=sq_kin,
+            g_zd_el=zd_el,
+            g_sq_el=sq_el,
+            g_mu=mu,
+        )
         omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
         norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
         scale = max(state.energy_norm_max, norm_new, 1e-300)
         est = estimate_factor(scheme, omega) * math.sqrt(max(rxKr + rho * ryMr, 0.0)) / scale
-        fields = {"x": k["x"], "x_1": f["x"], "y": k["y"], "y_1": f["y"], "b": k["b"],
-                  "u": u, "u_1": f["u"], "v": v, "v_1": f["v"], "a": k["a"]}
-        products = {"Mx": k["Mx"], "Kx": k["Kx"], "Mx_1": pr["Mx"], "Kx_1": pr["Kx"],
-                    "My": k["My"], "Ky": k["Ky"], "My_1": pr["My"], "Ky_1": pr["Ky"],
-                    "Mb": k["Mb"], "Ku": Ku, "Mv": Mv}
-        new = ELDState(t=t_new, j=state.j + 1, tau_prev=tau, fields=fields,
-                       boundary={"lam": lam}, products=products, ledger=ledger,
-                       energy_norm_max=max(state.energy_norm_max, norm_new))
+        fields = {
+            "x": k["x"],
+            "x_1": f["x"],
+            "y": k["y"],
+            "y_1": f["y"],
+            "b": k["b"],
+            "u": u,
+            "u_1": f["u"],
+            "v": v,
+            "v_1": f["v"],
+            "a": k["a"],
+        }
+        products = {
+            "Mx": k["Mx"],
+            "Kx": k["Kx"],
+            "Mx_1": pr["Mx"],
+            "Kx_1": pr["Kx"],
+            "My": k["My"],
+            "Ky": k["Ky"],
+            "My_1": pr["My"],
+            "Ky_1": pr["Ky"],
+            "Mb": k["Mb"],
+            "Ku": Ku,
+            "Mv": Mv,
+        }
+        new = ELDState(
+            t=t_new,
+            j=state.j + 1,
+            tau_prev=tau,
+            fields=fields,
+            boundary={"lam": lam},
+            products=products,
+            ledger=ledger,
+            energy_norm_max=max(state.energy_norm_max, norm_new),
+        )
         return new, est
 
     # -- recording --------------------------------------------------------------------------------
@@ -807,11 +969,21 @@ class PetscELDStepper:
         st = result.state
         L = st.ledger
         rec = dict(
-            t=st.t, kinetic=L.kinetic, elastic=L.elastic, energy=L.energy, work=L.work,
-            work_reaction=L.work_reaction, dissipated=L.dissipated,
-            numerical_dissipation=L.numerical, numerical_dissipation_G=L.numerical_G,
-            step_change=L.step_change, data_mismatch=L.mismatch, residual_work=L.residual_work,
-            transfer=L.transfer, balance_residual=L.residual, tau=result.tau,
+            t=st.t,
+            kinetic=L.kinetic,
+            elastic=L.elastic,
+            energy=L.energy,
+            work=L.work,
+            work_reaction=L.work_reaction,
+            dissipated=L.dissipated,
+            numerical_dissipation=L.numerical,
+            numerical_dissipation_G=L.numerical_G,
+            step_change=L.step_change,
+            data_mismatch=L.mismatch,
+            residual_work=L.residual_work,
+            transfer=L.transfer,
+            balance_residual=L.residual,
+            tau=result.tau,
             local_error=result.estimate,
             lam_norm=self.problem.constraint.l2_norm(result.lam),
             newton_iterations=result.newton_iterations,
@@ -834,10 +1006,16 @@ class PetscELDStepper:
         if self.comm.rank != 0:
             return None
         return {
-            "format": "rothe-eld-state-1", "scheme": self.scheme, "form": self.form,
-            "backend": "petsc", "processes": int(self.comm.size),
-            "t": float(state.t), "j": int(state.j), "tau_prev": state.tau_prev,
-            "fields": fields, "products": products,
+            "format": "rothe-eld-state-1",
+            "scheme": self.scheme,
+            "form": self.form,
+            "backend": "petsc",
+            "processes": int(self.comm.size),
+            "t": float(state.t),
+            "j": int(state.j),
+            "tau_prev": state.tau_prev,
+            "fields": fields,
+            "products": products,
             "boundary": {k: w.copy() for k, w in state.boundary.items()},
             "ledger": {k: float(v) for k, v in asdict(state.ledger).items()},
             "energy_norm_max": float(state.energy_norm_max),
@@ -845,7 +1023,8 @@ class PetscELDStepper:
             "error_scale": None if self.error_scale is None else float(self.error_scale),
             "solver_reference": {"tau_eff": self._pc_te, "v": None},
             "solver_stats": asdict(self.stats),
-            "pc_its": self._pc_its, "pc_rebuild": bool(self._rebuild),
+            "pc_its": self._pc_its,
+            "pc_rebuild": bool(self._rebuild),
             "last_newton": int(self._last_newton),
         }
 
@@ -860,21 +1039,38 @@ class PetscELDStepper:
             elif int(data.get("processes", -1)) != comm.size:
                 head = RotheInputError(
                     f"checkpoint: written by {data.get('processes')} processes, this run has "
-                    f"{comm.size}: resume with mpiexec -n {data.get('processes')}")
+                    f"{comm.size}: resume with mpiexec -n {data.get('processes')}"
+                )
             else:
-                head = {k: data[k] for k in ("t", "j", "tau_prev", "boundary", "ledger",
-                                             "energy_norm_max", "error_scale",
-                                             "solver_reference", "solver_stats", "pc_its",
-                                             "pc_rebuild")}
+                head = {
+                    k: data[k]
+                    for k in (
+                        "t",
+                        "j",
+                        "tau_prev",
+                        "boundary",
+                        "ledger",
+                        "energy_norm_max",
+                        "error_scale",
+                        "solver_reference",
+                        "solver_stats",
+                        "pc_its",
+                        "pc_rebuild",
+                    )
+                }
                 head["names"] = (sorted(data["fields"]), sorted(data["products"]))
         head = comm.bcast(head, root=0)
         if isinstance(head, Exception):
             raise head
         part = self.problem.partition
-        fields = {k: part.scatter_serial(data["fields"][k] if comm.rank == 0 else None)
-                  for k in head["names"][0]}
-        products = {k: part.scatter_serial(data["products"][k] if comm.rank == 0 else None)
-                    for k in head["names"][1]}
+        fields = {
+            k: part.scatter_serial(data["fields"][k] if comm.rank == 0 else None)
+            for k in head["names"][0]
+        }
+        products = {
+            k: part.scatter_serial(data["products"][k] if comm.rank == 0 else None)
+            for k in head["names"][1]
+        }
         te = head["solver_reference"]["tau_eff"]
         if te is not None:
             self._set_operator(float(te))
@@ -886,11 +1082,15 @@ class PetscELDStepper:
             self.error_scale = float(head["error_scale"])
         tp = head["tau_prev"]
         return ELDState(
-            t=float(head["t"]), j=int(head["j"]), tau_prev=None if tp is None else float(tp),
+            t=float(head["t"]),
+            j=int(head["j"]),
+            tau_prev=None if tp is None else float(tp),
             fields=fields,
             boundary={k: np.asarray(w, dtype=float).copy() for k, w in head["boundary"].items()},
-            products=products, ledger=EnergyLedger(**head["ledger"]),
-            energy_norm_max=float(head["energy_norm_max"]))
+            products=products,
+            ledger=EnergyLedger(**head["ledger"]),
+            energy_norm_max=float(head["energy_norm_max"]),
+        )
 
     def close(self) -> None:
         """Free the PETSc objects (collective)."""

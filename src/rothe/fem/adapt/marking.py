@@ -43,10 +43,15 @@ import numpy as np
 from ...errors import RotheInputError, check_int, check_real, described, fail
 
 #: the CLI option of each parameter (error messages name them when ``naming="cli"``)
-CLI_NAMES = {"space_tol": "--space-tol", "refine_fraction": "--refine-fraction",
-             "coarsen_fraction": "--coarsen-fraction", "max_dofs": "--max-dofs",
-             "adapt_every": "--adapt-every", "max_level": "--max-level",
-             "coarsen_rounds": "--coarsen-rounds"}
+CLI_NAMES = {
+    "space_tol": "--space-tol",
+    "refine_fraction": "--refine-fraction",
+    "coarsen_fraction": "--coarsen-fraction",
+    "max_dofs": "--max-dofs",
+    "adapt_every": "--adapt-every",
+    "max_level": "--max-level",
+    "coarsen_rounds": "--coarsen-rounds",
+}
 
 
 def doerfler_marking(eta: np.ndarray, fraction: float) -> np.ndarray:
@@ -67,8 +72,9 @@ def doerfler_marking(eta: np.ndarray, fraction: float) -> np.ndarray:
     return e2 >= threshold
 
 
-def coarsen_marking(eta: np.ndarray, budget: float,
-                    exclude: np.ndarray | None = None) -> np.ndarray:
+def coarsen_marking(
+    eta: np.ndarray, budget: float, exclude: np.ndarray | None = None
+) -> np.ndarray:
     """Boolean mask of the largest set of smallest indicators with sum eta_K^2 <= budget."""
     eta = np.asarray(eta, dtype=float)
     e2 = eta * eta
@@ -150,7 +156,8 @@ class SpaceAdaptivity:
             raise RotheInputError(
                 f"{n('refine_fraction')} + {n('coarsen_fraction')}: got "
                 f"{self.refine_fraction:g} + {self.coarsen_fraction:g} = {total:g}, must be "
-                "<= 1 (the refined and the coarsened cells must not overlap)")
+                "<= 1 (the refined and the coarsened cells must not overlap)"
+            )
         if self.max_dofs is not None:
             self.max_dofs = check_int(n("max_dofs"), self.max_dofs, minimum=1)
         self.adapt_every = check_int(n("adapt_every"), self.adapt_every, minimum=1)
@@ -162,8 +169,11 @@ class SpaceAdaptivity:
         """Check max_dofs against the dofs on ``amesh`` (an AdaptiveMesh); returns those dofs."""
         dofs = amesh.ndofs(degree, components)
         if self.max_dofs is not None and self.max_dofs < dofs:
-            raise fail(self._name("max_dofs"), self.max_dofs,
-                       f"must be >= the {dofs} dofs of the initial mesh")
+            raise fail(
+                self._name("max_dofs"),
+                self.max_dofs,
+                f"must be >= the {dofs} dofs of the initial mesh",
+            )
         return dofs
 
     def due(self, accepted_steps: int) -> bool:
@@ -174,33 +184,55 @@ class SpaceAdaptivity:
         """(refine, coarsen) masks from the cell indicators (see the module docstring)."""
         eta = np.asarray(eta, dtype=float)
         if eta.ndim != 1 or not np.all(np.isfinite(eta)) or np.any(eta < 0):
-            raise fail("indicators", described("an array that is not finite and >= 0 per cell"),
-                       "must be one finite value >= 0 per cell")
+            raise fail(
+                "indicators",
+                described("an array that is not finite and >= 0 per cell"),
+                "must be one finite value >= 0 per cell",
+            )
         est = float(np.sqrt(np.sum(eta * eta)))
-        refine = doerfler_marking(eta, self.refine_fraction) if est > self.space_tol else \
-            np.zeros(eta.shape, dtype=bool)
+        refine = (
+            doerfler_marking(eta, self.refine_fraction)
+            if est > self.space_tol
+            else np.zeros(eta.shape, dtype=bool)
+        )
         budget = self.coarsen_fraction * max(est, self.space_tol) ** 2
         coarsen = coarsen_marking(eta, budget, exclude=refine)
         return refine, coarsen
 
     def describe(self) -> dict:
-        return {"space_tol": self.space_tol, "refine_fraction": self.refine_fraction,
-                "coarsen_fraction": self.coarsen_fraction, "max_dofs": self.max_dofs,
-                "adapt_every": self.adapt_every, "max_level": self.max_level,
-                "coarsen_rounds": self.coarsen_rounds}
+        return {
+            "space_tol": self.space_tol,
+            "refine_fraction": self.refine_fraction,
+            "coarsen_fraction": self.coarsen_fraction,
+            "max_dofs": self.max_dofs,
+            "adapt_every": self.adapt_every,
+            "max_level": self.max_level,
+            "coarsen_rounds": self.coarsen_rounds,
+        }
 
 
-def adapt_mesh(amesh, eta: np.ndarray, options: SpaceAdaptivity, *, degree: int = 1,
-               components: int = 1):
+def adapt_mesh(
+    amesh, eta: np.ndarray, options: SpaceAdaptivity, *, degree: int = 1, components: int = 1
+):
     """Mark by ``options`` and adapt ``amesh`` (coarsen, then refine under the dof cap).
 
     Returns the :class:`~rothe.fem.adapt.bisection.MeshChange` (``change.changed`` is False
     when nothing was marked or nothing could change; the transfer is then the identity).
     """
     if len(eta) != amesh.n_cells:
-        raise fail("indicators", described(f"{len(eta)} values"),
-                   f"must have one per cell ({amesh.n_cells})")
+        raise fail(
+            "indicators",
+            described(f"{len(eta)} values"),
+            f"must have one per cell ({amesh.n_cells})",
+        )
     refine, coarsen = options.mark(eta)
-    return amesh.adapt(refine=refine, coarsen=coarsen, coarsen_rounds=options.coarsen_rounds,
-                       max_dofs=options.max_dofs, degree=degree, components=components,
-                       priority=eta, max_level=options.max_level)
+    return amesh.adapt(
+        refine=refine,
+        coarsen=coarsen,
+        coarsen_rounds=options.coarsen_rounds,
+        max_dofs=options.max_dofs,
+        degree=degree,
+        components=components,
+        priority=eta,
+        max_level=options.max_level,
+    )
