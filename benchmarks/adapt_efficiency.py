@@ -3,7 +3,8 @@
     python benchmarks/adapt_efficiency.py            # up to ~10^5 dofs in 2D, ~2*10^4 in 3D
     python benchmarks/adapt_efficiency.py --quick    # up to ~10^4 / ~3*10^3 dofs
 
-The stationary model problems of :mod:`rothe.eld.efficiency`, :mod:`rothe.ris.efficiency` (a Rothe step of each
+The stationary model problems of :mod:`rothe.eld.efficiency` and :mod:`rothe.ris.efficiency`
+(a Rothe step of each
 family with a manufactured exact solution, a fixed reaction coefficient):
 
 * ELD: -div sigma(u) + kappa u = f, lam = 2, mu = 1, kappa = 1, u = u* on ``left``, tractions
@@ -25,8 +26,8 @@ import time
 
 import numpy as np
 
-from rothe.fem.adapt.efficiency import dofs_for_error
 from rothe.eld.efficiency import elasticity_study
+from rothe.fem.adapt.efficiency import dofs_for_error
 from rothe.ris.efficiency import ris_study
 
 

@@ -49,7 +49,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     from rothe.eld.examples import beam_problem
     from rothe.fem import mesh as meshes
     from rothe.io.trajectory import Trajectory
-    from rothe.stepping.controllers import FixedStepController
+    from rothe.stepping.controllers import FixedStepController, Uniform
     from rothe.stepping.evolve import evolve
 
     comm = MPI.COMM_WORLD
@@ -77,7 +77,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     t0 = clock()
     from rothe.eld.damping import RayleighDamping
 
-    data = beam_problem(1, damping=RayleighDamping(0.0, 0.002), T=steps * TAU)._data
+    data = beam_problem(1, damping=RayleighDamping(0.0, 0.002), T=steps * TAU).definition
     problem = DistributedELDProblem(mesh, data, comm)
     del mesh  # as the command line does: only the partition's submesh stays
     out["ndofs"] = problem.ndofs
@@ -91,8 +91,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     t0 = clock()
     stepper = PetscELDStepper(
         problem,
-        "regularized",
-        TAU,
+        control=Uniform(TAU),
         solver="amg",
         store_fields=False,
         observer=observer,

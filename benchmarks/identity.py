@@ -235,7 +235,7 @@ def _json_files(root: Path) -> dict[str, Path]:
 def _diff_json(a, b, path: str, out: list[str]) -> None:
     if isinstance(a, dict) and isinstance(b, dict):
         for key in sorted(set(a) | set(b)):
-            if key in SKIP_KEYS or key.endswith("_seconds") or key.endswith("_time_s"):
+            if key in SKIP_KEYS or "seconds" in key or key.endswith("_time_s"):
                 continue
             if key not in a or key not in b:
                 out.append(f"{path}.{key}: only in {'after' if key in b else 'before'}")
@@ -264,11 +264,11 @@ def compare(before: Path, after: Path) -> int:
             np.load(npz_b[rel], allow_pickle=False) as fb,
         ):
             for key in sorted(set(fa.files) | set(fb.files)):
+                if key in ("stats_wall_time_s",) or key.startswith("stats_seconds"):
+                    continue  # wall-clock times
                 if key not in fa.files or key not in fb.files:
                     problems.append(f"{rel}:{key}: only {'after' if key in fb.files else 'before'}")
                     continue
-                if key in ("stats_wall_time_s",) or key.startswith("stats_seconds"):
-                    continue  # wall-clock times
                 x, y = fa[key], fb[key]
                 n_arrays += 1
                 if key == "meta":  # a JSON string: compared like a summary

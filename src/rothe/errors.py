@@ -1,8 +1,11 @@
 """Errors a user can cause, and the checks that raise them where input enters.
 
 Every message names the parameter, the value received and what is allowed, on one line, e.g.
-``tol: got -0.001, must be > 0``. The CLI prints exactly that line and exits with status 2;
-the Python API raises :class:`RotheInputError`, a :class:`ValueError`, with the same message.
+``tol: got -0.001, must be > 0``. The Python API raises :class:`RotheInputError`, a
+:class:`ValueError`, with that message and the parameter's name in ``parameter``; the command line
+prints the same line with the parameter replaced by the option it came from (``--tol: got
+-0.001, must be > 0``, :meth:`RotheInputError.renamed`, looked up in argparse's own table of the
+command) and exits with status 2. Validation happens once, where the value enters the library.
 """
 
 from __future__ import annotations
@@ -14,7 +17,26 @@ import numpy as np
 
 
 class RotheInputError(ValueError):
-    """Bad input: the message names the parameter, the value and what is allowed."""
+    """Bad input: the message names the parameter, the value and what is allowed.
+
+    ``parameter``: the name the message starts with (``tau`` in ``tau: got 0, must be > 0``),
+    or None when the message names no single parameter.
+    """
+
+    def __init__(self, message: str, parameter: str | None = None):
+        super().__init__(message)
+        self.parameter = parameter
+
+    def renamed(self, name: str) -> RotheInputError:
+        """The same error naming ``name`` (e.g. the CLI option ``--tau``) instead of the
+        parameter; unchanged if the message does not start with the parameter's name."""
+        message = str(self)
+        prefix = f"{self.parameter}: "
+        if self.parameter is None or not message.startswith(prefix):
+            return self
+        out = type(self)(f"{name}: {message[len(prefix) :]}", name)
+        out.__cause__ = self.__cause__
+        return out
 
 
 class DataError(RotheInputError):
@@ -101,8 +123,8 @@ def _fmt(value) -> str:
 
 
 def fail(name: str, value, allowed: str) -> RotheInputError:
-    """Build the one-line error ``<name>: got <value>, <allowed>``."""
-    return RotheInputError(f"{name}: got {_fmt(value)}, {allowed}")
+    """Build the one-line error ``<name>: got <value>, <allowed>`` (``parameter`` = name)."""
+    return RotheInputError(f"{name}: got {_fmt(value)}, {allowed}", name)
 
 
 def check_real(name: str, value) -> float:
@@ -141,6 +163,14 @@ def check_int(name: str, value, minimum: int | None = None) -> int:
 def check_choice(name: str, value, choices: Sequence[str]) -> str:
     if value not in choices:
         raise fail(name, value, "must be one of " + ", ".join(choices))
+    return value
+
+
+def check_instance(name: str, value, types, allowed: str):
+    """``value`` if it is an instance of ``types`` (an option object), else the one-line error
+    ``<name>: got <value>, must be <allowed>``."""
+    if not isinstance(value, types):
+        raise fail(name, value, f"must be {allowed}")
     return value
 
 

@@ -11,15 +11,16 @@ import warnings
 import numpy as np
 from mpi4py import MPI
 
+from rothe.eld import BDF2, run_eld
 from rothe.eld.examples import beam_problem
-from rothe.eld.schemes import run_eld
 from rothe.errors import RotheInputError, RunInterrupted
+from rothe.stepping.controllers import Uniform
 
 warnings.simplefilter("ignore")
 comm = MPI.COMM_WORLD
 ckpt, mode = sys.argv[1], sys.argv[2]
 p = beam_problem(3, degree=1, T=0.12)
-kw = dict(scheme="bdf2", solver="amg", linear_rtol=1e-10, backend="petsc")
+kw = dict(scheme=BDF2(), control=Uniform(0.01), solver="amg", linear_rtol=1e-10, backend="petsc")
 out = {}
 
 
@@ -29,14 +30,14 @@ def killer(state, result):
 
 
 if mode == "interrupt-then-resume":
-    full = run_eld(p, "regularized", 0.01, **kw)
+    full = run_eld(p, **kw).trajectory
     try:
-        run_eld(p, "regularized", 0.01, observer=killer, checkpoint=ckpt, **kw)
+        run_eld(p, observer=killer, checkpoint=ckpt, **kw)
         out["interrupted"] = False
     except RunInterrupted as exc:
         out["interrupted"] = True
         out["steps_at_stop"] = len(exc.trajectory["tau"])
-    resumed = run_eld(p, "regularized", 0.01, resume=ckpt, **kw)
+    resumed = run_eld(p, resume=ckpt, **kw).trajectory
     if comm.rank == 0:
         out["equal"] = {
             k: bool(np.array_equal(np.asarray(full[k]), np.asarray(resumed[k])))
@@ -44,7 +45,7 @@ if mode == "interrupt-then-resume":
         }
 else:
     try:
-        run_eld(p, "regularized", 0.01, resume=ckpt, **kw)
+        run_eld(p, resume=ckpt, **kw)
         out["refused"] = None
     except RotheInputError as exc:
         out["refused"] = str(exc)

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import check_positive
+from ..stepping.progress import ProgressOptions
+
 
 def add_output_options(parser, name: str) -> None:
     parser.add_argument("--out", default=None, help=f"output directory (default rothe-out/{name})")
@@ -41,11 +44,12 @@ def output_dir(args, name: str) -> Path:
     return check_writable(out, "--out")
 
 
-def progress_of(args):
+def progress_of(args) -> ProgressOptions:
     """The progress options of a command (``--quiet``, ``--progress-every``)."""
-    from .session import progress_options
-
-    return progress_options(args)
+    every = getattr(args, "progress_every", 30.0)
+    return ProgressOptions(
+        enabled=not args.quiet, every_seconds=check_positive("--progress-every", every)
+    )
 
 
 def parse_float(name: str):

@@ -72,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
         for name, cmd in sorted(registry.commands(verb).items()):
             sub = names.add_parser(name, help=cmd.help, description=cmd.help)
             cmd.configure(sub)
-            sub.set_defaults(_command=cmd)
+            sub.set_defaults(_command=cmd, _options=option_table(sub, cmd))
     rp = verbs.add_parser("resume", help=Resume.help, description=Resume.help)
     Resume.configure(rp)
     rp.set_defaults(_command=Resume())
@@ -179,6 +179,35 @@ def _known(verb: str) -> str:
     return ", ".join(sorted(registry.commands(verb)))
 
 
+def option_table(parser, command=None) -> dict[str, str]:
+    """The option each library parameter comes from, read off argparse's own table of the
+    command: ``dest`` -> ``--long-option`` (``tau`` -> ``--tau``, ``space_tol`` ->
+    ``--space-tol``), plus the command's ``parameter_options`` for API parameters whose name is
+    not the option's (e.g. ``{"adapt": "--adapt-space"}``)."""
+    table: dict[str, str] = {}
+    for action in parser._actions:
+        longs = [s for s in action.option_strings if s.startswith("--")]
+        if not longs or action.dest in ("help", "version"):
+            continue
+        table.setdefault(action.dest, longs[0])
+        table.setdefault(longs[0][2:].replace("-", "_"), longs[0])
+    table.update(getattr(command, "parameter_options", {}) or {})
+    return table
+
+
+def execute(args) -> int:
+    """Execute a parsed command; bad input found by the library names the command-line option
+    it came from (:meth:`RotheInputError.renamed` with :func:`option_table`), not the API
+    parameter."""
+    try:
+        return int(args._command.execute(args) or 0)
+    except RotheInputError as exc:
+        option = getattr(args, "_options", {}).get(exc.parameter)
+        if option is None:
+            raise
+        raise exc.renamed(option) from exc.__cause__
+
+
 def _dispatch(parser, argv: list[str]) -> int:
     # a clearer message than argparse's for an unknown example name
     if len(argv) >= 2 and argv[0] in registry.VERBS and not argv[1].startswith("-"):
@@ -188,7 +217,7 @@ def _dispatch(parser, argv: list[str]) -> int:
         args = parse_command(parser, argv)
     except SystemExit as exc:  # --help, --version: argparse printed them and exits
         return int(exc.code or 0)
-    return int(args._command.execute(args) or 0)
+    return execute(args)
 
 
 def parse_command(parser, argv: list[str]):

@@ -26,7 +26,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import RunFailed, RunInterrupted, fail
+from ..errors import RunFailed, RunInterrupted, check_positive, fail
 from ..io.atomic import check_writable, remove_stale_temporaries
 from ..io.checkpoint import (
     CHECKPOINT_SUBDIR,
@@ -39,7 +39,7 @@ from ..io.checkpoint import (
 )
 from ..io.outputs import OutputSet, read_summary
 from ..stepping import interrupt
-from ..stepping.progress import ProgressOptions
+from .common import parse_float, progress_of
 
 #: options that change where and how results are shown, never the results themselves
 PRESENTATION = (
@@ -52,7 +52,7 @@ PRESENTATION = (
     "discard_checkpoint",
 )
 #: argparse bookkeeping
-_INTERNAL = ("_command", "_argv", "_given", "verb", "name")
+_INTERNAL = ("_command", "_options", "_argv", "_given", "verb", "name")
 #: options stripped from the recorded command line (``rothe resume`` supplies them)
 _STRIP_WITH_VALUE = ("--out", "--resume")
 _STRIP_FLAGS = ("--discard-checkpoint",)
@@ -61,8 +61,6 @@ INCOMPLETE = "incomplete"
 
 def add_run_options(parser) -> None:
     """``--checkpoint-every``, ``--resume`` and ``--discard-checkpoint`` of the run commands."""
-    from .common import parse_float
-
     parser.add_argument(
         "--checkpoint-every",
         type=parse_float("--checkpoint-every"),
@@ -165,14 +163,14 @@ class RunSession:
         argv = list(sys.argv[1:] if argv is None else argv)
         self.checkpoint = CheckpointOptions(
             self.checkpoint_dir,
-            every_seconds=_positive("--checkpoint-every", args.checkpoint_every),
+            every_seconds=check_positive("--checkpoint-every", args.checkpoint_every),
             record={
                 "command": self.command,
                 "argv": strip_argv(argv),
                 "args": result_arguments(args),
             },
         )
-        self.progress = progress_options(args)
+        self.progress = progress_of(args)
         self._guard = interrupt.interruptible(hard_second=True)
 
     # -- checks before the first step -----------------------------------------------------------
@@ -314,19 +312,6 @@ class RunSession:
             )
             return exc.exit_status
         raise exc
-
-
-def progress_options(args) -> ProgressOptions:
-    every = getattr(args, "progress_every", 30.0)
-    return ProgressOptions(
-        enabled=not args.quiet, every_seconds=_positive("--progress-every", every)
-    )
-
-
-def _positive(option: str, value) -> float:
-    from ..errors import check_positive
-
-    return check_positive(option, value)
 
 
 def _run_dir(path: Path) -> Path:

@@ -4,7 +4,7 @@ Runs the Cartesian product of the given option values of a ``run`` command, each
 folder under ``--out`` (named by its parameters), on ``--workers`` processes or an existing Dask
 ``--scheduler``, and collects every run's summary.json into ``sweep.csv`` and ``sweep.json`` (and a
 figure of two columns with ``--plot X,Y``). Any other option after the example goes to every run.
-The machinery is :mod:`rothe.parallel.sweep`.
+The machinery is :mod:`rothe.cli.sweep`.
 """
 
 from __future__ import annotations
@@ -105,7 +105,7 @@ class SweepRunCommand:
         self._parser = parser
 
     def execute(self, args) -> int:
-        from ..parallel.sweep import format_rows, parse_plot, run_sweep
+        from .sweep import format_rows, parse_plot, run_sweep
 
         own_tokens, fixed = split_sweep_args(list(args.run_options))
         if "-h" in own_tokens or "--help" in own_tokens:

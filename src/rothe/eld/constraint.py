@@ -100,6 +100,12 @@ class DirichletConstraint:
         """lambda = M_G^{-1} r_C: the equation tested with the constrained basis functions."""
         return self._bm_lu.solve(np.asarray(r_C, dtype=float))
 
+    @property
+    def reaction_weights(self) -> dict[str, np.ndarray]:
+        """Per part P, the weights w_P on the constrained scalar dofs with int_P lambda_c ds =
+        w_P . lambda_c (column sums of P's boundary mass): :meth:`reactions` is -w_P L."""
+        return dict(self._reaction_weights)
+
     def reactions(self, lam: np.ndarray) -> dict[str, np.ndarray]:
         """Reaction force per part: -int_P lambda ds, one d-vector per part (support on body)."""
         L = np.asarray(lam).reshape(-1, self.space.dim)
@@ -123,6 +129,7 @@ class NodalLifting:
         return self.constraint.embed(g)
 
     def lift_many(self, gs: list[np.ndarray]) -> list[np.ndarray]:
+        """[B^- g for g in gs]: S^T g for each (nodal lifting)."""
         return [self.constraint.embed(g) for g in gs]
 
 
@@ -161,6 +168,9 @@ class HarmonicLifting:
 
 
 def make_lifting(kind: str, constraint: DirichletConstraint, K):
+    """The right inverse B^- of ``kind`` ('nodal' or 'harmonic') for ``constraint`` (K: the
+    stiffness the harmonic extension uses).
+    """
     if kind == "nodal":
         return NodalLifting(constraint)
     if kind == "harmonic":

@@ -20,7 +20,7 @@ fixed mesh keep the plain format (``z`` one (K + 1, n) array).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -38,9 +38,29 @@ class RunStatistics:
     krylov_iterations: int = 0
     landing_retries: int = 0  # steps redone shorter to land on T
     wall_time_s: float = 0.0  # summed over all sessions of a resumed run
+    #: wall-clock seconds by phase (rothe.timing): step, adapt, estimate, mark, refine,
+    #: transfer, rebuild, factor, solve, record, checkpoint; summed over sessions
+    seconds: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    def untimed(self) -> dict:
+        """The counts without the wall-clock times (what a repeated or resumed run reproduces)."""
+        out = self.as_dict()
+        for key in TIMED_STATISTICS:
+            out.pop(key)
+        return out
+
+
+#: the statistics that are wall-clock times (differ between two runs of the same computation)
+TIMED_STATISTICS = ("wall_time_s", "seconds")
+
+
+def is_timing_array(name: str) -> bool:
+    """Whether an array of ``trajectory.npz`` is a wall-clock time (``stats_wall_time_s``,
+    ``stats_seconds_<phase>``) rather than a result."""
+    return name == "stats_wall_time_s" or name.startswith("stats_seconds_")
 
 
 #: key suffix of the entry lengths of a ragged series in a checkpoint segment
@@ -136,6 +156,10 @@ class Trajectory:
         path.parent.mkdir(parents=True, exist_ok=True)
         data = self.arrays()
         for key, value in self.stats.as_dict().items():
+            if key == "seconds":  # one array per phase
+                for phase, seconds in value.items():
+                    data[f"stats_seconds_{phase}"] = np.asarray(seconds)
+                continue
             data[f"stats_{key}"] = np.asarray(value)
         data["meta"] = np.asarray(json.dumps(self.meta, default=str))
         if extra:
@@ -169,6 +193,8 @@ class Trajectory:
                     continue
                 if key == "meta":
                     traj.meta = json.loads(str(f[key]))
+                elif key.startswith("stats_seconds_"):
+                    traj.stats.seconds[key[len("stats_seconds_") :]] = float(f[key])
                 elif key.startswith("stats_"):
                     name = key[len("stats_") :]
                     if hasattr(traj.stats, name):

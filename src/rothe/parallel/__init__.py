@@ -5,7 +5,8 @@
   :func:`execute_task` (what happens around a run wherever it executes);
 - :mod:`rothe.parallel.executor`: :class:`Executor` (in-process, a local Dask cluster of worker
   processes, or an existing Dask scheduler), the ``--workers``/``--scheduler`` options;
-- :mod:`rothe.parallel.sweep`: ``rothe sweep run <example> --param NAME=V1,V2,...``.
+- the command line's sweeps (``rothe sweep run <example> --param NAME=V1,V2,...``) and its runs
+  as tasks are in :mod:`rothe.cli.sweep` and :mod:`rothe.cli.tasks`.
 
 Dask (``pip install "rothe[dask]"``) is imported only when a cluster is used. See
 ``docs/scaling.md``.
@@ -19,7 +20,7 @@ from .executor import (
     executor_from_args,
     run_tasks,
 )
-from .tasks import Task, TaskFailed, TaskResult, cli_task, execute_task, task_environment
+from .tasks import Task, TaskFailed, TaskResult, execute_task, task_environment
 
 __all__ = [
     "Executor",
@@ -27,7 +28,6 @@ __all__ = [
     "TaskFailed",
     "TaskResult",
     "add_parallel_options",
-    "cli_task",
     "dask_available",
     "default_workers",
     "execute_task",

@@ -1,9 +1,9 @@
 """One independent run as a picklable task, and what happens around it wherever it executes.
 
 A :class:`Task` names a module-level function and its keyword arguments (both pickled by
-reference/value, so a Dask worker on another machine can run it); :func:`cli_task` wraps the argv
-of a ``rothe run`` command. :func:`execute_task` runs a task and never raises for a failure of the
-run: it returns a :class:`TaskResult` with a status,
+reference/value, so a Dask worker on another machine can run it; the command line wraps the argv
+of a ``rothe run`` command in one: :func:`rothe.cli.tasks.cli_task`). :func:`execute_task` runs
+a task and never raises for a failure of the run: it returns a :class:`TaskResult` with a status,
 
 - ``completed``: the function returned;
 - ``failed``: the run stopped midway (:class:`~rothe.errors.RunFailed`, or :class:`TaskFailed`
@@ -12,7 +12,7 @@ run: it returns a :class:`TaskResult` with a status,
   or an unexpected exception (type, message and traceback kept);
 - ``lost`` is set by the executor when the worker running the task died twice;
 - ``interrupted`` / ``pending``: set by a sweep stopped by SIGINT/SIGTERM for the runs under
-  way / not started (:func:`rothe.parallel.sweep.interrupted_results`).
+  way / not started (:func:`rothe.cli.sweep.interrupted_results`).
 
 Bit-identical results wherever a task runs: :func:`task_environment` gives every task the same
 process state, whatever ran before it in that process: BLAS and OpenMP limited to one thread
@@ -23,21 +23,18 @@ from ``np.random.rand``, so an AMG run otherwise depends on what the process dre
 
 from __future__ import annotations
 
-import json
 import random
-import signal
 import sys
 import time
 import traceback
 from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import RotheInputError, RunFailed, RunInterrupted
+from ..errors import RotheInputError, RunFailed
 
 STATUSES = ("completed", "failed", "error", "lost", "interrupted", "pending")
 
@@ -145,73 +142,4 @@ def execute_task(task: Task) -> TaskResult:
     )
 
 
-# -- CLI runs as tasks ----------------------------------------------------------------------------
-
-
-def run_command(argv: list[str], out: str | None = None) -> dict | None:
-    """Parse and execute one ``rothe`` command line; return the summary.json it wrote (or None).
-
-    Exceptions propagate (classified by :func:`execute_task`); a run that fails midway still
-    hands back the summary it wrote (status ``failed``). A run stopped by SIGINT/SIGTERM (its
-    session wrote its checkpoint and results so far and returned 130/143) raises
-    :class:`~rothe.errors.RunInterrupted`: the signal was meant for the whole sweep, whose
-    executor stops instead of starting the next run. Only a summary this run wrote counts:
-    ``out/summary.json``, or ``out/incomplete/summary.json`` where a run that does not complete
-    leaves the completed result of an earlier run in place (:mod:`rothe.cli.session`).
-    """
-    from ..cli.main import build_parser, parse_command
-
-    args = parse_command(build_parser(), list(argv))
-    paths = (
-        [Path(out) / "summary.json", Path(out) / "incomplete" / "summary.json"]
-        if out is not None
-        else []
-    )
-
-    def stamps():
-        return [p.stat().st_mtime_ns if p.is_file() else None for p in paths]
-
-    before = stamps()
-
-    def summary():
-        for path, old, new in zip(paths, before, stamps(), strict=True):
-            if new is not None and new != old:  # written by this run
-                return json.loads(path.read_text())
-        return None
-
-    try:
-        code = int(args._command.execute(args) or 0)
-    except RunFailed as exc:
-        raise TaskFailed(str(exc), value=summary()) from exc
-    if code - 128 in (signal.SIGINT, signal.SIGTERM):
-        raise RunInterrupted(f"interrupted by {signal.Signals(code - 128).name}", signum=code - 128)
-    if code != 0:
-        raise TaskFailed(f"exit status {code}", value=summary())
-    done = summary()
-    if done is None and getattr(args, "resume", None) is not None and paths:
-        # resumed a run that had already completed: nothing ran, its summary is its result
-        try:
-            earlier = json.loads(paths[0].read_text())
-        except (OSError, ValueError):
-            earlier = None
-        if isinstance(earlier, dict) and earlier.get("status") == "completed":
-            done = earlier
-    return done
-
-
-def cli_task(key: str, argv: list[str], out: str | None = None, cost: float = 1.0) -> Task:
-    """A task running ``rothe <argv>``; ``out`` is the run's output folder (its summary.json
-    is the task's value)."""
-    return Task(key, run_command, {"argv": [str(a) for a in argv], "out": out}, cost)
-
-
-__all__ = [
-    "STATUSES",
-    "Task",
-    "TaskFailed",
-    "TaskResult",
-    "cli_task",
-    "execute_task",
-    "run_command",
-    "task_environment",
-]
+__all__ = ["STATUSES", "Task", "TaskFailed", "TaskResult", "execute_task", "task_environment"]

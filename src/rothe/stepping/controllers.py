@@ -18,6 +18,12 @@ A failed solve is never accepted by any controller. The controllers here know no
 The RIS controllers of Andreia & Meyer (2022), which read the residuals I1 and I2, are in
 :mod:`rothe.ris.controllers`.
 
+What a user passes to ``run_ris`` / ``run_eld`` is a *step-control object*, validated in its
+constructor: :class:`Uniform` (tau), :class:`Given` (steps), :class:`Adaptive` (tol, first step,
+range), and the RIS-only ``Order2``, ``Regime``, ``Nested`` of :mod:`rothe.ris.controllers`. The
+family builds the controller from it (the command line maps its ``--control`` names to these
+objects in one place).
+
 Checkpoints (:mod:`rothe.io.checkpoint`): ``checkpoint_state() -> dict`` returns everything that
 influences the controller's future decisions, ``restore_state(data)`` puts it back into a
 controller built with the same arguments. A controller that adds state extends both
@@ -32,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import RunFailed, check_positive, fail
+from ..errors import RunFailed, check_positive, described, fail
 
 
 @dataclass
@@ -266,3 +272,80 @@ class ErrorNormController(StepController):
     def _restore_extra(self, data: dict) -> None:
         self.tau_last = None if data["tau_last"] is None else float(data["tau_last"])
         self.last_rejected = bool(data["last_rejected"])
+
+
+# -- step control as the user asks for it: validated objects, built into controllers by a family -
+
+
+@dataclass(frozen=True)
+class Uniform:
+    """Equal steps ``tau`` (RIS: in s, a failed solve retried with half the step, the run
+    stopping where that would go below ``tau_min``, None: the family's default; ELD: in t,
+    T/tau must be an integer, a failed step stops the run)."""
+
+    tau: float
+    tau_min: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "tau", check_positive("tau", self.tau))
+        _check_step_range(self)
+
+
+@dataclass(frozen=True)
+class Given:
+    """Steps tau_1, ..., tau_n given in advance (elastodynamics: they must sum to T)."""
+
+    steps: tuple
+
+    def __post_init__(self):
+        try:
+            arr = np.asarray(self.steps, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise fail(
+                "steps", described(type(self.steps).__name__), "must be a sequence of step sizes"
+            ) from None
+        if arr.size == 0:
+            raise fail("steps", described("[]"), "must hold at least one step size")
+        bad = np.flatnonzero(~(np.isfinite(arr) & (arr > 0)))
+        if bad.size:
+            k = int(bad[0])
+            raise fail(
+                "steps", described(f"tau_{k + 1} = {arr[k]:g}"), "must be positive and finite"
+            )
+        object.__setattr__(self, "steps", tuple(float(x) for x in arr))
+
+
+@dataclass(frozen=True)
+class Adaptive:
+    """Adaptive steps: a step is accepted when its error measure is below ``tol``.
+
+    The family defines the measure and the rule: RIS, Alg. 3.2 of Andreia & Meyer (2022) on the
+    residuals I1 (3.3) and I2 (3.4); elastodynamics, the local error estimate in the energy norm
+    with steps from the scheme's order (:class:`ErrorNormController`). ``tau``: the first step
+    (None: the family's default); steps stay in [tau_min, tau_max] (None: the family's
+    defaults).
+    """
+
+    tol: float
+    tau: float | None = None
+    tau_min: float | None = None
+    tau_max: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "tol", check_positive("tol", self.tol))
+        _check_step_range(self)
+
+
+def _check_step_range(spec) -> None:
+    """tau, tau_min, tau_max of a step-control object: positive, and tau_min <= tau <= tau_max."""
+    for name in ("tau", "tau_min", "tau_max"):
+        value = getattr(spec, name, None)
+        if value is not None:
+            if name == "tau_max" and value == math.inf:
+                continue
+            object.__setattr__(spec, name, check_positive(name, value))
+    tau, lo, hi = spec.tau, spec.tau_min, getattr(spec, "tau_max", None)
+    if tau is not None and lo is not None and lo > tau:
+        raise fail("tau_min", lo, f"must be <= the first step tau = {tau:g}")
+    if tau is not None and hi is not None and hi < tau:
+        raise fail("tau_max", hi, f"must be >= the first step tau = {tau:g}")

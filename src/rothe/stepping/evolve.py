@@ -1,20 +1,30 @@
-"""The evolve loop shared by every step controller (and every stepper).
+"""The evolve loop shared by every step controller (and every stepper): every phase in one place.
 
     while not stepper.finished(state):
         (stop here if SIGINT/SIGTERM arrived: checkpoint, then RunInterrupted)
-        tau, s_end = controller.propose(s)         # the controller proposes
-        result = stepper.step(state, tau, s_end)   # the stepper does one step, decides nothing
-        (shorten the step if it overshoots the end: stepper.overshoot)
-        decision = controller.decide(result)       # the controller accepts or rejects
-        accept -> state = result.state, record; reject -> retry with decision.next_tau
-        (write a checkpoint when one is due)
+        tau, s_end = controller.propose(s)          # propose: the controller
+        result = stepper.step(state, tau, s_end)    # step: the stepper does one step, decides
+                                                    #   nothing (shortened while it overshoots
+                                                    #   the end: stepper.overshoot)
+        decision = controller.decide(result)        # accept or reject: the controller
+        if decision.accept:
+            state = stepper.adapt(result.state, result)   # adapt: a new mesh, or the same state
+            stepper.record(trajectory, result, state)     # record the accepted step
+        else: retry with decision.next_tau
+        (write a checkpoint when one is due)        # checkpoint
 
 A stepper provides ``step(state, tau, s_end) -> result`` (with ``converged``, ``code``, ``tau``,
-``errors``, ``state`` and solver counters), ``finished(state)``, ``limit(state, tau)`` (e.g. to
-stop at a given S), ``overshoot(state, attempts)`` (a shorter tau that lands on the end time, or
-None, given the attempts of this step so far) with ``pick_landing(state, attempts)`` (the attempt to
-hand to the controller), ``record(trajectory, result)``, ``where(state, result)``,
-``progress_fields(state)`` and optionally ``progress_position(state) -> (label, value, total)``.
+``errors``, ``state`` and solver counters), ``adapt(state, result) -> state`` (the state to go on
+from: the accepted one, or a new state on an adapted mesh; never the accepted state changed in
+place), ``record(trajectory, result, state)`` (the accepted step ``result`` and the state after
+the adapt step), ``finished(state)``, ``limit(state, tau)`` (e.g. to stop at a given S),
+``overshoot(state, attempts)`` (a shorter tau that lands on the end time, or None, given the
+attempts of this step so far) with ``pick_landing(state, attempts)`` (the attempt to hand to the
+controller), ``where(state, result)``, ``progress_fields(state)``, optionally
+``progress_position(state) -> (label, value, total)`` and ``times`` (a
+:class:`~rothe.timing.PhaseTimes` of the phases inside its step and adapt step: estimate,
+mark, refine, transfer, rebuild, factor, solve), added to ``trajectory.stats.seconds`` with the
+loop's own phases (step, adapt, record, checkpoint).
 For checkpoints, ``checkpoint_state(state) -> dict`` and ``restore_state(data) -> state`` (the
 controller: ``checkpoint_state() -> dict``, ``restore_state(data)``); see
 :mod:`rothe.io.checkpoint` and docs/robustness.md.
@@ -33,8 +43,9 @@ from __future__ import annotations
 import time
 from contextlib import nullcontext
 
-from ..errors import RunFailed, RunInterrupted, check_positive
+from ..errors import RunFailed, RunInterrupted, check_int, check_positive
 from ..io.trajectory import Trajectory
+from ..timing import PhaseTimes
 from . import interrupt
 from .progress import Progress, as_progress_options
 
@@ -64,10 +75,12 @@ def evolve(
     tau_min: float = 1e-12,
     max_attempts: int = 1_000_000,
     max_landing_retries: int = 6,
+    max_steps: int | None = None,
     progress=False,
     checkpointer=None,
 ):
-    """Run from ``state`` until ``stepper.finished``; returns the final state.
+    """Run from ``state`` until ``stepper.finished`` (or ``max_steps`` accepted steps in this
+    call); returns the final state.
 
     Accepted steps are recorded into ``trajectory`` (``stepper.record``); statistics are
     accumulated in ``trajectory.stats`` (the wall time adds to what is there, so a resumed run
@@ -79,10 +92,12 @@ def evolve(
     the trajectory so far.
     """
     tau_min = check_positive("tau_min", tau_min)
+    if max_steps is not None:
+        max_steps = check_int("max_steps", max_steps, minimum=1)
     with single_threaded_blas(), interrupt.interruptible():
         loop = _Loop(stepper, controller, trajectory, checkpointer, as_progress_options(progress))
         try:
-            return loop.run(state, tau_min, max_attempts, max_landing_retries)
+            return loop.run(state, tau_min, max_attempts, max_landing_retries, max_steps)
         except RunFailed as exc:  # a stepper's own failure: still hand back what was computed
             if exc.trajectory is None:
                 exc.trajectory = trajectory
@@ -101,13 +116,22 @@ class _Loop:
         self.progress_options = progress
         self.progress = None
         self.state = None
+        self.times = PhaseTimes()  # the loop's own phases
         self._mark = time.perf_counter()
 
     def _clock(self) -> None:
-        """Add the time since the last mark to the statistics (so checkpoints carry it)."""
+        """Add the time since the last mark, and the phase seconds so far, to the statistics
+        (so checkpoints carry them)."""
         now = time.perf_counter()
-        self.trajectory.stats.wall_time_s += now - self._mark
+        stats = self.trajectory.stats
+        stats.wall_time_s += now - self._mark
         self._mark = now
+        seconds = PhaseTimes(stats.seconds)
+        seconds.add(self.times.take())
+        inner = getattr(self.stepper, "times", None)
+        if inner is not None:
+            seconds.add(inner.take())
+        stats.seconds = dict(seconds)
 
     def where(self, state) -> dict:
         stats = self.trajectory.stats
@@ -122,9 +146,10 @@ class _Loop:
         info = self.where(self.state)
         info.update(where or {})
         try:
-            return self.checkpointer.save_or_warn(
-                self.stepper, self.controller, self.state, status=status, where=info
-            )
+            with self.times.phase("checkpoint"):
+                return self.checkpointer.save_or_warn(
+                    self.stepper, self.controller, self.state, status=status, where=info
+                )
         except Exception:
             if quiet:  # the failure being reported matters more than its checkpoint
                 return None
@@ -148,13 +173,17 @@ class _Loop:
             state=state,
         )
 
-    def run(self, state, tau_min, max_attempts, max_landing_retries):
+    def run(self, state, tau_min, max_attempts, max_landing_retries, max_steps):
         stepper, controller, trajectory = self.stepper, self.controller, self.trajectory
         stats = trajectory.stats
+        times = self.times
         self.state = state
         self.progress = Progress(self.progress_options, stepper, state)
         attempts = stats.accepted_steps + stats.rejected_steps  # nonzero when resumed
+        accepted_here = 0
         while not stepper.finished(state):
+            if max_steps is not None and accepted_here >= max_steps:
+                break
             self.stop_if_signalled(state)
             attempts += 1
             if attempts > max_attempts:
@@ -163,28 +192,42 @@ class _Loop:
                     where=stepper.where(state, None),
                     trajectory=trajectory,
                 )
+            # propose
             tau, s_end = controller.propose(state.s)
             tau_lim = stepper.limit(state, tau)
             if tau_lim < tau:
                 tau, s_end = tau_lim, None
-            result = stepper.step(state, tau, s_end)
-            _count(stats, result)
-            attempts_here = [result]
-            for _ in range(max_landing_retries):
-                shorter = stepper.overshoot(state, attempts_here)
-                if shorter is None:
-                    break
-                stats.landing_retries += 1
-                attempts_here.append(stepper.step(state, shorter, None))
-                _count(stats, attempts_here[-1])
-            if len(attempts_here) > 1:
-                result = stepper.pick_landing(state, attempts_here)
+            # step (shortened while it overshoots the end)
+            with times.phase("step"):
+                result = stepper.step(state, tau, s_end)
+                _count(stats, result)
+                attempts_here = [result]
+                for _ in range(max_landing_retries):
+                    shorter = stepper.overshoot(state, attempts_here)
+                    if shorter is None:
+                        break
+                    stats.landing_retries += 1
+                    attempts_here.append(stepper.step(state, shorter, None))
+                    _count(stats, attempts_here[-1])
+                if len(attempts_here) > 1:
+                    result = stepper.pick_landing(state, attempts_here)
+            # accept or reject
             decision = controller.decide(result)
             if decision.accept:
-                state = result.state
-                self.state = state
-                stepper.record(trajectory, result)
                 stats.accepted_steps += 1
+                accepted_here += 1
+                # adapt: the state to go on from (a new mesh, or the accepted state itself)
+                try:
+                    with times.phase("adapt"):
+                        state = stepper.adapt(result.state, result)
+                except RunFailed:  # the accepted step stands, on its own mesh: keep it
+                    self.state = result.state
+                    stepper.record(trajectory, result, result.state)
+                    raise
+                self.state = state
+                # record the accepted step (and what the adapt step did)
+                with times.phase("record"):
+                    stepper.record(trajectory, result, state)
             else:
                 stats.rejected_steps += 1
                 if decision.next_tau < tau_min:

@@ -89,7 +89,7 @@ class DistributedELDProblem:
     Parameters
     ----------
     mesh : the whole mesh (the same on every process)
-    data : the keyword arguments of :class:`ELDProblem` but the mesh (``problem._data``)
+    data : the keyword arguments of :class:`ELDProblem` but the mesh (``problem.definition``)
     comm : an mpi4py communicator (default ``MPI.COMM_WORLD``)
     u0, v0 : serial dof vectors of the initial data, when ``data`` has none or arrays
 
@@ -196,7 +196,7 @@ class DistributedELDProblem:
         sc_owned = np.flatnonzero(position[d * c.scalar_dofs] >= 0)
         all_scalar = all_dofs[::d] // d
         weights = {}
-        for p_name, w in c._reaction_weights.items():
+        for p_name, w in c.reaction_weights.items():
             got = comm.allgather((np.searchsorted(all_scalar, sc_serial[sc_owned]), w[sc_owned]))
             full = np.zeros(all_scalar.size)
             for idx, vals in got:
@@ -277,4 +277,4 @@ class DistributedELDProblem:
     @classmethod
     def from_problem(cls, problem: ELDProblem, comm=None) -> DistributedELDProblem:
         """The distributed copy of a serial problem (its mesh and data; u0, v0 as given)."""
-        return cls(problem.space.mesh, problem._data, comm, u0=problem.u0, v0=problem.v0)
+        return cls(problem.space.mesh, problem.definition, comm, u0=problem.u0, v0=problem.v0)

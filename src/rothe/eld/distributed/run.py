@@ -21,20 +21,21 @@ What is gathered, and where:
 from __future__ import annotations
 
 import math
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 
-from ...errors import RotheInputError, RunFailed, check_choice, check_positive, fail
+from ...errors import RotheInputError, RunFailed, fail
 from ...io.checkpoint import RunCheckpointing, load_checkpoint, run_arguments
 from ...io.trajectory import RunStatistics, Trajectory
-from ...stepping.controllers import FixedStepController
+from ...stepping.controllers import Adaptive, FixedStepController, Given
 from ...stepping.evolve import evolve
 from ..controllers import adaptive_controller
-from ..schemes import CONTROLS
+from ..data import DEFAULT_DATA, DataMode
+from ..form import DEFAULT_FORM, Form
+from ..scheme import DEFAULT_SCHEME, Scheme
+from ..state import ELDState
+from ..stepper import DEFAULT_CONTROL
 from .problem import DistributedELDProblem
 from .stepper import PetscELDStepper
-
-#: the options of run_eld that this backend does not have (one-line refusal if given)
-UNSUPPORTED = {"space": "space adaptivity"}
 
 
 class _Frozen:
@@ -99,17 +100,27 @@ def _check_resume_processes(resume, comm) -> None:
         raise RotheInputError(msg)
 
 
+@dataclass
+class DistributedRun:
+    """What :func:`run_eld_petsc` returns (:func:`rothe.eld.run_eld` makes it an
+    :class:`~rothe.eld.run.ELDResult`): the trajectory (complete on rank 0, the scalar series
+    elsewhere), the final state (the owned parts), the stepper, the controller and the
+    problem."""
+
+    trajectory: Trajectory
+    state: ELDState
+    stepper: PetscELDStepper
+    controller: object
+    problem: DistributedELDProblem
+
+
 def run_eld_petsc(
     problem,
-    form: str = "regularized",
-    tau: float = 0.01,
     *,
-    scheme: str = "euler",
-    control: str = "uniform",
-    tol: float | None = None,
-    steps=None,
-    data: str = "points",
-    lifting: str = "nodal",
+    scheme: Scheme = DEFAULT_SCHEME,
+    form: Form = DEFAULT_FORM,
+    control=DEFAULT_CONTROL,
+    data: DataMode = DEFAULT_DATA,
     solver: str = "auto",
     newton=None,
     noise=None,
@@ -118,50 +129,37 @@ def run_eld_petsc(
     observer=None,
     progress=False,
     linear_rtol: float = 1e-10,
-    tau_min: float | None = None,
-    tau_max: float | None = None,
-    start: str = "taylor",
     error_scale: float | None = None,
     meta: dict | None = None,
     checkpoint=None,
     resume=None,
-    space=None,
     comm=None,
-) -> Trajectory:
-    """:func:`rothe.eld.run_eld` on the processes of ``comm`` (module docstring).
+) -> DistributedRun:
+    """:func:`rothe.eld.run_eld` on the processes of ``comm`` (module docstring); the
+    parameters are run_eld's (no ``adapt``: space adaptivity is not distributed).
 
-    ``problem``: a serial :class:`~rothe.eld.problem.ELDProblem` (copied to the processes: for
-    small problems and tests) or a :class:`DistributedELDProblem`. Returns the trajectory
-    (complete on rank 0). ``traj.final_state`` holds the owned parts of the last state,
-    ``traj.stepper`` the :class:`PetscELDStepper`.
+    Parameters
+    ----------
+    problem : ELDProblem or DistributedELDProblem
+        A serial problem is copied to the processes (every process built it: for small
+        problems and tests); large bodies are built as a :class:`DistributedELDProblem`.
+    comm : mpi4py communicator, optional
+        Default ``MPI.COMM_WORLD`` (a DistributedELDProblem brings its own).
+
+    Returns
+    -------
+    DistributedRun
     """
-    if space is not None:
-        raise fail(
-            "space",
-            "given",
-            "is not supported with backend 'petsc' (space "
-            "adaptivity is not distributed): run it serially",
-        )
     if not isinstance(problem, DistributedELDProblem):
         problem = DistributedELDProblem.from_problem(problem, comm)
     comm = problem.comm
-    control = check_choice("control", control, CONTROLS)
-    if control == "adaptive":
-        if tol is None:
-            raise fail("tol", None, "must be given (> 0) with control='adaptive'")
-        tol = check_positive("tol", tol)
-    elif tol is not None:
-        raise fail("tol", tol, "is used by control='adaptive' only (this run has uniform steps)")
     _check_resume_processes(resume, comm)
     stepper = PetscELDStepper(
         problem,
-        form,
-        tau,
         scheme=scheme,
+        form=form,
         control=control,
-        steps=steps,
         data=data,
-        lifting=lifting,
         solver=solver,
         newton=newton,
         noise=noise,
@@ -169,31 +167,35 @@ def run_eld_petsc(
         keep_every=keep_every,
         observer=observer,
         linear_rtol=linear_rtol,
-        start=start,
         error_scale=error_scale,
     )
+    scheme, form, control, data = stepper.scheme, stepper.form, stepper.control, stepper.data_mode
+    adaptive = isinstance(control, Adaptive)
+    control_name = "adaptive" if adaptive else "uniform"
     info = {
         "example": problem.name,
-        "form": form,
-        "scheme": scheme,
-        "control": control,
+        "form": form.name,
+        "scheme": scheme.name,
+        "control": control_name,
         "tau": stepper.tau,
         "n_steps": stepper.n_steps,
-        "data": data,
-        "lifting": lifting if form == "regularized" else None,
+        "data": data.name,
+        "lifting": form.lifting,
         "solver": stepper.kind,
         "step_bound": problem.step_bound(),
         "keep_every": stepper.keep_every,
-        "start": start if scheme == "bdf2" else None,
+        "start": scheme.describe()["start"],
         "backend": "petsc",
         "processes": int(comm.size),
         "problem": problem.describe(),
     }
-    if steps is not None:
+    if isinstance(control, Given):
         info["control"] = "given steps"
-    if control == "adaptive":
-        tau_min = 1e-10 * problem.T if tau_min is None else check_positive("tau_min", tau_min)
-        tau_max = problem.T if tau_max is None else check_positive("tau_max", tau_max)
+    tol = tau_min = tau_max = None
+    if adaptive:
+        tol = control.tol
+        tau_min = 1e-10 * problem.T if control.tau_min is None else control.tau_min
+        tau_max = problem.T if control.tau_max is None else control.tau_max
         if tau_max < stepper.tau:
             raise fail("tau_max", tau_max, f"must be >= the first step tau = {stepper.tau:g}")
         if tau_min > stepper.tau:
@@ -209,22 +211,21 @@ def run_eld_petsc(
         )
         loop_tau_min = tau_min
     else:
-        controller = (
-            FixedStepController(stepper.steps)
-            if stepper.steps is not None
-            else FixedStepController.uniform(stepper.tau, stepper.n_steps)
-        )
-        loop_tau_min = 1e-300
+        if stepper.steps is not None:
+            controller = FixedStepController(stepper.steps)
+        else:
+            controller = FixedStepController.uniform(stepper.tau, stepper.n_steps)
+        loop_tau_min = 1e-300  # a fixed grid never shrinks a step; a failed step stops the run
     info.update(meta or {})
     arguments = run_arguments(
-        form=form,
-        scheme=scheme,
-        control=control,
+        form=form.name,
+        scheme=scheme.name,
+        control=control_name,
         tol=tol,
         tau=stepper.tau,
         steps=stepper.steps,
-        data=data,
-        lifting=lifting,
+        data=data.name,
+        lifting=form.lifting,
         solver=solver,
         newton=asdict(stepper.newton),
         noise=None,
@@ -233,7 +234,7 @@ def run_eld_petsc(
         linear_rtol=linear_rtol,
         tau_min=tau_min,
         tau_max=tau_max,
-        start=start,
+        start=scheme.describe()["start"],
         error_scale=error_scale,
         backend="petsc",
         processes=int(comm.size),
@@ -270,7 +271,7 @@ def run_eld_petsc(
             state = stepper.initial_state()
             stepper.record_initial(traj, state)
             traj.stats.linear_factorizations += stepper.initial_factorizations
-        if control == "adaptive":
+        if adaptive:
             traj.meta["error_scale"] = stepper.error_scale
         cp = None
         if comm.bcast(rc is not None and rc.checkpointer is not None, root=0):
@@ -316,10 +317,7 @@ def run_eld_petsc(
     finally:
         if rc is not None:
             rc.close()
-    traj.final_state = final
-    traj.stepper = stepper
-    traj.controller = controller
-    return traj
+    return DistributedRun(traj, final, stepper, controller, problem)
 
 
 def _finish_meta(traj: Trajectory, stepper: PetscELDStepper) -> None:

@@ -1,10 +1,10 @@
 """Euler (3.4) and variable-step BDF2 on many processes: the serial scheme, PETSc linear algebra.
 
-The scheme is the serial one (:mod:`rothe.eld.schemes`, the paper's (3.4) in the regularized
+The scheme is the serial one (:mod:`rothe.eld.stepper`, the paper's (3.4) in the regularized
 form (2.8) and the original form (2.7)); every step is the stationary problem
 
     A(tau_eff) x = r,   A(tau_eff) = (rho/tau_eff^2 + a_M/tau_eff) M + (1 + a_K/tau_eff) K,
-    tau_eff = tau_j / alpha_0                                    (module docstring of schemes)
+    tau_eff = tau_j / alpha_0               (module docstrings of rothe.eld.stepper, .system)
 
 for the scheme's unknown x (regularized: u_1 in ker B, x = 0 on Gamma_D; original: u, x = G^j
 on Gamma_D, i.e. the bordered system with B = M_G S condensed: M_G is invertible, so B u = G
@@ -40,26 +40,29 @@ from dataclasses import asdict, replace
 
 import numpy as np
 
-from ...errors import RotheInputError, RunFailed, check_choice, check_int, check_positive, fail
+from ...errors import RotheInputError, RunFailed, check_int, check_positive, described, fail
 from ...io.trajectory import Trajectory
 from ...stepping import interrupt
+from ...stepping.controllers import Adaptive
 from ...stepping.evolve import single_threaded_blas
-from ..schemes import (
-    BDF2_RATIO_CAP,
-    BDF2_ZERO_STABILITY,
-    CONTROLS,
-    FORMS,
-    SCHEMES,
-    STARTS,
-    ELDState,
-    ELDStepper,
-    ELDStepResult,
-    EnergyLedger,
-    NewtonOptions,
-    estimate_factor,
-    step_coefficients,
-)
+from ...timing import PhaseTimes
+from ..data import DEFAULT_DATA, Points, as_data_mode
+from ..form import DEFAULT_FORM, Regularized, as_form
+from ..scheme import DEFAULT_SCHEME, as_scheme
 from ..solvers import SolverStats, resolve_kind
+from ..state import PRODUCTS, ELDCode, ELDState, ELDStepResult, EnergyLedger
+from ..stepper import (
+    DEFAULT_CONTROL,
+    NewtonOptions,
+    StepGrid,
+    as_control,
+    history_terms,
+    kinematics,
+)
+
+#: the checkpoint format of :meth:`PetscELDStepper.checkpoint_state` (the serial stepper's
+#: state gathered in the serial numbering, plus the number of processes)
+CHECKPOINT_FORMAT = "rothe-eld-petsc-1"
 
 #: CG iterations relative to those right after the preconditioner was built, beyond which it
 #: is rebuilt for the current A(tau_eff) (the serial ReferenceSolver's stall rule)
@@ -80,29 +83,19 @@ class _NewtonFailed(Exception):
 class PetscELDStepper:
     """One step of Euler or BDF2 in either form on a :class:`DistributedELDProblem` (module
     docstring); the evolve loop drives it on every process. Parameters as
-    :class:`rothe.eld.schemes.ELDStepper`."""
-
-    # the time grid and the evolve-loop plumbing that involve no dof vector are the serial ones
-    _setup_grid = ELDStepper._setup_grid
-    _check_uniform_bound = ELDStepper._check_uniform_bound
-    _check_steps = ELDStepper._check_steps
-    limit = ELDStepper.limit
-    overshoot = ELDStepper.overshoot
-    pick_landing = ELDStepper.pick_landing
-    _time_after = ELDStepper._time_after
-    max_step = ELDStepper.max_step
+    :class:`rothe.eld.stepper.ELDStepper` (no ``adapt``). The time grid is the serial one
+    (:class:`rothe.eld.stepper.StepGrid`), and so are the history terms and the kinematics of
+    a step (:func:`rothe.eld.stepper.history_terms`, :func:`rothe.eld.stepper.kinematics`),
+    applied to the owned dofs."""
 
     def __init__(
         self,
         problem,
-        form: str,
-        tau: float,
         *,
-        scheme: str = "euler",
-        control: str = "uniform",
-        steps=None,
-        data: str = "points",
-        lifting: str = "nodal",
+        scheme=DEFAULT_SCHEME,
+        form=DEFAULT_FORM,
+        control=DEFAULT_CONTROL,
+        data=DEFAULT_DATA,
         solver: str = "auto",
         newton: NewtonOptions | None = None,
         noise=None,
@@ -110,33 +103,31 @@ class PetscELDStepper:
         keep_every: int = 1,
         observer=None,
         linear_rtol: float = 1e-10,
-        start: str = "taylor",
         error_scale: float | None = None,
     ):
         self.problem = p = problem
         self.comm = p.comm
         self.PETSc = PETSc = p.PETSc
-        self.form = check_choice("form", form, FORMS)
-        self.scheme = check_choice("scheme", scheme, SCHEMES)
-        self.start = check_choice("start", start, STARTS)
-        self.control = check_choice("control", control, CONTROLS)
-        if data != "points":
+        self.scheme = as_scheme(scheme)
+        self.form = as_form(form)
+        self.control = as_control(control)
+        self.data_mode = as_data_mode(data)
+        if not isinstance(self.data_mode, Points):
             raise fail(
                 "data",
-                data,
-                "must be 'points' with backend 'petsc' (means and "
-                "differenced data are not distributed yet)",
+                described(f"{type(self.data_mode).__name__}()"),
+                "must be Points() with backend 'petsc' (means and differenced data are not "
+                "distributed yet)",
             )
         if noise is not None:
-            raise fail("noise", "given", "is not supported by backend 'petsc'")
-        if self.form == "regularized" and lifting != "nodal":
+            raise fail("noise", described("a DataNoise"), "is not supported by backend 'petsc'")
+        if self.form.lifting not in (None, "nodal"):
             raise fail(
-                "lifting",
-                lifting,
-                "must be 'nodal' with backend 'petsc' (the harmonic "
-                "lifting is not distributed yet)",
+                "form",
+                described(f"Regularized(lifting={self.form.lifting!r})"),
+                "must have the nodal lifting with backend 'petsc' (the harmonic lifting is not "
+                "distributed yet)",
             )
-        self.lifting_kind = "nodal" if self.form == "regularized" else None
         from .problem import DistributedDamping
 
         self.D = D = DistributedDamping(p)
@@ -147,6 +138,10 @@ class PetscELDStepper:
                 "must be Rayleigh, nonlinear or none with "
                 "backend 'petsc' (a user's damping matrix is not distributed)",
             )
+        if newton is not None and not isinstance(newton, NewtonOptions):
+            raise fail(
+                "newton", described(type(newton).__name__), "must be a rothe.eld.NewtonOptions"
+            )
         self.newton = newton or NewtonOptions()
         self.store_fields = bool(store_fields)
         self.keep_every = check_int("keep_every", keep_every, minimum=1)
@@ -154,9 +149,10 @@ class PetscELDStepper:
         self.linear_rtol = check_positive("linear_rtol", linear_rtol)
         self.T = p.T
         self.bound = p.step_bound()
-        self.order = 1 if self.scheme == "euler" else 2
-        self.max_ratio = math.inf if self.scheme == "euler" else BDF2_RATIO_CAP
-        self._setup_grid(tau, steps)
+        self.order = self.scheme.order
+        self.max_ratio = self.scheme.ratio_cap
+        self.grid = StepGrid(self.control, self.scheme, self.T, self.bound)
+        self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
         p.check_initial_consistency()
         self.rho = p.material.rho
         part = p.partition
@@ -165,6 +161,7 @@ class PetscELDStepper:
         self.n = p.n_own
         self.kind = resolve_kind(solver, p.ndofs - p.constraint.m, p.dim)
         self.stats = SolverStats()
+        self.times = PhaseTimes()  # factor (preconditioner set-up) and solve, as serial
         self.krylov_seconds = 0.0  # wall time inside PETSc's CG (benchmarks: per-phase times)
         self._last_newton = 0
         self.error_scale = (
@@ -185,10 +182,9 @@ class PetscELDStepper:
         self._K_C = p.K.createSubMatrix(rows, cols)
         self._g = np.zeros(self.C.size)
         self._vg = PETSc.Vec().createWithArray(self._g, comm=self.comm)
-        a0 = 1.0 if self.scheme == "euler" else 1.5
         self._A = p.K.duplicate(copy=True)
         self._A_te = None
-        self._set_operator(self.tau / a0)
+        self._set_operator(self.tau / self.scheme.alpha0)
         self._ksp = self._make_ksp()
         self._pc_te = None
         self._pc_its = None
@@ -269,6 +265,10 @@ class PetscELDStepper:
         return ksp
 
     def _setup_pc(self) -> None:
+        with self.times.phase("factor"):
+            self._setup_pc_timed()
+
+    def _setup_pc_timed(self) -> None:
         t0 = time.perf_counter()
         self._ksp.getPC().setReusePreconditioner(False)
         self._ksp.setOperators(self._A)
@@ -305,7 +305,8 @@ class PetscELDStepper:
         self._vb.setArray(rhs)
         self._vx.setArray(guess)
         t0 = time.perf_counter()
-        self._ksp.solve(self._vb, self._vx)
+        with self.times.phase("solve"):
+            self._ksp.solve(self._vb, self._vx)
         self.krylov_seconds += time.perf_counter() - t0
         its = self._ksp.getIterationNumber()
         self.stats.solves += 1
@@ -396,10 +397,16 @@ class PetscELDStepper:
             raise RunFailed(
                 "non-finite initial state: the consistent acceleration or multiplier "
                 "at t = 0 has NaN or inf entries (overflow?)",
-                where={"step": 0, "s": 0.0, "t": 0.0, "form": self.form, "scheme": self.scheme},
+                where={
+                    "step": 0,
+                    "s": 0.0,
+                    "t": 0.0,
+                    "form": self.form.name,
+                    "scheme": self.scheme.name,
+                },
             )
         C = self.C
-        if self.form == "regularized":
+        if isinstance(self.form, Regularized):
             u2, v2, w2 = self._embed(G0), self._embed(Gd0), self._embed(Gdd0)
             x = p.u0 - u2
             x[C] = 0.0
@@ -426,7 +433,7 @@ class PetscELDStepper:
         kin, el = 0.5 * self.rho * vMv, 0.5 * uKu
         state.ledger = EnergyLedger(kinetic=kin, elastic=el, initial=kin + el)
         norm0 = math.sqrt(max(2.0 * (kin + el), 0.0))
-        if self.error_scale is None and self.control == "adaptive":
+        if self.error_scale is None and isinstance(self.control, Adaptive):
             self.error_scale = max(norm0, self._data_scale()) or 1.0
         state.energy_norm_max = max(norm0, self.error_scale or 0.0)
         return state
@@ -445,15 +452,16 @@ class PetscELDStepper:
         return math.sqrt(best)
 
     def _fill_products(self, state: ELDState) -> None:
-        from ..schemes import PRODUCTS
-
         mats = {"M": self.problem.M, "K": self.problem.K}
         for name, (mat, fname) in PRODUCTS.items():
             if fname in state.fields and name not in state.products:
                 state.products[name] = self._mult(mats[mat], state.fields[fname])
 
     def record_initial(self, traj: Trajectory, state: ELDState) -> None:
-        ELDStepper.record_initial(self, traj, state)
+        """Record the initial state (energies; its fields gathered to rank 0 if kept)."""
+        traj.append(t=0.0, **state.ledger.record())
+        if self.store_fields:
+            self._keep(traj, state)
 
     def _keep(self, traj: Trajectory, state: ELDState) -> None:
         part = self.problem.partition
@@ -469,13 +477,36 @@ class PetscELDStepper:
         anyone = self.comm.allreduce(int(got), op=self.problem.MPI.MAX)
         if anyone and not got:
             interrupt.request(anyone)
-        return ELDStepper.finished(self, state)
+        return self.grid.finished(state)
 
-    def _is_last(self, state: ELDState) -> bool:
-        return ELDStepper.finished(self, state)
+    def limit(self, state: ELDState, tau: float) -> float:
+        """Adaptive control: land on T (:meth:`rothe.eld.stepper.StepGrid.limit`)."""
+        return self.grid.limit(state, tau)
+
+    def max_step(self, tau_prev: float | None) -> float:
+        """The controller's limit after ``tau_prev`` (:meth:`StepGrid.max_step`)."""
+        return self.grid.max_step(tau_prev)
+
+    def overshoot(self, state, attempts):
+        """Never: the grid (or :meth:`limit`) lands on T exactly."""
+        return None
+
+    def pick_landing(self, state, attempts):
+        """The last attempt (no landing retries)."""
+        return attempts[-1]
 
     def where(self, state: ELDState, result=None) -> dict:
-        info = ELDStepper.where(self, state, result)
+        """Where the run is: step, t, tau, form, scheme (as serial) and the processes."""
+        info = {
+            "step": state.j + 1,
+            "s": state.t,
+            "t": state.t,
+            "tau": result.tau if result is not None else self.tau,
+            "form": self.form.name,
+            "scheme": self.scheme.name,
+        }
+        if result is not None:
+            info["newton_iterations"] = result.newton_iterations
         info["processes"] = int(self.comm.size)
         return info
 
@@ -506,16 +537,16 @@ class PetscELDStepper:
 
     def _step(self, state: ELDState, tau: float) -> ELDStepResult:
         j = state.j + 1
-        t_new = self._time_after(state, tau)
+        t_new = self.grid.time_after(state, tau)
         scheme = self.scheme
-        if scheme == "bdf2" and state.j == 0:
-            if self.start == "euler":
-                scheme = "euler"
-            else:
+        if state.j == 0:
+            scheme = self.scheme.first_step()
+            if self.scheme.prehistory:
                 state = self._with_prehistory(state, tau)
-        coeffs = step_coefficients(scheme, tau, state.tau_prev)
+        coeffs = scheme.coefficients(tau, state.tau_prev)
         a0 = coeffs[0]
-        if self.scheme == "bdf2" and state.j > 0 and not tau / state.tau_prev < BDF2_ZERO_STABILITY:
+        limit = self.scheme.zero_stability
+        if math.isfinite(limit) and state.j > 0 and not tau / state.tau_prev < limit:
             raise RunFailed(
                 f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
                 f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
@@ -560,8 +591,8 @@ class PetscELDStepper:
             return self._failed(
                 state,
                 tau,
-                "newton",
-                f"Newton's method did not converge in {exc.iterations} "
+                ELDCode.NEWTON,
+                f"{ELDCode.NEWTON.message} in {exc.iterations} "
                 f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = {exc.rnorm:.3g}); "
                 "the step is not accepted",
                 exc.iterations,
@@ -571,8 +602,8 @@ class PetscELDStepper:
             return self._failed(
                 state,
                 tau,
-                "linear-solve",
-                f"linear solve failed at step {j} "
+                ELDCode.LINEAR_SOLVE,
+                f"{ELDCode.LINEAR_SOLVE.message} at step {j} "
                 f"(t = {t_new:.6g}, tau = {tau:g}): {exc}; the step is not "
                 "accepted",
                 0,
@@ -583,8 +614,8 @@ class PetscELDStepper:
             return self._failed(
                 state,
                 tau,
-                "non-finite",
-                f"non-finite state at step {j} (t = "
+                ELDCode.NON_FINITE,
+                f"{ELDCode.NON_FINITE.message} at step {j} (t = "
                 f"{t_new:.6g}, tau = {tau:g}): {extra} has NaN or inf "
                 "entries; the step is not accepted",
                 0,
@@ -601,7 +632,7 @@ class PetscELDStepper:
             counters=counters(),
         )
 
-    # -- BDF2 start (schemes._with_prehistory, on the owned dofs) --------------------------------
+    # -- BDF2 start (rothe.eld.start.with_prehistory on the owned dofs) -------------------------
     def _with_prehistory(self, state: ELDState, tau: float) -> ELDState:
         p = self.problem
         C = self.C
@@ -610,7 +641,7 @@ class PetscELDStepper:
         vc = f["v"].copy()
         vc[C] = p.boundary_values(0.0, ("G_dot",))[0][self.bpos]
         G3 = np.zeros(self.n)
-        if self.start == "taylor":
+        if self.scheme.start == "taylor":
             g_tau, g_0 = (
                 p.boundary_values(tau, ("G_ddot",))[0],
                 p.boundary_values(0.0, ("G_ddot",))[0],
@@ -624,7 +655,7 @@ class PetscELDStepper:
         V0 = (1.5 * u0 - 2.0 * U1 + 0.5 * U2) / tau
         V1 = (1.5 * U1 - 2.0 * U2 + 0.5 * U3) / tau
         fields = dict(f)
-        if self.form == "regularized":
+        if isinstance(self.form, Regularized):
             fields.update(x_1=self._split(U1), y=self._split(V0), y_1=self._split(V1))
         else:
             fields.update(x_1=U1, y=V0, y_1=V1)
@@ -669,10 +700,6 @@ class PetscELDStepper:
         return out
 
     # -- one step ---------------------------------------------------------------------------------
-    @staticmethod
-    def _history(state: ELDState, coeffs):
-        return ELDStepper._history(state, coeffs)
-
     def _guess(self, state: ELDState, tau: float) -> np.ndarray:
         f = state.fields
         if "x_1" not in f or state.tau_prev is None:
@@ -680,15 +707,15 @@ class PetscELDStepper:
         return f["x"] + (tau / state.tau_prev) * (f["x"] - f["x_1"])
 
     def _solve_step(self, state, F, data, coeffs, tau) -> dict:
-        """The step's solve and the kinematics (schemes._step_regularized/_step_original with
+        """The step's solve and the kinematics (ELDStepper._step_regularized/_step_original with
         linear damping)."""
         p, rho, D, C = self.problem, self.rho, self.D, self.C
         G, Gd, Gdd = data
         a0 = coeffs[0]
         te = tau / a0
-        h = self._history(state, coeffs)
+        h = history_terms(state, coeffs)
         guess = self._guess(state, tau)
-        if self.form == "regularized":
+        if isinstance(self.form, Regularized):
             lifted = [
                 (self._embed(G), None, self._thin(self._K_C, G)),
                 (self._embed(Gd), self._thin(self._M_C, Gd), self._thin(self._K_C, Gd)),
@@ -729,13 +756,13 @@ class PetscELDStepper:
             x = self._solve(rhs, te, guess)
             x[C] = gC
         Mx, Kx = self._mult(p.M, x), self._mult(p.K, x)
-        return ELDStepper._kinematics(self, h, coeffs, tau, x, Mx, Kx, lifted)
+        return kinematics(h, coeffs, tau, x, Mx, Kx, lifted, self.D)
 
     def _norm(self, w: np.ndarray) -> float:
         return math.sqrt(max(self._dot(w, w), 0.0))
 
     def _newton(self, state, F, h, coeffs, tau, lifted, z0):
-        """Newton's method with backtracking for nonlinear damping (schemes._newton, every norm
+        """Newton's method with backtracking for nonlinear damping (the serial stepper's, every norm
         global); the unknown is x with its Gamma_D values fixed (0 regularized, G original: the
         bordered system condensed), the residual R = rho M a + D(v) + K u - F on the free
         dofs. Corrections: J dz = -R, J = A(tau_eff) + N'(v)/tau_eff, by CG preconditioned with
@@ -745,8 +772,8 @@ class PetscELDStepper:
         opts = self.newton
 
         def residual(x):
-            k = ELDStepper._kinematics(
-                self, h, coeffs, tau, x, self._mult(p.M, x), self._mult(p.K, x), lifted
+            k = kinematics(
+                h, coeffs, tau, x, self._mult(p.M, x), self._mult(p.K, x), lifted, self.D
             )
             R = rho * k["Ma"] + k["Dv"] + k["Ku"] - F
             R[C] = 0.0
@@ -832,7 +859,7 @@ class PetscELDStepper:
         return self._x.copy()
 
     def _complete(self, state, k, F, data, coeffs, tau, t_new, scheme):
-        """The state after the step (schemes._complete; every inner product global)."""
+        """The state after the step (the serial stepper's; every inner product global)."""
         p = self.problem
         c = p.constraint
         rho = self.rho
@@ -893,7 +920,7 @@ class PetscELDStepper:
             cross = rho * rest[2] + rest[3]
             rest = rest[4:]
         Ma_v, Mv_tdv, Ku_v, Ku_tdu, F_v, Dv_v, R_v, v_Mv, u_Ku, rxKr, ryMr = rest
-        nu = 0.0 if scheme == "euler" else 0.25
+        nu = scheme.g_weight
         mu = a0 - 1.0
         N_G = (0.5 - nu) * (sq_kin + sq_el) + nu * (L.g_sq_kin + L.g_sq_el) - a2 * cross
         S = (L.g_mu - a2) * (L.g_zd_kin + L.g_zd_el)
@@ -924,7 +951,7 @@ class PetscELDStepper:
         omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
         norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
         scale = max(state.energy_norm_max, norm_new, 1e-300)
-        est = estimate_factor(scheme, omega) * math.sqrt(max(rxKr + rho * ryMr, 0.0)) / scale
+        est = scheme.estimate_factor(omega) * math.sqrt(max(rxKr + rho * ryMr, 0.0)) / scale
         fields = {
             "x": k["x"],
             "x_1": f["x"],
@@ -970,19 +997,7 @@ class PetscELDStepper:
         L = st.ledger
         rec = dict(
             t=st.t,
-            kinetic=L.kinetic,
-            elastic=L.elastic,
-            energy=L.energy,
-            work=L.work,
-            work_reaction=L.work_reaction,
-            dissipated=L.dissipated,
-            numerical_dissipation=L.numerical,
-            numerical_dissipation_G=L.numerical_G,
-            step_change=L.step_change,
-            data_mismatch=L.mismatch,
-            residual_work=L.residual_work,
-            transfer=L.transfer,
-            balance_residual=L.residual,
+            **L.record(),
             tau=result.tau,
             local_error=result.estimate,
             lam_norm=self.problem.constraint.l2_norm(result.lam),
@@ -991,7 +1006,7 @@ class PetscELDStepper:
         for part, force in result.reactions.items():
             rec[f"reaction_{part}"] = force
         traj.append(**rec)
-        if self.store_fields and (st.j % self.keep_every == 0 or self._is_last(st)):
+        if self.store_fields and (st.j % self.keep_every == 0 or self.grid.finished(st)):
             self._keep(traj, st)
         if self.observer is not None:
             self.observer(st, result)
@@ -1006,9 +1021,9 @@ class PetscELDStepper:
         if self.comm.rank != 0:
             return None
         return {
-            "format": "rothe-eld-state-1",
-            "scheme": self.scheme,
-            "form": self.form,
+            "format": CHECKPOINT_FORMAT,
+            "scheme": self.scheme.name,
+            "form": self.form.name,
             "backend": "petsc",
             "processes": int(self.comm.size),
             "t": float(state.t),
@@ -1034,7 +1049,7 @@ class PetscELDStepper:
         comm = self.comm
         head = None
         if comm.rank == 0:
-            if data.get("format") != "rothe-eld-state-1" or data.get("backend") != "petsc":
+            if data.get("format") != CHECKPOINT_FORMAT or data.get("backend") != "petsc":
                 head = RotheInputError("checkpoint: not written by backend 'petsc'")
             elif int(data.get("processes", -1)) != comm.size:
                 head = RotheInputError(

@@ -1,14 +1,15 @@
 """``mpiexec -n N rothe run eld-beam --backend petsc ...``: the serial command on N processes.
 
 Every process parses the same command line, builds the same mesh and its own part of the
-problem (:class:`DistributedELDProblem`; no process assembles the whole problem) and steps.
-Rank 0 alone owns the session (output directory, lock, checkpoint) and writes every file: the
-kept states and the XDMF steps are **gathered** to it (serial numbering), so ``trajectory.npz``,
-``summary.json`` and the two XDMF series are the serial run's files. The cost of gathering is
-one message of 8 bytes per dof and field to rank 0 per written step (u and v for XDMF; u, v, a
-per kept state), and rank 0 holds the serial mesh, its P1/P2 space for the stresses, and every
-kept state (as a serial run does): at 10^7 dofs 80 MB per field and step, about 1 s on a
-10 GB/s network, and a serial stress evaluation on rank 0 per written step (docs/scaling.md).
+problem (:class:`~rothe.eld.distributed.problem.DistributedELDProblem`; no process assembles
+the whole problem) and steps (``run_eld(..., backend="petsc")``). Rank 0 alone owns the session
+(output directory, lock, checkpoint) and writes every file: the kept states and the XDMF steps
+are **gathered** to it (serial numbering), so ``trajectory.npz``, ``summary.json`` and the two
+XDMF series are the serial run's files. The cost of gathering is one message of 8 bytes per dof
+and field to rank 0 per written step (u and v for XDMF; u, v, a per kept state), and rank 0
+holds the serial mesh, its P1/P2 space for the stresses, and every kept state (as a serial run
+does): at 10^7 dofs 80 MB per field and step, about 1 s on a 10 GB/s network, and a serial
+stress evaluation on rank 0 per written step (docs/scaling.md).
 
 Every refusal happens on every process at the same point (the same input gives the same
 check everywhere) or is decided on rank 0 and broadcast, so that no process is left waiting:
@@ -21,12 +22,18 @@ from __future__ import annotations
 import shutil
 import sys
 
-from ...errors import RotheInputError, RunFailed, RunInterrupted
-from ...fem.petsc_env import require_petsc
-from ...stepping import interrupt
-
-#: options of ``rothe run eld-beam`` this backend refuses, with what they are
-_REFUSED = (("adapt_space", "--adapt-space (space adaptivity is not distributed)"),)
+from ..eld.constraint import DirichletConstraint
+from ..eld.distributed.problem import DistributedELDProblem
+from ..eld.examples import beam_problem
+from ..eld.output import EldXdmfWriter, write_eld_result
+from ..eld.run import ELDResult, run_eld
+from ..errors import RotheInputError, RunFailed, RunInterrupted
+from ..fem import mesh as meshes
+from ..fem.elasticity import VectorSpace
+from ..fem.petsc_env import require_petsc
+from ..stepping import interrupt
+from .common import peak_memory_mb, write_summary
+from .session import Outcome, RunSession
 
 
 class OutputView:
@@ -35,9 +42,6 @@ class OutputView:
     assembling M or K."""
 
     def __init__(self, mesh, problem):
-        from ...fem.elasticity import VectorSpace
-        from ..constraint import DirichletConstraint
-
         self.space = VectorSpace(mesh, problem.degree)
         self.material = problem.material
         self.constraint = DirichletConstraint(
@@ -47,16 +51,6 @@ class OutputView:
         part = problem.partition
         self.u0 = part.gather_serial(problem.u0)
         self.v0 = part.gather_serial(problem.v0)
-
-
-def check_backend_options(args) -> None:
-    """One line for an option the backend lacks (the same on every process)."""
-    for key, what in _REFUSED:
-        if getattr(args, key, None):
-            raise RotheInputError(
-                f"--backend petsc: got {what.split(' ')[0]}, not supported "
-                f"with --backend petsc: {what.split('(', 1)[1].rstrip(')')}"
-            )
 
 
 def _broadcast_error(comm, fn):
@@ -74,32 +68,17 @@ def _broadcast_error(comm, fn):
 
 
 def execute_beam(command, args) -> int:
-    """The body of ``rothe run eld-beam`` with ``--backend petsc`` (module docstring)."""
+    """The body of ``rothe run eld-beam`` with ``--backend petsc`` (module docstring);
+    ``command`` is the :class:`~rothe.cli.eld_commands.RunEldBeam` that parsed ``args`` (its
+    validation, summary fields and printout are the serial command's)."""
     MPI, _ = require_petsc("--backend petsc")
-    from ...cli.common import peak_memory_mb
-    from ...cli.eld_commands import (
-        BEAM_SIDEWAYS_NOTE,
-        _already_completed,
-        _beam_reactions,
-        _print_run,
-        _write_run,
-        energy_summary,
-        run_summary,
-    )
-    from ...cli.session import RunSession
-    from ...fem import mesh as meshes
-    from ..examples import beam_problem
-    from ..output import EldXdmfWriter
-    from .problem import DistributedELDProblem
-    from .run import run_eld_petsc
-
     comm = MPI.COMM_WORLD
     root = comm.rank == 0
-    check_backend_options(args)
-    form, tau, scheme, control, tol, n, every, keep, damping = command.validate(args)
+    objects, n, every, keep, damping, _ = command.validate(args)
     # the beam's data from beam_problem on one cell across (material, damping, G, T: nothing
     # there depends on n), the mesh as beam_problem builds it
-    kwargs = dict(
+    definition = beam_problem(
+        1,
         length=args.length,
         E=args.E,
         nu=args.nu,
@@ -109,28 +88,34 @@ def execute_beam(command, args) -> int:
         t_move=args.t_move,
         T=args.T,
         degree=args.degree,
-    )
-    data = beam_problem(1, **kwargs)._data
+    ).definition
     mesh = meshes.box(max(1, int(round(args.length * n))), n, n, args.length, 1.0, 1.0)
-    problem = DistributedELDProblem(mesh, data, comm)
+    problem = DistributedELDProblem(mesh, definition, comm)
     view = OutputView(mesh, problem) if root else None
     del mesh  # the whole mesh with its facets and edges: rank 0's OutputView keeps what it needs
     if not root:
         problem.partition.gather_serial(problem.u0)  # the collective gathers of OutputView
         problem.partition.gather_serial(problem.v0)
-    ndofs = problem.ndofs
-    label = f"eld-beam, {scheme}, {form}, tau={tau:g}, {ndofs} dofs, {comm.size} processes"
+    label = (
+        f"eld-beam, {objects['scheme'].name}, {objects['form'].name}, tau={args.tau:g}, "
+        f"{problem.ndofs} dofs, {comm.size} processes"
+    )
     session = _broadcast_error(comm, lambda: RunSession(args, command.name))
     guard = session if root else interrupt.interruptible(hard_second=True)
-    summary, e, code, results, completed, pending = None, None, 0, None, False, None
+    summary, code, results, completed, pending = None, 0, None, False, None
     with guard:
-        done = comm.bcast(_already_completed(session) if root else None, root=0)
+        done = comm.bcast(session.already_completed if root else None, root=0)
         if done:
+            if root:
+                print(
+                    f"rothe: {session.out}: the run already completed; its results are there",
+                    file=sys.stderr,
+                )
             return 0
         writer = None
         if root:
             stream = session.checkpoint_dir / "stream"
-            if session.resume is None:
+            if session.resume is None:  # segments of an earlier run are not this run's
                 shutil.rmtree(stream, ignore_errors=True)
             writer = EldXdmfWriter(stream, view, name="beam")
             if session.resume is None:
@@ -139,19 +124,16 @@ def execute_beam(command, args) -> int:
         part = problem.partition
 
         def observer(state, result):
+            # n tau may round to just below T: the last step by a relative margin
             if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
                 u, v = part.gather_serial(state.u), part.gather_serial(state.v)
                 if writer is not None:
                     writer.write(state.t, u, v, result.lam)
 
         def run(checkpoint=None, resume=None, progress=False):
-            return run_eld_petsc(
+            return run_eld(
                 problem,
-                form,
-                tau,
-                scheme=scheme,
-                control=control,
-                tol=tol,
+                **objects,
                 solver=args.solver,
                 keep_every=keep,
                 observer=observer,
@@ -159,13 +141,12 @@ def execute_beam(command, args) -> int:
                 checkpoint=checkpoint,
                 resume=resume,
                 progress=progress,
+                backend="petsc",
             )
 
         if root:
             outcome = session.run(run)
         else:
-            from ...cli.session import Outcome
-
             try:
                 outcome = Outcome("completed", run())
             except RunFailed as exc:
@@ -175,47 +156,33 @@ def execute_beam(command, args) -> int:
         peaks = comm.gather(peak_memory_mb(), root=0)
         if root:
             results = session.results_dir(outcome.status)
-            traj = outcome.result
             completed = outcome.status == "completed"
+            traj = outcome.result.trajectory if completed else outcome.result
             if traj is not None:
+                # the outputs read the serial mesh and numbering: rank 0's view of the problem
+                result = ELDResult(traj, None, None, None, view)
                 with session.outputs(outcome.status) as stage:
                     writer.export(stage)
-                    summary = run_summary(traj, command.name)
+                    summary = command.summary(result)
+                    command.summarize(args, summary, traj)
                     summary.update(
-                        n=n,
-                        degree=args.degree,
-                        length=args.length,
-                        E=args.E,
-                        nu=args.nu,
-                        amplitude=args.amplitude,
-                        t_move=args.t_move,
                         backend="petsc",
                         processes=comm.size,
                         peak_memory_mb=max(peaks),
                         peak_memory_mb_per_process=peaks,
-                        seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
                         xdmf=[p.name for p in writer.paths],
                         xdmf_steps=writer.steps_written,
                     )
-                    if traj.stats.accepted_steps:
-                        summary.update(_beam_reactions(traj))
-                        e = energy_summary(traj)
-                        put_in = e["work_support"] + e["work_loads"]
-                        summary["numerical_dissipation_fraction"] = (
-                            e["dissipated_numerical"] / put_in if put_in > 0 else None
-                        )
                     session.annotate(summary, outcome)
-                    _write_run(
-                        args,
+                    write_eld_result(
+                        result,
                         stage,
-                        command.name,
-                        traj,
-                        summary,
-                        label,
-                        view,
+                        name="beam",
                         xdmf=False,
-                        plots=completed,
+                        figures=completed and not args.no_plots and "energy" in traj,
+                        title=label,
                     )
+                    write_summary(stage, summary)
             try:
                 code = session.finish(outcome, results)
             except RunFailed as exc:  # raised after the others know the exit status
@@ -230,36 +197,6 @@ def execute_beam(command, args) -> int:
     if pending is not None:
         raise pending
     if root and completed:
-        _print_run(
-            args,
-            results,
-            command.name,
-            summary,
-            (
-                "example",
-                "form",
-                "scheme",
-                "tau",
-                "accepted_steps",
-                "ndofs",
-                "processes",
-                "linear_solver",
-                "krylov_iterations",
-                "seconds_per_step",
-                "peak_memory_mb",
-                "reaction_left_final",
-                "reaction_left_max_abs",
-                "wall_time_s",
-            ),
-        )
-        if (
-            not args.quiet
-            and e is not None
-            and max(summary["reaction_sideways_over_z"]) > BEAM_SIDEWAYS_NOTE
-        ):
-            print(
-                "note: coarse mesh for the reactions (sideways reactions above "
-                f"{100 * BEAM_SIDEWAYS_NOTE:.0f} % of R_z); use --degree 2 or a larger --n"
-            )
+        command.print_result(args, results, summary)
     sys.stdout.flush()
     return code

@@ -5,7 +5,7 @@ A sweep is planned completely before anything runs (:func:`plan_sweep`): every r
 named by its parameters (``tol=1e-05_n=40``, readable and unique). Every argv is then parsed by
 the command's own parser and checked by the command's own ``validate(args)`` (where it has one),
 so that a value the command would refuse stops the sweep with one line naming the run before the
-first run starts. The runs are :func:`~rothe.parallel.tasks.cli_task` tasks for an
+first run starts. The runs are :func:`~rothe.cli.tasks.cli_task` tasks for an
 :class:`~rothe.parallel.executor.Executor`; each run's ``summary.json`` comes back as the task's
 value and becomes one row of ``sweep.csv`` / ``sweep.json`` (:func:`collect_rows`): the run's
 folder, its parameters (as the command parsed them), status, message, then the summary fields.
@@ -30,9 +30,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import RotheInputError, RunInterrupted, fail
+from ..parallel.executor import Executor
+from ..parallel.tasks import TaskResult
 from ..stepping.interrupt import signal_name
-from .executor import Executor
-from .tasks import TaskResult, cli_task
+from . import registry
+from .tasks import cli_task
 
 #: options the sweep sets for every run itself
 RESERVED = {
@@ -86,7 +88,7 @@ def split_param(text: str) -> tuple[str, list[str]]:
 
 def command_parser(verb: str, example: str) -> argparse.ArgumentParser:
     """The argparse parser of ``rothe <verb> <example>``, exactly as the CLI builds it."""
-    from ..cli.main import build_parser
+    from .main import build_parser  # main imports this module's command
 
     def sub(parser, name):
         for action in parser._actions:
@@ -97,8 +99,6 @@ def command_parser(verb: str, example: str) -> argparse.ArgumentParser:
     verb_parser = sub(build_parser(), verb)
     parser = sub(verb_parser, example) if verb_parser is not None else None
     if parser is None:
-        from ..cli import registry
-
         known = ", ".join(sorted(registry.commands(verb)))
         raise fail(f"sweep {verb}", example, f"must be one of {known}")
     return parser
@@ -192,7 +192,7 @@ def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> Non
     """Parse every run's argv with the CLI and run the command's own ``validate``; the first
     refusal is one line naming the run. Fills ``run.parsed`` (the values as the command sees
     them)."""
-    from ..cli.main import build_parser, parse_command
+    from .main import build_parser, parse_command  # main imports this module's command
 
     full = build_parser()
     for run in runs:

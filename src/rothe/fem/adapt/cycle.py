@@ -1,0 +1,198 @@
+"""The one adapt cycle of both families: estimate -> mark -> refine/coarsen -> rebuild -> transfer.
+
+A Rothe step is a stationary problem on whatever mesh it uses; what connects two steps is the
+transfer of the history. After an accepted step (and, for the in-step rounds of elastodynamics,
+after a step whose own estimate is too large) the family's stepper calls
+:meth:`MeshAdaptation.cycle` with a *family* object that knows the problem and the state:
+
+1. **estimate**: ``family.indicators(problem, target) -> eta`` (one value >= 0 per cell of the
+   current mesh; the residual indicators of :mod:`rothe.ris.indicator` or
+   :mod:`rothe.eld.indicator`);
+2. **mark**: :meth:`SpaceAdaptivity.mark` (Doerfler refinement while eta > space_tol, coarsening
+   of the cells carrying a coarsen_fraction share), or refinement only (``refine_only``);
+3. **refine/coarsen**: :meth:`AdaptiveMesh.adapt` under the dof cap; nothing changed -> the cycle
+   ends here and the run goes on exactly as on a fixed mesh;
+4. **rebuild**: ``family.rebuild(problem, mesh) -> new_problem`` (the same problem on the new
+   mesh: operators, constraint, loads; the stepper's linear system with it);
+5. **transfer**: ``family.transfer(state, change, problem, new_problem) -> new_state`` (the
+   history through ``change.transfer``: exact on refinement, an injection on coarsening).
+
+Any exception in 1-5 (or a non-finite estimate) rolls the mesh hierarchy back to where it was
+and raises :class:`AdaptationFailed`: a failed adaptation never replaces the accepted state. The
+family decides what follows (RIS goes on on the step's mesh, ELD stops the run).
+
+Each phase is timed into ``times`` (a :class:`~rothe.timing.PhaseTimes`, by the names above),
+which the evolve loop adds to ``trajectory.stats.seconds``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...errors import RotheInputError, described, fail
+from ...timing import PhaseTimes
+from .bisection import AdaptiveMesh, MeshChange
+from .marking import SpaceAdaptivity, doerfler_marking
+
+
+class AdaptationFailed(RuntimeError):
+    """An adaptation that could not be completed; the mesh hierarchy is rolled back.
+
+    ``cause`` is the exception raised inside the cycle (None for a non-finite estimate)."""
+
+    def __init__(self, message: str, cause: BaseException | None = None):
+        super().__init__(message)
+        self.cause = cause
+
+
+@dataclass
+class Adaptation:
+    """What one cycle did: ``changed`` False means the mesh (and everything else) stayed.
+
+    ``estimate`` is eta = (sum eta_K^2)^(1/2) on the mesh before the change; with ``changed``,
+    ``problem`` and ``state`` live on the new mesh, ``change`` is the
+    :class:`~rothe.fem.adapt.bisection.MeshChange`.
+    """
+
+    changed: bool
+    estimate: float
+    problem: object = None
+    state: object = None
+    change: MeshChange | None = None
+    eta: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def bisections(self) -> int:
+        return int(self.change.bisections) if self.change is not None else 0
+
+    @property
+    def merges(self) -> int:
+        return int(self.change.merges) if self.change is not None else 0
+
+
+class MeshAdaptation:
+    """The adaptive mesh of one run, its options, and the adapt cycle (module docstring).
+
+    Parameters
+    ----------
+    mesh : scikit-fem MeshTri or MeshTet
+        The run's initial mesh (named boundary parts and subdomains are inherited).
+    options : SpaceAdaptivity
+    degree, components : int
+        The finite element whose dofs ``max_dofs`` counts (P``degree``, ``components`` fields).
+    times : PhaseTimes, optional
+        Where the phases are timed (a new one by default).
+    """
+
+    def __init__(
+        self,
+        mesh,
+        options: SpaceAdaptivity,
+        *,
+        degree: int = 1,
+        components: int = 1,
+        times: PhaseTimes | None = None,
+    ):
+        if not isinstance(options, SpaceAdaptivity):
+            raise fail(
+                "adapt",
+                described(type(options).__name__),
+                "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)",
+            )
+        self.options = options
+        self.degree = int(degree)
+        self.components = int(components)
+        self.amesh = AdaptiveMesh(mesh)
+        options.check_mesh(self.amesh, self.degree, self.components)
+        self.times = times if times is not None else PhaseTimes()
+
+    @property
+    def mesh_id(self) -> int:
+        return int(self.amesh.mesh_id)
+
+    @property
+    def mesh(self):
+        return self.amesh.mesh
+
+    def due(self, accepted_steps: int) -> bool:
+        """Whether to adapt after the accepted step with this (1-based) number."""
+        return self.options.due(accepted_steps)
+
+    def cycle(self, family, problem, target, state, *, refine_only: bool = False) -> Adaptation:
+        """One adaptation (module docstring): the indicators of ``target`` on ``problem``'s
+        mesh decide the new mesh; ``state`` is what moves to it.
+
+        ``refine_only``: refine (Doerfler) while eta > space_tol, never coarsen. Returns an
+        :class:`Adaptation`; raises :class:`AdaptationFailed` (hierarchy rolled back)."""
+        opts, times = self.options, self.times
+        snapshot = self.amesh.checkpoint_state()
+        try:
+            with times.phase("estimate"):
+                eta = np.asarray(family.indicators(problem, target), dtype=float)
+            if eta.shape != (self.amesh.n_cells,) or not np.all(np.isfinite(eta)):
+                raise AdaptationFailed("the error indicators are not finite (or not one per cell)")
+            estimate = float(np.sqrt(np.sum(eta * eta)))
+            with times.phase("mark"):
+                if refine_only:
+                    refine = (
+                        doerfler_marking(eta, opts.refine_fraction)
+                        if estimate > opts.space_tol
+                        else None
+                    )
+                    coarsen = None
+                else:
+                    refine, coarsen = opts.mark(eta)
+            if refine is None:
+                return Adaptation(False, estimate, eta=eta)
+            with times.phase("refine"):
+                change = self.amesh.adapt(
+                    refine=refine,
+                    coarsen=coarsen,
+                    coarsen_rounds=opts.coarsen_rounds if coarsen is not None else 1,
+                    max_dofs=opts.max_dofs,
+                    degree=self.degree,
+                    components=self.components,
+                    priority=eta,
+                    max_level=opts.max_level,
+                )
+            if not change.changed:
+                return Adaptation(False, estimate, eta=eta)
+            with times.phase("rebuild"):
+                new_problem = family.rebuild(problem, self.amesh.mesh)
+            with times.phase("transfer"):
+                new_state = family.transfer(state, change, problem, new_problem)
+        except Exception as exc:  # noqa: BLE001 - any failure: the accepted state stands
+            self.amesh = AdaptiveMesh.restore_state(snapshot)
+            if isinstance(exc, AdaptationFailed):
+                raise
+            if isinstance(exc, RotheInputError):
+                detail = str(exc)
+            else:
+                detail = f"{type(exc).__name__}: {exc}"
+            raise AdaptationFailed(detail, exc) from exc
+        return Adaptation(True, estimate, new_problem, new_state, change, eta)
+
+    # -- checkpoint protocol ----------------------------------------------------------------
+    def checkpoint_state(self) -> dict:
+        return {"amesh": self.amesh.checkpoint_state()}
+
+    def restore_state(self, data: dict) -> None:
+        self.amesh = AdaptiveMesh.restore_state(data["amesh"])
+
+
+def finite_or_fail(name: str, values) -> np.ndarray:
+    """``values`` as a float array, or FloatingPointError naming ``name`` (a transfer check)."""
+    arr = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise FloatingPointError(f"the transferred {name} has NaN or inf entries")
+    return arr
+
+
+def energy_or_fail(energy: float) -> float:
+    """``energy`` if finite, else FloatingPointError (a transfer check)."""
+    if not math.isfinite(energy):
+        raise FloatingPointError("the energy of the transferred state is not finite")
+    return float(energy)
