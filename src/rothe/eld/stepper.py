@@ -35,7 +35,8 @@ Steps: :class:`~rothe.stepping.controllers.Uniform` (n = T/tau equal steps; tau 
 1 + sqrt(2)), :class:`~rothe.stepping.controllers.Adaptive` (the first step ``tau``, default
 0.01); uniform steps and given sequences are checked against Lemma 3.2 before the first step,
 the adaptive controller keeps tau_j/alpha_0 below :data:`~rothe.eld.scheme.BOUND_SAFETY`
-rho/d0.
+rho/d0 (:class:`StepGrid`, shared with the PETSc backend :mod:`rothe.eld.distributed`, as are
+:func:`history_terms` and :func:`kinematics`).
 
 **Checkpoints.** :meth:`ELDStepper.checkpoint_state` returns a dict of arrays and plain values
 (the state with its products, the ledger, the error scale, the solver's counters and the key of
