@@ -25,15 +25,15 @@ import sys
 from ..eld.constraint import DirichletConstraint
 from ..eld.distributed.problem import DistributedELDProblem
 from ..eld.examples import beam_problem
-from ..eld.output import EldXdmfWriter, write_eld_result
+from ..eld.output import EldXdmfWriter
 from ..eld.run import ELDResult, run_eld
 from ..errors import RotheInputError, RunFailed, RunInterrupted
 from ..fem import mesh as meshes
 from ..fem.elasticity import VectorSpace
 from ..fem.petsc_env import require_petsc
 from ..stepping import interrupt
-from .common import peak_memory_mb, write_summary
-from .session import Outcome, RunSession
+from .common import peak_memory_mb
+from .session import RunSession, run_sequence
 
 
 class OutputView:
@@ -70,7 +70,8 @@ def _broadcast_error(comm, fn):
 def execute_beam(command, args) -> int:
     """The body of ``rothe run eld-beam`` with ``--backend petsc`` (module docstring);
     ``command`` is the :class:`~rothe.cli.eld_commands.RunEldBeam` that parsed ``args`` (its
-    validation, summary fields and printout are the serial command's)."""
+    validation, write step, summary fields and printout are the serial command's); rank 0 runs
+    the one run sequence (:func:`~rothe.cli.session.run_sequence`) in the session it built."""
     MPI, _ = require_petsc("--backend petsc")
     comm = MPI.COMM_WORLD
     root = comm.rank == 0
@@ -100,37 +101,33 @@ def execute_beam(command, args) -> int:
         f"eld-beam, {objects['scheme'].name}, {objects['form'].name}, tau={args.tau:g}, "
         f"{problem.ndofs} dofs, {comm.size} processes"
     )
+    part = problem.partition
+    # rank 0 builds the session (output directory, lock, checkpoint) and runs the one run
+    # sequence (cli/session.run_sequence) in it; the others step alongside
     session = _broadcast_error(comm, lambda: RunSession(args, command.name))
-    guard = session if root else interrupt.interruptible(hard_second=True)
-    summary, code, results, completed, pending = None, 0, None, False, None
-    with guard:
-        done = comm.bcast(session.already_completed if root else None, root=0)
-        if done:
-            if root:
-                print(
-                    f"rothe: {session.out}: the run already completed; its results are there",
-                    file=sys.stderr,
-                )
-            return 0
-        writer = None
-        if root:
-            stream = session.checkpoint_dir / "stream"
-            if session.resume is None:  # segments of an earlier run are not this run's
-                shutil.rmtree(stream, ignore_errors=True)
-            writer = EldXdmfWriter(stream, view, name="beam")
-            if session.resume is None:
-                writer.write(0.0, view.u0, view.v0, None)
-            session.checkpoint.attachments = {"xdmf": writer}
-        part = problem.partition
+    done = comm.bcast(session.already_completed if root else None, root=0)
+    writers = []  # rank 0's XDMF writer, once the session is open
+    peaks = []  # every process's peak memory (MB), gathered to rank 0 after its run
 
-        def observer(state, result):
-            # n tau may round to just below T: the last step by a relative margin
-            if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
-                u, v = part.gather_serial(state.u), part.gather_serial(state.v)
-                if writer is not None:
-                    writer.write(state.t, u, v, result.lam)
+    def prepare(session):
+        stream = session.checkpoint_dir / "stream"
+        if session.resume is None:  # segments of an earlier run are not this run's
+            shutil.rmtree(stream, ignore_errors=True)
+        writer = EldXdmfWriter(stream, view, name="beam")
+        if session.resume is None:
+            writer.write(0.0, view.u0, view.v0, None)
+        session.checkpoint.attachments = {"xdmf": writer}
+        writers.append(writer)
 
-        def run(checkpoint=None, resume=None, progress=False):
+    def observer(state, result):
+        # n tau may round to just below T: the last step by a relative margin
+        if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
+            u, v = part.gather_serial(state.u), part.gather_serial(state.v)
+            if writers:
+                writers[0].write(state.t, u, v, result.lam)
+
+    def run(checkpoint=None, resume=None, progress=False):
+        try:
             return run_eld(
                 problem,
                 **objects,
@@ -143,60 +140,54 @@ def execute_beam(command, args) -> int:
                 progress=progress,
                 backend="petsc",
             )
+        finally:  # a collective: every process, however its run ended
+            peaks.append(comm.gather(peak_memory_mb(), root=0))
 
-        if root:
-            outcome = session.run(run)
-        else:
+    def summarize(summary, result, completed):
+        command.summarize(args, summary, result.trajectory)
+        summary.update(
+            backend="petsc",
+            processes=comm.size,
+            peak_memory_mb=max(peaks[0]),
+            peak_memory_mb_per_process=peaks[0],
+        )
+
+    def write(stage, outcome):
+        completed = outcome.status == "completed"
+        traj = outcome.result.trajectory if completed else outcome.result
+        # the outputs read the serial mesh and numbering: rank 0's view of the problem
+        result = ELDResult(traj, None, None, None, view)
+        return command.write_result(args, stage, result, completed, writers[0], summarize, label)
+
+    outcome, pending = None, None
+    if root:
+        try:
+            code, outcome, results, summary = run_sequence(
+                args,
+                command.name,
+                run,
+                write,
+                prepare=prepare,
+                completed=lambda: writers[0].discard(),
+                session=session,
+            )
+        except RunFailed as exc:  # raised by session.finish: after the others know the status
+            pending, code = exc, 1
+    elif done:
+        code = 0
+    else:
+        with interrupt.interruptible(hard_second=True):
             try:
-                outcome = Outcome("completed", run())
-            except RunFailed as exc:
-                outcome = Outcome("failed", exc.trajectory, exc)
+                run()
+                code = 0
+            except RunFailed:
+                code = 1
             except RunInterrupted as exc:
-                outcome = Outcome("interrupted", exc.trajectory, exc)
-        peaks = comm.gather(peak_memory_mb(), root=0)
-        if root:
-            results = session.results_dir(outcome.status)
-            completed = outcome.status == "completed"
-            traj = outcome.result.trajectory if completed else outcome.result
-            if traj is not None:
-                # the outputs read the serial mesh and numbering: rank 0's view of the problem
-                result = ELDResult(traj, None, None, None, view)
-                with session.outputs(outcome.status) as stage:
-                    writer.export(stage)
-                    summary = command.summary(result)
-                    command.summarize(args, summary, traj)
-                    summary.update(
-                        backend="petsc",
-                        processes=comm.size,
-                        peak_memory_mb=max(peaks),
-                        peak_memory_mb_per_process=peaks,
-                        xdmf=[p.name for p in writer.paths],
-                        xdmf_steps=writer.steps_written,
-                    )
-                    session.annotate(summary, outcome)
-                    write_eld_result(
-                        result,
-                        stage,
-                        name="beam",
-                        xdmf=False,
-                        figures=completed and not args.no_plots and "energy" in traj,
-                        title=label,
-                    )
-                    write_summary(stage, summary)
-            try:
-                code = session.finish(outcome, results)
-            except RunFailed as exc:  # raised after the others know the exit status
-                pending, code = exc, 1
-            if completed:
-                writer.discard()
-        elif outcome.status == "failed":
-            code = 1
-        elif outcome.status == "interrupted":
-            code = outcome.error.exit_status
+                code = exc.exit_status
     code = comm.bcast(code, root=0)
     if pending is not None:
         raise pending
-    if root and completed:
+    if outcome is not None and outcome.status == "completed":
         command.print_result(args, results, summary)
     sys.stdout.flush()
     return code

@@ -25,6 +25,7 @@ def require_petsc(option: str = "backend 'petsc'"):
         import dolfinx_solver  # noqa: F401 - the wheel: orders mpi4py ahead of its bindings
     except ImportError:
         pass
+    # mpi4py and petsc4py: optional and heavy, imported only when the backend is asked for
     try:
         from mpi4py import MPI
     except ImportError as exc:
@@ -32,7 +33,7 @@ def require_petsc(option: str = "backend 'petsc'"):
             f"{option}: needs mpi4py ({exc}); install it: {INSTALL_HINT}"
         ) from None
     try:
-        from petsc4py import PETSc
+        from petsc4py import PETSc  # optional, heavy: after mpi4py (module docstring)
     except ImportError as exc:
         raise RotheInputError(
             f"{option}: needs petsc4py ({exc}); install it: {INSTALL_HINT}"

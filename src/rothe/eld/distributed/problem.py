@@ -27,7 +27,7 @@ from ...errors import RotheInputError
 from ...fem.distributed import Partition
 from ...fem.petsc_env import require_petsc
 from ...io.checkpoint import digest
-from ..problem import ELDProblem
+from ..problem import CONSISTENCY_TOL, ELDProblem
 
 
 class GlobalBoundary:
@@ -240,8 +240,6 @@ class DistributedELDProblem:
             float(np.max(np.abs(g0), initial=0.0)),
             self.comm.allreduce(float(np.max(np.abs(self.u0), initial=0.0)), op=self.MPI.MAX),
         )
-        from ..problem import CONSISTENCY_TOL
-
         if not err <= CONSISTENCY_TOL * scale:
             raise RotheInputError(
                 f"u0: got max|u0 - G(0)| = {err:.3g} on the Dirichlet parts "

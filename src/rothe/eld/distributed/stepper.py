@@ -59,6 +59,7 @@ from ..stepper import (
     history_terms,
     kinematics,
 )
+from .problem import DistributedDamping
 
 #: the checkpoint format of :meth:`PetscELDStepper.checkpoint_state` (the serial stepper's
 #: state gathered in the serial numbering, plus the number of processes)
@@ -128,8 +129,6 @@ class PetscELDStepper:
                 "must have the nodal lifting with backend 'petsc' (the harmonic lifting is not "
                 "distributed yet)",
             )
-        from .problem import DistributedDamping
-
         self.D = D = DistributedDamping(p)
         if D.matrix is not None:
             raise fail(

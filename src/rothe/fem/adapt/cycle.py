@@ -177,9 +177,11 @@ class MeshAdaptation:
 
     # -- checkpoint protocol ----------------------------------------------------------------
     def checkpoint_state(self) -> dict:
+        """The adaptive mesh's whole hierarchy as arrays, for a checkpoint."""
         return {"amesh": self.amesh.checkpoint_state()}
 
     def restore_state(self, data: dict) -> None:
+        """Restore the adaptive mesh from :meth:`checkpoint_state`."""
         self.amesh = AdaptiveMesh.restore_state(data["amesh"])
 
 
