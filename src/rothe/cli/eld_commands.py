@@ -24,14 +24,14 @@ import numpy as np
 from ..eld.data import NOISE_TARGETS
 from ..eld.examples import beam_problem, mms_errors, mms_problem, pulse_problem
 from ..eld.output import EldXdmfWriter, write_eld_result
-from ..eld.run import ELDResult, prepare_eld_run
+from ..eld.run import BACKENDS, ELDResult, prepare_eld_run
 from ..eld.studies import (
     convergence_study,
     format_convergence_table,
     format_perturbation_table,
     perturbation_study,
 )
-from ..errors import check_choice, check_int, check_positive, fail
+from ..errors import check_choice, check_int, check_positive, described, fail
 from .adapt_options import add_space_options, fit_default_cap, space_adaptivity
 from .common import (
     add_output_options,
@@ -238,22 +238,8 @@ class EldRunCommand:
             if result is None:
                 return None
             writer = streams[0] if streams else None
-            if writer is not None:
-                writer.export(stage)
-            summary = run_summary(result, self.name)
-            if writer is not None:
-                summary.update(xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written)
             completed = outcome.status == "completed"
-            summarize(summary, result, completed)
-            write_eld_result(
-                result,
-                stage,
-                name=self.name.replace("eld-", ""),
-                xdmf=writer is None and "kept_t" in result.trajectory,
-                figures=(completed and not args.no_plots and "energy" in result.trajectory),
-                title=label,
-            )
-            return summary
+            return self.write_result(args, stage, result, completed, writer, summarize, label)
 
         def discard():
             if streams:
@@ -262,12 +248,42 @@ class EldRunCommand:
         code, outcome, results, summary = run_sequence(
             args, self.name, start, write, prepare=prepare, completed=discard
         )
-        if outcome is not None and outcome.status == "completed" and not args.quiet:
-            print(f"rothe run {self.name}: wrote {results}/")
-            print_summary(summary, self.keys)
-            print(format_energy_balance(summary))
-            self.report(args, summary)
+        if outcome is not None and outcome.status == "completed":
+            self.print_result(args, results, summary)
         return code
+
+    def write_result(
+        self, args, stage, result: ELDResult, completed: bool, writer, summarize, label
+    ) -> dict:
+        """Write ``result`` into the staging directory ``stage`` and return its summary (the
+        ``write`` step of :func:`~rothe.cli.session.run_sequence`, also of ``eld-beam --backend
+        petsc`` on rank 0): the streamed XDMF of ``writer`` (None: XDMF from the kept states),
+        :func:`run_summary` with the command's fields (``summarize``), trajectory and figures."""
+        if writer is not None:
+            writer.export(stage)
+        summary = run_summary(result, self.name)
+        if writer is not None:
+            summary.update(xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written)
+        summarize(summary, result, completed)
+        write_eld_result(
+            result,
+            stage,
+            name=self.name.replace("eld-", ""),
+            xdmf=writer is None and "kept_t" in result.trajectory,
+            figures=(completed and not args.no_plots and "energy" in result.trajectory),
+            title=label,
+        )
+        return summary
+
+    def print_result(self, args, results, summary: dict) -> None:
+        """What a completed run prints (unless --quiet): where it wrote, the summary, the
+        energy balance and the command's report."""
+        if args.quiet:
+            return
+        print(f"rothe run {self.name}: wrote {results}/")
+        print_summary(summary, self.keys)
+        print(format_energy_balance(summary))
+        self.report(args, summary)
 
 
 def _result_of(outcome, prepared: list, problem) -> ELDResult | None:
@@ -412,6 +428,7 @@ class RunEldBeam(EldRunCommand):
         "tau",
         "accepted_steps",
         "ndofs",
+        "processes",
         "linear_solver",
         "krylov_iterations",
         "seconds_per_step",
@@ -459,6 +476,12 @@ class RunEldBeam(EldRunCommand):
         parser.add_argument(
             "--save-every", type=int, default=5, help="write every k-th step to XDMF (default 5)"
         )
+        parser.add_argument(
+            "--backend",
+            default="serial",
+            help="serial | petsc: one process (default), or one mesh on the processes of "
+            "mpiexec -n N with PETSc (docs/scaling.md)",
+        )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
         add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
@@ -475,10 +498,22 @@ class RunEldBeam(EldRunCommand):
         every = check_int("--save-every", args.save_every, minimum=1)
         keep = check_int("--keep-every", args.keep_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
+        if check_choice("--backend", args.backend, BACKENDS) == "petsc" and space is not None:
+            raise fail(
+                "--adapt-space",
+                described("given"),
+                "is not supported with --backend petsc (space adaptivity is not distributed)",
+            )
         return objects, n, every, keep, damping_of(args), space
 
     def execute(self, args) -> int:
-        """Build the cantilever, run it as a session (XDMF streamed while it runs)."""
+        """Build the cantilever, run it as a session (XDMF streamed while it runs); with
+        ``--backend petsc`` on the processes of mpiexec (:mod:`rothe.cli.eld_mpi`)."""
+        if args.backend == "petsc":
+            # mpi4py and petsc4py (optional, heavy) are imported only for this backend
+            from .eld_mpi import execute_beam
+
+            return execute_beam(self, args)
         objects, n, every, keep, damping, space = self.validate(args)
         problem = beam_problem(
             n,
@@ -500,23 +535,7 @@ class RunEldBeam(EldRunCommand):
         options = dict(objects, solver=args.solver, keep_every=keep, linear_rtol=1e-8, adapt=space)
 
         def summarize(summary, result, completed):
-            traj = result.trajectory
-            summary.update(
-                n=n,
-                degree=args.degree,
-                length=args.length,
-                E=args.E,
-                nu=args.nu,
-                amplitude=args.amplitude,
-                t_move=args.t_move,
-                seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
-            )
-            if traj.stats.accepted_steps:
-                summary.update(_beam_reactions(traj))
-                put_in = summary["work_support"] + summary["work_loads"]
-                summary["numerical_dissipation_fraction"] = (
-                    summary["dissipated_numerical"] / put_in if put_in > 0 else None
-                )
+            self.summarize(args, summary, result.trajectory)
 
         # a fixed mesh streams XDMF as it goes (checkpointed with the run); an adaptive run
         # writes one VTU per kept state on its own mesh at the end (rothe.eld.output)
@@ -526,6 +545,26 @@ class RunEldBeam(EldRunCommand):
             else (lambda session, opts: _beam_stream(session, problem, opts, every))
         )
         return self.run(args, problem, options, label, summarize, stream)
+
+    def summarize(self, args, summary: dict, traj) -> None:
+        """The beam's fields of the summary: its options, seconds per step, the reactions at
+        the held end and the fraction of the energy put in that the scheme dissipated."""
+        summary.update(
+            n=args.n,
+            degree=args.degree,
+            length=args.length,
+            E=args.E,
+            nu=args.nu,
+            amplitude=args.amplitude,
+            t_move=args.t_move,
+            seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
+        )
+        if traj.stats.accepted_steps:
+            summary.update(_beam_reactions(traj))
+            put_in = summary["work_support"] + summary["work_loads"]
+            summary["numerical_dissipation_fraction"] = (
+                summary["dissipated_numerical"] / put_in if put_in > 0 else None
+            )
 
     def report(self, args, summary) -> None:
         """Print the numerical dissipation against the work put in, and a note when the sideways

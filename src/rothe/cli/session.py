@@ -343,7 +343,7 @@ class RunSession:
         raise exc
 
 
-def run_sequence(args, name: str, run, write, *, prepare=None, completed=None):
+def run_sequence(args, name: str, run, write, *, prepare=None, completed=None, session=None):
     """The one run sequence of every ``rothe run`` command: run (or resume) -> stage -> write
     -> annotate -> summary last -> finish.
 
@@ -352,10 +352,13 @@ def run_sequence(args, name: str, run, write, *, prepare=None, completed=None):
     (also of a failed or interrupted run with a trajectory), returning the summary, which is
     annotated (:meth:`RunSession.annotate`) and written last; ``prepare(session)`` runs first
     inside the session (e.g. opens a stream writer); ``completed()`` after a completed run's
-    results are committed. Returns ``(exit status, outcome, results directory, summary)``;
+    results are committed; ``session``: the :class:`RunSession` the caller built (rank 0 of
+    ``eld-beam --backend petsc``, which tells the other processes whether it could), by default
+    ``RunSession(args, name)``. Returns ``(exit status, outcome, results directory, summary)``;
     ``outcome`` is None when a resumed run had already completed (nothing is done).
     """
-    session = RunSession(args, name)
+    if session is None:
+        session = RunSession(args, name)
     summary = None
     with session:
         if session.already_completed:

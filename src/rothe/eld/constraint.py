@@ -109,6 +109,12 @@ class DirichletConstraint:
         """lambda = M_G^{-1} r_C: the equation tested with the constrained basis functions."""
         return self._bm_lu.solve(np.asarray(r_C, dtype=float))
 
+    @property
+    def reaction_weights(self) -> dict[str, np.ndarray]:
+        """Per part P, the weights w_P on the constrained scalar dofs with int_P lambda_c ds =
+        w_P . lambda_c (column sums of P's boundary mass): :meth:`reactions` is -w_P L."""
+        return dict(self._reaction_weights)
+
     def reactions(self, lam: np.ndarray) -> dict[str, np.ndarray]:
         """Reaction force per part: -int_P lambda ds, one d-vector per part (support on body)."""
         L = np.asarray(lam).reshape(-1, self.space.dim)

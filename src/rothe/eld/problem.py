@@ -239,6 +239,14 @@ class ELDProblem:
         }
         self.derivative_info = self._derivative_info()
 
+    @property
+    def definition(self) -> dict:
+        """The problem's definition without the mesh: the keyword arguments it was built with
+        (material, degree, damping, dirichlet, traction, body_force, u0, v0, T, name,
+        load_quadrature), so that ``ELDProblem(mesh, **problem.definition)`` builds it on
+        another mesh or only on a part of it (:mod:`rothe.eld.distributed`). A copy."""
+        return dict(self._data)
+
     def on_mesh(self, mesh) -> ELDProblem:
         """The same problem (material, damping, data, T) on another mesh with the same named
         boundary parts (space adaptivity: :mod:`rothe.eld.adapt`).

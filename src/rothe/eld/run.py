@@ -24,7 +24,7 @@ import inspect
 import math
 from dataclasses import asdict, dataclass
 
-from ..errors import RunFailed, fail
+from ..errors import RunFailed, check_choice, described, fail
 from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
 from ..stepping.controllers import Adaptive, FixedStepController, Given
@@ -37,6 +37,10 @@ from .problem import ELDProblem
 from .scheme import DEFAULT_SCHEME, Scheme
 from .state import ELDState
 from .stepper import DEFAULT_CONTROL, ELDStepper, NewtonOptions
+
+#: where :func:`run_eld` runs: this process, or one mesh on the processes of mpiexec with PETSc
+#: (:mod:`rothe.eld.distributed`, docs/scaling.md)
+BACKENDS = ("serial", "petsc")
 
 
 @dataclass
@@ -347,7 +351,9 @@ def prepare_eld_run(
     return ELDRun(stepper, controller, traj, state, loop_tau_min, rc)
 
 
-def run_eld(problem: ELDProblem, *, progress=False, **options) -> ELDResult:
+def run_eld(
+    problem: ELDProblem, *, progress=False, backend: str = "serial", **options
+) -> ELDResult:
     """Run implicit Euler (3.4) or BDF2 from t = 0 to T on the shared evolve loop.
 
     Parameters
@@ -394,6 +400,13 @@ def run_eld(problem: ELDProblem, *, progress=False, **options) -> ELDResult:
         ``run_eld`` with the same arguments and problem. A resumed run returns the trajectory of
         the uninterrupted run bit for bit (statistics too, but the wall time, which sums the
         sessions).
+    backend : {'serial', 'petsc'}
+        ``'petsc'``: the mesh partitioned over the processes of ``mpiexec`` (every process
+        calls run_eld), PETSc's CG with GAMG or MUMPS (:mod:`rothe.eld.distributed`; needs
+        mpi4py and petsc4py; no ``adapt``, data ``Points()``, no noise, the nodal lifting).
+        ``problem`` may then be a :class:`~rothe.eld.distributed.DistributedELDProblem`. The
+        answer is the serial one to the solver tolerance; the fields of the trajectory are
+        complete on rank 0, the state holds each process's owned dofs.
 
     Returns
     -------
@@ -405,6 +418,19 @@ def run_eld(problem: ELDProblem, *, progress=False, **options) -> ELDResult:
     data is not finite, :class:`~rothe.errors.RunInterrupted` on SIGINT / SIGTERM, and
     :class:`~rothe.errors.RotheInputError` (one line naming the parameter) for bad input.
     """
+    if check_choice("backend", backend, BACKENDS) == "petsc":
+        if options.pop("adapt", None) is not None:
+            raise fail(
+                "adapt",
+                described("a SpaceAdaptivity"),
+                "is not supported with backend 'petsc' (space adaptivity is not distributed): "
+                "run it serially",
+            )
+        # PETSc and MPI (optional, heavy) are imported only for this backend
+        from .distributed.run import run_eld_petsc
+
+        done = run_eld_petsc(problem, progress=progress, **options)
+        return ELDResult(done.trajectory, done.state, done.stepper, done.controller, done.problem)
     return prepare_eld_run(problem, **options).evolve(progress=progress)
 
 
@@ -429,13 +455,17 @@ def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:
     }
 
 
-# help(run_eld) and inspect show every keyword: those of prepare_eld_run, and progress
+# help(run_eld) and inspect show every keyword: those of prepare_eld_run, progress and backend
 def _run_eld_signature() -> inspect.Signature:
     prepare = inspect.signature(prepare_eld_run)
     names = list(prepare.parameters)
     params = list(prepare.parameters.values())
     progress = inspect.Parameter("progress", inspect.Parameter.KEYWORD_ONLY, default=False)
     params.insert(names.index("observer") + 1, progress)
+    backend = inspect.Parameter(
+        "backend", inspect.Parameter.KEYWORD_ONLY, default="serial", annotation="str"
+    )
+    params.append(backend)
     return prepare.replace(parameters=params, return_annotation="ELDResult")
 
 

@@ -35,7 +35,8 @@ Steps: :class:`~rothe.stepping.controllers.Uniform` (n = T/tau equal steps; tau 
 1 + sqrt(2)), :class:`~rothe.stepping.controllers.Adaptive` (the first step ``tau``, default
 0.01); uniform steps and given sequences are checked against Lemma 3.2 before the first step,
 the adaptive controller keeps tau_j/alpha_0 below :data:`~rothe.eld.scheme.BOUND_SAFETY`
-rho/d0.
+rho/d0 (:class:`StepGrid`, shared with the PETSc backend :mod:`rothe.eld.distributed`, as are
+:func:`history_terms` and :func:`kinematics`).
 
 **Checkpoints.** :meth:`ELDStepper.checkpoint_state` returns a dict of arrays and plain values
 (the state with its products, the ledger, the error scale, the solver's counters and the key of
@@ -150,6 +151,188 @@ def uniform_steps(tau: float, T: float, scheme: Scheme, bound: float) -> int:
     return int(n)
 
 
+def history_terms(state: ELDState, coeffs) -> dict:
+    """h_x = alpha_1 x^{j-1} + alpha_2 x^{j-2} and h_y, with their M and K products (module
+    docstring), from the fields and products of ``state`` and the scheme's (alpha_0, alpha_1,
+    alpha_2). The same on every process of the distributed backend (owned parts)."""
+    _, a1, a2 = coeffs
+    f, pr = state.fields, state.products
+    h = {
+        "x": a1 * f["x"],
+        "Mx": a1 * pr["Mx"],
+        "Kx": a1 * pr["Kx"],
+        "y": a1 * f["y"],
+        "My": a1 * pr["My"],
+        "Ky": a1 * pr["Ky"],
+    }
+    if a2:
+        for key, name in (("x", "x_1"), ("y", "y_1")):
+            h[key] = h[key] + a2 * f[name]
+        for key in ("Mx", "Kx", "My", "Ky"):
+            h[key] = h[key] + a2 * pr[key + "_1"]
+    return h
+
+
+def kinematics(h, coeffs, tau, x, Mx, Kx, lifted, damping, with_nonlinear=True) -> dict:
+    """y = (alpha_0 x + h_x)/tau, b = (alpha_0 y + h_y)/tau, u, v, a and their M and K products
+    from the step's unknown ``x`` (with ``Mx``, ``Kx``) and the lifted data ``lifted`` =
+    ((u2, -, K u2), (v2, M v2, K v2), (w2, M w2, -)) (u2 None: the original form, u = x), and
+    the damping force D(v) of ``damping`` (its linear part, and N(v) unless
+    ``with_nonlinear`` is False). Module docstring."""
+    a0 = coeffs[0]
+    (u2, _, Ku2), (v2, Mv2, Kv2), (w2, Mw2, _) = lifted
+    k = {"x": x, "Mx": Mx, "Kx": Kx}
+    k["y"] = (a0 * x + h["x"]) / tau
+    k["My"] = (a0 * Mx + h["Mx"]) / tau
+    k["Ky"] = (a0 * Kx + h["Kx"]) / tau
+    k["b"] = (a0 * k["y"] + h["y"]) / tau
+    k["Mb"] = (a0 * k["My"] + h["My"]) / tau
+    if u2 is None:
+        k["u"], k["Ku"], k["v"], k["Mv"], k["a"], k["Ma"] = (
+            x,
+            Kx,
+            k["y"],
+            k["My"],
+            k["b"],
+            k["Mb"],
+        )
+        Kv = k["Ky"]
+    else:
+        k["u"], k["Ku"] = x + u2, Kx + Ku2
+        k["v"], k["Mv"] = k["y"] + v2, k["My"] + Mv2
+        k["a"], k["Ma"] = k["b"] + w2, k["Mb"] + Mw2
+        Kv = k["Ky"] + Kv2
+    D = damping
+    Dv = D.mass_coef * k["Mv"] + D.stiffness_coef * Kv
+    if D.matrix is not None:
+        Dv = Dv + D.matrix @ k["v"]
+    if with_nonlinear and not D.is_linear:
+        Dv = Dv + D.nonlinear_apply(k["v"])
+    k["Dv"] = Dv
+    return k
+
+
+class StepGrid:
+    """The time grid of a run: the steps of ``control`` on [0, T] checked against Lemma 3.2
+    and, for BDF2, zero-stability (module docstring); the times t_j, the test for the last
+    step and the landing on T of adaptive steps. Shared by every stepper of elastodynamics
+    (the serial one and :mod:`rothe.eld.distributed`).
+
+    Parameters
+    ----------
+    control : Uniform, Given or Adaptive
+    scheme : ImplicitEuler or BDF2
+    T : float
+        End time.
+    bound : float
+        The solvability bound rho/d0 (inf: none).
+
+    Attributes
+    ----------
+    tau : float
+        The (first) step.
+    steps : ndarray or None
+        A given sequence.
+    n_steps : int or None
+        The number of steps of a fixed grid (None: adaptive).
+    """
+
+    def __init__(self, control, scheme: Scheme, T: float, bound: float):
+        self.control = control
+        self.scheme = scheme
+        self.T = T
+        self.bound = bound
+        self.steps = None
+        self.tau_uniform = None
+        if isinstance(control, Given):
+            self.steps = self._check_steps(control.steps)
+            self.tau = float(self.steps[0])
+            self.n_steps = int(self.steps.size)
+            times = np.cumsum(self.steps)
+            times[-1] = T
+            self._times = np.concatenate([[0.0], times])
+            return
+        if isinstance(control, Uniform):
+            self.tau = tau = control.tau
+            self.n_steps = uniform_steps(tau, T, self.scheme, self.bound)
+            self.tau_uniform = tau
+            return
+        self.tau = tau = DEFAULT_FIRST_STEP if control.tau is None else control.tau
+        if tau > T:
+            raise fail("tau", tau, f"(the first step) must be <= T = {T:g}")
+        self.n_steps = None
+        self.scheme.check_step(tau, self.bound)  # the first step
+
+    def _check_steps(self, steps) -> np.ndarray:
+        """A given sequence (positive and finite: :class:`Given`) against T, the zero-stability
+        of BDF2 and Lemma 3.2."""
+        arr = np.asarray(steps, dtype=float).ravel()
+        total = float(arr.sum())
+        if abs(total - self.T) > 1e-10 * self.T:
+            raise fail(
+                "steps", described(f"steps summing to {total:.12g}"), f"must sum to T = {self.T:g}"
+            )
+        tau_prev = None
+        limit = self.scheme.zero_stability
+        for k, tau in enumerate(arr):
+            if tau_prev is not None and math.isfinite(limit):
+                ratio = tau / tau_prev
+                if not ratio < limit:
+                    raise fail(
+                        "steps",
+                        described(f"tau_{k + 1}/tau_{k} = {ratio:.6g}"),
+                        f"must be < 1 + sqrt(2) = {limit:.6g} (zero-stability "
+                        "of variable-step BDF2)",
+                    )
+            a0 = self.scheme.coefficients(tau, tau_prev)[0]
+            if not tau / a0 < self.bound:
+                raise fail(
+                    "steps",
+                    described(f"tau_{k + 1} = {tau:g}"),
+                    f"must satisfy tau_j/alpha_j < rho/d0 = {self.bound:g} (alpha_j = "
+                    f"{a0:.6g}; Lemma 3.2)",
+                )
+            tau_prev = tau
+        return arr
+
+    def time_after(self, state: ELDState, tau: float) -> float:
+        """t_{j+1} after ``state`` with step ``tau``: on a fixed grid its j+1-st time (no
+        accumulated round-off), else t_j + tau, snapped to T within a few ulps."""
+        j = state.j + 1
+        if self.tau_uniform is not None:
+            return j * self.tau_uniform
+        if self.steps is not None:
+            return float(self._times[j])
+        t = state.t + tau
+        if abs(t - self.T) <= 4.0 * np.finfo(float).eps * max(1.0, self.T):
+            t = self.T
+        return t
+
+    def finished(self, state: ELDState) -> bool:
+        """The last step is done: n steps of a fixed grid, or t = T."""
+        if self.n_steps is not None:
+            return state.j >= self.n_steps
+        return state.t >= self.T
+
+    def max_step(self, tau_prev: float | None) -> float:
+        """The adaptive controller's limit for the step after ``tau_prev``: the step whose
+        effective step tau/alpha_0 is BOUND_SAFETY times the solvability bound
+        (:meth:`Scheme.max_step`)."""
+        return self.scheme.max_step(BOUND_SAFETY * self.bound, tau_prev)
+
+    def limit(self, state: ELDState, tau: float) -> float:
+        """Adaptive control: land on T (the last two steps split the rest evenly instead of
+        leaving a sliver)."""
+        if self.n_steps is not None:
+            return tau
+        rest = self.T - state.t
+        if tau >= rest * (1.0 - 1e-12):
+            return rest
+        if tau < rest < 2.0 * tau:
+            return 0.5 * rest
+        return tau
+
+
 class ELDStepper:
     """One step of Euler or BDF2 in either form (module docstring); the evolve loop drives it.
 
@@ -218,7 +401,8 @@ class ELDStepper:
         self.bound = problem.step_bound()
         self.order = self.scheme.order
         self.max_ratio = self.scheme.ratio_cap
-        self._setup_grid()
+        self.grid = StepGrid(self.control, self.scheme, self.T, self.bound)
+        self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
         problem.check_initial_consistency()
         self.error_scale = (
             None if error_scale is None else check_positive("error_scale", error_scale)
@@ -249,63 +433,6 @@ class ELDStepper:
         self._base = None  # (state, mesh hierarchy, system) before a step's own refinements
         self._adapted: float | None = None  # eta of the last adapt step (None: none / failed)
 
-    # -- set-up ---------------------------------------------------------------------------------
-    def _setup_grid(self) -> None:
-        T = self.T
-        control = self.control
-        self.steps = None
-        self.tau_uniform = None
-        if isinstance(control, Given):
-            self.steps = self._check_steps(control.steps)
-            self.tau = float(self.steps[0])
-            self.n_steps = int(self.steps.size)
-            times = np.cumsum(self.steps)
-            times[-1] = T
-            self._times = np.concatenate([[0.0], times])
-            return
-        if isinstance(control, Uniform):
-            self.tau = tau = control.tau
-            self.n_steps = uniform_steps(tau, T, self.scheme, self.bound)
-            self.tau_uniform = tau
-            return
-        self.tau = tau = DEFAULT_FIRST_STEP if control.tau is None else control.tau
-        if tau > T:
-            raise fail("tau", tau, f"(the first step) must be <= T = {T:g}")
-        self.n_steps = None
-        self.scheme.check_step(tau, self.bound)  # the first step
-
-    def _check_steps(self, steps) -> np.ndarray:
-        """A given sequence (positive and finite: :class:`Given`) against T, the zero-stability
-        of BDF2 and Lemma 3.2."""
-        arr = np.asarray(steps, dtype=float).ravel()
-        total = float(arr.sum())
-        if abs(total - self.T) > 1e-10 * self.T:
-            raise fail(
-                "steps", described(f"steps summing to {total:.12g}"), f"must sum to T = {self.T:g}"
-            )
-        tau_prev = None
-        limit = self.scheme.zero_stability
-        for k, tau in enumerate(arr):
-            if tau_prev is not None and math.isfinite(limit):
-                ratio = tau / tau_prev
-                if not ratio < limit:
-                    raise fail(
-                        "steps",
-                        described(f"tau_{k + 1}/tau_{k} = {ratio:.6g}"),
-                        f"must be < 1 + sqrt(2) = {limit:.6g} (zero-stability "
-                        "of variable-step BDF2)",
-                    )
-            a0 = self.scheme.coefficients(tau, tau_prev)[0]
-            if not tau / a0 < self.bound:
-                raise fail(
-                    "steps",
-                    described(f"tau_{k + 1} = {tau:g}"),
-                    f"must satisfy tau_j/alpha_j < rho/d0 = {self.bound:g} (alpha_j = "
-                    f"{a0:.6g}; Lemma 3.2)",
-                )
-            tau_prev = tau
-        return arr
-
     # -- what the system holds ------------------------------------------------------------------
     @property
     def problem(self) -> ELDProblem:
@@ -321,8 +448,8 @@ class ELDStepper:
     def max_step(self, tau_prev: float | None) -> float:
         """The controller's limit for the step after ``tau_prev``: the step whose effective
         step tau/alpha_0 is BOUND_SAFETY times the solvability bound
-        (:meth:`Scheme.max_step`)."""
-        return self.scheme.max_step(BOUND_SAFETY * self.bound, tau_prev)
+        (:meth:`StepGrid.max_step`)."""
+        return self.grid.max_step(tau_prev)
 
     # -- the initial state ----------------------------------------------------------------------
     def initial_state(self) -> ELDState:
@@ -394,22 +521,12 @@ class ELDStepper:
 
     # -- evolve-loop interface ------------------------------------------------------------------
     def finished(self, state: ELDState) -> bool:
-        """The last step is done: n steps of a fixed grid, or t = T."""
-        if self.n_steps is not None:
-            return state.j >= self.n_steps
-        return state.t >= self.T
+        """The last step is done: n steps of a fixed grid, or t = T (:meth:`StepGrid.finished`)."""
+        return self.grid.finished(state)
 
     def limit(self, state: ELDState, tau: float) -> float:
-        """Adaptive control: land on T (the last two steps split the rest evenly instead of
-        leaving a sliver)."""
-        if self.n_steps is not None:
-            return tau
-        rest = self.T - state.t
-        if tau >= rest * (1.0 - 1e-12):
-            return rest
-        if tau < rest < 2.0 * tau:
-            return 0.5 * rest
-        return tau
+        """Adaptive control: land on T (:meth:`StepGrid.limit`)."""
+        return self.grid.limit(state, tau)
 
     def overshoot(self, state, attempts):
         """Never: the grid (or :meth:`limit`) lands on T exactly."""
@@ -446,17 +563,6 @@ class ELDStepper:
         if self.adaptivity is not None:
             out["dofs"] = self.problem.space.ndofs
         return out
-
-    def _time_after(self, state: ELDState, tau: float) -> float:
-        j = state.j + 1
-        if self.tau_uniform is not None:
-            return j * self.tau_uniform
-        if self.steps is not None:
-            return float(self._times[j])
-        t = state.t + tau
-        if abs(t - self.T) <= 4.0 * np.finfo(float).eps * max(1.0, self.T):
-            t = self.T
-        return t
 
     # -- the step -------------------------------------------------------------------------------
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
@@ -532,7 +638,7 @@ class ELDStepper:
     def _solve(self, state: ELDState, tau: float) -> ELDStepResult:
         system = self.system
         j = state.j + 1
-        t_new = self._time_after(state, tau)
+        t_new = self.grid.time_after(state, tau)
         scheme = self.scheme
         if state.j == 0:
             scheme = self.scheme.first_step()
@@ -633,60 +739,6 @@ class ELDStepper:
 
     # -- the two forms --------------------------------------------------------------------------
     @staticmethod
-    def _history(state: ELDState, coeffs):
-        """h_x = alpha_1 x^{j-1} + alpha_2 x^{j-2} and h_y, with their M and K products."""
-        _, a1, a2 = coeffs
-        f, pr = state.fields, state.products
-        h = {
-            "x": a1 * f["x"],
-            "Mx": a1 * pr["Mx"],
-            "Kx": a1 * pr["Kx"],
-            "y": a1 * f["y"],
-            "My": a1 * pr["My"],
-            "Ky": a1 * pr["Ky"],
-        }
-        if a2:
-            for key, name in (("x", "x_1"), ("y", "y_1")):
-                h[key] = h[key] + a2 * f[name]
-            for key in ("Mx", "Kx", "My", "Ky"):
-                h[key] = h[key] + a2 * pr[key + "_1"]
-        return h
-
-    def _kinematics(self, h, coeffs, tau, x, Mx, Kx, lifted, with_nonlinear=True) -> dict:
-        """y, b, u, v, a and their products from x and the lifted data (module docstring)."""
-        a0 = coeffs[0]
-        (u2, _, Ku2), (v2, Mv2, Kv2), (w2, Mw2, _) = lifted
-        k = {"x": x, "Mx": Mx, "Kx": Kx}
-        k["y"] = (a0 * x + h["x"]) / tau
-        k["My"] = (a0 * Mx + h["Mx"]) / tau
-        k["Ky"] = (a0 * Kx + h["Kx"]) / tau
-        k["b"] = (a0 * k["y"] + h["y"]) / tau
-        k["Mb"] = (a0 * k["My"] + h["My"]) / tau
-        if u2 is None:
-            k["u"], k["Ku"], k["v"], k["Mv"], k["a"], k["Ma"] = (
-                x,
-                Kx,
-                k["y"],
-                k["My"],
-                k["b"],
-                k["Mb"],
-            )
-            Kv = k["Ky"]
-        else:
-            k["u"], k["Ku"] = x + u2, Kx + Ku2
-            k["v"], k["Mv"] = k["y"] + v2, k["My"] + Mv2
-            k["a"], k["Ma"] = k["b"] + w2, k["Mb"] + Mw2
-            Kv = k["Ky"] + Kv2
-        D = self.system.D
-        Dv = D.mass_coef * k["Mv"] + D.stiffness_coef * Kv
-        if D.matrix is not None:
-            Dv = Dv + D.matrix @ k["v"]
-        if with_nonlinear and not D.is_linear:
-            Dv = Dv + D.nonlinear_apply(k["v"])
-        k["Dv"] = Dv
-        return k
-
-    @staticmethod
     def _guess(state: ELDState, tau: float) -> np.ndarray:
         f = state.fields
         if "x_1" not in f or state.tau_prev is None:
@@ -706,7 +758,7 @@ class ELDStepper:
             a0,
             tau / a0,
             system.lifted(vals),
-            self._history(state, coeffs),
+            history_terms(state, coeffs),
             system.D,
         )
 
@@ -729,14 +781,14 @@ class ELDStepper:
             xI = system.solve_linear(rhs[I], te, guess)
             x = np.zeros(n)
             x[I] = xI
-            return self._kinematics(h, coeffs, tau, x, p.M @ x, p.K @ x, lifted), 0
+            return kinematics(h, coeffs, tau, x, p.M @ x, p.K @ x, lifted, D), 0
 
         cache = {}
 
         def residual(xI):
             x = np.zeros(n)
             x[I] = xI
-            k = self._kinematics(h, coeffs, tau, x, p.M @ x, p.K @ x, lifted)
+            k = kinematics(h, coeffs, tau, x, p.M @ x, p.K @ x, lifted, D)
             cache["k"] = k
             R = rho * k["Ma"] + k["Dv"] + k["Ku"] - vals.F
             return R[I], k["v"]
@@ -772,7 +824,7 @@ class ELDStepper:
                 rhs_u = rhs_u - D.matrix @ (h["x"] / tau)
             z = system.solve_linear(np.concatenate([rhs_u, g_rhs]), te)
             u = z[:n]
-            k = self._kinematics(h, coeffs, tau, u, p.M @ u, p.K @ u, lifted)
+            k = kinematics(h, coeffs, tau, u, p.M @ u, p.K @ u, lifted, D)
             k["lam"] = z[n:]
             return k, 0
 
@@ -782,7 +834,7 @@ class ELDStepper:
 
         def residual(z):
             u, lam = z[:n], z[n:]
-            k = self._kinematics(h, coeffs, tau, u, p.M @ u, p.K @ u, lifted)
+            k = kinematics(h, coeffs, tau, u, p.M @ u, p.K @ u, lifted, D)
             k["lam"] = lam
             cache["k"] = k
             R_u = rho * k["Ma"] + k["Dv"] + k["Ku"] + B.T @ lam - vals.F

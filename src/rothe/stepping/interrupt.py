@@ -226,3 +226,12 @@ def signal_name(signum: int) -> str:
         return signal.Signals(signum).name
     except ValueError:
         return f"signal {signum}"
+
+
+def request(signum: int) -> None:
+    """Record ``signum`` as if it had arrived here (inside an active guard; else nothing).
+
+    The distributed backend calls it on every process when a signal reached any one of them,
+    so that all stop after the same step (:mod:`rothe.eld.distributed`)."""
+    if _active is not None and _active.signum is None:
+        _active.signum = int(signum)

@@ -1,0 +1,50 @@
+"""petsc4py and mpi4py for the distributed backend, imported on demand with a one-line refusal.
+
+Serial ``rothe`` never imports this module's targets: PETSc is an optional extra
+(``pip install 'rothe[mpi]'``). The PyPI wheel ``dolfinx-solver-real`` (Python >= 3.12) bundles
+petsc4py with PETSc 3.25 (MUMPS, GAMG); its bindings need ``mpi4py.MPI`` loaded first (else
+petsc4py fails with ``libmpi.so.12: cannot open shared object file``), which is why ``mpi4py`` is
+imported before ``petsc4py`` here. On clusters petsc4py comes from the module system, Spack or
+conda-forge and the same order is harmless.
+"""
+
+from __future__ import annotations
+
+from ..errors import RotheInputError
+
+#: what to install, said once wherever the backend is refused
+INSTALL_HINT = (
+    "pip install 'rothe[mpi]' (mpi4py) plus petsc4py: on Python >= 3.12 "
+    "'pip install dolfinx-solver-real', on a cluster the petsc4py of its PETSc module"
+)
+
+
+def require_petsc(option: str = "backend 'petsc'"):
+    """(MPI, PETSc): the modules, or :class:`RotheInputError` naming what is missing."""
+    try:
+        import dolfinx_solver  # noqa: F401 - the wheel: orders mpi4py ahead of its bindings
+    except ImportError:
+        pass
+    # mpi4py and petsc4py: optional and heavy, imported only when the backend is asked for
+    try:
+        from mpi4py import MPI
+    except ImportError as exc:
+        raise RotheInputError(
+            f"{option}: needs mpi4py ({exc}); install it: {INSTALL_HINT}"
+        ) from None
+    try:
+        from petsc4py import PETSc  # optional, heavy: after mpi4py (module docstring)
+    except ImportError as exc:
+        raise RotheInputError(
+            f"{option}: needs petsc4py ({exc}); install it: {INSTALL_HINT}"
+        ) from None
+    return MPI, PETSc
+
+
+def petsc_available() -> str | None:
+    """None if petsc4py and mpi4py import, else the reason (for tests that skip)."""
+    try:
+        require_petsc()
+    except RotheInputError as exc:
+        return str(exc)
+    return None
