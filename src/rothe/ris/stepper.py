@@ -150,7 +150,7 @@ class RISStepper:
         # space adaptivity (rothe.ris.adapt): None keeps the mesh of ``problem``
         self.space = None
         if space is not None:
-            self.space = RISAdaptivity(problem, space, times=self.times)
+            self.space = RISAdaptivity(problem, space, times=self.times, inner=inner)
         self._adapted: RISAdaptStep | None = None  # what the last adapt step did
         self._inner = inner
         self._start: tuple[float, np.ndarray] | None = None  # (t, z) the attempts start from
@@ -331,11 +331,12 @@ class RISStepper:
         adaptivity, when due and the run goes on, the problem and z_k on a new mesh (a new
         state; the accepted one is never changed); otherwise ``state`` itself."""
         self._adapted = None
-        if self.space is None or not self.space.options.due(state.k) or self.finished(state):
+        if self.space is None or self.finished(state):
             return state
         t_prev, z_prev = self._start
         out = self.space.adapt(self.problem, t_prev, z_prev, state.z, result.lam,
-                               result.increment, state.t, result.energy)
+                               result.increment, state.t, result.energy, step=state.k,
+                               tau=result.tau)
         self._adapted = out
         if not out.changed:
             return state
@@ -373,7 +374,7 @@ class RISStepper:
         )
         if space is not None:
             traj.append(mesh_id=result.mesh_id, n_dofs=result.problem.n)
-            traj.append(transfer_energy=adapted.transfer_energy if adapted is not None else 0.0)
+            traj.append(**space.ledger(adapted, result))  # transfer_energy, relax_energy, ...
 
     def where(self, state: RISState, result: RISStepResult | None) -> dict:
         info = {"step": state.k + 1, "s": state.s, "t": state.t}
@@ -502,10 +503,8 @@ def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress,
         raise
     finally:
         traj.meta["linear_solver"] = stepper.solver.linear.kind_used
-        if stepper.space is not None:
-            traj.meta["space_adaptations"] = stepper.space.adaptations
-            traj.meta["transfer_failures"] = stepper.space.transfer_failures
-            traj.meta["final_mesh_id"] = stepper.space.mesh_id
+        if stepper.space is not None:  # space_adaptations, transfer_failures, ...
+            traj.meta.update(stepper.space.meta())
     _keep_last_z(problem, stepper, traj, state)
     traj.meta["landing"] = landing_record(stepper, state)
     return state
