@@ -11,7 +11,8 @@ scheme at the same global residual (:func:`compare_rows`).
 ``run ris-front`` is a phase front crossing the unit square (space adaptivity pays there).
 
 ``--adapt-space`` (with ``--space-tol``, ``--refine-fraction``, ``--coarsen-fraction``,
-``--max-dofs``, ``--adapt-every``) adapts the mesh between steps
+``--max-dofs``, ``--adapt-every``, ``--refine-band``, ``--coarsen-delay``, ``--max-recoarsen``,
+``--coarsen-batch``) adapts the mesh between steps
 (:mod:`rothe.ris.adapt`); the run then writes every distinct mesh into trajectory.npz,
 ``solution.pvd`` + one VTU per state (its own mesh) instead of solution.xdmf, the dofs against
 t and s (``fig_dofs.png``) and snapshots of mesh and z (``fig_mesh_snapshots.png``).
@@ -133,7 +134,8 @@ def check_memory(option: str, value, count: int, bytes_each: float, what: str = 
 
 #: the options of space adaptivity (refused without --adapt-space)
 SPACE_OPTIONS = ("--space-tol", "--refine-fraction", "--coarsen-fraction", "--max-dofs",
-                 "--adapt-every")
+                 "--adapt-every", "--refine-band", "--coarsen-delay", "--max-recoarsen",
+                 "--coarsen-batch")
 
 
 def add_space_options(parser, default_tol: float, default_max_dofs: int) -> None:
@@ -155,6 +157,17 @@ def add_space_options(parser, default_tol: float, default_max_dofs: int) -> None
                              "cap the mesh grows until memory runs out)")
     parser.add_argument("--adapt-every", type=int, default=1,
                         help="adapt after every K-th accepted step (default 1)")
+    # hysteresis and band (rothe.fem.adapt.hysteresis, .marking); unset: the RIS defaults
+    parser.add_argument("--refine-band", type=parse_float("--refine-band"), default=None,
+                        help="refine a band of this width around the refined cells with them "
+                             "(a length; default 0)")
+    parser.add_argument("--coarsen-delay", type=int, default=None,
+                        help="cells refined in the last K adaptations do not coarsen (default 4)")
+    parser.add_argument("--max-recoarsen", type=int, default=None,
+                        help="a cell is refined and coarsened again at most K times (default 2)")
+    parser.add_argument("--coarsen-batch", type=parse_float("--coarsen-batch"), default=None,
+                        help="an adaptation that only coarsens needs this share of the cells "
+                             "marked (default 0)")
 
 
 def space_from_args(args, default_tol: float, default_max_dofs: int):
@@ -174,7 +187,9 @@ def space_from_args(args, default_tol: float, default_max_dofs: int):
         space_tol=default_tol if args.space_tol is None else args.space_tol,
         refine_fraction=args.refine_fraction, coarsen_fraction=args.coarsen_fraction,
         max_dofs=default_max_dofs if args.max_dofs is None else args.max_dofs,
-        adapt_every=args.adapt_every, naming="cli")
+        adapt_every=args.adapt_every, naming="cli", refine_band=args.refine_band,
+        coarsen_delay=args.coarsen_delay, max_recoarsen=args.max_recoarsen,
+        coarsen_batch=args.coarsen_batch)
 
 
 def _as_option_error(exc, args):
