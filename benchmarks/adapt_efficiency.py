@@ -35,8 +35,10 @@ def table(title: str, rows: list[dict]) -> None:
     print(f"  {title}")
     print(f"  {'dofs':>8} {'cells':>8} {'estimate':>10} {'error':>10} {'eta/err':>8}")
     for r in rows:
-        print(f"  {r['dofs']:>8} {r['cells']:>8} {r['estimate']:>10.3e} {r['error']:>10.3e} "
-              f"{r['efficiency']:>8.2f}")
+        print(
+            f"  {r['dofs']:>8} {r['cells']:>8} {r['estimate']:>10.3e} {r['error']:>10.3e} "
+            f"{r['efficiency']:>8.2f}"
+        )
 
 
 def band(rows: list[dict], min_dofs: int = 0) -> str:
@@ -47,21 +49,20 @@ def band(rows: list[dict], min_dofs: int = 0) -> str:
 def part1(quick: bool) -> None:
     big2, big3 = (12_000, 3_000) if quick else (120_000, 20_000)
     cases = [
-        ("ELD P1 2D bump", lambda ad: elasticity_study(2, 1, "bump", adaptive=ad,
-                                                       max_dofs=big2)),
-        ("ELD P1 2D front", lambda ad: elasticity_study(2, 1, "front", adaptive=ad,
-                                                        max_dofs=big2)),
-        ("ELD P2 2D bump", lambda ad: elasticity_study(2, 2, "bump", adaptive=ad,
-                                                       max_dofs=big2)),
-        ("ELD P2 2D front", lambda ad: elasticity_study(2, 2, "front", adaptive=ad,
-                                                        max_dofs=big2)),
-        ("ELD P1 3D bump", lambda ad: elasticity_study(3, 1, "bump", adaptive=ad, n0=1,
-                                                       max_dofs=big3)),
-        ("ELD P2 3D bump", lambda ad: elasticity_study(3, 2, "bump", adaptive=ad, n0=1,
-                                                       max_dofs=big3)),
+        ("ELD P1 2D bump", lambda ad: elasticity_study(2, 1, "bump", adaptive=ad, max_dofs=big2)),
+        ("ELD P1 2D front", lambda ad: elasticity_study(2, 1, "front", adaptive=ad, max_dofs=big2)),
+        ("ELD P2 2D bump", lambda ad: elasticity_study(2, 2, "bump", adaptive=ad, max_dofs=big2)),
+        ("ELD P2 2D front", lambda ad: elasticity_study(2, 2, "front", adaptive=ad, max_dofs=big2)),
+        (
+            "ELD P1 3D bump",
+            lambda ad: elasticity_study(3, 1, "bump", adaptive=ad, n0=1, max_dofs=big3),
+        ),
+        (
+            "ELD P2 3D bump",
+            lambda ad: elasticity_study(3, 2, "bump", adaptive=ad, n0=1, max_dofs=big3),
+        ),
         ("RIS P1 2D front", lambda ad: ris_study(2, "front", adaptive=ad, max_dofs=big2 // 2)),
-        ("RIS P1 3D front", lambda ad: ris_study(3, "front", adaptive=ad, n0=2,
-                                                 max_dofs=big3)),
+        ("RIS P1 3D front", lambda ad: ris_study(3, "front", adaptive=ad, n0=2, max_dofs=big3)),
     ]
     print("Part 1: efficiency eta / |||u - u_h||| (energy norm)\n")
     summary = []
@@ -86,17 +87,21 @@ def part1(quick: bool) -> None:
 def part2(quick: bool) -> None:
     big = 9_000 if quick else 140_000
     print("Part 2: dofs to reach the error of the finest uniform mesh (front width 0.02)\n")
-    head = (f"{'case':<16} {'target error':>12} {'uniform dofs':>13} {'adaptive dofs':>14} "
-            f"{'ratio':>7}")
+    head = (
+        f"{'case':<16} {'target error':>12} {'uniform dofs':>13} {'adaptive dofs':>14} {'ratio':>7}"
+    )
     print(head)
     print("-" * len(head))
     for name, study in (
-        ("ELD P1 2D", lambda ad: elasticity_study(2, 1, "front", width=0.02, adaptive=ad,
-                                                  max_dofs=big)),
-        ("ELD P2 2D", lambda ad: elasticity_study(2, 2, "front", width=0.02, adaptive=ad,
-                                                  max_dofs=big)),
-        ("RIS P1 2D", lambda ad: ris_study(2, "front", width=0.02, adaptive=ad,
-                                           max_dofs=big // 2)),
+        (
+            "ELD P1 2D",
+            lambda ad: elasticity_study(2, 1, "front", width=0.02, adaptive=ad, max_dofs=big),
+        ),
+        (
+            "ELD P2 2D",
+            lambda ad: elasticity_study(2, 2, "front", width=0.02, adaptive=ad, max_dofs=big),
+        ),
+        ("RIS P1 2D", lambda ad: ris_study(2, "front", width=0.02, adaptive=ad, max_dofs=big // 2)),
     ):
         uniform = study(False)
         adaptive = study(True)

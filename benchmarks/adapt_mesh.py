@@ -77,14 +77,38 @@ def run(label: str, mesh, steps: int, max_level: int) -> dict:
             A = K[free][:, free].tocsc()
             _, t_lu = timed(spla.splu, A, permc_spec="MMD_AT_PLUS_A")
             del A, _
-        rows.append((am.n_cells, change.bisections, change.merges, t_adapt, t_mesh, t_p1, t_p2s,
-                     t_p2, t_k, t_lu))
+        rows.append(
+            (
+                am.n_cells,
+                change.bisections,
+                change.merges,
+                t_adapt,
+                t_mesh,
+                t_p1,
+                t_p2s,
+                t_p2,
+                t_k,
+                t_lu,
+            )
+        )
     arr = np.array(rows, dtype=float)
     med = np.median(arr, axis=0)
-    return {"label": label, "initial": n0, "cells": int(med[0]), "bisections": int(med[1]),
-            "merges": int(med[2]), "setup": t_setup, "adapt": med[3], "mesh": med[4],
-            "p1": med[5], "p2s": med[6], "p2": med[7], "K": med[8], "LU": med[9],
-            "peak": peak_mb()}
+    return {
+        "label": label,
+        "initial": n0,
+        "cells": int(med[0]),
+        "bisections": int(med[1]),
+        "merges": int(med[2]),
+        "setup": t_setup,
+        "adapt": med[3],
+        "mesh": med[4],
+        "p1": med[5],
+        "p2s": med[6],
+        "p2": med[7],
+        "K": med[8],
+        "LU": med[9],
+        "peak": peak_mb(),
+    }
 
 
 def main() -> None:
@@ -100,10 +124,12 @@ def main() -> None:
     else:
         cases.append(("2D 1e6", lambda: meshes.unit_square(708, named=True), 3))
         cases.append(("3D 1e5", lambda: meshes.box(26, 26, 26), 3))
-    head = (f"{'mesh':<7} {'cells0':>8} {'cells':>8} {'bisect':>7} {'merge':>7} {'setup':>7} "
-            f"{'adapt':>7} {'mesh':>7} {'T P1':>7} {'T P2':>7} {'T P2vec':>8} {'K P1':>7} "
-            f"{'LU':>7} "
-            f"{'adapt/K':>8} {'adapt/(K+LU)':>12} {'peak MB':>8}")
+    head = (
+        f"{'mesh':<7} {'cells0':>8} {'cells':>8} {'bisect':>7} {'merge':>7} {'setup':>7} "
+        f"{'adapt':>7} {'mesh':>7} {'T P1':>7} {'T P2':>7} {'T P2vec':>8} {'K P1':>7} "
+        f"{'LU':>7} "
+        f"{'adapt/K':>8} {'adapt/(K+LU)':>12} {'peak MB':>8}"
+    )
     print(head)
     print("-" * len(head))
     for label, build, levels in cases:
@@ -112,10 +138,13 @@ def main() -> None:
         lu = f"{r['LU']:.3f}" if have_lu else "-"
         ratio = f"{r['adapt'] / (r['K'] + r['LU']):.3f}" if have_lu else "-"
         p2v = f"{r['p2']:.3f}" if np.isfinite(r["p2"]) else "-"
-        print(f"{r['label']:<7} {r['initial']:>8} {r['cells']:>8} {r['bisections']:>7} "
-              f"{r['merges']:>7} {r['setup']:>7.3f} {r['adapt']:>7.3f} {r['mesh']:>7.3f} "
-              f"{r['p1']:>7.3f} {r['p2s']:>7.3f} {p2v:>8} {r['K']:>7.3f} {lu:>7} "
-              f"{r['adapt'] / r['K']:>8.2f} {ratio:>12} {r['peak']:>8.0f}", flush=True)
+        print(
+            f"{r['label']:<7} {r['initial']:>8} {r['cells']:>8} {r['bisections']:>7} "
+            f"{r['merges']:>7} {r['setup']:>7.3f} {r['adapt']:>7.3f} {r['mesh']:>7.3f} "
+            f"{r['p1']:>7.3f} {r['p2s']:>7.3f} {p2v:>8} {r['K']:>7.3f} {lu:>7} "
+            f"{r['adapt'] / r['K']:>8.2f} {ratio:>12} {r['peak']:>8.0f}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

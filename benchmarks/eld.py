@@ -79,12 +79,15 @@ def step_row(label, problem, form, tau, scheme="euler"):
     per_step = st.wall_time_s / steps
     info = traj.meta["linear_solver"]
     return {
-        "case": label if scheme == "euler" else f"{label}, BDF2", "form": form, "unknowns": n,
+        "case": label if scheme == "euler" else f"{label}, BDF2",
+        "form": form,
+        "unknowns": n,
         "steps": steps,
         "factorizations": info["factorizations"],
         "backsolves_per_step": info["backsolves"] / steps,
         "newton_per_step": st.newton_iterations / steps,
-        "seconds_per_step": per_step, "backsolve_seconds": backsolve,
+        "seconds_per_step": per_step,
+        "backsolve_seconds": backsolve,
         "ratio": per_step / backsolve,
     }
 
@@ -111,16 +114,21 @@ def part_steps(n2d: int, n3d: int, tau: float) -> list[dict]:
 
 def print_rows(rows, header=True):
     if header:
-        head = (f"{'case':<36} {'form':<12} {'unknowns':>9} {'steps':>6} {'factor.':>7} "
-                f"{'backsolves/step':>15} {'newton/step':>11} {'s/step':>9} {'s/backsolve':>11} "
-                f"{'ratio':>6}")
+        head = (
+            f"{'case':<36} {'form':<12} {'unknowns':>9} {'steps':>6} {'factor.':>7} "
+            f"{'backsolves/step':>15} {'newton/step':>11} {'s/step':>9} {'s/backsolve':>11} "
+            f"{'ratio':>6}"
+        )
         print(head)
         print("-" * len(head))
     for r in rows:
-        print(f"{r['case']:<36} {r['form']:<12} {r['unknowns']:>9d} {r['steps']:>6d} "
-              f"{r['factorizations']:>7d} {r['backsolves_per_step']:>15.2f} "
-              f"{r['newton_per_step']:>11.2f} {r['seconds_per_step']:>9.2e} "
-              f"{r['backsolve_seconds']:>11.2e} {r['ratio']:>6.2f}", flush=True)
+        print(
+            f"{r['case']:<36} {r['form']:<12} {r['unknowns']:>9d} {r['steps']:>6d} "
+            f"{r['factorizations']:>7d} {r['backsolves_per_step']:>15.2f} "
+            f"{r['newton_per_step']:>11.2f} {r['seconds_per_step']:>9.2e} "
+            f"{r['backsolve_seconds']:>11.2e} {r['ratio']:>6.2f}",
+            flush=True,
+        )
 
 
 def beam_child(n: int, steps: int) -> dict:
@@ -130,16 +138,20 @@ def beam_child(n: int, steps: int) -> dict:
     problem = beam_problem(n, damping=RayleighDamping(0.0, 0.002), T=steps * tau)
     t_assembly = time.perf_counter() - t0
     t0 = time.perf_counter()
-    traj = run_eld(problem, "regularized", tau, solver="amg", store_fields=False,
-                   linear_rtol=1e-8)
+    traj = run_eld(problem, "regularized", tau, solver="amg", store_fields=False, linear_rtol=1e-8)
     t_total = time.perf_counter() - t0
     info = traj.meta["linear_solver"]
     st = traj.stats
     return {
-        "n": n, "unknowns": problem.space.ndofs, "free_unknowns": int(traj.stepper.I.size),
-        "tetrahedra": int(problem.space.mesh.t.shape[1]), "steps": st.accepted_steps,
-        "assembly_seconds": t_assembly, "amg_setup_seconds": info["setup_seconds"],
-        "run_seconds": t_total, "seconds_per_step": st.wall_time_s / st.accepted_steps,
+        "n": n,
+        "unknowns": problem.space.ndofs,
+        "free_unknowns": int(traj.stepper.I.size),
+        "tetrahedra": int(problem.space.mesh.t.shape[1]),
+        "steps": st.accepted_steps,
+        "assembly_seconds": t_assembly,
+        "amg_setup_seconds": info["setup_seconds"],
+        "run_seconds": t_total,
+        "seconds_per_step": st.wall_time_s / st.accepted_steps,
         "cg_iterations_per_step": info["krylov_iterations"] / st.accepted_steps,
         "peak_memory_mb": peak_mb(),
         "balance_residual_max": float(abs(traj["balance_residual"]).max()),
@@ -151,20 +163,27 @@ def part_beam(n: int, steps: int) -> dict:
     cmd = [sys.executable, __file__, "--beam-child", str(n), str(steps)]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
     row = json.loads(out.strip().splitlines()[-1])
-    head = (f"{'unknowns':>10} {'tets':>9} {'steps':>5} {'assembly s':>10} {'AMG setup s':>11} "
-            f"{'s/step':>8} {'CG its/step':>11} {'peak MB':>8}")
+    head = (
+        f"{'unknowns':>10} {'tets':>9} {'steps':>5} {'assembly s':>10} {'AMG setup s':>11} "
+        f"{'s/step':>8} {'CG its/step':>11} {'peak MB':>8}"
+    )
     print(head)
     print("-" * len(head))
-    print(f"{row['unknowns']:>10d} {row['tetrahedra']:>9d} {row['steps']:>5d} "
-          f"{row['assembly_seconds']:>10.1f} {row['amg_setup_seconds']:>11.1f} "
-          f"{row['seconds_per_step']:>8.2f} {row['cg_iterations_per_step']:>11.1f} "
-          f"{row['peak_memory_mb']:>8.0f}")
-    print(f"energy balance residual max {row['balance_residual_max']:.2e}; reaction at the held "
-          f"end at t = {steps * 0.01:g}: {row['reaction_left_final']}")
+    print(
+        f"{row['unknowns']:>10d} {row['tetrahedra']:>9d} {row['steps']:>5d} "
+        f"{row['assembly_seconds']:>10.1f} {row['amg_setup_seconds']:>11.1f} "
+        f"{row['seconds_per_step']:>8.2f} {row['cg_iterations_per_step']:>11.1f} "
+        f"{row['peak_memory_mb']:>8.0f}"
+    )
+    print(
+        f"energy balance residual max {row['balance_residual_max']:.2e}; reaction at the held "
+        f"end at t = {steps * 0.01:g}: {row['reaction_left_final']}"
+    )
     return row
 
 
 # -- adaptive against uniform BDF2 ----------------------------------------------------------------
+
 
 class _Reference:
     """A fine uniform run: errors of other runs at their own times (cubic Hermite in time)."""
@@ -189,9 +208,19 @@ class _Reference:
         if s == 0.0:
             return self.u[k], self.v[k]
         u0, u1, v0, v1 = self.u[k], self.u[k + 1], self.v[k], self.v[k + 1]
-        h00, h10, h01, h11 = 2*s**3 - 3*s**2 + 1, s**3 - 2*s**2 + s, -2*s**3 + 3*s**2, s**3 - s**2
+        h00, h10, h01, h11 = (
+            2 * s**3 - 3 * s**2 + 1,
+            s**3 - 2 * s**2 + s,
+            -2 * s**3 + 3 * s**2,
+            s**3 - s**2,
+        )
         u = h00 * u0 + h10 * h * v0 + h01 * u1 + h11 * h * v1
-        d00, d10, d01, d11 = (6*s**2 - 6*s) / h, 3*s**2 - 4*s + 1, (-6*s**2 + 6*s) / h, 3*s**2 - 2*s
+        d00, d10, d01, d11 = (
+            (6 * s**2 - 6 * s) / h,
+            3 * s**2 - 4 * s + 1,
+            (-6 * s**2 + 6 * s) / h,
+            3 * s**2 - 2 * s,
+        )
         v = d00 * u0 + d10 * v0 + d01 * u1 + d11 * v1
         return u, v
 
@@ -216,66 +245,104 @@ def _equal_error_steps(err, uniform):
 def part_adaptive(n: int, kref: int, tols) -> dict:
     problem = ramp_problem(n, 2)
     ref = _Reference(problem, kref)
-    print(f"ramp problem, P2, n = {n} ({problem.space.ndofs} dofs), regularized form; reference: "
-          f"uniform BDF2 with tau = 2^-{kref} ({ref.seconds:.1f} s)")
+    print(
+        f"ramp problem, P2, n = {n} ({problem.space.ndofs} dofs), regularized form; reference: "
+        f"uniform BDF2 with tau = 2^-{kref} ({ref.seconds:.1f} s)"
+    )
     rows = []
     for k in range(5, 14):
         t0 = time.perf_counter()
         traj = run_eld(problem, "regularized", 2.0**-k, scheme="bdf2")
         sec = time.perf_counter() - t0
         eT, emax = ref.errors(traj)
-        rows.append({"run": f"uniform 2^-{k}", "accepted": traj.stats.accepted_steps,
-                     "rejected": 0, "solves": traj.stats.inner_solves, "error_T": eT,
-                     "error_max": emax, "seconds": sec, "tau_min": 2.0**-k, "tau_max": 2.0**-k})
+        rows.append(
+            {
+                "run": f"uniform 2^-{k}",
+                "accepted": traj.stats.accepted_steps,
+                "rejected": 0,
+                "solves": traj.stats.inner_solves,
+                "error_T": eT,
+                "error_max": emax,
+                "seconds": sec,
+                "tau_min": 2.0**-k,
+                "tau_max": 2.0**-k,
+            }
+        )
     for tol in tols:
         t0 = time.perf_counter()
         traj = run_eld(problem, "regularized", 0.01, scheme="bdf2", control="adaptive", tol=tol)
         sec = time.perf_counter() - t0
         eT, emax = ref.errors(traj)
-        rows.append({"run": f"adaptive tol={tol:g}", "accepted": traj.stats.accepted_steps,
-                     "rejected": traj.stats.rejected_steps, "solves": traj.stats.inner_solves,
-                     "error_T": eT, "error_max": emax, "seconds": sec,
-                     "tau_min": float(traj["tau"].min()), "tau_max": float(traj["tau"].max())})
+        rows.append(
+            {
+                "run": f"adaptive tol={tol:g}",
+                "accepted": traj.stats.accepted_steps,
+                "rejected": traj.stats.rejected_steps,
+                "solves": traj.stats.inner_solves,
+                "error_T": eT,
+                "error_max": emax,
+                "seconds": sec,
+                "tau_min": float(traj["tau"].min()),
+                "tau_max": float(traj["tau"].max()),
+            }
+        )
     uni = [r for r in rows if r["run"].startswith("uniform")]
-    head = (f"{'run':<22} {'accepted':>8} {'rejected':>8} {'solves':>7} {'error at T':>11} "
-            f"{'max error':>10} {'tau min':>9} {'tau max':>9} {'seconds':>8} "
-            f"{'ratio (max)':>11} {'ratio (T)':>10} {'s-ratio':>10}")
+    head = (
+        f"{'run':<22} {'accepted':>8} {'rejected':>8} {'solves':>7} {'error at T':>11} "
+        f"{'max error':>10} {'tau min':>9} {'tau max':>9} {'seconds':>8} "
+        f"{'ratio (max)':>11} {'ratio (T)':>10} {'s-ratio':>10}"
+    )
     print(head)
     print("-" * len(head))
     ratios_max, ratios_T = [], []
     for r in rows:
         extra = ""
         if r["run"].startswith("adaptive"):
-            n_max = _equal_error_steps(r["error_max"], [dict(error=u["error_max"],
-                                                             steps=u["solves"]) for u in uni])
-            n_T = _equal_error_steps(r["error_T"], [dict(error=u["error_T"], steps=u["solves"])
-                                                    for u in uni])
-            s_max = _equal_error_steps(r["error_max"], [dict(error=u["error_max"],
-                                                             steps=u["seconds"]) for u in uni])
+            n_max = _equal_error_steps(
+                r["error_max"], [dict(error=u["error_max"], steps=u["solves"]) for u in uni]
+            )
+            n_T = _equal_error_steps(
+                r["error_T"], [dict(error=u["error_T"], steps=u["solves"]) for u in uni]
+            )
+            s_max = _equal_error_steps(
+                r["error_max"], [dict(error=u["error_max"], steps=u["seconds"]) for u in uni]
+            )
             r["ratio_max"] = None if n_max is None else r["solves"] / n_max
             r["ratio_T"] = None if n_T is None else r["solves"] / n_T
             r["seconds_ratio_max"] = None if s_max is None else r["seconds"] / s_max
             ratios_max.append(r["ratio_max"])
             ratios_T.append(r["ratio_T"])
-            extra = "".join(" " + (f"{x:>10.3f}" if x is not None else f"{'outside':>10}")
-                            for x in (r["ratio_max"], r["ratio_T"], r["seconds_ratio_max"]))
-        print(f"{r['run']:<22} {r['accepted']:>8d} {r['rejected']:>8d} {r['solves']:>7d} "
-              f"{r['error_T']:>11.3e} {r['error_max']:>10.3e} {r['tau_min']:>9.2e} "
-              f"{r['tau_max']:>9.2e} {r['seconds']:>8.2f}{extra}", flush=True)
+            extra = "".join(
+                " " + (f"{x:>10.3f}" if x is not None else f"{'outside':>10}")
+                for x in (r["ratio_max"], r["ratio_T"], r["seconds_ratio_max"])
+            )
+        print(
+            f"{r['run']:<22} {r['accepted']:>8d} {r['rejected']:>8d} {r['solves']:>7d} "
+            f"{r['error_T']:>11.3e} {r['error_max']:>10.3e} {r['tau_min']:>9.2e} "
+            f"{r['tau_max']:>9.2e} {r['seconds']:>8.2f}{extra}",
+            flush=True,
+        )
     good = [x for x in ratios_max if x is not None]
     goodT = [x for x in ratios_T if x is not None]
-    print("ratio = solves of the adaptive run / uniform steps with the same error (log-log "
-          "interpolated between uniform runs); s-ratio = the same for seconds at equal max error")
+    print(
+        "ratio = solves of the adaptive run / uniform steps with the same error (log-log "
+        "interpolated between uniform runs); s-ratio = the same for seconds at equal max error"
+    )
     if good:
-        print(f"steps ratio adaptive/uniform at equal max-over-time error: {min(good):.3f} ... "
-              f"{max(good):.3f} (target <= 0.333)")
+        print(
+            f"steps ratio adaptive/uniform at equal max-over-time error: {min(good):.3f} ... "
+            f"{max(good):.3f} (target <= 0.333)"
+        )
     if goodT:
-        print(f"steps ratio adaptive/uniform at equal error at T: {min(goodT):.3f} ... "
-              f"{max(goodT):.3f} (target <= 0.333)")
+        print(
+            f"steps ratio adaptive/uniform at equal error at T: {min(goodT):.3f} ... "
+            f"{max(goodT):.3f} (target <= 0.333)"
+        )
     return {"rows": rows}
 
 
 # -- numerical dissipation ------------------------------------------------------------------------
+
 
 def part_dissipation(taus=(0.1, 0.01, 0.001)) -> list[dict]:
     _, exact = mms_problem(2, 1)
@@ -286,14 +353,24 @@ def part_dissipation(taus=(0.1, 0.01, 0.001)) -> list[dict]:
     def zero(t, x):
         return np.zeros_like(x)
 
-    problem = ELDProblem(meshes.unit_square(16, named=True), exact.material, degree=1,
-                         damping=NoDamping(),
-                         dirichlet={"left": DirichletData(held, zero, zero)},
-                         u0=lambda x: exact.u(0.0, x), v0=lambda x: exact.u_dot(0.0, x), T=1.0)
-    print(f"undamped, no loads, constant G (left held at u(0)), P1, n = 16 "
-          f"({problem.space.ndofs} dofs), regularized form; energy left at T = 1")
-    head = (f"{'tau':>7} {'Euler E(T)/E(0)':>16} {'BDF2 E(T)/E(0)':>15} {'BDF2 N_G/E(0)':>14} "
-            f"{'BDF2 C^n-C^0':>13} {'balance residual':>17}")
+    problem = ELDProblem(
+        meshes.unit_square(16, named=True),
+        exact.material,
+        degree=1,
+        damping=NoDamping(),
+        dirichlet={"left": DirichletData(held, zero, zero)},
+        u0=lambda x: exact.u(0.0, x),
+        v0=lambda x: exact.u_dot(0.0, x),
+        T=1.0,
+    )
+    print(
+        f"undamped, no loads, constant G (left held at u(0)), P1, n = 16 "
+        f"({problem.space.ndofs} dofs), regularized form; energy left at T = 1"
+    )
+    head = (
+        f"{'tau':>7} {'Euler E(T)/E(0)':>16} {'BDF2 E(T)/E(0)':>15} {'BDF2 N_G/E(0)':>14} "
+        f"{'BDF2 C^n-C^0':>13} {'balance residual':>17}"
+    )
     print(head)
     print("-" * len(head))
     rows = []
@@ -301,58 +378,95 @@ def part_dissipation(taus=(0.1, 0.01, 0.001)) -> list[dict]:
         e = run_eld(problem, "regularized", tau, store_fields=False)
         b = run_eld(problem, "regularized", tau, scheme="bdf2", store_fields=False)
         E0 = b["energy"][0]
-        row = {"tau": tau, "euler": e["energy"][-1] / e["energy"][0], "bdf2": b["energy"][-1] / E0,
-               "bdf2_NG": b["numerical_dissipation_G"][-1] / E0,
-               "bdf2_C": (b["numerical_dissipation"][-1] - b["numerical_dissipation_G"][-1]
-                          - b["step_change"][-1]) / E0,
-               "residual": max(np.abs(e["balance_residual"]).max(),
-                               np.abs(b["balance_residual"]).max()) / E0}
+        row = {
+            "tau": tau,
+            "euler": e["energy"][-1] / e["energy"][0],
+            "bdf2": b["energy"][-1] / E0,
+            "bdf2_NG": b["numerical_dissipation_G"][-1] / E0,
+            "bdf2_C": (
+                b["numerical_dissipation"][-1]
+                - b["numerical_dissipation_G"][-1]
+                - b["step_change"][-1]
+            )
+            / E0,
+            "residual": max(
+                np.abs(e["balance_residual"]).max(), np.abs(b["balance_residual"]).max()
+            )
+            / E0,
+        }
         rows.append(row)
-        print(f"{tau:>7g} {row['euler']:>16.4f} {row['bdf2']:>15.4f} {row['bdf2_NG']:>14.3e} "
-              f"{row['bdf2_C']:>13.3e} {row['residual']:>17.1e}", flush=True)
+        print(
+            f"{tau:>7g} {row['euler']:>16.4f} {row['bdf2']:>15.4f} {row['bdf2_NG']:>14.3e} "
+            f"{row['bdf2_C']:>13.3e} {row['residual']:>17.1e}",
+            flush=True,
+        )
     return rows
 
 
 # -- the cantilever's reactions -------------------------------------------------------------------
 
+
 def part_reactions() -> list[dict]:
-    print("eld-beam (E = 1000, nu = 0.3, rho = 1, Rayleigh b = 0.002, T = 2, motion purely in z), "
-          "regularized form")
-    head = (f"{'mesh':<9} {'dofs':>6} {'scheme':<6} {'tau':>6} {'max|R_x|':>9} {'max|R_y|':>9} "
-            f"{'max|R_z|':>9} {'sideways/R_z':>13} {'R_z(T)':>8} {'work in':>8} {'num. diss.':>10} "
-            f"{'phys. diss.':>11} {'seconds':>8}")
+    print(
+        "eld-beam (E = 1000, nu = 0.3, rho = 1, Rayleigh b = 0.002, T = 2, motion purely in z), "
+        "regularized form"
+    )
+    head = (
+        f"{'mesh':<9} {'dofs':>6} {'scheme':<6} {'tau':>6} {'max|R_x|':>9} {'max|R_y|':>9} "
+        f"{'max|R_z|':>9} {'sideways/R_z':>13} {'R_z(T)':>8} {'work in':>8} {'num. diss.':>10} "
+        f"{'phys. diss.':>11} {'seconds':>8}"
+    )
     print(head)
     print("-" * len(head))
     rows = []
-    for n, deg, scheme, tau in [(3, 1, "euler", 0.01), (3, 2, "euler", 0.01),
-                                (3, 2, "euler", 0.0025), (3, 2, "bdf2", 0.01),
-                                (3, 2, "bdf2", 0.005), (4, 2, "bdf2", 0.01)]:
+    for n, deg, scheme, tau in [
+        (3, 1, "euler", 0.01),
+        (3, 2, "euler", 0.01),
+        (3, 2, "euler", 0.0025),
+        (3, 2, "bdf2", 0.01),
+        (3, 2, "bdf2", 0.005),
+        (4, 2, "bdf2", 0.01),
+    ]:
         problem = beam_problem(n, damping=RayleighDamping(0.0, 0.002), degree=deg)
         t0 = time.perf_counter()
         traj = run_eld(problem, "regularized", tau, scheme=scheme, store_fields=False)
         sec = time.perf_counter() - t0
         R = traj["reaction_left"]
         peak = np.abs(R).max(axis=0)
-        row = {"mesh": f"P{deg} n={n}", "dofs": problem.space.ndofs, "scheme": scheme, "tau": tau,
-               "peak": peak.tolist(), "sideways": (peak[:2] / peak[2]).tolist(),
-               "Rz_T": float(R[-1, 2]), "work": float(traj["work_reaction"][-1]),
-               "numerical": float(traj["numerical_dissipation"][-1]),
-               "physical": float(traj["dissipated"][-1]), "seconds": sec}
+        row = {
+            "mesh": f"P{deg} n={n}",
+            "dofs": problem.space.ndofs,
+            "scheme": scheme,
+            "tau": tau,
+            "peak": peak.tolist(),
+            "sideways": (peak[:2] / peak[2]).tolist(),
+            "Rz_T": float(R[-1, 2]),
+            "work": float(traj["work_reaction"][-1]),
+            "numerical": float(traj["numerical_dissipation"][-1]),
+            "physical": float(traj["dissipated"][-1]),
+            "seconds": sec,
+        }
         rows.append(row)
         side = f"{100 * row['sideways'][0]:.1f}/{100 * row['sideways'][1]:.1f} %"
-        print(f"{row['mesh']:<9} {row['dofs']:>6d} {scheme:<6} {tau:>6g} {peak[0]:>9.4f} "
-              f"{peak[1]:>9.4f} {peak[2]:>9.4f} {side:>13} {row['Rz_T']:>8.4f} {row['work']:>8.4f} "
-              f"{row['numerical']:>10.4f} {row['physical']:>11.4f} {sec:>8.2f}", flush=True)
+        print(
+            f"{row['mesh']:<9} {row['dofs']:>6d} {scheme:<6} {tau:>6g} {peak[0]:>9.4f} "
+            f"{peak[1]:>9.4f} {peak[2]:>9.4f} {side:>13} {row['Rz_T']:>8.4f} {row['work']:>8.4f} "
+            f"{row['numerical']:>10.4f} {row['physical']:>11.4f} {sec:>8.2f}",
+            flush=True,
+        )
     return rows
 
 
 # -- the BDF2 start -------------------------------------------------------------------------------
 
+
 def part_start(taus=(0.0025, 0.00125, 0.000625, 0.0003125)) -> dict:
     problem, exact = mms_problem(2, 2, T=0.05)
     q = multiplier_quadrature(problem)
-    print("largest multiplier error over all steps, original form, BDF2, manufactured solution "
-          "(P2, n = 2), T = 0.05 (the start dominates)")
+    print(
+        "largest multiplier error over all steps, original form, BDF2, manufactured solution "
+        "(P2, n = 2), T = 0.05 (the start dominates)"
+    )
     head = f"{'start':<10}" + "".join(f" {f'tau={t:g}':>13}" for t in taus) + f" {'order':>7}"
     print(head)
     print("-" * len(head))
@@ -362,23 +476,29 @@ def part_start(taus=(0.0025, 0.00125, 0.000625, 0.0003125)) -> dict:
         for tau in taus:
             traj = run_eld(problem, "original", tau, scheme="bdf2", start=start)
             ts, lams = traj["kept_t"], traj["lam"]
-            errs.append(max(q.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n))
-                            for k in range(1, len(ts))))
+            errs.append(
+                max(
+                    q.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n))
+                    for k in range(1, len(ts))
+                )
+            )
         out[start] = errs
         rate = fitted_rate(taus, errs)
-        print(f"{start:<10}" + "".join(f" {e:>13.3e}" for e in errs) + f" {rate:>7.2f}",
-              flush=True)
+        print(f"{start:<10}" + "".join(f" {e:>13.3e}" for e in errs) + f" {rate:>7.2f}", flush=True)
     return out
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--part", default="all",
-                        choices=("all", "steps", "beam", "adaptive", "dissipation", "reactions",
-                                 "start"))
+    parser.add_argument(
+        "--part",
+        default="all",
+        choices=("all", "steps", "beam", "adaptive", "dissipation", "reactions", "start"),
+    )
     parser.add_argument("--ramp-n", type=int, default=4, help="ramp problem cells (default 4)")
-    parser.add_argument("--ramp-ref", type=int, default=14,
-                        help="reference tau = 2^-k (default 14)")
+    parser.add_argument(
+        "--ramp-ref", type=int, default=14, help="reference tau = 2^-k (default 14)"
+    )
     parser.add_argument("--n2d", type=int, default=64, help="2D cells per side (default 64)")
     parser.add_argument("--n3d", type=int, default=8, help="beam cells across for LU (default 8)")
     parser.add_argument("--tau", type=float, default=0.01)

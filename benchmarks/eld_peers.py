@@ -55,6 +55,7 @@ PEER_PYTHON = "/usr/bin/python3"
 
 # -- the rothe child -----------------------------------------------------------------------------
 
+
 def _rss_mb() -> float:
     with open("/proc/self/status") as f:
         for line in f:
@@ -83,8 +84,17 @@ class _PeakSampler:
         return round(now), round(peak)
 
 
-def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: str,
-                rtol: float, save: str | None, tau: float = TAU) -> dict:
+def rothe_child(
+    n: int,
+    degree: int,
+    form: str,
+    solver: str,
+    steps: int,
+    data: str,
+    rtol: float,
+    save: str | None,
+    tau: float = TAU,
+) -> dict:
     """One rothe run in this process; returns the measurements (printed as one JSON line)."""
     import pyamg  # noqa: F401  (imported before the clocks start, as the peer imports dolfinx)
     import skfem  # noqa: F401
@@ -98,8 +108,7 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
 
     sampler = _PeakSampler()
     memory = {}
-    out = {"tool": "rothe", "n": n, "degree": degree, "form": form, "solver": solver,
-           "data": data}
+    out = {"tool": "rothe", "n": n, "degree": degree, "form": form, "solver": solver, "data": data}
     t0 = time.perf_counter()
     mesh = meshes.box(4 * n, n, n, 4.0, 1.0, 1.0)
     out["mesh_s"] = time.perf_counter() - t0
@@ -107,10 +116,15 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
 
     t0 = time.perf_counter()
     motion = EndMotion(0.1, 0.5)
-    problem = ELDProblem(mesh, Material.from_young(1000.0, 0.3, 1.0, dim=3), degree=degree,
-                         damping=RayleighDamping(0.0, 0.002),
-                         dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
-                         T=steps * tau, name="eld-beam")
+    problem = ELDProblem(
+        mesh,
+        Material.from_young(1000.0, 0.3, 1.0, dim=3),
+        degree=degree,
+        damping=RayleighDamping(0.0, 0.002),
+        dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
+        T=steps * tau,
+        name="eld-beam",
+    )
     t_problem = time.perf_counter() - t0
     memory["problem (space, M, K, constraint)"] = sampler.checkpoint()
     out["ndofs"] = problem.space.ndofs
@@ -122,8 +136,16 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
         stamps.append((time.perf_counter(), result.counters.get("krylov_iterations", 0)))
 
     t0 = time.perf_counter()
-    stepper = ELDStepper(problem, form, tau, data=data, solver=solver, store_fields=False,
-                         observer=observer, linear_rtol=rtol)
+    stepper = ELDStepper(
+        problem,
+        form,
+        tau,
+        data=data,
+        solver=solver,
+        store_fields=False,
+        observer=observer,
+        linear_rtol=rtol,
+    )
     t_stepper = time.perf_counter() - t0
     memory["stepper (step matrix, solver setup)"] = sampler.checkpoint()
     stats = stepper.solver.stats
@@ -141,8 +163,13 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
     t0 = time.perf_counter()
     state = stepper.initial_state()
     stepper.record_initial(traj, state)
-    evolve(stepper, FixedStepController.uniform(stepper.tau, stepper.n_steps), state, traj,
-           tau_min=1e-300)
+    evolve(
+        stepper,
+        FixedStepController.uniform(stepper.tau, stepper.n_steps),
+        state,
+        traj,
+        tau_min=1e-300,
+    )
     t_end = time.perf_counter()
     memory["time steps"] = sampler.checkpoint()
     times = [s for s, _ in stamps]
@@ -164,6 +191,7 @@ def rothe_child(n: int, degree: int, form: str, solver: str, steps: int, data: s
 
 # -- running children ----------------------------------------------------------------------------
 
+
 def run_child(cmd: list[str], cwd: Path | None = None) -> dict:
     """Run a child process and return its JSON line plus ``peak_mb`` = its ru_maxrss.
 
@@ -173,8 +201,9 @@ def run_child(cmd: list[str], cwd: Path | None = None) -> dict:
         key, value = cmd[0].split("=", 1)
         env[key] = value
         cmd = cmd[1:]
-    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
+    proc = subprocess.Popen(
+        cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
     out_chunks: list[str] = []
     err_chunks: list[str] = []
 
@@ -182,8 +211,10 @@ def run_child(cmd: list[str], cwd: Path | None = None) -> dict:
         chunks.append(stream.read())
 
     # drain both pipes while os.wait4 waits for the child and returns its own rusage
-    readers = [threading.Thread(target=drain, args=(proc.stdout, out_chunks)),
-               threading.Thread(target=drain, args=(proc.stderr, err_chunks))]
+    readers = [
+        threading.Thread(target=drain, args=(proc.stdout, out_chunks)),
+        threading.Thread(target=drain, args=(proc.stderr, err_chunks)),
+    ]
     for r in readers:
         r.start()
     _, status, usage = os.wait4(proc.pid, 0)
@@ -199,27 +230,71 @@ def run_child(cmd: list[str], cwd: Path | None = None) -> dict:
     return row
 
 
-def rothe_cmd(n, degree=1, form="regularized", solver="amg", steps=10, data="points",
-              rtol=1e-8, save=None, tau=TAU) -> list[str]:
-    cmd = ["nice", sys.executable, str(Path(__file__).resolve()), "--child", "--n", str(n),
-           "--degree", str(degree), "--form", form, "--solver", solver, "--steps", str(steps),
-           "--data", data, "--rtol", str(rtol), "--tau", str(tau)]
+def rothe_cmd(
+    n,
+    degree=1,
+    form="regularized",
+    solver="amg",
+    steps=10,
+    data="points",
+    rtol=1e-8,
+    save=None,
+    tau=TAU,
+) -> list[str]:
+    cmd = [
+        "nice",
+        sys.executable,
+        str(Path(__file__).resolve()),
+        "--child",
+        "--n",
+        str(n),
+        "--degree",
+        str(degree),
+        "--form",
+        form,
+        "--solver",
+        solver,
+        "--steps",
+        str(steps),
+        "--data",
+        data,
+        "--rtol",
+        str(rtol),
+        "--tau",
+        str(tau),
+    ]
     if save:
         cmd += ["--save", str(save)]
     return cmd
 
 
 def peer_cmd(peer_dir: Path, n, mode, steps=10, save=None) -> list[str]:
-    cmd = ["nice", PEER_PYTHON, str(peer_dir / "eld_beam_dolfinx.py"), "--n", str(n),
-           "--mode", mode, "--tau", str(TAU), "--steps", str(steps)]
+    cmd = [
+        "nice",
+        PEER_PYTHON,
+        str(peer_dir / "eld_beam_dolfinx.py"),
+        "--n",
+        str(n),
+        "--mode",
+        mode,
+        "--tau",
+        str(TAU),
+        "--steps",
+        str(steps),
+    ]
     if save:
         cmd += ["--save", str(save)]
     return cmd
 
 
 def find_peer_dir(given: str | None) -> Path | None:
-    candidates = [given, os.environ.get("ROTHE_PEER_ANCHORS"), REPO.parent / "shared/anchors",
-                  REPO.parent.parent / "shared/anchors", "/work/shared/anchors"]
+    candidates = [
+        given,
+        os.environ.get("ROTHE_PEER_ANCHORS"),
+        REPO.parent / "shared/anchors",
+        REPO.parent.parent / "shared/anchors",
+        "/work/shared/anchors",
+    ]
     for c in candidates:
         if c and (Path(c) / "eld_beam_dolfinx.py").is_file():
             return Path(c)
@@ -229,27 +304,43 @@ def find_peer_dir(given: str | None) -> Path | None:
 def peer_available() -> tuple[bool, str]:
     if shutil.which(PEER_PYTHON) is None:
         return False, f"{PEER_PYTHON} not found"
-    probe = subprocess.run([PEER_PYTHON, "-c", "import dolfinx; print(dolfinx.__version__)"],
-                           capture_output=True, text=True)
+    probe = subprocess.run(
+        [PEER_PYTHON, "-c", "import dolfinx; print(dolfinx.__version__)"],
+        capture_output=True,
+        text=True,
+    )
     if probe.returncode != 0:
-        return False, f"{PEER_PYTHON} -c 'import dolfinx' failed: " + \
-            (probe.stderr.strip().splitlines() or ["?"])[-1]
+        return False, f"{PEER_PYTHON} -c 'import dolfinx' failed: " + (
+            probe.stderr.strip().splitlines() or ["?"]
+        )[-1]
     return True, "dolfinx " + probe.stdout.strip()
 
 
 def export_mesh(peer_dir: Path, work: Path, n: int) -> None:
     if not (work / "meshes" / f"beam_n{n}.npz").is_file():
-        subprocess.run([sys.executable, str(peer_dir / "export_beam_mesh.py"), str(n)], cwd=work,
-                       check=True, capture_output=True)
+        subprocess.run(
+            [sys.executable, str(peer_dir / "export_beam_mesh.py"), str(n)],
+            cwd=work,
+            check=True,
+            capture_output=True,
+        )
 
 
 # -- the table -----------------------------------------------------------------------------------
 
+
 def best(rows: list[dict]) -> dict:
     """Minimum over repeats of every timing; memory and its counts: the maximum."""
     out = dict(rows[-1])
-    for key in ("mesh_s", "assembly_s", "setup_s", "first_step_s", "per_step_after_first_s",
-                "total_s", "steps_s"):
+    for key in (
+        "mesh_s",
+        "assembly_s",
+        "setup_s",
+        "first_step_s",
+        "per_step_after_first_s",
+        "total_s",
+        "steps_s",
+    ):
         if key in out:
             out[key] = min(r[key] for r in rows)
     out["peak_mb"] = max(r["peak_mb"] for r in rows)
@@ -257,25 +348,32 @@ def best(rows: list[dict]) -> dict:
     return out
 
 
-HEAD = (f"{'case':<22} {'tool':<26} {'dofs':>9} {'mesh s':>7} {'assembly s':>10} {'setup s':>8} "
-        f"{'1st step s':>10} {'s/step':>7} {'CG its':>6} {'total s':>8} {'peak MB':>8} "
-        f"{'reaction z at T':>16}")
+HEAD = (
+    f"{'case':<22} {'tool':<26} {'dofs':>9} {'mesh s':>7} {'assembly s':>10} {'setup s':>8} "
+    f"{'1st step s':>10} {'s/step':>7} {'CG its':>6} {'total s':>8} {'peak MB':>8} "
+    f"{'reaction z at T':>16}"
+)
 
 
 def fmt_row(case: str, label: str, r: dict) -> str:
     its = r.get("krylov_its_per_step")
     its = f"{its:6.1f}" if its else f"{'-':>6}"
-    return (f"{case:<22} {label:<26} {r['ndofs']:>9d} {r['mesh_s']:>7.2f} {r['assembly_s']:>10.2f} "
-            f"{r['setup_s']:>8.2f} {r['first_step_s']:>10.2f} {r['per_step_after_first_s']:>7.2f} "
-            f"{its} {r['total_s']:>8.1f} {r['peak_mb']:>8.0f} {r['reaction_final'][2]:>16.10f}")
+    return (
+        f"{case:<22} {label:<26} {r['ndofs']:>9d} {r['mesh_s']:>7.2f} {r['assembly_s']:>10.2f} "
+        f"{r['setup_s']:>8.2f} {r['first_step_s']:>10.2f} {r['per_step_after_first_s']:>7.2f} "
+        f"{its} {r['total_s']:>8.1f} {r['peak_mb']:>8.0f} {r['reaction_final'][2]:>16.10f}"
+    )
 
 
 def fmt_ratio(case: str, label: str, a: dict, b: dict) -> str:
     def q(key):
         return a[key] / b[key] if b[key] > 0 else float("nan")
-    return (f"{case:<22} {label:<26} {'':>9} {q('mesh_s'):>7.2f} {q('assembly_s'):>10.2f} "
-            f"{q('setup_s'):>8.2f} {q('first_step_s'):>10.2f} {q('per_step_after_first_s'):>7.2f} "
-            f"{'':>6} {q('total_s'):>8.2f} {a['peak_mb'] / b['peak_mb']:>8.2f}")
+
+    return (
+        f"{case:<22} {label:<26} {'':>9} {q('mesh_s'):>7.2f} {q('assembly_s'):>10.2f} "
+        f"{q('setup_s'):>8.2f} {q('first_step_s'):>10.2f} {q('per_step_after_first_s'):>7.2f} "
+        f"{'':>6} {q('total_s'):>8.2f} {a['peak_mb'] / b['peak_mb']:>8.2f}"
+    )
 
 
 def timing_case(case, rothe_runs, peer_runs, repeats, work, peer_dir, rows):
@@ -292,10 +390,12 @@ def timing_case(case, rothe_runs, peer_runs, repeats, work, peer_dir, rows):
     return bests
 
 
-WINDOWS = (("t <= 0.05", lambda t: t <= 0.05 + 1e-9),
-           ("0.05 < t <= 0.45", lambda t: (t > 0.05 + 1e-9) & (t <= 0.45 + 1e-9)),
-           ("0.45 < t <= 0.6", lambda t: (t > 0.45 + 1e-9) & (t <= 0.6 + 1e-9)),
-           ("t > 0.6", lambda t: t > 0.6 + 1e-9))
+WINDOWS = (
+    ("t <= 0.05", lambda t: t <= 0.05 + 1e-9),
+    ("0.05 < t <= 0.45", lambda t: (t > 0.05 + 1e-9) & (t <= 0.45 + 1e-9)),
+    ("0.45 < t <= 0.6", lambda t: (t > 0.45 + 1e-9) & (t <= 0.6 + 1e-9)),
+    ("t > 0.6", lambda t: t > 0.6 + 1e-9),
+)
 
 
 def _windows(t, diff, tau) -> list[float]:
@@ -311,36 +411,46 @@ def agreement(work: Path, peer_dir: Path | None, n: int, steps: int) -> list[str
     the two rothe forms at tau and tau/2."""
     lines = []
     runs = {
-        "regularized (data points)": rothe_cmd(n, solver="direct", steps=steps,
-                                               save=work / "agree_reg.npz"),
-        "regularized (differenced)": rothe_cmd(n, solver="direct", steps=steps,
-                                               data="differenced", save=work / "agree_diff.npz"),
-        "original": rothe_cmd(n, form="original", solver="direct", steps=steps,
-                              save=work / "agree_orig.npz"),
+        "regularized (data points)": rothe_cmd(
+            n, solver="direct", steps=steps, save=work / "agree_reg.npz"
+        ),
+        "regularized (differenced)": rothe_cmd(
+            n, solver="direct", steps=steps, data="differenced", save=work / "agree_diff.npz"
+        ),
+        "original": rothe_cmd(
+            n, form="original", solver="direct", steps=steps, save=work / "agree_orig.npz"
+        ),
     }
     for label, cmd in runs.items():
         print(f"  [agreement] rothe {label}", file=sys.stderr, flush=True)
         run_child(cmd, cwd=work)
-    head = (f"{'':<34}" + "".join(f"{name:>18}" for name, _ in WINDOWS)
-            + f"{'int dt / T':>12}")
+    head = f"{'':<34}" + "".join(f"{name:>18}" for name, _ in WINDOWS) + f"{'int dt / T':>12}"
     if peer_dir is not None:
         print("  [agreement] peer direct", file=sys.stderr, flush=True)
-        run_child(peer_cmd(peer_dir, n, "direct", steps=steps, save=work / "agree_peer.npz"),
-                  cwd=work)
+        run_child(
+            peer_cmd(peer_dir, n, "direct", steps=steps, save=work / "agree_peer.npz"), cwd=work
+        )
         peer = np.load(work / "agree_peer.npz")
         Rp, t = peer["reaction"][:, 2], peer["t"]
         scale = float(np.max(np.abs(Rp)))
-        lines.append(f"reaction z at the moved end, N = {n}, {steps} steps (T = {steps * TAU:g}), "
-                     f"LU on both sides; |R_rothe - R_peer| / max_t |R_peer| "
-                     f"(max_t |R_peer| = {scale:.4f}), max over")
+        lines.append(
+            f"reaction z at the moved end, N = {n}, {steps} steps (T = {steps * TAU:g}), "
+            f"LU on both sides; |R_rothe - R_peer| / max_t |R_peer| "
+            f"(max_t |R_peer| = {scale:.4f}), max over"
+        )
         lines.append(head)
-        for label, name in (("regularized (data points)", "agree_reg.npz"),
-                            ("regularized (differenced)", "agree_diff.npz"),
-                            ("original", "agree_orig.npz")):
+        for label, name in (
+            ("regularized (data points)", "agree_reg.npz"),
+            ("regularized (differenced)", "agree_diff.npz"),
+            ("original", "agree_orig.npz"),
+        ):
             R = np.load(work / name)["reaction"][:, 2]
             parts = _windows(t, np.abs(R - Rp) / scale, TAU)
-            lines.append(f"{'rothe ' + label:<34}" + "".join(f"{x:>18.2e}" for x in parts[:-1])
-                         + f"{parts[-1]:>12.2e}")
+            lines.append(
+                f"{'rothe ' + label:<34}"
+                + "".join(f"{x:>18.2e}" for x in parts[:-1])
+                + f"{parts[-1]:>12.2e}"
+            )
     else:
         lines.append("(peer skipped: rothe's forms against each other only)")
         scale = float(np.max(np.abs(np.load(work / "agree_orig.npz")["reaction"][:, 2])))
@@ -356,17 +466,24 @@ def agreement(work: Path, peer_dir: Path | None, n: int, steps: int) -> list[str
         for form in ("regularized", "original"):
             files[form] = work / f"halving_{form}_{k}.npz"
             print(f"  [agreement] rothe {form}, tau = {tau:g}", file=sys.stderr, flush=True)
-            run_child(rothe_cmd(n, form=form, solver="direct", steps=k, save=files[form],
-                                tau=tau), cwd=work)
+            run_child(
+                rothe_cmd(n, form=form, solver="direct", steps=k, save=files[form], tau=tau),
+                cwd=work,
+            )
         a, b = (np.load(files[f]) for f in ("regularized", "original"))
-        rows.append(_windows(a["t"], np.abs(a["reaction"][:, 2] - b["reaction"][:, 2]) / scale,
-                             tau))
-        lines.append(f"{f'tau = {tau:g}':<34}" + "".join(f"{x:>18.2e}" for x in rows[-1][:-1])
-                     + f"{rows[-1][-1]:>12.2e}")
-    lines.append(f"{'ratio':<34}" + "".join(f"{x / y:>18.2f}" for x, y in zip(rows[0][:-1],
-                                                                             rows[1][:-1],
-                                                                             strict=True))
-                 + f"{rows[0][-1] / rows[1][-1]:>12.2f}")
+        rows.append(
+            _windows(a["t"], np.abs(a["reaction"][:, 2] - b["reaction"][:, 2]) / scale, tau)
+        )
+        lines.append(
+            f"{f'tau = {tau:g}':<34}"
+            + "".join(f"{x:>18.2e}" for x in rows[-1][:-1])
+            + f"{rows[-1][-1]:>12.2e}"
+        )
+    lines.append(
+        f"{'ratio':<34}"
+        + "".join(f"{x / y:>18.2f}" for x, y in zip(rows[0][:-1], rows[1][:-1], strict=True))
+        + f"{rows[0][-1] / rows[1][-1]:>12.2f}"
+    )
     return lines
 
 
@@ -384,10 +501,14 @@ def main(argv=None) -> int:
     parser.add_argument("--skip-amg", action="store_true")
     parser.add_argument("--skip-agreement", action="store_true")
     parser.add_argument("--no-peer", action="store_true")
-    parser.add_argument("--skip-original-amg", action="store_true",
-                        help="AMG case: rothe's regularized form only")
-    parser.add_argument("--numpy-too", action="store_true",
-                        help="AMG case: also rothe with the numpy assembly (ROTHE_NO_NUMBA=1)")
+    parser.add_argument(
+        "--skip-original-amg", action="store_true", help="AMG case: rothe's regularized form only"
+    )
+    parser.add_argument(
+        "--numpy-too",
+        action="store_true",
+        help="AMG case: also rothe with the numpy assembly (ROTHE_NO_NUMBA=1)",
+    )
     parser.add_argument("--peer-dir", default=None, help="folder of eld_beam_dolfinx.py")
     parser.add_argument("--out", default=str(REPO / "rothe-out" / "eld_peers"))
     # child mode (one rothe run)
@@ -402,8 +523,21 @@ def main(argv=None) -> int:
     parser.add_argument("--tau", type=float, default=TAU, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
-        print(json.dumps(rothe_child(args.n, args.degree, args.form, args.solver, args.steps,
-                                     args.data, args.rtol, args.save, args.tau)))
+        print(
+            json.dumps(
+                rothe_child(
+                    args.n,
+                    args.degree,
+                    args.form,
+                    args.solver,
+                    args.steps,
+                    args.data,
+                    args.rtol,
+                    args.save,
+                    args.tau,
+                )
+            )
+        )
         return 0
 
     quick = args.quick
@@ -427,8 +561,11 @@ def main(argv=None) -> int:
             print("peer: skipped (eld_beam_dolfinx.py not found; pass --peer-dir)")
         else:
             print(f"peer: {why}, {peer_dir / 'eld_beam_dolfinx.py'}")
-    sizes = [n for n, skip in ((n_amg, args.skip_amg), (n_lu, args.skip_lu),
-                               (n_lu, args.skip_agreement)) if not skip]
+    sizes = [
+        n
+        for n, skip in ((n_amg, args.skip_amg), (n_lu, args.skip_lu), (n_lu, args.skip_agreement))
+        if not skip
+    ]
     if peer_dir is not None:
         for n in sorted(set(sizes)) + [4]:
             export_mesh(peer_dir, work, n)
@@ -449,50 +586,95 @@ def main(argv=None) -> int:
         if not args.skip_original_amg:
             # the peer's system (constraint condensed = strong Dirichlet): the reactions agree
             # to the CG tolerance, at the same cost as the regularized form
-            rothe_runs.append(("rothe original, pyamg",
-                               rothe_cmd(n_amg, form="original", steps=args.steps)))
+            rothe_runs.append(
+                ("rothe original, pyamg", rothe_cmd(n_amg, form="original", steps=args.steps))
+            )
         if args.numpy_too:
-            rothe_runs.append(("rothe reg., pyamg, no numba",
-                               ["ROTHE_NO_NUMBA=1"] + rothe_cmd(n_amg, steps=args.steps)))
-        peer_runs = ([("peer strong, GAMG", peer_cmd(peer_dir, n_amg, "gamg", args.steps))]
-                     if peer_dir else [])
+            rothe_runs.append(
+                (
+                    "rothe reg., pyamg, no numba",
+                    ["ROTHE_NO_NUMBA=1"] + rothe_cmd(n_amg, steps=args.steps),
+                )
+            )
+        peer_runs = (
+            [("peer strong, GAMG", peer_cmd(peer_dir, n_amg, "gamg", args.steps))]
+            if peer_dir
+            else []
+        )
         b = timing_case(case, rothe_runs, peer_runs, repeats, work, peer_dir, rows)
         for label, r in b.items():
             table.append(fmt_row(case, label, r))
         if peer_dir:
-            ratio_lines.append(fmt_ratio(case, "rothe / peer", b["rothe regularized, pyamg"],
-                                         b["peer strong, GAMG"]))
+            ratio_lines.append(
+                fmt_ratio(
+                    case, "rothe / peer", b["rothe regularized, pyamg"], b["peer strong, GAMG"]
+                )
+            )
             if "rothe original, pyamg" in b:
-                ratio_lines.append(fmt_ratio(case, "rothe orig. / peer", b["rothe original, pyamg"],
-                                             b["peer strong, GAMG"]))
+                ratio_lines.append(
+                    fmt_ratio(
+                        case,
+                        "rothe orig. / peer",
+                        b["rothe original, pyamg"],
+                        b["peer strong, GAMG"],
+                    )
+                )
     if not args.skip_lu:
         case = f"P1 N={n_lu} LU"
-        rothe_runs = [("rothe regularized, SuperLU",
-                       rothe_cmd(n_lu, solver="direct", steps=args.steps)),
-                      ("rothe original, SuperLU",
-                       rothe_cmd(n_lu, form="original", solver="direct", steps=args.steps))]
-        peer_runs = ([("peer strong, MUMPS", peer_cmd(peer_dir, n_lu, "direct", args.steps)),
-                      ("peer KKT, MUMPS", peer_cmd(peer_dir, n_lu, "kkt", args.steps))]
-                     if peer_dir else [])
+        rothe_runs = [
+            ("rothe regularized, SuperLU", rothe_cmd(n_lu, solver="direct", steps=args.steps)),
+            (
+                "rothe original, SuperLU",
+                rothe_cmd(n_lu, form="original", solver="direct", steps=args.steps),
+            ),
+        ]
+        peer_runs = (
+            [
+                ("peer strong, MUMPS", peer_cmd(peer_dir, n_lu, "direct", args.steps)),
+                ("peer KKT, MUMPS", peer_cmd(peer_dir, n_lu, "kkt", args.steps)),
+            ]
+            if peer_dir
+            else []
+        )
         b = timing_case(case, rothe_runs, peer_runs, repeats, work, peer_dir, rows)
         for label, r in b.items():
             table.append(fmt_row(case, label, r))
         if peer_dir:
-            ratio_lines.append(fmt_ratio(case, "rothe reg. / peer strong",
-                                         b["rothe regularized, SuperLU"], b["peer strong, MUMPS"]))
-            ratio_lines.append(fmt_ratio(case, "rothe orig. / peer KKT",
-                                         b["rothe original, SuperLU"], b["peer KKT, MUMPS"]))
+            ratio_lines.append(
+                fmt_ratio(
+                    case,
+                    "rothe reg. / peer strong",
+                    b["rothe regularized, SuperLU"],
+                    b["peer strong, MUMPS"],
+                )
+            )
+            ratio_lines.append(
+                fmt_ratio(
+                    case,
+                    "rothe orig. / peer KKT",
+                    b["rothe original, SuperLU"],
+                    b["peer KKT, MUMPS"],
+                )
+            )
     if not args.skip_p2:
         case = f"P2 N={n_p2} AMG"
-        b = timing_case(case, [("rothe regularized, pyamg", rothe_cmd(n_p2, degree=2,
-                                                                      steps=args.steps))],
-                        [], 1, work, peer_dir, rows)
+        b = timing_case(
+            case,
+            [("rothe regularized, pyamg", rothe_cmd(n_p2, degree=2, steps=args.steps))],
+            [],
+            1,
+            work,
+            peer_dir,
+            rows,
+        )
         for label, r in b.items():
             table.append(fmt_row(case, label, r))
         table.append(f"{case:<22} peer: not run (its script builds P1 spaces only)")
     print()
-    print(f"eld-beam, implicit Euler, tau = {TAU}, {args.steps} steps; times: min of "
-          f"{repeats} (P2: 1); peak: max")
+    print(
+        f"eld-beam, implicit Euler, tau = {TAU}, {args.steps} steps; times: min of "
+        f"{repeats} (P2: 1); peak: max"
+    )
     print("\n".join(table))
     if ratio_lines:
         print()
@@ -500,8 +682,10 @@ def main(argv=None) -> int:
         print("\n".join(ratio_lines))
     for r in rows:
         if r["tool"] == "rothe" and "memory_mb" in r:
-            print(f"\nrothe memory, {r['case']} ({r['label']}; RSS after / peak during, MB): "
-                  + "; ".join(f"{k} {v['rss']}/{v['peak']}" for k, v in r["memory_mb"].items()))
+            print(
+                f"\nrothe memory, {r['case']} ({r['label']}; RSS after / peak during, MB): "
+                + "; ".join(f"{k} {v['rss']}/{v['peak']}" for k, v in r["memory_mb"].items())
+            )
     if not args.skip_agreement:
         print()
         for line in agreement(work, peer_dir, n_lu, agree_steps):

@@ -32,39 +32,136 @@ CASES: dict[str, list[str]] = {
     "ris-1d-nested": ["run", "ris-1d", "--control", "nested", "--tols", "1e-2,1e-3"],
     "ris-2d-regime": ["run", "ris-2d", "--n", "16", "--control", "regime", "--tol", "1e-4"],
     "ris-2d-adaptive": ["run", "ris-2d", "--n", "8", "--control", "adaptive", "--tol", "1e-4"],
-    "ris-front-adapt": ["run", "ris-front", "--adapt-space", "--n", "8", "--max-dofs", "400",
-                        "--tol", "1e-3"],
-    "ris-3d-adapt": ["run", "ris-3d", "--n", "3", "--adapt-space", "--max-dofs", "300",
-                     "--tol", "1e-3"],
-    "eld-mms-euler-adaptive": ["run", "eld-mms", "--scheme", "euler", "--control", "adaptive",
-                               "--tol", "1e-3", "--n", "4"],
-    "eld-mms-bdf2-adaptive": ["run", "eld-mms", "--scheme", "bdf2", "--control", "adaptive",
-                              "--tol", "1e-4", "--n", "4"],
+    "ris-front-adapt": [
+        "run",
+        "ris-front",
+        "--adapt-space",
+        "--n",
+        "8",
+        "--max-dofs",
+        "400",
+        "--tol",
+        "1e-3",
+    ],
+    "ris-3d-adapt": [
+        "run",
+        "ris-3d",
+        "--n",
+        "3",
+        "--adapt-space",
+        "--max-dofs",
+        "300",
+        "--tol",
+        "1e-3",
+    ],
+    "eld-mms-euler-adaptive": [
+        "run",
+        "eld-mms",
+        "--scheme",
+        "euler",
+        "--control",
+        "adaptive",
+        "--tol",
+        "1e-3",
+        "--n",
+        "4",
+    ],
+    "eld-mms-bdf2-adaptive": [
+        "run",
+        "eld-mms",
+        "--scheme",
+        "bdf2",
+        "--control",
+        "adaptive",
+        "--tol",
+        "1e-4",
+        "--n",
+        "4",
+    ],
     "eld-mms-original": ["run", "eld-mms", "--form", "original", "--n", "4", "--tau", "0.05"],
-    "eld-mms-adapt-space": ["run", "eld-mms", "--n", "4", "--degree", "1", "--tau", "0.05",
-                            "--adapt-space", "--space-tol", "0.05", "--max-dofs", "2000"],
-    "eld-pulse-coarse": ["run", "eld-pulse", "--n", "4", "--T", "0.2", "--tau", "0.01",
-                         "--max-dofs", "3000"],
+    "eld-mms-adapt-space": [
+        "run",
+        "eld-mms",
+        "--n",
+        "4",
+        "--degree",
+        "1",
+        "--tau",
+        "0.05",
+        "--adapt-space",
+        "--space-tol",
+        "0.05",
+        "--max-dofs",
+        "2000",
+    ],
+    "eld-pulse-coarse": [
+        "run",
+        "eld-pulse",
+        "--n",
+        "4",
+        "--T",
+        "0.2",
+        "--tau",
+        "0.01",
+        "--max-dofs",
+        "3000",
+    ],
     "eld-beam": ["run", "eld-beam", "--n", "2", "--T", "0.2"],
-    "sweep": ["sweep", "run", "ris-1d", "--param", "tol=1e-3,1e-4", "--param",
-              "control=adaptive"],
+    "sweep": ["sweep", "run", "ris-1d", "--param", "tol=1e-3,1e-4", "--param", "control=adaptive"],
 }
 
 #: cases killed by SIGINT after ``delay`` seconds and then resumed with ``rothe resume``
 KILLED: dict[str, tuple[list[str], float]] = {
-    "ris-2d-killed-resumed": (["run", "ris-2d", "--n", "24", "--control", "regime", "--tol",
-                               "1e-5", "--checkpoint-every", "0.5"], 6.0),
+    "ris-2d-killed-resumed": (
+        [
+            "run",
+            "ris-2d",
+            "--n",
+            "24",
+            "--control",
+            "regime",
+            "--tol",
+            "1e-5",
+            "--checkpoint-every",
+            "0.5",
+        ],
+        6.0,
+    ),
 }
 
 #: old argv -> new argv for options whose meaning changed on purpose (see the module docstring)
 TRANSLATE: dict[str, list[str]] = {}
 
 #: summary.json keys that are timings, dates, paths or the command line: never compared
-SKIP_KEYS = {"wall_time_s", "seconds", "time_s", "started", "finished", "date", "out",
-             "command", "argv", "checkpoint", "resume", "elapsed_s", "wall_time", "timings",
-             "sessions", "python", "platform", "version", "hostname", "peak_memory_mb",
-             "phase_seconds", "rothe_version", "path", "paths", "files", "run_id",
-             "executor"}
+SKIP_KEYS = {
+    "wall_time_s",
+    "seconds",
+    "time_s",
+    "started",
+    "finished",
+    "date",
+    "out",
+    "command",
+    "argv",
+    "checkpoint",
+    "resume",
+    "elapsed_s",
+    "wall_time",
+    "timings",
+    "sessions",
+    "python",
+    "platform",
+    "version",
+    "hostname",
+    "peak_memory_mb",
+    "phase_seconds",
+    "rothe_version",
+    "path",
+    "paths",
+    "files",
+    "run_id",
+    "executor",
+}
 
 
 def _rothe(argv: list[str], out: Path, **popen) -> subprocess.Popen:
@@ -74,8 +171,9 @@ def _rothe(argv: list[str], out: Path, **popen) -> subprocess.Popen:
     if argv[0] == "run" or argv[0] == "resume":
         cmd += ["--quiet", "--no-plots"] if argv[0] == "run" else ["--quiet", "--no-plots"]
     env = dict(os.environ, PYTHONHASHSEED="0", OMP_NUM_THREADS="1")
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, **popen)
+    return subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **popen
+    )
 
 
 def record(root: Path, only: set[str] | None, translated: bool) -> int:
@@ -89,8 +187,9 @@ def record(root: Path, only: set[str] | None, translated: bool) -> int:
         start = time.perf_counter()
         proc = _rothe(argv, root / name)
         text, _ = proc.communicate()
-        print(f"{name:28s} exit {proc.returncode}  {time.perf_counter() - start:6.1f} s",
-              flush=True)
+        print(
+            f"{name:28s} exit {proc.returncode}  {time.perf_counter() - start:6.1f} s", flush=True
+        )
         if proc.returncode != 0:
             failures += 1
             print(text[-2000:])
@@ -105,8 +204,11 @@ def record(root: Path, only: set[str] | None, translated: bool) -> int:
         killed = proc.returncode
         proc = _rothe(["resume", str(root / name)], root / name)
         text2, _ = proc.communicate()
-        print(f"{name:28s} exit {killed} then {proc.returncode}  "
-              f"{time.perf_counter() - start:6.1f} s", flush=True)
+        print(
+            f"{name:28s} exit {killed} then {proc.returncode}  "
+            f"{time.perf_counter() - start:6.1f} s",
+            flush=True,
+        )
         if killed != 130 or proc.returncode != 0:
             failures += 1
             print(text[-1000:], text2[-2000:])
@@ -114,14 +216,20 @@ def record(root: Path, only: set[str] | None, translated: bool) -> int:
 
 
 def _npz_files(root: Path) -> dict[str, Path]:
-    return {str(p.relative_to(root)): p for p in sorted(root.rglob("*.npz"))
-            if "checkpoint" not in p.parts}
+    return {
+        str(p.relative_to(root)): p
+        for p in sorted(root.rglob("*.npz"))
+        if "checkpoint" not in p.parts
+    }
 
 
 def _json_files(root: Path) -> dict[str, Path]:
     names = ("summary.json", "compare.json", "sweep.json")
-    return {str(p.relative_to(root)): p for p in sorted(root.rglob("*.json"))
-            if p.name in names and "checkpoint" not in p.parts}
+    return {
+        str(p.relative_to(root)): p
+        for p in sorted(root.rglob("*.json"))
+        if p.name in names and "checkpoint" not in p.parts
+    }
 
 
 def _diff_json(a, b, path: str, out: list[str]) -> None:
@@ -151,8 +259,10 @@ def compare(before: Path, after: Path) -> int:
         if rel not in npz_a or rel not in npz_b:
             problems.append(f"{rel}: only {'after' if rel in npz_b else 'before'}")
             continue
-        with np.load(npz_a[rel], allow_pickle=False) as fa, \
-                np.load(npz_b[rel], allow_pickle=False) as fb:
+        with (
+            np.load(npz_a[rel], allow_pickle=False) as fa,
+            np.load(npz_b[rel], allow_pickle=False) as fb,
+        ):
             for key in sorted(set(fa.files) | set(fb.files)):
                 if key in ("stats_wall_time_s",) or key.startswith("stats_seconds"):
                     continue  # wall-clock times
@@ -166,11 +276,15 @@ def compare(before: Path, after: Path) -> int:
                     _diff_json(json.loads(str(x)), json.loads(str(y)), f"{rel}:meta", diffs)
                     problems.extend(diffs)
                     continue
-                same = x.shape == y.shape and x.dtype == y.dtype and (
-                    np.array_equal(x, y, equal_nan=x.dtype.kind in "fc"))
+                same = (
+                    x.shape == y.shape
+                    and x.dtype == y.dtype
+                    and (np.array_equal(x, y, equal_nan=x.dtype.kind in "fc"))
+                )
                 if not same:
-                    problems.append(f"{rel}:{key}: arrays differ ({x.shape} {x.dtype} vs "
-                                    f"{y.shape} {y.dtype})")
+                    problems.append(
+                        f"{rel}:{key}: arrays differ ({x.shape} {x.dtype} vs {y.shape} {y.dtype})"
+                    )
     js_a, js_b = _json_files(before), _json_files(after)
     for rel in sorted(set(js_a) | set(js_b)):
         if rel not in js_a or rel not in js_b:
@@ -181,8 +295,10 @@ def compare(before: Path, after: Path) -> int:
         _diff_json(a, b, rel, diffs)
         n_fields += _count_leaves(a)
         problems.extend(diffs)
-    print(f"{len(npz_a)} trajectory files, {n_arrays} arrays; {len(js_a)} summaries, "
-          f"{n_fields} fields")
+    print(
+        f"{len(npz_a)} trajectory files, {n_arrays} arrays; {len(js_a)} summaries, "
+        f"{n_fields} fields"
+    )
     if problems:
         print(f"{len(problems)} differences:")
         for p in problems:

@@ -67,16 +67,22 @@ def main() -> None:
     head += "".join(f" {c + ' solves':>14}" for c in CONTROLS[1:])
     print(head)
     for err in (1e-2, 3e-3, 1e-3):
-        line = (f"{err:>8.0e} {fitted_ratio(rows, 'adaptive', work, 'inner_solves', err):>16.2f} "
-                f"{fitted_ratio(rows, 'adaptive', work, 'accepted_steps', err):>18.2f}")
-        line += "".join(f" {fitted_ratio(rows, c, work, 'inner_solves', err):>14.2f}"
-                        for c in CONTROLS[1:])
+        line = (
+            f"{err:>8.0e} {fitted_ratio(rows, 'adaptive', work, 'inner_solves', err):>16.2f} "
+            f"{fitted_ratio(rows, 'adaptive', work, 'accepted_steps', err):>18.2f}"
+        )
+        line += "".join(
+            f" {fitted_ratio(rows, c, work, 'inner_solves', err):>14.2f}" for c in CONTROLS[1:]
+        )
         print(line)
 
-    print("\nAt equal global residual sum_k(I1+I2) (interpolated between the bracketing uniform "
-          "runs; '-': outside their range):")
-    print(f"{'control':<9} {'tol':>7} {'global res':>10} {'steps/uniform':>13} "
-          f"{'solves/uniform':>14}")
+    print(
+        "\nAt equal global residual sum_k(I1+I2) (interpolated between the bracketing uniform "
+        "runs; '-': outside their range):"
+    )
+    print(
+        f"{'control':<9} {'tol':>7} {'global res':>10} {'steps/uniform':>13} {'solves/uniform':>14}"
+    )
     for r in compare_rows(rows):
         if r["control"] == "uniform":
             continue
@@ -84,22 +90,30 @@ def main() -> None:
         def fmt(x, width):
             return f"{x:>{width}.3f}" if x is not None else f"{'-':>{width}}"
 
-        print(f"{r['control']:<9} {r['tol']:>7.0e} {r['global_residual']:>10.3e} "
-              f"{fmt(r['ratio_steps'], 13)} {fmt(r['ratio_solves'], 14)}")
+        print(
+            f"{r['control']:<9} {r['tol']:>7.0e} {r['global_residual']:>10.3e} "
+            f"{fmt(r['ratio_steps'], 13)} {fmt(r['ratio_solves'], 14)}"
+        )
     finest = min((r for r in rows if r["control"] == "uniform"), key=lambda r: r["tau0"])
-    print(f"equidistribution bound (uniform tau = {finest['tau0']:g}): "
-          f"{finest['equidistribution_bound']:.3f} of uniform's steps")
+    print(
+        f"equidistribution bound (uniform tau = {finest['tau0']:g}): "
+        f"{finest['equidistribution_bound']:.3f} of uniform's steps"
+    )
 
     print("\nDependence on where tau0 * 2^j (Alg. 3.2) or the first steps fall; tau0 sweep:")
-    print(f"{'control':<9} {'tol':>7} {'tau0':>6} {'accepted':>8} {'rejected':>8} {'Linf':>9} "
-          f"{'solves/uniform@Linf':>20}")
+    print(
+        f"{'control':<9} {'tol':>7} {'tau0':>6} {'accepted':>8} {'rejected':>8} {'Linf':>9} "
+        f"{'solves/uniform@Linf':>20}"
+    )
     for control in ("adaptive", "regime"):
         for tol in (1e-4, 1e-5):
             for tau0 in (0.1, 0.125, 0.15):
                 r = one(problem, control, tol=tol, tau=tau0)
-                print(f"{control:<9} {tol:>7.0e} {tau0:>6} {r['accepted_steps']:>8} "
-                      f"{r['rejected_steps']:>8} {r['error_linf']:>9.2e} "
-                      f"{r['inner_solves'] / work(r['error_linf']):>20.2f}")
+                print(
+                    f"{control:<9} {tol:>7.0e} {tau0:>6} {r['accepted_steps']:>8} "
+                    f"{r['rejected_steps']:>8} {r['error_linf']:>9.2e} "
+                    f"{r['inner_solves'] / work(r['error_linf']):>20.2f}"
+                )
 
     for control in ("adaptive", "regime"):
         times = []

@@ -126,8 +126,12 @@ def run_logged(problem, control, tol, tau, example):
     stepper = RISStepper(problem)
     log = _Attempts(stepper, controller)
     traj = initial_trajectory(problem, {"control": controller.name, "tol": tol, "tau0": tau})
-    evolve(_Proxy(stepper, step=log.step), _Proxy(controller, decide=log.decide),
-           RISState(0.0, 0.0, problem.z0.copy()), traj)
+    evolve(
+        _Proxy(stepper, step=log.step),
+        _Proxy(controller, decide=log.decide),
+        RISState(0.0, 0.0, problem.z0.copy()),
+        traj,
+    )
     row = ris_summary(traj, example, describe_branch(problem, traj))
     row.update(tau0=tau, status="completed", n_nodes=problem.n_nodes)
     if control == "uniform":
@@ -147,8 +151,11 @@ def work_table(problem, example, controls, tols, taus, tau0=0.1) -> None:
         logs.append(log)
     print(format_table(rows))
     print("\nWhere the inner solves go: accepted/rejected attempts by category (see the docstring)")
-    head = (f"{'control':<9} {'tol/tau':>8} " + " ".join(f"{c:>13}" for c in CATEGORIES)
-            + f" {'solves':>7} {'Newton in rejected':>18}")
+    head = (
+        f"{'control':<9} {'tol/tau':>8} "
+        + " ".join(f"{c:>13}" for c in CATEGORIES)
+        + f" {'solves':>7} {'Newton in rejected':>18}"
+    )
     print(head)
     print("-" * len(head))
     for row, log in zip(rows, logs, strict=True):
@@ -156,8 +163,7 @@ def work_table(problem, example, controls, tols, taus, tau0=0.1) -> None:
         cells = " ".join(f"{log.counts[c][0]:>7}/{log.counts[c][1]:<5}" for c in CATEGORIES)
         newton = sum(log.newton)
         share = log.newton[1] / newton if newton else 0.0
-        print(f"{row['control']:<9} {par:>8.3g} {cells} {row['inner_solves']:>7} "
-              f"{share:>17.1%}")
+        print(f"{row['control']:<9} {par:>8.3g} {cells} {row['inner_solves']:>7} {share:>17.1%}")
 
 
 def paper_size(quick: bool) -> None:
@@ -166,8 +172,10 @@ def paper_size(quick: bool) -> None:
 
     n = 16 if quick else 40
     problem = example_7_2(n)
-    print(f"Part 1: Example 7.2 on the {n} x {n} grid ({problem.n_nodes} nodes), first step 0.1 "
-          "for the step controllers\n")
+    print(
+        f"Part 1: Example 7.2 on the {n} x {n} grid ({problem.n_nodes} nodes), first step 0.1 "
+        "for the step controllers\n"
+    )
     tols = (1e-4, 1e-5) if quick else (1e-4, 1e-5, 1e-6)
     taus = COMPARE_TAUS[:8] if quick else COMPARE_TAUS
     work_table(problem, "ris-2d", COMPARE_CONTROLS, tols, taus)
@@ -179,8 +187,10 @@ def cube(quick: bool) -> None:
 
     n = 4 if quick else 8
     problem = example_7_2_3d(n)
-    print(f"\nPart 3D: the energy of Example 7.2 on the unit cube, {n}^3 cubes "
-          f"({problem.n} unknowns), first step 0.1 for the step controllers\n")
+    print(
+        f"\nPart 3D: the energy of Example 7.2 on the unit cube, {n}^3 cubes "
+        f"({problem.n} unknowns), first step 0.1 for the step controllers\n"
+    )
     taus = tuple(0.01 / 2**k for k in range(5 if quick else 7))
     work_table(problem, "ris-3d", COMPARE_CONTROLS, (1e-4,) if quick else (1e-4, 1e-5), taus)
 
@@ -345,12 +355,14 @@ def scale(quick: bool, sizes=None, control: str = "regime") -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--one", nargs=4, metavar=("N", "SOLVER", "PHASE", "CONTROL"),
-                        help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--one", nargs=4, metavar=("N", "SOLVER", "PHASE", "CONTROL"), help=argparse.SUPPRESS
+    )
     parser.add_argument("--part", choices=("1", "2", "3d", "all"), default="all")
     parser.add_argument("--sizes", default=None, help="grids N of part 2, e.g. 160,640")
-    parser.add_argument("--control", default="regime",
-                        help="step controller of part 2 (default regime)")
+    parser.add_argument(
+        "--control", default="regime", help="step controller of part 2 (default regime)"
+    )
     args = parser.parse_args()
     if args.one:
         n, solver, phase, control = int(args.one[0]), args.one[1], args.one[2], args.one[3]

@@ -64,8 +64,9 @@ def interpolate_to(points, cells, degree, ref_doflocs):
     basis = Basis(mesh, ElementTriP2() if degree == 2 else ElementTriP1())
     # in chunks of points: the point location's temporaries grow with the points asked at once
     n, chunk = ref_doflocs.shape[1], 4096
-    return sp.vstack([basis.probes(ref_doflocs[:, i:i + chunk])
-                      for i in range(0, n, chunk)]).tocsr()
+    return sp.vstack(
+        [basis.probes(ref_doflocs[:, i : i + chunk]) for i in range(0, n, chunk)]
+    ).tocsr()
 
 
 def log_interp_work(err, uniform):
@@ -101,10 +102,12 @@ def eld(quick: bool) -> float | None:
         return amesh.mesh
 
     max_dofs = AdaptiveMesh(mesh_at(ref_level)).ndofs(2, 2)
-    print(f"ELD pulse: P2, BDF2, tau = {tau:g}, T = {T:g}, outputs every {every} steps; "
-          f"uniform meshes: n = {n0} refined {list(levels)} times; reference refined "
-          f"{ref_level} times ({max_dofs} dofs); adaptive: at most {2 * ref_level} bisections "
-          "per initial cell (nested in the reference mesh)")
+    print(
+        f"ELD pulse: P2, BDF2, tau = {tau:g}, T = {T:g}, outputs every {every} steps; "
+        f"uniform meshes: n = {n0} refined {list(levels)} times; reference refined "
+        f"{ref_level} times ({max_dofs} dofs); adaptive: at most {2 * ref_level} bisections "
+        "per initial cell (nested in the reference mesh)"
+    )
 
     runs = []
 
@@ -115,30 +118,47 @@ def eld(quick: bool) -> float | None:
         secs = time.perf_counter() - t0
         if space is None:
             mesh = problem.space.mesh
-            states = [(mesh.p.T, mesh.t.T, u, v) for u, v in zip(traj["u"], traj["v"],
-                                                                  strict=True)]
+            states = [(mesh.p.T, mesh.t.T, u, v) for u, v in zip(traj["u"], traj["v"], strict=True)]
             dofs = problem.space.ndofs * (len(traj["t"]) - 1)
             final = problem.space.ndofs
         else:
             sp_ = traj.space
-            states = [(*sp_.series.mesh(m), u, v)
-                      for m, u, v in zip(traj["kept_mesh_id"], sp_.kept["u"], sp_.kept["v"],
-                                         strict=True)]
+            states = [
+                (*sp_.series.mesh(m), u, v)
+                for m, u, v in zip(traj["kept_mesh_id"], sp_.kept["u"], sp_.kept["v"], strict=True)
+            ]
             dofs = int(np.sum(traj["step_dofs"]))  # every solve, the redone ones too
             final = int(traj["ndofs"][-1])
-        rec = {"label": label, "states": states, "times": traj["kept_t"], "dofs": dofs,
-               "final": final, "max": int(np.max(traj["ndofs"])) if "ndofs" in traj else final,
-               "steps": len(traj["t"]) - 1, "seconds": secs, "peak": peak_mb(),
-               "balance": float(np.max(np.abs(traj["balance_residual"])))}
+        rec = {
+            "label": label,
+            "states": states,
+            "times": traj["kept_t"],
+            "dofs": dofs,
+            "final": final,
+            "max": int(np.max(traj["ndofs"])) if "ndofs" in traj else final,
+            "steps": len(traj["t"]) - 1,
+            "seconds": secs,
+            "peak": peak_mb(),
+            "balance": float(np.max(np.abs(traj["balance_residual"]))),
+        }
         runs.append(rec)
         return rec
 
     for level in levels:
         run(f"uniform n={n0 * 2**level}", level, None)
     for tol in tols:
-        run(f"adaptive tol={tol:g}", 0,
-            SpaceAdaptivity(space_tol=tol, refine_fraction=0.5, coarsen_fraction=0.05,
-                            max_dofs=max_dofs, adapt_every=1, max_level=2 * ref_level))
+        run(
+            f"adaptive tol={tol:g}",
+            0,
+            SpaceAdaptivity(
+                space_tol=tol,
+                refine_fraction=0.5,
+                coarsen_fraction=0.05,
+                max_dofs=max_dofs,
+                adapt_every=1,
+                max_level=2 * ref_level,
+            ),
+        )
     ref = run(f"reference n={n0 * 2**ref_level}", ref_level, None)
 
     from skfem import Basis, BilinearForm
@@ -176,15 +196,22 @@ def eld(quick: bool) -> float | None:
         r["error"] = worst / ref_l2
         r["error_energy"] = worst_e / ref_energy
 
-    print(f"  {'run':<22} {'steps':>5} {'dofs final':>10} {'dofs max':>9} {'dofs summed':>12} "
-          f"{'rel. L2 err':>11} {'rel. E err':>10} {'seconds':>8} {'peak MB':>8} "
-          f"{'balance':>9}")
+    print(
+        f"  {'run':<22} {'steps':>5} {'dofs final':>10} {'dofs max':>9} {'dofs summed':>12} "
+        f"{'rel. L2 err':>11} {'rel. E err':>10} {'seconds':>8} {'peak MB':>8} "
+        f"{'balance':>9}"
+    )
     for r in runs:
-        err = (f"{r['error']:11.3e} {r['error_energy']:10.3e}" if "error" in r
-               else f"{'(ref)':>11} {'(ref)':>10}")
-        print(f"  {r['label']:<22} {r['steps']:>5} {r['final']:>10} {r['max']:>9} "
-              f"{r['dofs']:>12} {err} {r['seconds']:>8.1f} {r['peak']:>8.0f} "
-              f"{r['balance']:>9.1e}")
+        err = (
+            f"{r['error']:11.3e} {r['error_energy']:10.3e}"
+            if "error" in r
+            else f"{'(ref)':>11} {'(ref)':>10}"
+        )
+        print(
+            f"  {r['label']:<22} {r['steps']:>5} {r['final']:>10} {r['max']:>9} "
+            f"{r['dofs']:>12} {err} {r['seconds']:>8.1f} {r['peak']:>8.0f} "
+            f"{r['balance']:>9.1e}"
+        )
 
     def ratio_at_equal_error(key: str, title: str):
         uniform = [(r[key], r["dofs"]) for r in runs if r["label"].startswith("uniform")]
@@ -198,20 +225,29 @@ def eld(quick: bool) -> float | None:
             s = log_interp_work(r[key], useconds)
             ratio = None if w is None else r["dofs"] / w
             sratio = None if s is None else r["seconds"] / s
-            print(f"    {r['label']:<22} uniform dofs summed at equal error: "
-                  + ("outside the uniform range" if w is None else
-                     f"{w:12.0f}  ratio {ratio:.3f}  (seconds ratio {sratio:.3f})"))
+            print(
+                f"    {r['label']:<22} uniform dofs summed at equal error: "
+                + (
+                    "outside the uniform range"
+                    if w is None
+                    else f"{w:12.0f}  ratio {ratio:.3f}  (seconds ratio {sratio:.3f})"
+                )
+            )
             if ratio is not None and (best is None or r[key] < best[0]):
                 best = (r[key], ratio)
         return None if best is None else best[1]
 
     X_l2 = ratio_at_equal_error("error", "L2 error of u")
     X = ratio_at_equal_error("error_energy", "energy error of (u, v)")
-    print("work ratio adaptive/uniform at equal L2 error of u: "
-          + ("n/a" if X_l2 is None else f"{X_l2:.3f}"))
-    print("work ratio adaptive/uniform at equal error: "
-          + ("n/a (no adaptive error inside the uniform range)" if X is None else f"{X:.3f}")
-          + " (energy norm of (u, v))")
+    print(
+        "work ratio adaptive/uniform at equal L2 error of u: "
+        + ("n/a" if X_l2 is None else f"{X_l2:.3f}")
+    )
+    print(
+        "work ratio adaptive/uniform at equal error: "
+        + ("n/a (no adaptive error inside the uniform range)" if X is None else f"{X:.3f}")
+        + " (energy norm of (u, v))"
+    )
     return X
 
 

@@ -57,8 +57,9 @@ def _states_at(traj, times):
 def _error(run_states, ref_states, ref_points, ref_mass):
     errs = []
     for (z, points, cells), (zr, _, _) in zip(run_states, ref_states, strict=True):
-        interp = mtri.LinearTriInterpolator(mtri.Triangulation(points[:, 0], points[:, 1],
-                                                               cells), z)
+        interp = mtri.LinearTriInterpolator(
+            mtri.Triangulation(points[:, 0], points[:, 1], cells), z
+        )
         zh = np.asarray(interp(ref_points[:, 0], ref_points[:, 1]).filled(np.nan))
         errs.append(float(np.sqrt(np.sum(ref_mass * (zh - zr) ** 2))))
     return max(errs)
@@ -76,8 +77,13 @@ def _run(n, tau, space=None):
         dofs = np.full(len(traj), problem.n)
     else:
         dofs = np.asarray(traj["n_dofs"])[1:]
-    return traj, {"steps": len(traj), "dofs_max": int(dofs.max()),
-                  "dofs_summed": int(dofs.sum()), "seconds": seconds, "peak_mb": peak}
+    return traj, {
+        "steps": len(traj),
+        "dofs_max": int(dofs.max()),
+        "dofs_summed": int(dofs.sum()),
+        "seconds": seconds,
+        "peak_mb": peak,
+    }
 
 
 def _uniform_work_at(rows, err):
@@ -112,17 +118,28 @@ def run_ris_family(quick: bool) -> float:
     rows = []
     for n in uniform_n:
         traj, info = _run(n, tau)
-        info.update(mesh="uniform", param=f"N={n}",
-                    error=_error(_states_at(traj, TIMES), ref_states, ref_points, ref_mass))
+        info.update(
+            mesh="uniform",
+            param=f"N={n}",
+            error=_error(_states_at(traj, TIMES), ref_states, ref_points, ref_mass),
+        )
         rows.append(info)
         print(f"  uniform N={n}: {info}", flush=True)
     for tol in tols:
-        space = SpaceAdaptivity(space_tol=tol, refine_fraction=0.5, coarsen_fraction=0.05,
-                                max_dofs=(n_ref + 1) ** 2, max_level=max_level)
+        space = SpaceAdaptivity(
+            space_tol=tol,
+            refine_fraction=0.5,
+            coarsen_fraction=0.05,
+            max_dofs=(n_ref + 1) ** 2,
+            max_level=max_level,
+        )
         traj, info = _run(n0, tau, space)
-        info.update(mesh="adaptive", param=f"tol={tol:g}",
-                    error=_error(_states_at(traj, TIMES), ref_states, ref_points, ref_mass),
-                    adaptations=traj.meta["space_adaptations"])
+        info.update(
+            mesh="adaptive",
+            param=f"tol={tol:g}",
+            error=_error(_states_at(traj, TIMES), ref_states, ref_points, ref_mass),
+            adaptations=traj.meta["space_adaptations"],
+        )
         rows.append(info)
         print(f"  adaptive tol={tol:g}: {info}", flush=True)
     for r in rows:
@@ -131,26 +148,36 @@ def run_ris_family(quick: bool) -> float:
             r["ratio"] = r["dofs_summed"] / r["uniform_at_error"]
             errs = [u["error"] for u in rows if u["mesh"] == "uniform"]
             r["extrapolated"] = not min(errs) <= r["error"] <= max(errs)
-    print(f"RIS front (example_front, c = 0.1), uniform tau = {tau:g} in s for every run; "
-          f"reference: uniform {n_ref}x{n_ref} grid ({(n_ref + 1) ** 2} nodes, "
-          f"{ref_info['steps']} steps, {ref_info['seconds']:.1f} s)")
-    print("error: max over t in {0.25, 0.5, 0.75} of the lumped L2 norm of z_h(t) - z_ref(t) on "
-          "the reference mesh; work: unknowns summed over the accepted steps")
-    head = (f"{'mesh':<9} {'param':<9} {'steps':>6} {'dofs max':>9} {'dofs summed':>12} "
-            f"{'error':>10} {'seconds':>8} {'RSS MB':>8} {'unif. dofs@err':>14} {'ratio':>6}")
+    print(
+        f"RIS front (example_front, c = 0.1), uniform tau = {tau:g} in s for every run; "
+        f"reference: uniform {n_ref}x{n_ref} grid ({(n_ref + 1) ** 2} nodes, "
+        f"{ref_info['steps']} steps, {ref_info['seconds']:.1f} s)"
+    )
+    print(
+        "error: max over t in {0.25, 0.5, 0.75} of the lumped L2 norm of z_h(t) - z_ref(t) on "
+        "the reference mesh; work: unknowns summed over the accepted steps"
+    )
+    head = (
+        f"{'mesh':<9} {'param':<9} {'steps':>6} {'dofs max':>9} {'dofs summed':>12} "
+        f"{'error':>10} {'seconds':>8} {'RSS MB':>8} {'unif. dofs@err':>14} {'ratio':>6}"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
-        extra = (f" {r['uniform_at_error']:>14.4g} {r['ratio']:>6.3f}" if "ratio" in r else "")
+        extra = f" {r['uniform_at_error']:>14.4g} {r['ratio']:>6.3f}" if "ratio" in r else ""
         if r.get("extrapolated"):
             extra += "  (extrapolated: error outside the uniform rows)"
-        print(f"{r['mesh']:<9} {r['param']:<9} {r['steps']:>6d} {r['dofs_max']:>9d} "
-              f"{r['dofs_summed']:>12d} {r['error']:>10.4g} {r['seconds']:>8.1f} "
-              f"{r['peak_mb']:>8.1f}{extra}")
+        print(
+            f"{r['mesh']:<9} {r['param']:<9} {r['steps']:>6d} {r['dofs_max']:>9d} "
+            f"{r['dofs_summed']:>12d} {r['error']:>10.4g} {r['seconds']:>8.1f} "
+            f"{r['peak_mb']:>8.1f}{extra}"
+        )
     best = min((r for r in rows if r["mesh"] == "adaptive"), key=lambda r: r["error"])
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"total {time.perf_counter() - wall0:.1f} s, peak RSS {rss:.0f} MB (RSS MB: the "
-          "process's peak after each run; the reference ran first)")
+    print(
+        f"total {time.perf_counter() - wall0:.1f} s, peak RSS {rss:.0f} MB (RSS MB: the "
+        "process's peak after each run; the reference ran first)"
+    )
     print(f"work ratio adaptive/uniform at equal error: {best['ratio']:.3f}")
     return best["ratio"]
 

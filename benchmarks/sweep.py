@@ -44,8 +44,16 @@ def cpu_children() -> float:
 def run(argv: list[str], out: Path) -> tuple[float, float, dict]:
     """Wall time, CPU time (the command and every process it started: the workers are its
     children, reaped before it exits) and summary.json of one command."""
-    cmd = [sys.executable, "-m", "rothe.cli.main", *argv, "--out", str(out), "--no-plots",
-           "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "rothe.cli.main",
+        *argv,
+        "--out",
+        str(out),
+        "--no-plots",
+        "--quiet",
+    ]
     c0, t0 = cpu_children(), time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     wall, cpu = time.perf_counter() - t0, cpu_children() - c0
@@ -57,12 +65,21 @@ def run(argv: list[str], out: Path) -> tuple[float, float, dict]:
 def compare_bench(n: int, workers, base: Path) -> list[dict]:
     rows = []
     for w in workers:
-        wall, cpu, summary = run(["compare", "ris-2d", "--n", str(n), "--workers", str(w)],
-                                 base / f"compare-w{w}")
+        wall, cpu, summary = run(
+            ["compare", "ris-2d", "--n", str(n), "--workers", str(w)], base / f"compare-w{w}"
+        )
         times = [r["wall_time_s"] for r in summary["rows"]]
-        rows.append({"command": f"compare ris-2d --n {n}", "workers": w, "wall": wall,
-                     "cpu": cpu, "runs": len(times), "sum_runs": sum(times),
-                     "max_run": max(times)})
+        rows.append(
+            {
+                "command": f"compare ris-2d --n {n}",
+                "workers": w,
+                "wall": wall,
+                "cpu": cpu,
+                "runs": len(times),
+                "sum_runs": sum(times),
+                "max_run": max(times),
+            }
+        )
     return rows
 
 
@@ -76,12 +93,24 @@ def study_bench(taus: list[float], workers, base: Path) -> list[dict]:
         # one task per (tau, form): the unperturbed run and one run per perturbed datum
         targets = len(summary.get("targets", ("G", "F")))
         model = [(1 + targets) / tau for tau in taus for _form in (0, 1)]
-        rows.append({"command": "study eld-perturbation" + ("" if taus == DEFAULT_TAUS else
-                                                            " (--taus " + ",".join(
-                                                                f"{t:g}" for t in taus) + ")"),
-                     "workers": w, "wall": wall, "cpu": cpu, "runs": len(model),
-                     "sum_runs": None, "max_run": None, "study_seconds": summary["seconds"],
-                     "model": model})
+        rows.append(
+            {
+                "command": "study eld-perturbation"
+                + (
+                    ""
+                    if taus == DEFAULT_TAUS
+                    else " (--taus " + ",".join(f"{t:g}" for t in taus) + ")"
+                ),
+                "workers": w,
+                "wall": wall,
+                "cpu": cpu,
+                "runs": len(model),
+                "sum_runs": None,
+                "max_run": None,
+                "study_seconds": summary["seconds"],
+                "model": model,
+            }
+        )
     return rows
 
 
@@ -89,9 +118,11 @@ DEFAULT_TAUS = [0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001]
 
 
 def print_table(rows: list[dict]) -> None:
-    head = (f"{'command':<40} {'workers':>7} {'wall s':>8} {'speed-up':>8} {'ideal':>6} "
-            f"{'CPU s':>8} {'cores':>5} {'runs':>5} {'sum runs s':>10} {'longest s':>9} "
-            f"{'inflation':>9} {'start-up s':>10}")
+    head = (
+        f"{'command':<40} {'workers':>7} {'wall s':>8} {'speed-up':>8} {'ideal':>6} "
+        f"{'CPU s':>8} {'cores':>5} {'runs':>5} {'sum runs s':>10} {'longest s':>9} "
+        f"{'inflation':>9} {'start-up s':>10}"
+    )
     print(head)
     print("-" * len(head))
     by_cmd: dict[str, dict[int, dict]] = {}
@@ -114,19 +145,28 @@ def print_table(rows: list[dict]) -> None:
                 ideal = base_sum / max(base_sum / w, base_max)
                 inflation = sum_runs / base_sum
                 startup = None
-            cells = [f"{cmd:<40}", f"{w:>7d}", f"{r['wall']:>8.1f}", f"{speed:>8.2f}",
-                     f"{ideal:>6.2f}", f"{r['cpu']:>8.1f}", f"{r['cpu'] / r['wall']:>5.2f}",
-                     f"{r['runs']:>5d}",
-                     f"{sum_runs:>10.1f}" if sum_runs is not None else f"{'':>10}",
-                     f"{longest:>9.1f}" if longest is not None else f"{'':>9}",
-                     f"{inflation:>9.2f}" if inflation is not None else f"{'':>9}",
-                     f"{startup:>10.1f}" if startup is not None else f"{'':>10}"]
+            cells = [
+                f"{cmd:<40}",
+                f"{w:>7d}",
+                f"{r['wall']:>8.1f}",
+                f"{speed:>8.2f}",
+                f"{ideal:>6.2f}",
+                f"{r['cpu']:>8.1f}",
+                f"{r['cpu'] / r['wall']:>5.2f}",
+                f"{r['runs']:>5d}",
+                f"{sum_runs:>10.1f}" if sum_runs is not None else f"{'':>10}",
+                f"{longest:>9.1f}" if longest is not None else f"{'':>9}",
+                f"{inflation:>9.2f}" if inflation is not None else f"{'':>9}",
+                f"{startup:>10.1f}" if startup is not None else f"{'':>10}",
+            ]
             print(" ".join(cells))
-    print("\nspeed-up = wall(1 worker) / wall; ideal = best possible on that many workers given "
-          "the runs' own times (load balance);\nCPU s = CPU time of the command and its worker "
-          "processes; cores = CPU s / wall s (the cores it actually got: about the worker count "
-          "on a quiet machine);\ninflation = sum of run times / that with 1 worker (contention "
-          "between simultaneous runs); start-up = wall - time in the study loop")
+    print(
+        "\nspeed-up = wall(1 worker) / wall; ideal = best possible on that many workers given "
+        "the runs' own times (load balance);\nCPU s = CPU time of the command and its worker "
+        "processes; cores = CPU s / wall s (the cores it actually got: about the worker count "
+        "on a quiet machine);\ninflation = sum of run times / that with 1 worker (contention "
+        "between simultaneous runs); start-up = wall - time in the study loop"
+    )
 
 
 def main() -> None:
@@ -142,8 +182,7 @@ def main() -> None:
     if args.only in (None, "compare"):
         rows += compare_bench(10 if args.quick else 40, workers, base)
     if args.only in (None, "study"):
-        rows += study_bench([0.1, 0.05, 0.02, 0.01] if args.quick else DEFAULT_TAUS, workers,
-                            base)
+        rows += study_bench([0.1, 0.05, 0.02, 0.01] if args.quick else DEFAULT_TAUS, workers, base)
     print_table(rows)
     print(f"outputs: {base}")
 

@@ -17,8 +17,15 @@ import rothe
 
 PACKAGE = Path(rothe.__file__).parent
 FAMILIES = ("rothe.ris", "rothe.eld")
-NEUTRAL = ("rothe.fem", "rothe.stepping", "rothe.io", "rothe.plotting", "rothe.parallel",
-           "rothe.errors", "rothe.timing")
+NEUTRAL = (
+    "rothe.fem",
+    "rothe.stepping",
+    "rothe.io",
+    "rothe.plotting",
+    "rothe.parallel",
+    "rothe.errors",
+    "rothe.timing",
+)
 
 
 def _module_name(path: Path) -> str:
@@ -107,21 +114,33 @@ def test_no_import_cycle():
 
 
 def test_the_shared_layers_know_no_family():
-    bad = [(m, t) for m, ts in import_graph().items() for t in ts
-           if any(_inside(m, n) for n in NEUTRAL) and any(_inside(t, f) for f in FAMILIES)]
+    bad = [
+        (m, t)
+        for m, ts in import_graph().items()
+        for t in ts
+        if any(_inside(m, n) for n in NEUTRAL) and any(_inside(t, f) for f in FAMILIES)
+    ]
     assert bad == []
 
 
 def test_the_families_never_import_each_other():
-    bad = [(m, t) for m, ts in import_graph().items() for t in ts
-           if (_inside(m, "rothe.ris") and _inside(t, "rothe.eld"))
-           or (_inside(m, "rothe.eld") and _inside(t, "rothe.ris"))]
+    bad = [
+        (m, t)
+        for m, ts in import_graph().items()
+        for t in ts
+        if (_inside(m, "rothe.ris") and _inside(t, "rothe.eld"))
+        or (_inside(m, "rothe.eld") and _inside(t, "rothe.ris"))
+    ]
     assert bad == []
 
 
 def test_only_the_command_line_imports_the_command_line():
-    bad = [(m, t) for m, ts in import_graph().items() for t in ts
-           if _inside(t, "rothe.cli") and not _inside(m, "rothe.cli")]
+    bad = [
+        (m, t)
+        for m, ts in import_graph().items()
+        for t in ts
+        if _inside(t, "rothe.cli") and not _inside(m, "rothe.cli")
+    ]
     assert bad == []
 
 

@@ -13,8 +13,17 @@ USER_DOCS = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 
 def test_help_of_the_package_points_to_both_families_the_cli_and_the_docs():
     doc = rothe.__doc__
-    for needle in ("rothe.eld", "run_eld", "run_ris", "SpaceAdaptivity", "rothe sweep",
-                   "rothe resume", "docs/eld.md", "docs/robustness.md", "docs/adaptivity.md"):
+    for needle in (
+        "rothe.eld",
+        "run_eld",
+        "run_ris",
+        "SpaceAdaptivity",
+        "rothe sweep",
+        "rothe resume",
+        "docs/eld.md",
+        "docs/robustness.md",
+        "docs/adaptivity.md",
+    ):
         assert needle in doc, needle
     # every document the docstring names exists
     for name in re.findall(r"docs/\w+\.md", doc):

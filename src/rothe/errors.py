@@ -34,7 +34,7 @@ class RotheInputError(ValueError):
         prefix = f"{self.parameter}: "
         if self.parameter is None or not message.startswith(prefix):
             return self
-        out = type(self)(f"{name}: {message[len(prefix):]}", name)
+        out = type(self)(f"{name}: {message[len(prefix) :]}", name)
         out.__cause__ = self.__cause__
         return out
 
@@ -71,8 +71,16 @@ class RunInterrupted(KeyboardInterrupt):
     None when the run had no checkpoint); pass that directory as ``resume=`` to continue.
     """
 
-    def __init__(self, message: str, *, signum: int, where: dict | None = None,
-                 trajectory=None, checkpoint=None, state=None):
+    def __init__(
+        self,
+        message: str,
+        *,
+        signum: int,
+        where: dict | None = None,
+        trajectory=None,
+        checkpoint=None,
+        state=None,
+    ):
         super().__init__(message)
         self.signum = int(signum)
         self.where = dict(where or {})

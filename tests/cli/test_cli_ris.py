@@ -49,8 +49,12 @@ def test_run_ris_1d_writes_results_and_figures(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "control, extra",
-    [("uniform", ["--tau", "0.05"]), ("order2", []), ("regime", []),
-     ("nested", ["--tols", "1e-2,1e-3"])],
+    [
+        ("uniform", ["--tau", "0.05"]),
+        ("order2", []),
+        ("regime", []),
+        ("nested", ["--tols", "1e-2,1e-3"]),
+    ],
 )
 def test_run_ris_1d_other_controls(tmp_path, control, extra):
     out = tmp_path / control

@@ -15,15 +15,22 @@ from rothe.cli.main import main, option_table
 from rothe.errors import RotheInputError, fail
 
 
-@pytest.mark.parametrize("argv, line", [
-    (["run", "eld-mms", "--tau", "0.03"],
-     "rothe: error: --tau: got 0.03, must divide T = 1 into equal steps (T/tau = 33.3333)"),
-    (["run", "eld-beam", "--degree", "3"], "rothe: error: --degree: got 3, must be 1 or 2"),
-    (["run", "ris-2d", "--n", "4", "--dirichlet", "inlet"],
-     "rothe: error: --dirichlet: got 'inlet', must be one of bottom, left, right, top (sides of "
-     "the bounding box; the mesh has no named parts)"),
-    (["run", "ris-1d", "--tau", "0"], "rothe: error: --tau: got 0, must be > 0"),
-])
+@pytest.mark.parametrize(
+    "argv, line",
+    [
+        (
+            ["run", "eld-mms", "--tau", "0.03"],
+            "rothe: error: --tau: got 0.03, must divide T = 1 into equal steps (T/tau = 33.3333)",
+        ),
+        (["run", "eld-beam", "--degree", "3"], "rothe: error: --degree: got 3, must be 1 or 2"),
+        (
+            ["run", "ris-2d", "--n", "4", "--dirichlet", "inlet"],
+            "rothe: error: --dirichlet: got 'inlet', must be one of bottom, left, right, top (sides of "
+            "the bounding box; the mesh has no named parts)",
+        ),
+        (["run", "ris-1d", "--tau", "0"], "rothe: error: --tau: got 0, must be > 0"),
+    ],
+)
 def test_refusals_name_the_option(argv, line, tmp_path, capsys):
     code = main(argv + ["--quiet", "--no-plots", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip().splitlines()
@@ -40,8 +47,13 @@ def test_option_table_reads_argparse_and_the_commands_aliases():
         parameter_options = {"adapt": "--adapt-space"}
 
     table = option_table(parser, Command())
-    assert table == {"space_tol": "--space-tol", "step": "--tau", "tau": "--tau", "n": "--n",
-                     "adapt": "--adapt-space"}
+    assert table == {
+        "space_tol": "--space-tol",
+        "step": "--tau",
+        "tau": "--tau",
+        "n": "--n",
+        "adapt": "--adapt-space",
+    }
 
 
 def test_renamed_keeps_the_rest_of_the_line_and_only_renames_its_own_parameter():

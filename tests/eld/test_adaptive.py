@@ -78,8 +78,9 @@ def test_local_error_estimate_has_the_order_of_the_local_error(scheme, order):
 @pytest.fixture(scope="module")
 def ramp_run():
     problem = ramp_problem(2, 2)
-    return problem, run_eld(problem, "regularized", 0.01, scheme="bdf2", control="adaptive",
-                            tol=1e-4)
+    return problem, run_eld(
+        problem, "regularized", 0.01, scheme="bdf2", control="adaptive", tol=1e-4
+    )
 
 
 def test_adaptive_bdf2_refines_at_the_ramp_and_keeps_its_limits(ramp_run):
@@ -115,8 +116,15 @@ def test_adaptive_error_follows_the_tolerance():
 
     errs, steps = [], []
     for tol in (1e-3, 1e-5):
-        traj = run_eld(problem, "regularized", 0.01, scheme="bdf2", control="adaptive", tol=tol,
-                       store_fields=False)
+        traj = run_eld(
+            problem,
+            "regularized",
+            0.01,
+            scheme="bdf2",
+            control="adaptive",
+            tol=tol,
+            store_fields=False,
+        )
         errs.append(mms_errors(problem, exact, traj)["error_u_l2"])
         steps.append(traj.stats.accepted_steps)
     # local error ~ tau^3 ~ tol: 100x smaller tol, about 100^(1/3) = 4.6x more steps
@@ -132,8 +140,11 @@ def test_adaptive_bad_input_is_one_line():
         run_eld(problem, "regularized", 0.1, control="adaptive")
     with pytest.raises(RotheInputError, match=r"^tol: got 0.001, is used by control='adaptive'"):
         run_eld(problem, "regularized", 0.1, tol=1e-3)
-    with pytest.raises(RotheInputError, match=r"^control: got 'pid', must be one of uniform, "
-                       "adaptive"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^control: got 'pid', must be one of uniform, "
+        "adaptive",
+    ):
         run_eld(problem, "regularized", 0.1, control="pid")
     with pytest.raises(RotheInputError, match=r"^scheme: got 'bdf3', must be one of euler, bdf2"):
         run_eld(problem, "regularized", 0.1, scheme="bdf3")
@@ -150,9 +161,19 @@ def test_differenced_data_step_control_does_not_depend_on_the_lifting(scheme):
     lifting's unknowns used to see the data quotients' jump after a step cut and drove tau below
     tau_min on this run (mms n=3, BDF2, tol 1e-4)."""
     problem, _ = mms_problem(3, 2)
-    runs = {lifting: run_eld(problem, "regularized", 0.02, scheme=scheme, control="adaptive",
-                             tol=1e-4, data="differenced", lifting=lifting)
-            for lifting in ("nodal", "harmonic")}
+    runs = {
+        lifting: run_eld(
+            problem,
+            "regularized",
+            0.02,
+            scheme=scheme,
+            control="adaptive",
+            tol=1e-4,
+            data="differenced",
+            lifting=lifting,
+        )
+        for lifting in ("nodal", "harmonic")
+    }
     nodal, harmonic = runs["nodal"], runs["harmonic"]
     n_nodal, n_harmonic = nodal.stats.accepted_steps, harmonic.stats.accepted_steps
     assert abs(n_harmonic - n_nodal) <= 0.1 * n_nodal

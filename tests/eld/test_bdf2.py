@@ -32,10 +32,15 @@ def mms():
 @pytest.mark.parametrize("form", ["regularized", "original"])
 def test_second_order_for_u_v_and_lambda_at_T_and_over_all_steps(mms, form):
     problem, exact = mms  # P2 represents the solution exactly: all error is temporal
-    errs = [mms_errors(problem, exact, run_eld(problem, form, tau, scheme="bdf2"))
-            for tau in TAUS]
-    for key in ("error_u_l2", "error_v_l2", "error_lam_l2", "error_u_l2_max",
-                "error_v_l2_max", "error_lam_l2_max"):
+    errs = [mms_errors(problem, exact, run_eld(problem, form, tau, scheme="bdf2")) for tau in TAUS]
+    for key in (
+        "error_u_l2",
+        "error_v_l2",
+        "error_lam_l2",
+        "error_u_l2_max",
+        "error_v_l2_max",
+        "error_lam_l2_max",
+    ):
         rate = fitted_rate(TAUS, [e[key] for e in errs])
         assert rate >= 1.8, (key, rate)
     assert errs[-1]["error_u_l2"] < 5e-3
@@ -70,8 +75,12 @@ def _max_lambda_errors(problem, exact, taus, start):
     for tau in taus:
         traj = run_eld(problem, "original", tau, scheme="bdf2", start=start)
         ts, lams = traj["kept_t"], traj["lam"]
-        out.append(max(q.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n))
-                       for k in range(1, len(ts))))
+        out.append(
+            max(
+                q.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n))
+                for k in range(1, len(ts))
+            )
+        )
     return out
 
 
@@ -109,21 +118,30 @@ def test_coefficients_and_solvability_bound():
 
 def test_bdf2_step_bound_is_checked_before_any_step():
     problem, _ = mms_problem(2, 1, damping=NonlinearDamping(d0=2.0))  # rho/d0 = 0.5
-    with pytest.raises(RotheInputError, match=r"^tau: got 0.8, must be < 1.5 rho/d0 = 0.75 "
-                       r"\(Lemma 3.2 for BDF2"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^tau: got 0.8, must be < 1.5 rho/d0 = 0.75 "
+        r"\(Lemma 3.2 for BDF2",
+    ):
         run_eld(problem, "regularized", 0.8, scheme="bdf2")
     # 0.5 is refused by Euler but solvable for BDF2 (tau/alpha = 1/3 < 1/2)
     assert len(run_eld(problem, "original", 0.5, scheme="bdf2")["t"]) == 3
-    with pytest.raises(RotheInputError, match=r"^steps: got tau_1 = 0.8, must satisfy "
-                       r"tau_j/alpha_j < rho/d0 = 0.5 \(alpha_j = 1.5"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^steps: got tau_1 = 0.8, must satisfy "
+        r"tau_j/alpha_j < rho/d0 = 0.5 \(alpha_j = 1.5",
+    ):
         run_eld(problem, "regularized", 0.1, scheme="bdf2", steps=[0.8, 0.2])
 
 
 def test_step_sequences_are_checked():
     problem, _ = mms_problem(2, 1)
     limit = f"{BDF2_ZERO_STABILITY:.6g}"
-    with pytest.raises(RotheInputError, match=rf"^steps: got tau_3/tau_2 = 2.5, must be < 1 \+ "
-                       rf"sqrt\(2\) = {limit} \(zero-stability"):
+    with pytest.raises(
+        RotheInputError,
+        match=rf"^steps: got tau_3/tau_2 = 2.5, must be < 1 \+ "
+        rf"sqrt\(2\) = {limit} \(zero-stability",
+    ):
         run_eld(problem, "regularized", 0.1, scheme="bdf2", steps=[0.1, 0.1, 0.25, 0.55])
     # Euler has no ratio limit
     assert len(run_eld(problem, "regularized", 0.1, steps=[0.1, 0.1, 0.25, 0.55])["t"]) == 5
@@ -140,10 +158,15 @@ def _free_vibration(n=4):
     def zero(t, x):
         return np.zeros_like(x)
 
-    return ELDProblem(mesh, material, degree=1,
-                      dirichlet={"left": DirichletData(zero, zero, zero)},
-                      u0=lambda x: np.stack([0.1 * x[0] ** 2, 0.2 * x[0] * x[1]]),
-                      v0=lambda x: np.stack([x[0] * x[1], -x[0]]), T=1.0)
+    return ELDProblem(
+        mesh,
+        material,
+        degree=1,
+        dirichlet={"left": DirichletData(zero, zero, zero)},
+        u0=lambda x: np.stack([0.1 * x[0] ** 2, 0.2 * x[0] * x[1]]),
+        v0=lambda x: np.stack([x[0] * x[1], -x[0]]),
+        T=1.0,
+    )
 
 
 def test_energy_ledger_closes_to_round_off_for_bdf2_uniform_given_and_adaptive_steps():
@@ -152,12 +175,16 @@ def test_energy_ledger_closes_to_round_off_for_bdf2_uniform_given_and_adaptive_s
     runs.append(run_eld(problem, "regularized", 0.1, scheme="bdf2", steps=_sequence(30)))
     runs.append(run_eld(problem, "original", 0.01, scheme="bdf2", control="adaptive", tol=1e-3))
     for traj in runs:
-        scale = (np.abs(traj["energy"]).max() + np.abs(traj["work"]).max()
-                 + np.abs(traj["work_reaction"]).max())
+        scale = (
+            np.abs(traj["energy"]).max()
+            + np.abs(traj["work"]).max()
+            + np.abs(traj["work_reaction"]).max()
+        )
         assert np.abs(traj["balance_residual"]).max() <= 1e-12 * scale
         # N = N_G + S + C^n - C^0 at every state, with C^0 the start's boundary term
-        N, NG, S = (traj[k] for k in ("numerical_dissipation", "numerical_dissipation_G",
-                                      "step_change"))
+        N, NG, S = (
+            traj[k] for k in ("numerical_dissipation", "numerical_dissipation_G", "step_change")
+        )
         C = N - NG - S
         assert np.abs(C).max() < 0.5 * scale  # a boundary term, not accumulating
         # Newton to 1e-10: the algebraic residual's work is small but booked
@@ -181,8 +208,11 @@ def test_bdf2_G_dissipation_is_nonnegative_with_equal_steps_and_far_below_euler(
 
 def test_absurd_tau_is_one_line():
     problem, _ = mms_problem(2, 1)
-    with pytest.raises(RotheInputError, match=r"^tau: got 9.99989e-321, must divide T = 1 into "
-                       r"equal steps \(T/tau = inf\)"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^tau: got 9.99989e-321, must divide T = 1 into "
+        r"equal steps \(T/tau = inf\)",
+    ):
         run_eld(problem, "regularized", 1e-320)
     assert math.isinf(1.0 / 1e-320)
     with pytest.raises(RotheInputError, match=r"^tau: got 1e\+300, must be < rho/d0"):

@@ -17,13 +17,24 @@ def _run(argv, capsys):
 
 def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):
     out = tmp_path / "mms"
-    code, stdout, _ = _run(["run", "eld-mms", "--tau", "0.05", "--n", "2", "--out", str(out)],
-                           capsys)
+    code, stdout, _ = _run(
+        ["run", "eld-mms", "--tau", "0.05", "--n", "2", "--out", str(out)], capsys
+    )
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
-    for key in ("error_u_l2", "error_u_h1", "error_v_l2", "error_v_h1", "error_lam_l2",
-                "accepted_steps", "rejected_steps", "newton_iterations", "wall_time_s",
-                "balance_residual_max", "reaction_left_final"):
+    for key in (
+        "error_u_l2",
+        "error_u_h1",
+        "error_v_l2",
+        "error_v_h1",
+        "error_lam_l2",
+        "accepted_steps",
+        "rejected_steps",
+        "newton_iterations",
+        "wall_time_s",
+        "balance_residual_max",
+        "reaction_left_final",
+    ):
         assert key in summary, key
     assert summary["lam_norm"] == "L2(Gamma_D)"
     assert summary["accepted_steps"] == 20 and summary["status"] == "completed"
@@ -41,30 +52,49 @@ def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):
 
 
 def test_quiet_prints_nothing(tmp_path, capsys):
-    code, stdout, stderr = _run(["run", "eld-mms", "--tau", "0.1", "--n", "2", "--quiet",
-                                 "--no-plots", "--out", str(tmp_path)], capsys)
+    code, stdout, stderr = _run(
+        [
+            "run",
+            "eld-mms",
+            "--tau",
+            "0.1",
+            "--n",
+            "2",
+            "--quiet",
+            "--no-plots",
+            "--out",
+            str(tmp_path),
+        ],
+        capsys,
+    )
     assert code == 0 and stdout == "" and stderr == ""
     assert not (tmp_path / "fig_energy.png").exists()
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--rho", "1", "--d0", "2", "--tau", "0.6"],
-     "tau: got 0.6, must be < rho/d0 = 0.5 (Lemma 3.2"),
-    (["--rho", "-1"], "rho: got -1, must be > 0"),
-    (["--mu", "-1"], "mu: got -1, must be > 0"),
-    (["--lam", "-1.5"], "lam: got -1.5, must be > -2 mu / d = -1"),
-    (["--dirichlet", "lft"], "dirichlet: got 'lft', must be one of bottom, left, right, top"),
-    (["--start", "rest"], "u0: got max|u0 - G(0)| = 0.5 on the Dirichlet parts left"),
-    (["--tau", "0.3"], "tau: got 0.3, must divide T = 1 into equal steps"),
-    (["--form", "index3"], "--form: got 'index3', must be one of regularized, original"),
-    (["--damping", "viscous"], "--damping: got 'viscous', must be one of none, rayleigh"),
-    (["--d0", "-1"], "d0: got -1, must be >= 0"),
-    (["--degree", "3"], "degree: got 3, must be 1 or 2"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (
+            ["--rho", "1", "--d0", "2", "--tau", "0.6"],
+            "tau: got 0.6, must be < rho/d0 = 0.5 (Lemma 3.2",
+        ),
+        (["--rho", "-1"], "rho: got -1, must be > 0"),
+        (["--mu", "-1"], "mu: got -1, must be > 0"),
+        (["--lam", "-1.5"], "lam: got -1.5, must be > -2 mu / d = -1"),
+        (["--dirichlet", "lft"], "dirichlet: got 'lft', must be one of bottom, left, right, top"),
+        (["--start", "rest"], "u0: got max|u0 - G(0)| = 0.5 on the Dirichlet parts left"),
+        (["--tau", "0.3"], "tau: got 0.3, must divide T = 1 into equal steps"),
+        (["--form", "index3"], "--form: got 'index3', must be one of regularized, original"),
+        (["--damping", "viscous"], "--damping: got 'viscous', must be one of none, rayleigh"),
+        (["--d0", "-1"], "d0: got -1, must be >= 0"),
+        (["--degree", "3"], "degree: got 3, must be 1 or 2"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_status_2(tmp_path, capsys, args, message):
     out = tmp_path / "bad"
-    code, _, stderr = _run(["run", "eld-mms", "--n", "2", "--out", str(out), "--quiet"] + args,
-                           capsys)
+    code, _, stderr = _run(
+        ["run", "eld-mms", "--n", "2", "--out", str(out), "--quiet"] + args, capsys
+    )
     assert code == 2
     lines = stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("rothe: error: ")
@@ -74,8 +104,20 @@ def test_bad_input_is_one_line_and_exit_status_2(tmp_path, capsys, args, message
 
 def test_study_eld_convergence(tmp_path, capsys):
     out = tmp_path / "conv"
-    code, stdout, _ = _run(["study", "eld-convergence", "--n", "2", "--halvings", "2",
-                            "--out", str(out), "--no-plots"], capsys)
+    code, stdout, _ = _run(
+        [
+            "study",
+            "eld-convergence",
+            "--n",
+            "2",
+            "--halvings",
+            "2",
+            "--out",
+            str(out),
+            "--no-plots",
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["tau"] == [0.1, 0.05, 0.025]
@@ -88,8 +130,22 @@ def test_study_eld_convergence(tmp_path, capsys):
 
 def test_study_eld_convergence_bdf2_summary(tmp_path, capsys):
     out = tmp_path / "conv2"
-    code, _, _ = _run(["study", "eld-convergence", "--scheme", "bdf2", "--n", "2", "--halvings",
-                       "2", "--out", str(out), "--no-plots"], capsys)
+    code, _, _ = _run(
+        [
+            "study",
+            "eld-convergence",
+            "--scheme",
+            "bdf2",
+            "--n",
+            "2",
+            "--halvings",
+            "2",
+            "--out",
+            str(out),
+            "--no-plots",
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["tau"] == [0.1, 0.05, 0.025]
@@ -100,29 +156,73 @@ def test_study_eld_convergence_bdf2_summary(tmp_path, capsys):
 
 def test_study_eld_perturbation(tmp_path, capsys):
     out = tmp_path / "pert"
-    code, stdout, _ = _run(["study", "eld-perturbation", "--taus", "0.1,0.01", "--n", "2",
-                            "--targets", "G", "--damping", "rayleigh", "--out", str(out)],
-                           capsys)
+    code, stdout, _ = _run(
+        [
+            "study",
+            "eld-perturbation",
+            "--taus",
+            "0.1,0.01",
+            "--n",
+            "2",
+            "--targets",
+            "G",
+            "--damping",
+            "rayleigh",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["tau"] == [0.1, 0.01]
-    for key in ("amp_regularized", "amp_original", "amp_v_regularized", "amp_v_original",
-                "amp_u_regularized", "amp_u_original"):
+    for key in (
+        "amp_regularized",
+        "amp_original",
+        "amp_v_regularized",
+        "amp_v_original",
+        "amp_u_regularized",
+        "amp_u_original",
+    ):
         assert len(s[key]) == 2, key
     assert s["amp_original"][1] > 5 * s["amp_original"][0]
     assert (out / "fig_perturbation_G.png").is_file()
-    code, _, stderr = _run(["study", "eld-perturbation", "--taus", "0.1", "--out", str(out)],
-                           capsys)
+    code, _, stderr = _run(
+        ["study", "eld-perturbation", "--taus", "0.1", "--out", str(out)], capsys
+    )
     assert code == 2 and "needs at least two step sizes" in stderr
 
 
 def test_run_eld_beam_writes_xdmf_of_u_v_and_the_multiplier(tmp_path, capsys):
     out = tmp_path / "beam"
-    code, _, _ = _run(["run", "eld-beam", "--n", "1", "--T", "0.1", "--tau", "0.01",
-                       "--save-every", "2", "--out", str(out), "--quiet"], capsys)
+    code, _, _ = _run(
+        [
+            "run",
+            "eld-beam",
+            "--n",
+            "1",
+            "--T",
+            "0.1",
+            "--tau",
+            "0.01",
+            "--save-every",
+            "2",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        capsys,
+    )
     assert code == 0
-    for name in ("beam.xdmf", "beam.h5", "beam_multiplier.xdmf", "beam_multiplier.h5",
-                 "fig_reaction.png", "summary.json", "trajectory.npz"):
+    for name in (
+        "beam.xdmf",
+        "beam.h5",
+        "beam_multiplier.xdmf",
+        "beam_multiplier.h5",
+        "fig_reaction.png",
+        "summary.json",
+        "trajectory.npz",
+    ):
         assert (out / name).is_file(), name
     with meshio.xdmf.TimeSeriesReader(str(out / "beam_multiplier.xdmf")) as reader:
         reader.read_points_cells()
@@ -138,8 +238,22 @@ def test_run_eld_beam_writes_xdmf_of_u_v_and_the_multiplier(tmp_path, capsys):
 
 def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(tmp_path, capsys):
     out = tmp_path / "coarse"
-    code, stdout, _ = _run(["run", "eld-beam", "--n", "1", "--degree", "1", "--T", "0.3",
-                            "--no-plots", "--out", str(out)], capsys)
+    code, stdout, _ = _run(
+        [
+            "run",
+            "eld-beam",
+            "--n",
+            "1",
+            "--degree",
+            "1",
+            "--T",
+            "0.3",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 0
     assert "numerical dissipation: " in stdout and "put in by the support" in stdout
     assert "note: coarse mesh for the reactions: the sideways reactions are" in stdout

@@ -50,8 +50,12 @@ def test_nonlinear_jacobian_matches_finite_differences(scale, v_ref, seed):
 
 
 @settings(max_examples=40, deadline=None)
-@given(scale=st.floats(0.01, 50.0), seed=st.integers(0, 10**6),
-       d0=st.floats(0.0, 5.0), b=st.floats(0.0, 1.0))
+@given(
+    scale=st.floats(0.01, 50.0),
+    seed=st.integers(0, 10**6),
+    d0=st.floats(0.0, 5.0),
+    b=st.floats(0.0, 1.0),
+)
 def test_monotone_up_to_the_l2_part(scale, seed, d0, b):
     """(2.5): <D u - D v, w> >= b |w|_K^2 - d0 |w|_M^2 for w = u - v (d1 = b in the K-norm)."""
     rng = np.random.default_rng(seed)
@@ -65,8 +69,11 @@ def test_monotone_up_to_the_l2_part(scale, seed, d0, b):
 
 
 @settings(max_examples=50, deadline=None)
-@given(v=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
-       w=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2), v_ref=st.floats(0.01, 10.0))
+@given(
+    v=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
+    w=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
+    v_ref=st.floats(0.01, 10.0),
+)
 def test_pointwise_saturation_is_monotone_and_1_lipschitz(v, w, v_ref):
     v, w = np.array(v), np.array(w)
     Nv, Nw = saturating_velocity(v, v_ref), saturating_velocity(w, v_ref)
@@ -81,8 +88,9 @@ def test_linear_and_user_operators():
     ray = RayleighDamping(a=0.2, b=0.05).operator(_SPACE, _M, _K)
     assert ray.is_linear
     assert np.allclose(ray.apply(v), 0.2 * (_M @ v) + 0.05 * (_K @ v))
-    user = UserDamping(force=lambda x: 2 * x, jacobian=lambda x: 2 * sp.identity(x.size),
-                       d0=0.0).operator(_SPACE, _M, _K)
+    user = UserDamping(
+        force=lambda x: 2 * x, jacobian=lambda x: 2 * sp.identity(x.size), d0=0.0
+    ).operator(_SPACE, _M, _K)
     assert not user.is_linear
     assert np.allclose(user.apply(v), 2 * v)
     assert np.allclose(user.jacobian(v) @ v, 2 * v)
@@ -99,6 +107,7 @@ def test_bad_damping_inputs():
         UserDamping(d0=0.0)
     with pytest.raises(RotheInputError, match="jacobian: got 'NoneType', must be a callable"):
         UserDamping(force=lambda x: x, d0=0.0)
-    with pytest.raises(RotheInputError, match="damping: got 'viscous', must be one of none, "
-                       "rayleigh, nonlinear"):
+    with pytest.raises(
+        RotheInputError, match="damping: got 'viscous', must be one of none, rayleigh, nonlinear"
+    ):
         make_damping("viscous")

@@ -10,7 +10,7 @@ DOC = Path(__file__).resolve().parents[2] / "docs" / "eld.md"
 
 def test_the_own_problem_example_of_the_docs_runs(tmp_path, capsys):
     text = DOC.read_text()
-    section = text[text.index("## Your own problem"):]
+    section = text[text.index("## Your own problem") :]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     assert "rothe-out/my-strip" in code
     code = code.replace("rothe-out/my-strip", str(tmp_path / "my-strip"))

@@ -52,9 +52,14 @@ def _static_error(n, degree):
 
     def grad(x):
         X, Y = x[0], x[1]
-        return np.stack([np.stack([pi * np.cos(pi * X) * np.sin(pi * Y),
-                                   pi * np.sin(pi * X) * np.cos(pi * Y)]),
-                         np.stack([Y**2, 2 * X * Y])])
+        return np.stack(
+            [
+                np.stack(
+                    [pi * np.cos(pi * X) * np.sin(pi * Y), pi * np.sin(pi * X) * np.cos(pi * Y)]
+                ),
+                np.stack([Y**2, 2 * X * Y]),
+            ]
+        )
 
     def force(x):
         X, Y = x[0], x[1]
@@ -62,7 +67,7 @@ def _static_error(n, degree):
         c = np.cos(pi * X) * np.cos(pi * Y)
         # -div sigma = -mu lap u - (lam + mu) grad div u, div u = pi cos(pi x) sin(pi y) + 2 x y
         lap = np.stack([-2 * pi**2 * s, 2 * X])
-        grad_div = np.stack([-pi**2 * s + 2 * Y, pi**2 * c + 2 * X])
+        grad_div = np.stack([-(pi**2) * s + 2 * Y, pi**2 * c + 2 * X])
         return -mu * lap - (lam + mu) * grad_div
 
     V = VectorSpace(meshes.unit_square(n, named=True), degree)
@@ -104,13 +109,15 @@ def test_boundary_dofs_of_p2_include_edge_midpoints():
 
 def test_bad_inputs_are_one_line_errors():
     V = VectorSpace(meshes.unit_square(2, named=True), 1)
-    with pytest.raises(RotheInputError,
-                       match=r"^parts: got 'lft', must be one of bottom, left, right, top"):
+    with pytest.raises(
+        RotheInputError, match=r"^parts: got 'lft', must be one of bottom, left, right, top"
+    ):
         V.scalar_dofs_on(("lft",))
     with pytest.raises(RotheInputError, match="degree: got 3, must be 1 or 2"):
         VectorSpace(meshes.unit_square(2, named=True), 3)
-    with pytest.raises(RotheInputError,
-                       match="mesh: got 'MeshQuad1', must be a scikit-fem MeshTri or MeshTet"):
+    with pytest.raises(
+        RotheInputError, match="mesh: got 'MeshQuad1', must be a scikit-fem MeshTri or MeshTet"
+    ):
         VectorSpace(MeshQuad(), 1)
     with pytest.raises(RotheInputError, match="nu: got 0.5, must satisfy -1 < nu < 0.5"):
         lame_from_young(1000.0, 0.5)

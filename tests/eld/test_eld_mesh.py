@@ -14,29 +14,44 @@ LINES = np.array([[0, 4], [4, 2]])  # the edge x = 0
 
 
 def test_meshio_object_with_cell_sets_gives_named_parts():
-    m = meshio.Mesh(POINTS, [("triangle", TRIANGLES), ("line", LINES)],
-                    cell_sets={"clamp": [np.array([], dtype=int), np.array([0, 1])]})
+    m = meshio.Mesh(
+        POINTS,
+        [("triangle", TRIANGLES), ("line", LINES)],
+        cell_sets={"clamp": [np.array([], dtype=int), np.array([0, 1])]},
+    )
     mesh = meshes.from_meshio(m)
     facets = mesh.facets[:, np.asarray(mesh.boundaries["clamp"])]
     assert np.allclose(mesh.p[0, facets], 0.0)
 
 
 def test_gmsh_file_with_physical_groups_runs_an_eld_problem(tmp_path):
-    m = meshio.Mesh(POINTS, [("triangle", TRIANGLES), ("line", LINES)],
-                    cell_data={"gmsh:physical": [np.full(4, 1), np.full(2, 2)],
-                               "gmsh:geometrical": [np.full(4, 1), np.full(2, 2)]},
-                    field_data={"domain": np.array([1, 2]), "clamp": np.array([2, 1])})
+    m = meshio.Mesh(
+        POINTS,
+        [("triangle", TRIANGLES), ("line", LINES)],
+        cell_data={
+            "gmsh:physical": [np.full(4, 1), np.full(2, 2)],
+            "gmsh:geometrical": [np.full(4, 1), np.full(2, 2)],
+        },
+        field_data={"domain": np.array([1, 2]), "clamp": np.array([2, 1])},
+    )
     path = tmp_path / "square.msh"
     m.write(path, file_format="gmsh22", binary=False)
     mesh = meshes.load_mesh(path)
     assert list(mesh.boundaries) == ["clamp"]
+
     def lift(t, x):
         return np.stack([0 * x[0], 0.01 * t + 0 * x[0]])
 
     zero = lambda t, x: 0 * x  # noqa: E731
-    problem = ELDProblem(mesh, Material(1.0, 1.0, 1.0), degree=2,
-                         dirichlet={"clamp": DirichletData(lift, lambda t, x: np.stack(
-                             [0 * x[0], 0.01 + 0 * x[0]]), zero)}, T=0.1)
+    problem = ELDProblem(
+        mesh,
+        Material(1.0, 1.0, 1.0),
+        degree=2,
+        dirichlet={
+            "clamp": DirichletData(lift, lambda t, x: np.stack([0 * x[0], 0.01 + 0 * x[0]]), zero)
+        },
+        T=0.1,
+    )
     traj = run_eld(problem, "regularized", 0.05)
     assert traj["reaction_clamp"].shape == (2, 2)
     with pytest.raises(RotheInputError, match="dirichlet: got 'left', must be one of clamp"):

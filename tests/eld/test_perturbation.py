@@ -11,8 +11,9 @@ TAUS = (0.1, 0.01, 0.001)
 
 @pytest.fixture(scope="module")
 def noise_in_G():
-    return perturbation_study(TAUS, targets=("G",), n=3, degree=1,
-                              damping=RayleighDamping(a=0.1, b=0.01))
+    return perturbation_study(
+        TAUS, targets=("G",), n=3, degree=1, damping=RayleighDamping(a=0.1, b=0.01)
+    )
 
 
 def test_multiplier_amplification_bounded_for_regularized_growing_for_original(noise_in_G):
@@ -37,8 +38,9 @@ def test_velocity_amplification_follows_the_same_pattern_and_u_does_not(noise_in
 
 
 def test_noise_in_the_load_affects_both_forms_alike():
-    study = perturbation_study((0.1, 0.01), targets=("F",), n=3, degree=1,
-                               damping=RayleighDamping(a=0.1, b=0.01))
+    study = perturbation_study(
+        (0.1, 0.01), targets=("F",), n=3, degree=1, damping=RayleighDamping(a=0.1, b=0.01)
+    )
     table = study["F"]
     for key in ("amp", "amp_v", "amp_u"):
         reg, orig = np.array(table[f"{key}_regularized"]), np.array(table[f"{key}_original"])

@@ -24,13 +24,16 @@ from rothe.fem import mesh as meshes
 TAUS = (0.1, 0.05, 0.025, 0.0125)
 
 
-@pytest.mark.parametrize("form,data", [("regularized", "points"), ("original", "points"),
-                                       ("regularized", "means")])
+@pytest.mark.parametrize(
+    "form,data", [("regularized", "points"), ("original", "points"), ("regularized", "means")]
+)
 def test_first_order_in_tau_on_the_manufactured_solution(form, data):
     # P2 represents the quadratic manufactured solution exactly: all error is temporal
     problem, exact = mms_problem(2, 2)
-    errs = [mms_errors(problem, exact, run_eld(problem, form, tau, data=data, store_fields=False))
-            for tau in TAUS]
+    errs = [
+        mms_errors(problem, exact, run_eld(problem, form, tau, data=data, store_fields=False))
+        for tau in TAUS
+    ]
     rate_u = fitted_rate(TAUS, [e["error_u_l2"] for e in errs])
     rate_v = fitted_rate(TAUS, [e["error_v_l2"] for e in errs])
     rate_lam = fitted_rate(TAUS, [e["error_lam_l2"] for e in errs])
@@ -48,8 +51,9 @@ def test_regularized_with_differenced_data_reproduces_the_original_form(scheme):
     tau = 0.02
     orig = run_eld(problem, "original", tau, scheme=scheme)
     for lifting in ("nodal", "harmonic"):
-        reg = run_eld(problem, "regularized", tau, scheme=scheme, data="differenced",
-                      lifting=lifting)
+        reg = run_eld(
+            problem, "regularized", tau, scheme=scheme, data="differenced", lifting=lifting
+        )
         scale = np.abs(orig["u"]).max()
         assert np.abs(reg["u"] - orig["u"]).max() <= 1e-9 * scale
         assert np.abs(reg["v"] - orig["v"]).max() <= 1e-8 * np.abs(orig["v"]).max()
@@ -115,10 +119,16 @@ def zero(t, x):
 def _free_vibration(form, damping=None):
     mesh = meshes.unit_square(4, named=True)
     material = Material(rho=1.0, lam=2.0, mu=1.0, dim=2)
-    return ELDProblem(mesh, material, degree=1, damping=damping,
-                      dirichlet={"left": DirichletData(zero, zero, zero)},
-                      u0=lambda x: np.stack([0.1 * x[0] ** 2, 0.2 * x[0] * x[1]]),
-                      v0=lambda x: np.stack([x[0] * x[1], -x[0]]), T=1.0)
+    return ELDProblem(
+        mesh,
+        material,
+        degree=1,
+        damping=damping,
+        dirichlet={"left": DirichletData(zero, zero, zero)},
+        u0=lambda x: np.stack([0.1 * x[0] ** 2, 0.2 * x[0] * x[1]]),
+        v0=lambda x: np.stack([x[0] * x[1], -x[0]]),
+        T=1.0,
+    )
 
 
 @pytest.mark.parametrize("form", ["regularized", "original"])
@@ -138,8 +148,11 @@ def test_undamped_energy_never_increases_and_the_balance_closes(form):
 def test_energy_balance_closes_with_loads_moving_support_and_nonlinear_damping(form):
     problem, _ = mms_problem(3, 2)
     traj = run_eld(problem, form, 0.02)
-    scale = (np.abs(traj["energy"]).max() + np.abs(traj["work"]).max()
-             + np.abs(traj["work_reaction"]).max())
+    scale = (
+        np.abs(traj["energy"]).max()
+        + np.abs(traj["work"]).max()
+        + np.abs(traj["work_reaction"]).max()
+    )
     assert np.abs(traj["balance_residual"]).max() <= 1e-9 * scale
     assert traj["numerical_dissipation"][-1] > 0
     # d0 > 0: the damping feeds energy in at small velocities
@@ -148,8 +161,11 @@ def test_energy_balance_closes_with_loads_moving_support_and_nonlinear_damping(f
 
 def test_step_bound_of_lemma_3_2_is_checked_before_any_step():
     problem, _ = mms_problem(2, 1, damping=NonlinearDamping(d0=2.0))
-    with pytest.raises(RotheInputError, match=r"^tau: got 0.5, must be < rho/d0 = 0.5 "
-                       r"\(Lemma 3.2"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^tau: got 0.5, must be < rho/d0 = 0.5 "
+        r"\(Lemma 3.2",
+    ):
         run_eld(problem, "regularized", 0.5)
     traj = run_eld(problem, "original", 0.25)  # below the bound: runs
     assert len(traj["t"]) == 5
@@ -162,16 +178,25 @@ def test_bad_inputs_are_one_line_errors():
     problem, _ = mms_problem(2, 1)
     with pytest.raises(RotheInputError, match=r"^tau: got 0.3, must divide T = 1 into equal steps"):
         run_eld(problem, "regularized", 0.3)
-    with pytest.raises(RotheInputError, match=r"^form: got 'index3', must be one of regularized, "
-                       "original"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^form: got 'index3', must be one of regularized, "
+        "original",
+    ):
         run_eld(problem, "index3", 0.1)
     with pytest.raises(RotheInputError, match=r"^data: got 'mean', must be one of points, means"):
         run_eld(problem, "regularized", 0.1, data="mean")
-    with pytest.raises(RotheInputError, match=r"^dirichlet: got 'lft', must be one of bottom, "
-                       "left, right, top"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^dirichlet: got 'lft', must be one of bottom, "
+        "left, right, top",
+    ):
         mms_problem(2, 1, dirichlet=("lft",))
-    with pytest.raises(RotheInputError, match=r"^u0: got max\|u0 - G\(0\)\| = 0.5 on the "
-                       "Dirichlet parts left, must equal G\\(0\\)"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^u0: got max\|u0 - G\(0\)\| = 0.5 on the "
+        "Dirichlet parts left, must equal G\\(0\\)",
+    ):
         run_eld(mms_problem(2, 1, start="rest")[0], "regularized", 0.1)
     with pytest.raises(RotheInputError, match=r"^rho: got -1, must be > 0$"):
         Material(rho=-1.0, lam=1.0, mu=1.0)
@@ -182,16 +207,21 @@ def test_bad_inputs_are_one_line_errors():
     mesh = meshes.unit_square(2, named=True)
     mat = Material(1.0, 1.0, 1.0)
     with pytest.raises(RotheInputError, match=r"^traction: got 'left', is also a Dirichlet part"):
-        ELDProblem(mesh, mat, dirichlet={"left": lambda t, x: 0 * x},
-                   traction={"left": lambda t, x, n: 0 * x})
+        ELDProblem(
+            mesh,
+            mat,
+            dirichlet={"left": lambda t, x: 0 * x},
+            traction={"left": lambda t, x, n: 0 * x},
+        )
     with pytest.raises(RotheInputError, match=r"^dirichlet: got \{\}, must map at least one"):
         ELDProblem(mesh, mat, dirichlet={})
 
 
 def test_failed_newton_solve_stops_the_run_without_accepting_the_step():
     problem, _ = mms_problem(2, 1)
-    with pytest.raises(RunFailed, match="Newton's method did not converge in 1 iterations at "
-                       "step 1") as info:
+    with pytest.raises(
+        RunFailed, match="Newton's method did not converge in 1 iterations at step 1"
+    ) as info:
         run_eld(problem, "regularized", 0.1, newton=NewtonOptions(tol=1e-15, max_iter=1))
     exc = info.value
     assert exc.where["step"] == 1 and exc.where["t"] == 0.0
@@ -203,16 +233,26 @@ def test_derivatives_of_G_by_differences_say_how_accurate_they_are():
     problem, exact = mms_problem(2, 1)
     mesh = problem.space.mesh
     with pytest.warns(UserWarning) as record:
-        numeric = ELDProblem(mesh, problem.material, degree=1, damping=problem.damping,
-                             dirichlet={"left": exact.u},
-                             traction={p: exact.traction for p in ("right", "top", "bottom")},
-                             body_force=exact.body_force, u0=lambda x: exact.u(0.0, x),
-                             v0=lambda x: exact.u_dot(0.0, x))
+        numeric = ELDProblem(
+            mesh,
+            problem.material,
+            degree=1,
+            damping=problem.damping,
+            dirichlet={"left": exact.u},
+            traction={p: exact.traction for p in ("right", "top", "bottom")},
+            body_force=exact.body_force,
+            u0=lambda x: exact.u(0.0, x),
+            v0=lambda x: exact.u_dot(0.0, x),
+        )
     messages = [str(w.message) for w in record]
-    assert any(m.startswith("G_dot not given: central differences of G with h = ") and
-               "estimated max error" in m for m in messages)
-    assert any(m.startswith("G_ddot not given: central differences of G with h = ")
-               for m in messages)
+    assert any(
+        m.startswith("G_dot not given: central differences of G with h = ")
+        and "estimated max error" in m
+        for m in messages
+    )
+    assert any(
+        m.startswith("G_ddot not given: central differences of G with h = ") for m in messages
+    )
     info = numeric.derivative_info
     assert info["G_dot"]["estimated_error"] < 1e-8
     assert info["G_ddot"]["estimated_error"] < 1e-5
@@ -228,11 +268,17 @@ def test_user_damping_matrix_reproduces_rayleigh_and_amg_matches_lu():
     C = 0.2 * problem.M + 0.01 * problem.K
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        user = ELDProblem(problem.space.mesh, problem.material, degree=1,
-                          damping=UserDamping(matrix=C, d0=0.0),
-                          dirichlet=problem.dirichlet,
-                          traction={p: g for p, (g, _) in problem._traction.items()},
-                          body_force=problem.body_force, u0=problem.u0, v0=problem.v0)
+        user = ELDProblem(
+            problem.space.mesh,
+            problem.material,
+            degree=1,
+            damping=UserDamping(matrix=C, d0=0.0),
+            dirichlet=problem.dirichlet,
+            traction={p: g for p, (g, _) in problem._traction.items()},
+            body_force=problem.body_force,
+            u0=problem.u0,
+            v0=problem.v0,
+        )
     other = run_eld(user, "regularized", 0.05)
     assert np.abs(other["u"] - ref["u"]).max() <= 1e-12 * np.abs(ref["u"]).max()
     amg = run_eld(problem, "regularized", 0.05, solver="amg")
@@ -258,8 +304,10 @@ def test_multiplier_depends_on_the_lifting_at_the_order_of_the_scheme(scheme, or
     problem, _ = mms_problem(2, 2)
     gaps = []
     for tau in (0.1, 0.05, 0.025):
-        lam = [run_eld(problem, "regularized", tau, scheme=scheme, lifting=lifting)["lam"]
-               for lifting in ("nodal", "harmonic")]
+        lam = [
+            run_eld(problem, "regularized", tau, scheme=scheme, lifting=lifting)["lam"]
+            for lifting in ("nodal", "harmonic")
+        ]
         gaps.append(float(np.max(np.abs(lam[0] - lam[1]))))
     assert gaps[0] > 1e-4  # a real difference, far above the solver tolerance
     rates = np.log2(np.array(gaps[:-1]) / np.array(gaps[1:]))

@@ -24,8 +24,9 @@ def test_step_matrix_is_the_restriction_of_the_full_one(degree):
     assert abs(stepper._M_C - problem.M[:, C]).max() == 0
     # a user damping matrix takes the general path: same matrix
     C_user = sp.csr_matrix(0.3 * problem.M + 0.01 * problem.K)
-    problem.damping_op = UserDamping(matrix=C_user, d0=0.0).operator(problem.space, problem.M,
-                                                                      problem.K)
+    problem.damping_op = UserDamping(matrix=C_user, d0=0.0).operator(
+        problem.space, problem.M, problem.K
+    )
     user = ELDStepper(problem, "regularized", tau, solver="direct")
     assert abs(user.A_II - expected).max() <= 1e-12 * abs(expected).max()
 
@@ -35,7 +36,8 @@ def test_amg_setup_is_reproducible_and_leaves_numpys_generator_alone():
     stepper = ELDStepper(problem, "regularized", 0.01, solver="direct")
     A = stepper.A_II
     rbm = problem.space.rigid_body_modes(
-        np.setdiff1d(np.arange(problem.space.n_scalar), problem.constraint.scalar_dofs))
+        np.setdiff1d(np.arange(problem.space.n_scalar), problem.constraint.scalar_dofs)
+    )
     b = A @ np.linspace(-1.0, 1.0, A.shape[0])
     np.random.seed(7)
     state = np.random.get_state()
@@ -55,8 +57,7 @@ def test_amg_setup_is_reproducible_and_leaves_numpys_generator_alone():
 
 def test_amg_and_lu_give_the_same_reactions():
     problem = beam_problem(3, damping=RayleighDamping(0.0, 0.002), T=0.1)
-    amg = run_eld(problem, "regularized", 0.01, solver="amg", store_fields=False,
-                  linear_rtol=1e-10)
+    amg = run_eld(problem, "regularized", 0.01, solver="amg", store_fields=False, linear_rtol=1e-10)
     lu = run_eld(problem, "regularized", 0.01, solver="direct", store_fields=False)
     R_amg, R_lu = np.array(amg["reaction_left"]), np.array(lu["reaction_left"])
     assert np.abs(R_amg - R_lu).max() <= 1e-7 * np.abs(R_lu).max()
@@ -76,16 +77,21 @@ def test_condensed_bordered_solve_equals_the_kkt_solution():
         if not solver.factored:
             solver.factor(stepper._kkt(A))  # the Newton path hands over the bordered matrix
         assert np.linalg.norm(solver.solve_reference(b) - z) <= 1e-10 * np.linalg.norm(z)
-    amg = ConstrainedSolver(c, "amg", near_nullspace=problem.space.rigid_body_modes(
-        np.setdiff1d(np.arange(problem.space.n_scalar), c.scalar_dofs)), rtol=1e-12)
+    amg = ConstrainedSolver(
+        c,
+        "amg",
+        near_nullspace=problem.space.rigid_body_modes(
+            np.setdiff1d(np.arange(problem.space.n_scalar), c.scalar_dofs)
+        ),
+        rtol=1e-12,
+    )
     amg.factor(A)
     assert np.linalg.norm(amg.solve_reference(b) - z) <= 1e-8 * np.linalg.norm(z)
 
 
 def test_original_form_runs_with_amg_and_matches_lu():
     problem = beam_problem(3, damping=RayleighDamping(0.0, 0.002), T=0.05)
-    amg = run_eld(problem, "original", 0.01, solver="amg", store_fields=False,
-                  linear_rtol=1e-11)
+    amg = run_eld(problem, "original", 0.01, solver="amg", store_fields=False, linear_rtol=1e-11)
     lu = run_eld(problem, "original", 0.01, solver="direct", store_fields=False)
     assert amg.meta["linear_solver"]["kind"] == "amg"
     R_amg, R_lu = np.array(amg["reaction_left"]), np.array(lu["reaction_left"])

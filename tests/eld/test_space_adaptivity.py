@@ -24,8 +24,9 @@ def pulse(T=0.4):
 
 
 def adaptivity(**kw):
-    opts = dict(space_tol=2e-3, refine_fraction=0.5, coarsen_fraction=0.05, max_dofs=6000,
-                adapt_every=1)
+    opts = dict(
+        space_tol=2e-3, refine_fraction=0.5, coarsen_fraction=0.05, max_dofs=6000, adapt_every=1
+    )
     opts.update(kw)
     return SpaceAdaptivity(**opts)
 
@@ -45,20 +46,22 @@ def pulse_run():
         t = new.t
         lift = inner.lifting
         f = new.fields
-        checks.append({
-            # B u = G(t_j) (and v, a: G_dot, G_ddot) on the new Dirichlet nodes, exactly
-            "u": np.max(np.abs(c.restrict(f["u"]) - new_problem.G(t))),
-            "v": np.max(np.abs(c.restrict(f["v"]) - new_problem.G_dot(t))),
-            "a": np.max(np.abs(c.restrict(f["a"]) - new_problem.G_ddot(t))),
-            # the regularized unknowns with the new lifting: u = x + B^- G, x = 0 on Gamma_D
-            "x": np.max(np.abs(f["u"] - f["x"] - lift(new_problem.G(t)))),
-            "y": np.max(np.abs(f["v"] - f["y"] - lift(new_problem.G_dot(t)))),
-            "b": np.max(np.abs(f["a"] - f["b"] - lift(new_problem.G_ddot(t)))),
-            "x_gamma": np.max(np.abs(c.restrict(f["x"]))),
-            "sizes": {k: w.size == new_problem.space.ndofs for k, w in f.items()},
-            "lam": new.boundary["lam"].size == c.m,
-            "bound": inner.bound == problem.step_bound(),
-        })
+        checks.append(
+            {
+                # B u = G(t_j) (and v, a: G_dot, G_ddot) on the new Dirichlet nodes, exactly
+                "u": np.max(np.abs(c.restrict(f["u"]) - new_problem.G(t))),
+                "v": np.max(np.abs(c.restrict(f["v"]) - new_problem.G_dot(t))),
+                "a": np.max(np.abs(c.restrict(f["a"]) - new_problem.G_ddot(t))),
+                # the regularized unknowns with the new lifting: u = x + B^- G, x = 0 on Gamma_D
+                "x": np.max(np.abs(f["u"] - f["x"] - lift(new_problem.G(t)))),
+                "y": np.max(np.abs(f["v"] - f["y"] - lift(new_problem.G_dot(t)))),
+                "b": np.max(np.abs(f["a"] - f["b"] - lift(new_problem.G_ddot(t)))),
+                "x_gamma": np.max(np.abs(c.restrict(f["x"]))),
+                "sizes": {k: w.size == new_problem.space.ndofs for k, w in f.items()},
+                "lam": new.boundary["lam"].size == c.m,
+                "bound": inner.bound == problem.step_bound(),
+            }
+        )
         return inner, new
 
     stepper._new_stepper = checked
@@ -113,13 +116,14 @@ def test_meshes_stored_once_and_ids_per_state(pulse_run):
     assert set(sp.series.ids) == set(ids.tolist()) | {a["to_mesh"] for a in sp.adaptations}
     for m, u in zip(traj["kept_mesh_id"], sp.kept["u"], strict=True):
         points, cells = sp.series.mesh(m)
-        n_edges = len({tuple(sorted(e)) for c in cells for e in ((c[0], c[1]), (c[1], c[2]),
-                                                                 (c[0], c[2]))})
+        n_edges = len(
+            {tuple(sorted(e)) for c in cells for e in ((c[0], c[1]), (c[1], c[2]), (c[0], c[2]))}
+        )
         assert u.size == 2 * (len(points) + n_edges)  # P2 on that mesh
     arrays = sp.npz_arrays(traj)
     assert np.array_equal(arrays["state_mesh_id"], traj["kept_mesh_id"])
     off = arrays["kept_u_offsets"]
-    assert np.array_equal(arrays["kept_u"][off[-2]:off[-1]], sp.kept["u"][-1])
+    assert np.array_equal(arrays["kept_u"][off[-2] : off[-1]], sp.kept["u"][-1])
 
 
 def test_coarsening_returns_to_coarser_cells_after_the_pulse_passed(pulse_run):
@@ -159,8 +163,15 @@ def test_nothing_marked_equals_the_fixed_mesh_bit_for_bit():
 
 
 def test_adaptive_time_steps_with_space_adaptivity():
-    traj = run_eld(pulse(0.08), "regularized", 0.01, scheme="bdf2", control="adaptive",
-                   tol=1e-2, space=adaptivity(adapt_every=2, max_dofs=2000))
+    traj = run_eld(
+        pulse(0.08),
+        "regularized",
+        0.01,
+        scheme="bdf2",
+        control="adaptive",
+        tol=1e-2,
+        space=adaptivity(adapt_every=2, max_dofs=2000),
+    )
     assert traj.space.adaptations
     assert all(a["step"] % 2 == 0 for a in traj.space.adaptations)
     assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
@@ -176,8 +187,11 @@ def test_a_failed_transfer_is_never_accepted(monkeypatch):
         raise FloatingPointError("the transferred u has NaN or inf entries")
 
     monkeypatch.setattr(stepper, "_new_stepper", broken)
-    with pytest.raises(RunFailed, match=r"space adaptivity: the transfer to the new mesh after "
-                                        r"step 1 .* failed .*NaN.*; the run stops on mesh 0"):
+    with pytest.raises(
+        RunFailed,
+        match=r"space adaptivity: the transfer to the new mesh after "
+        r"step 1 .* failed .*NaN.*; the run stops on mesh 0",
+    ):
         run.evolve()
     # the hierarchy is rolled back: the last accepted state and the mesh agree
     assert stepper.amesh.mesh_id == 0 and stepper.problem is problem
@@ -187,14 +201,23 @@ def test_a_failed_transfer_is_never_accepted(monkeypatch):
 
 def test_bad_input_one_line():
     problem = pulse(0.2)
-    with pytest.raises(RotheInputError, match=r"^max_dofs: got 10, must be >= the \d+ dofs of "
-                                              r"the initial mesh$"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^max_dofs: got 10, must be >= the \d+ dofs of "
+        r"the initial mesh$",
+    ):
         run_eld(problem, space=adaptivity(max_dofs=10), **PULSE)
-    with pytest.raises(RotheInputError, match=r"^data: got 'differenced', must be 'points' "
-                                              r"with space adaptivity"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^data: got 'differenced', must be 'points' "
+        r"with space adaptivity",
+    ):
         run_eld(problem, data="differenced", space=adaptivity(), **PULSE)
-    with pytest.raises(RotheInputError, match=r"^space: got dict, must be a "
-                                              r"rothe.fem.adapt.SpaceAdaptivity"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^space: got dict, must be a "
+        r"rothe.fem.adapt.SpaceAdaptivity",
+    ):
         run_eld(problem, space={"space_tol": 1}, **PULSE)
     with pytest.raises(RotheInputError, match=r"^space_tol: got 0, must be > 0$"):
         SpaceAdaptivity(space_tol=0)
@@ -236,8 +259,9 @@ def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch
     a, b = full.space, resumed.space
     assert a.series.ids == b.series.ids and len(a.series.ids) > 2
     for i in a.series.ids:
-        assert all(np.array_equal(x, y) for x, y in zip(a.series.mesh(i), b.series.mesh(i),
-                                                        strict=True))
+        assert all(
+            np.array_equal(x, y) for x, y in zip(a.series.mesh(i), b.series.mesh(i), strict=True)
+        )
     for key in a.kept:
         assert all(np.array_equal(x, y) for x, y in zip(a.kept[key], b.kept[key], strict=True))
     assert a.adaptations == b.adaptations
@@ -245,6 +269,7 @@ def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch
 
 
 # -- command line --------------------------------------------------------------------------------
+
 
 def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
     import json
@@ -255,8 +280,24 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
     from rothe.io.mesh_series import MeshSeries
 
     out = tmp_path / "pulse"
-    code = main(["run", "eld-pulse", "--n", "2", "--T", "0.06", "--tau", "0.02",
-                 "--keep-every", "1", "--max-dofs", "3000", "--out", str(out)])
+    code = main(
+        [
+            "run",
+            "eld-pulse",
+            "--n",
+            "2",
+            "--T",
+            "0.06",
+            "--tau",
+            "0.02",
+            "--keep-every",
+            "1",
+            "--max-dofs",
+            "3000",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["adaptations"] >= 1 and s["meshes"] >= s["adaptations"] + 1
@@ -269,26 +310,35 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
         points, cells = series.mesh(m)
         vtu = meshio.read(out / f"pulse_{k:06d}.vtu")
         assert len(vtu.points) == len(points) and len(vtu.cells[0].data) == len(cells)
-        u = data["kept_u"][off[k]:off[k + 1]].reshape(-1, 2)[:len(points)]
+        u = data["kept_u"][off[k] : off[k + 1]].reshape(-1, 2)[: len(points)]
         assert np.array_equal(vtu.point_data["u"][:, :2], u)
     assert (out / "pulse.pvd").is_file()
     for fig in ("fig_dofs.png", "fig_mesh.png", "fig_energy.png"):
         assert (out / fig).is_file(), fig
 
 
-@pytest.mark.parametrize("args, message", [
-    (["run", "eld-pulse", "--space-tol", "0"], r"--space-tol: got 0, must be > 0"),
-    (["run", "eld-pulse", "--refine-fraction", "1"], r"--refine-fraction: got 1, must be in"),
-    (["run", "eld-pulse", "--refine-fraction", "0.8", "--coarsen-fraction", "0.3"],
-     r"--refine-fraction \+ --coarsen-fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1"),
-    (["run", "eld-pulse", "--max-dofs", "10"], r"--max-dofs: got 10, must be >= the 306 dofs"),
-    (["run", "eld-pulse", "--adapt-every", "0"], r"--adapt-every: got 0, must be an integer"),
-    (["run", "eld-pulse", "--no-adapt-space", "--max-dofs", "1000"],
-     r"--max-dofs: got 1000, is used by --adapt-space only"),
-    (["run", "eld-mms", "--adapt-space"], r"--space-tol: got None, must be given"),
-    (["run", "eld-mms", "--adapt-space", "--space-tol", "1", "--data", "means"],
-     r"--data: got 'means', must be points with --adapt-space"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run", "eld-pulse", "--space-tol", "0"], r"--space-tol: got 0, must be > 0"),
+        (["run", "eld-pulse", "--refine-fraction", "1"], r"--refine-fraction: got 1, must be in"),
+        (
+            ["run", "eld-pulse", "--refine-fraction", "0.8", "--coarsen-fraction", "0.3"],
+            r"--refine-fraction \+ --coarsen-fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1",
+        ),
+        (["run", "eld-pulse", "--max-dofs", "10"], r"--max-dofs: got 10, must be >= the 306 dofs"),
+        (["run", "eld-pulse", "--adapt-every", "0"], r"--adapt-every: got 0, must be an integer"),
+        (
+            ["run", "eld-pulse", "--no-adapt-space", "--max-dofs", "1000"],
+            r"--max-dofs: got 1000, is used by --adapt-space only",
+        ),
+        (["run", "eld-mms", "--adapt-space"], r"--space-tol: got None, must be given"),
+        (
+            ["run", "eld-mms", "--adapt-space", "--space-tol", "1", "--data", "means"],
+            r"--data: got 'means', must be points with --adapt-space",
+        ),
+    ],
+)
 def test_cli_bad_space_options_one_line_exit_2(tmp_path, capsys, args, message):
     import re
 
@@ -305,8 +355,11 @@ def test_a_quadrilateral_mesh_is_refused_naming_adapt_space():
 
     from rothe.fem.adapt import check_adaptable
 
-    with pytest.raises(RotheInputError, match=r"^--adapt-space: got a mesh of quadrilaterals, "
-                                              r"needs triangles \(2D\) or tetrahedra \(3D\)"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^--adapt-space: got a mesh of quadrilaterals, "
+        r"needs triangles \(2D\) or tetrahedra \(3D\)",
+    ):
         check_adaptable(MeshQuad())
 
 
@@ -314,8 +367,7 @@ def test_3d_tetrahedra_adapt_with_the_ledger_closing():
     from rothe.eld.examples import beam_problem
 
     problem = beam_problem(1, length=2.0, T=0.03, degree=1)
-    traj = run_eld(problem, "regularized", 0.01, space=adaptivity(space_tol=1e-5,
-                                                                  max_dofs=1500))
+    traj = run_eld(problem, "regularized", 0.01, space=adaptivity(space_tol=1e-5, max_dofs=1500))
     sp = traj.space
     assert sp.adaptations or np.any(traj["step_refinements"] > 0)
     assert traj["ndofs"].max() > traj["ndofs"][0] and traj["ndofs"].max() <= 1500
@@ -332,8 +384,14 @@ def test_cli_default_cap_on_the_adapted_mesh():
     from rothe.cli.eld_commands import ELD_MAX_DOFS, space_adaptivity
 
     def args(**given):
-        base = dict(adapt_space=True, space_tol=1e-3, refine_fraction=None,
-                    coarsen_fraction=None, max_dofs=None, adapt_every=None)
+        base = dict(
+            adapt_space=True,
+            space_tol=1e-3,
+            refine_fraction=None,
+            coarsen_fraction=None,
+            max_dofs=None,
+            adapt_every=None,
+        )
         return argparse.Namespace(**{**base, **given})
 
     a = args()

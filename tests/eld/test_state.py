@@ -25,15 +25,33 @@ from rothe.stepping.evolve import evolve
 
 CASES = [
     ("euler, uniform, linear", dict(form="regularized", tau=0.05), "rayleigh"),
-    ("bdf2, uniform, nonlinear, original", dict(form="original", tau=0.05, scheme="bdf2"),
-     "nonlinear"),
-    ("bdf2, adaptive, nonlinear", dict(form="regularized", tau=0.02, scheme="bdf2",
-                                       control="adaptive", tol=1e-4), "nonlinear"),
-    ("bdf2, given steps, differenced, harmonic",
-     dict(form="regularized", tau=0.1, scheme="bdf2", data="differenced", lifting="harmonic",
-          steps=np.r_[np.full(5, 0.05), np.full(10, 0.075)]), "rayleigh"),
-    ("euler, adaptive, linear", dict(form="original", tau=0.05, control="adaptive", tol=1e-3),
-     "rayleigh"),
+    (
+        "bdf2, uniform, nonlinear, original",
+        dict(form="original", tau=0.05, scheme="bdf2"),
+        "nonlinear",
+    ),
+    (
+        "bdf2, adaptive, nonlinear",
+        dict(form="regularized", tau=0.02, scheme="bdf2", control="adaptive", tol=1e-4),
+        "nonlinear",
+    ),
+    (
+        "bdf2, given steps, differenced, harmonic",
+        dict(
+            form="regularized",
+            tau=0.1,
+            scheme="bdf2",
+            data="differenced",
+            lifting="harmonic",
+            steps=np.r_[np.full(5, 0.05), np.full(10, 0.075)],
+        ),
+        "rayleigh",
+    ),
+    (
+        "euler, adaptive, linear",
+        dict(form="original", tau=0.05, control="adaptive", tol=1e-3),
+        "rayleigh",
+    ),
 ]
 
 
@@ -52,8 +70,12 @@ def test_checkpoint_round_trip_continues_bit_for_bit(label, options, damping):
     run.stepper.finished = lambda st: st.j >= k or finished(st)
     state = evolve(run.stepper, run.controller, run.state, run.trajectory, tau_min=run.tau_min)
     assert state.j == k
-    saved = copy.deepcopy({"stepper": run.stepper.checkpoint_state(state),
-                           "controller": run.controller.checkpoint_state()})
+    saved = copy.deepcopy(
+        {
+            "stepper": run.stepper.checkpoint_state(state),
+            "controller": run.controller.checkpoint_state(),
+        }
+    )
     _plain(saved)
     fresh = prepare_eld_run(problem, **options)
     resumed = fresh.stepper.restore_state(saved["stepper"])
@@ -61,7 +83,7 @@ def test_checkpoint_round_trip_continues_bit_for_bit(label, options, damping):
     rest = Trajectory()
     final = evolve(fresh.stepper, fresh.controller, resumed, rest, tau_min=fresh.tau_min)
     for key in ("u", "v", "a", "lam", "kept_t"):
-        assert np.array_equal(np.asarray(full[key])[k + 1:], rest[key]), key
+        assert np.array_equal(np.asarray(full[key])[k + 1 :], rest[key]), key
     for key in ("tau", "local_error", "energy", "balance_residual", "numerical_dissipation"):
         n_rest = len(rest[key])
         assert np.array_equal(full[key][-n_rest:], rest[key]), key
@@ -86,8 +108,11 @@ def test_restore_refuses_a_foreign_checkpoint():
     run = prepare_eld_run(problem, "regularized", 0.05, scheme="bdf2")
     data = run.stepper.checkpoint_state(run.state)
     other = prepare_eld_run(problem, "regularized", 0.05)
-    with pytest.raises(RotheInputError, match=r"^checkpoint: got scheme 'bdf2', this run has "
-                       "'euler'"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^checkpoint: got scheme 'bdf2', this run has "
+        "'euler'",
+    ):
         other.stepper.restore_state(data)
 
 
@@ -131,10 +156,17 @@ def _square(body_force=None, dirichlet=None, damping=None):
     def zero(t, x):
         return np.zeros_like(x)
 
-    return ELDProblem(mesh, material, degree=1, damping=damping,
-                      dirichlet={"left": dirichlet or DirichletData(zero, zero, zero)},
-                      body_force=body_force, u0=None,
-                      v0=lambda x: np.stack([x[0], 0 * x[0]]), T=1.0)
+    return ELDProblem(
+        mesh,
+        material,
+        degree=1,
+        damping=damping,
+        dirichlet={"left": dirichlet or DirichletData(zero, zero, zero)},
+        body_force=body_force,
+        u0=None,
+        v0=lambda x: np.stack([x[0], 0 * x[0]]),
+        T=1.0,
+    )
 
 
 @pytest.mark.parametrize("control", ["uniform", "adaptive"])
@@ -144,8 +176,11 @@ def test_non_finite_data_midway_stops_the_run_without_accepting_the_step(control
 
     problem = _square(body_force=force)
     tol = 1e-3 if control == "adaptive" else None
-    with pytest.raises(RunFailed, match=r"^non-finite data at step \d+ \(t = 0\.[56]\d*\): "
-                       r"the load F"):
+    with pytest.raises(
+        RunFailed,
+        match=r"^non-finite data at step \d+ \(t = 0\.[56]\d*\): "
+        r"the load F",
+    ):
         run_eld(problem, "regularized", 0.1, scheme="bdf2", control=control, tol=tol)
 
     def G(t, x):
@@ -161,12 +196,16 @@ def test_non_finite_data_midway_stops_the_run_without_accepting_the_step(control
 @pytest.mark.parametrize("scheme", ["euler", "bdf2"])
 def test_non_finite_state_is_a_failed_step(scheme):
     """Finite data whose response overflows (as eld-beam --amplitude 1e300 did)."""
+
     def force(t, x):
         return np.full_like(x, 1e308 if t > 0.45 else 0.0)
 
     problem = _square(body_force=force)
-    with pytest.raises(RunFailed, match=r"^non-finite state at step 5 \(t = 0.5, tau = 0.1\): "
-                       r".* has NaN or inf entries; the step is not accepted") as info:
+    with pytest.raises(
+        RunFailed,
+        match=r"^non-finite state at step 5 \(t = 0.5, tau = 0.1\): "
+        r".* has NaN or inf entries; the step is not accepted",
+    ) as info:
         run_eld(problem, "regularized", 0.1, scheme=scheme)
     traj = info.value.trajectory
     assert traj.stats.accepted_steps == 4 and np.all(np.isfinite(traj["energy"]))
@@ -178,8 +217,10 @@ def test_non_finite_state_is_a_failed_step(scheme):
         return v * (np.nan if calls["n"] > 12 else 1.0)
 
     damping = UserDamping(force=nan_later, jacobian=lambda v: sp.identity(v.size), d0=0.0)
-    with pytest.raises(RunFailed, match="(Newton's method did not converge|non-finite state)"
-                       ".*the step is not accepted") as info:
+    with pytest.raises(
+        RunFailed,
+        match="(Newton's method did not converge|non-finite state).*the step is not accepted",
+    ) as info:
         run_eld(_square(damping=damping), "regularized", 0.1, scheme=scheme)
     assert np.all(np.isfinite(info.value.trajectory["u"]))
 
@@ -195,8 +236,11 @@ def test_noise_in_one_datum_changes_only_that_datum(datum):
             assert diff > 1e-5
         else:
             assert diff == 0.0, name
-    with pytest.raises(RotheInputError, match=r"^noise target: got 'H', must be one of G, "
-                       "G_dot, G_ddot, F"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^noise target: got 'H', must be one of G, "
+        "G_dot, G_ddot, F",
+    ):
         DataNoise(1e-3, "H")
     with pytest.raises(RotheInputError, match=r"^seed: got -1, must be an integer >= 0"):
         DataNoise(1e-3, "G", seed=-1)

@@ -22,9 +22,10 @@ def _hand_stress(grad, lam, mu):
 
 
 def _hand_von_mises(s):
-    return np.sqrt(0.5 * ((s[0, 0] - s[1, 1]) ** 2 + (s[1, 1] - s[2, 2]) ** 2
-                          + (s[2, 2] - s[0, 0]) ** 2)
-                   + 3 * (s[0, 1] ** 2 + s[1, 2] ** 2 + s[0, 2] ** 2))
+    return np.sqrt(
+        0.5 * ((s[0, 0] - s[1, 1]) ** 2 + (s[1, 1] - s[2, 2]) ** 2 + (s[2, 2] - s[0, 0]) ** 2)
+        + 3 * (s[0, 1] ** 2 + s[1, 2] ** 2 + s[0, 2] ** 2)
+    )
 
 
 @pytest.mark.parametrize("dim,degree", [(2, 1), (2, 2), (3, 1), (3, 2)])
@@ -96,37 +97,62 @@ def _cli(argv, capsys):
     return code, captured.out, captured.err
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--scheme", "bdf3"], "--scheme: got 'bdf3', must be one of euler, bdf2"),
-    (["--control", "adaptive", "--tol", "0"], "--tol: got 0, must be > 0"),
-    (["--control", "adaptive", "--tol", "-1"], "--tol: got -1, must be > 0"),
-    (["--tol", "1e-3"], "--tol: got 0.001, is used by --control adaptive only"),
-    (["--scheme", "bdf2", "--steps", "0.1,0.3,0.6"],
-     "steps: got tau_2/tau_1 = 3, must be < 1 + sqrt(2) = 2.41421 (zero-stability"),
-    (["--scheme", "bdf2", "--d0", "2", "--tau", "0.8"],
-     "tau: got 0.8, must be < 1.5 rho/d0 = 0.75 (Lemma 3.2 for BDF2"),
-    # the CLI refuses it before the library would (i10-defects): at most 1e7 steps of T
-    (["--tau", "1e-320"], "--tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps"),
-    (["--scheme", "bdf2", "--data", "means"], "data: got 'means', with scheme bdf2 must be"),
-    (["--load-quadrature", "0"], "load_quadrature: got 0, must be an integer >= 1"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--scheme", "bdf3"], "--scheme: got 'bdf3', must be one of euler, bdf2"),
+        (["--control", "adaptive", "--tol", "0"], "--tol: got 0, must be > 0"),
+        (["--control", "adaptive", "--tol", "-1"], "--tol: got -1, must be > 0"),
+        (["--tol", "1e-3"], "--tol: got 0.001, is used by --control adaptive only"),
+        (
+            ["--scheme", "bdf2", "--steps", "0.1,0.3,0.6"],
+            "steps: got tau_2/tau_1 = 3, must be < 1 + sqrt(2) = 2.41421 (zero-stability",
+        ),
+        (
+            ["--scheme", "bdf2", "--d0", "2", "--tau", "0.8"],
+            "tau: got 0.8, must be < 1.5 rho/d0 = 0.75 (Lemma 3.2 for BDF2",
+        ),
+        # the CLI refuses it before the library would (i10-defects): at most 1e7 steps of T
+        (["--tau", "1e-320"], "--tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps"),
+        (["--scheme", "bdf2", "--data", "means"], "data: got 'means', with scheme bdf2 must be"),
+        (["--load-quadrature", "0"], "load_quadrature: got 0, must be an integer >= 1"),
+    ],
+)
 def test_bad_eld_options_are_one_line_and_exit_2(tmp_path, capsys, args, message):
-    code, _, err = _cli(["run", "eld-mms", "--n", "2", "--quiet", "--out", str(tmp_path)] + args,
-                        capsys)
+    code, _, err = _cli(
+        ["run", "eld-mms", "--n", "2", "--quiet", "--out", str(tmp_path)] + args, capsys
+    )
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and message in lines[0], err
 
 
 def test_perturbation_study_refuses_an_unknown_datum(tmp_path, capsys):
-    code, _, err = _cli(["study", "eld-perturbation", "--targets", "G,H", "--out",
-                         str(tmp_path)], capsys)
+    code, _, err = _cli(
+        ["study", "eld-perturbation", "--targets", "G,H", "--out", str(tmp_path)], capsys
+    )
     assert code == 2 and "--targets: got 'H', must be one of G, G_dot, G_ddot, F" in err
 
 
 def test_adaptive_bdf2_run_from_the_cli(tmp_path, capsys):
     out = tmp_path / "adaptive"
-    code, stdout, _ = _cli(["run", "eld-mms", "--n", "2", "--scheme", "bdf2", "--control",
-                            "adaptive", "--tol", "1e-3", "--no-plots", "--out", str(out)], capsys)
+    code, stdout, _ = _cli(
+        [
+            "run",
+            "eld-mms",
+            "--n",
+            "2",
+            "--scheme",
+            "bdf2",
+            "--control",
+            "adaptive",
+            "--tol",
+            "1e-3",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["scheme"] == "bdf2" and s["control"] == "adaptive" and s["tol"] == 1e-3
@@ -137,9 +163,25 @@ def test_adaptive_bdf2_run_from_the_cli(tmp_path, capsys):
 
 def test_beam_overflow_is_a_failed_run(tmp_path, capsys):
     out = tmp_path / "beam"
-    code, _, err = _cli(["run", "eld-beam", "--n", "1", "--degree", "1", "--T", "0.05",
-                         "--amplitude", "1e300", "--quiet", "--no-plots", "--out", str(out)],
-                        capsys)
+    code, _, err = _cli(
+        [
+            "run",
+            "eld-beam",
+            "--n",
+            "1",
+            "--degree",
+            "1",
+            "--T",
+            "0.05",
+            "--amplitude",
+            "1e300",
+            "--quiet",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 1 and "non-finite" in err
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "failed" and "non-finite" in s["failure"]

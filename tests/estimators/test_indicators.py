@@ -23,10 +23,11 @@ def polynomial_profile(dim: int, degree: int) -> ScalarField:
     """A global polynomial of the given degree (exactly represented by P``degree``)."""
     if degree == 1:
         w = np.array([1.0, 2.0, -0.5][:dim])
-        return ScalarField(lambda x: 1 + np.tensordot(w, x, 1),
-                           lambda x: np.broadcast_to(w.reshape((dim,) + (1,) * (x.ndim - 1)),
-                                                     x.shape).copy(),
-                           lambda x: np.zeros((dim, dim) + x.shape[1:]))
+        return ScalarField(
+            lambda x: 1 + np.tensordot(w, x, 1),
+            lambda x: np.broadcast_to(w.reshape((dim,) + (1,) * (x.ndim - 1)), x.shape).copy(),
+            lambda x: np.zeros((dim, dim) + x.shape[1:]),
+        )
 
     def value(x):
         return 1 + x[0] * x[1] + x[0] ** 2
@@ -48,8 +49,14 @@ def polynomial_profile(dim: int, degree: int) -> ScalarField:
 
 @pytest.mark.parametrize("dim, degree", [(2, 1), (2, 2), (3, 1), (3, 2)])
 def test_eld_indicator_vanishes_when_the_solution_is_in_the_space(dim, degree):
-    rows = elasticity_study(dim, degree, polynomial_profile(dim, degree), n0=1 if dim == 3
-                            else 2, adaptive=False, max_dofs=1)
+    rows = elasticity_study(
+        dim,
+        degree,
+        polynomial_profile(dim, degree),
+        n0=1 if dim == 3 else 2,
+        adaptive=False,
+        max_dofs=1,
+    )
     assert rows[0]["error"] < 1e-11 and rows[0]["estimate"] < 1e-10
 
 
@@ -85,8 +92,9 @@ def test_ris_indicator_measures_the_stability_violation_of_a_sticking_state():
     stable = ris_indicators(mesh, zero, zero, dg=lambda z: 0 * z, load=0.8, kappa=1.0)
     assert stable.estimate == 0.0
     ev = SimplexEvaluator(mesh, 1, cell_order=4, facet_order=1)
-    unstable = ris_indicators(mesh, zero, zero, dg=lambda z: 0 * z, load=-1.5, kappa=1.0,
-                              evaluator=ev)
+    unstable = ris_indicators(
+        mesh, zero, zero, dg=lambda z: 0 * z, load=-1.5, kappa=1.0, evaluator=ev
+    )
     assert np.allclose(unstable.eta**2, ev.h**2 * 0.5**2 * ev.vol, rtol=1e-12)
     assert np.all(unstable.jump == 0) and np.all(unstable.boundary == 0)
 
@@ -109,14 +117,21 @@ ELD_BAND = (4.0, 22.0)
 RIS_BAND = (1.3, 8.0)
 
 
-@pytest.mark.parametrize("dim, degree, profile, max_dofs", [
-    (2, 1, "bump", 1500), (2, 1, "front", 1500), (2, 2, "bump", 1500), (2, 2, "front", 1500),
-    (3, 1, "bump", 700),
-])
+@pytest.mark.parametrize(
+    "dim, degree, profile, max_dofs",
+    [
+        (2, 1, "bump", 1500),
+        (2, 1, "front", 1500),
+        (2, 2, "bump", 1500),
+        (2, 2, "front", 1500),
+        (3, 1, "bump", 700),
+    ],
+)
 def test_eld_efficiency_band(dim, degree, profile, max_dofs):
     for adaptive in (False, True):
-        rows = elasticity_study(dim, degree, profile, adaptive=adaptive, max_dofs=max_dofs,
-                                n0=1 if dim == 3 else 2)
+        rows = elasticity_study(
+            dim, degree, profile, adaptive=adaptive, max_dofs=max_dofs, n0=1 if dim == 3 else 2
+        )
         eff = np.array([r["efficiency"] for r in rows])
         assert len(rows) >= 3
         assert ELD_BAND[0] <= eff.min() and eff.max() <= ELD_BAND[1], eff
@@ -126,8 +141,9 @@ def test_eld_efficiency_band(dim, degree, profile, max_dofs):
 @pytest.mark.parametrize("dim, max_dofs", [(2, 1500), (3, 250)])
 def test_ris_efficiency_band(dim, max_dofs):
     for adaptive in (False, True):
-        rows = ris_study(dim, "front", adaptive=adaptive, max_dofs=max_dofs,
-                         n0=4 if dim == 2 else 2)
+        rows = ris_study(
+            dim, "front", adaptive=adaptive, max_dofs=max_dofs, n0=4 if dim == 2 else 2
+        )
         eff = np.array([r["efficiency"] for r in rows])
         assert all(r["positive"] for r in rows)
         assert RIS_BAND[0] <= eff.min() and eff.max() <= RIS_BAND[1], eff

@@ -25,8 +25,9 @@ from rothe.fem.mesh import load_mesh, unit_cube, unit_square
 def delaunay_mesh(dim: int, n: int, seed: int):
     """An irregular mesh of the unit square/cube: Delaunay of random points and the corners."""
     rng = np.random.default_rng(seed)
-    pts = np.vstack([rng.random((n, dim)),
-                     np.array(np.meshgrid(*[[0.0, 1.0]] * dim)).reshape(dim, -1).T])
+    pts = np.vstack(
+        [rng.random((n, dim)), np.array(np.meshgrid(*[[0.0, 1.0]] * dim)).reshape(dim, -1).T]
+    )
     t = Delaunay(pts).simplices.T
     cls = MeshTri if dim == 2 else MeshTet
     _, vol = barycentric_gradients(pts.T, t)
@@ -44,8 +45,14 @@ def refine_near(am, x, radius):
 def check_parts_on_sides(am):
     """Every facet of a named side lies on that side; the parts cover the whole boundary."""
     m = am.mesh
-    sides = {"left": (0, 0.0), "right": (0, 1.0), "bottom": (1, 0.0), "top": (1, 1.0),
-             "front": (2, 0.0), "back": (2, 1.0)}
+    sides = {
+        "left": (0, 0.0),
+        "right": (0, 1.0),
+        "bottom": (1, 0.0),
+        "top": (1, 1.0),
+        "front": (2, 0.0),
+        "back": (2, 1.0),
+    }
     covered = np.zeros(m.facets.shape[1], dtype=bool)
     for part, idx in m.boundaries.items():
         axis, level = sides[part]
@@ -80,8 +87,9 @@ def test_refinement_is_conforming_nested_and_counts_dofs(name):
         assert am.ndofs(2, components=am.dim) == am.dim * (m.p.shape[1] + n_edges)
         # every new cell lies in the old cell it came from
         assert np.all(change.old_count == 1)
-        lam = barycentric(m.p[:, m.t].mean(axis=1), change.old_points.T, change.old_cells.T,
-                          change.old_start)
+        lam = barycentric(
+            m.p[:, m.t].mean(axis=1), change.old_points.T, change.old_cells.T, change.old_start
+        )
         assert lam.min() > 0
     if name in ("square", "box"):
         check_parts_on_sides(am)
@@ -89,8 +97,10 @@ def test_refinement_is_conforming_nested_and_counts_dofs(name):
 
 def test_scikit_fem_structures_match():
     """Facets, t2f injected into the mesh and the P2 dof numbering equal scikit-fem's own."""
-    for m0, element in ((meshes.unit_square(2, named=True), ElementTriP2), (meshes.box(1, 1, 1),
-                                                                 ElementTetP2)):
+    for m0, element in (
+        (meshes.unit_square(2, named=True), ElementTriP2),
+        (meshes.box(1, 1, 1), ElementTetP2),
+    ):
         am = AdaptiveMesh(m0)
         am.refine(np.arange(0, am.n_cells, 2))
         m = am.mesh
@@ -106,8 +116,9 @@ def test_scikit_fem_structures_match():
         change = am.refine(np.arange(0, am.n_cells, 3))
         m = am.mesh
         change.transfer(2)
-        assert np.array_equal(Basis(m, element()).element_dofs,
-                              Basis(type(m)(m.p, m.t), element()).element_dofs)
+        assert np.array_equal(
+            Basis(m, element()).element_dofs, Basis(type(m)(m.p, m.t), element()).element_dofs
+        )
 
 
 @pytest.mark.parametrize("name", ["square", "box", "delaunay2", "delaunay3"])
@@ -130,8 +141,9 @@ def test_coarsening_returns_exactly_to_the_initial_mesh(name):
     assert np.array_equal(am.cells, m0.t.T) and np.array_equal(am.points, m0.p.T)
     assert am.mesh_id == 6 + calls - 1
     if name in ("square", "box"):
-        assert {k: np.sort(v).tolist() for k, v in am.mesh.boundaries.items()} == \
-            {k: np.sort(v).tolist() for k, v in m0.boundaries.items()}
+        assert {k: np.sort(v).tolist() for k, v in am.mesh.boundaries.items()} == {
+            k: np.sort(v).tolist() for k, v in m0.boundaries.items()
+        }
 
 
 def test_cycle_of_refinement_edges_is_refined_and_coarsened():
@@ -222,15 +234,17 @@ def test_max_dofs_cap_refines_the_largest_indicators_first():
     eta = np.exp(-10 * np.linalg.norm(c - [0.2, 0.3], axis=1))
     dofs0 = am.ndofs(2, 2)
     cap = dofs0 + 60
-    change = am.adapt(refine=np.ones(am.n_cells, dtype=bool), max_dofs=cap, degree=2,
-                      components=2, priority=eta)
+    change = am.adapt(
+        refine=np.ones(am.n_cells, dtype=bool), max_dofs=cap, degree=2, components=2, priority=eta
+    )
     assert dofs0 < am.ndofs(2, 2) <= cap
     # the cell with the largest indicator was refined, the one with the smallest was not
     refined_old = np.unique(change.old_start[am.levels > 0])
     assert np.argmax(eta) in refined_old and np.argmin(eta) not in refined_old
     # a cap that is already reached refines nothing
-    same = am.adapt(refine=np.ones(am.n_cells, dtype=bool), max_dofs=am.ndofs(2, 2),
-                    degree=2, components=2)
+    same = am.adapt(
+        refine=np.ones(am.n_cells, dtype=bool), max_dofs=am.ndofs(2, 2), degree=2, components=2
+    )
     assert not same.changed
 
 
@@ -272,8 +286,7 @@ def test_gmsh_mesh_keeps_its_named_parts(tmp_path, gmsh_text, dim):
     if dim == 2:
         size = np.linalg.norm(P[:, 1] - P[:, 0], axis=0)
     else:
-        size = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0], axis=0),
-                                    axis=0)
+        size = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0], axis=0), axis=0)
     assert np.isclose(size.sum(), 1.0)
     assert len(m.boundaries["inlet"]) > len(m0.boundaries["inlet"])
     bnd = np.sort(np.concatenate([m.boundaries["inlet"], m.boundaries["wall"]]))
@@ -285,11 +298,13 @@ def test_adaptation_refuses_meshes_it_cannot_bisect():
         AdaptiveMesh(MeshQuad())
     with pytest.raises(RotheInputError, match=r"--adapt-space: got a mesh of hexahedra"):
         check_adaptable(MeshHex())
-    mixed = meshio.Mesh(np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1.0]]),
-                        [("triangle", np.array([[0, 1, 2], [0, 2, 3]])),
-                         ("quad", np.array([[1, 4, 5, 2]]))])
-    with pytest.raises(RotheInputError,
-                       match=r"--adapt-space: got a mixed mesh \(triangle, quad\)"):
+    mixed = meshio.Mesh(
+        np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1.0]]),
+        [("triangle", np.array([[0, 1, 2], [0, 2, 3]])), ("quad", np.array([[1, 4, 5, 2]]))],
+    )
+    with pytest.raises(
+        RotheInputError, match=r"--adapt-space: got a mixed mesh \(triangle, quad\)"
+    ):
         check_adaptable(mixed)
     assert check_adaptable(unit_cube(2)) is not None
     am = AdaptiveMesh(unit_square(2))

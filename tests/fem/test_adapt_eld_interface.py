@@ -18,11 +18,19 @@ def mms_on(mesh):
     damping = RayleighDamping(a=0.1, b=0.01)
     exact = ManufacturedSolution(material, damping)
     names = sorted(mesh.boundaries)
-    return ELDProblem(mesh, material, degree=2, damping=damping,
-                      dirichlet={"left": DirichletData(exact.u, exact.u_dot, exact.u_ddot)},
-                      traction={p: exact.traction for p in names if p != "left"},
-                      body_force=exact.body_force, u0=lambda x: exact.u(0.0, x),
-                      v0=lambda x: exact.u_dot(0.0, x), T=0.4, name="mms-adapt"), exact
+    return ELDProblem(
+        mesh,
+        material,
+        degree=2,
+        damping=damping,
+        dirichlet={"left": DirichletData(exact.u, exact.u_dot, exact.u_ddot)},
+        traction={p: exact.traction for p in names if p != "left"},
+        body_force=exact.body_force,
+        u0=lambda x: exact.u(0.0, x),
+        v0=lambda x: exact.u_dot(0.0, x),
+        T=0.4,
+        name="mms-adapt",
+    ), exact
 
 
 def run_until(run, k):
@@ -53,9 +61,13 @@ def test_refine_map_adopt_and_continue():
     # 0.028 with the nodal lifting, 0.080 with the harmonic one)
     lift, f = run.stepper.lifting, mapped.fields
     t1 = state.t - state.tau_prev
-    for x, u, g in (("x", "u", new_problem.G(state.t)), ("x_1", "u_1", new_problem.G(t1)),
-                    ("y", "v", new_problem.G_dot(state.t)), ("y_1", "v_1", new_problem.G_dot(t1)),
-                    ("b", "a", new_problem.G_ddot(state.t))):
+    for x, u, g in (
+        ("x", "u", new_problem.G(state.t)),
+        ("x_1", "u_1", new_problem.G(t1)),
+        ("y", "v", new_problem.G_dot(state.t)),
+        ("y_1", "v_1", new_problem.G_dot(t1)),
+        ("b", "a", new_problem.G_ddot(state.t)),
+    ):
         if x in f:
             f[x] = f[u] - lift(g)
     moved = run.stepper.adopt(mapped)
@@ -70,12 +82,13 @@ def test_refine_map_adopt_and_continue():
     g = new_problem.G(final.t)
     assert np.allclose(con.restrict(final.fields["u"]), g, atol=1e-12)
     # the continuation is as accurate as the run that kept the mesh
-    reference = run_until(fixed, 10 ** 6)
+    reference = run_until(fixed, 10**6)
     assert np.isclose(reference.t, final.t)
 
     def error(space, u):
-        return space.error_norms(u, lambda y: exact.u(final.t, y),
-                                 lambda y: exact.grad_u(final.t, y))["h1"]
+        return space.error_norms(
+            u, lambda y: exact.u(final.t, y), lambda y: exact.grad_u(final.t, y)
+        )["h1"]
 
     e_adapted = error(new_problem.space, final.fields["u"])
     e_fixed = error(problem.space, reference.fields["u"])

@@ -26,8 +26,7 @@ class Blinking:
         am = self.meshes.amesh
         x = am.points[am.cells].mean(axis=1)
         self.calls += 1
-        h = np.sqrt(np.abs(np.linalg.det(am.points[am.cells[:, 1:]]
-                                         - am.points[am.cells[:, :1]])))
+        h = np.sqrt(np.abs(np.linalg.det(am.points[am.cells[:, 1:]] - am.points[am.cells[:, :1]])))
         disc = np.sum((x - 0.4) ** 2, axis=1) < 0.05
         if self.calls % 2:
             return np.where(disc, h, 1e-6 * h)
@@ -114,8 +113,9 @@ def test_history_survives_checkpoint_and_rollback():
     clone = MeshAdaptation(meshes.unit_square(4), opts(max_recoarsen=1))
     clone.restore_state(data)
     assert np.array_equal(clone.history.birth, ma.history.birth)
-    assert np.array_equal(clone.history.removals(ma.amesh.points),
-                          ma.history.removals(ma.amesh.points))
+    assert np.array_equal(
+        clone.history.removals(ma.amesh.points), ma.history.removals(ma.amesh.points)
+    )
     assert clone.history.cycles == ma.history.cycles
     restored = VertexHistory.restore_state(ma.history.checkpoint_state())
     assert restored.max_removals() == ma.history.max_removals() == 1

@@ -20,8 +20,7 @@ from rothe.fem.adapt.marking import (
 
 
 @settings(max_examples=40, deadline=None)
-@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60),
-       theta=st.floats(0.01, 0.99))
+@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60), theta=st.floats(0.01, 0.99))
 def test_doerfler_set_is_the_smallest_bulk(eta, theta):
     eta = np.array(eta)
     mark = doerfler_marking(eta, theta)
@@ -40,8 +39,7 @@ def test_doerfler_set_is_the_smallest_bulk(eta, theta):
 
 
 @settings(max_examples=40, deadline=None)
-@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60),
-       budget=st.floats(0.0, 200.0))
+@given(eta=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=60), budget=st.floats(0.0, 200.0))
 def test_coarsen_set_is_the_largest_set_of_small_indicators_within_budget(eta, budget):
     eta = np.array(eta)
     mark = coarsen_marking(eta, budget)
@@ -70,28 +68,46 @@ def test_mark_refines_only_above_the_tolerance_and_never_both():
     assert SpaceAdaptivity(1.0, adapt_every=3).due(4) is False
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"space_tol": 0.0}, r"^space_tol: got 0, must be > 0$"),
-    ({"space_tol": -1e-3}, r"^space_tol: got -0.001, must be > 0$"),
-    ({"space_tol": 1.0, "refine_fraction": 1.0}, r"^refine_fraction: got 1, must be in \(0, 1\)$"),
-    ({"space_tol": 1.0, "coarsen_fraction": 0.0},
-     r"^coarsen_fraction: got 0, must be in \(0, 1\)$"),
-    ({"space_tol": 1.0, "refine_fraction": 0.8, "coarsen_fraction": 0.3},
-     r"^refine_fraction \+ coarsen_fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1"),
-    ({"space_tol": 1.0, "adapt_every": 0}, r"^adapt_every: got 0, must be an integer >= 1$"),
-    ({"space_tol": 1.0, "max_dofs": 0}, r"^max_dofs: got 0, must be an integer >= 1$"),
-    ({"space_tol": "x"}, r"^space_tol: got 'x', must be a real number$"),
-    ({"space_tol": 1.0, "coarsen_delay": -1},
-     r"^coarsen_delay: got -1, must be an integer >= 0$"),
-    ({"space_tol": 1.0, "max_recoarsen": 1.5}, r"^max_recoarsen: got 1.5, must be an integer$"),
-    ({"space_tol": 1.0, "refine_band": -0.1},
-     r"^refine_band: got -0.1, must be >= 0 \(a length\)$"),
-    ({"space_tol": 1.0, "refine_band": float("nan")},
-     r"^refine_band: got nan, must be finite$"),
-    ({"space_tol": 1.0, "coarsen_batch": 1.0}, r"^coarsen_batch: got 1, must be in \[0, 1\)$"),
-    ({"space_tol": 1.0, "coarsen_batch": -0.5},
-     r"^coarsen_batch: got -0.5, must be in \[0, 1\)$"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"space_tol": 0.0}, r"^space_tol: got 0, must be > 0$"),
+        ({"space_tol": -1e-3}, r"^space_tol: got -0.001, must be > 0$"),
+        (
+            {"space_tol": 1.0, "refine_fraction": 1.0},
+            r"^refine_fraction: got 1, must be in \(0, 1\)$",
+        ),
+        (
+            {"space_tol": 1.0, "coarsen_fraction": 0.0},
+            r"^coarsen_fraction: got 0, must be in \(0, 1\)$",
+        ),
+        (
+            {"space_tol": 1.0, "refine_fraction": 0.8, "coarsen_fraction": 0.3},
+            r"^refine_fraction \+ coarsen_fraction: got 0.8 \+ 0.3 = 1.1, must be <= 1",
+        ),
+        ({"space_tol": 1.0, "adapt_every": 0}, r"^adapt_every: got 0, must be an integer >= 1$"),
+        ({"space_tol": 1.0, "max_dofs": 0}, r"^max_dofs: got 0, must be an integer >= 1$"),
+        ({"space_tol": "x"}, r"^space_tol: got 'x', must be a real number$"),
+        (
+            {"space_tol": 1.0, "coarsen_delay": -1},
+            r"^coarsen_delay: got -1, must be an integer >= 0$",
+        ),
+        ({"space_tol": 1.0, "max_recoarsen": 1.5}, r"^max_recoarsen: got 1.5, must be an integer$"),
+        (
+            {"space_tol": 1.0, "refine_band": -0.1},
+            r"^refine_band: got -0.1, must be >= 0 \(a length\)$",
+        ),
+        (
+            {"space_tol": 1.0, "refine_band": float("nan")},
+            r"^refine_band: got nan, must be finite$",
+        ),
+        ({"space_tol": 1.0, "coarsen_batch": 1.0}, r"^coarsen_batch: got 1, must be in \[0, 1\)$"),
+        (
+            {"space_tol": 1.0, "coarsen_batch": -0.5},
+            r"^coarsen_batch: got -0.5, must be in \[0, 1\)$",
+        ),
+    ],
+)
 def test_bad_options_are_one_line_errors(kwargs, message):
     with pytest.raises(RotheInputError, match=message):
         SpaceAdaptivity(**kwargs)
@@ -105,8 +121,9 @@ def test_cli_names_and_the_dof_cap_of_the_initial_mesh():
     am = AdaptiveMesh(meshes.unit_square(4, named=True))
     dofs = am.ndofs(2, 2)  # 2 * (25 + 56) = 162
     assert dofs == 162
-    with pytest.raises(RotheInputError,
-                       match=r"^--max-dofs: got 100, must be >= the 162 dofs of the initial mesh$"):
+    with pytest.raises(
+        RotheInputError, match=r"^--max-dofs: got 100, must be >= the 162 dofs of the initial mesh$"
+    ):
         SpaceAdaptivity(space_tol=1, max_dofs=100, naming="cli").check_mesh(am, 2, 2)
     assert SpaceAdaptivity(space_tol=1, max_dofs=162).check_mesh(am, 2, 2) == 162
 
@@ -115,12 +132,24 @@ def test_hysteresis_and_band_options_are_kept_only_when_set():
     """The new options are additive: unset, a description (and so a checkpoint's arguments)
     is what it was; set, they are in it."""
     plain = SpaceAdaptivity(space_tol=1.0).describe()
-    assert set(plain) == {"space_tol", "refine_fraction", "coarsen_fraction", "max_dofs",
-                          "adapt_every", "max_level", "coarsen_rounds"}
-    full = SpaceAdaptivity(space_tol=1.0, coarsen_delay=3, max_recoarsen=0, refine_band=0.05,
-                           coarsen_batch=0.1).describe()
-    assert (full["coarsen_delay"], full["max_recoarsen"], full["refine_band"],
-            full["coarsen_batch"]) == (3, 0, 0.05, 0.1)
+    assert set(plain) == {
+        "space_tol",
+        "refine_fraction",
+        "coarsen_fraction",
+        "max_dofs",
+        "adapt_every",
+        "max_level",
+        "coarsen_rounds",
+    }
+    full = SpaceAdaptivity(
+        space_tol=1.0, coarsen_delay=3, max_recoarsen=0, refine_band=0.05, coarsen_batch=0.1
+    ).describe()
+    assert (
+        full["coarsen_delay"],
+        full["max_recoarsen"],
+        full["refine_band"],
+        full["coarsen_batch"],
+    ) == (3, 0, 0.05, 0.1)
 
 
 def test_band_marks_the_cells_near_the_core_below_its_target():
@@ -142,8 +171,7 @@ def test_band_marks_the_cells_near_the_core_below_its_target():
 
 def test_adapt_mesh_under_the_cap():
     am = AdaptiveMesh(meshes.unit_square(4, named=True))
-    opts = SpaceAdaptivity(space_tol=1e-3, refine_fraction=0.5, coarsen_fraction=0.1,
-                           max_dofs=400)
+    opts = SpaceAdaptivity(space_tol=1e-3, refine_fraction=0.5, coarsen_fraction=0.1, max_dofs=400)
     rng = np.random.default_rng(0)
     for _ in range(8):
         x = am.points[am.cells].mean(axis=1)

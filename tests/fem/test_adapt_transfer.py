@@ -15,8 +15,7 @@ from rothe.fem.adapt import AdaptiveMesh, free_transfer, transfer_vectors
 from rothe.fem.elasticity import VectorSpace
 from rothe.ris.fem_problem import example_7_2
 
-ELEMENTS = {(2, 1): ElementTriP1, (2, 2): ElementTriP2, (3, 1): ElementTetP1,
-            (3, 2): ElementTetP2}
+ELEMENTS = {(2, 1): ElementTriP1, (2, 2): ElementTriP2, (3, 1): ElementTetP1, (3, 2): ElementTetP2}
 
 
 def old_field_at_new_nodes(old_mesh, new_mesh, dim, degree, u):
@@ -27,8 +26,13 @@ def old_field_at_new_nodes(old_mesh, new_mesh, dim, degree, u):
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(dim=st.sampled_from([2, 3]), degree=st.sampled_from([1, 2]),
-       seed=st.integers(0, 2**31), fraction=st.floats(0.05, 0.9), rounds=st.integers(1, 3))
+@given(
+    dim=st.sampled_from([2, 3]),
+    degree=st.sampled_from([1, 2]),
+    seed=st.integers(0, 2**31),
+    fraction=st.floats(0.05, 0.9),
+    rounds=st.integers(1, 3),
+)
 def test_refinement_transfer_reproduces_the_old_function(dim, degree, seed, fraction, rounds):
     rng = np.random.default_rng(seed)
     am = AdaptiveMesh(meshes.unit_square(2, named=True) if dim == 2 else meshes.box(1, 1, 1))
@@ -130,8 +134,10 @@ def test_dirichlet_values_hold_after_every_change():
     for step in range(6):
         x = am.points[am.cells].mean(axis=1)
         coarsen_only = step % 3 == 2
-        change = am.adapt(refine=None if coarsen_only else x[:, 0] < 0.3,
-                          coarsen=np.full(am.n_cells, coarsen_only))
+        change = am.adapt(
+            refine=None if coarsen_only else x[:, 0] < 0.3,
+            coarsen=np.full(am.n_cells, coarsen_only),
+        )
         u, w = transfer_vectors(change.transfer(2, components=2), u, w)
         space = VectorSpace(am.mesh, 2)
         con = DirichletConstraint(space, ("left",))

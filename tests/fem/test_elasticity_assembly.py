@@ -119,8 +119,9 @@ def test_pattern_is_the_scalar_coupling_of_the_cells(seed, dim, degree):
     rows_ref = np.broadcast_to(ed[:, None, :], (nbf, nbf, ne)).ravel()
     cols_ref = np.broadcast_to(ed[None, :, :], (nbf, nbf, ne)).ravel()
     # every pair of dofs that share a cell, no other (counts of the pairs: never zero)
-    ref = sp.coo_matrix((np.ones(rows_ref.size), (rows_ref, cols_ref)),
-                        shape=(V.n_scalar, V.n_scalar)).tocsr()
+    ref = sp.coo_matrix(
+        (np.ones(rows_ref.size), (rows_ref, cols_ref)), shape=(V.n_scalar, V.n_scalar)
+    ).tocsr()
     ref.sort_indices()
     assert np.array_equal(pat.indptr, ref.indptr) and np.array_equal(pat.indices, ref.indices)
     assert pat.indices.dtype == np.int32
@@ -133,8 +134,9 @@ def test_pattern_is_the_scalar_coupling_of_the_cells(seed, dim, degree):
     # the map of every cell entry points at the position of (dof_i, dof_j)
     positions = V._chunk_map(np.arange(ed.shape[1]))
     assert np.array_equal(rows[positions], np.broadcast_to(ed.T[:, :, None], positions.shape))
-    assert np.array_equal(pat.indices[positions],
-                          np.broadcast_to(ed.T[:, None, :], positions.shape))
+    assert np.array_equal(
+        pat.indices[positions], np.broadcast_to(ed.T[:, None, :], positions.shape)
+    )
 
 
 @pytest.mark.parametrize("dim,degree", CASES)
@@ -196,8 +198,10 @@ def test_mesh_entities_equal_scikit_fems(dim):
             assert (a is None and b is None) or (np.array_equal(a, b) and a.dtype == b.dtype)
     fresh = (MeshTri if dim == 2 else MeshTet)(mesh.p, mesh.t)
     tagged = meshes.tag_box_faces(fresh)
-    assert np.array_equal(np.sort(np.concatenate(list(tagged.boundaries.values()))),
-                          (MeshTri if dim == 2 else MeshTet)(mesh.p, mesh.t).boundary_facets())
+    assert np.array_equal(
+        np.sort(np.concatenate(list(tagged.boundaries.values()))),
+        (MeshTri if dim == 2 else MeshTet)(mesh.p, mesh.t).boundary_facets(),
+    )
 
 
 def test_space_construction_is_cheap_and_lazy():

@@ -31,8 +31,10 @@ def test_unit_square_and_cube_sizes():
     assert c.p.shape == (3, 64) and c.t.shape == (4, 162)
     assert np.isclose(cell_volumes(c).sum(), 1.0)
     # the sides of the box by scikit-fem's default names, computed on demand
-    sides = {name: boundary_nodes(c, name) for name in
-             ("left", "right", "bottom", "top", "front", "back")}
+    sides = {
+        name: boundary_nodes(c, name)
+        for name in ("left", "right", "bottom", "top", "front", "back")
+    }
     assert all(v.size == 16 for v in sides.values())
     assert np.allclose(c.p[2, sides["back"]], 1.0) and np.allclose(c.p[1, sides["bottom"]], 0.0)
 
@@ -55,8 +57,12 @@ def test_unknown_pattern():
 def test_unionjack_is_invariant_under_all_reflections(n):
     m = unit_square(n, "unionjack")
     cells = {tuple(c) for c in np.sort(m.t, axis=0).T}
-    for fmap in (lambda q: np.array([1 - q[0], q[1]]), lambda q: np.array([q[0], 1 - q[1]]),
-                 lambda q: np.array([q[1], q[0]]), lambda q: np.array([1 - q[1], 1 - q[0]])):
+    for fmap in (
+        lambda q: np.array([1 - q[0], q[1]]),
+        lambda q: np.array([q[0], 1 - q[1]]),
+        lambda q: np.array([q[1], q[0]]),
+        lambda q: np.array([1 - q[1], 1 - q[0]]),
+    ):
         P = _permutation(m.p, fmap, n)
         assert np.allclose(m.p[:, P], fmap(m.p))
         assert {tuple(c) for c in np.sort(P[m.t], axis=0).T} == cells
@@ -89,7 +95,8 @@ def test_gmsh_2d_with_physical_groups(tmp_path, gmsh_text, writer):
 def test_gmsh_3d_with_physical_groups(tmp_path, gmsh_text, writer):
     ref = unit_cube(3)
     path = getattr(gmsh_text, writer)(
-        tmp_path / "cube.msh", ref, lambda mid: np.where(np.isclose(mid[2], 0), "floor", "walls"))
+        tmp_path / "cube.msh", ref, lambda mid: np.where(np.isclose(mid[2], 0), "floor", "walls")
+    )
     m = load_mesh(path)
     assert m.p.shape == (3, 64) and m.t.shape == (4, 162)
     floor = boundary_nodes(m, "floor")
@@ -121,8 +128,9 @@ def test_missing_unreadable_and_wrong_meshes(tmp_path):
         load_mesh(tmp_path / "nope.msh")
     bad = tmp_path / "bad.msh"
     bad.write_text("this is not a mesh\n")
-    with pytest.raises(RotheInputError,
-                       match=r"^mesh: got '.*bad.msh', is not a mesh meshio can read"):
+    with pytest.raises(
+        RotheInputError, match=r"^mesh: got '.*bad.msh', is not a mesh meshio can read"
+    ):
         load_mesh(bad)
     unknown = tmp_path / "mesh.xyz123"
     unknown.write_text("1 2 3\n")
@@ -132,8 +140,10 @@ def test_missing_unreadable_and_wrong_meshes(tmp_path):
         load_mesh(tmp_path)
     # a curved surface mesh is not a planar 2D mesh
     surf = tmp_path / "surface.vtu"
-    meshio.write(surf, meshio.Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 1]]),
-                                   [("triangle", [[0, 1, 2]])]))
+    meshio.write(
+        surf,
+        meshio.Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 1]]), [("triangle", [[0, 1, 2]])]),
+    )
     with pytest.raises(RotheInputError, match="not flat in 2D"):
         load_mesh(surf)
     # a tetrahedral file asked for as 2D without triangles

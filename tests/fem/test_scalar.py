@@ -33,11 +33,14 @@ def _jiggled_square(n, amplitude=0.25, seed=0):
     return MeshTri(p, m.t)
 
 
-@pytest.mark.parametrize("mesh, element", [
-    (unit_square(5, "unionjack"), ElementTriP1()),
-    (_jiggled_square(6), ElementTriP1()),
-    (unit_cube(3), ElementTetP1()),
-])
+@pytest.mark.parametrize(
+    "mesh, element",
+    [
+        (unit_square(5, "unionjack"), ElementTriP1()),
+        (_jiggled_square(6), ElementTriP1()),
+        (unit_cube(3), ElementTetP1()),
+    ],
+)
 def test_matches_scikit_fem(mesh, element):
     basis = Basis(mesh, element)
     assert abs(stiffness(mesh) - asm(laplace, basis)).max() < 1e-12
@@ -102,9 +105,11 @@ def test_boundary_parts():
     assert lb.size == 9
     free, fixed = split_dofs(m.p.shape[1], lb)
     assert free.size + fixed.size == 25 and np.intersect1d(free, fixed).size == 0
-    with pytest.raises(RotheInputError,
-                       match=r"^dirichlet: got 'inlet', must be one of bottom, left, right, top "
-                             r"\(sides of the bounding box; the mesh has no named parts\)$"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^dirichlet: got 'inlet', must be one of bottom, left, right, top "
+        r"\(sides of the bounding box; the mesh has no named parts\)$",
+    ):
         boundary_nodes(m, ["inlet"])
     with pytest.raises(RotheInputError, match=r"^dirichlet: got 'front', must be one of bottom"):
         boundary_nodes(m, ["front"])  # no z sides in 2D
@@ -117,8 +122,12 @@ def test_boundary_parts():
 
 
 @settings(max_examples=25, deadline=None)
-@given(n=st.integers(2, 7), amp=st.floats(0.0, 0.3), seed=st.integers(0, 10_000),
-       unionjack=st.booleans())
+@given(
+    n=st.integers(2, 7),
+    amp=st.floats(0.0, 0.3),
+    seed=st.integers(0, 10_000),
+    unionjack=st.booleans(),
+)
 def test_boundary_detection_matches_scikit_fem(n, amp, seed, unionjack):
     """Own facet counting == scikit-fem's boundary nodes and default side tags, any mesh."""
     m = unit_square(n, "unionjack" if unionjack else "tensor")

@@ -17,8 +17,9 @@ def test_round_trip(tmp_path, mesh, monkeypatch):
     rng = np.random.default_rng(0)
     Z = rng.standard_normal((5, mesh.p.shape[1]))
     s = np.array([0.0, 0.1, 0.25, 0.5, 1.0])
-    path = write_series(tmp_path / "out" / "sol.xdmf", mesh.p.T, mesh.t.T, s, {"z": Z},
-                        {"t": s / 2})
+    path = write_series(
+        tmp_path / "out" / "sol.xdmf", mesh.p.T, mesh.t.T, s, {"z": Z}, {"t": s / 2}
+    )
     assert sorted(os.listdir(tmp_path / "out")) == ["sol.h5", "sol.xdmf"]
     assert not (tmp_path / "sol.h5").exists()
     points, cells, times, data = read_series(path)

@@ -42,8 +42,7 @@ def test_each_mesh_stored_once_and_npz_round_trip(tmp_path):
     for mesh_id, p, c in meshes:
         bp, bc = back.mesh(mesh_id)
         assert np.array_equal(bp, p) and np.array_equal(bc, c)
-    assert np.array_equal(series.n_vertices(state_ids),
-                          [len(series.mesh(i)[0]) for i in state_ids])
+    assert np.array_equal(series.n_vertices(state_ids), [len(series.mesh(i)[0]) for i in state_ids])
 
 
 def test_checkpoint_round_trip_is_exact():

@@ -60,17 +60,38 @@ def cluster():
 
 # -- bit for bit ---------------------------------------------------------------------------------
 
+
 def test_cluster_sweep_equals_serial_runs_bit_for_bit(tmp_path, capsys, cluster):
     out = tmp_path / "sweep"
-    code, stdout, err = run_cli(capsys, "sweep", "run", "ris-2d", "--param", "n=3,4",
-                                "--param", "control=adaptive,order2", "--tol", "3e-2",
-                                "--tau", "0.1", "--no-plots", "--scheduler",
-                                cluster.scheduler_address, "--out", out,
-                                "--plot", "n,sum_residual")
+    code, stdout, err = run_cli(
+        capsys,
+        "sweep",
+        "run",
+        "ris-2d",
+        "--param",
+        "n=3,4",
+        "--param",
+        "control=adaptive,order2",
+        "--tol",
+        "3e-2",
+        "--tau",
+        "0.1",
+        "--no-plots",
+        "--scheduler",
+        cluster.scheduler_address,
+        "--out",
+        out,
+        "--plot",
+        "n,sum_residual",
+    )
     assert code == 0, err
     rows = read_csv(out / "sweep.csv")
-    names = ["n=3_control=adaptive", "n=3_control=order2", "n=4_control=adaptive",
-             "n=4_control=order2"]
+    names = [
+        "n=3_control=adaptive",
+        "n=3_control=order2",
+        "n=4_control=adaptive",
+        "n=4_control=order2",
+    ]
     assert [r["run"] for r in rows] == names
     assert (out / "sweep_sum_residual_vs_n.png").stat().st_size > 1000
     # both worker processes ran runs (progress lines in a log name the worker)
@@ -78,35 +99,81 @@ def test_cluster_sweep_equals_serial_runs_bit_for_bit(tmp_path, capsys, cluster)
     for name in names:
         n, control = name.split("_")
         serial = tmp_path / f"serial-{name}"
-        assert main(["run", "ris-2d", f"--{n}", f"--{control}", "--tol", "3e-2", "--tau", "0.1",
-                     "--no-plots", "--quiet", "--out", str(serial)]) == 0
+        assert (
+            main(
+                [
+                    "run",
+                    "ris-2d",
+                    f"--{n}",
+                    f"--{control}",
+                    "--tol",
+                    "3e-2",
+                    "--tau",
+                    "0.1",
+                    "--no-plots",
+                    "--quiet",
+                    "--out",
+                    str(serial),
+                ]
+            )
+            == 0
+        )
         assert_npz_equal(out / name / "trajectory.npz", serial / "trajectory.npz")
         assert computed(json.loads((out / name / "summary.json").read_text())) == computed(
-            json.loads((serial / "summary.json").read_text()))
+            json.loads((serial / "summary.json").read_text())
+        )
 
 
 def test_study_on_cluster_equals_in_process(tmp_path, capsys, cluster):
-    argv = ["study", "eld-perturbation", "--taus", "0.1,0.05", "--n", "2", "--targets", "G,F",
-            "--damping", "rayleigh", "--no-plots", "--quiet"]
+    argv = [
+        "study",
+        "eld-perturbation",
+        "--taus",
+        "0.1,0.05",
+        "--n",
+        "2",
+        "--targets",
+        "G,F",
+        "--damping",
+        "rayleigh",
+        "--no-plots",
+        "--quiet",
+    ]
     assert main(argv + ["--workers", "1", "--out", str(tmp_path / "serial")]) == 0
-    assert main(argv + ["--scheduler", cluster.scheduler_address,
-                        "--out", str(tmp_path / "dask")]) == 0
+    assert (
+        main(argv + ["--scheduler", cluster.scheduler_address, "--out", str(tmp_path / "dask")])
+        == 0
+    )
     serial = json.loads((tmp_path / "serial" / "summary.json").read_text())
     dask = json.loads((tmp_path / "dask" / "summary.json").read_text())
     for s in (serial, dask):
         s.pop("seconds"), s.pop("peak_memory_mb")
     assert serial == dask and len(serial["G"]["amp_original"]) == 2
     assert (tmp_path / "dask" / "table.txt").read_text() == (
-        tmp_path / "serial" / "table.txt").read_text()
+        tmp_path / "serial" / "table.txt"
+    ).read_text()
 
 
 # -- failures ------------------------------------------------------------------------------------
 
+
 def test_failing_run_is_reported_and_the_others_complete(tmp_path, capsys, cluster):
     out = tmp_path / "sweep"
-    code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param",
-                                "tau-min=1e-12,0.05", "--tol", "1e-3", "--no-plots",
-                                "--scheduler", cluster.scheduler_address, "--out", out)
+    code, stdout, err = run_cli(
+        capsys,
+        "sweep",
+        "run",
+        "ris-1d",
+        "--param",
+        "tau-min=1e-12,0.05",
+        "--tol",
+        "1e-3",
+        "--no-plots",
+        "--scheduler",
+        cluster.scheduler_address,
+        "--out",
+        out,
+    )
     assert code == 1
     rows = {r["run"]: r for r in read_csv(out / "sweep.csv")}
     ok, bad = rows["tau-min=1e-12"], rows["tau-min=0.05"]
@@ -164,37 +231,51 @@ def test_runs_on_a_cluster_without_workers_are_lost_after_the_timeout():
     with executor_module.local_cluster(0) as empty, distributed.Client(empty) as client:
         t0 = time.perf_counter()
         res = Executor(scheduler=client, progress=False, no_worker_timeout=1.0).map(
-            [Task("a", dict, {"x": 1}), Task("b", dict, {"x": 2})])
+            [Task("a", dict, {"x": 1}), Task("b", dict, {"x": 2})]
+        )
     assert [r.status for r in res] == ["lost", "lost"] and time.perf_counter() - t0 < 30
-    assert res[0].message == ("no worker left on the cluster for 1 s (the worker processes died "
-                              "and were not restarted)")
+    assert res[0].message == (
+        "no worker left on the cluster for 1 s (the worker processes died and were not restarted)"
+    )
 
 
 # -- bad input: one line, exit 2, nothing run ---------------------------------------------------
 
-@pytest.mark.parametrize("args, message", [
-    (["--param", "foo=1,2"], "--param: got 'foo', is not an option of 'rothe run ris-1d' "
-                             "(its options: "),
-    (["--param", "tol="], "--param: got 'tol=', needs at least one value after tol="),
-    (["--param", "tol=1e-3,"], "--param: got 'tol=1e-3,', has an empty value"),
-    (["--param", "tol"], "--param: got 'tol', must be NAME=V1,V2,..."),
-    (["--param", "tol=1e-3,-1"], "sweep run tol=-1: --tol: got -1, must be > 0"),
-    (["--param", "simpson=4,3"], "sweep run simpson=3: --simpson: got 3, must be an even"),
-    (["--param", "tau=0.1,x"], "sweep run tau=x: argument --tau: got 'x', must be a number"),
-    (["--param", "out=a,b"], "--param: got 'out', cannot be swept"),
-    (["--param", "tol=1e-3", "--tol", "1e-4"], "--tol: given both in --param and as an option"),
-    (["--param", "tol=1e-3", "--unknown"], "sweep run tol=1e-3: unrecognized arguments: "
-                                            "--unknown"),
-    (["--param", "tol=1e-3", "--workers", "0"], "--workers: got 0, must be an integer >= 1"),
-    (["--param", "tol=1e-3", "--plot", "tol"], "--plot: got 'tol', must name two columns X,Y"),
-    ([], "--param: none given"),
-    (["--param", "tol=1e-3", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9"],
-     "--workers: got 2, cannot be combined with --scheduler"),
-    (["--param", "tol=1e-3", "--scheduler", ""], "--scheduler: got '', must be a scheduler "
-                                                 "address"),
-    (["--param", "tol=1e-3,1e-3"], "--param: got 'tol=1e-3,1e-3', repeats a value"),
-    (["--param", "tol=1e-3", "--param", "tol=1e-4"], "--param: got 'tol', is given twice"),
-])
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (
+            ["--param", "foo=1,2"],
+            "--param: got 'foo', is not an option of 'rothe run ris-1d' (its options: ",
+        ),
+        (["--param", "tol="], "--param: got 'tol=', needs at least one value after tol="),
+        (["--param", "tol=1e-3,"], "--param: got 'tol=1e-3,', has an empty value"),
+        (["--param", "tol"], "--param: got 'tol', must be NAME=V1,V2,..."),
+        (["--param", "tol=1e-3,-1"], "sweep run tol=-1: --tol: got -1, must be > 0"),
+        (["--param", "simpson=4,3"], "sweep run simpson=3: --simpson: got 3, must be an even"),
+        (["--param", "tau=0.1,x"], "sweep run tau=x: argument --tau: got 'x', must be a number"),
+        (["--param", "out=a,b"], "--param: got 'out', cannot be swept"),
+        (["--param", "tol=1e-3", "--tol", "1e-4"], "--tol: given both in --param and as an option"),
+        (
+            ["--param", "tol=1e-3", "--unknown"],
+            "sweep run tol=1e-3: unrecognized arguments: --unknown",
+        ),
+        (["--param", "tol=1e-3", "--workers", "0"], "--workers: got 0, must be an integer >= 1"),
+        (["--param", "tol=1e-3", "--plot", "tol"], "--plot: got 'tol', must name two columns X,Y"),
+        ([], "--param: none given"),
+        (
+            ["--param", "tol=1e-3", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9"],
+            "--workers: got 2, cannot be combined with --scheduler",
+        ),
+        (
+            ["--param", "tol=1e-3", "--scheduler", ""],
+            "--scheduler: got '', must be a scheduler address",
+        ),
+        (["--param", "tol=1e-3,1e-3"], "--param: got 'tol=1e-3,1e-3', repeats a value"),
+        (["--param", "tol=1e-3", "--param", "tol=1e-4"], "--param: got 'tol', is given twice"),
+    ],
+)
 def test_bad_sweep_input_is_one_line_before_any_run(tmp_path, capsys, args, message):
     out = tmp_path / "sweep"
     code, stdout, err = run_cli(capsys, "sweep", "run", "ris-1d", *args, "--out", out)
@@ -209,18 +290,34 @@ def test_unreachable_scheduler_is_refused_quickly(tmp_path, capsys, monkeypatch)
     monkeypatch.setattr(executor_module, "CONNECT_TIMEOUT_S", 1.0)
     out = tmp_path / "sweep"
     t0 = time.perf_counter()
-    code, _, err = run_cli(capsys, "sweep", "run", "ris-1d", "--param", "tol=1e-2",
-                           "--scheduler", "tcp://127.0.0.1:9", "--out", out)
+    code, _, err = run_cli(
+        capsys,
+        "sweep",
+        "run",
+        "ris-1d",
+        "--param",
+        "tol=1e-2",
+        "--scheduler",
+        "tcp://127.0.0.1:9",
+        "--out",
+        out,
+    )
     assert code == 2 and time.perf_counter() - t0 < 10
-    assert err.startswith("rothe: error: --scheduler: got 'tcp://127.0.0.1:9', cannot connect "
-                          "within 1 s") and len(err.strip().splitlines()) == 1
+    assert (
+        err.startswith(
+            "rothe: error: --scheduler: got 'tcp://127.0.0.1:9', cannot connect within 1 s"
+        )
+        and len(err.strip().splitlines()) == 1
+    )
     assert not out.exists()
     code, _, err = run_cli(capsys, "compare", "ris-1d", "--workers", "0", "--out", out)
     assert code == 2 and err.strip() == "rothe: error: --workers: got 0, must be an integer >= 1"
 
 
 def test_eld_sweep_refuses_a_bad_value_naming_the_run(tmp_path, capsys):
-    code, _, err = run_cli(capsys, "sweep", "run", "eld-mms", "--param", "form=regularized,x",
-                           "--out", tmp_path / "s")
-    assert code == 2 and err.strip() == ("rothe: error: sweep run form=x: --form: got 'x', must "
-                                         "be one of regularized, original")
+    code, _, err = run_cli(
+        capsys, "sweep", "run", "eld-mms", "--param", "form=regularized,x", "--out", tmp_path / "s"
+    )
+    assert code == 2 and err.strip() == (
+        "rothe: error: sweep run form=x: --form: got 'x', must be one of regularized, original"
+    )

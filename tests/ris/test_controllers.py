@@ -235,9 +235,19 @@ def test_regime_inputs_are_validated():
 
 # -- checkpoint protocol (issue 10) ---------------------------------------------------------------
 
-SEQUENCE = [slip(0.1, 4e-5), slip(0.11, 1e-6), slip(0.1, 2e-4), slip(0.05, 2e-5),
-            jump(0.05, 3e-4), jump(0.02, 1e-6), stick(0.4, 0.0), stick(1.6, 0.0),
-            slip(0.1, 0.0, converged=False), slip(0.02, 3e-5), jump(0.03, 2e-5)]
+SEQUENCE = [
+    slip(0.1, 4e-5),
+    slip(0.11, 1e-6),
+    slip(0.1, 2e-4),
+    slip(0.05, 2e-5),
+    jump(0.05, 3e-4),
+    jump(0.02, 1e-6),
+    stick(0.4, 0.0),
+    stick(1.6, 0.0),
+    slip(0.1, 0.0, converged=False),
+    slip(0.02, 3e-5),
+    jump(0.03, 2e-5),
+]
 
 
 def _build(control):
@@ -288,8 +298,11 @@ def test_controller_checkpoint_holds_only_plain_data(control):
 
 def test_restore_into_a_different_controller_fails():
     data = _build("regime").checkpoint_state()
-    with pytest.raises(ValueError, match=r"restore_state: a 'regime' controller's state given "
-                                         r"to a 'order2' controller"):
+    with pytest.raises(
+        ValueError,
+        match=r"restore_state: a 'regime' controller's state given "
+        r"to a 'order2' controller",
+    ):
         _build("order2").restore_state(data)
 
 
@@ -300,8 +313,12 @@ def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
     problem = example_7_1()
     tol = None if control == "uniform" else 1e-4
     full = initial_trajectory(problem)
-    evolve(RISStepper(problem), make_controller(control, tol=tol, tau=0.1),
-           RISState(0.0, 0.0, problem.z0.copy()), full)
+    evolve(
+        RISStepper(problem),
+        make_controller(control, tol=tol, tau=0.1),
+        RISState(0.0, 0.0, problem.z0.copy()),
+        full,
+    )
     stepper = RISStepper(problem)
     first = make_controller(control, tol=tol, tau=0.1)
     traj = initial_trajectory(problem)

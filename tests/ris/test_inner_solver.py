@@ -143,13 +143,15 @@ def convex_problem(seed, n):
     B = rng.standard_normal((n, n))
     A = B @ B.T / n + 0.05 * np.eye(n)
     a = rng.uniform(0.1, 1.0, n)
-    return with_random_data(rng, A, lambda z: float(0.5 * a @ z**2), lambda z: a * z,
-                            lambda z: a.copy()), rng
+    return with_random_data(
+        rng, A, lambda z: float(0.5 * a @ z**2), lambda z: a * z, lambda z: a.copy()
+    ), rng
 
 
 @settings(max_examples=80, deadline=None)
-@given(seed=st.integers(0, 10**6), n=st.integers(2, 9), tau=st.floats(1e-2, 3.0),
-       t=st.floats(0.0, 1.0))
+@given(
+    seed=st.integers(0, 10**6), n=st.integers(2, 9), tau=st.floats(1e-2, 3.0), t=st.floats(0.0, 1.0)
+)
 def test_convex_step_needs_no_forward_backward_step(seed, n, tau, t):
     # With a positive definite Hessian a node that Newton sends back against its predicted sign
     # is the ordinary semismooth case (the coupling overruled the diagonal prediction), not a

@@ -23,13 +23,21 @@ def run_cli(capsys, *argv):
 
 def test_run_ris_2d_outputs(tmp_path, capsys):
     out = tmp_path / "r"
-    code, stdout, err = run_cli(capsys, "run", "ris-2d", "--n", "6", "--tol", "1e-3",
-                                "--out", str(out))
+    code, stdout, err = run_cli(
+        capsys, "run", "ris-2d", "--n", "6", "--tol", "1e-3", "--out", str(out)
+    )
     assert code == 0, err
     assert "branch" in stdout and "linear_solver" in stdout
     files = {p.name for p in out.iterdir()}
-    assert {"summary.json", "trajectory.npz", "solution.xdmf", "solution.h5", "fig4_steps.png",
-            "fig_snapshots.png", "fig1_path.png"} <= files
+    assert {
+        "summary.json",
+        "trajectory.npz",
+        "solution.xdmf",
+        "solution.h5",
+        "fig4_steps.png",
+        "fig_snapshots.png",
+        "fig1_path.png",
+    } <= files
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_nodes"] == 49 and summary["n_unknowns"] == 25
     assert summary["linear_solver"] == "splu" and summary["peak_memory_mb"] > 10
@@ -70,12 +78,29 @@ def test_reported_linear_solver_is_the_one_that_ran(method):
 
 
 def test_run_ris_2d_from_gmsh_with_named_dirichlet_part(tmp_path, capsys, gmsh_text):
-    msh = gmsh_text.write_msh41(tmp_path / "sq.msh", unit_square(6),
-                                lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"))
+    msh = gmsh_text.write_msh41(
+        tmp_path / "sq.msh",
+        unit_square(6),
+        lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"),
+    )
     out = tmp_path / "g"
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(msh), "--dirichlet", "left",
-                           "--control", "uniform", "--tau", "0.05", "--no-plots", "--quiet",
-                           "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--mesh",
+        str(msh),
+        "--dirichlet",
+        "left",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.05",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["mesh"] == str(msh) and summary["n_unknowns"] == 42
@@ -87,8 +112,9 @@ def test_run_ris_2d_from_gmsh_with_named_dirichlet_part(tmp_path, capsys, gmsh_t
 
 def test_run_ris_3d(tmp_path, capsys):
     out = tmp_path / "c"
-    code, _, err = run_cli(capsys, "run", "ris-3d", "--n", "3", "--tol", "1e-3", "--quiet",
-                           "--out", str(out))
+    code, _, err = run_cli(
+        capsys, "run", "ris-3d", "--n", "3", "--tol", "1e-3", "--quiet", "--out", str(out)
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_nodes"] == 64 and summary["example"] == "ris-3d"
@@ -99,39 +125,65 @@ def test_run_ris_3d(tmp_path, capsys):
 
 def test_amplitude_sign_and_z0_are_options(tmp_path, capsys):
     out = tmp_path / "p"
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--n", "4", "--amplitude", "200",
-                           "--control", "uniform", "--tau", "0.05", "--no-plots", "--quiet",
-                           "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--amplitude",
+        "200",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.05",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["z_min"] == 0.0 and summary["z_max"] > 1.2 and summary["amplitude"] == 200.0
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--n", "1"], r"--n: got 1, must be an integer >= 2"),
-    (["--n", "x"], r"argument --n: invalid int value: 'x'"),
-    (["--mesh", "NOFILE.msh"], r"--mesh: got 'NOFILE.msh', no such file"),
-    (["--mesh", "GARBAGE"], r"--mesh: got '.*garbage.msh', is not a mesh meshio can read"),
-    (["--mesh", "TETS"], r"--mesh: got '.*tets.vtu', has no triangle cells \(found: tetra\)"),
-    (["--mesh", "GARBAGE", "--n", "8"], r"--n: got 8, cannot be combined with --mesh"),
-    (["--dirichlet", "inlet"],
-     r"--dirichlet: got 'inlet', must be one of bottom, left, right, top"),
-    (["--linear-solver", "cholesky"], r"--linear-solver: got 'cholesky', must be one of auto, "
-                                      r"direct, amg"),
-    (["--tol", "-1"], r"--tol: got -1, must be > 0"),
-    (["--amplitude", "nan"], r"argument --amplitude: got 'nan', must be finite"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--n", "1"], r"--n: got 1, must be an integer >= 2"),
+        (["--n", "x"], r"argument --n: invalid int value: 'x'"),
+        (["--mesh", "NOFILE.msh"], r"--mesh: got 'NOFILE.msh', no such file"),
+        (["--mesh", "GARBAGE"], r"--mesh: got '.*garbage.msh', is not a mesh meshio can read"),
+        (["--mesh", "TETS"], r"--mesh: got '.*tets.vtu', has no triangle cells \(found: tetra\)"),
+        (["--mesh", "GARBAGE", "--n", "8"], r"--n: got 8, cannot be combined with --mesh"),
+        (
+            ["--dirichlet", "inlet"],
+            r"--dirichlet: got 'inlet', must be one of bottom, left, right, top",
+        ),
+        (
+            ["--linear-solver", "cholesky"],
+            r"--linear-solver: got 'cholesky', must be one of auto, "
+            r"direct, amg",
+        ),
+        (["--tol", "-1"], r"--tol: got -1, must be > 0"),
+        (["--amplitude", "nan"], r"argument --amplitude: got 'nan', must be finite"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, argv, message):
     import meshio
 
     (tmp_path / "garbage.msh").write_text("not a mesh\n")
     c = unit_cube(2)
     meshio.write(tmp_path / "tets.vtu", meshio.Mesh(c.p.T, [("tetra", c.t.T)]))
-    subst = {"NOFILE.msh": "NOFILE.msh", "GARBAGE": str(tmp_path / "garbage.msh"),
-             "TETS": str(tmp_path / "tets.vtu")}
+    subst = {
+        "NOFILE.msh": "NOFILE.msh",
+        "GARBAGE": str(tmp_path / "garbage.msh"),
+        "TETS": str(tmp_path / "tets.vtu"),
+    }
     argv = [subst.get(a, a) for a in argv]
-    code, stdout, err = run_cli(capsys, "run", "ris-2d", *argv, "--out", str(tmp_path / "o"),
-                                "--quiet")
+    code, stdout, err = run_cli(
+        capsys, "run", "ris-2d", *argv, "--out", str(tmp_path / "o"), "--quiet"
+    )
     assert code == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -142,17 +194,40 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, argv, message):
 
 
 def test_exit_status_2_from_the_real_command(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "rothe.cli.main", "run", "ris-2d", "--mesh",
-                           str(tmp_path / "missing.msh")], capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rothe.cli.main",
+            "run",
+            "ris-2d",
+            "--mesh",
+            str(tmp_path / "missing.msh"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
-        f"rothe: error: --mesh: got '{tmp_path / 'missing.msh'}', no such file"]
+        f"rothe: error: --mesh: got '{tmp_path / 'missing.msh'}', no such file"
+    ]
 
 
 def test_failed_run_keeps_the_trajectory(tmp_path, capsys):
     out = tmp_path / "f"
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--n", "4", "--tau-min", "0.05",
-                           "--no-plots", "--quiet", "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--tau-min",
+        "0.05",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert code == 1
     assert err.strip().startswith("rothe: run failed: step size fell below tau_min = 0.05")
     summary = json.loads((out / "summary.json").read_text())
@@ -166,9 +241,21 @@ def test_failed_run_keeps_the_trajectory(tmp_path, capsys):
 def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
     out = tmp_path / "cmp"
     # the uniform residuals (2.1 ... 0.52) bracket tol = 1e-2 (0.75), not 3e-3 (0.41)
-    code, stdout, err = run_cli(capsys, "compare", "ris-2d", "--n", "4", "--tols", "1e-2,3e-3",
-                                "--taus", "0.02,0.01,0.005", "--controls", "adaptive,regime",
-                                "--out", str(out))
+    code, stdout, err = run_cli(
+        capsys,
+        "compare",
+        "ris-2d",
+        "--n",
+        "4",
+        "--tols",
+        "1e-2,3e-3",
+        "--taus",
+        "0.02,0.01,0.005",
+        "--controls",
+        "adaptive,regime",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     table = (out / "table.txt").read_text()
     assert table.strip() == stdout.split("wrote")[0].strip()
@@ -181,17 +268,38 @@ def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
     u = [r["sum_residual"] for r in rows[4:]]
     assert 1.7 < u[0] / u[1] < 2.3 and 1.7 < u[1] / u[2] < 2.3
     cmp = json.loads((out / "compare.json").read_text())
-    keys = ["control", "tol", "tau", "accepted", "rejected", "solves", "newton", "seconds",
-            "local_residual", "global_residual", "ratio_steps", "ratio_solves", "ratio_seconds"]
+    keys = [
+        "control",
+        "tol",
+        "tau",
+        "accepted",
+        "rejected",
+        "solves",
+        "newton",
+        "seconds",
+        "local_residual",
+        "global_residual",
+        "ratio_steps",
+        "ratio_solves",
+        "ratio_seconds",
+    ]
     assert all(list(r) == keys for r in cmp["rows"])
     for r, s in zip(cmp["rows"], rows, strict=True):
-        assert (r["control"], r["accepted"], r["solves"]) == (s["control"], s["accepted_steps"],
-                                                             s["inner_solves"])
+        assert (r["control"], r["accepted"], r["solves"]) == (
+            s["control"],
+            s["accepted_steps"],
+            s["inner_solves"],
+        )
         assert r["global_residual"] == s["sum_residual"]
         assert r["local_residual"] == s["max_residual"]
     uniform = [r for r in cmp["rows"] if r["control"] == "uniform"]
-    assert all(r["tol"] is None and r["ratio_steps"] is None and r["ratio_solves"] is None
-               and r["ratio_seconds"] is None for r in uniform)
+    assert all(
+        r["tol"] is None
+        and r["ratio_steps"] is None
+        and r["ratio_solves"] is None
+        and r["ratio_seconds"] is None
+        for r in uniform
+    )
     # the ratios: log-log interpolation between the bracketing uniform runs, by hand
     g = np.log([r["global_residual"] for r in uniform])[::-1]
     for r in cmp["rows"][:4]:
@@ -199,8 +307,11 @@ def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
         if not g[0] <= x <= g[-1]:
             assert r["ratio_steps"] is None and r["ratio_solves"] is None
             continue
-        for work, ratio in (("accepted", "ratio_steps"), ("solves", "ratio_solves"),
-                            ("seconds", "ratio_seconds")):
+        for work, ratio in (
+            ("accepted", "ratio_steps"),
+            ("solves", "ratio_solves"),
+            ("seconds", "ratio_seconds"),
+        ):
             w = np.log([u[work] for u in uniform])[::-1]
             i = int(np.searchsorted(g, x).clip(1, len(g) - 1))
             expected = np.exp(w[i - 1] + (w[i] - w[i - 1]) * (x - g[i - 1]) / (g[i] - g[i - 1]))
@@ -214,14 +325,27 @@ def test_compare_rows_null_outside_the_uniform_range():
     from rothe.cli.ris_fem_commands import compare_rows
 
     def row(control, G, acc, tau0=0.1, tol=1e-4):
-        return {"control": control, "tol": tol, "tau0": tau0, "accepted_steps": acc,
-                "rejected_steps": 0, "inner_solves": acc, "newton_iterations": 2 * acc,
-                "wall_time_s": 0.01 * acc, "max_residual": G / acc, "sum_residual": G,
-                "status": "completed"}
+        return {
+            "control": control,
+            "tol": tol,
+            "tau0": tau0,
+            "accepted_steps": acc,
+            "rejected_steps": 0,
+            "inner_solves": acc,
+            "newton_iterations": 2 * acc,
+            "wall_time_s": 0.01 * acc,
+            "max_residual": G / acc,
+            "sum_residual": G,
+            "status": "completed",
+        }
 
-    rows = [row("regime", 0.5, 10), row("regime", 0.05, 50), row("regime", 2.0, 5),
-            row("uniform", 1.0, 100, tau0=0.01, tol=None),
-            row("uniform", 0.1, 1000, tau0=0.001, tol=None)]
+    rows = [
+        row("regime", 0.5, 10),
+        row("regime", 0.05, 50),
+        row("regime", 2.0, 5),
+        row("uniform", 1.0, 100, tau0=0.01, tol=None),
+        row("uniform", 0.1, 1000, tau0=0.001, tol=None),
+    ]
     out = compare_rows(rows)
     # G = 0.5 between 1.0 (100 steps) and 0.1 (1000): log-log gives 100 * 2 = 200 steps
     assert out[0]["ratio_steps"] == pytest.approx(10 / 200)
@@ -237,9 +361,12 @@ def test_compare_rows_null_outside_the_uniform_range():
 
 def test_compare_bad_input(tmp_path, capsys):
     code, _, err = run_cli(capsys, "compare", "ris-2d", "--taus", "0.1", "--out", str(tmp_path))
-    assert code == 2 and err.strip() == ("rothe: error: --taus: got '0.1', needs at least two step "
-                                         "sizes")
-    code, _, err = run_cli(capsys, "compare", "ris-2d", "--controls", "nested", "--out",
-                           str(tmp_path))
-    assert code == 2 and err.strip() == ("rothe: error: --controls: got 'nested', must be one of "
-                                         "adaptive, order2, regime")
+    assert code == 2 and err.strip() == (
+        "rothe: error: --taus: got '0.1', needs at least two step sizes"
+    )
+    code, _, err = run_cli(
+        capsys, "compare", "ris-2d", "--controls", "nested", "--out", str(tmp_path)
+    )
+    assert code == 2 and err.strip() == (
+        "rothe: error: --controls: got 'nested', must be one of adaptive, order2, regime"
+    )

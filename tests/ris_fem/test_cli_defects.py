@@ -42,12 +42,14 @@ def test_duplicate_nodes_refused_merged_or_kept(tmp_path, capsys, gmsh_text):
     cracked, plain = cracked_square(4)
     path = gmsh_text.write_msh22(tmp_path / "crack.msh", cracked, wall)
     # accepted before, with another energy (-45.6 instead of -102.3 on this grid, tol 1e-3)
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(path), "--out",
-                           str(tmp_path / "a"))
+    code, _, err = run_cli(
+        capsys, "run", "ris-2d", "--mesh", str(path), "--out", str(tmp_path / "a")
+    )
     assert code == 2 and err.strip() == (
         f"rothe: error: --mesh: got '{path}', has 1 pair(s) of coincident nodes used by "
         "different cells (the first at (0.5, 0.5)): the mesh is cut there like a crack; "
-        "--duplicate-nodes merge glues them, keep takes the cut as intended")
+        "--duplicate-nodes merge glues them, keep takes the cut as intended"
+    )
     energies = {}
     for how, mesh in (("merge", str(path)), ("keep", str(path)), (None, None)):
         out = tmp_path / str(how)
@@ -55,8 +57,20 @@ def test_duplicate_nodes_refused_merged_or_kept(tmp_path, capsys, gmsh_text):
             argv = ["--n", "4"]
         else:
             argv = ["--mesh", mesh, "--duplicate-nodes", how]
-        code, _, err = run_cli(capsys, "run", "ris-2d", *argv, "--control", "uniform",
-                               "--tau", "0.1", "--no-plots", "--quiet", "--out", str(out))
+        code, _, err = run_cli(
+            capsys,
+            "run",
+            "ris-2d",
+            *argv,
+            "--control",
+            "uniform",
+            "--tau",
+            "0.1",
+            "--no-plots",
+            "--quiet",
+            "--out",
+            str(out),
+        )
         assert code == 0, err
         energies[how] = json.loads((out / "summary.json").read_text())["energy_final"]
     assert energies["merge"] == pytest.approx(energies[None], rel=1e-9)
@@ -81,8 +95,23 @@ def test_load_mesh_merge_gives_the_uncut_mesh(tmp_path, gmsh_text):
 @pytest.mark.parametrize("axis", ["s", "t"])
 def test_xdmf_time_axis(tmp_path, capsys, axis):
     out = tmp_path / axis
-    code, _, err = run_cli(capsys, "run", "ris-2d", "--n", "4", "--control", "uniform", "--tau",
-                           "0.1", "--no-plots", "--quiet", "--xdmf-time", axis, "--out", str(out))
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--no-plots",
+        "--quiet",
+        "--xdmf-time",
+        axis,
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     with np.load(out / "trajectory.npz") as f:
         s, t, z = f["s"], f["t"], f["z"]
@@ -104,11 +133,24 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
     figure shows one plateau, the summary said n_viscous_jumps 318 and printed 318 times."""
     from skfem import MeshTri
 
-    path = gmsh_text.write_msh22(tmp_path / "disk.msh", MeshTri.init_circle(4),
-                                 lambda mid: np.where(mid[0] < 0, "wall", "free"))
+    path = gmsh_text.write_msh22(
+        tmp_path / "disk.msh",
+        MeshTri.init_circle(4),
+        lambda mid: np.where(mid[0] < 0, "wall", "free"),
+    )
     out = tmp_path / "o"
-    code, stdout, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(path), "--dirichlet",
-                                "wall", "--no-plots", "--out", str(out))
+    code, stdout, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--mesh",
+        str(path),
+        "--dirichlet",
+        "wall",
+        "--no-plots",
+        "--out",
+        str(out),
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_nodes"] == 545

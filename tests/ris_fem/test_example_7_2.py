@@ -116,8 +116,9 @@ def _reflection(mesh, fmap):
     k0, k1 = key(p), key(fmap(p))
     order = np.argsort(k0)
     perm = order[np.searchsorted(k0[order], k1)]
-    invariant = ({tuple(c) for c in np.sort(perm[mesh.t], axis=0).T}
-                 == {tuple(c) for c in np.sort(mesh.t, axis=0).T})
+    invariant = {tuple(c) for c in np.sort(perm[mesh.t], axis=0).T} == {
+        tuple(c) for c in np.sort(mesh.t, axis=0).T
+    }
     return perm, invariant
 
 
@@ -135,8 +136,11 @@ def test_symmetry_on_the_union_jack_grid():
     p = example_7_2(8, pattern="unionjack")
     tr = run_ris(p, "adaptive", tol=1e-4, tau=0.1)
     check_every_step(p, tr)
-    for fmap in (lambda q: np.array([1 - q[0], q[1]]), lambda q: np.array([q[0], 1 - q[1]]),
-                 lambda q: np.array([q[1], q[0]])):
+    for fmap in (
+        lambda q: np.array([1 - q[0], q[1]]),
+        lambda q: np.array([q[0], 1 - q[1]]),
+        lambda q: np.array([q[1], q[0]]),
+    ):
         perm, invariant = _reflection(p.mesh, fmap)
         assert invariant
         assert np.max(np.abs(tr["z"] - tr["z"][:, perm])) < 1e-9
@@ -200,6 +204,7 @@ def test_3d_analogue():
 
 # -- the regime controller (issue 12) -------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def regime16(grid16):
     return run_ris(grid16, "regime", tol=1e-4, tau=0.1)
@@ -215,9 +220,12 @@ def test_every_accepted_step_regime(grid16, regime16):
 
 def _regime_ratio_and_bound(regime16, uniform16):
     def row(traj):
-        return {"control": traj.meta["control"], "status": "completed",
-                "sum_residual": float(np.sum(traj["I1"] + traj["I2"])),
-                "inner_solves": traj.stats.inner_solves}
+        return {
+            "control": traj.meta["control"],
+            "status": "completed",
+            "sum_residual": float(np.sum(traj["I1"] + traj["I2"])),
+            "inner_solves": traj.stats.inner_solves,
+        }
 
     solves_at = uniform_work_interpolant([row(t) for t in uniform16], "inner_solves")
     base = solves_at(row(regime16)["sum_residual"])

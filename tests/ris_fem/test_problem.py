@@ -81,8 +81,11 @@ def test_3d_problem_and_dimension_checks():
     p = example_7_2_3d(3)
     assert p.dim == 3 and p.n_nodes == 64 and p.n == 8
     assert math.isclose(p.energy(0.0, p.z0), 48.0, rel_tol=1e-14)
-    with pytest.raises(RotheInputError, match=r"^mesh: got a 3D mesh \(64 nodes, 162 tetrahedra\), "
-                                              r"must be 2D \(triangles\) for ris-2d$"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^mesh: got a 3D mesh \(64 nodes, 162 tetrahedra\), "
+        r"must be 2D \(triangles\) for ris-2d$",
+    ):
         example_7_2(mesh=unit_cube(3))
     with pytest.raises(RotheInputError, match=r"must be 3D \(tetrahedra\) for ris-3d$"):
         example_7_2_3d(mesh=unit_square(3))
@@ -103,6 +106,7 @@ def test_named_dirichlet_parts_and_z0_forms():
 
 # -- bad inputs ----------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("n", [1, 0, -3])
 def test_grid_smaller_than_2(n):
     """A grid of one cell per side has no interior node: refused by every built-in RIS grid."""
@@ -112,25 +116,41 @@ def test_grid_smaller_than_2(n):
 
 
 def test_wrong_first_derivative():
-    with pytest.raises(RotheInputError,
-                       match=r"^dg: got .* at z = -2.31, must match finite differences of g "
-                             r"\(.*\); check the derivative you supplied$"):
-        FERISProblem(unit_square(4), g_7_2, lambda z: 192 * z * (1 - z * z), d2g_7_2,
-                     load=lambda t: -200 * t**3)
+    with pytest.raises(
+        RotheInputError,
+        match=r"^dg: got .* at z = -2.31, must match finite differences of g "
+        r"\(.*\); check the derivative you supplied$",
+    ):
+        FERISProblem(
+            unit_square(4),
+            g_7_2,
+            lambda z: 192 * z * (1 - z * z),
+            d2g_7_2,
+            load=lambda t: -200 * t**3,
+        )
 
 
 def test_wrong_second_derivative():
-    with pytest.raises(RotheInputError, match=r"^d2g: got 2881\.59 at z = -2\.31, must match "
-                                              r"finite differences of dg \(2877\.59\)"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^d2g: got 2881\.59 at z = -2\.31, must match "
+        r"finite differences of dg \(2877\.59\)",
+    ):
         # g = 48 (1 - z^2)^2 - 2 z^2 with the derivative right but g'' of the plain double well
-        FERISProblem(unit_square(4), lambda z: g_7_2(z) - 2 * z * z,
-                     lambda z: dg_7_2(z) - 4 * z, d2g_7_2, load=lambda t: -200 * t**3)
+        FERISProblem(
+            unit_square(4),
+            lambda z: g_7_2(z) - 2 * z * z,
+            lambda z: dg_7_2(z) - 4 * z,
+            d2g_7_2,
+            load=lambda t: -200 * t**3,
+        )
 
 
 def test_correct_piecewise_g_passes_and_nonvectorized_g_fails():
     # |z|^3 has a continuous g'' with a kink at 0; the check points avoid round numbers
-    check_pointwise_derivatives(lambda z: np.abs(z) ** 3, lambda z: 3 * z * np.abs(z),
-                                lambda z: 6 * np.abs(z))
+    check_pointwise_derivatives(
+        lambda z: np.abs(z) ** 3, lambda z: 3 * z * np.abs(z), lambda z: 6 * np.abs(z)
+    )
     with pytest.raises(RotheInputError, match=r"^g: got an error on a numpy array \(TypeError"):
         FERISProblem(unit_square(4), lambda z: math.exp(z), np.exp, np.exp, load=lambda t: 0.0)
     with pytest.raises(RotheInputError, match=r"^dg: got a non-finite value at z = -2.31"):
@@ -139,8 +159,11 @@ def test_correct_piecewise_g_passes_and_nonvectorized_g_fails():
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 def test_load_nan_or_inf(bad):
-    with pytest.raises(RotheInputError, match=r"^load\(t=0\.625\): got (nan|inf|-inf), must be "
-                                              r"finite \(no NaN or inf\)$"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^load\(t=0\.625\): got (nan|inf|-inf), must be "
+        r"finite \(no NaN or inf\)$",
+    ):
         example_load = lambda t: bad if t > 0.6 else -200 * t**3  # noqa: E731
         FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2, load=example_load)
     vec = np.zeros(25)
@@ -150,9 +173,12 @@ def test_load_nan_or_inf(bad):
 
 
 def test_load_of_wrong_shape_or_raising():
-    with pytest.raises(RotheInputError, match=r"^load\(t=0\): got an array of shape \(3,\), "
-                                              r"must be a number \(density\) or one nodal "
-                                              r"functional per node \(25\)$"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^load\(t=0\): got an array of shape \(3,\), "
+        r"must be a number \(density\) or one nodal "
+        r"functional per node \(25\)$",
+    ):
         FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2, load=lambda t: np.ones(3))
     with pytest.raises(RotheInputError, match=r"^load\(t=0\): got an error \(KeyError"):
         FERISProblem(unit_square(4), g_7_2, dg_7_2, d2g_7_2, load=lambda t: {}[t])
@@ -160,30 +186,48 @@ def test_load_of_wrong_shape_or_raising():
 
 def test_mesh_without_boundary_or_interior_nodes(tmp_path, gmsh_text):
     # a physical group that names no facet of the mesh: no Dirichlet nodes
-    path = gmsh_text.write_msh22(tmp_path / "sq.msh", unit_square(4),
-                                 lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"))
-    text = path.read_text().replace('"rest"', '"rest"\n1 9 "hole"').replace("$PhysicalNames\n3",
-                                                                           "$PhysicalNames\n4")
+    path = gmsh_text.write_msh22(
+        tmp_path / "sq.msh",
+        unit_square(4),
+        lambda mid: np.where(np.isclose(mid[0], 0), "left", "rest"),
+    )
+    text = (
+        path.read_text()
+        .replace('"rest"', '"rest"\n1 9 "hole"')
+        .replace("$PhysicalNames\n3", "$PhysicalNames\n4")
+    )
     path.write_text(text)
     mesh = load_mesh(path)
     with pytest.raises(RotheInputError, match=r"^dirichlet: got 'hole', must be one of left, rest"):
         example_7_2(mesh=mesh, dirichlet=["hole"])
-    mesh = MeshTri(mesh.p, mesh.t, _boundaries={"left": mesh.boundaries["left"],
-                                                "hole": np.empty(0, dtype=np.int64)})
-    with pytest.raises(RotheInputError, match=r"^mesh: got a mesh with no nodes on boundary parts "
-                                              r"\['hole'\] \(25 nodes, 32 triangles\), homogeneous "
-                                              r"Dirichlet data needs at least one boundary node$"):
+    mesh = MeshTri(
+        mesh.p,
+        mesh.t,
+        _boundaries={"left": mesh.boundaries["left"], "hole": np.empty(0, dtype=np.int64)},
+    )
+    with pytest.raises(
+        RotheInputError,
+        match=r"^mesh: got a mesh with no nodes on boundary parts "
+        r"\['hole'\] \(25 nodes, 32 triangles\), homogeneous "
+        r"Dirichlet data needs at least one boundary node$",
+    ):
         example_7_2(mesh=mesh, dirichlet=["hole"])
     # every node on the boundary: nothing to compute
-    with pytest.raises(RotheInputError, match=r"^mesh: got a mesh whose 4 nodes all lie on the "
-                                              r"Dirichlet boundary, needs at least one interior"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^mesh: got a mesh whose 4 nodes all lie on the "
+        r"Dirichlet boundary, needs at least one interior",
+    ):
         example_7_2(mesh=MeshTri())
 
 
 def test_z0_nonzero_on_the_boundary_and_bad_shapes():
     full = np.ones(25)
-    with pytest.raises(RotheInputError, match=r"^z0: got values up to 1 on Dirichlet nodes, must "
-                                              r"vanish there \(homogeneous Dirichlet data\)$"):
+    with pytest.raises(
+        RotheInputError,
+        match=r"^z0: got values up to 1 on Dirichlet nodes, must "
+        r"vanish there \(homogeneous Dirichlet data\)$",
+    ):
         example_7_2(4, z0=full)
     with pytest.raises(RotheInputError, match=r"^z0: got an array of shape \(7,\)"):
         example_7_2(4, z0=np.zeros(7))

@@ -92,8 +92,7 @@ def front_options(**kw):
 @pytest.mark.parametrize("control", ["adaptive", "uniform"])
 def test_every_step_of_an_adapted_run_is_kkt_exact_on_its_mesh(checked_steps, control):
     p = example_front(4, T=0.2)
-    traj = run_ris(p, control, tol=1e-2, tau=0.05, inner=DIRECT,
-                   space=front_options(max_dofs=300))
+    traj = run_ris(p, control, tol=1e-2, tau=0.05, inner=DIRECT, space=front_options(max_dofs=300))
     assert checked_steps["steps"] == len(traj) > 10
     assert len(checked_steps["mesh_ids"]) >= 3  # the steps ran on several meshes
     ids, dofs = np.asarray(traj["mesh_id"]), np.asarray(traj["n_dofs"])
@@ -109,8 +108,7 @@ def test_nested_control_adapts_every_run(checked_steps):
     from rothe.ris.stepper import run_nested
 
     p = example_front(4, T=0.1)
-    runs = run_nested(p, [2e-2, 1e-2], tau=0.05, inner=DIRECT,
-                      space=front_options(max_dofs=200))
+    runs = run_nested(p, [2e-2, 1e-2], tau=0.05, inner=DIRECT, space=front_options(max_dofs=200))
     assert len(runs) == 2 and all(r.meta["space_adaptations"] >= 1 for r in runs)
     assert checked_steps["steps"] == sum(len(r) for r in runs)
 
@@ -143,8 +141,14 @@ def test_transfer_is_exact_on_refinement():
 def test_nothing_marked_is_the_fixed_mesh_run_bit_for_bit():
     p = example_7_2(5, T=0.4)
     fixed = run_ris(p, "adaptive", tol=1e-3, tau=0.1, inner=DIRECT)
-    same = run_ris(p, "adaptive", tol=1e-3, tau=0.1, inner=DIRECT,
-                   space=SpaceAdaptivity(space_tol=1e9, coarsen_fraction=1e-300))
+    same = run_ris(
+        p,
+        "adaptive",
+        tol=1e-3,
+        tau=0.1,
+        inner=DIRECT,
+        space=SpaceAdaptivity(space_tol=1e9, coarsen_fraction=1e-300),
+    )
     assert same.meta["space_adaptations"] == 0 and len(fixed) == len(same) > 5
     for key in fixed.keys():
         a, b = fixed[key], same[key]
@@ -161,8 +165,14 @@ def test_the_front_example_coarsens_behind_its_front():
     Dirichlet side x = 1 is static and stays refined (it is resolved further once the state
     behind the front has arrived there)."""
     p = example_front(4, T=1.0)
-    traj = run_ris(p, "uniform", tol=None, tau=0.1, inner=DIRECT,
-                   space=front_options(max_dofs=400, space_tol=3.0))
+    traj = run_ris(
+        p,
+        "uniform",
+        tol=None,
+        tau=0.1,
+        inner=DIRECT,
+        space=front_options(max_dofs=400, space_tol=3.0),
+    )
     dofs = np.asarray(traj["n_dofs"])
     peak = int(np.argmax(dofs))
     assert dofs[peak] > 2 * dofs[0]
@@ -183,27 +193,40 @@ def test_bad_input_is_refused_with_one_line():
         run_ris(p, "adaptive", space={"space_tol": 1.0})
     with pytest.raises(RotheInputError, match=r"^space: got a RISProblem problem"):
         run_ris(example_7_1(), "adaptive", space=SpaceAdaptivity(space_tol=1.0))
-    nodal = FERISProblem(p.mesh, g_7_2, lambda z: -192 * z * (1 - z * z),
-                         lambda z: 576 * z * z - 192, load=lambda t: -200 * t**3 * p.m_all)
+    nodal = FERISProblem(
+        p.mesh,
+        g_7_2,
+        lambda z: -192 * z * (1 - z * z),
+        lambda z: 576 * z * z - 192,
+        load=lambda t: -200 * t**3 * p.m_all,
+    )
     with pytest.raises(RotheInputError, match=r"^space: got a load given as nodal functionals"):
         run_ris(nodal, "adaptive", space=SpaceAdaptivity(space_tol=1.0))
     with pytest.raises(RotheInputError, match=r"^max_dofs: got 10, must be >= the 25 dofs"):
         run_ris(p, "adaptive", space=SpaceAdaptivity(space_tol=1.0, max_dofs=10))
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is only used with --adapt-space"),
-    (["--adapt-space", "--refine-fraction", "1.5"],
-     E + r"--refine-fraction: got 1.5, must be in \(0, 1\)"),
-    (["--adapt-space", "--space-tol", "0"], E + r"--space-tol: got 0(\.0)?, must be > 0"),
-    (["--adapt-space", "--adapt-every", "0"], E + r"--adapt-every: got 0, must be an integ"),
-    (["--adapt-space", "--refine-fraction", "0.7", "--coarsen-fraction", "0.4"],
-     E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1"),
-    (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is only used with --adapt-space"),
+        (
+            ["--adapt-space", "--refine-fraction", "1.5"],
+            E + r"--refine-fraction: got 1.5, must be in \(0, 1\)",
+        ),
+        (["--adapt-space", "--space-tol", "0"], E + r"--space-tol: got 0(\.0)?, must be > 0"),
+        (["--adapt-space", "--adapt-every", "0"], E + r"--adapt-every: got 0, must be an integ"),
+        (
+            ["--adapt-space", "--refine-fraction", "0.7", "--coarsen-fraction", "0.4"],
+            E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1",
+        ),
+        (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
+    ],
+)
 def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
-    code, out, err = run_cli(capsys, "run", "ris-front", "--n", "4", "--out",
-                             str(tmp_path / "o"), *argv)
+    code, out, err = run_cli(
+        capsys, "run", "ris-front", "--n", "4", "--out", str(tmp_path / "o"), *argv
+    )
     assert code == 2 and err.count("\n") == 1, err
     assert __import__("re").match(message, err), err
 
@@ -215,8 +238,9 @@ def test_cli_refuses_a_quadrilateral_mesh(capsys, tmp_path):
     path = tmp_path / "quads.vtu"
     meshio.write(str(path), meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3], [1, 4, 5, 2]]))]))
     capsys.readouterr()  # meshio's warning about 2D points
-    code, out, err = run_cli(capsys, "run", "ris-2d", "--mesh", str(path), "--adapt-space",
-                             "--out", str(tmp_path / "o"))
+    code, out, err = run_cli(
+        capsys, "run", "ris-2d", "--mesh", str(path), "--adapt-space", "--out", str(tmp_path / "o")
+    )
     assert code == 2 and err.count("\n") == 1, err
     assert err.startswith("rothe: error: --adapt-space: got a mesh of quadrilaterals"), err
 
@@ -227,9 +251,25 @@ def test_cli_run_writes_meshes_pvd_and_figures(capsys, tmp_path):
     from rothe.io.mesh_series import read_pvd
 
     out = tmp_path / "front"
-    code, stdout, err = run_cli(capsys, "run", "ris-front", "--n", "4", "--adapt-space",
-                                "--control", "uniform", "--tau", "0.1", "--max-dofs", "300",
-                                "--space-tol", "3", "--out", str(out), "--quiet")
+    code, stdout, err = run_cli(
+        capsys,
+        "run",
+        "ris-front",
+        "--n",
+        "4",
+        "--adapt-space",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--max-dofs",
+        "300",
+        "--space-tol",
+        "3",
+        "--out",
+        str(out),
+        "--quiet",
+    )
     assert code == 0, err
     traj = Trajectory.load_npz(out / "trajectory.npz")
     assert traj.meshes is not None and len(traj.meshes) > 1
@@ -271,8 +311,7 @@ def test_checkpoint_round_trip_continues_bit_for_bit():
     b = _run_to(stepper2, controller2, b_traj, state2, None)
     assert np.array_equal(a.z, b.z) and a.s == b.s and a.t == b.t
     for key in a_traj.keys():
-        assert all(np.array_equal(x, y) for x, y in zip(a_traj[key], b_traj[key],
-                                                         strict=True)), key
+        assert all(np.array_equal(x, y) for x, y in zip(a_traj[key], b_traj[key], strict=True)), key
     assert stepper2.space.mesh_id == stepper.space.mesh_id
 
 
@@ -280,8 +319,9 @@ def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
     p = example_front(4, T=0.15)
 
     def make_run(**kw):
-        return run_ris(p, "adaptive", tol=1e-2, tau=0.05, inner=DIRECT,
-                       space=front_options(max_dofs=250), **kw)
+        return run_ris(
+            p, "adaptive", tol=1e-2, tau=0.05, inner=DIRECT, space=front_options(max_dofs=250), **kw
+        )
 
     full = make_run()
     original = RISStepper.step
@@ -302,12 +342,13 @@ def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
     resumed = make_run(resume=ckpt)
     assert resumed.meta["sessions"] == 3 and full.meta["space_adaptations"] >= 2
     for key in full.keys():
-        assert all(np.array_equal(x, y) for x, y in zip(full[key], resumed[key],
-                                                         strict=True)), key
+        assert all(np.array_equal(x, y) for x, y in zip(full[key], resumed[key], strict=True)), key
     assert full.meshes.ids == resumed.meshes.ids
     for k in full.meshes.ids:
-        assert all(np.array_equal(x, y) for x, y in zip(full.meshes.mesh(k),
-                                                         resumed.meshes.mesh(k), strict=True))
+        assert all(
+            np.array_equal(x, y)
+            for x, y in zip(full.meshes.mesh(k), resumed.meshes.mesh(k), strict=True)
+        )
     a = full.arrays()
     b = resumed.arrays()
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
@@ -319,9 +360,24 @@ def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
     import json
 
     out = tmp_path / "cube"
-    code, _, err = run_cli(capsys, "run", "ris-3d", "--n", "3", "--adapt-space", "--control",
-                           "uniform", "--tau", "0.1", "--max-dofs", "400", "--out", str(out),
-                           "--quiet", "--no-plots")
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-3d",
+        "--n",
+        "3",
+        "--adapt-space",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--max-dofs",
+        "400",
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plots",
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["adapt_space"]["max_dofs"] == 400
@@ -335,8 +391,9 @@ def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
     assert np.all(traj["descent"] >= 0.0)
 
 
-@pytest.mark.parametrize("command, cap", [("ris-2d", 100_000), ("ris-front", 100_000),
-                                          ("ris-3d", 50_000)])
+@pytest.mark.parametrize(
+    "command, cap", [("ris-2d", 100_000), ("ris-front", 100_000), ("ris-3d", 50_000)]
+)
 def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
     # Example 7.2's state has kinks that keep the estimate above any --space-tol: uncapped, a
     # 3D run at --n 4 went from 27 to 740 000 unknowns (4.7 GB) before t = 0.64
@@ -349,8 +406,12 @@ def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
     add_space_options(parser, 1.0, cap)
     space = space_from_args(parser.parse_args(["--adapt-space"]), 1.0, cap)
     assert space.max_dofs == cap
-    assert space_from_args(parser.parse_args(["--adapt-space", "--max-dofs", "500"]), 1.0,
-                           cap).max_dofs == 500
+    assert (
+        space_from_args(
+            parser.parse_args(["--adapt-space", "--max-dofs", "500"]), 1.0, cap
+        ).max_dofs
+        == 500
+    )
     capsys.readouterr()
     try:
         main(["run", command, "--help"])

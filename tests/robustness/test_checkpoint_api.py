@@ -26,8 +26,9 @@ from .conftest import assert_same_trajectory
 DIRECT = InnerOptions(linear_solver="direct")
 
 
-def _interrupted_thrice(make_run, stepper_cls, signal_at_attempt, ckpt, sig=signal.SIGINT,
-                        attempts=(5, 40, 90)):
+def _interrupted_thrice(
+    make_run, stepper_cls, signal_at_attempt, ckpt, sig=signal.SIGINT, attempts=(5, 40, 90)
+):
     """Run, interrupted at the given step attempts (counted per session); each time resumed."""
     resume = None
     for k in attempts:
@@ -44,8 +45,7 @@ def _interrupted_thrice(make_run, stepper_cls, signal_at_attempt, ckpt, sig=sign
     return make_run(resume=ckpt)
 
 
-def test_run_ris_interrupted_and_resumed_equals_the_uninterrupted_run(tmp_path,
-                                                                      signal_at_attempt):
+def test_run_ris_interrupted_and_resumed_equals_the_uninterrupted_run(tmp_path, signal_at_attempt):
     p = example_7_2(6, T=0.3)
 
     def make_run(**kw):
@@ -111,8 +111,14 @@ def test_run_eld_sigterm_and_resume(tmp_path, signal_at_attempt):
         return run_eld(p, "regularized", 0.01, **kw)
 
     full = make_run()
-    resumed = _interrupted_thrice(make_run, ELDStepper, signal_at_attempt, tmp_path / "c",
-                                  sig=signal.SIGTERM, attempts=(1, 30, 40))
+    resumed = _interrupted_thrice(
+        make_run,
+        ELDStepper,
+        signal_at_attempt,
+        tmp_path / "c",
+        sig=signal.SIGTERM,
+        attempts=(1, 30, 40),
+    )
     assert_same_trajectory(full, resumed)
     for key in ("factorizations", "backsolves", "krylov_iterations"):
         assert full.meta["linear_solver"][key] == resumed.meta["linear_solver"][key]
@@ -145,11 +151,17 @@ def _checkpoint(tmp_path, **kw):
 
 def test_resume_refuses_another_problem_other_arguments_and_another_api(tmp_path):
     d = _checkpoint(tmp_path)
-    with pytest.raises(CheckpointError, match=r"the problem differs from the checkpoint's "
-                                              r"\(in: T, load\)"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"the problem differs from the checkpoint's "
+        r"\(in: T, load\)",
+    ):
         run_ris(example_7_1(T=4.0), "adaptive", tol=1e-3, resume=d)
-    with pytest.raises(CheckpointError, match=r"the arguments differ from the checkpoint's: "
-                                              r"tol = 0\.0001 \(checkpoint: 0\.001\)"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"the arguments differ from the checkpoint's: "
+        r"tol = 0\.0001 \(checkpoint: 0\.001\)",
+    ):
         run_ris(example_7_1(), "adaptive", tol=1e-4, resume=d)
     with pytest.raises(CheckpointError, match="the checkpoint is of run_ris, not run_nested"):
         run_nested(example_7_1(), [1e-2, 1e-3], resume=d)

@@ -37,19 +37,21 @@ def _lines(err: str) -> list[str]:
     return [line for line in err.splitlines() if line.strip()]
 
 
-@pytest.mark.parametrize("cmd, sig, status", [(RIS2D, signal.SIGINT, 130),
-                                              (RIS1D, signal.SIGTERM, 143),
-                                              (RIS2D_REGIME, signal.SIGINT, 130)],
-                         ids=["INT", "TERM", "INT-regime"])
+@pytest.mark.parametrize(
+    "cmd, sig, status",
+    [(RIS2D, signal.SIGINT, 130), (RIS1D, signal.SIGTERM, 143), (RIS2D_REGIME, signal.SIGINT, 130)],
+    ids=["INT", "TERM", "INT-regime"],
+)
 def test_signal_writes_results_so_far_and_a_checkpoint_then_resume_is_bit_identical(
-        tmp_path, capsys, signal_at_attempt, cmd, sig, status):
+    tmp_path, capsys, signal_at_attempt, cmd, sig, status
+):
     ref = tmp_path / "ref"
     assert _run(cmd + ["--out", ref], capsys)[0] == 0
     out = tmp_path / "run"
     signal_at_attempt(RISStepper, 200 if cmd[1] == "ris-2d" else 60, sig)
     code, _, err = _run(cmd + ["--out", out], capsys)
     assert code == status
-    line, = _lines(err)
+    (line,) = _lines(err)
     assert line.startswith(f"rothe: interrupted by {signal.Signals(sig).name} after ")
     assert line.endswith(f"continue with: rothe resume {out}")
     s = _summary(out)
@@ -82,7 +84,7 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
         before = snapshot() if d.exists() else None
         code, out, err = _run(argv, capsys)
         assert code == 2, err
-        line, = _lines(err)
+        (line,) = _lines(err)
         assert line.startswith("rothe: error: ") and __import__("re").search(match, line), line
         # a refused resume writes nothing: the earlier result and its checkpoint are untouched
         if before is not None:
@@ -92,16 +94,25 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     refused(["resume", tmp_path / "empty"], r"empty: no checkpoint here")
     assert list((tmp_path / "empty").iterdir()) == []
-    assert _run(["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet", "--no-plots"],
-                capsys)[0] == 0
+    assert (
+        _run(["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet", "--no-plots"], capsys)[0]
+        == 0
+    )
     assert {"summary.json", "trajectory.npz"} <= {p.name for p in d.iterdir()}
-    refused(["run", "ris-1d", "--tol", "1e-5", "--resume", d],
-            r"--resume .*run: the command line differs from the checkpoint's: --tol 1e-05 "
-            r"\(checkpoint: 0\.001\)")
-    refused(["run", "ris-2d", "--resume", d], r"the checkpoint is of 'rothe run ris-1d', not "
-                                               r"'rothe run ris-2d'")
-    refused(["run", "ris-1d", "--tol", "1e-3", "--resume", d, "--out", tmp_path / "x"],
-            r"--out: got .*x', must be the resumed directory")
+    refused(
+        ["run", "ris-1d", "--tol", "1e-5", "--resume", d],
+        r"--resume .*run: the command line differs from the checkpoint's: --tol 1e-05 "
+        r"\(checkpoint: 0\.001\)",
+    )
+    refused(
+        ["run", "ris-2d", "--resume", d],
+        r"the checkpoint is of 'rothe run ris-1d', not "
+        r"'rothe run ris-2d'",
+    )
+    refused(
+        ["run", "ris-1d", "--tol", "1e-3", "--resume", d, "--out", tmp_path / "x"],
+        r"--out: got .*x', must be the resumed directory",
+    )
     assert not (tmp_path / "x").exists()
     ckpt = d / "checkpoint" / MAIN
     with np.load(ckpt, allow_pickle=False) as f:
@@ -110,8 +121,11 @@ def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):
     header["rothe_version"] = "0.0.1"
     data["__checkpoint__"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
     np.savez(ckpt, **data)
-    refused(["resume", d], r"written by rothe 0\.0\.1, this is rothe \S+; resume it with "
-                           r"rothe 0\.0\.1 or start over")
+    refused(
+        ["resume", d],
+        r"written by rothe 0\.0\.1, this is rothe \S+; resume it with "
+        r"rothe 0\.0\.1 or start over",
+    )
     raw = ckpt.read_bytes()
     ckpt.write_bytes(raw[:100])
     refused(["resume", d], r"checkpoint\.npz: not a readable checkpoint \(truncated or damaged")
@@ -157,8 +171,7 @@ def test_resume_refuses_a_changed_mesh_file(tmp_path, capsys, signal_at_attempt)
     path = tmp_path / "square.vtu"
     meshio.write(path, meshio.Mesh(m.p.T, [("triangle", m.t.T)]))
     d = tmp_path / "run"
-    argv = ["run", "ris-2d", "--mesh", path, "--tol", "1e-3", "--out", d, "--quiet",
-            "--no-plots"]
+    argv = ["run", "ris-2d", "--mesh", path, "--tol", "1e-3", "--out", d, "--quiet", "--no-plots"]
     signal_at_attempt(RISStepper, 20)
     assert _run(argv, capsys)[0] == 130
     signal_at_attempt(RISStepper, 10**9)
@@ -177,16 +190,31 @@ def test_new_run_refused_over_an_unfinished_checkpoint(tmp_path, capsys, signal_
     signal_at_attempt(RISStepper, 10**9)
     code, _, err = _run(["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet"], capsys)
     assert code == 2
-    assert (f"--out: got '{d}', holds the checkpoint of an unfinished run (interrupted, "
-            "accepted_steps = ") in err
+    assert (
+        f"--out: got '{d}', holds the checkpoint of an unfinished run (interrupted, "
+        "accepted_steps = "
+    ) in err
     assert f"continue it with 'rothe resume {d}' or start over with --discard-checkpoint" in err
-    code, _, _ = _run(["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet", "--no-plots",
-                       "--discard-checkpoint"], capsys)
+    code, _, _ = _run(
+        [
+            "run",
+            "ris-1d",
+            "--tol",
+            "1e-3",
+            "--out",
+            d,
+            "--quiet",
+            "--no-plots",
+            "--discard-checkpoint",
+        ],
+        capsys,
+    )
     assert code == 0 and _summary(d)["tol"] == 1e-3
 
 
-def test_a_run_that_does_not_complete_never_replaces_a_completed_result(tmp_path, capsys,
-                                                                        signal_at_attempt):
+def test_a_run_that_does_not_complete_never_replaces_a_completed_result(
+    tmp_path, capsys, signal_at_attempt
+):
     d = tmp_path / "run"
     argv = ["run", "ris-2d", "--n", "4", "--tol", "1e-3", "--out", d, "--quiet"]
     assert _run(argv, capsys)[0] == 0
@@ -216,8 +244,10 @@ def test_a_run_that_does_not_complete_never_replaces_a_completed_result(tmp_path
 def test_out_is_checked_before_the_first_step(tmp_path, capsys):
     code, _, err = _run(["run", "ris-1d", "--out", "/proc/x", "--quiet"], capsys)
     assert code == 2
-    assert err.strip() == ("rothe: error: --out: got '/proc/x', cannot create or write files "
-                           "in this directory ([Errno 2] No such file or directory)")
+    assert err.strip() == (
+        "rothe: error: --out: got '/proc/x', cannot create or write files "
+        "in this directory ([Errno 2] No such file or directory)"
+    )
     (tmp_path / "f").write_text("x")
     code, _, err = _run(["run", "ris-1d", "--out", tmp_path / "f", "--quiet"], capsys)
     assert code == 2 and "must be a directory (a file of that name exists)" in err
@@ -229,8 +259,9 @@ def test_out_is_checked_before_the_first_step(tmp_path, capsys):
         assert code == 2 and "--out: got" in err and "Permission denied" in err
 
 
-def test_a_full_disk_at_the_end_keeps_the_earlier_files_and_is_one_line(tmp_path, capsys,
-                                                                        monkeypatch):
+def test_a_full_disk_at_the_end_keeps_the_earlier_files_and_is_one_line(
+    tmp_path, capsys, monkeypatch
+):
     d = tmp_path / "run"
     argv = ["run", "ris-1d", "--tol", "1e-3", "--out", d, "--quiet", "--no-plots"]
     assert _run(argv, capsys)[0] == 0
@@ -247,23 +278,40 @@ def test_a_full_disk_at_the_end_keeps_the_earlier_files_and_is_one_line(tmp_path
     monkeypatch.setattr(np, "savez_compressed", full_disk)
     code, _, err = _run(argv[:3] + ["2e-3"] + argv[4:], capsys)
     assert code == 1
-    assert _lines(err) == [f"rothe: error: cannot write {d}/trajectory.npz: No space left on "
-                           "device (files written before are unchanged)"]
+    assert _lines(err) == [
+        f"rothe: error: cannot write {d}/trajectory.npz: No space left on "
+        "device (files written before are unchanged)"
+    ]
     assert {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()} == first
     assert not [p for p in d.iterdir() if p.name.startswith(".rothe-tmp")]
 
 
 def test_progress_lines_in_a_log(tmp_path, capsys):
-    code = main(["run", "ris-2d", "--n", "4", "--tol", "1e-3", "--out", str(tmp_path / "r"),
-                 "--no-plots", "--progress-every", "0.01"])
+    code = main(
+        [
+            "run",
+            "ris-2d",
+            "--n",
+            "4",
+            "--tol",
+            "1e-3",
+            "--out",
+            str(tmp_path / "r"),
+            "--no-plots",
+            "--progress-every",
+            "0.01",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 0
     lines = [x for x in err.splitlines() if x.startswith("rothe: step ")]
     assert lines, err
     import re
 
-    pattern = (r"^rothe: step \d+ \(accepted \d+, rejected \d+\)  s = [\d.e+-]+  "
-               r"t = [\d.e+-]+/1 \([\d.]+%\)  tau = [\d.e+-]+  elapsed \d+:\d\d:\d\d")
+    pattern = (
+        r"^rothe: step \d+ \(accepted \d+, rejected \d+\)  s = [\d.e+-]+  "
+        r"t = [\d.e+-]+/1 \([\d.]+%\)  tau = [\d.e+-]+  elapsed \d+:\d\d:\d\d"
+    )
     assert all(re.match(pattern, x) for x in lines), lines[0]
     assert "\r" not in err
     assert err.splitlines()[-1].startswith("rothe: finished at step ")
@@ -272,9 +320,16 @@ def test_progress_lines_in_a_log(tmp_path, capsys):
 def test_a_second_process_cannot_write_into_the_same_out(tmp_path, capsys):
     d = tmp_path / "run"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from rothe.io.checkpoint import DirectoryLock;"
-         f"DirectoryLock({str(d / 'checkpoint')!r}).acquire(); print('locked', flush=True);"
-         "time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from rothe.io.checkpoint import DirectoryLock;"
+            f"DirectoryLock({str(d / 'checkpoint')!r}).acquire(); print('locked', flush=True);"
+            "time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "locked"
         code, _, err = _run(["run", "ris-1d", "--out", d, "--quiet"], capsys)
@@ -286,7 +341,8 @@ def test_a_second_process_cannot_write_into_the_same_out(tmp_path, capsys):
 
 
 def test_eld_beam_interrupted_leaves_consistent_xdmf_and_resumes_bit_for_bit(
-        tmp_path, capsys, signal_at_attempt):
+    tmp_path, capsys, signal_at_attempt
+):
     """The fuzzer's case (eld-beam + SIGINT left 76 MB of HDF5 without an XDMF index or a
     summary): the XDMF index, its HDF5 file and the summary agree, and the resumed series is
     the uninterrupted one, dataset by dataset."""
@@ -295,8 +351,22 @@ def test_eld_beam_interrupted_leaves_consistent_xdmf_and_resumes_bit_for_bit(
 
     from rothe.eld import ELDStepper
 
-    argv = ["run", "eld-beam", "--n", "1", "--T", "1", "--tau", "0.01", "--save-every", "2",
-            "--no-plots", "--quiet", "--checkpoint-every", "0.01"]
+    argv = [
+        "run",
+        "eld-beam",
+        "--n",
+        "1",
+        "--T",
+        "1",
+        "--tau",
+        "0.01",
+        "--save-every",
+        "2",
+        "--no-plots",
+        "--quiet",
+        "--checkpoint-every",
+        "0.01",
+    ]
     ref = tmp_path / "ref"
     assert _run(argv + ["--out", ref], capsys)[0] == 0
     out = tmp_path / "run"

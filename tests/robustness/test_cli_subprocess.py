@@ -47,8 +47,9 @@ def test_kill_9_at_random_instants_then_resume_is_bit_identical(tmp_path):
     """Three SIGKILLs at random instants (fixed seed), each followed by `rothe resume`; the final
     trajectory equals the uninterrupted run's (computed here through the Python API)."""
     t0 = time.perf_counter()
-    ref = run_ris(example_7_2(6), "adaptive", tol=1e-3, tau=0.1,
-                  inner=InnerOptions(linear_solver="auto"))
+    ref = run_ris(
+        example_7_2(6), "adaptive", tol=1e-3, tau=0.1, inner=InnerOptions(linear_solver="auto")
+    )
     duration = time.perf_counter() - t0 + 1.5  # + interpreter start and imports
     # A kill that lands after the last step (the measured duration is only an estimate on a
     # loaded machine) interrupts nothing that resume must redo; such kills do not count, and
@@ -56,8 +57,20 @@ def test_kill_9_at_random_instants_then_resume_is_bit_identical(tmp_path):
     rng = random.Random(20261123)
     for attempt in range(4):
         out = tmp_path / f"run{attempt}"
-        run = ROTHE + ["run", "ris-2d", "--n", "6", "--tol", "1e-3", "--out", str(out),
-                       "--quiet", "--no-plots", "--checkpoint-every", "0.05"]
+        run = ROTHE + [
+            "run",
+            "ris-2d",
+            "--n",
+            "6",
+            "--tol",
+            "1e-3",
+            "--out",
+            str(out),
+            "--quiet",
+            "--no-plots",
+            "--checkpoint-every",
+            "0.05",
+        ]
         resume = ROTHE + ["resume", str(out), "--quiet"]
         proc = subprocess.Popen(run, cwd=tmp_path)
         kills, inside, log = 0, 0, []
@@ -77,8 +90,9 @@ def test_kill_9_at_random_instants_then_resume_is_bit_identical(tmp_path):
                     where, status = ck.describe_where(), ck.status
                 inside += status not in (None, "completed")  # resume redoes steps
                 log.append(f"kill after {delay:.2f} s: {where} ({status})")
-                proc = subprocess.Popen(resume if (out / "checkpoint" / MAIN).exists() else run,
-                                        cwd=tmp_path)
+                proc = subprocess.Popen(
+                    resume if (out / "checkpoint" / MAIN).exists() else run, cwd=tmp_path
+                )
             assert proc.wait(timeout=300) == 0, log
         finally:
             if proc.poll() is None:
@@ -112,10 +126,26 @@ def test_sigint_from_outside_then_a_second_one_exits_at_once(tmp_path):
     writes results; a second one right after ends the process at once. Whatever is on disk then
     is complete (atomic writes): every npz and json parses, the checkpoint loads."""
     out = tmp_path / "run"
-    proc = subprocess.Popen(ROTHE + ["run", "ris-2d", "--n", "12", "--tol", "1e-5", "--out",
-                                     str(out), "--no-plots", "--progress-every", "0.2"],
-                            cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                            text=True)
+    proc = subprocess.Popen(
+        ROTHE
+        + [
+            "run",
+            "ris-2d",
+            "--n",
+            "12",
+            "--tol",
+            "1e-5",
+            "--out",
+            str(out),
+            "--no-plots",
+            "--progress-every",
+            "0.2",
+        ],
+        cwd=tmp_path,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         line = _wait_for_line(proc, "rothe: step ")
         assert " t = " in line and "elapsed" in line and "\r" not in line
@@ -137,10 +167,26 @@ def test_sigint_from_outside_then_a_second_one_exits_at_once(tmp_path):
 
 def test_sigterm_from_outside(tmp_path):
     out = tmp_path / "run"
-    proc = subprocess.Popen(ROTHE + ["run", "ris-2d", "--n", "12", "--tol", "1e-5", "--out",
-                                     str(out), "--no-plots", "--progress-every", "0.2"],
-                            cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                            text=True)
+    proc = subprocess.Popen(
+        ROTHE
+        + [
+            "run",
+            "ris-2d",
+            "--n",
+            "12",
+            "--tol",
+            "1e-5",
+            "--out",
+            str(out),
+            "--no-plots",
+            "--progress-every",
+            "0.2",
+        ],
+        cwd=tmp_path,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         _wait_for_line(proc, "rothe: step ")
         proc.send_signal(signal.SIGTERM)
@@ -170,14 +216,42 @@ def test_a_write_that_fails_midway_keeps_the_earlier_files_and_is_one_line(tmp_p
     """A file-size limit makes every large write fail like a full disk does (EFBIG instead of
     ENOSPC), wherever it happens: npz, HDF5, checkpoint segments."""
     out = tmp_path / "run"
-    small = ROTHE + ["run", "ris-2d", "--n", "3", "--tol", "1e-3", "--out", str(out), "--quiet",
-                     "--no-plots"]
+    small = ROTHE + [
+        "run",
+        "ris-2d",
+        "--n",
+        "3",
+        "--tol",
+        "1e-3",
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plots",
+    ]
     subprocess.run(small, cwd=tmp_path, check=True)
     before = _files(out)
-    big = ROTHE + ["run", "ris-2d", "--n", "8", "--tol", "1e-3", "--out", str(out), "--quiet",
-                   "--no-plots", "--checkpoint-every", "0.5"]
-    proc = subprocess.run(big, cwd=tmp_path, capture_output=True, text=True, timeout=600,
-                          preexec_fn=_limit_file_size(200_000))
+    big = ROTHE + [
+        "run",
+        "ris-2d",
+        "--n",
+        "8",
+        "--tol",
+        "1e-3",
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plots",
+        "--checkpoint-every",
+        "0.5",
+    ]
+    proc = subprocess.run(
+        big,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        preexec_fn=_limit_file_size(200_000),
+    )
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 1, proc.stderr
     assert "Traceback" not in proc.stderr and len(lines) <= 2, proc.stderr
@@ -192,8 +266,9 @@ def _tmpfs(path: Path, size: str):
     if os.geteuid() != 0 or shutil.which("mount") is None:
         pytest.skip("mounting a tmpfs needs root")
     path.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
-                       capture_output=True)
+    r = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True
+    )
     if r.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {r.stderr.decode().strip()}")
     try:
@@ -207,12 +282,32 @@ def test_full_tmpfs_and_read_only_out(tmp_path):
     line naming the file, the earlier result intact; then read-only: refused before step 1."""
     with _tmpfs(tmp_path / "mnt", "1m") as mnt:
         out = mnt / "run"
-        small = ROTHE + ["run", "ris-2d", "--n", "3", "--tol", "1e-3", "--out", str(out),
-                         "--quiet", "--no-plots"]
+        small = ROTHE + [
+            "run",
+            "ris-2d",
+            "--n",
+            "3",
+            "--tol",
+            "1e-3",
+            "--out",
+            str(out),
+            "--quiet",
+            "--no-plots",
+        ]
         subprocess.run(small, cwd=tmp_path, check=True)
         before = _files(out)
-        big = ROTHE + ["run", "ris-2d", "--n", "10", "--tol", "1e-3", "--out", str(out),
-                       "--quiet", "--no-plots"]
+        big = ROTHE + [
+            "run",
+            "ris-2d",
+            "--n",
+            "10",
+            "--tol",
+            "1e-3",
+            "--out",
+            str(out),
+            "--quiet",
+            "--no-plots",
+        ]
         proc = subprocess.run(big, cwd=tmp_path, capture_output=True, text=True, timeout=600)
         assert proc.returncode == 1, proc.stderr
         assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr
@@ -222,10 +317,15 @@ def test_full_tmpfs_and_read_only_out(tmp_path):
         assert _files(out) == before
         subprocess.run(["mount", "-o", "remount,ro", str(mnt)], check=True)
         t0 = time.perf_counter()
-        proc = subprocess.run(ROTHE + ["run", "ris-2d", "--n", "40", "--out", str(mnt / "new"),
-                                       "--quiet"], cwd=tmp_path, capture_output=True, text=True)
+        proc = subprocess.run(
+            ROTHE + ["run", "ris-2d", "--n", "40", "--out", str(mnt / "new"), "--quiet"],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+        )
         assert proc.returncode == 2
         assert proc.stderr.strip() == (
             f"rothe: error: --out: got '{mnt / 'new'}', cannot create or write files in this "
-            "directory ([Errno 30] Read-only file system)")
+            "directory ([Errno 30] Read-only file system)"
+        )
         assert time.perf_counter() - t0 < 30  # refused before the ~minute-long run

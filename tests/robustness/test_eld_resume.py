@@ -24,30 +24,50 @@ from .test_checkpoint_api import _interrupted_thrice
 
 ROTHE = [sys.executable, "-m", "rothe.cli.main"]
 #: adaptive BDF2 on the manufactured solution: 39 accepted and 3 rejected steps at n = 3
-MMS_ADAPTIVE = ["run", "eld-mms", "--n", "3", "--scheme", "bdf2", "--control", "adaptive",
-                "--tol", "1e-4", "--tau", "0.02", "--no-plots", "--quiet"]
+MMS_ADAPTIVE = [
+    "run",
+    "eld-mms",
+    "--n",
+    "3",
+    "--scheme",
+    "bdf2",
+    "--control",
+    "adaptive",
+    "--tol",
+    "1e-4",
+    "--tau",
+    "0.02",
+    "--no-plots",
+    "--quiet",
+]
 
 
-@pytest.mark.parametrize("form, damping, options", [
-    ("original", "nonlinear", {}),
-    ("regularized", "rayleigh", {"lifting": "harmonic"}),
-], ids=["original-nonlinear", "regularized-rayleigh-harmonic"])
+@pytest.mark.parametrize(
+    "form, damping, options",
+    [
+        ("original", "nonlinear", {}),
+        ("regularized", "rayleigh", {"lifting": "harmonic"}),
+    ],
+    ids=["original-nonlinear", "regularized-rayleigh-harmonic"],
+)
 def test_run_eld_adaptive_bdf2_interrupted_thrice_equals_the_uninterrupted_run(
-        tmp_path, signal_at_attempt, form, damping, options):
+    tmp_path, signal_at_attempt, form, damping, options
+):
     p, _ = mms_problem(3, 2, damping=make_damping(damping, b=0.01, d0=0.5))
 
     def make_run(**kw):
-        return run_eld(p, form, 0.02, scheme="bdf2", control="adaptive", tol=1e-4, **options,
-                       **kw)
+        return run_eld(p, form, 0.02, scheme="bdf2", control="adaptive", tol=1e-4, **options, **kw)
 
     full = make_run()
     assert full.stats.rejected_steps > 0  # the controller's state matters
-    resumed = _interrupted_thrice(make_run, ELDStepper, signal_at_attempt, tmp_path / "c",
-                                  attempts=(1, 12, 15))
+    resumed = _interrupted_thrice(
+        make_run, ELDStepper, signal_at_attempt, tmp_path / "c", attempts=(1, 12, 15)
+    )
     assert_same_trajectory(full, resumed)
     assert resumed.meta["sessions"] == 4
     assert full.meta["linear_solver"] == resumed.meta["linear_solver"] | {
-        "setup_seconds": full.meta["linear_solver"]["setup_seconds"]}
+        "setup_seconds": full.meta["linear_solver"]["setup_seconds"]
+    }
     assert full.meta["error_scale"] == resumed.meta["error_scale"]
     for name, w in full.final_state.fields.items():
         assert np.array_equal(w, resumed.final_state.fields[name]), name
@@ -63,11 +83,16 @@ def _square(damping):
         return np.zeros_like(x)
 
     c = {"one": 1.0, "two": 2.0}[damping]
-    user = UserDamping(force=lambda v: c * v, jacobian=lambda v: c * sp.identity(v.size),
-                       d0=0.0)
-    return ELDProblem(meshes.unit_square(2, named=True), Material(rho=1.0, lam=2.0, mu=1.0, dim=2),
-                      degree=1, damping=user, dirichlet={"left": DirichletData(zero, zero, zero)},
-                      v0=lambda x: np.stack([x[0], 0 * x[0]]), T=0.5)
+    user = UserDamping(force=lambda v: c * v, jacobian=lambda v: c * sp.identity(v.size), d0=0.0)
+    return ELDProblem(
+        meshes.unit_square(2, named=True),
+        Material(rho=1.0, lam=2.0, mu=1.0, dim=2),
+        degree=1,
+        damping=user,
+        dirichlet={"left": DirichletData(zero, zero, zero)},
+        v0=lambda x: np.stack([x[0], 0 * x[0]]),
+        T=0.5,
+    )
 
 
 def test_run_eld_resume_refuses_other_arguments_and_another_damping(tmp_path):
@@ -77,14 +102,19 @@ def test_run_eld_resume_refuses_other_arguments_and_another_damping(tmp_path):
     d = tmp_path / "c"
     run_eld(_square("one"), "regularized", 0.05, checkpoint=d, **options)
     assert load_checkpoint(d).status == "completed"
-    with pytest.raises(CheckpointError, match=r"the arguments differ from the checkpoint's: "
-                                              r"tol = 0\.0001 \(checkpoint: 0\.001\)"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"the arguments differ from the checkpoint's: "
+        r"tol = 0\.0001 \(checkpoint: 0\.001\)",
+    ):
         run_eld(_square("one"), "regularized", 0.05, resume=d, **(options | {"tol": 1e-4}))
     with pytest.raises(CheckpointError, match=r"scheme = 'euler' \(checkpoint: 'bdf2'\)"):
-        run_eld(_square("one"), "regularized", 0.05, resume=d,
-                **(options | {"scheme": "euler"}))
-    with pytest.raises(CheckpointError, match=r"the problem differs from the checkpoint's "
-                                              r"\(in: damping\); resume with the same problem"):
+        run_eld(_square("one"), "regularized", 0.05, resume=d, **(options | {"scheme": "euler"}))
+    with pytest.raises(
+        CheckpointError,
+        match=r"the problem differs from the checkpoint's "
+        r"\(in: damping\); resume with the same problem",
+    ):
         run_eld(_square("two"), "regularized", 0.05, resume=d, **options)
 
 
@@ -94,8 +124,9 @@ def _run(argv, capsys):
     return code, out, err
 
 
-def test_eld_mms_adaptive_bdf2_sigint_then_resume_is_bit_identical(tmp_path, capsys,
-                                                                    signal_at_attempt):
+def test_eld_mms_adaptive_bdf2_sigint_then_resume_is_bit_identical(
+    tmp_path, capsys, signal_at_attempt
+):
     ref = tmp_path / "ref"
     assert _run(MMS_ADAPTIVE + ["--out", ref], capsys)[0] == 0
     out = tmp_path / "run"
@@ -116,8 +147,15 @@ def test_eld_mms_adaptive_bdf2_sigint_then_resume_is_bit_identical(tmp_path, cap
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "completed" and s["sessions"] == 2
     r = json.loads((ref / "summary.json").read_text())
-    for key in ("accepted_steps", "rejected_steps", "error_u_l2", "error_lam_l2_max",
-                "balance_residual_max", "linear_factorizations", "backsolves"):
+    for key in (
+        "accepted_steps",
+        "rejected_steps",
+        "error_u_l2",
+        "error_lam_l2_max",
+        "balance_residual_max",
+        "linear_factorizations",
+        "backsolves",
+    ):
         assert s[key] == r[key], key
     with np.load(ref / "trajectory.npz") as a, np.load(out / "trajectory.npz") as b:
         assert_same_trajectory(a, b)
@@ -140,15 +178,30 @@ def test_eld_kill_9_then_rothe_resume_is_bit_identical(tmp_path, capsys):
     """Two SIGKILLs of `rothe run eld-mms` (adaptive BDF2, ~190 steps) at random points after a
     checkpoint has recorded progress (fixed seed), each followed by `rothe resume`; the final
     trajectory equals the uninterrupted run's, computed in this process."""
-    argv = ["run", "eld-mms", "--n", "3", "--scheme", "bdf2", "--control", "adaptive", "--tol",
-            "1e-6", "--tau", "0.02", "--no-plots", "--quiet"]
+    argv = [
+        "run",
+        "eld-mms",
+        "--n",
+        "3",
+        "--scheme",
+        "bdf2",
+        "--control",
+        "adaptive",
+        "--tol",
+        "1e-6",
+        "--tau",
+        "0.02",
+        "--no-plots",
+        "--quiet",
+    ]
     ref = tmp_path / "ref"
     assert _run(argv + ["--out", ref], capsys)[0] == 0
     n_ref = json.loads((ref / "summary.json").read_text())["accepted_steps"]
     out = tmp_path / "run"
     rng = random.Random(20261124)
-    proc = subprocess.Popen(ROTHE + argv + ["--out", str(out), "--checkpoint-every", "0.02"],
-                            cwd=tmp_path)
+    proc = subprocess.Popen(
+        ROTHE + argv + ["--out", str(out), "--checkpoint-every", "0.02"], cwd=tmp_path
+    )
     log, kills, reached = [], 0, 0
     try:
         for _ in range(2):

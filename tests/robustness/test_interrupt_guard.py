@@ -29,8 +29,12 @@ CHILD = textwrap.dedent("""
 
 
 def _child(first, second, mode):
-    return subprocess.run([sys.executable, "-c", CHILD, str(int(first)), str(int(second)), mode],
-                          capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-c", CHILD, str(int(first)), str(int(second)), mode],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
 
 
 @pytest.mark.parametrize("first", [signal.SIGINT, signal.SIGTERM])

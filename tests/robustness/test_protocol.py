@@ -49,17 +49,20 @@ def _assert_same(a: Trajectory, b: Trajectory):
     assert a.stats.untimed() == b.stats.untimed()
 
 
-@pytest.mark.parametrize("control, problem, kw, k", [
-    ("adaptive", "7.1", {"tol": 1e-3}, 20),
-    ("order2", "7.1", {"tol": 1e-3}, 20),
-    ("uniform", "7.1", {"tau": 0.05}, 25),
-    ("nested", "7.1", {"tol": 1e-4, "grid": np.linspace(0.05, 15.0, 300)}, 30),
-    ("adaptive", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 70),
-    # regime: right after the step out of sticking (its onset samples, models) and in slip
-    ("regime", "7.1", {"tol": 1e-3}, 20),
-    ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 3),
-    ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 60),
-])
+@pytest.mark.parametrize(
+    "control, problem, kw, k",
+    [
+        ("adaptive", "7.1", {"tol": 1e-3}, 20),
+        ("order2", "7.1", {"tol": 1e-3}, 20),
+        ("uniform", "7.1", {"tau": 0.05}, 25),
+        ("nested", "7.1", {"tol": 1e-4, "grid": np.linspace(0.05, 15.0, 300)}, 30),
+        ("adaptive", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 70),
+        # regime: right after the step out of sticking (its onset samples, models) and in slip
+        ("regime", "7.1", {"tol": 1e-3}, 20),
+        ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 3),
+        ("regime", "7.2", {"tol": 1e-4, "inner": InnerOptions(linear_solver="direct")}, 60),
+    ],
+)
 def test_ris_stepper_and_controller_round_trip(control, problem, kw, k):
     make = (lambda: example_7_1()) if problem == "7.1" else (lambda: example_7_2(6, T=0.3))
     p = make()
@@ -72,8 +75,9 @@ def test_ris_stepper_and_controller_round_trip(control, problem, kw, k):
     part = initial_trajectory(p)
     state = evolve(StopAfter(stepper, k), controller, RISState(0.0, 0.0, p.z0.copy()), part)
     assert state.k == k
-    saved = copy.deepcopy({"stepper": stepper.checkpoint_state(state),
-                           "controller": controller.checkpoint_state()})
+    saved = copy.deepcopy(
+        {"stepper": stepper.checkpoint_state(state), "controller": controller.checkpoint_state()}
+    )
     encode(saved, {})  # only arrays, numbers, str, None, dicts and lists
     del stepper, controller
     stepper2, controller2 = _ris_parts(p, control, **dict(kw))
@@ -115,19 +119,22 @@ def test_reusable_solver_round_trip_rebuilds_the_same_lu():
     data = copy.deepcopy(s1.checkpoint_state())
     s2 = ReusableSolver("direct")
     s2.restore_state(data)
-    x1, = s1.solve(K, [b], rtol=1e-8)
-    x2, = s2.solve(K, [b], rtol=1e-8)
+    (x1,) = s1.solve(K, [b], rtol=1e-8)
+    (x2,) = s2.solve(K, [b], rtol=1e-8)
     assert np.array_equal(x1, x2)
     assert s1.stats.as_dict() == s2.stats.as_dict()
 
 
-@pytest.mark.parametrize("form, damping, options", [
-    ("regularized", "nonlinear", {}),
-    ("original", "nonlinear", {}),
-    ("regularized", "rayleigh", {}),
-    ("original", "nonlinear", {"scheme": "bdf2", "control": "adaptive", "tol": 1e-4}),
-    ("regularized", "rayleigh", {"scheme": "bdf2", "data": "differenced"}),
-])
+@pytest.mark.parametrize(
+    "form, damping, options",
+    [
+        ("regularized", "nonlinear", {}),
+        ("original", "nonlinear", {}),
+        ("regularized", "rayleigh", {}),
+        ("original", "nonlinear", {"scheme": "bdf2", "control": "adaptive", "tol": 1e-4}),
+        ("regularized", "rayleigh", {"scheme": "bdf2", "data": "differenced"}),
+    ],
+)
 def test_eld_stepper_round_trip(form, damping, options):
     """The stepper and the controller that run_eld uses (prepare_eld_run): Euler and BDF2,
     uniform and adaptive steps. The step data keeps no history of its own (the differenced
@@ -141,15 +148,23 @@ def test_eld_stepper_round_trip(form, damping, options):
 
     run_full = fresh()
     full = run_full.trajectory
-    evolve(run_full.stepper, run_full.controller, run_full.state, full,
-           tau_min=run_full.tau_min)
+    evolve(run_full.stepper, run_full.controller, run_full.state, full, tau_min=run_full.tau_min)
     run = fresh()
     part = run.trajectory
-    state = evolve(StopAfter(run.stepper, 17, index=lambda s: s.j), run.controller, run.state,
-                   part, tau_min=run.tau_min)
+    state = evolve(
+        StopAfter(run.stepper, 17, index=lambda s: s.j),
+        run.controller,
+        run.state,
+        part,
+        tau_min=run.tau_min,
+    )
     assert state.j == 17
-    saved = copy.deepcopy({"stepper": run.stepper.checkpoint_state(state),
-                           "controller": run.controller.checkpoint_state()})
+    saved = copy.deepcopy(
+        {
+            "stepper": run.stepper.checkpoint_state(state),
+            "controller": run.controller.checkpoint_state(),
+        }
+    )
     encode(saved, {})
     run2 = fresh()
     state2 = run2.stepper.restore_state(saved["stepper"])
@@ -158,7 +173,8 @@ def test_eld_stepper_round_trip(form, damping, options):
     _assert_same(full, part)
     a, b = vars(run_full.stepper.solver.stats), vars(run2.stepper.solver.stats)
     assert {k: v for k, v in a.items() if k != "setup_seconds"} == {
-        k: v for k, v in b.items() if k != "setup_seconds"}
+        k: v for k, v in b.items() if k != "setup_seconds"
+    }
 
 
 def test_encode_refuses_what_would_need_pickle():
@@ -168,4 +184,5 @@ def test_encode_refuses_what_would_need_pickle():
         encode({"a": [np.zeros(2), np.array([None])]}, {})
     with pytest.raises(ValueError, match="uniform"):  # a controller refuses another's state
         make_controller("order2", tol=1e-3, tau=0.1).restore_state(
-            make_controller("uniform", tau=0.1).checkpoint_state())
+            make_controller("uniform", tau=0.1).checkpoint_state()
+        )

@@ -26,10 +26,14 @@ def add_output_options(parser, name: str) -> None:
     parser.add_argument("--out", default=None, help=f"output directory (default rothe-out/{name})")
     parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
-    parser.add_argument("--progress-every", type=parse_float("--progress-every"), default=30.0,
-                        metavar="SECONDS",
-                        help="when stderr is not a terminal (a log): one progress line every "
-                             "SECONDS (default 30); on a terminal a progress bar")
+    parser.add_argument(
+        "--progress-every",
+        type=parse_float("--progress-every"),
+        default=30.0,
+        metavar="SECONDS",
+        help="when stderr is not a terminal (a log): one progress line every "
+        "SECONDS (default 30); on a terminal a progress bar",
+    )
 
 
 def output_dir(args, name: str) -> Path:
@@ -43,8 +47,9 @@ def output_dir(args, name: str) -> Path:
 def progress_of(args) -> ProgressOptions:
     """The progress options of a command (``--quiet``, ``--progress-every``)."""
     every = getattr(args, "progress_every", 30.0)
-    return ProgressOptions(enabled=not args.quiet,
-                           every_seconds=check_positive("--progress-every", every))
+    return ProgressOptions(
+        enabled=not args.quiet, every_seconds=check_positive("--progress-every", every)
+    )
 
 
 def parse_float(name: str):
@@ -122,8 +127,7 @@ def write_summary(out: Path, summary: dict) -> Path:
 
     out = Path(out)
     if out.name.startswith(TMP_PREFIX):
-        names = sorted(p.name for p in out.iterdir() if p.is_file()
-                       and not p.name.startswith("."))
+        names = sorted(p.name for p in out.iterdir() if p.is_file() and not p.name.startswith("."))
         summary = dict(summary, files=sorted(set(names) | {"summary.json"}))
     path = out / "summary.json"
     atomic_write_text(path, json.dumps(_jsonable(summary), indent=2) + "\n")

@@ -38,8 +38,11 @@ class _Parser(argparse.ArgumentParser):
 def command_list() -> str:
     """One line per command: ``rothe <verb> <name>`` and its help, for ``rothe`` and ``--help``."""
     registry.load_all()
-    rows = [(f"rothe {verb} {name}", cmd.help) for verb in registry.VERBS
-            for name, cmd in sorted(registry.commands(verb).items())]
+    rows = [
+        (f"rothe {verb} {name}", cmd.help)
+        for verb in registry.VERBS
+        for name, cmd in sorted(registry.commands(verb).items())
+    ]
     rows.append(("rothe resume DIR", Resume.help))
     width = max(len(r[0]) for r in rows)
     lines = ["commands:"] + [f"  {a:<{width}}  {b}" for a, b in rows]
@@ -58,9 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"rothe {__version__}")
-    verbs = parser.add_subparsers(dest="verb",
-                                  metavar="{" + ",".join([*registry.VERBS, "resume"]) + "}",
-                                  parser_class=_Parser)
+    verbs = parser.add_subparsers(
+        dest="verb", metavar="{" + ",".join([*registry.VERBS, "resume"]) + "}", parser_class=_Parser
+    )
     verbs.required = True
     for verb, help_text in registry.VERBS.items():
         vp = verbs.add_parser(verb, help=help_text)
@@ -79,23 +82,34 @@ def build_parser() -> argparse.ArgumentParser:
 class Resume:
     """``rothe resume DIR``: re-run the command recorded in DIR's checkpoint, from it."""
 
-    help = ("continue an interrupted run from its checkpoint: re-runs the recorded command "
-            "line with --out DIR --resume DIR")
+    help = (
+        "continue an interrupted run from its checkpoint: re-runs the recorded command "
+        "line with --out DIR --resume DIR"
+    )
 
     @staticmethod
     def configure(parser) -> None:
         from .common import parse_float
 
-        parser.add_argument("dir", metavar="DIR",
-                            help="the run's output directory (holding checkpoint/)")
+        parser.add_argument(
+            "dir", metavar="DIR", help="the run's output directory (holding checkpoint/)"
+        )
         parser.add_argument("--quiet", action="store_true", help="no progress and no summary")
         parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
-        parser.add_argument("--checkpoint-every", type=parse_float("--checkpoint-every"),
-                            default=None, metavar="SECONDS",
-                            help="checkpoint interval (default: the recorded one)")
-        parser.add_argument("--progress-every", type=parse_float("--progress-every"),
-                            default=None, metavar="SECONDS",
-                            help="progress line interval in logs (default: the recorded one)")
+        parser.add_argument(
+            "--checkpoint-every",
+            type=parse_float("--checkpoint-every"),
+            default=None,
+            metavar="SECONDS",
+            help="checkpoint interval (default: the recorded one)",
+        )
+        parser.add_argument(
+            "--progress-every",
+            type=parse_float("--progress-every"),
+            default=None,
+            metavar="SECONDS",
+            help="progress line interval in logs (default: the recorded one)",
+        )
 
     def execute(self, args) -> int:
         from ..io.checkpoint import CheckpointError, load_checkpoint
@@ -105,9 +119,11 @@ class Resume:
         ckpt.require_resumable()
         argv = ckpt.record.get("argv")
         if not argv:
-            raise CheckpointError(f"{args.dir}: the checkpoint was written by {ckpt.api}() from "
-                                  f"Python, not by a rothe command: resume it with "
-                                  f"{ckpt.api}(..., resume={str(args.dir)!r})")
+            raise CheckpointError(
+                f"{args.dir}: the checkpoint was written by {ckpt.api}() from "
+                f"Python, not by a rothe command: resume it with "
+                f"{ckpt.api}(..., resume={str(args.dir)!r})"
+            )
         run_dir = _run_dir(Path(args.dir))
         new_argv = list(argv) + ["--out", str(run_dir), "--resume", str(run_dir)]
         if args.quiet:
@@ -119,8 +135,11 @@ class Resume:
         if args.progress_every is not None:
             new_argv.append(f"--progress-every={args.progress_every!r}")
         if not args.quiet:
-            print(f"rothe: resuming 'rothe {' '.join(argv)}' in {run_dir} from its checkpoint "
-                  f"({ckpt.status}, {ckpt.describe_where()})", file=sys.stderr)
+            print(
+                f"rothe: resuming 'rothe {' '.join(argv)}' in {run_dir} from its checkpoint "
+                f"({ckpt.status}, {ckpt.describe_where()})",
+                file=sys.stderr,
+            )
         return _dispatch(build_parser(), new_argv)
 
 
@@ -193,9 +212,7 @@ def _dispatch(parser, argv: list[str]) -> int:
     # a clearer message than argparse's for an unknown example name
     if len(argv) >= 2 and argv[0] in registry.VERBS and not argv[1].startswith("-"):
         if argv[1] not in registry.commands(argv[0]):
-            raise RotheInputError(
-                f"{argv[0]}: got {argv[1]!r}, must be one of {_known(argv[0])}"
-            )
+            raise RotheInputError(f"{argv[0]}: got {argv[1]!r}, must be one of {_known(argv[0])}")
     try:
         args = parse_command(parser, argv)
     except SystemExit as exc:  # --help, --version: argparse printed them and exits

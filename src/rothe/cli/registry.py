@@ -15,8 +15,12 @@ VERBS = {
     "sweep": "run a command over the Cartesian product of option values, in parallel",
 }
 
-MODULES = ("rothe.cli.ris_commands", "rothe.cli.ris_fem_commands", "rothe.cli.eld_commands",
-           "rothe.cli.sweep_commands")
+MODULES = (
+    "rothe.cli.ris_commands",
+    "rothe.cli.ris_fem_commands",
+    "rothe.cli.eld_commands",
+    "rothe.cli.sweep_commands",
+)
 
 _COMMANDS: dict[str, dict[str, object]] = {verb: {} for verb in VERBS}
 

@@ -121,10 +121,17 @@ def check_control_options(args, control: str) -> None:
             value = getattr(args, option.lstrip("-").replace("-", "_"))
             if isinstance(value, list):
                 value = described(",".join(f"{v:g}" for v in value))
-            reads = ("it reads " + ", ".join(control_options(control))
-                     if control_options(control) else "no tolerance: its step is --tau")
-            raise fail(option, value, f"is not used by --control {control} ({reads}); "
-                                      f"{option} is for --control {' or '.join(users)}")
+            reads = (
+                "it reads " + ", ".join(control_options(control))
+                if control_options(control)
+                else "no tolerance: its step is --tau"
+            )
+            raise fail(
+                option,
+                value,
+                f"is not used by --control {control} ({reads}); "
+                f"{option} is for --control {' or '.join(users)}",
+            )
 
 
 def check_step(option: str, value, T: float, tau_min: float = 1e-12) -> float:
@@ -135,12 +142,26 @@ def check_step(option: str, value, T: float, tau_min: float = 1e-12) -> float:
     if tau > T:
         raise fail(option, tau, f"must be <= T (= {T:g}), the end time of the run")
     return tau
+
+
 # -- work against residual: the ratios of compare ris-2d (issue 12), shared with the benchmarks --
 
 #: the keys of a row of compare.json, in this order
-COMPARE_KEYS = ("control", "tol", "tau", "accepted", "rejected", "solves", "newton", "seconds",
-                "local_residual", "global_residual", "ratio_steps", "ratio_solves",
-                "ratio_seconds")
+COMPARE_KEYS = (
+    "control",
+    "tol",
+    "tau",
+    "accepted",
+    "rejected",
+    "solves",
+    "newton",
+    "seconds",
+    "local_residual",
+    "global_residual",
+    "ratio_steps",
+    "ratio_solves",
+    "ratio_seconds",
+)
 
 
 def equidistribution_bound(residuals) -> float | None:
@@ -167,8 +188,11 @@ def equidistribution_bound(residuals) -> float | None:
 
 
 #: work measures of a run (key of its summary row) and the ratio they enter in compare.json
-WORK_RATIOS = (("accepted_steps", "ratio_steps"), ("inner_solves", "ratio_solves"),
-               ("wall_time_s", "ratio_seconds"))
+WORK_RATIOS = (
+    ("accepted_steps", "ratio_steps"),
+    ("inner_solves", "ratio_solves"),
+    ("wall_time_s", "ratio_seconds"),
+)
 
 
 def uniform_work_interpolant(rows, work: str, key: str = "sum_residual"):
@@ -177,9 +201,14 @@ def uniform_work_interpolant(rows, work: str, key: str = "sum_residual"):
 
     Returns a callable residual -> work or None, or None if fewer than two uniform runs completed.
     """
-    u = sorted((r[key], r[work]) for r in rows
-               if r["control"] == "uniform" and r.get("status", "completed") == "completed"
-               and r.get(key, 0) > 0 and r.get(work, 0) > 0)
+    u = sorted(
+        (r[key], r[work])
+        for r in rows
+        if r["control"] == "uniform"
+        and r.get("status", "completed") == "completed"
+        and r.get(key, 0) > 0
+        and r.get(work, 0) > 0
+    )
     if len(u) < 2:
         return None
     x = np.log([g for g, _ in u])
@@ -225,8 +254,12 @@ def compare_rows(rows) -> list[dict]:
         for work, ratio in WORK_RATIOS:
             fn = interp[ratio]
             base = None
-            if (not uniform and fn is not None and r.get("status", "completed") == "completed"
-                    and work in r):
+            if (
+                not uniform
+                and fn is not None
+                and r.get("status", "completed") == "completed"
+                and work in r
+            ):
                 base = fn(r["sum_residual"])
             row[ratio] = None if base is None else r[work] / base
         assert tuple(row) == COMPARE_KEYS
@@ -330,8 +363,12 @@ class RISRunBase(ABC):
         T = self.end_time(args)
         smallest = STEP_FLOOR * max(1.0, T)
         if tau_min < smallest:
-            raise fail("--tau-min", tau_min, f"must be >= {smallest:g} (1e-14 max(1, T): a "
-                                             "smaller step vanishes in the round-off of s)")
+            raise fail(
+                "--tau-min",
+                tau_min,
+                f"must be >= {smallest:g} (1e-14 max(1, T): a "
+                "smaller step vanishes in the round-off of s)",
+            )
         if tau > T:
             raise fail("--tau", tau, f"must be <= T (= {T:g}), the end time of the run")
         if tau_min > tau:
@@ -365,20 +402,24 @@ class RISRunBase(ABC):
         def run(**kw):
             if control == "nested":
                 return run_nested(problem, tols, **common, **kw)
-            return [run_ris(problem, control, tol=None if control == "uniform" else tol,
-                            **common, **kw)]
+            return [
+                run_ris(problem, control, tol=None if control == "uniform" else tol, **common, **kw)
+            ]
 
         with session:
             if session.already_completed:
-                print(f"rothe: {session.out}: the run already completed; its results are there",
-                      file=sys.stderr)
+                print(
+                    f"rothe: {session.out}: the run already completed; its results are there",
+                    file=sys.stderr,
+                )
                 return 0
             outcome = session.run(run)
             results = session.results_dir(outcome.status)
             if outcome.status == "completed" or outcome.result is not None:
                 with session.outputs(outcome.status) as stage:
-                    summary = self.write_results(args, problem, outcome, stage, session,
-                                                 control, tols, tau)
+                    summary = self.write_results(
+                        args, problem, outcome, stage, session, control, tols, tau
+                    )
             code = session.finish(outcome, results)
         if outcome.status == "completed" and not args.quiet:
             print(f"rothe run {self.name}: wrote {results}/")
@@ -438,9 +479,11 @@ class RunRIS1D(RISRunBase):
 
     def validate(self, args):
         if args.keep_every != 1:
-            raise fail("--keep-every", args.keep_every,
-                       "must be 1 for ris-1d (one unknown; the errors against (7.1) need every "
-                       "state)")
+            raise fail(
+                "--keep-every",
+                args.keep_every,
+                "must be 1 for ris-1d (one unknown; the errors against (7.1) need every state)",
+            )
         return super().validate(args)
 
     def build_problem(self, args):
@@ -502,26 +545,45 @@ def compare_ris_1d(
     """
     from ..parallel import Executor, Task
 
-    tasks = [Task(f"{c} tol={tol:g}", compare_ris_1d_row,
-                  {"control": c, "tol": tol, "tau": tau0, "uniform": False},
-                  cost=run_cost(tol, tau0))
-             for c in controls for tol in tols]
-    tasks += [Task(f"uniform tau={tau:g}", compare_ris_1d_row,
-                   {"control": "uniform", "tol": None, "tau": tau, "uniform": True},
-                   cost=run_cost(None, tau))
-              for tau in taus]
+    tasks = [
+        Task(
+            f"{c} tol={tol:g}",
+            compare_ris_1d_row,
+            {"control": c, "tol": tol, "tau": tau0, "uniform": False},
+            cost=run_cost(tol, tau0),
+        )
+        for c in controls
+        for tol in tols
+    ]
+    tasks += [
+        Task(
+            f"uniform tau={tau:g}",
+            compare_ris_1d_row,
+            {"control": "uniform", "tol": None, "tau": tau, "uniform": True},
+            cost=run_cost(None, tau),
+        )
+        for tau in taus
+    ]
     results = (executor or Executor(1, progress=False)).map(tasks)
-    return [r.value if isinstance(r.value, dict) else
-            {"control": t.kwargs["control"], "tol": t.kwargs["tol"], "tau0": t.kwargs["tau"],
-             "status": f"{r.status}: {r.message}"}
-            for t, r in zip(tasks, results, strict=True)]
+    return [
+        r.value
+        if isinstance(r.value, dict)
+        else {
+            "control": t.kwargs["control"],
+            "tol": t.kwargs["tol"],
+            "tau0": t.kwargs["tau"],
+            "status": f"{r.status}: {r.message}",
+        }
+        for t, r in zip(tasks, results, strict=True)
+    ]
 
 
 def uniform_work_at_error(rows, key="error_linf"):
     """Fit log(inner solves) = a + b log(error) over the completed uniform rows; returns a
     callable (None with fewer than two such rows)."""
-    u = [r for r in rows if r["control"] == "uniform"
-         and r.get("status", "completed") == "completed"]
+    u = [
+        r for r in rows if r["control"] == "uniform" and r.get("status", "completed") == "completed"
+    ]
     if len(u) < 2:
         return None
     x = np.log([r[key] for r in u])
@@ -563,8 +625,10 @@ def format_table(rows, work_fit=None) -> str:
 
 @command("compare", "ris-1d")
 class CompareRIS1D:
-    help = ("Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2/regime vs uniform "
-            "(Ex. 7.1)")
+    help = (
+        "Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2/regime vs uniform "
+        "(Ex. 7.1)"
+    )
 
     def configure(self, parser) -> None:
         parser.add_argument(

@@ -128,46 +128,94 @@ def check_memory(option: str, value, count: int, bytes_each: float, what: str = 
     need = float(count) * bytes_each
     have = available_memory()
     if have is not None and need > have:
-        raise fail(option, value, f"needs about {_bytes(need)} ({count:.3g} {what}, estimated), "
-                                  f"more than the {_bytes(have)} of memory available")
+        raise fail(
+            option,
+            value,
+            f"needs about {_bytes(need)} ({count:.3g} {what}, estimated), "
+            f"more than the {_bytes(have)} of memory available",
+        )
 
 
 #: the options of space adaptivity (refused without --adapt-space)
-SPACE_OPTIONS = ("--space-tol", "--refine-fraction", "--coarsen-fraction", "--max-dofs",
-                 "--adapt-every", "--refine-band", "--coarsen-delay", "--max-recoarsen",
-                 "--coarsen-batch")
+SPACE_OPTIONS = (
+    "--space-tol",
+    "--refine-fraction",
+    "--coarsen-fraction",
+    "--max-dofs",
+    "--adapt-every",
+    "--refine-band",
+    "--coarsen-delay",
+    "--max-recoarsen",
+    "--coarsen-batch",
+)
 
 
 def add_space_options(parser, default_tol: float, default_max_dofs: int) -> None:
-    parser.add_argument("--adapt-space", action="store_true",
-                        help="adapt the mesh between steps (bisection: refine where the step's "
-                             "residual indicator is large, coarsen where the front has passed)")
-    parser.add_argument("--space-tol", type=parse_float("--space-tol"), default=None,
-                        help=f"refine while the estimate exceeds it (default {default_tol:g})")
-    parser.add_argument("--refine-fraction", type=parse_float("--refine-fraction"), default=0.5,
-                        help="Doerfler bulk fraction of eta^2 to refine (default 0.5)")
-    parser.add_argument("--coarsen-fraction", type=parse_float("--coarsen-fraction"),
-                        default=0.05, help="share of max(eta, space_tol)^2 the coarsened cells "
-                                           "may carry (default 0.05)")
-    parser.add_argument("--max-dofs", type=int, default=None,
-                        help=f"cap on the nodes of an adapted mesh (default "
-                             f"{default_max_dofs:_}".replace("_", " ") + ", or twice the "
-                             "initial mesh's nodes when that is more: the indicator of a "
-                             "non-smooth state never falls below --space-tol, and without a "
-                             "cap the mesh grows until memory runs out)")
-    parser.add_argument("--adapt-every", type=int, default=1,
-                        help="adapt after every K-th accepted step (default 1)")
+    parser.add_argument(
+        "--adapt-space",
+        action="store_true",
+        help="adapt the mesh between steps (bisection: refine where the step's "
+        "residual indicator is large, coarsen where the front has passed)",
+    )
+    parser.add_argument(
+        "--space-tol",
+        type=parse_float("--space-tol"),
+        default=None,
+        help=f"refine while the estimate exceeds it (default {default_tol:g})",
+    )
+    parser.add_argument(
+        "--refine-fraction",
+        type=parse_float("--refine-fraction"),
+        default=0.5,
+        help="Doerfler bulk fraction of eta^2 to refine (default 0.5)",
+    )
+    parser.add_argument(
+        "--coarsen-fraction",
+        type=parse_float("--coarsen-fraction"),
+        default=0.05,
+        help="share of max(eta, space_tol)^2 the coarsened cells may carry (default 0.05)",
+    )
+    parser.add_argument(
+        "--max-dofs",
+        type=int,
+        default=None,
+        help=f"cap on the nodes of an adapted mesh (default {default_max_dofs:_}".replace("_", " ")
+        + ", or twice the "
+        "initial mesh's nodes when that is more: the indicator of a "
+        "non-smooth state never falls below --space-tol, and without a "
+        "cap the mesh grows until memory runs out)",
+    )
+    parser.add_argument(
+        "--adapt-every",
+        type=int,
+        default=1,
+        help="adapt after every K-th accepted step (default 1)",
+    )
     # hysteresis and band (rothe.fem.adapt.hysteresis, .marking); unset: the RIS defaults
-    parser.add_argument("--refine-band", type=parse_float("--refine-band"), default=None,
-                        help="refine a band of this width around the refined cells with them "
-                             "(a length; default 0)")
-    parser.add_argument("--coarsen-delay", type=int, default=None,
-                        help="cells refined in the last K adaptations do not coarsen (default 4)")
-    parser.add_argument("--max-recoarsen", type=int, default=None,
-                        help="a cell is refined and coarsened again at most K times (default 2)")
-    parser.add_argument("--coarsen-batch", type=parse_float("--coarsen-batch"), default=None,
-                        help="an adaptation that only coarsens needs this share of the cells "
-                             "marked (default 0)")
+    parser.add_argument(
+        "--refine-band",
+        type=parse_float("--refine-band"),
+        default=None,
+        help="refine a band of this width around the refined cells with them (a length; default 0)",
+    )
+    parser.add_argument(
+        "--coarsen-delay",
+        type=int,
+        default=None,
+        help="cells refined in the last K adaptations do not coarsen (default 4)",
+    )
+    parser.add_argument(
+        "--max-recoarsen",
+        type=int,
+        default=None,
+        help="a cell is refined and coarsened again at most K times (default 2)",
+    )
+    parser.add_argument(
+        "--coarsen-batch",
+        type=parse_float("--coarsen-batch"),
+        default=None,
+        help="an adaptation that only coarsens needs this share of the cells marked (default 0)",
+    )
 
 
 def space_from_args(args, default_tol: float, default_max_dofs: int):
@@ -185,18 +233,28 @@ def space_from_args(args, default_tol: float, default_max_dofs: int):
         check_adaptable(args.mesh, "--adapt-space")
     return SpaceAdaptivity(
         space_tol=default_tol if args.space_tol is None else args.space_tol,
-        refine_fraction=args.refine_fraction, coarsen_fraction=args.coarsen_fraction,
+        refine_fraction=args.refine_fraction,
+        coarsen_fraction=args.coarsen_fraction,
         max_dofs=default_max_dofs if args.max_dofs is None else args.max_dofs,
-        adapt_every=args.adapt_every, naming="cli", refine_band=args.refine_band,
-        coarsen_delay=args.coarsen_delay, max_recoarsen=args.max_recoarsen,
-        coarsen_batch=args.coarsen_batch)
+        adapt_every=args.adapt_every,
+        naming="cli",
+        refine_band=args.refine_band,
+        coarsen_delay=args.coarsen_delay,
+        max_recoarsen=args.max_recoarsen,
+        coarsen_batch=args.coarsen_batch,
+    )
 
 
 def _as_option_error(exc, args):
     """A problem-level input error caused by --z0 or --amplitude, renamed after the option."""
     text = str(exc)
-    for prefix, option in (("load", "--amplitude"), ("F(z0)", "--z0"), ("dF(z0)", "--z0"),
-                           ("d2F(z0)", "--z0"), ("z0", "--z0")):
+    for prefix, option in (
+        ("load", "--amplitude"),
+        ("F(z0)", "--z0"),
+        ("dF(z0)", "--z0"),
+        ("d2F(z0)", "--z0"),
+        ("z0", "--z0"),
+    ):
         if text.startswith(prefix):
             value = args.amplitude if option == "--amplitude" else args.z0
             return fail(option, value, f"gives non-finite data ({text})")
@@ -231,38 +289,62 @@ class _RunRISFem(RISRunBase):
 
     def add_example_options(self, parser) -> None:
         what = "N x N cells of the unit square" if self.dim == 2 else "N^3 cubes of the unit cube"
-        parser.add_argument("--n", type=int, default=None,
-                            help=f"grid of {what} (default {self.default_n})")
-        parser.add_argument("--mesh", default=None,
-                            help="mesh file instead of the grid: anything meshio reads (gmsh .msh "
-                                 "2.2/4.x, .vtu, .xdmf, ...), "
-                                 + ("triangle" if self.dim == 2 else "tetra") + " cells")
-        parser.add_argument("--dirichlet", default=None,
-                            help="comma-separated boundary parts (gmsh physical groups, or left,"
-                                 "right,bottom,top" + (",front,back" if self.dim == 3 else "")
-                                 + " on the grid) where z = 0; default: the whole boundary")
-        parser.add_argument("--z0", type=parse_float("--z0"), default=self.default_z0,
-                            help=f"initial state at every interior node (default "
-                                 f"{self.default_z0:g})")
-        parser.add_argument("--amplitude", type=parse_float("--amplitude"),
-                            default=self.default_amplitude, help=self.amplitude_help)
-        parser.add_argument("--linear-solver", default="auto",
-                            help="auto | direct | amg: solver of the Newton systems (default auto: "
-                                 "sparse LU up to 400k unknowns in 2D, 50k in 3D, "
-                                 "AMG-preconditioned Krylov above)")
-        parser.add_argument("--duplicate-nodes", default="error",
-                            help="coincident nodes of a --mesh file used by different cells (a "
-                                 "cut, like a crack): error (default) | merge (glue them) | keep "
-                                 "(the cut is intended)")
-        parser.add_argument("--xdmf-time", default="s",
-                            help="time axis of solution.xdmf (ParaView's time slider): s "
-                                 "(default: the curve parameter, every state incl. the viscous "
-                                 "jumps) | t (physical time: one state per t, a jump shows as "
-                                 "its end state); with --adapt-space the same for solution.pvd")
+        parser.add_argument(
+            "--n", type=int, default=None, help=f"grid of {what} (default {self.default_n})"
+        )
+        parser.add_argument(
+            "--mesh",
+            default=None,
+            help="mesh file instead of the grid: anything meshio reads (gmsh .msh "
+            "2.2/4.x, .vtu, .xdmf, ...), " + ("triangle" if self.dim == 2 else "tetra") + " cells",
+        )
+        parser.add_argument(
+            "--dirichlet",
+            default=None,
+            help="comma-separated boundary parts (gmsh physical groups, or left,"
+            "right,bottom,top"
+            + (",front,back" if self.dim == 3 else "")
+            + " on the grid) where z = 0; default: the whole boundary",
+        )
+        parser.add_argument(
+            "--z0",
+            type=parse_float("--z0"),
+            default=self.default_z0,
+            help=f"initial state at every interior node (default {self.default_z0:g})",
+        )
+        parser.add_argument(
+            "--amplitude",
+            type=parse_float("--amplitude"),
+            default=self.default_amplitude,
+            help=self.amplitude_help,
+        )
+        parser.add_argument(
+            "--linear-solver",
+            default="auto",
+            help="auto | direct | amg: solver of the Newton systems (default auto: "
+            "sparse LU up to 400k unknowns in 2D, 50k in 3D, "
+            "AMG-preconditioned Krylov above)",
+        )
+        parser.add_argument(
+            "--duplicate-nodes",
+            default="error",
+            help="coincident nodes of a --mesh file used by different cells (a "
+            "cut, like a crack): error (default) | merge (glue them) | keep "
+            "(the cut is intended)",
+        )
+        parser.add_argument(
+            "--xdmf-time",
+            default="s",
+            help="time axis of solution.xdmf (ParaView's time slider): s "
+            "(default: the curve parameter, every state incl. the viscous "
+            "jumps) | t (physical time: one state per t, a jump shows as "
+            "its end state); with --adapt-space the same for solution.pvd",
+        )
         add_space_options(parser, self.default_space_tol, self.default_max_dofs)
 
-    amplitude_help = ("load <l(t), z> = A t^3 int z (default A = -200; its sign picks the branch "
-                      "z < 0 or z > 0)")
+    amplitude_help = (
+        "load <l(t), z> = A t^3 int z (default A = -200; its sign picks the branch z < 0 or z > 0)"
+    )
 
     # hooks -----------------------------------------------------------------------------------
     def validate(self, args):
@@ -273,8 +355,11 @@ class _RunRISFem(RISRunBase):
         check_choice("--duplicate-nodes", args.duplicate_nodes, DUPLICATE_NODES)
         check_choice("--xdmf-time", args.xdmf_time, XDMF_TIME)
         if args.mesh is None and given(args, "--duplicate-nodes"):
-            raise fail("--duplicate-nodes", args.duplicate_nodes,
-                       "is only used with --mesh (the built-in grids have no duplicate nodes)")
+            raise fail(
+                "--duplicate-nodes",
+                args.duplicate_nodes,
+                "is only used with --mesh (the built-in grids have no duplicate nodes)",
+            )
         if args.mesh is not None and args.n is not None:
             raise fail("--n", args.n, "cannot be combined with --mesh (the mesh fixes the grid)")
         n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
@@ -282,8 +367,7 @@ class _RunRISFem(RISRunBase):
             check_memory("--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim])
         self._space = space_from_args(args, self.default_space_tol, self.default_max_dofs)
         if self._space is not None and args.max_dofs is not None:
-            check_memory("--max-dofs", args.max_dofs, args.max_dofs,
-                         RIS_BYTES_PER_NODE[self.dim])
+            check_memory("--max-dofs", args.max_dofs, args.max_dofs, RIS_BYTES_PER_NODE[self.dim])
         return super().validate(args)
 
     def run_options(self, args) -> dict:
@@ -303,8 +387,9 @@ class _RunRISFem(RISRunBase):
         n = args.n if args.n is not None else self.default_n
         mesh = None
         if args.mesh is not None:
-            mesh = load_mesh(args.mesh, dim=self.dim, name="--mesh",
-                             duplicate_nodes=args.duplicate_nodes)
+            mesh = load_mesh(
+                args.mesh, dim=self.dim, name="--mesh", duplicate_nodes=args.duplicate_nodes
+            )
         dirichlet = None
         if args.dirichlet is not None:
             dirichlet = [x.strip() for x in args.dirichlet.split(",") if x.strip()]
@@ -317,8 +402,11 @@ class _RunRISFem(RISRunBase):
             problem.check_movable("--adapt-space")
             fit_default_cap(args, self._space, problem.n_nodes)
             if self._space.max_dofs < problem.n_nodes:
-                raise fail("--max-dofs", self._space.max_dofs,
-                           f"must be >= the {problem.n_nodes} dofs of the initial mesh")
+                raise fail(
+                    "--max-dofs",
+                    self._space.max_dofs,
+                    f"must be >= the {problem.n_nodes} dofs of the initial mesh",
+                )
         self._setup_time = time.perf_counter() - t0
         self._grid = None if mesh is not None else n
         return problem
@@ -345,12 +433,16 @@ class _RunRISFem(RISRunBase):
         extra.update(describe_branch(problem, traj))
         if traj.meshes is not None:
             dofs = np.asarray(traj["n_dofs"])
-            extra.update(adapt_space=self._space.describe(),
-                         space_adaptations=traj.meta.get("space_adaptations"),
-                         transfer_failures=traj.meta.get("transfer_failures"),
-                         n_meshes=len(traj.meshes), n_dofs_final=int(dofs[-1]),
-                         n_dofs_max=int(dofs.max()), dofs_summed=int(dofs[1:].sum()),
-                         transfer_energy_sum=float(np.sum(traj["transfer_energy"])))
+            extra.update(
+                adapt_space=self._space.describe(),
+                space_adaptations=traj.meta.get("space_adaptations"),
+                transfer_failures=traj.meta.get("transfer_failures"),
+                n_meshes=len(traj.meshes),
+                n_dofs_final=int(dofs[-1]),
+                n_dofs_max=int(dofs.max()),
+                dofs_summed=int(dofs[1:].sum()),
+                transfer_energy_sum=float(np.sum(traj["transfer_energy"])),
+            )
         return extra
 
     def summary_at_end(self, args) -> dict:
@@ -358,8 +450,16 @@ class _RunRISFem(RISRunBase):
         return {"peak_memory_mb": peak_memory_mb()}
 
     def summary_keys_extra(self):
-        return ("n_nodes", "energy_final", "z_min", "z_max", "n_viscous_jumps", "branch",
-                "linear_solver", "peak_memory_mb")
+        return (
+            "n_nodes",
+            "energy_final",
+            "z_min",
+            "z_max",
+            "n_viscous_jumps",
+            "branch",
+            "linear_solver",
+            "peak_memory_mb",
+        )
 
     def npz_extra(self, problem) -> dict:
         if self._space is not None:  # the meshes are in the trajectory's mesh series
@@ -375,20 +475,36 @@ class _RunRISFem(RISRunBase):
             from ..io.mesh_series import write_vtu_series
 
             ids = np.asarray(traj["z_mesh_id"])
-            keep = (last_state_per_time(t, problem.T) if getattr(args, "xdmf_time", "s") == "t"
-                    else np.arange(len(z)))
+            keep = (
+                last_state_per_time(t, problem.T)
+                if getattr(args, "xdmf_time", "s") == "t"
+                else np.arange(len(z))
+            )
             times, other = (t, s) if getattr(args, "xdmf_time", "s") == "t" else (s, t)
-            write_vtu_series(out, "solution", traj.meshes, ids[keep], times[keep],
-                             [{"z": z[i], "t" if other is t else "s": np.full(len(z[i]), other[i])}
-                              for i in keep])
+            write_vtu_series(
+                out,
+                "solution",
+                traj.meshes,
+                ids[keep],
+                times[keep],
+                [
+                    {"z": z[i], "t" if other is t else "s": np.full(len(z[i]), other[i])}
+                    for i in keep
+                ],
+            )
             return
         if getattr(args, "xdmf_time", "s") == "t":
             keep = last_state_per_time(t, problem.T)
-            write_series(out / "solution.xdmf", problem.nodes, problem.cells, t[keep],
-                         {"z": z[keep]}, {"s": s[keep]})
+            write_series(
+                out / "solution.xdmf",
+                problem.nodes,
+                problem.cells,
+                t[keep],
+                {"z": z[keep]},
+                {"s": s[keep]},
+            )
         else:
-            write_series(out / "solution.xdmf", problem.nodes, problem.cells, s, {"z": z},
-                         {"t": t})
+            write_series(out / "solution.xdmf", problem.nodes, problem.cells, s, {"z": z}, {"t": t})
 
     def plot(self, args, problem, runs, out) -> None:
         from ..ris.figures import plot_fig4, plot_path, plot_snapshots
@@ -406,19 +522,34 @@ class _RunRISFem(RISRunBase):
             from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
             from ..ris.figures import snapshot_indices
 
-            plot_dofs(out / "fig_dofs.png", traj["t"], traj["n_dofs"], s=traj["s"],
-                      title=f"{self.name}: unknowns of the adapted meshes")
-            plot_mesh_snapshots(out / "fig_mesh_snapshots.png", traj.meshes, traj["z_mesh_id"],
-                                t, z, snapshot_indices(s), title=label)
+            plot_dofs(
+                out / "fig_dofs.png",
+                traj["t"],
+                traj["n_dofs"],
+                s=traj["s"],
+                title=f"{self.name}: unknowns of the adapted meshes",
+            )
+            plot_mesh_snapshots(
+                out / "fig_mesh_snapshots.png",
+                traj.meshes,
+                traj["z_mesh_id"],
+                t,
+                z,
+                snapshot_indices(s),
+                title=label,
+            )
             return
-        plot_snapshots(problem.nodes, problem.cells, s, t, z, out / "fig_snapshots.png",
-                       title=label)
+        plot_snapshots(
+            problem.nodes, problem.cells, s, t, z, out / "fig_snapshots.png", title=label
+        )
 
 
 @command("run", "ris-2d")
 class RunRIS2D(_RunRISFem):
-    help = ("Example 7.2 of Andreia & Meyer (2022): P1 finite elements on the unit square "
-            "(N x N grid, default 40: 1681 nodes) or a mesh file")
+    help = (
+        "Example 7.2 of Andreia & Meyer (2022): P1 finite elements on the unit square "
+        "(N x N grid, default 40: 1681 nodes) or a mesh file"
+    )
     name = "ris-2d"
     dim = 2
     default_n = 40
@@ -426,8 +557,10 @@ class RunRIS2D(_RunRISFem):
 
 @command("run", "ris-3d")
 class RunRIS3D(_RunRISFem):
-    help = ("The energy of Example 7.2 on the unit cube (P1 tetrahedra, N^3 cubes, default 12) "
-            "or a 3D mesh file")
+    help = (
+        "The energy of Example 7.2 on the unit cube (P1 tetrahedra, N^3 cubes, default 12) "
+        "or a 3D mesh file"
+    )
     name = "ris-3d"
     dim = 3
     default_n = 12
@@ -436,8 +569,10 @@ class RunRIS3D(_RunRISFem):
 
 @command("run", "ris-front")
 class RunRISFront(_RunRISFem):
-    help = ("A phase front crossing the unit square (double well of Example 7.2, a load growing "
-            "from a corner): the example for --adapt-space")
+    help = (
+        "A phase front crossing the unit square (double well of Example 7.2, a load growing "
+        "from a corner): the example for --adapt-space"
+    )
     name = "ris-front"
     dim = 2
     default_n = 16
@@ -445,36 +580,49 @@ class RunRISFront(_RunRISFem):
     default_z0 = 1.0
     default_amplitude = -120.0
     default_space_tol = 1.0
-    amplitude_help = ("plateau A of the load density A/2 (1 + tanh((v t - |x|)/w)) (default "
-                      "-120: beyond max |g'| = 73.9 + kappa, so the state flips to the well "
-                      "near -1 behind the front)")
+    amplitude_help = (
+        "plateau A of the load density A/2 (1 + tanh((v t - |x|)/w)) (default "
+        "-120: beyond max |g'| = 73.9 + kappa, so the state flips to the well "
+        "near -1 behind the front)"
+    )
 
     def add_example_options(self, parser) -> None:
         super().add_example_options(parser)
-        parser.add_argument("--coefficient", type=parse_float("--coefficient"), default=None,
-                            help="c of 1/2 int c |grad z|^2 (default 0.1; the interface is "
-                                 "about sqrt(c/192) wide)")
+        parser.add_argument(
+            "--coefficient",
+            type=parse_float("--coefficient"),
+            default=None,
+            help="c of 1/2 int c |grad z|^2 (default 0.1; the interface is about sqrt(c/192) wide)",
+        )
 
     def validate(self, args):
         from ..ris.fem_problem import FRONT_DEFAULTS
 
         self._coefficient = check_positive(
             "--coefficient",
-            FRONT_DEFAULTS["coefficient"] if args.coefficient is None else args.coefficient)
+            FRONT_DEFAULTS["coefficient"] if args.coefficient is None else args.coefficient,
+        )
         return super().validate(args)
 
     def make_problem(self, n, mesh, args, dirichlet):
         from ..ris.fem_problem import example_front
 
-        return example_front(n, mesh, amplitude=args.amplitude, z0=args.z0,
-                             coefficient=self._coefficient,
-                             dirichlet=("right",) if dirichlet is None else dirichlet)
+        return example_front(
+            n,
+            mesh,
+            amplitude=args.amplitude,
+            z0=args.z0,
+            coefficient=self._coefficient,
+            dirichlet=("right",) if dirichlet is None else dirichlet,
+        )
 
 
 # -- compare ris-2d (Fig. 5) --------------------------------------------------------------------
 
-def compare_ris_2d_row(n: int, mesh, control: str, tol: float | None, tau: float,
-                       progress=False) -> dict:
+
+def compare_ris_2d_row(
+    n: int, mesh, control: str, tol: float | None, tau: float, progress=False
+) -> dict:
     """One run of ``compare ris-2d`` (a task: builds Example 7.2 itself); its table row.
 
     A uniform row also holds its ``equidistribution_bound`` (:func:`equidistribution_bound`).
@@ -491,8 +639,11 @@ def compare_ris_2d_row(n: int, mesh, control: str, tol: float | None, tau: float
     except RunFailed as exc:  # keep the table: a failed run is a row with its status
         traj, failure = exc.trajectory, exc
     row = ris_summary(traj, "ris-2d", describe_branch(problem, traj))
-    row.update(tau0=tau, status="completed" if failure is None else f"failed: {failure}",
-               n_nodes=problem.n_nodes)
+    row.update(
+        tau0=tau,
+        status="completed" if failure is None else f"failed: {failure}",
+        n_nodes=problem.n_nodes,
+    )
     if control == "uniform":
         row["equidistribution_bound"] = equidistribution_bound(traj["I1"] + traj["I2"])
     if failure is not None:
@@ -500,9 +651,16 @@ def compare_ris_2d_row(n: int, mesh, control: str, tol: float | None, tau: float
     return row
 
 
-def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
-                   tau0: float = 0.1, controls=COMPARE_CONTROLS, mesh=None,
-                   progress=False, executor=None) -> list[dict]:
+def compare_ris_2d(
+    n: int = 40,
+    tols=(1e-4, 1e-5, 1e-6),
+    taus=COMPARE_TAUS,
+    tau0: float = 0.1,
+    controls=COMPARE_CONTROLS,
+    mesh=None,
+    progress=False,
+    executor=None,
+) -> list[dict]:
     """The ``controls`` over ``tols`` and uniform over ``taus`` on Example 7.2; one row each
     (:func:`compare_ris_2d_row`).
 
@@ -514,17 +672,34 @@ def compare_ris_2d(n: int = 40, tols=(1e-4, 1e-5, 1e-6), taus=COMPARE_TAUS,
     runs = [(c, tol, tau0) for c in controls for tol in tols] + [("uniform", None, t) for t in taus]
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
-    tasks = [Task(f"{c} tol={tol:g}" if tol is not None else f"{c} tau={tau:g}",
-                  compare_ris_2d_row,
-                  {"n": n, "mesh": mesh, "control": c, "tol": tol, "tau": tau,
-                   "progress": inner_progress},
-                  cost=run_cost(tol, tau))
-             for c, tol, tau in runs]
+    tasks = [
+        Task(
+            f"{c} tol={tol:g}" if tol is not None else f"{c} tau={tau:g}",
+            compare_ris_2d_row,
+            {
+                "n": n,
+                "mesh": mesh,
+                "control": c,
+                "tol": tol,
+                "tau": tau,
+                "progress": inner_progress,
+            },
+            cost=run_cost(tol, tau),
+        )
+        for c, tol, tau in runs
+    ]
     results = (executor or Executor(1, progress=False)).map(tasks)
-    return [r.value if isinstance(r.value, dict) else
-            {"control": t.kwargs["control"], "tol": t.kwargs["tol"], "tau0": t.kwargs["tau"],
-             "status": f"{r.status}: {r.message}"}
-            for t, r in zip(tasks, results, strict=True)]
+    return [
+        r.value
+        if isinstance(r.value, dict)
+        else {
+            "control": t.kwargs["control"],
+            "tol": t.kwargs["tol"],
+            "tau0": t.kwargs["tau"],
+            "status": f"{r.status}: {r.message}",
+        }
+        for t, r in zip(tasks, results, strict=True)
+    ]
 
 
 def format_table(rows) -> str:
@@ -532,10 +707,12 @@ def format_table(rows) -> str:
     from ..ris.fem_problem import format_jump_times
 
     ratios = compare_rows(rows)
-    head = (f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
-            f"{'newton':>7} {'max_k(I1+I2)':>12} {'sum_k(I1+I2)':>12} {'energy':>10} "
-            f"{'z_min':>8} {'z_max':>8} {'viscous jumps at t':<18} {'seconds':>8} "
-            f"{'steps/u':>7} {'solves/u':>8} {'sec/u':>6}")
+    head = (
+        f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
+        f"{'newton':>7} {'max_k(I1+I2)':>12} {'sum_k(I1+I2)':>12} {'energy':>10} "
+        f"{'z_min':>8} {'z_max':>8} {'viscous jumps at t':<18} {'seconds':>8} "
+        f"{'steps/u':>7} {'solves/u':>8} {'sec/u':>6}"
+    )
     lines = [head, "-" * len(head)]
 
     def fmt(x, width):
@@ -547,32 +724,43 @@ def format_table(rows) -> str:
             lines.append(f"{r['control']:<9} {par:>8.3g}  {r['status']}")
             continue
         jumps = format_jump_times(r["viscous_jumps"], shown=2, sep=",")
-        line = (f"{r['control']:<9} {par:>8.3g} {r['accepted_steps']:>8d} "
-                f"{r['rejected_steps']:>8d} {r['inner_solves']:>7d} {r['newton_iterations']:>7d} "
-                f"{r['max_residual']:>12.3e} {r['sum_residual']:>12.3e} "
-                f"{r['energy_final']:>10.4f} {r['z_min']:>8.4f} {r['z_max']:>8.4f} "
-                f"{jumps:<18} {r['wall_time_s']:>8.2f} {fmt(q['ratio_steps'], 7)} "
-                f"{fmt(q['ratio_solves'], 8)} {fmt(q['ratio_seconds'], 6)}")
+        line = (
+            f"{r['control']:<9} {par:>8.3g} {r['accepted_steps']:>8d} "
+            f"{r['rejected_steps']:>8d} {r['inner_solves']:>7d} {r['newton_iterations']:>7d} "
+            f"{r['max_residual']:>12.3e} {r['sum_residual']:>12.3e} "
+            f"{r['energy_final']:>10.4f} {r['z_min']:>8.4f} {r['z_max']:>8.4f} "
+            f"{jumps:<18} {r['wall_time_s']:>8.2f} {fmt(q['ratio_steps'], 7)} "
+            f"{fmt(q['ratio_solves'], 8)} {fmt(q['ratio_seconds'], 6)}"
+        )
         if r["status"] != "completed":
             line += "  " + r["status"]
         lines.append(line)
     lines.append("")
-    lines.append("steps/u, solves/u, sec/u: accepted steps, inner solves and seconds of the run "
-                 "divided by the uniform scheme's at the same global residual sum_k(I1+I2), "
-                 "interpolated log-log between the two uniform runs that bracket it ('-': uniform, "
-                 "or outside their range)")
+    lines.append(
+        "steps/u, solves/u, sec/u: accepted steps, inner solves and seconds of the run "
+        "divided by the uniform scheme's at the same global residual sum_k(I1+I2), "
+        "interpolated log-log between the two uniform runs that bracket it ('-': uniform, "
+        "or outside their range)"
+    )
     bound = finest_uniform_bound(rows)
     if bound is not None:
-        lines.append(f"equidistribution bound (finest uniform run, tau = {bound[0]:.3g}): no step "
-                     f"sequence needs fewer than {bound[1]:.3f} of uniform's accepted steps (hence "
-                     "solves) at equal global residual while I ~ C(s) tau^2")
+        lines.append(
+            f"equidistribution bound (finest uniform run, tau = {bound[0]:.3g}): no step "
+            f"sequence needs fewer than {bound[1]:.3f} of uniform's accepted steps (hence "
+            "solves) at equal global residual while I ~ C(s) tau^2"
+        )
     return "\n".join(lines)
 
 
 def finest_uniform_bound(rows):
     """(tau, bound) of the completed uniform run with the smallest step, or None."""
-    u = [r for r in rows if r["control"] == "uniform" and r["status"] == "completed"
-         and r.get("equidistribution_bound") is not None]
+    u = [
+        r
+        for r in rows
+        if r["control"] == "uniform"
+        and r["status"] == "completed"
+        and r.get("equidistribution_bound") is not None
+    ]
     if not u:
         return None
     r = min(u, key=lambda r: r["tau0"])
@@ -581,23 +769,40 @@ def finest_uniform_bound(rows):
 
 @command("compare", "ris-2d")
 class CompareRIS2D:
-    help = ("Fig. 5 of Andreia & Meyer: local and global residual against steps, adaptive, order2 "
-            "and regime vs uniform (Example 7.2); compare.json with the work ratios")
+    help = (
+        "Fig. 5 of Andreia & Meyer: local and global residual against steps, adaptive, order2 "
+        "and regime vs uniform (Example 7.2); compare.json with the work ratios"
+    )
 
     def configure(self, parser) -> None:
-        parser.add_argument("--n", type=int, default=None,
-                            help="N x N grid (default 40: 1681 nodes)")
+        parser.add_argument(
+            "--n", type=int, default=None, help="N x N grid (default 40: 1681 nodes)"
+        )
         parser.add_argument("--mesh", default=None, help="2D mesh file instead of the grid")
-        parser.add_argument("--tols", type=parse_float_list("--tols"), default=[1e-4, 1e-5, 1e-6],
-                            help="tolerances of the step controllers (default 1e-4,1e-5,1e-6)")
-        parser.add_argument("--taus", type=parse_float_list("--taus"),
-                            default=list(COMPARE_TAUS),
-                            help="steps of the uniform scheme (default 0.01/2^k, k = 0..8)")
-        parser.add_argument("--controls", default=",".join(COMPARE_CONTROLS),
-                            help="step controllers besides uniform, from adaptive, order2, regime "
-                                 "(default all three)")
-        parser.add_argument("--tau", type=parse_float("--tau"), default=0.1,
-                            help="first step of the step controllers (default 0.1)")
+        parser.add_argument(
+            "--tols",
+            type=parse_float_list("--tols"),
+            default=[1e-4, 1e-5, 1e-6],
+            help="tolerances of the step controllers (default 1e-4,1e-5,1e-6)",
+        )
+        parser.add_argument(
+            "--taus",
+            type=parse_float_list("--taus"),
+            default=list(COMPARE_TAUS),
+            help="steps of the uniform scheme (default 0.01/2^k, k = 0..8)",
+        )
+        parser.add_argument(
+            "--controls",
+            default=",".join(COMPARE_CONTROLS),
+            help="step controllers besides uniform, from adaptive, order2, regime "
+            "(default all three)",
+        )
+        parser.add_argument(
+            "--tau",
+            type=parse_float("--tau"),
+            default=0.1,
+            help="first step of the step controllers (default 0.1)",
+        )
         add_output_options(parser, "compare-ris-2d")
         add_parallel_options(parser)
 
@@ -621,32 +826,69 @@ class CompareRIS2D:
         executor = executor_from_args(args, "rothe compare ris-2d")
         out = output_dir(args, "compare-ris-2d")
         t0 = time.perf_counter()
-        rows = compare_ris_2d(n, tols, taus, tau0, tuple(controls), mesh,
-                              progress=progress_of(args), executor=executor)
+        rows = compare_ris_2d(
+            n,
+            tols,
+            taus,
+            tau0,
+            tuple(controls),
+            mesh,
+            progress=progress_of(args),
+            executor=executor,
+        )
         table = format_table(rows)
         write_table(out, table + "\n")
         n_nodes = next((r["n_nodes"] for r in rows if "n_nodes" in r), None)
-        summary = {"example": "ris-2d", "n_nodes": n_nodes, "rows": rows,
-                   "wall_time_s": time.perf_counter() - t0, "peak_memory_mb": peak_memory_mb()}
+        summary = {
+            "example": "ris-2d",
+            "n_nodes": n_nodes,
+            "rows": rows,
+            "wall_time_s": time.perf_counter() - t0,
+            "peak_memory_mb": peak_memory_mb(),
+        }
         write_summary(out, summary)
         bound = finest_uniform_bound(rows)
-        atomic_write_text(out / "compare.json", json.dumps(_jsonable({
-            "example": "ris-2d", "n_nodes": n_nodes, "rows": compare_rows(rows),
-            "equidistribution_bound": None if bound is None else {"tau": bound[0],
-                                                                  "ratio_steps": bound[1]},
-        }), indent=2) + "\n")
+        atomic_write_text(
+            out / "compare.json",
+            json.dumps(
+                _jsonable(
+                    {
+                        "example": "ris-2d",
+                        "n_nodes": n_nodes,
+                        "rows": compare_rows(rows),
+                        "equidistribution_bound": None
+                        if bound is None
+                        else {"tau": bound[0], "ratio_steps": bound[1]},
+                    }
+                ),
+                indent=2,
+            )
+            + "\n",
+        )
         if not args.no_plots:
             from ..ris.figures import plot_residual_vs_steps
 
             plot_residual_vs_steps(
-                [r for r in rows if r["status"] == "completed"], out / "fig5_residuals.png",
-                title=f"Example 7.2 ({n_nodes} nodes): residuals against steps")
+                [r for r in rows if r["status"] == "completed"],
+                out / "fig5_residuals.png",
+                title=f"Example 7.2 ({n_nodes} nodes): residuals against steps",
+            )
         if not args.quiet:
             print(table)
             print(f"wrote {out}/")
         return 0 if all(r["status"] == "completed" for r in rows) else 1
 
 
-__all__ = ["COMPARE_KEYS", "RunRIS2D", "RunRIS3D", "RunRISFront", "CompareRIS2D", "compare_ris_2d",
-           "compare_rows", "equidistribution_bound", "format_table", "linear_solver_used",
-           "uniform_work_interpolant"]
+__all__ = [
+    "COMPARE_KEYS",
+    "RunRIS2D",
+    "RunRIS3D",
+    "RunRISFront",
+    "CompareRIS2D",
+    "compare_ris_2d",
+    "compare_rows",
+    "equidistribution_bound",
+    "format_table",
+    "linear_solver_used",
+    "uniform_work_interpolant",
+]

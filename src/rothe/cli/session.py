@@ -42,8 +42,15 @@ from ..stepping import interrupt
 from .common import parse_float, progress_of
 
 #: options that change where and how results are shown, never the results themselves
-PRESENTATION = ("out", "no_plots", "quiet", "resume", "checkpoint_every", "progress_every",
-                "discard_checkpoint")
+PRESENTATION = (
+    "out",
+    "no_plots",
+    "quiet",
+    "resume",
+    "checkpoint_every",
+    "progress_every",
+    "discard_checkpoint",
+)
 #: argparse bookkeeping
 _INTERNAL = ("_command", "_options", "_argv", "_given", "verb", "name")
 #: options stripped from the recorded command line (``rothe resume`` supplies them)
@@ -54,16 +61,26 @@ INCOMPLETE = "incomplete"
 
 def add_run_options(parser) -> None:
     """``--checkpoint-every``, ``--resume`` and ``--discard-checkpoint`` of the run commands."""
-    parser.add_argument("--checkpoint-every", type=parse_float("--checkpoint-every"),
-                        default=60.0, metavar="SECONDS",
-                        help="write a checkpoint to OUT/checkpoint every SECONDS of wall time "
-                             "(default 60; also at the start, when stopped, and at the end)")
-    parser.add_argument("--resume", default=None, metavar="DIR",
-                        help="continue the run whose checkpoint is in DIR (the same command "
-                             "line; see also 'rothe resume DIR')")
-    parser.add_argument("--discard-checkpoint", action="store_true",
-                        help="start over even if OUT holds the checkpoint of an unfinished run "
-                             "(it is replaced)")
+    parser.add_argument(
+        "--checkpoint-every",
+        type=parse_float("--checkpoint-every"),
+        default=60.0,
+        metavar="SECONDS",
+        help="write a checkpoint to OUT/checkpoint every SECONDS of wall time "
+        "(default 60; also at the start, when stopped, and at the end)",
+    )
+    parser.add_argument(
+        "--resume",
+        default=None,
+        metavar="DIR",
+        help="continue the run whose checkpoint is in DIR (the same command "
+        "line; see also 'rothe resume DIR')",
+    )
+    parser.add_argument(
+        "--discard-checkpoint",
+        action="store_true",
+        help="start over even if OUT holds the checkpoint of an unfinished run (it is replaced)",
+    )
 
 
 def result_arguments(args) -> dict:
@@ -123,8 +140,11 @@ class RunSession:
         if args.resume is not None:
             given = Path(args.resume)
             if args.out is not None and _resolved(self.out) != _resolved(_run_dir(given)):
-                raise fail("--out", str(self.out),
-                           f"must be the resumed directory {_run_dir(given)} (or omitted)")
+                raise fail(
+                    "--out",
+                    str(self.out),
+                    f"must be the resumed directory {_run_dir(given)} (or omitted)",
+                )
             self.resume = self._load_resumable(given)
             self.out = _run_dir(given)
         check_writable(self.out, "--out")
@@ -144,8 +164,12 @@ class RunSession:
         self.checkpoint = CheckpointOptions(
             self.checkpoint_dir,
             every_seconds=check_positive("--checkpoint-every", args.checkpoint_every),
-            record={"command": self.command, "argv": strip_argv(argv),
-                    "args": result_arguments(args)})
+            record={
+                "command": self.command,
+                "argv": strip_argv(argv),
+                "args": result_arguments(args),
+            },
+        )
         self.progress = progress_of(args)
         self._guard = interrupt.interruptible(hard_second=True)
 
@@ -158,14 +182,21 @@ class RunSession:
         ckpt.require_resumable()
         rec = ckpt.record
         if rec.get("command") != self.command:
-            raise CheckpointError(f"--resume {given}: the checkpoint is of 'rothe "
-                                  f"{rec.get('command')}', not 'rothe {self.command}'")
+            raise CheckpointError(
+                f"--resume {given}: the checkpoint is of 'rothe "
+                f"{rec.get('command')}', not 'rothe {self.command}'"
+            )
         old, new = rec.get("args", {}), result_arguments(self.args)
-        diff = [f"{_option(k)} {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-                for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+        diff = [
+            f"{_option(k)} {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
+            for k in sorted(set(old) | set(new))
+            if old.get(k) != new.get(k)
+        ]
         if diff:
-            raise CheckpointError(f"--resume {given}: the command line differs from the "
-                                  f"checkpoint's: {'; '.join(diff)}")
+            raise CheckpointError(
+                f"--resume {given}: the command line differs from the "
+                f"checkpoint's: {'; '.join(diff)}"
+            )
         return ckpt
 
     def _refuse_unfinished(self) -> None:
@@ -176,10 +207,13 @@ class RunSession:
         except CheckpointError:
             return  # unreadable: nothing that could be resumed is lost by replacing it
         if ckpt.status in ("running", "interrupted") and not self.args.discard_checkpoint:
-            raise fail("--out", str(self.out),
-                       f"holds the checkpoint of an unfinished run ({ckpt.status}, "
-                       f"{ckpt.describe_where()}): continue it with 'rothe resume {self.out}' "
-                       "or start over with --discard-checkpoint")
+            raise fail(
+                "--out",
+                str(self.out),
+                f"holds the checkpoint of an unfinished run ({ckpt.status}, "
+                f"{ckpt.describe_where()}): continue it with 'rothe resume {self.out}' "
+                "or start over with --discard-checkpoint",
+            )
 
     # -- running --------------------------------------------------------------------------------
     def __enter__(self):
@@ -194,8 +228,10 @@ class RunSession:
     def run(self, fn) -> Outcome:
         """``fn(checkpoint=..., resume=..., progress=...)`` -> result; catches the stops."""
         try:
-            return Outcome("completed", fn(checkpoint=self.checkpoint, resume=self.resume,
-                                           progress=self.progress))
+            return Outcome(
+                "completed",
+                fn(checkpoint=self.checkpoint, resume=self.resume, progress=self.progress),
+            )
         except RunFailed as exc:
             return Outcome("failed", exc.trajectory, exc)
         except RunInterrupted as exc:
@@ -221,8 +257,9 @@ class RunSession:
     @property
     def run_id(self) -> str | None:
         try:
-            return load_checkpoint(self.checkpoint_dir, check_version=False,
-                                   header_only=True).run_id
+            return load_checkpoint(
+                self.checkpoint_dir, check_version=False, header_only=True
+            ).run_id
         except CheckpointError:
             return None
 
@@ -241,8 +278,9 @@ class RunSession:
             summary["sessions"] = ckpt.sessions
             summary["checkpoint"] = str(self.checkpoint_dir)
             if ckpt.sessions > 1:
-                summary["wall_time_note"] = (f"wall_time_s sums {ckpt.sessions} sessions (the "
-                                             "run was resumed)")
+                summary["wall_time_note"] = (
+                    f"wall_time_s sums {ckpt.sessions} sessions (the run was resumed)"
+                )
         exc = outcome.error
         if isinstance(exc, RunInterrupted):
             summary["signal"] = interrupt.signal_name(exc.signum)
@@ -262,10 +300,16 @@ class RunSession:
             return 0
         exc = outcome.error
         if isinstance(exc, RunInterrupted):
-            where = "" if results == self.out else (
-                f" (the earlier completed run stays in {self.out}/)")
-            print(f"rothe: {exc}; results so far in {results}/{where}; continue with: "
-                  f"rothe resume {self.out}", file=sys.stderr)
+            where = (
+                ""
+                if results == self.out
+                else (f" (the earlier completed run stays in {self.out}/)")
+            )
+            print(
+                f"rothe: {exc}; results so far in {results}/{where}; continue with: "
+                f"rothe resume {self.out}",
+                file=sys.stderr,
+            )
             return exc.exit_status
         raise exc
 

@@ -37,11 +37,13 @@ from . import registry
 from .tasks import cli_task
 
 #: options the sweep sets for every run itself
-RESERVED = {"--out": "the sweep gives every run its own folder under the sweep's --out",
-            "--quiet": "every run is quiet (the sweep reports progress)",
-            "--resume": "every run has its own folder and checkpoint (rothe resume <run folder> "
-                        "continues one)",
-            "--help": "not an option of a run"}
+RESERVED = {
+    "--out": "the sweep gives every run its own folder under the sweep's --out",
+    "--quiet": "every run is quiet (the sweep reports progress)",
+    "--resume": "every run has its own folder and checkpoint (rothe resume <run folder> "
+    "continues one)",
+    "--help": "not an option of a run",
+}
 _TRUE = ("true", "yes", "on", "1")
 _FALSE = ("false", "no", "off", "0")
 
@@ -105,8 +107,9 @@ def command_parser(verb: str, example: str) -> argparse.ArgumentParser:
 def resolve_params(parser, verb: str, example: str, texts: list[str]) -> list[SweepParam]:
     """Check every ``--param`` against the options of the command."""
     if not texts:
-        raise RotheInputError("--param: none given, needs at least one NAME=V1,V2,... to "
-                              "sweep over")
+        raise RotheInputError(
+            "--param: none given, needs at least one NAME=V1,V2,... to sweep over"
+        )
     options = parser._option_string_actions
     params: list[SweepParam] = []
     for text in texts:
@@ -118,8 +121,11 @@ def resolve_params(parser, verb: str, example: str, texts: list[str]) -> list[Sw
             raise fail("--param", name, f"cannot be swept: {RESERVED[option]}")
         if option not in options:
             names = sorted(o[2:] for o in options if o.startswith("--") and o not in RESERVED)
-            raise fail("--param", name, f"is not an option of 'rothe {verb} {example}' "
-                       f"(its options: {', '.join(names)})")
+            raise fail(
+                "--param",
+                name,
+                f"is not an option of 'rothe {verb} {example}' (its options: {', '.join(names)})",
+            )
         if any(p.option == option for p in params):
             raise fail("--param", name, "is given twice")
         action = options[option]
@@ -127,8 +133,9 @@ def resolve_params(parser, verb: str, example: str, texts: list[str]) -> list[Sw
         if flag:
             for v in values:
                 if v.lower() not in _TRUE + _FALSE:
-                    raise fail("--param", f"{name}={v}", f"{option} takes no value: use "
-                               f"{name}=true,false")
+                    raise fail(
+                        "--param", f"{name}={v}", f"{option} takes no value: use {name}=true,false"
+                    )
         params.append(SweepParam(name.lstrip("-"), option, values, flag))
     return params
 
@@ -144,8 +151,9 @@ def run_name(assignment: list[tuple[str, str]]) -> str:
     return name[:150]
 
 
-def plan_sweep(verb: str, example: str, params: list[SweepParam], fixed: list[str],
-               out: Path) -> list[SweepRun]:
+def plan_sweep(
+    verb: str, example: str, params: list[SweepParam], fixed: list[str], out: Path
+) -> list[SweepRun]:
     """Every run of the product, with its argv and folder (product order, last varies fastest)."""
     both = _fixed_options(fixed) & {p.option for p in params}
     if both:
@@ -349,14 +357,24 @@ class SweepResult:
         return all(r["status"] == "completed" for r in self.rows)
 
 
-def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run",
-                  out=None, continue_sweep: bool = False
-                  ) -> tuple[list[SweepRun], list[SweepParam], Path]:
+def prepare_sweep(
+    example: str,
+    params: list[str] | dict,
+    fixed=(),
+    *,
+    verb: str = "run",
+    out=None,
+    continue_sweep: bool = False,
+) -> tuple[list[SweepRun], list[SweepParam], Path]:
     """Plan and validate a sweep (nothing runs): ``params`` as ``NAME=V1,V2`` strings or a dict
     ``{name: [values]}``; ``continue_sweep``: see :func:`continue_runs`."""
     if isinstance(params, dict):
-        params = [f"{k}={';'.join(map(str, v))}" if any(',' in str(x) for x in v)
-                  else f"{k}={','.join(map(str, v))}" for k, v in params.items()]
+        params = [
+            f"{k}={';'.join(map(str, v))}"
+            if any("," in str(x) for x in v)
+            else f"{k}={','.join(map(str, v))}"
+            for k, v in params.items()
+        ]
     parser = command_parser(verb, example)
     resolved = resolve_params(parser, verb, example, list(params))
     out = Path(out) if out is not None else Path("rothe-out") / f"sweep-{example}"
@@ -367,9 +385,17 @@ def prepare_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str
     return runs, resolved, out
 
 
-def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "run", out=None,
-              executor: Executor | None = None, plot: str | tuple | None = None,
-              continue_sweep: bool = False) -> SweepResult:
+def run_sweep(
+    example: str,
+    params: list[str] | dict,
+    fixed=(),
+    *,
+    verb: str = "run",
+    out=None,
+    executor: Executor | None = None,
+    plot: str | tuple | None = None,
+    continue_sweep: bool = False,
+) -> SweepResult:
     """Run a sweep (Python API of ``rothe sweep``): plan, validate, run, collect, write.
 
     ``executor`` defaults to in-process; e.g. ``Executor(workers=4)`` or
@@ -378,8 +404,9 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
     kept, interrupted or killed ones resume from their checkpoints; :func:`continue_runs`).
     """
     xy = parse_plot(plot) if isinstance(plot, str) or plot is None else tuple(plot)
-    runs, resolved, out = prepare_sweep(example, params, fixed, verb=verb, out=out,
-                                        continue_sweep=continue_sweep)
+    runs, resolved, out = prepare_sweep(
+        example, params, fixed, verb=verb, out=out, continue_sweep=continue_sweep
+    )
     executor = executor or Executor(1, progress=False)
     t0 = time.perf_counter()
     interrupted = None
@@ -397,11 +424,16 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
         if res.detail and Path(run.out).is_dir():
             _write_atomic(Path(run.out) / "traceback.txt", res.detail)
     meta = {
-        "command": " ".join(["rothe", "sweep", verb, example, *map(str, fixed)]
-                            + [f"--param {p.name}={','.join(p.values)}" for p in resolved]),
-        "verb": verb, "example": example,
-        "params": {p.name: p.values for p in resolved}, "fixed_options": list(map(str, fixed)),
-        "executor": executor.describe(), "runs": len(rows),
+        "command": " ".join(
+            ["rothe", "sweep", verb, example, *map(str, fixed)]
+            + [f"--param {p.name}={','.join(p.values)}" for p in resolved]
+        ),
+        "verb": verb,
+        "example": example,
+        "params": {p.name: p.values for p in resolved},
+        "fixed_options": list(map(str, fixed)),
+        "executor": executor.describe(),
+        "runs": len(rows),
         "completed": sum(r["status"] == "completed" for r in rows),
         "wall_time_s": time.perf_counter() - t0,
     }
@@ -413,7 +445,9 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
         raise RunInterrupted(
             f"sweep interrupted by {meta['interrupted']}: {meta['completed']} of {len(rows)} "
             f"runs completed; table so far in {csv_path}; the same command with --continue "
-            "continues the sweep", signum=signum) from None
+            "continues the sweep",
+            signum=signum,
+        ) from None
     figure, missing = None, []
     if xy is not None:
         cols = table_columns(rows)
@@ -425,13 +459,20 @@ def run_sweep(example: str, params: list[str] | dict, fixed=(), *, verb: str = "
             group = [p.name for p in resolved if p.name != x]
             if x not in {p.name for p in resolved} and group:
                 group = group[1:]  # the first parameter varies along each line
-            figure = plot_sweep(rows, x, y, group, out / f"sweep_{_file_part(y)}_vs_"
-                                f"{_file_part(x)}.png", title=f"rothe sweep {verb} {example}")
+            figure = plot_sweep(
+                rows,
+                x,
+                y,
+                group,
+                out / f"sweep_{_file_part(y)}_vs_{_file_part(x)}.png",
+                title=f"rothe sweep {verb} {example}",
+            )
     return SweepResult(rows, out, csv_path, json_path, figure, missing, resolved)
 
 
-def interrupted_results(runs: list[SweepRun], executor: Executor,
-                        exc: BaseException) -> list[TaskResult]:
+def interrupted_results(
+    runs: list[SweepRun], executor: Executor, exc: BaseException
+) -> list[TaskResult]:
     """The results of a map stopped by a signal: those that finished, ``interrupted`` for runs
     under way (with the summary of their results so far, where the run wrote one: in-process the
     run's session does), ``pending`` for runs that never started."""
@@ -442,12 +483,19 @@ def interrupted_results(runs: list[SweepRun], executor: Executor,
         if res is not None:
             results.append(res)
         elif i in executor.started:
-            results.append(TaskResult(
-                run.name, "interrupted", f"stopped by {name}; continue it with: rothe resume "
-                f"{run.out}", value=_interrupted_summary(Path(run.out)), worker=""))
+            results.append(
+                TaskResult(
+                    run.name,
+                    "interrupted",
+                    f"stopped by {name}; continue it with: rothe resume {run.out}",
+                    value=_interrupted_summary(Path(run.out)),
+                    worker="",
+                )
+            )
         else:
-            results.append(TaskResult(run.name, "pending", f"not started (sweep stopped by "
-                                      f"{name})", worker=""))
+            results.append(
+                TaskResult(run.name, "pending", f"not started (sweep stopped by {name})", worker="")
+            )
     return results
 
 
@@ -466,7 +514,23 @@ def _file_part(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name)
 
 
-__all__ = ["SweepParam", "SweepResult", "SweepRun", "collect_rows", "command_parser",
-           "continue_runs", "format_rows", "interrupted_results", "parse_plot", "plan_sweep",
-           "prepare_sweep", "resolve_params", "run_name", "run_sweep", "split_param",
-           "sweep_tasks", "validate_runs", "write_table"]
+__all__ = [
+    "SweepParam",
+    "SweepResult",
+    "SweepRun",
+    "collect_rows",
+    "command_parser",
+    "continue_runs",
+    "format_rows",
+    "interrupted_results",
+    "parse_plot",
+    "plan_sweep",
+    "prepare_sweep",
+    "resolve_params",
+    "run_name",
+    "run_sweep",
+    "split_param",
+    "sweep_tasks",
+    "validate_runs",
+    "write_table",
+]

@@ -27,22 +27,39 @@ class _OwnParser(argparse.ArgumentParser):
 
 
 def _sweep_options(parser) -> None:
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=V1,V2,...",
-                        help="an option of the run and its values (repeatable; the runs are the "
-                             "Cartesian product); separate values by ';' when they hold commas")
-    parser.add_argument("--out", default=None,
-                        help="folder of the sweep (default rothe-out/sweep-<example>); every run "
-                             "writes into a subfolder named by its parameters")
-    parser.add_argument("--plot", default=None, metavar="X,Y",
-                        help="draw column Y against column X of the table (log axes where the "
-                             "values span a decade or more), a line per value of the other "
-                             "parameters")
-    parser.add_argument("--quiet", action="store_true",
-                        help="no progress and no table on the terminal")
-    parser.add_argument("--continue", dest="continue_sweep", action="store_true",
-                        help="continue a sweep stopped earlier into the same --out: completed "
-                             "runs are kept, interrupted or killed runs resume from their "
-                             "checkpoints, the others run")
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=V1,V2,...",
+        help="an option of the run and its values (repeatable; the runs are the "
+        "Cartesian product); separate values by ';' when they hold commas",
+    )
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="folder of the sweep (default rothe-out/sweep-<example>); every run "
+        "writes into a subfolder named by its parameters",
+    )
+    parser.add_argument(
+        "--plot",
+        default=None,
+        metavar="X,Y",
+        help="draw column Y against column X of the table (log axes where the "
+        "values span a decade or more), a line per value of the other "
+        "parameters",
+    )
+    parser.add_argument(
+        "--quiet", action="store_true", help="no progress and no table on the terminal"
+    )
+    parser.add_argument(
+        "--continue",
+        dest="continue_sweep",
+        action="store_true",
+        help="continue a sweep stopped earlier into the same --out: completed "
+        "runs are kept, interrupted or killed runs resume from their "
+        "checkpoints, the others run",
+    )
     add_parallel_options(parser)
 
 
@@ -68,16 +85,23 @@ def split_sweep_args(tokens: list[str]) -> tuple[list[str], list[str]]:
 
 @command("sweep", "run")
 class SweepRunCommand:
-    help = ("the Cartesian product of option values of a run command (--param NAME=V1,V2,...), "
-            "in parallel; one table of all summaries")
+    help = (
+        "the Cartesian product of option values of a run command (--param NAME=V1,V2,...), "
+        "in parallel; one table of all summaries"
+    )
 
     def configure(self, parser) -> None:
         parser.add_argument("example", help="the example of `rothe run` to sweep, e.g. ris-2d")
         _sweep_options(parser)
-        parser.add_argument("run_options", nargs=argparse.REMAINDER,
-                            help="options passed to every run (e.g. --no-plots --control order2)")
-        parser.epilog = ("example: rothe sweep run ris-2d --param tol=1e-4,1e-5 --param n=20,40 "
-                         "--no-plots --plot tol,sum_residual --workers 2")
+        parser.add_argument(
+            "run_options",
+            nargs=argparse.REMAINDER,
+            help="options passed to every run (e.g. --no-plots --control order2)",
+        )
+        parser.epilog = (
+            "example: rothe sweep run ris-2d --param tol=1e-4,1e-5 --param n=20,40 "
+            "--no-plots --plot tol,sum_residual --workers 2"
+        )
         self._parser = parser
 
     def execute(self, args) -> int:
@@ -90,25 +114,46 @@ class SweepRunCommand:
             return 0
         own = _OwnParser(prog="rothe sweep run", allow_abbrev=False, add_help=False)
         _sweep_options(own)
-        own.set_defaults(**{k: getattr(args, k) for k in
-                            ("out", "plot", "quiet", "workers", "scheduler",
-                             "continue_sweep")})
+        own.set_defaults(
+            **{
+                k: getattr(args, k)
+                for k in ("out", "plot", "quiet", "workers", "scheduler", "continue_sweep")
+            }
+        )
         opts = own.parse_args(own_tokens)
         params = list(args.param) + list(opts.param)
         plot = parse_plot(opts.plot)
         title = f"rothe sweep run {args.example}"
         executor = executor_from_args(opts, title)
         # run_sweep plans and validates every run before the executor connects or anything runs
-        result = run_sweep(args.example, params, fixed, out=opts.out, executor=executor,
-                           plot=plot, continue_sweep=opts.continue_sweep)
+        result = run_sweep(
+            args.example,
+            params,
+            fixed,
+            out=opts.out,
+            executor=executor,
+            plot=plot,
+            continue_sweep=opts.continue_sweep,
+        )
         resolved = result.params
         for col in result.missing_plot_columns:
-            print(f"rothe: warning: --plot: no column {col!r} in the table (see "
-                  f"{result.csv.name} for the columns); no figure drawn", file=sys.stderr)
+            print(
+                f"rothe: warning: --plot: no column {col!r} in the table (see "
+                f"{result.csv.name} for the columns); no figure drawn",
+                file=sys.stderr,
+            )
         if not opts.quiet:
-            print(format_rows(result.rows, resolved, [p.name for p in resolved]
-                              + [c for c in (plot or ()) if c not in {p.name for p in resolved}]))
+            print(
+                format_rows(
+                    result.rows,
+                    resolved,
+                    [p.name for p in resolved]
+                    + [c for c in (plot or ()) if c not in {p.name for p in resolved}],
+                )
+            )
             done = sum(r["status"] == "completed" for r in result.rows)
-            print(f"{done} of {len(result.rows)} runs completed; wrote {result.csv}, "
-                  f"{result.json.name}" + (f", {result.figure.name}" if result.figure else ""))
+            print(
+                f"{done} of {len(result.rows)} runs completed; wrote {result.csv}, "
+                f"{result.json.name}" + (f", {result.figure.name}" if result.figure else "")
+            )
         return 0 if result.all_completed else 1

@@ -26,8 +26,11 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
     from .main import build_parser, execute, parse_command  # main imports every command
 
     args = parse_command(build_parser(), list(argv))
-    paths = ([Path(out) / "summary.json", Path(out) / "incomplete" / "summary.json"]
-             if out is not None else [])
+    paths = (
+        [Path(out) / "summary.json", Path(out) / "incomplete" / "summary.json"]
+        if out is not None
+        else []
+    )
 
     def stamps():
         return [p.stat().st_mtime_ns if p.is_file() else None for p in paths]
@@ -45,8 +48,7 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
     except RunFailed as exc:
         raise TaskFailed(str(exc), value=summary()) from exc
     if code - 128 in (signal.SIGINT, signal.SIGTERM):
-        raise RunInterrupted(f"interrupted by {signal.Signals(code - 128).name}",
-                             signum=code - 128)
+        raise RunInterrupted(f"interrupted by {signal.Signals(code - 128).name}", signum=code - 128)
     if code != 0:
         raise TaskFailed(f"exit status {code}", value=summary())
     done = summary()
@@ -65,5 +67,3 @@ def cli_task(key: str, argv: list[str], out: str | None = None, cost: float = 1.
     """A task running ``rothe <argv>``; ``out`` is the run's output folder (its summary.json
     is the task's value)."""
     return Task(key, run_command, {"argv": [str(a) for a in argv], "out": out}, cost)
-
-

@@ -114,14 +114,24 @@ def dirichlet_data_indicator(problem, t: float) -> np.ndarray:
 def check_space_options(space, *, data: str, noise, form: str) -> SpaceAdaptivity:
     """``space`` must be a SpaceAdaptivity; data 'points' and no noise (one-line errors)."""
     if not isinstance(space, SpaceAdaptivity):
-        raise fail("space", described(type(space).__name__),
-                   "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
+        raise fail(
+            "space",
+            described(type(space).__name__),
+            "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)",
+        )
     if data != "points":
-        raise fail("data", data, "must be 'points' with space adaptivity (the data of t_j is "
-                   "re-evaluated on the new Dirichlet nodes after a mesh change)")
+        raise fail(
+            "data",
+            data,
+            "must be 'points' with space adaptivity (the data of t_j is "
+            "re-evaluated on the new Dirichlet nodes after a mesh change)",
+        )
     if noise is not None:
-        raise fail("noise", noise.describe() if hasattr(noise, "describe") else noise,
-                   "is not supported with space adaptivity (noise vectors live on one mesh)")
+        raise fail(
+            "noise",
+            noise.describe() if hasattr(noise, "describe") else noise,
+            "is not supported with space adaptivity (noise vectors live on one mesh)",
+        )
     return space
 
 
@@ -136,8 +146,7 @@ class SpaceAdaptiveStepper:
     """
 
     def __init__(self, problem, options: SpaceAdaptivity, stepper_kwargs: dict):
-        check_adaptable(problem.space.mesh, "--adapt-space" if options.naming == "cli"
-                        else "space")
+        check_adaptable(problem.space.mesh, "--adapt-space" if options.naming == "cli" else "space")
         self.options = options
         kwargs = dict(stepper_kwargs)
         self.store_fields = bool(kwargs.pop("store_fields", True))
@@ -220,8 +229,12 @@ class SpaceAdaptiveStepper:
             try:
                 change = self.amesh.adapt(
                     refine=doerfler_marking(eta, opts.refine_fraction),
-                    max_dofs=opts.max_dofs, degree=self.degree, components=self.components,
-                    priority=eta, max_level=opts.max_level)
+                    max_dofs=opts.max_dofs,
+                    degree=self.degree,
+                    components=self.components,
+                    priority=eta,
+                    max_level=opts.max_level,
+                )
                 if not change.changed:
                     break
                 problem = self.problem.on_mesh(self.amesh.mesh)
@@ -252,14 +265,20 @@ class SpaceAdaptiveStepper:
 
     # -- recording and adaptation ---------------------------------------------------------------
     def _mesh_record(self, state) -> dict:
-        return {"mesh_id": int(state.mesh_id),
-                "ndofs": int(self.problem.space.ndofs),
-                "cells": int(self.problem.space.mesh.t.shape[1])}
+        return {
+            "mesh_id": int(state.mesh_id),
+            "ndofs": int(self.problem.space.ndofs),
+            "cells": int(self.problem.space.mesh.t.shape[1]),
+        }
 
     def _keep(self, traj, state) -> None:
         traj.append(kept_step=state.j, kept_t=state.t, kept_mesh_id=state.mesh_id)
-        for name, w in (("u", state.u), ("v", state.v), ("a", state.fields["a"]),
-                        ("lam", state.lam)):
+        for name, w in (
+            ("u", state.u),
+            ("v", state.v),
+            ("a", state.fields["a"]),
+            ("lam", state.lam),
+        ):
             self.kept[name].append(np.array(w, dtype=float))
 
     def record_initial(self, traj, state) -> None:
@@ -278,8 +297,10 @@ class SpaceAdaptiveStepper:
         self.series.add(st.mesh_id, self.amesh.points, self.amesh.cells)
         self.inner.record(traj, result)
         traj.append(**self._mesh_record(st))
-        traj.append(step_dofs=int(result.counters.get("dofs", self.problem.space.ndofs)),
-                    step_refinements=self._step_refinements)
+        traj.append(
+            step_dofs=int(result.counters.get("dofs", self.problem.space.ndofs)),
+            step_refinements=self._step_refinements,
+        )
         self._step_refinements = 0
         if self.store_fields and (st.j % self.keep_every == 0 or self.inner.finished(st)):
             self._keep(traj, st)
@@ -303,8 +324,9 @@ class SpaceAdaptiveStepper:
         f = state.fields
         a0 = 1.0 if self.inner.scheme == "euler" else 1.5
         rho = problem.material.rho
-        ind = eld_indicators_for(problem, state.t, f["u"], f["v"], f["a"],
-                                 reaction=rho * (a0 / tau) ** 2)
+        ind = eld_indicators_for(
+            problem, state.t, f["u"], f["v"], f["a"], reaction=rho * (a0 / tau) ** 2
+        )
         eta2 = np.asarray(ind.eta, dtype=float) ** 2 + dirichlet_data_indicator(problem, t_next)
         return np.sqrt(eta2)
 
@@ -331,15 +353,20 @@ class SpaceAdaptiveStepper:
                 est = float(np.sqrt(np.sum(eta * eta)))
                 if r == 0:
                     estimate = est
-                    change = adapt_mesh(self.amesh, eta, opts, degree=self.degree,
-                                        components=self.components)
+                    change = adapt_mesh(
+                        self.amesh, eta, opts, degree=self.degree, components=self.components
+                    )
                 else:
                     if est <= opts.space_tol:
                         break
                     change = self.amesh.adapt(
                         refine=doerfler_marking(eta, opts.refine_fraction),
-                        max_dofs=opts.max_dofs, degree=self.degree,
-                        components=self.components, priority=eta, max_level=opts.max_level)
+                        max_dofs=opts.max_dofs,
+                        degree=self.degree,
+                        components=self.components,
+                        priority=eta,
+                        max_level=opts.max_level,
+                    )
                 if not change.changed:
                     break
                 new_problem = problem.on_mesh(self.amesh.mesh)
@@ -355,22 +382,33 @@ class SpaceAdaptiveStepper:
                 detail = str(exc)
             else:
                 detail = f"{type(exc).__name__}: {exc}"
-            raise RunFailed(f"space adaptivity: the transfer to the new mesh after step {j} "
-                            f"(t = {state.t:.6g}) failed ({detail}); the run stops on mesh "
-                            f"{old_id}", where=self.where(state)) from exc
+            raise RunFailed(
+                f"space adaptivity: the transfer to the new mesh after step {j} "
+                f"(t = {state.t:.6g}) failed ({detail}); the run stops on mesh "
+                f"{old_id}",
+                where=self.where(state),
+            ) from exc
         old_energy = state.ledger.energy
         # the accepted step stays what it was; the loop holds `state`: take over the new contents
         for fld in dataclass_fields(ELDState):
             setattr(state, fld.name, getattr(new_state, fld.name))
         self.series.add(self.amesh.mesh_id, self.amesh.points, self.amesh.cells)
         self.problem, self.inner = problem, inner
-        self.adaptations.append({
-            "step": j, "t": float(state.t), "from_mesh": old_id, "to_mesh": int(state.mesh_id),
-            "estimate": estimate, "rounds": len(changes),
-            "bisections": int(sum(c.bisections for c in changes)),
-            "merges": int(sum(c.merges for c in changes)), "cells": int(self.amesh.n_cells),
-            "ndofs": int(problem.space.ndofs),
-            "transfer_energy": float(state.ledger.energy - old_energy)})
+        self.adaptations.append(
+            {
+                "step": j,
+                "t": float(state.t),
+                "from_mesh": old_id,
+                "to_mesh": int(state.mesh_id),
+                "estimate": estimate,
+                "rounds": len(changes),
+                "bisections": int(sum(c.bisections for c in changes)),
+                "merges": int(sum(c.merges for c in changes)),
+                "cells": int(self.amesh.n_cells),
+                "ndofs": int(problem.space.ndofs),
+                "transfer_energy": float(state.ledger.energy - old_energy),
+            }
+        )
         return estimate
 
     def _map(self, state: ELDState, change, p_old, problem) -> ELDState:
@@ -384,8 +422,7 @@ class SpaceAdaptiveStepper:
         C = problem.constraint.dofs
         t = state.t
         if self.inner.form == "regularized":
-            for name, g in (("u", problem.G(t)), ("v", problem.G_dot(t)),
-                            ("a", problem.G_ddot(t))):
+            for name, g in (("u", problem.G(t)), ("v", problem.G_dot(t)), ("a", problem.G_ddot(t))):
                 f[name][C] = g
         else:
             f["u"][C] = problem.G(t)
@@ -411,8 +448,7 @@ class SpaceAdaptiveStepper:
         C = problem.constraint.dofs
         if inner.form == "regularized":
             lift = inner.lifting
-            for full, name in (("u", "x"), ("v", "y"), ("a", "b"), ("u_1", "x_1"),
-                               ("v_1", "y_1")):
+            for full, name in (("u", "x"), ("v", "y"), ("a", "b"), ("u_1", "x_1"), ("v_1", "y_1")):
                 if full in f:
                     g = f[full][C].copy()
                     w = f[full] - lift(g)
@@ -441,12 +477,13 @@ class SpaceAdaptiveStepper:
 
     def restore_state(self, data: dict) -> ELDState:
         if data.get("format") != "rothe-eld-space-1":
-            raise RotheInputError(f"checkpoint: got format {data.get('format')!r}, must be "
-                                  "'rothe-eld-space-1' (a space-adaptive ELD run)")
+            raise RotheInputError(
+                f"checkpoint: got format {data.get('format')!r}, must be "
+                "'rothe-eld-space-1' (a space-adaptive ELD run)"
+            )
         self.amesh = AdaptiveMesh.restore_state(data["amesh"])
         self.series = MeshSeries.restore_state(data["series"])
-        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]]
-                     for k in KEPT}
+        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]] for k in KEPT}
         self.adaptations = [dict(a) for a in data["adaptations"]]
         if int(data["inner"].get("mesh_id", 0)) != 0:
             self.problem = self.problem.on_mesh(self.amesh.mesh)

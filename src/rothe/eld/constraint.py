@@ -46,8 +46,12 @@ class DirichletConstraint:
     def __init__(self, space, parts, name: str = "dirichlet"):
         parts = tuple(parts)
         if not parts:
-            raise fail(name, "no part", "needs at least one boundary part (pure Neumann "
-                       "problems are not covered by Sec. 2.2)")
+            raise fail(
+                name,
+                "no part",
+                "needs at least one boundary part (pure Neumann "
+                "problems are not covered by Sec. 2.2)",
+            )
         self.space = space
         self.parts = parts
         d = space.dim
@@ -70,8 +74,9 @@ class DirichletConstraint:
             Ms_part = Ms_part[self.scalar_dofs][:, self.scalar_dofs]
             # int_P lambda_c ds = 1^T M_P lambda_c
             self._reaction_weights[part] = np.asarray(Ms_part.sum(axis=0)).ravel()
-        S = sp.csr_matrix((np.ones(self.m), (np.arange(self.m), self.dofs)),
-                          shape=(self.m, space.ndofs))
+        S = sp.csr_matrix(
+            (np.ones(self.m), (np.arange(self.m), self.dofs)), shape=(self.m, space.ndofs)
+        )
         self.B = (self.boundary_mass @ S).tocsr()
 
     # -- data on the constrained dofs -----------------------------------------------------------
@@ -134,8 +139,9 @@ class HarmonicLifting:
         try:
             self._lu = spla.splu(sp.csc_matrix(K[I][:, I]), permc_spec="MMD_AT_PLUS_A")
         except RuntimeError as exc:  # pragma: no cover - K_II is SPD if |Gamma_D| > 0
-            raise RotheInputError(f"dirichlet: got parts {constraint.parts}, K is singular on "
-                                  f"their kernel ({exc})") from exc
+            raise RotheInputError(
+                f"dirichlet: got parts {constraint.parts}, K is singular on their kernel ({exc})"
+            ) from exc
 
     def __call__(self, g: np.ndarray) -> np.ndarray:
         return self.lift_many([g])[0]

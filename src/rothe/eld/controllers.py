@@ -19,10 +19,21 @@ from __future__ import annotations
 from ..stepping.controllers import ErrorNormController
 
 
-def adaptive_controller(stepper, tol: float, tau0: float, *, tau_min: float,
-                        tau_max: float) -> ErrorNormController:
+def adaptive_controller(
+    stepper, tol: float, tau0: float, *, tau_min: float, tau_max: float
+) -> ErrorNormController:
     """The adaptive controller for an :class:`~rothe.eld.schemes.ELDStepper`."""
     return ErrorNormController(
-        tol, tau0, stepper.order, key="local_error", safety=0.9, fac_min=0.2, fac_max=2.0,
-        fac_fail=0.25, max_ratio=stepper.max_ratio, tau_min=tau_min, tau_max=tau_max,
-        step_bound=stepper.max_step)
+        tol,
+        tau0,
+        stepper.order,
+        key="local_error",
+        safety=0.9,
+        fac_min=0.2,
+        fac_max=2.0,
+        fac_fail=0.25,
+        max_ratio=stepper.max_ratio,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        step_bound=stepper.max_step,
+    )

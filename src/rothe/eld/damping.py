@@ -65,9 +65,18 @@ class DampingOperator:
     step matrix (rho/tau^2) M + C/tau + K is then built from M and K directly.
     """
 
-    def __init__(self, M, K, *, mass_coef: float = 0.0, stiffness_coef: float = 0.0,
-                 matrix=None, nonlinear=None, nonlinear_jacobian=None,
-                 nonlinear_jacobian_action=None):
+    def __init__(
+        self,
+        M,
+        K,
+        *,
+        mass_coef: float = 0.0,
+        stiffness_coef: float = 0.0,
+        matrix=None,
+        nonlinear=None,
+        nonlinear_jacobian=None,
+        nonlinear_jacobian_action=None,
+    ):
         self.M, self.K = M, K
         self.mass_coef = float(mass_coef)
         self.stiffness_coef = float(stiffness_coef)
@@ -240,8 +249,9 @@ class NonlinearDamping(Damping):
 
             return apply
 
-        return DampingOperator(M, K, **linear, nonlinear=N, nonlinear_jacobian=dN,
-                               nonlinear_jacobian_action=dN_action)
+        return DampingOperator(
+            M, K, **linear, nonlinear=N, nonlinear_jacobian=dN, nonlinear_jacobian_action=dN_action
+        )
 
     def describe(self) -> dict:
         return {**super().describe(), "b": self.b, "d_nl": self.d_nl, "v_ref": self.v_ref}
@@ -257,14 +267,28 @@ class UserDamping(Damping):
 
     name = "user"
 
-    def __init__(self, matrix=None, force=None, jacobian=None, *, d0: float,
-                 d1: float = 0.0, d2: float = math.nan):
+    def __init__(
+        self,
+        matrix=None,
+        force=None,
+        jacobian=None,
+        *,
+        d0: float,
+        d1: float = 0.0,
+        d2: float = math.nan,
+    ):
         if (matrix is None) == (force is None):
-            raise fail("damping", "matrix and force" if matrix is not None else "neither",
-                       "give either matrix (linear) or force with jacobian")
+            raise fail(
+                "damping",
+                "matrix and force" if matrix is not None else "neither",
+                "give either matrix (linear) or force with jacobian",
+            )
         if force is not None and not (callable(force) and callable(jacobian)):
-            raise fail("jacobian", type(jacobian).__name__,
-                       "must be a callable returning the Jacobian of force")
+            raise fail(
+                "jacobian",
+                type(jacobian).__name__,
+                "must be a callable returning the Jacobian of force",
+            )
         self.matrix = matrix
         self.force = force
         self.jacobian = jacobian
@@ -282,12 +306,20 @@ class UserDamping(Damping):
             if C.shape != M.shape:
                 raise fail("damping matrix", f"shape {C.shape}", f"must be {M.shape}")
             return DampingOperator(M, K, matrix=C)
-        return DampingOperator(M, K, nonlinear=self.force,
-                               nonlinear_jacobian=lambda v: sp.csr_matrix(self.jacobian(v)))
+        return DampingOperator(
+            M, K, nonlinear=self.force, nonlinear_jacobian=lambda v: sp.csr_matrix(self.jacobian(v))
+        )
 
 
-def make_damping(kind: str, *, a: float = 0.0, b: float = 0.0, d0: float = 0.0,
-                 d_nl: float = 1.0, v_ref: float = 1.0) -> Damping:
+def make_damping(
+    kind: str,
+    *,
+    a: float = 0.0,
+    b: float = 0.0,
+    d0: float = 0.0,
+    d_nl: float = 1.0,
+    v_ref: float = 1.0,
+) -> Damping:
     """Build a damping by name (the CLI's --damping)."""
     if kind == "none":
         return NoDamping()

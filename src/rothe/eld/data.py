@@ -60,8 +60,11 @@ class DataNoise:
         self.delta = check_nonnegative("delta", self.delta)
         targets = (self.target,) if isinstance(self.target, str) else tuple(self.target)
         if not targets:
-            raise fail("noise target", described("()"), "must name at least one of "
-                       + ", ".join(NOISE_TARGETS))
+            raise fail(
+                "noise target",
+                described("()"),
+                "must name at least one of " + ", ".join(NOISE_TARGETS),
+            )
         for t in targets:
             check_choice("noise target", t, NOISE_TARGETS)
         self.target = targets[0] if len(targets) == 1 else targets
@@ -83,8 +86,10 @@ class DataNoise:
 
     def constraint_noise(self, j: int, m: int) -> tuple:
         """(theta^j, xi^j, vartheta^j): the noise in G, G_dot, G_ddot (zeros where unperturbed)."""
-        return tuple(self._uniform(j, _STREAM[k], m) if k in self.targets else np.zeros(m)
-                     for k in ("G", "G_dot", "G_ddot"))
+        return tuple(
+            self._uniform(j, _STREAM[k], m) if k in self.targets else np.zeros(m)
+            for k in ("G", "G_dot", "G_ddot")
+        )
 
     def load_noise(self, j: int, M) -> np.ndarray | None:
         if "F" not in self.targets:
@@ -131,8 +136,7 @@ class StepData:
             return G0, p.constraint.restrict(p.v0)
         return G0, p.G_dot(0.0)
 
-    def at(self, j: int, t_prev: float, t: float, coefficients=None, history=None
-           ) -> StepValues:
+    def at(self, j: int, t_prev: float, t: float, coefficients=None, history=None) -> StepValues:
         """The data of step j on (t_prev, t].
 
         ``coefficients`` (alpha_0, alpha_1, alpha_2) and ``history`` (a dict with ``G``, ``G_1``,

@@ -62,10 +62,21 @@ def _elasticity_solve(mesh, degree, lam, mu, kappa, a, phi):
     return space, u, u_exact, grad_exact, body, neumann
 
 
-def elasticity_study(dim: int = 2, degree: int = 1, profile="bump", *, n0: int = 2,
-                     adaptive: bool = True, max_dofs: int = 5000, theta: float = 0.5,
-                     lam: float = 2.0, mu: float = 1.0, kappa: float = 1.0,
-                     width: float = 0.05, max_levels: int = 40) -> list[dict]:
+def elasticity_study(
+    dim: int = 2,
+    degree: int = 1,
+    profile="bump",
+    *,
+    n0: int = 2,
+    adaptive: bool = True,
+    max_dofs: int = 5000,
+    theta: float = 0.5,
+    lam: float = 2.0,
+    mu: float = 1.0,
+    kappa: float = 1.0,
+    width: float = 0.05,
+    max_levels: int = 40,
+) -> list[dict]:
     """Rows (dofs, cells, estimate, error, efficiency) of the ELD step study (module doc).
 
     ``profile``: "bump", "front" (of ``width``) or a :class:`ScalarField`; adaptive: Doerfler
@@ -80,13 +91,25 @@ def elasticity_study(dim: int = 2, degree: int = 1, profile="bump", *, n0: int =
     for _ in range(max_levels):
         mesh = amesh.mesh
         space, u, u_exact, grad_exact, body, neumann = _elasticity_solve(
-            mesh, degree, lam, mu, kappa, a, phi)
+            mesh, degree, lam, mu, kappa, a, phi
+        )
+
         def traction(x, n, grad_exact=grad_exact):
             return np.einsum("ijfq,jfq->ifq", stress(grad_exact(x), lam, mu), n)
 
-        ind = eld_indicators(mesh, degree, lam, mu, u, rho=kappa, accel=u, body_force=body,
-                             traction={p: traction for p in neumann},
-                             dirichlet_parts=("left",), reaction=kappa)
+        ind = eld_indicators(
+            mesh,
+            degree,
+            lam,
+            mu,
+            u,
+            rho=kappa,
+            accel=u,
+            body_force=body,
+            traction={p: traction for p in neumann},
+            dirichlet_parts=("left",),
+            reaction=kappa,
+        )
 
         def energy(e, ge):
             S = stress(ge, lam, mu)
@@ -95,8 +118,15 @@ def elasticity_study(dim: int = 2, degree: int = 1, profile="bump", *, n0: int =
 
         U = u.reshape(-1, dim)
         err = energy_error(mesh, degree, U, u_exact, grad_exact, energy)
-        rows.append({"dofs": space.ndofs, "cells": mesh.t.shape[1], "estimate": ind.estimate,
-                     "error": err, "efficiency": ind.estimate / err})
+        rows.append(
+            {
+                "dofs": space.ndofs,
+                "cells": mesh.t.shape[1],
+                "estimate": ind.estimate,
+                "error": err,
+                "efficiency": ind.estimate / err,
+            }
+        )
         if space.ndofs >= max_dofs:
             break
         if adaptive:
@@ -104,5 +134,3 @@ def elasticity_study(dim: int = 2, degree: int = 1, profile="bump", *, n0: int =
         else:
             amesh.uniform(dim)
     return rows
-
-

@@ -49,8 +49,9 @@ _R = np.array([[0.0, 0.0, 1.0, 1.0, 0.0, -0.5], [0.0, 0.5, 0.0, 0.0, 1.0, 1.0]])
 
 def _quad_value(c, x):
     X, Y = x[0], x[1]
-    return np.stack([a[0] + a[1] * X + a[2] * Y + a[3] * X * X + a[4] * X * Y + a[5] * Y * Y
-                     for a in c])
+    return np.stack(
+        [a[0] + a[1] * X + a[2] * Y + a[3] * X * X + a[4] * X * Y + a[5] * Y * Y for a in c]
+    )
 
 
 def _quad_grad(c, x):
@@ -138,10 +139,19 @@ class ManufacturedSolution:
         return f
 
 
-def mms_problem(n: int = 8, degree: int = 2, *, damping: Damping | None = None, rho: float = 1.0,
-                lam: float = 2.0, mu: float = 1.0, T: float = 1.0,
-                dirichlet=("left",), start: str = "exact", load_quadrature: int | None = None
-                ) -> tuple[ELDProblem, ManufacturedSolution]:
+def mms_problem(
+    n: int = 8,
+    degree: int = 2,
+    *,
+    damping: Damping | None = None,
+    rho: float = 1.0,
+    lam: float = 2.0,
+    mu: float = 1.0,
+    T: float = 1.0,
+    dirichlet=("left",),
+    start: str = "exact",
+    load_quadrature: int | None = None,
+) -> tuple[ELDProblem, ManufacturedSolution]:
     """The manufactured-solution problem on the unit square with n x n cells (module docstring).
 
     Default damping: NonlinearDamping(b=0.01, d0=0.5, d_nl=1, v_ref=1). ``start='rest'`` starts
@@ -158,12 +168,20 @@ def mms_problem(n: int = 8, degree: int = 2, *, damping: Damping | None = None, 
     names = sorted((mesh.boundaries or {}).keys())
     # an unknown Dirichlet name is reported by ELDProblem (one line, naming the known parts)
     traction = {p: exact.traction for p in names if p not in dirichlet}
-    problem = ELDProblem(mesh, material, degree=degree, damping=damping,
-                         dirichlet={p: data for p in dirichlet}, traction=traction,
-                         body_force=exact.body_force,
-                         u0=(lambda x: exact.u(0.0, x)) if start == "exact" else None,
-                         v0=(lambda x: exact.u_dot(0.0, x)) if start == "exact" else None,
-                         T=T, name="eld-mms", load_quadrature=load_quadrature)
+    problem = ELDProblem(
+        mesh,
+        material,
+        degree=degree,
+        damping=damping,
+        dirichlet={p: data for p in dirichlet},
+        traction=traction,
+        body_force=exact.body_force,
+        u0=(lambda x: exact.u(0.0, x)) if start == "exact" else None,
+        v0=(lambda x: exact.u_dot(0.0, x)) if start == "exact" else None,
+        T=T,
+        name="eld-mms",
+        load_quadrature=load_quadrature,
+    )
     return problem, exact
 
 
@@ -183,8 +201,10 @@ def mms_errors(problem: ELDProblem, exact: ManufacturedSolution, traj) -> dict:
     ev = space.error_norms(v, lambda x: exact.u_dot(T, x), lambda x: exact.grad_u_dot(T, x))
     lam_quad = multiplier_quadrature(problem)
     out = {
-        "error_u_l2": eu["l2"], "error_u_h1": eu["h1"],
-        "error_v_l2": ev["l2"], "error_v_h1": ev["h1"],
+        "error_u_l2": eu["l2"],
+        "error_u_h1": eu["h1"],
+        "error_v_l2": ev["l2"],
+        "error_v_h1": ev["h1"],
         "error_lam_l2": lam_quad.error(lam, lambda x, n: exact.multiplier(T, x, n)),
         "lam_norm": "L2(Gamma_D)",
     }
@@ -193,11 +213,14 @@ def mms_errors(problem: ELDProblem, exact: ManufacturedSolution, traj) -> dict:
         us, vs, lams = traj["u"], traj["v"], traj["lam"]
         ks = range(1, len(ts))
         out["error_u_l2_max"] = max(
-            space.error_norms(us[k], lambda x, t=ts[k]: exact.u(t, x))["l2"] for k in ks)
+            space.error_norms(us[k], lambda x, t=ts[k]: exact.u(t, x))["l2"] for k in ks
+        )
         out["error_v_l2_max"] = max(
-            space.error_norms(vs[k], lambda x, t=ts[k]: exact.u_dot(t, x))["l2"] for k in ks)
+            space.error_norms(vs[k], lambda x, t=ts[k]: exact.u_dot(t, x))["l2"] for k in ks
+        )
         out["error_lam_l2_max"] = max(
-            lam_quad.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n)) for k in ks)
+            lam_quad.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n)) for k in ks
+        )
     return out
 
 
@@ -207,16 +230,18 @@ class MultiplierQuadrature:
     def __init__(self, problem: ELDProblem):
         self.problem = problem
         c = problem.constraint
-        self.q = problem.space.facet_quadrature(c.parts, intorder=2 * problem.space.degree + 2,
-                                                name="dirichlet")
+        self.q = problem.space.facet_quadrature(
+            c.parts, intorder=2 * problem.space.degree + 2, name="dirichlet"
+        )
 
     def values(self, lam: np.ndarray) -> np.ndarray:
         c = self.problem.constraint
         space = self.problem.space
         full = np.zeros((space.n_scalar, space.dim))
         full[c.scalar_dofs] = np.asarray(lam).reshape(-1, space.dim)
-        return np.stack([np.einsum("ifq,if->fq", self.q.values, full[self.q.dofs, k])
-                         for k in range(space.dim)])
+        return np.stack(
+            [np.einsum("ifq,if->fq", self.q.values, full[self.q.dofs, k]) for k in range(space.dim)]
+        )
 
     def error(self, lam: np.ndarray, exact) -> float:
         diff = self.values(lam) - exact(self.q.x, self.q.normals)
@@ -228,6 +253,7 @@ def multiplier_quadrature(problem: ELDProblem) -> MultiplierQuadrature:
 
 
 # -- the fast ramp -----------------------------------------------------------------------------
+
 
 class _DirichletMotion(ABC):
     """G, G_dot, G_ddot of a boundary motion from one ``_field(t, x, order)`` (order 0, 1, 2)."""
@@ -269,21 +295,38 @@ class SmoothStep(_DirichletMotion):
         return out
 
 
-def ramp_problem(n: int = 4, degree: int = 2, *, amplitude: float = 0.1, t_ramp: float = 0.5,
-                 width: float = 0.005, b: float = 0.01, rho: float = 1.0, lam: float = 2.0,
-                 mu: float = 1.0, T: float = 1.0) -> ELDProblem:
+def ramp_problem(
+    n: int = 4,
+    degree: int = 2,
+    *,
+    amplitude: float = 0.1,
+    t_ramp: float = 0.5,
+    width: float = 0.005,
+    b: float = 0.01,
+    rho: float = 1.0,
+    lam: float = 2.0,
+    mu: float = 1.0,
+    T: float = 1.0,
+) -> ELDProblem:
     """The unit square with its left side moved by a fast smoothed step (module docstring)."""
     material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     step = SmoothStep(amplitude, t_ramp, width)
     mesh = meshes.unit_square(n, named=True)
     g0 = step.G(0.0, np.zeros((2, 1)))[:, 0]
-    return ELDProblem(mesh, material, degree=degree, damping=RayleighDamping(0.0, b),
-                      dirichlet={"left": DirichletData(step.G, step.G_dot, step.G_ddot)},
-                      u0=lambda x: np.broadcast_to(g0[:, None], x.shape).copy(), T=T,
-                      name="eld-ramp")
+    return ELDProblem(
+        mesh,
+        material,
+        degree=degree,
+        damping=RayleighDamping(0.0, b),
+        dirichlet={"left": DirichletData(step.G, step.G_dot, step.G_ddot)},
+        u0=lambda x: np.broadcast_to(g0[:, None], x.shape).copy(),
+        T=T,
+        name="eld-ramp",
+    )
 
 
 # -- the cantilever ----------------------------------------------------------------------------
+
 
 class EndMotion(_DirichletMotion):
     """G(t) = (0, 0, A (1 - cos(2 pi t / t_move)) / 2) for t <= t_move, else 0 (H^2 in time)."""
@@ -308,20 +351,37 @@ class EndMotion(_DirichletMotion):
         return out
 
 
-def beam_problem(n: int = 4, *, length: float = 4.0, E: float = 1000.0, nu: float = 0.3,
-                 rho: float = 1.0, damping: Damping | None = None, amplitude: float = 0.1,
-                 t_move: float = 0.5, T: float = 2.0, degree: int = 1) -> ELDProblem:
+def beam_problem(
+    n: int = 4,
+    *,
+    length: float = 4.0,
+    E: float = 1000.0,
+    nu: float = 0.3,
+    rho: float = 1.0,
+    damping: Damping | None = None,
+    amplitude: float = 0.1,
+    t_move: float = 0.5,
+    T: float = 2.0,
+    degree: int = 1,
+) -> ELDProblem:
     """The cantilever: n cells across the unit cross-section, round(length * n) along it."""
     material = Material.from_young(E, nu, rho, dim=3)
     nx = max(1, int(round(length * n)))
     mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
     motion = EndMotion(amplitude, t_move)
-    return ELDProblem(mesh, material, degree=degree, damping=damping,
-                      dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
-                      T=T, name="eld-beam")
+    return ELDProblem(
+        mesh,
+        material,
+        degree=degree,
+        damping=damping,
+        dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
+        T=T,
+        name="eld-beam",
+    )
 
 
 # -- the pulse (space adaptivity) --------------------------------------------------------------
+
 
 class BoundaryPulse(_DirichletMotion):
     """G(t, x) = (A s(t) w(y), 0) on the left side: a short push localized around y = y0.
@@ -330,8 +390,9 @@ class BoundaryPulse(_DirichletMotion):
     t_pulse, so u0 = v0 = 0 are consistent and G_ddot is continuous); w(y) = exp(-((y -
     y0)/width)^2)."""
 
-    def __init__(self, amplitude: float = 0.01, t_pulse: float = 0.1, y0: float = 0.5,
-                 width: float = 0.1):
+    def __init__(
+        self, amplitude: float = 0.01, t_pulse: float = 0.1, y0: float = 0.5, width: float = 0.1
+    ):
         self.A = float(amplitude)
         self.t_pulse = check_positive("t_pulse", t_pulse)
         self.y0 = float(y0)
@@ -350,7 +411,7 @@ class BoundaryPulse(_DirichletMotion):
 
     def _field(self, t, x, order):
         out = np.zeros((2,) + x.shape[1:])
-        out[0] = self.A * self._s(t, order) * np.exp(-((x[1] - self.y0) / self.width) ** 2)
+        out[0] = self.A * self._s(t, order) * np.exp(-(((x[1] - self.y0) / self.width) ** 2))
         return out
 
 
@@ -358,13 +419,26 @@ def rectangle(nx: int, ny: int, length: float = 2.0, height: float = 1.0):
     """[0, length] x [0, height] with nx x ny cells of two triangles, named faces."""
     from skfem import MeshTri
 
-    return meshes.tag_box_faces(MeshTri.init_tensor(np.linspace(0.0, length, nx + 1),
-                                                      np.linspace(0.0, height, ny + 1)))
+    return meshes.tag_box_faces(
+        MeshTri.init_tensor(np.linspace(0.0, length, nx + 1), np.linspace(0.0, height, ny + 1))
+    )
 
 
-def pulse_problem(n: int = 4, degree: int = 2, *, length: float = 2.0, amplitude: float = 0.01,
-                  t_pulse: float = 0.1, width: float = 0.1, b: float = 0.001, rho: float = 1.0,
-                  lam: float = 2.0, mu: float = 1.0, T: float = 0.8, mesh=None) -> ELDProblem:
+def pulse_problem(
+    n: int = 4,
+    degree: int = 2,
+    *,
+    length: float = 2.0,
+    amplitude: float = 0.01,
+    t_pulse: float = 0.1,
+    width: float = 0.1,
+    b: float = 0.001,
+    rho: float = 1.0,
+    lam: float = 2.0,
+    mu: float = 1.0,
+    T: float = 0.8,
+    mesh=None,
+) -> ELDProblem:
     """The pulse (:class:`BoundaryPulse`): the rectangle [0, length] x [0, 1] with round(length
     n) x n cells, the left side held and pushed by G around y = 1/2, the other sides free, at
     rest at t = 0; Rayleigh damping b K (b = 0.001, it damps the mesh's highest modes). With
@@ -376,6 +450,12 @@ def pulse_problem(n: int = 4, degree: int = 2, *, length: float = 2.0, amplitude
     if mesh is None:
         n = int(n)
         mesh = rectangle(max(1, round(length * n)), n, length, 1.0)
-    return ELDProblem(mesh, material, degree=degree, damping=RayleighDamping(0.0, b),
-                      dirichlet={"left": DirichletData(pulse.G, pulse.G_dot, pulse.G_ddot)},
-                      T=T, name="eld-pulse")
+    return ELDProblem(
+        mesh,
+        material,
+        degree=degree,
+        damping=RayleighDamping(0.0, b),
+        dirichlet={"left": DirichletData(pulse.G, pulse.G_dot, pulse.G_ddot)},
+        T=T,
+        name="eld-pulse",
+    )

@@ -51,7 +51,7 @@ def plot_reactions(traj, path, title: str = "") -> Path:
     for key in parts:
         R = traj[key]
         for c in range(R.shape[1]):
-            axes[0].plot(t, R[:, c], label=f"{key[len('reaction_'):]}: R_{names[c]}")
+            axes[0].plot(t, R[:, c], label=f"{key[len('reaction_') :]}: R_{names[c]}")
     axes[0].set_xlabel("t")
     axes[0].set_ylabel(r"reaction force $-\int \lambda\, ds$")
     axes[0].legend(fontsize=8)
@@ -65,8 +65,9 @@ def plot_reactions(traj, path, title: str = "") -> Path:
     return _save(fig, path)
 
 
-def plot_convergence(taus, errors: dict, path, rates: dict | None = None, title: str = "",
-                     order: int = 1) -> Path:
+def plot_convergence(
+    taus, errors: dict, path, rates: dict | None = None, title: str = "", order: int = 1
+) -> Path:
     """Log-log errors against tau, with a reference line of the given order."""
     taus = np.asarray(taus)
     fig, ax = plt.subplots(figsize=(6, 4.5))
@@ -75,8 +76,13 @@ def plot_convergence(taus, errors: dict, path, rates: dict | None = None, title:
         label = name if rate is None else f"{name} (rate {rate:.2f})"
         ax.loglog(taus, errs, "o-", label=label)
     first = np.asarray(next(iter(errors.values())))
-    ax.loglog(taus, first[0] * (taus / taus[0]) ** order, "k--", lw=1,
-              label=r"$O(\tau)$" if order == 1 else rf"$O(\tau^{order})$")
+    ax.loglog(
+        taus,
+        first[0] * (taus / taus[0]) ** order,
+        "k--",
+        lw=1,
+        label=r"$O(\tau)$" if order == 1 else rf"$O(\tau^{order})$",
+    )
     ax.set_xlabel(r"$\tau$")
     ax.set_ylabel("error at T")
     ax.grid(alpha=0.3, which="both")

@@ -51,8 +51,11 @@ from ..fem.simplex import CellIndicators, SimplexEvaluator, assemble_indicators,
 def _as_field(U, n: int, d: int, name: str) -> np.ndarray:
     arr = np.asarray(U, dtype=float)
     if arr.shape != (n * d,):
-        raise fail(name, described(f"an array of shape {arr.shape}"),
-                   f"must be an interleaved vector dof array of shape ({n * d},)")
+        raise fail(
+            name,
+            described(f"an array of shape {arr.shape}"),
+            f"must be an interleaved vector dof array of shape ({n * d},)",
+        )
     return arr.reshape(n, d)
 
 
@@ -71,12 +74,25 @@ def stress(grad: np.ndarray, lam: float, mu: float) -> np.ndarray:
     return lam * tr[None, None] * eye + 2.0 * mu * eps
 
 
-def eld_indicators(mesh, degree: int, lam: float, mu: float, u: np.ndarray, *,
-                   rho: float = 1.0, accel: np.ndarray | None = None,
-                   velocity: np.ndarray | None = None, mass_damping: float = 0.0,
-                   stiffness_damping: float = 0.0, pointwise_damping=None, body_force=None,
-                   traction: dict | None = None, dirichlet_parts=(), reaction: float = 0.0,
-                   evaluator: SimplexEvaluator | None = None) -> CellIndicators:
+def eld_indicators(
+    mesh,
+    degree: int,
+    lam: float,
+    mu: float,
+    u: np.ndarray,
+    *,
+    rho: float = 1.0,
+    accel: np.ndarray | None = None,
+    velocity: np.ndarray | None = None,
+    mass_damping: float = 0.0,
+    stiffness_damping: float = 0.0,
+    pointwise_damping=None,
+    body_force=None,
+    traction: dict | None = None,
+    dirichlet_parts=(),
+    reaction: float = 0.0,
+    evaluator: SimplexEvaluator | None = None,
+) -> CellIndicators:
     """Cell indicators eta_K of one elastodynamics step (formula in the module docstring).
 
     Parameters
@@ -145,8 +161,9 @@ def eld_indicators(mesh, degree: int, lam: float, mu: float, u: np.ndarray, *,
 
     # Neumann facets: g - sigma(w) n
     bc, bl = topo.boundary_cells, topo.boundary_local
-    dir_mask = ev.boundary_part_mask(dirichlet_parts) if dirichlet_parts else \
-        np.zeros(len(bc), dtype=bool)
+    dir_mask = (
+        ev.boundary_part_mask(dirichlet_parts) if dirichlet_parts else np.zeros(len(bc), dtype=bool)
+    )
     neu = ~dir_mask
     bc, bl = bc[neu], bl[neu]
     bfacets = topo.boundary[neu]
@@ -165,14 +182,24 @@ def eld_indicators(mesh, degree: int, lam: float, mu: float, u: np.ndarray, *,
             if on.any():
                 Jb[:, on] += _at(g, xb[:, on], nb[:, on])
     w_b = meas_b[:, None] * ev.facet_w[None, :]
-    bnd_sq = robust_weight(diam_b / ev.degree, mu, reaction) / np.sqrt(mu) * \
-        np.sum(np.sum(Jb * Jb, axis=0) * w_b, axis=1)
+    bnd_sq = (
+        robust_weight(diam_b / ev.degree, mu, reaction)
+        / np.sqrt(mu)
+        * np.sum(np.sum(Jb * Jb, axis=0) * w_b, axis=1)
+    )
     return assemble_indicators(ev, cell_sq, inner_sq, ic, bnd_sq, bc)
 
 
-def eld_indicators_for(problem, t: float, u: np.ndarray, velocity: np.ndarray | None = None,
-                       accel: np.ndarray | None = None, *, reaction: float = 0.0,
-                       evaluator: SimplexEvaluator | None = None) -> CellIndicators:
+def eld_indicators_for(
+    problem,
+    t: float,
+    u: np.ndarray,
+    velocity: np.ndarray | None = None,
+    accel: np.ndarray | None = None,
+    *,
+    reaction: float = 0.0,
+    evaluator: SimplexEvaluator | None = None,
+) -> CellIndicators:
     """:func:`eld_indicators` with the data of an :class:`~rothe.eld.problem.ELDProblem` at t.
 
     Damping: ``NoDamping``; ``RayleighDamping(a, b)`` (c_M = a, Kelvin-Voigt b);
@@ -190,10 +217,10 @@ def eld_indicators_for(problem, t: float, u: np.ndarray, velocity: np.ndarray | 
     elif isinstance(damp, NonlinearDamping):
         kw = {"mass_damping": -damp.d0, "stiffness_damping": damp.b}
         if damp.d_nl:
-            kw["pointwise_damping"] = (
-                lambda v, s=damp: s.d_nl * saturating_velocity(v, s.v_ref))
+            kw["pointwise_damping"] = lambda v, s=damp: s.d_nl * saturating_velocity(v, s.v_ref)
     body = None
     if problem.body_force is not None:
+
         def body(x, f=problem.body_force):
             return f(float(t), x)
 
@@ -201,7 +228,19 @@ def eld_indicators_for(problem, t: float, u: np.ndarray, velocity: np.ndarray | 
         return lambda x, n: g(float(t), x, n)
 
     traction = {part: at_t(g) for part, (g, _) in problem._traction.items()}
-    return eld_indicators(space.mesh, space.degree, m.lam, m.mu, u, rho=m.rho, accel=accel,
-                          velocity=velocity, body_force=body, traction=traction,
-                          dirichlet_parts=problem.constraint.parts, reaction=reaction,
-                          evaluator=evaluator, **kw)
+    return eld_indicators(
+        space.mesh,
+        space.degree,
+        m.lam,
+        m.mu,
+        u,
+        rho=m.rho,
+        accel=accel,
+        velocity=velocity,
+        body_force=body,
+        traction=traction,
+        dirichlet_parts=problem.constraint.parts,
+        reaction=reaction,
+        evaluator=evaluator,
+        **kw,
+    )

@@ -86,8 +86,9 @@ class EldXdmfWriter:
         local = np.searchsorted(verts, fverts)
         # positions of these vertices among the constrained scalar dofs (vertex dofs = vertex ids)
         self._lam_rows = np.searchsorted(c.scalar_dofs, verts)
-        self._bnd = StreamedSeries(work_dir, f"{name}_multiplier", points[verts],
-                                   np.ascontiguousarray(local.T))
+        self._bnd = StreamedSeries(
+            work_dir, f"{name}_multiplier", points[verts], np.ascontiguousarray(local.T)
+        )
         self.steps_written = 0
 
     def _vec3(self, values: np.ndarray) -> np.ndarray:
@@ -105,19 +106,28 @@ class EldXdmfWriter:
         vm_nodal = self.stresses.nodal(vm)
         self._body.write_step(
             float(t),
-            {"u": self._vec3(space.vertex_values(u)), "v": self._vec3(space.vertex_values(v)),
-             "stress_nodal": sigma_nodal.reshape(-1, 9), "von_mises_nodal": vm_nodal},
-            cell_fields={"stress": sigma.reshape(-1, 9), "von_mises": vm})
+            {
+                "u": self._vec3(space.vertex_values(u)),
+                "v": self._vec3(space.vertex_values(v)),
+                "stress_nodal": sigma_nodal.reshape(-1, 9),
+                "von_mises_nodal": vm_nodal,
+            },
+            cell_fields={"stress": sigma.reshape(-1, 9), "von_mises": vm},
+        )
         if lam is not None:
             L = np.asarray(lam).reshape(-1, space.dim)[self._lam_rows]
-            self._bnd.write_step(float(t), {"lambda": self._vec3(L),
-                                            "reaction_density": self._vec3(-L)})
+            self._bnd.write_step(
+                float(t), {"lambda": self._vec3(L), "reaction_density": self._vec3(-L)}
+            )
         self.steps_written += 1
 
     # -- checkpoint protocol (attachment of the run's checkpoint) ---------------------------------
     def checkpoint_state(self) -> dict:
-        return {"body": self._body.checkpoint_state(), "boundary": self._bnd.checkpoint_state(),
-                "steps_written": self.steps_written}
+        return {
+            "body": self._body.checkpoint_state(),
+            "boundary": self._bnd.checkpoint_state(),
+            "steps_written": self.steps_written,
+        }
 
     def restore_state(self, data: dict) -> None:
         self._body.restore_state(data["body"])
@@ -139,8 +149,17 @@ class EldXdmfWriter:
         self._bnd.checkpoint_state()
 
 
-def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = True,
-                     figures: bool = True, npz: bool = True, title: str = "") -> dict:
+def write_eld_result(
+    traj,
+    problem,
+    out_dir,
+    *,
+    name: str = "eld",
+    xdmf: bool = True,
+    figures: bool = True,
+    npz: bool = True,
+    title: str = "",
+) -> dict:
     """Write the outputs of a :func:`rothe.eld.run_eld` result into ``out_dir``.
 
     - ``trajectory.npz``: the trajectory with the mesh and dof layout (:func:`mesh_arrays`,
@@ -157,8 +176,9 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if getattr(traj, "space", None) is not None:
-        return write_adaptive_eld_result(traj, out, name=name, paraview=xdmf, figures=figures,
-                                         npz=npz, title=title)
+        return write_adaptive_eld_result(
+            traj, out, name=name, paraview=xdmf, figures=figures, npz=npz, title=title
+        )
     paths: dict = {}
     if npz:
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
@@ -166,14 +186,16 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
         if "kept_t" not in traj:
             from ..errors import described, fail
 
-            raise fail("traj", described("a run without stored fields"),
-                       "must come from run_eld(..., store_fields=True) to write XDMF")
+            raise fail(
+                "traj",
+                described("a run without stored fields"),
+                "must come from run_eld(..., store_fields=True) to write XDMF",
+            )
         # segments in a hidden work directory beside the results, then both series atomically
         work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{name}.parts"
         try:
             writer = EldXdmfWriter(work, problem, name=name)
-            for t, u, v, lam in zip(traj["kept_t"], traj["u"], traj["v"], traj["lam"],
-                                    strict=True):
+            for t, u, v, lam in zip(traj["kept_t"], traj["u"], traj["v"], traj["lam"], strict=True):
                 writer.write(t, u, v, lam)
             paths["xdmf"] = list(writer.export(out))
         finally:
@@ -181,13 +203,23 @@ def write_eld_result(traj, problem, out_dir, *, name: str = "eld", xdmf: bool = 
     if figures:
         from .figures import plot_energy_balance, plot_reactions
 
-        paths["figures"] = [plot_energy_balance(traj, out / "fig_energy.png", title=title),
-                            plot_reactions(traj, out / "fig_reaction.png", title=title)]
+        paths["figures"] = [
+            plot_energy_balance(traj, out / "fig_energy.png", title=title),
+            plot_reactions(traj, out / "fig_reaction.png", title=title),
+        ]
     return paths
 
 
-def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: bool = True,
-                              figures: bool = True, npz: bool = True, title: str = "") -> dict:
+def write_adaptive_eld_result(
+    traj,
+    out_dir,
+    *,
+    name: str = "eld",
+    paraview: bool = True,
+    figures: bool = True,
+    npz: bool = True,
+    title: str = "",
+) -> dict:
     """The outputs of a space-adaptive run (``run_eld(..., space=...)``, :mod:`rothe.eld.adapt`):
 
     - ``trajectory.npz``: the series of the run (with ``mesh_id``, ``ndofs``, ``cells`` per
@@ -220,24 +252,30 @@ def write_adaptive_eld_result(traj, out_dir, *, name: str = "eld", paraview: boo
         return np.asarray(w).reshape(-1, d)[:nv]
 
     if paraview and kept:
-        data = [{"u": vertex(u, m), "v": vertex(v, m)}
-                for u, v, m in zip(sp.kept["u"], sp.kept["v"], ids, strict=True)]
+        data = [
+            {"u": vertex(u, m), "v": vertex(v, m)}
+            for u, v, m in zip(sp.kept["u"], sp.kept["v"], ids, strict=True)
+        ]
         paths["pvd"] = write_vtu_series(out, name, sp.series, ids, traj["kept_t"], data)
     if figures:
         from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
         from .figures import plot_energy_balance, plot_reactions
 
-        figs = [plot_energy_balance(traj, out / "fig_energy.png", title=title),
-                plot_reactions(traj, out / "fig_reaction.png", title=title)]
+        figs = [
+            plot_energy_balance(traj, out / "fig_energy.png", title=title),
+            plot_reactions(traj, out / "fig_reaction.png", title=title),
+        ]
         plot_dofs(out / "fig_dofs.png", traj["t"], traj["ndofs"], title=title)
         figs.append(out / "fig_dofs.png")
         if kept and d == 2:
             k = len(ids)
             picks = sorted({round(i * (k - 1) / 3) for i in range(4)})
-            norms = [np.linalg.norm(vertex(u, m), axis=1) for u, m in zip(sp.kept["u"], ids,
-                                                                          strict=True)]
-            plot_mesh_snapshots(out / "fig_mesh.png", sp.series, ids, traj["kept_t"], norms,
-                                picks, title=title)
+            norms = [
+                np.linalg.norm(vertex(u, m), axis=1) for u, m in zip(sp.kept["u"], ids, strict=True)
+            ]
+            plot_mesh_snapshots(
+                out / "fig_mesh.png", sp.series, ids, traj["kept_t"], norms, picks, title=title
+            )
             figs.append(out / "fig_mesh.png")
         paths["figures"] = figs
     return paths

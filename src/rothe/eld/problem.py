@@ -110,20 +110,44 @@ class ELDProblem:
     load_quadrature : degree of the quadrature rule for body force and tractions (default 2p)
     """
 
-    def __init__(self, mesh, material: Material, *, degree: int = 1, damping: Damping | None = None,
-                 dirichlet: dict, traction: dict | None = None, body_force=None, u0=None, v0=None,
-                 T: float = 1.0, name: str = "eld", load_quadrature: int | None = None):
+    def __init__(
+        self,
+        mesh,
+        material: Material,
+        *,
+        degree: int = 1,
+        damping: Damping | None = None,
+        dirichlet: dict,
+        traction: dict | None = None,
+        body_force=None,
+        u0=None,
+        v0=None,
+        T: float = 1.0,
+        name: str = "eld",
+        load_quadrature: int | None = None,
+    ):
         self.name = name
         # what on_mesh needs to build the same problem on another mesh (space adaptivity)
-        self._data = dict(material=material, degree=degree, damping=damping,
-                          dirichlet=dirichlet, traction=traction, body_force=body_force,
-                          u0=u0, v0=v0, T=T, name=name, load_quadrature=load_quadrature)
+        self._data = dict(
+            material=material,
+            degree=degree,
+            damping=damping,
+            dirichlet=dirichlet,
+            traction=traction,
+            body_force=body_force,
+            u0=u0,
+            v0=v0,
+            T=T,
+            name=name,
+            load_quadrature=load_quadrature,
+        )
         self.space = VectorSpace(mesh, degree)
         if not isinstance(material, Material):
             raise fail("material", type(material).__name__, "must be a rothe.eld.Material")
         if material.dim != self.space.dim:
-            raise fail("material.dim", material.dim,
-                       f"must equal the mesh dimension {self.space.dim}")
+            raise fail(
+                "material.dim", material.dim, f"must equal the mesh dimension {self.space.dim}"
+            )
         self.material = material
         self.damping = NoDamping() if damping is None else damping
         if not isinstance(self.damping, Damping):
@@ -134,10 +158,12 @@ class ELDProblem:
         traction = dict(traction or {})
         both = sorted(set(dirichlet) & set(traction))
         if both:
-            raise fail("traction", both[0],
-                       "is also a Dirichlet part; a part is either held or loaded")
-        self.dirichlet = {p: g if isinstance(g, DirichletData) else DirichletData(g)
-                          for p, g in dirichlet.items()}
+            raise fail(
+                "traction", both[0], "is also a Dirichlet part; a part is either held or loaded"
+            )
+        self.dirichlet = {
+            p: g if isinstance(g, DirichletData) else DirichletData(g) for p, g in dirichlet.items()
+        }
         self.constraint = DirichletConstraint(self.space, tuple(self.dirichlet), "dirichlet")
         default_q = 2 * self.space.degree
         if load_quadrature is None:
@@ -149,13 +175,20 @@ class ELDProblem:
         for part, g in traction.items():
             if not callable(g):
                 raise fail(f"traction[{part!r}]", type(g).__name__, "must be a callable (t, x, n)")
-            self._traction[part] = (g, self.space.facet_quadrature(
-                (part,), intorder=self.load_quadrature, name="traction"))
+            self._traction[part] = (
+                g,
+                self.space.facet_quadrature(
+                    (part,), intorder=self.load_quadrature, name="traction"
+                ),
+            )
         if body_force is not None and not callable(body_force):
             raise fail("body_force", type(body_force).__name__, "must be a callable (t, x)")
         self.body_force = body_force
-        self._cell_quadrature = (None if self.load_quadrature == default_q
-                                 else _CellQuadrature(self.space, self.load_quadrature))
+        self._cell_quadrature = (
+            None
+            if self.load_quadrature == default_q
+            else _CellQuadrature(self.space, self.load_quadrature)
+        )
 
         sp_ = self.space
         self.M = sp_.mass()
@@ -164,8 +197,9 @@ class ELDProblem:
         self.damping_op = self.damping.operator(sp_, self.M, self.K)
         self.u0 = self._initial(u0, "u0")
         self.v0 = self._initial(v0, "v0")
-        self._part_points = {p: sp_.doflocs[:, sp_.scalar_dofs_on((p,), "dirichlet")]
-                             for p in self.dirichlet}
+        self._part_points = {
+            p: sp_.doflocs[:, sp_.scalar_dofs_on((p,), "dirichlet")] for p in self.dirichlet
+        }
         self.derivative_info = self._derivative_info()
 
     def on_mesh(self, mesh) -> ELDProblem:
@@ -177,8 +211,7 @@ class ELDProblem:
         v0 = 0 (consistent, Remark 2.2). An adaptive run never starts from them: its state is
         transferred from the previous mesh."""
         data = dict(self._data)
-        arrays = [k for k in ("u0", "v0")
-                  if data[k] is not None and not callable(data[k])]
+        arrays = [k for k in ("u0", "v0") if data[k] is not None and not callable(data[k])]
         for k in arrays:
             data[k] = None
         with warnings.catch_warnings():  # the derivative notes were given for the first mesh
@@ -199,8 +232,9 @@ class ELDProblem:
             return self.space.interpolate(value)
         arr = np.asarray(value, dtype=float)
         if arr.shape != (n,):
-            raise fail(name, f"an array of shape {arr.shape}",
-                       f"must be a callable or shape ({n},)")
+            raise fail(
+                name, f"an array of shape {arr.shape}", f"must be a callable or shape ({n},)"
+            )
         if not np.all(np.isfinite(arr)):
             raise fail(name, "non-finite values", "must be finite")
         return arr.copy()
@@ -232,8 +266,11 @@ class ELDProblem:
             if vals.shape == (d,):
                 vals = np.broadcast_to(vals[:, None], (d, x.shape[1]))
             if vals.shape != (d, x.shape[1]):
-                raise fail(f"dirichlet[{part!r}].{which}", f"values of shape {vals.shape}",
-                           f"must return shape ({d}, k) for points x of shape ({d}, k)")
+                raise fail(
+                    f"dirichlet[{part!r}].{which}",
+                    f"values of shape {vals.shape}",
+                    f"must return shape ({d}, k) for points x of shape ({d}, k)",
+                )
             out[c.part_positions[part]] = vals.T
         return out.ravel()
 
@@ -290,12 +327,18 @@ class ELDProblem:
                 size = max(size, float(np.max(np.abs(a), initial=0.0)))
             method = "central differences of " + ("G_dot" if from_dot else "G")
             size = max(size, g_scale / max(self.T, 1e-300) ** order)
-            info[which] = {"method": method, "h": h, "estimated_error": err,
-                           "estimated_relative_error": err / size if size > 0 else 0.0}
+            info[which] = {
+                "method": method,
+                "h": h,
+                "estimated_error": err,
+                "estimated_relative_error": err / size if size > 0 else 0.0,
+            }
             warnings.warn(
                 f"{which} not given: {method} with h = {h:.2g}; estimated max error "
                 f"{err:.2g} (relative {info[which]['estimated_relative_error']:.2g}) at t in "
-                f"[0, {self.T:g}]", stacklevel=3)
+                f"[0, {self.T:g}]",
+                stacklevel=3,
+            )
         return info
 
     def load(self, t: float) -> np.ndarray:
@@ -326,7 +369,9 @@ class ELDProblem:
             "ndofs": self.space.ndofs,
             "constrained_dofs": self.constraint.m,
             "cells": int(self.space.mesh.t.shape[1]),
-            "rho": m.rho, "lam": m.lam, "mu": m.mu,
+            "rho": m.rho,
+            "lam": m.lam,
+            "mu": m.mu,
             "damping": self.damping.describe(),
             "dirichlet_parts": list(self.constraint.parts),
             "traction_parts": list(self._traction),

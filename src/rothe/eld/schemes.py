@@ -207,14 +207,23 @@ BOUND_SAFETY = 0.95
 REFACTOR_BELOW = 20_000
 #: cached products: name -> (matrix, field)
 PRODUCTS = {
-    "Mx": ("M", "x"), "Kx": ("K", "x"), "Mx_1": ("M", "x_1"), "Kx_1": ("K", "x_1"),
-    "My": ("M", "y"), "Ky": ("K", "y"), "My_1": ("M", "y_1"), "Ky_1": ("K", "y_1"),
-    "Mb": ("M", "b"), "Ku": ("K", "u"), "Mv": ("M", "v"),
+    "Mx": ("M", "x"),
+    "Kx": ("K", "x"),
+    "Mx_1": ("M", "x_1"),
+    "Kx_1": ("K", "x_1"),
+    "My": ("M", "y"),
+    "Ky": ("K", "y"),
+    "My_1": ("M", "y_1"),
+    "Ky_1": ("K", "y_1"),
+    "Mb": ("M", "b"),
+    "Ku": ("K", "u"),
+    "Mv": ("M", "v"),
 }
 
 
-def step_coefficients(scheme: str, tau: float, tau_prev: float | None = None
-                      ) -> tuple[float, float, float]:
+def step_coefficients(
+    scheme: str, tau: float, tau_prev: float | None = None
+) -> tuple[float, float, float]:
     """(alpha_0, alpha_1, alpha_2) of delta_j z = (alpha_0 z^j + alpha_1 z^{j-1} + alpha_2
     z^{j-2}) / tau_j (module docstring); BDF2 with omega = tau / tau_prev (1 if None)."""
     if scheme == "euler":
@@ -298,9 +307,19 @@ class EnergyLedger:
     def residual(self) -> float:
         """E^j - E^0 - (work + work_reaction - dissipated + residual_work - numerical - mismatch
         + transfer)."""
-        return self.energy - self.initial - (
-            self.work + self.work_reaction - self.dissipated + self.residual_work
-            - self.numerical - self.mismatch + self.transfer)
+        return (
+            self.energy
+            - self.initial
+            - (
+                self.work
+                + self.work_reaction
+                - self.dissipated
+                + self.residual_work
+                - self.numerical
+                - self.mismatch
+                + self.transfer
+            )
+        )
 
 
 @dataclass
@@ -400,13 +419,27 @@ class ELDStepper:
         original form) and 'euler' (one implicit Euler step: O(1) multiplier error at step 2)
     """
 
-    def __init__(self, problem: ELDProblem, form: str, tau: float, *, scheme: str = "euler",
-                 control: str = "uniform", steps=None, data: str = "points",
-                 lifting: str = "nodal", solver: str = "auto",
-                 newton: NewtonOptions | None = None, noise: DataNoise | None = None,
-                 store_fields: bool = True, keep_every: int = 1, observer=None,
-                 linear_rtol: float = 1e-10, start: str = "taylor",
-                 error_scale: float | None = None):
+    def __init__(
+        self,
+        problem: ELDProblem,
+        form: str,
+        tau: float,
+        *,
+        scheme: str = "euler",
+        control: str = "uniform",
+        steps=None,
+        data: str = "points",
+        lifting: str = "nodal",
+        solver: str = "auto",
+        newton: NewtonOptions | None = None,
+        noise: DataNoise | None = None,
+        store_fields: bool = True,
+        keep_every: int = 1,
+        observer=None,
+        linear_rtol: float = 1e-10,
+        start: str = "taylor",
+        error_scale: float | None = None,
+    ):
         self.problem = p = problem
         self.form = check_choice("form", form, FORMS)
         self.scheme = check_choice("scheme", scheme, SCHEMES)
@@ -414,8 +447,12 @@ class ELDStepper:
         self.control = check_choice("control", control, CONTROLS)
         self.data_mode = check_choice("data", data, DATA_MODES)
         if self.scheme == "bdf2" and self.data_mode == "means":
-            raise fail("data", "means", "with scheme bdf2 must be points or differenced (step "
-                       "means are first-order data: they sit O(tau) away from t_j)")
+            raise fail(
+                "data",
+                "means",
+                "with scheme bdf2 must be points or differenced (step "
+                "means are first-order data: they sit O(tau) away from t_j)",
+            )
         self.lifting_kind = check_choice("lifting", lifting, LIFTINGS)
         self.newton = newton or NewtonOptions()
         self.store_fields = bool(store_fields)
@@ -443,8 +480,7 @@ class ELDStepper:
         # gathered from the blocks of K and the scalar mass (VectorSpace.restricted_combination):
         # A itself and its row and column slices (0.6 GB each at a million unknowns) are
         # never formed
-        self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar),
-                                                     c.scalar_dofs)
+        self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar), c.scalar_dofs)
         self._lean = self.D.matrix is None
         if self.form == "regularized":
             self.kind = resolve_kind(solver, self.I.size, p.space.dim)
@@ -473,8 +509,9 @@ class ELDStepper:
             self._factor(te0, None)
         self.initial_factorizations = self.solver.stats.factorizations
         self._last_newton = 0
-        self.error_scale = (None if error_scale is None
-                            else check_positive("error_scale", error_scale))
+        self.error_scale = (
+            None if error_scale is None else check_positive("error_scale", error_scale)
+        )
 
     # -- set-up ---------------------------------------------------------------------------------
     def _setup_grid(self, tau, steps) -> None:
@@ -483,8 +520,9 @@ class ELDStepper:
         self.tau_uniform = None
         if steps is not None:
             if self.control != "uniform":
-                raise fail("steps", described("a step sequence"),
-                           "is a fixed grid: use control='uniform'")
+                raise fail(
+                    "steps", described("a step sequence"), "is a fixed grid: use control='uniform'"
+                )
             self.steps = self._check_steps(steps)
             self.tau = float(self.steps[0])
             self.n_steps = int(self.steps.size)
@@ -498,8 +536,9 @@ class ELDStepper:
             ratio = T / tau
             n = round(ratio) if math.isfinite(ratio) and ratio < 2**62 else -1
             if n < 1 or abs(ratio - n) > 1e-9 * max(1.0, ratio):
-                raise fail("tau", tau, f"must divide T = {T:g} into equal steps "
-                           f"(T/tau = {ratio:.6g})")
+                raise fail(
+                    "tau", tau, f"must divide T = {T:g} into equal steps (T/tau = {ratio:.6g})"
+                )
             self.n_steps = int(n)
             self.tau_uniform = tau
         else:
@@ -512,43 +551,60 @@ class ELDStepper:
         bound = self.bound
         if self.scheme == "euler":
             if not tau < bound:
-                raise fail("tau", tau, f"must be < rho/d0 = {bound:g} (Lemma 3.2: unique "
-                           "solvability of the Euler steps)")
+                raise fail(
+                    "tau",
+                    tau,
+                    f"must be < rho/d0 = {bound:g} (Lemma 3.2: unique "
+                    "solvability of the Euler steps)",
+                )
         elif not tau / 1.5 < bound:
-            raise fail("tau", tau, f"must be < 1.5 rho/d0 = {1.5 * bound:g} (Lemma 3.2 for BDF2: "
-                       "tau_j/alpha_j < rho/d0 with alpha_j = (1 + 2 omega)/(1 + omega) = 1.5 "
-                       "for equal steps)")
+            raise fail(
+                "tau",
+                tau,
+                f"must be < 1.5 rho/d0 = {1.5 * bound:g} (Lemma 3.2 for BDF2: "
+                "tau_j/alpha_j < rho/d0 with alpha_j = (1 + 2 omega)/(1 + omega) = 1.5 "
+                "for equal steps)",
+            )
 
     def _check_steps(self, steps) -> np.ndarray:
         try:
             arr = np.asarray(steps, dtype=float).ravel()
         except (TypeError, ValueError):
-            raise fail("steps", described(type(steps).__name__),
-                       "must be a sequence of step sizes") from None
+            raise fail(
+                "steps", described(type(steps).__name__), "must be a sequence of step sizes"
+            ) from None
         if arr.size == 0:
             raise fail("steps", described("[]"), "must hold at least one step size")
         bad = np.flatnonzero(~(np.isfinite(arr) & (arr > 0)))
         if bad.size:
             k = int(bad[0])
-            raise fail("steps", described(f"tau_{k + 1} = {arr[k]:g}"),
-                       "must be positive and finite")
+            raise fail(
+                "steps", described(f"tau_{k + 1} = {arr[k]:g}"), "must be positive and finite"
+            )
         total = float(arr.sum())
         if abs(total - self.T) > 1e-10 * self.T:
-            raise fail("steps", described(f"steps summing to {total:.12g}"),
-                       f"must sum to T = {self.T:g}")
+            raise fail(
+                "steps", described(f"steps summing to {total:.12g}"), f"must sum to T = {self.T:g}"
+            )
         tau_prev = None
         for k, tau in enumerate(arr):
             if self.scheme == "bdf2" and tau_prev is not None:
                 ratio = tau / tau_prev
                 if not ratio < BDF2_ZERO_STABILITY:
-                    raise fail("steps", described(f"tau_{k + 1}/tau_{k} = {ratio:.6g}"),
-                               f"must be < 1 + sqrt(2) = {BDF2_ZERO_STABILITY:.6g} (zero-stability "
-                               "of variable-step BDF2)")
+                    raise fail(
+                        "steps",
+                        described(f"tau_{k + 1}/tau_{k} = {ratio:.6g}"),
+                        f"must be < 1 + sqrt(2) = {BDF2_ZERO_STABILITY:.6g} (zero-stability "
+                        "of variable-step BDF2)",
+                    )
             a0 = step_coefficients(self.scheme, tau, tau_prev)[0]
             if not tau / a0 < self.bound:
-                raise fail("steps", described(f"tau_{k + 1} = {tau:g}"),
-                           f"must satisfy tau_j/alpha_j < rho/d0 = {self.bound:g} (alpha_j = "
-                           f"{a0:.6g}; Lemma 3.2)")
+                raise fail(
+                    "steps",
+                    described(f"tau_{k + 1} = {tau:g}"),
+                    f"must satisfy tau_j/alpha_j < rho/d0 = {self.bound:g} (alpha_j = "
+                    f"{a0:.6g}; Lemma 3.2)",
+                )
             tau_prev = tau
         return arr
 
@@ -572,8 +628,9 @@ class ELDStepper:
     def _step_matrix(self, te: float) -> sp.csr_matrix:
         """A(te) = (rho/te^2) M + C/te + K with C = a_M M + a_K K (+ E), without forming C."""
         p, D = self.problem, self.D
-        A = ((self.rho / te**2 + D.mass_coef / te) * p.M
-             + (1.0 + D.stiffness_coef / te) * p.K).tocsr()
+        A = (
+            (self.rho / te**2 + D.mass_coef / te) * p.M + (1.0 + D.stiffness_coef / te) * p.K
+        ).tocsr()
         if D.matrix is not None:
             A = (A + (1.0 / te) * D.matrix).tocsr()
         return A
@@ -607,8 +664,9 @@ class ELDStepper:
             full[self.I] = w
         else:
             full = w
-        out = (self.rho / te**2 + D.mass_coef / te) * (p.M @ full) \
-            + (1.0 + D.stiffness_coef / te) * (p.K @ full)
+        out = (self.rho / te**2 + D.mass_coef / te) * (p.M @ full) + (
+            1.0 + D.stiffness_coef / te
+        ) * (p.K @ full)
         if D.matrix is not None:
             out = out + (D.matrix @ full) / te
         return out[self.I] if self.form == "regularized" else out
@@ -626,6 +684,7 @@ class ELDStepper:
             E = sp.csr_matrix(D.matrix) if D.matrix is not None else sp.csr_matrix((n, n))
             zero_nn = sp.csr_matrix((n, n))
             if self.form == "regularized":
+
                 def system(X, Bpart=None):
                     return sp.csr_matrix(X)[self.I][:, self.I]
             else:
@@ -639,22 +698,28 @@ class ELDStepper:
             P.sum_duplicates()
             P.sort_indices()
             ncol = P.shape[1]
-            keys = np.repeat(np.arange(P.shape[0], dtype=np.int64), np.diff(P.indptr)) * ncol \
+            keys = (
+                np.repeat(np.arange(P.shape[0], dtype=np.int64), np.diff(P.indptr)) * ncol
                 + P.indices
+            )
 
             def on_pattern(X):
                 X = sp.csr_matrix(X)
                 X.sum_duplicates()
-                xk = np.repeat(np.arange(X.shape[0], dtype=np.int64), np.diff(X.indptr)) * ncol \
+                xk = (
+                    np.repeat(np.arange(X.shape[0], dtype=np.int64), np.diff(X.indptr)) * ncol
                     + X.indices
+                )
                 out = np.zeros(keys.size)
                 out[np.searchsorted(keys, xk)] = X.data
                 return out
 
-            parts = {"M": on_pattern(system(p.M)), "K": on_pattern(system(p.K)),
-                     "E": on_pattern(system(E)),
-                     "B": None if self.form == "regularized"
-                     else on_pattern(system(zero_nn, B))}
+            parts = {
+                "M": on_pattern(system(p.M)),
+                "K": on_pattern(system(p.K)),
+                "E": on_pattern(system(E)),
+                "B": None if self.form == "regularized" else on_pattern(system(zero_nn, B)),
+            }
             self._parts = (P.indices.copy(), P.indptr.copy(), P.shape, parts)
         return self._parts
 
@@ -673,8 +738,11 @@ class ELDStepper:
         if v is None and variable_steps:
             indices, indptr, shape, parts = self._pattern_parts()
             D = self.D
-            data = ((self.rho / te**2 + D.mass_coef / te) * parts["M"]
-                    + (1.0 + D.stiffness_coef / te) * parts["K"] + (1.0 / te) * parts["E"])
+            data = (
+                (self.rho / te**2 + D.mass_coef / te) * parts["M"]
+                + (1.0 + D.stiffness_coef / te) * parts["K"]
+                + (1.0 / te) * parts["E"]
+            )
             if parts["B"] is not None:
                 data = data + parts["B"]
             return sp.csr_matrix((data, indices.copy(), indptr.copy()), shape=shape)
@@ -698,8 +766,10 @@ class ELDStepper:
             p = self.problem
             c = p.constraint
             c_mass, c_stiff = self._coefficients(te)
-            A_C = (c_mass * p.space.symmetric_columns(p.M, c.scalar_dofs)
-                   + c_stiff * p.space.symmetric_columns(p.K, c.scalar_dofs)).tocsr()
+            A_C = (
+                c_mass * p.space.symmetric_columns(p.M, c.scalar_dofs)
+                + c_stiff * p.space.symmetric_columns(p.K, c.scalar_dofs)
+            ).tocsr()
             A_IC = A_C[self.I]
             A_II = self._restricted(te)
             if self.kind == "amg":
@@ -749,8 +819,9 @@ class ELDStepper:
         out[c.dofs] = 0.0
         return out
 
-    def consistent_acceleration(self, t: float, u: np.ndarray, v: np.ndarray,
-                                G_ddot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def consistent_acceleration(
+        self, t: float, u: np.ndarray, v: np.ndarray, G_ddot: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(a, lambda) from (2.7a) at time t for given u, v: a = G_ddot on Gamma_D and
         rho M_II a_I = (F(t) - D(v) - K u)_I - rho M_IC G_ddot (CG with the diagonal of M, a
         mass matrix is well conditioned), lambda from the Gamma_D rows."""
@@ -781,8 +852,7 @@ class ELDStepper:
         at t = 0 is not finite, e.g. after an overflow)."""
         # BLAS level-1 calls outside the evolve loop: single-threaded as inside it
         # (rothe.stepping.evolve.single_threaded_blas; threaded dots spin on busy cores)
-        with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore",
-                                                 divide="ignore"):
+        with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return self._initial_state()
 
     def _initial_state(self) -> ELDState:
@@ -797,10 +867,11 @@ class ELDStepper:
                 raise fail(name, "non-finite values", "must be finite (the initial data)")
         a0, lam0 = self.consistent_acceleration(0.0, p.u0, vc, Gdd0)
         if not (np.all(np.isfinite(a0)) and np.all(np.isfinite(lam0))):
-            raise RunFailed("non-finite initial state: the consistent acceleration or multiplier "
-                            "at t = 0 has NaN or inf entries (overflow?)",
-                            where={"step": 0, "s": 0.0, "t": 0.0, "form": self.form,
-                                   "scheme": self.scheme})
+            raise RunFailed(
+                "non-finite initial state: the consistent acceleration or multiplier "
+                "at t = 0 has NaN or inf entries (overflow?)",
+                where={"step": 0, "s": 0.0, "t": 0.0, "form": self.form, "scheme": self.scheme},
+            )
         if self.form == "regularized":
             u2, v2, w2 = self.lifting.lift_many([G0, Gd0, Gdd0])
             x = p.u0 - u2
@@ -817,8 +888,15 @@ class ELDStepper:
         boundary = {"lam": lam0}
         if self.data_mode == "differenced":
             boundary.update(G=G0, G_dot=Gd0)
-        state = ELDState(t=0.0, j=0, tau_prev=None, fields=fields, boundary=boundary,
-                         products={}, ledger=EnergyLedger())
+        state = ELDState(
+            t=0.0,
+            j=0,
+            tau_prev=None,
+            fields=fields,
+            boundary=boundary,
+            products={},
+            ledger=EnergyLedger(),
+        )
         self._fill_products(state)
         Ku, Mv = state.products["Ku"], state.products["Mv"]
         kin, el = 0.5 * self.rho * _dot(v, Mv), 0.5 * _dot(u, Ku)
@@ -860,8 +938,9 @@ class ELDStepper:
         cached products with this stepper's M and K, the energy and the G-form pieces of the
         ledger; the energy change is booked as ``transfer``. (The mesh change itself, and the
         stepper for the new mesh, belong to the space-adaptivity layer.)"""
-        state = replace(state, products={}, fields=dict(state.fields),
-                        boundary=dict(state.boundary))
+        state = replace(
+            state, products={}, fields=dict(state.fields), boundary=dict(state.boundary)
+        )
         self._fill_products(state)
         p = self.problem
         f, pr = state.fields, state.products
@@ -880,17 +959,35 @@ class ELDStepper:
 
     def record_initial(self, traj: Trajectory, state: ELDState) -> None:
         L = state.ledger
-        rec = dict(t=0.0, kinetic=L.kinetic, elastic=L.elastic, energy=L.energy, work=0.0,
-                   work_reaction=0.0, dissipated=0.0, numerical_dissipation=0.0,
-                   numerical_dissipation_G=0.0, step_change=0.0, data_mismatch=0.0,
-                   residual_work=0.0, transfer=0.0, balance_residual=0.0)
+        rec = dict(
+            t=0.0,
+            kinetic=L.kinetic,
+            elastic=L.elastic,
+            energy=L.energy,
+            work=0.0,
+            work_reaction=0.0,
+            dissipated=0.0,
+            numerical_dissipation=0.0,
+            numerical_dissipation_G=0.0,
+            step_change=0.0,
+            data_mismatch=0.0,
+            residual_work=0.0,
+            transfer=0.0,
+            balance_residual=0.0,
+        )
         traj.append(**rec)
         if self.store_fields:
             self._keep(traj, state)
 
     def _keep(self, traj: Trajectory, state: ELDState) -> None:
-        traj.append(kept_step=state.j, kept_t=state.t, u=state.u.copy(), v=state.v.copy(),
-                    a=state.fields["a"].copy(), lam=state.lam.copy())
+        traj.append(
+            kept_step=state.j,
+            kept_t=state.t,
+            u=state.u.copy(),
+            v=state.v.copy(),
+            a=state.fields["a"].copy(),
+            lam=state.lam.copy(),
+        )
 
     # -- evolve-loop interface ------------------------------------------------------------------
     def finished(self, state: ELDState) -> bool:
@@ -917,9 +1014,14 @@ class ELDStepper:
         return attempts[-1]
 
     def where(self, state: ELDState, result=None) -> dict:
-        info = {"step": state.j + 1, "s": state.t, "t": state.t,
-                "tau": result.tau if result is not None else self.tau,
-                "form": self.form, "scheme": self.scheme}
+        info = {
+            "step": state.j + 1,
+            "s": state.t,
+            "t": state.t,
+            "tau": result.tau if result is not None else self.tau,
+            "form": self.form,
+            "scheme": self.scheme,
+        }
         if result is not None:
             info["newton_iterations"] = result.newton_iterations
         return info
@@ -941,8 +1043,16 @@ class ELDStepper:
     def _failed(self, state, tau, code, message, its=0, counters=None) -> ELDStepResult:
         where = self.where(state)
         where.update(tau=tau, newton_iterations=its)
-        return ELDStepResult(state=None, tau=tau, newton_iterations=its, converged=False,
-                             code=code, message=message, where=where, counters=counters or {})
+        return ELDStepResult(
+            state=None,
+            tau=tau,
+            newton_iterations=its,
+            converged=False,
+            code=code,
+            message=message,
+            where=where,
+            counters=counters or {},
+        )
 
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
         # overflow and NaN are detected in the result (a failed step), not reported as warnings
@@ -960,14 +1070,18 @@ class ELDStepper:
                 state = self._with_prehistory(state, tau)
         coeffs = step_coefficients(scheme, tau, state.tau_prev)
         a0 = coeffs[0]
-        if self.scheme == "bdf2" and state.j > 0 and not tau / state.tau_prev < \
-                BDF2_ZERO_STABILITY:
-            raise RunFailed(f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
-                            f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
-                            where=self.where(state))
+        if self.scheme == "bdf2" and state.j > 0 and not tau / state.tau_prev < BDF2_ZERO_STABILITY:
+            raise RunFailed(
+                f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
+                f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
+                where=self.where(state),
+            )
         if not tau / a0 < self.bound:
-            raise RunFailed(f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
-                            f"{self.bound:g} (Lemma 3.2)", where=self.where(state))
+            raise RunFailed(
+                f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
+                f"{self.bound:g} (Lemma 3.2)",
+                where=self.where(state),
+            )
         hist = None
         if self.data_mode == "differenced":
             hist = {k: state.boundary[k] for k in ("G", "G_dot")}
@@ -976,18 +1090,26 @@ class ELDStepper:
         vals = self.data.at(j, state.t, t_new, coeffs, hist)
         bad = vals.first_nonfinite()
         if bad is not None:
-            what = {"F": "the load F (body force, tractions)", "G": "the Dirichlet data G",
-                    "G_dot": "G_dot", "G_ddot": "G_ddot"}[bad]
-            raise RunFailed(f"non-finite data at step {j} (t = {t_new:.6g}): {what} has NaN or "
-                            "inf entries", where=self.where(state))
+            what = {
+                "F": "the load F (body force, tractions)",
+                "G": "the Dirichlet data G",
+                "G_dot": "G_dot",
+                "G_ddot": "G_ddot",
+            }[bad]
+            raise RunFailed(
+                f"non-finite data at step {j} (t = {t_new:.6g}): {what} has NaN or inf entries",
+                where=self.where(state),
+            )
         st = self.solver.stats
         before = (st.factorizations, st.backsolves, st.krylov_iterations, st.solves)
 
         def counters():
-            return {"newton_iterations": its,
-                    "linear_factorizations": st.factorizations - before[0],
-                    "linear_solves": st.backsolves - before[1],
-                    "krylov_iterations": st.krylov_iterations - before[2]}
+            return {
+                "newton_iterations": its,
+                "linear_factorizations": st.factorizations - before[0],
+                "linear_solves": st.backsolves - before[1],
+                "krylov_iterations": st.krylov_iterations - before[2],
+            }
 
         its = 0
         try:
@@ -996,25 +1118,51 @@ class ELDStepper:
             else:
                 k, its = self._step_original(state, vals, coeffs, tau)
         except SolveFailed as exc:
-            return self._failed(state, tau, "linear-solve", f"linear solve failed at step {j} "
-                                f"(t = {t_new:.6g}, tau = {tau:g}): {exc}; the step is not "
-                                "accepted", its, counters())
+            return self._failed(
+                state,
+                tau,
+                "linear-solve",
+                f"linear solve failed at step {j} "
+                f"(t = {t_new:.6g}, tau = {tau:g}): {exc}; the step is not "
+                "accepted",
+                its,
+                counters(),
+            )
         except _NewtonFailed as exc:
             its = exc.iterations
             return self._failed(
-                state, tau, "newton", f"Newton's method did not converge in {exc.iterations} "
+                state,
+                tau,
+                "newton",
+                f"Newton's method did not converge in {exc.iterations} "
                 f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = {exc.rnorm:.3g}); "
-                "the step is not accepted", its, counters())
+                "the step is not accepted",
+                its,
+                counters(),
+            )
         self._last_newton = its
         new, result_extra = self._complete(state, k, vals, coeffs, tau, t_new, scheme)
         if new is None:
-            return self._failed(state, tau, "non-finite", f"non-finite state at step {j} (t = "
-                                f"{t_new:.6g}, tau = {tau:g}): {result_extra} has NaN or inf "
-                                "entries; the step is not accepted", its, counters())
+            return self._failed(
+                state,
+                tau,
+                "non-finite",
+                f"non-finite state at step {j} (t = "
+                f"{t_new:.6g}, tau = {tau:g}): {result_extra} has NaN or inf "
+                "entries; the step is not accepted",
+                its,
+                counters(),
+            )
         c = self.problem.constraint
-        return ELDStepResult(state=new, tau=tau, lam=new.lam, reactions=c.reactions(new.lam),
-                             newton_iterations=its, estimate=result_extra,
-                             counters=counters())
+        return ELDStepResult(
+            state=new,
+            tau=tau,
+            lam=new.lam,
+            reactions=c.reactions(new.lam),
+            newton_iterations=its,
+            estimate=result_extra,
+            counters=counters(),
+        )
 
     # -- BDF2 start -----------------------------------------------------------------------------
     def _with_prehistory(self, state: ELDState, tau: float) -> ELDState:
@@ -1055,10 +1203,16 @@ class ELDStepper:
         kin = 0.5 * self.rho * _dot(V0, pr["Mv"])
         # C^0 with mu_0 = 1/2 (the fictitious equal history)
         dv, du = V0 - V1, u0 - U1
-        L = replace(L, kinetic=kin, mismatch=L.mismatch - (kin - L.kinetic),
-                    g_zd_kin=self.rho * _dot(pr["Mv"], dv),
-                    g_sq_kin=self.rho * _dot(pr["Mv"] - p.M @ V1, dv),
-                    g_zd_el=_dot(pr["Ku"], du), g_sq_el=_dot(pr["Ku"] - p.K @ U1, du), g_mu=0.5)
+        L = replace(
+            L,
+            kinetic=kin,
+            mismatch=L.mismatch - (kin - L.kinetic),
+            g_zd_kin=self.rho * _dot(pr["Mv"], dv),
+            g_sq_kin=self.rho * _dot(pr["Mv"] - p.M @ V1, dv),
+            g_zd_el=_dot(pr["Ku"], du),
+            g_sq_el=_dot(pr["Ku"] - p.K @ U1, du),
+            g_mu=0.5,
+        )
         C0 = 0.5 * (L.g_zd_kin + L.g_zd_el) + 0.25 * (L.g_sq_kin + L.g_sq_el)
         new.ledger = replace(L, boundary_C=C0, boundary_C0=C0)
         return new
@@ -1077,8 +1231,14 @@ class ELDStepper:
         """h_x = alpha_1 x^{j-1} + alpha_2 x^{j-2} and h_y, with their M and K products."""
         _, a1, a2 = coeffs
         f, pr = state.fields, state.products
-        h = {"x": a1 * f["x"], "Mx": a1 * pr["Mx"], "Kx": a1 * pr["Kx"],
-             "y": a1 * f["y"], "My": a1 * pr["My"], "Ky": a1 * pr["Ky"]}
+        h = {
+            "x": a1 * f["x"],
+            "Mx": a1 * pr["Mx"],
+            "Kx": a1 * pr["Kx"],
+            "y": a1 * f["y"],
+            "My": a1 * pr["My"],
+            "Ky": a1 * pr["Ky"],
+        }
         if a2:
             for key, name in (("x", "x_1"), ("y", "y_1")):
                 h[key] = h[key] + a2 * f[name]
@@ -1097,8 +1257,14 @@ class ELDStepper:
         k["b"] = (a0 * k["y"] + h["y"]) / tau
         k["Mb"] = (a0 * k["My"] + h["My"]) / tau
         if u2 is None:
-            k["u"], k["Ku"], k["v"], k["Mv"], k["a"], k["Ma"] = x, Kx, k["y"], k["My"], k["b"], \
-                k["Mb"]
+            k["u"], k["Ku"], k["v"], k["Mv"], k["a"], k["Ma"] = (
+                x,
+                Kx,
+                k["y"],
+                k["My"],
+                k["b"],
+                k["Mb"],
+            )
             Kv = k["Ky"]
         else:
             k["u"], k["Ku"] = x + u2, Kx + Ku2
@@ -1133,9 +1299,13 @@ class ELDStepper:
         guess = self._guess(state, tau)[I]
         if D.is_linear:
             # A(te) x = F - rho M (alpha_0 h_x/tau^2 + h_y/tau + w2) - C (h_x/tau + v2) - K u2
-            rhs = (vals.F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau + Mw2)
-                   - D.mass_coef * (h["Mx"] / tau + Mv2)
-                   - D.stiffness_coef * (h["Kx"] / tau + Kv2) - Ku2)
+            rhs = (
+                vals.F
+                - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau + Mw2)
+                - D.mass_coef * (h["Mx"] / tau + Mv2)
+                - D.stiffness_coef * (h["Kx"] / tau + Kv2)
+                - Ku2
+            )
             if D.matrix is not None:
                 rhs = rhs - D.matrix @ (h["x"] / tau + v2)
             xI = self._solve_linear(rhs[I], te, guess)
@@ -1181,8 +1351,12 @@ class ELDStepper:
         h = self._history(state, coeffs)
         D = self.D
         if D.is_linear:
-            rhs_u = (vals.F - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
-                     - D.mass_coef * h["Mx"] / tau - D.stiffness_coef * h["Kx"] / tau)
+            rhs_u = (
+                vals.F
+                - rho * (a0 * h["Mx"] / tau**2 + h["My"] / tau)
+                - D.mass_coef * h["Mx"] / tau
+                - D.stiffness_coef * h["Kx"] / tau
+            )
             if D.matrix is not None:
                 rhs_u = rhs_u - D.matrix @ (h["x"] / tau)
             z = self._solve_linear(np.concatenate([rhs_u, g_rhs]), te)
@@ -1209,8 +1383,7 @@ class ELDStepper:
 
             def matvec(z):
                 u, lam = z[:n], z[n:]
-                return np.concatenate([self._apply_A(u, te) + action(u) / te + B.T @ lam,
-                                       B @ u])
+                return np.concatenate([self._apply_A(u, te) + action(u) / te + B.T @ lam, B @ u])
 
             op = spla.LinearOperator((n + m, n + m), matvec=matvec, dtype=float)
             return op, self._assembler(te, v)
@@ -1262,8 +1435,9 @@ class ELDStepper:
         raise _NewtonFailed(opts.max_iter, float(rnorm))
 
     # -- the new state: multiplier, ledger, estimate ---------------------------------------------
-    def _complete(self, state: ELDState, k: dict, vals, coeffs, tau: float, t_new: float,
-                  scheme: str):
+    def _complete(
+        self, state: ELDState, k: dict, vals, coeffs, tau: float, t_new: float, scheme: str
+    ):
         """The state after the step, or (None, name) if a field is not finite."""
         p = self.problem
         c = p.constraint
@@ -1274,8 +1448,7 @@ class ELDStepper:
             lam = k["lam"]
         else:
             # (3.4a) tested with V^c: the residual on the constrained rows is B^T lambda
-            lam = c.multiplier_from_residual(vals.F[C] - rho * k["Ma"][C] - k["Dv"][C]
-                                             - k["Ku"][C])
+            lam = c.multiplier_from_residual(vals.F[C] - rho * k["Ma"][C] - k["Dv"][C] - k["Ku"][C])
         for name, w in (("u", k["u"]), ("v", k["v"]), ("a", k["a"]), ("lambda", lam)):
             if not np.all(np.isfinite(w)):
                 return None, name
@@ -1309,22 +1482,34 @@ class ELDStepper:
         if not math.isfinite(kin + el):
             return None, "the energy E = 1/2 rho v.M v + 1/2 u.K u"
         ledger = replace(
-            L, kinetic=kin, elastic=el,
+            L,
+            kinetic=kin,
+            elastic=el,
             work=L.work + tau * _dot(vals.F, v),
             work_reaction=L.work_reaction - tau * _dot(lam, Bv),
             dissipated=L.dissipated + tau * _dot(Dv, v),
-            numerical=L.numerical + N, mismatch=L.mismatch + X,
+            numerical=L.numerical + N,
+            mismatch=L.mismatch + X,
             residual_work=L.residual_work + tau * _dot(R, v),
-            numerical_G=L.numerical_G + N_G, step_change=L.step_change + S,
-            boundary_C=C_new, g_zd_kin=zd_kin, g_sq_kin=sq_kin, g_zd_el=zd_el, g_sq_el=sq_el,
-            g_mu=mu)
+            numerical_G=L.numerical_G + N_G,
+            step_change=L.step_change + S,
+            boundary_C=C_new,
+            g_zd_kin=zd_kin,
+            g_sq_kin=sq_kin,
+            g_zd_el=zd_el,
+            g_sq_el=sq_el,
+            g_mu=mu,
+        )
         # local error estimate (trapezoidal residuals, module docstring)
         Kr = k["Kx"] - pr["Kx"] - 0.5 * tau * (k["Ky"] + pr["Ky"])
         rx = k["x"] - f["x"] - 0.5 * tau * (k["y"] + f["y"])
         Mr = k["My"] - pr["My"] - 0.5 * tau * (k["Mb"] + pr["Mb"])
         ry = k["y"] - f["y"] - 0.5 * tau * (k["b"] + f["b"])
-        if (self.form == "regularized" and self.lifting_kind == "harmonic"
-                and self.data_mode == "differenced"):
+        if (
+            self.form == "regularized"
+            and self.lifting_kind == "harmonic"
+            and self.data_mode == "differenced"
+        ):
             # With differenced data G_dot^j is a difference quotient of G, not integrated by the
             # step: after a step cut (omega -> 0) it jumps by the previous quotient's O(tau_prev^2)
             # error, and the harmonic lifting spreads that jump over the interior, where no
@@ -1341,21 +1526,51 @@ class ELDStepper:
         omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
         norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
         scale = max(state.energy_norm_max, norm_new, 1e-300)
-        est = estimate_factor(scheme, omega) * math.sqrt(
-            max(_dot(rx, Kr) + rho * _dot(ry, Mr), 0.0)) / scale
-        fields = {"x": k["x"], "x_1": f["x"], "y": k["y"], "y_1": f["y"], "b": k["b"],
-                  "u": u, "u_1": f["u"], "v": v, "v_1": f["v"], "a": k["a"]}
-        products = {"Mx": k["Mx"], "Kx": k["Kx"], "Mx_1": pr["Mx"], "Kx_1": pr["Kx"],
-                    "My": k["My"], "Ky": k["Ky"], "My_1": pr["My"], "Ky_1": pr["Ky"],
-                    "Mb": k["Mb"], "Ku": Ku, "Mv": Mv}
+        est = (
+            estimate_factor(scheme, omega)
+            * math.sqrt(max(_dot(rx, Kr) + rho * _dot(ry, Mr), 0.0))
+            / scale
+        )
+        fields = {
+            "x": k["x"],
+            "x_1": f["x"],
+            "y": k["y"],
+            "y_1": f["y"],
+            "b": k["b"],
+            "u": u,
+            "u_1": f["u"],
+            "v": v,
+            "v_1": f["v"],
+            "a": k["a"],
+        }
+        products = {
+            "Mx": k["Mx"],
+            "Kx": k["Kx"],
+            "Mx_1": pr["Mx"],
+            "Kx_1": pr["Kx"],
+            "My": k["My"],
+            "Ky": k["Ky"],
+            "My_1": pr["My"],
+            "Ky_1": pr["Ky"],
+            "Mb": k["Mb"],
+            "Ku": Ku,
+            "Mv": Mv,
+        }
         boundary = {"lam": lam}
         if self.data_mode == "differenced":
             b = state.boundary
             boundary.update(G=vals.G, G_1=b["G"], G_dot=vals.G_dot, G_dot_1=b["G_dot"])
-        new = ELDState(t=t_new, j=state.j + 1, tau_prev=tau, fields=fields, boundary=boundary,
-                       products=products, ledger=ledger,
-                       energy_norm_max=max(state.energy_norm_max, norm_new),
-                       mesh_id=state.mesh_id)
+        new = ELDState(
+            t=t_new,
+            j=state.j + 1,
+            tau_prev=tau,
+            fields=fields,
+            boundary=boundary,
+            products=products,
+            ledger=ledger,
+            energy_norm_max=max(state.energy_norm_max, norm_new),
+            mesh_id=state.mesh_id,
+        )
         return new, est
 
     def adapt(self, state: ELDState, result: ELDStepResult) -> ELDState:
@@ -1367,11 +1582,21 @@ class ELDStepper:
         st = result.state
         L = st.ledger
         rec = dict(
-            t=st.t, kinetic=L.kinetic, elastic=L.elastic, energy=L.energy, work=L.work,
-            work_reaction=L.work_reaction, dissipated=L.dissipated,
-            numerical_dissipation=L.numerical, numerical_dissipation_G=L.numerical_G,
-            step_change=L.step_change, data_mismatch=L.mismatch, residual_work=L.residual_work,
-            transfer=L.transfer, balance_residual=L.residual, tau=result.tau,
+            t=st.t,
+            kinetic=L.kinetic,
+            elastic=L.elastic,
+            energy=L.energy,
+            work=L.work,
+            work_reaction=L.work_reaction,
+            dissipated=L.dissipated,
+            numerical_dissipation=L.numerical,
+            numerical_dissipation_G=L.numerical_G,
+            step_change=L.step_change,
+            data_mismatch=L.mismatch,
+            residual_work=L.residual_work,
+            transfer=L.transfer,
+            balance_residual=L.residual,
+            tau=result.tau,
             local_error=result.estimate,
             lam_norm=self.problem.constraint.l2_norm(result.lam),
             newton_iterations=result.newton_iterations,
@@ -1393,8 +1618,12 @@ class ELDStepper:
         progress line shows. The step data itself keeps no state (:mod:`rothe.eld.data`)."""
         ref = self._ref
         return {
-            "format": "rothe-eld-state-1", "scheme": self.scheme, "form": self.form,
-            "t": float(state.t), "j": int(state.j), "tau_prev": state.tau_prev,
+            "format": "rothe-eld-state-1",
+            "scheme": self.scheme,
+            "form": self.form,
+            "t": float(state.t),
+            "j": int(state.j),
+            "tau_prev": state.tau_prev,
             "fields": {k: w.copy() for k, w in state.fields.items()},
             "boundary": {k: w.copy() for k, w in state.boundary.items()},
             "products": {k: w.copy() for k, w in state.products.items()},
@@ -1402,8 +1631,9 @@ class ELDStepper:
             "energy_norm_max": float(state.energy_norm_max),
             "mesh_id": int(state.mesh_id),
             "error_scale": None if self.error_scale is None else float(self.error_scale),
-            "solver_reference": None if ref is None else {
-                "tau_eff": ref["tau_eff"], "v": None if ref["v"] is None else ref["v"].copy()},
+            "solver_reference": None
+            if ref is None
+            else {"tau_eff": ref["tau_eff"], "v": None if ref["v"] is None else ref["v"].copy()},
             "solver_stats": asdict(self.solver.stats),
             "last_newton": int(self._last_newton),
         }
@@ -1413,21 +1643,32 @@ class ELDStepper:
         continues the solver's counters from the checkpoint's (the refactorization is not
         counted: the uninterrupted run did not do it)."""
         if data.get("format") != "rothe-eld-state-1":
-            raise RotheInputError(f"checkpoint: got format {data.get('format')!r}, must be "
-                                  "'rothe-eld-state-1'")
+            raise RotheInputError(
+                f"checkpoint: got format {data.get('format')!r}, must be 'rothe-eld-state-1'"
+            )
         for key in ("scheme", "form"):
             if data[key] != getattr(self, key):
-                raise RotheInputError(f"checkpoint: got {key} {data[key]!r}, this run has "
-                                      f"{getattr(self, key)!r}")
+                raise RotheInputError(
+                    f"checkpoint: got {key} {data[key]!r}, this run has {getattr(self, key)!r}"
+                )
         ref = data["solver_reference"]
         if ref is not None:
-            same = (self._ref is not None and self._ref["tau_eff"] == ref["tau_eff"]
-                    and ((self._ref["v"] is None and ref["v"] is None)
-                         or (self._ref["v"] is not None and ref["v"] is not None
-                             and np.array_equal(self._ref["v"], ref["v"]))))
+            same = (
+                self._ref is not None
+                and self._ref["tau_eff"] == ref["tau_eff"]
+                and (
+                    (self._ref["v"] is None and ref["v"] is None)
+                    or (
+                        self._ref["v"] is not None
+                        and ref["v"] is not None
+                        and np.array_equal(self._ref["v"], ref["v"])
+                    )
+                )
+            )
             if not same:
-                self._factor(ref["tau_eff"], None if ref["v"] is None
-                             else np.asarray(ref["v"], dtype=float))
+                self._factor(
+                    ref["tau_eff"], None if ref["v"] is None else np.asarray(ref["v"], dtype=float)
+                )
         if data.get("solver_stats") is not None:
             self.solver.stats = SolverStats(**data["solver_stats"])
         if data.get("error_scale") is not None:
@@ -1435,13 +1676,16 @@ class ELDStepper:
         self._last_newton = int(data.get("last_newton", 0))
         tp = data["tau_prev"]
         return ELDState(
-            t=float(data["t"]), j=int(data["j"]), tau_prev=None if tp is None else float(tp),
+            t=float(data["t"]),
+            j=int(data["j"]),
+            tau_prev=None if tp is None else float(tp),
             fields={k: np.asarray(w, dtype=float).copy() for k, w in data["fields"].items()},
             boundary={k: np.asarray(w, dtype=float).copy() for k, w in data["boundary"].items()},
             products={k: np.asarray(w, dtype=float).copy() for k, w in data["products"].items()},
             ledger=EnergyLedger(**data["ledger"]),
             energy_norm_max=float(data["energy_norm_max"]),
-            mesh_id=int(data.get("mesh_id", 0)))
+            mesh_id=int(data.get("mesh_id", 0)),
+        )
 
 
 @dataclass
@@ -1479,11 +1723,22 @@ class ELDRun:
         cp = self.checkpointer
         try:
             if cp is not None and not self.resumed and cp.sequence == 0:
-                cp.save_or_warn(self.stepper, self.controller, self.state,
-                                where=_eld_where(self.trajectory, self.state))
+                cp.save_or_warn(
+                    self.stepper,
+                    self.controller,
+                    self.state,
+                    where=_eld_where(self.trajectory, self.state),
+                )
             try:
-                final = evolve(self.stepper, self.controller, self.state, self.trajectory,
-                               tau_min=self.tau_min, progress=progress, checkpointer=cp)
+                final = evolve(
+                    self.stepper,
+                    self.controller,
+                    self.state,
+                    self.trajectory,
+                    tau_min=self.tau_min,
+                    progress=progress,
+                    checkpointer=cp,
+                )
             except RunFailed as exc:
                 exc.trajectory = self.trajectory
                 raise
@@ -1491,8 +1746,13 @@ class ELDRun:
                 _finish_meta(self.trajectory, self.stepper)
             self.state = final
             if cp is not None:
-                cp.save_or_warn(self.stepper, self.controller, final, status="completed",
-                                where=_eld_where(self.trajectory, final))
+                cp.save_or_warn(
+                    self.stepper,
+                    self.controller,
+                    final,
+                    status="completed",
+                    where=_eld_where(self.trajectory, final),
+                )
         finally:
             self.close()
         return final
@@ -1503,16 +1763,33 @@ class ELDRun:
             self.checkpointing.close()
 
 
-def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
-                    scheme: str = "euler", control: str = "uniform", tol: float | None = None,
-                    steps=None, data: str = "points", lifting: str = "nodal",
-                    solver: str = "auto", newton: NewtonOptions | None = None,
-                    noise: DataNoise | None = None, store_fields: bool = True,
-                    keep_every: int = 1, observer=None, linear_rtol: float = 1e-10,
-                    tau_min: float | None = None, tau_max: float | None = None,
-                    start: str = "taylor", error_scale: float | None = None,
-                    meta: dict | None = None, checkpoint=None, resume=None,
-                    space=None) -> ELDRun:
+def prepare_eld_run(
+    problem: ELDProblem,
+    form: str = "regularized",
+    tau: float = 0.01,
+    *,
+    scheme: str = "euler",
+    control: str = "uniform",
+    tol: float | None = None,
+    steps=None,
+    data: str = "points",
+    lifting: str = "nodal",
+    solver: str = "auto",
+    newton: NewtonOptions | None = None,
+    noise: DataNoise | None = None,
+    store_fields: bool = True,
+    keep_every: int = 1,
+    observer=None,
+    linear_rtol: float = 1e-10,
+    tau_min: float | None = None,
+    tau_max: float | None = None,
+    start: str = "taylor",
+    error_scale: float | None = None,
+    meta: dict | None = None,
+    checkpoint=None,
+    resume=None,
+    space=None,
+) -> ELDRun:
     """Validate the options, build stepper and controller, record the initial state
     (the arguments of :func:`run_eld`); with ``resume``, restore stepper, controller,
     trajectory and state from the checkpoint instead."""
@@ -1523,10 +1800,24 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
         tol = check_positive("tol", tol)
     elif tol is not None:
         raise fail("tol", tol, "is used by control='adaptive' only (this run has uniform steps)")
-    stepper_kwargs = dict(form=form, tau=tau, scheme=scheme, control=control, steps=steps,
-                          data=data, lifting=lifting, solver=solver, newton=newton, noise=noise,
-                          store_fields=store_fields, keep_every=keep_every, observer=observer,
-                          linear_rtol=linear_rtol, start=start, error_scale=error_scale)
+    stepper_kwargs = dict(
+        form=form,
+        tau=tau,
+        scheme=scheme,
+        control=control,
+        steps=steps,
+        data=data,
+        lifting=lifting,
+        solver=solver,
+        newton=newton,
+        noise=noise,
+        store_fields=store_fields,
+        keep_every=keep_every,
+        observer=observer,
+        linear_rtol=linear_rtol,
+        start=start,
+        error_scale=error_scale,
+    )
     if space is None:
         stepper = ELDStepper(problem, **stepper_kwargs)
     else:
@@ -1534,12 +1825,21 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
 
         space = check_space_options(space, data=data, noise=noise, form=form)
         stepper = SpaceAdaptiveStepper(problem, space, stepper_kwargs)
-    info = {"example": problem.name, "form": form, "scheme": scheme, "control": control,
-            "tau": stepper.tau, "n_steps": stepper.n_steps, "data": data,
-            "lifting": lifting if form == "regularized" else None, "solver": stepper.kind,
-            "step_bound": problem.step_bound(), "keep_every": stepper.keep_every,
-            "start": start if scheme == "bdf2" else None,
-            "problem": problem.describe()}
+    info = {
+        "example": problem.name,
+        "form": form,
+        "scheme": scheme,
+        "control": control,
+        "tau": stepper.tau,
+        "n_steps": stepper.n_steps,
+        "data": data,
+        "lifting": lifting if form == "regularized" else None,
+        "solver": stepper.kind,
+        "step_bound": problem.step_bound(),
+        "keep_every": stepper.keep_every,
+        "start": start if scheme == "bdf2" else None,
+        "problem": problem.describe(),
+    }
     if steps is not None:
         info["control"] = "given steps"
     if noise is not None:
@@ -1553,10 +1853,15 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
             raise fail("tau_max", tau_max, f"must be >= the first step tau = {stepper.tau:g}")
         if tau_min > stepper.tau:
             raise fail("tau_min", tau_min, f"must be <= the first step tau = {stepper.tau:g}")
-        controller = adaptive_controller(stepper, tol, stepper.tau, tau_min=tau_min,
-                                         tau_max=tau_max)
-        info.update(tol=tol, tau_min=tau_min, tau_max=tau_max,
-                    ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None)
+        controller = adaptive_controller(
+            stepper, tol, stepper.tau, tau_min=tau_min, tau_max=tau_max
+        )
+        info.update(
+            tol=tol,
+            tau_min=tau_min,
+            tau_max=tau_max,
+            ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None,
+        )
         loop_tau_min = tau_min
     else:
         if stepper.steps is not None:
@@ -1567,12 +1872,26 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
     info.update(meta or {})
     # what a checkpoint must match to be resumed (the stepper's values after validation)
     arguments = run_arguments(
-        form=form, scheme=scheme, control=control, tol=tol, tau=stepper.tau,
-        steps=stepper.steps, data=data, lifting=lifting, solver=solver,
-        newton=asdict(stepper.newton), noise=None if noise is None else noise.describe(),
-        store_fields=store_fields, keep_every=stepper.keep_every, linear_rtol=linear_rtol,
-        tau_min=tau_min, tau_max=tau_max, start=start, error_scale=error_scale,
-        **({} if space is None else {"space": space.describe()}))
+        form=form,
+        scheme=scheme,
+        control=control,
+        tol=tol,
+        tau=stepper.tau,
+        steps=stepper.steps,
+        data=data,
+        lifting=lifting,
+        solver=solver,
+        newton=asdict(stepper.newton),
+        noise=None if noise is None else noise.describe(),
+        store_fields=store_fields,
+        keep_every=stepper.keep_every,
+        linear_rtol=linear_rtol,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        start=start,
+        error_scale=error_scale,
+        **({} if space is None else {"space": space.describe()}),
+    )
     rc = RunCheckpointing("run_eld", problem, arguments, checkpoint, resume)
     try:
         restored = rc.restored
@@ -1606,15 +1925,34 @@ def prepare_eld_run(problem: ELDProblem, form: str = "regularized", tau: float =
     return ELDRun(stepper, controller, traj, state, loop_tau_min, rc)
 
 
-def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *,
-            scheme: str = "euler", control: str = "uniform", tol: float | None = None,
-            steps=None, data: str = "points", lifting: str = "nodal", solver: str = "auto",
-            newton: NewtonOptions | None = None, noise: DataNoise | None = None,
-            store_fields: bool = True, keep_every: int = 1, observer=None,
-            progress=False, linear_rtol: float = 1e-10, tau_min: float | None = None,
-            tau_max: float | None = None, start: str = "taylor",
-            error_scale: float | None = None, meta: dict | None = None, checkpoint=None,
-            resume=None, space=None) -> Trajectory:
+def run_eld(
+    problem: ELDProblem,
+    form: str = "regularized",
+    tau: float = 0.01,
+    *,
+    scheme: str = "euler",
+    control: str = "uniform",
+    tol: float | None = None,
+    steps=None,
+    data: str = "points",
+    lifting: str = "nodal",
+    solver: str = "auto",
+    newton: NewtonOptions | None = None,
+    noise: DataNoise | None = None,
+    store_fields: bool = True,
+    keep_every: int = 1,
+    observer=None,
+    progress=False,
+    linear_rtol: float = 1e-10,
+    tau_min: float | None = None,
+    tau_max: float | None = None,
+    start: str = "taylor",
+    error_scale: float | None = None,
+    meta: dict | None = None,
+    checkpoint=None,
+    resume=None,
+    space=None,
+) -> Trajectory:
     """Run Euler (3.4) or BDF2 from t = 0 to T (module docstring).
 
     ``control='uniform'``: n = T/tau equal steps (or the given ``steps``); ``'adaptive'``: tau is
@@ -1649,12 +1987,32 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
     in ``.series``, the kept fields in ``.kept``, the log in ``.adaptations``); ``u, v, a, lam``
     are not series of the trajectory then (they live on different meshes).
     """
-    run = prepare_eld_run(problem, form, tau, scheme=scheme, control=control, tol=tol,
-                          steps=steps, data=data, lifting=lifting, solver=solver, newton=newton,
-                          noise=noise, store_fields=store_fields, keep_every=keep_every,
-                          observer=observer, linear_rtol=linear_rtol, tau_min=tau_min,
-                          tau_max=tau_max, start=start, error_scale=error_scale, meta=meta,
-                          checkpoint=checkpoint, resume=resume, space=space)
+    run = prepare_eld_run(
+        problem,
+        form,
+        tau,
+        scheme=scheme,
+        control=control,
+        tol=tol,
+        steps=steps,
+        data=data,
+        lifting=lifting,
+        solver=solver,
+        newton=newton,
+        noise=noise,
+        store_fields=store_fields,
+        keep_every=keep_every,
+        observer=observer,
+        linear_rtol=linear_rtol,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        start=start,
+        error_scale=error_scale,
+        meta=meta,
+        checkpoint=checkpoint,
+        resume=resume,
+        space=space,
+    )
     final = run.evolve(progress=progress)
     traj = run.trajectory
     traj.final_state = final  # not saved to .npz: the last state and the stepper, for callers
@@ -1664,13 +2022,20 @@ def run_eld(problem: ELDProblem, form: str = "regularized", tau: float = 0.01, *
 
 
 def _eld_where(traj: Trajectory, state: ELDState) -> dict:
-    return {"accepted_steps": traj.stats.accepted_steps, "s": float(state.t),
-            "t": float(state.t), "j": int(state.j)}
+    return {
+        "accepted_steps": traj.stats.accepted_steps,
+        "s": float(state.t),
+        "t": float(state.t),
+        "j": int(state.j),
+    }
 
 
 def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:
     s = stepper.solver.stats
     traj.meta["linear_solver"] = {
-        "kind": stepper.kind, "factorizations": s.factorizations, "backsolves": s.backsolves,
-        "krylov_iterations": s.krylov_iterations, "setup_seconds": s.setup_seconds,
+        "kind": stepper.kind,
+        "factorizations": s.factorizations,
+        "backsolves": s.backsolves,
+        "krylov_iterations": s.krylov_iterations,
+        "setup_seconds": s.setup_seconds,
     }

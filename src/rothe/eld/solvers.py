@@ -86,13 +86,24 @@ class ReferenceSolver:
         Rebuild the reference from the current matrix when a solve needs more iterations.
     """
 
-    def __init__(self, kind: str = "direct", spd: bool = True, near_nullspace=None,
-                 rtol: float = 1e-10, max_krylov: int = 20, amg_options: dict | None = None):
+    def __init__(
+        self,
+        kind: str = "direct",
+        spd: bool = True,
+        near_nullspace=None,
+        rtol: float = 1e-10,
+        max_krylov: int = 20,
+        amg_options: dict | None = None,
+    ):
         if kind not in ("direct", "amg"):
             raise fail("solver", kind, "must be direct or amg")
         if kind == "amg" and not spd:
-            raise fail("solver", "amg", "needs a symmetric positive definite system; the original "
-                       "form's saddle-point system is solved by sparse LU (use --solver direct)")
+            raise fail(
+                "solver",
+                "amg",
+                "needs a symmetric positive definite system; the original "
+                "form's saddle-point system is solved by sparse LU (use --solver direct)",
+            )
         self.kind = kind
         self.spd = spd
         self.near_nullspace = near_nullspace
@@ -210,13 +221,24 @@ class ReferenceSolver:
             its[0] += 1
 
         if self.spd:
-            x, info = spla.cg(A, b, x0=x0, rtol=rtol, atol=0.0, maxiter=self.max_krylov,
-                              M=M, callback=cb)
+            x, info = spla.cg(
+                A, b, x0=x0, rtol=rtol, atol=0.0, maxiter=self.max_krylov, M=M, callback=cb
+            )
         else:
             # scipy's GMRES stops its inner iterations on the preconditioned residual and checks
             # the true one at restarts: allow a few restarts before calling the reference stale
-            x, info = spla.gmres(A, b, x0=x0, rtol=rtol, atol=0.0, restart=self.max_krylov,
-                                 maxiter=3, M=M, callback=cb, callback_type="pr_norm")
+            x, info = spla.gmres(
+                A,
+                b,
+                x0=x0,
+                rtol=rtol,
+                atol=0.0,
+                restart=self.max_krylov,
+                maxiter=3,
+                M=M,
+                callback=cb,
+                callback_type="pr_norm",
+            )
         self.stats.krylov_iterations += its[0]
         self.stats.backsolves += count[0]
         if info != 0 or not np.all(np.isfinite(x)):
@@ -248,14 +270,27 @@ class ConstrainedSolver(ReferenceSolver):
     preconditioned by the condensed solve with the stored reference.
     """
 
-    def __init__(self, constraint, kind: str = "direct", near_nullspace=None,
-                 rtol: float = 1e-10, max_krylov: int = 20, amg_options: dict | None = None):
+    def __init__(
+        self,
+        constraint,
+        kind: str = "direct",
+        near_nullspace=None,
+        rtol: float = 1e-10,
+        max_krylov: int = 20,
+        amg_options: dict | None = None,
+    ):
         super().__init__("direct", spd=False, rtol=rtol, max_krylov=max_krylov)
         self.kind = kind
         self.constraint = constraint
         self.n = constraint.space.ndofs
-        self.inner = ReferenceSolver(kind, spd=True, near_nullspace=near_nullspace, rtol=rtol,
-                                     max_krylov=max_krylov, amg_options=amg_options)
+        self.inner = ReferenceSolver(
+            kind,
+            spd=True,
+            near_nullspace=near_nullspace,
+            rtol=rtol,
+            max_krylov=max_krylov,
+            amg_options=amg_options,
+        )
         self._parts = None
 
     def factor(self, A) -> None:
@@ -265,8 +300,9 @@ class ConstrainedSolver(ReferenceSolver):
         if A.shape == (n + c.m, n + c.m):
             A = A[:n][:, :n]
         elif A.shape != (n, n):
-            raise ValueError(f"matrix of shape {A.shape}, expected {(n, n)} or "
-                             f"{(n + c.m, n + c.m)}")
+            raise ValueError(
+                f"matrix of shape {A.shape}, expected {(n, n)} or {(n + c.m, n + c.m)}"
+            )
         I, C = c.free, c.dofs
         A_I, A_C = A[I], A[C]
         self.factor_parts(A_I[:, I], A_I[:, C], A_C[:, I], A_C[:, C])

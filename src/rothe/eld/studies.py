@@ -45,16 +45,23 @@ def check_halvings(name: str, halvings, tau0: float, T: float) -> int:
     steps = T / tau0 * 2.0**halvings
     if steps > MAX_STUDY_STEPS:
         most = max(0, int(np.floor(np.log2(MAX_STUDY_STEPS * tau0 / T))))
-        raise fail(name, halvings, f"must be <= {most} (the finest run would take {steps:.3g} "
-                                   f"steps of tau0/2^{halvings}; at most {MAX_STUDY_STEPS:.0e})")
+        raise fail(
+            name,
+            halvings,
+            f"must be <= {most} (the finest run would take {steps:.3g} "
+            f"steps of tau0/2^{halvings}; at most {MAX_STUDY_STEPS:.0e})",
+        )
     return halvings
 
 
 def check_delta(name: str, delta) -> float:
     delta = check_positive(name, delta)
     if delta > MAX_DELTA:
-        raise fail(name, delta, f"must be <= {MAX_DELTA:g} (noise small against the data, "
-                                "which are of size about 1)")
+        raise fail(
+            name,
+            delta,
+            f"must be <= {MAX_DELTA:g} (noise small against the data, which are of size about 1)",
+        )
     return delta
 
 
@@ -83,21 +90,38 @@ def fitted_rate(taus, errors) -> float | None:
     return float(np.polyfit(np.log(taus[done]), np.log(e), 1)[0])
 
 
-def convergence_run(form: str, tau: float, *, n: int, degree: int, damping, rho: float,
-                    lam: float, mu: float, T: float, data: str, lifting: str, scheme: str,
-                    progress=False) -> dict:
+def convergence_run(
+    form: str,
+    tau: float,
+    *,
+    n: int,
+    degree: int,
+    damping,
+    rho: float,
+    lam: float,
+    mu: float,
+    T: float,
+    data: str,
+    lifting: str,
+    scheme: str,
+    progress=False,
+) -> dict:
     """One run of :func:`convergence_study` (a task: builds the problem itself): its row, with
     the problem's ``ndofs`` and ``damping`` description under ``"_problem"``."""
     problem, exact = mms_problem(n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)
     t0 = time.perf_counter()
-    traj = run_eld(problem, form, tau, scheme=scheme, data=data, lifting=lifting,
-                   progress=progress)
+    traj = run_eld(problem, form, tau, scheme=scheme, data=data, lifting=lifting, progress=progress)
     err = mms_errors(problem, exact, traj)
     st = traj.stats
-    return {"tau": tau, "steps": st.accepted_steps, "newton_iterations": st.newton_iterations,
-            "backsolves": traj.meta["linear_solver"]["backsolves"],
-            "seconds": time.perf_counter() - t0, **err,
-            "_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}}
+    return {
+        "tau": tau,
+        "steps": st.accepted_steps,
+        "newton_iterations": st.newton_iterations,
+        "backsolves": traj.meta["linear_solver"]["backsolves"],
+        "seconds": time.perf_counter() - t0,
+        **err,
+        "_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()},
+    }
 
 
 def _problem_meta(results, n, degree, damping, **kw) -> dict:
@@ -112,11 +136,24 @@ def _problem_meta(results, n, degree, damping, **kw) -> dict:
 _ERRORS = ("u_l2", "u_h1", "v_l2", "v_h1", "lam_l2", "u_l2_max", "v_l2_max", "lam_l2_max")
 
 
-def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings: int = 5,
-                      n: int = 4, degree: int = 2, damping=None, rho: float = 1.0,
-                      lam: float = 2.0, mu: float = 1.0, T: float = 1.0, data: str = "points",
-                      lifting: str = "nodal", scheme: str = "euler",
-                      progress: bool = False, executor=None) -> dict:
+def convergence_study(
+    form: str = "regularized",
+    *,
+    tau0: float = 0.1,
+    halvings: int = 5,
+    n: int = 4,
+    degree: int = 2,
+    damping=None,
+    rho: float = 1.0,
+    lam: float = 2.0,
+    mu: float = 1.0,
+    T: float = 1.0,
+    data: str = "points",
+    lifting: str = "nodal",
+    scheme: str = "euler",
+    progress: bool = False,
+    executor=None,
+) -> dict:
     """Errors at T of u, v (L2, H1) and lambda (L2(Gamma_D)), and the maxima over the steps of
     the L2 errors, for tau0 / 2^k, k = 0..halvings.
 
@@ -133,10 +170,28 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
     taus = [tau0 / 2**k for k in range(halvings + 1)]
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
-    common = dict(n=n, degree=degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T, data=data,
-                  lifting=lifting, scheme=scheme, progress=inner_progress)
-    tasks = [Task(f"{form} tau={tau:g}", convergence_run, {"form": form, "tau": tau, **common},
-                  cost=1 / tau) for tau in taus]
+    common = dict(
+        n=n,
+        degree=degree,
+        damping=damping,
+        rho=rho,
+        lam=lam,
+        mu=mu,
+        T=T,
+        data=data,
+        lifting=lifting,
+        scheme=scheme,
+        progress=inner_progress,
+    )
+    tasks = [
+        Task(
+            f"{form} tau={tau:g}",
+            convergence_run,
+            {"form": form, "tau": tau, **common},
+            cost=1 / tau,
+        )
+        for tau in taus
+    ]
     results = (executor or Executor(1, progress=False)).map(tasks)
     meta = _problem_meta(results, n, degree, damping, rho=rho, lam=lam, mu=mu, T=T)
     rows = []
@@ -144,12 +199,22 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
         if res.completed:
             rows.append({k: v for k, v in res.value.items() if k != "_problem"})
         else:
-            rows.append({"tau": tau, "status": f"{res.status}: {res.message}",
-                         **{f"error_{x}": float("nan") for x in _ERRORS}})
+            rows.append(
+                {
+                    "tau": tau,
+                    "status": f"{res.status}: {res.message}",
+                    **{f"error_{x}": float("nan") for x in _ERRORS},
+                }
+            )
     out = {
-        "example": "eld-mms", "form": form, "scheme": scheme, "n": n, "degree": degree,
+        "example": "eld-mms",
+        "form": form,
+        "scheme": scheme,
+        "n": n,
+        "degree": degree,
         "data": data,
-        "lifting": lifting, "ndofs": meta["ndofs"],
+        "lifting": lifting,
+        "ndofs": meta["ndofs"],
         "damping": meta["damping"],
         "tau": taus,
         "error_u": [r["error_u_l2"] for r in rows],
@@ -169,27 +234,36 @@ def convergence_study(form: str = "regularized", *, tau0: float = 0.1, halvings:
 
 
 def format_convergence_table(study: dict) -> str:
-    head = (f"{'tau':>9} {'steps':>6} {'newton':>7} {'|u-u_h| L2':>11} {'H1':>10} "
-            f"{'|v-v_h| L2':>11} {'H1':>10} {'|lam| L2(G_D)':>13} {'max_j u':>10} "
-            f"{'max_j v':>10} {'max_j lam':>10} {'seconds':>8}")
-    lines = [f"eld-mms, scheme {study.get('scheme', 'euler')}, form {study['form']}, "
-             f"P{study['degree']}, n = {study['n']} ({study['ndofs']} dofs), data by "
-             f"{study['data']}; errors at T and maxima over the steps", head, "-" * len(head)]
+    head = (
+        f"{'tau':>9} {'steps':>6} {'newton':>7} {'|u-u_h| L2':>11} {'H1':>10} "
+        f"{'|v-v_h| L2':>11} {'H1':>10} {'|lam| L2(G_D)':>13} {'max_j u':>10} "
+        f"{'max_j v':>10} {'max_j lam':>10} {'seconds':>8}"
+    )
+    lines = [
+        f"eld-mms, scheme {study.get('scheme', 'euler')}, form {study['form']}, "
+        f"P{study['degree']}, n = {study['n']} ({study['ndofs']} dofs), data by "
+        f"{study['data']}; errors at T and maxima over the steps",
+        head,
+        "-" * len(head),
+    ]
     for r in study["rows"]:
         if "steps" not in r:  # a run that failed
             lines.append(f"{r['tau']:>9.5f}  {r['status']}")
             continue
-        lines.append(f"{r['tau']:>9.5f} {r['steps']:>6d} {r['newton_iterations']:>7d} "
-                     f"{r['error_u_l2']:>11.3e} {r['error_u_h1']:>10.3e} {r['error_v_l2']:>11.3e} "
-                     f"{r['error_v_h1']:>10.3e} {r['error_lam_l2']:>13.3e} "
-                     f"{r['error_u_l2_max']:>10.3e} {r['error_v_l2_max']:>10.3e} "
-                     f"{r['error_lam_l2_max']:>10.3e} {r['seconds']:>8.2f}")
-    r = {k: "n/a" if v is None else f"{v:.3f}" for k, v in study.items()
-         if k.startswith("rate_")}
-    lines.append(f"fitted orders at T: u {r['rate_u']} (H1 {r['rate_u_h1']}), "
-                 f"v {r['rate_v']} (H1 {r['rate_v_h1']}), "
-                 f"lambda {r['rate_lam']}; max over steps: u {r['rate_u_max']}, "
-                 f"v {r['rate_v_max']}, lambda {r['rate_lam_max']}")
+        lines.append(
+            f"{r['tau']:>9.5f} {r['steps']:>6d} {r['newton_iterations']:>7d} "
+            f"{r['error_u_l2']:>11.3e} {r['error_u_h1']:>10.3e} {r['error_v_l2']:>11.3e} "
+            f"{r['error_v_h1']:>10.3e} {r['error_lam_l2']:>13.3e} "
+            f"{r['error_u_l2_max']:>10.3e} {r['error_v_l2_max']:>10.3e} "
+            f"{r['error_lam_l2_max']:>10.3e} {r['seconds']:>8.2f}"
+        )
+    r = {k: "n/a" if v is None else f"{v:.3f}" for k, v in study.items() if k.startswith("rate_")}
+    lines.append(
+        f"fitted orders at T: u {r['rate_u']} (H1 {r['rate_u_h1']}), "
+        f"v {r['rate_v']} (H1 {r['rate_v_h1']}), "
+        f"lambda {r['rate_lam']}; max over steps: u {r['rate_u_max']}, "
+        f"v {r['rate_v_max']}, lambda {r['rate_lam_max']}"
+    )
     return "\n".join(lines)
 
 
@@ -205,24 +279,53 @@ def _amplifications(problem, base, pert, delta: float) -> tuple[float, float, fl
     return amp, amp_v, amp_u
 
 
-def perturbation_run(form: str, tau: float, *, delta: float, targets, n: int, degree: int,
-                     damping, seed: int, T: float, scheme: str, progress=False) -> dict:
+def perturbation_run(
+    form: str,
+    tau: float,
+    *,
+    delta: float,
+    targets,
+    n: int,
+    degree: int,
+    damping,
+    seed: int,
+    T: float,
+    scheme: str,
+    progress=False,
+) -> dict:
     """One (tau, form) of :func:`perturbation_study` (a task: builds the problem itself): the
     unperturbed run and one perturbed run per target; the amplifications by target."""
     problem, _ = mms_problem(n, degree, damping=damping, T=T)
     base = run_eld(problem, form, tau, scheme=scheme, progress=progress)
     out = {"_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}}
     for target in targets:
-        pert = run_eld(problem, form, tau, scheme=scheme, progress=progress,
-                       noise=DataNoise(delta, target, seed))
+        pert = run_eld(
+            problem,
+            form,
+            tau,
+            scheme=scheme,
+            progress=progress,
+            noise=DataNoise(delta, target, seed),
+        )
         out[target] = _amplifications(problem, base, pert, delta)
     return out
 
 
-def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, delta: float = 1e-6,
-                       targets=("G", "G_dot", "G_ddot", "F"), forms=FORMS, n: int = 6,
-                       degree: int = 1, damping=None, seed: int = 0, T: float = 1.0,
-                       scheme: str = "euler", progress: bool = False, executor=None) -> dict:
+def perturbation_study(
+    taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001),
+    *,
+    delta: float = 1e-6,
+    targets=("G", "G_dot", "G_ddot", "F"),
+    forms=FORMS,
+    n: int = 6,
+    degree: int = 1,
+    damping=None,
+    seed: int = 0,
+    T: float = 1.0,
+    scheme: str = "euler",
+    progress: bool = False,
+    executor=None,
+) -> dict:
     """Amplification of delta-noise in each datum alone (G, G_dot, G_ddot, F) for each tau and
     form.
 
@@ -244,28 +347,55 @@ def perturbation_study(taus=(0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001), *, del
     seed = check_int("seed", seed, minimum=0)
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
-    tasks = [Task(f"{form} tau={tau:g}", perturbation_run,
-                  {"form": form, "tau": tau, "delta": delta, "targets": tuple(targets), "n": n,
-                   "degree": degree, "damping": damping, "seed": seed, "T": T,
-                   "scheme": scheme, "progress": inner_progress},
-                  cost=(1 + len(targets)) / tau)
-             for tau in taus for form in forms]
+    tasks = [
+        Task(
+            f"{form} tau={tau:g}",
+            perturbation_run,
+            {
+                "form": form,
+                "tau": tau,
+                "delta": delta,
+                "targets": tuple(targets),
+                "n": n,
+                "degree": degree,
+                "damping": damping,
+                "seed": seed,
+                "T": T,
+                "scheme": scheme,
+                "progress": inner_progress,
+            },
+            cost=(1 + len(targets)) / tau,
+        )
+        for tau in taus
+        for form in forms
+    ]
     t0 = time.perf_counter()
     results = (executor or Executor(1, progress=False)).map(tasks)
     meta = _problem_meta(results, n, degree, damping, T=T)
-    out = {"example": "eld-mms", "scheme": scheme, "n": n, "degree": degree,
-           "ndofs": meta["ndofs"], "targets": list(targets),
-           "damping": meta["damping"], "tau": taus, "delta": delta, "seed": seed,
-           "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"}}
-    tables = {t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in forms}
-              for t in targets}
+    out = {
+        "example": "eld-mms",
+        "scheme": scheme,
+        "n": n,
+        "degree": degree,
+        "ndofs": meta["ndofs"],
+        "targets": list(targets),
+        "damping": meta["damping"],
+        "tau": taus,
+        "delta": delta,
+        "seed": seed,
+        "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"},
+    }
+    tables = {
+        t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in forms} for t in targets
+    }
     nan = (float("nan"),) * 3
     failed = []
     for task, res in zip(tasks, results, strict=True):
         form = task.kwargs["form"]
         if not res.completed:
-            failed.append({"tau": task.kwargs["tau"], "form": form,
-                           "status": f"{res.status}: {res.message}"})
+            failed.append(
+                {"tau": task.kwargs["tau"], "form": form, "status": f"{res.status}: {res.message}"}
+            )
         for target in targets:
             amp, amp_v, amp_u = res.value[target] if res.completed else nan
             tables[target][f"amp_{form}"].append(amp)
@@ -301,8 +431,10 @@ def format_perturbation_table(study: dict) -> str:
     forms = [f for f in FORMS if f"amp_{f}" in first]
     for target in present:
         table = study[target]
-        lines.append(f"scheme {study.get('scheme', 'euler')}, {_WHAT[target]}, delta = "
-                     f"{study['delta']:g}; max_j |x_pert - x| / delta")
+        lines.append(
+            f"scheme {study.get('scheme', 'euler')}, {_WHAT[target]}, delta = "
+            f"{study['delta']:g}; max_j |x_pert - x| / delta"
+        )
         head = f"{'tau':>8}"
         for f in forms:
             short = f[:3]
@@ -311,11 +443,16 @@ def format_perturbation_table(study: dict) -> str:
         for i, tau in enumerate(study["tau"]):
             line = f"{tau:>8.4f}"
             for f in forms:
-                line += (f" {table[f'amp_{f}'][i]:>11.3e} {table[f'amp_v_{f}'][i]:>10.3e}"
-                         f" {table[f'amp_u_{f}'][i]:>10.3e}")
+                line += (
+                    f" {table[f'amp_{f}'][i]:>11.3e} {table[f'amp_v_{f}'][i]:>10.3e}"
+                    f" {table[f'amp_u_{f}'][i]:>10.3e}"
+                )
             lines.append(line)
-        slopes = ", ".join(f"{k[len('slope_'):]} " + ("n/a" if v is None else f"{v:+.2f}")
-                           for k, v in table.items() if k.startswith("slope_"))
+        slopes = ", ".join(
+            f"{k[len('slope_') :]} " + ("n/a" if v is None else f"{v:+.2f}")
+            for k, v in table.items()
+            if k.startswith("slope_")
+        )
         lines.append(f"log-log slopes in tau: {slopes}")
         lines.append("")
     for f in study.get("failed", ()):

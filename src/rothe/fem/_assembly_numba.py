@@ -75,8 +75,7 @@ def _cell_positions(ed, c, diag, upper, lower, pair_ids, pi, pj, pos):
 
 
 @_jit
-def _stiffness(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref, lam, mu,
-               blocks):
+def _stiffness(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref, lam, mu, blocks):
     d = p.shape[0]
     nbf = ed.shape[0]
     nq = wref.size
@@ -139,26 +138,46 @@ def _mass(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, mref, out):
 
 
 def _pattern_args(pattern):
-    return (pattern.diag, pattern.upper, pattern.lower, pattern.pair_ids,
-            pattern.pi.astype(np.int64), pattern.pj.astype(np.int64), pattern.cell_order)
+    return (
+        pattern.diag,
+        pattern.upper,
+        pattern.lower,
+        pattern.pair_ids,
+        pattern.pi.astype(np.int64),
+        pattern.pj.astype(np.int64),
+        pattern.cell_order,
+    )
 
 
 def stiffness_blocks(p, t, ed, pattern, dref, wref, lam, mu, blocks) -> None:
     """blocks += K's element blocks (see VectorSpace.stiffness_blocks)."""
-    _stiffness(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(t),
-               np.ascontiguousarray(ed), *_pattern_args(pattern),
-               np.ascontiguousarray(dref, dtype=float), np.ascontiguousarray(wref, dtype=float),
-               float(lam), float(mu), blocks)
+    _stiffness(
+        np.ascontiguousarray(p, dtype=float),
+        np.ascontiguousarray(t),
+        np.ascontiguousarray(ed),
+        *_pattern_args(pattern),
+        np.ascontiguousarray(dref, dtype=float),
+        np.ascontiguousarray(wref, dtype=float),
+        float(lam),
+        float(mu),
+        blocks,
+    )
 
 
 def scalar_mass(p, t, ed, pattern, mref, out) -> None:
     """out += the scalar mass |det J| mref of every cell."""
-    _mass(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(t),
-          np.ascontiguousarray(ed), *_pattern_args(pattern),
-          np.ascontiguousarray(mref, dtype=float), out)
+    _mass(
+        np.ascontiguousarray(p, dtype=float),
+        np.ascontiguousarray(t),
+        np.ascontiguousarray(ed),
+        *_pattern_args(pattern),
+        np.ascontiguousarray(mref, dtype=float),
+        out,
+    )
 
 
 # -- BSR products (bit for bit scipy's bsr_matvec: the same sums in the same order) -------------
+
 
 @_jit
 def _bsr_matvec_3(indptr, indices, data, x, y):

@@ -78,8 +78,9 @@ def lame_from_young(E: float, nu: float) -> tuple[float, float]:
 def _scalar_element(dim: int, degree: int):
     from skfem import ElementTetP1, ElementTetP2, ElementTriP1, ElementTriP2
 
-    return {(2, 1): ElementTriP1, (2, 2): ElementTriP2,
-            (3, 1): ElementTetP1, (3, 2): ElementTetP2}[(dim, degree)]()
+    return {(2, 1): ElementTriP1, (2, 2): ElementTriP2, (3, 1): ElementTetP1, (3, 2): ElementTetP2}[
+        (dim, degree)
+    ]()
 
 
 def use_numba(work: int | None = None) -> bool:
@@ -125,6 +126,7 @@ class FacetQuadrature:
 
 # -- reference element and affine geometry -------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class _Reference:
     """Quadrature and basis of the reference simplex for one (dim, degree)."""
@@ -149,9 +151,11 @@ def _reference(element, dim: int, degree: int) -> _Reference:
         Xm, Wm = get_quadrature(element.refdom, 2 * degree)
         vals = np.stack([element.lbasis(Xm, i)[0] for i in range(nbf)])  # (nbf, nq)
         _REFERENCES[key] = _Reference(
-            nbf=nbf, grad_weights=np.asarray(W, dtype=float),
+            nbf=nbf,
+            grad_weights=np.asarray(W, dtype=float),
             grads=np.ascontiguousarray(grads.transpose(2, 0, 1)),
-            mass=np.einsum("iq,jq,q->ij", vals, vals, Wm))
+            mass=np.einsum("iq,jq,q->ij", vals, vals, Wm),
+        )
         m = _REFERENCES[key].mass
         m[...] = 0.5 * (m + m.T)  # exactly symmetric
     return _REFERENCES[key]
@@ -177,8 +181,11 @@ def affine_geometry(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarra
         inv[1, 1] = E[0][0] / det
     else:
         # rows of J^{-1}: (e2 x e3, e3 x e1, e1 x e2) / det
-        rows = (np.cross(E[1], E[2], axis=0), np.cross(E[2], E[0], axis=0),
-                np.cross(E[0], E[1], axis=0))
+        rows = (
+            np.cross(E[1], E[2], axis=0),
+            np.cross(E[2], E[0], axis=0),
+            np.cross(E[0], E[1], axis=0),
+        )
         det = np.einsum("ac,ac->c", E[0], rows[0])
         for k in range(3):
             np.divide(rows[k], det, out=inv[k])
@@ -186,6 +193,7 @@ def affine_geometry(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 # -- sparsity pattern ----------------------------------------------------------------------------
+
 
 class ScalarPattern:
     """CSR pattern of the scalar dofs coupled through a cell, and where cells' entries go.
@@ -266,7 +274,8 @@ class ScalarPattern:
         # narrow band of rows (scikit-fem's init_tensor numbers the six tetrahedra of a cube in
         # six sweeps over the whole mesh), which keeps the scatter in cache
         self.cell_order = np.argsort(ed.min(axis=0), kind="stable").astype(
-            np.int32 if ne < 2**31 - 1 else np.int64)
+            np.int32 if ne < 2**31 - 1 else np.int64
+        )
 
     def cell_map(self, ed_chunk: np.ndarray, pair_chunk: np.ndarray) -> np.ndarray:
         """Positions (C, nbf, nbf) in the pattern of the entries (dof_i, dof_j) of C cells.
@@ -288,7 +297,7 @@ class ScalarPattern:
     def chunks(self, cells_per_chunk: int):
         """Cell index arrays of consecutive runs of :attr:`cell_order`."""
         for c0 in range(0, self.ne, cells_per_chunk):
-            yield self.cell_order[c0:c0 + cells_per_chunk]
+            yield self.cell_order[c0 : c0 + cells_per_chunk]
 
     def rows(self) -> np.ndarray:
         """Row index of every entry (nnz,)."""
@@ -317,14 +326,19 @@ class BlockMatrix(sp.bsr_matrix):
         return self.tocsr()[key]
 
     def _matmul_vector(self, other):
-        if self.blocksize in ((2, 2), (3, 3)) and self.dtype == np.float64 \
-                and (self.nnz >= NUMBA_MIN_MATVEC or _numba_forced()) \
-                and getattr(other, "dtype", None) == np.float64 and other.ndim == 1 \
-                and use_numba():
+        if (
+            self.blocksize in ((2, 2), (3, 3))
+            and self.dtype == np.float64
+            and (self.nnz >= NUMBA_MIN_MATVEC or _numba_forced())
+            and getattr(other, "dtype", None) == np.float64
+            and other.ndim == 1
+            and use_numba()
+        ):
             from . import _assembly_numba
 
-            return _assembly_numba.bsr_matvec(self.indptr, self.indices, self.data,
-                                              np.ascontiguousarray(other))
+            return _assembly_numba.bsr_matvec(
+                self.indptr, self.indices, self.data, np.ascontiguousarray(other)
+            )
         return super()._matmul_vector(other)
 
 
@@ -332,8 +346,9 @@ def _numba_forced() -> bool:
     return os.environ.get("ROTHE_NUMBA", "0") not in ("", "0")
 
 
-def _scatter_chunk(out: np.ndarray, positions: np.ndarray, local: np.ndarray,
-                   premultiplied: bool = False) -> None:
+def _scatter_chunk(
+    out: np.ndarray, positions: np.ndarray, local: np.ndarray, premultiplied: bool = False
+) -> None:
     """out[positions] += local, summing repeated positions (one bincount over their range).
 
     ``out`` is (nnz,) or (nnz, k) (k values per position, e.g. the d x d entries of a block,
@@ -437,8 +452,9 @@ class VectorSpace:
         ``blocks``); 'csr' converts it (every entry of every block is stored, zeros included).
         """
         d, n = self.dim, self.n_scalar
-        bsr = BlockMatrix((blocks, self.pattern_cols, self.pattern_indptr),
-                          shape=(d * n, d * n), blocksize=(d, d))
+        bsr = BlockMatrix(
+            (blocks, self.pattern_cols, self.pattern_indptr), shape=(d * n, d * n), blocksize=(d, d)
+        )
         if format == "bsr":
             return bsr
         if format != "csr":
@@ -527,8 +543,16 @@ class VectorSpace:
             from . import _assembly_numba
 
             _assembly_numba.stiffness_blocks(
-                np.asarray(self.mesh.p), np.asarray(self.mesh.t),
-                np.asarray(self.element_dofs), pat, ref.grads, ref.grad_weights, lam, mu, blocks)
+                np.asarray(self.mesh.p),
+                np.asarray(self.mesh.t),
+                np.asarray(self.element_dofs),
+                pat,
+                ref.grads,
+                ref.grad_weights,
+                lam,
+                mu,
+                blocks,
+            )
             return blocks
         nbf = ref.nbf
         flat = blocks.reshape(-1)
@@ -566,9 +590,14 @@ class VectorSpace:
         if self.compiled_assembly:
             from . import _assembly_numba
 
-            _assembly_numba.scalar_mass(np.asarray(self.mesh.p), np.asarray(self.mesh.t),
-                                        np.asarray(self.element_dofs), self.pattern,
-                                        ref.mass, out)
+            _assembly_numba.scalar_mass(
+                np.asarray(self.mesh.p),
+                np.asarray(self.mesh.t),
+                np.asarray(self.element_dofs),
+                self.pattern,
+                ref.mass,
+                out,
+            )
             return out
         for cells in self._chunks(ref.nbf * ref.nbf):
             _, det = self._geometry(cells)
@@ -629,8 +658,9 @@ class VectorSpace:
                     _scatter_chunk(blocks[:, a, b], positions, local)
         return self.block_matrix(blocks)
 
-    def restricted_combination(self, K, stiffness_coef: float, mass_coef: float,
-                               nodes=None) -> sp.bsr_matrix:
+    def restricted_combination(
+        self, K, stiffness_coef: float, mass_coef: float, nodes=None
+    ) -> sp.bsr_matrix:
         """(mass_coef M + stiffness_coef K) on the vector dofs of the scalar dofs ``nodes``.
 
         M is this space's mass (density 1) and K a matrix from :meth:`stiffness` (CSR or BSR):
@@ -674,8 +704,9 @@ class VectorSpace:
         mass = mass_coef * self.scalar_mass_values[entries]
         for a in range(d):
             data[:, a, a] += mass
-        return BlockMatrix((data, indices, indptr.astype(idx_dtype)), shape=(d * m, d * m),
-                           blocksize=(d, d))
+        return BlockMatrix(
+            (data, indices, indptr.astype(idx_dtype)), shape=(d * m, d * m), blocksize=(d, d)
+        )
 
     def symmetric_columns(self, A, nodes) -> sp.csr_matrix:
         """A[:, dofs] for a symmetric A (this space's CSR or BSR matrices), dofs = the vector
@@ -690,8 +721,11 @@ class VectorSpace:
             take = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
             take += np.arange(int(counts.sum()))
             indptr = np.concatenate([[0], np.cumsum(counts)])
-            rows = sp.bsr_matrix((A.data[take], A.indices[take], indptr),
-                                 shape=(d * nodes.size, A.shape[1]), blocksize=(d, d))
+            rows = sp.bsr_matrix(
+                (A.data[take], A.indices[take], indptr),
+                shape=(d * nodes.size, A.shape[1]),
+                blocksize=(d, d),
+            )
             return rows.tocsr().T.tocsr()
         return sp.csr_matrix(A)[self.vector_dofs(nodes)].T.tocsr()
 
@@ -702,9 +736,12 @@ class VectorSpace:
         if K.shape != (N, N):
             return None
         if sp.issparse(K) and K.format == "bsr":
-            if (K.blocksize == (d, d) and K.indptr.size == pat.indptr.size
-                    and np.array_equal(K.indptr, pat.indptr)
-                    and np.array_equal(K.indices, pat.indices)):
+            if (
+                K.blocksize == (d, d)
+                and K.indptr.size == pat.indptr.size
+                and np.array_equal(K.indptr, pat.indptr)
+                and np.array_equal(K.indices, pat.indices)
+            ):
                 return "bsr"
             return None
         if not (sp.issparse(K) and K.format == "csr") or K.nnz != d * d * pat.nnz:
@@ -729,15 +766,17 @@ class VectorSpace:
         """u_h at the quadrature points: shape (d, ne, nq)."""
         U = np.asarray(u).reshape(self.n_scalar, self.dim)
         N = self._quad_values
-        return np.stack([np.einsum("ieq,ie->eq", N, U[self.element_dofs, c])
-                         for c in range(self.dim)])
+        return np.stack(
+            [np.einsum("ieq,ie->eq", N, U[self.element_dofs, c]) for c in range(self.dim)]
+        )
 
     def gradients_at_quad(self, u: np.ndarray) -> np.ndarray:
         """grad u_h at the quadrature points: shape (d, d, ne, nq), [c, k] = d_k u_c."""
         U = np.asarray(u).reshape(self.n_scalar, self.dim)
         G = self._quad_grads
-        return np.stack([np.einsum("ikeq,ie->keq", G, U[self.element_dofs, c])
-                         for c in range(self.dim)])
+        return np.stack(
+            [np.einsum("ikeq,ie->keq", G, U[self.element_dofs, c]) for c in range(self.dim)]
+        )
 
     def load_from_quad(self, f: np.ndarray) -> np.ndarray:
         """The load vector int f . phi dx for f given at the quadrature points (d, ne, nq)."""
@@ -784,13 +823,18 @@ class VectorSpace:
         s = np.asarray(scalar_dofs, dtype=np.int64)
         return (self.dim * s[:, None] + np.arange(self.dim)[None, :]).ravel()
 
-    def facet_quadrature(self, parts, intorder: int | None = None,
-                         name: str = "parts") -> FacetQuadrature:
+    def facet_quadrature(
+        self, parts, intorder: int | None = None, name: str = "parts"
+    ) -> FacetQuadrature:
         from skfem import FacetBasis
 
         facets = self.facets(parts, name)
-        fb = FacetBasis(self.mesh, self.element, facets=facets,
-                        intorder=2 * self.degree if intorder is None else intorder)
+        fb = FacetBasis(
+            self.mesh,
+            self.element,
+            facets=facets,
+            intorder=2 * self.degree if intorder is None else intorder,
+        )
         return FacetQuadrature(
             values=np.stack([np.asarray(b[0]) for b in fb.basis]),
             dofs=np.asarray(fb.element_dofs),
@@ -814,8 +858,9 @@ class VectorSpace:
             if self.dim == 2:
                 size = np.linalg.norm(x[:, 1] - x[:, 0], axis=0)
             else:
-                size = 0.5 * np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0],
-                                                     axis=0), axis=0)
+                size = 0.5 * np.linalg.norm(
+                    np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], axis=0), axis=0
+                )
             d = self.dim
             ref = (np.ones((d, d)) + np.eye(d)) / (d * (d + 1))
             local = ref[:, :, None] * size[None, None, :]

@@ -68,14 +68,21 @@ def reproducible_random(seed: int = 0):
 def sparse_state(M) -> dict:
     """A sparse matrix as a checkpoint dict (its compressed arrays exactly as they are)."""
     M = M if M.format in ("csr", "csc") else sp.csr_matrix(M)
-    return {"format": M.format, "shape": [int(x) for x in M.shape], "data": M.data,
-            "indices": M.indices, "indptr": M.indptr}
+    return {
+        "format": M.format,
+        "shape": [int(x) for x in M.shape],
+        "data": M.data,
+        "indices": M.indices,
+        "indptr": M.indptr,
+    }
 
 
 def sparse_from_state(data: dict):
     cls = sp.csc_matrix if data["format"] == "csc" else sp.csr_matrix
-    return cls((np.asarray(data["data"]), np.asarray(data["indices"]),
-                np.asarray(data["indptr"])), shape=tuple(data["shape"]))
+    return cls(
+        (np.asarray(data["data"]), np.asarray(data["indices"]), np.asarray(data["indptr"])),
+        shape=tuple(data["shape"]),
+    )
 
 
 class SingularSystem(RuntimeError):
@@ -167,11 +174,18 @@ class ReusableSolver:
         rebuild rule, and the counters."""
         ref = None
         if self._prec is not None and self._ref is not None:
-            ref = {"kind": self._ref_kind, "matrix": sparse_state(self._ref),
-                   "shape": [int(x) for x in self._prec_shape]}
-        return {"stats": self.stats.as_dict(), "kind_used": self.kind_used,
-                "key": None if self._key is None else np.asarray(self._key),
-                "fresh_its": self._fresh_its, "reference": ref}
+            ref = {
+                "kind": self._ref_kind,
+                "matrix": sparse_state(self._ref),
+                "shape": [int(x) for x in self._prec_shape],
+            }
+        return {
+            "stats": self.stats.as_dict(),
+            "kind_used": self.kind_used,
+            "key": None if self._key is None else np.asarray(self._key),
+            "fresh_its": self._fresh_its,
+            "reference": ref,
+        }
 
     def restore_state(self, data: dict) -> None:
         self.reset()
@@ -185,15 +199,26 @@ class ReusableSolver:
         self.stats = LinearStats(**data["stats"])
 
     # -- solving -------------------------------------------------------------------------------
-    def solve(self, K, rhs: list[np.ndarray], rtol: float = 1e-10, *, key=None, surrogate=None,
-              spd: bool = False) -> list[np.ndarray]:
+    def solve(
+        self,
+        K,
+        rhs: list[np.ndarray],
+        rtol: float = 1e-10,
+        *,
+        key=None,
+        surrogate=None,
+        spd: bool = False,
+    ) -> list[np.ndarray]:
         """Solve K x = b for each b in ``rhs`` to relative residual ``rtol``."""
         if not sp.issparse(K):
             return self._dense(K, rhs)
         K = sp.csr_matrix(K)
         kind = self.resolve_kind(K.shape[0])
-        stale = (self._prec is None or self._prec_shape != K.shape
-                 or (key is not None and (self._key is None or not np.array_equal(key, self._key))))
+        stale = (
+            self._prec is None
+            or self._prec_shape != K.shape
+            or (key is not None and (self._key is None or not np.array_equal(key, self._key)))
+        )
         if stale:
             self._build(K if surrogate is None else surrogate, kind)
             self._key = None if key is None else np.array(key, copy=True)
@@ -206,8 +231,9 @@ class ReusableSolver:
                 x = self._krylov(K, b, rtol, kind, spd, fresh=True)
                 if x is None:
                     self.stats.failures += 1
-                    raise SingularSystem("the Krylov solver did not converge with a fresh "
-                                         "preconditioner")
+                    raise SingularSystem(
+                        "the Krylov solver did not converge with a fresh preconditioner"
+                    )
             out.append(x)
         return out
 
@@ -240,8 +266,11 @@ class ReusableSolver:
             x0, restart, maxiter, limit = x, self.max_krylov, 1, self.max_krylov
         else:
             x0, restart, maxiter = None, 60, 4
-            limit = 10**9 if fresh or self._fresh_its is None else max(
-                self.max_krylov, 3 * self._fresh_its)
+            limit = (
+                10**9
+                if fresh or self._fresh_its is None
+                else max(self.max_krylov, 3 * self._fresh_its)
+            )
         M = spla.LinearOperator(K.shape, matvec=self._prec, dtype=float)
         its = [0]
 
@@ -249,11 +278,22 @@ class ReusableSolver:
             its[0] += 1
 
         if kind == "amg" and spd:
-            x, info = spla.cg(K, b, x0=x0, rtol=rtol, atol=0.0, maxiter=restart * maxiter, M=M,
-                              callback=count)
+            x, info = spla.cg(
+                K, b, x0=x0, rtol=rtol, atol=0.0, maxiter=restart * maxiter, M=M, callback=count
+            )
         else:
-            x, info = spla.gmres(K, b, x0=x0, rtol=rtol, atol=0.0, restart=restart,
-                                 maxiter=maxiter, M=M, callback=count, callback_type="pr_norm")
+            x, info = spla.gmres(
+                K,
+                b,
+                x0=x0,
+                rtol=rtol,
+                atol=0.0,
+                restart=restart,
+                maxiter=maxiter,
+                M=M,
+                callback=count,
+                callback_type="pr_norm",
+            )
         self.stats.krylov_iterations += its[0]
         if info != 0 or not np.all(np.isfinite(x)) or its[0] > limit:
             return None

@@ -103,8 +103,11 @@ def box(nx: int, ny: int, nz: int, length: float = 1.0, height: float = 1.0, wid
     length = check_positive("length", length)
     height = check_positive("height", height)
     width = check_positive("width", width)
-    mesh = MeshTet.init_tensor(np.linspace(0, length, nx + 1), np.linspace(0, height, ny + 1),
-                               np.linspace(0, width, nz + 1))
+    mesh = MeshTet.init_tensor(
+        np.linspace(0, length, nx + 1),
+        np.linspace(0, height, ny + 1),
+        np.linspace(0, width, nz + 1),
+    )
     return tag_box_faces(mesh)
 
 
@@ -129,8 +132,14 @@ def boundary_facets(mesh) -> np.ndarray:
     return f[:, first[counts == 1]].T
 
 
-BOX_PARTS = {"left": (0, np.min), "right": (0, np.max), "bottom": (1, np.min),
-             "top": (1, np.max), "front": (2, np.min), "back": (2, np.max)}
+BOX_PARTS = {
+    "left": (0, np.min),
+    "right": (0, np.max),
+    "bottom": (1, np.min),
+    "top": (1, np.max),
+    "front": (2, np.min),
+    "back": (2, np.max),
+}
 
 
 def box_part_nodes(mesh, name: str, facets: np.ndarray | None = None) -> np.ndarray:
@@ -161,8 +170,9 @@ def check_simplex_mesh(mesh, name: str = "mesh") -> int:
         return 2
     if isinstance(mesh, MeshTet):
         return 3
-    raise fail(name, type(mesh).__name__,
-               "must be a scikit-fem MeshTri or MeshTet (P1/P2 simplices)")
+    raise fail(
+        name, type(mesh).__name__, "must be a scikit-fem MeshTri or MeshTet (P1/P2 simplices)"
+    )
 
 
 def mesh_dim(mesh) -> int:
@@ -183,23 +193,32 @@ def check_mesh(mesh, name: str = "mesh"):
     p, t = np.asarray(mesh.p), np.asarray(mesh.t)
     d = p.shape[0]
     if d not in (2, 3) or t.shape[0] != d + 1:
-        raise bad(name, f"a mesh with {t.shape[0]}-node cells in {d}D",
-                   "must be triangles (2D) or tetrahedra (3D)")
+        raise bad(
+            name,
+            f"a mesh with {t.shape[0]}-node cells in {d}D",
+            "must be triangles (2D) or tetrahedra (3D)",
+        )
     if t.shape[1] == 0:
         raise bad(name, "a mesh with 0 cells", "must have at least one cell")
     if not np.all(np.isfinite(p)):
         raise bad(name, "non-finite node coordinates", "coordinates must be finite")
     if t.min() < 0 or t.max() >= p.shape[1]:
-        raise bad(name, f"cell node index {int(t.max())}",
-                   f"must be in [0, {p.shape[1] - 1}] (the number of nodes)")
+        raise bad(
+            name,
+            f"cell node index {int(t.max())}",
+            f"must be in [0, {p.shape[1] - 1}] (the number of nodes)",
+        )
     vol = cell_volumes(mesh)
     edges = [p[:, t[a]] - p[:, t[b]] for a in range(d + 1) for b in range(a)]
     h = np.sqrt(np.max([np.sum(e * e, axis=0) for e in edges], axis=0))
     degenerate = np.nonzero(vol <= 1e-12 * h**d)[0]
     if degenerate.size:
         k = int(degenerate[0])
-        raise bad(name, f"a degenerate cell (index {k}, volume {vol[k]:.3g})",
-                   f"all {t.shape[1]} cells must have positive volume")
+        raise bad(
+            name,
+            f"a degenerate cell (index {k}, volume {vol[k]:.3g})",
+            f"all {t.shape[1]} cells must have positive volume",
+        )
     return mesh
 
 
@@ -211,7 +230,7 @@ def _match_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     inv = inv.ravel()
     where = np.full(inv.max() + 1, -1, dtype=np.int64)
     where[inv[: len(b)]] = np.arange(len(b))
-    return where[inv[len(b):]]
+    return where[inv[len(b) :]]
 
 
 def _read_meshio(path: Path, name: str):
@@ -227,8 +246,12 @@ def _read_meshio(path: Path, name: str):
         with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
             return meshio.read(str(path))
     except (Exception, SystemExit) as exc:  # meshio raises many types, or exits
-        lines = [ln.strip() for ln in (str(exc) if not isinstance(exc, SystemExit) else "")
-                 .splitlines() + chatter.getvalue().splitlines() if ln.strip()]
+        lines = [
+            ln.strip()
+            for ln in (str(exc) if not isinstance(exc, SystemExit) else "").splitlines()
+            + chatter.getvalue().splitlines()
+            if ln.strip()
+        ]
         msg = lines[0] if lines else type(exc).__name__
         for noise in (f"'{path}'", str(path), "Error: "):
             msg = msg.replace(noise, "")
@@ -260,16 +283,16 @@ def _merge_map(n: int, pairs: np.ndarray) -> np.ndarray:
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
-    graph = sp.csr_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])),
-                          shape=(n, n))
+    graph = sp.csr_matrix(
+        (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n)
+    )
     _, label = connected_components(graph, directed=False)
     rep = np.full(label.max() + 1, n, dtype=np.int64)
     np.minimum.at(rep, label, np.arange(n))
     return rep[label]
 
 
-def load_mesh(path, dim: int | None = None, name: str = "mesh",
-              duplicate_nodes: str = "error"):
+def load_mesh(path, dim: int | None = None, name: str = "mesh", duplicate_nodes: str = "error"):
     """Read a triangle (2D) or tetrahedron (3D) mesh from any file meshio reads.
 
     ``dim`` = 2 or 3 asks for that cell type; ``None`` takes tetrahedra if there are any, else
@@ -286,8 +309,9 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh",
     presumably meant); ``"keep"`` takes the cut as intended.
     """
     if duplicate_nodes not in DUPLICATE_NODES:
-        raise fail("duplicate_nodes", duplicate_nodes, "must be one of " +
-                   ", ".join(DUPLICATE_NODES))
+        raise fail(
+            "duplicate_nodes", duplicate_nodes, "must be one of " + ", ".join(DUPLICATE_NODES)
+        )
     if str(path) == "":
         raise fail(name, "", "must name a mesh file")
     path = Path(path)
@@ -296,8 +320,9 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh",
     if path.is_dir():
         raise fail(name, str(path), "is a directory, must be a mesh file")
     if not path.is_file():  # a FIFO or a device would block or never end
-        raise fail(name, str(path), "is not a regular file (a FIFO, socket or device), must be "
-                                    "a mesh file")
+        raise fail(
+            name, str(path), "is not a regular file (a FIFO, socket or device), must be a mesh file"
+        )
     m = _read_meshio(path, name)
     blocks: dict[str, list[np.ndarray]] = {}
     for block in m.cells:
@@ -307,15 +332,22 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh",
     ctype = CELL_TYPE[dim]
     if ctype not in blocks:
         found = ", ".join(sorted(blocks)) or "none"
-        raise fail(name, str(path), f"has no {ctype} cells (found: {found}); a {dim}D run "
-                                    f"needs {ctype} cells")
+        raise fail(
+            name,
+            str(path),
+            f"has no {ctype} cells (found: {found}); a {dim}D run needs {ctype} cells",
+        )
     cells = np.vstack(blocks[ctype])
     points = np.asarray(m.points, dtype=float)
     if points.shape[1] > dim:
         extra = points[:, dim:]
         if np.ptp(extra, axis=0).max() > 1e-12 * max(1.0, np.abs(points).max()):
-            raise fail(name, str(path), f"has {ctype} cells that are not flat in {dim}D "
-                                        "(a surface mesh?), must be a planar 2D mesh")
+            raise fail(
+                name,
+                str(path),
+                f"has {ctype} cells that are not flat in {dim}D "
+                "(a surface mesh?), must be a planar 2D mesh",
+            )
         points = points[:, :dim]
     if points.shape[1] < dim:
         raise fail(name, str(path), f"has {points.shape[1]}D points, a {dim}D mesh needs {dim}")
@@ -334,10 +366,14 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh",
         pairs = coincident_nodes(p)
         if len(pairs) and duplicate_nodes == "error":
             x = ", ".join(f"{v:g}" for v in p[:, pairs[0, 0]])
-            raise fail(name, str(path), f"has {len(pairs)} pair(s) of coincident nodes used by "
-                                        f"different cells (the first at ({x})): the mesh is cut "
-                                        "there like a crack; --duplicate-nodes merge glues them, "
-                                        "keep takes the cut as intended")
+            raise fail(
+                name,
+                str(path),
+                f"has {len(pairs)} pair(s) of coincident nodes used by "
+                f"different cells (the first at ({x})): the mesh is cut "
+                "there like a crack; --duplicate-nodes merge glues them, "
+                "keep takes the cut as intended",
+            )
         if len(pairs):  # merge: renumber the cells onto one node per cluster, drop the rest
             rep = _merge_map(p.shape[1], pairs)
             keep = np.unique(rep)
@@ -450,7 +486,7 @@ def build_entities(t: np.ndarray, indices, n: int):
         rows = [t[i].astype(np.int64) for i in ix]
         lo = np.minimum.reduce(rows)
         hi = np.maximum.reduce(rows)
-        part = key[r * ne:(r + 1) * ne]
+        part = key[r * ne : (r + 1) * ne]
         if k == 2:
             np.multiply(lo, n, out=part)
             part += hi
@@ -508,8 +544,9 @@ def tag_box_faces(mesh):
     with_fast_facets(mesh)
     # boundary facets: those of one cell only (scikit-fem's boundary_facets() would first
     # build the facet-to-cell map, two more sorts)
-    facets = np.flatnonzero(np.bincount(np.asarray(mesh.t2f).ravel(),
-                                        minlength=mesh.facets.shape[1]) == 1)
+    facets = np.flatnonzero(
+        np.bincount(np.asarray(mesh.t2f).ravel(), minlength=mesh.facets.shape[1]) == 1
+    )
     mid = mesh.p[:, mesh.facets[:, facets]].mean(axis=1)
     lo, hi = mesh.p.min(axis=1), mesh.p.max(axis=1)
     tol = 1e-10 * max(1.0, float(np.max(hi - lo)))

@@ -42,8 +42,11 @@ def _gradients(mesh) -> tuple[np.ndarray, np.ndarray]:
         rows = [np.array([e[1][1], -e[1][0]]), np.array([-e[0][1], e[0][0]])]
         factorial = 2.0
     else:
-        rows = [np.cross(e[1], e[2], axis=0), np.cross(e[2], e[0], axis=0),
-                np.cross(e[0], e[1], axis=0)]
+        rows = [
+            np.cross(e[1], e[2], axis=0),
+            np.cross(e[2], e[0], axis=0),
+            np.cross(e[0], e[1], axis=0),
+        ]
         det = np.sum(e[0] * rows[0], axis=0)
         factorial = 6.0
     G = np.empty((d + 1, d, t.shape[1]))
@@ -65,8 +68,11 @@ def cell_coefficient(mesh, coefficient, name: str = "coefficient") -> np.ndarray
         if c.ndim == 0:
             c = np.full(nc, float(c))
     if c.shape != (nc,):
-        raise bad(name, f"an array of shape {c.shape}",
-                   f"must be a number, a callable or one value per cell ({nc})")
+        raise bad(
+            name,
+            f"an array of shape {c.shape}",
+            f"must be a number, a callable or one value per cell ({nc})",
+        )
     ok = np.isfinite(c) & (c > 0)
     if not np.all(ok):
         raise fail(name, float(c[~ok][0]), "must be finite and > 0 in every cell")
@@ -143,8 +149,12 @@ def boundary_nodes(mesh, parts=None) -> np.ndarray:
     box = [name for name, (axis, _) in BOX_PARTS.items() if axis < mesh.p.shape[0]]
     for part in parts:
         if part not in box:
-            raise fail("dirichlet", part, f"must be one of {', '.join(sorted(box))} (sides of "
-                                          "the bounding box; the mesh has no named parts)")
+            raise fail(
+                "dirichlet",
+                part,
+                f"must be one of {', '.join(sorted(box))} (sides of "
+                "the bounding box; the mesh has no named parts)",
+            )
     facets = boundary_facets(mesh)
     return np.unique(np.concatenate([box_part_nodes(mesh, part, facets) for part in parts]))
 

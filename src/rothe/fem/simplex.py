@@ -69,17 +69,21 @@ class CellIndicators:
         return float(np.sqrt(np.sum(self.eta**2)))
 
     def describe(self) -> dict:
-        return {"estimate": self.estimate, "cell": float(np.sqrt(self.cell.sum())),
-                "jump": float(np.sqrt(self.jump.sum())),
-                "boundary": float(np.sqrt(self.boundary.sum())),
-                "max_eta": float(self.eta.max(initial=0.0))}
+        return {
+            "estimate": self.estimate,
+            "cell": float(np.sqrt(self.cell.sum())),
+            "jump": float(np.sqrt(self.jump.sum())),
+            "boundary": float(np.sqrt(self.boundary.sum())),
+            "max_eta": float(self.eta.max(initial=0.0)),
+        }
 
 
 class SimplexEvaluator:
     """Geometry, dofs, quadrature and facet topology of a P1/P2 mesh (see the module doc)."""
 
-    def __init__(self, mesh, degree: int = 1, cell_order: int | None = None,
-                 facet_order: int | None = None):
+    def __init__(
+        self, mesh, degree: int = 1, cell_order: int | None = None, facet_order: int | None = None
+    ):
         self.mesh = mesh
         self.p = np.asarray(mesh.p, dtype=float)
         self.t = np.asarray(mesh.t, dtype=np.int64)
@@ -157,8 +161,9 @@ class SimplexEvaluator:
         measure = self.dim * self.vol[cells] * norm
         normal = -g / norm
         # facet diameter: longest edge among the facet's vertices
-        verts = np.array([[k for k in range(self.dim + 1) if k != j]
-                          for j in range(self.dim + 1)])[local]  # (nf, d)
+        verts = np.array([[k for k in range(self.dim + 1) if k != j] for j in range(self.dim + 1)])[
+            local
+        ]  # (nf, d)
         pts = self.p[:, np.take_along_axis(self.t[:, cells].T, verts, axis=1)]  # (d, nf, d)
         h2 = np.zeros(len(cells))
         for a in range(self.dim):
@@ -168,8 +173,9 @@ class SimplexEvaluator:
         diam = np.sqrt(h2) if self.dim > 1 else np.ones(len(cells))
         return measure, normal, diam
 
-    def facet_lambda(self, cells: np.ndarray, local: np.ndarray,
-                     facet_vertices: np.ndarray) -> np.ndarray:
+    def facet_lambda(
+        self, cells: np.ndarray, local: np.ndarray, facet_vertices: np.ndarray
+    ) -> np.ndarray:
         """Barycentric coordinates (d+1, nf, nq) in ``cells`` of the facet quadrature points.
 
         The facet rule's coordinates refer to the facet vertices in the order of
@@ -221,13 +227,20 @@ def robust_weight(h: np.ndarray, stiffness, reaction: float) -> np.ndarray:
     return a
 
 
-def assemble_indicators(ev: SimplexEvaluator, cell_sq: np.ndarray, inner_sq: np.ndarray,
-                        inner_cells: np.ndarray, bnd_sq: np.ndarray,
-                        bnd_cells: np.ndarray) -> CellIndicators:
+def assemble_indicators(
+    ev: SimplexEvaluator,
+    cell_sq: np.ndarray,
+    inner_sq: np.ndarray,
+    inner_cells: np.ndarray,
+    bnd_sq: np.ndarray,
+    bnd_cells: np.ndarray,
+) -> CellIndicators:
     """Sum the squared parts per cell: interior facet terms half to each side."""
     nc = ev.t.shape[1]
-    jump = 0.5 * (np.bincount(inner_cells[0], weights=inner_sq, minlength=nc)
-                  + np.bincount(inner_cells[1], weights=inner_sq, minlength=nc))
+    jump = 0.5 * (
+        np.bincount(inner_cells[0], weights=inner_sq, minlength=nc)
+        + np.bincount(inner_cells[1], weights=inner_sq, minlength=nc)
+    )
     boundary = np.bincount(bnd_cells, weights=bnd_sq, minlength=nc)
     eta = np.sqrt(cell_sq + jump + boundary)
     return CellIndicators(eta=eta, cell=cell_sq, jump=jump, boundary=boundary)

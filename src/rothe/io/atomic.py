@@ -165,6 +165,9 @@ def check_writable(directory, option: str = "--out") -> Path:
     except OSError as exc:
         reason = exc.strerror or str(exc)
         code = f"[Errno {exc.errno}] " if exc.errno is not None else ""
-        raise fail(option, str(directory),
-                   f"cannot create or write files in this directory ({code}{reason})") from None
+        raise fail(
+            option,
+            str(directory),
+            f"cannot create or write files in this directory ({code}{reason})",
+        ) from None
     return directory

@@ -98,6 +98,7 @@ def library_versions() -> dict:
 
 # -- encoding ---------------------------------------------------------------------------------
 
+
 def encode(obj, arrays: dict, where: str = "state"):
     """The JSON-able image of ``obj``; numpy arrays go to ``arrays`` and are referenced."""
     if isinstance(obj, dict):
@@ -111,8 +112,9 @@ def encode(obj, arrays: dict, where: str = "state"):
         return [encode(v, arrays, f"{where}[{i}]") for i, v in enumerate(obj)]
     if isinstance(obj, np.ndarray):
         if obj.dtype.kind not in "biufcUS":
-            raise TypeError(f"checkpoint {where}: array of dtype {obj.dtype} (object arrays "
-                            "would need pickle)")
+            raise TypeError(
+                f"checkpoint {where}: array of dtype {obj.dtype} (object arrays would need pickle)"
+            )
         name = f"a{len(arrays)}"
         arrays[name] = obj
         return {"__array__": name}
@@ -120,8 +122,10 @@ def encode(obj, arrays: dict, where: str = "state"):
         return obj.item()
     if obj is None or isinstance(obj, (bool, int, float, str)):
         return obj
-    raise TypeError(f"checkpoint {where}: a {type(obj).__name__} is not allowed (only dicts, "
-                    "lists, numpy arrays, numbers, str and None)")
+    raise TypeError(
+        f"checkpoint {where}: a {type(obj).__name__} is not allowed (only dicts, "
+        "lists, numpy arrays, numbers, str and None)"
+    )
 
 
 def decode(obj, arrays):
@@ -140,6 +144,7 @@ def normalized(value):
 
 
 # -- fingerprints -----------------------------------------------------------------------------
+
 
 def digest(*items) -> str:
     """A short SHA-256 of arrays / sparse matrices / numbers (dtype, shape and bytes)."""
@@ -176,12 +181,20 @@ def problem_fingerprint(problem) -> dict:
         z0 = problem.z0
         z1 = z0 + 0.5
         fp = {
-            "class": type(problem).__name__, "n": int(problem.n), "T": T,
-            "A": digest(problem.A), "z0": digest(z0),
+            "class": type(problem).__name__,
+            "n": int(problem.n),
+            "T": T,
+            "A": digest(problem.A),
+            "z0": digest(z0),
             "weights": digest(problem.r, problem.m),
             "load": digest(*[problem.load(t) for t in times]),
-            "F": digest(np.array([problem.F(z0), problem.F(z1)]), problem.dF(z0),
-                        problem.dF(z1), problem.d2F(z0), problem.d2F(z1)),
+            "F": digest(
+                np.array([problem.F(z0), problem.F(z1)]),
+                problem.dF(z0),
+                problem.dF(z1),
+                problem.d2F(z0),
+                problem.d2F(z1),
+            ),
         }
         if hasattr(problem, "nodes") and hasattr(problem, "cells"):
             fp["mesh"] = digest(problem.nodes, problem.cells)
@@ -189,21 +202,31 @@ def problem_fingerprint(problem) -> dict:
     if hasattr(problem, "M") and hasattr(problem, "K") and hasattr(problem, "constraint"):
         c = problem.constraint
         return {
-            "class": type(problem).__name__, "ndofs": int(problem.space.ndofs), "T": T,
-            "M": digest(problem.M), "K": digest(problem.K), "B": digest(c.B, c.dofs),
+            "class": type(problem).__name__,
+            "ndofs": int(problem.space.ndofs),
+            "T": T,
+            "M": digest(problem.M),
+            "K": digest(problem.K),
+            "B": digest(c.B, c.dofs),
             "initial": digest(problem.u0, problem.v0),
             "load": digest(*[problem.load(t) for t in times]),
             "G": digest(*[problem.G(t) for t in times]),
             # the damping force at a fixed velocity (a user's damping function is not described)
             "damping": digest(problem.damping_op.apply(np.sin(np.arange(problem.space.ndofs)))),
-            "description": digest(np.frombuffer(
-                json.dumps(problem.describe(), sort_keys=True, default=str).encode(), np.uint8)),
+            "description": digest(
+                np.frombuffer(
+                    json.dumps(problem.describe(), sort_keys=True, default=str).encode(), np.uint8
+                )
+            ),
         }
-    raise TypeError(f"cannot fingerprint a {type(problem).__name__}: give it a fingerprint() "
-                    "method returning a dict of hashes")
+    raise TypeError(
+        f"cannot fingerprint a {type(problem).__name__}: give it a fingerprint() "
+        "method returning a dict of hashes"
+    )
 
 
 # -- the checkpoint on disk -------------------------------------------------------------------
+
 
 def checkpoint_dir(path) -> Path:
     """The checkpoint directory for ``path``: ``path`` itself or ``path/checkpoint``."""
@@ -249,42 +272,56 @@ class Checkpoint:
 
     def describe_where(self) -> str:
         w = self.where
-        parts = [f"{k} = {w[k]:.6g}" if isinstance(w.get(k), float) else f"{k} = {w[k]}"
-                 for k in ("accepted_steps", "s", "t") if k in w]
+        parts = [
+            f"{k} = {w[k]:.6g}" if isinstance(w.get(k), float) else f"{k} = {w[k]}"
+            for k in ("accepted_steps", "s", "t")
+            if k in w
+        ]
         return ", ".join(parts)
 
     # -- checks -----------------------------------------------------------------------------
     def require_version(self) -> None:
         mine, theirs = package_version(), self.header.get("rothe_version")
         if theirs != mine:
-            raise CheckpointError(f"{self.directory}: written by rothe {theirs}, this is rothe "
-                                  f"{mine}; resume it with rothe {theirs} or start over")
+            raise CheckpointError(
+                f"{self.directory}: written by rothe {theirs}, this is rothe "
+                f"{mine}; resume it with rothe {theirs} or start over"
+            )
 
     def warn_if_libraries_differ(self) -> None:
         old, new = self.header.get("libraries") or {}, library_versions()
         diff = [f"{k} {old[k]} -> {new.get(k)}" for k in sorted(old) if old[k] != new.get(k)]
         if diff:
-            warnings.warn(f"{self.directory}: written with other library versions "
-                          f"({', '.join(diff)}); the resumed run may differ from an "
-                          "uninterrupted one in the last bits", CheckpointWarning, stacklevel=3)
+            warnings.warn(
+                f"{self.directory}: written with other library versions "
+                f"({', '.join(diff)}); the resumed run may differ from an "
+                "uninterrupted one in the last bits",
+                CheckpointWarning,
+                stacklevel=3,
+            )
 
     def require_resumable(self) -> None:
         if self.status == "failed":
             w = self.where
             raise CheckpointError(
                 f"{self.directory}: the run failed ({w.get('failure', 'see summary.json')}); "
-                "resuming it would repeat the failure")
+                "resuming it would repeat the failure"
+            )
 
     def require_same(self, api: str, arguments: dict, fingerprint: dict | None) -> None:
         """Refuse (one line) if the API, its arguments or the problem differ from the record."""
         if self.api != api:
             raise CheckpointError(f"{self.directory}: the checkpoint is of {self.api}, not {api}")
         old, new = self.header.get("arguments", {}), normalized(arguments)
-        diff = [f"{k} = {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-                for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+        diff = [
+            f"{k} = {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
+            for k in sorted(set(old) | set(new))
+            if old.get(k) != new.get(k)
+        ]
         if diff:
-            raise CheckpointError(f"{self.directory}: the arguments differ from the "
-                                  f"checkpoint's: {'; '.join(diff)}")
+            raise CheckpointError(
+                f"{self.directory}: the arguments differ from the checkpoint's: {'; '.join(diff)}"
+            )
         if fingerprint is not None:
             old = self.header.get("fingerprint", {})
             new = normalized(fingerprint)
@@ -292,7 +329,8 @@ class Checkpoint:
             if keys:
                 raise CheckpointError(
                     f"{self.directory}: the problem differs from the checkpoint's (in: "
-                    f"{', '.join(keys)}); resume with the same problem or start over")
+                    f"{', '.join(keys)}); resume with the same problem or start over"
+                )
 
     # -- trajectories -----------------------------------------------------------------------
     @property
@@ -317,13 +355,13 @@ class Checkpoint:
                             raise ValueError(f"{key}: {len(values)} entries, expected {count}")
                         traj.extend(key, list(values))
             except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-                raise CheckpointError(f"{path}: a trajectory segment of the checkpoint is "
-                                      f"missing or damaged ({exc})") from None
+                raise CheckpointError(
+                    f"{path}: a trajectory segment of the checkpoint is missing or damaged ({exc})"
+                ) from None
         return traj
 
 
-def load_checkpoint(path, *, check_version: bool = True, header_only: bool = False
-                    ) -> Checkpoint:
+def load_checkpoint(path, *, check_version: bool = True, header_only: bool = False) -> Checkpoint:
     """Read a checkpoint (``path`` is the checkpoint directory or a run directory holding one).
 
     Raises :class:`CheckpointError` with one line for a missing directory, a missing,
@@ -338,27 +376,34 @@ def load_checkpoint(path, *, check_version: bool = True, header_only: bool = Fal
     directory = checkpoint_dir(path)
     main = directory / MAIN
     if not main.is_file():
-        raise CheckpointError(f"{path}: no checkpoint here (no {CHECKPOINT_SUBDIR}/{MAIN}); a run "
-                              "writes one when it starts")
+        raise CheckpointError(
+            f"{path}: no checkpoint here (no {CHECKPOINT_SUBDIR}/{MAIN}); a run "
+            "writes one when it starts"
+        )
     try:
         with np.load(main, allow_pickle=False) as data:
             if "__checkpoint__" not in data.files:
                 raise CheckpointError(f"{main}: not a rothe checkpoint (no __checkpoint__ entry)")
             raw = data["__checkpoint__"]
-            header = json.loads(raw.tobytes().decode("utf-8") if raw.dtype == np.uint8
-                                else str(raw))
-            arrays = {} if header_only else {k: data[k] for k in data.files
-                                              if k != "__checkpoint__"}
+            header = json.loads(
+                raw.tobytes().decode("utf-8") if raw.dtype == np.uint8 else str(raw)
+            )
+            arrays = (
+                {} if header_only else {k: data[k] for k in data.files if k != "__checkpoint__"}
+            )
     except CheckpointError:
         raise
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
-        raise CheckpointError(f"{main}: not a readable checkpoint (truncated or damaged: "
-                              f"{type(exc).__name__}: {exc})") from None
+        raise CheckpointError(
+            f"{main}: not a readable checkpoint (truncated or damaged: {type(exc).__name__}: {exc})"
+        ) from None
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise CheckpointError(f"{main}: not a rothe checkpoint")
     if header.get("format_version") != FORMAT_VERSION:
-        raise CheckpointError(f"{main}: checkpoint format {header.get('format_version')}, this "
-                              f"rothe reads format {FORMAT_VERSION}")
+        raise CheckpointError(
+            f"{main}: checkpoint format {header.get('format_version')}, this "
+            f"rothe reads format {FORMAT_VERSION}"
+        )
     ckpt = Checkpoint(directory, header, arrays)
     if check_version:
         ckpt.require_version()
@@ -366,6 +411,7 @@ def load_checkpoint(path, *, check_version: bool = True, header_only: bool = Fal
 
 
 # -- writing ----------------------------------------------------------------------------------
+
 
 @dataclass
 class CheckpointOptions:
@@ -422,8 +468,9 @@ class DirectoryLock:
                 other = os.read(fd, 32).decode(errors="replace").strip() or "?"
             finally:
                 os.close(fd)
-            raise CheckpointError(f"{self.path.parent}: in use by another running rothe process "
-                                  f"(pid {other})") from None
+            raise CheckpointError(
+                f"{self.path.parent}: in use by another running rothe process (pid {other})"
+            ) from None
         os.ftruncate(fd, 0)
         os.write(fd, str(os.getpid()).encode())
         _HELD[key] = [fd, 1]
@@ -460,8 +507,15 @@ class Checkpointer:
     and :meth:`save` when it is, and with status ``interrupted`` / ``failed`` when it stops.
     """
 
-    def __init__(self, options: CheckpointOptions, *, api: str, arguments: dict,
-                 fingerprint: dict, restored: Checkpoint | None = None):
+    def __init__(
+        self,
+        options: CheckpointOptions,
+        *,
+        api: str,
+        arguments: dict,
+        fingerprint: dict,
+        restored: Checkpoint | None = None,
+    ):
         self.options = options
         self.directory = Path(options.path)
         self.every = options.every_seconds
@@ -515,8 +569,15 @@ class Checkpointer:
         return time.monotonic() - self._last >= self.every
 
     # -- saving -----------------------------------------------------------------------------
-    def save(self, stepper=None, controller=None, state=None, *, status: str = "running",
-             where: dict | None = None) -> Path:
+    def save(
+        self,
+        stepper=None,
+        controller=None,
+        state=None,
+        *,
+        status: str = "running",
+        where: dict | None = None,
+    ) -> Path:
         """Write a checkpoint of the run as it is now; returns the checkpoint directory."""
         if status not in STATUSES:
             raise ValueError(f"status: got {status!r}, must be one of {', '.join(STATUSES)}")
@@ -524,8 +585,7 @@ class Checkpointer:
             "stepper": None if stepper is None else stepper.checkpoint_state(state),
             "controller": None if controller is None else controller.checkpoint_state(),
             "run": self.context,
-            "attachments": {name: obj.checkpoint_state()
-                            for name, obj in self.attachments.items()},
+            "attachments": {name: obj.checkpoint_state() for name, obj in self.attachments.items()},
         }
         self.sequence += 1
         seq = self.sequence
@@ -549,17 +609,24 @@ class Checkpointer:
                 seg = {"file": name, "counts": counts}
                 segs.append(seg)
                 new_segments.append((i, seg))
-            traj_records.append({"meta": normalized(traj.meta), "stats": traj.stats.as_dict(),
-                                 "segments": segs})
+            traj_records.append(
+                {"meta": normalized(traj.meta), "stats": traj.stats.as_dict(), "segments": segs}
+            )
         arrays: dict = {}
         header = {
-            "format": FORMAT, "format_version": FORMAT_VERSION,
-            "rothe_version": package_version(), "libraries": library_versions(),
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "rothe_version": package_version(),
+            "libraries": library_versions(),
             "run_id": self.run_id,
-            "sequence": seq, "sessions": self.sessions,
+            "sequence": seq,
+            "sessions": self.sessions,
             "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "status": status, "where": normalized(where or {}),
-            "api": self.api, "arguments": self.arguments, "fingerprint": self.fingerprint,
+            "status": status,
+            "where": normalized(where or {}),
+            "api": self.api,
+            "arguments": self.arguments,
+            "fingerprint": self.fingerprint,
             "record": normalized(self.options.record or {}),
             "every_seconds": self.every,
             "trajectories": traj_records,
@@ -589,8 +656,12 @@ class Checkpointer:
             self._last = time.monotonic()  # retry at the next interval, not at every step
             if not self._warned:
                 self._warned = True
-                warnings.warn(f"checkpoint not written ({exc}); the run goes on and the "
-                              "previous checkpoint stays", CheckpointWarning, stacklevel=2)
+                warnings.warn(
+                    f"checkpoint not written ({exc}); the run goes on and the "
+                    "previous checkpoint stays",
+                    CheckpointWarning,
+                    stacklevel=2,
+                )
             return None
 
     def _remove_unreferenced(self) -> None:
@@ -620,6 +691,7 @@ def _same_dir(a: Path, b: Path) -> bool:
 
 # -- what the drivers call --------------------------------------------------------------------
 
+
 class RunCheckpointing:
     """Checkpointing and resumption of one driver call (``run_ris``, ``run_nested``, ``run_eld``).
 
@@ -644,12 +716,18 @@ class RunCheckpointing:
             ckpt.warn_if_libraries_differ()
             self.restored = ckpt
             if checkpoint is None:
-                checkpoint = CheckpointOptions(ckpt.directory, every_seconds=ckpt.every_seconds,
-                                               record=ckpt.record)
+                checkpoint = CheckpointOptions(
+                    ckpt.directory, every_seconds=ckpt.every_seconds, record=ckpt.record
+                )
         if not isinstance(checkpoint, CheckpointOptions):
             checkpoint = CheckpointOptions(checkpoint)
-        self.checkpointer = Checkpointer(checkpoint, api=api, arguments=arguments,
-                                         fingerprint=fingerprint, restored=self.restored)
+        self.checkpointer = Checkpointer(
+            checkpoint,
+            api=api,
+            arguments=arguments,
+            fingerprint=fingerprint,
+            restored=self.restored,
+        )
         if self.restored is not None:
             try:
                 self.checkpointer.restore_attachments(self.restored)

@@ -38,13 +38,15 @@ def _as_mesh(points, cells) -> tuple[np.ndarray, np.ndarray]:
     cells = np.ascontiguousarray(cells, dtype=np.int64)
     if points.ndim != 2 or points.shape[1] not in (1, 2, 3):
         raise ValueError(
-            f"points must have shape (n_vertices, d) with d in 1..3, got {points.shape}")
+            f"points must have shape (n_vertices, d) with d in 1..3, got {points.shape}"
+        )
     if cells.ndim != 2 or cells.shape[1] not in _CELL_TYPES:
         raise ValueError(f"cells must have shape (n_cells, k) with k in 2..4, got {cells.shape}")
     if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
         raise ValueError(
             f"cells refer to vertices outside 0..{len(points) - 1} "
-            f"(range {cells.min()}..{cells.max()})")
+            f"(range {cells.min()}..{cells.max()})"
+        )
     return points, cells
 
 
@@ -98,8 +100,10 @@ class MeshSeries:
 
     def npz_arrays(self, state_mesh_id) -> dict[str, np.ndarray]:
         """The arrays that store the series in an ``.npz`` (module docstring)."""
-        out = {"state_mesh_id": self._check_states(state_mesh_id),
-               "mesh_ids": np.array(self.ids, dtype=np.int64)}
+        out = {
+            "state_mesh_id": self._check_states(state_mesh_id),
+            "mesh_ids": np.array(self.ids, dtype=np.int64),
+        }
         for k in self.ids:
             points, cells = self._meshes[k]
             out[f"mesh_points_{k}"] = points
@@ -124,9 +128,11 @@ class MeshSeries:
 
     def checkpoint_state(self) -> dict:
         """Plain dict of arrays (the checkpoint protocol of issue 10: no objects)."""
-        return {"ids": np.array(self.ids, dtype=np.int64),
-                "points": {str(k): self._meshes[k][0] for k in self.ids},
-                "cells": {str(k): self._meshes[k][1] for k in self.ids}}
+        return {
+            "ids": np.array(self.ids, dtype=np.int64),
+            "points": {str(k): self._meshes[k][0] for k in self.ids},
+            "cells": {str(k): self._meshes[k][1] for k in self.ids},
+        }
 
     @classmethod
     def restore_state(cls, data) -> MeshSeries:
@@ -140,15 +146,25 @@ def _vtu_field(values, nv: int, name: str) -> np.ndarray:
     values = np.asarray(values, dtype=float)
     if values.shape[0] != nv:
         raise ValueError(
-            f"field {name!r} has {values.shape[0]} values, the state's mesh has {nv} vertices")
+            f"field {name!r} has {values.shape[0]} values, the state's mesh has {nv} vertices"
+        )
     if values.ndim == 2 and values.shape[1] == 2:
         # ParaView shows a vector (glyphs, warp) only with three components.
         values = np.column_stack([values, np.zeros(nv)])
     return values
 
 
-def write_vtu_series(directory, name: str, series: MeshSeries, state_mesh_id, times, point_data,
-                     *, cell_data=None, fsync: bool = False) -> Path:
+def write_vtu_series(
+    directory,
+    name: str,
+    series: MeshSeries,
+    state_mesh_id,
+    times,
+    point_data,
+    *,
+    cell_data=None,
+    fsync: bool = False,
+) -> Path:
     """One VTU per state on its own mesh, and ``<name>.pvd`` indexing them by time.
 
     ``point_data[i]`` maps field names to vertex values ((nv,) or (nv, d)) on the mesh of state
@@ -167,7 +183,8 @@ def write_vtu_series(directory, name: str, series: MeshSeries, state_mesh_id, ti
         raise ValueError(
             f"state_mesh_id, times, point_data (and cell_data) must have one entry per state: "
             f"got {n}, {len(times)}, {len(point_data)}"
-            + ("" if cell_data is None else f", {len(cell_data)}"))
+            + ("" if cell_data is None else f", {len(cell_data)}")
+        )
     entries = []
     for i in range(n):
         points, cells = series.mesh(state_ids[i])
@@ -178,15 +195,21 @@ def write_vtu_series(directory, name: str, series: MeshSeries, state_mesh_id, ti
         cdata = None
         if cell_data is not None and cell_data[i]:
             cdata = {k: [np.asarray(v, dtype=float)] for k, v in cell_data[i].items()}
-        mesh = meshio.Mesh(pts3, [(_CELL_TYPES[cells.shape[1]], cells)], point_data=pdata,
-                           cell_data=cdata)
+        mesh = meshio.Mesh(
+            pts3, [(_CELL_TYPES[cells.shape[1]], cells)], point_data=pdata, cell_data=cdata
+        )
         fname = f"{name}_{i:06d}.vtu"
         with atomic_path(directory / fname, fsync=fsync) as tmp:
             meshio.write(str(tmp), mesh, file_format="vtu")
-        entries.append(f'    <DataSet timestep="{float(times[i])!r}" group="" part="0" '
-                       f'file={quoteattr(fname)}/>')
-    text = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
-            + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")
+        entries.append(
+            f'    <DataSet timestep="{float(times[i])!r}" group="" part="0" '
+            f"file={quoteattr(fname)}/>"
+        )
+    text = (
+        '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
+        + "\n".join(entries)
+        + "\n  </Collection>\n</VTKFile>\n"
+    )
     return atomic_write_text(directory / f"{name}.pvd", text)
 
 

@@ -91,8 +91,10 @@ class Trajectory:
         entries = [np.asarray(e) for e in self._series.get(name, [])[start:]]
         if name not in self._ragged:
             return {name: np.stack(entries)}
-        return {name: np.concatenate(entries) if entries else np.zeros(0),
-                name + RAGGED_LENGTHS: np.array([e.size for e in entries], dtype=np.int64)}
+        return {
+            name: np.concatenate(entries) if entries else np.zeros(0),
+            name + RAGGED_LENGTHS: np.array([e.size for e in entries], dtype=np.int64),
+        }
 
     def unpacked(self, data, name: str) -> list:
         """The entries of ``name`` from arrays written by :meth:`packed` (marks it ragged)."""
@@ -133,8 +135,11 @@ class Trajectory:
         for k, v in self._series.items():
             if k in self._ragged:
                 sizes = [np.asarray(e).size for e in v]
-                out[f"{k}_flat"] = (np.concatenate([np.asarray(e, dtype=float).ravel() for e in v])
-                                    if v else np.zeros(0))
+                out[f"{k}_flat"] = (
+                    np.concatenate([np.asarray(e, dtype=float).ravel() for e in v])
+                    if v
+                    else np.zeros(0)
+                )
                 out[f"{k}_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
             else:
                 out[k] = np.array(v)
@@ -173,15 +178,15 @@ class Trajectory:
 
                 traj.meshes, _ = MeshSeries.from_npz(f)
             for key in f.files:
-                if key in ("mesh_ids", "state_mesh_id") or key.startswith(("mesh_points_",
-                                                                              "mesh_cells_")):
+                if key in ("mesh_ids", "state_mesh_id") or key.startswith(
+                    ("mesh_points_", "mesh_cells_")
+                ):
                     continue
                 if key.endswith("_flat") and key[:-5] + "_offsets" in files:
                     name = key[:-5]
                     off = f[name + "_offsets"]
                     flat = f[key]
-                    traj._series[name] = [flat[a:b] for a, b in zip(off[:-1], off[1:],
-                                                                     strict=True)]
+                    traj._series[name] = [flat[a:b] for a, b in zip(off[:-1], off[1:], strict=True)]
                     traj._ragged.add(name)
                     continue
                 if key.endswith("_offsets") and key[:-8] + "_flat" in files:
@@ -189,7 +194,7 @@ class Trajectory:
                 if key == "meta":
                     traj.meta = json.loads(str(f[key]))
                 elif key.startswith("stats_seconds_"):
-                    traj.stats.seconds[key[len("stats_seconds_"):]] = float(f[key])
+                    traj.stats.seconds[key[len("stats_seconds_") :]] = float(f[key])
                 elif key.startswith("stats_"):
                     name = key[len("stats_") :]
                     if hasattr(traj.stats, name):

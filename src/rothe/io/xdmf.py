@@ -79,8 +79,10 @@ def _check_fields(fields: dict, n: int, what: str = "nodes") -> dict[str, np.nda
         if values.ndim == 2 and values.shape == (n, 2):
             values = np.column_stack([values, np.zeros(n)])
         if values.shape not in ((n,), (n, 3), (n, 9)):
-            raise ValueError(f"{name}: got shape {values.shape}, must be ({n},), ({n}, 3) or "
-                             f"({n}, 9) (one row per {what[:-1]})")
+            raise ValueError(
+                f"{name}: got shape {values.shape}, must be ({n},), ({n}, 3) or "
+                f"({n}, 9) (one row per {what[:-1]})"
+            )
         arrays[name] = values
     return arrays
 
@@ -98,9 +100,14 @@ MAX_MERGED_BYTES = 1024 * 2**20
 
 def _item(parent, h5_name: str, dataset: str, shape, dtype):
     kind = "Float" if np.dtype(dtype).kind == "f" else "Int"
-    item = ET.SubElement(parent, "DataItem", DataType=kind,
-                         Dimensions=" ".join(map(str, shape)), Format="HDF",
-                         Precision=str(np.dtype(dtype).itemsize))
+    item = ET.SubElement(
+        parent,
+        "DataItem",
+        DataType=kind,
+        Dimensions=" ".join(map(str, shape)),
+        Format="HDF",
+        Precision=str(np.dtype(dtype).itemsize),
+    )
     item.text = f"{h5_name}:/{dataset}"
     return item
 
@@ -118,24 +125,32 @@ def xdmf_text(h5_name: str, nodes_shape, cells_shape, steps) -> str:
     grid = ET.SubElement(domain, "Grid", Name="mesh", GridType="Uniform")
     geo = ET.SubElement(grid, "Geometry", GeometryType="XY" if nodes_shape[1] == 2 else "XYZ")
     _item(geo, h5_name, "mesh/geometry", nodes_shape, float)
-    topo = ET.SubElement(grid, "Topology", TopologyType=TOPOLOGY[cells_shape[1]],
-                         NumberOfElements=str(cells_shape[0]),
-                         NodesPerElement=str(cells_shape[1]))
+    topo = ET.SubElement(
+        grid,
+        "Topology",
+        TopologyType=TOPOLOGY[cells_shape[1]],
+        NumberOfElements=str(cells_shape[0]),
+        NodesPerElement=str(cells_shape[1]),
+    )
     _item(topo, h5_name, "mesh/topology", cells_shape, np.int64)
-    series = ET.SubElement(domain, "Grid", Name="TimeSeries", GridType="Collection",
-                           CollectionType="Temporal")
+    series = ET.SubElement(
+        domain, "Grid", Name="TimeSeries", GridType="Collection", CollectionType="Temporal"
+    )
     for k, step in enumerate(steps):
         g = ET.SubElement(series, "Grid", Name=f"step_{k}", GridType="Uniform")
-        ET.SubElement(g, f"{{{XINCLUDE}}}include",
-                      xpointer='xpointer(//Grid[@Name="mesh"]/*[self::Topology or '
-                               'self::Geometry])')
+        ET.SubElement(
+            g,
+            f"{{{XINCLUDE}}}include",
+            xpointer='xpointer(//Grid[@Name="mesh"]/*[self::Topology or self::Geometry])',
+        )
         ET.SubElement(g, "Time", Value=repr(float(step["time"])))
         for key, value in (step.get("info") or {}).items():
             ET.SubElement(g, "Information", Name=str(key), Value=repr(float(value)))
         for center, key in (("Node", "fields"), ("Cell", "cell_fields")):
             for name, shape in (step.get(key) or {}).items():
-                att = ET.SubElement(g, "Attribute", Name=name,
-                                    AttributeType=_attribute_type(shape), Center=center)
+                att = ET.SubElement(
+                    g, "Attribute", Name=name, AttributeType=_attribute_type(shape), Center=center
+                )
                 _item(att, step.get("h5", h5_name), f"{name}/{k}", shape, float)
     ET.indent(root)
     return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
@@ -182,8 +197,9 @@ class StreamedSeries:
     HDF5 file(s).
     """
 
-    def __init__(self, work_dir, name: str, nodes, cells,
-                 max_segment_bytes: int = MAX_SEGMENT_BYTES):
+    def __init__(
+        self, work_dir, name: str, nodes, cells, max_segment_bytes: int = MAX_SEGMENT_BYTES
+    ):
         self.work_dir = Path(work_dir)
         self.name = name
         self.nodes, self.cells = _check_mesh(nodes, cells)
@@ -198,8 +214,9 @@ class StreamedSeries:
     def _segment_path(self, k: int) -> Path:
         return self.work_dir / f"{self.name}.seg{k:05d}.h5"
 
-    def write_step(self, time: float, fields: dict, info: dict | None = None,
-                   cell_fields: dict | None = None) -> None:
+    def write_step(
+        self, time: float, fields: dict, info: dict | None = None, cell_fields: dict | None = None
+    ) -> None:
         """Append one step: ``fields`` nodal arrays, ``cell_fields`` arrays with one row per
         cell (names distinct from the nodal ones)."""
         arrays = _check_fields(fields, self.n_nodes)
@@ -216,9 +233,12 @@ class StreamedSeries:
                 self._open.put("mesh/topology", self.cells)
         for name, values in {**arrays, **cell_arrays}.items():
             self._open.put(f"{name}/{k}", values)
-        step = {"time": float(time), "info": dict(info or {}),
-                "fields": {n: list(v.shape) for n, v in arrays.items()},
-                "segment": len(self.segments)}
+        step = {
+            "time": float(time),
+            "info": dict(info or {}),
+            "fields": {n: list(v.shape) for n, v in arrays.items()},
+            "segment": len(self.segments),
+        }
         if cell_arrays:
             step["cell_fields"] = {n: list(v.shape) for n, v in cell_arrays.items()}
         self.steps.append(step)
@@ -268,8 +288,10 @@ class StreamedSeries:
         if missing:
             from .checkpoint import CheckpointError
 
-            raise CheckpointError(f"{self.work_dir}: the streamed output segment {missing[0]} "
-                                  "of the checkpoint is missing")
+            raise CheckpointError(
+                f"{self.work_dir}: the streamed output segment {missing[0]} "
+                "of the checkpoint is missing"
+            )
 
     # -- export -------------------------------------------------------------------------------
     @staticmethod
@@ -277,8 +299,9 @@ class StreamedSeries:
         return {**step["fields"], **(step.get("cell_fields") or {})}
 
     def _data_bytes(self) -> int:
-        return sum(int(np.prod(shape)) * 8 for s in self.steps
-                   for shape in self._all_fields(s).values())
+        return sum(
+            int(np.prod(shape)) * 8 for s in self.steps for shape in self._all_fields(s).values()
+        )
 
     def export(self, directory) -> Path:
         """``directory/<name>.xdmf`` + its HDF5 file(s) with every step so far (atomically:
@@ -288,10 +311,15 @@ class StreamedSeries:
         self._close_segment()
         directory = Path(directory)
         main = f"{self.name}.h5"
-        steps = [{"time": s["time"], "info": s["info"],
-                  "fields": {n: tuple(v) for n, v in s["fields"].items()},
-                  "cell_fields": {n: tuple(v) for n, v in (s.get("cell_fields") or {}).items()}}
-                 for s in self.steps]
+        steps = [
+            {
+                "time": s["time"],
+                "info": s["info"],
+                "fields": {n: tuple(v) for n, v in s["fields"].items()},
+                "cell_fields": {n: tuple(v) for n, v in (s.get("cell_fields") or {}).items()},
+            }
+            for s in self.steps
+        ]
         if len(self.segments) == 1:
             _link_or_copy(self.work_dir / self.segments[0], directory / main)
         elif len(self.segments) > 1 and self._data_bytes() <= MAX_MERGED_BYTES:
@@ -351,8 +379,9 @@ class XdmfSeriesWriter:
         nodes, cells = _check_mesh(nodes, cells)
         self.n_nodes = nodes.shape[0]
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._work = self.path.parent / (f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-"
-                                         f"{self.path.stem}.parts")
+        self._work = self.path.parent / (
+            f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{self.path.stem}.parts"
+        )
         self._series = StreamedSeries(self._work, self.path.stem, nodes, cells)
 
     @property
@@ -396,14 +425,23 @@ class XdmfSeriesWriter:
         return False
 
 
-def write_series(path, nodes, cells, times, fields: dict[str, np.ndarray],
-                 info: dict[str, np.ndarray] | None = None) -> Path:
+def write_series(
+    path,
+    nodes,
+    cells,
+    times,
+    fields: dict[str, np.ndarray],
+    info: dict[str, np.ndarray] | None = None,
+) -> Path:
     """Write a whole series at once: ``fields[name]`` has shape (n_steps, n_nodes[, 3])."""
     times = np.asarray(times, dtype=float)
     with XdmfSeriesWriter(path, nodes, cells) as w:
         for k, time in enumerate(times):
-            w.write_step(time, {name: np.asarray(v)[k] for name, v in fields.items()},
-                         {key: np.asarray(v)[k] for key, v in (info or {}).items()})
+            w.write_step(
+                time,
+                {name: np.asarray(v)[k] for name, v in fields.items()},
+                {key: np.asarray(v)[k] for key, v in (info or {}).items()},
+            )
     return w.path
 
 
@@ -419,6 +457,7 @@ def read_series(path):
             times.append(t)
             for name, values in point_data.items():
                 values = np.asarray(values)
-                data.setdefault(name, []).append(values.ravel() if values.ndim == 2
-                                                 and values.shape[1] == 1 else values)
+                data.setdefault(name, []).append(
+                    values.ravel() if values.ndim == 2 and values.shape[1] == 1 else values
+                )
     return points, cells[0].data, np.array(times), {k: np.array(v) for k, v in data.items()}

@@ -22,6 +22,16 @@ from .executor import (
 )
 from .tasks import Task, TaskFailed, TaskResult, execute_task, task_environment
 
-__all__ = ["Executor", "Task", "TaskFailed", "TaskResult", "add_parallel_options",
-           "dask_available", "default_workers", "execute_task", "executor_from_args",
-           "run_tasks", "task_environment"]
+__all__ = [
+    "Executor",
+    "Task",
+    "TaskFailed",
+    "TaskResult",
+    "add_parallel_options",
+    "dask_available",
+    "default_workers",
+    "execute_task",
+    "executor_from_args",
+    "run_tasks",
+    "task_environment",
+]

@@ -99,12 +99,16 @@ def local_cluster(n_workers: int, **kwargs):
 
     # Dask's own log lines (a worker's heartbeat that meets the closing scheduler, a task marked
     # failed after its workers died) only repeat what the results report, with tracebacks
-    options = dict(n_workers=n_workers, threads_per_worker=1, processes=True,
-                   dashboard_address=None, silence_logs=logging.CRITICAL,
-                   # no dashboard; the scheduler's HTTP endpoints (health, metrics) on a free
-                   # port instead of 8787, which another cluster on the machine may hold
-                   scheduler_kwargs={"allowed_failures": 1, "dashboard": False,
-                                     "dashboard_address": ":0"})
+    options = dict(
+        n_workers=n_workers,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=logging.CRITICAL,
+        # no dashboard; the scheduler's HTTP endpoints (health, metrics) on a free
+        # port instead of 8787, which another cluster on the machine may hold
+        scheduler_kwargs={"allowed_failures": 1, "dashboard": False, "dashboard_address": ":0"},
+    )
     options.update(kwargs)
     # the nannies copy the configuration when they are made (and pass it to restarted workers)
     with dask.config.set({"distributed.worker.profile.enabled": False}):
@@ -123,8 +127,9 @@ class _Progress:
         if sys.stderr.isatty():
             from tqdm import tqdm
 
-            self.bar = tqdm(total=total, desc=title, unit="run", file=sys.stderr,
-                            dynamic_ncols=True, leave=True)
+            self.bar = tqdm(
+                total=total, desc=title, unit="run", file=sys.stderr, dynamic_ncols=True, leave=True
+            )
         else:
             self._line(f"{total} run{'s' if total != 1 else ''}, {where}")
 
@@ -187,8 +192,15 @@ class _StopOnSignals:
 class Executor:
     """Runs tasks in-process (``workers=1``) or on Dask (``workers > 1`` or ``scheduler``)."""
 
-    def __init__(self, workers: int | None = None, scheduler=None, *, progress: bool = True,
-                 title: str = "rothe", no_worker_timeout: float | None = None):
+    def __init__(
+        self,
+        workers: int | None = None,
+        scheduler=None,
+        *,
+        progress: bool = True,
+        title: str = "rothe",
+        no_worker_timeout: float | None = None,
+    ):
         if workers is None:
             workers = 1 if scheduler is not None else default_workers()
         self.workers = check_int("--workers", workers, minimum=1)
@@ -254,7 +266,8 @@ class Executor:
         if self._client is not None:
             return self._client
         distributed = _import_distributed(
-            "--scheduler" if self.scheduler is not None else f"--workers {self.workers}")
+            "--scheduler" if self.scheduler is not None else f"--workers {self.workers}"
+        )
         if self.scheduler is None:
             cluster = local_cluster(self.workers)
             self._owned.append(cluster)
@@ -265,14 +278,17 @@ class Executor:
         else:
             target = self.scheduler
             if isinstance(target, str) and not target.strip():
-                raise fail("--scheduler", target, "must be a scheduler address "
-                           "(e.g. tcp://host:8786)")
+                raise fail(
+                    "--scheduler", target, "must be a scheduler address (e.g. tcp://host:8786)"
+                )
             try:
                 self._client = distributed.Client(target, timeout=f"{CONNECT_TIMEOUT_S:g}s")
             except (OSError, ValueError, TypeError) as exc:
-                raise fail("--scheduler", str(target),
-                           f"cannot connect within {CONNECT_TIMEOUT_S:g} s "
-                           f"({' '.join(str(exc).split())})") from None
+                raise fail(
+                    "--scheduler",
+                    str(target),
+                    f"cannot connect within {CONNECT_TIMEOUT_S:g} s ({' '.join(str(exc).split())})",
+                ) from None
             self._owned.append(self._client)
         return self._client
 
@@ -349,8 +365,9 @@ class Executor:
                     started[i] = time.perf_counter()
                     self.started.add(i)
                 try:
-                    done, _ = distributed.wait(list(running), timeout=1.0,
-                                               return_when="FIRST_COMPLETED")
+                    done, _ = distributed.wait(
+                        list(running), timeout=1.0, return_when="FIRST_COMPLETED"
+                    )
                 except TimeoutError:  # nothing finished within 1 s: look for new workers
                     continue
                 for fut in done:
@@ -366,8 +383,10 @@ class Executor:
 
     def _give_up(self, client, tasks, pending, running, results, progress) -> None:
         """No worker for ``no_worker_timeout`` seconds: every run not finished is lost."""
-        message = (f"no worker left on the cluster for {self.no_worker_timeout:g} s "
-                   "(the worker processes died and were not restarted)")
+        message = (
+            f"no worker left on the cluster for {self.no_worker_timeout:g} s "
+            "(the worker processes died and were not restarted)"
+        )
         client.cancel(list(running))
         for i in list(running.values()) + pending:
             results[i] = TaskResult(tasks[i].key, "lost", message, worker="")
@@ -382,12 +401,18 @@ class Executor:
         try:
             return fut.result()
         except distributed.KilledWorker as exc:
-            return TaskResult(task.key, "lost", "its worker died twice while running it (killed, "
-                              f"e.g. out of memory): {' '.join(str(exc).split())}",
-                              seconds=seconds, worker="")
+            return TaskResult(
+                task.key,
+                "lost",
+                "its worker died twice while running it (killed, "
+                f"e.g. out of memory): {' '.join(str(exc).split())}",
+                seconds=seconds,
+                worker="",
+            )
         except Exception as exc:  # e.g. the task could not be unpickled on the worker
-            return TaskResult(task.key, "error", f"{type(exc).__name__}: {exc}",
-                              seconds=seconds, worker="")
+            return TaskResult(
+                task.key, "error", f"{type(exc).__name__}: {exc}", seconds=seconds, worker=""
+            )
         finally:
             # forget it on the cluster now: a finished run held there would be run again if
             # its worker died later (the scheduler recomputes lost results that are wanted)
@@ -398,24 +423,33 @@ def _safe_key(key: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.=+-]+", "_", key)[:80]
 
 
-def run_tasks(tasks, *, workers: int | None = 1, scheduler=None, progress: bool = False,
-              title: str = "rothe") -> list[TaskResult]:
+def run_tasks(
+    tasks, *, workers: int | None = 1, scheduler=None, progress: bool = False, title: str = "rothe"
+) -> list[TaskResult]:
     """Shorthand for ``Executor(workers, scheduler, progress=..., title=...).map(tasks)``."""
     return Executor(workers, scheduler, progress=progress, title=title).map(tasks)
 
 
 # -- CLI options ----------------------------------------------------------------------------------
 
+
 def add_parallel_options(parser) -> None:
     """``--workers N`` and ``--scheduler ADDRESS`` for commands that run independent runs."""
     parser.add_argument(
-        "--workers", type=int, default=None, metavar="N",
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
         help="run the independent runs on a local Dask cluster of N worker processes "
-             "(default: the number of cores if Dask is installed, else 1; 1 = one after another "
-             "in this process, no Dask; env ROTHE_WORKERS sets the default)")
+        "(default: the number of cores if Dask is installed, else 1; 1 = one after another "
+        "in this process, no Dask; env ROTHE_WORKERS sets the default)",
+    )
     parser.add_argument(
-        "--scheduler", default=None, metavar="ADDRESS",
-        help="address of an existing Dask scheduler (e.g. tcp://host:8786) to run on instead")
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="address of an existing Dask scheduler (e.g. tcp://host:8786) to run on instead",
+    )
 
 
 def executor_from_args(args, title: str) -> Executor:
@@ -425,20 +459,34 @@ def executor_from_args(args, title: str) -> Executor:
         workers = check_int("--workers", workers, minimum=1)
     if args.scheduler is not None:
         if workers is not None:
-            raise fail("--workers", workers, "cannot be combined with --scheduler (the cluster "
-                       "has its own workers)")
+            raise fail(
+                "--workers",
+                workers,
+                "cannot be combined with --scheduler (the cluster has its own workers)",
+            )
         if not args.scheduler.strip():
-            raise fail("--scheduler", args.scheduler, "must be a scheduler address "
-                       "(e.g. tcp://host:8786)")
+            raise fail(
+                "--scheduler", args.scheduler, "must be a scheduler address (e.g. tcp://host:8786)"
+            )
     if workers is not None and workers > 1 and not dask_available():
-        raise RotheInputError(f"--workers {workers} needs dask.distributed: {INSTALL_HINT} "
-                              "(or --workers 1)")
+        raise RotheInputError(
+            f"--workers {workers} needs dask.distributed: {INSTALL_HINT} (or --workers 1)"
+        )
     if args.scheduler is not None and not dask_available():
         raise RotheInputError(f"--scheduler needs dask.distributed: {INSTALL_HINT}")
-    return Executor(workers, args.scheduler, progress=not getattr(args, "quiet", False),
-                    title=title)
+    return Executor(
+        workers, args.scheduler, progress=not getattr(args, "quiet", False), title=title
+    )
 
 
-__all__ = ["CONNECT_TIMEOUT_S", "LOCAL_NO_WORKER_TIMEOUT_S", "Executor", "add_parallel_options",
-           "dask_available", "default_workers", "executor_from_args", "local_cluster",
-           "run_tasks"]
+__all__ = [
+    "CONNECT_TIMEOUT_S",
+    "LOCAL_NO_WORKER_TIMEOUT_S",
+    "Executor",
+    "add_parallel_options",
+    "dask_available",
+    "default_workers",
+    "executor_from_args",
+    "local_cluster",
+    "run_tasks",
+]

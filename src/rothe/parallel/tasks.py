@@ -131,8 +131,15 @@ def execute_task(task: Task) -> TaskResult:
         except Exception as exc:  # any other defect of one run must not stop the others
             status, message = "error", f"{type(exc).__name__}: {exc}"
             detail = traceback.format_exc()
-    return TaskResult(task.key, status, _one_line(message), value,
-                      time.perf_counter() - t0, _worker_name(), detail)
+    return TaskResult(
+        task.key,
+        status,
+        _one_line(message),
+        value,
+        time.perf_counter() - t0,
+        _worker_name(),
+        detail,
+    )
 
 
 __all__ = ["STATUSES", "Task", "TaskFailed", "TaskResult", "execute_task", "task_environment"]

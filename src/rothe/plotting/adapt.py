@@ -34,8 +34,9 @@ def _visible_triangles(points: np.ndarray, cells: np.ndarray):
     (faces found by sorting the packed vertex triples: no loop over cells)."""
     if points.shape[1] == 2:
         return points, cells
-    faces = np.concatenate([cells[:, [1, 2, 3]], cells[:, [0, 2, 3]],
-                            cells[:, [0, 1, 3]], cells[:, [0, 1, 2]]])
+    faces = np.concatenate(
+        [cells[:, [1, 2, 3]], cells[:, [0, 2, 3]], cells[:, [0, 1, 3]], cells[:, [0, 1, 2]]]
+    )
     opposite = np.concatenate([cells[:, 0], cells[:, 1], cells[:, 2], cells[:, 3]])
     key = np.sort(faces, axis=1)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
@@ -70,8 +71,9 @@ def plot_mesh_snapshots(path, series, state_mesh_id, times, values, indices, tit
         xy, tri = _visible_triangles(points, cells)
         if v.ndim == 2:
             v = np.linalg.norm(v, axis=1)
-        pc = ax.tripcolor(xy[:, 0], xy[:, 1], tri, v, shading="gouraud", vmin=lo, vmax=hi,
-                          cmap="viridis")
+        pc = ax.tripcolor(
+            xy[:, 0], xy[:, 1], tri, v, shading="gouraud", vmin=lo, vmax=hi, cmap="viridis"
+        )
         ax.triplot(xy[:, 0], xy[:, 1], tri, color="k", lw=0.2, alpha=0.6)
         ax.set_aspect("equal")
         ax.set_title(f"t = {times[i]:.4g}, {len(points)} vertices", fontsize=9)

@@ -169,21 +169,27 @@ class RISAdaptivity:
     (the relaxation uses the step's solver).
     """
 
-    def __init__(self, problem, options: SpaceAdaptivity, *, reaction: str = "lambda",
-                 times=None, inner=None):
+    def __init__(
+        self, problem, options: SpaceAdaptivity, *, reaction: str = "lambda", times=None, inner=None
+    ):
         if not isinstance(options, SpaceAdaptivity):
-            raise RotheInputError(f"space: got a {type(options).__name__}, must be a "
-                                  "rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
+            raise RotheInputError(
+                f"space: got a {type(options).__name__}, must be a "
+                "rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)"
+            )
         if not hasattr(problem, "on_mesh"):
-            raise RotheInputError(f"space: got a {type(problem).__name__} problem, space "
-                                  "adaptivity needs a finite-element RIS (FERISProblem)")
+            raise RotheInputError(
+                f"space: got a {type(problem).__name__} problem, space "
+                "adaptivity needs a finite-element RIS (FERISProblem)"
+            )
         problem.check_movable("space" if options.naming == "api" else "--adapt-space")
         self.options = options
         self.initial = problem
         self.reaction = reaction
         self.inner = inner
-        self.meshes = MeshAdaptation(problem.mesh, options, degree=1, times=times,
-                                     hysteresis=HYSTERESIS)
+        self.meshes = MeshAdaptation(
+            problem.mesh, options, degree=1, times=times, hysteresis=HYSTERESIS
+        )
         self.series = MeshSeries()
         self.series.add(0, problem.mesh.p.T, problem.mesh.t.T)
         self.adaptations = 0  # adaptations that changed the mesh
@@ -210,11 +216,20 @@ class RISAdaptivity:
         reaction = lam if self.reaction == "lambda" else 0.0
         if self._evaluator is None or self._evaluator[0] is not problem.mesh:
             # the geometry, topology and quadrature of a mesh serve every adaptation on it
-            self._evaluator = (problem.mesh, SimplexEvaluator(problem.mesh, 1, cell_order=4,
-                                                              facet_order=1))
-        ind = ris_indicators_for(problem, t_prev, z, z_prev, lam,
-                                 coefficient=problem.coefficient, reaction=reaction,
-                                 evaluator=self._evaluator[1])
+            self._evaluator = (
+                problem.mesh,
+                SimplexEvaluator(problem.mesh, 1, cell_order=4, facet_order=1),
+            )
+        ind = ris_indicators_for(
+            problem,
+            t_prev,
+            z,
+            z_prev,
+            lam,
+            coefficient=problem.coefficient,
+            reaction=reaction,
+            evaluator=self._evaluator[1],
+        )
         return ind.eta
 
     def keep_cells(self, problem, target, amesh) -> np.ndarray:
@@ -253,33 +268,64 @@ class RISAdaptivity:
             raise ValueError("the transferred state has the wrong size")
         increment = P @ state.increment if state.increment is not None else None
         energy = energy_or_fail(new_problem.energy(state.t, z_new))
-        return _Moving(z_new, increment, P @ state.z_prev, state.lam, state.t_prev, state.t,
-                       state.tau, state.energy, transfer_energy=energy - state.energy)
+        return _Moving(
+            z_new,
+            increment,
+            P @ state.z_prev,
+            state.lam,
+            state.t_prev,
+            state.t,
+            state.tau,
+            state.energy,
+            transfer_energy=energy - state.energy,
+        )
 
     def relax(self, new_problem, state: _Moving) -> _Moving:
         """z* on the new mesh: the step re-solved at its own multiplier from T z_k (module
         docstring); raises :class:`RelaxationRefused` if the solver finds none nearby."""
         zt, anchor = state.z, state.z_prev
-        rho = (new_problem.norm_V(zt - anchor)
-               + RELAX_SCALE * (new_problem.norm_V(zt) + state.tau))
+        rho = new_problem.norm_V(zt - anchor) + RELAX_SCALE * (new_problem.norm_V(zt) + state.tau)
         solver = BallStepSolver(_FixedMultiplier(new_problem, anchor, state.lam), self.inner)
         res = solver.solve(state.t_prev, anchor, rho, start=zt - anchor)
         if not res.converged:
-            raise RelaxationRefused(f"the relaxation of the transferred state did not converge "
-                                    f"({res.code})")
+            raise RelaxationRefused(
+                f"the relaxation of the transferred state did not converge ({res.code})"
+            )
         if res.lam > 0:
-            raise RelaxationRefused(f"no stationary point within {rho:.3g} of the transferred "
-                                    "state")
+            raise RelaxationRefused(
+                f"no stationary point within {rho:.3g} of the transferred state"
+            )
         e_t = new_problem.energy(state.t, zt)
         e_relaxed = energy_or_fail(new_problem.energy(state.t, res.z))
-        return _Moving(res.z, state.increment, state.z_prev, state.lam, state.t_prev, state.t,
-                       state.tau, state.energy, transfer_energy=state.transfer_energy,
-                       relax_energy=e_relaxed - e_t,
-                       relax_dissipation=float(new_problem.dissipation(res.z - zt)))
+        return _Moving(
+            res.z,
+            state.increment,
+            state.z_prev,
+            state.lam,
+            state.t_prev,
+            state.t,
+            state.tau,
+            state.energy,
+            transfer_energy=state.transfer_energy,
+            relax_energy=e_relaxed - e_t,
+            relax_dissipation=float(new_problem.dissipation(res.z - zt)),
+        )
 
     # -- after an accepted step ----------------------------------------------------------------
-    def adapt(self, problem, t_prev: float, z_prev, z, lam: float, increment,
-              t: float, energy: float, *, step: int, tau: float) -> RISAdaptStep:
+    def adapt(
+        self,
+        problem,
+        t_prev: float,
+        z_prev,
+        z,
+        lam: float,
+        increment,
+        t: float,
+        energy: float,
+        *,
+        step: int,
+        tau: float,
+    ) -> RISAdaptStep:
         """The adapt step after the accepted step number ``step`` (1-based) from (t_prev,
         z_prev) to z (multiplier lam, radius tau, energy I(t, z)) on ``problem``'s mesh.
 
@@ -307,13 +353,22 @@ class RISAdaptivity:
         moved: _Moving = out.state
         self.adaptations += 1
         self.series.add(self.meshes.mesh_id, self.meshes.amesh.points, self.meshes.amesh.cells)
-        self.last_change = {"mesh_id": self.mesh_id, "estimate": float(out.estimate),
-                            "bisections": out.bisections, "merges": out.merges,
-                            "dofs": int(new_problem.n)}
-        return RISAdaptStep(True, new_problem, moved.z, moved.increment,
-                            transfer_energy=float(moved.transfer_energy),
-                            relax_energy=float(moved.relax_energy),
-                            relax_dissipation=float(moved.relax_dissipation))
+        self.last_change = {
+            "mesh_id": self.mesh_id,
+            "estimate": float(out.estimate),
+            "bisections": out.bisections,
+            "merges": out.merges,
+            "dofs": int(new_problem.n),
+        }
+        return RISAdaptStep(
+            True,
+            new_problem,
+            moved.z,
+            moved.increment,
+            transfer_energy=float(moved.transfer_energy),
+            relax_energy=float(moved.relax_energy),
+            relax_dissipation=float(moved.relax_dissipation),
+        )
 
     @staticmethod
     def ledger(adapted: RISAdaptStep | None, result) -> dict:
@@ -322,17 +377,22 @@ class RISAdaptivity:
         change) and ``dissipation`` R(z_k - z_{k-1}) of the step itself, so that the ledger
         compares them with the path's own dissipation."""
         changed = adapted is not None
-        return {"transfer_energy": adapted.transfer_energy if changed else 0.0,
-                "relax_energy": adapted.relax_energy if changed else 0.0,
-                "relax_dissipation": adapted.relax_dissipation if changed else 0.0,
-                "dissipation": float(result.problem.dissipation(result.increment))}
+        return {
+            "transfer_energy": adapted.transfer_energy if changed else 0.0,
+            "relax_energy": adapted.relax_energy if changed else 0.0,
+            "relax_dissipation": adapted.relax_dissipation if changed else 0.0,
+            "dissipation": float(result.problem.dissipation(result.increment)),
+        }
 
     def meta(self) -> dict:
         """The counts of the run's adaptations, for ``trajectory.meta``."""
-        return {"space_adaptations": self.adaptations,
-                "transfer_failures": self.transfer_failures, "final_mesh_id": self.mesh_id,
-                "relax_refused": self.relax_refused,
-                "max_recoarsened": self.max_recoarsened()}
+        return {
+            "space_adaptations": self.adaptations,
+            "transfer_failures": self.transfer_failures,
+            "final_mesh_id": self.mesh_id,
+            "relax_refused": self.relax_refused,
+            "max_recoarsened": self.max_recoarsened(),
+        }
 
     def max_recoarsened(self) -> int:
         """The most times any vertex has been removed (a cell coarsened after a refinement)."""
@@ -341,10 +401,14 @@ class RISAdaptivity:
     # -- checkpoint protocol -------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
         data = self.meshes.checkpoint_state()
-        data.update({"series": self.series.checkpoint_state(),
-                     "adaptations": int(self.adaptations),
-                     "transfer_failures": int(self.transfer_failures),
-                     "relax_refused": int(self.relax_refused)})
+        data.update(
+            {
+                "series": self.series.checkpoint_state(),
+                "adaptations": int(self.adaptations),
+                "transfer_failures": int(self.transfer_failures),
+                "relax_refused": int(self.relax_refused),
+            }
+        )
         return data
 
     def restore_state(self, data: dict):

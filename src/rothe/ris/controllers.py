@@ -226,8 +226,9 @@ class RegimeController(StepController):
     #: 1/100 gave 0.12-0.23 of uniform's solves at equal L-infinity error instead of 0.12-0.38.
     crossing_fraction = 0.01
 
-    def __init__(self, tol, tau0, tau_min=1e-12, tau_max=math.inf, theta: float = 0.5,
-                 grow: float = 4.0):
+    def __init__(
+        self, tol, tau0, tau_min=1e-12, tau_max=math.inf, theta: float = 0.5, grow: float = 4.0
+    ):
         super().__init__(tau0, tau_min, tau_max)
         self.tol = check_positive("tol", tol)
         self.theta = check_positive("theta", theta)
@@ -328,9 +329,10 @@ class RegimeController(StepController):
 
     def _extra_state(self) -> dict:
         return {
-            "models": {r: {"p": float(m["p"]), "history": [[float(e), float(t)]
-                                                           for e, t in m["history"]]}
-                       for r, m in self._models.items()},
+            "models": {
+                r: {"p": float(m["p"]), "history": [[float(e), float(t)] for e, t in m["history"]]}
+                for r, m in self._models.items()
+            },
             "last_regime": self._last_regime,
             "rejected": None if self._rejected is None else dict(self._rejected),
             "s": float(self._s),
@@ -338,13 +340,17 @@ class RegimeController(StepController):
         }
 
     def _restore_extra(self, data: dict) -> None:
-        self._models = {r: {"p": float(m["p"]), "history": [[float(e), float(t)]
-                                                            for e, t in m["history"]]}
-                        for r, m in data["models"].items()}
+        self._models = {
+            r: {"p": float(m["p"]), "history": [[float(e), float(t)] for e, t in m["history"]]}
+            for r, m in data["models"].items()
+        }
         self._last_regime = data["last_regime"]
         rej = data["rejected"]
-        self._rejected = None if rej is None else {"tau": float(rej["tau"]), "e": float(rej["e"]),
-                                                   "regime": str(rej["regime"])}
+        self._rejected = (
+            None
+            if rej is None
+            else {"tau": float(rej["tau"]), "e": float(rej["e"]), "regime": str(rej["regime"])}
+        )
         self._s = float(data["s"])
         self._onset_samples = [[float(a), float(b)] for a, b in data["onset_samples"]]
 
@@ -374,5 +380,3 @@ def make_controller(
     if control == "regime":
         return RegimeController(tol, tau, tau_min, tau_max)
     raise fail("control", control, "must be one of " + ", ".join(CONTROLS))
-
-

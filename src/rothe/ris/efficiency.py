@@ -88,9 +88,19 @@ def _ris_solve(mesh, zs: ScalarField, lam: float, kappa: float):
     return full, load, bool(np.all(z > 0))
 
 
-def ris_study(dim: int = 2, profile="front", *, n0: int = 4, adaptive: bool = True,
-              max_dofs: int = 5000, theta: float = 0.5, lam: float = 250.0, kappa: float = 1.0,
-              width: float = 0.05, max_levels: int = 40) -> list[dict]:
+def ris_study(
+    dim: int = 2,
+    profile="front",
+    *,
+    n0: int = 4,
+    adaptive: bool = True,
+    max_dofs: int = 5000,
+    theta: float = 0.5,
+    lam: float = 250.0,
+    kappa: float = 1.0,
+    width: float = 0.05,
+    max_levels: int = 40,
+) -> list[dict]:
     """Rows (dofs, cells, estimate, error, efficiency, positive) of the RIS step study.
 
     ``positive``: all free nodal values of z_h > 0, i.e. the subgradient kappa sign(z_h - 0)
@@ -103,16 +113,25 @@ def ris_study(dim: int = 2, profile="front", *, n0: int = 4, adaptive: bool = Tr
     for _ in range(max_levels):
         mesh = amesh.mesh
         z, load, positive = _ris_solve(mesh, zs, lam, kappa)
-        ind = ris_indicators(mesh, z, np.zeros_like(z), dg=_dg, load=load, kappa=kappa, lam=lam,
-                             reaction=lam)
+        ind = ris_indicators(
+            mesh, z, np.zeros_like(z), dg=_dg, load=load, kappa=kappa, lam=lam, reaction=lam
+        )
 
         def energy(e, ge):
             return np.sum(ge * ge, axis=0) + lam * e * e
 
         err = energy_error(mesh, 1, z, zs.value, zs.grad, energy)
         n_free = int(np.count_nonzero(z))
-        rows.append({"dofs": n_free, "cells": mesh.t.shape[1], "estimate": ind.estimate,
-                     "error": err, "efficiency": ind.estimate / err, "positive": positive})
+        rows.append(
+            {
+                "dofs": n_free,
+                "cells": mesh.t.shape[1],
+                "estimate": ind.estimate,
+                "error": err,
+                "efficiency": ind.estimate / err,
+                "positive": positive,
+            }
+        )
         if n_free >= max_dofs:
             break
         if adaptive:
@@ -120,5 +139,3 @@ def ris_study(dim: int = 2, profile="front", *, n0: int = 4, adaptive: bool = Tr
         else:
             amesh.uniform(dim)
     return rows
-
-

@@ -62,8 +62,9 @@ from .problem import RISProblem
 
 #: points where g', g'' are compared with finite differences of g and g' (irrational-ish, so
 #: that kinks of a piecewise g at round numbers are not hit)
-DERIVATIVE_CHECK_POINTS = np.array([-2.31, -1.13, -0.617, -0.0931, 0.0, 0.0713, 0.389, 0.94,
-                                    1.27, 2.58])
+DERIVATIVE_CHECK_POINTS = np.array(
+    [-2.31, -1.13, -0.617, -0.0931, 0.0, 0.0713, 0.389, 0.94, 1.27, 2.58]
+)
 
 ScalarFn = Callable[[np.ndarray], np.ndarray]
 
@@ -72,19 +73,26 @@ def _vectorized(label: str, fn: ScalarFn, x: np.ndarray) -> np.ndarray:
     try:
         y = np.asarray(fn(x), dtype=float)
     except Exception as exc:  # the user's function: any failure is bad input
-        raise bad(label, f"an error on a numpy array ({type(exc).__name__}: {exc})",
-                   "must be a vectorized function of a numpy array") from None
+        raise bad(
+            label,
+            f"an error on a numpy array ({type(exc).__name__}: {exc})",
+            "must be a vectorized function of a numpy array",
+        ) from None
     if y.shape != x.shape:
         if y.ndim == 0:
             y = np.full(x.shape, float(y))
         else:
-            raise bad(label, f"an array of shape {y.shape} for input shape {x.shape}",
-                       "must return one value per entry")
+            raise bad(
+                label,
+                f"an array of shape {y.shape} for input shape {x.shape}",
+                "must return one value per entry",
+            )
     return y
 
 
-def check_pointwise_derivatives(g: ScalarFn, dg: ScalarFn, d2g: ScalarFn,
-                                points=DERIVATIVE_CHECK_POINTS) -> None:
+def check_pointwise_derivatives(
+    g: ScalarFn, dg: ScalarFn, d2g: ScalarFn, points=DERIVATIVE_CHECK_POINTS
+) -> None:
     """Compare dg with central differences of g and d2g with those of dg at a few points.
 
     A derivative passes at a point if it matches the difference quotient to a relative 1e-5 for
@@ -172,9 +180,20 @@ class FERISProblem(RISProblem):
         load_density_rate: Callable[[float, np.ndarray], object] | None = None,
     ):
         # what on_mesh needs to build the same problem on another mesh
-        self._spec = dict(g=g, dg=dg, d2g=d2g, load=load, kappa=kappa, coefficient=coefficient,
-                          T=T, dirichlet=dirichlet, load_rate=load_rate, name=name,
-                          load_density=load_density, load_density_rate=load_density_rate)
+        self._spec = dict(
+            g=g,
+            dg=dg,
+            d2g=d2g,
+            load=load,
+            kappa=kappa,
+            coefficient=coefficient,
+            T=T,
+            dirichlet=dirichlet,
+            load_rate=load_rate,
+            name=name,
+            load_density=load_density,
+            load_density_rate=load_density_rate,
+        )
         self.coefficient = coefficient
         self.mesh = check_mesh(mesh)
         self.dim = mesh_dim(mesh)
@@ -184,12 +203,18 @@ class FERISProblem(RISProblem):
         fixed = boundary_nodes(mesh, dirichlet)
         if fixed.size == 0:
             where = "the mesh boundary" if dirichlet is None else f"boundary parts {dirichlet}"
-            raise bad("mesh", f"a mesh with no nodes on {where} ({describe(mesh)})",
-                       "homogeneous Dirichlet data needs at least one boundary node")
+            raise bad(
+                "mesh",
+                f"a mesh with no nodes on {where} ({describe(mesh)})",
+                "homogeneous Dirichlet data needs at least one boundary node",
+            )
         free, fixed = split_dofs(n_nodes, fixed)
         if free.size == 0:
-            raise bad("mesh", f"a mesh whose {n_nodes} nodes all lie on the Dirichlet boundary",
-                       "needs at least one interior node (refine the mesh)")
+            raise bad(
+                "mesh",
+                f"a mesh whose {n_nodes} nodes all lie on the Dirichlet boundary",
+                "needs at least one interior node (refine the mesh)",
+            )
         self.free, self.fixed = free, fixed
         self.n_nodes = n_nodes
         self.dirichlet = dirichlet
@@ -202,15 +227,20 @@ class FERISProblem(RISProblem):
         self.m_all = m_all
         if load_density is not None:
             if load is not None:
-                raise bad("load", "a load together with load_density",
-                          "give one of them (load=None with a density)")
+                raise bad(
+                    "load",
+                    "a load together with load_density",
+                    "give one of them (load=None with a density)",
+                )
             load = _nodal_from_density(load_density, mesh, m_all, "load_density")
             if load_density_rate is not None:
-                load_rate = _nodal_from_density(load_density_rate, mesh, m_all,
-                                                "load_density_rate")
+                load_rate = _nodal_from_density(load_density_rate, mesh, m_all, "load_density_rate")
         elif load is None:
-            raise bad("load", "None", "must be a callable t -> density or nodal functionals "
-                                      "(or give load_density)")
+            raise bad(
+                "load",
+                "None",
+                "must be a callable t -> density or nodal functionals (or give load_density)",
+            )
         m = m_all[free]
         K = stiffness(mesh, coefficient)
         A = sp.csr_matrix(K[free][:, free])
@@ -234,8 +264,11 @@ class FERISProblem(RISProblem):
             metric_weights=m,
             z0=z0_free,
             T=T,
-            load_rate=(None if load_rate is None else
-                       (lambda t: self._load_vector(self._user_load_rate, t, "load_rate"))),
+            load_rate=(
+                None
+                if load_rate is None
+                else (lambda t: self._load_vector(self._user_load_rate, t, "load_rate"))
+            ),
             name=name,
             # F' and F'' are exact sums of the pointwise g', g'' checked above
             check_derivatives=False,
@@ -255,13 +288,19 @@ class FERISProblem(RISProblem):
         if spec["load_density"] is None:
             val = np.asarray(spec["load"](0.0), dtype=float)
             if val.ndim != 0:
-                raise bad(name, "a load given as nodal functionals of one mesh",
-                          "needs a load density (a number per t, or load_density(t, x)) so "
-                          "that the load can be evaluated on every adapted mesh")
+                raise bad(
+                    name,
+                    "a load given as nodal functionals of one mesh",
+                    "needs a load density (a number per t, or load_density(t, x)) so "
+                    "that the load can be evaluated on every adapted mesh",
+                )
         c = spec["coefficient"]
         if not callable(c) and np.ndim(c) != 0:
-            raise bad(name, "a coefficient given per cell of one mesh",
-                      "needs a number or a callable c(x)")
+            raise bad(
+                name,
+                "a coefficient given per cell of one mesh",
+                "needs a number or a callable c(x)",
+            )
 
     def on_mesh(self, mesh) -> FERISProblem:
         """The same problem (g, load, kappa, c, T, Dirichlet parts, name) on ``mesh``, z0 = 0.
@@ -280,19 +319,24 @@ class FERISProblem(RISProblem):
         try:
             val = fn(t)
         except Exception as exc:
-            raise DataError(f"{name}: got an error ({type(exc).__name__}: {exc}), must evaluate "
-                            "for t in [0, T]") from None
+            raise DataError(
+                f"{name}: got an error ({type(exc).__name__}: {exc}), must evaluate for t in [0, T]"
+            ) from None
         try:
             val = np.asarray(val, dtype=float)
         except (TypeError, ValueError):
-            raise DataError(f"{name}: got a {type(val).__name__}, must be a number (density) or "
-                            f"one nodal functional per node ({self.n_nodes})") from None
+            raise DataError(
+                f"{name}: got a {type(val).__name__}, must be a number (density) or "
+                f"one nodal functional per node ({self.n_nodes})"
+            ) from None
         if val.ndim == 0:
             _finite_data(name, val)
             return float(val) * self.m_all[self.free]
         if val.shape != (self.n_nodes,):
-            raise DataError(f"{name}: got an array of shape {val.shape}, must be a number "
-                            f"(density) or one nodal functional per node ({self.n_nodes})")
+            raise DataError(
+                f"{name}: got an array of shape {val.shape}, must be a number "
+                f"(density) or one nodal functional per node ({self.n_nodes})"
+            )
         _finite_data(name, val[self.free])
         return val[self.free]
 
@@ -312,14 +356,20 @@ class FERISProblem(RISProblem):
         if z.shape == (n_free,) and n_free != self.n_nodes:
             return check_finite_array("z0", z).copy()
         if z.shape != (self.n_nodes,):
-            raise bad("z0", f"an array of shape {z.shape}",
-                       f"must be a number, a callable, or values at all {self.n_nodes} nodes "
-                       f"or at the {n_free} free nodes")
+            raise bad(
+                "z0",
+                f"an array of shape {z.shape}",
+                f"must be a number, a callable, or values at all {self.n_nodes} nodes "
+                f"or at the {n_free} free nodes",
+            )
         check_finite_array("z0", z)
         on_bnd = np.abs(z[self.fixed]).max()
         if on_bnd > 0:
-            raise bad("z0", f"values up to {on_bnd:g} on Dirichlet nodes",
-                       "must vanish there (homogeneous Dirichlet data)")
+            raise bad(
+                "z0",
+                f"values up to {on_bnd:g} on Dirichlet nodes",
+                "must vanish there (homogeneous Dirichlet data)",
+            )
         return z[self.free].copy()
 
     # -- F by nodal quadrature ----------------------------------------------------------------
@@ -361,8 +411,10 @@ def _nodal_from_density(density, mesh, m_all: np.ndarray, label: str):
         if val.ndim == 0:
             return float(val) * m_all
         if val.shape != (x.shape[1],):
-            raise DataError(f"{label}(t={t:g}): got an array of shape {val.shape}, must be one "
-                            f"value per point ({x.shape[1]})")
+            raise DataError(
+                f"{label}(t={t:g}): got an array of shape {val.shape}, must be one "
+                f"value per point ({x.shape[1]})"
+            )
         return val * m_all
 
     return nodal
@@ -401,13 +453,17 @@ def _check_every_component_held(mesh, fixed: np.ndarray, dirichlet) -> None:
     if not held.all():
         free_parts = int(np.count_nonzero(~held))
         where = "the boundary" if dirichlet is None else f"boundary parts {dirichlet}"
-        raise bad("mesh", f"a mesh of {count} disconnected parts, {free_parts} of them without "
-                          f"a node on {where} ({describe(mesh)})",
-                  "every part needs a Dirichlet node (else A is singular: the energy is flat "
-                  "along z + const on that part)")
+        raise bad(
+            "mesh",
+            f"a mesh of {count} disconnected parts, {free_parts} of them without "
+            f"a node on {where} ({describe(mesh)})",
+            "every part needs a Dirichlet node (else A is singular: the energy is flat "
+            "along z + const on that part)",
+        )
 
 
 # -- Example 7.2 and its 3D analogue ----------------------------------------------------------
+
 
 def g_7_2(z):
     """g(z) = 48 (1 - z^2)^2, the double well of (7.2)."""
@@ -422,9 +478,18 @@ def d2g_7_2(z):
     return 576.0 * z * z - 192.0
 
 
-def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, kappa: float = 1.0,
-                T: float = 1.0, dirichlet=None, pattern: str = "tensor",
-                name: str = "ris-2d") -> FERISProblem:
+def example_7_2(
+    n: int = 40,
+    mesh=None,
+    *,
+    amplitude: float = -200.0,
+    z0=0.0,
+    kappa: float = 1.0,
+    T: float = 1.0,
+    dirichlet=None,
+    pattern: str = "tensor",
+    name: str = "ris-2d",
+) -> FERISProblem:
     """Example 7.2 of Andreia & Meyer (2022), Sec. 7.2.
 
     Omega = (0,1)^2 (an n x n-cell grid, (n+1)^2 nodes; 1681 nodes for the default n = 40) or
@@ -436,9 +501,17 @@ def example_7_2(n: int = 40, mesh=None, *, amplitude: float = -200.0, z0=0.0, ka
     return _energy_7_2_on(mesh, 2, amplitude, z0, kappa, T, dirichlet, name)
 
 
-def example_7_2_3d(n: int = 12, mesh=None, *, amplitude: float = -200.0, z0=0.0,
-                   kappa: float = 1.0, T: float = 1.0, dirichlet=None,
-                   name: str = "ris-3d") -> FERISProblem:
+def example_7_2_3d(
+    n: int = 12,
+    mesh=None,
+    *,
+    amplitude: float = -200.0,
+    z0=0.0,
+    kappa: float = 1.0,
+    T: float = 1.0,
+    dirichlet=None,
+    name: str = "ris-3d",
+) -> FERISProblem:
     """The energy of Example 7.2 on the unit cube (n^3 cubes, 6 tetrahedra each) or a 3D mesh.
 
     Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
@@ -458,17 +531,28 @@ def _energy_7_2_on(mesh, dim, amplitude, z0, kappa, T, dirichlet, name) -> FERIS
     amplitude = check_real("amplitude", amplitude)
     if mesh_dim(mesh) != dim:
         cells = "triangles" if dim == 2 else "tetrahedra"
-        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-                  f"must be {dim}D ({cells}) for {name}")
+        raise bad(
+            "mesh",
+            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+            f"must be {dim}D ({cells}) for {name}",
+        )
     return FERISProblem(
-        mesh, g_7_2, dg_7_2, d2g_7_2,
+        mesh,
+        g_7_2,
+        dg_7_2,
+        d2g_7_2,
         load=lambda t: amplitude * t**3,
         load_rate=lambda t: 3.0 * amplitude * t**2,
-        kappa=kappa, z0=z0, T=T, dirichlet=dirichlet, name=name,
+        kappa=kappa,
+        z0=z0,
+        T=T,
+        dirichlet=dirichlet,
+        name=name,
     )
 
 
 # -- which stationary branch a run followed -----------------------------------------------------
+
 
 def _zero_dt_runs(traj, rel: float):
     """(starts, ends, tiny) of the maximal runs of accepted steps with t_k - t_{k-1} <= rel tau_k.
@@ -513,8 +597,7 @@ def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
         before = np.nonzero(~tiny[:a])[0]
         if before.size and s[b] - s[a] <= tau[before[-1]] * (1 + 1e-9):
             continue
-        out.append({"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]),
-                    "steps": steps})
+        out.append({"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]), "steps": steps})
     return out
 
 
@@ -548,8 +631,9 @@ def nodal_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     d = points.shape[1]
     edges = points[cells[:, 1:]] - points[cells[:, :1]]  # (nc, d, d)
     vol = np.abs(np.linalg.det(edges)) / math.factorial(d)
-    return np.bincount(cells.ravel(), weights=np.repeat(vol / (d + 1), d + 1),
-                       minlength=len(points))
+    return np.bincount(
+        cells.ravel(), weights=np.repeat(vol / (d + 1), d + 1), minlength=len(points)
+    )
 
 
 def describe_branch(problem: FERISProblem, traj) -> dict:
@@ -578,9 +662,11 @@ def describe_branch(problem: FERISProblem, traj) -> dict:
         "n_viscous_jumps": len(jumps),
         "viscous_jumps": jumps,
         "catch_up_steps": catch,
-        "branch": (f"{sign}, z in [{zmin:.4g}, {zmax:.4g}], mean {mean:.4g}, energy {energy:.6g}, "
-                   f"{len(jumps)} viscous jump(s) at t = {jt}"
-                   + (f" (+{catch} catch-up step(s) with t' = 0)" if catch else "")),
+        "branch": (
+            f"{sign}, z in [{zmin:.4g}, {zmax:.4g}], mean {mean:.4g}, energy {energy:.6g}, "
+            f"{len(jumps)} viscous jump(s) at t = {jt}"
+            + (f" (+{catch} catch-up step(s) with t' = 0)" if catch else "")
+        ),
     }
 
 
@@ -609,11 +695,21 @@ def front_load_density(amplitude: float, speed: float, width: float, corner=(0.0
     return density, rate
 
 
-def example_front(n: int = 32, mesh=None, *, amplitude: float = FRONT_DEFAULTS["amplitude"],
-                  speed: float = FRONT_DEFAULTS["speed"], width: float = FRONT_DEFAULTS["width"],
-                  coefficient: float = FRONT_DEFAULTS["coefficient"], kappa: float = 1.0,
-                  z0: float = 1.0, T: float = 1.0, dirichlet=("right",),
-                  pattern: str = "tensor", name: str = "ris-front") -> FERISProblem:
+def example_front(
+    n: int = 32,
+    mesh=None,
+    *,
+    amplitude: float = FRONT_DEFAULTS["amplitude"],
+    speed: float = FRONT_DEFAULTS["speed"],
+    width: float = FRONT_DEFAULTS["width"],
+    coefficient: float = FRONT_DEFAULTS["coefficient"],
+    kappa: float = 1.0,
+    z0: float = 1.0,
+    T: float = 1.0,
+    dirichlet=("right",),
+    pattern: str = "tensor",
+    name: str = "ris-front",
+) -> FERISProblem:
     """A phase front crossing the unit square: the double well of (7.2) under a growing load.
 
     Not in the paper; built for space adaptivity. Omega = (0,1)^2, g(z) = 48 (1 - z^2)^2,
@@ -628,15 +724,30 @@ def example_front(n: int = 32, mesh=None, *, amplitude: float = FRONT_DEFAULTS["
     everywhere; an adaptive mesh only along the front, coarsening behind it.
     """
     coefficient = check_positive("coefficient", coefficient)
-    density, rate = front_load_density(check_real("amplitude", amplitude),
-                                       check_positive("speed", speed),
-                                       check_positive("width", width))
+    density, rate = front_load_density(
+        check_real("amplitude", amplitude),
+        check_positive("speed", speed),
+        check_positive("width", width),
+    )
     mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
     if mesh_dim(mesh) != 2:
-        raise bad("mesh", f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-                  "must be 2D (triangles) for ris-front")
+        raise bad(
+            "mesh",
+            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+            "must be 2D (triangles) for ris-front",
+        )
     return FERISProblem(
-        mesh, g_7_2, dg_7_2, d2g_7_2, load=None, load_density=density,
-        load_density_rate=rate, kappa=kappa, coefficient=coefficient, z0=z0, T=T,
-        dirichlet=None if dirichlet is None else list(dirichlet), name=name,
+        mesh,
+        g_7_2,
+        dg_7_2,
+        d2g_7_2,
+        load=None,
+        load_density=density,
+        load_density_rate=rate,
+        kappa=kappa,
+        coefficient=coefficient,
+        z0=z0,
+        T=T,
+        dirichlet=None if dirichlet is None else list(dirichlet),
+        name=name,
     )

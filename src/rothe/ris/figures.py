@@ -115,13 +115,15 @@ def plot_residual_vs_steps(rows, path, title="") -> Path:
         style = "-" + styles.get(name, "x")
         axes[0].loglog(n, [r["max_residual"] for r in rs], style, label=name)
         axes[1].loglog(n, [r["sum_residual"] for r in rs], style, label=name)
-        axes[2].loglog([r["inner_solves"] for r in rs], [r["sum_residual"] for r in rs], style,
-                       label=name)
+        axes[2].loglog(
+            [r["inner_solves"] for r in rs], [r["sum_residual"] for r in rs], style, label=name
+        )
     axes[0].set_ylabel(r"local residual $\max_k (I_1^k + I_2^k)$")
     axes[1].set_ylabel(r"global residual $\sum_k (I_1^k + I_2^k)$")
     axes[2].set_ylabel(r"global residual $\sum_k (I_1^k + I_2^k)$")
-    for ax, xlabel in zip(axes, ("number of steps", "number of steps", "inner solves"),
-                          strict=True):
+    for ax, xlabel in zip(
+        axes, ("number of steps", "number of steps", "inner solves"), strict=True
+    ):
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
@@ -131,6 +133,7 @@ def plot_residual_vs_steps(rows, path, title="") -> Path:
 
 
 # -- finite-element runs ----------------------------------------------------------------------
+
 
 def plot_fig4(runs, path, title: str = "") -> Path:
     """Fig. 4 of the paper: for each run (one row), t^(s) (left) and tau_k against s (right)."""

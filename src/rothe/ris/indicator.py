@@ -43,10 +43,21 @@ from ..fem.scalar import cell_coefficient
 from ..fem.simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
 
 
-def ris_indicators(mesh, z: np.ndarray, z_prev: np.ndarray, *, dg, load, kappa: float = 1.0,
-                   lam: float = 0.0, coefficient=1.0, dirichlet_parts=None,
-                   reaction: float = 0.0, lumped_mass: np.ndarray | None = None,
-                   evaluator: SimplexEvaluator | None = None) -> CellIndicators:
+def ris_indicators(
+    mesh,
+    z: np.ndarray,
+    z_prev: np.ndarray,
+    *,
+    dg,
+    load,
+    kappa: float = 1.0,
+    lam: float = 0.0,
+    coefficient=1.0,
+    dirichlet_parts=None,
+    reaction: float = 0.0,
+    lumped_mass: np.ndarray | None = None,
+    evaluator: SimplexEvaluator | None = None,
+) -> CellIndicators:
     """Cell indicators of one RIS step (formula in the module docstring).
 
     Parameters
@@ -67,15 +78,21 @@ def ris_indicators(mesh, z: np.ndarray, z_prev: np.ndarray, *, dg, load, kappa: 
     kappa = check_nonnegative("kappa", kappa)
     lam = check_nonnegative("lam", lam)
     reaction = check_nonnegative("reaction", reaction)
-    ev = evaluator if evaluator is not None else SimplexEvaluator(mesh, 1, cell_order=4,
-                                                                  facet_order=1)
+    ev = (
+        evaluator
+        if evaluator is not None
+        else SimplexEvaluator(mesh, 1, cell_order=4, facet_order=1)
+    )
     n = ev.ndofs
     z = np.asarray(z, dtype=float)
     z_prev = np.asarray(z_prev, dtype=float)
     for name, arr in (("z", z), ("z_prev", z_prev)):
         if arr.shape != (n,):
-            raise fail(name, described(f"an array of shape {arr.shape}"),
-                       f"must hold the values at all {n} nodes")
+            raise fail(
+                name,
+                described(f"an array of shape {arr.shape}"),
+                f"must hold the values at all {n} nodes",
+            )
     c = cell_coefficient(mesh, coefficient)
 
     zq = ev.values(z)
@@ -89,8 +106,11 @@ def ris_indicators(mesh, z: np.ndarray, z_prev: np.ndarray, *, dg, load, kappa: 
             lq = np.full(zq.shape, float(arr))
         else:
             if arr.shape != (n,):
-                raise fail("load", described(f"an array of shape {arr.shape}"),
-                           f"must be a callable, a number or {n} nodal functionals")
+                raise fail(
+                    "load",
+                    described(f"an array of shape {arr.shape}"),
+                    f"must be a callable, a number or {n} nodal functionals",
+                )
             if lumped_mass is None:
                 from ..fem.scalar import lumped_mass as lm
 
@@ -117,8 +137,11 @@ def ris_indicators(mesh, z: np.ndarray, z_prev: np.ndarray, *, dg, load, kappa: 
         neu = np.zeros(len(bc), dtype=bool)
     else:
         parts = [dirichlet_parts] if isinstance(dirichlet_parts, str) else list(dirichlet_parts)
-        neu = ~ev.boundary_part_mask(parts) if (mesh.boundaries or {}) else \
-            ~_box_part_mask(mesh, ev, parts)
+        neu = (
+            ~ev.boundary_part_mask(parts)
+            if (mesh.boundaries or {})
+            else ~_box_part_mask(mesh, ev, parts)
+        )
     bc, bl = bc[neu], bl[neu]
     meas_b, normal_b, diam_b = ev.facet_geometry(bc, bl)
     Jb = np.sum(flux[:, bc] * normal_b, axis=0)
@@ -139,9 +162,17 @@ def _box_part_mask(mesh, ev, parts) -> np.ndarray:
     return np.all(nodes[fverts], axis=1)
 
 
-def ris_indicators_for(problem, t_prev: float, z: np.ndarray, z_prev: np.ndarray,
-                       lam: float = 0.0, *, coefficient=1.0, reaction: float = 0.0,
-                       evaluator: SimplexEvaluator | None = None) -> CellIndicators:
+def ris_indicators_for(
+    problem,
+    t_prev: float,
+    z: np.ndarray,
+    z_prev: np.ndarray,
+    lam: float = 0.0,
+    *,
+    coefficient=1.0,
+    reaction: float = 0.0,
+    evaluator: SimplexEvaluator | None = None,
+) -> CellIndicators:
     """:func:`ris_indicators` for a :class:`~rothe.ris.fem_problem.FERISProblem` step.
 
     ``z``, ``z_prev`` on the free nodes (the problem's unknowns); the load is the problem's
@@ -156,7 +187,17 @@ def ris_indicators_for(problem, t_prev: float, z: np.ndarray, z_prev: np.ndarray
     else:
         load = np.zeros(problem.n_nodes)
         load[problem.free] = problem.load(float(t_prev))
-    return ris_indicators(problem.mesh, full(z), full(z_prev), dg=problem.dg, load=load,
-                          kappa=problem.kappa, lam=lam, coefficient=coefficient,
-                          dirichlet_parts=problem.dirichlet, reaction=reaction,
-                          lumped_mass=problem.m_all, evaluator=evaluator)
+    return ris_indicators(
+        problem.mesh,
+        full(z),
+        full(z_prev),
+        dg=problem.dg,
+        load=load,
+        kappa=problem.kappa,
+        lam=lam,
+        coefficient=coefficient,
+        dirichlet_parts=problem.dirichlet,
+        reaction=reaction,
+        lumped_mass=problem.m_all,
+        evaluator=evaluator,
+    )

@@ -257,8 +257,7 @@ class BallStepSolver:
         return out + hess_F * v
 
     # -- init / step / terminate --------------------------------------------------------------
-    def init(self, t: float, zprev: np.ndarray, tau: float, hint=None,
-             start=None) -> InnerState:
+    def init(self, t: float, zprev: np.ndarray, tau: float, hint=None, start=None) -> InnerState:
         """State at d = 0 (z = z_{k-1}). ``hint``: an increment tried as the first candidate.
 
         The iteration always starts at z_{k-1} (it must: from there descent finds the stationary
@@ -367,8 +366,7 @@ class BallStepSolver:
         cand = st.d * (st.tau / nd)
         return self._line_search(st, cand, None, sphere=True, full_only=True)
 
-    def solve(self, t: float, zprev: np.ndarray, tau: float, hint=None,
-              start=None) -> InnerResult:
+    def solve(self, t: float, zprev: np.ndarray, tau: float, hint=None, start=None) -> InnerResult:
         st = self.init(t, zprev, tau, hint, start)
         while True:
             done, code = self.terminate(st)
@@ -529,8 +527,9 @@ class BallStepSolver:
         self._A_reduced = (active.copy(), A_AA)
         return A_AA
 
-    def _line_search(self, st: InnerState, cand, hess_F, sphere: bool = False,
-                     full_only: bool = False) -> bool:
+    def _line_search(
+        self, st: InnerState, cand, hess_F, sphere: bool = False, full_only: bool = False
+    ) -> bool:
         """Line search along d -> cand (retracting onto the sphere when it is active)."""
         p = self.p
         d = st.d

@@ -96,8 +96,11 @@ class RISProblem:
             if not callable(fn):
                 raise fail(label, described(f"a {type(fn).__name__}"), "must be a callable")
         if load_rate is not None and not callable(load_rate):
-            raise fail("load_rate", described(f"a {type(load_rate).__name__}"),
-                       "must be a callable or None")
+            raise fail(
+                "load_rate",
+                described(f"a {type(load_rate).__name__}"),
+                "must be a callable or None",
+            )
         self._F, self._dF, self._d2F = F, dF, d2F
         self._load, self._load_rate = load, load_rate
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported as such
@@ -118,8 +121,9 @@ class RISProblem:
         value = _evaluate("F", self._F, z0, "z0")
         arr = np.asarray(value, dtype=float) if _is_numeric(value) else None
         if arr is None or arr.size != 1:
-            what = (f"an array of shape {arr.shape}" if arr is not None
-                    else f"a {type(value).__name__}")
+            what = (
+                f"an array of shape {arr.shape}" if arr is not None else f"a {type(value).__name__}"
+            )
             raise fail("F", described(f"{what} at z0"), "must return a number (the energy F(z))")
         check_finite_array("F(z0)", arr)
         for label, fn in (("dF", self._dF), ("d2F", self._d2F)):
@@ -129,30 +133,45 @@ class RISProblem:
             else:
                 vals = np.asarray(value, dtype=float) if _is_numeric(value) else None
                 if vals is None:
-                    raise fail(label, described(f"a {type(value).__name__} at z0"),
-                               f"must return an array of shape ({n},)")
+                    raise fail(
+                        label,
+                        described(f"a {type(value).__name__} at z0"),
+                        f"must return an array of shape ({n},)",
+                    )
                 shape = vals.shape
             allowed = [(n,)] if label == "dF" else [(n,), (n, n)]
             if shape not in allowed and not (n == 1 and int(np.prod(shape)) == 1):
                 want = " or ".join(str(a) for a in allowed)
-                raise fail(label, described(f"an array of shape {shape} at z0"),
-                           f"must have shape {want} (n = {n} unknowns)")
+                raise fail(
+                    label,
+                    described(f"an array of shape {shape} at z0"),
+                    f"must have shape {want} (n = {n} unknowns)",
+                )
             check_finite_array(f"{label}(z0)", vals)
         for t_check in (0.0, self.T):
             value = _evaluate("load", self._load, t_check, f"t = {t_check:g}")
             vals = np.asarray(value, dtype=float) if _is_numeric(value) else None
             if vals is None or (vals.shape != (n,) and vals.size != n):
                 what = f"shape {vals.shape}" if vals is not None else type(value).__name__
-                raise fail(f"load(t={t_check:g})", described(f"an array of {what}"),
-                           f"must return an array of shape ({n},)")
+                raise fail(
+                    f"load(t={t_check:g})",
+                    described(f"an array of {what}"),
+                    f"must return an array of shape ({n},)",
+                )
             norm = self.norm_Vinv(self.load(t_check))
             if not math.isfinite(norm):
-                raise fail(f"load(t={t_check:g})", described(f"a vector of norm {norm:g}"),
-                           "must have a finite V^-1 norm (sum l_i^2 / m_i overflows)")
+                raise fail(
+                    f"load(t={t_check:g})",
+                    described(f"a vector of norm {norm:g}"),
+                    "must have a finite V^-1 norm (sum l_i^2 / m_i overflows)",
+                )
         norm = self.norm_Vinv(self.gradient(0.0, z0))
         if not math.isfinite(norm):
-            raise fail("z0", described(f"a state where ||D_z I(0, z0)||_V^-1 = {norm:g}"),
-                       "must give a finite gradient of the energy (overflow)")
+            raise fail(
+                "z0",
+                described(f"a state where ||D_z I(0, z0)||_V^-1 = {norm:g}"),
+                "must give a finite gradient of the energy (overflow)",
+            )
 
     # -- the energy and its derivatives ------------------------------------------------------
     def F(self, z: np.ndarray) -> float:
@@ -176,8 +195,10 @@ class RISProblem:
         except DataError:
             raise
         except Exception as exc:  # the user's function, e.g. data that ends at T
-            raise DataError(f"load(t={t:g}): got an error ({type(exc).__name__}: {exc}), must "
-                            "evaluate for t in [0, T]") from None
+            raise DataError(
+                f"load(t={t:g}): got an error ({type(exc).__name__}: {exc}), must "
+                "evaluate for t in [0, T]"
+            ) from None
         if not np.all(np.isfinite(l_t)):
             bad = float(l_t[~np.isfinite(l_t)][0])
             raise DataError(f"load(t={t:g}): got {bad}, must be finite (no NaN or inf)")
@@ -269,6 +290,7 @@ class RISProblem:
 
 # -- input checks ------------------------------------------------------------------------------
 
+
 def _is_numeric(value) -> bool:
     try:
         np.asarray(value, dtype=float)
@@ -282,15 +304,21 @@ def _evaluate(label: str, fn, arg, at: str):
     try:
         return fn(arg)
     except Exception as exc:  # the user's function: any failure is bad input
-        raise fail(label, described(f"an error at {at} ({type(exc).__name__}: {exc})"),
-                   "must evaluate there") from None
+        raise fail(
+            label,
+            described(f"an error at {at} ({type(exc).__name__}: {exc})"),
+            "must evaluate there",
+        ) from None
 
 
 def _check_matrix(A, n: int):
     """A as CSR or a dense (n, n) float array: square, of the size of z0, finite, symmetric."""
     if not sp.issparse(A) and not _is_numeric(A):
-        raise fail("A", described(f"a {type(A).__name__}"),
-                   "must be a square array or a scipy.sparse matrix")
+        raise fail(
+            "A",
+            described(f"a {type(A).__name__}"),
+            "must be a square array or a scipy.sparse matrix",
+        )
     if np.isscalar(A):
         A = np.array([[A]])
     if sp.issparse(A):
@@ -300,8 +328,9 @@ def _check_matrix(A, n: int):
         if A.ndim == 0:
             A = A.reshape(1, 1)
     if A.ndim != 2 or A.shape != (n, n):
-        raise fail("A", described(f"matrix of shape {A.shape}"),
-                   f"must have shape ({n}, {n}) like z0")
+        raise fail(
+            "A", described(f"matrix of shape {A.shape}"), f"must have shape ({n}, {n}) like z0"
+        )
     if sp.issparse(A):
         A.sum_duplicates()
         A.sort_indices()
@@ -352,9 +381,11 @@ def check_coercive(A) -> None:
     diagonal (a_ii = <A e_i, e_i> > 0 is necessary), the run's stagnation check covers the rest.
     """
     n = A.shape[0]
-    tail = ("must be positive definite (coercive: <A z, z> >= alpha |z|^2, Andreia & Meyer "
-            "2022, Sec. 1.3), else the energy can be unbounded below and the run never ends; "
-            "pass check_coercivity=False if F alone makes I(t, .) coercive")
+    tail = (
+        "must be positive definite (coercive: <A z, z> >= alpha |z|^2, Andreia & Meyer "
+        "2022, Sec. 1.3), else the energy can be unbounded below and the run never ends; "
+        "pass check_coercivity=False if F alone makes I(t, .) coercive"
+    )
     diag = np.asarray(A.diagonal(), dtype=float)
     if np.any(diag <= 0):
         i = int(np.nonzero(diag <= 0)[0][0])
@@ -363,26 +394,33 @@ def check_coercive(A) -> None:
         if n <= DENSE_EIGEN_LIMIT:
             lam = np.linalg.eigvalsh(A)
             if not lam[0] > n * np.finfo(float).eps * max(abs(lam[-1]), abs(lam[0])):
-                raise fail("A", described(f"a matrix with smallest eigenvalue {lam[0]:.3g}"),
-                           tail)
+                raise fail("A", described(f"a matrix with smallest eigenvalue {lam[0]:.3g}"), tail)
         else:
             try:
                 np.linalg.cholesky(A)
             except np.linalg.LinAlgError:
-                raise fail("A", described("a matrix whose Cholesky factorization fails"),
-                           tail) from None
+                raise fail(
+                    "A", described("a matrix whose Cholesky factorization fails"), tail
+                ) from None
         return
     if n > SPARSE_LU_LIMIT:
         return
     from scipy.sparse.linalg import splu
 
     try:
-        lu = splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                  options={"SymmetricMode": True})
+        lu = splu(
+            sp.csc_matrix(A),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
     except RuntimeError:  # "Factor is exactly singular"
         raise fail("A", described("a singular matrix"), tail) from None
     pivots = lu.U.diagonal()
     if not np.array_equal(lu.perm_r, lu.perm_c) or np.any(pivots <= 0):
         neg = int(np.count_nonzero(pivots <= 0))
-        raise fail("A", described(f"a matrix with {max(neg, 1)} non-positive pivot(s) in a "
-                                  "symmetric LDL^T"), tail)
+        raise fail(
+            "A",
+            described(f"a matrix with {max(neg, 1)} non-positive pivot(s) in a symmetric LDL^T"),
+            tail,
+        )

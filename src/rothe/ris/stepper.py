@@ -106,25 +106,34 @@ class StagnationMonitor:
         if remaining > 0 and gained < self.min_rate * remaining:
             if self.failed:
                 codes = ", ".join(f"{k} {v}" for k, v in sorted(self.codes.items()))
-                cause = (f"{self.failed} of them with a failed inner solve ({codes}): dF or d2F "
-                         "probably does not belong to F (check_derivatives=True compares them "
-                         "with finite differences), or F is not smooth enough for the Newton "
-                         "solver")
+                cause = (
+                    f"{self.failed} of them with a failed inner solve ({codes}): dF or d2F "
+                    "probably does not belong to F (check_derivatives=True compares them "
+                    "with finite differences), or F is not smooth enough for the Newton "
+                    "solver"
+                )
             else:
-                cause = ("all solves converged: the step control keeps the steps tiny; check "
-                         "dF against F and the coercivity of the energy")
+                cause = (
+                    "all solves converged: the step control keeps the steps tiny; check "
+                    "dF against F and the coercivity of the energy"
+                )
             raise RunFailed(
                 f"no progress: {self.window} step attempts advanced s by {gained:.3g} at "
                 f"t = {state.t:.6g} (T = {T:g}; at this rate the run needs more than "
                 f"{self.window / self.min_rate:.0e} attempts); {cause}",
-                where=dict(where, stagnation_window=self.window, s_gained=gained,
-                           failed_solves=self.failed),
+                where=dict(
+                    where, stagnation_window=self.window, s_gained=gained, failed_solves=self.failed
+                ),
             )
         self.attempts, self.s_start, self.failed, self.codes = 0, state.s, 0, {}
 
     def checkpoint_state(self) -> dict:
-        return {"attempts": self.attempts, "s_start": self.s_start, "failed": self.failed,
-                "codes": dict(self.codes)}
+        return {
+            "attempts": self.attempts,
+            "s_start": self.s_start,
+            "failed": self.failed,
+            "codes": dict(self.codes),
+        }
 
     def restore_state(self, data: dict) -> None:
         self.attempts = int(data["attempts"])
@@ -261,17 +270,31 @@ class RISStepper:
                 where.update(tau=tau, data_error=str(exc))
                 raise RunFailed(
                     f"{exc} (at step {where['step']}, s = {state.s:.6g}, t = {state.t:.6g}, "
-                    f"tau = {tau:.3g})", where=where) from None
+                    f"tau = {tau:.3g})",
+                    where=where,
+                ) from None
         self.monitor.observe(state, result, self.problem.T, self.where(state, result))
         return result
 
     def _failed_attempt(self, state: RISState, tau: float, s_end, code: str) -> RISStepResult:
         nan = math.nan
         return RISStepResult(
-            state=RISState(s=s_end if s_end is not None else state.s + tau, t=nan, z=state.z,
-                           k=state.k + 1),
-            tau=tau, converged=False, code=code, lam=nan, kkt=nan, kkt_tol=nan, I1=nan,
-            I2=nan, I1_err=nan, I2_err=nan, J_start=nan, J_final=nan, energy=nan,
+            state=RISState(
+                s=s_end if s_end is not None else state.s + tau, t=nan, z=state.z, k=state.k + 1
+            ),
+            tau=tau,
+            converged=False,
+            code=code,
+            lam=nan,
+            kkt=nan,
+            kkt_tol=nan,
+            I1=nan,
+            I2=nan,
+            I1_err=nan,
+            I2_err=nan,
+            J_start=nan,
+            J_final=nan,
+            energy=nan,
             increment=np.zeros_like(state.z),
         )
 
@@ -334,9 +357,18 @@ class RISStepper:
         if self.space is None or self.finished(state):
             return state
         t_prev, z_prev = self._start
-        out = self.space.adapt(self.problem, t_prev, z_prev, state.z, result.lam,
-                               result.increment, state.t, result.energy, step=state.k,
-                               tau=result.tau)
+        out = self.space.adapt(
+            self.problem,
+            t_prev,
+            z_prev,
+            state.z,
+            result.lam,
+            result.increment,
+            state.t,
+            result.energy,
+            step=state.k,
+            tau=result.tau,
+        )
         self._adapted = out
         if not out.changed:
             return state
@@ -406,35 +438,54 @@ class RISStepper:
         previous = None
         if self._previous is not None:
             z_prev, d_prev, tau_prev = self._previous
-            previous = {"increment": d_prev, "tau": float(tau_prev),
-                        "of_this_state": z_prev is state.z}
-        data = {"stepper": "ris", "s": float(state.s), "t": float(state.t), "z": state.z,
-                "k": int(state.k), "last_tau": float(self._last_tau), "previous": previous,
-                "linear": self.solver.linear.checkpoint_state(),
-                "monitor": self.monitor.checkpoint_state()}
+            previous = {
+                "increment": d_prev,
+                "tau": float(tau_prev),
+                "of_this_state": z_prev is state.z,
+            }
+        data = {
+            "stepper": "ris",
+            "s": float(state.s),
+            "t": float(state.t),
+            "z": state.z,
+            "k": int(state.k),
+            "last_tau": float(self._last_tau),
+            "previous": previous,
+            "linear": self.solver.linear.checkpoint_state(),
+            "monitor": self.monitor.checkpoint_state(),
+        }
         if self.space is not None:  # the mesh hierarchy and the series of meshes so far
             data["space"] = self.space.checkpoint_state()
         return data
 
     def restore_state(self, data: dict) -> RISState:
         if data.get("stepper") != "ris":
-            raise ValueError(f"restore_state: a {data.get('stepper')!r} stepper's state given to "
-                             "a RIS stepper")
+            raise ValueError(
+                f"restore_state: a {data.get('stepper')!r} stepper's state given to a RIS stepper"
+            )
         if self.space is not None:
             if data.get("space") is None:
-                raise ValueError("restore_state: a fixed-mesh state given to a space-adaptive "
-                                 "RIS stepper")
+                raise ValueError(
+                    "restore_state: a fixed-mesh state given to a space-adaptive RIS stepper"
+                )
             self.problem = self.space.restore_state(data["space"])
             self.solver = BallStepSolver(self.problem, self._inner)
-        state = RISState(s=float(data["s"]), t=float(data["t"]),
-                         z=np.array(data["z"], dtype=float), k=int(data["k"]))
+        state = RISState(
+            s=float(data["s"]),
+            t=float(data["t"]),
+            z=np.array(data["z"], dtype=float),
+            k=int(data["k"]),
+        )
         self._last_tau = float(data["last_tau"])
         prev = data["previous"]
         if prev is None:
             self._previous = None
         else:  # the hint applies only to the state it was recorded with (see step)
-            self._previous = (state.z if prev["of_this_state"] else None,
-                              np.array(prev["increment"], dtype=float), float(prev["tau"]))
+            self._previous = (
+                state.z if prev["of_this_state"] else None,
+                np.array(prev["increment"], dtype=float),
+                float(prev["tau"]),
+            )
         self.solver.linear.restore_state(data["linear"])
         if data.get("monitor") is not None:  # absent in checkpoints of earlier versions
             self.monitor.restore_state(data["monitor"])
@@ -444,21 +495,23 @@ class RISStepper:
 #: the likely cause of a run that stopped after its inner solves kept failing (by result code)
 FAILURE_HINTS = {
     "stalled": "the inner solver cannot reach stationarity: dF or d2F probably does not belong "
-               "to F (check_derivatives=True compares them with finite differences)",
+    "to F (check_derivatives=True compares them with finite differences)",
     "max_iterations": "the inner solver cannot reach stationarity: dF or d2F probably does not "
-                      "belong to F (check_derivatives=True compares them with finite "
-                      "differences)",
+    "belong to F (check_derivatives=True compares them with finite "
+    "differences)",
     "nonfinite": "F, dF, d2F or the load gave a non-finite value (overflow or NaN)",
 }
 
 
-def initial_trajectory(problem: RISProblem, meta: dict | None = None,
-                       space=None) -> Trajectory:
+def initial_trajectory(problem: RISProblem, meta: dict | None = None, space=None) -> Trajectory:
     """The trajectory with the initial state; ``space`` (the stepper's RISSpaceAdaptivity):
     z is a ragged series, every state records its mesh id and dofs, the meshes are kept."""
     traj = Trajectory(meta=meta)
     traj.append(
-        s=0.0, t=0.0, z=problem.full_state(problem.z0), z_step=0,
+        s=0.0,
+        t=0.0,
+        z=problem.full_state(problem.z0),
+        z_step=0,
         energy=problem.energy(0.0, problem.z0),
     )
     if space is not None:
@@ -490,8 +543,15 @@ def _keep_last_z(problem, stepper: RISStepper, traj: Trajectory, state: RISState
 
 def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress, checkpointer):
     try:
-        state = evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress,
-                       checkpointer=checkpointer)
+        state = evolve(
+            stepper,
+            controller,
+            state,
+            traj,
+            tau_min=tau_min,
+            progress=progress,
+            checkpointer=checkpointer,
+        )
     except RunInterrupted as exc:
         if exc.state is not None:
             _keep_last_z(problem, stepper, traj, exc.state)
@@ -512,8 +572,12 @@ def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress,
 
 def _where(traj: Trajectory, state: RISState) -> dict:
     st = traj.stats
-    return {"accepted_steps": st.accepted_steps, "rejected_steps": st.rejected_steps,
-            "s": float(state.s), "t": float(state.t)}
+    return {
+        "accepted_steps": st.accepted_steps,
+        "rejected_steps": st.rejected_steps,
+        "s": float(state.s),
+        "t": float(state.t),
+    }
 
 
 def run_ris(
@@ -564,18 +628,27 @@ def run_ris(
     controller = make_controller(
         control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max, grid=grid
     )
-    stepper = RISStepper(problem, inner, simpson_subintervals, S=S, keep_every=keep_every,
-                         space=space)
+    stepper = RISStepper(
+        problem, inner, simpson_subintervals, S=S, keep_every=keep_every, space=space
+    )
     info = {"example": problem.name, "control": controller.name, "tol": tol, "tau0": tau}
     if space is not None:
         info["space"] = space.describe()
     info.update(meta or {})
     extra = {} if space is None else {"space": space.describe()}
     arguments = run_arguments(
-        control=control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max,
-        grid=None if grid is None else np.asarray(grid, dtype=float), S=S,
-        inner=asdict(inner or InnerOptions()), simpson_subintervals=simpson_subintervals,
-        keep_every=keep_every, **extra)
+        control=control,
+        tol=tol,
+        tau=tau,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        grid=None if grid is None else np.asarray(grid, dtype=float),
+        S=S,
+        inner=asdict(inner or InnerOptions()),
+        simpson_subintervals=simpson_subintervals,
+        keep_every=keep_every,
+        **extra,
+    )
     with RunCheckpointing("run_ris", problem, arguments, checkpoint, resume) as rc:
         cp, restored = rc.checkpointer, rc.restored
         if restored is not None:
@@ -593,11 +666,20 @@ def run_ris(
             cp.register(traj)
             if restored is None:
                 cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
-        state = _evolve_ris(problem, stepper, controller, traj, state, tau_min=tau_min,
-                            progress=progress, checkpointer=cp)
+        state = _evolve_ris(
+            problem,
+            stepper,
+            controller,
+            traj,
+            state,
+            tau_min=tau_min,
+            progress=progress,
+            checkpointer=cp,
+        )
         if cp is not None:
-            cp.save_or_warn(stepper, controller, state, status="completed",
-                            where=_where(traj, state))
+            cp.save_or_warn(
+                stepper, controller, state, status="completed", where=_where(traj, state)
+            )
     return traj
 
 
@@ -646,9 +728,15 @@ def run_nested(
     tols = check_decreasing("tols", tols)
     extra = {} if space is None else {"space": space.describe()}
     arguments = run_arguments(
-        tols=tols, tau=tau, tau_min=tau_min, tau_max=tau_max,
-        inner=asdict(inner or InnerOptions()), simpson_subintervals=simpson_subintervals,
-        keep_every=keep_every, **extra)
+        tols=tols,
+        tau=tau,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        inner=asdict(inner or InnerOptions()),
+        simpson_subintervals=simpson_subintervals,
+        keep_every=keep_every,
+        **extra,
+    )
     with RunCheckpointing("run_nested", problem, arguments, checkpoint, resume) as rc:
         cp, restored = rc.checkpointer, rc.restored
         runs: list[Trajectory] = []
@@ -670,13 +758,24 @@ def run_nested(
         for i in range(start, len(tols)):
             tol = tols[i]
             nested = i > 0
-            controller = make_controller("nested" if nested else "adaptive", tol=tol, tau=tau,
-                                         tau_min=tau_min, tau_max=tau_max,
-                                         grid=grid if nested else None)
-            stepper = RISStepper(problem, inner, simpson_subintervals, keep_every=keep_every,
-                                 space=space)
-            info = {"example": problem.name, "control": controller.name, "tol": tol,
-                    "tau0": tau, "nested_index": i}
+            controller = make_controller(
+                "nested" if nested else "adaptive",
+                tol=tol,
+                tau=tau,
+                tau_min=tau_min,
+                tau_max=tau_max,
+                grid=grid if nested else None,
+            )
+            stepper = RISStepper(
+                problem, inner, simpson_subintervals, keep_every=keep_every, space=space
+            )
+            info = {
+                "example": problem.name,
+                "control": controller.name,
+                "tol": tol,
+                "tau0": tau,
+                "nested_index": i,
+            }
             if space is not None:
                 info["space"] = space.describe()
             if cp is not None:
@@ -700,8 +799,16 @@ def run_nested(
                     cp.register(traj)
                     cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
             try:
-                state = _evolve_ris(problem, stepper, controller, traj, state, tau_min=tau_min,
-                                    progress=progress, checkpointer=cp)
+                state = _evolve_ris(
+                    problem,
+                    stepper,
+                    controller,
+                    traj,
+                    state,
+                    tau_min=tau_min,
+                    progress=progress,
+                    checkpointer=cp,
+                )
             except RunFailed as exc:
                 exc.where["nested_tol"] = tol
                 raise
@@ -712,7 +819,12 @@ def run_nested(
             if space is not None:
                 cp.context["series"] = [r.meshes.checkpoint_state() for r in runs]
             last = runs[-1]
-            cp.save_or_warn(status="completed", where={"accepted_steps": last.stats.accepted_steps,
-                                               "s": float(last["s"][-1]),
-                                               "t": float(last["t"][-1])})
+            cp.save_or_warn(
+                status="completed",
+                where={
+                    "accepted_steps": last.stats.accepted_steps,
+                    "s": float(last["s"][-1]),
+                    "t": float(last["t"][-1]),
+                },
+            )
     return runs

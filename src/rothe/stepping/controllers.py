@@ -81,8 +81,10 @@ class StepController(ABC):
 
     def restore_state(self, data: dict) -> None:
         if data.get("controller") != self.name:
-            raise ValueError(f"restore_state: a {data.get('controller')!r} controller's state "
-                             f"given to a {self.name!r} controller")
+            raise ValueError(
+                f"restore_state: a {data.get('controller')!r} controller's state "
+                f"given to a {self.name!r} controller"
+            )
         self.sigma = float(data["sigma"])
         self._restore_extra(data)
 
@@ -161,10 +163,11 @@ class FixedStepController:
 
     def restore_state(self, data: dict) -> None:
         if data.get("controller") != self.name:
-            raise ValueError(f"restore_state: a {data.get('controller')!r} controller's state "
-                             f"given to a {self.name!r} controller")
+            raise ValueError(
+                f"restore_state: a {data.get('controller')!r} controller's state "
+                f"given to a {self.name!r} controller"
+            )
         self.k = int(data["k"])
-
 
 
 class ErrorNormController(StepController):
@@ -188,10 +191,22 @@ class ErrorNormController(StepController):
 
     name = "error-norm"
 
-    def __init__(self, tol: float, tau0: float, order: int, *, key: str = "local_error",
-                 safety: float = 0.9, fac_min: float = 0.2, fac_max: float = 2.0,
-                 fac_fail: float = 0.25, max_ratio: float = math.inf, tau_min: float = 1e-12,
-                 tau_max: float = math.inf, step_bound=None):
+    def __init__(
+        self,
+        tol: float,
+        tau0: float,
+        order: int,
+        *,
+        key: str = "local_error",
+        safety: float = 0.9,
+        fac_min: float = 0.2,
+        fac_max: float = 2.0,
+        fac_fail: float = 0.25,
+        max_ratio: float = math.inf,
+        tau_min: float = 1e-12,
+        tau_max: float = math.inf,
+        step_bound=None,
+    ):
         super().__init__(tau0, tau_min, tau_max)
         self.tol = check_positive("tol", tol)
         if int(order) < 1:
@@ -203,8 +218,11 @@ class ErrorNormController(StepController):
         self.fac_max = check_positive("fac_max", fac_max)
         self.fac_fail = check_positive("fac_fail", fac_fail)
         if not self.fac_min < 1.0 < self.fac_max:
-            raise fail("fac_min, fac_max", f"{self.fac_min:g}, {self.fac_max:g}",
-                       "must satisfy fac_min < 1 < fac_max")
+            raise fail(
+                "fac_min, fac_max",
+                f"{self.fac_min:g}, {self.fac_max:g}",
+                "must satisfy fac_min < 1 < fac_max",
+            )
         self.max_ratio = float(max_ratio)
         if not self.max_ratio > 1.0:
             raise fail("max_ratio", max_ratio, "must be > 1")
@@ -258,6 +276,7 @@ class ErrorNormController(StepController):
 
 # -- step control as the user asks for it: validated objects, built into controllers by a family -
 
+
 @dataclass(frozen=True)
 class Uniform:
     """Equal steps ``tau`` (RIS: in s, a failed solve retried with half the step; ELD: in t,
@@ -279,15 +298,17 @@ class Given:
         try:
             arr = np.asarray(self.steps, dtype=float).ravel()
         except (TypeError, ValueError):
-            raise fail("steps", described(type(self.steps).__name__),
-                       "must be a sequence of step sizes") from None
+            raise fail(
+                "steps", described(type(self.steps).__name__), "must be a sequence of step sizes"
+            ) from None
         if arr.size == 0:
             raise fail("steps", described("[]"), "must hold at least one step size")
         bad = np.flatnonzero(~(np.isfinite(arr) & (arr > 0)))
         if bad.size:
             k = int(bad[0])
-            raise fail("steps", described(f"tau_{k + 1} = {arr[k]:g}"),
-                       "must be positive and finite")
+            raise fail(
+                "steps", described(f"tau_{k + 1} = {arr[k]:g}"), "must be positive and finite"
+            )
         object.__setattr__(self, "steps", tuple(float(x) for x in arr))
 
 

@@ -147,8 +147,9 @@ class _Loop:
         info.update(where or {})
         try:
             with self.times.phase("checkpoint"):
-                return self.checkpointer.save_or_warn(self.stepper, self.controller,
-                                                      self.state, status=status, where=info)
+                return self.checkpointer.save_or_warn(
+                    self.stepper, self.controller, self.state, status=status, where=info
+                )
         except Exception:
             if quiet:  # the failure being reported matters more than its checkpoint
                 return None
@@ -165,8 +166,12 @@ class _Loop:
         raise RunInterrupted(
             f"interrupted by {name} after {where['accepted_steps']} accepted steps "
             f"(s = {where.get('s', float('nan')):.6g}, t = {where.get('t', float('nan')):.6g})",
-            signum=signum, where=where, trajectory=self.trajectory, checkpoint=path,
-            state=state)
+            signum=signum,
+            where=where,
+            trajectory=self.trajectory,
+            checkpoint=path,
+            state=state,
+        )
 
     def run(self, state, tau_min, max_attempts, max_landing_retries, max_steps):
         stepper, controller, trajectory = self.stepper, self.controller, self.trajectory
@@ -244,8 +249,9 @@ class _Loop:
         self._clock()
         if self.progress is not None:
             done = self.state is not None and self.stepper.finished(self.state)
-            self.progress.close(self.state, self.trajectory.stats,
-                                "finished" if done else "stopped")
+            self.progress.close(
+                self.state, self.trajectory.stats, "finished" if done else "stopped"
+            )
 
 
 def _count(stats, result) -> None:

@@ -96,13 +96,27 @@ class Progress:
         except ImportError:  # pragma: no cover - tqdm is a dependency
             return None
         if pos is None:
-            return tqdm(total=None, file=self.stream, delay=1.0, unit="step", leave=False,
-                        dynamic_ncols=True)
+            return tqdm(
+                total=None,
+                file=self.stream,
+                delay=1.0,
+                unit="step",
+                leave=False,
+                dynamic_ncols=True,
+            )
         label, value, total = pos
-        bar = tqdm(total=total, initial=value, file=self.stream, delay=1.0, leave=False,
-                   dynamic_ncols=True, unit=label,
-                   bar_format="{desc}{percentage:3.0f}%|{bar}| " + label
-                   + " {n:.4g}/{total:.4g} [{elapsed}<{remaining}{postfix}]")
+        bar = tqdm(
+            total=total,
+            initial=value,
+            file=self.stream,
+            delay=1.0,
+            leave=False,
+            dynamic_ncols=True,
+            unit=label,
+            bar_format="{desc}{percentage:3.0f}%|{bar}| "
+            + label
+            + " {n:.4g}/{total:.4g} [{elapsed}<{remaining}{postfix}]",
+        )
         return bar
 
     def update(self, state, stats) -> None:
@@ -121,13 +135,20 @@ class Progress:
         now = time.monotonic()
         if now - self.last_line >= self.o.every_seconds:  # only then format anything
             self.last_line = now
-            self._line(state, stats, _position(self.stepper, state),
-                       dict(self.stepper.progress_fields(state)), now)
+            self._line(
+                state,
+                stats,
+                _position(self.stepper, state),
+                dict(self.stepper.progress_fields(state)),
+                now,
+            )
 
     def _line(self, state, stats, pos, fields, now, prefix="rothe: ") -> None:
         elapsed = now - self.t0
-        parts = [f"{prefix}step {stats.accepted_steps + stats.rejected_steps} "
-                 f"(accepted {stats.accepted_steps}, rejected {stats.rejected_steps})"]
+        parts = [
+            f"{prefix}step {stats.accepted_steps + stats.rejected_steps} "
+            f"(accepted {stats.accepted_steps}, rejected {stats.rejected_steps})"
+        ]
         for key in ("s", "t", "tau"):
             if key in fields:
                 value = fields[key]
@@ -153,5 +174,11 @@ class Progress:
             return
         if self.o.enabled and self.lines and state is not None and stats is not None:
             fields = dict(self.stepper.progress_fields(state))
-            self._line(state, stats, _position(self.stepper, state), fields, time.monotonic(),
-                       prefix=f"rothe: {how} at ")
+            self._line(
+                state,
+                stats,
+                _position(self.stepper, state),
+                fields,
+                time.monotonic(),
+                prefix=f"rothe: {how} at ",
+            )

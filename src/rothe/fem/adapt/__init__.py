@@ -15,6 +15,15 @@ from .bisection import AdaptiveMesh, MeshChange, check_adaptable
 from .marking import SpaceAdaptivity, adapt_mesh, coarsen_marking, doerfler_marking
 from .transfer import free_transfer, transfer_matrix, transfer_vectors
 
-__all__ = ["AdaptiveMesh", "MeshChange", "SpaceAdaptivity", "adapt_mesh", "check_adaptable",
-           "coarsen_marking", "doerfler_marking", "free_transfer", "transfer_matrix",
-           "transfer_vectors"]
+__all__ = [
+    "AdaptiveMesh",
+    "MeshChange",
+    "SpaceAdaptivity",
+    "adapt_mesh",
+    "check_adaptable",
+    "coarsen_marking",
+    "doerfler_marking",
+    "free_transfer",
+    "transfer_matrix",
+    "transfer_vectors",
+]

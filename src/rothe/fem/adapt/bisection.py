@@ -114,16 +114,31 @@ _INT = np.int32
 
 
 _SIMPLEX_VOLUME = {"triangle": 2, "tetra": 3}
-_OTHER_VOLUME = {"quad": "quadrilaterals", "quad8": "quadrilaterals", "quad9": "quadrilaterals",
-                 "hexahedron": "hexahedra", "hexahedron20": "hexahedra",
-                 "hexahedron27": "hexahedra", "wedge": "wedges", "pyramid": "pyramids",
-                 "triangle6": "quadratic triangles", "tetra10": "quadratic tetrahedra"}
-_SKFEM_KINDS = {"MeshQuad": "quadrilaterals", "MeshQuad1": "quadrilaterals",
-                "MeshQuad2": "quadratic quadrilaterals", "MeshHex": "hexahedra",
-                "MeshHex1": "hexahedra", "MeshHex2": "quadratic hexahedra",
-                "MeshTri2": "quadratic triangles", "MeshTet2": "quadratic tetrahedra",
-                "MeshWedge1": "wedges", "MeshLine": "line segments",
-                "MeshLine1": "line segments"}
+_OTHER_VOLUME = {
+    "quad": "quadrilaterals",
+    "quad8": "quadrilaterals",
+    "quad9": "quadrilaterals",
+    "hexahedron": "hexahedra",
+    "hexahedron20": "hexahedra",
+    "hexahedron27": "hexahedra",
+    "wedge": "wedges",
+    "pyramid": "pyramids",
+    "triangle6": "quadratic triangles",
+    "tetra10": "quadratic tetrahedra",
+}
+_SKFEM_KINDS = {
+    "MeshQuad": "quadrilaterals",
+    "MeshQuad1": "quadrilaterals",
+    "MeshQuad2": "quadratic quadrilaterals",
+    "MeshHex": "hexahedra",
+    "MeshHex1": "hexahedra",
+    "MeshHex2": "quadratic hexahedra",
+    "MeshTri2": "quadratic triangles",
+    "MeshTet2": "quadratic tetrahedra",
+    "MeshWedge1": "wedges",
+    "MeshLine": "line segments",
+    "MeshLine1": "line segments",
+}
 
 
 def check_adaptable(mesh, name: str = "--adapt-space"):
@@ -152,19 +167,30 @@ def check_adaptable(mesh, name: str = "--adapt-space"):
         simplex = ["tetra"] if dim == 3 else (["triangle"] if dim == 2 else [])
         if other and simplex:
             kinds = ", ".join(simplex + other)
-            raise fail(name, described(f"a mixed mesh ({kinds})"),
-                       "needs a mesh of triangles (2D) or tetrahedra (3D) only")
+            raise fail(
+                name,
+                described(f"a mixed mesh ({kinds})"),
+                "needs a mesh of triangles (2D) or tetrahedra (3D) only",
+            )
         if other:
-            raise fail(name, described(f"a mesh of {_OTHER_VOLUME[other[0]]}"),
-                       "needs triangles (2D) or tetrahedra (3D); bisection refines only "
-                       "simplices")
+            raise fail(
+                name,
+                described(f"a mesh of {_OTHER_VOLUME[other[0]]}"),
+                "needs triangles (2D) or tetrahedra (3D); bisection refines only simplices",
+            )
         if not simplex:
-            raise fail(name, described("a mesh without triangles or tetrahedra"),
-                       "needs triangles (2D) or tetrahedra (3D)")
+            raise fail(
+                name,
+                described("a mesh without triangles or tetrahedra"),
+                "needs triangles (2D) or tetrahedra (3D)",
+            )
         return mesh
     kind = _SKFEM_KINDS.get(type(mesh).__name__, type(mesh).__name__)
-    raise fail(name, described(f"a mesh of {kind}"),
-               "needs triangles (2D) or tetrahedra (3D); bisection refines only simplices")
+    raise fail(
+        name,
+        described(f"a mesh of {kind}"),
+        "needs triangles (2D) or tetrahedra (3D); bisection refines only simplices",
+    )
 
 
 @dataclass
@@ -208,11 +234,17 @@ class MeshChange:
         return transfer_matrix(self, degree=degree, components=components)
 
     def describe(self) -> dict:
-        return {"old_mesh_id": self.old_mesh_id, "new_mesh_id": self.new_mesh_id,
-                "old_cells": int(len(self.old_cells)), "new_cells": int(len(self.new_cells)),
-                "old_vertices": int(len(self.old_points)),
-                "new_vertices": int(len(self.new_points)), "bisections": self.bisections,
-                "merges": self.merges, "removed_vertices": self.removed_vertices}
+        return {
+            "old_mesh_id": self.old_mesh_id,
+            "new_mesh_id": self.new_mesh_id,
+            "old_cells": int(len(self.old_cells)),
+            "new_cells": int(len(self.new_cells)),
+            "old_vertices": int(len(self.old_points)),
+            "new_vertices": int(len(self.new_points)),
+            "bisections": self.bisections,
+            "merges": self.merges,
+            "removed_vertices": self.removed_vertices,
+        }
 
 
 class AdaptiveMesh:
@@ -250,8 +282,11 @@ class AdaptiveMesh:
         h = cell_diameters(p, t)
         bad = np.flatnonzero(vol <= 1e-12 * h**d)
         if bad.size:
-            raise fail(name, described(f"a degenerate cell (index {int(bad[0])})"),
-                       "all cells must have positive volume")
+            raise fail(
+                name,
+                described(f"a degenerate cell (index {int(bad[0])})"),
+                "all cells must have positive volume",
+            )
 
         # initial facets: numbering, boundary flags, named parts
         faces = opposite_faces(d)
@@ -259,15 +294,21 @@ class AdaptiveMesh:
         nf0 = init_facets.shape[1]
         counts = np.bincount(cell_facets.ravel(), minlength=nf0)
         if np.any(counts > 2):
-            raise fail(name, described("a facet shared by more than two cells"),
-                       "must be a conforming simplicial mesh")
+            raise fail(
+                name,
+                described("a facet shared by more than two cells"),
+                "must be a conforming simplicial mesh",
+            )
         self._facet_is_boundary = counts == 1
         self._initial_facets = init_facets.T.copy()  # (nf0, d) sorted tuples
         parts = {}
         for part, idx in (mesh.boundaries or {}).items():
             idx = np.asarray(idx, dtype=np.int64)
-            rows = np.sort(np.asarray(mesh.facets)[:, idx].T, axis=1) if idx.size else \
-                np.zeros((0, d), dtype=np.int64)
+            rows = (
+                np.sort(np.asarray(mesh.facets)[:, idx].T, axis=1)
+                if idx.size
+                else np.zeros((0, d), dtype=np.int64)
+            )
             mask = np.zeros(nf0, dtype=bool)
             if len(rows):
                 mask[self._find_initial_facets(rows)] = True
@@ -281,8 +322,9 @@ class AdaptiveMesh:
         self._subdomains = subdomains
 
         # global strict edge order (length, then vertex numbers) and the initial labelling
-        edges, cell_edges = entities(t, np.array([[a, b] for a in range(d + 1)
-                                                 for b in range(a + 1, d + 1)]), nv)
+        edges, cell_edges = entities(
+            t, np.array([[a, b] for a in range(d + 1) for b in range(a + 1, d + 1)]), nv
+        )
         length = np.linalg.norm(p[:, edges[1]] - p[:, edges[0]], axis=0)
         rank = np.empty(edges.shape[1], dtype=np.int64)
         rank[np.lexsort((edges[1], edges[0], length))] = np.arange(edges.shape[1])
@@ -328,8 +370,11 @@ class AdaptiveMesh:
         where[ids[:nf0]] = np.arange(nf0)
         out = where[ids[nf0:]]
         if np.any(out < 0):
-            raise fail("mesh.boundaries", described("a facet that is not a facet of the mesh"),
-                       f"boundary parts must list facets of the {d}D mesh")
+            raise fail(
+                "mesh.boundaries",
+                described("a facet that is not a facet of the mesh"),
+                f"boundary parts must list facets of the {d}D mesh",
+            )
         return out
 
     def _initial_labelling(self, t, rank, cell_edges):
@@ -380,8 +425,11 @@ class AdaptiveMesh:
         cap = max(16, 2 * n_cells)
         capv = max(16, 2 * n_vertices)
         if n_cells >= 2**31 // 4 or n_vertices >= 2**31 // 4:
-            raise fail("mesh", described(f"a mesh with {n_cells} cells and {n_vertices} vertices"),
-                       "must have fewer than 5*10^8 of each to be adapted")
+            raise fail(
+                "mesh",
+                described(f"a mesh with {n_cells} cells and {n_vertices} vertices"),
+                "must have fewer than 5*10^8 of each to be adapted",
+            )
         self._cap, self._capv = cap, capv
         self._p = np.zeros((capv, d))
         self._cells = np.zeros((cap, d + 1), dtype=_INT)
@@ -396,8 +444,19 @@ class AdaptiveMesh:
         self._src_start = np.zeros(cap, dtype=_INT)
         self._src_count = np.zeros(cap, dtype=_INT)
 
-    _NODE_FIELDS = ("_cells", "_peaks", "_flag", "_parent", "_child", "_mid", "_root",
-                    "_level", "_origin", "_src_start", "_src_count")
+    _NODE_FIELDS = (
+        "_cells",
+        "_peaks",
+        "_flag",
+        "_parent",
+        "_child",
+        "_mid",
+        "_root",
+        "_level",
+        "_origin",
+        "_src_start",
+        "_src_count",
+    )
 
     def _reserve(self, n_nodes: int, n_vertices: int) -> None:
         if n_nodes > self._cap:
@@ -449,8 +508,7 @@ class AdaptiveMesh:
                 a, b, c = t[:, 0], t[:, 1], t[:, 2]
                 lo, hi = np.minimum(a, b), np.maximum(a, b)
                 mid = np.minimum(hi, c)
-                t = np.column_stack([np.minimum(lo, mid), np.maximum(lo, mid),
-                                     np.maximum(hi, c)])
+                t = np.column_stack([np.minimum(lo, mid), np.maximum(lo, mid), np.maximum(hi, c)])
             self._cache["cells"] = t
         return self._cache["cells"]
 
@@ -551,15 +609,21 @@ class AdaptiveMesh:
                 else:
                     both = np.vstack([facets.T, rows])
                     _, ids = number_rows(both, nv)
-                    idx = ids[facets.shape[1]:]
+                    idx = ids[facets.shape[1] :]
                 # unique: a named interior surface is seen from both sides
                 boundaries[part] = np.unique(idx).astype(np.int64)
         subdomains = None
         if self._subdomains:
             roots = self._root[self._leaves]
             subdomains = {k: np.flatnonzero(v[roots]) for k, v in self._subdomains.items()}
-        mesh = self._mesh_cls(p, t.astype(np.int32), _boundaries=boundaries,
-                              _subdomains=subdomains, validate=False, sort_t=False)
+        mesh = self._mesh_cls(
+            p,
+            t.astype(np.int32),
+            _boundaries=boundaries,
+            _subdomains=subdomains,
+            validate=False,
+            sort_t=False,
+        )
         mesh._facets = facets.astype(np.int32)
         mesh._t2f = t2f.astype(np.int32)
         if self.dim == 3 and "edges" in self._cache:
@@ -577,17 +641,26 @@ class AdaptiveMesh:
         m = np.asarray(marked)
         if m.dtype == bool:
             if m.shape != (nc,):
-                raise fail(name, described(f"a boolean mask of shape {m.shape}"),
-                           f"must have one entry per cell ({nc})")
+                raise fail(
+                    name,
+                    described(f"a boolean mask of shape {m.shape}"),
+                    f"must have one entry per cell ({nc})",
+                )
             idx = np.flatnonzero(m)
         else:
             if m.size and not np.issubdtype(m.dtype, np.integer):
-                raise fail(name, described(f"an array of dtype {m.dtype}"),
-                           "must be a boolean mask or integer cell indices")
+                raise fail(
+                    name,
+                    described(f"an array of dtype {m.dtype}"),
+                    "must be a boolean mask or integer cell indices",
+                )
             idx = np.unique(m.astype(np.int64).ravel())
             if idx.size and (idx[0] < 0 or idx[-1] >= nc):
-                raise fail(name, described(f"cell index {int(idx[0] if idx[0] < 0 else idx[-1])}"),
-                           f"must be in [0, {nc - 1}]")
+                raise fail(
+                    name,
+                    described(f"cell index {int(idx[0] if idx[0] < 0 else idx[-1])}"),
+                    f"must be in [0, {nc - 1}]",
+                )
         return self._leaves[idx]
 
     def _bisect(self, S: np.ndarray, reg: dict) -> np.ndarray:
@@ -826,8 +899,9 @@ class AdaptiveMesh:
             alive &= ~sinks
         if alive.any():
             live = alive[src] & alive[dst]
-            graph = coo_matrix((np.ones(int(live.sum())), (src[live], dst[live])),
-                               shape=(nv, nv)).tocsr()
+            graph = coo_matrix(
+                (np.ones(int(live.sum())), (src[live], dst[live])), shape=(nv, nv)
+            ).tocsr()
             _, comp = connected_components(graph, directed=True, connection="strong")
             # a component is removable now if no dependency leaves it
             leaves_comp = comp[src] != comp[dst]
@@ -836,8 +910,9 @@ class AdaptiveMesh:
             gen |= alive & ~blocked[comp]
         return gen
 
-    def _coarsen_round(self, marked_forest: np.ndarray, dead_nodes: list,
-                       dead_vertices: list) -> int:
+    def _coarsen_round(
+        self, marked_forest: np.ndarray, dead_nodes: list, dead_vertices: list
+    ) -> int:
         """Remove one generation of vertices (:meth:`_removable_generation`) where allowed.
 
         Undoes, bottom-up, every bisection at those vertices whose children are leaves (or
@@ -861,8 +936,12 @@ class AdaptiveMesh:
         frontier = np.unique(par[has_p & gen[np.maximum(pm, 0)] & marked_forest[L]])
         while frontier.size:
             c0 = self._child[frontier]
-            ok = gen[self._mid[frontier]] & is_leaf_or_c[c0] & is_leaf_or_c[c0 + 1] \
+            ok = (
+                gen[self._mid[frontier]]
+                & is_leaf_or_c[c0]
+                & is_leaf_or_c[c0 + 1]
                 & ~collapsed[frontier]
+            )
             new = frontier[ok]
             if new.size == 0:
                 break
@@ -976,9 +1055,18 @@ class AdaptiveMesh:
             change = c if change is None else _compose(change, c)
         return change
 
-    def adapt(self, refine=None, coarsen=None, *, coarsen_rounds: int = 1,
-              max_dofs: int | None = None, degree: int = 1, components: int = 1,
-              priority=None, max_level: int | None = None) -> MeshChange:
+    def adapt(
+        self,
+        refine=None,
+        coarsen=None,
+        *,
+        coarsen_rounds: int = 1,
+        max_dofs: int | None = None,
+        degree: int = 1,
+        components: int = 1,
+        priority=None,
+        max_level: int | None = None,
+    ) -> MeshChange:
         """Coarsen, then refine, the current mesh; returns the :class:`MeshChange`.
 
         Parameters
@@ -1035,8 +1123,9 @@ class AdaptiveMesh:
             if max_dofs is None:
                 bisected = self._refine_leaves(ref_ids)
             else:
-                bisected = self._refine_capped(ref_ids, int(max_dofs), degree, components,
-                                               priority, nc_old, n_dead_vertices)
+                bisected = self._refine_capped(
+                    ref_ids, int(max_dofs), degree, components, priority, nc_old, n_dead_vertices
+                )
 
         L = self._leaves
         unchanged = L < n_start
@@ -1047,17 +1136,26 @@ class AdaptiveMesh:
             self.mesh_id += 1
             self._cache = {}
         leaves = self._leaves
-        return MeshChange(old_points=old_points, old_cells=old_cells,
-                          new_points=self.points.copy(), new_cells=self.cells,
-                          old_start=self._src_start[leaves].astype(np.int64),
-                          old_count=self._src_count[leaves].astype(np.int64),
-                          unchanged=unchanged, bisections=int(bisected.size), merges=merges,
-                          removed_vertices=n_dead_vertices, old_mesh_id=old_id,
-                          new_mesh_id=self.mesh_id, old_cache=old_cache,
-                          new_cache=self._cache)
+        return MeshChange(
+            old_points=old_points,
+            old_cells=old_cells,
+            new_points=self.points.copy(),
+            new_cells=self.cells,
+            old_start=self._src_start[leaves].astype(np.int64),
+            old_count=self._src_count[leaves].astype(np.int64),
+            unchanged=unchanged,
+            bisections=int(bisected.size),
+            merges=merges,
+            removed_vertices=n_dead_vertices,
+            old_mesh_id=old_id,
+            new_mesh_id=self.mesh_id,
+            old_cache=old_cache,
+            new_cache=self._cache,
+        )
 
-    def _refine_capped(self, ref_ids, max_dofs, degree, components, priority, nc_old,
-                       n_dead_vertices):
+    def _refine_capped(
+        self, ref_ids, max_dofs, degree, components, priority, nc_old, n_dead_vertices
+    ):
         """Refine the top-k marked cells (by priority) with k maximal under the dof cap."""
         if priority is None:
             _, vol = barycentric_gradients(self._p[: self._nv].T, self._cells[ref_ids].T)
@@ -1065,8 +1163,11 @@ class AdaptiveMesh:
         else:
             prio_all = np.asarray(priority, dtype=float)
             if prio_all.shape != (nc_old,):
-                raise fail("priority", described(f"an array of shape {prio_all.shape}"),
-                           f"must have one value per cell ({nc_old})")
+                raise fail(
+                    "priority",
+                    described(f"an array of shape {prio_all.shape}"),
+                    f"must have one value per cell ({nc_old})",
+                )
             prio = prio_all[self._src_start[ref_ids]]
         order = np.argsort(-prio, kind="stable")
         ranked = ref_ids[order]
@@ -1175,8 +1276,11 @@ class AdaptiveMesh:
         from skfem import MeshTet, MeshTri
 
         if int(data.get("version", -1)) != CHECKPOINT_VERSION:
-            raise fail("checkpoint", data.get("version"),
-                       f"must be an adaptive-mesh checkpoint of version {CHECKPOINT_VERSION}")
+            raise fail(
+                "checkpoint",
+                data.get("version"),
+                f"must be an adaptive-mesh checkpoint of version {CHECKPOINT_VERSION}",
+            )
         self = cls.__new__(cls)
         d = int(data["dim"])
         self.dim = d
@@ -1186,9 +1290,15 @@ class AdaptiveMesh:
         self._init_storage(n, nv)
         self._n, self._nv = n, nv
         self._p[:nv] = data["points"]
-        for f, key in (("_cells", "cells"), ("_parent", "parent"), ("_child", "child"),
-                       ("_mid", "mid"), ("_root", "root"), ("_level", "level"),
-                       ("_origin", "origin")):
+        for f, key in (
+            ("_cells", "cells"),
+            ("_parent", "parent"),
+            ("_child", "child"),
+            ("_mid", "mid"),
+            ("_root", "root"),
+            ("_level", "level"),
+            ("_origin", "origin"),
+        ):
             getattr(self, f)[:n] = data[key]
         if d == 3:
             self._peaks[:n] = data["peaks"]
@@ -1199,8 +1309,9 @@ class AdaptiveMesh:
         self._facet_is_boundary = np.asarray(data["facet_is_boundary"], dtype=bool).copy()
         self._euler = int(data["euler"])
         self._parts = {k: np.asarray(v, dtype=bool).copy() for k, v in data["parts"].items()}
-        self._subdomains = {k: np.asarray(v, dtype=bool).copy()
-                            for k, v in data["subdomains"].items()}
+        self._subdomains = {
+            k: np.asarray(v, dtype=bool).copy() for k, v in data["subdomains"].items()
+        }
         self.mesh_id = int(data["mesh_id"])
         self._cache = {}
         self._stats = {"cycle_breaks": 0}
@@ -1215,14 +1326,22 @@ def _compose(first: MeshChange, second: MeshChange) -> MeshChange:
         raise ValueError("compose: the second change must not coarsen")
     start = first.old_start[second.old_start]
     count = first.old_count[second.old_start]
-    return MeshChange(old_points=first.old_points, old_cells=first.old_cells,
-                      new_points=second.new_points, new_cells=second.new_cells,
-                      old_start=start, old_count=count,
-                      unchanged=first.unchanged[second.old_start] & second.unchanged,
-                      bisections=first.bisections + second.bisections, merges=first.merges,
-                      removed_vertices=first.removed_vertices, old_mesh_id=first.old_mesh_id,
-                      new_mesh_id=second.new_mesh_id, old_cache=first.old_cache,
-                      new_cache=second.new_cache)
+    return MeshChange(
+        old_points=first.old_points,
+        old_cells=first.old_cells,
+        new_points=second.new_points,
+        new_cells=second.new_cells,
+        old_start=start,
+        old_count=count,
+        unchanged=first.unchanged[second.old_start] & second.unchanged,
+        bisections=first.bisections + second.bisections,
+        merges=first.merges,
+        removed_vertices=first.removed_vertices,
+        old_mesh_id=first.old_mesh_id,
+        new_mesh_id=second.new_mesh_id,
+        old_cache=first.old_cache,
+        new_cache=second.new_cache,
+    )
 
 
 __all__ = ["AdaptiveMesh", "MeshChange", "check_adaptable", "SKFEM_FACETS"]

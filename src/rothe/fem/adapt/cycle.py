@@ -97,11 +97,22 @@ class MeshAdaptation:
         :mod:`.marking`); none: no hysteresis, no band, no batch.
     """
 
-    def __init__(self, mesh, options: SpaceAdaptivity, *, degree: int = 1, components: int = 1,
-                 times: PhaseTimes | None = None, hysteresis: dict | None = None):
+    def __init__(
+        self,
+        mesh,
+        options: SpaceAdaptivity,
+        *,
+        degree: int = 1,
+        components: int = 1,
+        times: PhaseTimes | None = None,
+        hysteresis: dict | None = None,
+    ):
         if not isinstance(options, SpaceAdaptivity):
-            raise fail("adapt", described(type(options).__name__),
-                       "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)")
+            raise fail(
+                "adapt",
+                described(type(options).__name__),
+                "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)",
+            )
         self.options = options
         self.degree = int(degree)
         self.components = int(components)
@@ -133,8 +144,7 @@ class MeshAdaptation:
         """Whether to adapt after the accepted step with this (1-based) number."""
         return self.options.due(accepted_steps)
 
-    def cycle(self, family, problem, target, state, *, refine_only: bool = False
-              ) -> Adaptation:
+    def cycle(self, family, problem, target, state, *, refine_only: bool = False) -> Adaptation:
         """One adaptation (module docstring): the indicators of ``target`` on ``problem``'s
         mesh decide the new mesh; ``state`` is what moves to it.
 
@@ -147,30 +157,37 @@ class MeshAdaptation:
             with times.phase("estimate"):
                 eta = np.asarray(family.indicators(problem, target), dtype=float)
             if eta.shape != (self.amesh.n_cells,) or not np.all(np.isfinite(eta)):
-                raise AdaptationFailed("the error indicators are not finite (or not one per "
-                                       "cell)")
+                raise AdaptationFailed("the error indicators are not finite (or not one per cell)")
             estimate = float(np.sqrt(np.sum(eta * eta)))
             with times.phase("mark"):
                 if refine_only:
-                    refine = (doerfler_marking(eta, opts.refine_fraction)
-                              if estimate > opts.space_tol else None)
+                    refine = (
+                        doerfler_marking(eta, opts.refine_fraction)
+                        if estimate > opts.space_tol
+                        else None
+                    )
                     coarsen = None
                 else:
                     keep = getattr(family, "keep_cells", None)
                     refine, coarsen = self._mark(
-                        eta, None if keep is None else keep(problem, target, self.amesh))
-            if refine is None or not (np.any(refine) or (coarsen is not None
-                                                          and np.any(coarsen))):
+                        eta, None if keep is None else keep(problem, target, self.amesh)
+                    )
+            if refine is None or not (np.any(refine) or (coarsen is not None and np.any(coarsen))):
                 self.history.cycles += 1
                 return Adaptation(False, estimate, eta=eta)
             with times.phase("refine"):
                 snapshot = self.amesh.checkpoint_state()
                 history = self.history.checkpoint_state()
                 change = self.amesh.adapt(
-                    refine=refine, coarsen=coarsen,
+                    refine=refine,
+                    coarsen=coarsen,
                     coarsen_rounds=opts.coarsen_rounds if coarsen is not None else 1,
-                    max_dofs=opts.max_dofs, degree=self.degree, components=self.components,
-                    priority=eta, max_level=opts.max_level)
+                    max_dofs=opts.max_dofs,
+                    degree=self.degree,
+                    components=self.components,
+                    priority=eta,
+                    max_level=opts.max_level,
+                )
                 if self._band is not None and change.changed:
                     change = self._refine_band(change)
             if not change.changed:
@@ -199,16 +216,16 @@ class MeshAdaptation:
             raise AdaptationFailed(detail, exc) from exc
         return Adaptation(True, estimate, new_problem, new_state, change, eta)
 
-    def _mark(self, eta: np.ndarray, keep: np.ndarray | None
-              ) -> tuple[np.ndarray, np.ndarray]:
+    def _mark(self, eta: np.ndarray, keep: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`SpaceAdaptivity.mark` with the hysteresis, the refinement band, the
         coarsening batch (:mod:`.marking`, :mod:`.hysteresis`) and the cells the family keeps
         from coarsening (``keep``, a mask or None)."""
         opts, amesh = self.options, self.amesh
         frozen = None if keep is None else np.asarray(keep, dtype=bool)
         if self.coarsen_delay > 0 or self.max_recoarsen is not None:
-            held = self.history.frozen_cells(amesh.points, amesh.cells, self.coarsen_delay,
-                                             self.max_recoarsen)
+            held = self.history.frozen_cells(
+                amesh.points, amesh.cells, self.coarsen_delay, self.max_recoarsen
+            )
             frozen = held if frozen is None else (frozen | held)
         self._band = None
         if self.refine_band > 0.0:
@@ -218,8 +235,7 @@ class MeshAdaptation:
             target = levels[core] + 1
             if opts.max_level is not None:
                 target = np.minimum(target, opts.max_level)
-            band, behind = band_marking(points, cells, levels, centres, target,
-                                        self.refine_band)
+            band, behind = band_marking(points, cells, levels, centres, target, self.refine_band)
             frozen = band if frozen is None else (frozen | band)
             self._band = (centres, target)
         refine, coarsen = opts.mark(eta, frozen)
@@ -227,8 +243,11 @@ class MeshAdaptation:
             refine = refine | behind
         else:
             self._band = None  # the band is refined only when the estimate asks to refine
-        if (not refine.any() and self.coarsen_batch > 0.0
-                and np.count_nonzero(coarsen) < self.coarsen_batch * len(eta)):
+        if (
+            not refine.any()
+            and self.coarsen_batch > 0.0
+            and np.count_nonzero(coarsen) < self.coarsen_batch * len(eta)
+        ):
             coarsen = np.zeros_like(coarsen)
         return refine, coarsen
 
@@ -241,12 +260,18 @@ class MeshAdaptation:
         opts, amesh = self.options, self.amesh
         mesh_id = change.new_mesh_id
         for _ in range(4 * amesh.dim):
-            _, behind = band_marking(amesh.points, amesh.cells, amesh.levels, centres, target,
-                                     self.refine_band)
+            _, behind = band_marking(
+                amesh.points, amesh.cells, amesh.levels, centres, target, self.refine_band
+            )
             if not behind.any():
                 break
-            more = amesh.adapt(refine=behind, max_dofs=opts.max_dofs, degree=self.degree,
-                               components=self.components, max_level=opts.max_level)
+            more = amesh.adapt(
+                refine=behind,
+                max_dofs=opts.max_dofs,
+                degree=self.degree,
+                components=self.components,
+                max_level=opts.max_level,
+            )
             if not more.changed:
                 break
             change = _compose(change, more)
@@ -256,8 +281,7 @@ class MeshAdaptation:
 
     # -- checkpoint protocol ----------------------------------------------------------------
     def checkpoint_state(self) -> dict:
-        return {"amesh": self.amesh.checkpoint_state(),
-                "history": self.history.checkpoint_state()}
+        return {"amesh": self.amesh.checkpoint_state(), "history": self.history.checkpoint_state()}
 
     def restore_state(self, data: dict) -> None:
         self.amesh = AdaptiveMesh.restore_state(data["amesh"])

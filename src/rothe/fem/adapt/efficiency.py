@@ -38,8 +38,12 @@ class ScalarField:
 
         def hess(x):
             ga, gb = a.grad(x), b.grad(x)
-            return (a.hess(x) * b.value(x) + b.hess(x) * a.value(x)
-                    + ga[:, None] * gb[None, :] + gb[:, None] * ga[None, :])
+            return (
+                a.hess(x) * b.value(x)
+                + b.hess(x) * a.value(x)
+                + ga[:, None] * gb[None, :]
+                + gb[:, None] * ga[None, :]
+            )
 
         return ScalarField(value, grad, hess)
 
@@ -49,6 +53,7 @@ class ScalarField:
 
 def bump(d: int) -> ScalarField:
     """phi = prod_i sin(pi x_i)."""
+
     def value(x):
         return np.prod(np.sin(np.pi * x), axis=0)
 
@@ -65,7 +70,7 @@ def bump(d: int) -> ScalarField:
         for i in range(d):
             for j in range(d):
                 if i == j:
-                    out[i, j] = -np.pi**2 * np.prod(s, axis=0)
+                    out[i, j] = -(np.pi**2) * np.prod(s, axis=0)
                 else:
                     rest = np.prod(np.delete(s, [i, j], axis=0), axis=0) if d > 2 else 1.0
                     out[i, j] = np.pi**2 * c[i] * c[j] * rest
@@ -106,6 +111,7 @@ def front(d: int, center=None, radius: float = 0.3, width: float = 0.05) -> Scal
 
 def cube_bubble(d: int) -> ScalarField:
     """b = 4^d prod x_i (1 - x_i): zero on the boundary of the unit cube, 1 at its centre."""
+
     def value(x):
         return 4.0**d * np.prod(x * (1 - x), axis=0)
 

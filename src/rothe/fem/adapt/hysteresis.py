@@ -74,8 +74,9 @@ class VertexHistory:
         gone = k_old[~survived]
         if gone.size:
             self._count_removals(gone)
-        self.birth = np.concatenate([self.birth[survived],
-                                     np.full(len(new) - n_surv, self.cycles, dtype=np.int64)])
+        self.birth = np.concatenate(
+            [self.birth[survived], np.full(len(new) - n_surv, self.cycles, dtype=np.int64)]
+        )
 
     def _count_removals(self, keys: np.ndarray) -> None:
         if self._removed_keys.size == 0:
@@ -84,8 +85,9 @@ class VertexHistory:
         allc = np.concatenate([self._removed_counts, np.ones(len(keys), dtype=np.int64)])
         uniq, inv = np.unique(allk, return_inverse=True)
         self._removed_keys = uniq
-        self._removed_counts = np.bincount(inv.ravel(), weights=allc,
-                                           minlength=len(uniq)).astype(np.int64)
+        self._removed_counts = np.bincount(inv.ravel(), weights=allc, minlength=len(uniq)).astype(
+            np.int64
+        )
 
     def removals(self, points: np.ndarray) -> np.ndarray:
         """How often each of ``points`` (n, d) has been removed so far (0 if never)."""
@@ -106,8 +108,9 @@ class VertexHistory:
         return int(self._removed_counts.max()) if self._removed_counts.size else 0
 
     # -- the rules ------------------------------------------------------------------------------
-    def frozen_cells(self, points: np.ndarray, cells: np.ndarray, coarsen_delay: int,
-                     max_recoarsen: int | None) -> np.ndarray:
+    def frozen_cells(
+        self, points: np.ndarray, cells: np.ndarray, coarsen_delay: int, max_recoarsen: int | None
+    ) -> np.ndarray:
         """Mask of the cells that must not be marked for coarsening in adaptation
         ``self.cycles`` (module docstring)."""
         frozen_vertex = np.zeros(len(points), dtype=bool)
@@ -121,10 +124,17 @@ class VertexHistory:
     # -- checkpoint protocol --------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
         width = self._removed_keys.dtype.itemsize
-        raw = (np.frombuffer(self._removed_keys.tobytes(), dtype=np.uint8).reshape(-1, width)
-               if self._removed_keys.size else np.zeros((0, 0), dtype=np.uint8))
-        return {"birth": self.birth.copy(), "removed_keys": raw,
-                "removed_counts": self._removed_counts.copy(), "cycles": int(self.cycles)}
+        raw = (
+            np.frombuffer(self._removed_keys.tobytes(), dtype=np.uint8).reshape(-1, width)
+            if self._removed_keys.size
+            else np.zeros((0, 0), dtype=np.uint8)
+        )
+        return {
+            "birth": self.birth.copy(),
+            "removed_keys": raw,
+            "removed_counts": self._removed_counts.copy(),
+            "cycles": int(self.cycles),
+        }
 
     @classmethod
     def restore_state(cls, data: dict) -> VertexHistory:

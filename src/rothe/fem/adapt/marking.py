@@ -59,12 +59,19 @@ import numpy as np
 from ...errors import RotheInputError, check_int, check_real, described, fail
 
 #: the CLI option of each parameter (error messages name them when ``naming="cli"``)
-CLI_NAMES = {"space_tol": "--space-tol", "refine_fraction": "--refine-fraction",
-             "coarsen_fraction": "--coarsen-fraction", "max_dofs": "--max-dofs",
-             "adapt_every": "--adapt-every", "max_level": "--max-level",
-             "coarsen_rounds": "--coarsen-rounds", "coarsen_delay": "--coarsen-delay",
-             "max_recoarsen": "--max-recoarsen", "refine_band": "--refine-band",
-             "coarsen_batch": "--coarsen-batch"}
+CLI_NAMES = {
+    "space_tol": "--space-tol",
+    "refine_fraction": "--refine-fraction",
+    "coarsen_fraction": "--coarsen-fraction",
+    "max_dofs": "--max-dofs",
+    "adapt_every": "--adapt-every",
+    "max_level": "--max-level",
+    "coarsen_rounds": "--coarsen-rounds",
+    "coarsen_delay": "--coarsen-delay",
+    "max_recoarsen": "--max-recoarsen",
+    "refine_band": "--refine-band",
+    "coarsen_batch": "--coarsen-batch",
+}
 
 
 def doerfler_marking(eta: np.ndarray, fraction: float) -> np.ndarray:
@@ -85,8 +92,9 @@ def doerfler_marking(eta: np.ndarray, fraction: float) -> np.ndarray:
     return e2 >= threshold
 
 
-def coarsen_marking(eta: np.ndarray, budget: float,
-                    exclude: np.ndarray | None = None) -> np.ndarray:
+def coarsen_marking(
+    eta: np.ndarray, budget: float, exclude: np.ndarray | None = None
+) -> np.ndarray:
     """Boolean mask of the largest set of smallest indicators with sum eta_K^2 <= budget."""
     eta = np.asarray(eta, dtype=float)
     e2 = eta * eta
@@ -110,9 +118,14 @@ def coarsen_marking(eta: np.ndarray, budget: float,
     return mask
 
 
-def band_marking(points: np.ndarray, cells: np.ndarray, levels: np.ndarray,
-                 core_centres: np.ndarray, core_target: np.ndarray, radius: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def band_marking(
+    points: np.ndarray,
+    cells: np.ndarray,
+    levels: np.ndarray,
+    core_centres: np.ndarray,
+    core_target: np.ndarray,
+    radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """The band of width ``radius`` around core cells: (near, behind).
 
     ``core_centres`` (k, d) are the barycentres of the core cells (the Doerfler set), and
@@ -209,7 +222,8 @@ class SpaceAdaptivity:
             raise RotheInputError(
                 f"{n('refine_fraction')} + {n('coarsen_fraction')}: got "
                 f"{self.refine_fraction:g} + {self.coarsen_fraction:g} = {total:g}, must be "
-                "<= 1 (the refined and the coarsened cells must not overlap)")
+                "<= 1 (the refined and the coarsened cells must not overlap)"
+            )
         if self.max_dofs is not None:
             self.max_dofs = check_int(n("max_dofs"), self.max_dofs, minimum=1)
         self.adapt_every = check_int(n("adapt_every"), self.adapt_every, minimum=1)
@@ -234,35 +248,50 @@ class SpaceAdaptivity:
         """Check max_dofs against the dofs on ``amesh`` (an AdaptiveMesh); returns those dofs."""
         dofs = amesh.ndofs(degree, components)
         if self.max_dofs is not None and self.max_dofs < dofs:
-            raise fail(self._name("max_dofs"), self.max_dofs,
-                       f"must be >= the {dofs} dofs of the initial mesh")
+            raise fail(
+                self._name("max_dofs"),
+                self.max_dofs,
+                f"must be >= the {dofs} dofs of the initial mesh",
+            )
         return dofs
 
     def due(self, accepted_steps: int) -> bool:
         """Whether to adapt after the accepted step with this (1-based) number."""
         return accepted_steps > 0 and accepted_steps % self.adapt_every == 0
 
-    def mark(self, eta: np.ndarray, frozen: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
+    def mark(
+        self, eta: np.ndarray, frozen: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(refine, coarsen) masks from the cell indicators (see the module docstring);
         ``frozen`` (a cell mask) is never marked for coarsening (hysteresis, the band)."""
         eta = np.asarray(eta, dtype=float)
         if eta.ndim != 1 or not np.all(np.isfinite(eta)) or np.any(eta < 0):
-            raise fail("indicators", described("an array that is not finite and >= 0 per cell"),
-                       "must be one finite value >= 0 per cell")
+            raise fail(
+                "indicators",
+                described("an array that is not finite and >= 0 per cell"),
+                "must be one finite value >= 0 per cell",
+            )
         est = float(np.sqrt(np.sum(eta * eta)))
-        refine = doerfler_marking(eta, self.refine_fraction) if est > self.space_tol else \
-            np.zeros(eta.shape, dtype=bool)
+        refine = (
+            doerfler_marking(eta, self.refine_fraction)
+            if est > self.space_tol
+            else np.zeros(eta.shape, dtype=bool)
+        )
         budget = self.coarsen_fraction * max(est, self.space_tol) ** 2
         exclude = refine if frozen is None else (refine | np.asarray(frozen, dtype=bool))
         coarsen = coarsen_marking(eta, budget, exclude=exclude)
         return refine, coarsen
 
     def describe(self) -> dict:
-        out = {"space_tol": self.space_tol, "refine_fraction": self.refine_fraction,
-               "coarsen_fraction": self.coarsen_fraction, "max_dofs": self.max_dofs,
-               "adapt_every": self.adapt_every, "max_level": self.max_level,
-               "coarsen_rounds": self.coarsen_rounds}
+        out = {
+            "space_tol": self.space_tol,
+            "refine_fraction": self.refine_fraction,
+            "coarsen_fraction": self.coarsen_fraction,
+            "max_dofs": self.max_dofs,
+            "adapt_every": self.adapt_every,
+            "max_level": self.max_level,
+            "coarsen_rounds": self.coarsen_rounds,
+        }
         # the hysteresis options only when set (the descriptions of runs without them, and
         # their checkpoints, stay as they were)
         for key in ("coarsen_delay", "max_recoarsen", "refine_band", "coarsen_batch"):
@@ -271,17 +300,28 @@ class SpaceAdaptivity:
         return out
 
 
-def adapt_mesh(amesh, eta: np.ndarray, options: SpaceAdaptivity, *, degree: int = 1,
-               components: int = 1):
+def adapt_mesh(
+    amesh, eta: np.ndarray, options: SpaceAdaptivity, *, degree: int = 1, components: int = 1
+):
     """Mark by ``options`` and adapt ``amesh`` (coarsen, then refine under the dof cap).
 
     Returns the :class:`~rothe.fem.adapt.bisection.MeshChange` (``change.changed`` is False
     when nothing was marked or nothing could change; the transfer is then the identity).
     """
     if len(eta) != amesh.n_cells:
-        raise fail("indicators", described(f"{len(eta)} values"),
-                   f"must have one per cell ({amesh.n_cells})")
+        raise fail(
+            "indicators",
+            described(f"{len(eta)} values"),
+            f"must have one per cell ({amesh.n_cells})",
+        )
     refine, coarsen = options.mark(eta)
-    return amesh.adapt(refine=refine, coarsen=coarsen, coarsen_rounds=options.coarsen_rounds,
-                       max_dofs=options.max_dofs, degree=degree, components=components,
-                       priority=eta, max_level=options.max_level)
+    return amesh.adapt(
+        refine=refine,
+        coarsen=coarsen,
+        coarsen_rounds=options.coarsen_rounds,
+        max_dofs=options.max_dofs,
+        degree=degree,
+        components=components,
+        priority=eta,
+        max_level=options.max_level,
+    )

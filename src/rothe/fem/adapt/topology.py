@@ -22,11 +22,12 @@ from __future__ import annotations
 import numpy as np
 
 #: local facets (as vertex lists) of a cell in scikit-fem order
-SKFEM_FACETS = {2: np.array([[0, 1], [1, 2], [0, 2]]),
-                3: np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])}
+SKFEM_FACETS = {
+    2: np.array([[0, 1], [1, 2], [0, 2]]),
+    3: np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]),
+}
 #: local edges of a cell in scikit-fem order (for triangles the edges are the facets)
-SKFEM_EDGES = {2: SKFEM_FACETS[2],
-               3: np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])}
+SKFEM_EDGES = {2: SKFEM_FACETS[2], 3: np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])}
 
 
 def opposite_faces(d: int) -> np.ndarray:
@@ -93,8 +94,9 @@ def edge_structures(t: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarra
     return entities(t, SKFEM_EDGES[d], n_points)
 
 
-def lagrange_dofs(t: np.ndarray, n_points: int, degree: int,
-                  t2e: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+def lagrange_dofs(
+    t: np.ndarray, n_points: int, degree: int, t2e: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
     """(element_dofs (n_local, nc), n_dofs) of scalar P1/P2 in scikit-fem's numbering."""
     if degree == 1:
         return np.asarray(t, dtype=np.int64), int(n_points)
@@ -140,8 +142,7 @@ def lagrange_gradients(lam: np.ndarray, glam: np.ndarray, degree: int) -> np.nda
         return np.broadcast_to(g, glam.shape[:2] + lam.shape[1:])
     d = lam.shape[0] - 1
     vert = (4.0 * lam - 1.0)[:, None] * g
-    edge = np.stack([4.0 * (lam[a][None] * g[b] + lam[b][None] * g[a])
-                     for a, b in SKFEM_EDGES[d]])
+    edge = np.stack([4.0 * (lam[a][None] * g[b] + lam[b][None] * g[a]) for a, b in SKFEM_EDGES[d]])
     return np.concatenate([vert, edge], axis=0)
 
 
@@ -157,8 +158,11 @@ def barycentric_gradients(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.
         rows = [np.array([e[1][1], -e[1][0]]), np.array([-e[0][1], e[0][0]])]
         fact = 2.0
     else:
-        rows = [np.cross(e[1], e[2], axis=0), np.cross(e[2], e[0], axis=0),
-                np.cross(e[0], e[1], axis=0)]
+        rows = [
+            np.cross(e[1], e[2], axis=0),
+            np.cross(e[2], e[0], axis=0),
+            np.cross(e[0], e[1], axis=0),
+        ]
         det = np.sum(e[0] * rows[0], axis=0)
         fact = 6.0
     G = np.empty((d + 1, d, t.shape[1]))
@@ -168,8 +172,13 @@ def barycentric_gradients(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.
     return G, np.abs(det) / fact
 
 
-def barycentric(points: np.ndarray, p: np.ndarray, t: np.ndarray, cells: np.ndarray,
-                glam: np.ndarray | None = None) -> np.ndarray:
+def barycentric(
+    points: np.ndarray,
+    p: np.ndarray,
+    t: np.ndarray,
+    cells: np.ndarray,
+    glam: np.ndarray | None = None,
+) -> np.ndarray:
     """Barycentric coordinates (d+1, k) of points (d, k) in cells[i] (indices into t)."""
     if glam is None:
         glam, _ = barycentric_gradients(p, t[:, cells])
@@ -240,5 +249,6 @@ class FacetTopology:
         self.boundary_cells = cell_of[first[bnd]]
         self.boundary_local = local_of[first[bnd]]
         if np.any(counts > 2):
-            raise ValueError("mesh: a facet is shared by more than two cells (not a manifold "
-                             "simplicial mesh)")
+            raise ValueError(
+                "mesh: a facet is shared by more than two cells (not a manifold simplicial mesh)"
+            )
