@@ -10,6 +10,8 @@ BDF2 start.
     python benchmarks/eld.py --part dissipation   # E(T)/E(0), Euler vs BDF2
     python benchmarks/eld.py --part reactions     # eld-beam: reactions, dissipation, meshes
     python benchmarks/eld.py --part start         # BDF2 starts: largest multiplier error
+    python benchmarks/eld.py --quick              # small per-step costs and seconds per run
+                                                  # (before/after comparisons, ~1 minute)
 
 Part "adaptive": :func:`rothe.eld.ramp_problem` (unit square, P2, n = 4: the left side moved by
 0.1 (1 + tanh((t - 0.5)/0.005))/2, Rayleigh b = 0.01, T = 1), regularized form. Reference: uniform
@@ -50,19 +52,28 @@ import time
 import numpy as np
 
 from rothe.eld import (
+    BDF2,
     DirichletData,
     ELDProblem,
+    ImplicitEuler,
     NoDamping,
     NonlinearDamping,
+    Original,
     RayleighDamping,
+    Regularized,
     beam_problem,
+    mms_errors,
     mms_problem,
     ramp_problem,
     run_eld,
 )
-from rothe.eld.examples import multiplier_quadrature
 from rothe.eld.studies import fitted_rate
 from rothe.fem import mesh as meshes
+from rothe.stepping.controllers import Adaptive, Uniform
+
+#: the command-line names of the forms and schemes of the tables
+FORMS = {"regularized": Regularized(), "original": Original()}
+SCHEMES = {"euler": ImplicitEuler(), "bdf2": BDF2()}
 
 
 def peak_mb() -> float:
@@ -70,10 +81,13 @@ def peak_mb() -> float:
 
 
 def step_row(label, problem, form, tau, scheme="euler"):
-    traj = run_eld(problem, form, tau, scheme=scheme, store_fields=False)
-    stepper = traj.stepper
-    n = stepper.system_size
-    backsolve = stepper.solver.time_backsolve(n, repeats=30)
+    result = run_eld(
+        problem, form=FORMS[form], control=Uniform(tau), scheme=SCHEMES[scheme], store_fields=False
+    )
+    traj = result.trajectory
+    system = result.stepper.system
+    n = system.size
+    backsolve = system.solver.time_backsolve(n, repeats=30)
     st = traj.stats
     steps = st.accepted_steps
     per_step = st.wall_time_s / steps
@@ -138,14 +152,17 @@ def beam_child(n: int, steps: int) -> dict:
     problem = beam_problem(n, damping=RayleighDamping(0.0, 0.002), T=steps * tau)
     t_assembly = time.perf_counter() - t0
     t0 = time.perf_counter()
-    traj = run_eld(problem, "regularized", tau, solver="amg", store_fields=False, linear_rtol=1e-8)
+    result = run_eld(
+        problem, control=Uniform(tau), solver="amg", store_fields=False, linear_rtol=1e-8
+    )
+    traj = result.trajectory
     t_total = time.perf_counter() - t0
     info = traj.meta["linear_solver"]
     st = traj.stats
     return {
         "n": n,
         "unknowns": problem.space.ndofs,
-        "free_unknowns": int(traj.stepper.I.size),
+        "free_unknowns": int(result.stepper.system.I.size),
         "tetrahedra": int(problem.space.mesh.t.shape[1]),
         "steps": st.accepted_steps,
         "assembly_seconds": t_assembly,
@@ -192,7 +209,7 @@ class _Reference:
         self.problem = problem
         self.h = 2.0**-k
         t0 = time.perf_counter()
-        ref = run_eld(problem, "regularized", self.h, scheme="bdf2")
+        ref = run_eld(problem, control=Uniform(self.h), scheme=BDF2()).trajectory
         self.seconds = time.perf_counter() - t0
         self.t, self.u, self.v = ref["kept_t"], ref["u"], ref["v"]
         self.scale = max(self.norm(u, v) for u, v in zip(self.u, self.v, strict=True))
@@ -252,7 +269,7 @@ def part_adaptive(n: int, kref: int, tols) -> dict:
     rows = []
     for k in range(5, 14):
         t0 = time.perf_counter()
-        traj = run_eld(problem, "regularized", 2.0**-k, scheme="bdf2")
+        traj = run_eld(problem, control=Uniform(2.0**-k), scheme=BDF2()).trajectory
         sec = time.perf_counter() - t0
         eT, emax = ref.errors(traj)
         rows.append(
@@ -270,7 +287,7 @@ def part_adaptive(n: int, kref: int, tols) -> dict:
         )
     for tol in tols:
         t0 = time.perf_counter()
-        traj = run_eld(problem, "regularized", 0.01, scheme="bdf2", control="adaptive", tol=tol)
+        traj = run_eld(problem, scheme=BDF2(), control=Adaptive(tol, tau=0.01)).trajectory
         sec = time.perf_counter() - t0
         eT, emax = ref.errors(traj)
         rows.append(
@@ -375,8 +392,8 @@ def part_dissipation(taus=(0.1, 0.01, 0.001)) -> list[dict]:
     print("-" * len(head))
     rows = []
     for tau in taus:
-        e = run_eld(problem, "regularized", tau, store_fields=False)
-        b = run_eld(problem, "regularized", tau, scheme="bdf2", store_fields=False)
+        e = run_eld(problem, control=Uniform(tau), store_fields=False).trajectory
+        b = run_eld(problem, control=Uniform(tau), scheme=BDF2(), store_fields=False).trajectory
         E0 = b["energy"][0]
         row = {
             "tau": tau,
@@ -429,7 +446,9 @@ def part_reactions() -> list[dict]:
     ]:
         problem = beam_problem(n, damping=RayleighDamping(0.0, 0.002), degree=deg)
         t0 = time.perf_counter()
-        traj = run_eld(problem, "regularized", tau, scheme=scheme, store_fields=False)
+        traj = run_eld(
+            problem, control=Uniform(tau), scheme=SCHEMES[scheme], store_fields=False
+        ).trajectory
         sec = time.perf_counter() - t0
         R = traj["reaction_left"]
         peak = np.abs(R).max(axis=0)
@@ -457,12 +476,91 @@ def part_reactions() -> list[dict]:
     return rows
 
 
+# -- quick: the same code paths at small sizes, for before/after comparisons ------------------
+
+
+def part_quick(repeats: int = 3) -> list[dict]:
+    """Seconds of a few small runs (the best of ``repeats``, wall clock and CPU time of this
+    process: on a shared machine the CPU time is the steadier of the two): uniform Euler and
+    BDF2 in both forms, nonlinear damping, adaptive steps, and space adaptivity on the pulse
+    (the adapt step: estimate, mark, refine, rebuild, transfer)."""
+    from rothe.eld.examples import pulse_problem
+    from rothe.fem.adapt import SpaceAdaptivity
+
+    mms = mms_problem(16, 2, damping=RayleighDamping(0.1, 0.01))[0]
+    mms_nl = mms_problem(16, 2)[0]
+    beam = beam_problem(4, damping=RayleighDamping(0.0, 0.002), T=0.5)
+    ramp = ramp_problem(4, 2)
+    space = SpaceAdaptivity(
+        space_tol=1e-3, refine_fraction=0.5, coarsen_fraction=0.05, max_dofs=3000, adapt_every=1
+    )
+    cases = [
+        ("2D P2 n=16 Rayleigh, Euler, regularized", lambda: run_eld(mms, control=Uniform(0.01))),
+        (
+            "2D P2 n=16 Rayleigh, BDF2, original",
+            lambda: run_eld(mms, form=Original(), control=Uniform(0.01), scheme=BDF2()),
+        ),
+        (
+            "2D P2 n=16 nonlinear, Euler, regularized",
+            lambda: run_eld(mms_nl, control=Uniform(0.01)),
+        ),
+        (
+            "3D P2 beam n=4, BDF2, regularized",
+            lambda: run_eld(beam, control=Uniform(0.01), scheme=BDF2(), store_fields=False),
+        ),
+        (
+            "ramp P2 n=4, adaptive BDF2 tol 1e-5",
+            lambda: run_eld(ramp, scheme=BDF2(), control=Adaptive(1e-5, tau=0.01)),
+        ),
+        (
+            "pulse P2 n=4, T=0.2, adapt-space",
+            lambda: run_eld(
+                pulse_problem(4, T=0.2),
+                control=Uniform(0.01),
+                scheme=BDF2(),
+                keep_every=10,
+                adapt=space,
+            ),
+        ),
+    ]
+    head = f"{'case':<44} {'steps':>6} {'solves':>7} {'seconds':>8} {'s/step':>9} {'CPU s':>8}"
+    print(head)
+    print("-" * len(head))
+    rows = []
+    for label, run in cases:
+        best, cpu, result = np.inf, np.inf, None
+        for _ in range(repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            result = run()
+            best = min(best, time.perf_counter() - t0)
+            cpu = min(cpu, time.process_time() - c0)
+        st = result.statistics
+        rows.append(
+            {
+                "case": label,
+                "steps": st.accepted_steps,
+                "solves": st.inner_solves,
+                "seconds": best,
+                "cpu_seconds": cpu,
+            }
+        )
+        print(
+            f"{label:<44} {st.accepted_steps:>6d} {st.inner_solves:>7d} {best:>8.3f} "
+            f"{best / st.accepted_steps:>9.2e} {cpu:>8.3f}",
+            flush=True,
+        )
+    print(
+        f"{'total':<44} {'':>6} {'':>7} {sum(r['seconds'] for r in rows):>8.3f} {'':>9} "
+        f"{sum(r['cpu_seconds'] for r in rows):>8.3f}"
+    )
+    return rows
+
+
 # -- the BDF2 start -------------------------------------------------------------------------------
 
 
 def part_start(taus=(0.0025, 0.00125, 0.000625, 0.0003125)) -> dict:
     problem, exact = mms_problem(2, 2, T=0.05)
-    q = multiplier_quadrature(problem)
     print(
         "largest multiplier error over all steps, original form, BDF2, manufactured solution "
         "(P2, n = 2), T = 0.05 (the start dominates)"
@@ -474,14 +572,10 @@ def part_start(taus=(0.0025, 0.00125, 0.000625, 0.0003125)) -> dict:
     for start in ("taylor", "taylor2", "euler"):
         errs = []
         for tau in taus:
-            traj = run_eld(problem, "original", tau, scheme="bdf2", start=start)
-            ts, lams = traj["kept_t"], traj["lam"]
-            errs.append(
-                max(
-                    q.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n))
-                    for k in range(1, len(ts))
-                )
+            result = run_eld(
+                problem, form=Original(), control=Uniform(tau), scheme=BDF2(start=start)
             )
+            errs.append(mms_errors(exact, result)["error_lam_l2_max"])
         out[start] = errs
         rate = fitted_rate(taus, errs)
         print(f"{start:<10}" + "".join(f" {e:>13.3e}" for e in errs) + f" {rate:>7.2f}", flush=True)
@@ -505,9 +599,18 @@ def main(argv=None) -> int:
     parser.add_argument("--beam-n", type=int, default=44, help="beam cells across (default 44)")
     parser.add_argument("--beam-steps", type=int, default=5)
     parser.add_argument("--beam-child", nargs=2, type=int, help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="only a few small runs, best of 3 (before/after comparisons)",
+    )
     args = parser.parse_args(argv)
     if args.beam_child:
         print(json.dumps(beam_child(*args.beam_child)))
+        return 0
+    if args.quick:
+        print("Seconds of small runs (best of 3)")
+        part_quick()
         return 0
     if args.part in ("all", "steps"):
         print("Per-step cost against one back-substitution with the same factorization")

@@ -19,7 +19,7 @@ Cases (all P1 unless said otherwise):
   constraint condensed, so that its system is the peer's), against the peer's strong Dirichlet
   with CG + GAMG (rigid-body near-null space), rtol 1e-8; both start CG from 2u^{j-1} - u^{j-2}.
 - LU, N = 16 (56,355 dofs), 10 steps: rothe regularized and original form (the original form
-  condensed onto the free dofs, see rothe.eld.schemes) with SuperLU, against the peer's strong
+  condensed onto the free dofs, see rothe.eld.system) with SuperLU, against the peer's strong
   Dirichlet and its bordered KKT with MUMPS.
 - P2 at N = 22 (1,075,275 dofs): rothe only (the peer's script builds P1 only).
 - agreement, N = 16, 200 steps (T = 2): the reaction at the moved end, sum over the constrained
@@ -99,11 +99,20 @@ def rothe_child(
     import pyamg  # noqa: F401  (imported before the clocks start, as the peer imports dolfinx)
     import skfem  # noqa: F401
 
-    from rothe.eld import DirichletData, ELDProblem, ELDStepper, Material, RayleighDamping
+    from rothe.eld import (
+        DirichletData,
+        ELDProblem,
+        ELDStepper,
+        Material,
+        Original,
+        RayleighDamping,
+        Regularized,
+    )
+    from rothe.eld.data import DATA_MODES
     from rothe.eld.examples import EndMotion
     from rothe.fem import mesh as meshes
     from rothe.io.trajectory import Trajectory
-    from rothe.stepping.controllers import FixedStepController
+    from rothe.stepping.controllers import FixedStepController, Uniform
     from rothe.stepping.evolve import evolve
 
     sampler = _PeakSampler()
@@ -138,9 +147,9 @@ def rothe_child(
     t0 = time.perf_counter()
     stepper = ELDStepper(
         problem,
-        form,
-        tau,
-        data=data,
+        form=Regularized() if form == "regularized" else Original(),
+        control=Uniform(tau),
+        data=DATA_MODES[data](),
         solver=solver,
         store_fields=False,
         observer=observer,
@@ -148,11 +157,11 @@ def rothe_child(
     )
     t_stepper = time.perf_counter() - t0
     memory["stepper (step matrix, solver setup)"] = sampler.checkpoint()
-    stats = stepper.solver.stats
+    stats = stepper.system.solver.stats
     out["setup_s"] = stats.setup_seconds
     out["assembly_s"] = t_problem + (t_stepper - stats.setup_seconds)
-    out["kind"] = stepper.kind
-    ml = getattr(stepper.solver, "_ml", None)
+    out["kind"] = stepper.system.kind
+    ml = getattr(stepper.system.solver, "_ml", None)
     if ml is not None:
         out["amg_levels"] = len(ml.levels)
         out["amg_operator_complexity"] = float(ml.operator_complexity())

@@ -25,14 +25,14 @@ import time
 import numpy as np
 
 from rothe import run_ris
-from rothe.cli.ris_commands import (
+from rothe.cli.ris_commands import control_object, format_table
+from rothe.ris.examples import errors_against_exact, example_7_1
+from rothe.ris.summary import (
     compare_rows,
     equidistribution_bound,
-    format_table,
     ris_summary,
     uniform_work_at_error,
 )
-from rothe.ris.examples import errors_against_exact, example_7_1
 
 CONTROLS = ("adaptive", "order2", "regime")
 TOLS = (1e-3, 1e-4, 1e-5, 1e-6)
@@ -40,7 +40,7 @@ TAUS = (0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001, 0.0005)
 
 
 def one(problem, control, tol=None, tau=0.1) -> dict:
-    traj = run_ris(problem, control, tol=tol, tau=tau)
+    traj = run_ris(problem, control_object(control, tol=tol, tau=tau)).trajectory
     row = ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
     row["tau0"] = tau
     if control == "uniform":
@@ -119,7 +119,7 @@ def main() -> None:
         times = []
         for _ in range(3):
             t0 = time.perf_counter()
-            run_ris(problem, control, tol=1e-5, tau=0.1)
+            run_ris(problem, control_object(control, tol=1e-5, tau=0.1))
             times.append(time.perf_counter() - t0)
         print(f"\nwhole {control} run at tol 1e-5: {min(times):.3f} s (min of 3; target < 1 s)")
 

@@ -114,15 +114,15 @@ class _Proxy:
 
 
 def run_logged(problem, control, tol, tau, example):
-    """One run as rothe.ris.stepper.run_ris does it, with every attempt filed (_Attempts)."""
-    from rothe.cli.ris_commands import ris_summary
-    from rothe.cli.ris_fem_commands import equidistribution_bound
-    from rothe.ris.controllers import make_controller
-    from rothe.ris.fem_problem import describe_branch
-    from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
+    """One run as rothe.ris.run.run_ris does it, with every attempt filed (_Attempts)."""
+    from rothe.cli.ris_commands import control_object
+    from rothe.ris.controllers import build_controller
+    from rothe.ris.run import initial_trajectory
+    from rothe.ris.stepper import RISState, RISStepper
+    from rothe.ris.summary import describe_branch, equidistribution_bound, ris_summary
     from rothe.stepping.evolve import evolve
 
-    controller = make_controller(control, tol=tol, tau=tau)
+    controller = build_controller(control_object(control, tol=tol, tau=tau))
     stepper = RISStepper(problem)
     log = _Attempts(stepper, controller)
     traj = initial_trajectory(problem, {"control": controller.name, "tol": tol, "tau0": tau})
@@ -168,7 +168,7 @@ def work_table(problem, example, controls, tols, taus, tau0=0.1) -> None:
 
 def paper_size(quick: bool) -> None:
     from rothe.cli.ris_fem_commands import COMPARE_CONTROLS, COMPARE_TAUS
-    from rothe.ris.fem_problem import example_7_2
+    from rothe.ris.examples import example_7_2
 
     n = 16 if quick else 40
     problem = example_7_2(n)
@@ -183,7 +183,7 @@ def paper_size(quick: bool) -> None:
 
 def cube(quick: bool) -> None:
     from rothe.cli.ris_fem_commands import COMPARE_CONTROLS
-    from rothe.ris.fem_problem import example_7_2_3d
+    from rothe.ris.examples import example_7_2_3d
 
     n = 4 if quick else 8
     problem = example_7_2_3d(n)
@@ -204,11 +204,11 @@ def _slip_state(n_fine: int):
     """
     from matplotlib.tri import LinearTriInterpolator, Triangulation
 
-    from rothe import run_ris
-    from rothe.ris.fem_problem import example_7_2
+    from rothe import Adaptive, run_ris
+    from rothe.ris.examples import example_7_2
 
     coarse = example_7_2(40)
-    traj = run_ris(coarse, "adaptive", tol=1e-4, tau=0.01)
+    traj = run_ris(coarse, Adaptive(1e-4, tau=0.01)).trajectory
     k = int(np.searchsorted(traj["t"], 0.5))
     tri = Triangulation(coarse.mesh.p[0], coarse.mesh.p[1], coarse.mesh.t.T)
     interp = LinearTriInterpolator(tri, traj["z"][k])
@@ -220,9 +220,10 @@ def _slip_state(n_fine: int):
 def measure(n: int, solver: str, phase: str, steps: int, control: str = "regime") -> dict:
     import scipy.sparse.linalg as spla
 
+    from rothe.cli.ris_commands import control_object
     from rothe.io.trajectory import Trajectory
-    from rothe.ris.controllers import make_controller
-    from rothe.ris.fem_problem import example_7_2
+    from rothe.ris.controllers import build_controller
+    from rothe.ris.examples import example_7_2
     from rothe.ris.inner import InnerOptions
     from rothe.ris.stepper import RISState, RISStepper
     from rothe.stepping.evolve import evolve, single_threaded_blas
@@ -247,7 +248,7 @@ def measure(n: int, solver: str, phase: str, steps: int, control: str = "regime"
         state = RISState(s=s0, t=t_start, z=z)
     stepper = RISStepper(problem, InnerOptions(linear_solver=solver))
     traj = Trajectory()
-    controller = make_controller(control, tol=1e-5, tau=tau0)
+    controller = build_controller(control_object(control, tol=1e-5, tau=tau0))
     warm = {"warmup_s": 0.0, "warmup_accepted": 0, "warmup_rejected": 0}
     if phase == "slip":
         t0 = time.perf_counter()

@@ -83,9 +83,10 @@ def log_interp_work(err, uniform):
 
 
 def eld(quick: bool) -> float | None:
-    from rothe.eld import run_eld
+    from rothe.eld import BDF2, run_eld
     from rothe.eld.examples import pulse_problem, rectangle
     from rothe.fem.adapt import AdaptiveMesh, SpaceAdaptivity
+    from rothe.stepping.controllers import Uniform
 
     T, tau = (0.6, 0.01) if quick else (0.8, 0.01)
     n0 = 4
@@ -93,7 +94,7 @@ def eld(quick: bool) -> float | None:
     ref_level = levels[-1] + 1
     tols = (5e-3, 3e-3, 2e-3) if quick else (5e-3, 3e-3, 2e-3, 1.2e-3, 8e-4)
     every = round(0.1 / tau)
-    base = dict(form="regularized", tau=tau, scheme="bdf2", keep_every=every)
+    base = dict(control=Uniform(tau), scheme=BDF2(), keep_every=every)
 
     def mesh_at(level):  # the bisection hierarchy's uniform meshes: all nested
         amesh = AdaptiveMesh(rectangle(2 * n0, n0))
@@ -114,15 +115,16 @@ def eld(quick: bool) -> float | None:
     def run(label, level, space):
         problem = pulse_problem(T=T, mesh=mesh_at(level))
         t0 = time.perf_counter()
-        traj = run_eld(problem, space=space, **base)
+        result = run_eld(problem, adapt=space, **base)
         secs = time.perf_counter() - t0
+        traj = result.trajectory
         if space is None:
             mesh = problem.space.mesh
             states = [(mesh.p.T, mesh.t.T, u, v) for u, v in zip(traj["u"], traj["v"], strict=True)]
             dofs = problem.space.ndofs * (len(traj["t"]) - 1)
             final = problem.space.ndofs
         else:
-            sp_ = traj.space
+            sp_ = result.meshes
             states = [
                 (*sp_.series.mesh(m), u, v)
                 for m, u, v in zip(traj["kept_mesh_id"], sp_.kept["u"], sp_.kept["v"], strict=True)

@@ -4,7 +4,7 @@
 
 (to be joined into ``benchmarks/space_adaptivity.py --family ris``: :func:`run_ris_family`).
 
-Problem: :func:`rothe.ris.fem_problem.example_front` (a phase front sweeping the unit square,
+Problem: :func:`rothe.ris.examples.example_front` (a phase front sweeping the unit square,
 c = 0.1), all runs with the same uniform step tau in s, so that the runs differ only in space.
 Runs, all in this process:
 
@@ -31,9 +31,11 @@ import matplotlib.tri as mtri
 import numpy as np
 
 from rothe.fem.adapt import SpaceAdaptivity
-from rothe.ris.fem_problem import example_front, nodal_volumes
+from rothe.ris.examples import example_front
 from rothe.ris.inner import InnerOptions
-from rothe.ris.stepper import run_ris
+from rothe.ris.run import run_ris
+from rothe.ris.summary import nodal_volumes
+from rothe.stepping.controllers import Uniform
 
 TIMES = (0.25, 0.5, 0.75)
 DIRECT = InnerOptions(linear_solver="direct")
@@ -65,14 +67,14 @@ def _error(run_states, ref_states, ref_points, ref_mass):
     return max(errs)
 
 
-def _run(n, tau, space=None):
+def _run(n, tau, adapt=None):
     problem = example_front(n)
     t0 = time.perf_counter()
-    traj = run_ris(problem, "uniform", tol=None, tau=tau, inner=DIRECT, space=space)
+    traj = run_ris(problem, Uniform(tau), inner=DIRECT, adapt=adapt).trajectory
     seconds = time.perf_counter() - t0
     # the process's peak RSS so far (runs go from small to large, so mostly this run's)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    if space is None:
+    if adapt is None:
         traj.meta["_points"], traj.meta["_cells"] = problem.mesh.p.T, problem.mesh.t.T
         dofs = np.full(len(traj), problem.n)
     else:
@@ -126,14 +128,14 @@ def run_ris_family(quick: bool) -> float:
         rows.append(info)
         print(f"  uniform N={n}: {info}", flush=True)
     for tol in tols:
-        space = SpaceAdaptivity(
+        adapt = SpaceAdaptivity(
             space_tol=tol,
             refine_fraction=0.5,
             coarsen_fraction=0.05,
             max_dofs=(n_ref + 1) ** 2,
             max_level=max_level,
         )
-        traj, info = _run(n0, tau, space)
+        traj, info = _run(n0, tau, adapt)
         info.update(
             mesh="adaptive",
             param=f"tol={tol:g}",

@@ -5,17 +5,19 @@ Two families, each with its own API:
 * Rate-independent systems with non-convex energy (Andreia & Meyer 2022): parametrized
   balanced-viscosity solutions by the local incremental stationary scheme with uniform,
   adaptive (Alg. 3.2), nested (Alg. 6.2), order2 and regime step control. Exported here:
-  ``RISProblem`` (I(t, z) = 1/2 <Az, z> + F(z) - <l(t), z> in R^n), ``run_ris``,
-  ``run_nested``, the controllers, ``Trajectory``; finite elements in
-  ``rothe.ris.fem_problem`` (``FERISProblem``, ``example_7_2``) and ``rothe.fem.mesh``
-  (``unit_square``, ``load_mesh``).
+  ``RISProblem`` (I(t, z) = 1/2 <Az, z> + F(z) - <l(t), z> in R^n), ``run_ris(problem,
+  Adaptive(tol=1e-4))`` -> ``RISResult``, ``run_nested(problem, Nested(tols))``, the
+  step-control objects ``Uniform``, ``Adaptive``, ``Order2``, ``Regime``, ``Nested``,
+  ``Trajectory``; the whole family in ``rothe.ris`` (``help(rothe.ris)``: ``FERISProblem``,
+  the examples 7.1, 7.2 and the front) and meshes in ``rothe.fem.mesh`` (``unit_square``,
+  ``load_mesh``).
 * Elastodynamics with time-dependent Dirichlet constraints as operator DAEs (Altmann 2015):
   ``rothe.eld`` (``run_eld`` with implicit Euler or BDF2 and uniform or adaptive steps,
   ``ELDProblem``, ``Material``, the damping classes, ``DirichletData``); see
   ``help(rothe.eld)``.
 
 Shared by both: meshes that change between steps (``rothe.fem.adapt.SpaceAdaptivity``, passed
-as ``space=`` to ``run_ris`` and ``run_eld``; indicators in ``rothe.estimators``), checkpoints
+as ``adapt=`` to ``run_ris`` and ``run_eld``; indicators in ``rothe.estimators``), checkpoints
 and resume (``checkpoint=`` / ``resume=`` of the run functions), ParaView output and figures
 (``rothe.io``, ``rothe.plotting``), and sweeps, compares and studies on Dask
 (``rothe.cli.sweep.run_sweep``).
@@ -29,30 +31,43 @@ docstrings.
 
 from .errors import RotheInputError, RunFailed
 from .io.trajectory import RunStatistics, Trajectory
-from .ris.controllers import AdaptiveController, Order2Controller, RegimeController, make_controller
+from .ris.controllers import (
+    AdaptiveController,
+    Nested,
+    Order2,
+    Order2Controller,
+    Regime,
+    RegimeController,
+)
 from .ris.inner import BallStepSolver, InnerOptions
 from .ris.problem import RISProblem
-from .ris.stepper import RISStepper, run_nested, run_ris
-from .stepping.controllers import UniformController
+from .ris.run import RISResult, run_nested, run_ris
+from .ris.stepper import RISStepper
+from .stepping.controllers import Adaptive, Uniform, UniformController
 from .stepping.evolve import evolve
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "Adaptive",
     "AdaptiveController",
     "BallStepSolver",
     "InnerOptions",
+    "Nested",
+    "Order2",
     "Order2Controller",
+    "Regime",
     "RegimeController",
     "RISProblem",
+    "RISResult",
     "RISStepper",
     "RotheInputError",
     "RunFailed",
     "RunStatistics",
     "Trajectory",
+    "Uniform",
     "UniformController",
     "evolve",
-    "make_controller",
     "run_nested",
     "run_ris",
 ]

@@ -166,6 +166,14 @@ def check_choice(name: str, value, choices: Sequence[str]) -> str:
     return value
 
 
+def check_instance(name: str, value, types, allowed: str):
+    """``value`` if it is an instance of ``types`` (an option object), else the one-line error
+    ``<name>: got <value>, must be <allowed>``."""
+    if not isinstance(value, types):
+        raise fail(name, value, f"must be {allowed}")
+    return value
+
+
 def check_decreasing(name: str, values: Sequence[float]) -> list[float]:
     """A strictly decreasing sequence of positive numbers (the tolerances of Alg. 6.2)."""
     xs = [check_positive(name, v) for v in values]

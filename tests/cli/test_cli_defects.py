@@ -16,7 +16,7 @@ import pytest
 from rothe import __version__
 from rothe.cli.main import main
 from rothe.cli.registry import commands, load_all
-from rothe.ris.controllers import CONTROLS
+from rothe.cli.ris_commands import CONTROLS
 
 
 def run_cli(capsys, *argv):
@@ -83,21 +83,25 @@ def test_bare_rothe_prints_usage_and_every_command(capsys):
         ),
         (
             ["--control", "uniform", "--tol", "1e-9"],
-            "rothe: error: --tol: got 1e-09, is not used by --control uniform (no tolerance: its step "
+            "rothe: error: --tol: got 1e-09, is not used by --control uniform (no tolerance: "
+            "its step "
             "is --tau); --tol is for --control adaptive or order2 or regime",
         ),
         (
             ["--control", "order2", "--tols", "1e-3,1e-4"],
-            "rothe: error: --tols: got 0.001,0.0001, is not used by --control order2 (it reads --tol); "
+            "rothe: error: --tols: got 0.001,0.0001, is not used by --control order2 (it "
+            "reads --tol); "
             "--tols is for --control nested",
         ),
         (
             ["--control", "nested", "--tols", ""],  # silently ran the defaults before
-            "rothe: error: argument --tols: got '', must be a comma-separated list of finite numbers",
+            "rothe: error: argument --tols: got '', must be a comma-separated list of finite "
+            "numbers",
         ),
         (
             ["--control", "nested", "--tols", "1e-3,,1e-4"],
-            "rothe: error: argument --tols: got '1e-3,,1e-4', must be a comma-separated list of finite "
+            "rothe: error: argument --tols: got '1e-3,,1e-4', must be a comma-separated list "
+            "of finite "
             "numbers",
         ),
     ],
@@ -138,7 +142,8 @@ def test_nested_prints_its_tolerances_not_a_default_tol(tmp_path, capsys):
     [
         (
             ["run", "ris-1d", "--keep-every", "2"],  # cannot reshape array, after the whole run
-            "rothe: error: --keep-every: got 2, must be 1 for ris-1d (one unknown; the errors against "
+            "rothe: error: --keep-every: got 2, must be 1 for ris-1d (one unknown; the errors "
+            "against "
             "(7.1) need every state)",
         ),
         (
@@ -151,7 +156,8 @@ def test_nested_prints_its_tolerances_not_a_default_tol(tmp_path, capsys):
         ),
         (
             ["run", "ris-1d", "--tau-min", "1e-320"],
-            "rothe: error: --tau-min: got 9.99989e-321, must be >= 5e-14 (1e-14 max(1, T): a smaller "
+            "rothe: error: --tau-min: got 9.99989e-321, must be >= 5e-14 (1e-14 max(1, T): a "
+            "smaller "
             "step vanishes in the round-off of s)",
         ),
         (
@@ -160,17 +166,20 @@ def test_nested_prints_its_tolerances_not_a_default_tol(tmp_path, capsys):
         ),
         (
             ["compare", "ris-1d", "--taus", "1e-320,0.1"],  # complained about tau_min before
-            "rothe: error: --taus: got 9.99989e-321, must be >= 1e-12 (the smallest step tau_min of "
+            "rothe: error: --taus: got 9.99989e-321, must be >= 1e-12 (the smallest step "
+            "tau_min of "
             "the runs)",
         ),
         (
             ["run", "ris-2d", "--n", "4", "--z0", "1e300"],  # "F(z0): got inf" before
-            "rothe: error: --z0: got 1e+300, gives non-finite data (F(z0): got inf, must be finite (no "
+            "rothe: error: --z0: got 1e+300, gives non-finite data (F(z0): got inf, must be "
+            "finite (no "
             "NaN or inf))",
         ),
         (
             ["run", "ris-2d", "--n", "4", "--amplitude", "1e300"],  # KeyError: 'I1' before
-            "rothe: error: --amplitude: got 1e+300, gives non-finite data (load(t=1): got a vector of "
+            "rothe: error: --amplitude: got 1e+300, gives non-finite data (load(t=1): got a "
+            "vector of "
             "norm inf, must have a finite V^-1 norm (sum l_i^2 / m_i overflows))",
         ),
         (["run", "ris-2d", "--mesh", ""], "rothe: error: --mesh: got '', must name a mesh file"),
@@ -255,20 +264,22 @@ def test_nan_load_midway_is_a_failed_run_that_keeps_its_trajectory(tmp_path, cap
     """FERISProblem raised an input error (exit 2) and discarded the steps computed so far."""
     import numpy as np
 
-    from rothe.ris import fem_problem as ris_fem
+    from rothe.fem.mesh import unit_square
+    from rothe.ris import examples
+    from rothe.ris.fem_problem import FERISProblem
 
     def factory(n, mesh, **kw):
         # NaN on (0.5, 0.52): between the nine times the problem checks when it is built
-        return ris_fem.FERISProblem(
-            ris_fem.unit_square(n),
-            ris_fem.g_7_2,
-            ris_fem.dg_7_2,
-            ris_fem.d2g_7_2,
+        return FERISProblem(
+            unit_square(n),
+            examples.g_7_2,
+            examples.dg_7_2,
+            examples.d2g_7_2,
             load=lambda t: np.nan if 0.5 < t < 0.52 else -200.0 * t**3,
             name="ris-2d",
         )
 
-    monkeypatch.setattr(ris_fem, "example_7_2", factory)
+    monkeypatch.setattr(examples, "example_7_2", factory)
     out = tmp_path / "o"
     line = one_line_error(
         capsys, "run", "ris-2d", "--n", "4", "--no-plots", "--out", str(out), status=1

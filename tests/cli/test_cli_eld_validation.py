@@ -18,11 +18,13 @@ from rothe.errors import RotheInputError
         # OverflowError: cannot convert float infinity to integer
         (
             ["run", "eld-mms", "--tau", "1e-320"],
-            "rothe: error: --tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of T = 1)",
+            "rothe: error: --tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of "
+            "T = 1)",
         ),
         (
             ["run", "eld-beam", "--tau", "1e-320"],
-            "rothe: error: --tau: got 9.99989e-321, must be >= 2e-07 (at most 1e+07 steps of T = 2)",
+            "rothe: error: --tau: got 9.99989e-321, must be >= 2e-07 (at most 1e+07 steps of "
+            "T = 2)",
         ),
         # exited 0: --a is not read by the nonlinear damping
         (
@@ -37,18 +39,21 @@ from rothe.errors import RotheInputError
         ),
         (
             ["run", "eld-mms", "--damping", "none", "--b", "0.1"],
-            "rothe: error: --b: got 0.1, is not used by --damping none; --b is for --damping nonlinear "
+            "rothe: error: --b: got 0.1, is not used by --damping none; --b is for --damping "
+            "nonlinear "
             "or rayleigh",
         ),
         # no bound: 2^60 steps
         (
             ["study", "eld-convergence", "--halvings", "60"],
-            "rothe: error: --halvings: got 60, must be <= 16 (the finest run would take 1.15e+19 steps "
+            "rothe: error: --halvings: got 60, must be <= 16 (the finest run would take "
+            "1.15e+19 steps "
             "of tau0/2^60; at most 1e+06)",
         ),
         (
             ["study", "eld-convergence", "--tau0", "1e-320"],
-            "rothe: error: --tau0: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of T = 1)",
+            "rothe: error: --tau0: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of "
+            "T = 1)",
         ),
         # StopIteration
         (
@@ -67,12 +72,14 @@ from rothe.errors import RotheInputError
         # RuntimeError: Factor is exactly singular
         (
             ["study", "eld-perturbation", "--delta", "1e300"],
-            "rothe: error: --delta: got 1e+300, must be <= 1 (noise small against the data, which are "
+            "rothe: error: --delta: got 1e+300, must be <= 1 (noise small against the data, "
+            "which are "
             "of size about 1)",
         ),
         (
             ["study", "eld-perturbation", "--taus", "1e-320,0.1"],
-            "rothe: error: --taus: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of T = 1)",
+            "rothe: error: --taus: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of "
+            "T = 1)",
         ),
     ],
 )

@@ -25,7 +25,8 @@ from rothe.errors import RotheInputError, fail
         (["run", "eld-beam", "--degree", "3"], "rothe: error: --degree: got 3, must be 1 or 2"),
         (
             ["run", "ris-2d", "--n", "4", "--dirichlet", "inlet"],
-            "rothe: error: --dirichlet: got 'inlet', must be one of bottom, left, right, top (sides of "
+            "rothe: error: --dirichlet: got 'inlet', must be one of bottom, left, right, top "
+            "(sides of "
             "the bounding box; the mesh has no named parts)",
         ),
         (["run", "ris-1d", "--tau", "0"], "rothe: error: --tau: got 0, must be > 0"),

@@ -263,3 +263,130 @@ def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(tmp_path, caps
     data = np.load(out / "trajectory.npz")
     assert data["nodes"].shape[1] == 3 and data["cells"].shape[1] == 4
     assert data["kept_step"][-1] == 30
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--scheme", "bdf3"], "--scheme: got 'bdf3', must be one of euler, bdf2"),
+        (["--control", "adaptive", "--tol", "0"], "--tol: got 0, must be > 0"),
+        (["--control", "adaptive", "--tol", "-1"], "--tol: got -1, must be > 0"),
+        (["--tol", "1e-3"], "--tol: got 0.001, is used by --control adaptive only"),
+        (
+            ["--scheme", "bdf2", "--steps", "0.1,0.3,0.6"],
+            "steps: got tau_2/tau_1 = 3, must be < 1 + sqrt(2) = 2.41421 (zero-stability",
+        ),
+        (
+            ["--scheme", "bdf2", "--d0", "2", "--tau", "0.8"],
+            "tau: got 0.8, must be < 1.5 rho/d0 = 0.75 (Lemma 3.2 for BDF2",
+        ),
+        # the CLI refuses it before the library would (i10-defects): at most 1e7 steps of T
+        (["--tau", "1e-320"], "--tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps"),
+        (["--scheme", "bdf2", "--data", "means"], "data: got 'means', with scheme bdf2 must be"),
+        (["--load-quadrature", "0"], "load_quadrature: got 0, must be an integer >= 1"),
+    ],
+)
+def test_bad_eld_options_are_one_line_and_exit_2(tmp_path, capsys, args, message):
+    code, _, err = _run(
+        ["run", "eld-mms", "--n", "2", "--quiet", "--out", str(tmp_path)] + args, capsys
+    )
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and message in lines[0], err
+
+
+def test_perturbation_study_refuses_an_unknown_datum(tmp_path, capsys):
+    code, _, err = _run(
+        ["study", "eld-perturbation", "--targets", "G,H", "--out", str(tmp_path)], capsys
+    )
+    assert code == 2 and "--targets: got 'H', must be one of G, G_dot, G_ddot, F" in err
+
+
+def test_adaptive_bdf2_run_from_the_run(tmp_path, capsys):
+    out = tmp_path / "adaptive"
+    code, stdout, _ = _run(
+        [
+            "run",
+            "eld-mms",
+            "--n",
+            "2",
+            "--scheme",
+            "bdf2",
+            "--control",
+            "adaptive",
+            "--tol",
+            "1e-3",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["scheme"] == "bdf2" and s["control"] == "adaptive" and s["tol"] == 1e-3
+    assert s["status"] == "completed" and s["balance_residual_max"] < 1e-10
+    assert s["tau_min_used"] < s["tau_max_used"]
+    assert "(G-form part N_G" in stdout
+
+
+def test_beam_overflow_is_a_failed_run(tmp_path, capsys):
+    out = tmp_path / "beam"
+    code, _, err = _run(
+        [
+            "run",
+            "eld-beam",
+            "--n",
+            "1",
+            "--degree",
+            "1",
+            "--T",
+            "0.05",
+            "--amplitude",
+            "1e300",
+            "--quiet",
+            "--no-plots",
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
+    assert code == 1 and "non-finite" in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and "non-finite" in s["failure"]
+
+
+@pytest.mark.parametrize(
+    "command, option, default",
+    [
+        ("eld-pulse", "--scheme", "bdf2"),
+        ("eld-mms", "--scheme", "euler"),
+        ("eld-beam", "--scheme", "euler"),
+        ("eld-beam", "--damping", "rayleigh"),
+        ("eld-mms", "--damping", "nonlinear"),
+        ("eld-mms", "--form", "regularized"),
+        ("eld-mms", "--control", "uniform"),
+        ("eld-mms", "--data", "points"),
+        ("eld-mms", "--lifting", "nodal"),
+        ("eld-beam", "--solver", "auto"),
+    ],
+)
+def test_help_states_the_default_the_command_runs(capsys, command, option, default):
+    """eld-pulse --help said the scheme defaults to implicit Euler while it ran BDF2."""
+    from rothe.cli.main import build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(["run", command])
+    assert getattr(args, option.lstrip("-").replace("-", "_")) == default
+    with pytest.raises(SystemExit):
+        parser.parse_args(["run", command, "--help"])
+    lines = capsys.readouterr().out.splitlines()
+    start = next(
+        i
+        for i, line in enumerate(lines)
+        if line.startswith(f"  {option} {option.lstrip('-').upper()}")
+    )
+    end = next(
+        i for i in range(start + 1, len(lines) + 1) if i == len(lines) or lines[i].startswith("  -")
+    )
+    block = " ".join(" ".join(lines[start:end]).split())
+    assert f"(default {default})" in block, block

@@ -1,4 +1,4 @@
-"""The own-problem example of docs/eld.md runs as printed."""
+"""The examples of docs/eld.md run as printed."""
 
 import re
 from pathlib import Path
@@ -6,6 +6,10 @@ from pathlib import Path
 import numpy as np
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "eld.md"
+
+
+def _blocks() -> list[str]:
+    return re.findall(r"```python\n(.*?)```", DOC.read_text(), re.S)
 
 
 def test_the_own_problem_example_of_the_docs_runs(tmp_path, capsys):
@@ -27,3 +31,19 @@ def test_the_own_problem_example_of_the_docs_runs(tmp_path, capsys):
         assert (tmp_path / "my-strip" / name).is_file(), name
     assert problem.load_quadrature == 4
     assert "strip.xdmf" in capsys.readouterr().out
+
+
+def test_the_quick_start_and_the_space_adaptivity_examples_run(capsys):
+    blocks = [b for b in _blocks() if "my-strip" not in b]
+    assert len(blocks) == 2
+    quick, adaptive = ({}, {})
+    exec(compile(blocks[0], str(DOC), "exec"), quick)  # noqa: S102 - our own documentation
+    assert "'error_lam_l2'" in capsys.readouterr().out
+    errors = quick["mms_errors"](quick["exact"], quick["result2"])
+    assert errors["error_u_l2"] < 1e-2 and quick["result2"].statistics.accepted_steps > 10
+    assert quick["result"].trajectory.stats.accepted_steps == 100
+    exec(compile(blocks[1], str(DOC), "exec"), adaptive)  # noqa: S102 - our own documentation
+    result, meshes = adaptive["result"], adaptive["meshes"]
+    assert meshes.adaptations and len(meshes.series) > 1
+    assert meshes.kept["u"][-1].size == result.problem.space.ndofs
+    assert result.state.mesh_id == result.trajectory["mesh_id"][-1]

@@ -1,4 +1,5 @@
-"""The ELD state: checkpoint round trips (bit for bit), the transfer interface, failed steps."""
+"""The ELD state (rothe.eld.state): checkpoint round trips (bit for bit), the transfer interface
+(mapped, adopt), the result codes."""
 
 import copy
 
@@ -7,49 +8,47 @@ import pytest
 import scipy.sparse as sp
 
 from rothe.eld import (
-    DataNoise,
-    DirichletData,
-    ELDProblem,
-    Material,
+    BDF2,
+    Differenced,
+    ELDCode,
+    Original,
     RayleighDamping,
-    StepData,
-    UserDamping,
+    Regularized,
     mms_problem,
     prepare_eld_run,
     run_eld,
 )
-from rothe.errors import RotheInputError, RunFailed
-from rothe.fem import mesh as meshes
+from rothe.errors import RotheInputError
 from rothe.io.trajectory import Trajectory
+from rothe.stepping.controllers import Adaptive, Given, Uniform
 from rothe.stepping.evolve import evolve
+from rothe.stepping.results import ResultCode
 
 CASES = [
-    ("euler, uniform, linear", dict(form="regularized", tau=0.05), "rayleigh"),
+    ("euler, uniform, linear", dict(form=Regularized(), control=Uniform(0.05)), "rayleigh"),
     (
         "bdf2, uniform, nonlinear, original",
-        dict(form="original", tau=0.05, scheme="bdf2"),
+        dict(form=Original(), control=Uniform(0.05), scheme=BDF2()),
         "nonlinear",
     ),
     (
         "bdf2, adaptive, nonlinear",
-        dict(form="regularized", tau=0.02, scheme="bdf2", control="adaptive", tol=1e-4),
+        dict(form=Regularized(), control=Adaptive(1e-4, tau=0.02), scheme=BDF2()),
         "nonlinear",
     ),
     (
         "bdf2, given steps, differenced, harmonic",
         dict(
-            form="regularized",
-            tau=0.1,
-            scheme="bdf2",
-            data="differenced",
-            lifting="harmonic",
-            steps=np.r_[np.full(5, 0.05), np.full(10, 0.075)],
+            form=Regularized("harmonic"),
+            scheme=BDF2(),
+            data=Differenced(),
+            control=Given(np.r_[np.full(5, 0.05), np.full(10, 0.075)]),
         ),
         "rayleigh",
     ),
     (
         "euler, adaptive, linear",
-        dict(form="original", tau=0.05, control="adaptive", tol=1e-3),
+        dict(form=Original(), control=Adaptive(1e-3, tau=0.05)),
         "rayleigh",
     ),
 ]
@@ -60,15 +59,21 @@ def _problem(kind):
     return mms_problem(2, 2, damping=damping)[0]
 
 
+def _run_until(run, k):
+    """The prepared run's first k accepted steps (the evolve loop's ``max_steps``)."""
+    return evolve(
+        run.stepper, run.controller, run.state, run.trajectory, tau_min=run.tau_min, max_steps=k
+    )
+
+
 @pytest.mark.parametrize("label,options,damping", CASES, ids=[c[0] for c in CASES])
 def test_checkpoint_round_trip_continues_bit_for_bit(label, options, damping):
     problem = _problem(damping)
-    full = run_eld(problem, **options)
+    result = run_eld(problem, **options)
+    full = result.trajectory
     k = 7
     run = prepare_eld_run(problem, **options)
-    finished = run.stepper.finished
-    run.stepper.finished = lambda st: st.j >= k or finished(st)
-    state = evolve(run.stepper, run.controller, run.state, run.trajectory, tau_min=run.tau_min)
+    state = _run_until(run, k)
     assert state.j == k
     saved = copy.deepcopy(
         {
@@ -87,7 +92,7 @@ def test_checkpoint_round_trip_continues_bit_for_bit(label, options, damping):
     for key in ("tau", "local_error", "energy", "balance_residual", "numerical_dissipation"):
         n_rest = len(rest[key])
         assert np.array_equal(full[key][-n_rest:], rest[key]), key
-    for name, w in full.final_state.fields.items():
+    for name, w in result.state.fields.items():
         assert np.array_equal(w, final.fields[name]), name
 
 
@@ -105,33 +110,37 @@ def _plain(data):
 
 def test_restore_refuses_a_foreign_checkpoint():
     problem = _problem("rayleigh")
-    run = prepare_eld_run(problem, "regularized", 0.05, scheme="bdf2")
+    run = prepare_eld_run(problem, scheme=BDF2(), control=Uniform(0.05))
     data = run.stepper.checkpoint_state(run.state)
-    other = prepare_eld_run(problem, "regularized", 0.05)
+    other = prepare_eld_run(problem, control=Uniform(0.05))
     with pytest.raises(
         RotheInputError,
         match=r"^checkpoint: got scheme 'bdf2', this run has "
         "'euler'",
     ):
         other.stepper.restore_state(data)
+    with pytest.raises(
+        RotheInputError,
+        match=r"^checkpoint: got format 'rothe-eld-state-1', "
+        r"must be 'rothe-eld-state-2'",
+    ):
+        other.stepper.restore_state(dict(data, format="rothe-eld-state-1"))
 
 
 def test_transfer_interface_maps_every_history_vector_and_books_the_energy_change():
-    """What space adaptivity will do between steps: map the state, let the stepper adopt it."""
+    """What space adaptivity does between steps: map the state, let the system adopt it."""
     problem = _problem("rayleigh")
-    options = dict(form="regularized", tau=0.05, scheme="bdf2")
-    full = run_eld(problem, **options)
+    options = dict(form=Regularized(), control=Uniform(0.05), scheme=BDF2())
+    full = run_eld(problem, **options).trajectory
     k = 6
     run = prepare_eld_run(problem, **options)
-    finished = run.stepper.finished
-    run.stepper.finished = lambda st: st.j >= k or finished(st)
-    state = evolve(run.stepper, run.controller, run.state, run.trajectory, tau_min=run.tau_min)
+    state = _run_until(run, k)
     n, m = problem.space.ndofs, problem.constraint.m
     # identity transfer: the continuation agrees to round-off, no energy is booked
     same = run.stepper.adopt(state.mapped(sp.identity(n), sp.identity(m)))
+    assert same is not state and same.fields is not state.fields
     assert set(same.fields) == set(state.fields) and set(same.products) == set(state.products)
     assert abs(same.ledger.transfer) <= 1e-14 * state.ledger.energy
-    run.stepper.finished = finished
     rest = Trajectory()
     evolve(run.stepper, run.controller, same, rest, tau_min=run.tau_min)
     assert np.abs(rest["u"][-1] - full["u"][-1]).max() <= 1e-10 * np.abs(full["u"]).max()
@@ -143,104 +152,17 @@ def test_transfer_interface_maps_every_history_vector_and_books_the_energy_chang
     assert moved.ledger.transfer != 0.0
     assert abs(moved.ledger.residual) <= 1e-13 * state.ledger.energy
     assert "lam" not in moved.boundary  # no boundary operator given: dropped
+    assert state.ledger.transfer == 0.0  # the mapped state was not changed
     rest = Trajectory()
     run2 = prepare_eld_run(problem, **options)
     evolve(run2.stepper, run2.controller, moved, rest, tau_min=run2.tau_min)
     assert np.abs(rest["balance_residual"]).max() <= 1e-12 * np.abs(rest["energy"]).max()
 
 
-def _square(body_force=None, dirichlet=None, damping=None):
-    mesh = meshes.unit_square(2, named=True)
-    material = Material(rho=1.0, lam=2.0, mu=1.0, dim=2)
-
-    def zero(t, x):
-        return np.zeros_like(x)
-
-    return ELDProblem(
-        mesh,
-        material,
-        degree=1,
-        damping=damping,
-        dirichlet={"left": dirichlet or DirichletData(zero, zero, zero)},
-        body_force=body_force,
-        u0=None,
-        v0=lambda x: np.stack([x[0], 0 * x[0]]),
-        T=1.0,
-    )
-
-
-@pytest.mark.parametrize("control", ["uniform", "adaptive"])
-def test_non_finite_data_midway_stops_the_run_without_accepting_the_step(control):
-    def force(t, x):
-        return np.full_like(x, np.nan if t > 0.5 else 1.0)
-
-    problem = _square(body_force=force)
-    tol = 1e-3 if control == "adaptive" else None
-    with pytest.raises(
-        RunFailed,
-        match=r"^non-finite data at step \d+ \(t = 0\.[56]\d*\): "
-        r"the load F",
-    ):
-        run_eld(problem, "regularized", 0.1, scheme="bdf2", control=control, tol=tol)
-
-    def G(t, x):
-        return np.full_like(x, np.nan) if t > 0.35 else np.zeros_like(x)
-
-    problem = _square(dirichlet=DirichletData(G, lambda t, x: 0 * x, lambda t, x: 0 * x))
-    with pytest.raises(RunFailed, match="the Dirichlet data G has NaN") as info:
-        run_eld(problem, "original", 0.1)
-    traj = info.value.trajectory
-    assert traj.stats.accepted_steps == 3 and np.all(np.isfinite(traj["u"]))
-
-
-@pytest.mark.parametrize("scheme", ["euler", "bdf2"])
-def test_non_finite_state_is_a_failed_step(scheme):
-    """Finite data whose response overflows (as eld-beam --amplitude 1e300 did)."""
-
-    def force(t, x):
-        return np.full_like(x, 1e308 if t > 0.45 else 0.0)
-
-    problem = _square(body_force=force)
-    with pytest.raises(
-        RunFailed,
-        match=r"^non-finite state at step 5 \(t = 0.5, tau = 0.1\): "
-        r".* has NaN or inf entries; the step is not accepted",
-    ) as info:
-        run_eld(problem, "regularized", 0.1, scheme=scheme)
-    traj = info.value.trajectory
-    assert traj.stats.accepted_steps == 4 and np.all(np.isfinite(traj["energy"]))
-    # nonlinear damping whose force turns NaN: Newton fails, the step is not accepted
-    calls = {"n": 0}
-
-    def nan_later(v):
-        calls["n"] += 1
-        return v * (np.nan if calls["n"] > 12 else 1.0)
-
-    damping = UserDamping(force=nan_later, jacobian=lambda v: sp.identity(v.size), d0=0.0)
-    with pytest.raises(
-        RunFailed,
-        match="(Newton's method did not converge|non-finite state).*the step is not accepted",
-    ) as info:
-        run_eld(_square(damping=damping), "regularized", 0.1, scheme=scheme)
-    assert np.all(np.isfinite(info.value.trajectory["u"]))
-
-
-@pytest.mark.parametrize("datum", ["G", "G_dot", "G_ddot", "F"])
-def test_noise_in_one_datum_changes_only_that_datum(datum):
-    problem, _ = mms_problem(2, 1)
-    clean = StepData(problem, "points").at(3, 0.2, 0.3)
-    noisy = StepData(problem, "points", DataNoise(1e-3, datum, seed=1)).at(3, 0.2, 0.3)
-    for name in ("G", "G_dot", "G_ddot", "F"):
-        diff = np.abs(getattr(noisy, name) - getattr(clean, name)).max()
-        if name == datum:
-            assert diff > 1e-5
-        else:
-            assert diff == 0.0, name
-    with pytest.raises(
-        RotheInputError,
-        match=r"^noise target: got 'H', must be one of G, "
-        "G_dot, G_ddot, F",
-    ):
-        DataNoise(1e-3, "H")
-    with pytest.raises(RotheInputError, match=r"^seed: got -1, must be an integer >= 0"):
-        DataNoise(1e-3, "G", seed=-1)
+def test_result_codes_carry_their_message_and_compare_as_strings():
+    assert issubclass(ELDCode, ResultCode)
+    assert [c.value for c in ELDCode] == ["ok", "linear-solve", "newton", "non-finite"]
+    assert ELDCode("newton") is ELDCode.NEWTON and ELDCode.NEWTON == "newton"
+    assert str(ELDCode.NON_FINITE) == "non-finite" and f"{ELDCode.LINEAR_SOLVE}" == "linear-solve"
+    assert ELDCode.NEWTON.message == "Newton's method did not converge"
+    assert ELDCode.OK.successful and not ELDCode.NEWTON.successful

@@ -13,7 +13,7 @@ from rothe.eld.constraint import DirichletConstraint
 from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh, free_transfer, transfer_vectors
 from rothe.fem.elasticity import VectorSpace
-from rothe.ris.fem_problem import example_7_2
+from rothe.ris.examples import example_7_2
 
 ELEMENTS = {(2, 1): ElementTriP1, (2, 2): ElementTriP2, (3, 1): ElementTetP1, (3, 2): ElementTetP2}
 

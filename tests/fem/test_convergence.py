@@ -17,7 +17,8 @@ import pytest
 from skfem import MeshTri
 
 from rothe.fem.mesh import unit_cube, unit_square
-from rothe.ris.fem_problem import FERISProblem, d2g_7_2, dg_7_2, g_7_2
+from rothe.ris.examples import d2g_7_2, dg_7_2, g_7_2
+from rothe.ris.fem_problem import FERISProblem
 
 T_EVAL = 0.8
 AMP = -200.0

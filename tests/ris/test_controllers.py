@@ -1,5 +1,6 @@
 """Step controllers on the shared evolve loop: Alg. 3.2, Alg. 6.2 (nested), order2, regime,
-uniform; their decisions on designed error sequences and their checkpoint round trips."""
+uniform; their decisions on designed error sequences and their checkpoint round trips; the
+step-control objects (Uniform, Adaptive, Order2, Regime, Nested) refuse bad input in one line."""
 
 import copy
 import math
@@ -9,19 +10,31 @@ import numpy as np
 import pytest
 
 from rothe import RunFailed, run_nested, run_ris
+from rothe.errors import RotheInputError
 from rothe.io.trajectory import Trajectory
 from rothe.ris.controllers import (
-    CONTROLS,
     AdaptiveController,
+    Nested,
+    Order2,
     Order2Controller,
+    Regime,
     RegimeController,
-    make_controller,
+    build_controller,
     step_regime,
 )
 from rothe.ris.examples import example_7_1
-from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
-from rothe.stepping.controllers import UniformController
+from rothe.ris.run import initial_trajectory
+from rothe.ris.stepper import RISState, RISStepper
+from rothe.stepping.controllers import Adaptive, Uniform, UniformController
 from rothe.stepping.evolve import evolve
+
+#: the step-control object of each control, at tolerance 1e-4 and first step 0.1
+OBJECTS = {
+    "uniform": lambda: Uniform(0.1),
+    "adaptive": lambda: Adaptive(1e-4, tau=0.1),
+    "order2": lambda: Order2(1e-4, tau=0.1),
+    "regime": lambda: Regime(1e-4, tau=0.1),
+}
 
 
 def result(tau, I1, I2, converged=True, step_norm=None):
@@ -82,32 +95,111 @@ def test_uniform_only_rejects_failed_solves_then_resumes():
 
 
 @pytest.mark.parametrize(
-    "kwargs, match",
+    "make, match",
     [
-        (dict(control="adaptive", tol=0.0, tau=0.1), r"tol: got 0, must be > 0"),
-        (dict(control="adaptive", tol=-1e-3, tau=0.1), r"tol: got -0.001, must be > 0"),
-        (dict(control="order2", tol=1e-3, tau=0.0), r"tau: got 0, must be > 0"),
-        (dict(control="uniform", tau=-1.0), r"tau: got -1, must be > 0"),
+        (lambda: Adaptive(0.0, tau=0.1), r"^tol: got 0, must be > 0$"),
+        (lambda: Adaptive(-1e-3, tau=0.1), r"^tol: got -0.001, must be > 0$"),
+        (lambda: Order2(1e-3, tau=0.0), r"^tau: got 0, must be > 0$"),
+        (lambda: Uniform(-1.0), r"^tau: got -1, must be > 0$"),
         (
-            dict(control="adaptive", tol=1e-3, tau=0.1, tau_min=0.2),
-            r"tau_min: got 0.2, must be <= tau",
+            lambda: Adaptive(1e-3, tau=0.1, tau_min=0.2),
+            r"^tau_min: got 0.2, must be <= the first step tau = 0.1$",
         ),
-        (dict(control="bogus", tol=1e-3, tau=0.1), r"control: got 'bogus', must be one of"),
+        (
+            lambda: Uniform(0.1, tau_min=0.2),
+            r"^tau_min: got 0.2, must be <= the first step tau = 0.1$",
+        ),
     ],
 )
-def test_controller_inputs_are_validated(kwargs, match):
-    with pytest.raises(ValueError, match=match):
-        make_controller(**kwargs)
+def test_controller_inputs_are_validated(make, match):
+    with pytest.raises(RotheInputError, match=match):
+        make()
+
+
+@pytest.mark.parametrize(
+    "make, parameter, match",
+    [
+        (lambda: Uniform(0.0), "tau", r"^tau: got 0, must be > 0$"),
+        (lambda: Uniform(0.1, tau_min=-1.0), "tau_min", r"^tau_min: got -1, must be > 0$"),
+        (lambda: Adaptive(float("nan")), "tol", r"^tol: got nan, must be"),
+        (
+            lambda: Adaptive(1e-4, tau=0.1, tau_max=0.05),
+            "tau_max",
+            r"^tau_max: got 0.05, must be >= the first step tau = 0.1$",
+        ),
+        (lambda: Order2(0.0), "tol", r"^tol: got 0, must be > 0$"),
+        (lambda: Order2(1e-4, tau=-0.1), "tau", r"^tau: got -0.1, must be > 0$"),
+        (
+            lambda: Order2(1e-4, tau=0.1, tau_min=0.5),
+            "tau_min",
+            r"^tau_min: got 0.5, must be <= the first step tau = 0.1$",
+        ),
+        (lambda: Order2(1e-4, safety=0.0), "safety", r"^safety: got 0, must be > 0$"),
+        (lambda: Regime(-1.0), "tol", r"^tol: got -1, must be > 0$"),
+        (lambda: Regime(1e-4, tau=0.0), "tau", r"^tau: got 0, must be > 0$"),
+        (
+            lambda: Regime(1e-4, theta=1.0),
+            "theta",
+            r"^theta: got 1, must be < 1 \(the target theta \* tol is below tol\)$",
+        ),
+        (lambda: Regime(1e-4, theta=0.0), "theta", r"^theta: got 0, must be > 0$"),
+        (lambda: Regime(1e-4, grow=1.0), "grow", r"^grow: got 1, must be > 1$"),
+        (
+            lambda: Nested([1e-3, 1e-2]),
+            "tols",
+            r"^tols: got '0.001,0.01', must be strictly decreasing$",
+        ),
+        (lambda: Nested(1e-3), "tols", r"^tols: got a float, must be a sequence of decreasing "),
+        (lambda: Nested("1e-3"), "tols", r"^tols: got a str, must be a sequence of decreasing "),
+        (lambda: Nested([1e-3, -1e-4]), "tols", r"^tols: got "),
+        (lambda: Nested([1e-3], tau=0.0), "tau", r"^tau: got 0, must be > 0$"),
+        (
+            lambda: Nested([1e-3], tau=0.1, tau_min=1.0),
+            "tau_min",
+            r"^tau_min: got 1, must be <= the first step tau = 0.1$",
+        ),
+    ],
+)
+def test_every_control_object_refuses_bad_input_in_one_line_naming_the_parameter(
+    make, parameter, match
+):
+    with pytest.raises(RotheInputError, match=match) as info:
+        make()
+    assert info.value.parameter == parameter
+    assert "\n" not in str(info.value)
+
+
+def test_control_objects_keep_what_they_were_given_and_build_their_controllers():
+    """The object is the specification; the run builds the controller with the RIS defaults
+    (first step 0.1, tau_min 1e-12, no tau_max) where it left them open."""
+    c = build_controller(Order2(1e-3, safety=0.5))
+    assert isinstance(c, Order2Controller) and (c.tol, c.tau0, c.safety) == (1e-3, 0.1, 0.5)
+    assert c.tau_min == 1e-12 and c.tau_max == math.inf
+    c = build_controller(Regime(1e-3, tau=0.2, tau_min=1e-6, tau_max=0.5, theta=0.25, grow=2.0))
+    assert isinstance(c, RegimeController)
+    assert (c.tau0, c.tau_min, c.tau_max, c.theta, c.grow) == (0.2, 1e-6, 0.5, 0.25, 2.0)
+    c = build_controller(Uniform(0.05, tau_min=1e-3))
+    assert isinstance(c, UniformController) and (c.tau0, c.tau_min) == (0.05, 1e-3)
+    c = build_controller(Adaptive(1e-3), grid=np.array([0.3, 0.1]))
+    assert isinstance(c, AdaptiveController) and c.name == "nested"
+    assert np.array_equal(c.grid, [0.1, 0.3])
+    assert Nested((1e-2, 1e-3)).tols == (1e-2, 1e-3)
+    with pytest.raises(
+        RotheInputError,
+        match=r"^control: got 'adaptive', must be a step-control "
+        r"object: Uniform\(tau\), Adaptive\(tol\)",
+    ):
+        build_controller("adaptive")
 
 
 def test_nested_tolerances_must_decrease():
     with pytest.raises(ValueError, match=r"tols: got '0.001,0.01', must be strictly decreasing"):
-        run_nested(example_7_1(), [1e-3, 1e-2])
+        run_nested(example_7_1(), Nested([1e-3, 1e-2]))
 
 
 def test_nested_grids_are_nested():
     """Alg. 6.2: every grid point of an earlier run is a grid point of every later run (6.1)."""
-    runs = run_nested(example_7_1(), [1e-2, 1e-3, 1e-4], tau=0.1)
+    runs = [r.trajectory for r in run_nested(example_7_1(), Nested([1e-2, 1e-3, 1e-4], tau=0.1))]
     grids = [r["s"] for r in runs]
     for i, coarse in enumerate(grids):
         for fine in grids[i + 1 :]:
@@ -123,7 +215,7 @@ def test_step_size_underflow_stops_with_where_and_keeps_trajectory():
     with pytest.raises(
         RunFailed, match=r"step size fell below tau_min = 0.001 at step \d+ \(s = "
     ) as info:
-        run_ris(example_7_1(), "adaptive", tol=1e-9, tau=0.1, tau_min=1e-3)
+        run_ris(example_7_1(), Adaptive(1e-9, tau=0.1, tau_min=1e-3))
     exc = info.value
     assert {"step", "s", "t", "tau", "I1", "I2"} <= set(exc.where)
     traj = exc.trajectory
@@ -132,8 +224,8 @@ def test_step_size_underflow_stops_with_where_and_keeps_trajectory():
 
 
 def test_run_lands_on_T():
-    for control, tol in (("adaptive", 1e-3), ("order2", 1e-3), ("uniform", None)):
-        traj = run_ris(example_7_1(), control, tol=tol, tau=0.07)
+    for control in (Adaptive(1e-3, tau=0.07), Order2(1e-3, tau=0.07), Uniform(0.07)):
+        traj = run_ris(example_7_1(), control).trajectory
         assert traj["t"][-1] == pytest.approx(5.0, abs=1e-9)
         assert traj["t"][-2] < 5.0
 
@@ -225,12 +317,13 @@ def test_regime_inputs_are_validated():
     with pytest.raises(ValueError, match=r"grow: got 1, must be > 1"):
         RegimeController(tol=1e-4, tau0=0.1, grow=1.0)
     with pytest.raises(ValueError, match=r"tol: got 0, must be > 0"):
-        make_controller("regime", tol=0.0, tau=0.1)
-    with pytest.raises(ValueError, match=r"tau_min: got 0.5, must be <= tau"):
-        make_controller("regime", tol=1e-4, tau=0.1, tau_min=0.5)
-    with pytest.raises(ValueError, match=r"control: got 'bogus', must be one of .*regime"):
-        make_controller("bogus", tol=1e-4, tau=0.1)
-    assert "regime" in CONTROLS
+        build_controller(Regime(0.0, tau=0.1))
+    with pytest.raises(ValueError, match=r"tau_min: got 0.5, must be <= the first step tau"):
+        build_controller(Regime(1e-4, tau=0.1, tau_min=0.5))
+    with pytest.raises(ValueError, match=r"control: got 'bogus', must be a step-control object"):
+        build_controller("bogus")
+    with pytest.raises(ValueError, match=r"tau_min: got 0.5, must be <= tau \(= 0.1\)"):
+        RegimeController(tol=1e-4, tau0=0.1, tau_min=0.5)
 
 
 # -- checkpoint protocol (issue 10) ---------------------------------------------------------------
@@ -252,8 +345,8 @@ SEQUENCE = [
 
 def _build(control):
     if control == "nested":
-        return make_controller("nested", tol=1e-4, tau=0.1, grid=np.array([0.05, 0.3, 0.7]))
-    return make_controller(control, tol=None if control == "uniform" else 1e-4, tau=0.1)
+        return build_controller(Adaptive(1e-4, tau=0.1), grid=np.array([0.05, 0.3, 0.7]))
+    return build_controller(OBJECTS[control]())
 
 
 @pytest.mark.parametrize("control", ["uniform", "adaptive", "nested", "order2", "regime"])
@@ -311,20 +404,19 @@ def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
     """Example 7.1: k steps, checkpoint the controller, restore a fresh one, finish the run:
     the same trajectory as the uninterrupted run, to the bit (the stepper continues as is)."""
     problem = example_7_1()
-    tol = None if control == "uniform" else 1e-4
     full = initial_trajectory(problem)
     evolve(
         RISStepper(problem),
-        make_controller(control, tol=tol, tau=0.1),
+        build_controller(OBJECTS[control]()),
         RISState(0.0, 0.0, problem.z0.copy()),
         full,
     )
     stepper = RISStepper(problem)
-    first = make_controller(control, tol=tol, tau=0.1)
+    first = build_controller(OBJECTS[control]())
     traj = initial_trajectory(problem)
     state = evolve(stepper, first, RISState(0.0, 0.0, problem.z0.copy()), traj, max_steps=40)
     assert state.k == 40
-    second = make_controller(control, tol=tol, tau=0.1)
+    second = build_controller(OBJECTS[control]())
     second.restore_state(copy.deepcopy(first.checkpoint_state()))
     evolve(stepper, second, state, traj)
     assert len(traj) == len(full) > 40
@@ -336,9 +428,5 @@ def test_run_resumed_from_controller_checkpoint_is_bit_identical(control):
 def test_regime_with_a_denormal_tolerance_stops_below_tau_min():
     """tol = 1e-320: the step out of sticking (delta ~ sqrt(tol)) and tau^p underflow; the run
     must stop like the other controllers' (RunFailed naming tau_min), not divide by zero."""
-    from rothe.errors import RunFailed
-    from rothe.ris.examples import example_7_1
-    from rothe.ris.stepper import run_ris
-
     with pytest.raises(RunFailed, match="step size fell below tau_min"):
-        run_ris(example_7_1(), "regime", tol=1e-320, tau=0.1)
+        run_ris(example_7_1(), Regime(1e-320, tau=0.1))

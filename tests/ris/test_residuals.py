@@ -7,6 +7,7 @@ from rothe import RISProblem, run_ris
 from rothe.ris.examples import example_7_1
 from rothe.ris.residuals import simpson_weights, step_residuals
 from rothe.ris.stepper import RISState, RISStepper
+from rothe.stepping.controllers import Adaptive, Uniform
 
 
 @pytest.mark.parametrize("n", [2, 4, 8, 16])
@@ -53,7 +54,7 @@ def test_lemma_5_3_residuals_are_order_tau_squared():
     """In R^n, I1 + I2 <= C tau^2 (Lemma 5.3): from a slipping state the residual of one step
     decays at least like tau^2 (fitted slope >= 1.9) and I/tau^2 does not grow as tau -> 0."""
     problem = smooth_problem()
-    traj = run_ris(problem, "uniform", tol=None, tau=1e-2)  # to t = T = 2, slipping
+    traj = run_ris(problem, Uniform(1e-2)).trajectory  # to t = T = 2, slipping
     assert np.any(traj["z"][-1] != traj["z"][-2]) and traj["lam"][-1] == 0
     state = RISState(s=0.0, t=float(traj["t"][-2]), z=traj["z"][-2].copy())
     stepper = RISStepper(problem)
@@ -90,7 +91,7 @@ def test_lemma_4_12_on_random_nonconvex_runs(seed):
         z0=-np.ones(n),
         T=1.0,
     )
-    traj = run_ris(problem, "adaptive", tol=1e-5, tau=0.05)
+    traj = run_ris(problem, Adaptive(1e-5, tau=0.05)).trajectory
     assert len(traj) > 10
     assert np.all(traj["I1"] >= 0)
     assert np.all(traj["I2"] >= -traj["I2_err"] - traj["kkt"] * traj["step_norm"] - 1e-15)

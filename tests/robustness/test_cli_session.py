@@ -153,10 +153,10 @@ def test_stopped_before_the_first_accepted_step(tmp_path, capsys, monkeypatch):
 
 
 def test_resume_refuses_a_checkpoint_written_from_python(tmp_path, capsys):
-    from rothe import run_ris
+    from rothe import Adaptive, run_ris
     from rothe.ris.examples import example_7_1
 
-    run_ris(example_7_1(), "adaptive", tol=1e-2, checkpoint=tmp_path / "c")
+    run_ris(example_7_1(), Adaptive(1e-2), checkpoint=tmp_path / "c")
     code, _, err = _run(["resume", tmp_path / "c"], capsys)
     assert code == 2 and "written by run_ris() from Python, not by a rothe command" in err
 

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rothe import run_ris
+from rothe import Adaptive, run_ris
 from rothe.io.checkpoint import MAIN, CheckpointError, load_checkpoint
-from rothe.ris.fem_problem import example_7_2
+from rothe.ris.examples import example_7_2
 from rothe.ris.inner import InnerOptions
 
 ROTHE = [sys.executable, "-m", "rothe.cli.main"]
@@ -48,8 +48,8 @@ def test_kill_9_at_random_instants_then_resume_is_bit_identical(tmp_path):
     trajectory equals the uninterrupted run's (computed here through the Python API)."""
     t0 = time.perf_counter()
     ref = run_ris(
-        example_7_2(6), "adaptive", tol=1e-3, tau=0.1, inner=InnerOptions(linear_solver="auto")
-    )
+        example_7_2(6), Adaptive(1e-3, tau=0.1), inner=InnerOptions(linear_solver="auto")
+    ).trajectory
     duration = time.perf_counter() - t0 + 1.5  # + interpreter start and imports
     # A kill that lands after the last step (the measured duration is only an estimate on a
     # loaded machine) interrupts nothing that resume must redo; such kills do not count, and

@@ -16,8 +16,18 @@ import numpy as np
 import pytest
 
 from rothe.cli.main import main
-from rothe.eld import ELDStepper, make_damping, mms_problem, run_eld
+from rothe.eld import (
+    BDF2,
+    ELDStepper,
+    ImplicitEuler,
+    Original,
+    Regularized,
+    make_damping,
+    mms_problem,
+    run_eld,
+)
 from rothe.io.checkpoint import MAIN, CheckpointError, load_checkpoint
+from rothe.stepping.controllers import Adaptive
 
 from .conftest import assert_same_trajectory
 from .test_checkpoint_api import _interrupted_thrice
@@ -43,20 +53,22 @@ MMS_ADAPTIVE = [
 
 
 @pytest.mark.parametrize(
-    "form, damping, options",
+    "form, damping",
     [
-        ("original", "nonlinear", {}),
-        ("regularized", "rayleigh", {"lifting": "harmonic"}),
+        (Original(), "nonlinear"),
+        (Regularized(lifting="harmonic"), "rayleigh"),
     ],
     ids=["original-nonlinear", "regularized-rayleigh-harmonic"],
 )
 def test_run_eld_adaptive_bdf2_interrupted_thrice_equals_the_uninterrupted_run(
-    tmp_path, signal_at_attempt, form, damping, options
+    tmp_path, signal_at_attempt, form, damping
 ):
     p, _ = mms_problem(3, 2, damping=make_damping(damping, b=0.01, d0=0.5))
+    results = []
 
     def make_run(**kw):
-        return run_eld(p, form, 0.02, scheme="bdf2", control="adaptive", tol=1e-4, **options, **kw)
+        results.append(run_eld(p, form=form, scheme=BDF2(), control=Adaptive(1e-4, tau=0.02), **kw))
+        return results[-1].trajectory
 
     full = make_run()
     assert full.stats.rejected_steps > 0  # the controller's state matters
@@ -69,8 +81,8 @@ def test_run_eld_adaptive_bdf2_interrupted_thrice_equals_the_uninterrupted_run(
         "setup_seconds": full.meta["linear_solver"]["setup_seconds"]
     }
     assert full.meta["error_scale"] == resumed.meta["error_scale"]
-    for name, w in full.final_state.fields.items():
-        assert np.array_equal(w, resumed.final_state.fields[name]), name
+    for name, w in results[0].state.fields.items():
+        assert np.array_equal(w, results[-1].state.fields[name]), name
 
 
 def _square(damping):
@@ -98,24 +110,24 @@ def _square(damping):
 def test_run_eld_resume_refuses_other_arguments_and_another_damping(tmp_path):
     """A user's damping function is not in the problem's description: the fingerprint
     evaluates the damping force instead."""
-    options = dict(scheme="bdf2", control="adaptive", tol=1e-3)
+    options = dict(scheme=BDF2(), control=Adaptive(1e-3, tau=0.05))
     d = tmp_path / "c"
-    run_eld(_square("one"), "regularized", 0.05, checkpoint=d, **options)
+    run_eld(_square("one"), checkpoint=d, **options)
     assert load_checkpoint(d).status == "completed"
     with pytest.raises(
         CheckpointError,
         match=r"the arguments differ from the checkpoint's: "
         r"tol = 0\.0001 \(checkpoint: 0\.001\)",
     ):
-        run_eld(_square("one"), "regularized", 0.05, resume=d, **(options | {"tol": 1e-4}))
+        run_eld(_square("one"), resume=d, **(options | {"control": Adaptive(1e-4, tau=0.05)}))
     with pytest.raises(CheckpointError, match=r"scheme = 'euler' \(checkpoint: 'bdf2'\)"):
-        run_eld(_square("one"), "regularized", 0.05, resume=d, **(options | {"scheme": "euler"}))
+        run_eld(_square("one"), resume=d, **(options | {"scheme": ImplicitEuler()}))
     with pytest.raises(
         CheckpointError,
         match=r"the problem differs from the checkpoint's "
         r"\(in: damping\); resume with the same problem",
     ):
-        run_eld(_square("two"), "regularized", 0.05, resume=d, **options)
+        run_eld(_square("two"), resume=d, **options)
 
 
 def _run(argv, capsys):

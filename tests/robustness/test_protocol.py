@@ -11,14 +11,16 @@ import copy
 import numpy as np
 import pytest
 
+from rothe.cli.ris_commands import control_object
 from rothe.fem.linear import ReusableSolver
 from rothe.io.checkpoint import encode
 from rothe.io.trajectory import Trajectory
-from rothe.ris.controllers import make_controller
-from rothe.ris.examples import example_7_1
-from rothe.ris.fem_problem import example_7_2
+from rothe.ris.controllers import Order2, build_controller
+from rothe.ris.examples import example_7_1, example_7_2
 from rothe.ris.inner import InnerOptions
-from rothe.ris.stepper import RISState, RISStepper, initial_trajectory
+from rothe.ris.run import initial_trajectory
+from rothe.ris.stepper import RISState, RISStepper
+from rothe.stepping.controllers import Uniform
 from rothe.stepping.evolve import evolve
 
 
@@ -37,7 +39,10 @@ class StopAfter:
 
 def _ris_parts(problem, control, **kw):
     grid = kw.pop("grid", None)
-    controller = make_controller(control, tol=kw.get("tol"), tau=kw.get("tau", 0.1), grid=grid)
+    spec = control_object(
+        "adaptive" if control == "nested" else control, tol=kw.get("tol"), tau=kw.get("tau", 0.1)
+    )
+    controller = build_controller(spec, grid=grid)
     stepper = RISStepper(problem, kw.get("inner"))
     return stepper, controller
 
@@ -73,7 +78,7 @@ def test_ris_stepper_and_controller_round_trip(control, problem, kw, k):
     # k steps, then a checkpoint dict, deep-copied, restored into fresh objects
     stepper, controller = _ris_parts(p, control, **dict(kw))
     part = initial_trajectory(p)
-    state = evolve(StopAfter(stepper, k), controller, RISState(0.0, 0.0, p.z0.copy()), part)
+    state = evolve(stepper, controller, RISState(0.0, 0.0, p.z0.copy()), part, max_steps=k)
     assert state.k == k
     saved = copy.deepcopy(
         {"stepper": stepper.checkpoint_state(state), "controller": controller.checkpoint_state()}
@@ -97,7 +102,7 @@ def test_restoring_the_stored_lu_is_what_makes_the_ris_continuation_exact():
     evolve(stepper, controller, RISState(0.0, 0.0, p.z0.copy()), full)
     stepper, controller = _ris_parts(p, "adaptive", **kw)
     part = initial_trajectory(p)
-    state = evolve(StopAfter(stepper, 70), controller, RISState(0.0, 0.0, p.z0.copy()), part)
+    state = evolve(stepper, controller, RISState(0.0, 0.0, p.z0.copy()), part, max_steps=70)
     saved = copy.deepcopy(stepper.checkpoint_state(state))
     assert saved["linear"]["reference"] is not None  # an LU is stored at step 70
     saved["linear"]["reference"] = None
@@ -131,7 +136,7 @@ def test_reusable_solver_round_trip_rebuilds_the_same_lu():
         ("regularized", "nonlinear", {}),
         ("original", "nonlinear", {}),
         ("regularized", "rayleigh", {}),
-        ("original", "nonlinear", {"scheme": "bdf2", "control": "adaptive", "tol": 1e-4}),
+        ("original", "nonlinear", {"scheme": "bdf2", "tol": 1e-4}),
         ("regularized", "rayleigh", {"scheme": "bdf2", "data": "differenced"}),
     ],
 )
@@ -139,25 +144,36 @@ def test_eld_stepper_round_trip(form, damping, options):
     """The stepper and the controller that run_eld uses (prepare_eld_run): Euler and BDF2,
     uniform and adaptive steps. The step data keeps no history of its own (the differenced
     mode's G^{j-1}, G^{j-2}, G_dot^{j-1}, G_dot^{j-2} are boundary vectors of the state)."""
-    from rothe.eld import make_damping, mms_problem, prepare_eld_run
+    from rothe.eld import (
+        BDF2,
+        Differenced,
+        ImplicitEuler,
+        Original,
+        Points,
+        Regularized,
+        make_damping,
+        mms_problem,
+        prepare_eld_run,
+    )
+    from rothe.stepping.controllers import Adaptive, Uniform
 
     p, _ = mms_problem(3, 2, damping=make_damping(damping, b=0.01, d0=0.5))
+    objects = dict(
+        form=Regularized() if form == "regularized" else Original(),
+        scheme=BDF2() if options.get("scheme") == "bdf2" else ImplicitEuler(),
+        control=Adaptive(options["tol"], tau=0.02) if "tol" in options else Uniform(0.02),
+        data=Differenced() if options.get("data") == "differenced" else Points(),
+    )
 
     def fresh():
-        return prepare_eld_run(p, form, 0.02, **options)
+        return prepare_eld_run(p, **objects)
 
     run_full = fresh()
     full = run_full.trajectory
     evolve(run_full.stepper, run_full.controller, run_full.state, full, tau_min=run_full.tau_min)
     run = fresh()
     part = run.trajectory
-    state = evolve(
-        StopAfter(run.stepper, 17, index=lambda s: s.j),
-        run.controller,
-        run.state,
-        part,
-        tau_min=run.tau_min,
-    )
+    state = evolve(run.stepper, run.controller, run.state, part, tau_min=run.tau_min, max_steps=17)
     assert state.j == 17
     saved = copy.deepcopy(
         {
@@ -171,7 +187,7 @@ def test_eld_stepper_round_trip(form, damping, options):
     run2.controller.restore_state(saved["controller"])
     evolve(run2.stepper, run2.controller, state2, part, tau_min=run2.tau_min)
     _assert_same(full, part)
-    a, b = vars(run_full.stepper.solver.stats), vars(run2.stepper.solver.stats)
+    a, b = vars(run_full.stepper.system.solver.stats), vars(run2.stepper.system.solver.stats)
     assert {k: v for k, v in a.items() if k != "setup_seconds"} == {
         k: v for k, v in b.items() if k != "setup_seconds"
     }
@@ -183,6 +199,6 @@ def test_encode_refuses_what_would_need_pickle():
     with pytest.raises(TypeError, match=r"state.a\[1\]: array of dtype object"):
         encode({"a": [np.zeros(2), np.array([None])]}, {})
     with pytest.raises(ValueError, match="uniform"):  # a controller refuses another's state
-        make_controller("order2", tol=1e-3, tau=0.1).restore_state(
-            make_controller("uniform", tau=0.1).checkpoint_state()
+        build_controller(Order2(1e-3, tau=0.1)).restore_state(
+            build_controller(Uniform(0.1)).checkpoint_state()
         )

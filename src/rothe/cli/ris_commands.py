@@ -1,12 +1,14 @@
-"""CLI commands for rate-independent systems: ``rothe run|compare ris-1d`` (and FE examples)."""
+"""CLI commands for rate-independent systems: ``rothe run|compare ris-1d`` (and FE examples).
+
+The names of ``--control`` become step-control objects in one place (:func:`control_object`);
+the run's summary and the work ratios of a comparison are :mod:`rothe.ris.summary`.
+"""
 
 from __future__ import annotations
 
 import math
 import sys
 from abc import ABC, abstractmethod
-
-import numpy as np
 
 from ..errors import (
     RunFailed,
@@ -16,9 +18,13 @@ from ..errors import (
     described,
     fail,
 )
+from ..parallel import Executor, Task, TaskFailed
 from ..parallel.executor import add_parallel_options, executor_from_args
-from ..ris.controllers import CONTROLS
-from ..ris.stepper import run_nested, run_ris
+from ..ris import examples
+from ..ris.controllers import Nested, Order2, Regime
+from ..ris.run import run_nested, run_ris
+from ..ris.summary import ris_summary, uniform_work_at_error
+from ..stepping.controllers import Adaptive, Uniform
 from .common import (
     add_output_options,
     given,
@@ -51,43 +57,22 @@ SUMMARY_KEYS = (
 )
 
 
-def ris_summary(traj, example: str, extra: dict | None = None) -> dict:
-    """The summary.json fields of one RIS trajectory (README, "Where results go")."""
-    st = traj.stats
+#: ``--control`` NAME -> the step-control object of the options (--tol, --tols, --tau,
+#: --tau-min); the one place where the command line's names become objects
+CONTROL_OBJECTS = {
+    "adaptive": lambda tol, tols, tau, tau_min: Adaptive(tol, tau=tau, tau_min=tau_min),
+    "uniform": lambda tol, tols, tau, tau_min: Uniform(tau, tau_min=tau_min),
+    "nested": lambda tol, tols, tau, tau_min: Nested(tols, tau=tau, tau_min=tau_min),
+    "order2": lambda tol, tols, tau, tau_min: Order2(tol, tau=tau, tau_min=tau_min),
+    "regime": lambda tol, tols, tau, tau_min: Regime(tol, tau=tau, tau_min=tau_min),
+}
+#: the values of --control
+CONTROLS = tuple(CONTROL_OBJECTS)
 
-    def steps(key):  # a run that failed at its first step has no step series at all
-        return traj[key] if key in traj else np.zeros(0)
 
-    I1, I2 = steps("I1"), steps("I2")
-    res = I1 + I2 if len(I1) else np.zeros(0)
-    meta = traj.meta
-    summary = {
-        "example": example,
-        "control": meta.get("control"),
-        "tol": meta.get("tol"),
-        "tau0": meta.get("tau0"),
-        "accepted_steps": st.accepted_steps,
-        "rejected_steps": st.rejected_steps,
-        "inner_solves": st.inner_solves,
-        "newton_iterations": st.newton_iterations,
-        "fb_steps": st.fb_steps,
-        "linear_factorizations": st.linear_factorizations,
-        "landing_retries": st.landing_retries,
-        "t_final": float(traj["t"][-1]),
-        # how the run ended: on T within 1e-10 max(1, T), or at S (rothe.ris.stepper)
-        "landing": meta.get("landing"),
-        "s_final": float(traj["s"][-1]),
-        "max_residual": float(res.max()) if res.size else 0.0,
-        "sum_residual": float(res.sum()) if res.size else 0.0,
-        "min_I2": float(I2.min()) if I2.size else 0.0,
-        "max_kkt_residual": float(steps("kkt").max()) if len(traj) else 0.0,
-        "max_multiplier": float(steps("lam").max()) if len(traj) else 0.0,
-        "energy_final": float(traj["energy"][-1]),
-        "wall_time_s": st.wall_time_s,
-        "status": "completed",
-    }
-    summary.update(extra or {})
-    return summary
+def control_object(control: str, *, tol=None, tols=None, tau: float, tau_min=None):
+    """The step-control object of ``--control`` ``control`` (a name of :data:`CONTROLS`)."""
+    return CONTROL_OBJECTS[control](tol, tols, tau, tau_min)
 
 
 #: The options each step control reads. An option written on the command line that the chosen
@@ -110,6 +95,7 @@ STEP_FLOOR = 1e-14
 
 
 def control_options(control: str) -> tuple[str, ...]:
+    """The options of :data:`CONTROL_SPECIFIC` that ``--control`` ``control`` reads."""
     return CONTROL_OPTIONS.get(control, ("--tol",))
 
 
@@ -144,129 +130,6 @@ def check_step(option: str, value, T: float, tau_min: float = 1e-12) -> float:
     return tau
 
 
-# -- work against residual: the ratios of compare ris-2d (issue 12), shared with the benchmarks --
-
-#: the keys of a row of compare.json, in this order
-COMPARE_KEYS = (
-    "control",
-    "tol",
-    "tau",
-    "accepted",
-    "rejected",
-    "solves",
-    "newton",
-    "seconds",
-    "local_residual",
-    "global_residual",
-    "ratio_steps",
-    "ratio_solves",
-    "ratio_seconds",
-)
-
-
-def equidistribution_bound(residuals) -> float | None:
-    """(sum_k sqrt(J_k))^2 / (M sum_k J_k) over the pair means J_k = (I_k + I_{k+1}) / 2 of the
-    residuals I_k = I1^k + I2^k of a uniform run (M = N - 1 pairs).
-
-    A lower bound for the accepted steps of *any* step sequence, as a fraction of the uniform
-    run's, at the same global residual G, when the residual of a step is I = C(s) tau^2 with a
-    density C(s) that the steps do not change (Lemma 5.3): by Cauchy-Schwarz,
-    (sum_k sqrt(I_k))^2 <= N sum_k I_k = N G, and sum_k sqrt(I_k) = sum_k sqrt(C(s_k)) tau_k
-    ~ int sqrt(C) ds is the same for every sequence; equality holds when all I_k are equal. For a
-    uniform run, sqrt(C_k) tau = sqrt(I_k), so its own steps give C. Pair means, because in slip
-    the time increments carry a period-2 oscillation, dt_k = tau - v dt_{k-1} (neutral in
-    Example 7.1, v = 1): single residuals alternate between two levels at a fixed density --
-    there I1 = L dt_k (dt_{k-1} + dt_k) / 2, whose sum over a pair does not depend on the phase --
-    and Cauchy-Schwarz over the raw steps would give a bound no step sequence reaches (0.19
-    instead of the 0.375 of Example 7.1). None without residual.
-    """
-    I = np.maximum(np.asarray(residuals, dtype=float), 0.0)
-    if I.size < 2 or I.sum() <= 0.0:
-        return None
-    J = 0.5 * (I[1:] + I[:-1])
-    return float(np.sum(np.sqrt(J)) ** 2 / (J.size * J.sum()))
-
-
-#: work measures of a run (key of its summary row) and the ratio they enter in compare.json
-WORK_RATIOS = (
-    ("accepted_steps", "ratio_steps"),
-    ("inner_solves", "ratio_solves"),
-    ("wall_time_s", "ratio_seconds"),
-)
-
-
-def uniform_work_interpolant(rows, work: str, key: str = "sum_residual"):
-    """Work of the uniform scheme at a given global residual, interpolated log-log between the
-    two uniform runs whose residuals bracket it; None outside their range (no extrapolation).
-
-    Returns a callable residual -> work or None, or None if fewer than two uniform runs completed.
-    """
-    u = sorted(
-        (r[key], r[work])
-        for r in rows
-        if r["control"] == "uniform"
-        and r.get("status", "completed") == "completed"
-        and r.get(key, 0) > 0
-        and r.get(work, 0) > 0
-    )
-    if len(u) < 2:
-        return None
-    x = np.log([g for g, _ in u])
-    y = np.log([w for _, w in u])
-
-    def work_at(residual: float) -> float | None:
-        if not residual > 0:
-            return None
-        lx = math.log(residual)
-        # a residual equal to the smallest/largest uniform one (to round-off) is in range
-        if lx < x[0] - 1e-12 or lx > x[-1] + 1e-12:
-            return None
-        return float(np.exp(np.interp(lx, x, y)))
-
-    return work_at
-
-
-def compare_rows(rows) -> list[dict]:
-    """The rows of compare.json (keys :data:`COMPARE_KEYS`, in that order) from summary rows.
-
-    ``ratio_steps``, ``ratio_solves``, ``ratio_seconds``: the run's accepted steps, inner solves
-    and seconds divided by the uniform scheme's at the same global residual sum_k(I1 + I2)
-    (:func:`uniform_work_interpolant`); null for the uniform rows, for a residual outside the
-    uniform runs' range, and for a run that did not complete.
-    """
-    interp = {ratio: uniform_work_interpolant(rows, work) for work, ratio in WORK_RATIOS}
-    out = []
-    for r in rows:
-        uniform = r["control"] == "uniform"
-        # a run that produced nothing (an error, a lost task) has its status only: nulls
-        row = {
-            "control": r["control"],
-            "tol": None if uniform else r["tol"],
-            "tau": r["tau0"],
-            "accepted": r.get("accepted_steps"),
-            "rejected": r.get("rejected_steps"),
-            "solves": r.get("inner_solves"),
-            "newton": r.get("newton_iterations"),
-            "seconds": r.get("wall_time_s"),
-            "local_residual": r.get("max_residual"),
-            "global_residual": r.get("sum_residual"),
-        }
-        for work, ratio in WORK_RATIOS:
-            fn = interp[ratio]
-            base = None
-            if (
-                not uniform
-                and fn is not None
-                and r.get("status", "completed") == "completed"
-                and work in r
-            ):
-                base = fn(r["sum_residual"])
-            row[ratio] = None if base is None else r[work] / base
-        assert tuple(row) == COMPARE_KEYS
-        out.append(row)
-    return out
-
-
 class RISRunBase(ABC):
     """Shared ``run`` logic; subclasses provide the problem and example-specific output."""
 
@@ -279,6 +142,7 @@ class RISRunBase(ABC):
         return None
 
     def configure(self, parser) -> None:
+        """The options of every RIS run: the step control, Simpson, keep-every, outputs."""
         parser.add_argument(
             "--control",
             default="adaptive",
@@ -332,6 +196,7 @@ class RISRunBase(ABC):
         """The RISProblem of this example from the parsed options."""
 
     def extra_summary(self, args, problem, traj) -> dict:
+        """Fields of summary.json particular to the example (none by default)."""
         return {}
 
     def write_extra(self, args, problem, traj, out) -> None:
@@ -339,6 +204,7 @@ class RISRunBase(ABC):
         return None
 
     def exact(self):
+        """(t(s), z(s)) of an exact solution to draw beside the run, or None."""
         return None
 
     def summary_at_end(self, args) -> dict:
@@ -350,11 +216,12 @@ class RISRunBase(ABC):
         return None
 
     def run_options(self, args) -> dict:
-        """Extra keyword arguments of run_ris / run_nested (e.g. ``space``); none by default."""
+        """Extra keyword arguments of run_ris / run_nested (e.g. ``adapt``); none by default."""
         return {}
 
     # ------------------------------------------------------------------------------------------
     def validate(self, args):
+        """(control, tol, tau, tau_min, tols) from the options; one-line refusals (exit 2)."""
         control = check_choice("--control", args.control, CONTROLS)
         check_control_options(args, control)
         tol = check_positive("--tol", args.tol)
@@ -387,24 +254,23 @@ class RISRunBase(ABC):
         return self.T
 
     def execute(self, args) -> int:
+        """Validate, build the problem, run (or resume) it and write its results."""
         control, tol, tau, tau_min, tols = self.validate(args)
         problem = self.build_problem(args)
         session = RunSession(args, self.name)
         common = dict(
-            tau=tau,
-            tau_min=tau_min,
             simpson_subintervals=args.simpson,
             inner=self.inner_options(args),
             keep_every=args.keep_every,
         )
         common.update(self.run_options(args))
 
+        spec = control_object(control, tol=tol, tols=tols, tau=tau, tau_min=tau_min)
+
         def run(**kw):
-            if control == "nested":
-                return run_nested(problem, tols, **common, **kw)
-            return [
-                run_ris(problem, control, tol=None if control == "uniform" else tol, **common, **kw)
-            ]
+            if isinstance(spec, Nested):
+                return [r.trajectory for r in run_nested(problem, spec, **common, **kw)]
+            return [run_ris(problem, spec, **common, **kw).trajectory]
 
         with session:
             if session.already_completed:
@@ -454,12 +320,16 @@ class RISRunBase(ABC):
         return summary
 
     def summary_keys_extra(self):
+        """Keys of summary.json printed after the common ones."""
         return ()
 
     def npz_extra(self, problem) -> dict:
+        """Arrays written into trajectory.npz beside the trajectory (none by default)."""
         return {}
 
     def plot(self, args, problem, runs, out) -> None:
+        """fig1_path.png and fig2_steps.png of the last run."""
+        # matplotlib only when figures are drawn (start-up time of the command line)
         from ..ris.figures import plot_path, plot_steps
 
         traj = runs[-1]
@@ -472,12 +342,15 @@ class RISRunBase(ABC):
 
 @command("run", "ris-1d")
 class RunRIS1D(RISRunBase):
+    """``rothe run ris-1d``: Example 7.1 with its errors against (7.1)."""
+
     help = "Example 7.1 of Andreia & Meyer (2022): 1-D RIS with exact BV solution (7.1)"
     name = "ris-1d"
     default_tau = 0.1
     T = 5.0  # example_7_1()
 
     def validate(self, args):
+        """--keep-every must be 1 (the errors need every state); then the common checks."""
         if args.keep_every != 1:
             raise fail(
                 "--keep-every",
@@ -487,19 +360,16 @@ class RunRIS1D(RISRunBase):
         return super().validate(args)
 
     def build_problem(self, args):
-        from ..ris.examples import example_7_1
-
-        return example_7_1()
+        """Example 7.1."""
+        return examples.example_7_1()
 
     def exact(self):
-        from ..ris.examples import exact_solution
-
-        return exact_solution
+        """(7.1)."""
+        return examples.exact_solution
 
     def extra_summary(self, args, problem, traj) -> dict:
-        from ..ris.examples import errors_against_exact
-
-        return errors_against_exact(traj["s"], traj["t"], traj["z"])
+        """L2 and L-infinity errors against (7.1)."""
+        return examples.errors_against_exact(traj["s"], traj["t"], traj["z"])
 
 
 def run_cost(tol: float | None, tau: float) -> float:
@@ -511,18 +381,17 @@ def run_cost(tol: float | None, tau: float) -> float:
 
 def compare_ris_1d_row(control: str, tol: float | None, tau: float, uniform: bool) -> dict:
     """One run of ``compare ris-1d`` (a task: builds Example 7.1 itself); its table row."""
-    from ..parallel import TaskFailed
-    from ..ris.examples import errors_against_exact, example_7_1
-
     try:
-        traj = run_ris(example_7_1(), control, tol=tol, tau=tau)
+        traj = run_ris(examples.example_7_1(), control_object(control, tol=tol, tau=tau)).trajectory
         failure = None
     except RunFailed as exc:  # keep the table: a failed run is a row with its status
         traj, failure = exc.trajectory, exc
     if traj is None or len(traj) == 0:
         row = {"control": control, "tol": tol, "tau0": tau}
     else:
-        row = ris_summary(traj, "ris-1d", errors_against_exact(traj["s"], traj["t"], traj["z"]))
+        row = ris_summary(
+            traj, "ris-1d", examples.errors_against_exact(traj["s"], traj["t"], traj["z"])
+        )
         if uniform:
             row["tau0"] = tau
     row["status"] = "completed" if failure is None else f"failed: {failure}"
@@ -543,8 +412,6 @@ def compare_ris_1d(
     The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
     one after another in this process); a run that fails is a row with its status.
     """
-    from ..parallel import Executor, Task
-
     tasks = [
         Task(
             f"{c} tol={tol:g}",
@@ -578,21 +445,9 @@ def compare_ris_1d(
     ]
 
 
-def uniform_work_at_error(rows, key="error_linf"):
-    """Fit log(inner solves) = a + b log(error) over the completed uniform rows; returns a
-    callable (None with fewer than two such rows)."""
-    u = [
-        r for r in rows if r["control"] == "uniform" and r.get("status", "completed") == "completed"
-    ]
-    if len(u) < 2:
-        return None
-    x = np.log([r[key] for r in u])
-    y = np.log([r["inner_solves"] for r in u])
-    b, a = np.polyfit(x, y, 1)
-    return lambda err: float(np.exp(a + b * np.log(err)))
-
-
 def format_table(rows, work_fit=None) -> str:
+    """The table of ``compare ris-1d`` (with solves / uniform's at equal L-infinity error when
+    ``work_fit`` is given, :func:`rothe.ris.summary.uniform_work_at_error`)."""
     head = (
         f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
         f"{'L2 err':>9} {'Linf err':>9} {'seconds':>8}"
@@ -625,12 +480,15 @@ def format_table(rows, work_fit=None) -> str:
 
 @command("compare", "ris-1d")
 class CompareRIS1D:
+    """``rothe compare ris-1d``: the controllers against uniform steps on Example 7.1."""
+
     help = (
         "Fig. 3 of Andreia & Meyer: error against steps, adaptive/order2/regime vs uniform "
         "(Ex. 7.1)"
     )
 
     def configure(self, parser) -> None:
+        """--tols, --taus, the outputs and the executor."""
         parser.add_argument(
             "--tols", type=parse_float_list("--tols"), default=[1e-3, 1e-4, 1e-5, 1e-6]
         )
@@ -643,6 +501,7 @@ class CompareRIS1D:
         add_parallel_options(parser)
 
     def execute(self, args) -> int:
+        """Run every comparison, write the table, summary and Fig. 3."""
         tols = [check_positive("--tols", x) for x in args.tols]
         taus = [check_step("--taus", x, RunRIS1D.T) for x in args.taus]
         if len(taus) < 2:
@@ -655,6 +514,7 @@ class CompareRIS1D:
         write_table(out, table + "\n")
         write_summary(out, {"example": "ris-1d", "rows": rows})
         if not args.no_plots:
+            # matplotlib only when figures are drawn (start-up time of the command line)
             from ..ris.figures import plot_error_vs_work
 
             plot_error_vs_work(

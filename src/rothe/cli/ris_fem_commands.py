@@ -21,13 +21,31 @@ t and s (``fig_dofs.png``) and snapshots of mesh and z (``fig_mesh_snapshots.png
 from __future__ import annotations
 
 import json
+import os
 import time
 
 import numpy as np
 
-from ..errors import check_choice, check_int, check_positive, fail
+from ..errors import RotheInputError, RunFailed, check_choice, check_int, check_positive, fail
+from ..fem.adapt import SpaceAdaptivity, check_adaptable
+from ..fem.linear import LINEAR_SOLVERS, ReusableSolver
+from ..fem.mesh import DUPLICATE_NODES, load_mesh
 from ..io.atomic import atomic_write_text
+from ..io.mesh_series import write_vtu_series
+from ..io.xdmf import write_series
+from ..parallel import Executor, Task, TaskFailed
 from ..parallel.executor import add_parallel_options, executor_from_args
+from ..ris import examples
+from ..ris.inner import InnerOptions, amg_threshold_for
+from ..ris.run import run_ris, stored_states
+from ..ris.summary import (
+    compare_rows,
+    describe_branch,
+    equidistribution_bound,
+    finest_uniform_bound,
+    format_jump_times,
+    ris_summary,
+)
 from .common import (
     _jsonable,
     add_output_options,
@@ -42,18 +60,9 @@ from .common import (
     write_table,
 )
 from .registry import command
-from .ris_commands import (
-    COMPARE_KEYS,
-    RISRunBase,
-    check_step,
-    compare_rows,
-    equidistribution_bound,
-    ris_summary,
-    run_cost,
-    uniform_work_interpolant,
-)
+from .ris_commands import RISRunBase, check_step, control_object, run_cost
 
-#: ReusableSolver.kind_used for each resolved method (kept in sync by tests/ris_fem/test_cli.py)
+#: ReusableSolver.kind_used for each resolved method (kept in sync by tests/cli/test_cli_ris_fem.py)
 LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa"}
 #: uniform steps of ``compare ris-2d``: 0.01 / 2^k, k = 0..8, so that the uniform global residuals
 #: (about 1.2 ... 0.0047 on Example 7.2, 40 x 40) bracket those of adaptive, order2 and regime at
@@ -72,8 +81,6 @@ def linear_solver_used(traj, problem, method: str = "auto") -> str:
     """
     if traj.meta.get("linear_solver"):
         return str(traj.meta["linear_solver"])
-    from ..fem.linear import ReusableSolver
-    from ..ris.inner import InnerOptions, amg_threshold_for
 
     o = InnerOptions(linear_solver=method)
     solver = ReusableSolver(o.linear_solver, amg_threshold=amg_threshold_for(problem, o))
@@ -94,6 +101,7 @@ RIS_BYTES_PER_NODE = {2: 3000, 3: 12000}
 
 
 def grid_nodes(n: int, dim: int) -> int:
+    """Nodes of the built-in grid with n cells per side in ``dim`` dimensions."""
     return (n + 1) ** dim
 
 
@@ -108,8 +116,6 @@ def available_memory() -> int | None:
     except (OSError, ValueError, IndexError):
         pass
     try:
-        import os
-
         return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
     except (ValueError, OSError, AttributeError):
         return None
@@ -151,6 +157,7 @@ SPACE_OPTIONS = (
 
 
 def add_space_options(parser, default_tol: float, default_max_dofs: int) -> None:
+    """--adapt-space and its options (:func:`space_from_args` reads them)."""
     parser.add_argument(
         "--adapt-space",
         action="store_true",
@@ -221,8 +228,6 @@ def add_space_options(parser, default_tol: float, default_max_dofs: int) -> None
 def space_from_args(args, default_tol: float, default_max_dofs: int):
     """The SpaceAdaptivity of ``--adapt-space`` (None without it); options validated (exit 2)
     and refused when given without --adapt-space."""
-    from ..fem.adapt import SpaceAdaptivity, check_adaptable
-
     if not args.adapt_space:
         for option in SPACE_OPTIONS:
             if given(args, option):
@@ -276,6 +281,8 @@ def last_state_per_time(t: np.ndarray, T: float) -> np.ndarray:
 
 class _RunRISFem(RISRunBase):
     dim = 2
+    #: API parameters whose option has another name (the command line renames refusals)
+    parameter_options = {"adapt": "--adapt-space"}
     default_tau = 0.1
     default_n = 40
     default_z0 = 0.0
@@ -288,6 +295,7 @@ class _RunRISFem(RISRunBase):
     default_max_dofs = 100_000
 
     def add_example_options(self, parser) -> None:
+        """The grid or mesh file, Dirichlet parts, z0, load, linear solver, outputs, meshes."""
         what = "N x N cells of the unit square" if self.dim == 2 else "N^3 cubes of the unit cube"
         parser.add_argument(
             "--n", type=int, default=None, help=f"grid of {what} (default {self.default_n})"
@@ -348,9 +356,7 @@ class _RunRISFem(RISRunBase):
 
     # hooks -----------------------------------------------------------------------------------
     def validate(self, args):
-        from ..fem.linear import LINEAR_SOLVERS
-        from ..fem.mesh import DUPLICATE_NODES
-
+        """The FE options (memory for --n, --adapt-space), then the common checks."""
         check_choice("--linear-solver", args.linear_solver, LINEAR_SOLVERS)
         check_choice("--duplicate-nodes", args.duplicate_nodes, DUPLICATE_NODES)
         check_choice("--xdmf-time", args.xdmf_time, XDMF_TIME)
@@ -365,25 +371,23 @@ class _RunRISFem(RISRunBase):
         n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
         if args.mesh is None:
             check_memory("--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim])
-        self._space = space_from_args(args, self.default_space_tol, self.default_max_dofs)
-        if self._space is not None and args.max_dofs is not None:
+        self._adapt = space_from_args(args, self.default_space_tol, self.default_max_dofs)
+        if self._adapt is not None and args.max_dofs is not None:
             check_memory("--max-dofs", args.max_dofs, args.max_dofs, RIS_BYTES_PER_NODE[self.dim])
         return super().validate(args)
 
     def run_options(self, args) -> dict:
-        return {} if self._space is None else {"space": self._space}
+        """``adapt=`` with --adapt-space."""
+        return {} if self._adapt is None else {"adapt": self._adapt}
 
     def make_problem(self, n, mesh, args, dirichlet):
-        from ..ris.fem_problem import example_7_2, example_7_2_3d
-
-        factory = example_7_2 if self.dim == 2 else example_7_2_3d
+        """Example 7.2 (or its 3D analogue) on the grid or the mesh."""
+        factory = examples.example_7_2 if self.dim == 2 else examples.example_7_2_3d
         return factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
 
     # hooks -----------------------------------------------------------------------------------
     def build_problem(self, args):
-        from ..errors import RotheInputError
-        from ..fem.mesh import load_mesh
-
+        """The problem of the options (a --mesh file loaded here); refusals name the option."""
         n = args.n if args.n is not None else self.default_n
         mesh = None
         if args.mesh is not None:
@@ -398,13 +402,13 @@ class _RunRISFem(RISRunBase):
             problem = self.make_problem(n, mesh, args, dirichlet)
         except RotheInputError as exc:
             raise _as_option_error(exc, args) from None
-        if self._space is not None:
-            problem.check_movable("--adapt-space")
-            fit_default_cap(args, self._space, problem.n_nodes)
-            if self._space.max_dofs < problem.n_nodes:
+        if self._adapt is not None:
+            problem.check_movable()
+            fit_default_cap(args, self._adapt, problem.n_nodes)
+            if self._adapt.max_dofs < problem.n_nodes:
                 raise fail(
                     "--max-dofs",
-                    self._space.max_dofs,
+                    self._adapt.max_dofs,
                     f"must be >= the {problem.n_nodes} dofs of the initial mesh",
                 )
         self._setup_time = time.perf_counter() - t0
@@ -412,13 +416,11 @@ class _RunRISFem(RISRunBase):
         return problem
 
     def inner_options(self, args):
-        from ..ris.inner import InnerOptions
-
+        """--linear-solver."""
         return InnerOptions(linear_solver=args.linear_solver)
 
     def extra_summary(self, args, problem, traj) -> dict:
-        from ..ris.fem_problem import describe_branch
-
+        """The mesh, solver, memory, the branch and, with --adapt-space, the meshes."""
         extra = {
             "mesh": args.mesh if args.mesh is not None else f"{self._grid}^{self.dim} grid",
             "n_nodes": problem.n_nodes,
@@ -434,7 +436,7 @@ class _RunRISFem(RISRunBase):
         if traj.meshes is not None:
             dofs = np.asarray(traj["n_dofs"])
             extra.update(
-                adapt_space=self._space.describe(),
+                adapt_space=self._adapt.describe(),
                 space_adaptations=traj.meta.get("space_adaptations"),
                 transfer_failures=traj.meta.get("transfer_failures"),
                 n_meshes=len(traj.meshes),
@@ -446,10 +448,12 @@ class _RunRISFem(RISRunBase):
         return extra
 
     def summary_at_end(self, args) -> dict:
+        """The peak memory of the whole process."""
         # after the XDMF file and the figures: the peak of the whole process
         return {"peak_memory_mb": peak_memory_mb()}
 
     def summary_keys_extra(self):
+        """The mesh, the branch, the solver and the memory."""
         return (
             "n_nodes",
             "energy_final",
@@ -462,18 +466,15 @@ class _RunRISFem(RISRunBase):
         )
 
     def npz_extra(self, problem) -> dict:
-        if self._space is not None:  # the meshes are in the trajectory's mesh series
+        """``nodes`` and ``cells`` of a fixed mesh."""
+        if self._adapt is not None:  # the meshes are in the trajectory's mesh series
             return {}
         return {"nodes": problem.nodes, "cells": problem.cells}
 
     def write_extra(self, args, problem, traj, out) -> None:
-        from ..io.xdmf import write_series
-        from ..ris.stepper import stored_states
-
+        """solution.xdmf (fixed mesh) or solution.pvd with one VTU per state (--adapt-space)."""
         s, t, z = stored_states(traj)
         if traj.meshes is not None:
-            from ..io.mesh_series import write_vtu_series
-
             ids = np.asarray(traj["z_mesh_id"])
             keep = (
                 last_state_per_time(t, problem.T)
@@ -507,6 +508,8 @@ class _RunRISFem(RISRunBase):
             write_series(out / "solution.xdmf", problem.nodes, problem.cells, s, {"z": z}, {"t": t})
 
     def plot(self, args, problem, runs, out) -> None:
+        """Fig. 4, fig1_path.png, snapshots of z (with their meshes under --adapt-space)."""
+        # matplotlib only when figures are drawn (start-up time of the command line)
         from ..ris.figures import plot_fig4, plot_path, plot_snapshots
 
         traj = runs[-1]
@@ -515,10 +518,9 @@ class _RunRISFem(RISRunBase):
             label += f", tol={traj.meta['tol']:g}"
         plot_fig4(runs, out / "fig4_steps.png", title=f"{self.name}: physical time and step size")
         plot_path(traj, out / "fig1_path.png", title=label)
-        from ..ris.stepper import stored_states
-
         s, t, z = stored_states(traj)
         if traj.meshes is not None:
+            # matplotlib, as above
             from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
             from ..ris.figures import snapshot_indices
 
@@ -546,6 +548,8 @@ class _RunRISFem(RISRunBase):
 
 @command("run", "ris-2d")
 class RunRIS2D(_RunRISFem):
+    """``rothe run ris-2d``: Example 7.2."""
+
     help = (
         "Example 7.2 of Andreia & Meyer (2022): P1 finite elements on the unit square "
         "(N x N grid, default 40: 1681 nodes) or a mesh file"
@@ -557,6 +561,8 @@ class RunRIS2D(_RunRISFem):
 
 @command("run", "ris-3d")
 class RunRIS3D(_RunRISFem):
+    """``rothe run ris-3d``: the energy of Example 7.2 on the unit cube."""
+
     help = (
         "The energy of Example 7.2 on the unit cube (P1 tetrahedra, N^3 cubes, default 12) "
         "or a 3D mesh file"
@@ -569,6 +575,8 @@ class RunRIS3D(_RunRISFem):
 
 @command("run", "ris-front")
 class RunRISFront(_RunRISFem):
+    """``rothe run ris-front``: a phase front crossing the unit square."""
+
     help = (
         "A phase front crossing the unit square (double well of Example 7.2, a load growing "
         "from a corner): the example for --adapt-space"
@@ -587,6 +595,7 @@ class RunRISFront(_RunRISFem):
     )
 
     def add_example_options(self, parser) -> None:
+        """The options of ris-2d and --coefficient."""
         super().add_example_options(parser)
         parser.add_argument(
             "--coefficient",
@@ -596,18 +605,16 @@ class RunRISFront(_RunRISFem):
         )
 
     def validate(self, args):
-        from ..ris.fem_problem import FRONT_DEFAULTS
-
+        """--coefficient > 0, then the checks of ris-2d."""
+        default = examples.FRONT_DEFAULTS["coefficient"]
         self._coefficient = check_positive(
-            "--coefficient",
-            FRONT_DEFAULTS["coefficient"] if args.coefficient is None else args.coefficient,
+            "--coefficient", default if args.coefficient is None else args.coefficient
         )
         return super().validate(args)
 
     def make_problem(self, n, mesh, args, dirichlet):
-        from ..ris.fem_problem import example_front
-
-        return example_front(
+        """The front example (z = 0 on the right side unless --dirichlet says otherwise)."""
+        return examples.example_front(
             n,
             mesh,
             amplitude=args.amplitude,
@@ -627,14 +634,11 @@ def compare_ris_2d_row(
 
     A uniform row also holds its ``equidistribution_bound`` (:func:`equidistribution_bound`).
     """
-    from ..errors import RunFailed
-    from ..parallel import TaskFailed
-    from ..ris.fem_problem import describe_branch, example_7_2
-    from ..ris.stepper import run_ris
-
-    problem = example_7_2(n, mesh)
+    problem = examples.example_7_2(n, mesh)
     try:
-        traj = run_ris(problem, control, tol=tol, tau=tau, progress=progress)
+        traj = run_ris(
+            problem, control_object(control, tol=tol, tau=tau), progress=progress
+        ).trajectory
         failure = None
     except RunFailed as exc:  # keep the table: a failed run is a row with its status
         traj, failure = exc.trajectory, exc
@@ -667,8 +671,6 @@ def compare_ris_2d(
     The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
     one after another in this process); a run that fails is a row with its status.
     """
-    from ..parallel import Executor, Task
-
     runs = [(c, tol, tau0) for c in controls for tol in tols] + [("uniform", None, t) for t in taus]
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
@@ -704,8 +706,6 @@ def compare_ris_2d(
 
 def format_table(rows) -> str:
     """The table of ``compare ris-2d``: one line per run, work ratios from :func:`compare_rows`."""
-    from ..ris.fem_problem import format_jump_times
-
     ratios = compare_rows(rows)
     head = (
         f"{'control':<9} {'tol/tau':>8} {'accepted':>8} {'rejected':>8} {'solves':>7} "
@@ -752,29 +752,17 @@ def format_table(rows) -> str:
     return "\n".join(lines)
 
 
-def finest_uniform_bound(rows):
-    """(tau, bound) of the completed uniform run with the smallest step, or None."""
-    u = [
-        r
-        for r in rows
-        if r["control"] == "uniform"
-        and r["status"] == "completed"
-        and r.get("equidistribution_bound") is not None
-    ]
-    if not u:
-        return None
-    r = min(u, key=lambda r: r["tau0"])
-    return r["tau0"], r["equidistribution_bound"]
-
-
 @command("compare", "ris-2d")
 class CompareRIS2D:
+    """``rothe compare ris-2d``: Fig. 5 and compare.json."""
+
     help = (
         "Fig. 5 of Andreia & Meyer: local and global residual against steps, adaptive, order2 "
         "and regime vs uniform (Example 7.2); compare.json with the work ratios"
     )
 
     def configure(self, parser) -> None:
+        """The grid, tolerances, uniform steps, controllers, outputs and the executor."""
         parser.add_argument(
             "--n", type=int, default=None, help="N x N grid (default 40: 1681 nodes)"
         )
@@ -807,8 +795,7 @@ class CompareRIS2D:
         add_parallel_options(parser)
 
     def execute(self, args) -> int:
-        from ..fem.mesh import load_mesh
-
+        """Run every comparison; write the table, summary, compare.json and Fig. 5."""
         tols = [check_positive("--tols", x) for x in args.tols]
         taus = [check_step("--taus", x, 1.0) for x in args.taus]
         tau0 = check_step("--tau", args.tau, 1.0)
@@ -866,6 +853,7 @@ class CompareRIS2D:
             + "\n",
         )
         if not args.no_plots:
+            # matplotlib only when figures are drawn (start-up time of the command line)
             from ..ris.figures import plot_residual_vs_steps
 
             plot_residual_vs_steps(
@@ -880,15 +868,11 @@ class CompareRIS2D:
 
 
 __all__ = [
-    "COMPARE_KEYS",
     "RunRIS2D",
     "RunRIS3D",
     "RunRISFront",
     "CompareRIS2D",
     "compare_ris_2d",
-    "compare_rows",
-    "equidistribution_bound",
     "format_table",
     "linear_solver_used",
-    "uniform_work_interpolant",
 ]

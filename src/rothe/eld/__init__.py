@@ -4,15 +4,25 @@
     u = u1 + u2, B u2 = G, B v2 = G', B w2 = G'',
     rho (u1'' + w2) + D(u1' + v2) + K (u1 + u2) + B* lambda = F   (2.8, regularized, index 1)
 
-Implicit Euler (3.4) and variable-step BDF2 in both forms (:func:`run_eld`, ``scheme=``), with
-uniform steps, a given step sequence or adaptive steps (``control='adaptive'``, ``tol=``) on
-the shared evolve loop, on vector P1/P2 elements (:class:`rothe.fem.elasticity.VectorSpace`),
+Implicit Euler (3.4) and variable-step BDF2 (``scheme=ImplicitEuler()`` or ``BDF2()``) in both
+forms (``form=Regularized(lifting=...)`` or ``Original()``), with uniform steps, a given step
+sequence or adaptive steps (``control=Uniform(tau)``, ``Given(steps)`` or ``Adaptive(tol)``) on
+the shared evolve loop (:func:`run_eld`, returning an :class:`ELDResult`), on vector P1/P2
+elements (:class:`rothe.fem.elasticity.VectorSpace`),
 with Dirichlet data enforced weakly by a Lagrange multiplier (the boundary reaction), linear or
 nonlinear damping with the constants of (2.5), the step bound of Lemma 3.2, energy bookkeeping,
 the perturbation behaviour of Theorem 4.5, stresses (:mod:`rothe.eld.stress`) and outputs for
-ParaView (:func:`write_eld_result`). See ``docs/eld.md``.
+ParaView (:func:`write_eld_result`), and meshes that adapt between steps
+(``adapt=SpaceAdaptivity(...)``, :mod:`rothe.eld.adapt`). See ``docs/eld.md``.
+
+The package: :mod:`~rothe.eld.scheme` (the schemes' coefficients), :mod:`~rothe.eld.form`,
+:mod:`~rothe.eld.data` (data modes and noise), :mod:`~rothe.eld.state` (state, energy ledger,
+step result), :mod:`~rothe.eld.system` (the linear system on one mesh), :mod:`~rothe.eld.start`
+(initial state, BDF2 history), :mod:`~rothe.eld.stepper` (one step, the adapt step, records,
+checkpoints), :mod:`~rothe.eld.run` (the driver), :mod:`~rothe.eld.adapt` (space adaptivity).
 """
 
+from .adapt import ELDMeshes
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .damping import (
     Damping,
@@ -23,41 +33,54 @@ from .damping import (
     UserDamping,
     make_damping,
 )
-from .data import DataNoise, StepData
+from .data import DataMode, DataNoise, Differenced, Means, Points, StepData
 from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem, ramp_problem
+from .form import Form, Original, Regularized
 from .materials import Material
 from .output import write_eld_result
 from .problem import DirichletData, ELDProblem
-from .schemes import (
-    ELDRun,
-    ELDState,
-    ELDStepper,
-    NewtonOptions,
-    prepare_eld_run,
-    run_eld,
-    step_coefficients,
-)
+from .run import ELDResult, ELDRun, prepare_eld_run, run_eld
+from .scheme import BDF2, ImplicitEuler, Scheme
+from .state import ELDCode, ELDState, ELDStepResult, EnergyLedger
+from .stepper import ELDStepper, NewtonOptions
 from .stress import StressEvaluator, cauchy_stress, von_mises
 from .studies import convergence_study, perturbation_study
+from .system import ELDSystem
 
 __all__ = [
+    "BDF2",
     "Damping",
     "DampingConstants",
+    "DataMode",
     "DataNoise",
+    "Differenced",
     "DirichletConstraint",
     "DirichletData",
+    "ELDCode",
+    "ELDMeshes",
     "ELDProblem",
+    "ELDResult",
     "ELDRun",
     "ELDState",
+    "ELDStepResult",
     "ELDStepper",
+    "ELDSystem",
+    "EnergyLedger",
+    "Form",
     "HarmonicLifting",
+    "ImplicitEuler",
     "ManufacturedSolution",
     "Material",
+    "Means",
     "NewtonOptions",
     "NoDamping",
     "NodalLifting",
     "NonlinearDamping",
+    "Original",
+    "Points",
     "RayleighDamping",
+    "Regularized",
+    "Scheme",
     "StepData",
     "StressEvaluator",
     "UserDamping",
@@ -71,7 +94,6 @@ __all__ = [
     "prepare_eld_run",
     "ramp_problem",
     "run_eld",
-    "step_coefficients",
     "von_mises",
     "write_eld_result",
 ]

@@ -1,82 +1,72 @@
-"""Space adaptivity of elastodynamics runs: a new mesh after every k-th accepted step.
+"""Space adaptivity of elastodynamics runs: the ELD side of the adapt cycle.
 
-``run_eld(problem, ..., space=SpaceAdaptivity(...))`` drives a :class:`SpaceAdaptiveStepper`
-on the shared evolve loop. It wraps the :class:`~rothe.eld.schemes.ELDStepper` of the current
-mesh (which does the steps) and, after every ``adapt_every``-th accepted step j that is not
-the last, adapts the mesh (SPEC Sec. 7, issue 8; the perturbation view of Altmann 2015,
-Theorem 4.5 / Remark 4.2, with the transfer error as a perturbation of the history):
+``run_eld(problem, ..., adapt=SpaceAdaptivity(...))`` adapts the mesh after every
+``adapt_every``-th accepted step j that is not the last (SPEC Sec. 7, issue 8; the perturbation
+view of Altmann 2015, Theorem 4.5 / Remark 4.2, with the transfer error as a perturbation of the
+history). The stepper's adapt step (:meth:`rothe.eld.stepper.ELDStepper.adapt`) runs the shared
+cycle :meth:`rothe.fem.adapt.cycle.MeshAdaptation.cycle` with an :class:`ELDAdaptivity` as the
+family, whose "problem" is the :class:`~rothe.eld.system.ELDSystem` on the current mesh:
 
-1. **indicators** of the accepted step on its own mesh (:func:`rothe.eld.indicator.
-   eld_indicators_for`, the residual estimator: cell residual of the momentum equation with the
-   scheme's acceleration a^j and velocity v^j, jumps of the normal stress sigma(u + b v) n across
-   interior facets, traction mismatch on Neumann facets), with the reaction rho (alpha_0/tau_j)^2
-   of the step (alpha_0 = 1 Euler, 3/2 BDF2);
-2. **marking and adaptation** (:func:`rothe.fem.adapt.adapt_mesh`: Doerfler refinement while
-   eta > space_tol, coarsening of the cells that carry a coarsen_fraction share, max_dofs);
-   nothing changed -> nothing else happens (the run is the fixed-mesh run bit for bit);
-3. **transfer** of every history vector (u, v, a and the scheme's x, y, b with their t_{j-1}
-   values, whatever BDF2 needs) by the nodal interpolation T of the adaptation layer (exact on
-   refinement, an injection on coarsening), of the multiplier by the trace transfer;
-4. a **new problem and stepper** on the new mesh (:meth:`ELDProblem.on_mesh`; the stepper's
-   constructor re-checks the step bound tau < rho/d0 of Lemma 3.2). Regularized form: the
-   lifting is rebuilt, u_1 = u - B^- G with the new B^- (transferring u_1 itself would carry the
-   old mesh's lifting, docs/adaptivity.md); the current displacement, velocity and acceleration
-   take the data on the new Dirichlet nodes, u^j|Gamma = G(t_j), v^j|Gamma = G_dot(t_j),
-   a^j|Gamma = G_ddot(t_j) (exactly what the scheme has at the old nodes, so the constraint
-   B u = G holds on the new boundary), the t_{j-1} history keeps its transferred trace.
-   Original form: u^j|Gamma = G(t_j), the rest transferred;
-5. :meth:`ELDStepper.adopt`: the energy change E(T u) - E(u) is booked as ``transfer`` in the
+1. **estimate** (:meth:`ELDAdaptivity.indicators`): the residual indicators of the accepted step
+   on its own mesh (:func:`rothe.eld.indicator.eld_indicators_for`: cell residual of the momentum
+   equation with the scheme's acceleration a^j and velocity v^j, jumps of the normal stress
+   sigma(u + b v) n across interior facets, traction mismatch on Neumann facets) with the
+   reaction rho (alpha_0/tau_j)^2 of the step (alpha_0 = 1 Euler, 3/2 BDF2), plus the Dirichlet
+   data term of the next step (:func:`dirichlet_data_indicator`);
+2. **mark, refine/coarsen** (:class:`rothe.fem.adapt.SpaceAdaptivity`: Doerfler refinement
+   while eta > space_tol, coarsening of the cells that carry a coarsen_fraction share,
+   max_dofs); nothing changed -> nothing else happens (the run is the fixed-mesh run bit for
+   bit);
+3. **rebuild** (:meth:`ELDAdaptivity.rebuild`): the problem on the new mesh
+   (:meth:`ELDProblem.on_mesh`) and a new system for it (:meth:`ELDSystem.rebuilt`: operators,
+   constraint, lifting, solver with its counters continued, the first factorization);
+4. **transfer** (:meth:`ELDAdaptivity.transfer`) of every history vector (u, v, a and the
+   scheme's x, y, b with their t_{j-1} values, whatever BDF2 needs) by the nodal interpolation T
+   of the adaptation layer (exact on refinement, an injection on coarsening), of the multiplier
+   by the trace transfer. Regularized form: u_1 = u - B^- G with the new B^- (transferring u_1
+   itself would carry the old mesh's lifting, docs/adaptivity.md); the current displacement,
+   velocity and acceleration take the data on the new Dirichlet nodes, u^j|Gamma = G(t_j),
+   v^j|Gamma = G_dot(t_j), a^j|Gamma = G_ddot(t_j) (exactly what the scheme has at the old
+   nodes, so the constraint B u = G holds on the new boundary), the t_{j-1} history keeps its
+   transferred trace. Original form: u^j|Gamma = G(t_j), the rest transferred. Then
+   :meth:`ELDSystem.adopt`: the energy change E(T u) - E(u) is booked as ``transfer`` in the
    ledger, so the balance closes to round-off over the whole run.
 
-Within a step (:meth:`SpaceAdaptiveStepper.step`): while the step's estimate on its own mesh
-exceeds space_tol, the mesh is refined (Doerfler, no coarsening) and the step solved again from
-the previous state transferred to the refined mesh, at most :data:`STEP_ROUNDS` times; a step
-rejected by the time controller goes back to its previous state's mesh.
+Within a step (:meth:`rothe.eld.stepper.ELDStepper.step`): while the step's estimate on its own
+mesh exceeds space_tol, the mesh is refined (the cycle with ``refine_only=True``: Doerfler, no
+coarsening) and the step solved again from the previous state transferred to the refined mesh,
+at most :data:`STEP_ROUNDS` times; a step rejected by the time controller goes back to its
+previous state's mesh.
 
-A transfer that fails (an exception, a non-finite field or energy) is never accepted: the mesh
-hierarchy is rolled back and the run stops with :class:`~rothe.errors.RunFailed` (its result
-so far and a checkpoint on the last mesh remain).
+An adaptation after a step that fails (an exception, a non-finite estimate, field or energy) is
+never accepted: the cycle rolls the mesh hierarchy back and the run stops with
+:class:`~rothe.errors.RunFailed` (its result so far and a checkpoint on the last mesh remain).
+A failed refinement within a step leaves the step as it was.
 
-Because the evolve loop has no hook after acceptance, the adaptation runs in :meth:`record`
-(called once per accepted step) and replaces the accepted state's contents in place (the loop
-holds that object); a step is always computed, estimated and recorded on the mesh it was
-computed on, and the transfer's energy appears in the ledger of the next step.
-
-Bookkeeping: point series ``mesh_id``, ``ndofs``, ``cells`` (the mesh each state was computed
-on), step series ``space_estimate`` (eta of the step, NaN when not adapted after it), ``step_dofs``
-(the dofs of every solve of the step summed), ``step_refinements``; every
-distinct mesh once in :attr:`series` (:class:`rothe.io.mesh_series.MeshSeries`); the kept
-fields u, v, a, lambda live on different meshes and are kept in :attr:`kept` (lists, with
-``kept_mesh_id`` in the trajectory), written to ``trajectory.npz`` by
-:func:`rothe.eld.output.write_eld_result`. Checkpoints hold the inner stepper's state, the
-mesh hierarchy, the mesh series and the kept fields; a resumed run continues bit for bit.
+Bookkeeping (:class:`ELDMeshes`, the ``meshes`` of a run's result): every distinct mesh once in
+``series`` (:class:`rothe.io.mesh_series.MeshSeries`); the kept fields u, v, a, lambda live on
+different meshes and are kept in ``kept`` (lists, with ``kept_mesh_id`` in the trajectory),
+written to ``trajectory.npz`` by :func:`rothe.eld.output.write_eld_result`; the log of
+adaptations in ``adaptations``. The trajectory gets the point series ``mesh_id``, ``ndofs``,
+``cells`` (the mesh each state was computed on) and the step series ``space_estimate`` (eta of
+the step, NaN when not adapted after it), ``step_dofs`` (the dofs of every solve of the step
+summed), ``step_refinements``. Checkpoints hold the mesh hierarchy, the series, the kept fields
+and the log; a resumed run continues bit for bit.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import fields as dataclass_fields
-from dataclasses import replace
-
 import numpy as np
 
-from ..errors import RotheInputError, RunFailed, described, fail
-from ..fem.adapt import (
-    AdaptiveMesh,
-    SpaceAdaptivity,
-    adapt_mesh,
-    check_adaptable,
-    doerfler_marking,
-    free_transfer,
-)
+from ..errors import described, fail
+from ..fem.adapt import SpaceAdaptivity, check_adaptable, free_transfer
+from ..fem.adapt.cycle import MeshAdaptation, energy_or_fail, finite_or_fail
 from ..io.mesh_series import MeshSeries
-from .schemes import ELDState, ELDStepper
+from .data import Points
+from .indicator import eld_indicators_for
 
 #: the kept fields (ragged across meshes)
 KEPT = ("u", "v", "a", "lam")
-#: adaptation rounds after a step at most: the first refines and coarsens, the others refine
-#: while the estimate on the new mesh is above space_tol
-REFINE_ROUNDS = 1
 #: refinements of a step's own mesh at most, each followed by solving the step again
 STEP_ROUNDS = 3
 
@@ -111,20 +101,21 @@ def dirichlet_data_indicator(problem, t: float) -> np.ndarray:
     return out
 
 
-def check_space_options(space, *, data: str, noise, form: str) -> SpaceAdaptivity:
-    """``space`` must be a SpaceAdaptivity; data 'points' and no noise (one-line errors)."""
-    if not isinstance(space, SpaceAdaptivity):
+def check_adapt(adapt, *, data, noise) -> SpaceAdaptivity:
+    """``adapt`` must be a SpaceAdaptivity, the data :class:`~rothe.eld.data.Points` and no
+    noise (one-line errors naming ``adapt``, ``data``, ``noise``)."""
+    if not isinstance(adapt, SpaceAdaptivity):
         raise fail(
-            "space",
-            described(type(space).__name__),
+            "adapt",
+            described(type(adapt).__name__),
             "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)",
         )
-    if data != "points":
+    if not isinstance(data, Points):
         raise fail(
             "data",
-            data,
-            "must be 'points' with space adaptivity (the data of t_j is "
-            "re-evaluated on the new Dirichlet nodes after a mesh change)",
+            data.name,
+            "must be 'points' with space adaptivity (the data of t_j "
+            "is re-evaluated on the new Dirichlet nodes after a mesh change)",
         )
     if noise is not None:
         raise fail(
@@ -132,146 +123,35 @@ def check_space_options(space, *, data: str, noise, form: str) -> SpaceAdaptivit
             noise.describe() if hasattr(noise, "describe") else noise,
             "is not supported with space adaptivity (noise vectors live on one mesh)",
         )
-    return space
+    return adapt
 
 
-class SpaceAdaptiveStepper:
-    """An :class:`ELDStepper` on a mesh that changes between steps (module docstring).
+class ELDMeshes:
+    """The series of meshes of a space-adaptive run and what lives on them (module docstring).
 
-    Parameters
+    Attributes
     ----------
-    problem : ELDProblem on a triangle or tetrahedron mesh (the initial mesh)
-    options : SpaceAdaptivity
-    stepper_kwargs : the arguments of ELDStepper after ``problem`` (form, tau, scheme, ...)
+    series : MeshSeries
+        Every distinct mesh once, by mesh id.
+    kept : dict
+        ``u``, ``v``, ``a``, ``lam``: lists of the kept states' fields, each on its own mesh
+        (``kept_mesh_id`` of the trajectory).
+    adaptations : list of dict
+        Per adaptation after a step: step, t, from_mesh, to_mesh, estimate, rounds, bisections,
+        merges, cells, ndofs, transfer_energy.
+    degree, components : int
+        The element (P``degree``, ``components`` fields).
     """
 
-    def __init__(self, problem, options: SpaceAdaptivity, stepper_kwargs: dict):
-        check_adaptable(problem.space.mesh, "--adapt-space" if options.naming == "cli" else "space")
-        self.options = options
-        kwargs = dict(stepper_kwargs)
-        self.store_fields = bool(kwargs.pop("store_fields", True))
-        self.keep_every = int(kwargs.get("keep_every", 1))
-        self.observer = kwargs.pop("observer", None)
-        self.kwargs = kwargs
-        self.problem = problem
-        self.inner = ELDStepper(problem, store_fields=False, **kwargs)
-        self.keep_every = self.inner.keep_every
-        self.amesh = AdaptiveMesh(problem.space.mesh)
-        self.degree, self.components = problem.space.degree, problem.space.dim
-        options.check_mesh(self.amesh, self.degree, self.components)
+    def __init__(self, degree: int, components: int):
+        self.degree = int(degree)
+        self.components = int(components)
         self.series = MeshSeries()
-        mesh = problem.space.mesh
-        self.series.add(0, mesh.p.T, mesh.t.T)
         self.kept: dict[str, list] = {k: [] for k in KEPT}
         self.adaptations: list[dict] = []
-        self._pending_factorizations = 0
-        self._base = None  # (state, mesh hierarchy, problem, stepper) before in-step refinement
-        self._step_refinements = 0
 
-    # -- delegation to the stepper of the current mesh --------------------------------------------
-    def __getattr__(self, name):
-        # only reached for attributes not defined here: scheme, form, order, max_ratio, tau,
-        # n_steps, steps, kind, solver, error_scale, bound, T, ...
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
-
-    def max_step(self, tau_prev):
-        return self.inner.max_step(tau_prev)
-
-    def finished(self, state) -> bool:
-        return self.inner.finished(state)
-
-    def limit(self, state, tau):
-        return self.inner.limit(state, tau)
-
-    def overshoot(self, state, attempts):
-        return self.inner.overshoot(state, attempts)
-
-    def pick_landing(self, state, attempts):
-        return self.inner.pick_landing(state, attempts)
-
-    def where(self, state, result=None) -> dict:
-        info = self.inner.where(state, result)
-        info["mesh_id"] = int(state.mesh_id)
-        return info
-
-    def progress_fields(self, state) -> dict:
-        out = self.inner.progress_fields(state)
-        out["dofs"] = self.problem.space.ndofs
-        return out
-
-    def step(self, state, tau, s_end=None):
-        """One step; while its estimate on its mesh exceeds space_tol, the mesh is refined
-        (Doerfler, no coarsening) and the step is solved again from the previous state
-        transferred to the refined mesh, at most :data:`STEP_ROUNDS` times (the
-        solve-estimate-mark-refine loop of the step: a wave that enters a coarse region, or
-        the data of a boundary pulse, is resolved in the step that creates it). The result is
-        that of the last solve; ``result.counters['dofs']`` sums the dofs of every solve."""
-        self._restore_base(state)
-        original = state
-        result = self.inner.step(state, tau, s_end)
-        dofs = self.problem.space.ndofs
-        opts = self.options
-        for _ in range(STEP_ROUNDS):
-            if not result.converged or result.state is None:
-                break
-            try:
-                eta = self.indicators(self.problem, result.state, tau, result.state.t)
-            except Exception:  # noqa: BLE001 - no estimate, no refinement: the step stands
-                break
-            if not np.all(np.isfinite(eta)) or np.sqrt(np.sum(eta * eta)) <= opts.space_tol:
-                break
-            base = self._base
-            if base is None or base[0] is not original:
-                base = (original, self.amesh.checkpoint_state(), self.problem, self.inner)
-            before = self.amesh.checkpoint_state() if self._step_refinements else base[1]
-            try:
-                change = self.amesh.adapt(
-                    refine=doerfler_marking(eta, opts.refine_fraction),
-                    max_dofs=opts.max_dofs,
-                    degree=self.degree,
-                    components=self.components,
-                    priority=eta,
-                    max_level=opts.max_level,
-                )
-                if not change.changed:
-                    break
-                problem = self.problem.on_mesh(self.amesh.mesh)
-                mapped = self._map(state, change, self.problem, problem)
-                inner, moved = self._new_stepper(problem, mapped)
-            except Exception:  # noqa: BLE001 - a failed transfer is not used: the step stands
-                self.amesh = AdaptiveMesh.restore_state(before)
-                break
-            self._base = base
-            self.problem, self.inner, state = problem, inner, moved
-            self._step_refinements += 1
-            result = self.inner.step(state, tau, s_end)
-            dofs += problem.space.ndofs
-        result.counters["dofs"] = dofs
-        return result
-
-    def _restore_base(self, state) -> None:
-        """A step retried (rejected by the time controller) from a state whose mesh was refined
-        during the rejected attempt: back to that state's mesh and stepper."""
-        base = self._base
-        if base is not None and base[0] is state and state.mesh_id != self.amesh.mesh_id:
-            self.amesh = AdaptiveMesh.restore_state(base[1])
-            self.problem, self.inner = base[2], base[3]
-            self._step_refinements = 0  # counted for the attempt that is accepted
-
-    def initial_state(self) -> ELDState:
-        return self.inner.initial_state()
-
-    # -- recording and adaptation ---------------------------------------------------------------
-    def _mesh_record(self, state) -> dict:
-        return {
-            "mesh_id": int(state.mesh_id),
-            "ndofs": int(self.problem.space.ndofs),
-            "cells": int(self.problem.space.mesh.t.shape[1]),
-        }
-
-    def _keep(self, traj, state) -> None:
+    def keep(self, traj, state) -> None:
+        """Keep u, v, a, lambda of ``state`` (on its mesh) and record it in ``traj``."""
         traj.append(kept_step=state.j, kept_t=state.t, kept_mesh_id=state.mesh_id)
         for name, w in (
             ("u", state.u),
@@ -281,218 +161,6 @@ class SpaceAdaptiveStepper:
         ):
             self.kept[name].append(np.array(w, dtype=float))
 
-    def record_initial(self, traj, state) -> None:
-        self.inner.record_initial(traj, state)
-        traj.append(**self._mesh_record(state))
-        if self.store_fields:
-            self._keep(traj, state)
-
-    def adapt(self, state, result):
-        """The evolve loop's adapt step; the adaptation itself still runs in :meth:`record`."""
-        return state
-
-    def record(self, traj, result, state=None) -> None:
-        st = result.state
-        self._base = None  # accepted: the state's mesh is the current one
-        self.series.add(st.mesh_id, self.amesh.points, self.amesh.cells)
-        self.inner.record(traj, result)
-        traj.append(**self._mesh_record(st))
-        traj.append(
-            step_dofs=int(result.counters.get("dofs", self.problem.space.ndofs)),
-            step_refinements=self._step_refinements,
-        )
-        self._step_refinements = 0
-        if self.store_fields and (st.j % self.keep_every == 0 or self.inner.finished(st)):
-            self._keep(traj, st)
-        if self.observer is not None:
-            self.observer(st, result)
-        estimate = math.nan
-        if self.options.due(st.j) and not self.inner.finished(st):
-            estimate = self._adapt(st, result.tau)
-        traj.append(space_estimate=estimate)
-        if self._pending_factorizations:
-            traj.stats.linear_factorizations += self._pending_factorizations
-            self._pending_factorizations = 0
-
-    def indicators(self, problem, state, tau: float, t_next: float) -> np.ndarray:
-        """eta_K of the accepted step that ended at ``state`` on ``problem``'s mesh (module
-        docstring): the residual indicator with the reaction rho (alpha_0/tau)^2, plus the
-        Dirichlet data term of the next step, eta_K^2 += sum_{F in Gamma_D, F in K}
-        h_F^{-1} ||G(t_next) - I_h G(t_next)||_F^2 (:func:`dirichlet_data_indicator`)."""
-        from .indicator import eld_indicators_for
-
-        f = state.fields
-        a0 = 1.0 if self.inner.scheme == "euler" else 1.5
-        rho = problem.material.rho
-        ind = eld_indicators_for(
-            problem, state.t, f["u"], f["v"], f["a"], reaction=rho * (a0 / tau) ** 2
-        )
-        eta2 = np.asarray(ind.eta, dtype=float) ** 2 + dirichlet_data_indicator(problem, t_next)
-        return np.sqrt(eta2)
-
-    def _adapt(self, state: ELDState, tau: float) -> float:
-        """Adapt after the accepted ``state``; replaces its contents in place when the mesh
-        changed. Returns the estimate eta of the step on its own mesh.
-
-        Round 1 marks by :meth:`SpaceAdaptivity.mark` (refine and coarsen); while the estimate
-        of the transferred state on the new mesh is still above space_tol, up to
-        :data:`REFINE_ROUNDS` - 1 more rounds refine only (a front that moved by more than a
-        cell per step is caught up at once instead of one bisection per step)."""
-        j = state.j
-        t_next = min(state.t + tau, self.inner.T)
-        opts = self.options
-        snapshot = self.amesh.checkpoint_state()
-        old_id = int(state.mesh_id)
-        estimate = math.nan
-        try:
-            problem, work, changes = self.problem, state, []
-            for r in range(REFINE_ROUNDS):
-                eta = self.indicators(problem, work, tau, t_next)
-                if not np.all(np.isfinite(eta)):
-                    raise FloatingPointError("non-finite error indicators")
-                est = float(np.sqrt(np.sum(eta * eta)))
-                if r == 0:
-                    estimate = est
-                    change = adapt_mesh(
-                        self.amesh, eta, opts, degree=self.degree, components=self.components
-                    )
-                else:
-                    if est <= opts.space_tol:
-                        break
-                    change = self.amesh.adapt(
-                        refine=doerfler_marking(eta, opts.refine_fraction),
-                        max_dofs=opts.max_dofs,
-                        degree=self.degree,
-                        components=self.components,
-                        priority=eta,
-                        max_level=opts.max_level,
-                    )
-                if not change.changed:
-                    break
-                new_problem = problem.on_mesh(self.amesh.mesh)
-                work = self._map(work, change, problem, new_problem)
-                problem = new_problem
-                changes.append(change)
-            if not changes:
-                return estimate
-            inner, new_state = self._new_stepper(problem, work)
-        except Exception as exc:  # noqa: BLE001 - a failed transfer is never accepted
-            self.amesh = AdaptiveMesh.restore_state(snapshot)
-            if isinstance(exc, RotheInputError) and not isinstance(exc, RunFailed):
-                detail = str(exc)
-            else:
-                detail = f"{type(exc).__name__}: {exc}"
-            raise RunFailed(
-                f"space adaptivity: the transfer to the new mesh after step {j} "
-                f"(t = {state.t:.6g}) failed ({detail}); the run stops on mesh "
-                f"{old_id}",
-                where=self.where(state),
-            ) from exc
-        old_energy = state.ledger.energy
-        # the accepted step stays what it was; the loop holds `state`: take over the new contents
-        for fld in dataclass_fields(ELDState):
-            setattr(state, fld.name, getattr(new_state, fld.name))
-        self.series.add(self.amesh.mesh_id, self.amesh.points, self.amesh.cells)
-        self.problem, self.inner = problem, inner
-        self.adaptations.append(
-            {
-                "step": j,
-                "t": float(state.t),
-                "from_mesh": old_id,
-                "to_mesh": int(state.mesh_id),
-                "estimate": estimate,
-                "rounds": len(changes),
-                "bisections": int(sum(c.bisections for c in changes)),
-                "merges": int(sum(c.merges for c in changes)),
-                "cells": int(self.amesh.n_cells),
-                "ndofs": int(problem.space.ndofs),
-                "transfer_energy": float(state.ledger.energy - old_energy),
-            }
-        )
-        return estimate
-
-    def _map(self, state: ELDState, change, p_old, problem) -> ELDState:
-        """Every field through the transfer T, the boundary vectors through its trace part;
-        u, v, a at t_j take G, G_dot, G_ddot(t_j) on the new Dirichlet nodes (module
-        docstring, step 3)."""
-        T = change.transfer(self.degree, self.components)
-        T_gamma = free_transfer(T, p_old.constraint.dofs, problem.constraint.dofs)
-        mapped = state.mapped(T, T_gamma)
-        f = mapped.fields
-        C = problem.constraint.dofs
-        t = state.t
-        if self.inner.form == "regularized":
-            for name, g in (("u", problem.G(t)), ("v", problem.G_dot(t)), ("a", problem.G_ddot(t))):
-                f[name][C] = g
-        else:
-            f["u"][C] = problem.G(t)
-            f["x"] = f["u"].copy()
-        for name, w in list(f.items()) + list(mapped.boundary.items()):
-            if not np.all(np.isfinite(w)):
-                raise FloatingPointError(f"the transferred {name} has NaN or inf entries")
-        return replace(mapped, mesh_id=int(self.amesh.mesh_id))
-
-    def _new_stepper(self, problem, mapped: ELDState):
-        """The stepper on the new mesh (its constructor re-checks tau < rho/d0) and the state
-        it adopts: regularized form, x, y, b and the t_{j-1} history rebuilt with the new
-        lifting (module docstring, steps 4-5)."""
-        kwargs = dict(self.kwargs)
-        kwargs["error_scale"] = self.inner.error_scale
-        inner = ELDStepper(problem, store_fields=False, **kwargs)
-        # the solver's counters continue; the new stepper's first factorization is counted
-        inner.solver.stats = replace(self.inner.solver.stats)
-        inner.solver.stats.factorizations += inner.initial_factorizations
-        self._pending_factorizations += inner.initial_factorizations
-        inner._last_newton = self.inner._last_newton
-        f = mapped.fields
-        C = problem.constraint.dofs
-        if inner.form == "regularized":
-            lift = inner.lifting
-            for full, name in (("u", "x"), ("v", "y"), ("a", "b"), ("u_1", "x_1"), ("v_1", "y_1")):
-                if full in f:
-                    g = f[full][C].copy()
-                    w = f[full] - lift(g)
-                    w[C] = 0.0
-                    f[name] = w
-                    f[full] = w + lift(g)
-        new = inner.adopt(mapped)
-        if not math.isfinite(new.ledger.energy):
-            raise FloatingPointError("the energy of the transferred state is not finite")
-        return inner, new
-
-    # -- checkpoints ----------------------------------------------------------------------------
-    def checkpoint_state(self, state) -> dict:
-        """The inner stepper's state, the mesh hierarchy, the mesh series, the kept fields and
-        the log of adaptations (arrays and plain values)."""
-        self._restore_base(state)  # e.g. interrupted after a rejected, refined attempt
-        return {
-            "format": "rothe-eld-space-1",
-            "inner": self.inner.checkpoint_state(state),
-            "amesh": self.amesh.checkpoint_state(),
-            "adapted": bool(self.adaptations),
-            "series": self.series.checkpoint_state(),
-            "kept": {k: [w.copy() for w in v] for k, v in self.kept.items()},
-            "adaptations": [dict(a) for a in self.adaptations],
-        }
-
-    def restore_state(self, data: dict) -> ELDState:
-        if data.get("format") != "rothe-eld-space-1":
-            raise RotheInputError(
-                f"checkpoint: got format {data.get('format')!r}, must be "
-                "'rothe-eld-space-1' (a space-adaptive ELD run)"
-            )
-        self.amesh = AdaptiveMesh.restore_state(data["amesh"])
-        self.series = MeshSeries.restore_state(data["series"])
-        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]] for k in KEPT}
-        self.adaptations = [dict(a) for a in data["adaptations"]]
-        if int(data["inner"].get("mesh_id", 0)) != 0:
-            self.problem = self.problem.on_mesh(self.amesh.mesh)
-            kwargs = dict(self.kwargs)
-            kwargs["error_scale"] = data["inner"].get("error_scale")
-            self.inner = ELDStepper(self.problem, store_fields=False, **kwargs)
-        return self.inner.restore_state(data["inner"])
-
-    # -- outputs --------------------------------------------------------------------------------
     def npz_arrays(self, traj) -> dict:
         """The meshes (every distinct one once, ``MeshSeries.npz_arrays`` keyed by the kept
         states' mesh ids) and the kept fields as one concatenation per field with offsets:
@@ -508,3 +176,132 @@ class SpaceAdaptiveStepper:
         out["degree"] = np.asarray(self.degree)
         out["dim"] = np.asarray(self.components)
         return out
+
+    def checkpoint_state(self) -> dict:
+        """The series, the kept fields and the log (arrays and plain values)."""
+        return {
+            "series": self.series.checkpoint_state(),
+            "kept": {k: [w.copy() for w in v] for k, v in self.kept.items()},
+            "adaptations": [dict(a) for a in self.adaptations],
+        }
+
+    def restore_state(self, data: dict) -> None:
+        """Put back what :meth:`checkpoint_state` returned."""
+        self.series = MeshSeries.restore_state(data["series"])
+        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]] for k in KEPT}
+        self.adaptations = [dict(a) for a in data["adaptations"]]
+
+
+class ELDAdaptivity:
+    """The adaptive mesh of one ELD run with its series of meshes, and the ELD side of the adapt
+    cycle (module docstring): ``indicators``, ``rebuild``, ``transfer`` on
+    :class:`~rothe.eld.system.ELDSystem` objects.
+
+    Parameters
+    ----------
+    problem : ELDProblem
+        The run's problem on its initial mesh (triangles or tetrahedra).
+    options : SpaceAdaptivity
+    scheme : Scheme
+        Its alpha_0 for equal steps sets the reaction of the indicator.
+    times : PhaseTimes
+        Where the cycle's phases are timed (the stepper's).
+    """
+
+    def __init__(self, problem, options: SpaceAdaptivity, *, scheme, times):
+        check_adaptable(problem.space.mesh, "adapt")
+        self.options = options
+        self.alpha0 = scheme.alpha0
+        space = problem.space
+        self.adaptation = MeshAdaptation(
+            space.mesh, options, degree=space.degree, components=space.dim, times=times
+        )
+        self.meshes = ELDMeshes(space.degree, space.dim)
+        self.meshes.series.add(0, space.mesh.p.T, space.mesh.t.T)
+        #: factorizations of systems built since the last record (the trajectory's statistics)
+        self.pending_factorizations = 0
+
+    @property
+    def mesh_id(self) -> int:
+        """The id of the current mesh."""
+        return self.adaptation.mesh_id
+
+    def register_mesh(self) -> None:
+        """Add the current mesh to the series (once per id)."""
+        amesh = self.adaptation.amesh
+        self.meshes.series.add(amesh.mesh_id, amesh.points, amesh.cells)
+
+    # -- the family's side of the cycle ----------------------------------------------------------
+    def indicators(self, system, target) -> np.ndarray:
+        """eta_K of the accepted step that ended at ``state`` on ``system``'s mesh, ``target``
+        = (state, tau, t_next) (module docstring): the residual indicator with the reaction
+        rho (alpha_0/tau)^2, plus the Dirichlet data term of the next step, eta_K^2 +=
+        sum_{F in Gamma_D, F in K} h_F^{-1} ||G(t_next) - I_h G(t_next)||_F^2."""
+        state, tau, t_next = target
+        problem = system.problem
+        f = state.fields
+        rho = problem.material.rho
+        ind = eld_indicators_for(
+            problem, state.t, f["u"], f["v"], f["a"], reaction=rho * (self.alpha0 / tau) ** 2
+        )
+        eta = np.sqrt(
+            np.asarray(ind.eta, dtype=float) ** 2 + dirichlet_data_indicator(problem, t_next)
+        )
+        if not np.all(np.isfinite(eta)):  # the run stops naming it (ELDStepper.adapt)
+            raise FloatingPointError("non-finite error indicators")
+        return eta
+
+    def rebuild(self, system, mesh):
+        """The system of the same problem on ``mesh`` (counters continued; its first
+        factorization is counted in :attr:`pending_factorizations`)."""
+        new = system.rebuilt(system.problem.on_mesh(mesh))
+        self.pending_factorizations += new.initial_factorizations
+        return new
+
+    def transfer(self, state, change, system, new_system):
+        """``state`` on ``new_system``'s mesh (module docstring, step 4): every field through
+        the transfer T, the boundary vectors through its trace part, the data of t_j on the new
+        Dirichlet nodes, the regularized unknowns split by the new lifting, then adopted."""
+        ms = self.meshes
+        problem, new_problem = system.problem, new_system.problem
+        T = change.transfer(ms.degree, ms.components)
+        T_gamma = free_transfer(T, problem.constraint.dofs, new_problem.constraint.dofs)
+        mapped = state.mapped(T, T_gamma)
+        f = mapped.fields
+        C = new_problem.constraint.dofs
+        t = state.t
+        lift = new_system.lifting
+        if lift is not None:
+            for name, g in (
+                ("u", new_problem.G(t)),
+                ("v", new_problem.G_dot(t)),
+                ("a", new_problem.G_ddot(t)),
+            ):
+                f[name][C] = g
+        else:
+            f["u"][C] = new_problem.G(t)
+            f["x"] = f["u"].copy()
+        for name, w in list(f.items()) + list(mapped.boundary.items()):
+            finite_or_fail(name, w)
+        mapped.mesh_id = self.mesh_id
+        if lift is not None:
+            for full, name in (("u", "x"), ("v", "y"), ("a", "b"), ("u_1", "x_1"), ("v_1", "y_1")):
+                if full in f:
+                    g = f[full][C].copy()
+                    w = f[full] - lift(g)
+                    w[C] = 0.0
+                    f[name] = w
+                    f[full] = w + lift(g)
+        new = new_system.adopt(mapped)
+        energy_or_fail(new.ledger.energy)
+        return new
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def checkpoint_state(self) -> dict:
+        """The mesh hierarchy, the series, the kept fields and the log."""
+        return {"amesh": self.adaptation.amesh.checkpoint_state(), **self.meshes.checkpoint_state()}
+
+    def restore_state(self, data: dict) -> None:
+        """Put back what :meth:`checkpoint_state` returned."""
+        self.adaptation.restore_state({"amesh": data["amesh"]})
+        self.meshes.restore_state(data)

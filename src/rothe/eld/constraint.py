@@ -123,6 +123,7 @@ class NodalLifting:
         return self.constraint.embed(g)
 
     def lift_many(self, gs: list[np.ndarray]) -> list[np.ndarray]:
+        """[B^- g for g in gs]: S^T g for each (nodal lifting)."""
         return [self.constraint.embed(g) for g in gs]
 
 
@@ -161,6 +162,9 @@ class HarmonicLifting:
 
 
 def make_lifting(kind: str, constraint: DirichletConstraint, K):
+    """The right inverse B^- of ``kind`` ('nodal' or 'harmonic') for ``constraint`` (K: the
+    stiffness the harmonic extension uses).
+    """
     if kind == "nodal":
         return NodalLifting(constraint)
     if kind == "harmonic":

@@ -1,16 +1,18 @@
 """Step controllers of the elastodynamics runs (all on the shared evolve loop).
 
-- :class:`~rothe.stepping.controllers.FixedStepController`: the steps are given
-  (``control='uniform'``: n = T/tau equal
-  steps; or a user's sequence ``steps=[tau_1, ..., tau_n]``). Every step is accepted; a step
-  that failed (Newton or a linear solve did not converge, or the state is not finite) stops the
-  run with :class:`~rothe.errors.RunFailed` naming the step: a fixed grid has no other step to
-  try, and a failed step is never accepted.
-- ``control='adaptive'``: :class:`rothe.stepping.controllers.ErrorNormController` with the
+The step-control objects of :mod:`rothe.stepping.controllers` become controllers here
+(:func:`rothe.eld.run.prepare_eld_run`):
+
+- ``Uniform(tau)`` (n = T/tau equal steps) and ``Given(steps)`` (a user's sequence tau_1, ...,
+  tau_n): :class:`~rothe.stepping.controllers.FixedStepController`. Every step is accepted; a
+  step that failed (Newton or a linear solve did not converge, or the state is not finite)
+  stops the run with :class:`~rothe.errors.RunFailed` naming the step: a fixed grid has no
+  other step to try, and a failed step is never accepted.
+- ``Adaptive(tol, ...)``: :class:`rothe.stepping.controllers.ErrorNormController` with the
   stepper's local error estimate (``result.errors['local_error']``, see
-  :mod:`rothe.eld.schemes`), order 1 (Euler) or 2 (BDF2), safety 0.9, factors in [0.2, 2],
+  :mod:`rothe.eld.stepper`), order 1 (Euler) or 2 (BDF2), safety 0.9, factors in [0.2, 2],
   no growth right after a rejection, and never above the solvability bound of the next step or
-  (BDF2) :data:`~rothe.eld.schemes.BDF2_RATIO_CAP` times the last accepted step
+  (BDF2) :data:`~rothe.eld.scheme.BDF2_RATIO_CAP` times the last accepted step
   (:func:`adaptive_controller`).
 """
 
@@ -22,7 +24,23 @@ from ..stepping.controllers import ErrorNormController
 def adaptive_controller(
     stepper, tol: float, tau0: float, *, tau_min: float, tau_max: float
 ) -> ErrorNormController:
-    """The adaptive controller for an :class:`~rothe.eld.schemes.ELDStepper`."""
+    """The adaptive controller for an :class:`~rothe.eld.stepper.ELDStepper`.
+
+    Parameters
+    ----------
+    stepper : ELDStepper
+        Its ``order``, ``max_ratio`` and ``max_step`` (the solvability bound) set the limits.
+    tol : float
+        The tolerance of the local error estimate.
+    tau0 : float
+        The first step.
+    tau_min, tau_max : float
+        The range of the steps.
+
+    Returns
+    -------
+    ErrorNormController
+    """
     return ErrorNormController(
         tol,
         tau0,

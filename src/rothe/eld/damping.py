@@ -51,9 +51,11 @@ class DampingConstants:
     d2_l2: float
 
     def d2(self, c_emb: float) -> float:
+        """d2 = d2_energy + d2_l2 C_emb^2, the constant of (2.5) for the embedding constant."""
         return self.d2_energy + self.d2_l2 * c_emb**2
 
     def as_dict(self) -> dict:
+        """The constants as a dict (d2 with C_emb symbolic)."""
         return {"d0": self.d0, "d1": self.d1, "d2": f"{self.d2_energy:g} + {self.d2_l2:g} C_emb^2"}
 
 
@@ -87,6 +89,7 @@ class DampingOperator:
 
     @property
     def is_linear(self) -> bool:
+        """True without a nonlinear part N(v)."""
         return self._N is None
 
     @property
@@ -113,6 +116,7 @@ class DampingOperator:
         return np.zeros_like(v, dtype=float) if self._N is None else self._N(v)
 
     def apply(self, v: np.ndarray) -> np.ndarray:
+        """D(v): the damping force at the velocity v (a dof vector)."""
         out = self.linear_apply(v)
         if self._N is not None:
             out = out + self._N(v)
@@ -155,10 +159,13 @@ class Damping(ABC):
         """The discrete damping operator on the given space."""
 
     def describe(self) -> dict:
+        """The damping as in a trajectory's meta data (name and constants)."""
         return {"name": self.name, **self.constants.as_dict()}
 
 
 class NoDamping(Damping):
+    """D v = 0: d0 = d1 = d2 = 0 (no bound on the steps)."""
+
     name = "none"
 
     @property
@@ -186,6 +193,7 @@ class RayleighDamping(Damping):
         return DampingOperator(M, K, mass_coef=self.a, stiffness_coef=self.b)
 
     def describe(self) -> dict:
+        """The damping as in a trajectory's meta data (name, constants, a, b)."""
         return {**super().describe(), "a": self.a, "b": self.b}
 
 
@@ -254,6 +262,7 @@ class NonlinearDamping(Damping):
         )
 
     def describe(self) -> dict:
+        """The damping as in a trajectory's meta data (name, constants, b, d_nl, v_ref)."""
         return {**super().describe(), "b": self.b, "d_nl": self.d_nl, "v_ref": self.v_ref}
 
 

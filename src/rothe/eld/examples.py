@@ -93,18 +93,23 @@ class ManufacturedSolution:
         return a * _P + b * _R
 
     def u(self, t, x):
+        """u(t, x) (x of shape (2, ...))."""
         return _quad_value(self._coeffs(t, 0), x)
 
     def u_dot(self, t, x):
+        """The velocity u'(t, x)."""
         return _quad_value(self._coeffs(t, 1), x)
 
     def u_ddot(self, t, x):
+        """The acceleration u''(t, x)."""
         return _quad_value(self._coeffs(t, 2), x)
 
     def grad_u(self, t, x):
+        """grad u(t, x), shape (2, 2, ...)."""
         return _quad_grad(self._coeffs(t, 0), x)
 
     def grad_u_dot(self, t, x):
+        """grad u'(t, x), shape (2, 2, ...)."""
         return _quad_grad(self._coeffs(t, 1), x)
 
     def stress(self, t, x):
@@ -127,6 +132,8 @@ class ManufacturedSolution:
         return -self.traction(t, x, n)
 
     def body_force(self, t, x):
+        """f = rho u'' - div sigma(u + b u') + the damping's mass and pointwise parts: the body
+        force that makes u exact."""
         m = self.material
         w_coeffs = self._coeffs(t, 0) + self.b * self._coeffs(t, 1)
         div = _div_sigma_const(w_coeffs, m.lam, m.mu).reshape((2,) + (1,) * (x.ndim - 1))
@@ -185,15 +192,26 @@ def mms_problem(
     return problem, exact
 
 
-def mms_errors(problem: ELDProblem, exact: ManufacturedSolution, traj) -> dict:
-    """Errors at T of u and v (L2, H1) and of lambda (L2(Gamma_D)); with kept fields also the
-    maxima over the kept states t > 0 (``error_u_l2_max``, ``error_v_l2_max``,
-    ``error_lam_l2_max``)."""
-    if getattr(traj, "space", None) is not None:  # space-adaptive: the final mesh's problem
-        problem = traj.space.problem
+def mms_errors(exact: ManufacturedSolution, result) -> dict:
+    """Errors at T of u and v (L2, H1) and of lambda (L2(Gamma_D)) of a run of the
+    manufactured problem; with kept fields (on a fixed mesh) also the maxima over the kept
+    states t > 0 (``error_u_l2_max``, ``error_v_l2_max``, ``error_lam_l2_max``).
+
+    Parameters
+    ----------
+    exact : ManufacturedSolution
+    result : ELDResult
+        What :func:`rothe.eld.run_eld` returned (its final state on its final mesh).
+
+    Returns
+    -------
+    dict
+    """
+    problem = result.problem
+    traj = result.trajectory
     space = problem.space
     T = float(traj["t"][-1])
-    state = getattr(traj, "final_state", None)
+    state = result.state
     u = state.u if state is not None else traj["u"][-1]
     v = state.v if state is not None else traj["v"][-1]
     lam = state.lam if state is not None else traj["lam"][-1]
@@ -235,6 +253,7 @@ class MultiplierQuadrature:
         )
 
     def values(self, lam: np.ndarray) -> np.ndarray:
+        """The multiplier (values on the constrained dofs) at the quadrature points, (d, nf, nq)."""
         c = self.problem.constraint
         space = self.problem.space
         full = np.zeros((space.n_scalar, space.dim))
@@ -244,11 +263,13 @@ class MultiplierQuadrature:
         )
 
     def error(self, lam: np.ndarray, exact) -> float:
+        """||lambda_h - lambda||_{L2(Gamma_D)} against ``exact(x, n)`` (points and normals)."""
         diff = self.values(lam) - exact(self.q.x, self.q.normals)
         return float(np.sqrt(np.sum(np.sum(diff**2, axis=0) * self.q.dx)))
 
 
 def multiplier_quadrature(problem: ELDProblem) -> MultiplierQuadrature:
+    """The :class:`MultiplierQuadrature` of ``problem``'s Dirichlet parts."""
     return MultiplierQuadrature(problem)
 
 
@@ -417,6 +438,7 @@ class BoundaryPulse(_DirichletMotion):
 
 def rectangle(nx: int, ny: int, length: float = 2.0, height: float = 1.0):
     """[0, length] x [0, height] with nx x ny cells of two triangles, named faces."""
+    # scikit-fem is imported where a mesh is built (the start-up time of the command line)
     from skfem import MeshTri
 
     return meshes.tag_box_faces(

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..errors import check_nonnegative, check_positive, described, fail
 from ..fem.simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
+from .damping import NonlinearDamping, RayleighDamping, saturating_velocity
 
 
 def _as_field(U, n: int, d: int, name: str) -> np.ndarray:
@@ -206,8 +207,6 @@ def eld_indicators_for(
     ``NonlinearDamping(b, d0, d_nl, v_ref)`` (c_M = -d0, b, N = d_nl v/sqrt(1+|v|^2/v_ref^2)).
     A ``UserDamping`` has no pointwise form: its force is left out of the cell residual.
     """
-    from .damping import NonlinearDamping, RayleighDamping, saturating_velocity
-
     space = problem.space
     m = problem.material
     damp = problem.damping

@@ -1,5 +1,6 @@
 """Outputs of elastodynamics runs: ParaView (XDMF + HDF5), ``trajectory.npz`` with the mesh, and
-figures; :func:`write_eld_result` writes all of them for a result of :func:`rothe.eld.run_eld`.
+figures; :func:`write_eld_result` writes all of them for a result of :func:`rothe.eld.run_eld`
+(an :class:`~rothe.eld.run.ELDResult`).
 
 ParaView files (two XDMF time series with HDF5 heavy data, :mod:`rothe.io.xdmf`; meshio's
 ``TimeSeriesReader`` reads them):
@@ -39,8 +40,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import described, fail
 from ..io.atomic import TMP_PREFIX
+from ..io.mesh_series import write_vtu_series
 from ..io.xdmf import StreamedSeries
+from .stress import StressEvaluator, von_mises
 
 
 def mesh_arrays(problem) -> dict:
@@ -66,8 +70,6 @@ class EldXdmfWriter:
     checkpoint)."""
 
     def __init__(self, work_dir, problem, name: str = "eld"):
-        from .stress import StressEvaluator
-
         self.problem = problem
         space = problem.space
         mesh = space.mesh
@@ -97,9 +99,8 @@ class EldXdmfWriter:
         return np.column_stack([values, np.zeros(len(values))])
 
     def write(self, t: float, u: np.ndarray, v: np.ndarray, lam: np.ndarray | None) -> None:
+        """Stream the state at t: u, v, the stresses and (if given) lambda."""
         space = self.problem.space
-        from .stress import von_mises
-
         sigma = self.stresses.stress(u)
         vm = von_mises(sigma)
         sigma_nodal = self.stresses.nodal(sigma)
@@ -123,6 +124,7 @@ class EldXdmfWriter:
 
     # -- checkpoint protocol (attachment of the run's checkpoint) ---------------------------------
     def checkpoint_state(self) -> dict:
+        """Both series' segments so far and the number of steps written."""
         return {
             "body": self._body.checkpoint_state(),
             "boundary": self._bnd.checkpoint_state(),
@@ -130,6 +132,7 @@ class EldXdmfWriter:
         }
 
     def restore_state(self, data: dict) -> None:
+        """Continue the series of a checkpoint (the segments it names)."""
         self._body.restore_state(data["body"])
         self._bnd.restore_state(data["boundary"])
         self.steps_written = int(data["steps_written"])
@@ -150,8 +153,7 @@ class EldXdmfWriter:
 
 
 def write_eld_result(
-    traj,
-    problem,
+    result,
     out_dir,
     *,
     name: str = "eld",
@@ -168,26 +170,43 @@ def write_eld_result(
       kept state (the run needs ``store_fields=True``; ``keep_every`` thins them);
     - ``fig_energy.png`` (the energy identity term by term) and ``fig_reaction.png``.
 
-    Returns the written paths by kind. Example::
+    A space-adaptive run (``result.meshes``) is written by :func:`write_adaptive_eld_result`.
 
-        traj = run_eld(problem, "regularized", 0.01, scheme="bdf2", keep_every=5)
-        write_eld_result(traj, problem, "my-run")
+    Parameters
+    ----------
+    result : ELDResult
+        What :func:`rothe.eld.run_eld` returned (or :meth:`rothe.eld.run.ELDRun.result` of a run
+        that stopped).
+    out_dir : path
+    name : str
+        The base name of the ParaView files.
+    xdmf, figures, npz : bool
+        Which outputs to write.
+    title : str
+        The figures' title.
+
+    Returns
+    -------
+    dict
+        The written paths by kind. Example::
+
+            result = run_eld(problem, scheme=BDF2(), control=Uniform(0.01), keep_every=5)
+            write_eld_result(result, "my-run")
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if getattr(traj, "space", None) is not None:
+    if result.meshes is not None:
         return write_adaptive_eld_result(
-            traj, out, name=name, paraview=xdmf, figures=figures, npz=npz, title=title
+            result, out, name=name, paraview=xdmf, figures=figures, npz=npz, title=title
         )
+    traj, problem = result.trajectory, result.problem
     paths: dict = {}
     if npz:
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=mesh_arrays(problem))
     if xdmf:
         if "kept_t" not in traj:
-            from ..errors import described, fail
-
             raise fail(
-                "traj",
+                "result",
                 described("a run without stored fields"),
                 "must come from run_eld(..., store_fields=True) to write XDMF",
             )
@@ -201,6 +220,7 @@ def write_eld_result(
         finally:
             shutil.rmtree(work, ignore_errors=True)
     if figures:
+        # matplotlib is imported only for the figures
         from .figures import plot_energy_balance, plot_reactions
 
         paths["figures"] = [
@@ -211,7 +231,7 @@ def write_eld_result(
 
 
 def write_adaptive_eld_result(
-    traj,
+    result,
     out_dir,
     *,
     name: str = "eld",
@@ -220,7 +240,8 @@ def write_adaptive_eld_result(
     npz: bool = True,
     title: str = "",
 ) -> dict:
-    """The outputs of a space-adaptive run (``run_eld(..., space=...)``, :mod:`rothe.eld.adapt`):
+    """The outputs of a space-adaptive run (``run_eld(..., adapt=...)``, :mod:`rothe.eld.adapt`)
+    into ``out_dir``; returns the written paths by kind:
 
     - ``trajectory.npz``: the series of the run (with ``mesh_id``, ``ndofs``, ``cells`` per
       state and ``kept_mesh_id`` per kept state), every distinct mesh once
@@ -235,11 +256,9 @@ def write_adaptive_eld_result(
     - ``fig_energy.png``, ``fig_reaction.png``, ``fig_dofs.png`` (dofs against t) and, in 2D,
       ``fig_mesh.png`` (four kept states: mesh and |u|).
     """
-    from ..io.mesh_series import write_vtu_series
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    sp = traj.space
+    traj, sp = result.trajectory, result.meshes
     paths: dict = {}
     if npz:
         paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=sp.npz_arrays(traj))
@@ -258,6 +277,7 @@ def write_adaptive_eld_result(
         ]
         paths["pvd"] = write_vtu_series(out, name, sp.series, ids, traj["kept_t"], data)
     if figures:
+        # matplotlib is imported only for the figures
         from ..plotting.adapt import plot_dofs, plot_mesh_snapshots
         from .figures import plot_energy_balance, plot_reactions
 

@@ -29,6 +29,7 @@ facets of the traction parts.
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ import numpy as np
 
 from ..errors import RotheInputError, check_int, check_positive, fail
 from ..fem.elasticity import VectorSpace
+from ..io.checkpoint import digest
 from .constraint import DirichletConstraint
 from .damping import Damping, NoDamping
 from .materials import Material
@@ -49,6 +51,7 @@ class _CellQuadrature:
     """Cell quadrature of a chosen degree for the body force (when it differs from 2p)."""
 
     def __init__(self, space, intorder: int):
+        # scikit-fem is imported where a basis is built (the start-up time of the command line)
         from skfem import Basis
 
         basis = Basis(space.mesh, space.element, intorder=intorder)
@@ -97,17 +100,29 @@ class ELDProblem:
 
     Parameters
     ----------
-    mesh : skfem.MeshTri | skfem.MeshTet with named boundary parts
+    mesh : skfem.MeshTri or skfem.MeshTet
+        With named boundary parts (``rothe.fem.mesh``: ``unit_square(n, named=True)``, ``box``,
+        ``tag_box_faces``, ``load_mesh``).
     material : Material
-    degree : 1 | 2
-    damping : Damping (default none)
-    dirichlet : dict part -> callable G(t, x) or DirichletData. Where two parts share nodes,
-        the part listed last sets their values.
-    traction : dict part -> callable g(t, x, n)
-    body_force : callable f(t, x) or None
-    u0, v0 : initial displacement and velocity
-    T : end time
-    load_quadrature : degree of the quadrature rule for body force and tractions (default 2p)
+    degree : {1, 2}
+        Vector P1 or P2 elements.
+    damping : Damping, optional
+        Default: none.
+    dirichlet : dict
+        part -> callable G(t, x) or DirichletData. Where two parts share nodes, the part listed
+        last sets their values.
+    traction : dict, optional
+        part -> callable g(t, x, n).
+    body_force : callable f(t, x), optional
+    u0, v0 : callable, dof vector or None
+        Initial displacement and velocity (None: zero); u0 must match G(0) on the Dirichlet
+        parts (Remark 2.2, checked before the first step).
+    T : float
+        End time.
+    name : str
+        The problem's name in outputs.
+    load_quadrature : int, optional
+        Degree of the quadrature rule for body force and tractions (default 2p).
     """
 
     def __init__(
@@ -275,15 +290,18 @@ class ELDProblem:
         return out.ravel()
 
     def G(self, t: float) -> np.ndarray:
+        """G(t): the nodal values of the Dirichlet data on the constrained dofs."""
         return self._eval_dirichlet("G", t)
 
     def G_dot(self, t: float) -> np.ndarray:
+        """G_dot(t) on the constrained dofs (given, or central differences of G)."""
         if all(d.G_dot is not None for d in self.dirichlet.values()):
             return self._eval_dirichlet("G_dot", t)
         h = _eps_step(1, max(1.0, self.T))
         return (self.G(t + h) - self.G(t - h)) / (2 * h)
 
     def G_ddot(self, t: float) -> np.ndarray:
+        """G_ddot(t) on the constrained dofs (given, or central differences)."""
         if all(d.G_ddot is not None for d in self.dirichlet.values()):
             return self._eval_dirichlet("G_ddot", t)
         if all(d.G_dot is not None for d in self.dirichlet.values()):
@@ -357,10 +375,12 @@ class ELDProblem:
 
     @property
     def has_loads(self) -> bool:
+        """Whether there is a body force or a traction."""
         return self.body_force is not None or bool(self._traction)
 
     # -- description ----------------------------------------------------------------------------
     def describe(self) -> dict:
+        """The problem as in a trajectory's meta data (mesh, material, damping, parts, T)."""
         m = self.material
         return {
             "name": self.name,
@@ -378,6 +398,33 @@ class ELDProblem:
             "T": self.T,
             "load_quadrature": self.load_quadrature,
             "derivatives_of_G": self.derivative_info,
+        }
+
+    def fingerprint(self) -> dict:
+        """Cheap hashes that identify the problem (what a checkpoint must match to be resumed):
+        the class, the dofs, T, the assembled M, K and B, the initial data, the load and G at
+        t = 0, T/3, T, the damping force at a fixed velocity (a user's damping function is not
+        described) and the description. Each entry is compared separately on resume, so the
+        refusal can say what differs (:mod:`rothe.io.checkpoint`)."""
+        T = float(self.T)
+        times = (0.0, T / 3.0, T)
+        c = self.constraint
+        return {
+            "class": type(self).__name__,
+            "ndofs": int(self.space.ndofs),
+            "T": T,
+            "M": digest(self.M),
+            "K": digest(self.K),
+            "B": digest(c.B, c.dofs),
+            "initial": digest(self.u0, self.v0),
+            "load": digest(*[self.load(t) for t in times]),
+            "G": digest(*[self.G(t) for t in times]),
+            "damping": digest(self.damping_op.apply(np.sin(np.arange(self.space.ndofs)))),
+            "description": digest(
+                np.frombuffer(
+                    json.dumps(self.describe(), sort_keys=True, default=str).encode(), np.uint8
+                )
+            ),
         }
 
     def step_bound(self) -> float:

@@ -21,6 +21,7 @@ Kinds:
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import fail
+from ..stepping.evolve import single_threaded_blas
+from ..timing import PhaseTimes
 
 SOLVERS = ("auto", "direct", "amg")
 
@@ -84,6 +87,8 @@ class ReferenceSolver:
         Relative residual of Krylov solves (and of AMG solves with the reference matrix).
     max_krylov : int
         Rebuild the reference from the current matrix when a solve needs more iterations.
+    times : PhaseTimes, optional
+        Where the factorizations (and AMG setups) are timed, as phase ``factor``.
     """
 
     def __init__(
@@ -94,6 +99,7 @@ class ReferenceSolver:
         rtol: float = 1e-10,
         max_krylov: int = 20,
         amg_options: dict | None = None,
+        times: PhaseTimes | None = None,
     ):
         if kind not in ("direct", "amg"):
             raise fail("solver", kind, "must be direct or amg")
@@ -102,8 +108,9 @@ class ReferenceSolver:
                 "solver",
                 "amg",
                 "needs a symmetric positive definite system; the original "
-                "form's saddle-point system is solved by sparse LU (use --solver direct)",
+                "form's saddle-point system is solved by sparse LU (use solver='direct')",
             )
+        self.times = times
         self.kind = kind
         self.spd = spd
         self.near_nullspace = near_nullspace
@@ -119,9 +126,8 @@ class ReferenceSolver:
     def factor(self, A) -> None:
         """Factor (or set up AMG for) the reference matrix A (single-threaded BLAS: the dense
         coarse-level factorization took 1.1 s instead of 0.05 s with threads on 2 busy cores)."""
-        from ..stepping.evolve import single_threaded_blas
-
-        with single_threaded_blas():
+        timed = self.times.phase("factor") if self.times is not None else nullcontext()
+        with single_threaded_blas(), timed:
             self._factor(A)
 
     def _factor(self, A) -> None:
@@ -154,6 +160,7 @@ class ReferenceSolver:
 
     @property
     def factored(self) -> bool:
+        """Whether a reference factorization (or AMG hierarchy) is stored."""
         return self._prec is not None
 
     def solve_reference(self, b: np.ndarray, x0=None) -> np.ndarray:
@@ -278,11 +285,13 @@ class ConstrainedSolver(ReferenceSolver):
         rtol: float = 1e-10,
         max_krylov: int = 20,
         amg_options: dict | None = None,
+        times: PhaseTimes | None = None,
     ):
         super().__init__("direct", spd=False, rtol=rtol, max_krylov=max_krylov)
         self.kind = kind
         self.constraint = constraint
         self.n = constraint.space.ndofs
+        # the factorizations happen in the inner solver: it times them
         self.inner = ReferenceSolver(
             kind,
             spd=True,
@@ -290,6 +299,7 @@ class ConstrainedSolver(ReferenceSolver):
             rtol=rtol,
             max_krylov=max_krylov,
             amg_options=amg_options,
+            times=times,
         )
         self._parts = None
 

@@ -25,9 +25,16 @@ import time
 import numpy as np
 
 from ..errors import check_int, check_positive, fail
-from .data import NOISE_TARGETS, DataNoise
+from ..parallel import Executor, Task
+from ..stepping.controllers import Uniform
+from .data import DEFAULT_DATA, NOISE_TARGETS, DataMode, DataNoise
 from .examples import mms_errors, mms_problem
-from .schemes import FORMS, run_eld
+from .form import DEFAULT_FORM, Form, Original, Regularized, as_form
+from .run import run_eld
+from .scheme import DEFAULT_SCHEME, Scheme, as_scheme
+
+#: the forms of the perturbation study, by their names in its tables
+FORMS = (Regularized(), Original())
 
 #: most steps of the finest run of a convergence study (T / (tau0 / 2^halvings))
 MAX_STUDY_STEPS = 10**6
@@ -55,6 +62,7 @@ def check_halvings(name: str, halvings, tau0: float, T: float) -> int:
 
 
 def check_delta(name: str, delta) -> float:
+    """A noise size 0 < delta <= MAX_DELTA (one line naming ``name``)."""
     delta = check_positive(name, delta)
     if delta > MAX_DELTA:
         raise fail(
@@ -91,7 +99,7 @@ def fitted_rate(taus, errors) -> float | None:
 
 
 def convergence_run(
-    form: str,
+    form: Form,
     tau: float,
     *,
     n: int,
@@ -101,17 +109,19 @@ def convergence_run(
     lam: float,
     mu: float,
     T: float,
-    data: str,
-    lifting: str,
-    scheme: str,
+    data: DataMode,
+    scheme: Scheme,
     progress=False,
 ) -> dict:
     """One run of :func:`convergence_study` (a task: builds the problem itself): its row, with
     the problem's ``ndofs`` and ``damping`` description under ``"_problem"``."""
     problem, exact = mms_problem(n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)
     t0 = time.perf_counter()
-    traj = run_eld(problem, form, tau, scheme=scheme, data=data, lifting=lifting, progress=progress)
-    err = mms_errors(problem, exact, traj)
+    result = run_eld(
+        problem, scheme=scheme, form=form, control=Uniform(tau), data=data, progress=progress
+    )
+    err = mms_errors(exact, result)
+    traj = result.trajectory
     st = traj.stats
     return {
         "tau": tau,
@@ -137,7 +147,7 @@ _ERRORS = ("u_l2", "u_h1", "v_l2", "v_h1", "lam_l2", "u_l2_max", "v_l2_max", "la
 
 
 def convergence_study(
-    form: str = "regularized",
+    form: Form = DEFAULT_FORM,
     *,
     tau0: float = 0.1,
     halvings: int = 5,
@@ -148,9 +158,8 @@ def convergence_study(
     lam: float = 2.0,
     mu: float = 1.0,
     T: float = 1.0,
-    data: str = "points",
-    lifting: str = "nodal",
-    scheme: str = "euler",
+    data: DataMode = DEFAULT_DATA,
+    scheme: Scheme = DEFAULT_SCHEME,
     progress: bool = False,
     executor=None,
 ) -> dict:
@@ -160,11 +169,30 @@ def convergence_study(
     The runs are independent tasks of ``executor`` (:class:`rothe.parallel.Executor`; default:
     one after another in this process). A run that fails is a row with its ``status`` and NaN
     errors; the orders are fitted over the completed runs.
-    """
-    from ..parallel import Executor, Task
 
-    if form not in FORMS:
-        raise fail("form", form, "must be one of " + ", ".join(FORMS))
+    Parameters
+    ----------
+    form : Regularized or Original
+    tau0 : float
+        The largest step.
+    halvings : int
+        Times tau0 is halved.
+    n, degree : int
+        The manufactured problem's mesh and element (:func:`rothe.eld.mms_problem`).
+    damping, rho, lam, mu, T
+        Its damping, material and end time.
+    data : DataMode
+    scheme : ImplicitEuler or BDF2
+    progress : bool
+    executor : rothe.parallel.Executor, optional
+
+    Returns
+    -------
+    dict
+        ``tau``, ``error_u``, ``error_v``, ``error_lam`` and their maxima over the steps
+        ``error_*_max``, H1 errors, fitted ``rate_*``, the ``rows`` of the runs.
+    """
+    form, scheme = as_form(form), as_scheme(scheme)
     tau0 = check_positive("tau0", tau0)
     halvings = check_halvings("halvings", halvings, tau0, T)
     taus = [tau0 / 2**k for k in range(halvings + 1)]
@@ -179,13 +207,12 @@ def convergence_study(
         mu=mu,
         T=T,
         data=data,
-        lifting=lifting,
         scheme=scheme,
         progress=inner_progress,
     )
     tasks = [
         Task(
-            f"{form} tau={tau:g}",
+            f"{form.name} tau={tau:g}",
             convergence_run,
             {"form": form, "tau": tau, **common},
             cost=1 / tau,
@@ -208,12 +235,12 @@ def convergence_study(
             )
     out = {
         "example": "eld-mms",
-        "form": form,
-        "scheme": scheme,
+        "form": form.name,
+        "scheme": scheme.name,
         "n": n,
         "degree": degree,
-        "data": data,
-        "lifting": lifting,
+        "data": data.name,
+        "lifting": form.lifting,
         "ndofs": meta["ndofs"],
         "damping": meta["damping"],
         "tau": taus,
@@ -234,6 +261,7 @@ def convergence_study(
 
 
 def format_convergence_table(study: dict) -> str:
+    """The convergence study as a table: errors at T and maxima per tau, fitted orders."""
     head = (
         f"{'tau':>9} {'steps':>6} {'newton':>7} {'|u-u_h| L2':>11} {'H1':>10} "
         f"{'|v-v_h| L2':>11} {'H1':>10} {'|lam| L2(G_D)':>13} {'max_j u':>10} "
@@ -280,7 +308,7 @@ def _amplifications(problem, base, pert, delta: float) -> tuple[float, float, fl
 
 
 def perturbation_run(
-    form: str,
+    form: Form,
     tau: float,
     *,
     delta: float,
@@ -290,23 +318,17 @@ def perturbation_run(
     damping,
     seed: int,
     T: float,
-    scheme: str,
+    scheme: Scheme,
     progress=False,
 ) -> dict:
     """One (tau, form) of :func:`perturbation_study` (a task: builds the problem itself): the
     unperturbed run and one perturbed run per target; the amplifications by target."""
     problem, _ = mms_problem(n, degree, damping=damping, T=T)
-    base = run_eld(problem, form, tau, scheme=scheme, progress=progress)
+    options = dict(scheme=scheme, form=form, control=Uniform(tau), progress=progress)
+    base = run_eld(problem, **options).trajectory
     out = {"_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}}
     for target in targets:
-        pert = run_eld(
-            problem,
-            form,
-            tau,
-            scheme=scheme,
-            progress=progress,
-            noise=DataNoise(delta, target, seed),
-        )
+        pert = run_eld(problem, noise=DataNoise(delta, target, seed), **options).trajectory
         out[target] = _amplifications(problem, base, pert, delta)
     return out
 
@@ -322,12 +344,12 @@ def perturbation_study(
     damping=None,
     seed: int = 0,
     T: float = 1.0,
-    scheme: str = "euler",
+    scheme: Scheme = DEFAULT_SCHEME,
     progress: bool = False,
     executor=None,
 ) -> dict:
     """Amplification of delta-noise in each datum alone (G, G_dot, G_ddot, F) for each tau and
-    form.
+    form (``forms``: Regularized and Original objects; the tables name them by ``form.name``).
 
     Returns ``{"tau": [...], "delta": delta, "<target>": table, ...}`` where each table holds
     ``amp_<form>`` (multiplier), ``amp_v_<form>``, ``amp_u_<form>`` (lists over tau) and the
@@ -339,8 +361,8 @@ def perturbation_study(
     default: one after another in this process). A (tau, form) whose runs fail gets NaN
     amplifications and is listed under ``"failed"``.
     """
-    from ..parallel import Executor, Task
-
+    forms = tuple(as_form(f) for f in forms)
+    scheme = as_scheme(scheme)
     taus = [check_positive("taus", t) for t in taus]
     delta = check_delta("delta", delta)
     targets = check_noise_targets("targets", targets)
@@ -349,7 +371,7 @@ def perturbation_study(
     inner_progress = progress if executor is None or executor.in_process else False
     tasks = [
         Task(
-            f"{form} tau={tau:g}",
+            f"{form.name} tau={tau:g}",
             perturbation_run,
             {
                 "form": form,
@@ -374,7 +396,7 @@ def perturbation_study(
     meta = _problem_meta(results, n, degree, damping, T=T)
     out = {
         "example": "eld-mms",
-        "scheme": scheme,
+        "scheme": scheme.name,
         "n": n,
         "degree": degree,
         "ndofs": meta["ndofs"],
@@ -385,13 +407,14 @@ def perturbation_study(
         "seed": seed,
         "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"},
     }
+    names = [f.name for f in forms]
     tables = {
-        t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in forms} for t in targets
+        t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in names} for t in targets
     }
     nan = (float("nan"),) * 3
     failed = []
     for task, res in zip(tasks, results, strict=True):
-        form = task.kwargs["form"]
+        form = task.kwargs["form"].name
         if not res.completed:
             failed.append(
                 {"tau": task.kwargs["tau"], "form": form, "status": f"{res.status}: {res.message}"}
@@ -406,7 +429,7 @@ def perturbation_study(
             table[f"slope_{name}"] = fitted_rate(taus, table[name])
         out[target] = table
     if "G" in tables:
-        for form in forms:
+        for form in names:
             out[f"amp_{form}"] = tables["G"][f"amp_{form}"]
             out[f"amp_v_{form}"] = tables["G"][f"amp_v_{form}"]
             out[f"amp_u_{form}"] = tables["G"][f"amp_u_{form}"]
@@ -425,10 +448,11 @@ _WHAT = {
 
 
 def format_perturbation_table(study: dict) -> str:
+    """The perturbation study as a table per datum: amplifications per tau and form, slopes."""
     lines = []
     present = [t for t in NOISE_TARGETS if t in study]
     first = study[present[0]]
-    forms = [f for f in FORMS if f"amp_{f}" in first]
+    forms = [f.name for f in FORMS if f"amp_{f.name}" in first]
     for target in present:
         table = study[target]
         lines.append(

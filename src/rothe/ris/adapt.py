@@ -77,7 +77,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import RotheInputError
+from ..errors import described, fail
 from ..fem.adapt import SpaceAdaptivity, free_transfer
 from ..fem.adapt.cycle import AdaptationFailed, MeshAdaptation, energy_or_fail, finite_or_fail
 from ..fem.simplex import SimplexEvaluator
@@ -173,16 +173,18 @@ class RISAdaptivity:
         self, problem, options: SpaceAdaptivity, *, reaction: str = "lambda", times=None, inner=None
     ):
         if not isinstance(options, SpaceAdaptivity):
-            raise RotheInputError(
-                f"space: got a {type(options).__name__}, must be a "
-                "rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)"
+            raise fail(
+                "adapt",
+                described(f"a {type(options).__name__}"),
+                "must be a rothe.fem.adapt.SpaceAdaptivity (or None for a fixed mesh)",
             )
         if not hasattr(problem, "on_mesh"):
-            raise RotheInputError(
-                f"space: got a {type(problem).__name__} problem, space "
-                "adaptivity needs a finite-element RIS (FERISProblem)"
+            raise fail(
+                "adapt",
+                described(f"a {type(problem).__name__} problem"),
+                "needs a finite-element RIS (FERISProblem) whose mesh can change",
             )
-        problem.check_movable("space" if options.naming == "api" else "--adapt-space")
+        problem.check_movable()
         self.options = options
         self.initial = problem
         self.reaction = reaction
@@ -201,6 +203,7 @@ class RISAdaptivity:
 
     @property
     def mesh_id(self) -> int:
+        """The id of the current mesh in the run's series (0: the problem's own mesh)."""
         return self.meshes.mesh_id
 
     def problem_now(self):

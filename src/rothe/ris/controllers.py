@@ -9,12 +9,21 @@ All controllers run on the one evolve loop (:func:`rothe.stepping.evolve.evolve`
 
 A failed inner solve is never accepted by any controller.
 
-Implemented (Andreia & Meyer 2022): ``uniform`` (fixed tau, the local stationary scheme),
-``adaptive`` (Alg. 3.2), ``nested`` (Alg. 6.2 for one tolerance of a decreasing sequence, given the
-grids of the earlier runs), ``order2`` (beyond the paper: uses I ~ C tau^2, Lemma 5.3) and
-``regime`` (beyond the paper: one error model I ~ C tau^p per regime -- sticking, viscous jump,
-slip -- that puts every step at the same residual, which is what minimizes the steps for a
-given global residual sum_k(I1 + I2)).
+What a user passes to :func:`rothe.ris.run.run_ris` is a *step-control object*, validated in its
+constructor, from which the run builds its controller (:func:`build_controller`):
+
+* :class:`~rothe.stepping.controllers.Uniform` (tau): fixed steps (the local stationary scheme),
+  :class:`UniformController`;
+* :class:`~rothe.stepping.controllers.Adaptive` (tol, tau, tau_min, tau_max): Alg. 3.2 of
+  Andreia & Meyer (2022), :class:`AdaptiveController`;
+* :class:`Order2` (beyond the paper: the next step from I ~ C tau^2, Lemma 5.3),
+  :class:`Order2Controller`;
+* :class:`Regime` (beyond the paper: one error model I ~ C tau^p per regime -- sticking, viscous
+  jump, slip -- that puts every step at the same residual, which is what minimizes the steps for
+  a given global residual sum_k(I1 + I2)), :class:`RegimeController`;
+* :class:`Nested` (tols): Alg. 6.2, one run per tolerance of a decreasing sequence
+  (:func:`rothe.ris.run.run_nested`); run n uses :class:`AdaptiveController` with the grids of
+  the earlier runs.
 
 Checkpoints (:mod:`rothe.io.checkpoint`): ``checkpoint_state() -> dict`` returns everything that
 influences the controller's future decisions (the nominal step sigma and whatever history a
@@ -25,13 +34,22 @@ arguments. A controller that adds state extends both (``_extra_state`` / ``_rest
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import check_positive, fail
-from ..stepping.controllers import Decision, StepController, UniformController
+from ..errors import check_decreasing, check_positive, described, fail
+from ..stepping.controllers import (
+    Adaptive,
+    Decision,
+    StepController,
+    Uniform,
+    UniformController,
+    _check_step_range,
+)
 
-CONTROLS = ("adaptive", "uniform", "nested", "order2", "regime")
+#: the step of a RIS run when the control object leaves it open: the first step, and its range
+DEFAULT_TAU, DEFAULT_TAU_MIN, DEFAULT_TAU_MAX = 0.1, 1e-12, math.inf
 
 
 def _max_error(result) -> float:
@@ -64,6 +82,7 @@ class AdaptiveController(StepController):
             self.name = "nested"
 
     def propose(self, s):
+        """sigma, or the step that lands exactly on the next grid point of earlier runs."""
         sigma = self._clamp(self.sigma)
         if self.grid is None:
             return sigma, None
@@ -79,6 +98,7 @@ class AdaptiveController(StepController):
         return sigma, None
 
     def decide(self, result) -> Decision:
+        """Accept iff I1 < tol and I2 < tol; double, keep or halve the step (Alg. 3.2)."""
         tau = result.tau
         if not result.converged:
             self.sigma = tau / 2
@@ -117,6 +137,7 @@ class Order2Controller(StepController):
         self._C_prev = 0.0
 
     def decide(self, result) -> Decision:
+        """Accept as Alg. 3.2; the next step from C = max(I1, I2) / tau^2 (class docstring)."""
         tau = result.tau
         if not result.converged:
             self.sigma = tau / 4
@@ -250,6 +271,7 @@ class RegimeController(StepController):
         return self._models.setdefault(regime, {"p": 2.0, "history": []})
 
     def propose(self, s):
+        """sigma, or from before the onset of instability the step out of sticking."""
         self._s = float(s)
         sigma = self._clamp(self.sigma)
         crossing = self._sticking_crossing()
@@ -285,6 +307,7 @@ class RegimeController(StepController):
         return s_star, math.sqrt(self.crossing_fraction * self.theta * self.tol) / slope
 
     def decide(self, result) -> Decision:
+        """Accept as Alg. 3.2; the next step from the error model of the regime."""
         tau = result.tau
         if not result.converged:
             self._rejected = None  # no error measure: nothing to learn from this attempt
@@ -361,22 +384,151 @@ def _quotient(e: float, tau: float, p: float) -> float:
     return e / tp if tp > 0.0 else (0.0 if e == 0.0 else math.inf)
 
 
-def make_controller(
-    control: str,
-    *,
-    tol: float | None = None,
-    tau: float,
-    tau_min: float = 1e-12,
-    tau_max: float = math.inf,
-    grid=None,
-) -> StepController:
-    """Build a controller by name (the CLI's --control)."""
-    if control == "uniform":
+# -- step control as the user asks for it: validated objects (Uniform, Adaptive: stepping) -------
+
+
+@dataclass(frozen=True)
+class Order2:
+    """Alg. 3.2's acceptance with the next step from the order of the residuals (Lemma 5.3).
+
+    Parameters
+    ----------
+    tol : float > 0
+        Accept a step iff I1 < tol and I2 < tol.
+    tau : float > 0, optional
+        The first step (None: 0.1).
+    tau_min, tau_max : float > 0, optional
+        The range of the steps (None: 1e-12 and no upper bound); a run stops when a rejection
+        would go below ``tau_min``.
+    safety : float > 0
+        tau_next = clip(safety sqrt(tol / C), tau/4, 4 tau) (:class:`Order2Controller`).
+    """
+
+    tol: float
+    tau: float | None = None
+    tau_min: float | None = None
+    tau_max: float | None = None
+    safety: float = 0.9
+
+    def __post_init__(self):
+        object.__setattr__(self, "tol", check_positive("tol", self.tol))
+        _check_step_range(self)
+        object.__setattr__(self, "safety", check_positive("safety", self.safety))
+
+
+@dataclass(frozen=True)
+class Regime:
+    """Alg. 3.2's acceptance, every step aimed at the same residual theta tol from an error
+    model I ~ C tau^p per regime (sticking, viscous jump, slip; :class:`RegimeController`).
+
+    Parameters
+    ----------
+    tol, tau, tau_min, tau_max
+        As for :class:`Order2`: accept iff I1 < tol and I2 < tol; the first step (None: 0.1)
+        and the range of the steps (None: 1e-12 and no upper bound).
+    theta : float in (0, 1)
+        Every step aims at the residual theta tol.
+    grow : float > 1
+        The largest growth of the step from one accepted step to the next.
+    """
+
+    tol: float
+    tau: float | None = None
+    tau_min: float | None = None
+    tau_max: float | None = None
+    theta: float = 0.5
+    grow: float = 4.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "tol", check_positive("tol", self.tol))
+        _check_step_range(self)
+        theta = check_positive("theta", self.theta)
+        if theta >= 1.0:
+            raise fail("theta", theta, "must be < 1 (the target theta * tol is below tol)")
+        grow = check_positive("grow", self.grow)
+        if grow <= 1.0:
+            raise fail("grow", grow, "must be > 1")
+        object.__setattr__(self, "theta", theta)
+        object.__setattr__(self, "grow", grow)
+
+
+@dataclass(frozen=True)
+class Nested:
+    """Alg. 6.2: one run per tolerance tol_1 > tol_2 > ..., run n never stepping over a grid
+    point of the runs before it (6.1), so that the s-grids nest (Assumption 6.1(3)).
+
+    Passed to :func:`rothe.ris.run.run_nested` (one result per tolerance); the first run is
+    Alg. 3.2 (:class:`AdaptiveController`), run n the same with the grids of runs 1 ... n-1.
+
+    Parameters
+    ----------
+    tols : sequence of float
+        Strictly decreasing positive tolerances.
+    tau : float > 0, optional
+        The first step of every run (None: 0.1).
+    tau_min, tau_max : float > 0, optional
+        The range of the steps (None: 1e-12 and no upper bound).
+    """
+
+    tols: tuple
+    tau: float | None = None
+    tau_min: float | None = None
+    tau_max: float | None = None
+
+    def __post_init__(self):
+        if isinstance(self.tols, (str, bytes)) or not hasattr(self.tols, "__len__"):
+            raise fail(
+                "tols",
+                described(f"a {type(self.tols).__name__}"),
+                "must be a sequence of decreasing tolerances",
+            )
+        object.__setattr__(self, "tols", tuple(check_decreasing("tols", self.tols)))
+        _check_step_range(self)
+
+
+#: the step-control objects a single RIS run takes (run_nested takes :class:`Nested`)
+RUN_CONTROLS = (Uniform, Adaptive, Order2, Regime)
+
+
+def step_range(control) -> tuple[float, float, float]:
+    """(tau, tau_min, tau_max) of a step-control object, the RIS defaults where it has None."""
+    tau = control.tau if control.tau is not None else DEFAULT_TAU
+    tau_min = getattr(control, "tau_min", None)
+    tau_max = getattr(control, "tau_max", None)
+    return (
+        tau,
+        DEFAULT_TAU_MIN if tau_min is None else tau_min,
+        DEFAULT_TAU_MAX if tau_max is None else tau_max,
+    )
+
+
+def check_control(control) -> None:
+    """Refuse anything but the step-control objects of one run (one line naming ``control``)."""
+    if isinstance(control, RUN_CONTROLS):
+        return
+    what = repr(control) if isinstance(control, str) else f"a {type(control).__name__}"
+    hint = (
+        "; run_nested runs a Nested sequence of tolerances" if isinstance(control, Nested) else ""
+    )
+    raise fail(
+        "control",
+        described(what),
+        "must be a step-control object: Uniform(tau), Adaptive(tol) "
+        "(rothe.stepping.controllers), Order2(tol) or Regime(tol) (rothe.ris.controllers)" + hint,
+    )
+
+
+def build_controller(control, grid=None) -> StepController:
+    """The runtime controller of a step-control object (``grid``: the points of earlier runs
+    that a run of Alg. 6.2 must not step over; only with an :class:`Adaptive`)."""
+    check_control(control)
+    tau, tau_min, tau_max = step_range(control)
+    if isinstance(control, Uniform):
         return UniformController(tau, tau_min)
-    if control in ("adaptive", "nested"):
-        return AdaptiveController(tol, tau, tau_min, tau_max, grid=grid)
-    if control == "order2":
-        return Order2Controller(tol, tau, tau_min, tau_max)
-    if control == "regime":
-        return RegimeController(tol, tau, tau_min, tau_max)
-    raise fail("control", control, "must be one of " + ", ".join(CONTROLS))
+    if isinstance(control, Order2):
+        return Order2Controller(control.tol, tau, tau_min, tau_max, safety=control.safety)
+    if isinstance(control, Regime):
+        return RegimeController(
+            control.tol, tau, tau_min, tau_max, theta=control.theta, grow=control.grow
+        )
+    return AdaptiveController(control.tol, tau, tau_min, tau_max, grid=grid)

@@ -30,19 +30,8 @@ from ..fem.adapt.marking import doerfler_marking
 from ..fem.adapt.topology import lagrange_values
 from ..fem.scalar import boundary_nodes, lumped_mass, stiffness
 from ..fem.simplex import SimplexEvaluator
+from .examples import d2g_7_2, dg_7_2
 from .indicator import ris_indicators
-
-
-def _g(z):
-    return 48.0 * (1.0 - z * z) ** 2
-
-
-def _dg(z):
-    return -192.0 * z * (1.0 - z * z)
-
-
-def _d2g(z):
-    return 576.0 * z * z - 192.0
 
 
 def _ris_exact(dim: int, profile, width: float = 0.05) -> ScalarField:
@@ -60,7 +49,7 @@ def _ris_solve(mesh, zs: ScalarField, lam: float, kappa: float):
     def load(x):
         H = zs.hess(x)
         z = zs.value(x)
-        return -np.trace(H, axis1=0, axis2=1) + _dg(z) + lam * z + kappa
+        return -np.trace(H, axis1=0, axis2=1) + dg_7_2(z) + lam * z + kappa
 
     n = mesh.p.shape[1]
     fixed = boundary_nodes(mesh)
@@ -77,8 +66,8 @@ def _ris_solve(mesh, zs: ScalarField, lam: float, kappa: float):
     l_free = lfull[free]
     z = np.maximum(zs.value(mesh.p[:, free]), 0.0)
     for _ in range(60):
-        r = A @ z + m * (_dg(z) + lam * z + kappa) - l_free
-        J = A + sp.diags(m * (_d2g(z) + lam))
+        r = A @ z + m * (dg_7_2(z) + lam * z + kappa) - l_free
+        J = A + sp.diags(m * (d2g_7_2(z) + lam))
         dz = spla.splu(sp.csc_matrix(J), permc_spec="MMD_AT_PLUS_A").solve(-r)
         z = z + dz
         if np.max(np.abs(dz)) <= 1e-12 * max(1.0, np.max(np.abs(z))):
@@ -114,7 +103,7 @@ def ris_study(
         mesh = amesh.mesh
         z, load, positive = _ris_solve(mesh, zs, lam, kappa)
         ind = ris_indicators(
-            mesh, z, np.zeros_like(z), dg=_dg, load=load, kappa=kappa, lam=lam, reaction=lam
+            mesh, z, np.zeros_like(z), dg=dg_7_2, load=load, kappa=kappa, lam=lam, reaction=lam
         )
 
         def energy(e, ge):

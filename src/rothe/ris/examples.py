@@ -1,6 +1,12 @@
-"""Example 7.1 of Andreia & Meyer (2022): a one-dimensional RIS with a known BV solution.
+"""The examples of Andreia & Meyer (2022), Sec. 7, and a phase front for space adaptivity.
 
-Z = V = R, V = 1, R(v) = |v|, T = 5, z_0 = -2 and (note the sign of the load)
+* **Example 7.1** (:func:`example_7_1`): a one-dimensional RIS with a known BV solution (7.1).
+* **Example 7.2** (:func:`example_7_2`): the double well g(z) = 48 (1 - z^2)^2 of (7.2) on the
+  unit square with P1 finite elements; :func:`example_7_2_3d` the same energy on the unit cube.
+* **A phase front** (:func:`example_front`, not in the paper): the double well of (7.2) under a
+  load that grows from a corner, the example for meshes that change between steps.
+
+Example 7.1: Z = V = R, V = 1, R(v) = |v|, T = 5, z_0 = -2 and (note the sign of the load)
 
     I(t, z) = 1/2 z^2 - (t + 1) z + p(z),
     p(z) = 4z + 8 (z <= -2),   4 - z^2 (|z| < 2),   -4z + 8 (z >= 2).
@@ -20,13 +26,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import check_int, check_positive, check_real
+from ..fem.mesh import bad, describe, mesh_dim, unit_cube, unit_square
+from .fem_problem import FERISProblem
 from .problem import RISProblem
+
+# -- Example 7.1 ---------------------------------------------------------------------------------
 
 S_EXACT = 16.0
 BREAKPOINTS = np.array([0.0, 2.0, 10.0, 16.0])
 
 
 def p(z):
+    """p(z) of Example 7.1: 4z + 8 (z <= -2), 4 - z^2 (|z| < 2), -4z + 8 (z >= 2)."""
     z = float(np.asarray(z).reshape(-1)[0])
     if z <= -2:
         return 4 * z + 8
@@ -36,6 +48,7 @@ def p(z):
 
 
 def dp(z):
+    """p'(z) as a vector of one entry (the derivative F' of the problem)."""
     z = float(np.asarray(z).reshape(-1)[0])
     if z <= -2:
         return np.array([4.0])
@@ -107,3 +120,177 @@ def errors_against_exact(s_num, t_num, z_num) -> dict:
     sq = lambda u, v: u * u + v * v  # noqa: E731
     l2sq = np.sum((b - a) / 6 * (sq(dta, dza) + 4 * sq(dtm, dzm) + sq(dtb, dzb)))
     return {"error_l2": float(np.sqrt(l2sq)), "error_linf": linf}
+
+
+# -- Example 7.2 and its 3D analogue ----------------------------------------------------------
+
+
+def g_7_2(z):
+    """g(z) = 48 (1 - z^2)^2, the double well of (7.2)."""
+    return 48.0 * (1.0 - z * z) ** 2
+
+
+def dg_7_2(z):
+    """g'(z) = -192 z (1 - z^2)."""
+    return -192.0 * z * (1.0 - z * z)
+
+
+def d2g_7_2(z):
+    """g''(z) = 576 z^2 - 192 (negative for |z| < 1/sqrt(3): g is not convex)."""
+    return 576.0 * z * z - 192.0
+
+
+def example_7_2(
+    n: int = 40,
+    mesh=None,
+    *,
+    amplitude: float = -200.0,
+    z0=0.0,
+    kappa: float = 1.0,
+    T: float = 1.0,
+    dirichlet=None,
+    pattern: str = "tensor",
+    name: str = "ris-2d",
+) -> FERISProblem:
+    """Example 7.2 of Andreia & Meyer (2022), Sec. 7.2.
+
+    Omega = (0,1)^2 (an n x n-cell grid, (n+1)^2 nodes; 1681 nodes for the default n = 40) or
+    any 2D ``mesh``; g(z) = 48 (1 - z^2)^2; <l(t), z> = amplitude t^3 int z with amplitude
+    -200; T = 1; z0 = 0; R = ||.||_{L1}, V = L2, both lumped. g is even, so ``amplitude`` > 0
+    (or ``z0`` of the other sign) gives the mirrored branch z -> -z.
+    """
+    mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
+    return _energy_7_2_on(mesh, 2, amplitude, z0, kappa, T, dirichlet, name)
+
+
+def example_7_2_3d(
+    n: int = 12,
+    mesh=None,
+    *,
+    amplitude: float = -200.0,
+    z0=0.0,
+    kappa: float = 1.0,
+    T: float = 1.0,
+    dirichlet=None,
+    name: str = "ris-3d",
+) -> FERISProblem:
+    """The energy of Example 7.2 on the unit cube (n^3 cubes, 6 tetrahedra each) or a 3D mesh.
+
+    Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
+    paper: it shows that nothing in the discretization or the solver depends on d.
+    """
+    mesh = unit_cube(_grid_cells(n)) if mesh is None else mesh
+    return _energy_7_2_on(mesh, 3, amplitude, z0, kappa, T, dirichlet, name)
+
+
+def _grid_cells(n) -> int:
+    """n cells per side of a built-in grid: at least 2, so that there is an interior node."""
+    return check_int("n", n, minimum=2)
+
+
+def _energy_7_2_on(mesh, dim, amplitude, z0, kappa, T, dirichlet, name) -> FERISProblem:
+    """g of (7.2) and the load amplitude t^3 int z on a ``dim``-dimensional mesh."""
+    amplitude = check_real("amplitude", amplitude)
+    if mesh_dim(mesh) != dim:
+        cells = "triangles" if dim == 2 else "tetrahedra"
+        raise bad(
+            "mesh",
+            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+            f"must be {dim}D ({cells}) for {name}",
+        )
+    return FERISProblem(
+        mesh,
+        g_7_2,
+        dg_7_2,
+        d2g_7_2,
+        load=lambda t: amplitude * t**3,
+        load_rate=lambda t: 3.0 * amplitude * t**2,
+        kappa=kappa,
+        z0=z0,
+        T=T,
+        dirichlet=dirichlet,
+        name=name,
+    )
+
+
+# -- a phase front that crosses the domain (space adaptivity) -----------------------------------
+
+#: parameters of :func:`example_front`: load plateau, front speed and width, stiffness c
+FRONT_DEFAULTS = {"amplitude": -120.0, "speed": 1.6, "width": 0.04, "coefficient": 0.1}
+
+
+def front_load_density(amplitude: float, speed: float, width: float, corner=(0.0, 0.0)):
+    """l(t, x) = A / 2 (1 + tanh((v t - |x - x_c|) / w)): a load that grows from a corner.
+
+    A plateau of height A behind a circle of radius v t around the corner x_c, falling to 0
+    over a width w ahead of it. Returns (density, its t-derivative)."""
+    xc = np.asarray(corner, dtype=float)
+
+    def radius(x):
+        return np.sqrt(np.sum((x - xc.reshape(-1, *([1] * (x.ndim - 1)))) ** 2, axis=0))
+
+    def density(t, x):
+        return 0.5 * amplitude * (1.0 + np.tanh((speed * t - radius(x)) / width))
+
+    def rate(t, x):
+        return 0.5 * amplitude * speed / width / np.cosh((speed * t - radius(x)) / width) ** 2
+
+    return density, rate
+
+
+def example_front(
+    n: int = 32,
+    mesh=None,
+    *,
+    amplitude: float = FRONT_DEFAULTS["amplitude"],
+    speed: float = FRONT_DEFAULTS["speed"],
+    width: float = FRONT_DEFAULTS["width"],
+    coefficient: float = FRONT_DEFAULTS["coefficient"],
+    kappa: float = 1.0,
+    z0: float = 1.0,
+    T: float = 1.0,
+    dirichlet=("right",),
+    pattern: str = "tensor",
+    name: str = "ris-front",
+) -> FERISProblem:
+    """A phase front crossing the unit square: the double well of (7.2) under a growing load.
+
+    Not in the paper; built for space adaptivity. Omega = (0,1)^2, g(z) = 48 (1 - z^2)^2,
+    R = kappa ||.||_{L1}, V = L2 (lumped), I = 1/2 int c |grad z|^2 + int g(z) - <l, z>, the
+    state starts in the well z0 = 1, and the load density of :func:`front_load_density` grows
+    from the corner (0, 0) at speed ``speed`` (it covers the far corner at t = sqrt(2)/speed
+    < T). Where the load falls below -(max |g'| on [0, 1] + kappa) = -74.9 (A < 0), the state
+    leaves the well near z = 1 for the well near z = -1: a phase front, as steep as c is small
+    (interface width about sqrt(c / 192) = 0.023 for c = 0.1), sweeps across the domain. z = 0
+    on the side ``right`` (natural boundary on the others): a static boundary layer there, the
+    front is the only moving steep feature. On a uniform grid the front needs a fine h
+    everywhere; an adaptive mesh only along the front, coarsening behind it.
+    """
+    coefficient = check_positive("coefficient", coefficient)
+    density, rate = front_load_density(
+        check_real("amplitude", amplitude),
+        check_positive("speed", speed),
+        check_positive("width", width),
+    )
+    mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
+    if mesh_dim(mesh) != 2:
+        raise bad(
+            "mesh",
+            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
+            "must be 2D (triangles) for ris-front",
+        )
+    return FERISProblem(
+        mesh,
+        g_7_2,
+        dg_7_2,
+        d2g_7_2,
+        load=None,
+        load_density=density,
+        load_density_rate=rate,
+        kappa=kappa,
+        coefficient=coefficient,
+        z0=z0,
+        T=T,
+        dirichlet=None if dirichlet is None else list(dirichlet),
+        name=name,
+    )

@@ -42,22 +42,24 @@ Sign conventions are those of :class:`rothe.ris.problem.RISProblem`: D_z I = A z
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from ..errors import (
     DataError,
     RotheInputError,
     check_finite_array,
-    check_int,
     check_positive,
     check_real,
+    described,
+    fail,
 )
-from ..fem.mesh import bad, check_mesh, describe, mesh_dim, unit_cube, unit_square
+from ..fem.mesh import bad, check_mesh, describe, mesh_dim
 from ..fem.scalar import boundary_nodes, lumped_mass, split_dofs, stiffness
+from ..io.checkpoint import digest
 from .problem import RISProblem
 
 #: points where g', g'' are compared with finite differences of g and g' (irrational-ish, so
@@ -159,6 +161,10 @@ class FERISProblem(RISProblem):
         (``load=None``): <l(t), phi_i> = m_i l(t, x_i) (lumped, exact for affine densities
         times constants). A density is what lets a problem move to another mesh
         (:meth:`on_mesh`, space adaptivity); ``load_density_rate`` likewise for dl/dt.
+    name : str
+        The problem's name in ``trajectory.meta['example']``.
+
+    The examples of Sec. 7 are built by :mod:`rothe.ris.examples`.
     """
 
     def __init__(
@@ -278,27 +284,29 @@ class FERISProblem(RISProblem):
         )
 
     # -- another mesh (space adaptivity) ------------------------------------------------------
-    def check_movable(self, name: str = "--adapt-space") -> None:
+    def check_movable(self) -> None:
         """Refuse data tied to this mesh: nodal-functional loads and per-cell coefficients.
 
         A problem moves to another mesh (:meth:`on_mesh`) only with data defined on the domain:
-        a load density (a number per t, or ``load_density``), a number or a callable c(x).
+        a load density (a number per t, or ``load_density``), a number or a callable c(x). The
+        one-line error names ``adapt``, the parameter of :func:`rothe.ris.run.run_ris` that
+        asks for meshes that change.
         """
         spec = self._spec
         if spec["load_density"] is None:
             val = np.asarray(spec["load"](0.0), dtype=float)
             if val.ndim != 0:
-                raise bad(
-                    name,
-                    "a load given as nodal functionals of one mesh",
+                raise fail(
+                    "adapt",
+                    described("a load given as nodal functionals of one mesh"),
                     "needs a load density (a number per t, or load_density(t, x)) so "
                     "that the load can be evaluated on every adapted mesh",
                 )
         c = spec["coefficient"]
         if not callable(c) and np.ndim(c) != 0:
-            raise bad(
-                name,
-                "a coefficient given per cell of one mesh",
+            raise fail(
+                "adapt",
+                described("a coefficient given per cell of one mesh"),
                 "needs a number or a callable c(x)",
             )
 
@@ -382,6 +390,12 @@ class FERISProblem(RISProblem):
     def _d2F(self, z: np.ndarray) -> np.ndarray:
         return self.m * self.d2g(z)
 
+    def fingerprint(self) -> dict:
+        """:meth:`RISProblem.fingerprint` and a hash of the mesh (nodes and cells)."""
+        fp = super().fingerprint()
+        fp["mesh"] = digest(self.nodes, self.cells)
+        return fp
+
     # -- output -------------------------------------------------------------------------------
     def full_state(self, z: np.ndarray) -> np.ndarray:
         """Nodal values at all mesh nodes (order of ``mesh.p``), zero on the Dirichlet nodes."""
@@ -395,10 +409,12 @@ class FERISProblem(RISProblem):
 
     @property
     def nodes(self) -> np.ndarray:
+        """The mesh nodes, one row per node (n_nodes, d)."""
         return self.mesh.p.T.copy()
 
     @property
     def cells(self) -> np.ndarray:
+        """The mesh cells, one row of node indices per cell."""
         return self.mesh.t.T.copy()
 
 
@@ -437,8 +453,6 @@ def _check_every_component_held(mesh, fixed: np.ndarray, dirichlet) -> None:
     singular A and an energy with a flat direction (z + c on that part). O(n) with
     scipy.sparse.csgraph.
     """
-    from scipy.sparse.csgraph import connected_components
-
     t = np.asarray(mesh.t)
     n = mesh.p.shape[1]
     # a star per cell (vertex 0 to the others) connects exactly what the cell connects
@@ -460,294 +474,3 @@ def _check_every_component_held(mesh, fixed: np.ndarray, dirichlet) -> None:
             "every part needs a Dirichlet node (else A is singular: the energy is flat "
             "along z + const on that part)",
         )
-
-
-# -- Example 7.2 and its 3D analogue ----------------------------------------------------------
-
-
-def g_7_2(z):
-    """g(z) = 48 (1 - z^2)^2, the double well of (7.2)."""
-    return 48.0 * (1.0 - z * z) ** 2
-
-
-def dg_7_2(z):
-    return -192.0 * z * (1.0 - z * z)
-
-
-def d2g_7_2(z):
-    return 576.0 * z * z - 192.0
-
-
-def example_7_2(
-    n: int = 40,
-    mesh=None,
-    *,
-    amplitude: float = -200.0,
-    z0=0.0,
-    kappa: float = 1.0,
-    T: float = 1.0,
-    dirichlet=None,
-    pattern: str = "tensor",
-    name: str = "ris-2d",
-) -> FERISProblem:
-    """Example 7.2 of Andreia & Meyer (2022), Sec. 7.2.
-
-    Omega = (0,1)^2 (an n x n-cell grid, (n+1)^2 nodes; 1681 nodes for the default n = 40) or
-    any 2D ``mesh``; g(z) = 48 (1 - z^2)^2; <l(t), z> = amplitude t^3 int z with amplitude
-    -200; T = 1; z0 = 0; R = ||.||_{L1}, V = L2, both lumped. g is even, so ``amplitude`` > 0
-    (or ``z0`` of the other sign) gives the mirrored branch z -> -z.
-    """
-    mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
-    return _energy_7_2_on(mesh, 2, amplitude, z0, kappa, T, dirichlet, name)
-
-
-def example_7_2_3d(
-    n: int = 12,
-    mesh=None,
-    *,
-    amplitude: float = -200.0,
-    z0=0.0,
-    kappa: float = 1.0,
-    T: float = 1.0,
-    dirichlet=None,
-    name: str = "ris-3d",
-) -> FERISProblem:
-    """The energy of Example 7.2 on the unit cube (n^3 cubes, 6 tetrahedra each) or a 3D mesh.
-
-    Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
-    paper: it shows that nothing in the discretization or the solver depends on d.
-    """
-    mesh = unit_cube(_grid_cells(n)) if mesh is None else mesh
-    return _energy_7_2_on(mesh, 3, amplitude, z0, kappa, T, dirichlet, name)
-
-
-def _grid_cells(n) -> int:
-    """n cells per side of a built-in grid: at least 2, so that there is an interior node."""
-    return check_int("n", n, minimum=2)
-
-
-def _energy_7_2_on(mesh, dim, amplitude, z0, kappa, T, dirichlet, name) -> FERISProblem:
-    """g of (7.2) and the load amplitude t^3 int z on a ``dim``-dimensional mesh."""
-    amplitude = check_real("amplitude", amplitude)
-    if mesh_dim(mesh) != dim:
-        cells = "triangles" if dim == 2 else "tetrahedra"
-        raise bad(
-            "mesh",
-            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-            f"must be {dim}D ({cells}) for {name}",
-        )
-    return FERISProblem(
-        mesh,
-        g_7_2,
-        dg_7_2,
-        d2g_7_2,
-        load=lambda t: amplitude * t**3,
-        load_rate=lambda t: 3.0 * amplitude * t**2,
-        kappa=kappa,
-        z0=z0,
-        T=T,
-        dirichlet=dirichlet,
-        name=name,
-    )
-
-
-# -- which stationary branch a run followed -----------------------------------------------------
-
-
-def _zero_dt_runs(traj, rel: float):
-    """(starts, ends, tiny) of the maximal runs of accepted steps with t_k - t_{k-1} <= rel tau_k.
-
-    Steps of round-off size (tau_k <= 1e-12 max(1, s_k), e.g. a step that closes the gap to a
-    grid point of an earlier nested run) say nothing about t^': they continue whatever the step
-    before them was and never start a run on their own.
-    """
-    t, s, tau = traj["t"], traj["s"], traj["tau"]
-    jump = np.diff(t) <= rel * tau
-    tiny = tau <= 1e-12 * np.maximum(1.0, s[1:])
-    last_real = np.maximum.accumulate(np.where(~tiny, np.arange(len(tau)), -1))
-    jump = np.where(last_real >= 0, jump[np.maximum(last_real, 0)], False)
-    edges = np.diff(np.concatenate([[0], jump.astype(int), [0]]))
-    return np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0], tiny
-
-
-def viscous_jumps(traj, rel: float = 1e-8) -> list[dict]:
-    """Viscous jumps of a run, as ``{"t": t, "s_start": s, "s_end": s, "steps": k}``.
-
-    A viscous jump is a maximal interval of s on which t^ is constant (t_k - t_{k-1} <=
-    rel * tau_k: the ball constraint is active, the state moves while physical time stands
-    still) that spans **more than one step** and is longer in s than the step before it.
-
-    Not counted (see :func:`catch_up_steps`): a single step with t^' = 0, and a run shorter in s
-    than the step before it. After a step of length tau in rate-independent slip, z_k is
-    stationary at t_{k-1}, so it lags the equilibrium of t_k by up to about tau; a following
-    step that is no longer (after tau is halved by a rejection, one that lands on T or on a
-    nested grid point, or the neutral period-2 oscillation of the time increments in slip,
-    dt_k = tau - dt_{k-1}) is then spent on catching up, with t^' = 0 and lambda > 0. Such
-    steps vanish with the step size; a viscous jump of the BV solution does not.
-    """
-    if len(traj) == 0:
-        return []
-    t, s, tau = traj["t"], traj["s"], traj["tau"]
-    starts, ends, tiny = _zero_dt_runs(traj, rel)
-    out = []
-    for a, b in zip(starts, ends, strict=True):
-        steps = int(np.count_nonzero(~tiny[a:b]))
-        if steps < 2:
-            continue
-        before = np.nonzero(~tiny[:a])[0]
-        if before.size and s[b] - s[a] <= tau[before[-1]] * (1 + 1e-9):
-            continue
-        out.append({"t": float(t[a]), "s_start": float(s[a]), "s_end": float(s[b]), "steps": steps})
-    return out
-
-
-#: viscous jumps listed in the one-line ``branch`` summary and the compare table (all of them
-#: are in summary.json)
-JUMPS_SHOWN = 5
-
-
-def format_jump_times(jumps, shown: int = JUMPS_SHOWN, sep: str = ", ") -> str:
-    """'t1, t2, ...' for the first ``shown`` jumps, then '(+k more)'; 'none' if there is none."""
-    if not jumps:
-        return "none"
-    text = sep.join(f"{j['t']:.4g}" for j in jumps[:shown])
-    if len(jumps) > shown:
-        text += f" (+{len(jumps) - shown} more)"
-    return text
-
-
-def catch_up_steps(traj, rel: float = 1e-8) -> int:
-    """Number of steps with t^' = 0 that :func:`viscous_jumps` does not count as a jump."""
-    if len(traj) == 0:
-        return 0
-    starts, ends, tiny = _zero_dt_runs(traj, rel)
-    in_runs = sum(int(np.count_nonzero(~tiny[a:b])) for a, b in zip(starts, ends, strict=True))
-    return in_runs - sum(j["steps"] for j in viscous_jumps(traj, rel))
-
-
-def nodal_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Lumped P1 mass m_i = int phi_i = sum of |K| / (d + 1) over the cells at node i."""
-    points, cells = np.asarray(points, dtype=float), np.asarray(cells)
-    d = points.shape[1]
-    edges = points[cells[:, 1:]] - points[cells[:, :1]]  # (nc, d, d)
-    vol = np.abs(np.linalg.det(edges)) / math.factorial(d)
-    return np.bincount(
-        cells.ravel(), weights=np.repeat(vol / (d + 1), d + 1), minlength=len(points)
-    )
-
-
-def describe_branch(problem: FERISProblem, traj) -> dict:
-    """Energy, range and mean of the final state and the viscous jumps: which branch a run took.
-
-    Several stationary points exist (g is a double well): the run reports where it ended --
-    the sign of z (g is even, so z -> -z maps branches onto each other), its range and int z --
-    and when it jumped. A one-line ``branch`` string summarizes it.
-    """
-    z = traj["z"][-1]
-    jumps = viscous_jumps(traj)
-    m_all = problem.m_all
-    if getattr(traj, "meshes", None) is not None:  # space adaptivity: the last state's mesh
-        m_all = nodal_volumes(*traj.meshes.mesh(traj["z_mesh_id"][-1]))
-    mean = float(m_all @ z) / float(m_all.sum())
-    zmin, zmax = float(z.min()), float(z.max())
-    sign = "z <= 0" if zmax <= 1e-12 else ("z >= 0" if zmin >= -1e-12 else "z changes sign")
-    energy = float(traj["energy"][-1])
-    jt = format_jump_times(jumps)
-    catch = catch_up_steps(traj)
-    return {
-        "energy_final": energy,
-        "z_min": zmin,
-        "z_max": zmax,
-        "z_mean": mean,
-        "n_viscous_jumps": len(jumps),
-        "viscous_jumps": jumps,
-        "catch_up_steps": catch,
-        "branch": (
-            f"{sign}, z in [{zmin:.4g}, {zmax:.4g}], mean {mean:.4g}, energy {energy:.6g}, "
-            f"{len(jumps)} viscous jump(s) at t = {jt}"
-            + (f" (+{catch} catch-up step(s) with t' = 0)" if catch else "")
-        ),
-    }
-
-
-# -- a phase front that crosses the domain (space adaptivity) -----------------------------------
-
-#: parameters of :func:`example_front`: load plateau, front speed and width, stiffness c
-FRONT_DEFAULTS = {"amplitude": -120.0, "speed": 1.6, "width": 0.04, "coefficient": 0.1}
-
-
-def front_load_density(amplitude: float, speed: float, width: float, corner=(0.0, 0.0)):
-    """l(t, x) = A / 2 (1 + tanh((v t - |x - x_c|) / w)): a load that grows from a corner.
-
-    A plateau of height A behind a circle of radius v t around the corner x_c, falling to 0
-    over a width w ahead of it. Returns (density, its t-derivative)."""
-    xc = np.asarray(corner, dtype=float)
-
-    def radius(x):
-        return np.sqrt(np.sum((x - xc.reshape(-1, *([1] * (x.ndim - 1)))) ** 2, axis=0))
-
-    def density(t, x):
-        return 0.5 * amplitude * (1.0 + np.tanh((speed * t - radius(x)) / width))
-
-    def rate(t, x):
-        return 0.5 * amplitude * speed / width / np.cosh((speed * t - radius(x)) / width) ** 2
-
-    return density, rate
-
-
-def example_front(
-    n: int = 32,
-    mesh=None,
-    *,
-    amplitude: float = FRONT_DEFAULTS["amplitude"],
-    speed: float = FRONT_DEFAULTS["speed"],
-    width: float = FRONT_DEFAULTS["width"],
-    coefficient: float = FRONT_DEFAULTS["coefficient"],
-    kappa: float = 1.0,
-    z0: float = 1.0,
-    T: float = 1.0,
-    dirichlet=("right",),
-    pattern: str = "tensor",
-    name: str = "ris-front",
-) -> FERISProblem:
-    """A phase front crossing the unit square: the double well of (7.2) under a growing load.
-
-    Not in the paper; built for space adaptivity. Omega = (0,1)^2, g(z) = 48 (1 - z^2)^2,
-    R = kappa ||.||_{L1}, V = L2 (lumped), I = 1/2 int c |grad z|^2 + int g(z) - <l, z>, the
-    state starts in the well z0 = 1, and the load density of :func:`front_load_density` grows
-    from the corner (0, 0) at speed ``speed`` (it covers the far corner at t = sqrt(2)/speed
-    < T). Where the load falls below -(max |g'| on [0, 1] + kappa) = -74.9 (A < 0), the state
-    leaves the well near z = 1 for the well near z = -1: a phase front, as steep as c is small
-    (interface width about sqrt(c / 192) = 0.023 for c = 0.1), sweeps across the domain. z = 0
-    on the side ``right`` (natural boundary on the others): a static boundary layer there, the
-    front is the only moving steep feature. On a uniform grid the front needs a fine h
-    everywhere; an adaptive mesh only along the front, coarsening behind it.
-    """
-    coefficient = check_positive("coefficient", coefficient)
-    density, rate = front_load_density(
-        check_real("amplitude", amplitude),
-        check_positive("speed", speed),
-        check_positive("width", width),
-    )
-    mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
-    if mesh_dim(mesh) != 2:
-        raise bad(
-            "mesh",
-            f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})",
-            "must be 2D (triangles) for ris-front",
-        )
-    return FERISProblem(
-        mesh,
-        g_7_2,
-        dg_7_2,
-        d2g_7_2,
-        load=None,
-        load_density=density,
-        load_density_rate=rate,
-        kappa=kappa,
-        coefficient=coefficient,
-        z0=z0,
-        T=T,
-        dirichlet=None if dirichlet is None else list(dirichlet),
-        name=name,
-    )

@@ -9,6 +9,7 @@ import matplotlib.tri as mtri
 import numpy as np
 
 from ..plotting.common import plt, save_figure
+from .run import stored_states
 
 
 def plot_path(traj, path, exact=None, title="", component=None) -> Path:
@@ -17,8 +18,6 @@ def plot_path(traj, path, exact=None, title="", component=None) -> Path:
     For vector states, z^ is shown as its min, max and V-mean over the nodes unless
     ``component`` selects one entry.
     """
-    from .stepper import stored_states
-
     s, t, z = stored_states(traj)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     axes[0].plot(traj["s"], traj["t"], "-", lw=1.4, label="numerical")
@@ -65,18 +64,22 @@ def plot_steps(traj, path, title="") -> Path:
     return save_figure(fig, path)
 
 
+def _by_control(rows, key: str):
+    """(control, its rows sorted by ``key``) in the order the controls first appear."""
+    groups: dict[str, list] = {}
+    for r in rows:
+        groups.setdefault(r["control"], []).append(r)
+    return [(name, sorted(rs, key=lambda r: r[key])) for name, rs in groups.items()]
+
+
 def plot_error_vs_work(rows, path, title="") -> Path:
     """Fig. 3 analogue: L2 and L-infinity error against the number of steps, per controller.
 
     Solid markers: inner solves (accepted + rejected); open markers: accepted steps only.
     """
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    groups = {}
-    for r in rows:
-        groups.setdefault(r["control"], []).append(r)
     styles = {"uniform": "o", "adaptive": "s", "order2": "^", "nested": "D"}
-    for name, rs in groups.items():
-        rs = sorted(rs, key=lambda r: r["inner_solves"])
+    for name, rs in _by_control(rows, "inner_solves"):
         solves = [r["inner_solves"] for r in rs]
         acc = [r["accepted_steps"] for r in rs]
         for ax, key in zip(axes, ("error_l2", "error_linf"), strict=False):
@@ -105,12 +108,8 @@ def plot_residual_vs_steps(rows, path, title="") -> Path:
     """Fig. 5 analogue: local max_k(I1+I2) and global sum_k(I1+I2) against the number of steps,
     and the global residual against the number of inner solves (accepted + rejected attempts)."""
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-    groups = {}
-    for r in rows:
-        groups.setdefault(r["control"], []).append(r)
     styles = {"uniform": "o", "adaptive": "s", "order2": "^", "regime": "D"}
-    for name, rs in groups.items():
-        rs = sorted(rs, key=lambda r: r["accepted_steps"])
+    for name, rs in _by_control(rows, "accepted_steps"):
         n = [r["accepted_steps"] for r in rs]
         style = "-" + styles.get(name, "x")
         axes[0].loglog(n, [r["max_residual"] for r in rs], style, label=name)

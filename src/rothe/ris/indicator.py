@@ -39,7 +39,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import check_nonnegative, described, fail
+from ..fem.mesh import box_part_nodes
 from ..fem.scalar import cell_coefficient
+from ..fem.scalar import lumped_mass as nodal_masses
 from ..fem.simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
 
 
@@ -112,9 +114,7 @@ def ris_indicators(
                     f"must be a callable, a number or {n} nodal functionals",
                 )
             if lumped_mass is None:
-                from ..fem.scalar import lumped_mass as lm
-
-                lumped_mass = lm(mesh)
+                lumped_mass = nodal_masses(mesh)
             lq = ev.values(arr / lumped_mass)
     force = lq - np.asarray(dg(zq), dtype=float)
     stick = dq == 0.0
@@ -152,8 +152,6 @@ def ris_indicators(
 
 def _box_part_mask(mesh, ev, parts) -> np.ndarray:
     """Boundary facets on the named sides of the bounding box (meshes without named parts)."""
-    from ..fem.mesh import box_part_nodes
-
     topo = ev.topology
     fverts = topo.facets[:, topo.boundary].T
     nodes = np.zeros(mesh.p.shape[1], dtype=bool)

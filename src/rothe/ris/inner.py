@@ -48,9 +48,52 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..fem.linear import ReusableSolver, SingularSystem
+from ..stepping.results import ResultCode
 from .problem import RISProblem
 
 _EPS = np.finfo(float).eps
+
+#: what the three failures of an inner solve most likely mean (one text for the two that say
+#: the solver cannot reach stationarity)
+_NOT_STATIONARY = (
+    "the inner solver cannot reach stationarity: dF or d2F probably does not "
+    "belong to F (check_derivatives=True compares them with finite differences)"
+)
+
+
+class RISCode(ResultCode):
+    """Result code of one RIS step attempt: the inner solve's outcome (or why there was none).
+
+    The value is the short code stored in trajectories, ``where`` dicts and summaries (a member
+    compares equal to it: ``code == "stalled"``); ``message`` says what it means, for the three
+    failures of the inner solve the likely cause that a run stopped by them reports
+    (:attr:`hint`). A failed solve is never accepted (every controller rejects it).
+    """
+
+    RUNNING = "running", "the inner solve is under way"
+    CONVERGED = "converged", "the KKT residual of (4.1)-(4.4) fell below the tolerance"
+    MAX_ITERATIONS = "max_iterations", _NOT_STATIONARY
+    STALLED = "stalled", _NOT_STATIONARY
+    NONFINITE = "nonfinite", "F, dF, d2F or the load gave a non-finite value (overflow or NaN)"
+    DATA_BEYOND_T = (
+        "data_beyond_T",
+        (
+            "the load cannot be evaluated beyond T, where the attempt "
+            "overshot: the step is shortened to land on T"
+        ),
+    )
+
+    @property
+    def successful(self) -> bool:
+        """True for :attr:`CONVERGED`."""
+        return self is RISCode.CONVERGED
+
+    @property
+    def hint(self) -> str | None:
+        """The likely cause to report when a run stops after such failures (the message of the
+        three failures of the inner solve; None for the other codes)."""
+        failures = (RISCode.MAX_ITERATIONS, RISCode.STALLED, RISCode.NONFINITE)
+        return self.message if self in failures else None
 
 
 @dataclass
@@ -89,6 +132,9 @@ def amg_threshold_for(problem: RISProblem, options: InnerOptions) -> int:
 
 @dataclass
 class InnerState:
+    """The iterate of one inner solve: d = z - z_{k-1}, z, A z, D_z I, J, the multiplier, the
+    KKT residual and tolerance, the counters, the Hessian shift nu and the result code."""
+
     t: float
     zprev: np.ndarray
     tau: float
@@ -107,18 +153,21 @@ class InnerState:
     fb_steps: int = 0
     nu: float = 0.0
     c_fb: float = 1.0
-    code: str = "running"
+    code: RISCode = RISCode.RUNNING
     hint: np.ndarray | None = None  # a candidate increment (e.g. the previous step's), tried once
     last_alpha: float = 0.0  # damping factor of the last accepted line-search step
 
 
 @dataclass
 class InnerResult:
+    """What :meth:`BallStepSolver.solve` returns: z_k, d = z_k - z_{k-1}, the multiplier,
+    the result code, the counters and D_z I(t_{k-1}, z_k)."""
+
     z: np.ndarray
     d: np.ndarray
     lam: float
     converged: bool
-    code: str
+    code: RISCode
     iterations: int
     newton_steps: int
     fb_steps: int
@@ -184,6 +233,7 @@ class _NewtonMatrix:
             self.A = np.asarray(A)
 
     def build(self, chi: np.ndarray, hess_F, shift: float, inactive_diag: np.ndarray):
+        """The Newton matrix on the active set ``chi`` (inactive rows: ``inactive_diag``)."""
         p = self.p
         chif = chi.astype(float)
         general = sp.issparse(hess_F) or np.ndim(hess_F) == 2
@@ -302,14 +352,15 @@ class BallStepSolver:
             st.hint = h
         return st
 
-    def terminate(self, st: InnerState) -> tuple[bool, str]:
-        if st.code not in ("running",):
+    def terminate(self, st: InnerState) -> tuple[bool, RISCode]:
+        """(done, code): converged, out of iterations, or a failure set by :meth:`step`."""
+        if st.code is not RISCode.RUNNING:
             return True, st.code
         if st.kkt <= st.tol:
-            st.code = "converged"
+            st.code = RISCode.CONVERGED
             return True, st.code
         if st.iteration >= self.o.max_iter:
-            st.code = "max_iterations"
+            st.code = RISCode.MAX_ITERATIONS
             return True, st.code
         return False, st.code
 
@@ -341,11 +392,11 @@ class BallStepSolver:
                 1e6 * self._c_scale,
             )
             if not self._fb_step(st):
-                st.code = "stalled"
+                st.code = RISCode.STALLED
                 return st
             st.fb_steps += 1
         if not (np.isfinite(st.J) and np.all(np.isfinite(st.d))):
-            st.code = "nonfinite"
+            st.code = RISCode.NONFINITE
         return st
 
     def _ray_to_sphere(self, st: InnerState, nd: float) -> bool:
@@ -367,6 +418,9 @@ class BallStepSolver:
         return self._line_search(st, cand, None, sphere=True, full_only=True)
 
     def solve(self, t: float, zprev: np.ndarray, tau: float, hint=None, start=None) -> InnerResult:
+        """The step (3.1)-(3.2) from ``zprev`` at time ``t`` on the ball of radius ``tau``
+        (``hint``: a candidate increment tried once, e.g. the previous step's; ``start``: the
+        first iterate, e.g. a transferred state to relax)."""
         st = self.init(t, zprev, tau, hint, start)
         while True:
             done, code = self.terminate(st)
@@ -602,7 +656,7 @@ class BallStepSolver:
         return float(np.clip(eta, 1e-12, 1e-2))
 
     def _result(self, st: InnerState) -> InnerResult:
-        converged = st.code == "converged"
+        converged = st.code is RISCode.CONVERGED
         return InnerResult(
             z=st.z,
             d=st.d,

@@ -27,8 +27,10 @@ from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import splu
 
 from ..errors import DataError, RotheInputError, check_finite_array, check_positive, described, fail
+from ..io.checkpoint import digest
 
 ArrayFn = Callable[[np.ndarray], np.ndarray]
 
@@ -55,8 +57,16 @@ class RISProblem:
         Final time.
     load_rate : callable, optional
         t -> dl/dt (used only for energy diagnostics: d/dt I = -<l'(t), z>).
+    name : str
+        The problem's name in ``trajectory.meta['example']``.
     check_derivatives : bool
         Check dF and d2F against finite differences of F and dF at a few points.
+    check_coercivity : bool
+        Refuse an A that is not positive definite (:func:`check_coercive`); switch off when F
+        alone makes I(t, .) coercive.
+
+    Every check raises a one-line :class:`~rothe.errors.RotheInputError` naming the parameter.
+    Run it with :func:`rothe.ris.run.run_ris`.
     """
 
     def __init__(
@@ -175,9 +185,11 @@ class RISProblem:
 
     # -- the energy and its derivatives ------------------------------------------------------
     def F(self, z: np.ndarray) -> float:
+        """F(z), the non-quadratic part of the energy."""
         return float(self._F(z))
 
     def dF(self, z: np.ndarray) -> np.ndarray:
+        """F'(z) as an (n,) vector."""
         return np.asarray(self._dF(z), dtype=float).reshape(self.n)
 
     def d2F(self, z: np.ndarray):
@@ -205,6 +217,7 @@ class RISProblem:
         return l_t
 
     def load_rate(self, t: float, h: float = 1e-6) -> np.ndarray:
+        """dl/dt: the given ``load_rate``, else a central difference with step ``h``."""
         if self._load_rate is not None:
             return np.asarray(self._load_rate(t), dtype=float).reshape(self.n)
         return (self.load(t + h) - self.load(t - h)) / (2 * h)
@@ -233,6 +246,31 @@ class RISProblem:
         """dist_{V*}(eta, dR(0)) of (2.4): (sum_i max(|eta_i| - r_i, 0)^2 / m_i)^(1/2)."""
         excess = np.maximum(np.abs(eta) - self.r, 0.0)
         return float(np.sqrt(np.sum(excess * excess / self.m)))
+
+    # -- identity (checkpoints) ----------------------------------------------------------------
+    def fingerprint(self) -> dict:
+        """Cheap hashes that identify the problem, compared entry by entry when a run resumes
+        (:func:`rothe.io.checkpoint.problem_fingerprint`): class, n, T, A, z0, the weights,
+        the load at t = 0, T/3, T and F, F', F'' at z0 and z0 + 1/2."""
+        T = float(self.T)
+        z0 = self.z0
+        z1 = z0 + 0.5
+        return {
+            "class": type(self).__name__,
+            "n": int(self.n),
+            "T": T,
+            "A": digest(self.A),
+            "z0": digest(z0),
+            "weights": digest(self.r, self.m),
+            "load": digest(*[self.load(t) for t in (0.0, T / 3.0, T)]),
+            "F": digest(
+                np.array([self.F(z0), self.F(z1)]),
+                self.dF(z0),
+                self.dF(z1),
+                self.d2F(z0),
+                self.d2F(z1),
+            ),
+        }
 
     # -- mapping to output ---------------------------------------------------------------------
     def full_state(self, z: np.ndarray) -> np.ndarray:
@@ -405,8 +443,6 @@ def check_coercive(A) -> None:
         return
     if n > SPARSE_LU_LIMIT:
         return
-    from scipy.sparse.linalg import splu
-
     try:
         lu = splu(
             sp.csc_matrix(A),

@@ -33,6 +33,8 @@ from .problem import RISProblem
 
 @dataclass
 class StepResiduals:
+    """I1 (3.3) and I2 (3.4) of one step, each with its quadrature error estimate."""
+
     I1: float
     I2: float
     I1_err: float  # |S_n - S_{n/2}| for I1

@@ -7,30 +7,33 @@ From (s_{k-1}, t_{k-1}, z_{k-1}) and tau_k:
 5./6. the residuals I_1^k (3.3), I_2^k (3.4) of the affine interpolants (composite Simpson).
 
 The stepper returns the new state, the residuals (as the controller's error measures) and the
-solver counters; it never decides acceptance.
+solver counters; it never decides acceptance. With meshes that change between steps, the adapt
+step after an accepted step (:meth:`RISStepper.adapt`) moves the run to a new mesh
+(:mod:`rothe.ris.adapt`). The run driver is :mod:`rothe.ris.run`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import DataError, RunFailed, RunInterrupted, check_int, check_positive, fail
-from ..io.checkpoint import RunCheckpointing, run_arguments
+from ..errors import DataError, RunFailed, check_int, check_positive, fail
+from ..fem.adapt import SpaceAdaptivity
 from ..io.trajectory import Trajectory
-from ..stepping.evolve import evolve
 from ..timing import PhaseTimes
 from .adapt import RISAdaptivity, RISAdaptStep
-from .controllers import make_controller
-from .inner import BallStepSolver, InnerOptions
+from .inner import BallStepSolver, InnerOptions, RISCode
 from .problem import RISProblem
 from .residuals import step_residuals
 
 
 @dataclass
 class RISState:
+    """A point of the discrete curve: curve parameter s_k, time t_k, state z_k (on the run's
+    current mesh) and the number k of accepted steps."""
+
     s: float
     t: float
     z: np.ndarray
@@ -39,10 +42,15 @@ class RISState:
 
 @dataclass
 class RISStepResult:
+    """One attempt of a step: the new state, the residuals I1 (3.3), I2 (3.4) with their
+    quadrature error estimates, the multiplier lambda_k (Lemma 4.1), the KKT residual and
+    tolerance, J at the start and end of the inner solve, I(t_k, z_k), ||z_k - z_{k-1}||_V, the
+    increment, the solver counters and the result code (:class:`~rothe.ris.inner.RISCode`)."""
+
     state: RISState
     tau: float
     converged: bool
-    code: str
+    code: RISCode
     lam: float
     kkt: float
     kkt_tol: float
@@ -63,6 +71,7 @@ class RISStepResult:
 
     @property
     def errors(self) -> dict:
+        """The controller's error measures: {"I1": I1, "I2": I2}."""
         return {"I1": self.I1, "I2": self.I2}
 
 
@@ -128,6 +137,7 @@ class StagnationMonitor:
         self.attempts, self.s_start, self.failed, self.codes = 0, state.s, 0, {}
 
     def checkpoint_state(self) -> dict:
+        """The window: attempts, s at its start, failed solves and their codes."""
         return {
             "attempts": self.attempts,
             "s_start": self.s_start,
@@ -136,6 +146,7 @@ class StagnationMonitor:
         }
 
     def restore_state(self, data: dict) -> None:
+        """Put back what :meth:`checkpoint_state` returned."""
         self.attempts = int(data["attempts"])
         self.s_start = None if data["s_start"] is None else float(data["s_start"])
         self.failed = int(data["failed"])
@@ -143,7 +154,13 @@ class StagnationMonitor:
 
 
 class RISStepper:
-    """Steps 3-6 of Alg. 3.2 for a :class:`RISProblem`."""
+    """Steps 3-6 of Alg. 3.2 for a :class:`RISProblem`, and the adapt step after an accepted one.
+
+    ``adapt``: a :class:`~rothe.fem.adapt.SpaceAdaptivity` adapts the mesh of a
+    :class:`~rothe.ris.fem_problem.FERISProblem` after every ``adapt_every``-th accepted step
+    (``adaptivity``, a :class:`~rothe.ris.adapt.RISAdaptivity`); None keeps the problem's mesh.
+    ``problem`` is the problem on the current mesh. ``S`` stops the run at s = S (else at T).
+    """
 
     def __init__(
         self,
@@ -152,14 +169,14 @@ class RISStepper:
         simpson_subintervals: int = 8,
         S: float | None = None,
         keep_every: int = 1,
-        space=None,
+        adapt: SpaceAdaptivity | None = None,
     ):
         self.problem = problem
         self.times = PhaseTimes()  # estimate, mark, refine, rebuild, transfer (the adapt step)
-        # space adaptivity (rothe.ris.adapt): None keeps the mesh of ``problem``
-        self.space = None
-        if space is not None:
-            self.space = RISAdaptivity(problem, space, times=self.times, inner=inner)
+        # meshes that change between steps (rothe.ris.adapt): None keeps the mesh of ``problem``
+        self.adaptivity: RISAdaptivity | None = None
+        if adapt is not None:
+            self.adaptivity = RISAdaptivity(problem, adapt, times=self.times, inner=inner)
         self._adapted: RISAdaptStep | None = None  # what the last adapt step did
         self._inner = inner
         self._start: tuple[float, np.ndarray] | None = None  # (t, z) the attempts start from
@@ -178,11 +195,13 @@ class RISStepper:
 
     # -- evolve-loop interface ----------------------------------------------------------------
     def finished(self, state: RISState) -> bool:
+        """t reached T (within ``t_tol``), or s reached S."""
         if state.t >= self.problem.T - self.t_tol:
             return True
         return self.S is not None and state.s >= self.S * (1 - 1e-14)
 
     def limit(self, state: RISState, tau: float) -> float:
+        """The step shortened so that s does not pass S."""
         if self.S is not None:
             return min(tau, self.S - state.s)
         return tau
@@ -264,7 +283,7 @@ class RISStepper:
         except DataError as exc:
             t_reached = state.t + tau
             if t_reached > self.problem.T + self.t_tol and state.t < self.problem.T:
-                result = self._failed_attempt(state, tau, s_end, "data_beyond_T")
+                result = self._failed_attempt(state, tau, s_end, RISCode.DATA_BEYOND_T)
             else:
                 where = self.where(state, None)
                 where.update(tau=tau, data_error=str(exc))
@@ -276,7 +295,7 @@ class RISStepper:
         self.monitor.observe(state, result, self.problem.T, self.where(state, result))
         return result
 
-    def _failed_attempt(self, state: RISState, tau: float, s_end, code: str) -> RISStepResult:
+    def _failed_attempt(self, state: RISState, tau: float, s_end, code: RISCode) -> RISStepResult:
         nan = math.nan
         return RISStepResult(
             state=RISState(
@@ -346,7 +365,7 @@ class RISStepper:
             increment=res.d,
             counters=counters,
             problem=p,
-            mesh_id=self.space.mesh_id if self.space is not None else 0,
+            mesh_id=self.adaptivity.mesh_id if self.adaptivity is not None else 0,
         )
 
     def adapt(self, state: RISState, result: RISStepResult) -> RISState:
@@ -354,10 +373,11 @@ class RISStepper:
         adaptivity, when due and the run goes on, the problem and z_k on a new mesh (a new
         state; the accepted one is never changed); otherwise ``state`` itself."""
         self._adapted = None
-        if self.space is None or self.finished(state):
+        adaptivity = self.adaptivity
+        if adaptivity is None or self.finished(state):  # due or not: RISAdaptivity.adapt
             return state
         t_prev, z_prev = self._start
-        out = self.space.adapt(
+        out = adaptivity.adapt(
             self.problem,
             t_prev,
             z_prev,
@@ -378,15 +398,16 @@ class RISStepper:
 
     def record(self, traj: Trajectory, result: RISStepResult, state: RISState) -> None:
         """The accepted step ``result`` (on its own mesh) and, with space adaptivity, what the
-        adapt step did (``transfer_energy``); ``state`` is the state the run goes on from."""
+        adapt step did (``transfer_energy``, ``relax_energy``, ...); ``state`` is the state the
+        run goes on from."""
         st = result.state
         adapted = self._adapted
         increment = adapted.increment if adapted is not None else result.increment
         self._previous = (state.z, increment, result.tau)
-        space = self.space
+        adaptive = self.adaptivity is not None
         if st.k % self.keep_every == 0:
             traj.append(z=result.problem.full_state(st.z), z_step=st.k)
-            if space is not None:
+            if adaptive:
                 traj.append(z_mesh_id=result.mesh_id)
         traj.append(
             s=st.s,
@@ -404,14 +425,15 @@ class RISStepper:
             step_norm=result.step_norm,
             newton_iterations=result.counters.get("newton_iterations", 0),
         )
-        if space is not None:
+        if adaptive:
             traj.append(mesh_id=result.mesh_id, n_dofs=result.problem.n)
-            traj.append(**space.ledger(adapted, result))  # transfer_energy, relax_energy, ...
+            traj.append(**self.adaptivity.ledger(adapted, result))  # transfer_energy, relax_...
 
     def where(self, state: RISState, result: RISStepResult | None) -> dict:
+        """Where the run is (step, s, t, the mesh) and what the attempt ``result`` gave."""
         info = {"step": state.k + 1, "s": state.s, "t": state.t}
-        if self.space is not None:
-            info.update(mesh_id=self.space.mesh_id, dofs=int(self.problem.n))
+        if self.adaptivity is not None:
+            info.update(mesh_id=self.adaptivity.mesh_id, dofs=int(self.problem.n))
         if result is not None:
             info.update(
                 tau=result.tau, I1=result.I1, I2=result.I2, code=result.code, kkt=result.kkt
@@ -419,8 +441,9 @@ class RISStepper:
         return info
 
     def progress_fields(self, state: RISState) -> dict:
+        """s, t, the last tau (and the unknowns with changing meshes) for the progress line."""
         fields = {"s": f"{state.s:.5g}", "t": f"{state.t:.5g}", "tau": f"{self._last_tau:.2g}"}
-        if self.space is not None:
+        if self.adaptivity is not None:
             fields["dofs"] = str(self.problem.n)
         return fields
 
@@ -454,21 +477,23 @@ class RISStepper:
             "linear": self.solver.linear.checkpoint_state(),
             "monitor": self.monitor.checkpoint_state(),
         }
-        if self.space is not None:  # the mesh hierarchy and the series of meshes so far
-            data["space"] = self.space.checkpoint_state()
+        if self.adaptivity is not None:  # the mesh hierarchy and the series of meshes so far
+            data["adapt"] = self.adaptivity.checkpoint_state()
         return data
 
     def restore_state(self, data: dict) -> RISState:
+        """The state of :meth:`checkpoint_state`, with the stepper's own parts put back."""
         if data.get("stepper") != "ris":
             raise ValueError(
                 f"restore_state: a {data.get('stepper')!r} stepper's state given to a RIS stepper"
             )
-        if self.space is not None:
-            if data.get("space") is None:
+        if self.adaptivity is not None:
+            if data.get("adapt") is None:
                 raise ValueError(
-                    "restore_state: a fixed-mesh state given to a space-adaptive RIS stepper"
+                    "restore_state: a fixed-mesh state given to a RIS stepper with "
+                    "meshes that change between steps"
                 )
-            self.problem = self.space.restore_state(data["space"])
+            self.problem = self.adaptivity.restore_state(data["adapt"])
             self.solver = BallStepSolver(self.problem, self._inner)
         state = RISState(
             s=float(data["s"]),
@@ -490,341 +515,3 @@ class RISStepper:
         if data.get("monitor") is not None:  # absent in checkpoints of earlier versions
             self.monitor.restore_state(data["monitor"])
         return state
-
-
-#: the likely cause of a run that stopped after its inner solves kept failing (by result code)
-FAILURE_HINTS = {
-    "stalled": "the inner solver cannot reach stationarity: dF or d2F probably does not belong "
-    "to F (check_derivatives=True compares them with finite differences)",
-    "max_iterations": "the inner solver cannot reach stationarity: dF or d2F probably does not "
-    "belong to F (check_derivatives=True compares them with finite "
-    "differences)",
-    "nonfinite": "F, dF, d2F or the load gave a non-finite value (overflow or NaN)",
-}
-
-
-def initial_trajectory(problem: RISProblem, meta: dict | None = None, space=None) -> Trajectory:
-    """The trajectory with the initial state; ``space`` (the stepper's RISSpaceAdaptivity):
-    z is a ragged series, every state records its mesh id and dofs, the meshes are kept."""
-    traj = Trajectory(meta=meta)
-    traj.append(
-        s=0.0,
-        t=0.0,
-        z=problem.full_state(problem.z0),
-        z_step=0,
-        energy=problem.energy(0.0, problem.z0),
-    )
-    if space is not None:
-        _space_trajectory(traj, space)
-        traj.append(z_mesh_id=0, mesh_id=0, n_dofs=problem.n)
-    return traj
-
-
-def _space_trajectory(traj: Trajectory, space) -> None:
-    traj.set_ragged("z")
-    traj.meshes = space.series
-
-
-def stored_states(traj: Trajectory):
-    """(s, t, z) of the states whose z was kept (all of them unless keep_every > 1)."""
-    z = traj["z"]
-    idx = traj["z_step"] if "z_step" in traj else np.arange(len(z))
-    return traj["s"][idx], traj["t"][idx], z
-
-
-def _keep_last_z(problem, stepper: RISStepper, traj: Trajectory, state: RISState) -> None:
-    """With keep_every > 1: make sure z of the last state is kept (once)."""
-    steps = traj.entries("z_step")
-    if not steps or int(steps[-1]) != state.k:
-        traj.append(z=stepper.problem.full_state(state.z), z_step=state.k)
-        if stepper.space is not None:
-            traj.append(z_mesh_id=stepper.space.mesh_id)
-
-
-def _evolve_ris(problem, stepper, controller, traj, state, *, tau_min, progress, checkpointer):
-    try:
-        state = evolve(
-            stepper,
-            controller,
-            state,
-            traj,
-            tau_min=tau_min,
-            progress=progress,
-            checkpointer=checkpointer,
-        )
-    except RunInterrupted as exc:
-        if exc.state is not None:
-            _keep_last_z(problem, stepper, traj, exc.state)
-        raise
-    except RunFailed as exc:
-        hint = FAILURE_HINTS.get(exc.where.get("code"))
-        if hint and exc.args and "stagnation_window" not in exc.where:
-            exc.args = (f"{exc.args[0]}; {hint}",) + exc.args[1:]
-        raise
-    finally:
-        traj.meta["linear_solver"] = stepper.solver.linear.kind_used
-        if stepper.space is not None:  # space_adaptations, transfer_failures, ...
-            traj.meta.update(stepper.space.meta())
-    _keep_last_z(problem, stepper, traj, state)
-    traj.meta["landing"] = landing_record(stepper, state)
-    return state
-
-
-def _where(traj: Trajectory, state: RISState) -> dict:
-    st = traj.stats
-    return {
-        "accepted_steps": st.accepted_steps,
-        "rejected_steps": st.rejected_steps,
-        "s": float(state.s),
-        "t": float(state.t),
-    }
-
-
-def run_ris(
-    problem: RISProblem,
-    control: str = "adaptive",
-    *,
-    tol: float | None = 1e-4,
-    tau: float = 0.1,
-    tau_min: float = 1e-12,
-    tau_max: float = math.inf,
-    grid=None,
-    S: float | None = None,
-    inner: InnerOptions | None = None,
-    simpson_subintervals: int = 8,
-    progress=False,
-    meta: dict | None = None,
-    keep_every: int = 1,
-    checkpoint=None,
-    resume=None,
-    space=None,
-) -> Trajectory:
-    """Run the scheme from (0, 0, z0) until t reaches T (or s reaches S).
-
-    ``space``: a :class:`~rothe.fem.adapt.SpaceAdaptivity` adapts the P1 mesh of a
-    :class:`~rothe.ris.fem_problem.FERISProblem` after every ``adapt_every``-th accepted step
-    (:mod:`rothe.ris.adapt`); None keeps the problem's mesh (the run is then exactly
-    the fixed-mesh one). With it, ``traj["z"]`` is a list (one array per stored state, on its
-    mesh), ``z_mesh_id`` / ``mesh_id`` / ``n_dofs`` say which mesh each state lives on,
-    ``transfer_energy`` per step the energy change by the transfer, and ``traj.meshes`` keeps
-    every distinct mesh once.
-
-    ``keep_every = k`` keeps z of every k-th accepted state and of the last one (the other series
-    are kept for every step; ``z_step`` says which steps z holds, :func:`stored_states`).
-    ``meta['linear_solver']`` records the linear solver that ran. ``progress``: bool or
-    :class:`~rothe.stepping.progress.ProgressOptions`.
-
-    ``checkpoint``: a directory or :class:`~rothe.io.checkpoint.CheckpointOptions` (interval,
-    default 60 s); a checkpoint is written at the start, every interval, when the run stops and
-    at the end. ``resume``: a checkpoint directory written by ``run_ris`` with the same
-    arguments and problem (else :class:`~rothe.io.checkpoint.CheckpointError`); the run
-    continues from it and returns the trajectory the uninterrupted run would have returned, bit
-    for bit (the statistics too, except the wall time, which sums the sessions).
-
-    Raises :class:`RunFailed` (with ``.trajectory``) when the step size would fall below
-    ``tau_min``, and :class:`~rothe.errors.RunInterrupted` (with ``.trajectory`` and
-    ``.checkpoint``) when SIGINT or SIGTERM arrives; both carry the trajectory computed so far.
-    """
-    controller = make_controller(
-        control, tol=tol, tau=tau, tau_min=tau_min, tau_max=tau_max, grid=grid
-    )
-    stepper = RISStepper(
-        problem, inner, simpson_subintervals, S=S, keep_every=keep_every, space=space
-    )
-    info = {"example": problem.name, "control": controller.name, "tol": tol, "tau0": tau}
-    if space is not None:
-        info["space"] = space.describe()
-    info.update(meta or {})
-    extra = {} if space is None else {"space": space.describe()}
-    arguments = run_arguments(
-        control=control,
-        tol=tol,
-        tau=tau,
-        tau_min=tau_min,
-        tau_max=tau_max,
-        grid=None if grid is None else np.asarray(grid, dtype=float),
-        S=S,
-        inner=asdict(inner or InnerOptions()),
-        simpson_subintervals=simpson_subintervals,
-        keep_every=keep_every,
-        **extra,
-    )
-    with RunCheckpointing("run_ris", problem, arguments, checkpoint, resume) as rc:
-        cp, restored = rc.checkpointer, rc.restored
-        if restored is not None:
-            traj = restored.trajectory(0)
-            traj.meta.update(info)
-            state = stepper.restore_state(restored.state["stepper"])
-            if stepper.space is not None:
-                _space_trajectory(traj, stepper.space)
-            controller.restore_state(restored.state["controller"])
-            traj.meta["sessions"] = restored.sessions + 1
-        else:
-            traj = initial_trajectory(problem, info, stepper.space)
-            state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
-        if cp is not None:
-            cp.register(traj)
-            if restored is None:
-                cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
-        state = _evolve_ris(
-            problem,
-            stepper,
-            controller,
-            traj,
-            state,
-            tau_min=tau_min,
-            progress=progress,
-            checkpointer=cp,
-        )
-        if cp is not None:
-            cp.save_or_warn(
-                stepper, controller, state, status="completed", where=_where(traj, state)
-            )
-    return traj
-
-
-def landing_record(stepper: RISStepper, state: RISState) -> dict:
-    """How the run ended: on T within ``t_tol`` = 1e-10 max(1, T) (``landed``), or at S.
-
-    ``t_final_minus_T`` is the signed miss; ``landed`` is False only if the landing iteration
-    (at most ``max_landing_retries`` shortened attempts of the last step) did not reach the
-    tolerance, in which case the last accepted step is the attempt closest to T.
-    """
-    T = stepper.problem.T
-    ended_by_S = stepper.S is not None and state.t < T - stepper.t_tol
-    return {
-        "ended_by": "S" if ended_by_S else "T",
-        "T": T,
-        "t_final": float(state.t),
-        "t_final_minus_T": float(state.t - T),
-        "tolerance": stepper.t_tol,
-        "landed": bool(ended_by_S or abs(state.t - T) <= stepper.t_tol),
-    }
-
-
-def run_nested(
-    problem: RISProblem,
-    tols,
-    *,
-    tau: float = 0.1,
-    tau_min: float = 1e-12,
-    tau_max: float = math.inf,
-    inner: InnerOptions | None = None,
-    simpson_subintervals: int = 8,
-    progress=False,
-    keep_every: int = 1,
-    checkpoint=None,
-    resume=None,
-    space=None,
-) -> list[Trajectory]:
-    """Alg. 6.2: runs for tol_1 > tol_2 > ...; run n never steps over a grid point of runs < n.
-
-    ``checkpoint`` / ``resume`` as for :func:`run_ris`; a checkpoint holds the finished runs and
-    the state of the one under way. ``space`` as for :func:`run_ris`: every run adapts its own
-    mesh hierarchy from the problem's mesh.
-    """
-    from ..errors import check_decreasing
-
-    tols = check_decreasing("tols", tols)
-    extra = {} if space is None else {"space": space.describe()}
-    arguments = run_arguments(
-        tols=tols,
-        tau=tau,
-        tau_min=tau_min,
-        tau_max=tau_max,
-        inner=asdict(inner or InnerOptions()),
-        simpson_subintervals=simpson_subintervals,
-        keep_every=keep_every,
-        **extra,
-    )
-    with RunCheckpointing("run_nested", problem, arguments, checkpoint, resume) as rc:
-        cp, restored = rc.checkpointer, rc.restored
-        runs: list[Trajectory] = []
-        start = 0
-        if restored is not None:
-            start = int(restored.state["run"]["nested_index"])
-            runs = [restored.trajectory(i) for i in range(start)]
-            if space is not None:  # the finished runs' meshes are in the checkpoint's context
-                from ..io.mesh_series import MeshSeries
-
-                for r, data in zip(runs, restored.state["run"].get("series", []), strict=False):
-                    r.meshes = MeshSeries.restore_state(data)
-            if cp is not None:
-                for r in runs:
-                    cp.register(r)
-        grid = np.empty(0)
-        for r in runs:
-            grid = np.union1d(grid, r["s"][1:])
-        for i in range(start, len(tols)):
-            tol = tols[i]
-            nested = i > 0
-            controller = make_controller(
-                "nested" if nested else "adaptive",
-                tol=tol,
-                tau=tau,
-                tau_min=tau_min,
-                tau_max=tau_max,
-                grid=grid if nested else None,
-            )
-            stepper = RISStepper(
-                problem, inner, simpson_subintervals, keep_every=keep_every, space=space
-            )
-            info = {
-                "example": problem.name,
-                "control": controller.name,
-                "tol": tol,
-                "tau0": tau,
-                "nested_index": i,
-            }
-            if space is not None:
-                info["space"] = space.describe()
-            if cp is not None:
-                cp.context = {"nested_index": i}
-                if space is not None:
-                    cp.context["series"] = [r.meshes.checkpoint_state() for r in runs]
-            if restored is not None and i == start:
-                traj = restored.trajectory(i)
-                traj.meta.update(info)
-                traj.meta["sessions"] = restored.sessions + 1
-                state = stepper.restore_state(restored.state["stepper"])
-                if stepper.space is not None:
-                    _space_trajectory(traj, stepper.space)
-                controller.restore_state(restored.state["controller"])
-                if cp is not None:
-                    cp.register(traj)
-            else:
-                traj = initial_trajectory(problem, info, stepper.space)
-                state = RISState(s=0.0, t=0.0, z=problem.z0.copy())
-                if cp is not None:
-                    cp.register(traj)
-                    cp.save_or_warn(stepper, controller, state, where=_where(traj, state))
-            try:
-                state = _evolve_ris(
-                    problem,
-                    stepper,
-                    controller,
-                    traj,
-                    state,
-                    tau_min=tau_min,
-                    progress=progress,
-                    checkpointer=cp,
-                )
-            except RunFailed as exc:
-                exc.where["nested_tol"] = tol
-                raise
-            runs.append(traj)
-            grid = np.union1d(grid, traj["s"][1:])
-        if cp is not None:
-            cp.context = {"nested_index": len(tols)}
-            if space is not None:
-                cp.context["series"] = [r.meshes.checkpoint_state() for r in runs]
-            last = runs[-1]
-            cp.save_or_warn(
-                status="completed",
-                where={
-                    "accepted_steps": last.stats.accepted_steps,
-                    "s": float(last["s"][-1]),
-                    "t": float(last["t"][-1]),
-                },
-            )
-    return runs

@@ -279,13 +279,16 @@ class ErrorNormController(StepController):
 
 @dataclass(frozen=True)
 class Uniform:
-    """Equal steps ``tau`` (RIS: in s, a failed solve retried with half the step; ELD: in t,
+    """Equal steps ``tau`` (RIS: in s, a failed solve retried with half the step, the run
+    stopping where that would go below ``tau_min``, None: the family's default; ELD: in t,
     T/tau must be an integer, a failed step stops the run)."""
 
     tau: float
+    tau_min: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "tau", check_positive("tau", self.tau))
+        _check_step_range(self)
 
 
 @dataclass(frozen=True)
@@ -336,12 +339,12 @@ class Adaptive:
 def _check_step_range(spec) -> None:
     """tau, tau_min, tau_max of a step-control object: positive, and tau_min <= tau <= tau_max."""
     for name in ("tau", "tau_min", "tau_max"):
-        value = getattr(spec, name)
+        value = getattr(spec, name, None)
         if value is not None:
             if name == "tau_max" and value == math.inf:
                 continue
             object.__setattr__(spec, name, check_positive(name, value))
-    tau, lo, hi = spec.tau, spec.tau_min, spec.tau_max
+    tau, lo, hi = spec.tau, spec.tau_min, getattr(spec, "tau_max", None)
     if tau is not None and lo is not None and lo > tau:
         raise fail("tau_min", lo, f"must be <= the first step tau = {tau:g}")
     if tau is not None and hi is not None and hi < tau:

@@ -3,11 +3,11 @@
 A family defines its codes as a subclass of :class:`ResultCode`, each member with its value (the
 short code stored in trajectories and summaries) and its message::
 
-    class RISResult(ResultCode):
+    class RISCode(ResultCode):
         SUCCESSFUL = "ok", "the step's solve converged"
         STALLED = "stalled", "the inner solver stopped making progress"
 
-``RISResult("stalled") is RISResult.STALLED``; ``RISResult.STALLED.message`` is the text;
+``RISCode("stalled") is RISCode.STALLED``; ``RISCode.STALLED.message`` is the text;
 ``str(code)`` is the value, so a code compares equal to its string (``code == "stalled"``) and
 serializes as one.
 """

@@ -39,7 +39,7 @@ import numpy as np
 
 from ...errors import RotheInputError, described, fail
 from ...timing import PhaseTimes
-from .bisection import AdaptiveMesh, MeshChange
+from .bisection import AdaptiveMesh, MeshChange, _compose
 from .hysteresis import VertexHistory
 from .marking import SpaceAdaptivity, band_marking, doerfler_marking
 
@@ -254,8 +254,6 @@ class MeshAdaptation:
     def _refine_band(self, change: MeshChange) -> MeshChange:
         """Bisect the band cells still below their target generation (:meth:`_mark`), a few
         rounds, composed into one change with one mesh id."""
-        from .bisection import _compose
-
         centres, target = self._band
         opts, amesh = self.options, self.amesh
         mesh_id = change.new_mesh_id

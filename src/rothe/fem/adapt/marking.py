@@ -55,6 +55,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ...errors import RotheInputError, check_int, check_real, described, fail
 
@@ -134,8 +135,6 @@ def band_marking(
     barycentre; ``behind``: those of them below the target of that nearest core cell (to be
     refined). One k-d tree query (scipy), no loop over cells.
     """
-    from scipy.spatial import cKDTree
-
     near = np.zeros(len(cells), dtype=bool)
     if radius <= 0.0 or len(core_centres) == 0:
         return near, near.copy()

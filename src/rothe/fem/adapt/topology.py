@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..mesh import barycentric_gradients
+
 #: local facets (as vertex lists) of a cell in scikit-fem order
 SKFEM_FACETS = {
     2: np.array([[0, 1], [1, 2], [0, 2]]),
@@ -144,32 +146,6 @@ def lagrange_gradients(lam: np.ndarray, glam: np.ndarray, degree: int) -> np.nda
     vert = (4.0 * lam - 1.0)[:, None] * g
     edge = np.stack([4.0 * (lam[a][None] * g[b] + lam[b][None] * g[a]) for a, b in SKFEM_EDGES[d]])
     return np.concatenate([vert, edge], axis=0)
-
-
-def barycentric_gradients(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(grad lambda (d+1, d, nc), |K| (nc,)) for points p (d, n) and cells t (d+1, nc).
-
-    Closed forms (no batched LAPACK): the rows of B^{-1}, B = [x_1 - x_0, ..., x_d - x_0].
-    """
-    d = p.shape[0]
-    e = [p[:, t[k]] - p[:, t[0]] for k in range(1, d + 1)]
-    if d == 2:
-        det = e[0][0] * e[1][1] - e[0][1] * e[1][0]
-        rows = [np.array([e[1][1], -e[1][0]]), np.array([-e[0][1], e[0][0]])]
-        fact = 2.0
-    else:
-        rows = [
-            np.cross(e[1], e[2], axis=0),
-            np.cross(e[2], e[0], axis=0),
-            np.cross(e[0], e[1], axis=0),
-        ]
-        det = np.sum(e[0] * rows[0], axis=0)
-        fact = 6.0
-    G = np.empty((d + 1, d, t.shape[1]))
-    for k in range(d):
-        G[k + 1] = rows[k] / det
-    G[0] = -G[1:].sum(axis=0)
-    return G, np.abs(det) / fact
 
 
 def barycentric(

@@ -1,10 +1,12 @@
-"""Theorem 4.5 at test size: data perturbations in both forms over two decades of tau."""
+"""The studies (rothe.eld.studies): Theorem 4.5 at test size (data perturbations in both forms
+over two decades of tau) and the convergence study with the scheme and form objects."""
 
 import numpy as np
 import pytest
 
-from rothe.eld import DataNoise, RayleighDamping
-from rothe.eld.studies import perturbation_study
+from rothe.eld import BDF2, Original, RayleighDamping
+from rothe.eld.studies import convergence_study, perturbation_study
+from rothe.errors import RotheInputError
 
 TAUS = (0.1, 0.01, 0.001)
 
@@ -47,12 +49,24 @@ def test_noise_in_the_load_affects_both_forms_alike():
         assert np.allclose(reg, orig, rtol=0.02), key
 
 
-def test_noise_depends_only_on_seed_and_step():
-    targets = ("G", "G_dot", "G_ddot")
-    a, b = DataNoise(1e-3, targets, seed=4), DataNoise(1e-3, targets, seed=4)
-    for j in (1, 7):
-        for x, y in zip(a.constraint_noise(j, 10), b.constraint_noise(j, 10), strict=True):
-            assert np.array_equal(x, y)
-    theta, xi, vartheta = a.constraint_noise(3, 1000)
-    assert np.abs(theta).max() <= 1e-3 and np.abs(theta).max() > 0.9e-3
-    assert not np.allclose(theta, xi) and not np.allclose(xi, vartheta)
+def test_convergence_study_takes_the_scheme_and_form_objects():
+    study = convergence_study(
+        Original(),
+        tau0=0.1,
+        halvings=2,
+        n=2,
+        degree=2,
+        damping=RayleighDamping(a=0.1, b=0.01),
+        scheme=BDF2(),
+    )
+    assert (study["form"], study["scheme"], study["data"], study["lifting"]) == (
+        "original",
+        "bdf2",
+        "points",
+        None,
+    )
+    assert study["tau"] == [0.1, 0.05, 0.025] and study["rate_u"] >= 1.8
+    with pytest.raises(RotheInputError, match=r"^form: got 'original', must be Regularized"):
+        convergence_study("original", halvings=1)
+    with pytest.raises(RotheInputError, match=r"^scheme: got 'bdf2', must be ImplicitEuler"):
+        perturbation_study((0.1, 0.05), scheme="bdf2")

@@ -1,4 +1,5 @@
-"""``rothe run ris-2d|ris-3d`` and ``rothe compare ris-2d``: outputs, bad input, failed runs."""
+"""``rothe run ris-2d|ris-3d|ris-front`` and ``rothe compare ris-2d``: outputs, bad input, failed
+runs; FE-RIS defects (cracks, the XDMF time axis, viscous jumps); ``--adapt-space``."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ import numpy as np
 import pytest
 
 from rothe.cli.main import main
-from rothe.fem.mesh import unit_cube, unit_square
+from rothe.fem.mesh import load_mesh, unit_cube, unit_square
 from rothe.io.trajectory import Trajectory
 from rothe.io.xdmf import read_series
+
+E = r"^rothe: error: "
 
 
 def run_cli(capsys, *argv):
@@ -41,7 +44,7 @@ def test_run_ris_2d_outputs(tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_nodes"] == 49 and summary["n_unknowns"] == 25
     assert summary["linear_solver"] == "splu" and summary["peak_memory_mb"] > 10
-    # the run lands on T = 1 within the landing tolerance 1e-10 max(1, T) (rothe.ris.stepper)
+    # the run lands on T = 1 within the landing tolerance 1e-10 max(1, T) (rothe.ris.run)
     assert summary["status"] == "completed" and summary["landing"]["landed"]
     assert abs(summary["t_final"] - 1.0) <= 1e-10
     assert summary["z_max"] == 0.0 and summary["z_min"] < -1.3
@@ -64,7 +67,7 @@ def test_run_ris_2d_outputs(tmp_path, capsys):
 def test_reported_linear_solver_is_the_one_that_ran(method):
     """summary.json names the solver from the size rule; it must match what the solver used."""
     from rothe.cli.ris_fem_commands import linear_solver_used
-    from rothe.ris.fem_problem import example_7_2
+    from rothe.ris.examples import example_7_2
     from rothe.ris.inner import InnerOptions
     from rothe.ris.stepper import RISState, RISStepper
 
@@ -321,44 +324,6 @@ def test_compare_ris_2d_table_figure_and_compare_json(tmp_path, capsys):
     assert bound["tau"] == 0.005 and 0.3 < bound["ratio_steps"] < 1.0
 
 
-def test_compare_rows_null_outside_the_uniform_range():
-    from rothe.cli.ris_fem_commands import compare_rows
-
-    def row(control, G, acc, tau0=0.1, tol=1e-4):
-        return {
-            "control": control,
-            "tol": tol,
-            "tau0": tau0,
-            "accepted_steps": acc,
-            "rejected_steps": 0,
-            "inner_solves": acc,
-            "newton_iterations": 2 * acc,
-            "wall_time_s": 0.01 * acc,
-            "max_residual": G / acc,
-            "sum_residual": G,
-            "status": "completed",
-        }
-
-    rows = [
-        row("regime", 0.5, 10),
-        row("regime", 0.05, 50),
-        row("regime", 2.0, 5),
-        row("uniform", 1.0, 100, tau0=0.01, tol=None),
-        row("uniform", 0.1, 1000, tau0=0.001, tol=None),
-    ]
-    out = compare_rows(rows)
-    # G = 0.5 between 1.0 (100 steps) and 0.1 (1000): log-log gives 100 * 2 = 200 steps
-    assert out[0]["ratio_steps"] == pytest.approx(10 / 200)
-    assert out[0]["ratio_seconds"] == pytest.approx(0.1 / 2.0)
-    assert out[1]["ratio_steps"] is None and out[2]["ratio_solves"] is None  # outside the range
-    assert out[3]["ratio_steps"] is None and out[3]["tol"] is None and out[3]["tau"] == 0.01
-    # a run that produced nothing (a lost task): its status only, nulls in compare.json
-    lost = {"control": "regime", "tol": 1e-5, "tau0": 0.1, "status": "lost: worker died"}
-    out = compare_rows(rows + [lost])
-    assert list(out[-1]) == list(out[0]) and out[-1]["solves"] is None
-    assert out[-1]["ratio_solves"] is None and out[0]["ratio_steps"] == pytest.approx(10 / 200)
-
-
 def test_compare_bad_input(tmp_path, capsys):
     code, _, err = run_cli(capsys, "compare", "ris-2d", "--taus", "0.1", "--out", str(tmp_path))
     assert code == 2 and err.strip() == (
@@ -370,3 +335,296 @@ def test_compare_bad_input(tmp_path, capsys):
     assert code == 2 and err.strip() == (
         "rothe: error: --controls: got 'nested', must be one of adaptive, order2, regime"
     )
+
+
+# -- FE-RIS defects on the command line (issue 10) -------------------------------------------------
+
+
+def cracked_square(n: int = 8):
+    """unit_square(n) cut along x = 1/2 for 0.3 < y < 0.7: the cells right of the cut use copies
+    of the nodes on it (what a mesh glued from two parts without merging looks like)."""
+    from skfem import MeshTri
+
+    m = unit_square(n)
+    p, t = m.p, m.t.copy()
+    cut = np.nonzero(np.isclose(p[0], 0.5) & (p[1] > 0.3) & (p[1] < 0.7))[0]
+    right = p[0, t].mean(axis=0) > 0.5
+    copy = np.arange(p.shape[1])
+    copy[cut] = p.shape[1] + np.arange(cut.size)
+    t[:, right] = copy[t[:, right]]
+    return MeshTri(np.hstack([p, p[:, cut]]), t), m
+
+
+def wall(mid):
+    on = (mid[0] < 1e-9) | (mid[0] > 1 - 1e-9) | (mid[1] < 1e-9) | (mid[1] > 1 - 1e-9)
+    return np.where(on, "wall", "cut")
+
+
+def test_duplicate_nodes_refused_merged_or_kept(tmp_path, capsys, gmsh_text):
+    cracked, plain = cracked_square(4)
+    path = gmsh_text.write_msh22(tmp_path / "crack.msh", cracked, wall)
+    # accepted before, with another energy (-45.6 instead of -102.3 on this grid, tol 1e-3)
+    code, _, err = run_cli(
+        capsys, "run", "ris-2d", "--mesh", str(path), "--out", str(tmp_path / "a")
+    )
+    assert code == 2 and err.strip() == (
+        f"rothe: error: --mesh: got '{path}', has 1 pair(s) of coincident nodes used by "
+        "different cells (the first at (0.5, 0.5)): the mesh is cut there like a crack; "
+        "--duplicate-nodes merge glues them, keep takes the cut as intended"
+    )
+    energies = {}
+    for how, mesh in (("merge", str(path)), ("keep", str(path)), (None, None)):
+        out = tmp_path / str(how)
+        if how is None:
+            argv = ["--n", "4"]
+        else:
+            argv = ["--mesh", mesh, "--duplicate-nodes", how]
+        code, _, err = run_cli(
+            capsys,
+            "run",
+            "ris-2d",
+            *argv,
+            "--control",
+            "uniform",
+            "--tau",
+            "0.1",
+            "--no-plots",
+            "--quiet",
+            "--out",
+            str(out),
+        )
+        assert code == 0, err
+        energies[how] = json.loads((out / "summary.json").read_text())["energy_final"]
+    assert energies["merge"] == pytest.approx(energies[None], rel=1e-9)
+    assert energies["keep"] > energies[None] + 10  # the cut is a Dirichlet boundary there
+
+
+def test_load_mesh_merge_gives_the_uncut_mesh(tmp_path, gmsh_text):
+    cracked, plain = cracked_square(6)
+    path = gmsh_text.write_msh22(tmp_path / "crack.msh", cracked, wall)
+    merged = load_mesh(path, duplicate_nodes="merge")
+    kept = load_mesh(path, duplicate_nodes="keep")
+    assert merged.p.shape == plain.p.shape and kept.p.shape == cracked.p.shape
+    # same cells on the same coordinates
+    cells = lambda m: {tuple(sorted(map(tuple, np.round(m.p[:, c].T, 12)))) for c in m.t.T}  # noqa: E731
+    assert cells(merged) == cells(plain)
+    assert merged.boundary_nodes().size == plain.boundary_nodes().size
+    assert kept.boundary_nodes().size > plain.boundary_nodes().size  # the cut's faces
+    with pytest.raises(ValueError, match=r"^duplicate_nodes: got 'glue', must be one of error, "):
+        load_mesh(path, duplicate_nodes="glue")
+
+
+@pytest.mark.parametrize("axis", ["s", "t"])
+def test_xdmf_time_axis(tmp_path, capsys, axis):
+    out = tmp_path / axis
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--no-plots",
+        "--quiet",
+        "--xdmf-time",
+        axis,
+        "--out",
+        str(out),
+    )
+    assert code == 0, err
+    with np.load(out / "trajectory.npz") as f:
+        s, t, z = f["s"], f["t"], f["z"]
+    _, _, times, data = read_series(out / "solution.xdmf")
+    assert np.all(np.diff(times) > 0)  # ParaView's slider needs distinct, increasing times
+    if axis == "s":
+        assert np.array_equal(times, s) and np.array_equal(data["z"], z)
+    else:
+        assert len(times) < len(t)  # the jump's states share one t: only its end state is kept
+        assert times[-1] == t[-1] and np.array_equal(data["z"][-1], z[-1])
+        keep = [int(np.nonzero(t == x)[0][-1]) for x in times]
+        assert np.array_equal(data["z"], z[keep])
+    text = (out / "solution.xdmf").read_text()
+    assert f'Name="{"t" if axis == "s" else "s"}"' in text  # the other axis as Information
+
+
+def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
+    """The issue's disk (skfem init_circle(4), 545 nodes, Dirichlet on the left half): the t(s)
+    figure shows one plateau, the summary said n_viscous_jumps 318 and printed 318 times."""
+    from skfem import MeshTri
+
+    path = gmsh_text.write_msh22(
+        tmp_path / "disk.msh",
+        MeshTri.init_circle(4),
+        lambda mid: np.where(mid[0] < 0, "wall", "free"),
+    )
+    out = tmp_path / "o"
+    code, stdout, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--mesh",
+        str(path),
+        "--dirichlet",
+        "wall",
+        "--no-plots",
+        "--out",
+        str(out),
+    )
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_nodes"] == 545
+    assert summary["n_viscous_jumps"] == 1
+    assert summary["viscous_jumps"][0]["t"] == pytest.approx(0.1719, abs=1e-3)
+    assert summary["catch_up_steps"] > 100  # the single t' = 0 steps, not counted
+    branch = next(line for line in stdout.splitlines() if line.strip().startswith("branch"))
+    assert "1 viscous jump(s) at t = 0.1719 (+" in branch and len(branch) < 200
+
+
+# -- --adapt-space (issue 8) -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is only used with --adapt-space"),
+        (
+            ["--adapt-space", "--refine-fraction", "1.5"],
+            E + r"--refine-fraction: got 1.5, must be in \(0, 1\)",
+        ),
+        (["--adapt-space", "--space-tol", "0"], E + r"--space-tol: got 0(\.0)?, must be > 0"),
+        (["--adapt-space", "--adapt-every", "0"], E + r"--adapt-every: got 0, must be an integ"),
+        (
+            ["--adapt-space", "--refine-fraction", "0.7", "--coarsen-fraction", "0.4"],
+            E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1",
+        ),
+        (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
+    ],
+)
+def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
+    code, out, err = run_cli(
+        capsys, "run", "ris-front", "--n", "4", "--out", str(tmp_path / "o"), *argv
+    )
+    assert code == 2 and err.count("\n") == 1, err
+    assert __import__("re").match(message, err), err
+
+
+def test_cli_refuses_a_quadrilateral_mesh(capsys, tmp_path):
+    import meshio
+
+    pts = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1]], dtype=float)
+    path = tmp_path / "quads.vtu"
+    meshio.write(str(path), meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3], [1, 4, 5, 2]]))]))
+    capsys.readouterr()  # meshio's warning about 2D points
+    code, out, err = run_cli(
+        capsys, "run", "ris-2d", "--mesh", str(path), "--adapt-space", "--out", str(tmp_path / "o")
+    )
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith("rothe: error: --adapt-space: got a mesh of quadrilaterals"), err
+
+
+def test_cli_run_writes_meshes_pvd_and_figures(capsys, tmp_path):
+    import meshio
+
+    from rothe.io.mesh_series import read_pvd
+
+    out = tmp_path / "front"
+    code, stdout, err = run_cli(
+        capsys,
+        "run",
+        "ris-front",
+        "--n",
+        "4",
+        "--adapt-space",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--max-dofs",
+        "300",
+        "--space-tol",
+        "3",
+        "--out",
+        str(out),
+        "--quiet",
+    )
+    assert code == 0, err
+    traj = Trajectory.load_npz(out / "trajectory.npz")
+    assert traj.meshes is not None and len(traj.meshes) > 1
+    assert len(traj["z"]) == len(traj["z_mesh_id"]) == len(traj) + 1
+    times, files = read_pvd(out / "solution.pvd")
+    assert len(files) == len(traj["z"]) and np.all(np.diff(times) > 0)
+    m = meshio.read(files[-1])
+    assert np.allclose(m.point_data["z"], traj["z"][-1])
+    for name in ("fig_dofs.png", "fig_mesh_snapshots.png", "fig1_path.png"):
+        assert (out / name).stat().st_size > 0
+
+
+def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
+    """The 3D command adapts (bisected tetrahedra, coarsening included) and keeps every mesh
+    within --max-dofs; the run still ends on T with every step KKT-exact."""
+    import json
+
+    out = tmp_path / "cube"
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-3d",
+        "--n",
+        "3",
+        "--adapt-space",
+        "--control",
+        "uniform",
+        "--tau",
+        "0.1",
+        "--max-dofs",
+        "400",
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plots",
+    )
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["adapt_space"]["max_dofs"] == 400
+    assert summary["n_meshes"] > 2 and abs(summary["t_final"] - 1.0) <= 1e-10
+    traj = Trajectory.load_npz(out / "trajectory.npz")
+    for mesh_id in set(traj["z_mesh_id"].tolist()):
+        points, cells = traj.meshes.mesh(mesh_id)
+        assert points.shape[1] == 3 and cells.shape[1] == 4  # tetrahedra
+        assert points.shape[0] <= 400
+    assert np.all(traj["kkt"] <= traj["kkt_tol"])
+    assert np.all(traj["descent"] >= 0.0)
+
+
+@pytest.mark.parametrize(
+    "command, cap", [("ris-2d", 100_000), ("ris-front", 100_000), ("ris-3d", 50_000)]
+)
+def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
+    # Example 7.2's state has kinks that keep the estimate above any --space-tol: uncapped, a
+    # 3D run at --n 4 went from 27 to 740 000 unknowns (4.7 GB) before t = 0.64
+    import argparse
+
+    from rothe.cli.ris_fem_commands import add_space_options, space_from_args
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--mesh", default=None)
+    add_space_options(parser, 1.0, cap)
+    space = space_from_args(parser.parse_args(["--adapt-space"]), 1.0, cap)
+    assert space.max_dofs == cap
+    assert (
+        space_from_args(
+            parser.parse_args(["--adapt-space", "--max-dofs", "500"]), 1.0, cap
+        ).max_dofs
+        == 500
+    )
+    capsys.readouterr()
+    try:
+        main(["run", command, "--help"])
+    except SystemExit:
+        pass
+    help_text = " ".join(capsys.readouterr().out.split())
+    number = f"{cap:_}".replace("_", " ")
+    assert f"--max-dofs MAX_DOFS cap on the nodes of an adapted mesh (default {number}" in help_text

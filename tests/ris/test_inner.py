@@ -1,4 +1,5 @@
-"""The inner step (3.1)+(3.2) on random non-convex problems; Lemma 4.1 checked independently."""
+"""The inner step (3.1)+(3.2) on random non-convex problems; Lemma 4.1 checked independently;
+the result codes (RISCode) carry their messages and keep their string values."""
 
 import numpy as np
 import pytest
@@ -7,6 +8,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from rothe import BallStepSolver, InnerOptions, RISProblem
+from rothe.ris.inner import RISCode
+from rothe.stepping.results import ResultCode
 
 
 def random_problem(seed, n, sparse=False, coupled_F=False):
@@ -126,7 +129,7 @@ def test_first_jump_step_just_past_the_end_of_sticking_leaves_the_saddle_at_once
     of |D_z I| over r is ~1e-5 of r, so the iterates escape z = 0 slowly; once their direction
     has negative curvature the ray to the sphere is taken (8 iterations and 7 factorizations
     without it on 32 x 32, 22 and 18 on 320 x 320)."""
-    from rothe.ris.fem_problem import example_7_2
+    from rothe.ris.examples import example_7_2
 
     p = example_7_2(32)
     solver = BallStepSolver(p, InnerOptions(linear_solver="direct"))
@@ -180,3 +183,31 @@ def test_curvature_check_tells_a_saddle_from_a_minimum():
     assert not solver._positive_curvature(down, hdiag_down, 0.0, nodes, delta)
     # a shift nu M large enough makes it a minimum again
     assert solver._positive_curvature(down, hdiag_down, 10.0 / problem.m.min(), nodes, delta)
+
+
+def test_result_codes_keep_their_strings_and_carry_their_messages():
+    """The codes stored in trajectories, where-dicts and summaries are the strings they were;
+    the likely cause of a stop is the member's message (FAILURE_HINTS before)."""
+    import json
+
+    assert issubclass(RISCode, ResultCode)
+    values = {"running", "converged", "max_iterations", "stalled", "nonfinite", "data_beyond_T"}
+    assert {c.value for c in RISCode} == values
+    for code in RISCode:
+        assert code == code.value and str(code) == code.value and f"{code}" == code.value
+        assert RISCode(code.value) is code and code.message
+        assert json.loads(json.dumps({"code": code})) == {"code": code.value}
+    assert RISCode.CONVERGED.successful and not RISCode.STALLED.successful
+    cause = "dF or d2F probably does not belong to F"
+    assert cause in RISCode.STALLED.hint and cause in RISCode.MAX_ITERATIONS.hint
+    assert "non-finite value" in RISCode.NONFINITE.hint
+    assert RISCode.CONVERGED.hint is None and RISCode.DATA_BEYOND_T.hint is None
+    assert RISCode.RUNNING.hint is None
+
+
+def test_a_solve_that_runs_out_of_iterations_says_so():
+    problem, rng = random_problem(11, 6)
+    res = BallStepSolver(problem, InnerOptions(max_iter=1)).solve(0.5, problem.z0, 1.0)
+    assert not res.converged and res.code is RISCode.MAX_ITERATIONS
+    res = BallStepSolver(problem).solve(0.5, problem.z0, 1.0)
+    assert res.converged and res.code is RISCode.CONVERGED

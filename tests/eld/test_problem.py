@@ -1,12 +1,15 @@
-"""Meshes from meshio (objects and files) with named parts, used by an ELD run."""
+"""The problem (rothe.eld.problem): on meshes from meshio (objects and files) with named parts,
+and its fingerprint (what a checkpoint must match)."""
 
 import meshio
 import numpy as np
 import pytest
 
-from rothe.eld import DirichletData, ELDProblem, Material, run_eld
+from rothe.eld import DirichletData, ELDProblem, Material, RayleighDamping, mms_problem, run_eld
 from rothe.errors import RotheInputError
 from rothe.fem import mesh as meshes
+from rothe.io.checkpoint import problem_fingerprint
+from rothe.stepping.controllers import Uniform
 
 POINTS = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0.5, 0], [1, 0.5, 0]], float)
 TRIANGLES = np.array([[0, 1, 5], [0, 5, 4], [4, 5, 3], [4, 3, 2]])
@@ -52,7 +55,7 @@ def test_gmsh_file_with_physical_groups_runs_an_eld_problem(tmp_path):
         },
         T=0.1,
     )
-    traj = run_eld(problem, "regularized", 0.05)
+    traj = run_eld(problem, control=Uniform(0.05)).trajectory
     assert traj["reaction_clamp"].shape == (2, 2)
     with pytest.raises(RotheInputError, match="dirichlet: got 'left', must be one of clamp"):
         ELDProblem(mesh, Material(1.0, 1.0, 1.0), dirichlet={"left": lambda t, x: 0 * x})
@@ -61,3 +64,27 @@ def test_gmsh_file_with_physical_groups_runs_an_eld_problem(tmp_path):
 def test_missing_mesh_file_is_a_one_line_error(tmp_path):
     with pytest.raises(RotheInputError, match=r"^mesh: got '.*nope.msh', no such file$"):
         meshes.load_mesh(tmp_path / "nope.msh")
+
+
+def test_the_fingerprint_names_what_differs_and_is_what_checkpoints_compare():
+    problem, _ = mms_problem(2, 1)
+    fp = problem.fingerprint()
+    assert problem_fingerprint(problem) == fp
+    assert set(fp) == {
+        "class",
+        "ndofs",
+        "T",
+        "M",
+        "K",
+        "B",
+        "initial",
+        "load",
+        "G",
+        "damping",
+        "description",
+    }
+    assert fp["class"] == "ELDProblem" and fp["ndofs"] == problem.space.ndofs and fp["T"] == 1.0
+    assert mms_problem(2, 1)[0].fingerprint() == fp  # a pure function of the problem
+    other = mms_problem(2, 1, damping=RayleighDamping(0.1, 0.01))[0].fingerprint()
+    assert {k for k in fp if fp[k] != other[k]} == {"load", "damping", "description"}
+    assert mms_problem(3, 1)[0].fingerprint()["M"] != fp["M"]

@@ -1,10 +1,11 @@
-"""Issue 8 (RIS half): RIS runs on meshes that change between steps.
+"""Issue 8 (RIS half): RIS runs on meshes that change between steps (rothe.ris.adapt).
 
 Every accepted step is checked on its own mesh, independently of the solver's own report:
 the ball, (4.1), the stationarity (4.4) in its nodal form, the descent (3.2) from the
 *transferred* z_{k-1}, and Lemma 4.12 (I2 >= 0). Further: transfer exact on refinement, a run in
 which nothing is marked is the fixed-mesh run bit for bit, the front example coarsens behind its
-front, bad input, the checkpoint round trip and an interrupted + resumed run.
+front, bad input, the seconds of every phase of the adapt step, the checkpoint round trip and
+an interrupted + resumed run. (The command line's --adapt-space: tests/cli/test_cli_ris_fem.py.)
 """
 
 from __future__ import annotations
@@ -16,28 +17,19 @@ import signal
 import numpy as np
 import pytest
 
-from rothe.cli.main import main
 from rothe.errors import RotheInputError, RunInterrupted
 from rothe.fem.adapt import AdaptiveMesh, SpaceAdaptivity, free_transfer
 from rothe.io.checkpoint import CheckpointOptions
 from rothe.io.trajectory import Trajectory
-from rothe.ris.controllers import make_controller
-from rothe.ris.examples import example_7_1
-from rothe.ris.fem_problem import FERISProblem, example_7_2, example_front, g_7_2
-from rothe.ris.inner import InnerOptions
-from rothe.ris.stepper import RISState, RISStepper, initial_trajectory, run_ris
+from rothe.ris.controllers import Nested, build_controller
+from rothe.ris.examples import example_7_1, example_7_2, example_front, g_7_2
+from rothe.ris.fem_problem import FERISProblem
+from rothe.ris.run import initial_trajectory, run_nested, run_ris
+from rothe.ris.stepper import RISState, RISStepper
+from rothe.stepping.controllers import Adaptive, Uniform
 from rothe.stepping.evolve import evolve
 
-DIRECT = InnerOptions(linear_solver="direct")
-
-
-E = r"^rothe: error: "
-
-
-def run_cli(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
+from .conftest import DIRECT
 
 
 def check_step_on_its_mesh(problem, t_prev, z_prev, result):
@@ -75,7 +67,7 @@ def checked_steps(monkeypatch):
         t_prev, z_prev = self._start
         check_step_on_its_mesh(result.problem, t_prev, z_prev, result)
         seen["steps"] += 1
-        if self.space is not None:
+        if self.adaptivity is not None:
             seen["mesh_ids"].add(result.mesh_id)
         return original(self, traj, result, state)
 
@@ -89,10 +81,10 @@ def front_options(**kw):
     return SpaceAdaptivity(**base)
 
 
-@pytest.mark.parametrize("control", ["adaptive", "uniform"])
+@pytest.mark.parametrize("control", [Adaptive(1e-2, tau=0.05), Uniform(0.05)])
 def test_every_step_of_an_adapted_run_is_kkt_exact_on_its_mesh(checked_steps, control):
     p = example_front(4, T=0.2)
-    traj = run_ris(p, control, tol=1e-2, tau=0.05, inner=DIRECT, space=front_options(max_dofs=300))
+    traj = run_ris(p, control, inner=DIRECT, adapt=front_options(max_dofs=300)).trajectory
     assert checked_steps["steps"] == len(traj) > 10
     assert len(checked_steps["mesh_ids"]) >= 3  # the steps ran on several meshes
     ids, dofs = np.asarray(traj["mesh_id"]), np.asarray(traj["n_dofs"])
@@ -105,10 +97,12 @@ def test_every_step_of_an_adapted_run_is_kkt_exact_on_its_mesh(checked_steps, co
 
 
 def test_nested_control_adapts_every_run(checked_steps):
-    from rothe.ris.stepper import run_nested
-
     p = example_front(4, T=0.1)
-    runs = run_nested(p, [2e-2, 1e-2], tau=0.05, inner=DIRECT, space=front_options(max_dofs=200))
+    results = run_nested(
+        p, Nested([2e-2, 1e-2], tau=0.05), inner=DIRECT, adapt=front_options(max_dofs=200)
+    )
+    runs = [r.trajectory for r in results]
+    assert all(r.meshes is r.trajectory.meshes and r.meshes is not None for r in results)
     assert len(runs) == 2 and all(r.meta["space_adaptations"] >= 1 for r in runs)
     assert checked_steps["steps"] == sum(len(r) for r in runs)
 
@@ -140,15 +134,13 @@ def test_transfer_is_exact_on_refinement():
 
 def test_nothing_marked_is_the_fixed_mesh_run_bit_for_bit():
     p = example_7_2(5, T=0.4)
-    fixed = run_ris(p, "adaptive", tol=1e-3, tau=0.1, inner=DIRECT)
+    fixed = run_ris(p, Adaptive(1e-3, tau=0.1), inner=DIRECT).trajectory
     same = run_ris(
         p,
-        "adaptive",
-        tol=1e-3,
-        tau=0.1,
+        Adaptive(1e-3, tau=0.1),
         inner=DIRECT,
-        space=SpaceAdaptivity(space_tol=1e9, coarsen_fraction=1e-300),
-    )
+        adapt=SpaceAdaptivity(space_tol=1e9, coarsen_fraction=1e-300),
+    ).trajectory
     assert same.meta["space_adaptations"] == 0 and len(fixed) == len(same) > 5
     for key in fixed.keys():
         a, b = fixed[key], same[key]
@@ -166,13 +158,8 @@ def test_the_front_example_coarsens_behind_its_front():
     behind the front has arrived there)."""
     p = example_front(4, T=1.0)
     traj = run_ris(
-        p,
-        "uniform",
-        tol=None,
-        tau=0.1,
-        inner=DIRECT,
-        space=front_options(max_dofs=400, space_tol=3.0),
-    )
+        p, Uniform(0.1), inner=DIRECT, adapt=front_options(max_dofs=400, space_tol=3.0)
+    ).trajectory
     dofs = np.asarray(traj["n_dofs"])
     peak = int(np.argmax(dofs))
     assert dofs[peak] > 2 * dofs[0]
@@ -189,10 +176,10 @@ def test_the_front_example_coarsens_behind_its_front():
 
 def test_bad_input_is_refused_with_one_line():
     p = example_7_2(4)
-    with pytest.raises(RotheInputError, match=r"^space: got a dict, must be a "):
-        run_ris(p, "adaptive", space={"space_tol": 1.0})
-    with pytest.raises(RotheInputError, match=r"^space: got a RISProblem problem"):
-        run_ris(example_7_1(), "adaptive", space=SpaceAdaptivity(space_tol=1.0))
+    with pytest.raises(RotheInputError, match=r"^adapt: got a dict, must be a "):
+        run_ris(p, Adaptive(1e-4), adapt={"space_tol": 1.0})
+    with pytest.raises(RotheInputError, match=r"^adapt: got a RISProblem problem"):
+        run_ris(example_7_1(), Adaptive(1e-4), adapt=SpaceAdaptivity(space_tol=1.0))
     nodal = FERISProblem(
         p.mesh,
         g_7_2,
@@ -200,86 +187,10 @@ def test_bad_input_is_refused_with_one_line():
         lambda z: 576 * z * z - 192,
         load=lambda t: -200 * t**3 * p.m_all,
     )
-    with pytest.raises(RotheInputError, match=r"^space: got a load given as nodal functionals"):
-        run_ris(nodal, "adaptive", space=SpaceAdaptivity(space_tol=1.0))
+    with pytest.raises(RotheInputError, match=r"^adapt: got a load given as nodal functionals"):
+        run_ris(nodal, Adaptive(1e-4), adapt=SpaceAdaptivity(space_tol=1.0))
     with pytest.raises(RotheInputError, match=r"^max_dofs: got 10, must be >= the 25 dofs"):
-        run_ris(p, "adaptive", space=SpaceAdaptivity(space_tol=1.0, max_dofs=10))
-
-
-@pytest.mark.parametrize(
-    "argv, message",
-    [
-        (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is only used with --adapt-space"),
-        (
-            ["--adapt-space", "--refine-fraction", "1.5"],
-            E + r"--refine-fraction: got 1.5, must be in \(0, 1\)",
-        ),
-        (["--adapt-space", "--space-tol", "0"], E + r"--space-tol: got 0(\.0)?, must be > 0"),
-        (["--adapt-space", "--adapt-every", "0"], E + r"--adapt-every: got 0, must be an integ"),
-        (
-            ["--adapt-space", "--refine-fraction", "0.7", "--coarsen-fraction", "0.4"],
-            E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1",
-        ),
-        (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
-    ],
-)
-def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
-    code, out, err = run_cli(
-        capsys, "run", "ris-front", "--n", "4", "--out", str(tmp_path / "o"), *argv
-    )
-    assert code == 2 and err.count("\n") == 1, err
-    assert __import__("re").match(message, err), err
-
-
-def test_cli_refuses_a_quadrilateral_mesh(capsys, tmp_path):
-    import meshio
-
-    pts = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1]], dtype=float)
-    path = tmp_path / "quads.vtu"
-    meshio.write(str(path), meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3], [1, 4, 5, 2]]))]))
-    capsys.readouterr()  # meshio's warning about 2D points
-    code, out, err = run_cli(
-        capsys, "run", "ris-2d", "--mesh", str(path), "--adapt-space", "--out", str(tmp_path / "o")
-    )
-    assert code == 2 and err.count("\n") == 1, err
-    assert err.startswith("rothe: error: --adapt-space: got a mesh of quadrilaterals"), err
-
-
-def test_cli_run_writes_meshes_pvd_and_figures(capsys, tmp_path):
-    import meshio
-
-    from rothe.io.mesh_series import read_pvd
-
-    out = tmp_path / "front"
-    code, stdout, err = run_cli(
-        capsys,
-        "run",
-        "ris-front",
-        "--n",
-        "4",
-        "--adapt-space",
-        "--control",
-        "uniform",
-        "--tau",
-        "0.1",
-        "--max-dofs",
-        "300",
-        "--space-tol",
-        "3",
-        "--out",
-        str(out),
-        "--quiet",
-    )
-    assert code == 0, err
-    traj = Trajectory.load_npz(out / "trajectory.npz")
-    assert traj.meshes is not None and len(traj.meshes) > 1
-    assert len(traj["z"]) == len(traj["z_mesh_id"]) == len(traj) + 1
-    times, files = read_pvd(out / "solution.pvd")
-    assert len(files) == len(traj["z"]) and np.all(np.diff(times) > 0)
-    m = meshio.read(files[-1])
-    assert np.allclose(m.point_data["z"], traj["z"][-1])
-    for name in ("fig_dofs.png", "fig_mesh_snapshots.png", "fig1_path.png"):
-        assert (out / name).stat().st_size > 0
+        run_ris(p, Adaptive(1e-4), adapt=SpaceAdaptivity(space_tol=1.0, max_dofs=10))
 
 
 def _run_to(stepper, controller, traj, state, S):
@@ -292,14 +203,14 @@ def test_checkpoint_round_trip_continues_bit_for_bit():
     opts = front_options(max_dofs=250)
 
     def fresh():
-        st = RISStepper(p, DIRECT, space=opts)
-        return st, make_controller("adaptive", tol=1e-2, tau=0.05)
+        st = RISStepper(p, DIRECT, adapt=opts)
+        return st, build_controller(Adaptive(1e-2, tau=0.05))
 
     stepper, controller = fresh()
-    traj = initial_trajectory(p, {}, stepper.space)
+    traj = initial_trajectory(p, {}, stepper.adaptivity)
     state = RISState(s=0.0, t=0.0, z=p.z0.copy())
     state = _run_to(stepper, controller, traj, state, 0.4)  # after several mesh changes
-    assert stepper.space.mesh_id >= 2
+    assert stepper.adaptivity.mesh_id >= 2
     saved = copy.deepcopy((stepper.checkpoint_state(state), controller.checkpoint_state()))
     a_traj, b_traj = Trajectory(), Trajectory()
     a_traj.set_ragged("z")
@@ -312,7 +223,7 @@ def test_checkpoint_round_trip_continues_bit_for_bit():
     assert np.array_equal(a.z, b.z) and a.s == b.s and a.t == b.t
     for key in a_traj.keys():
         assert all(np.array_equal(x, y) for x, y in zip(a_traj[key], b_traj[key], strict=True)), key
-    assert stepper2.space.mesh_id == stepper.space.mesh_id
+    assert stepper2.adaptivity.mesh_id == stepper.adaptivity.mesh_id
 
 
 def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
@@ -320,8 +231,8 @@ def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
 
     def make_run(**kw):
         return run_ris(
-            p, "adaptive", tol=1e-2, tau=0.05, inner=DIRECT, space=front_options(max_dofs=250), **kw
-        )
+            p, Adaptive(1e-2, tau=0.05), inner=DIRECT, adapt=front_options(max_dofs=250), **kw
+        ).trajectory
 
     full = make_run()
     original = RISStepper.step
@@ -354,69 +265,22 @@ def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
-def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
-    """The 3D command adapts (bisected tetrahedra, coarsening included) and keeps every mesh
-    within --max-dofs; the run still ends on T with every step KKT-exact."""
-    import json
-
-    out = tmp_path / "cube"
-    code, _, err = run_cli(
-        capsys,
-        "run",
-        "ris-3d",
-        "--n",
-        "3",
-        "--adapt-space",
-        "--control",
-        "uniform",
-        "--tau",
-        "0.1",
-        "--max-dofs",
-        "400",
-        "--out",
-        str(out),
-        "--quiet",
-        "--no-plots",
-    )
-    assert code == 0, err
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["adapt_space"]["max_dofs"] == 400
-    assert summary["n_meshes"] > 2 and abs(summary["t_final"] - 1.0) <= 1e-10
-    traj = Trajectory.load_npz(out / "trajectory.npz")
-    for mesh_id in set(traj["z_mesh_id"].tolist()):
-        points, cells = traj.meshes.mesh(mesh_id)
-        assert points.shape[1] == 3 and cells.shape[1] == 4  # tetrahedra
-        assert points.shape[0] <= 400
-    assert np.all(traj["kkt"] <= traj["kkt_tol"])
-    assert np.all(traj["descent"] >= 0.0)
-
-
-@pytest.mark.parametrize(
-    "command, cap", [("ris-2d", 100_000), ("ris-front", 100_000), ("ris-3d", 50_000)]
-)
-def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
-    # Example 7.2's state has kinks that keep the estimate above any --space-tol: uncapped, a
-    # 3D run at --n 4 went from 27 to 740 000 unknowns (4.7 GB) before t = 0.64
-    import argparse
-
-    from rothe.cli.ris_fem_commands import add_space_options, space_from_args
-
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--mesh", default=None)
-    add_space_options(parser, 1.0, cap)
-    space = space_from_args(parser.parse_args(["--adapt-space"]), 1.0, cap)
-    assert space.max_dofs == cap
-    assert (
-        space_from_args(
-            parser.parse_args(["--adapt-space", "--max-dofs", "500"]), 1.0, cap
-        ).max_dofs
-        == 500
-    )
-    capsys.readouterr()
-    try:
-        main(["run", command, "--help"])
-    except SystemExit:
-        pass
-    help_text = " ".join(capsys.readouterr().out.split())
-    number = f"{cap:_}".replace("_", " ")
-    assert f"--max-dofs MAX_DOFS cap on the nodes of an adapted mesh (default {number}" in help_text
+def test_the_adapt_step_records_the_seconds_of_each_phase(tmp_path):
+    """Issue 17: with adapt=, trajectory.stats.seconds holds the seconds of estimate, mark,
+    refine, rebuild and transfer (the adapt cycle), factor and solve, and the loop's own step,
+    adapt and record; they are written as stats_seconds_<phase>."""
+    p = example_front(4, T=0.15)
+    result = run_ris(p, Adaptive(1e-2, tau=0.05), inner=DIRECT, adapt=front_options(max_dofs=250))
+    seconds = result.statistics.seconds
+    assert result.trajectory.meta["space_adaptations"] >= 2
+    for phase in ("estimate", "mark", "refine", "rebuild", "transfer", "step", "adapt", "record"):
+        assert phase in seconds and seconds[phase] > 0.0, phase
+    # the adapt step's phases happen inside the loop's adapt phase
+    inner = sum(seconds[k] for k in ("estimate", "mark", "refine", "rebuild", "transfer"))
+    assert inner <= seconds["adapt"] * 1.05
+    with np.load(result.trajectory.save_npz(tmp_path / "t.npz")) as f:
+        assert float(f["stats_seconds_estimate"]) == seconds["estimate"]
+        assert float(f["stats_seconds_transfer"]) == seconds["transfer"]
+    # a fixed mesh has no adapt phases
+    fixed = run_ris(p, Adaptive(1e-2, tau=0.05), inner=DIRECT).statistics.seconds
+    assert not {"estimate", "mark", "refine", "rebuild", "transfer"} & set(fixed)

@@ -1,4 +1,4 @@
-"""Adaptive time steps: the error-norm controller, the local error estimate, adaptive runs."""
+"""Adaptive time steps (rothe.eld.controllers): the error-norm controller, adaptive runs."""
 
 import math
 from dataclasses import dataclass, field
@@ -6,10 +6,20 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from rothe.eld import NonlinearDamping, mms_problem, ramp_problem, run_eld, step_coefficients
-from rothe.eld.schemes import BDF2_RATIO_CAP, BOUND_SAFETY
+from rothe.eld import (
+    BDF2,
+    Differenced,
+    ImplicitEuler,
+    NonlinearDamping,
+    Regularized,
+    mms_errors,
+    mms_problem,
+    ramp_problem,
+    run_eld,
+)
+from rothe.eld.scheme import BDF2_RATIO_CAP, BOUND_SAFETY
 from rothe.errors import RotheInputError
-from rothe.stepping.controllers import ErrorNormController
+from rothe.stepping.controllers import Adaptive, ErrorNormController
 
 
 @dataclass
@@ -62,25 +72,10 @@ def test_error_norm_controller_rejects_accepts_and_limits_the_next_step():
         ErrorNormController(0.0, 0.1, order=2)
 
 
-@pytest.mark.parametrize("scheme,order", [("euler", 1), ("bdf2", 2)])
-def test_local_error_estimate_has_the_order_of_the_local_error(scheme, order):
-    """local_error ~ tau^(p+1) on a smooth solution: halving tau divides it by 2^(p+1)."""
-    problem, _ = mms_problem(2, 2)
-    a = run_eld(problem, "regularized", 0.02, scheme=scheme, store_fields=False)
-    b = run_eld(problem, "regularized", 0.01, scheme=scheme, store_fields=False)
-    # compare at the same times t = 0.2, 0.4, ..., 1.0 (away from the start)
-    ea = a["local_error"][9::10]
-    eb = b["local_error"][19::20]
-    ratio = np.median(ea / eb)
-    assert 2 ** (order + 1) * 0.8 <= ratio <= 2 ** (order + 1) * 1.25
-
-
 @pytest.fixture(scope="module")
 def ramp_run():
     problem = ramp_problem(2, 2)
-    return problem, run_eld(
-        problem, "regularized", 0.01, scheme="bdf2", control="adaptive", tol=1e-4
-    )
+    return problem, run_eld(problem, scheme=BDF2(), control=Adaptive(1e-4, tau=0.01)).trajectory
 
 
 def test_adaptive_bdf2_refines_at_the_ramp_and_keeps_its_limits(ramp_run):
@@ -97,63 +92,44 @@ def test_adaptive_bdf2_refines_at_the_ramp_and_keeps_its_limits(ramp_run):
     assert ratios.max() <= BDF2_RATIO_CAP * (1 + 1e-12)
     scale = np.abs(traj["energy"]).max() + np.abs(traj["work_reaction"]).max()
     assert np.abs(traj["balance_residual"]).max() <= 1e-12 * scale
+    assert traj.meta["ratio_cap"] == BDF2_RATIO_CAP and traj.meta["tol"] == 1e-4
 
 
 def test_adaptive_steps_never_exceed_the_solvability_bound():
     problem, _ = mms_problem(2, 1, damping=NonlinearDamping(d0=2.0), T=4.0)  # rho/d0 = 0.5
-    for scheme in ("euler", "bdf2"):
-        traj = run_eld(problem, "regularized", 0.1, scheme=scheme, control="adaptive", tol=0.5)
+    for scheme in (ImplicitEuler(), BDF2()):
+        traj = run_eld(problem, scheme=scheme, control=Adaptive(0.5, tau=0.1)).trajectory
         tau = traj["tau"]
         prev = [None] + list(tau[:-1])
-        eff = [t / step_coefficients(scheme, t, p)[0] for t, p in zip(tau, prev, strict=True)]
+        eff = [t / scheme.coefficients(t, p)[0] for t, p in zip(tau, prev, strict=True)]
         assert max(eff) <= BOUND_SAFETY * 0.5 * (1 + 1e-12)
         assert max(eff) > 0.8 * BOUND_SAFETY * 0.5  # the bound, not the error, limited it
 
 
 def test_adaptive_error_follows_the_tolerance():
     problem, exact = mms_problem(2, 2)
-    from rothe.eld import mms_errors
-
     errs, steps = [], []
     for tol in (1e-3, 1e-5):
-        traj = run_eld(
-            problem,
-            "regularized",
-            0.01,
-            scheme="bdf2",
-            control="adaptive",
-            tol=tol,
-            store_fields=False,
+        result = run_eld(
+            problem, scheme=BDF2(), control=Adaptive(tol, tau=0.01), store_fields=False
         )
-        errs.append(mms_errors(problem, exact, traj)["error_u_l2"])
-        steps.append(traj.stats.accepted_steps)
+        errs.append(mms_errors(exact, result)["error_u_l2"])
+        steps.append(result.statistics.accepted_steps)
     # local error ~ tau^3 ~ tol: 100x smaller tol, about 100^(1/3) = 4.6x more steps
     assert 3.0 <= steps[1] / steps[0] <= 7.0
     assert errs[1] < errs[0] / 10
 
 
-def test_adaptive_bad_input_is_one_line():
+def test_adaptive_defaults():
+    """Adaptive(tol): the first step 0.01, steps in [1e-10 T, T]."""
     problem, _ = mms_problem(2, 1)
-    with pytest.raises(RotheInputError, match=r"^tol: got 0, must be > 0$"):
-        run_eld(problem, "regularized", 0.1, control="adaptive", tol=0)
-    with pytest.raises(RotheInputError, match=r"^tol: got None, must be given"):
-        run_eld(problem, "regularized", 0.1, control="adaptive")
-    with pytest.raises(RotheInputError, match=r"^tol: got 0.001, is used by control='adaptive'"):
-        run_eld(problem, "regularized", 0.1, tol=1e-3)
-    with pytest.raises(
-        RotheInputError,
-        match=r"^control: got 'pid', must be one of uniform, "
-        "adaptive",
-    ):
-        run_eld(problem, "regularized", 0.1, control="pid")
-    with pytest.raises(RotheInputError, match=r"^scheme: got 'bdf3', must be one of euler, bdf2"):
-        run_eld(problem, "regularized", 0.1, scheme="bdf3")
-    with pytest.raises(RotheInputError, match=r"^tau: got 2, \(the first step\) must be <= T"):
-        run_eld(problem, "regularized", 2.0, control="adaptive", tol=1e-3)
+    traj = run_eld(problem, control=Adaptive(1e-2)).trajectory
+    assert traj.meta["tau"] == 0.01 and traj["tau"][0] == 0.01
+    assert traj.meta["tau_min"] == 1e-10 and traj.meta["tau_max"] == 1.0
     assert math.isfinite(BDF2_RATIO_CAP)
 
 
-@pytest.mark.parametrize("scheme", ["euler", "bdf2"])
+@pytest.mark.parametrize("scheme", [ImplicitEuler(), BDF2()], ids=["euler", "bdf2"])
 def test_differenced_data_step_control_does_not_depend_on_the_lifting(scheme):
     """With differenced data both liftings give the same u, v, a (to the Newton tolerance), so
     the adaptive runs must take about the same steps (the error scale S_j, taken from the lifted
@@ -164,14 +140,11 @@ def test_differenced_data_step_control_does_not_depend_on_the_lifting(scheme):
     runs = {
         lifting: run_eld(
             problem,
-            "regularized",
-            0.02,
+            form=Regularized(lifting),
             scheme=scheme,
-            control="adaptive",
-            tol=1e-4,
-            data="differenced",
-            lifting=lifting,
-        )
+            control=Adaptive(1e-4, tau=0.02),
+            data=Differenced(),
+        ).trajectory
         for lifting in ("nodal", "harmonic")
     }
     nodal, harmonic = runs["nodal"], runs["harmonic"]

@@ -1,22 +1,24 @@
 """Space-adaptive ELD runs (rothe.eld.adapt): constraint and lifting after every change, the
 ledger closing with the transfer term, nothing marked = the fixed mesh bit for bit, coarsening
-behind the pulse, bad input, checkpoint/resume bit for bit."""
+behind the pulse, the adapt step (a new state, the accepted one untouched; its phases timed),
+bad input, checkpoint/resume bit for bit."""
 
 from __future__ import annotations
 
+import copy
 import signal
 
 import numpy as np
 import pytest
 
-from rothe.eld import prepare_eld_run, run_eld
-from rothe.eld.adapt import SpaceAdaptiveStepper
+from rothe.eld import BDF2, Differenced, ImplicitEuler, Regularized, prepare_eld_run, run_eld
 from rothe.eld.examples import mms_problem, pulse_problem
 from rothe.errors import RotheInputError, RunFailed, RunInterrupted
 from rothe.fem.adapt import SpaceAdaptivity
 from rothe.io.checkpoint import CheckpointOptions, load_checkpoint
+from rothe.stepping.controllers import Adaptive, Uniform
 
-PULSE = dict(form="regularized", tau=0.02, scheme="bdf2")
+PULSE = dict(form=Regularized(), control=Uniform(0.02), scheme=BDF2())
 
 
 def pulse(T=0.4):
@@ -35,16 +37,17 @@ def adaptivity(**kw):
 def pulse_run():
     """One coarse adaptive pulse run, with every transfer checked as it happens."""
     problem = pulse()
-    run = prepare_eld_run(problem, space=adaptivity(), **PULSE)
-    stepper: SpaceAdaptiveStepper = run.stepper
+    run = prepare_eld_run(problem, adapt=adaptivity(), **PULSE)
+    family = run.stepper.adaptivity
     checks = []
-    original = stepper._new_stepper
+    original = family.transfer
 
-    def checked(new_problem, mapped):
-        inner, new = original(new_problem, mapped)
+    def checked(state, change, system, new_system):
+        new = original(state, change, system, new_system)
+        new_problem = new_system.problem
         c = new_problem.constraint
         t = new.t
-        lift = inner.lifting
+        lift = new_system.lifting
         f = new.fields
         checks.append(
             {
@@ -59,18 +62,18 @@ def pulse_run():
                 "x_gamma": np.max(np.abs(c.restrict(f["x"]))),
                 "sizes": {k: w.size == new_problem.space.ndofs for k, w in f.items()},
                 "lam": new.boundary["lam"].size == c.m,
-                "bound": inner.bound == problem.step_bound(),
+                "bound": new_problem.step_bound() == problem.step_bound(),
             }
         )
-        return inner, new
+        return new
 
-    stepper._new_stepper = checked
-    run.evolve()
-    return run, checks
+    family.transfer = checked
+    result = run.evolve()
+    return run, result, checks
 
 
 def test_constraint_and_lifting_hold_after_every_change(pulse_run):
-    run, checks = pulse_run
+    run, result, checks = pulse_run
     assert len(checks) >= 5
     for c in checks:
         assert c["u"] == 0.0 and c["v"] == 0.0 and c["a"] == 0.0
@@ -78,17 +81,17 @@ def test_constraint_and_lifting_hold_after_every_change(pulse_run):
         assert c["x_gamma"] == 0.0
         assert all(c["sizes"].values()) and c["lam"] and c["bound"]
     # every later step keeps the constraint on its own mesh
-    traj = run.trajectory
-    sp = traj.space
-    final = run.state
-    p = sp.problem
+    traj = result.trajectory
+    sp = result.meshes
+    final = result.state
+    p = result.problem
     assert np.array_equal(p.constraint.restrict(final.u), p.G(final.t))
     assert final.mesh_id == traj["mesh_id"][-1] and final.mesh_id in sp.series
 
 
 def test_ledger_closes_with_the_transfer_term(pulse_run):
-    run, _ = pulse_run
-    traj = run.trajectory
+    _, result, _ = pulse_run
+    traj = result.trajectory
     scale = np.max(np.abs(traj["energy"]))
     residual = np.max(np.abs(traj["balance_residual"]))
     assert residual <= 1e-12 * scale
@@ -98,16 +101,16 @@ def test_ledger_closes_with_the_transfer_term(pulse_run):
     # booked exactly at the steps after a mesh change: an adaptation after the previous step
     # or a refinement of the step's own mesh
     increments = np.diff(traj["transfer"])
-    adapted_after = {a["step"] for a in run.stepper.adaptations}
+    adapted_after = {a["step"] for a in result.meshes.adaptations}
     changed = np.array([(j - 1) in adapted_after for j in range(1, len(increments) + 1)])
     changed |= traj["step_refinements"] > 0
     assert np.all(increments[~changed] == 0.0) and np.any(increments[changed] != 0.0)
 
 
 def test_meshes_stored_once_and_ids_per_state(pulse_run):
-    run, _ = pulse_run
-    traj = run.trajectory
-    sp = traj.space
+    _, result, _ = pulse_run
+    traj = result.trajectory
+    sp = result.meshes
     ids = traj["mesh_id"]
     assert len(ids) == len(traj["t"]) and ids[0] == 0
     assert set(np.unique(ids)) <= set(sp.series.ids)
@@ -127,9 +130,9 @@ def test_meshes_stored_once_and_ids_per_state(pulse_run):
 
 
 def test_coarsening_returns_to_coarser_cells_after_the_pulse_passed(pulse_run):
-    run, _ = pulse_run
-    traj = run.trajectory
-    sp = traj.space
+    _, result, _ = pulse_run
+    traj = result.trajectory
+    sp = result.meshes
     assert sum(a["merges"] for a in sp.adaptations) > 0
 
     def cells_near_left(mesh_id):
@@ -148,45 +151,120 @@ def test_coarsening_returns_to_coarser_cells_after_the_pulse_passed(pulse_run):
 
 def test_nothing_marked_equals_the_fixed_mesh_bit_for_bit():
     problem, _ = mms_problem(3, 2, T=0.2)
-    opts = dict(form="regularized", tau=0.05, scheme="bdf2")
-    fixed = run_eld(problem, **opts)
-    adaptive = run_eld(problem, space=SpaceAdaptivity(space_tol=1e30, adapt_every=1), **opts)
-    assert adaptive.space.adaptations == []
+    opts = dict(control=Uniform(0.05), scheme=BDF2())
+    fixed_run = run_eld(problem, **opts)
+    adaptive_run = run_eld(problem, adapt=SpaceAdaptivity(space_tol=1e30, adapt_every=1), **opts)
+    fixed, adaptive = fixed_run.trajectory, adaptive_run.trajectory
+    assert adaptive_run.meshes.adaptations == []
     for key in fixed.keys():
         if key in ("u", "v", "a", "lam"):
-            kept = adaptive.space.kept[key]
+            kept = adaptive_run.meshes.kept[key]
             assert all(np.array_equal(x, y) for x, y in zip(fixed[key], kept, strict=True))
         else:
             assert np.array_equal(fixed[key], adaptive[key]), key
-    assert np.array_equal(fixed.final_state.u, adaptive.final_state.u)
+    assert np.array_equal(fixed_run.state.u, adaptive_run.state.u)
     assert np.all(adaptive["mesh_id"] == 0)
 
 
 def test_adaptive_time_steps_with_space_adaptivity():
-    traj = run_eld(
+    result = run_eld(
         pulse(0.08),
-        "regularized",
-        0.01,
-        scheme="bdf2",
-        control="adaptive",
-        tol=1e-2,
-        space=adaptivity(adapt_every=2, max_dofs=2000),
+        scheme=BDF2(),
+        control=Adaptive(1e-2, tau=0.01),
+        adapt=adaptivity(adapt_every=2, max_dofs=2000),
     )
-    assert traj.space.adaptations
-    assert all(a["step"] % 2 == 0 for a in traj.space.adaptations)
+    traj = result.trajectory
+    assert result.meshes.adaptations
+    assert all(a["step"] % 2 == 0 for a in result.meshes.adaptations)
     assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
     assert len(set(traj["tau"].tolist())) > 1
 
 
+def _fields_of(state):
+    return {
+        "t": state.t,
+        "j": state.j,
+        "mesh_id": state.mesh_id,
+        "ledger": copy.deepcopy(state.ledger),
+        **{f"f_{k}": w.copy() for k, w in state.fields.items()},
+        **{f"b_{k}": w.copy() for k, w in state.boundary.items()},
+        **{f"p_{k}": w.copy() for k, w in state.products.items()},
+    }
+
+
+def _same(a, b) -> bool:
+    return a.keys() == b.keys() and all(
+        np.array_equal(a[k], b[k]) if isinstance(a[k], np.ndarray) else a[k] == b[k] for k in a
+    )
+
+
+@pytest.mark.parametrize("scheme", [ImplicitEuler(), BDF2()], ids=["euler", "bdf2"])
+def test_the_adapt_step_returns_a_new_state_and_never_changes_the_accepted_one(scheme):
+    problem = pulse(0.2)
+    run = prepare_eld_run(problem, adapt=adaptivity(), control=Uniform(0.02), scheme=scheme)
+    stepper = run.stepper
+    state, changed = run.state, 0
+    for _ in range(6):
+        result = stepper.step(state, 0.02)
+        accepted = result.state
+        before = _fields_of(accepted)
+        arrays = {k: w for k, w in accepted.fields.items()}
+        new = stepper.adapt(accepted, result)
+        # the accepted state is what the step computed, bit for bit, and its arrays are its own
+        assert _same(before, _fields_of(accepted))
+        assert all(accepted.fields[k] is w for k, w in arrays.items())
+        if new is accepted:  # nothing changed: the same object, on the step's mesh
+            assert stepper.adaptivity.mesh_id == accepted.mesh_id
+        else:
+            changed += 1
+            assert new.mesh_id == stepper.adaptivity.mesh_id != accepted.mesh_id
+            assert all(new.fields[k] is not w for k, w in arrays.items())
+            assert new.fields["u"].size == stepper.problem.space.ndofs
+            # the step keeps its own mesh in the record; the new state goes on
+            assert result.system.problem is not stepper.problem
+            assert new.ledger.transfer != accepted.ledger.transfer
+            assert (new.t, new.j, new.tau_prev) == (accepted.t, accepted.j, accepted.tau_prev)
+        stepper.record(run.trajectory, result, new)
+        state = new
+    assert changed >= 2 and len(stepper.meshes.adaptations) == changed
+    traj = run.trajectory
+    assert len(traj["mesh_id"]) == len(traj["t"]) == 7
+    assert len(traj["space_estimate"]) == 6 and np.all(np.isfinite(traj["space_estimate"]))
+
+
+def test_the_seconds_of_every_phase_are_in_the_statistics(tmp_path):
+    problem = pulse(0.1)
+    result = run_eld(problem, adapt=adaptivity(), **PULSE)
+    seconds = result.statistics.seconds
+    for phase in (
+        "estimate",
+        "mark",
+        "refine",
+        "rebuild",
+        "transfer",
+        "factor",
+        "solve",
+        "step",
+        "adapt",
+        "record",
+    ):
+        assert seconds.get(phase, 0.0) > 0.0, phase
+    # nested phases: the solves happen inside the steps
+    assert seconds["step"] >= seconds["solve"]
+    path = result.trajectory.save_npz(tmp_path / "t.npz")
+    with np.load(path) as data:
+        assert data["stats_seconds_rebuild"] > 0 and data["stats_seconds_factor"] > 0
+
+
 def test_a_failed_transfer_is_never_accepted(monkeypatch):
     problem = pulse(0.2)
-    run = prepare_eld_run(problem, space=adaptivity(), **PULSE)
+    run = prepare_eld_run(problem, adapt=adaptivity(), **PULSE)
     stepper = run.stepper
 
-    def broken(new_problem, mapped):
+    def broken(state, change, system, new_system):
         raise FloatingPointError("the transferred u has NaN or inf entries")
 
-    monkeypatch.setattr(stepper, "_new_stepper", broken)
+    monkeypatch.setattr(stepper.adaptivity, "transfer", broken)
     with pytest.raises(
         RunFailed,
         match=r"space adaptivity: the transfer to the new mesh after "
@@ -194,9 +272,31 @@ def test_a_failed_transfer_is_never_accepted(monkeypatch):
     ):
         run.evolve()
     # the hierarchy is rolled back: the last accepted state and the mesh agree
-    assert stepper.amesh.mesh_id == 0 and stepper.problem is problem
+    assert stepper.adaptivity.mesh_id == 0 and stepper.problem is problem
     # step 1 is recorded on mesh 0 (it was computed and accepted there), nothing after it
     assert len(run.trajectory["t"]) == 2 and np.all(run.trajectory["mesh_id"] == 0)
+
+
+def test_non_finite_indicators_stop_the_run_on_the_last_mesh(monkeypatch):
+    import rothe.eld.adapt as adapt_module
+
+    problem = pulse(0.2)
+    run = prepare_eld_run(problem, adapt=adaptivity(), **PULSE)
+    monkeypatch.setattr(
+        adapt_module,
+        "dirichlet_data_indicator",
+        lambda problem, t: np.full(problem.space.mesh.t.shape[1], np.nan),
+    )
+    with pytest.raises(
+        RunFailed,
+        match=r"^space adaptivity: the transfer to the new mesh after "
+        r"step 1 \(t = 0.02\) failed \(FloatingPointError: "
+        r"non-finite error indicators\); the run stops on mesh 0$",
+    ):
+        run.evolve()
+    traj = run.trajectory
+    assert traj.stats.accepted_steps == 1 and np.all(traj["step_refinements"] == 0)
+    assert "space_estimate" not in traj  # the adapt step of step 1 did not complete
 
 
 def test_bad_input_one_line():
@@ -206,19 +306,19 @@ def test_bad_input_one_line():
         match=r"^max_dofs: got 10, must be >= the \d+ dofs of "
         r"the initial mesh$",
     ):
-        run_eld(problem, space=adaptivity(max_dofs=10), **PULSE)
+        run_eld(problem, adapt=adaptivity(max_dofs=10), **PULSE)
     with pytest.raises(
         RotheInputError,
         match=r"^data: got 'differenced', must be 'points' "
         r"with space adaptivity",
     ):
-        run_eld(problem, data="differenced", space=adaptivity(), **PULSE)
+        run_eld(problem, data=Differenced(), adapt=adaptivity(), **PULSE)
     with pytest.raises(
         RotheInputError,
-        match=r"^space: got dict, must be a "
+        match=r"^adapt: got dict, must be a "
         r"rothe.fem.adapt.SpaceAdaptivity",
     ):
-        run_eld(problem, space={"space_tol": 1}, **PULSE)
+        run_eld(problem, adapt={"space_tol": 1}, **PULSE)
     with pytest.raises(RotheInputError, match=r"^space_tol: got 0, must be > 0$"):
         SpaceAdaptivity(space_tol=0)
 
@@ -231,9 +331,10 @@ def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch
     problem = pulse(0.2)
 
     def make_run(**kw):
-        return run_eld(problem, space=adaptivity(), **PULSE, **kw)
+        return run_eld(problem, adapt=adaptivity(), **PULSE, **kw)
 
-    full = make_run()
+    full_run = make_run()
+    full = full_run.trajectory
     ckpt = tmp_path / "c"
     original = ELDStepper.step
     resume = None
@@ -252,11 +353,12 @@ def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch
         assert load_checkpoint(ckpt).status == "interrupted"
         resume = ckpt
     monkeypatch.setattr(ELDStepper, "step", original)
-    resumed = make_run(resume=ckpt)
+    resumed_run = make_run(resume=ckpt)
+    resumed = resumed_run.trajectory
     assert set(full.keys()) == set(resumed.keys())
     for key in full.keys():  # space_estimate is NaN after the steps not adapted after
         assert np.array_equal(full[key], resumed[key], equal_nan=True), key
-    a, b = full.space, resumed.space
+    a, b = full_run.meshes, resumed_run.meshes
     assert a.series.ids == b.series.ids and len(a.series.ids) > 2
     for i in a.series.ids:
         assert all(
@@ -367,12 +469,14 @@ def test_3d_tetrahedra_adapt_with_the_ledger_closing():
     from rothe.eld.examples import beam_problem
 
     problem = beam_problem(1, length=2.0, T=0.03, degree=1)
-    traj = run_eld(problem, "regularized", 0.01, space=adaptivity(space_tol=1e-5, max_dofs=1500))
-    sp = traj.space
-    assert sp.adaptations or np.any(traj["step_refinements"] > 0)
+    result = run_eld(
+        problem, control=Uniform(0.01), adapt=adaptivity(space_tol=1e-5, max_dofs=1500)
+    )
+    traj = result.trajectory
+    assert result.meshes.adaptations or np.any(traj["step_refinements"] > 0)
     assert traj["ndofs"].max() > traj["ndofs"][0] and traj["ndofs"].max() <= 1500
     assert np.max(np.abs(traj["balance_residual"])) <= 1e-12 * np.max(traj["energy"])
-    final, p = traj.final_state, sp.problem
+    final, p = result.state, result.problem
     assert np.array_equal(p.constraint.restrict(final.u), p.G(final.t))
 
 
@@ -381,7 +485,7 @@ def test_cli_default_cap_on_the_adapted_mesh():
     import argparse
 
     from rothe.cli.common import fit_default_cap
-    from rothe.cli.eld_commands import ELD_MAX_DOFS, space_adaptivity
+    from rothe.cli.eld_options import ELD_MAX_DOFS, space_adaptivity
 
     def args(**given):
         base = dict(

@@ -1,5 +1,6 @@
 """The FE RIS problem: structure (interior unknowns, full state, lumped weights), derivatives of
-F by nodal quadrature, and every bad input named in the issue with its one-line message."""
+F by nodal quadrature, every bad input named in the issue with its one-line message, and the
+data that can (or cannot) move to another mesh."""
 
 from __future__ import annotations
 
@@ -13,21 +14,11 @@ from hypothesis.extra.numpy import arrays
 from skfem import MeshTri
 
 from rothe.errors import RotheInputError
-from rothe.fem.mesh import load_mesh, unit_cube, unit_square
+from rothe.fem.adapt import SpaceAdaptivity
+from rothe.fem.mesh import load_mesh, unit_square
 from rothe.fem.scalar import lumped_mass, stiffness
-from rothe.io.trajectory import Trajectory
-from rothe.ris.fem_problem import (
-    FERISProblem,
-    catch_up_steps,
-    check_pointwise_derivatives,
-    d2g_7_2,
-    dg_7_2,
-    example_7_2,
-    example_7_2_3d,
-    example_front,
-    g_7_2,
-    viscous_jumps,
-)
+from rothe.ris.examples import d2g_7_2, dg_7_2, example_7_2, example_front, g_7_2
+from rothe.ris.fem_problem import FERISProblem, check_pointwise_derivatives
 
 
 @pytest.fixture(scope="module")
@@ -77,20 +68,6 @@ def test_F_and_gradient_are_the_lumped_integrals(z, t):
     assert math.isclose(p.dist(eta) ** 2, closed_form, rel_tol=1e-12, abs_tol=1e-300)
 
 
-def test_3d_problem_and_dimension_checks():
-    p = example_7_2_3d(3)
-    assert p.dim == 3 and p.n_nodes == 64 and p.n == 8
-    assert math.isclose(p.energy(0.0, p.z0), 48.0, rel_tol=1e-14)
-    with pytest.raises(
-        RotheInputError,
-        match=r"^mesh: got a 3D mesh \(64 nodes, 162 tetrahedra\), "
-        r"must be 2D \(triangles\) for ris-2d$",
-    ):
-        example_7_2(mesh=unit_cube(3))
-    with pytest.raises(RotheInputError, match=r"must be 3D \(tetrahedra\) for ris-3d$"):
-        example_7_2_3d(mesh=unit_square(3))
-
-
 def test_named_dirichlet_parts_and_z0_forms():
     mesh = unit_square(4)
     p = example_7_2(mesh=mesh, dirichlet=["left"])
@@ -105,14 +82,6 @@ def test_named_dirichlet_parts_and_z0_forms():
 
 
 # -- bad inputs ----------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("n", [1, 0, -3])
-def test_grid_smaller_than_2(n):
-    """A grid of one cell per side has no interior node: refused by every built-in RIS grid."""
-    for example in (example_7_2, example_7_2_3d, example_front):
-        with pytest.raises(RotheInputError, match=rf"^n: got {n}, must be an integer >= 2$"):
-            example(n)
 
 
 def test_wrong_first_derivative():
@@ -242,43 +211,49 @@ def test_kappa_and_T_must_be_positive():
         example_7_2(4, T=-1)
 
 
-def _traj(taus, dts):
-    tr = Trajectory()
-    tr.append(s=0.0, t=0.0)
-    s = t = 0.0
-    for tau, dt in zip(taus, dts, strict=True):
-        s, t = s + tau, t + dt
-        tr.append(s=s, t=t, tau=tau)
-    return tr
+def test_fe_problem_needs_a_dirichlet_node_on_every_part_of_the_mesh():
+    """The stiffness on the free nodes is singular on a part of the mesh without Dirichlet
+    nodes; FE problems check it by connected components instead of a factorization."""
+    a = unit_square(3)
+    b = MeshTri(a.p + np.array([[3.0], [0.0]]), a.t)  # a second square, apart from the first
+    two = MeshTri(np.hstack([a.p, b.p]), np.hstack([a.t, b.t + a.p.shape[1]]))
+    left = lambda x: x[0] < 1e-9  # noqa: E731
+    two = two.with_boundaries({"left": left})
+    with pytest.raises(
+        RotheInputError,
+        match=r"^mesh: got a mesh of 2 disconnected parts, 1 of "
+        r"them without a node on boundary parts \['left'\]",
+    ):
+        FERISProblem(two, g_7_2, dg_7_2, d2g_7_2, load=lambda t: -200 * t**3, dirichlet=["left"])
+    FERISProblem(two, g_7_2, dg_7_2, d2g_7_2, load=lambda t: -200 * t**3)  # both held
 
 
-def test_viscous_jumps_catch_up_and_round_off_steps():
-    # stick (t' = 1), a long jump (t' = 0) with a round-off step inside, slip, then a short
-    # step with t' = 0 after a longer one: a catch-up, not a jump
-    taus = [0.1, 0.1, 0.2, 1e-17, 0.2, 0.1, 0.05, 0.02, 0.05]
-    dts = [0.1, 0.1, 0.0, 0.0, 0.0, 0.06, 0.03, 0.0, 0.03]
-    tr = _traj(taus, dts)
-    jumps = viscous_jumps(tr)
-    assert len(jumps) == 1
-    assert jumps[0]["t"] == pytest.approx(0.2) and jumps[0]["steps"] == 2
-    assert jumps[0]["s_end"] - jumps[0]["s_start"] == pytest.approx(0.4)
-    assert catch_up_steps(tr) == 1
-    # a relaxation at the start (z0 not stationary) counts when it spans more than one step
-    assert viscous_jumps(_traj([0.1, 0.1, 0.1], [0.0, 0.0, 0.1]))[0]["steps"] == 2
-    assert viscous_jumps(_traj([0.1, 0.1], [0.0, 0.1])) == []
-    assert viscous_jumps(_traj([], [])) == [] and catch_up_steps(_traj([], [])) == 0
+def test_only_data_defined_on_the_domain_moves_to_another_mesh():
+    """check_movable names the API parameter, adapt (the command line renames it): a load of
+    nodal functionals or a per-cell coefficient belongs to one mesh."""
+    p = example_7_2(4)
+    p.check_movable()
+    q = p.on_mesh(unit_square(5))
+    assert q.n_nodes == 36 and np.allclose(q.load(0.5), -200 * 0.125 * q.m)
+    nodal = FERISProblem(p.mesh, g_7_2, dg_7_2, d2g_7_2, load=lambda t: -200 * t**3 * p.m_all)
+    with pytest.raises(
+        RotheInputError,
+        match=r"^adapt: got a load given as nodal functionals "
+        r"of one mesh, needs a load density",
+    ) as info:
+        nodal.check_movable()
+    assert info.value.parameter == "adapt"
+    cells = FERISProblem(
+        p.mesh, g_7_2, dg_7_2, d2g_7_2, load=lambda t: -1.0, coefficient=np.ones(p.mesh.t.shape[1])
+    )
+    with pytest.raises(
+        RotheInputError,
+        match=r"^adapt: got a coefficient given per cell of one "
+        r"mesh, needs a number or a callable c\(x\)$",
+    ):
+        cells.on_mesh(unit_square(5))
+    front = example_front(4)
+    front.check_movable()
+    from rothe.ris.adapt import RISAdaptivity
 
-
-def test_single_steps_with_dt_zero_are_not_jumps():
-    """The disk mesh of issue 10 reported 318 jumps where t^(s) has one plateau: in slip the
-    time increments carry a period-2 oscillation at a fixed tau (dt = tau, 0, tau, 0, ...) and
-    single steps after a halving of tau spend their length catching up. None is a jump."""
-    tau = 0.0001234567  # s_k - s_{k-1} then differs from tau by round-off, either way
-    taus = [0.1, 0.1, 0.1, 0.1] + [2 * tau] * 3 + [tau] * 400
-    dts = [0.1, 0.0, 0.0, 0.0] + [tau] * 3 + [0.9 * tau, 0.0] * 200
-    tr = _traj(taus, dts)
-    jumps = viscous_jumps(tr)
-    assert [j["steps"] for j in jumps] == [3]  # the plateau after the first step only
-    assert catch_up_steps(tr) == 200
-    # two steps with t' = 0 that together are no longer than the step before: a catch-up
-    assert viscous_jumps(_traj([0.2, 0.05, 0.05, 0.1], [0.2, 0.0, 0.0, 0.1])) == []
+    assert RISAdaptivity(front, SpaceAdaptivity(space_tol=1.0)).mesh_id == 0

@@ -1,0 +1,419 @@
+"""The options of the ELD commands, their checks, and the one place where names become objects.
+
+``rothe run eld-*`` and ``rothe study eld-*`` take the scheme, the form, the step control, the
+data and the lifting by name (``--scheme euler|bdf2``, ``--form regularized|original``,
+``--control uniform|adaptive`` with ``--tau``, ``--tol``, ``--steps``, ``--data
+points|means|differenced``, ``--lifting nodal|harmonic``); :func:`run_objects` turns them into
+the objects :func:`rothe.eld.run_eld` takes (:mod:`rothe.eld.scheme`, :mod:`rothe.eld.form`,
+:mod:`rothe.stepping.controllers`, :mod:`rothe.eld.data`), and :func:`space_adaptivity` the
+``--adapt-space`` options into a :class:`~rothe.fem.adapt.SpaceAdaptivity`. Every help text
+states the default the parser really uses.
+
+Bad input is one line naming the option, checked before anything runs (the checks that need no
+mesh are the commands' ``validate``, also run by ``rothe sweep``).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from ..eld.constraint import LIFTINGS
+from ..eld.damping import DAMPINGS, make_damping
+from ..eld.data import DATA_MODES, DEFAULT_DATA
+from ..eld.form import DEFAULT_FORM, Original, Regularized
+from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
+from ..eld.studies import check_delta, check_halvings, check_noise_targets
+from ..errors import check_choice, check_int, check_positive, described, fail
+from ..fem.adapt import SpaceAdaptivity
+from ..stepping.controllers import Adaptive, Given, Uniform
+from .common import given, parse_float
+from .ris_fem_commands import check_memory
+
+#: the schemes and forms by their names on the command line
+SCHEMES = {"euler": ImplicitEuler, "bdf2": BDF2}
+FORMS = {"regularized": Regularized, "original": Original}
+CONTROLS = ("uniform", "adaptive")
+#: the library's defaults (those of rothe.eld.run_eld), by name: the help texts state them
+SCHEME_DEFAULT = DEFAULT_SCHEME.name
+FORM_DEFAULT = DEFAULT_FORM.name
+LIFTING_DEFAULT = DEFAULT_FORM.lifting
+DATA_DEFAULT = DEFAULT_DATA.name
+
+#: default --max-dofs of eld-mms (2D) and eld-beam (3D): a --space-tol below what the time
+#: step's error allows (the indicator sees the step's residual, time error included) refines
+#: without end, until memory runs out; twice the initial mesh's dofs when that is more
+ELD_MAX_DOFS = {"2d": 200_000, "3d": 300_000}
+#: the options of space adaptivity (all with --adapt-space only)
+SPACE_OPTIONS = (
+    "--space-tol",
+    "--refine-fraction",
+    "--coarsen-fraction",
+    "--max-dofs",
+    "--adapt-every",
+)
+#: the damping parameters each --damping reads; one written on the command line that the chosen
+#: damping ignores is refused (``eld-mms --a -1`` ran nonlinear damping and exited 0)
+DAMPING_OPTIONS = {
+    "nonlinear": ("--b", "--d0", "--d-nl", "--v-ref"),
+    "rayleigh": ("--a", "--b"),
+    "none": (),
+}
+#: most time steps of one ELD run the CLI accepts (T / tau): beyond, --tau is a typo or
+#: an underflow (``--tau 1e-320`` made T / tau infinite)
+MAX_ELD_STEPS = 10**7
+#: peak memory per unknown (bytes). Measured here (summary.json's peak_memory_mb minus ~90 MB
+#: of interpreter): eld-mms (2D, P2, sparse LU) 3.5 and 4.6 kB/dof at 33k and 132k dofs,
+#: eld-beam (3D, LU) 7 kB/dof at 8k dofs. The team's solver measurements on this machine: a 3D
+#: elasticity LU alone takes 0.8 GB at 28k and 4.3 GB at 89k dofs (29, 48 kB/dof), AMG 2.3 GB
+#: at 1.07M (2.1 kB/dof). Rounded up: refuses sizes that cannot fit, before allocating.
+ELD_BYTES_PER_DOF = {"2d": 6000, "3d-lu": 50_000, "3d-amg": 3000}
+#: 3D unknowns up to which the beam's auto solver is sparse LU (rothe.eld.solvers)
+BEAM_LU_LIMIT = 30_000
+
+
+# -- options ----------------------------------------------------------------------------------
+
+
+def step_options(parser, tau_default: float, scheme_default: str = SCHEME_DEFAULT) -> None:
+    """--form, --scheme, --tau and --control/--tol: every eld run command steps the same way."""
+    form_option(parser)
+    scheme_option(parser, scheme_default)
+    parser.add_argument(
+        "--tau",
+        type=parse_float("--tau"),
+        default=tau_default,
+        help=f"time step; must divide T (default {tau_default:g}); the first "
+        "step with --control adaptive",
+    )
+    control_options(parser)
+
+
+def form_option(parser, default: str = FORM_DEFAULT) -> None:
+    """--form (its default stated in the help)."""
+    parser.add_argument(
+        "--form",
+        default=default,
+        help=f"{' | '.join(FORMS)}: the index-1 form (2.8) or the index-3 form "
+        f"(2.7) (default {default})",
+    )
+
+
+def scheme_option(parser, default: str = SCHEME_DEFAULT) -> None:
+    """--scheme (its default stated in the help)."""
+    parser.add_argument(
+        "--scheme",
+        default=default,
+        help="euler | bdf2: implicit Euler (3.4), the paper's scheme, or "
+        f"variable-step BDF2 (second order) (default {default})",
+    )
+
+
+def control_options(parser) -> None:
+    """--control and --tol."""
+    parser.add_argument(
+        "--control",
+        default=CONTROLS[0],
+        help="uniform | adaptive: equal steps tau (must divide T), or steps chosen "
+        "by the local error estimate (then --tau is the first step) "
+        f"(default {CONTROLS[0]})",
+    )
+    parser.add_argument(
+        "--tol",
+        type=parse_float("--tol"),
+        default=None,
+        help="tolerance of --control adaptive: local error in the energy norm "
+        "relative to the run's energy-norm scale",
+    )
+
+
+def data_options(parser) -> None:
+    """--data and --lifting (the regularized form's right inverse of B)."""
+    parser.add_argument(
+        "--data",
+        default=DATA_DEFAULT,
+        help=f"{' | '.join(DATA_MODES)}: how F, G, G', G'' enter (3.3)/(3.1) "
+        f"(default {DATA_DEFAULT})",
+    )
+    lifting_option(parser)
+
+
+def lifting_option(parser) -> None:
+    """--lifting (its default stated in the help)."""
+    parser.add_argument(
+        "--lifting",
+        default=LIFTING_DEFAULT,
+        help=f"right inverse of B for the regularized form: {' | '.join(LIFTINGS)} "
+        f"(default {LIFTING_DEFAULT})",
+    )
+
+
+def space_options(
+    parser, on: bool = False, default_tol: float | None = None, default_max_dofs: int | None = None
+) -> None:
+    """--adapt-space (on by default with ``on``: then --no-adapt-space) and its options."""
+    parser.add_argument(
+        "--adapt-space",
+        action=argparse.BooleanOptionalAction if on else "store_true",
+        default=on,
+        help="adapt the mesh (refine and coarsen by bisection) after every "
+        "--adapt-every-th step, by the residual indicator (docs/eld.md)"
+        + ("; on by default, --no-adapt-space keeps the mesh" if on else ""),
+    )
+    parser.add_argument(
+        "--space-tol",
+        type=parse_float("--space-tol"),
+        default=None,
+        help="tolerance of the estimate eta of a step (refine while above; "
+        + ("required with --adapt-space)" if default_tol is None else f"default {default_tol:g})"),
+    )
+    parser.add_argument(
+        "--refine-fraction",
+        type=parse_float("--refine-fraction"),
+        default=None,
+        help="Doerfler bulk fraction of eta^2 to refine, in (0, 1) (default 0.5)",
+    )
+    parser.add_argument(
+        "--coarsen-fraction",
+        type=parse_float("--coarsen-fraction"),
+        default=None,
+        help="share of max(eta, space-tol)^2 the coarsened cells "
+        "may carry, in (0, 1) (default 0.05)",
+    )
+    parser.add_argument(
+        "--max-dofs",
+        type=int,
+        default=None,
+        help="cap on the dofs of an adapted mesh (default "
+        + (
+            "none)"
+            if default_max_dofs is None
+            else f"{default_max_dofs:,}".replace(",", " ")
+            + ", or twice the initial mesh's dofs when that is more)"
+        ),
+    )
+    parser.add_argument(
+        "--adapt-every",
+        type=int,
+        default=None,
+        help="adapt after every k-th accepted step (default 1)",
+    )
+
+
+def keep_option(parser, default: int) -> None:
+    """--keep-every with the command's default."""
+    parser.add_argument(
+        "--keep-every",
+        type=int,
+        default=default,
+        help=f"keep u, v, a, lambda of every k-th step in trajectory.npz and the "
+        f"XDMF files (default {default}; t = 0 and the last step always)",
+    )
+
+
+def damping_options(parser, default: str = "nonlinear", default_b: float = 0.01) -> None:
+    """--damping (with the command's default) and its parameters."""
+    parser.add_argument(
+        "--damping",
+        default=default,
+        help="nonlinear | rayleigh | none (nonlinear: D v = b K v - d0 M v + "
+        f"d_nl v/sqrt(1+|v|^2/v_ref^2)) (default {default})",
+    )
+    parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density (default 1)")
+    parser.add_argument(
+        "--d0",
+        type=parse_float("--d0"),
+        default=0.5,
+        help="L2 anti-damping constant d0 of the nonlinear damping (default 0.5)",
+    )
+    parser.add_argument(
+        "--d-nl",
+        type=parse_float("--d-nl"),
+        default=1.0,
+        help="coefficient d_nl of the saturating part (default 1)",
+    )
+    parser.add_argument(
+        "--v-ref",
+        type=parse_float("--v-ref"),
+        default=1.0,
+        help="saturation velocity v_ref (default 1)",
+    )
+    parser.add_argument(
+        "--b",
+        type=parse_float("--b"),
+        default=default_b,
+        help=f"stiffness-proportional coefficient b (default {default_b:g})",
+    )
+    parser.add_argument(
+        "--a",
+        type=parse_float("--a"),
+        default=0.0,
+        help="mass-proportional coefficient a of Rayleigh damping (default 0)",
+    )
+
+
+def mms_options(parser, n: int = 8) -> None:
+    """The manufactured problem's mesh, material, data and damping."""
+    parser.add_argument(
+        "--n", type=int, default=n, help=f"cells per side of the unit square (default {n})"
+    )
+    parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2: exact in space)")
+    parser.add_argument(
+        "--lam", type=parse_float("--lam"), default=2.0, help="Lamé lambda (default 2)"
+    )
+    parser.add_argument("--mu", type=parse_float("--mu"), default=1.0, help="Lamé mu (default 1)")
+    parser.add_argument("--T", type=parse_float("--T"), default=1.0, help="end time (default 1)")
+    data_options(parser)
+    damping_options(parser)
+
+
+# -- names -> objects -----------------------------------------------------------------------------
+
+
+def scheme_of(args):
+    """The scheme object of --scheme."""
+    return SCHEMES[check_choice("--scheme", args.scheme, tuple(SCHEMES))]()
+
+
+def form_of(args):
+    """The form object of --form (and --lifting, checked whatever the form)."""
+    name = check_choice("--form", args.form, tuple(FORMS))
+    lifting = check_choice("lifting", getattr(args, "lifting", LIFTING_DEFAULT), LIFTINGS)
+    return Regularized(lifting) if name == "regularized" else Original()
+
+
+def control_of(args):
+    """The step-control object of --control, --tau, --tol and --steps (one-line errors naming
+    the options)."""
+    control = check_choice("--control", args.control, CONTROLS)
+    tau = check_positive("--tau", args.tau)
+    tol = args.tol
+    steps = getattr(args, "steps", None)
+    if control == "adaptive":
+        if tol is None:
+            raise fail("--tol", None, "must be given (> 0) with --control adaptive")
+        tol = check_positive("--tol", tol)
+        if steps is not None:
+            raise fail(
+                "--steps",
+                described("a step sequence"),
+                "is a fixed grid: not with --control adaptive",
+            )
+        return Adaptive(tol, tau=tau)
+    if tol is not None:
+        raise fail("--tol", tol, "is used by --control adaptive only (this run has uniform steps)")
+    return Given(steps) if steps is not None else Uniform(tau)
+
+
+def data_of(args):
+    """The data-mode object of --data (points where the command has no --data)."""
+    return DATA_MODES[
+        check_choice("data", getattr(args, "data", DATA_DEFAULT), tuple(DATA_MODES))
+    ]()
+
+
+def run_objects(args) -> dict:
+    """``scheme``, ``form``, ``control`` and ``data`` for :func:`rothe.eld.run_eld`, from the
+    command line (the one place where the ELD commands map names to objects)."""
+    scheme = scheme_of(args)
+    control = control_of(args)
+    return {"scheme": scheme, "form": form_of(args), "control": control, "data": data_of(args)}
+
+
+def space_adaptivity(args, default_tol: float | None = None, default_max_dofs: int | None = None):
+    """The SpaceAdaptivity of the --adapt-space options, or None (one-line errors naming the
+    options; an option without --adapt-space is refused). ``default_max_dofs`` applies when
+    --max-dofs is not given (see :func:`rothe.cli.common.fit_default_cap`)."""
+    values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in SPACE_OPTIONS}
+    if not args.adapt_space:
+        for option, value in values.items():
+            if value is not None:
+                raise fail(option, value, "is used by --adapt-space only (this run keeps its mesh)")
+        return None
+    if values["--space-tol"] is None:
+        if default_tol is None:
+            raise fail("--space-tol", None, "must be given (> 0) with --adapt-space")
+        values["--space-tol"] = default_tol
+    if values["--max-dofs"] is None:
+        values["--max-dofs"] = default_max_dofs
+    kw = {"space_tol": values["--space-tol"], "max_dofs": values["--max-dofs"]}
+    for key, option, default in (
+        ("refine_fraction", "--refine-fraction", 0.5),
+        ("coarsen_fraction", "--coarsen-fraction", 0.05),
+        ("adapt_every", "--adapt-every", 1),
+    ):
+        kw[key] = default if values[option] is None else values[option]
+    return SpaceAdaptivity(naming="cli", **kw)
+
+
+def check_space_data(args, space) -> None:
+    """--adapt-space needs --data points."""
+    if space is not None and args.data != "points":
+        raise fail(
+            "--data",
+            args.data,
+            "must be points with --adapt-space (the data of t_j is "
+            "re-evaluated on the new Dirichlet nodes)",
+        )
+
+
+# -- checks -------------------------------------------------------------------------------------
+
+
+def check_damping_options(args) -> None:
+    """--damping is a known damping, and no damping parameter it ignores was given."""
+    kind = check_choice("--damping", args.damping, DAMPINGS)
+    for option in sorted({o for opts in DAMPING_OPTIONS.values() for o in opts}):
+        if given(args, option) and option not in DAMPING_OPTIONS.get(kind, ()):
+            users = [k for k, opts in DAMPING_OPTIONS.items() if option in opts]
+            value = getattr(args, option.lstrip("-").replace("-", "_"))
+            raise fail(
+                option,
+                value,
+                f"is not used by --damping {kind}; {option} is for --damping {' or '.join(users)}",
+            )
+
+
+def damping_of(args):
+    """The damping object of --damping and its parameters."""
+    kind = check_choice("--damping", args.damping, DAMPINGS)
+    return make_damping(kind, a=args.a, b=args.b, d0=args.d0, d_nl=args.d_nl, v_ref=args.v_ref)
+
+
+def check_eld_step(option: str, tau, T: float) -> float:
+    """A time step with T / tau <= MAX_ELD_STEPS (and tau > 0)."""
+    tau = check_positive(option, tau)
+    T = check_positive("--T", T)
+    smallest = T / MAX_ELD_STEPS
+    if tau < smallest:
+        raise fail(
+            option, tau, f"must be >= {smallest:g} (at most {MAX_ELD_STEPS:.0e} steps of T = {T:g})"
+        )
+    return tau
+
+
+def check_study_options(args) -> None:
+    """The study options that rothe.eld.studies also checks, named as on the command line."""
+    if hasattr(args, "halvings"):
+        check_halvings("--halvings", args.halvings, args.tau0, args.T)
+    if hasattr(args, "targets"):
+        check_noise_targets("--targets", args.targets)
+        check_int("--seed", args.seed, minimum=0)
+        check_delta("--delta", args.delta)
+
+
+def check_mms_size(n: int, degree: int) -> None:
+    """Refuse an --n whose 2D problem cannot fit in memory."""
+    if degree in (1, 2):
+        dofs = 2 * (degree * n + 1) ** 2
+        check_memory("--n", n, dofs, ELD_BYTES_PER_DOF["2d"], what="unknowns")
+
+
+def check_beam_size(n: int, length: float, degree: int, solver: str) -> None:
+    """Refuse an --n whose beam (with its solver) cannot fit in memory."""
+    if degree in (1, 2) and length > 0:
+        nx = max(1, round(length * n))
+        dofs = 3 * (degree * nx + 1) * (degree * n + 1) ** 2
+        lu = solver == "direct" or (solver == "auto" and dofs <= BEAM_LU_LIMIT)
+        check_memory(
+            "--n", n, dofs, ELD_BYTES_PER_DOF["3d-lu" if lu else "3d-amg"], what="unknowns"
+        )
