@@ -501,6 +501,19 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
             E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1",
         ),
         (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
+        (["--coarsen-delay", "2"], E + r"--coarsen-delay: got 2, is only used with --adapt-space"),
+        (
+            ["--adapt-space", "--coarsen-delay", "-1"],
+            E + r"--coarsen-delay: got -1, must be an integer >= 0",
+        ),
+        (
+            ["--adapt-space", "--refine-band", "-0.1"],
+            E + r"--refine-band: got -0.1, must be >= 0 \(a length\)",
+        ),
+        (
+            ["--adapt-space", "--coarsen-batch", "1"],
+            E + r"--coarsen-batch: got 1(\.0)?, must be in \[0, 1\)",
+        ),
     ],
 )
 def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
@@ -590,6 +603,14 @@ def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["adapt_space"]["max_dofs"] == 400
     assert summary["n_meshes"] > 2 and abs(summary["t_final"] - 1.0) <= 1e-10
+    # the ledger of the mesh changes against the path's dissipation (issue 18, item 0)
+    traj_ = Trajectory.load_npz(out / "trajectory.npz")
+    assert summary["relax_energy_sum"] == pytest.approx(float(np.sum(traj_["relax_energy"])))
+    assert summary["dissipation_sum"] == pytest.approx(float(np.sum(traj_["dissipation"])))
+    assert summary["dissipation_sum"] > 0.0 and summary["relax_dissipation_sum"] >= 0.0
+    assert summary["transfer_energy_abs_sum"] >= abs(summary["transfer_energy_sum"])
+    assert 0 <= summary["max_recoarsened"] <= 2  # the RIS default max_recoarsen
+    assert summary["relax_refused"] >= 0
     traj = Trajectory.load_npz(out / "trajectory.npz")
     for mesh_id in set(traj["z_mesh_id"].tolist()):
         points, cells = traj.meshes.mesh(mesh_id)

@@ -444,6 +444,14 @@ class _RunRISFem(RISRunBase):
                 n_dofs_max=int(dofs.max()),
                 dofs_summed=int(dofs[1:].sum()),
                 transfer_energy_sum=float(np.sum(traj["transfer_energy"])),
+                # the ledger of the mesh changes against the path's own dissipation
+                # (rothe.ris.adapt: the relaxation at fixed t is no step of the path)
+                transfer_energy_abs_sum=float(np.sum(np.abs(traj["transfer_energy"]))),
+                relax_energy_sum=float(np.sum(traj["relax_energy"])),
+                relax_dissipation_sum=float(np.sum(traj["relax_dissipation"])),
+                dissipation_sum=float(np.sum(traj["dissipation"])),
+                relax_refused=traj.meta.get("relax_refused"),
+                max_recoarsened=traj.meta.get("max_recoarsened"),
             )
         return extra
 
