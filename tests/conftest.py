@@ -1,11 +1,31 @@
-"""Fixtures shared by the test folders: gmsh files written by the test itself (no binaries)."""
+"""Helpers and fixtures shared by the test folders: ``run_cli`` (the command line in this process),
+gmsh files written by the test itself (no binaries), a signal sent at the k-th step attempt and
+the bit-for-bit comparison of trajectories (checkpoint/resume tests).
+
+Test modules import the plain helpers with ``from ..conftest import run_cli`` (pytest's importlib
+mode makes ``tests`` a package)."""
 
 from __future__ import annotations
 
 import importlib.util
+import os
+import signal
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from rothe.cli.main import main
+from rothe.errors import RunInterrupted
+from rothe.io.checkpoint import CheckpointOptions, load_checkpoint
+from rothe.io.trajectory import is_timing_array
+
+
+def run_cli(capsys, *argv):
+    """``rothe *argv`` in this process: (exit status, stdout, stderr)."""
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
 
 
 def load_gmsh_text():
@@ -19,3 +39,58 @@ def load_gmsh_text():
 @pytest.fixture(scope="session")
 def gmsh_text():
     return load_gmsh_text()
+
+
+@pytest.fixture
+def signal_at_attempt(monkeypatch):
+    """``signal_at_attempt(StepperClass, k, sig)``: the k-th call of ``step`` (counted from now)
+    sends ``sig`` to this process before stepping; returns the call counter (a list)."""
+
+    def install(cls, k: int, sig=signal.SIGINT):
+        original = cls.__dict__.get("_rothe_original_step", cls.step)
+        monkeypatch.setattr(cls, "_rothe_original_step", original, raising=False)
+        calls = [0]
+
+        def step(self, state, tau, s_end=None):
+            calls[0] += 1
+            if calls[0] == k:
+                os.kill(os.getpid(), sig)
+            return original(self, state, tau, s_end)
+
+        monkeypatch.setattr(cls, "step", step)
+        return calls
+
+    return install
+
+
+def assert_same_trajectory(a, b, skip=("meta",)):
+    """Equal arrays (np.array_equal) for every series and statistic but the wall times."""
+    if hasattr(a, "files"):  # two np.load results
+        keys_a = {k for k in a.files if k not in skip and not is_timing_array(k)}
+        keys_b = {k for k in b.files if k not in skip and not is_timing_array(k)}
+        assert keys_a == keys_b
+        bad = [k for k in sorted(keys_a) if not np.array_equal(a[k], b[k])]
+    else:
+        assert set(a.keys()) == set(b.keys())
+        bad = [k for k in a.keys() if not np.array_equal(a[k], b[k])]
+        assert a.stats.untimed() == b.stats.untimed()
+    assert not bad, f"differ: {bad}"
+
+
+def interrupted_thrice(
+    make_run, stepper_cls, signal_at_attempt, ckpt, sig=signal.SIGINT, attempts=(5, 40, 90)
+):
+    """Run, interrupted at the given step attempts (counted per session); each time resumed."""
+    resume = None
+    for k in attempts:
+        signal_at_attempt(stepper_cls, k, sig)
+        with pytest.raises(RunInterrupted) as info:
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        exc = info.value
+        assert exc.signum == sig and exc.exit_status == 128 + sig
+        assert exc.checkpoint == ckpt and exc.trajectory is not None
+        assert exc.where["accepted_steps"] == exc.trajectory.stats.accepted_steps
+        assert load_checkpoint(ckpt).status == "interrupted"
+        resume = ckpt
+    signal_at_attempt(stepper_cls, 10**9)  # no more signals
+    return make_run(resume=ckpt)

@@ -5,7 +5,9 @@
 - the layers that know no family (fem, fem.adapt, stepping, io, plotting, parallel, and the
   top-level errors and timing) import neither rothe.ris nor rothe.eld;
 - rothe.ris and rothe.eld never import each other;
-- no module outside rothe.cli imports rothe.cli.
+- no module outside rothe.cli imports rothe.cli;
+- an import inside a function says why in a comment (heavy optional dependency, start-up time,
+  an import-time cycle).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ NEUTRAL = (
     "rothe.parallel",
     "rothe.errors",
     "rothe.timing",
+    "rothe._version",
 )
 
 
@@ -149,3 +152,24 @@ def test_the_rules_can_fail():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == [["a", "b", "c"]]
     graph = import_graph()
     assert any(_inside(t, "rothe.fem") for t in graph["rothe.ris.adapt"])  # families use fem
+
+
+def function_imports_without_a_reason() -> list[str]:
+    """Imports inside functions with no comment on their line or the two lines above."""
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        lines = path.read_text().split("\n")
+        for fn in ast.walk(ast.parse("\n".join(lines))):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, (ast.Import, ast.ImportFrom)):
+                    context = lines[max(0, node.lineno - 3) : node.end_lineno]
+                    if not any("#" in line for line in context):
+                        bad.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}")
+    return sorted(set(bad))
+
+
+def test_imports_inside_functions_say_why():
+    # only heavy optional dependencies, start-up time or an import-time cycle, with a comment
+    assert function_imports_without_a_reason() == []

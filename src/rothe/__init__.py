@@ -16,19 +16,25 @@ Two families, each with its own API:
   ``ELDProblem``, ``Material``, the damping classes, ``DirichletData``); see
   ``help(rothe.eld)``.
 
-Shared by both: meshes that change between steps (``rothe.fem.adapt.SpaceAdaptivity``, passed
-as ``adapt=`` to ``run_ris`` and ``run_eld``; indicators in ``rothe.estimators``), checkpoints
-and resume (``checkpoint=`` / ``resume=`` of the run functions), ParaView output and figures
-(``rothe.io``, ``rothe.plotting``), and sweeps, compares and studies on Dask
-(``rothe.cli.sweep.run_sweep``).
+Shared by both, in layers that know no family (``docs/architecture.md``): the step-control
+objects ``Uniform(tau)``, ``Given(steps)``, ``Adaptive(tol, ...)`` (``rothe.stepping.controllers``)
+and the loop ``evolve`` that shows every phase (propose, step, accept or reject, adapt, record,
+checkpoint); meshes that change between steps (``rothe.fem.adapt.SpaceAdaptivity``, passed as
+``adapt=`` to ``run_ris`` and ``run_eld``, through the one adapt cycle
+``rothe.fem.adapt.cycle.MeshAdaptation``); checkpoints and bit-for-bit resume (``checkpoint=`` /
+``resume=`` of the run functions); ParaView output and figures (``rothe.io``,
+``rothe.plotting``); independent runs on Dask (``rothe.parallel``). Input errors are
+``RotheInputError`` naming the parameter; a failed solve is ``RunFailed`` (never an accepted
+step).
 
 Command line: ``rothe`` lists the commands (``rothe run ris-1d``, ``rothe run eld-beam``,
 ``rothe sweep``, ``rothe resume``, ...); ``rothe <verb> <name> --help`` their options.
-Documentation with the papers' equation numbers: docs/ris.md, docs/ris_fem.md, docs/eld.md,
-docs/adaptivity.md, docs/robustness.md and docs/scaling.md in the source distribution, and the
-docstrings.
+Documentation with the papers' equation numbers: docs/architecture.md (read first),
+docs/ris.md, docs/ris_fem.md, docs/eld.md, docs/adaptivity.md, docs/robustness.md and
+docs/scaling.md in the source distribution, and the docstrings.
 """
 
+from ._version import __version__ as __version__
 from .errors import RotheInputError, RunFailed
 from .io.trajectory import RunStatistics, Trajectory
 from .ris.controllers import (
@@ -43,15 +49,14 @@ from .ris.inner import BallStepSolver, InnerOptions
 from .ris.problem import RISProblem
 from .ris.run import RISResult, run_nested, run_ris
 from .ris.stepper import RISStepper
-from .stepping.controllers import Adaptive, Uniform, UniformController
+from .stepping.controllers import Adaptive, Given, Uniform, UniformController
 from .stepping.evolve import evolve
-
-__version__ = "0.1.0"
 
 __all__ = [
     "Adaptive",
     "AdaptiveController",
     "BallStepSolver",
+    "Given",
     "InnerOptions",
     "Nested",
     "Order2",

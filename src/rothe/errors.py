@@ -11,6 +11,7 @@ command) and exits with status 2. Validation happens once, where the value enter
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -21,20 +22,40 @@ class RotheInputError(ValueError):
 
     ``parameter``: the name the message starts with (``tau`` in ``tau: got 0, must be > 0``),
     or None when the message names no single parameter.
+
+    Parameters
+    ----------
+    message : str
+        The one-line message, ``'<parameter>: got <value>, must be ...'``.
+    parameter : str, optional
+        The parameter it names first.
+    mentions : sequence of str
+        The other parameters the message names (the command line renames them all to options).
     """
 
-    def __init__(self, message: str, parameter: str | None = None):
+    def __init__(self, message: str, parameter: str | None = None, mentions: Sequence[str] = ()):
         super().__init__(message)
         self.parameter = parameter
+        #: other parameters the message names after the first (e.g. the second of a pair)
+        self.mentions = tuple(mentions)
 
-    def renamed(self, name: str) -> RotheInputError:
+    def renamed(self, name: str, others: dict[str, str] | None = None) -> RotheInputError:
         """The same error naming ``name`` (e.g. the CLI option ``--tau``) instead of the
-        parameter; unchanged if the message does not start with the parameter's name."""
+        parameter, and each of ``mentions`` by its entry in ``others`` (parameter -> option);
+        unchanged where the message does not start with the parameter's name."""
         message = str(self)
-        prefix = f"{self.parameter}: "
-        if self.parameter is None or not message.startswith(prefix):
+        lead = None if self.parameter is None else re.escape(self.parameter) + r"(?=[: ])"
+        if name is not None and lead is not None and re.match(lead, message):
+            message = name + message[len(self.parameter) :]
+        else:
+            name = self.parameter
+        for mention in self.mentions:
+            option = (others or {}).get(mention)
+            if option is not None:
+                message = re.sub(rf"(?<![\w-]){re.escape(mention)}(?![\w-])", option, message)
+        if message == str(self):
             return self
-        out = type(self)(f"{name}: {message[len(prefix) :]}", name)
+        out = type(self)(message, name, self.mentions)
         out.__cause__ = self.__cause__
         return out
 
@@ -53,6 +74,14 @@ class RunFailed(RuntimeError):
 
     ``where`` holds the context (step, s, t, tau, residuals); the trajectory computed so far is
     attached as ``trajectory`` so that callers can still write it to disk.
+
+    Parameters
+    ----------
+    message : str
+    where : dict, optional
+        The context where the run stopped.
+    trajectory : Trajectory, optional
+        The trajectory computed so far.
     """
 
     def __init__(self, message: str, where: dict | None = None, trajectory=None):
@@ -128,6 +157,9 @@ def fail(name: str, value, allowed: str) -> RotheInputError:
 
 
 def check_real(name: str, value) -> float:
+    """``value`` as a finite float; a one-line :class:`RotheInputError` naming ``name``
+    otherwise.
+    """
     try:
         x = float(value)
     except (TypeError, ValueError):
@@ -138,6 +170,7 @@ def check_real(name: str, value) -> float:
 
 
 def check_positive(name: str, value) -> float:
+    """``value`` as a finite float > 0 (else a one-line error naming ``name``)."""
     x = check_real(name, value)
     if not x > 0:
         raise fail(name, value, "must be > 0")
@@ -145,6 +178,7 @@ def check_positive(name: str, value) -> float:
 
 
 def check_nonnegative(name: str, value) -> float:
+    """``value`` as a finite float >= 0 (else a one-line error naming ``name``)."""
     x = check_real(name, value)
     if not x >= 0:
         raise fail(name, value, "must be >= 0")
@@ -152,6 +186,9 @@ def check_nonnegative(name: str, value) -> float:
 
 
 def check_int(name: str, value, minimum: int | None = None) -> int:
+    """``value`` as an int (an integral float is accepted, a bool is not), at least ``minimum``
+    if given; else a one-line error naming ``name``.
+    """
     if isinstance(value, bool) or not float(value).is_integer():
         raise fail(name, value, "must be an integer")
     n = int(value)
@@ -161,6 +198,9 @@ def check_int(name: str, value, minimum: int | None = None) -> int:
 
 
 def check_choice(name: str, value, choices: Sequence[str]) -> str:
+    """``value`` if it is one of ``choices``, else a one-line error naming ``name`` that lists
+    them.
+    """
     if value not in choices:
         raise fail(name, value, "must be one of " + ", ".join(choices))
     return value
@@ -186,6 +226,9 @@ def check_decreasing(name: str, values: Sequence[float]) -> list[float]:
 
 
 def check_finite_array(name: str, array) -> np.ndarray:
+    """``array`` as a float array if every entry is finite, else a one-line error naming
+    ``name`` with the first NaN or inf.
+    """
     a = np.asarray(array, dtype=float)
     if not np.all(np.isfinite(a)):
         bad = a[~np.isfinite(a)].ravel()[0]

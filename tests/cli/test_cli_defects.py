@@ -14,15 +14,10 @@ import sys
 import pytest
 
 from rothe import __version__
-from rothe.cli.main import main
 from rothe.cli.registry import commands, load_all
 from rothe.cli.ris_commands import CONTROLS
 
-
-def run_cli(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
+from ..conftest import run_cli
 
 
 def one_line_error(capsys, *argv, status=2) -> str:

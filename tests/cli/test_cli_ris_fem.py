@@ -15,13 +15,9 @@ from rothe.fem.mesh import load_mesh, unit_cube, unit_square
 from rothe.io.trajectory import Trajectory
 from rothe.io.xdmf import read_series
 
+from ..conftest import run_cli
+
 E = r"^rothe: error: "
-
-
-def run_cli(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_run_ris_2d_outputs(tmp_path, capsys):
@@ -489,7 +485,7 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is only used with --adapt-space"),
+        (["--space-tol", "1"], E + r"--space-tol: got 1(\.0)?, is used by --adapt-space only"),
         (
             ["--adapt-space", "--refine-fraction", "1.5"],
             E + r"--refine-fraction: got 1.5, must be in \(0, 1\)",
@@ -501,7 +497,7 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
             E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1",
         ),
         (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
-        (["--coarsen-delay", "2"], E + r"--coarsen-delay: got 2, is only used with --adapt-space"),
+        (["--coarsen-delay", "2"], E + r"--coarsen-delay: got 2, is used by --adapt-space only"),
         (
             ["--adapt-space", "--coarsen-delay", "-1"],
             E + r"--coarsen-delay: got -1, must be an integer >= 0",
@@ -628,19 +624,16 @@ def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
     # 3D run at --n 4 went from 27 to 740 000 unknowns (4.7 GB) before t = 0.64
     import argparse
 
-    from rothe.cli.ris_fem_commands import add_space_options, space_from_args
+    from rothe.cli.adapt_options import add_space_options, space_adaptivity
 
     parser = argparse.ArgumentParser()
-    parser.add_argument("--mesh", default=None)
-    add_space_options(parser, 1.0, cap)
-    space = space_from_args(parser.parse_args(["--adapt-space"]), 1.0, cap)
-    assert space.max_dofs == cap
-    assert (
-        space_from_args(
-            parser.parse_args(["--adapt-space", "--max-dofs", "500"]), 1.0, cap
-        ).max_dofs
-        == 500
+    add_space_options(parser, default_tol=1.0, default_max_dofs=cap)
+    space = space_adaptivity(
+        parser.parse_args(["--adapt-space"]), default_tol=1.0, default_max_dofs=cap
     )
+    assert space.max_dofs == cap and space.space_tol == 1.0
+    given = parser.parse_args(["--adapt-space", "--max-dofs", "500"])
+    assert space_adaptivity(given, default_tol=1.0, default_max_dofs=cap).max_dofs == 500
     capsys.readouterr()
     try:
         main(["run", command, "--help"])
@@ -648,4 +641,29 @@ def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
         pass
     help_text = " ".join(capsys.readouterr().out.split())
     number = f"{cap:_}".replace("_", " ")
-    assert f"--max-dofs MAX_DOFS cap on the nodes of an adapted mesh (default {number}" in help_text
+    assert (
+        "--max-dofs MAX_DOFS cap on the degrees of freedom of the finite-element space after "
+        f"an adaptation (default {number}" in help_text
+    )
+
+
+def test_the_hysteresis_options_are_those_of_ris_only(capsys):
+    # RIS's adapt cycle has hysteresis (rothe.ris.adapt.HYSTERESIS); ELD's has none, so its
+    # parser and help have no such options
+    def help_of(command):
+        capsys.readouterr()
+        try:
+            main(["run", command, "--help"])
+        except SystemExit:
+            pass
+        return " ".join(capsys.readouterr().out.split())
+
+    for command in ("ris-2d", "ris-3d", "ris-front"):
+        text = help_of(command)
+        assert "adaptations do not coarsen (default 4)" in text
+        assert "refined and coarsened again at most k times (default 2)" in text
+        assert "--refine-band" in text and "--coarsen-batch" in text
+    for command in ("eld-mms", "eld-beam", "eld-pulse"):
+        text = help_of(command)
+        for option in ("--refine-band", "--coarsen-delay", "--max-recoarsen", "--coarsen-batch"):
+            assert option not in text

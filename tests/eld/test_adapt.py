@@ -484,8 +484,8 @@ def test_cli_default_cap_on_the_adapted_mesh():
     # without a cap a --space-tol below what the time step allows refines until memory runs out
     import argparse
 
-    from rothe.cli.common import fit_default_cap
-    from rothe.cli.eld_options import ELD_MAX_DOFS, space_adaptivity
+    from rothe.cli.adapt_options import fit_default_cap, space_adaptivity
+    from rothe.cli.eld_options import ELD_MAX_DOFS
 
     def args(**given):
         base = dict(

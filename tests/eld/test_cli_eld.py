@@ -6,13 +6,11 @@ import meshio
 import numpy as np
 import pytest
 
-from rothe.cli.main import main
+from ..conftest import run_cli
 
 
 def _run(argv, capsys):
-    code = main(argv)
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
+    return run_cli(capsys, *argv)
 
 
 def test_run_eld_mms_writes_summary_trajectory_and_figures(tmp_path, capsys):
@@ -83,11 +81,11 @@ def test_quiet_prints_nothing(tmp_path, capsys):
         (["--lam", "-1.5"], "lam: got -1.5, must be > -2 mu / d = -1"),
         (["--dirichlet", "lft"], "dirichlet: got 'lft', must be one of bottom, left, right, top"),
         (["--start", "rest"], "u0: got max|u0 - G(0)| = 0.5 on the Dirichlet parts left"),
-        (["--tau", "0.3"], "tau: got 0.3, must divide T = 1 into equal steps"),
+        (["--tau", "0.3"], "--tau: got 0.3, must divide T = 1 into equal steps"),
         (["--form", "index3"], "--form: got 'index3', must be one of regularized, original"),
         (["--damping", "viscous"], "--damping: got 'viscous', must be one of none, rayleigh"),
-        (["--d0", "-1"], "d0: got -1, must be >= 0"),
-        (["--degree", "3"], "degree: got 3, must be 1 or 2"),
+        (["--d0", "-1"], "--d0: got -1, must be >= 0"),
+        (["--degree", "3"], "--degree: got 3, must be 1 or 2"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_status_2(tmp_path, capsys, args, message):
@@ -274,16 +272,16 @@ def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(tmp_path, caps
         (["--tol", "1e-3"], "--tol: got 0.001, is used by --control adaptive only"),
         (
             ["--scheme", "bdf2", "--steps", "0.1,0.3,0.6"],
-            "steps: got tau_2/tau_1 = 3, must be < 1 + sqrt(2) = 2.41421 (zero-stability",
+            "--steps: got tau_2/tau_1 = 3, must be < 1 + sqrt(2) = 2.41421 (zero-stability",
         ),
         (
             ["--scheme", "bdf2", "--d0", "2", "--tau", "0.8"],
-            "tau: got 0.8, must be < 1.5 rho/d0 = 0.75 (Lemma 3.2 for BDF2",
+            "--tau: got 0.8, must be < 1.5 rho/d0 = 0.75 (Lemma 3.2 for BDF2",
         ),
         # the CLI refuses it before the library would (i10-defects): at most 1e7 steps of T
         (["--tau", "1e-320"], "--tau: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps"),
-        (["--scheme", "bdf2", "--data", "means"], "data: got 'means', with scheme bdf2 must be"),
-        (["--load-quadrature", "0"], "load_quadrature: got 0, must be an integer >= 1"),
+        (["--scheme", "bdf2", "--data", "means"], "--data: got 'means', with scheme bdf2 must be"),
+        (["--load-quadrature", "0"], "--load-quadrature: got 0, must be an integer >= 1"),
     ],
 )
 def test_bad_eld_options_are_one_line_and_exit_2(tmp_path, capsys, args, message):

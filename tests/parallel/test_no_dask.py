@@ -19,6 +19,8 @@ from rothe.io.trajectory import is_timing_array
 from rothe.parallel import Executor, Task, execute_task
 from rothe.parallel import executor as executor_module
 
+from ..conftest import run_cli
+
 SUMMARY_FIELDS = {
     "accepted_steps",
     "rejected_steps",
@@ -30,12 +32,6 @@ SUMMARY_FIELDS = {
     "sum_residual",
     "energy_final",
 }
-
-
-def run_cli(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def read_csv(path):

@@ -18,17 +18,20 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import check_positive
+from ..errors import RotheInputError, check_int, check_positive, fail
+from ..io.atomic import TMP_PREFIX, atomic_write_text, check_writable
+from ..parallel.executor import INSTALL_HINT, Executor, dask_available
 from ..stepping.progress import ProgressOptions
 
 
 def add_output_options(parser, name: str) -> None:
+    """--out (default rothe-out/<name>), --no-plots, --quiet and --progress-every."""
     parser.add_argument("--out", default=None, help=f"output directory (default rothe-out/{name})")
     parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
-    parser.add_argument(
+    float_option(
+        parser,
         "--progress-every",
-        type=parse_float("--progress-every"),
         default=30.0,
         metavar="SECONDS",
         help="when stderr is not a terminal (a log): one progress line every "
@@ -38,7 +41,6 @@ def add_output_options(parser, name: str) -> None:
 
 def output_dir(args, name: str) -> Path:
     """The output directory, created and checked for writability (errors name --out)."""
-    from ..io.atomic import check_writable
 
     out = Path(args.out) if args.out else Path("rothe-out") / name
     return check_writable(out, "--out")
@@ -67,6 +69,20 @@ def parse_float(name: str):
     return conv
 
 
+def float_option(parser, name: str, **kwargs) -> None:
+    """Add the option ``name`` taking one finite number (:func:`parse_float`) to ``parser``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser or argument group
+    name : str
+        The option, e.g. ``"--tau"``.
+    **kwargs
+        The other arguments of ``add_argument`` (``default``, ``help``, ``metavar``, ...).
+    """
+    parser.add_argument(name, type=parse_float(name), **kwargs)
+
+
 def parse_float_list(name: str):
     """argparse type for ``1e-3,1e-4``: every item a finite number, none empty (``--tols ''``
     must not silently mean "the defaults")."""
@@ -92,14 +108,6 @@ def given(args, option: str) -> bool:
     return option in getattr(args, "_given", ())
 
 
-def fit_default_cap(args, space, initial: int) -> None:
-    """--adapt-space without --max-dofs: the command's default cap, or twice the initial mesh's
-    dofs (nodes, for RIS) when that is more. A --max-dofs the user gave is checked against the
-    initial mesh where the run starts instead."""
-    if space is not None and args.max_dofs is None and space.max_dofs is not None:
-        space.max_dofs = max(space.max_dofs, 2 * int(initial))
-
-
 def peak_memory_mb() -> float:
     """Peak resident memory of this process in MB (ru_maxrss is KiB on Linux, bytes on macOS)."""
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -123,7 +131,6 @@ def _jsonable(value):
 def write_summary(out: Path, summary: dict) -> Path:
     """Write ``out/summary.json`` atomically. In a run's staging directory (see
     :mod:`rothe.io.outputs`) the summary also lists the files of the result (``files``)."""
-    from ..io.atomic import TMP_PREFIX, atomic_write_text
 
     out = Path(out)
     if out.name.startswith(TMP_PREFIX):
@@ -136,12 +143,12 @@ def write_summary(out: Path, summary: dict) -> Path:
 
 def write_table(out: Path, text: str, name: str = "table.txt") -> Path:
     """Write a table (text) atomically."""
-    from ..io.atomic import atomic_write_text
 
     return atomic_write_text(Path(out) / name, text)
 
 
 def print_summary(summary: dict, keys) -> None:
+    """Print the fields ``keys`` of ``summary`` that it has, one per line (floats with 6 digits)."""
     width = max(len(k) for k in keys)
     for k in keys:
         if k in summary:
@@ -149,3 +156,52 @@ def print_summary(summary: dict, keys) -> None:
             if isinstance(v, float):
                 v = f"{v:.6g}"
             print(f"  {k:<{width}}  {v}")
+
+
+# -- parallel runs: --workers, --scheduler ---------------------------------------------------
+
+
+def add_parallel_options(parser) -> None:
+    """``--workers N`` and ``--scheduler ADDRESS`` for commands that run independent runs."""
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run the independent runs on a local Dask cluster of N worker processes "
+        "(default: the number of cores if Dask is installed, else 1; 1 = one after another "
+        "in this process, no Dask; env ROTHE_WORKERS sets the default)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="address of an existing Dask scheduler (e.g. tcp://host:8786) to run on instead",
+    )
+
+
+def executor_from_args(args, title: str) -> Executor:
+    """The executor of ``--workers``/``--scheduler``; bad values are one-line input errors."""
+    workers = args.workers
+    if workers is not None:
+        workers = check_int("--workers", workers, minimum=1)
+    if args.scheduler is not None:
+        if workers is not None:
+            raise fail(
+                "--workers",
+                workers,
+                "cannot be combined with --scheduler (the cluster has its own workers)",
+            )
+        if not args.scheduler.strip():
+            raise fail(
+                "--scheduler", args.scheduler, "must be a scheduler address (e.g. tcp://host:8786)"
+            )
+    if workers is not None and workers > 1 and not dask_available():
+        raise RotheInputError(
+            f"--workers {workers} needs dask.distributed: {INSTALL_HINT} (or --workers 1)"
+        )
+    if args.scheduler is not None and not dask_available():
+        raise RotheInputError(f"--scheduler needs dask.distributed: {INSTALL_HINT}")
+    return Executor(
+        workers, args.scheduler, progress=not getattr(args, "quiet", False), title=title
+    )

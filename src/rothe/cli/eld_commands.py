@@ -18,7 +18,6 @@ SIGTERM with ``status: interrupted`` and exits 130 / 143.
 from __future__ import annotations
 
 import shutil
-import sys
 
 import numpy as np
 
@@ -33,12 +32,13 @@ from ..eld.studies import (
     perturbation_study,
 )
 from ..errors import check_choice, check_int, check_positive, fail
-from ..parallel.executor import add_parallel_options, executor_from_args
+from .adapt_options import add_space_options, fit_default_cap, space_adaptivity
 from .common import (
     add_output_options,
-    fit_default_cap,
+    add_parallel_options,
+    executor_from_args,
+    float_option,
     output_dir,
-    parse_float,
     parse_float_list,
     peak_memory_mb,
     print_summary,
@@ -65,12 +65,10 @@ from .eld_options import (
     run_objects,
     scheme_of,
     scheme_option,
-    space_adaptivity,
-    space_options,
     step_options,
 )
 from .registry import command
-from .session import RunSession, add_run_options
+from .session import add_run_options, run_sequence
 
 #: eld-beam: P2 with 3 cells across (3675 dofs): sideways reactions 0.4 % / 0.3 % (Euler) and
 #: 0.5 % / 0.7 % (BDF2) of R_z, R_z within 0.03 % of n = 4 (P1 n = 3: 17 % / 27 %)
@@ -222,51 +220,48 @@ class EldRunCommand:
         ``summarize(summary, result, completed)`` adds the command's fields to the summary;
         ``stream(session, options)`` opens a writer that streams the steps while the run goes
         (it may set ``options``'s observer; None: the outputs are written at the end)."""
-        session = RunSession(args, self.name)
-        completed, summary = False, None
-        with session:
-            if session.already_completed:
-                print(
-                    f"rothe: {session.out}: the run already completed; its results are there",
-                    file=sys.stderr,
-                )
-                return 0
-            writer = None if stream is None else stream(session, options)
-            prepared = []
+        streams = []  # the stream writer, once the session is open
+        prepared = []
 
-            def start(checkpoint, resume, progress):
-                run = prepare_eld_run(problem, checkpoint=checkpoint, resume=resume, **options)
-                prepared.append(run)
-                return run.evolve(progress=progress)
+        def prepare(session):
+            if stream is not None:
+                streams.append(stream(session, options))
 
-            outcome = session.run(start)
-            results = session.results_dir(outcome.status)
-            completed = outcome.status == "completed"
+        def start(checkpoint, resume, progress):
+            run = prepare_eld_run(problem, checkpoint=checkpoint, resume=resume, **options)
+            prepared.append(run)
+            return run.evolve(progress=progress)
+
+        def write(stage, outcome):
             result = _result_of(outcome, prepared, problem)
-            if result is not None:
-                with session.outputs(outcome.status) as stage:
-                    if writer is not None:
-                        writer.export(stage)
-                    summary = run_summary(result, self.name)
-                    if writer is not None:
-                        summary.update(
-                            xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written
-                        )
-                    summarize(summary, result, completed)
-                    session.annotate(summary, outcome)
-                    write_eld_result(
-                        result,
-                        stage,
-                        name=self.name.replace("eld-", ""),
-                        xdmf=writer is None and "kept_t" in result.trajectory,
-                        figures=(completed and not args.no_plots and "energy" in result.trajectory),
-                        title=label,
-                    )
-                    write_summary(stage, summary)
-            code = session.finish(outcome, results)
-            if completed and writer is not None:
-                writer.discard()
-        if completed and not args.quiet:
+            if result is None:
+                return None
+            writer = streams[0] if streams else None
+            if writer is not None:
+                writer.export(stage)
+            summary = run_summary(result, self.name)
+            if writer is not None:
+                summary.update(xdmf=[p.name for p in writer.paths], xdmf_steps=writer.steps_written)
+            completed = outcome.status == "completed"
+            summarize(summary, result, completed)
+            write_eld_result(
+                result,
+                stage,
+                name=self.name.replace("eld-", ""),
+                xdmf=writer is None and "kept_t" in result.trajectory,
+                figures=(completed and not args.no_plots and "energy" in result.trajectory),
+                title=label,
+            )
+            return summary
+
+        def discard():
+            if streams:
+                streams[0].discard()
+
+        code, outcome, results, summary = run_sequence(
+            args, self.name, start, write, prepare=prepare, completed=discard
+        )
+        if outcome is not None and outcome.status == "completed" and not args.quiet:
             print(f"rothe run {self.name}: wrote {results}/")
             print_summary(summary, self.keys)
             print(format_energy_balance(summary))
@@ -321,6 +316,9 @@ class RunEldMMS(EldRunCommand):
     keys = MMS_KEYS
 
     def configure(self, parser) -> None:
+        """The step options, --steps, --load-quadrature, --keep-every, --dirichlet, --start, the
+        manufactured solution's options, the space options and the outputs.
+        """
         step_options(parser, 0.01)
         parser.add_argument(
             "--steps",
@@ -348,7 +346,7 @@ class RunEldMMS(EldRunCommand):
             "(inconsistent with G(0): refused, Remark 2.2) (default exact)",
         )
         mms_options(parser)
-        space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
+        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -368,6 +366,7 @@ class RunEldMMS(EldRunCommand):
         return objects, keep, n, parts, damping_of(args), space
 
     def execute(self, args) -> int:
+        """Build the manufactured solution, run it as a session; the summary adds its errors."""
         objects, keep, n, parts, damping, space = self.validate(args)
         problem, exact = mms_problem(
             n,
@@ -422,6 +421,9 @@ class RunEldBeam(EldRunCommand):
     )
 
     def configure(self, parser) -> None:
+        """The step options, the beam's mesh, material, support motion and damping, the space
+        options and the outputs.
+        """
         step_options(parser, 0.01)
         parser.add_argument(
             "--n",
@@ -430,29 +432,25 @@ class RunEldBeam(EldRunCommand):
             help=f"cells across the unit cross-section (default {BEAM_DEFAULT_N}); "
             "round(length*n) along the beam",
         )
-        parser.add_argument(
-            "--length", type=parse_float("--length"), default=4.0, help="beam length (default 4)"
-        )
+        float_option(parser, "--length", default=4.0, help="beam length (default 4)")
         parser.add_argument(
             "--degree",
             type=int,
             default=BEAM_DEFAULT_DEGREE,
             help=f"1 or 2 (default {BEAM_DEFAULT_DEGREE})",
         )
-        parser.add_argument(
-            "--T", type=parse_float("--T"), default=2.0, help="end time (default 2)"
-        )
-        parser.add_argument("--E", type=parse_float("--E"), default=1000.0, help="Young's modulus")
-        parser.add_argument("--nu", type=parse_float("--nu"), default=0.3, help="Poisson ratio")
-        parser.add_argument(
+        float_option(parser, "--T", default=2.0, help="end time (default 2)")
+        float_option(parser, "--E", default=1000.0, help="Young's modulus")
+        float_option(parser, "--nu", default=0.3, help="Poisson ratio")
+        float_option(
+            parser,
             "--amplitude",
-            type=parse_float("--amplitude"),
             default=0.1,
             help="end displacement (z) of the held end's motion (default 0.1)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--t-move",
-            type=parse_float("--t-move"),
             default=0.5,
             help="duration of the motion; held still afterwards (default 0.5)",
         )
@@ -462,7 +460,7 @@ class RunEldBeam(EldRunCommand):
         )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
-        space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
+        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -479,6 +477,7 @@ class RunEldBeam(EldRunCommand):
         return objects, n, every, keep, damping_of(args), space
 
     def execute(self, args) -> int:
+        """Build the cantilever, run it as a session (XDMF streamed while it runs)."""
         objects, n, every, keep, damping, space = self.validate(args)
         problem = beam_problem(
             n,
@@ -528,6 +527,9 @@ class RunEldBeam(EldRunCommand):
         return self.run(args, problem, options, label, summarize, stream)
 
     def report(self, args, summary) -> None:
+        """Print the numerical dissipation against the work put in, and a note when the sideways
+        reactions show a too coarse mesh.
+        """
         put_in = summary["work_support"] + summary["work_loads"]
         sideways = summary["reaction_sideways_over_z"]
         print(
@@ -571,6 +573,9 @@ class RunEldPulse(EldRunCommand):
     )
 
     def configure(self, parser) -> None:
+        """The step options (BDF2 by default), the body, the pulse, the material and damping,
+        --lifting, --keep-every, the space options (on by default) and the outputs.
+        """
         step_options(parser, 0.005, scheme_default="bdf2")
         parser.add_argument(
             "--n",
@@ -579,48 +584,50 @@ class RunEldPulse(EldRunCommand):
             help="cells across the height of the initial mesh (default 4; round(length*n) along)",
         )
         parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2)")
-        parser.add_argument(
+        float_option(
+            parser,
             "--length",
-            type=parse_float("--length"),
             default=2.0,
             help="length of the body [0, length] x [0, 1] (default 2)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--T",
-            type=parse_float("--T"),
             default=0.8,
             help="end time (default 0.8: the pressure front crosses 80 %%)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--amplitude",
-            type=parse_float("--amplitude"),
             default=0.01,
             help="peak displacement of the pulse (default 0.01)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--t-pulse",
-            type=parse_float("--t-pulse"),
             default=0.1,
             help="duration of the pulse (default 0.1)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--width",
-            type=parse_float("--width"),
             default=0.1,
             help="width of the pushed part around y = 1/2 (default 0.1)",
         )
-        parser.add_argument("--lam", type=parse_float("--lam"), default=2.0, help="Lamé lambda")
-        parser.add_argument("--mu", type=parse_float("--mu"), default=1.0, help="Lamé mu")
-        parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density")
-        parser.add_argument(
+        float_option(parser, "--lam", default=2.0, help="Lamé lambda")
+        float_option(parser, "--mu", default=1.0, help="Lamé mu")
+        float_option(parser, "--rho", default=1.0, help="density")
+        float_option(
+            parser,
             "--b",
-            type=parse_float("--b"),
             default=0.001,
             help="Rayleigh stiffness-proportional damping b (default 0.001)",
         )
         lifting_option(parser)
         keep_option(parser, 10)
-        space_options(parser, on=True, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS)
+        add_space_options(
+            parser, on=True, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS
+        )
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -640,6 +647,7 @@ class RunEldPulse(EldRunCommand):
         return objects, keep, n, length, space
 
     def execute(self, args) -> int:
+        """Build the pulse problem and run it as a session."""
         objects, keep, n, length, space = self.validate(args)
         problem = pulse_problem(
             n,
@@ -700,6 +708,39 @@ def _beam_reactions(traj) -> dict:
 # -- studies --------------------------------------------------------------------------------------
 
 
+def run_study(name: str, args, study_fn, *positional, **options):
+    """Run ``study_fn(*positional, **options)`` on the manufactured solution of the command line
+    (``--n``, ``--degree``, the damping) with its progress and executor (``rothe study
+    <name>``); returns the study and the output directory."""
+    n = check_int("--n", args.n, minimum=1)
+    damping = damping_of(args)
+    executor = executor_from_args(args, f"rothe study {name}")
+    out = output_dir(args, name)
+    study = study_fn(
+        *positional,
+        n=n,
+        degree=args.degree,
+        damping=damping,
+        progress=progress_of(args),
+        executor=executor,
+        **options,
+    )
+    return study, out
+
+
+def write_study(args, out, study: dict, table: str, draw) -> None:
+    """The outputs of an ELD study: ``table.txt``, ``summary.json`` (the study with the peak
+    memory), the figures (``draw()``, unless --no-plots) and, unless --quiet, the table."""
+    write_table(out, table + "\n")
+    study["peak_memory_mb"] = peak_memory_mb()
+    write_summary(out, study)
+    if not args.no_plots:
+        draw()
+    if not args.quiet:
+        print(table)
+        print(f"wrote {out}/")
+
+
 @command("study", "eld-convergence")
 class StudyEldConvergence:
     """``rothe study eld-convergence``: order in tau on the manufactured solution."""
@@ -708,11 +749,12 @@ class StudyEldConvergence:
     name = "eld-convergence"
 
     def configure(self, parser) -> None:
+        """--form, --scheme, --tau0, --halvings, the manufactured solution's options, the outputs
+        and the executor.
+        """
         form_option(parser)
         scheme_option(parser)
-        parser.add_argument(
-            "--tau0", type=parse_float("--tau0"), default=0.1, help="largest step (default 0.1)"
-        )
+        float_option(parser, "--tau0", default=0.1, help="largest step (default 0.1)")
         parser.add_argument(
             "--halvings", type=int, default=5, help="times tau is halved (default 5)"
         )
@@ -721,6 +763,9 @@ class StudyEldConvergence:
         add_parallel_options(parser)
 
     def execute(self, args) -> int:
+        """Run the convergence study (tau halved ``--halvings`` times); write its table and
+        figures.
+        """
         check_damping_options(args)
         check_eld_step("--tau0", args.tau0, args.T)
         check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
@@ -728,32 +773,24 @@ class StudyEldConvergence:
         form = form_of(args)
         scheme = scheme_of(args)
         halvings = check_int("--halvings", args.halvings, minimum=1)
-        n = check_int("--n", args.n, minimum=1)
         data = data_of(args)
-        damping = damping_of(args)
-        executor = executor_from_args(args, f"rothe study {self.name}")
-        out = output_dir(args, self.name)
-        study = convergence_study(
+        study, out = run_study(
+            self.name,
+            args,
+            convergence_study,
             form,
             tau0=args.tau0,
             halvings=halvings,
-            n=n,
-            degree=args.degree,
-            damping=damping,
             rho=args.rho,
             lam=args.lam,
             mu=args.mu,
             T=args.T,
             data=data,
             scheme=scheme,
-            progress=progress_of(args),
-            executor=executor,
         )
         table = format_convergence_table(study)
-        write_table(out, table + "\n")
-        study["peak_memory_mb"] = peak_memory_mb()
-        write_summary(out, study)
-        if not args.no_plots:
+
+        def draw():
             # matplotlib is imported only for the figures
             from ..eld.figures import plot_convergence
 
@@ -777,9 +814,8 @@ class StudyEldConvergence:
                 title=f"eld-mms, {scheme.name}, {form.name}, P{study['degree']}",
                 order=scheme.order,
             )
-        if not args.quiet:
-            print(table)
-            print(f"wrote {out}/")
+
+        write_study(args, out, study, table, draw)
         return 0 if all("status" not in r for r in study["rows"]) else 1
 
 
@@ -794,15 +830,18 @@ class StudyEldPerturbation:
     name = "eld-perturbation"
 
     def configure(self, parser) -> None:
+        """--taus, --delta, --n, --degree, --seed, --targets, --scheme, the damping, the outputs and
+        the executor.
+        """
         parser.add_argument(
             "--taus",
             type=parse_float_list("--taus"),
             default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001],
             help="step sizes (default 0.1,0.05,0.02,0.01,0.005,0.002,0.001)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--delta",
-            type=parse_float("--delta"),
             default=1e-6,
             help="size of the noise (default 1e-6)",
         )
@@ -820,6 +859,9 @@ class StudyEldPerturbation:
         add_parallel_options(parser)
 
     def execute(self, args) -> int:
+        """Run the perturbation study of Theorem 4.5 for every ``--taus``; write its table and
+        figures.
+        """
         check_damping_options(args)
         for t in args.taus:
             check_eld_step("--taus", t, 1.0)
@@ -836,27 +878,19 @@ class StudyEldPerturbation:
         for t in targets:
             check_choice("--targets", t, NOISE_TARGETS)
         scheme = scheme_of(args)
-        n = check_int("--n", args.n, minimum=1)
-        damping = damping_of(args)
-        executor = executor_from_args(args, f"rothe study {self.name}")
-        out = output_dir(args, self.name)
-        study = perturbation_study(
+        study, out = run_study(
+            self.name,
+            args,
+            perturbation_study,
             taus,
             delta=args.delta,
             targets=targets,
-            n=n,
-            degree=args.degree,
-            damping=damping,
             seed=args.seed,
             scheme=scheme,
-            progress=progress_of(args),
-            executor=executor,
         )
         table = format_perturbation_table(study)
-        write_table(out, table + "\n")
-        study["peak_memory_mb"] = peak_memory_mb()
-        write_summary(out, study)
-        if not args.no_plots:
+
+        def draw():
             # matplotlib is imported only for the figures
             from ..eld.figures import plot_perturbation
 
@@ -867,7 +901,6 @@ class StudyEldPerturbation:
                     out / f"fig_perturbation_{target}.png",
                     title=f"{scheme.name}: noise in {target}, delta = {args.delta:g}",
                 )
-        if not args.quiet:
-            print(table)
-            print(f"wrote {out}/")
+
+        write_study(args, out, study, table, draw)
         return 0 if "failed" not in study else 1

@@ -15,8 +15,6 @@ mesh are the commands' ``validate``, also run by ``rothe sweep``).
 
 from __future__ import annotations
 
-import argparse
-
 from ..eld.constraint import LIFTINGS
 from ..eld.damping import DAMPINGS, make_damping
 from ..eld.data import DATA_MODES, DEFAULT_DATA
@@ -24,10 +22,9 @@ from ..eld.form import DEFAULT_FORM, Original, Regularized
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
 from ..eld.studies import check_delta, check_halvings, check_noise_targets
 from ..errors import check_choice, check_int, check_positive, described, fail
-from ..fem.adapt import SpaceAdaptivity
 from ..stepping.controllers import Adaptive, Given, Uniform
-from .common import given, parse_float
-from .ris_fem_commands import check_memory
+from .adapt_options import check_memory
+from .common import float_option, given
 
 #: the schemes and forms by their names on the command line
 SCHEMES = {"euler": ImplicitEuler, "bdf2": BDF2}
@@ -43,14 +40,6 @@ DATA_DEFAULT = DEFAULT_DATA.name
 #: step's error allows (the indicator sees the step's residual, time error included) refines
 #: without end, until memory runs out; twice the initial mesh's dofs when that is more
 ELD_MAX_DOFS = {"2d": 200_000, "3d": 300_000}
-#: the options of space adaptivity (all with --adapt-space only)
-SPACE_OPTIONS = (
-    "--space-tol",
-    "--refine-fraction",
-    "--coarsen-fraction",
-    "--max-dofs",
-    "--adapt-every",
-)
 #: the damping parameters each --damping reads; one written on the command line that the chosen
 #: damping ignores is refused (``eld-mms --a -1`` ran nonlinear damping and exited 0)
 DAMPING_OPTIONS = {
@@ -78,9 +67,9 @@ def step_options(parser, tau_default: float, scheme_default: str = SCHEME_DEFAUL
     """--form, --scheme, --tau and --control/--tol: every eld run command steps the same way."""
     form_option(parser)
     scheme_option(parser, scheme_default)
-    parser.add_argument(
+    float_option(
+        parser,
         "--tau",
-        type=parse_float("--tau"),
         default=tau_default,
         help=f"time step; must divide T (default {tau_default:g}); the first "
         "step with --control adaptive",
@@ -117,9 +106,9 @@ def control_options(parser) -> None:
         "by the local error estimate (then --tau is the first step) "
         f"(default {CONTROLS[0]})",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--tol",
-        type=parse_float("--tol"),
         default=None,
         help="tolerance of --control adaptive: local error in the energy norm "
         "relative to the run's energy-norm scale",
@@ -147,58 +136,6 @@ def lifting_option(parser) -> None:
     )
 
 
-def space_options(
-    parser, on: bool = False, default_tol: float | None = None, default_max_dofs: int | None = None
-) -> None:
-    """--adapt-space (on by default with ``on``: then --no-adapt-space) and its options."""
-    parser.add_argument(
-        "--adapt-space",
-        action=argparse.BooleanOptionalAction if on else "store_true",
-        default=on,
-        help="adapt the mesh (refine and coarsen by bisection) after every "
-        "--adapt-every-th step, by the residual indicator (docs/eld.md)"
-        + ("; on by default, --no-adapt-space keeps the mesh" if on else ""),
-    )
-    parser.add_argument(
-        "--space-tol",
-        type=parse_float("--space-tol"),
-        default=None,
-        help="tolerance of the estimate eta of a step (refine while above; "
-        + ("required with --adapt-space)" if default_tol is None else f"default {default_tol:g})"),
-    )
-    parser.add_argument(
-        "--refine-fraction",
-        type=parse_float("--refine-fraction"),
-        default=None,
-        help="Doerfler bulk fraction of eta^2 to refine, in (0, 1) (default 0.5)",
-    )
-    parser.add_argument(
-        "--coarsen-fraction",
-        type=parse_float("--coarsen-fraction"),
-        default=None,
-        help="share of max(eta, space-tol)^2 the coarsened cells "
-        "may carry, in (0, 1) (default 0.05)",
-    )
-    parser.add_argument(
-        "--max-dofs",
-        type=int,
-        default=None,
-        help="cap on the dofs of an adapted mesh (default "
-        + (
-            "none)"
-            if default_max_dofs is None
-            else f"{default_max_dofs:,}".replace(",", " ")
-            + ", or twice the initial mesh's dofs when that is more)"
-        ),
-    )
-    parser.add_argument(
-        "--adapt-every",
-        type=int,
-        default=None,
-        help="adapt after every k-th accepted step (default 1)",
-    )
-
-
 def keep_option(parser, default: int) -> None:
     """--keep-every with the command's default."""
     parser.add_argument(
@@ -218,34 +155,34 @@ def damping_options(parser, default: str = "nonlinear", default_b: float = 0.01)
         help="nonlinear | rayleigh | none (nonlinear: D v = b K v - d0 M v + "
         f"d_nl v/sqrt(1+|v|^2/v_ref^2)) (default {default})",
     )
-    parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density (default 1)")
-    parser.add_argument(
+    float_option(parser, "--rho", default=1.0, help="density (default 1)")
+    float_option(
+        parser,
         "--d0",
-        type=parse_float("--d0"),
         default=0.5,
         help="L2 anti-damping constant d0 of the nonlinear damping (default 0.5)",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--d-nl",
-        type=parse_float("--d-nl"),
         default=1.0,
         help="coefficient d_nl of the saturating part (default 1)",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--v-ref",
-        type=parse_float("--v-ref"),
         default=1.0,
         help="saturation velocity v_ref (default 1)",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--b",
-        type=parse_float("--b"),
         default=default_b,
         help=f"stiffness-proportional coefficient b (default {default_b:g})",
     )
-    parser.add_argument(
+    float_option(
+        parser,
         "--a",
-        type=parse_float("--a"),
         default=0.0,
         help="mass-proportional coefficient a of Rayleigh damping (default 0)",
     )
@@ -257,11 +194,9 @@ def mms_options(parser, n: int = 8) -> None:
         "--n", type=int, default=n, help=f"cells per side of the unit square (default {n})"
     )
     parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2: exact in space)")
-    parser.add_argument(
-        "--lam", type=parse_float("--lam"), default=2.0, help="Lamé lambda (default 2)"
-    )
-    parser.add_argument("--mu", type=parse_float("--mu"), default=1.0, help="Lamé mu (default 1)")
-    parser.add_argument("--T", type=parse_float("--T"), default=1.0, help="end time (default 1)")
+    float_option(parser, "--lam", default=2.0, help="Lamé lambda (default 2)")
+    float_option(parser, "--mu", default=1.0, help="Lamé mu (default 1)")
+    float_option(parser, "--T", default=1.0, help="end time (default 1)")
     data_options(parser)
     damping_options(parser)
 
@@ -317,32 +252,6 @@ def run_objects(args) -> dict:
     scheme = scheme_of(args)
     control = control_of(args)
     return {"scheme": scheme, "form": form_of(args), "control": control, "data": data_of(args)}
-
-
-def space_adaptivity(args, default_tol: float | None = None, default_max_dofs: int | None = None):
-    """The SpaceAdaptivity of the --adapt-space options, or None (one-line errors naming the
-    options; an option without --adapt-space is refused). ``default_max_dofs`` applies when
-    --max-dofs is not given (see :func:`rothe.cli.common.fit_default_cap`)."""
-    values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in SPACE_OPTIONS}
-    if not args.adapt_space:
-        for option, value in values.items():
-            if value is not None:
-                raise fail(option, value, "is used by --adapt-space only (this run keeps its mesh)")
-        return None
-    if values["--space-tol"] is None:
-        if default_tol is None:
-            raise fail("--space-tol", None, "must be given (> 0) with --adapt-space")
-        values["--space-tol"] = default_tol
-    if values["--max-dofs"] is None:
-        values["--max-dofs"] = default_max_dofs
-    kw = {"space_tol": values["--space-tol"], "max_dofs": values["--max-dofs"]}
-    for key, option, default in (
-        ("refine_fraction", "--refine-fraction", 0.5),
-        ("coarsen_fraction", "--coarsen-fraction", 0.05),
-        ("adapt_every", "--adapt-every", 1),
-    ):
-        kw[key] = default if values[option] is None else values[option]
-    return SpaceAdaptivity(naming="cli", **kw)
 
 
 def check_space_data(args, space) -> None:

@@ -14,13 +14,17 @@ file, exit status 1, the earlier files unchanged.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from pathlib import Path
 
-from .. import __version__
+from .._version import __version__
 from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
+from ..io.checkpoint import CheckpointError, load_checkpoint
 from . import registry
+from .common import float_option
+from .session import _run_dir
 
 
 class _Parser(argparse.ArgumentParser):
@@ -52,6 +56,13 @@ def command_list() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``rothe``: one subparser per verb, one per registered command under it, and
+    ``resume``.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+    """
     registry.load_all()
     parser = _Parser(
         prog="rothe",
@@ -89,31 +100,30 @@ class Resume:
 
     @staticmethod
     def configure(parser) -> None:
-        from .common import parse_float
+        """DIR, --quiet, --no-plots, --checkpoint-every and --progress-every."""
 
         parser.add_argument(
             "dir", metavar="DIR", help="the run's output directory (holding checkpoint/)"
         )
         parser.add_argument("--quiet", action="store_true", help="no progress and no summary")
         parser.add_argument("--no-plots", action="store_true", help="do not draw figures")
-        parser.add_argument(
+        float_option(
+            parser,
             "--checkpoint-every",
-            type=parse_float("--checkpoint-every"),
             default=None,
             metavar="SECONDS",
             help="checkpoint interval (default: the recorded one)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--progress-every",
-            type=parse_float("--progress-every"),
             default=None,
             metavar="SECONDS",
             help="progress line interval in logs (default: the recorded one)",
         )
 
     def execute(self, args) -> int:
-        from ..io.checkpoint import CheckpointError, load_checkpoint
-        from .session import _run_dir
+        """Re-run the command line recorded in DIR's checkpoint with --out DIR --resume DIR."""
 
         ckpt = load_checkpoint(args.dir, header_only=True)
         ckpt.require_resumable()
@@ -202,10 +212,11 @@ def execute(args) -> int:
     try:
         return int(args._command.execute(args) or 0)
     except RotheInputError as exc:
-        option = getattr(args, "_options", {}).get(exc.parameter)
-        if option is None:
+        table = getattr(args, "_options", {})
+        renamed = exc.renamed(table.get(exc.parameter), table)
+        if renamed is exc:
             raise
-        raise exc.renamed(option) from exc.__cause__
+        raise renamed from exc.__cause__
 
 
 def _dispatch(parser, argv: list[str]) -> int:
@@ -243,7 +254,6 @@ def _one_line_warning(message, category, filename, lineno, line=None):
 def _stdout_to_devnull() -> None:
     """After a broken pipe: send what Python still flushes at exit to /dev/null (else it prints
     'Exception ignored ... BrokenPipeError')."""
-    import os
 
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)

@@ -36,10 +36,14 @@ def command(verb: str, name: str):
 
 
 def commands(verb: str) -> dict:
+    """The registered commands of ``verb`` by name (empty for an unknown verb)."""
     return _COMMANDS.get(verb, {})
 
 
 def load_all() -> None:
+    """Import the modules of :data:`MODULES` (registering their commands); a module that does
+    not exist is skipped.
+    """
     for mod in MODULES:
         try:
             importlib.import_module(mod)

@@ -7,7 +7,6 @@ the run's summary and the work ratios of a comparison are :mod:`rothe.ris.summar
 from __future__ import annotations
 
 import math
-import sys
 from abc import ABC, abstractmethod
 
 from ..errors import (
@@ -19,7 +18,6 @@ from ..errors import (
     fail,
 )
 from ..parallel import Executor, Task, TaskFailed
-from ..parallel.executor import add_parallel_options, executor_from_args
 from ..ris import examples
 from ..ris.controllers import Nested, Order2, Regime
 from ..ris.run import run_nested, run_ris
@@ -27,16 +25,18 @@ from ..ris.summary import ris_summary, uniform_work_at_error
 from ..stepping.controllers import Adaptive, Uniform
 from .common import (
     add_output_options,
+    add_parallel_options,
+    executor_from_args,
+    float_option,
     given,
     output_dir,
-    parse_float,
     parse_float_list,
     print_summary,
     write_summary,
     write_table,
 )
 from .registry import command
-from .session import RunSession, add_run_options
+from .session import add_run_options, run_sequence
 
 SUMMARY_KEYS = (
     "example",
@@ -149,9 +149,9 @@ class RISRunBase(ABC):
             help="adaptive | uniform | nested | order2 | regime (default adaptive; regime: "
             "every step at the same residual, Alg. 3.2's acceptance)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tol",
-            type=parse_float("--tol"),
             default=1e-4,
             help="residual tolerance of adaptive/order2/regime (default 1e-4)",
         )
@@ -161,15 +161,15 @@ class RISRunBase(ABC):
             default=None,
             help="decreasing tolerances for --control nested (default 1e-3,1e-4,1e-5)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tau",
-            type=parse_float("--tau"),
             default=None,
             help=f"fixed step (uniform) or first step (default {self.default_tau})",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tau-min",
-            type=parse_float("--tau-min"),
             default=1e-12,
             help="smallest step before the run stops with an error (default 1e-12)",
         )
@@ -257,7 +257,6 @@ class RISRunBase(ABC):
         """Validate, build the problem, run (or resume) it and write its results."""
         control, tol, tau, tau_min, tols = self.validate(args)
         problem = self.build_problem(args)
-        session = RunSession(args, self.name)
         common = dict(
             simpson_subintervals=args.simpson,
             inner=self.inner_options(args),
@@ -272,28 +271,18 @@ class RISRunBase(ABC):
                 return [r.trajectory for r in run_nested(problem, spec, **common, **kw)]
             return [run_ris(problem, spec, **common, **kw).trajectory]
 
-        with session:
-            if session.already_completed:
-                print(
-                    f"rothe: {session.out}: the run already completed; its results are there",
-                    file=sys.stderr,
-                )
-                return 0
-            outcome = session.run(run)
-            results = session.results_dir(outcome.status)
-            if outcome.status == "completed" or outcome.result is not None:
-                with session.outputs(outcome.status) as stage:
-                    summary = self.write_results(
-                        args, problem, outcome, stage, session, control, tols, tau
-                    )
-            code = session.finish(outcome, results)
-        if outcome.status == "completed" and not args.quiet:
+        def write(stage, outcome):
+            return self.write_results(args, problem, outcome, stage, control, tols, tau)
+
+        code, outcome, results, summary = run_sequence(args, self.name, run, write)
+        if outcome is not None and outcome.status == "completed" and not args.quiet:
             print(f"rothe run {self.name}: wrote {results}/")
             print_summary(summary, SUMMARY_KEYS + tuple(self.summary_keys_extra()))
         return code
 
-    def write_results(self, args, problem, outcome, out, session, control, tols, tau) -> dict:
-        """Every output file of the run into ``out`` (the staging directory), summary last."""
+    def write_results(self, args, problem, outcome, out, control, tols, tau) -> dict:
+        """Every output file of the run into ``out`` (the staging directory); returns the
+        summary (the run sequence annotates it and writes it last)."""
         if outcome.status == "completed":
             runs = outcome.result
             traj = runs[-1]
@@ -315,8 +304,6 @@ class RISRunBase(ABC):
         if not args.no_plots and outcome.status == "completed":
             self.plot(args, problem, runs, out)
         summary.update(self.summary_at_end(args))
-        session.annotate(summary, outcome)
-        write_summary(out, summary)
         return summary
 
     def summary_keys_extra(self):
@@ -431,6 +418,12 @@ def compare_ris_1d(
         )
         for tau in taus
     ]
+    return compare_rows_of(tasks, executor)
+
+
+def compare_rows_of(tasks, executor=None) -> list[dict]:
+    """Run the tasks of a ``compare ris-*`` command (one ``Executor`` process when ``executor``
+    is None); a task that failed gives a row with its control, tol, tau0 and status."""
     results = (executor or Executor(1, progress=False)).map(tasks)
     return [
         r.value

@@ -21,21 +21,20 @@ t and s (``fig_dofs.png``) and snapshots of mesh and z (``fig_mesh_snapshots.png
 from __future__ import annotations
 
 import json
-import os
 import time
 
 import numpy as np
 
 from ..errors import RotheInputError, RunFailed, check_choice, check_int, check_positive, fail
-from ..fem.adapt import SpaceAdaptivity, check_adaptable
+from ..fem.adapt import check_adaptable
 from ..fem.linear import LINEAR_SOLVERS, ReusableSolver
 from ..fem.mesh import DUPLICATE_NODES, load_mesh
 from ..io.atomic import atomic_write_text
 from ..io.mesh_series import write_vtu_series
 from ..io.xdmf import write_series
-from ..parallel import Executor, Task, TaskFailed
-from ..parallel.executor import add_parallel_options, executor_from_args
+from ..parallel import Task, TaskFailed
 from ..ris import examples
+from ..ris.adapt import HYSTERESIS
 from ..ris.inner import InnerOptions, amg_threshold_for
 from ..ris.run import run_ris, stored_states
 from ..ris.summary import (
@@ -46,13 +45,20 @@ from ..ris.summary import (
     format_jump_times,
     ris_summary,
 )
+from .adapt_options import (
+    add_space_options,
+    check_memory,
+    fit_default_cap,
+    space_adaptivity,
+)
 from .common import (
     _jsonable,
     add_output_options,
-    fit_default_cap,
+    add_parallel_options,
+    executor_from_args,
+    float_option,
     given,
     output_dir,
-    parse_float,
     parse_float_list,
     peak_memory_mb,
     progress_of,
@@ -60,7 +66,7 @@ from .common import (
     write_table,
 )
 from .registry import command
-from .ris_commands import RISRunBase, check_step, control_object, run_cost
+from .ris_commands import RISRunBase, check_step, compare_rows_of, control_object, run_cost
 
 #: ReusableSolver.kind_used for each resolved method (kept in sync by tests/cli/test_cli_ris_fem.py)
 LINEAR_KINDS = {"direct": "splu", "amg": "pyamg-sa"}
@@ -103,151 +109,6 @@ RIS_BYTES_PER_NODE = {2: 3000, 3: 12000}
 def grid_nodes(n: int, dim: int) -> int:
     """Nodes of the built-in grid with n cells per side in ``dim`` dimensions."""
     return (n + 1) ** dim
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available to a new allocation: MemAvailable of /proc/meminfo (Linux),
-    else physical memory by os.sysconf; None if neither is known."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def _bytes(x: float) -> str:
-    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
-        if x < 1000 or unit == "PB":
-            return f"{x:.3g} {unit}"
-        x /= 1000
-    return f"{x:.3g} PB"  # pragma: no cover
-
-
-def check_memory(option: str, value, count: int, bytes_each: float, what: str = "nodes") -> None:
-    """Refuse, before allocating, a size whose estimated peak exceeds the available memory."""
-    need = float(count) * bytes_each
-    have = available_memory()
-    if have is not None and need > have:
-        raise fail(
-            option,
-            value,
-            f"needs about {_bytes(need)} ({count:.3g} {what}, estimated), "
-            f"more than the {_bytes(have)} of memory available",
-        )
-
-
-#: the options of space adaptivity (refused without --adapt-space)
-SPACE_OPTIONS = (
-    "--space-tol",
-    "--refine-fraction",
-    "--coarsen-fraction",
-    "--max-dofs",
-    "--adapt-every",
-    "--refine-band",
-    "--coarsen-delay",
-    "--max-recoarsen",
-    "--coarsen-batch",
-)
-
-
-def add_space_options(parser, default_tol: float, default_max_dofs: int) -> None:
-    """--adapt-space and its options (:func:`space_from_args` reads them)."""
-    parser.add_argument(
-        "--adapt-space",
-        action="store_true",
-        help="adapt the mesh between steps (bisection: refine where the step's "
-        "residual indicator is large, coarsen where the front has passed)",
-    )
-    parser.add_argument(
-        "--space-tol",
-        type=parse_float("--space-tol"),
-        default=None,
-        help=f"refine while the estimate exceeds it (default {default_tol:g})",
-    )
-    parser.add_argument(
-        "--refine-fraction",
-        type=parse_float("--refine-fraction"),
-        default=0.5,
-        help="Doerfler bulk fraction of eta^2 to refine (default 0.5)",
-    )
-    parser.add_argument(
-        "--coarsen-fraction",
-        type=parse_float("--coarsen-fraction"),
-        default=0.05,
-        help="share of max(eta, space_tol)^2 the coarsened cells may carry (default 0.05)",
-    )
-    parser.add_argument(
-        "--max-dofs",
-        type=int,
-        default=None,
-        help=f"cap on the nodes of an adapted mesh (default {default_max_dofs:_}".replace("_", " ")
-        + ", or twice the "
-        "initial mesh's nodes when that is more: the indicator of a "
-        "non-smooth state never falls below --space-tol, and without a "
-        "cap the mesh grows until memory runs out)",
-    )
-    parser.add_argument(
-        "--adapt-every",
-        type=int,
-        default=1,
-        help="adapt after every K-th accepted step (default 1)",
-    )
-    # hysteresis and band (rothe.fem.adapt.hysteresis, .marking); unset: the RIS defaults
-    parser.add_argument(
-        "--refine-band",
-        type=parse_float("--refine-band"),
-        default=None,
-        help="refine a band of this width around the refined cells with them (a length; default 0)",
-    )
-    parser.add_argument(
-        "--coarsen-delay",
-        type=int,
-        default=None,
-        help="cells refined in the last K adaptations do not coarsen (default 4)",
-    )
-    parser.add_argument(
-        "--max-recoarsen",
-        type=int,
-        default=None,
-        help="a cell is refined and coarsened again at most K times (default 2)",
-    )
-    parser.add_argument(
-        "--coarsen-batch",
-        type=parse_float("--coarsen-batch"),
-        default=None,
-        help="an adaptation that only coarsens needs this share of the cells marked (default 0)",
-    )
-
-
-def space_from_args(args, default_tol: float, default_max_dofs: int):
-    """The SpaceAdaptivity of ``--adapt-space`` (None without it); options validated (exit 2)
-    and refused when given without --adapt-space."""
-    if not args.adapt_space:
-        for option in SPACE_OPTIONS:
-            if given(args, option):
-                value = getattr(args, option.lstrip("-").replace("-", "_"))
-                raise fail(option, value, "is only used with --adapt-space")
-        return None
-    if args.mesh is not None:  # before loading: a quadrilateral/mixed file is named as such
-        check_adaptable(args.mesh, "--adapt-space")
-    return SpaceAdaptivity(
-        space_tol=default_tol if args.space_tol is None else args.space_tol,
-        refine_fraction=args.refine_fraction,
-        coarsen_fraction=args.coarsen_fraction,
-        max_dofs=default_max_dofs if args.max_dofs is None else args.max_dofs,
-        adapt_every=args.adapt_every,
-        naming="cli",
-        refine_band=args.refine_band,
-        coarsen_delay=args.coarsen_delay,
-        max_recoarsen=args.max_recoarsen,
-        coarsen_batch=args.coarsen_batch,
-    )
 
 
 def _as_option_error(exc, args):
@@ -314,15 +175,15 @@ class _RunRISFem(RISRunBase):
             + (",front,back" if self.dim == 3 else "")
             + " on the grid) where z = 0; default: the whole boundary",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--z0",
-            type=parse_float("--z0"),
             default=self.default_z0,
             help=f"initial state at every interior node (default {self.default_z0:g})",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--amplitude",
-            type=parse_float("--amplitude"),
             default=self.default_amplitude,
             help=self.amplitude_help,
         )
@@ -348,7 +209,13 @@ class _RunRISFem(RISRunBase):
             "jumps) | t (physical time: one state per t, a jump shows as "
             "its end state); with --adapt-space the same for solution.pvd",
         )
-        add_space_options(parser, self.default_space_tol, self.default_max_dofs)
+        add_space_options(
+            parser,
+            default_tol=self.default_space_tol,
+            default_max_dofs=self.default_max_dofs,
+            indicator="the step's residual indicator (docs/ris_fem.md)",
+            hysteresis=HYSTERESIS,
+        )
 
     amplitude_help = (
         "load <l(t), z> = A t^3 int z (default A = -200; its sign picks the branch z < 0 or z > 0)"
@@ -370,8 +237,17 @@ class _RunRISFem(RISRunBase):
             raise fail("--n", args.n, "cannot be combined with --mesh (the mesh fixes the grid)")
         n = check_int("--n", args.n if args.n is not None else self.default_n, minimum=2)
         if args.mesh is None:
-            check_memory("--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim])
-        self._adapt = space_from_args(args, self.default_space_tol, self.default_max_dofs)
+            check_memory(
+                "--n", n, grid_nodes(n, self.dim), RIS_BYTES_PER_NODE[self.dim], what="nodes"
+            )
+        if args.adapt_space and args.mesh is not None:  # before loading: a quad file is named so
+            check_adaptable(args.mesh, "--adapt-space")
+        self._adapt = space_adaptivity(
+            args,
+            default_tol=self.default_space_tol,
+            default_max_dofs=self.default_max_dofs,
+            hysteresis=True,
+        )
         if self._adapt is not None and args.max_dofs is not None:
             check_memory("--max-dofs", args.max_dofs, args.max_dofs, RIS_BYTES_PER_NODE[self.dim])
         return super().validate(args)
@@ -605,9 +481,9 @@ class RunRISFront(_RunRISFem):
     def add_example_options(self, parser) -> None:
         """The options of ris-2d and --coefficient."""
         super().add_example_options(parser)
-        parser.add_argument(
+        float_option(
+            parser,
             "--coefficient",
-            type=parse_float("--coefficient"),
             default=None,
             help="c of 1/2 int c |grad z|^2 (default 0.1; the interface is about sqrt(c/192) wide)",
         )
@@ -698,18 +574,7 @@ def compare_ris_2d(
         )
         for c, tol, tau in runs
     ]
-    results = (executor or Executor(1, progress=False)).map(tasks)
-    return [
-        r.value
-        if isinstance(r.value, dict)
-        else {
-            "control": t.kwargs["control"],
-            "tol": t.kwargs["tol"],
-            "tau0": t.kwargs["tau"],
-            "status": f"{r.status}: {r.message}",
-        }
-        for t, r in zip(tasks, results, strict=True)
-    ]
+    return compare_rows_of(tasks, executor)
 
 
 def format_table(rows) -> str:
@@ -793,9 +658,9 @@ class CompareRIS2D:
             help="step controllers besides uniform, from adaptive, order2, regime "
             "(default all three)",
         )
-        parser.add_argument(
+        float_option(
+            parser,
             "--tau",
-            type=parse_float("--tau"),
             default=0.1,
             help="first step of the step controllers (default 0.1)",
         )
@@ -816,7 +681,7 @@ class CompareRIS2D:
             raise fail("--n", args.n, "cannot be combined with --mesh")
         n = check_int("--n", args.n if args.n is not None else 40, minimum=2)
         if args.mesh is None:
-            check_memory("--n", n, grid_nodes(n, 2), RIS_BYTES_PER_NODE[2])
+            check_memory("--n", n, grid_nodes(n, 2), RIS_BYTES_PER_NODE[2], what="nodes")
         mesh = load_mesh(args.mesh, dim=2, name="--mesh") if args.mesh is not None else None
         executor = executor_from_args(args, "rothe compare ris-2d")
         out = output_dir(args, "compare-ris-2d")

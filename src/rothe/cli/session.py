@@ -34,12 +34,13 @@ from ..io.checkpoint import (
     CheckpointError,
     CheckpointOptions,
     DirectoryLock,
+    changed_keys,
     load_checkpoint,
     normalized,
 )
 from ..io.outputs import OutputSet, read_summary
 from ..stepping import interrupt
-from .common import parse_float, progress_of
+from .common import float_option, progress_of, write_summary
 
 #: options that change where and how results are shown, never the results themselves
 PRESENTATION = (
@@ -61,9 +62,9 @@ INCOMPLETE = "incomplete"
 
 def add_run_options(parser) -> None:
     """``--checkpoint-every``, ``--resume`` and ``--discard-checkpoint`` of the run commands."""
-    parser.add_argument(
+    float_option(
+        parser,
         "--checkpoint-every",
-        type=parse_float("--checkpoint-every"),
         default=60.0,
         metavar="SECONDS",
         help="write a checkpoint to OUT/checkpoint every SECONDS of wall time "
@@ -189,8 +190,7 @@ class RunSession:
         old, new = rec.get("args", {}), result_arguments(self.args)
         diff = [
             f"{_option(k)} {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-            for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k)
+            for k in changed_keys(old, new)
         ]
         if diff:
             raise CheckpointError(
@@ -264,6 +264,7 @@ class RunSession:
             return None
 
     def outputs(self, status: str) -> OutputSet:
+        """The set of output files of this run, committed together into :meth:`results_dir`."""
         return OutputSet(self.results_dir(status))
 
     def annotate(self, summary: dict, outcome: Outcome) -> dict:
@@ -312,6 +313,43 @@ class RunSession:
             )
             return exc.exit_status
         raise exc
+
+
+def run_sequence(args, name: str, run, write, *, prepare=None, completed=None):
+    """The one run sequence of every ``rothe run`` command: run (or resume) -> stage -> write
+    -> annotate -> summary last -> finish.
+
+    ``run(checkpoint=, resume=, progress=)`` runs the problem (:meth:`RunSession.run`);
+    ``write(stage, outcome) -> summary | None`` writes the result into the staging directory
+    (also of a failed or interrupted run with a trajectory), returning the summary, which is
+    annotated (:meth:`RunSession.annotate`) and written last; ``prepare(session)`` runs first
+    inside the session (e.g. opens a stream writer); ``completed()`` after a completed run's
+    results are committed. Returns ``(exit status, outcome, results directory, summary)``;
+    ``outcome`` is None when a resumed run had already completed (nothing is done).
+    """
+    session = RunSession(args, name)
+    summary = None
+    with session:
+        if session.already_completed:
+            print(
+                f"rothe: {session.out}: the run already completed; its results are there",
+                file=sys.stderr,
+            )
+            return 0, None, session.out, None
+        if prepare is not None:
+            prepare(session)
+        outcome = session.run(run)
+        results = session.results_dir(outcome.status)
+        if outcome.status == "completed" or outcome.result is not None:
+            with session.outputs(outcome.status) as stage:
+                summary = write(stage, outcome)
+                if summary is not None:
+                    session.annotate(summary, outcome)
+                    write_summary(stage, summary)
+        code = session.finish(outcome, results)
+        if outcome.status == "completed" and completed is not None:
+            completed()
+    return code, outcome, results, summary
 
 
 def _run_dir(path: Path) -> Path:

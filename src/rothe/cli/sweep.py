@@ -29,9 +29,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..cli.common import _jsonable as conv
 from ..errors import RotheInputError, RunInterrupted, fail
+from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
 from ..parallel.executor import Executor
 from ..parallel.tasks import TaskResult
+from ..plotting.sweep import plot_sweep
 from ..stepping.interrupt import signal_name
 from . import registry
 from .tasks import cli_task
@@ -216,7 +219,6 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
     run's session refuses a checkpoint made with other options (status ``error``, the message
     says which). Runs without a checkpoint, or whose checkpoint is of a failed run, run anew.
     Returns what happens to each run: ``resume`` | ``run``."""
-    from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
 
     what = {}
     for run in runs:
@@ -236,6 +238,7 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
 
 
 def sweep_tasks(runs: list[SweepRun]):
+    """One :func:`~rothe.cli.tasks.cli_task` per run of the sweep (its argv and folder)."""
     return [cli_task(run.name, run.argv, out=run.out) for run in runs]
 
 
@@ -264,7 +267,6 @@ def _same(a, b) -> bool:
 
 
 def _jsonable(value):
-    from ..cli.common import _jsonable as conv
 
     return conv(value)
 
@@ -278,6 +280,7 @@ def _write_atomic(path: Path, text: str) -> Path:
 
 
 def table_columns(rows: list[dict]) -> list[str]:
+    """The keys of all rows, in the order they first occur."""
     cols: list[str] = []
     for row in rows:
         cols += [k for k in row if k not in cols]
@@ -311,6 +314,7 @@ def write_table(out: Path, rows: list[dict], meta: dict) -> tuple[Path, Path]:
 
 
 def parse_plot(text: str | None) -> tuple[str, str] | None:
+    """``--plot X,Y`` as the pair (X, Y); None for None; one line naming --plot otherwise."""
     if text is None:
         return None
     cols = [c.strip() for c in text.split(",")]
@@ -344,6 +348,11 @@ def format_rows(rows: list[dict], params: list[SweepParam], extra=()) -> str:
 
 @dataclass
 class SweepResult:
+    """What :func:`run_sweep` returns: the rows, the sweep's folder, the paths of ``sweep.csv``
+    and ``sweep.json``, the figure (None without ``plot`` or when a column is missing), the
+    ``plot`` columns no row has, and the swept parameters.
+    """
+
     rows: list[dict]
     out: Path
     csv: Path
@@ -453,8 +462,6 @@ def run_sweep(
         cols = table_columns(rows)
         missing = [c for c in xy if c not in cols]
         if not missing:
-            from ..plotting.sweep import plot_sweep
-
             x, y = xy
             group = [p.name for p in resolved if p.name != x]
             if x not in {p.name for p in resolved} and group:

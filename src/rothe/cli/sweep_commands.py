@@ -13,8 +13,9 @@ import argparse
 import sys
 
 from ..errors import RotheInputError
-from ..parallel.executor import add_parallel_options, executor_from_args
+from .common import add_parallel_options, executor_from_args
 from .registry import command
+from .sweep import format_rows, parse_plot, run_sweep
 
 #: the sweep's own options; everything else after the example is passed to every run
 _VALUED = ("--param", "--out", "--plot", "--workers", "--scheduler")
@@ -85,12 +86,17 @@ def split_sweep_args(tokens: list[str]) -> tuple[list[str], list[str]]:
 
 @command("sweep", "run")
 class SweepRunCommand:
+    """``rothe sweep run <example>``: a ``rothe run`` command over the Cartesian product of
+    ``--param`` values (:func:`rothe.cli.sweep.run_sweep`).
+    """
+
     help = (
         "the Cartesian product of option values of a run command (--param NAME=V1,V2,...), "
         "in parallel; one table of all summaries"
     )
 
     def configure(self, parser) -> None:
+        """The example, the sweep's own options and the options passed to every run."""
         parser.add_argument("example", help="the example of `rothe run` to sweep, e.g. ris-2d")
         _sweep_options(parser)
         parser.add_argument(
@@ -105,7 +111,7 @@ class SweepRunCommand:
         self._parser = parser
 
     def execute(self, args) -> int:
-        from .sweep import format_rows, parse_plot, run_sweep
+        """Split the sweep's options from the runs', run the sweep and print its table."""
 
         own_tokens, fixed = split_sweep_args(list(args.run_options))
         if "-h" in own_tokens or "--help" in own_tokens:

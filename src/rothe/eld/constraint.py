@@ -41,7 +41,16 @@ LIFTINGS = ("nodal", "harmonic")
 
 
 class DirichletConstraint:
-    """B = M_G S on the named Dirichlet parts of a :class:`~rothe.fem.elasticity.VectorSpace`."""
+    """B = M_G S on the named Dirichlet parts of a :class:`~rothe.fem.elasticity.VectorSpace`.
+
+    Parameters
+    ----------
+    space : VectorSpace
+    parts : sequence of str
+        The boundary parts where u = G.
+    name : str
+        The parameter an unknown part's error names.
+    """
 
     def __init__(self, space, parts, name: str = "dirichlet"):
         parts = tuple(parts)
@@ -112,7 +121,12 @@ class DirichletConstraint:
 
 
 class NodalLifting:
-    """B^- g = S^T g (zero extension by the nodal basis; see the module docstring)."""
+    """B^- g = S^T g (zero extension by the nodal basis; see the module docstring).
+
+    Parameters
+    ----------
+    constraint : DirichletConstraint
+    """
 
     name = "nodal"
 
@@ -128,7 +142,14 @@ class NodalLifting:
 
 
 class HarmonicLifting:
-    """B^- g: u_C = g, K_II u_I = -K_IC g (discrete elastic extension, K-orthogonal complement)."""
+    """B^- g: u_C = g, K_II u_I = -K_IC g (discrete elastic extension, K-orthogonal complement).
+
+    Parameters
+    ----------
+    constraint : DirichletConstraint
+    K : sparse matrix
+        The stiffness matrix.
+    """
 
     name = "harmonic"
 

@@ -43,7 +43,17 @@ DAMPINGS = ("none", "rayleigh", "nonlinear")
 
 @dataclass(frozen=True)
 class DampingConstants:
-    """d0, d1 and d2 = d2_energy + d2_l2 C_emb^2 of (2.5) (see the module docstring)."""
+    """d0, d1 and d2 = d2_energy + d2_l2 C_emb^2 of (2.5) (see the module docstring).
+
+    Parameters
+    ----------
+    d0 : float
+        The L2 anti-damping constant of (2.5) (the step bound rho/d0 of Lemma 3.2).
+    d1 : float
+        The monotonicity constant of (2.5): d1 ||u - v||^2 - d0 |u - v|^2 <= <D u - D v, u - v>.
+    d2_energy, d2_l2 : float
+        The two parts of the Lipschitz constant d2 = d2_energy + d2_l2 C_emb^2 of (2.5).
+    """
 
     d0: float
     d1: float
@@ -173,11 +183,20 @@ class NoDamping(Damping):
         return DampingConstants(0.0, 0.0, 0.0, 0.0)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """No damping: the operator of M and K with zero coefficients."""
         return DampingOperator(M, K)
 
 
 class RayleighDamping(Damping):
-    """D v = a M v + b K v with a, b >= 0 (M the mass of density 1)."""
+    """D v = a M v + b K v with a, b >= 0 (M the mass of density 1).
+
+    Parameters
+    ----------
+    a : float >= 0
+        Mass-proportional coefficient.
+    b : float >= 0
+        Stiffness-proportional coefficient.
+    """
 
     name = "rayleigh"
 
@@ -190,6 +209,7 @@ class RayleighDamping(Damping):
         return DampingConstants(0.0, self.b, self.b, self.a)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """The linear operator a M + b K."""
         return DampingOperator(M, K, mass_coef=self.a, stiffness_coef=self.b)
 
     def describe(self) -> dict:
@@ -216,6 +236,17 @@ class NonlinearDamping(Damping):
     """D v = b K v - d0 M v + d_nl N(v), N(v) = v / sqrt(1 + |v|^2 / v_ref^2) pointwise.
 
     N is integrated with the degree-2p quadrature of the space (exact for the mass part).
+
+    Parameters
+    ----------
+    b : float >= 0
+        Stiffness-proportional coefficient.
+    d0 : float >= 0
+        L2 anti-damping constant.
+    d_nl : float >= 0
+        Coefficient of the saturating part.
+    v_ref : float > 0
+        Saturation velocity.
     """
 
     name = "nonlinear"
@@ -235,6 +266,9 @@ class NonlinearDamping(Damping):
         return -self.d0 * v + self.d_nl * saturating_velocity(v, self.v_ref)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """The operator b K - d0 M plus d_nl N(v), with N's Jacobian (assembled and as an
+        action).
+        """
         linear = dict(mass_coef=-self.d0, stiffness_coef=self.b)
         if self.d_nl == 0.0:
             return DampingOperator(M, K, **linear)
@@ -272,6 +306,15 @@ class UserDamping(Damping):
     ``force(v)`` and ``jacobian(v)`` receive the interleaved dof vector v (component c of scalar
     dof k at index d*k + c) and return a vector of the same length and a sparse matrix. State
     the constants of (2.5): d0 (used for the step-size bound of Lemma 3.2), d1 and d2 (reported).
+
+    Parameters
+    ----------
+    matrix : sparse matrix, optional
+        The linear damping C (shape of M).
+    force, jacobian : callable(v), optional
+        The nonlinear damping D(v) and its Jacobian (instead of ``matrix``).
+    d0, d1, d2 : float
+        The constants of (2.5).
     """
 
     name = "user"
@@ -310,6 +353,9 @@ class UserDamping(Damping):
         return DampingConstants(self.d0, self.d1, self.d2, 0.0)
 
     def operator(self, space, M, K) -> DampingOperator:
+        """The given matrix C (shape checked against M), or the given force D(v) with its
+        Jacobian.
+        """
         if self.matrix is not None:
             C = sp.csr_matrix(self.matrix)
             if C.shape != M.shape:
@@ -329,7 +375,20 @@ def make_damping(
     d_nl: float = 1.0,
     v_ref: float = 1.0,
 ) -> Damping:
-    """Build a damping by name (the CLI's --damping)."""
+    """Build a damping by name (the CLI's --damping).
+
+    Parameters
+    ----------
+    kind : {'none', 'rayleigh', 'nonlinear'}
+    a, b : float
+        Rayleigh: D v = a M v + b K v (nonlinear: b only).
+    d0, d_nl, v_ref : float
+        Nonlinear damping (:class:`NonlinearDamping`).
+
+    Returns
+    -------
+    Damping
+    """
     if kind == "none":
         return NoDamping()
     if kind == "rayleigh":

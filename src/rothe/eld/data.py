@@ -183,12 +183,19 @@ class Means(DataMode):
     name = "means"
 
     def load(self, problem, t_prev, t):
+        """F^j by the two-point Gauss rule on (t_{j-1}, t_j] (F(t_j) for a problem without
+        loads).
+        """
         if not problem.has_loads:
             return problem.load(t)
         tau = t - t_prev
         return sum(0.5 * problem.load(t_prev + a * tau) for a in _GAUSS2)
 
     def derivatives(self, problem, G, t_prev, t, coefficients, history, noise):
+        """G_dot^j = (G(t_j) - G(t_{j-1}))/tau_j + xi^j and G_ddot^j = (G_dot(t_j) -
+        G_dot(t_{j-1}))/tau_j
+        + vartheta^j (the recipe after Lemma 3.1).
+        """
         xi, vartheta = noise
         tau = t - t_prev
         return (
@@ -197,6 +204,7 @@ class Means(DataMode):
         )
 
     def check(self, scheme) -> None:
+        """Refuse a scheme of order > 1 (step means are first-order data)."""
         if scheme.order > 1:
             raise fail(
                 "data",
@@ -232,18 +240,24 @@ class Differenced(DataMode):
         return problem.constraint.restrict(problem.v0)
 
     def initial_history(self, G0, G_dot0):
+        """The boundary vectors G^0 and G_dot^0 of the initial state."""
         return {"G": G0, "G_dot": G_dot0}
 
     def history(self, boundary, coefficients):
+        """G^{j-1}, G_dot^{j-1} and, when alpha_2 != 0, G^{j-2}, G_dot^{j-2} from the state."""
         hist = {k: boundary[k] for k in ("G", "G_dot")}
         if coefficients[2]:
             hist.update(G_1=boundary["G_1"], G_dot_1=boundary["G_dot_1"])
         return hist
 
     def start_history(self, U1, V0, V1, dofs):
+        """The BDF2 start history as G^{-1} = U1, G_dot^0 = V0, G_dot^{-1} = V1 on the
+        constrained dofs.
+        """
         return {"G_1": U1[dofs], "G_dot": V0[dofs], "G_dot_1": V1[dofs]}
 
     def next_history(self, boundary, values):
+        """Shift the history: this step's G, G_dot become G^{j-1}, G_dot^{j-1}."""
         return {
             "G": values.G,
             "G_1": boundary["G"],
@@ -267,6 +281,10 @@ def as_data_mode(data) -> DataMode:
 
 @dataclass
 class StepValues:
+    """The data of one step j (module docstring): F^j (dof vector), G^j, G_dot^j, G_ddot^j
+    (constraint vectors), perturbed if the run has a :class:`DataNoise`.
+    """
+
     F: np.ndarray
     G: np.ndarray
     G_dot: np.ndarray
@@ -281,7 +299,16 @@ class StepValues:
 
 
 class StepData:
-    """Evaluates the data of a step from t_prev to t (see the module docstring)."""
+    """Evaluates the data of a step from t_prev to t (see the module docstring).
+
+    Parameters
+    ----------
+    problem : ELDProblem
+    mode : DataMode, optional
+        Points (default), Means or Differenced.
+    noise : DataNoise, optional
+        The perturbation of the data (Theorem 4.5).
+    """
 
     def __init__(self, problem, mode: DataMode | None = None, noise: DataNoise | None = None):
         self.problem = problem

@@ -15,9 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..fem.adapt import AdaptiveMesh
-from ..fem.adapt.efficiency import energy_error, initial_mesh, profile_field
-from ..fem.adapt.marking import doerfler_marking
+from ..fem.adapt.efficiency import energy_error, profile_field, refinement_study
 from ..fem.elasticity import VectorSpace
 from .indicator import eld_indicators, stress
 
@@ -86,10 +84,8 @@ def elasticity_study(
 
     phi = profile_field(dim, profile, width)
     a = np.array([1.0, 0.5, 0.25][:dim])
-    amesh = AdaptiveMesh(initial_mesh(dim, n0, tagged=True))
-    rows = []
-    for _ in range(max_levels):
-        mesh = amesh.mesh
+
+    def level(mesh):
         space, u, u_exact, grad_exact, body, neumann = _elasticity_solve(
             mesh, degree, lam, mu, kappa, a, phi
         )
@@ -118,19 +114,22 @@ def elasticity_study(
 
         U = u.reshape(-1, dim)
         err = energy_error(mesh, degree, U, u_exact, grad_exact, energy)
-        rows.append(
-            {
-                "dofs": space.ndofs,
-                "cells": mesh.t.shape[1],
-                "estimate": ind.estimate,
-                "error": err,
-                "efficiency": ind.estimate / err,
-            }
-        )
-        if space.ndofs >= max_dofs:
-            break
-        if adaptive:
-            amesh.refine(doerfler_marking(ind.eta, theta))
-        else:
-            amesh.uniform(dim)
-    return rows
+        row = {
+            "dofs": space.ndofs,
+            "cells": mesh.t.shape[1],
+            "estimate": ind.estimate,
+            "error": err,
+            "efficiency": ind.estimate / err,
+        }
+        return row, ind.eta
+
+    return refinement_study(
+        dim,
+        n0,
+        True,
+        level,
+        adaptive=adaptive,
+        max_dofs=max_dofs,
+        theta=theta,
+        max_levels=max_levels,
+    )

@@ -73,7 +73,14 @@ def _div_sigma_const(c, lam, mu):
 
 
 class ManufacturedSolution:
-    """u = alpha(t) P + beta(t) R, alpha = sin(pi t + pi/6), beta = 1 - cos(pi t) (module doc)."""
+    """u = alpha(t) P + beta(t) R, alpha = sin(pi t + pi/6), beta = 1 - cos(pi t) (module doc).
+
+    Parameters
+    ----------
+    material : Material
+    damping : Damping
+        The damping the body force is made for.
+    """
 
     def __init__(self, material: Material, damping: Damping):
         self.material = material
@@ -164,6 +171,27 @@ def mms_problem(
     Default damping: NonlinearDamping(b=0.01, d0=0.5, d_nl=1, v_ref=1). ``start='rest'`` starts
     from u0 = v0 = 0 instead of the exact initial data, which is inconsistent with G(0) != 0
     (Remark 2.2) and is refused before the first step.
+
+    Parameters
+    ----------
+    n : int
+        Cells per side.
+    degree : int
+        1 or 2.
+    damping : Damping, optional
+    rho, lam, mu : float
+        Density and Lamé constants.
+    T : float
+        The end time.
+    dirichlet : sequence of str
+        The Dirichlet parts (traction on the others).
+    start : {'exact', 'rest'}
+    load_quadrature : int, optional
+        The degree of the quadrature of body force and tractions (default 2 * degree).
+
+    Returns
+    -------
+    (ELDProblem, ManufacturedSolution)
     """
     start = check_choice("start", start, ("exact", "rest"))
     material = Material(rho=rho, lam=lam, mu=mu, dim=2)
@@ -329,7 +357,21 @@ def ramp_problem(
     mu: float = 1.0,
     T: float = 1.0,
 ) -> ELDProblem:
-    """The unit square with its left side moved by a fast smoothed step (module docstring)."""
+    """The unit square with its left side moved by a fast smoothed step (module docstring).
+
+    Parameters
+    ----------
+    amplitude, t_ramp, width : float
+        A, t_ramp and w of G(t) (module docstring).
+    b : float
+        The Rayleigh damping b K.
+    n, degree, rho, lam, mu, T
+        As in :func:`mms_problem`.
+
+    Returns
+    -------
+    ELDProblem
+    """
     material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     step = SmoothStep(amplitude, t_ramp, width)
     mesh = meshes.unit_square(n, named=True)
@@ -385,7 +427,29 @@ def beam_problem(
     T: float = 2.0,
     degree: int = 1,
 ) -> ELDProblem:
-    """The cantilever: n cells across the unit cross-section, round(length * n) along it."""
+    """The cantilever: n cells across the unit cross-section, round(length * n) along it.
+
+    Parameters
+    ----------
+    n : int
+        Cells across the cross-section.
+    length : float
+        L.
+    E, nu, rho : float
+        Young's modulus, Poisson's ratio, density.
+    damping : Damping, optional
+        None: no damping (:class:`~rothe.eld.damping.NoDamping`).
+    amplitude, t_move : float
+        A and t_move of the end motion G(t) (module docstring).
+    T : float
+        The end time.
+    degree : int
+        1 or 2.
+
+    Returns
+    -------
+    ELDProblem
+    """
     material = Material.from_young(E, nu, rho, dim=3)
     nx = max(1, int(round(length * n)))
     mesh = meshes.box(nx, n, n, length, 1.0, 1.0)

@@ -15,7 +15,17 @@ from ..fem.elasticity import lame_from_young
 
 @dataclass(frozen=True)
 class Material:
-    """rho > 0, mu > 0, lam > -2 mu / dim (dim = 2 plane strain, or 3)."""
+    """rho > 0, mu > 0, lam > -2 mu / dim (dim = 2 plane strain, or 3).
+
+    Parameters
+    ----------
+    rho : float
+        Density.
+    lam, mu : float
+        Lamé constants.
+    dim : int
+        2 (plane strain) or 3.
+    """
 
     rho: float
     lam: float

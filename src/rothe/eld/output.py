@@ -170,7 +170,23 @@ def write_eld_result(
       kept state (the run needs ``store_fields=True``; ``keep_every`` thins them);
     - ``fig_energy.png`` (the energy identity term by term) and ``fig_reaction.png``.
 
-    A space-adaptive run (``result.meshes``) is written by :func:`write_adaptive_eld_result`.
+    A space-adaptive run (``result.meshes``: ``run_eld(..., adapt=...)``, :mod:`rothe.eld.adapt`)
+    gets instead:
+
+    - ``trajectory.npz``: the series of the run (with ``mesh_id``, ``ndofs``, ``cells`` per
+      state and ``kept_mesh_id`` per kept state), every distinct mesh once
+      (``mesh_ids``, ``mesh_points_<id>``, ``mesh_cells_<id>``, ``state_mesh_id`` = the kept
+      states' mesh ids; :class:`rothe.io.mesh_series.MeshSeries`) and the kept fields
+      ``kept_u``, ``kept_v``, ``kept_a``, ``kept_lam`` concatenated with ``kept_<f>_offsets``
+      (state k: ``kept_u[off[k]:off[k + 1]]``, interleaved P``degree`` dofs of its mesh in
+      scikit-fem's numbering, vertices first);
+    - ``<name>.pvd`` with ``<name>_000000.vtu`` ...: one VTU per kept state on its own mesh
+      (point data ``u``, ``v`` at the vertices), the ``.pvd`` index with the times: ParaView
+      plays the states with their meshes (File > Open the .pvd);
+    - ``fig_energy.png``, ``fig_reaction.png``, ``fig_dofs.png`` (dofs against t) and, in 2D,
+      ``fig_mesh.png`` (four kept states: mesh and |u|).
+
+    There ``xdmf`` switches the ``.pvd``/VTU series.
 
     Parameters
     ----------
@@ -181,7 +197,7 @@ def write_eld_result(
     name : str
         The base name of the ParaView files.
     xdmf, figures, npz : bool
-        Which outputs to write.
+        Which outputs to write (``xdmf``: the ParaView files, XDMF or ``.pvd``/VTU).
     title : str
         The figures' title.
 
@@ -196,9 +212,7 @@ def write_eld_result(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if result.meshes is not None:
-        return write_adaptive_eld_result(
-            result, out, name=name, paraview=xdmf, figures=figures, npz=npz, title=title
-        )
+        return _write_adaptive(result, out, name, xdmf, figures, npz, title)
     traj, problem = result.trajectory, result.problem
     paths: dict = {}
     if npz:
@@ -230,32 +244,8 @@ def write_eld_result(
     return paths
 
 
-def write_adaptive_eld_result(
-    result,
-    out_dir,
-    *,
-    name: str = "eld",
-    paraview: bool = True,
-    figures: bool = True,
-    npz: bool = True,
-    title: str = "",
-) -> dict:
-    """The outputs of a space-adaptive run (``run_eld(..., adapt=...)``, :mod:`rothe.eld.adapt`)
-    into ``out_dir``; returns the written paths by kind:
-
-    - ``trajectory.npz``: the series of the run (with ``mesh_id``, ``ndofs``, ``cells`` per
-      state and ``kept_mesh_id`` per kept state), every distinct mesh once
-      (``mesh_ids``, ``mesh_points_<id>``, ``mesh_cells_<id>``, ``state_mesh_id`` = the kept
-      states' mesh ids; :class:`rothe.io.mesh_series.MeshSeries`) and the kept fields
-      ``kept_u``, ``kept_v``, ``kept_a``, ``kept_lam`` concatenated with ``kept_<f>_offsets``
-      (state k: ``kept_u[off[k]:off[k + 1]]``, interleaved P``degree`` dofs of its mesh in
-      scikit-fem's numbering, vertices first);
-    - ``<name>.pvd`` with ``<name>_000000.vtu`` ...: one VTU per kept state on its own mesh
-      (point data ``u``, ``v`` at the vertices), the ``.pvd`` index with the times: ParaView
-      plays the states with their meshes (File > Open the .pvd);
-    - ``fig_energy.png``, ``fig_reaction.png``, ``fig_dofs.png`` (dofs against t) and, in 2D,
-      ``fig_mesh.png`` (four kept states: mesh and |u|).
-    """
+def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dict:
+    """The outputs of a space-adaptive run (:func:`write_eld_result` lists them)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     traj, sp = result.trajectory, result.meshes

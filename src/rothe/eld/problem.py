@@ -74,7 +74,16 @@ class _CellQuadrature:
 
 @dataclass
 class DirichletData:
-    """G(t, x) on one boundary part, with its time derivatives if known."""
+    """G(t, x) on one boundary part, with its time derivatives if known.
+
+    Parameters
+    ----------
+    G : callable(t, x) -> values
+        The prescribed displacement on the part.
+    G_dot, G_ddot : callable(t, x) -> values, optional
+        Its first and second time derivatives (None: central differences of G, see
+        :class:`ELDProblem`).
+    """
 
     G: object
     G_dot: object = None

@@ -20,6 +20,7 @@ far (and a checkpoint).
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import asdict, dataclass
 
@@ -90,7 +91,20 @@ class ELDRun:
 
     ``checkpointing`` (a :class:`~rothe.io.checkpoint.RunCheckpointing`, or None) holds the
     lock on the checkpoint directory from :func:`prepare_eld_run` until :meth:`evolve` ends or
-    :meth:`close` is called."""
+    :meth:`close` is called.
+
+    Parameters
+    ----------
+    stepper : ELDStepper
+    controller
+        The step controller.
+    trajectory : Trajectory
+    state : ELDState
+        The state to continue from.
+    tau_min : float
+        The evolve loop's smallest step.
+    checkpointing : RunCheckpointing, optional
+    """
 
     stepper: ELDStepper
     controller: object
@@ -199,6 +213,14 @@ def prepare_eld_run(
     """Validate the options, build stepper and controller, record the initial state (the
     arguments of :func:`run_eld`); with ``resume``, restore stepper, controller, trajectory and
     state from the checkpoint instead.
+
+    Parameters
+    ----------
+    problem : ELDProblem
+    scheme, form, control, data, adapt, solver, newton, noise
+        As in :func:`run_eld`.
+    store_fields, keep_every, observer, linear_rtol, error_scale, meta, checkpoint, resume
+        As in :func:`run_eld`.
 
     Returns
     -------
@@ -325,27 +347,7 @@ def prepare_eld_run(
     return ELDRun(stepper, controller, traj, state, loop_tau_min, rc)
 
 
-def run_eld(
-    problem: ELDProblem,
-    *,
-    scheme: Scheme = DEFAULT_SCHEME,
-    form: Form = DEFAULT_FORM,
-    control=DEFAULT_CONTROL,
-    data: DataMode = DEFAULT_DATA,
-    adapt=None,
-    solver: str = "auto",
-    newton: NewtonOptions | None = None,
-    noise: DataNoise | None = None,
-    store_fields: bool = True,
-    keep_every: int = 1,
-    observer=None,
-    progress=False,
-    linear_rtol: float = 1e-10,
-    error_scale: float | None = None,
-    meta: dict | None = None,
-    checkpoint=None,
-    resume=None,
-) -> ELDResult:
+def run_eld(problem: ELDProblem, *, progress=False, **options) -> ELDResult:
     """Run implicit Euler (3.4) or BDF2 from t = 0 to T on the shared evolve loop.
 
     Parameters
@@ -401,26 +403,7 @@ def run_eld(
     data is not finite, :class:`~rothe.errors.RunInterrupted` on SIGINT / SIGTERM, and
     :class:`~rothe.errors.RotheInputError` (one line naming the parameter) for bad input.
     """
-    run = prepare_eld_run(
-        problem,
-        scheme=scheme,
-        form=form,
-        control=control,
-        data=data,
-        adapt=adapt,
-        solver=solver,
-        newton=newton,
-        noise=noise,
-        store_fields=store_fields,
-        keep_every=keep_every,
-        observer=observer,
-        linear_rtol=linear_rtol,
-        error_scale=error_scale,
-        meta=meta,
-        checkpoint=checkpoint,
-        resume=resume,
-    )
-    return run.evolve(progress=progress)
+    return prepare_eld_run(problem, **options).evolve(progress=progress)
 
 
 def _eld_where(traj: Trajectory, state: ELDState) -> dict:
@@ -442,3 +425,16 @@ def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:
         "krylov_iterations": s.krylov_iterations,
         "setup_seconds": s.setup_seconds,
     }
+
+
+# help(run_eld) and inspect show every keyword: those of prepare_eld_run, and progress
+def _run_eld_signature() -> inspect.Signature:
+    prepare = inspect.signature(prepare_eld_run)
+    names = list(prepare.parameters)
+    params = list(prepare.parameters.values())
+    progress = inspect.Parameter("progress", inspect.Parameter.KEYWORD_ONLY, default=False)
+    params.insert(names.index("observer") + 1, progress)
+    return prepare.replace(parameters=params, return_annotation="ELDResult")
+
+
+run_eld.__signature__ = _run_eld_signature()

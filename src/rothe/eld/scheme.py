@@ -150,15 +150,19 @@ class ImplicitEuler(Scheme):
     alpha0 = 1.0
 
     def coefficients(self, tau, tau_prev=None):
+        """(1, -1, 0) whatever the steps."""
         return 1.0, -1.0, 0.0
 
     def max_step(self, bound, tau_prev):
+        """``bound`` itself: tau < rho/d0 (alpha_0 = 1)."""
         return bound
 
     def estimate_factor(self, omega):
+        """c = 1: the residual tau^2/2 u'' is the local error itself."""
         return 1.0
 
     def check_step(self, tau, bound):
+        """Refuse tau >= rho/d0 (Lemma 3.2)."""
         if not tau < bound:
             raise fail(
                 "tau",
@@ -191,6 +195,10 @@ class BDF2(Scheme):
         check_choice("start", self.start, STARTS)
 
     def coefficients(self, tau, tau_prev=None):
+        """alpha_0 = (1 + 2 omega)/(1 + omega), alpha_1 = -(1 + omega), alpha_2 = omega^2/(1 +
+        omega)
+        with omega = tau/tau_prev (omega = 1 for the first step).
+        """
         w = 1.0 if tau_prev is None else tau / tau_prev
         return (1.0 + 2.0 * w) / (1.0 + w), -(1.0 + w), w * w / (1.0 + w)
 
@@ -205,10 +213,14 @@ class BDF2(Scheme):
         return 0.5 * (2.0 * c - tp + math.sqrt(tp * tp + 4.0 * c * c))
 
     def estimate_factor(self, omega):
+        """c(omega) = 2 (1 + omega)^2 / (omega (1 + 2 omega) + 2 (1 + omega)^2) (8/11 for omega =
+        1).
+        """
         w = omega
         return 2.0 * (1.0 + w) ** 2 / (w * (1.0 + 2.0 * w) + 2.0 * (1.0 + w) ** 2)
 
     def check_step(self, tau, bound):
+        """Refuse an equal step with tau/1.5 >= rho/d0 (Lemma 3.2 with alpha_0 = 3/2)."""
         if not tau / 1.5 < bound:
             raise fail(
                 "tau",
@@ -219,6 +231,7 @@ class BDF2(Scheme):
             )
 
     def first_step(self) -> Scheme:
+        """Implicit Euler with ``start='euler'``, else this BDF2."""
         return ImplicitEuler() if self.start == "euler" else self
 
     @property
@@ -226,6 +239,7 @@ class BDF2(Scheme):
         return self.start != "euler"
 
     def describe(self) -> dict:
+        """``scheme`` and the ``start`` of the history."""
         return {"scheme": self.name, "start": self.start}
 
 

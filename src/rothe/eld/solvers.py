@@ -29,6 +29,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import fail
+from ..fem.linear import reproducible_random
 from ..stepping.evolve import single_threaded_blas
 from ..timing import PhaseTimes
 
@@ -47,6 +48,10 @@ AMG_DEFAULTS = dict(
 
 @dataclass
 class SolverStats:
+    """Counters of a linear solver: factorizations (LU or AMG setups), backsolves (applications of
+    the stored factorization or V-cycles), Krylov iterations, systems solved and setup seconds.
+    """
+
     factorizations: int = 0  # LU factorizations or AMG setups
     backsolves: int = 0  # applications of the stored factorization / V-cycles
     krylov_iterations: int = 0
@@ -138,9 +143,7 @@ class ReferenceSolver:
             self._prec = lu.solve
             self._ml = None
         else:
-            import pyamg
-
-            from ..fem.linear import reproducible_random
+            import pyamg  # heavy: imported when first needed (start-up time)
 
             # BSR (d x d blocks) is kept: pyamg then aggregates nodes, not single components
             if not (sp.issparse(A) and A.format in ("bsr", "csr")):

@@ -81,7 +81,35 @@ PRODUCTS = {
 
 @dataclass
 class EnergyLedger:
-    """Cumulative terms of the discrete energy identity (module docstring)."""
+    """Cumulative terms of the discrete energy identity (module docstring).
+
+    Attributes
+    ----------
+    kinetic, elastic : float
+        1/2 rho v.M v and 1/2 u.K u at t_j.
+    initial : float
+        E^0.
+    work : float
+        Work of the loads, sum tau F.v.
+    work_reaction : float
+        Work of the support on the prescribed motion, -sum tau lambda.B v.
+    dissipated : float
+        Physical dissipation, sum tau D(v).v.
+    numerical : float
+        Numerical dissipation, sum N^j.
+    mismatch : float
+        Data/start mismatch, sum X^j.
+    residual_work : float
+        sum tau R.v (solver residual).
+    transfer : float
+        Energy changes by mesh transfers.
+    numerical_G, step_change : float
+        sum N_G^j and sum S^j of the G-stability split (BDF2).
+    boundary_C, boundary_C0 : float
+        C^j and C^0.
+    g_zd_kin, g_sq_kin, g_zd_el, g_sq_el, g_mu : float
+        The pieces of C^j kept for the next step.
+    """
 
     kinetic: float = 0.0
     elastic: float = 0.0
@@ -148,7 +176,25 @@ class EnergyLedger:
 
 @dataclass
 class ELDState:
-    """The state after step j (module docstring: fields, boundary, products)."""
+    """The state after step j (module docstring: fields, boundary, products).
+
+    Parameters
+    ----------
+    t : float
+        The time t_j.
+    j : int
+        The number of steps.
+    tau_prev : float or None
+        The step that ended at t (None at j = 0).
+    fields, boundary, products : dict
+        The dof vectors, the vectors on the constrained dofs and the cached M, K products (module
+        docstring).
+    ledger : EnergyLedger
+    energy_norm_max : float
+        S_j, the scale of the error estimate (:mod:`rothe.eld.stepper`).
+    mesh_id : int
+        The mesh the fields live on (space adaptivity).
+    """
 
     t: float
     j: int
@@ -212,7 +258,29 @@ class ELDStepResult:
     (and with it the mesh and the problem) the step was computed on, ``estimate`` the local
     error estimate, ``refinements`` how often the step's own mesh was refined and the step
     solved again (space adaptivity), ``code`` an :class:`ELDCode` and ``message`` the one-line
-    account of a failure."""
+    account of a failure.
+
+    Parameters
+    ----------
+    state : ELDState or None
+    tau : float
+        The step tried.
+    lam : ndarray, optional
+        The multiplier lambda^j.
+    reactions : dict
+        The reaction of every Dirichlet part.
+    newton_iterations : int
+    estimate : float
+    counters : dict
+        The linear solver's counters of the step.
+    converged : bool
+    code : ELDCode
+    message : str
+    where : dict
+        Where a failure happened (step, t, tau).
+    system : ELDSystem, optional
+    refinements : int
+    """
 
     state: ELDState | None
     tau: float

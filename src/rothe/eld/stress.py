@@ -27,7 +27,13 @@ import numpy as np
 class StressEvaluator:
     """Cell stresses and their nodal averages on one :class:`~rothe.fem.elasticity.VectorSpace`.
 
-    The mean basis gradients per cell are computed once (nbf x d x n_cells floats)."""
+    The mean basis gradients per cell are computed once (nbf x d x n_cells floats).
+
+    Parameters
+    ----------
+    space : VectorSpace
+    material : Material
+    """
 
     def __init__(self, space, material):
         self.space = space
@@ -79,7 +85,16 @@ class StressEvaluator:
 
 
 def von_mises(sigma: np.ndarray) -> np.ndarray:
-    """(3/2 s:s)^{1/2} of 3 x 3 stresses (..., 3, 3), s the deviator."""
+    """(3/2 s:s)^{1/2} of 3 x 3 stresses (..., 3, 3), s the deviator.
+
+    Parameters
+    ----------
+    sigma : ndarray (..., 3, 3)
+
+    Returns
+    -------
+    ndarray (...)
+    """
     sigma = np.asarray(sigma, dtype=float)
     tr = np.trace(sigma, axis1=-2, axis2=-1)
     s = sigma - (tr / 3.0)[..., None, None] * np.eye(3)
@@ -87,5 +102,17 @@ def von_mises(sigma: np.ndarray) -> np.ndarray:
 
 
 def cauchy_stress(space, material, u: np.ndarray) -> np.ndarray:
-    """Cauchy stress per cell, (n_cells, 3, 3) (one-off use; see :class:`StressEvaluator`)."""
+    """Cauchy stress per cell, (n_cells, 3, 3) (one-off use; see :class:`StressEvaluator`).
+
+    Parameters
+    ----------
+    space : VectorSpace
+    material : Material
+    u : ndarray
+        The displacement (dof vector).
+
+    Returns
+    -------
+    ndarray (n_cells, 3, 3)
+    """
     return StressEvaluator(space, material).stress(u)

@@ -360,6 +360,30 @@ def perturbation_study(
     Each (tau, form) is an independent task of ``executor`` (:class:`rothe.parallel.Executor`;
     default: one after another in this process). A (tau, form) whose runs fail gets NaN
     amplifications and is listed under ``"failed"``.
+
+    Parameters
+    ----------
+    taus : sequence of float
+        The step sizes.
+    delta : float
+        The size of the noise.
+    targets : sequence of str
+        The data perturbed, each alone.
+    forms : sequence of Form
+    n, degree : int
+        The mesh of :func:`mms_problem`.
+    damping : Damping, optional
+    seed : int
+        The noise's seed.
+    T : float
+    scheme : Scheme
+    progress : bool
+    executor : Executor, optional
+
+    Returns
+    -------
+    dict
+        As above.
     """
     forms = tuple(as_form(f) for f in forms)
     scheme = as_scheme(scheme)

@@ -53,6 +53,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import check_int, check_positive, check_real, fail
+from . import _assembly_numba
 from .mesh import check_simplex_mesh, with_fast_edges, with_fast_facets
 
 #: element-matrix entries (floats) per chunk of cells in the numpy assembly (32 MB)
@@ -76,7 +77,12 @@ def lame_from_young(E: float, nu: float) -> tuple[float, float]:
 
 
 def _scalar_element(dim: int, degree: int):
-    from skfem import ElementTetP1, ElementTetP2, ElementTriP1, ElementTriP2
+    from skfem import (  # heavy: imported when first needed (start-up time)
+        ElementTetP1,
+        ElementTetP2,
+        ElementTriP1,
+        ElementTriP2,
+    )
 
     return {(2, 1): ElementTriP1, (2, 2): ElementTriP2, (3, 1): ElementTetP1, (3, 2): ElementTetP2}[
         (dim, degree)
@@ -92,7 +98,6 @@ def use_numba(work: int | None = None) -> bool:
     forced = os.environ.get("ROTHE_NUMBA", "0") not in ("", "0")
     if work is not None and work < NUMBA_MIN_WORK and not forced:
         return False
-    from . import _assembly_numba
 
     return _assembly_numba.AVAILABLE
 
@@ -143,6 +148,7 @@ _REFERENCES: dict = {}
 def _reference(element, dim: int, degree: int) -> _Reference:
     key = (dim, degree)
     if key not in _REFERENCES:
+        # heavy: imported when first needed (start-up time of the command line)
         from skfem.quadrature import get_quadrature
 
         nbf = element.doflocs.shape[0]
@@ -334,8 +340,6 @@ class BlockMatrix(sp.bsr_matrix):
             and other.ndim == 1
             and use_numba()
         ):
-            from . import _assembly_numba
-
             return _assembly_numba.bsr_matvec(
                 self.indptr, self.indices, self.data, np.ascontiguousarray(other)
             )
@@ -395,7 +399,7 @@ class VectorSpace:
             self.element_dofs = np.asarray(mesh.t)
             self.n_scalar = int(mesh.p.shape[1])
         else:
-            from skfem.assembly import Dofs
+            from skfem.assembly import Dofs  # heavy: imported when first needed (start-up time)
 
             # scikit-fem numbers the P2 dofs by the mesh edges (3D) or facets (2D); build them
             # by one sort of int64 keys instead of its np.unique over rows
@@ -442,6 +446,7 @@ class VectorSpace:
         return self.pattern.nnz
 
     def scalar_matrix(self, values: np.ndarray) -> sp.csr_matrix:
+        """The scalar n x n CSR matrix with ``values`` on the scalar sparsity pattern."""
         n = self.n_scalar
         return sp.csr_matrix((values, self.pattern_cols, self.pattern_indptr), shape=(n, n))
 
@@ -495,7 +500,7 @@ class VectorSpace:
     def grad_basis(self):
         """scikit-fem Basis with the rule of degree 2(p - 1) (at least one point); created on
         first use (the matrices here do not need it)."""
-        from skfem import Basis
+        from skfem import Basis  # heavy: imported when first needed (start-up time)
 
         return Basis(self.mesh, self.element, intorder=max(1, 2 * (self.degree - 1)))
 
@@ -506,7 +511,7 @@ class VectorSpace:
         Used for loads, errors and nonlinear (pointwise) damping; created on first use because
         at a million unknowns in 3D it costs about a gigabyte.
         """
-        from skfem import Basis
+        from skfem import Basis  # heavy: imported when first needed (start-up time)
 
         return Basis(self.mesh, self.element, intorder=2 * self.degree)
 
@@ -529,6 +534,7 @@ class VectorSpace:
 
     @cached_property
     def cell_volumes(self) -> np.ndarray:
+        """|K| of every cell (|det J| / d!)."""
         t = np.asarray(self.mesh.t)
         return affine_geometry(np.asarray(self.mesh.p), t)[1] / math.factorial(self.dim)
 
@@ -540,8 +546,6 @@ class VectorSpace:
         pat = self.pattern
         blocks = np.zeros((pat.nnz, d, d))
         if self.compiled_assembly:
-            from . import _assembly_numba
-
             _assembly_numba.stiffness_blocks(
                 np.asarray(self.mesh.p),
                 np.asarray(self.mesh.t),
@@ -588,8 +592,6 @@ class VectorSpace:
         ref = self._ref
         out = np.zeros(self.nnz_scalar)
         if self.compiled_assembly:
-            from . import _assembly_numba
-
             _assembly_numba.scalar_mass(
                 np.asarray(self.mesh.p),
                 np.asarray(self.mesh.t),
@@ -605,6 +607,7 @@ class VectorSpace:
         return out
 
     def scalar_mass(self) -> sp.csr_matrix:
+        """The scalar mass matrix int phi_i phi_j (CSR, exact)."""
         return self.scalar_matrix(self.scalar_mass_values)
 
     def kron_identity(self, values: np.ndarray) -> sp.csr_matrix:
@@ -794,6 +797,7 @@ class VectorSpace:
 
     # -- boundary -------------------------------------------------------------------------------
     def part_names(self) -> list[str]:
+        """The names of the mesh's boundary parts, sorted."""
         return sorted((self.mesh.boundaries or {}).keys())
 
     def facets(self, parts, name: str = "parts") -> np.ndarray:
@@ -826,7 +830,10 @@ class VectorSpace:
     def facet_quadrature(
         self, parts, intorder: int | None = None, name: str = "parts"
     ) -> FacetQuadrature:
-        from skfem import FacetBasis
+        """A :class:`FacetQuadrature` on the named boundary parts (degree ``intorder``, default 2p;
+        ``name`` is the parameter an unknown part's error names).
+        """
+        from skfem import FacetBasis  # heavy: imported when first needed (start-up time)
 
         facets = self.facets(parts, name)
         fb = FacetBasis(

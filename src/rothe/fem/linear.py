@@ -41,12 +41,17 @@ LINEAR_SOLVERS = ("auto", "direct", "amg")
 
 @dataclass
 class LinearStats:
+    """Counters of a :class:`ReusableSolver`: preconditioner builds (LU factorizations or AMG
+    setups), right-hand sides solved, Krylov iterations, failures.
+    """
+
     factorizations: int = 0  # preconditioner builds (LU factorizations or AMG setups)
     solves: int = 0  # right-hand sides solved
     krylov_iterations: int = 0
     failures: int = 0
 
     def as_dict(self) -> dict:
+        """The counters as a dict."""
         return dict(self.__dict__)
 
 
@@ -78,6 +83,7 @@ def sparse_state(M) -> dict:
 
 
 def sparse_from_state(data: dict):
+    """The CSC or CSR matrix of :func:`sparse_state`'s dict."""
     cls = sp.csc_matrix if data["format"] == "csc" else sp.csr_matrix
     return cls(
         (np.asarray(data["data"]), np.asarray(data["indices"]), np.asarray(data["indptr"])),
@@ -130,6 +136,9 @@ class ReusableSolver:
         self._ref_kind = None
 
     def resolve_kind(self, n: int) -> str:
+        """``'direct'`` or ``'amg'`` for ``n`` unknowns: the method, or for ``'auto'`` direct up
+        to ``amg_threshold`` unknowns.
+        """
         if self.method != "auto":
             return self.method
         return "direct" if n <= self.amg_threshold else "amg"
@@ -159,7 +168,7 @@ class ReusableSolver:
             self._prec = lu.solve
             self.kind_used = "splu"
         else:
-            import pyamg
+            import pyamg  # heavy: imported when first needed (start-up time)
 
             with reproducible_random():
                 ml = pyamg.smoothed_aggregation_solver(Kc, max_coarse=500)
@@ -188,6 +197,9 @@ class ReusableSolver:
         }
 
     def restore_state(self, data: dict) -> None:
+        """Restore from :meth:`checkpoint_state`: the preconditioner rebuilt from its matrix, the
+        key, the iteration baseline and the counters.
+        """
         self.reset()
         ref = data["reference"]
         if ref is not None:

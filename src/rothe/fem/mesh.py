@@ -28,6 +28,8 @@ Checks (:func:`check_mesh`): finite coordinates, cell indices in range, no degen
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +47,7 @@ def bad(name: str, what: str, allowed: str) -> RotheInputError:
 
 
 def _skfem_class(dim: int):
-    from skfem import MeshTet, MeshTri
+    from skfem import MeshTet, MeshTri  # heavy: imported when first needed (start-up time)
 
     return {2: MeshTri, 3: MeshTet}[dim]
 
@@ -62,7 +64,7 @@ def unit_square(n: int = 40, pattern: str = "tensor", *, named: bool = False):
     the parity of i + j, so for even n the mesh is symmetric under all eight symmetries of the
     square.
     """
-    from skfem import MeshTri
+    from skfem import MeshTri  # heavy: imported when first needed (start-up time)
 
     n = check_int("n", n, minimum=1)
     x = np.linspace(0.0, 1.0, n + 1)
@@ -88,7 +90,7 @@ def unit_square(n: int = 40, pattern: str = "tensor", *, named: bool = False):
 
 def unit_cube(n: int = 12):
     """The unit cube with n^3 cubes split into 6 n^3 tetrahedra ((n + 1)^3 nodes)."""
-    from skfem import MeshTet
+    from skfem import MeshTet  # heavy: imported when first needed (start-up time)
 
     n = check_int("n", n, minimum=1)
     x = np.linspace(0.0, 1.0, n + 1)
@@ -97,7 +99,7 @@ def unit_cube(n: int = 12):
 
 def box(nx: int, ny: int, nz: int, length: float = 1.0, height: float = 1.0, width: float = 1.0):
     """[0, length] x [0, height] x [0, width] with nx * ny * nz cubes of six tetrahedra each."""
-    from skfem import MeshTet
+    from skfem import MeshTet  # heavy: imported when first needed (start-up time)
 
     nx, ny, nz = (check_int(k, v, minimum=1) for k, v in (("nx", nx), ("ny", ny), ("nz", nz)))
     length = check_positive("length", length)
@@ -164,7 +166,7 @@ def box_part_nodes(mesh, name: str, facets: np.ndarray | None = None) -> np.ndar
 
 def check_simplex_mesh(mesh, name: str = "mesh") -> int:
     """Spatial dimension of a scikit-fem triangle/tetrahedron mesh (else a one-line error)."""
-    from skfem import MeshTet, MeshTri
+    from skfem import MeshTet, MeshTri  # heavy: imported when first needed (start-up time)
 
     if isinstance(mesh, MeshTri):
         return 2
@@ -176,6 +178,7 @@ def check_simplex_mesh(mesh, name: str = "mesh") -> int:
 
 
 def mesh_dim(mesh) -> int:
+    """The space dimension d of a mesh (2: triangles, 3: tetrahedra)."""
     return int(mesh.p.shape[0])
 
 
@@ -266,10 +269,8 @@ def _match_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _read_meshio(path: Path, name: str):
     """meshio.read, silenced: meshio prints to stdout/stderr and calls sys.exit(1) when no
     reader for the extension succeeds; both become one RotheInputError line here."""
-    import contextlib
-    import io
 
-    import meshio
+    import meshio  # heavy: imported when first needed (start-up time)
 
     chatter = io.StringIO()
     try:
@@ -299,7 +300,7 @@ def coincident_nodes(p: np.ndarray, rel: float = 1e-12) -> np.ndarray:
     ``p``: (d, n) coordinates. A k-d tree (scipy.spatial.cKDTree), so O(n log n) in C: no
     Python loop over nodes.
     """
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # heavy: imported when first needed (start-up time)
 
     if p.shape[1] < 2:
         return np.empty((0, 2), dtype=np.int64)
@@ -310,8 +311,10 @@ def coincident_nodes(p: np.ndarray, rel: float = 1e-12) -> np.ndarray:
 
 def _merge_map(n: int, pairs: np.ndarray) -> np.ndarray:
     """Index of the representative (smallest index of its cluster) of every node."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
+    import scipy.sparse as sp  # heavy: imported when first needed (start-up time)
+    from scipy.sparse.csgraph import (
+        connected_components,  # heavy: imported when first needed (start-up time)
+    )
 
     graph = sp.csr_matrix(
         (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n)
@@ -468,16 +471,19 @@ def _boundary_parts(m, blocks, dim, new_index) -> dict[str, np.ndarray]:
 
 
 def boundary_part_names(mesh) -> list[str]:
+    """The names of the mesh's boundary parts, sorted (empty without named parts)."""
     return sorted((mesh.boundaries or {}).keys())
 
 
 def describe(mesh) -> str:
+    """``'<nodes> nodes, <cells> triangles'`` (or tetrahedra), for messages."""
     d = mesh_dim(mesh)
     kind = "triangles" if d == 2 else "tetrahedra"
     return f"{mesh.p.shape[1]} nodes, {mesh.t.shape[1]} {kind}"
 
 
 def require_dim(mesh, dim: int, name: str = "mesh"):
+    """``mesh`` if it is ``dim``-dimensional, else a one-line error naming ``name``."""
     d = mesh_dim(mesh)
     if d != dim:
         raise RotheInputError(
@@ -488,7 +494,10 @@ def require_dim(mesh, dim: int, name: str = "mesh"):
 
 def from_meshio(m):
     """A scikit-fem mesh (with named parts from cell sets) from a ``meshio.Mesh`` object."""
-    from skfem.io.meshio import from_meshio as _from
+    # heavy: imported when first needed (start-up time of the command line)
+    from skfem.io.meshio import (
+        from_meshio as _from,  # heavy: imported when first needed (start-up time)
+    )
 
     mesh = _from(m)
     check_simplex_mesh(mesh, "mesh")

@@ -27,7 +27,8 @@ from functools import cached_property
 
 import numpy as np
 
-from .adapt.topology import (
+from ..errors import fail
+from .topology import (
     FacetTopology,
     barycentric_gradients,
     cell_diameters,
@@ -39,8 +40,12 @@ from .adapt.topology import (
 
 def _rule(dim_ref: int, order: int) -> tuple[np.ndarray, np.ndarray]:
     """Barycentric points (dim_ref + 1, nq) and weights summing to 1 on a reference simplex."""
-    from skfem.quadrature import get_quadrature
-    from skfem.refdom import RefLine, RefTet, RefTri
+    from skfem.quadrature import get_quadrature  # heavy: imported when first needed (start-up time)
+    from skfem.refdom import (  # heavy: imported when first needed (start-up time)
+        RefLine,
+        RefTet,
+        RefTri,
+    )
 
     if dim_ref == 0:
         return np.ones((1, 1)), np.ones(1)
@@ -69,6 +74,9 @@ class CellIndicators:
         return float(np.sqrt(np.sum(self.eta**2)))
 
     def describe(self) -> dict:
+        """The estimate, the cell, jump and boundary parts ((sum of squares)^(1/2) each) and the
+        largest eta_K.
+        """
         return {
             "estimate": self.estimate,
             "cell": float(np.sqrt(self.cell.sum())),
@@ -97,6 +105,7 @@ class SimplexEvaluator:
 
     @cached_property
     def topology(self) -> FacetTopology:
+        """The facet topology (:class:`FacetTopology`) of the evaluator's mesh."""
         return FacetTopology(self.p, self.t)
 
     # -- cells ----------------------------------------------------------------------------------
@@ -211,8 +220,6 @@ class SimplexEvaluator:
         sel = np.zeros(self.topology.facets.shape[1], dtype=bool)
         for part in parts:
             if part not in known:
-                from ..errors import fail
-
                 names = ", ".join(sorted(known)) or "(the mesh has no named parts)"
                 raise fail("parts", part, f"must be one of {names}")
             sel[np.asarray(known[part], dtype=np.int64)] = True

@@ -22,19 +22,22 @@ import contextlib
 import os
 import re
 import secrets
+import shutil
 from pathlib import Path
 
-from ..errors import OutputWriteError
+from ..errors import OutputWriteError, fail
 
 TMP_PREFIX = ".rothe-tmp-"
 _TMP_RE = re.compile(r"^\.rothe-tmp-(\d+)-[0-9a-f]+-")
 
 
 def temporary_name(path: Path) -> Path:
+    """The temporary name ``.rothe-tmp-<pid>-<token>-<name>`` beside ``path``."""
     return path.with_name(f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{path.name}")
 
 
 def fsync_file(path) -> None:
+    """Flush ``path``'s data to the disk (``os.fsync``)."""
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -57,6 +60,7 @@ def fsync_dir(path) -> None:
 
 
 def unlink_quietly(path) -> None:
+    """Remove ``path``; no error if it cannot be removed (e.g. it does not exist)."""
     with contextlib.suppress(OSError):
         os.unlink(path)
 
@@ -88,6 +92,7 @@ def atomic_path(path, *, fsync: bool = True):
 
 
 def atomic_write_bytes(path, data: bytes, *, fsync: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically (module docstring); returns ``path``."""
     path = Path(path)
     with atomic_path(path, fsync=fsync) as tmp, open(tmp, "wb") as f:
         f.write(data)
@@ -95,6 +100,7 @@ def atomic_write_bytes(path, data: bytes, *, fsync: bool = True) -> Path:
 
 
 def atomic_write_text(path, text: str, *, fsync: bool = True) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically; returns ``path``."""
     return atomic_write_bytes(path, text.encode("utf-8"), fsync=fsync)
 
 
@@ -116,7 +122,6 @@ def remove_stale_temporaries(directory) -> int:
     Only names of the form ``.rothe-tmp-<pid>-...`` whose process no longer exists are touched.
     Returns how many were removed.
     """
-    import shutil
 
     directory = Path(directory)
     removed = 0
@@ -139,19 +144,19 @@ def remove_stale_temporaries(directory) -> int:
     return removed
 
 
-def check_writable(directory, option: str = "--out") -> Path:
+def check_writable(directory, name: str = "directory") -> Path:
     """Create ``directory`` if needed and prove that files can be created and renamed in it.
 
-    Raises :class:`~rothe.errors.RotheInputError` naming ``option``, e.g. ``--out: got
+    Raises :class:`~rothe.errors.RotheInputError` naming ``name`` (the caller's parameter; the
+    command line passes its option), e.g. ``--out: got
     '/proc/x', cannot create or write this directory ([Errno 2] No such file or directory)``.
     Meant to run before the first step, so that a read-only or missing location is refused
     at once instead of after the whole run.
     """
-    from ..errors import fail
 
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
-        raise fail(option, str(directory), "must be a directory (a file of that name exists)")
+        raise fail(name, str(directory), "must be a directory (a file of that name exists)")
     try:
         directory.mkdir(parents=True, exist_ok=True)
         probe = temporary_name(directory / "write-test")
@@ -166,7 +171,7 @@ def check_writable(directory, option: str = "--out") -> Path:
         reason = exc.strerror or str(exc)
         code = f"[Errno {exc.errno}] " if exc.errno is not None else ""
         raise fail(
-            option,
+            name,
             str(directory),
             f"cannot create or write files in this directory ({code}{reason})",
         ) from None

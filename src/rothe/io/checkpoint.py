@@ -21,8 +21,9 @@ The JSON document (format ``rothe-checkpoint``, ``format_version`` 1) records
 - ``rothe_version``, ``run_id``, ``sequence`` (checkpoints written), ``sessions`` (1 + resumes),
   ``status`` (running | interrupted | failed | completed), ``where`` (step, s, t of the state);
 - ``api`` (``run_ris``, ``run_nested``, ``run_eld``) and its ``arguments``, a ``fingerprint`` of
-  the problem (:func:`problem_fingerprint`: hashes of the assembled matrices, z0 / u0, v0, a few
-  load evaluations), and ``record`` (the caller's, e.g. the command line);
+  the problem (:func:`problem_fingerprint`, the problem's own ``fingerprint()``: hashes of the
+  assembled matrices, z0 / u0, v0, a few load evaluations), and ``record`` (the caller's, e.g.
+  the command line);
 - ``state``: ``stepper`` (``stepper.checkpoint_state(state)``), ``controller``
   (``controller.checkpoint_state()``), ``run`` (the driver's context, e.g. which nested run is
   going) and ``attachments`` (objects such as the XDMF stream writer);
@@ -52,7 +53,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import RotheInputError, check_positive
+from .._version import __version__
+from ..errors import OutputWriteError, RotheInputError, check_positive
 from .atomic import atomic_path, remove_stale_temporaries
 from .trajectory import RAGGED_LENGTHS, RunStatistics, Trajectory
 
@@ -77,18 +79,17 @@ class CheckpointError(RotheInputError):
 
 
 def package_version() -> str:
-    from .. import __version__
-
+    """The version of rothe (recorded in, and required of, every checkpoint)."""
     return __version__
 
 
 def library_versions() -> dict:
     """Versions of the libraries whose rounding a bit-for-bit continuation depends on."""
-    import scipy
+    import scipy  # heavy: imported when first needed (start-up time)
 
     out = {"numpy": np.__version__, "scipy": scipy.__version__}
     try:
-        import pyamg
+        import pyamg  # heavy: imported when first needed (start-up time)
 
         out["pyamg"] = pyamg.__version__
     except ImportError:  # pragma: no cover - a dependency
@@ -129,6 +130,7 @@ def encode(obj, arrays: dict, where: str = "state"):
 
 
 def decode(obj, arrays):
+    """The inverse of :func:`encode`: ``{'__array__': key}`` replaced by ``arrays[key]``."""
     if isinstance(obj, dict):
         if len(obj) == 1 and "__array__" in obj:
             return arrays[obj["__array__"]]
@@ -148,7 +150,7 @@ def normalized(value):
 
 def digest(*items) -> str:
     """A short SHA-256 of arrays / sparse matrices / numbers (dtype, shape and bytes)."""
-    import scipy.sparse as sp
+    import scipy.sparse as sp  # heavy: imported when first needed (start-up time)
 
     h = hashlib.sha256()
     for item in items:
@@ -165,64 +167,19 @@ def digest(*items) -> str:
 
 
 def problem_fingerprint(problem) -> dict:
-    """Cheap hashes that identify a problem: assembled matrices, initial data, a few loads.
+    """The problem's own ``fingerprint() -> dict`` of cheap hashes, normalized for JSON.
 
-    A problem may provide its own ``fingerprint() -> dict`` (e.g. with an adaptive mesh);
-    otherwise RIS problems (``A``, ``z0``, ``load``) and ELD problems (``M``, ``K``,
-    ``constraint``) are recognized. Each entry is compared separately on resume, so the refusal
-    can say what differs.
+    Every problem supplies it (``RISProblem``, ``FERISProblem``, ``ELDProblem``: assembled
+    matrices, initial data, a few loads): this layer knows no family. Each entry is compared
+    separately on resume, so the refusal can say what differs.
     """
     custom = getattr(problem, "fingerprint", None)
-    if callable(custom):
-        return normalized(dict(custom()))
-    T = float(problem.T)
-    times = (0.0, T / 3.0, T)
-    if hasattr(problem, "A") and hasattr(problem, "z0"):
-        z0 = problem.z0
-        z1 = z0 + 0.5
-        fp = {
-            "class": type(problem).__name__,
-            "n": int(problem.n),
-            "T": T,
-            "A": digest(problem.A),
-            "z0": digest(z0),
-            "weights": digest(problem.r, problem.m),
-            "load": digest(*[problem.load(t) for t in times]),
-            "F": digest(
-                np.array([problem.F(z0), problem.F(z1)]),
-                problem.dF(z0),
-                problem.dF(z1),
-                problem.d2F(z0),
-                problem.d2F(z1),
-            ),
-        }
-        if hasattr(problem, "nodes") and hasattr(problem, "cells"):
-            fp["mesh"] = digest(problem.nodes, problem.cells)
-        return fp
-    if hasattr(problem, "M") and hasattr(problem, "K") and hasattr(problem, "constraint"):
-        c = problem.constraint
-        return {
-            "class": type(problem).__name__,
-            "ndofs": int(problem.space.ndofs),
-            "T": T,
-            "M": digest(problem.M),
-            "K": digest(problem.K),
-            "B": digest(c.B, c.dofs),
-            "initial": digest(problem.u0, problem.v0),
-            "load": digest(*[problem.load(t) for t in times]),
-            "G": digest(*[problem.G(t) for t in times]),
-            # the damping force at a fixed velocity (a user's damping function is not described)
-            "damping": digest(problem.damping_op.apply(np.sin(np.arange(problem.space.ndofs)))),
-            "description": digest(
-                np.frombuffer(
-                    json.dumps(problem.describe(), sort_keys=True, default=str).encode(), np.uint8
-                )
-            ),
-        }
-    raise TypeError(
-        f"cannot fingerprint a {type(problem).__name__}: give it a fingerprint() "
-        "method returning a dict of hashes"
-    )
+    if not callable(custom):
+        raise TypeError(
+            f"cannot fingerprint a {type(problem).__name__}: give it a fingerprint() "
+            "method returning a dict of hashes"
+        )
+    return normalized(dict(custom()))
 
 
 # -- the checkpoint on disk -------------------------------------------------------------------
@@ -234,6 +191,12 @@ def checkpoint_dir(path) -> Path:
     if (path / MAIN).exists() or not (path / CHECKPOINT_SUBDIR).is_dir():
         return path
     return path / CHECKPOINT_SUBDIR
+
+
+def changed_keys(old: dict, new: dict) -> list:
+    """The keys of either dict whose values differ (a key missing in one counts as None),
+    sorted: what a resume reports as changed."""
+    return [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
 
 
 def _fmt(value) -> str:
@@ -271,6 +234,7 @@ class Checkpoint:
         return self._state
 
     def describe_where(self) -> str:
+        """Where the run stopped, e.g. ``'accepted_steps = 12, t = 0.3'``."""
         w = self.where
         parts = [
             f"{k} = {w[k]:.6g}" if isinstance(w.get(k), float) else f"{k} = {w[k]}"
@@ -281,6 +245,7 @@ class Checkpoint:
 
     # -- checks -----------------------------------------------------------------------------
     def require_version(self) -> None:
+        """Refuse (:class:`CheckpointError`) a checkpoint written by another version of rothe."""
         mine, theirs = package_version(), self.header.get("rothe_version")
         if theirs != mine:
             raise CheckpointError(
@@ -289,6 +254,9 @@ class Checkpoint:
             )
 
     def warn_if_libraries_differ(self) -> None:
+        """Warn (:class:`CheckpointWarning`) if numpy, scipy, ... differ from those that wrote
+        it.
+        """
         old, new = self.header.get("libraries") or {}, library_versions()
         diff = [f"{k} {old[k]} -> {new.get(k)}" for k in sorted(old) if old[k] != new.get(k)]
         if diff:
@@ -301,6 +269,7 @@ class Checkpoint:
             )
 
     def require_resumable(self) -> None:
+        """Refuse (:class:`CheckpointError`) the checkpoint of a run that failed."""
         if self.status == "failed":
             w = self.where
             raise CheckpointError(
@@ -315,8 +284,7 @@ class Checkpoint:
         old, new = self.header.get("arguments", {}), normalized(arguments)
         diff = [
             f"{k} = {_fmt(new.get(k))} (checkpoint: {_fmt(old.get(k))})"
-            for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k)
+            for k in changed_keys(old, new)
         ]
         if diff:
             raise CheckpointError(
@@ -338,6 +306,9 @@ class Checkpoint:
         return len(self.header.get("trajectories", []))
 
     def trajectory(self, i: int) -> Trajectory:
+        """The ``i``-th registered trajectory: its meta data, statistics and series from the
+        segment files.
+        """
         rec = self.header["trajectories"][i]
         traj = Trajectory(meta=rec.get("meta"))
         for f in fields(RunStatistics):
@@ -450,8 +421,11 @@ class DirectoryLock:
         self.key = None
 
     def acquire(self) -> DirectoryLock:
+        """Take the lock (re-entrant within the process); :class:`CheckpointError` naming the
+        holder's pid if another process holds it. Returns the lock.
+        """
         try:
-            import fcntl
+            import fcntl  # POSIX only: elsewhere the lock is a no-op
         except ImportError:  # pragma: no cover - not POSIX
             return self
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -478,6 +452,7 @@ class DirectoryLock:
         return self
 
     def release(self) -> None:
+        """Release one acquisition; the lock file is unlocked with the last one."""
         if self.key is None:
             return
         key, self.key = self.key, None
@@ -566,6 +541,7 @@ class Checkpointer:
         return i
 
     def due(self) -> bool:
+        """True when ``every`` seconds have passed since the last checkpoint."""
         return time.monotonic() - self._last >= self.every
 
     # -- saving -----------------------------------------------------------------------------
@@ -648,7 +624,6 @@ class Checkpointer:
         """:meth:`save`, but a write error (a full disk) is a warning, not the end of the run:
         the previous checkpoint stays valid, the run goes on, and the results are still written
         (or fail with their own error). Warns once per run."""
-        from ..errors import OutputWriteError
 
         try:
             return self.save(*args, **kwargs)
@@ -673,9 +648,11 @@ class Checkpointer:
                         os.unlink(entry.path)
 
     def close(self) -> None:
+        """Release the directory lock."""
         self._lock.release()
 
     def restore_attachments(self, restored: Checkpoint) -> None:
+        """Restore every attachment from its state in the checkpoint ``restored``."""
         saved = restored.state.get("attachments") or {}
         for name, obj in self.attachments.items():
             if name in saved:
@@ -740,6 +717,7 @@ class RunCheckpointing:
         return self.restored is not None
 
     def close(self) -> None:
+        """Release the checkpoint directory (if the run writes checkpoints)."""
         if self.checkpointer is not None:
             self.checkpointer.close()
 

@@ -22,6 +22,7 @@ file with changing grids would not read back with the library we depend on.
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -62,6 +63,9 @@ class MeshSeries:
         self._meshes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def add(self, mesh_id: int, points, cells) -> None:
+        """Store the mesh (points (n, d), cells (nc, d+1)) under ``mesh_id`` (copied; an id
+        already present is ignored).
+        """
         mesh_id = int(mesh_id)
         if mesh_id < 0:
             raise ValueError(f"mesh_id must be >= 0, got {mesh_id}")
@@ -77,6 +81,7 @@ class MeshSeries:
         return len(self._meshes)
 
     def mesh(self, mesh_id) -> tuple[np.ndarray, np.ndarray]:
+        """(points, cells) of ``mesh_id`` (a KeyError listing the ids if it is not stored)."""
         try:
             return self._meshes[int(mesh_id)]
         except KeyError:
@@ -136,6 +141,7 @@ class MeshSeries:
 
     @classmethod
     def restore_state(cls, data) -> MeshSeries:
+        """The series from :meth:`checkpoint_state`'s dict."""
         series = cls()
         for k in np.asarray(data["ids"], dtype=np.int64):
             series.add(int(k), data["points"][str(k)], data["cells"][str(k)])
@@ -172,7 +178,7 @@ def write_vtu_series(
     each is written atomically, the ``.pvd`` last (it is what a reader opens), so an interrupted
     write leaves the previous index valid. Returns the path of the ``.pvd``.
     """
-    import meshio
+    import meshio  # heavy: imported when first needed (start-up time)
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -215,7 +221,6 @@ def write_vtu_series(
 
 def read_pvd(path) -> tuple[np.ndarray, list[Path]]:
     """(times, VTU paths) listed in a ``.pvd`` collection written by :func:`write_vtu_series`."""
-    import xml.etree.ElementTree as ET
 
     path = Path(path)
     root = ET.parse(path).getroot()

@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import secrets
 import shutil
 from pathlib import Path
 
@@ -45,7 +46,6 @@ class OutputSet:
     """``with OutputSet(out) as stage: write files into stage`` -- committed on success."""
 
     def __init__(self, directory):
-        import secrets
 
         self.directory = Path(directory)
         self.staging = self.directory / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-staging"
@@ -77,9 +77,13 @@ class OutputSet:
         return False
 
     def abort(self) -> None:
+        """Remove the staging directory and what it holds."""
         shutil.rmtree(self.staging, ignore_errors=True)
 
     def commit(self) -> list[str]:
+        """Move the staged files into the directory (``summary.json`` last), remove the files the
+        previous summary listed that this result does not have; returns the staged names.
+        """
         staged = sorted(p.name for p in self.staging.iterdir() if p.is_file())
         new_summary = self.staging / SUMMARY
         previous = read_summary(self.directory) or {}

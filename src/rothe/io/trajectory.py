@@ -25,9 +25,34 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_path
+from .mesh_series import MeshSeries
+
 
 @dataclass
 class RunStatistics:
+    """Counters and timings of a run (summed over the sessions of a resumed run).
+
+    Attributes
+    ----------
+    accepted_steps, rejected_steps : int
+    inner_solves : int
+        Every attempt of a step (accepted, rejected, shortened to land on T).
+    newton_iterations : int
+        Iterations of the inner solvers, all attempts.
+    fb_steps : int
+        Forward-backward fallback steps among them.
+    linear_factorizations : int
+        LU factorizations or AMG setups.
+    linear_solves, krylov_iterations : int
+    landing_retries : int
+        Steps redone shorter to land on T.
+    wall_time_s : float
+    seconds : dict
+        Wall-clock seconds by phase (step, adapt, estimate, mark, refine, transfer, rebuild,
+        factor, solve, record, checkpoint).
+    """
+
     accepted_steps: int = 0
     rejected_steps: int = 0
     inner_solves: int = 0  # every attempt (accepted, rejected, shortened to land on T)
@@ -43,6 +68,7 @@ class RunStatistics:
     seconds: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
+        """The statistics as a dict (``seconds`` a dict by phase)."""
         return asdict(self)
 
     def untimed(self) -> dict:
@@ -68,7 +94,13 @@ RAGGED_LENGTHS = "__lengths"
 
 
 class Trajectory:
-    """Named per-step series plus statistics and metadata."""
+    """Named per-step series plus statistics and metadata.
+
+    Parameters
+    ----------
+    meta : dict, optional
+        Meta data of the run (saved as JSON with the series).
+    """
 
     def __init__(self, meta: dict | None = None):
         self._series: dict[str, list] = {}
@@ -83,6 +115,9 @@ class Trajectory:
         self._ragged.update(names)
 
     def is_ragged(self, name: str) -> bool:
+        """Whether the series ``name`` has entries of different lengths (stored flat with
+        offsets).
+        """
         return name in self._ragged
 
     def packed(self, name: str, start: int = 0) -> dict[str, np.ndarray]:
@@ -105,6 +140,7 @@ class Trajectory:
         return np.split(np.asarray(data[name]), np.cumsum(lengths)[:-1]) if lengths.size else []
 
     def append(self, **values) -> None:
+        """Append one entry to each named series (a new series for a new name)."""
         for key, value in values.items():
             self._series.setdefault(key, []).append(np.asarray(value))
 
@@ -125,12 +161,16 @@ class Trajectory:
         return name in self._series
 
     def keys(self):
+        """The names of the series."""
         return self._series.keys()
 
     def __len__(self) -> int:
         return len(self._series.get("tau", []))
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """Every series as an array (a ragged one as ``<name>_flat`` and ``<name>_offsets``), and
+        the meshes of a space-adaptive run.
+        """
         out = {}
         for k, v in self._series.items():
             if k in self._ragged:
@@ -150,7 +190,6 @@ class Trajectory:
 
     def save_npz(self, path, extra: dict | None = None) -> Path:
         """Write every series, the statistics and ``meta`` to ``path`` (atomically)."""
-        from .atomic import atomic_path
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -170,12 +209,13 @@ class Trajectory:
 
     @classmethod
     def load_npz(cls, path) -> Trajectory:
+        """The trajectory that :meth:`save_npz` wrote to ``path`` (series, statistics, meta and
+        meshes).
+        """
         traj = cls()
         with np.load(path, allow_pickle=False) as f:
             files = set(f.files)
             if "mesh_ids" in files:
-                from .mesh_series import MeshSeries
-
                 traj.meshes, _ = MeshSeries.from_npz(f)
             for key in f.files:
                 if key in ("mesh_ids", "state_mesh_id") or key.startswith(

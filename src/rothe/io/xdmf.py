@@ -44,6 +44,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import secrets
 import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -52,6 +53,7 @@ import numpy as np
 
 from ..errors import OutputWriteError
 from .atomic import TMP_PREFIX, atomic_path, atomic_write_bytes, atomic_write_text
+from .checkpoint import CheckpointError
 
 #: by nodes per cell (lines: the Dirichlet boundary of a 2D body, rothe.eld.output)
 TOPOLOGY = {2: "Polyline", 3: "Triangle", 4: "Tetrahedron"}
@@ -160,7 +162,7 @@ class _MemoryH5:
     """An HDF5 file built in memory; ``bytes()`` closes it and returns its content."""
 
     def __init__(self):
-        import h5py
+        import h5py  # heavy: imported when first needed (start-up time)
 
         self._bio = io.BytesIO()
         self.file = h5py.File(self._bio, "w")
@@ -269,6 +271,9 @@ class StreamedSeries:
         return {"segments": list(self.segments), "steps": [dict(s) for s in self.steps]}
 
     def restore_state(self, data: dict) -> None:
+        """Continue from :meth:`checkpoint_state`: the open segment discarded, the segments and
+        steps recorded then restored.
+        """
         if self._open is not None:
             self._open.discard()
             self._open = None
@@ -286,8 +291,6 @@ class StreamedSeries:
                     p.unlink()
         missing = [s for s in self.segments if not (self.work_dir / s).is_file()]
         if missing:
-            from .checkpoint import CheckpointError
-
             raise CheckpointError(
                 f"{self.work_dir}: the streamed output segment {missing[0]} "
                 "of the checkpoint is missing"
@@ -306,7 +309,7 @@ class StreamedSeries:
     def export(self, directory) -> Path:
         """``directory/<name>.xdmf`` + its HDF5 file(s) with every step so far (atomically:
         the HDF5 files first, the XML last)."""
-        import h5py
+        import h5py  # heavy: imported when first needed (start-up time)
 
         self._close_segment()
         directory = Path(directory)
@@ -372,7 +375,6 @@ class XdmfSeriesWriter:
     """
 
     def __init__(self, path, nodes, cells):
-        import secrets
 
         self.path = Path(path).with_suffix(".xdmf")
         self.h5_path = self.path.with_suffix(".h5")
@@ -447,7 +449,7 @@ def write_series(
 
 def read_series(path):
     """(nodes, cells, times, {field: (n_steps, n_nodes[, 3])}) via meshio's XDMF reader."""
-    import meshio
+    import meshio  # heavy: imported when first needed (start-up time)
 
     with meshio.xdmf.TimeSeriesReader(str(path)) as reader:
         points, cells = reader.read_points_cells()

@@ -4,8 +4,9 @@
   arguments, or the argv of a ``rothe run`` command), :class:`TaskResult` and
   :func:`execute_task` (what happens around a run wherever it executes);
 - :mod:`rothe.parallel.executor`: :class:`Executor` (in-process, a local Dask cluster of worker
-  processes, or an existing Dask scheduler), the ``--workers``/``--scheduler`` options;
-- the command line's sweeps (``rothe sweep run <example> --param NAME=V1,V2,...``) and its runs
+  processes, or an existing Dask scheduler);
+- the command line's ``--workers``/``--scheduler`` options are in :mod:`rothe.cli.common`, its
+  sweeps (``rothe sweep run <example> --param NAME=V1,V2,...``) and its runs
   as tasks are in :mod:`rothe.cli.sweep` and :mod:`rothe.cli.tasks`.
 
 Dask (``pip install "rothe[dask]"``) is imported only when a cluster is used. See
@@ -14,10 +15,8 @@ Dask (``pip install "rothe[dask]"``) is imported only when a cluster is used. Se
 
 from .executor import (
     Executor,
-    add_parallel_options,
     dask_available,
     default_workers,
-    executor_from_args,
     run_tasks,
 )
 from .tasks import Task, TaskFailed, TaskResult, execute_task, task_environment
@@ -27,11 +26,9 @@ __all__ = [
     "Task",
     "TaskFailed",
     "TaskResult",
-    "add_parallel_options",
     "dask_available",
     "default_workers",
     "execute_task",
-    "executor_from_args",
     "run_tasks",
     "task_environment",
 ]

@@ -63,6 +63,7 @@ def dask_available() -> bool:
 
 
 def cpu_count() -> int:
+    """The CPUs this process may run on (its affinity; ``os.cpu_count()`` where there is none)."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - macOS, Windows
@@ -82,7 +83,7 @@ def default_workers() -> int:
 
 def _import_distributed(what: str):
     try:
-        import distributed
+        import distributed  # heavy: imported when first needed (start-up time)
     except ImportError:
         raise RotheInputError(f"{what} needs dask.distributed: {INSTALL_HINT}") from None
     return distributed
@@ -94,8 +95,8 @@ def local_cluster(n_workers: int, **kwargs):
 
     The workers' statistical profiler is off: it only feeds the dashboard, and sampling the
     run's stack every 10 ms cost about 1.5 % of a core per worker."""
-    distributed = _import_distributed(f"--workers {n_workers}")
-    import dask
+    distributed = _import_distributed(f"workers={n_workers}")
+    import dask  # heavy: imported when first needed (start-up time)
 
     # Dask's own log lines (a worker's heartbeat that meets the closing scheduler, a task marked
     # failed after its workers died) only repeat what the results report, with tracebacks
@@ -125,7 +126,7 @@ class _Progress:
         if not self.enabled:
             return
         if sys.stderr.isatty():
-            from tqdm import tqdm
+            from tqdm import tqdm  # heavy: imported when first needed (start-up time)
 
             self.bar = tqdm(
                 total=total, desc=title, unit="run", file=sys.stderr, dynamic_ncols=True, leave=True
@@ -203,7 +204,7 @@ class Executor:
     ):
         if workers is None:
             workers = 1 if scheduler is not None else default_workers()
-        self.workers = check_int("--workers", workers, minimum=1)
+        self.workers = check_int("workers", workers, minimum=1)
         self.scheduler = scheduler
         self.progress = progress
         self.title = title
@@ -226,6 +227,9 @@ class Executor:
         return self.scheduler is None and self.workers == 1
 
     def describe(self) -> str:
+        """In-process, a local Dask cluster of n workers, or the scheduler's address (for the
+        summary of a sweep).
+        """
         if self.in_process:
             return "in-process"
         if self.scheduler is None:
@@ -254,6 +258,7 @@ class Executor:
             self.close()
 
     def close(self) -> None:
+        """Close the Dask client and cluster this executor started (not one it was given)."""
         while self._owned:
             obj = self._owned.pop()
             try:
@@ -266,7 +271,7 @@ class Executor:
         if self._client is not None:
             return self._client
         distributed = _import_distributed(
-            "--scheduler" if self.scheduler is not None else f"--workers {self.workers}"
+            "scheduler" if self.scheduler is not None else f"workers={self.workers}"
         )
         if self.scheduler is None:
             cluster = local_cluster(self.workers)
@@ -279,13 +284,13 @@ class Executor:
             target = self.scheduler
             if isinstance(target, str) and not target.strip():
                 raise fail(
-                    "--scheduler", target, "must be a scheduler address (e.g. tcp://host:8786)"
+                    "scheduler", target, "must be a scheduler address (e.g. tcp://host:8786)"
                 )
             try:
                 self._client = distributed.Client(target, timeout=f"{CONNECT_TIMEOUT_S:g}s")
             except (OSError, ValueError, TypeError) as exc:
                 raise fail(
-                    "--scheduler",
+                    "scheduler",
                     str(target),
                     f"cannot connect within {CONNECT_TIMEOUT_S:g} s ({' '.join(str(exc).split())})",
                 ) from None
@@ -335,7 +340,7 @@ class Executor:
         to a dead worker); a slot that frees up is refilled at once, and workers that join
         later (a SLURM job that starts) are used within a second.
         """
-        import distributed
+        import distributed  # heavy: imported when first needed (start-up time)
 
         progress = _Progress(len(tasks), self.title, self.progress, self.describe())
         token = uuid.uuid4().hex[:8]
@@ -396,7 +401,7 @@ class Executor:
 
     @staticmethod
     def _result(fut, task: Task, seconds: float) -> TaskResult:
-        import distributed
+        import distributed  # heavy: imported when first needed (start-up time)
 
         try:
             return fut.result()
@@ -430,63 +435,12 @@ def run_tasks(
     return Executor(workers, scheduler, progress=progress, title=title).map(tasks)
 
 
-# -- CLI options ----------------------------------------------------------------------------------
-
-
-def add_parallel_options(parser) -> None:
-    """``--workers N`` and ``--scheduler ADDRESS`` for commands that run independent runs."""
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        metavar="N",
-        help="run the independent runs on a local Dask cluster of N worker processes "
-        "(default: the number of cores if Dask is installed, else 1; 1 = one after another "
-        "in this process, no Dask; env ROTHE_WORKERS sets the default)",
-    )
-    parser.add_argument(
-        "--scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="address of an existing Dask scheduler (e.g. tcp://host:8786) to run on instead",
-    )
-
-
-def executor_from_args(args, title: str) -> Executor:
-    """The executor of ``--workers``/``--scheduler``; bad values are one-line input errors."""
-    workers = args.workers
-    if workers is not None:
-        workers = check_int("--workers", workers, minimum=1)
-    if args.scheduler is not None:
-        if workers is not None:
-            raise fail(
-                "--workers",
-                workers,
-                "cannot be combined with --scheduler (the cluster has its own workers)",
-            )
-        if not args.scheduler.strip():
-            raise fail(
-                "--scheduler", args.scheduler, "must be a scheduler address (e.g. tcp://host:8786)"
-            )
-    if workers is not None and workers > 1 and not dask_available():
-        raise RotheInputError(
-            f"--workers {workers} needs dask.distributed: {INSTALL_HINT} (or --workers 1)"
-        )
-    if args.scheduler is not None and not dask_available():
-        raise RotheInputError(f"--scheduler needs dask.distributed: {INSTALL_HINT}")
-    return Executor(
-        workers, args.scheduler, progress=not getattr(args, "quiet", False), title=title
-    )
-
-
 __all__ = [
     "CONNECT_TIMEOUT_S",
     "LOCAL_NO_WORKER_TIMEOUT_S",
     "Executor",
-    "add_parallel_options",
     "dask_available",
     "default_workers",
-    "executor_from_args",
     "local_cluster",
     "run_tasks",
 ]

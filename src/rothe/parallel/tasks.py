@@ -85,7 +85,7 @@ class TaskFailed(Exception):
 @contextmanager
 def task_environment(seed: int = 0):
     """Single-threaded BLAS/OpenMP and seeded global RNGs for one task; restored afterwards."""
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_limits  # heavy: imported when first needed (start-up time)
 
     np_state = np.random.get_state()
     py_state = random.getstate()

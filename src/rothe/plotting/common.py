@@ -9,11 +9,12 @@ import matplotlib
 matplotlib.use("Agg")  # figures are files; no display is needed (or present on CI machines)
 import matplotlib.pyplot as plt  # noqa: E402
 
+from ..io.atomic import atomic_path
+
 
 def save_figure(fig, path, dpi: int = 120, tight: bool = True) -> Path:
     """Tight layout, PNG (120 dpi), written atomically; the figure is closed (long runs draw
     many)."""
-    from ..io.atomic import atomic_path
 
     path = Path(path)
     try:

@@ -63,6 +63,17 @@ class AdaptiveController(StepController):
     Otherwise halve the step that was tried and redo the step. With ``grid``, a step never
     passes over a grid point: tau_k = min(sigma_k, sbar - s_{k-1}) with sbar the next grid point
     (6.1), and it then ends exactly on sbar, so the grids nest.
+
+    Parameters
+    ----------
+    tol : float > 0
+        The tolerance of I1 and I2.
+    tau0 : float > 0
+        The first nominal step sigma_1.
+    tau_min, tau_max : float
+        The range of the steps.
+    grid : ndarray, optional
+        The curve parameters s of an earlier run (Alg. 6.2): no step passes over them.
     """
 
     name = "adaptive"
@@ -126,6 +137,13 @@ class Order2Controller(StepController):
     dt_k = tau - dt_{k-1}), so I alternates between two levels at a fixed tau, and a controller
     that follows the last value alone oscillates and rejects every other step.
     Acceptance is that of Alg. 3.2 (I1 < tol and I2 < tol).
+
+    Parameters
+    ----------
+    tol, tau0, tau_min, tau_max : float
+        As in :class:`AdaptiveController`.
+    safety : float
+        The safety factor of the proposal.
     """
 
     name = "order2"
@@ -237,6 +255,15 @@ class RegimeController(StepController):
     limit h -> 0 as well) needs in addition the pointwise monotone step sizes of
     Assumption 6.1(3), which neither Alg. 3.2 nor this controller provides; Alg. 6.2
     (``nested``) does.
+
+    Parameters
+    ----------
+    tol, tau0, tau_min, tau_max : float
+        As in :class:`AdaptiveController`.
+    theta : float
+        Every step aims at the residual theta tol.
+    grow : float
+        The largest growth of the step after an accepted one.
     """
 
     name = "regime"

@@ -17,19 +17,17 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..fem.adapt import AdaptiveMesh
 from ..fem.adapt.efficiency import (
     ScalarField,
     bump,
     cube_bubble,
     energy_error,
     front,
-    initial_mesh,
+    refinement_study,
 )
-from ..fem.adapt.marking import doerfler_marking
-from ..fem.adapt.topology import lagrange_values
 from ..fem.scalar import boundary_nodes, lumped_mass, stiffness
 from ..fem.simplex import SimplexEvaluator
+from ..fem.topology import lagrange_values
 from .examples import d2g_7_2, dg_7_2
 from .indicator import ris_indicators
 
@@ -97,10 +95,8 @@ def ris_study(
     """
 
     zs = _ris_exact(dim, profile, width)
-    amesh = AdaptiveMesh(initial_mesh(dim, n0, tagged=False))
-    rows = []
-    for _ in range(max_levels):
-        mesh = amesh.mesh
+
+    def level(mesh):
         z, load, positive = _ris_solve(mesh, zs, lam, kappa)
         ind = ris_indicators(
             mesh, z, np.zeros_like(z), dg=dg_7_2, load=load, kappa=kappa, lam=lam, reaction=lam
@@ -110,21 +106,23 @@ def ris_study(
             return np.sum(ge * ge, axis=0) + lam * e * e
 
         err = energy_error(mesh, 1, z, zs.value, zs.grad, energy)
-        n_free = int(np.count_nonzero(z))
-        rows.append(
-            {
-                "dofs": n_free,
-                "cells": mesh.t.shape[1],
-                "estimate": ind.estimate,
-                "error": err,
-                "efficiency": ind.estimate / err,
-                "positive": positive,
-            }
-        )
-        if n_free >= max_dofs:
-            break
-        if adaptive:
-            amesh.refine(doerfler_marking(ind.eta, theta))
-        else:
-            amesh.uniform(dim)
-    return rows
+        row = {
+            "dofs": int(np.count_nonzero(z)),
+            "cells": mesh.t.shape[1],
+            "estimate": ind.estimate,
+            "error": err,
+            "efficiency": ind.estimate / err,
+            "positive": positive,
+        }
+        return row, ind.eta
+
+    return refinement_study(
+        dim,
+        n0,
+        False,
+        level,
+        adaptive=adaptive,
+        max_dofs=max_dofs,
+        theta=theta,
+        max_levels=max_levels,
+    )

@@ -64,7 +64,22 @@ def d2p(z):
 
 
 def example_7_1(T: float = 5.0) -> RISProblem:
-    """The RIS of Example 7.1 (1 unknown)."""
+    """The RIS of Example 7.1 (1 unknown).
+
+    I(t, z) = 1/2 z^2 - (t + 1) z + p(z) with p of :func:`p`, R(v) = |v|, V = R, z0 = -2 (the
+    paper prints f with a sign convention under which (7.1) is not a solution; this is the
+    energy for which it is): sticking at -2 until t = 2, a viscous jump to 6, then slip along
+    z = t + 4 (the exact solution (7.1), :func:`exact_solution`).
+
+    Parameters
+    ----------
+    T : float
+        The end time (default 5).
+
+    Returns
+    -------
+    RISProblem
+    """
     return RISProblem(
         A=np.array([[1.0]]),
         F=p,
@@ -141,16 +156,7 @@ def d2g_7_2(z):
 
 
 def example_7_2(
-    n: int = 40,
-    mesh=None,
-    *,
-    amplitude: float = -200.0,
-    z0=0.0,
-    kappa: float = 1.0,
-    T: float = 1.0,
-    dirichlet=None,
-    pattern: str = "tensor",
-    name: str = "ris-2d",
+    n: int = 40, mesh=None, *, pattern: str = "tensor", name: str = "ris-2d", **energy
 ) -> FERISProblem:
     """Example 7.2 of Andreia & Meyer (2022), Sec. 7.2.
 
@@ -158,29 +164,53 @@ def example_7_2(
     any 2D ``mesh``; g(z) = 48 (1 - z^2)^2; <l(t), z> = amplitude t^3 int z with amplitude
     -200; T = 1; z0 = 0; R = ||.||_{L1}, V = L2, both lumped. g is even, so ``amplitude`` > 0
     (or ``z0`` of the other sign) gives the mirrored branch z -> -z.
+
+    Parameters
+    ----------
+    n : int
+        Cells per side of the built-in grid (at least 2); ignored with ``mesh``.
+    mesh : skfem.MeshTri, optional
+        Any 2D mesh instead of the grid.
+    pattern : str
+        The triangulation of the grid (:func:`rothe.fem.mesh.unit_square`), default "tensor".
+    name : str
+        The problem's name.
+    **energy
+        ``amplitude`` (default -200), ``z0`` (0), ``kappa`` (1: R = kappa ||.||_{L1}), ``T``
+        (1) and ``dirichlet`` (None: the whole boundary; see
+        :class:`~rothe.ris.fem_problem.FERISProblem`).
+
+    Returns
+    -------
+    FERISProblem
     """
     mesh = unit_square(_grid_cells(n), pattern) if mesh is None else mesh
-    return _energy_7_2_on(mesh, 2, amplitude, z0, kappa, T, dirichlet, name)
+    return _energy_7_2_on(mesh, 2, name, **energy)
 
 
-def example_7_2_3d(
-    n: int = 12,
-    mesh=None,
-    *,
-    amplitude: float = -200.0,
-    z0=0.0,
-    kappa: float = 1.0,
-    T: float = 1.0,
-    dirichlet=None,
-    name: str = "ris-3d",
-) -> FERISProblem:
+def example_7_2_3d(n: int = 12, mesh=None, *, name: str = "ris-3d", **energy) -> FERISProblem:
     """The energy of Example 7.2 on the unit cube (n^3 cubes, 6 tetrahedra each) or a 3D mesh.
 
     Same g, load, T, z0, R and V as :func:`example_7_2`; only the domain changes. Not in the
     paper: it shows that nothing in the discretization or the solver depends on d.
+
+    Parameters
+    ----------
+    n : int
+        Cubes per side of the built-in grid (at least 2); ignored with ``mesh``.
+    mesh : skfem.MeshTet, optional
+        Any 3D mesh instead of the grid.
+    name : str
+        The problem's name.
+    **energy
+        ``amplitude``, ``z0``, ``kappa``, ``T``, ``dirichlet`` as in :func:`example_7_2`.
+
+    Returns
+    -------
+    FERISProblem
     """
     mesh = unit_cube(_grid_cells(n)) if mesh is None else mesh
-    return _energy_7_2_on(mesh, 3, amplitude, z0, kappa, T, dirichlet, name)
+    return _energy_7_2_on(mesh, 3, name, **energy)
 
 
 def _grid_cells(n) -> int:
@@ -188,8 +218,11 @@ def _grid_cells(n) -> int:
     return check_int("n", n, minimum=2)
 
 
-def _energy_7_2_on(mesh, dim, amplitude, z0, kappa, T, dirichlet, name) -> FERISProblem:
-    """g of (7.2) and the load amplitude t^3 int z on a ``dim``-dimensional mesh."""
+def _energy_7_2_on(
+    mesh, dim, name, *, amplitude=-200.0, z0=0.0, kappa=1.0, T=1.0, dirichlet=None
+) -> FERISProblem:
+    """g of (7.2) and the load amplitude t^3 int z on a ``dim``-dimensional mesh (the defaults
+    of Example 7.2)."""
     amplitude = check_real("amplitude", amplitude)
     if mesh_dim(mesh) != dim:
         cells = "triangles" if dim == 2 else "tetrahedra"
@@ -265,6 +298,33 @@ def example_front(
     on the side ``right`` (natural boundary on the others): a static boundary layer there, the
     front is the only moving steep feature. On a uniform grid the front needs a fine h
     everywhere; an adaptive mesh only along the front, coarsening behind it.
+
+    Parameters
+    ----------
+    n : int
+        Cells per side of the built-in grid; ignored with ``mesh``.
+    mesh : skfem.MeshTri, optional
+        Any 2D mesh instead of the grid.
+    amplitude, speed, width : float
+        The load plateau A, front speed v and width w of :func:`front_load_density`.
+    coefficient : float
+        The stiffness c of 1/2 int c |grad z|^2.
+    kappa : float
+        R = kappa ||.||_{L1}.
+    z0 : float
+        The initial state.
+    T : float
+        The end time.
+    dirichlet : sequence of str
+        The boundary parts where z = 0.
+    pattern : str
+        The triangulation of the grid (:func:`rothe.fem.mesh.unit_square`).
+    name : str
+        The problem's name.
+
+    Returns
+    -------
+    FERISProblem
     """
     coefficient = check_positive("coefficient", coefficient)
     density, rate = front_load_density(

@@ -103,6 +103,20 @@ class InnerOptions:
     The stationarity residual (see :func:`kkt_residual`) must fall below
     ``atol + rtol * scale`` with scale = ||r||_{V^-1} + ||D_z I(t, z_{k-1})||_{V^-1}, or below
     the round-off floor of evaluating the gradient, whichever is larger.
+
+    Parameters
+    ----------
+    atol, rtol : float
+        Absolute and relative tolerance of the stationarity residual.
+    max_iter : int
+        Most Newton iterations of one step.
+    max_fb_backtracks : int
+        Most backtracking trials (on the constant c) of one forward-backward step.
+    linear_solver : {'auto', 'direct', 'amg'}
+        The solver of the Newton systems (:class:`~rothe.fem.linear.ReusableSolver`).
+    amg_threshold : int, optional
+        Unknowns above which ``'auto'`` uses AMG (None: by the fill of A,
+        :func:`amg_threshold_for`).
     """
 
     atol: float = 1e-10
@@ -261,7 +275,14 @@ class _NewtonMatrix:
 
 
 class BallStepSolver:
-    """Damped semismooth Newton for one step (3.1)+(3.2); see the module docstring."""
+    """Damped semismooth Newton for one step (3.1)+(3.2); see the module docstring.
+
+    Parameters
+    ----------
+    problem : RISProblem
+    options : InnerOptions, optional
+        Tolerances and limits (default ``InnerOptions()``).
+    """
 
     def __init__(self, problem: RISProblem, options: InnerOptions | None = None):
         self.p = problem

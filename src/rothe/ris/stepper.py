@@ -32,7 +32,19 @@ from .residuals import step_residuals
 @dataclass
 class RISState:
     """A point of the discrete curve: curve parameter s_k, time t_k, state z_k (on the run's
-    current mesh) and the number k of accepted steps."""
+    current mesh) and the number k of accepted steps.
+
+    Parameters
+    ----------
+    s : float
+        The curve parameter s_k.
+    t : float
+        The time t_k.
+    z : ndarray
+        The state z_k.
+    k : int
+        The number of accepted steps.
+    """
 
     s: float
     t: float
@@ -160,6 +172,21 @@ class RISStepper:
     :class:`~rothe.ris.fem_problem.FERISProblem` after every ``adapt_every``-th accepted step
     (``adaptivity``, a :class:`~rothe.ris.adapt.RISAdaptivity`); None keeps the problem's mesh.
     ``problem`` is the problem on the current mesh. ``S`` stops the run at s = S (else at T).
+
+    Parameters
+    ----------
+    problem : RISProblem
+        The system in R^n, or a :class:`~rothe.ris.fem_problem.FERISProblem`.
+    inner : InnerOptions, optional
+        The inner solver's options.
+    simpson_subintervals : int
+        Subintervals (even) of the composite Simpson rule of the residuals I1 (3.3), I2 (3.4).
+    S : float, optional
+        Stop at s = S (None: at t = T).
+    keep_every : int
+        Keep z of every ``keep_every``-th accepted state (and of the last).
+    adapt : SpaceAdaptivity, optional
+        Adapt the mesh of a FERISProblem (None keeps it).
     """
 
     def __init__(

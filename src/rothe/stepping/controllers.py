@@ -43,9 +43,20 @@ from ..errors import RunFailed, check_positive, described, fail
 
 @dataclass
 class Decision:
+    """A controller's verdict on a step: ``accept``, the next step ``next_tau`` and a ``reason``."""
+
     accept: bool
     next_tau: float
     reason: str = ""
+
+
+def _check_owner(controller, data: dict) -> None:
+    """Refuse (ValueError) the checkpoint state of another kind of controller."""
+    if data.get("controller") != controller.name:
+        raise ValueError(
+            f"restore_state: a {data.get('controller')!r} controller's state "
+            f"given to a {controller.name!r} controller"
+        )
 
 
 class StepController(ABC):
@@ -80,11 +91,8 @@ class StepController(ABC):
         return {"controller": self.name, "sigma": float(self.sigma), **self._extra_state()}
 
     def restore_state(self, data: dict) -> None:
-        if data.get("controller") != self.name:
-            raise ValueError(
-                f"restore_state: a {data.get('controller')!r} controller's state "
-                f"given to a {self.name!r} controller"
-            )
+        """Put back :meth:`checkpoint_state` (a ValueError for another controller's state)."""
+        _check_owner(self, data)
         self.sigma = float(data["sigma"])
         self._restore_extra(data)
 
@@ -101,6 +109,13 @@ class UniformController(StepController):
     Residuals are computed but never cause rejection. If an inner solve fails, the step is
     rejected and retried with half the step (then the nominal tau resumes): a failed solve is
     never an accepted step.
+
+    Parameters
+    ----------
+    tau0 : float > 0
+        The step tau.
+    tau_min : float
+        The run stops where a retry would go below it.
     """
 
     name = "uniform"
@@ -110,9 +125,11 @@ class UniformController(StepController):
         self._retry: float | None = None
 
     def propose(self, s):
+        """tau0, or half the failed step after a failed solve."""
         return (self._retry if self._retry is not None else self.tau0), None
 
     def decide(self, result) -> Decision:
+        """Accept every converged step (next: tau0); reject a failed one (next: half of it)."""
         if not result.converged:
             self._retry = result.tau / 2
             return Decision(False, self._retry, f"inner solve failed ({result.code})")
@@ -144,29 +161,31 @@ class FixedStepController:
 
     @classmethod
     def uniform(cls, tau: float, n: int) -> FixedStepController:
+        """``n`` equal steps ``tau``."""
         return cls(tau=tau, n=n)
 
     def step_size(self, k: int) -> float:
+        """tau_{k+1}: the k-th step (0-based) of the sequence, or the equal step."""
         return self.tau_uniform if self.steps is None else float(self.steps[k])
 
     def propose(self, s):
+        """The next step of the sequence (the last one again after its end)."""
         return self.step_size(min(self.k, self.n - 1)), None
 
     def decide(self, result) -> Decision:
+        """Accept every converged step; a failed solve raises :class:`RunFailed`."""
         if not result.converged:
             raise RunFailed(result.message, where=result.where)
         self.k += 1
         return Decision(True, self.step_size(min(self.k, self.n - 1)), "fixed step")
 
     def checkpoint_state(self) -> dict:
+        """The name and the index of the next step."""
         return {"controller": self.name, "k": int(self.k)}
 
     def restore_state(self, data: dict) -> None:
-        if data.get("controller") != self.name:
-            raise ValueError(
-                f"restore_state: a {data.get('controller')!r} controller's state "
-                f"given to a {self.name!r} controller"
-            )
+        """Put back :meth:`checkpoint_state` (a ValueError for another controller's state)."""
+        _check_owner(self, data)
         self.k = int(data["k"])
 
 
@@ -240,9 +259,16 @@ class ErrorNormController(StepController):
         return tau
 
     def propose(self, s):
+        """The nominal step sigma."""
         return self.sigma, None
 
     def decide(self, result) -> Decision:
+        """With err = est / tol and ideal = safety err^(-1/(p+1)): accept if err <= 1, next step
+        tau min(fac_max, max(fac_min, ideal)) (growth 1 right after a rejection); else reject, next
+        tau min(0.9, max(fac_min, ideal)); a failed solve or a non-finite estimate: tau fac_fail.
+        Every next step is limited to tau_max, max_ratio times the last accepted step and the step
+        bound.
+        """
         tau = result.tau
         if not result.converged:
             self.last_rejected = True
@@ -281,7 +307,15 @@ class ErrorNormController(StepController):
 class Uniform:
     """Equal steps ``tau`` (RIS: in s, a failed solve retried with half the step, the run
     stopping where that would go below ``tau_min``, None: the family's default; ELD: in t,
-    T/tau must be an integer, a failed step stops the run)."""
+    T/tau must be an integer, a failed step stops the run).
+
+    Parameters
+    ----------
+    tau : float > 0
+        The step.
+    tau_min : float, optional
+        RIS only: the smallest step a failed solve may be retried with (None: the default).
+    """
 
     tau: float
     tau_min: float | None = None
@@ -324,6 +358,15 @@ class Adaptive:
     with steps from the scheme's order (:class:`ErrorNormController`). ``tau``: the first step
     (None: the family's default); steps stay in [tau_min, tau_max] (None: the family's
     defaults).
+
+    Parameters
+    ----------
+    tol : float > 0
+        The tolerance of the family's error measure.
+    tau : float, optional
+        The first step (None: the family's default).
+    tau_min, tau_max : float, optional
+        The range of the steps (None: the family's defaults); tau_min <= tau <= tau_max.
     """
 
     tol: float

@@ -60,7 +60,10 @@ def single_threaded_blas():
     imported first (environment variables would be too late then).
     """
     try:
-        from threadpoolctl import threadpool_limits
+        # heavy: imported when first needed (start-up time of the command line)
+        from threadpoolctl import (
+            threadpool_limits,  # heavy: imported when first needed (start-up time)
+        )
     except ImportError:  # pragma: no cover - a declared dependency
         return nullcontext()
     return threadpool_limits(limits=1, user_api="blas")
@@ -90,6 +93,31 @@ def evolve(
     registered) to which a checkpoint is written when one is due, and when the run stops
     (interrupted or failed). Raises :class:`RunFailed` or :class:`RunInterrupted`, both carrying
     the trajectory so far.
+
+    Parameters
+    ----------
+    stepper
+        The family's stepper (``step``, ``record``, ``adapt``, ``finished``, ...).
+    controller
+        A step controller (``propose``, ``decide``).
+    state
+        The state to start from (recorded already).
+    trajectory : Trajectory
+    tau_min : float
+        The run fails (:class:`RunFailed`) when a step below it is proposed.
+    max_attempts : int
+        Most step attempts in this call.
+    max_landing_retries : int
+        Most shorter retries of a step that overshoots the end.
+    max_steps : int, optional
+        Stop after this many accepted steps in this call (None: at the end).
+    progress : bool or ProgressOptions
+    checkpointer : Checkpointer, optional
+
+    Returns
+    -------
+    state
+        The final state.
     """
     tau_min = check_positive("tau_min", tau_min)
     if max_steps is not None:

@@ -84,6 +84,7 @@ def requested() -> int | None:
 
 
 def signal_name(signum: int) -> str:
+    """``'SIGINT'``, ``'SIGTERM'``, ... for a signal number (``'signal <n>'`` if unknown)."""
     try:
         return signal.Signals(signum).name
     except ValueError:

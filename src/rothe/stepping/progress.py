@@ -41,6 +41,7 @@ class ProgressOptions:
 
 
 def as_progress_options(progress) -> ProgressOptions:
+    """``progress`` if it is :class:`ProgressOptions`, else on/off by its truth value."""
     if isinstance(progress, ProgressOptions):
         return progress
     return ProgressOptions(enabled=bool(progress))
@@ -92,7 +93,7 @@ class Progress:
 
     def _make_bar(self, pos):
         try:
-            from tqdm import tqdm
+            from tqdm import tqdm  # heavy: imported when first needed (start-up time)
         except ImportError:  # pragma: no cover - tqdm is a dependency
             return None
         if pos is None:
@@ -120,6 +121,9 @@ class Progress:
         return bar
 
     def update(self, state, stats) -> None:
+        """After a step: advance the bar (position, fields, accepted/rejected), or print a line
+        when ``every_seconds`` have passed since the last.
+        """
         if not self.o.enabled:
             return
         if self.bar is not None:
@@ -168,6 +172,7 @@ class Progress:
         self.lines += 1
 
     def close(self, state=None, stats=None, how: str = "stopped") -> None:
+        """Close the bar, or print a last line ``rothe: <how> at ...`` if lines were printed."""
         if self.bar is not None:
             self.bar.close()
             self.bar = None

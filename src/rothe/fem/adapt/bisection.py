@@ -88,11 +88,13 @@ Boundary parts and subdomains
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ...errors import check_int, described, fail
-from .topology import (
+from ..mesh import _read_meshio
+from ..topology import (
     SKFEM_FACETS,
     FacetTopology,
     barycentric_gradients,
@@ -103,6 +105,7 @@ from .topology import (
     opposite_faces,
     pack_rows,
 )
+from .transfer import edge_numbering, transfer_matrix
 
 #: version of the checkpoint layout written by :meth:`AdaptiveMesh.checkpoint_state`
 CHECKPOINT_VERSION = 1
@@ -141,24 +144,22 @@ _SKFEM_KINDS = {
 }
 
 
-def check_adaptable(mesh, name: str = "--adapt-space"):
+def check_adaptable(mesh, name: str = "mesh"):
     """Return ``mesh`` if bisection can adapt it, else raise a one-line error naming ``name``.
 
     Accepts a scikit-fem mesh (``MeshTri`` / ``MeshTet``; a ``MeshQuad``, ``MeshHex``, ...
     is refused with its cell type), a ``meshio.Mesh`` or a path to a file meshio reads: any
     volume cell other than linear triangles/tetrahedra is refused, and a file mixing them with
     other cells is named "a mixed mesh (...)". Boundary cells (lines in 2D, triangles next to
-    tetrahedra in 3D) are fine. ``name`` defaults to the CLI option ``--adapt-space``.
+    tetrahedra in 3D) are fine. ``name`` is the caller's parameter (the command line passes
+    its option ``--adapt-space``).
     """
-    from pathlib import Path
 
-    from skfem import MeshTet, MeshTri
+    from skfem import MeshTet, MeshTri  # heavy: imported when first needed (start-up time)
 
     if isinstance(mesh, (MeshTri, MeshTet)):
         return mesh
     if isinstance(mesh, (str, Path)):
-        from ..mesh import _read_meshio
-
         mesh = _read_meshio(Path(mesh), "mesh")
     if hasattr(mesh, "cells") and hasattr(mesh, "points") and not hasattr(mesh, "t"):
         types = {b.type for b in mesh.cells}
@@ -229,11 +230,13 @@ class MeshChange:
 
     def transfer(self, degree: int = 1, components: int = 1):
         """Sparse matrix (n_new, n_old) mapping P1/P2 dof vectors old -> new (see transfer)."""
-        from .transfer import transfer_matrix
 
         return transfer_matrix(self, degree=degree, components=components)
 
     def describe(self) -> dict:
+        """The sizes of the two meshes and what changed (mesh ids, cells, vertices, bisections,
+        merges, removed vertices), for statistics and summaries.
+        """
         return {
             "old_mesh_id": self.old_mesh_id,
             "new_mesh_id": self.new_mesh_id,
@@ -269,7 +272,7 @@ class AdaptiveMesh:
     """
 
     def __init__(self, mesh, *, name: str = "mesh"):
-        check_adaptable(mesh, "--adapt-space")
+        check_adaptable(mesh, name)
         p = np.asarray(mesh.p, dtype=float)
         t = np.asarray(mesh.t, dtype=np.int64)
         d = p.shape[0]
@@ -589,7 +592,6 @@ class AdaptiveMesh:
         """
         if "mesh" in self._cache:
             return self._cache["mesh"]
-        from .transfer import edge_numbering
 
         p = np.ascontiguousarray(self.points.T)
         t = np.ascontiguousarray(self.cells.T)
@@ -855,8 +857,10 @@ class AdaptiveMesh:
         component (a cycle that the closure can create around a vertex with cyclic
         refinement edges) whose dependencies stay inside it.
         """
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
+        from scipy.sparse import coo_matrix  # heavy: imported when first needed (start-up time)
+        from scipy.sparse.csgraph import (
+            connected_components,  # heavy: imported when first needed (start-up time)
+        )
 
         d = self.dim
         nv = self._nv
@@ -1273,7 +1277,7 @@ class AdaptiveMesh:
     @classmethod
     def restore_state(cls, data: dict) -> AdaptiveMesh:
         """An identical hierarchy (same cells, order, numbering, history) from checkpoint data."""
-        from skfem import MeshTet, MeshTri
+        from skfem import MeshTet, MeshTri  # heavy: imported when first needed (start-up time)
 
         if int(data.get("version", -1)) != CHECKPOINT_VERSION:
             raise fail(

@@ -279,9 +279,12 @@ class MeshAdaptation:
 
     # -- checkpoint protocol ----------------------------------------------------------------
     def checkpoint_state(self) -> dict:
+        """The adaptive mesh's whole hierarchy and the vertex history (:mod:`.hysteresis`) as
+        arrays, for a checkpoint."""
         return {"amesh": self.amesh.checkpoint_state(), "history": self.history.checkpoint_state()}
 
     def restore_state(self, data: dict) -> None:
+        """Restore the adaptive mesh and the vertex history from :meth:`checkpoint_state`."""
         self.amesh = AdaptiveMesh.restore_state(data["amesh"])
         if data.get("history") is not None:
             self.history = VertexHistory.restore_state(data["history"])

@@ -6,7 +6,8 @@ meshes, and reports per mesh the dofs, the estimate eta = (sum eta_K^2)^(1/2), t
 the energy norm and the *efficiency* eta / |||e|||: :func:`rothe.eld.efficiency.elasticity_study`
 and :func:`rothe.ris.efficiency.ris_study`. Here: the exact solutions' scalar profiles phi --
 ``bump`` (prod sin(pi x_i), smooth) and ``front`` (tanh((|x - x_c| - r0)/w), a steep circular
-front, w = 0.05 by default) --, the initial meshes and :func:`dofs_for_error`.
+front, w = 0.05 by default) --, the initial meshes, the refinement loop :func:`refinement_study`
+and :func:`dofs_for_error`.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import numpy as np
 
 from ..mesh import box, unit_cube, unit_square
 from ..simplex import SimplexEvaluator
+from .bisection import AdaptiveMesh
+from .marking import doerfler_marking
 
 
 @dataclass
@@ -48,6 +51,7 @@ class ScalarField:
         return ScalarField(value, grad, hess)
 
     def shifted(self, c: float) -> ScalarField:
+        """phi + c (same gradient and Hessian)."""
         return ScalarField(lambda x: self.value(x) + c, self.grad, self.hess)
 
 
@@ -138,6 +142,9 @@ def cube_bubble(d: int) -> ScalarField:
 
 
 def profile_field(d: int, name, width: float = 0.05) -> ScalarField:
+    """The profile phi by name: ``'bump'`` (:func:`bump`), ``'front'`` (:func:`front` of
+    ``width``), or a :class:`ScalarField` itself.
+    """
     if isinstance(name, ScalarField):
         return name
     if name == "bump":
@@ -148,10 +155,64 @@ def profile_field(d: int, name, width: float = 0.05) -> ScalarField:
 
 
 def initial_mesh(d: int, n0: int, tagged: bool):
-
+    """The unit square (d = 2) or cube (d = 3) with ``n0`` cells per side; ``tagged``: with
+    named boundary parts (left, right, ...; the cube as :func:`~rothe.fem.mesh.box`).
+    """
     if tagged:
         return unit_square(n0, named=True) if d == 2 else box(n0, n0, n0)
     return unit_square(n0) if d == 2 else unit_cube(n0)
+
+
+def refinement_study(
+    dim: int,
+    n0: int,
+    tagged: bool,
+    level,
+    *,
+    adaptive: bool,
+    max_dofs: int,
+    theta: float,
+    max_levels: int,
+) -> list[dict]:
+    """The loop of an efficiency study: solve and estimate on a mesh, then refine it.
+
+    Parameters
+    ----------
+    dim : int
+        2 (unit square) or 3 (unit cube), see :func:`initial_mesh`.
+    n0 : int
+        Cells per side of the initial mesh.
+    tagged : bool
+        Whether the initial mesh has named boundary parts (:func:`initial_mesh`).
+    level : callable(mesh) -> (dict, ndarray)
+        The family's step on one mesh: its row (with ``"dofs"``) and the indicators eta_K.
+    adaptive : bool
+        Doerfler marking of eta with ``theta`` and one bisection per marked cell; otherwise
+        ``dim`` bisections of every cell per level (every edge halved).
+    max_dofs : int
+        Stop after the first mesh whose row has ``dofs`` >= ``max_dofs``.
+    theta : float
+        Doerfler's bulk parameter.
+    max_levels : int
+        At most this many meshes.
+
+    Returns
+    -------
+    list of dict
+        The rows, one per mesh.
+    """
+    amesh = AdaptiveMesh(initial_mesh(dim, n0, tagged=tagged))
+    rows = []
+    for _ in range(max_levels):
+        row, eta = level(amesh.mesh)
+        rows.append(row)
+        if row["dofs"] >= max_dofs:
+            break
+        if adaptive:
+            amesh.refine(doerfler_marking(eta, theta))
+        else:
+            amesh.uniform(dim)
+    return rows
 
 
 def energy_error(mesh, degree, U, u_exact, grad_exact, energy):

@@ -52,27 +52,12 @@ Given cell indicators eta_K >= 0 with the global estimate eta = (sum_K eta_K^2)^
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ...errors import RotheInputError, check_int, check_real, described, fail
-
-#: the CLI option of each parameter (error messages name them when ``naming="cli"``)
-CLI_NAMES = {
-    "space_tol": "--space-tol",
-    "refine_fraction": "--refine-fraction",
-    "coarsen_fraction": "--coarsen-fraction",
-    "max_dofs": "--max-dofs",
-    "adapt_every": "--adapt-every",
-    "max_level": "--max-level",
-    "coarsen_rounds": "--coarsen-rounds",
-    "coarsen_delay": "--coarsen-delay",
-    "max_recoarsen": "--max-recoarsen",
-    "refine_band": "--refine-band",
-    "coarsen_batch": "--coarsen-batch",
-}
 
 
 def doerfler_marking(eta: np.ndarray, fraction: float) -> np.ndarray:
@@ -182,9 +167,6 @@ class SpaceAdaptivity:
     coarsen_batch : float in [0, 1) or None
         Least share of the cells marked for an adaptation that only coarsens (None: the
         family's default, 0 = any).
-    naming : "api" | "cli"
-        Parameter names in error messages: the keyword (``space_tol``) or the CLI option
-        (``--space-tol``).
     """
 
     space_tol: float
@@ -194,53 +176,48 @@ class SpaceAdaptivity:
     adapt_every: int = 1
     max_level: int | None = None
     coarsen_rounds: int = 1
-    naming: str = field(default="api", repr=False)
     coarsen_delay: int | None = None
     max_recoarsen: int | None = None
     refine_band: float | None = None
     coarsen_batch: float | None = None
 
-    def _name(self, key: str) -> str:
-        return CLI_NAMES[key] if self.naming == "cli" else key
-
     def __post_init__(self):
-        if self.naming not in ("api", "cli"):
-            raise fail("naming", self.naming, "must be 'api' or 'cli'")
-        n = self._name
-        tol = check_real(n("space_tol"), self.space_tol)
+        tol = check_real("space_tol", self.space_tol)
         if not tol > 0:
-            raise fail(n("space_tol"), self.space_tol, "must be > 0")
+            raise fail("space_tol", self.space_tol, "must be > 0")
         self.space_tol = tol
         for key in ("refine_fraction", "coarsen_fraction"):
-            v = check_real(n(key), getattr(self, key))
+            v = check_real(key, getattr(self, key))
             if not 0.0 < v < 1.0:
-                raise fail(n(key), getattr(self, key), "must be in (0, 1)")
+                raise fail(key, getattr(self, key), "must be in (0, 1)")
             setattr(self, key, v)
         total = self.refine_fraction + self.coarsen_fraction
         if total > 1.0:
             raise RotheInputError(
-                f"{n('refine_fraction')} + {n('coarsen_fraction')}: got "
+                f"refine_fraction + coarsen_fraction: got "
                 f"{self.refine_fraction:g} + {self.coarsen_fraction:g} = {total:g}, must be "
-                "<= 1 (the refined and the coarsened cells must not overlap)"
+                "<= 1 (the refined and the coarsened cells must not overlap)",
+                "refine_fraction",
+                mentions=("coarsen_fraction",),
             )
         if self.max_dofs is not None:
-            self.max_dofs = check_int(n("max_dofs"), self.max_dofs, minimum=1)
-        self.adapt_every = check_int(n("adapt_every"), self.adapt_every, minimum=1)
+            self.max_dofs = check_int("max_dofs", self.max_dofs, minimum=1)
+        self.adapt_every = check_int("adapt_every", self.adapt_every, minimum=1)
         if self.max_level is not None:
-            self.max_level = check_int(n("max_level"), self.max_level, minimum=0)
-        self.coarsen_rounds = check_int(n("coarsen_rounds"), self.coarsen_rounds, minimum=1)
+            self.max_level = check_int("max_level", self.max_level, minimum=0)
+        self.coarsen_rounds = check_int("coarsen_rounds", self.coarsen_rounds, minimum=1)
         for key in ("coarsen_delay", "max_recoarsen"):
             if getattr(self, key) is not None:
-                setattr(self, key, check_int(n(key), getattr(self, key), minimum=0))
+                setattr(self, key, check_int(key, getattr(self, key), minimum=0))
         if self.refine_band is not None:
-            band = check_real(n("refine_band"), self.refine_band)
+            band = check_real("refine_band", self.refine_band)
             if not band >= 0.0:
-                raise fail(n("refine_band"), self.refine_band, "must be >= 0 (a length)")
+                raise fail("refine_band", self.refine_band, "must be >= 0 (a length)")
             self.refine_band = band
         if self.coarsen_batch is not None:
-            batch = check_real(n("coarsen_batch"), self.coarsen_batch)
+            batch = check_real("coarsen_batch", self.coarsen_batch)
             if not 0.0 <= batch < 1.0:
-                raise fail(n("coarsen_batch"), self.coarsen_batch, "must be in [0, 1)")
+                raise fail("coarsen_batch", self.coarsen_batch, "must be in [0, 1)")
             self.coarsen_batch = batch
 
     def check_mesh(self, amesh, degree: int = 1, components: int = 1) -> int:
@@ -248,7 +225,7 @@ class SpaceAdaptivity:
         dofs = amesh.ndofs(degree, components)
         if self.max_dofs is not None and self.max_dofs < dofs:
             raise fail(
-                self._name("max_dofs"),
+                "max_dofs",
                 self.max_dofs,
                 f"must be >= the {dofs} dofs of the initial mesh",
             )
@@ -282,6 +259,7 @@ class SpaceAdaptivity:
         return refine, coarsen
 
     def describe(self) -> dict:
+        """The options as in a trajectory's meta data and a summary."""
         out = {
             "space_tol": self.space_tol,
             "refine_fraction": self.refine_fraction,

@@ -38,8 +38,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ...errors import fail
-from .topology import (
+from ..topology import (
     barycentric,
+    edge_structures,
     lagrange_dofs,
     lagrange_values,
     local_nodes,
@@ -187,8 +188,6 @@ def _dofs(cache: dict, t: np.ndarray, n_points: int, degree: int):
 def edge_numbering(cache: dict, t: np.ndarray, n_points: int):
     """(edges, t2e) of the mesh (scikit-fem's numbering), computed once per mesh version."""
     if "edges" not in cache:
-        from .topology import edge_structures
-
         cache["edges"] = edge_structures(t, n_points)
         mesh = cache.get("mesh")
         if mesh is not None and t.shape[0] == 4 and not hasattr(mesh, "_t2e"):

@@ -16,7 +16,7 @@ from rothe.cli.main import main
 from rothe.io.checkpoint import MAIN, load_checkpoint
 from rothe.ris.stepper import RISStepper
 
-from .conftest import assert_same_trajectory
+from ..conftest import assert_same_trajectory, run_cli
 
 RIS2D = ["run", "ris-2d", "--n", "4", "--tol", "1e-3", "--no-plots", "--quiet"]
 RIS1D = ["run", "ris-1d", "--tol", "1e-3", "--no-plots", "--quiet"]
@@ -24,9 +24,7 @@ RIS2D_REGIME = RIS2D + ["--control", "regime"]  # 489 attempts
 
 
 def _run(argv, capsys):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
+    return run_cli(capsys, *argv)
 
 
 def _summary(d):

@@ -113,18 +113,26 @@ def test_bad_options_are_one_line_errors(kwargs, message):
         SpaceAdaptivity(**kwargs)
 
 
-def test_cli_names_and_the_dof_cap_of_the_initial_mesh():
-    with pytest.raises(RotheInputError, match=r"^--space-tol: got -1, must be > 0$"):
-        SpaceAdaptivity(space_tol=-1, naming="cli")
-    with pytest.raises(RotheInputError, match=r"^--adapt-every: got 0, must be an integer >= 1"):
-        SpaceAdaptivity(space_tol=1, adapt_every=0, naming="cli")
+def test_refusals_name_the_parameter_and_the_dof_cap_of_the_initial_mesh():
+    # the library names its parameters; the command line renames them (tests/cli)
+    with pytest.raises(RotheInputError, match=r"^space_tol: got -1, must be > 0$") as exc:
+        SpaceAdaptivity(space_tol=-1)
+    assert exc.value.parameter == "space_tol"
+    with pytest.raises(RotheInputError, match=r"^adapt_every: got 0, must be an integer >= 1"):
+        SpaceAdaptivity(space_tol=1, adapt_every=0)
+    with pytest.raises(RotheInputError, match=r"^refine_fraction \+ coarsen_fraction: got") as exc:
+        SpaceAdaptivity(space_tol=1, refine_fraction=0.9, coarsen_fraction=0.2)
+    table = {"refine_fraction": "--refine-fraction", "coarsen_fraction": "--coarsen-fraction"}
+    assert str(exc.value.renamed("--refine-fraction", table)).startswith(
+        "--refine-fraction + --coarsen-fraction: got 0.9 + 0.2 = 1.1, must be <= 1"
+    )
     am = AdaptiveMesh(meshes.unit_square(4, named=True))
     dofs = am.ndofs(2, 2)  # 2 * (25 + 56) = 162
     assert dofs == 162
     with pytest.raises(
-        RotheInputError, match=r"^--max-dofs: got 100, must be >= the 162 dofs of the initial mesh$"
+        RotheInputError, match=r"^max_dofs: got 100, must be >= the 162 dofs of the initial mesh$"
     ):
-        SpaceAdaptivity(space_tol=1, max_dofs=100, naming="cli").check_mesh(am, 2, 2)
+        SpaceAdaptivity(space_tol=1, max_dofs=100).check_mesh(am, 2, 2)
     assert SpaceAdaptivity(space_tol=1, max_dofs=162).check_mesh(am, 2, 2) == 162
 
 

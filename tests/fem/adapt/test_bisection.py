@@ -13,13 +13,13 @@ from skfem import Basis, ElementTetP2, ElementTriP2, MeshHex, MeshQuad, MeshTet,
 from rothe.errors import RotheInputError
 from rothe.fem import mesh as meshes
 from rothe.fem.adapt import AdaptiveMesh, check_adaptable
-from rothe.fem.adapt.topology import (
+from rothe.fem.mesh import load_mesh, unit_cube, unit_square
+from rothe.fem.topology import (
     barycentric,
     barycentric_gradients,
     facet_structures,
     lagrange_dofs,
 )
-from rothe.fem.mesh import load_mesh, unit_cube, unit_square
 
 
 def delaunay_mesh(dim: int, n: int, seed: int):

@@ -20,28 +20,9 @@ from rothe.ris.examples import example_7_1, example_7_2
 from rothe.ris.inner import InnerOptions
 from rothe.ris.stepper import RISStepper
 
-from .conftest import assert_same_trajectory
+from ..conftest import assert_same_trajectory, interrupted_thrice
 
 DIRECT = InnerOptions(linear_solver="direct")
-
-
-def _interrupted_thrice(
-    make_run, stepper_cls, signal_at_attempt, ckpt, sig=signal.SIGINT, attempts=(5, 40, 90)
-):
-    """Run, interrupted at the given step attempts (counted per session); each time resumed."""
-    resume = None
-    for k in attempts:
-        signal_at_attempt(stepper_cls, k, sig)
-        with pytest.raises(RunInterrupted) as info:
-            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
-        exc = info.value
-        assert exc.signum == sig and exc.exit_status == 128 + sig
-        assert exc.checkpoint == ckpt and exc.trajectory is not None
-        assert exc.where["accepted_steps"] == exc.trajectory.stats.accepted_steps
-        assert load_checkpoint(ckpt).status == "interrupted"
-        resume = ckpt
-    signal_at_attempt(stepper_cls, 10**9)  # no more signals
-    return make_run(resume=ckpt)
 
 
 def test_run_ris_interrupted_and_resumed_equals_the_uninterrupted_run(tmp_path, signal_at_attempt):
@@ -51,7 +32,7 @@ def test_run_ris_interrupted_and_resumed_equals_the_uninterrupted_run(tmp_path, 
         return run_ris(p, Adaptive(1e-4, tau=0.1), inner=DIRECT, **kw).trajectory
 
     full = make_run()
-    resumed = _interrupted_thrice(make_run, RISStepper, signal_at_attempt, tmp_path / "c")
+    resumed = interrupted_thrice(make_run, RISStepper, signal_at_attempt, tmp_path / "c")
     assert_same_trajectory(full, resumed)
     assert resumed.meta["sessions"] == 4
     ckpt = load_checkpoint(tmp_path / "c")
@@ -111,7 +92,7 @@ def test_run_eld_sigterm_and_resume(tmp_path, signal_at_attempt):
         return run_eld(p, control=Uniform(0.01), **kw).trajectory
 
     full = make_run()
-    resumed = _interrupted_thrice(
+    resumed = interrupted_thrice(
         make_run,
         ELDStepper,
         signal_at_attempt,

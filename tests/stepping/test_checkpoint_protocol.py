@@ -24,19 +24,6 @@ from rothe.stepping.controllers import Uniform
 from rothe.stepping.evolve import evolve
 
 
-class StopAfter:
-    """A stepper that reports 'finished' after k accepted steps (everything else delegated)."""
-
-    def __init__(self, stepper, k: int, index=lambda s: s.k):
-        self.stepper, self.k, self.index = stepper, k, index
-
-    def __getattr__(self, name):
-        return getattr(self.stepper, name)
-
-    def finished(self, state):
-        return self.index(state) >= self.k or self.stepper.finished(state)
-
-
 def _ris_parts(problem, control, **kw):
     grid = kw.pop("grid", None)
     spec = control_object(

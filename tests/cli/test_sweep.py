@@ -22,16 +22,12 @@ from rothe.io.trajectory import is_timing_array
 from rothe.parallel import Executor, Task
 from rothe.parallel import executor as executor_module
 
+from ..conftest import run_cli
+
 NEEDS_DASK = 'the cluster tests need dask: pip install "rothe[dask]"'
 #: summary fields that measure time or memory or name the run (its folder, its checkpoint, its
 #: session id), not the computation
 UNTIMED = {"wall_time_s", "peak_memory_mb", "setup_time_s", "checkpoint", "run_id"}
-
-
-def run_cli(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def read_csv(path):

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..mesh import barycentric_gradients
+from .mesh import barycentric_gradients
 
 #: local facets (as vertex lists) of a cell in scikit-fem order
 SKFEM_FACETS = {

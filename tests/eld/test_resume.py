@@ -15,7 +15,6 @@ import time
 import numpy as np
 import pytest
 
-from rothe.cli.main import main
 from rothe.eld import (
     BDF2,
     ELDStepper,
@@ -29,8 +28,7 @@ from rothe.eld import (
 from rothe.io.checkpoint import MAIN, CheckpointError, load_checkpoint
 from rothe.stepping.controllers import Adaptive
 
-from .conftest import assert_same_trajectory
-from .test_checkpoint_api import _interrupted_thrice
+from ..conftest import assert_same_trajectory, interrupted_thrice, run_cli
 
 ROTHE = [sys.executable, "-m", "rothe.cli.main"]
 #: adaptive BDF2 on the manufactured solution: 39 accepted and 3 rejected steps at n = 3
@@ -72,7 +70,7 @@ def test_run_eld_adaptive_bdf2_interrupted_thrice_equals_the_uninterrupted_run(
 
     full = make_run()
     assert full.stats.rejected_steps > 0  # the controller's state matters
-    resumed = _interrupted_thrice(
+    resumed = interrupted_thrice(
         make_run, ELDStepper, signal_at_attempt, tmp_path / "c", attempts=(1, 12, 15)
     )
     assert_same_trajectory(full, resumed)
@@ -131,9 +129,7 @@ def test_run_eld_resume_refuses_other_arguments_and_another_damping(tmp_path):
 
 
 def _run(argv, capsys):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
+    return run_cli(capsys, *argv)
 
 
 def test_eld_mms_adaptive_bdf2_sigint_then_resume_is_bit_identical(
