@@ -26,8 +26,9 @@ from ..conftest import run_cli
 
 NEEDS_DASK = 'the cluster tests need dask: pip install "rothe[dask]"'
 #: summary fields that measure time or memory or name the run (its folder, its checkpoint, its
-#: session id), not the computation
-UNTIMED = {"wall_time_s", "peak_memory_mb", "setup_time_s", "checkpoint", "run_id"}
+#: session id, its command line as spelled: a sweep writes --n=3 where a person wrote --n 3), not
+#: the computation
+UNTIMED = {"wall_time_s", "peak_memory_mb", "setup_time_s", "checkpoint", "run_id", "argv"}
 
 
 def read_csv(path):

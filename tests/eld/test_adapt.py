@@ -452,17 +452,21 @@ def test_cli_bad_space_options_one_line_exit_2(tmp_path, capsys, args, message):
     assert re.search(message, err), err
 
 
-def test_a_quadrilateral_mesh_is_refused_naming_adapt_space():
+def test_a_quadrilateral_mesh_is_refused_naming_the_parameter():
+    # the library names its parameter (``mesh`` by default, the caller's otherwise); the command
+    # line passes its option (tests/cli/test_cli_ris_fem.py: ``--adapt-space: got a mesh of ...``)
     from skfem import MeshQuad
 
     from rothe.fem.adapt import check_adaptable
 
     with pytest.raises(
         RotheInputError,
-        match=r"^--adapt-space: got a mesh of quadrilaterals, "
+        match=r"^mesh: got a mesh of quadrilaterals, "
         r"needs triangles \(2D\) or tetrahedra \(3D\)",
     ):
         check_adaptable(MeshQuad())
+    with pytest.raises(RotheInputError, match=r"^adapt: got a mesh of quadrilaterals"):
+        check_adaptable(MeshQuad(), "adapt")
 
 
 def test_3d_tetrahedra_adapt_with_the_ledger_closing():

@@ -4,7 +4,7 @@ over two decades of tau) and the convergence study with the scheme and form obje
 import numpy as np
 import pytest
 
-from rothe.eld import BDF2, Original, RayleighDamping
+from rothe.eld import BDF2, Means, Original, RayleighDamping
 from rothe.eld.studies import convergence_study, perturbation_study
 from rothe.errors import RotheInputError
 
@@ -70,3 +70,28 @@ def test_convergence_study_takes_the_scheme_and_form_objects():
         convergence_study("original", halvings=1)
     with pytest.raises(RotheInputError, match=r"^scheme: got 'bdf2', must be ImplicitEuler"):
         perturbation_study((0.1, 0.05), scheme="bdf2")
+
+
+class _NoRuns:
+    """An executor that must not be reached: the study refuses before any run (issue 21)."""
+
+    in_process = True
+
+    def map(self, tasks):
+        raise AssertionError(f"{len(tasks)} runs started")
+
+
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        ({"tau0": 0.3}, r"^tau0: got 0\.3, must divide T = 1 into equal steps"),
+        ({"tau0": 1e300}, r"^tau0: got 1e\+300, must be < rho/d0 = 2 \(Lemma 3\.2"),
+        ({"degree": 5}, r"^degree: got 5, must be 1 or 2$"),
+        ({"rho": -1.0}, r"^rho: got -1, must be > 0$"),
+        ({"scheme": BDF2(), "data": Means()}, r"^data: got 'means', with scheme bdf2 must be"),
+    ],
+)
+def test_convergence_study_refuses_what_every_run_would_before_any_run(kw, message):
+    with pytest.raises(RotheInputError, match=message) as info:
+        convergence_study(executor=_NoRuns(), **{"tau0": 0.1, "halvings": 2, "n": 2, **kw})
+    assert info.value.parameter == message[1:].split(":")[0]

@@ -171,3 +171,42 @@ def test_check_mesh_rejects_bad_indices():
     m.t[2, 0] = 7
     with pytest.raises(RotheInputError, match=r"cell node index 7"):
         check_mesh(m)
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (np.nan, "has a non-finite node coordinate (nan), coordinates must be finite"),
+        (np.inf, "has a non-finite node coordinate (inf), coordinates must be finite"),
+        (
+            1e200,
+            "has node coordinates up to 1e+200 in magnitude, must be at most 1e+100 (squared "
+            "lengths and volumes would overflow; rescale the mesh)",
+        ),
+    ],
+)
+def test_non_finite_or_huge_coordinates_are_refused_before_the_kd_tree(tmp_path, value, message):
+    """A NaN, an inf or coordinates x1e200 made scipy's cKDTree raise inside coincident_nodes
+    (a traceback, issue 21); now one line naming the file."""
+    ref = unit_square(3)
+    pts = np.c_[ref.p.T, np.zeros(ref.p.shape[1])]
+    if value == 1e200:
+        pts = pts * value
+    else:
+        pts[4, 0] = value
+    path = tmp_path / "m.vtu"
+    meshio.write(path, meshio.Mesh(pts, [("triangle", ref.t.T)]))
+    with pytest.raises(RotheInputError) as info:
+        load_mesh(path)
+    assert str(info.value) == f"mesh: got '{path}', {message}"
+    assert info.value.parameter == "mesh"
+
+
+def test_coincident_nodes_of_large_finite_coordinates():
+    """The k-d tree works on coordinates scaled to the unit box: 1e200 finds the same pairs."""
+    from rothe.fem.mesh import coincident_nodes
+
+    p = np.array([[0.0, 1.0, 1.0, 0.5], [0.0, 0.0, 1.0, 0.5]])
+    p = np.c_[p, p[:, 1]]  # node 4 repeats node 1
+    for scale in (1.0, 1e200, 1e-200):
+        assert coincident_nodes(p * scale).tolist() == [[1, 4]]

@@ -98,6 +98,7 @@ def test_workers_1_needs_no_dask_and_writes_the_table(tmp_path, capsys, no_dask)
 def test_default_without_dask_is_in_process(no_dask, monkeypatch):
     assert executor_module.default_workers() == 1 and Executor().in_process
     monkeypatch.setenv("ROTHE_WORKERS", "3")
+    monkeypatch.setattr(executor_module, "cpu_count", lambda: 4)  # at most the cores (issue 21)
     assert executor_module.default_workers() == 3
 
 
@@ -213,6 +214,9 @@ def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(
 
     monkeypatch.setattr(interrupt.interruptible, "__enter__", enter_and_signal)
     out = tmp_path / "sweep"
+    # --keep-checkpoint: the completed runs keep theirs, so that the last --continue below
+    # meets a checkpoint made with other options (without it a completed run is recognized by
+    # its summary and run anew with the new options: tests/cli/test_session.py)
     code, stdout, err = run_cli(
         capsys,
         "sweep",
@@ -225,6 +229,7 @@ def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(
         "1",
         "--out",
         out,
+        "--keep-checkpoint",
     )
     assert code == 143 and len(entered) == 2
     assert (
@@ -259,6 +264,7 @@ def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(
         "--out",
         out,
         "--continue",
+        "--keep-checkpoint",
     )
     assert code == 0, err
     rows = read_csv(out / "sweep.csv")
@@ -303,6 +309,7 @@ def test_sigterm_stops_the_sweep_keeps_the_table_and_continue_resumes_it(
         "--continue",
         "--simpson",
         "4",
+        "--keep-checkpoint",
     )
     rows = read_csv(out / "sweep.csv")
     assert code == 1 and [r["status"] for r in rows] == ["error", "completed"]

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import RotheInputError, check_int, check_positive, fail
 from ..io.atomic import TMP_PREFIX, atomic_write_text, check_writable
-from ..parallel.executor import INSTALL_HINT, Executor, dask_available
+from ..parallel.executor import INSTALL_HINT, Executor, check_workers, dask_available
 from ..stepping.progress import ProgressOptions
 
 
@@ -39,11 +39,20 @@ def add_output_options(parser, name: str) -> None:
     )
 
 
+def out_path(args, name: str) -> Path:
+    """``--out``, or ``rothe-out/<name>`` when it is not given; an empty or blank ``--out ''``
+    is refused (it wrote into the default folder without a word)."""
+    out = getattr(args, "out", None)
+    if out is None:
+        return Path("rothe-out") / name
+    if not str(out).strip():
+        raise fail("--out", out, f"must name a directory (omit --out for rothe-out/{name})")
+    return Path(out)
+
+
 def output_dir(args, name: str) -> Path:
     """The output directory, created and checked for writability (errors name --out)."""
-
-    out = Path(args.out) if args.out else Path("rothe-out") / name
-    return check_writable(out, "--out")
+    return check_writable(out_path(args, name), "--out")
 
 
 def progress_of(args) -> ProgressOptions:
@@ -185,6 +194,8 @@ def executor_from_args(args, title: str) -> Executor:
     workers = args.workers
     if workers is not None:
         workers = check_int("--workers", workers, minimum=1)
+        if args.scheduler is None:  # a local cluster: at most one worker per core
+            workers = check_workers("--workers", workers)
     if args.scheduler is not None:
         if workers is not None:
             raise fail(

@@ -49,6 +49,7 @@ from .common import (
 from .eld_options import (
     ELD_MAX_DOFS,
     check_beam_size,
+    check_convergence_runs,
     check_damping_options,
     check_eld_step,
     check_mms_size,
@@ -679,15 +680,17 @@ class RunEldPulse(EldRunCommand):
 
 def _beam_stream(session, problem, options: dict, every: int) -> EldXdmfWriter:
     """The beam's XDMF writer in the checkpoint directory (an attachment of the run's
-    checkpoint, so a resumed run continues it), fed every ``every``-th step by the observer."""
+    checkpoint, so a resumed run continues it), fed by the observer with the initial state
+    (lambda(0) included: both series start at t = 0) and every ``every``-th step."""
     stream = session.checkpoint_dir / "stream"
     if session.resume is None:  # segments of an earlier run are not this run's
         shutil.rmtree(stream, ignore_errors=True)
     writer = EldXdmfWriter(stream, problem, name="beam")
-    if session.resume is None:
-        writer.write(0.0, problem.u0, problem.v0, None)
 
     def observer(state, result):
+        if result is None:  # the initial state (not on resume): u0, v0 and lambda(0)
+            writer.write(0.0, problem.u0, problem.v0, state.lam)
+            return
         # n tau may round to just below T: the last step by a relative margin
         if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
             writer.write(state.t, state.u, state.v, result.lam)
@@ -774,6 +777,8 @@ class StudyEldConvergence:
         scheme = scheme_of(args)
         halvings = check_int("--halvings", args.halvings, minimum=1)
         data = data_of(args)
+        # what every run would refuse, before the cluster starts or --out is made (issue 21)
+        check_convergence_runs(args, scheme, data)
         study, out = run_study(
             self.name,
             args,

@@ -20,7 +20,7 @@ from ..eld.damping import DAMPINGS, make_damping
 from ..eld.data import DATA_MODES, DEFAULT_DATA
 from ..eld.form import DEFAULT_FORM, Original, Regularized
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
-from ..eld.studies import check_delta, check_halvings, check_noise_targets
+from ..eld.studies import check_delta, check_halvings, check_noise_targets, check_uniform_runs
 from ..errors import check_choice, check_int, check_positive, described, fail
 from ..stepping.controllers import Adaptive, Given, Uniform
 from .adapt_options import check_memory
@@ -210,9 +210,16 @@ def scheme_of(args):
 
 
 def form_of(args):
-    """The form object of --form (and --lifting, checked whatever the form)."""
+    """The form object of --form (and --lifting, checked whatever the form; given with --form
+    original, which has no lifting, it is refused as an option the run does not read)."""
     name = check_choice("--form", args.form, tuple(FORMS))
     lifting = check_choice("lifting", getattr(args, "lifting", LIFTING_DEFAULT), LIFTINGS)
+    if name == "original" and given(args, "--lifting"):
+        raise fail(
+            "--lifting",
+            lifting,
+            "is used by --form regularized only (the original form (2.7) has no lifting)",
+        )
     return Regularized(lifting) if name == "regularized" else Original()
 
 
@@ -308,6 +315,26 @@ def check_study_options(args) -> None:
         check_noise_targets("--targets", args.targets)
         check_int("--seed", args.seed, minimum=0)
         check_delta("--delta", args.delta)
+
+
+def check_convergence_runs(args, scheme, data) -> None:
+    """What every run of ``rothe study eld-convergence`` would refuse, checked once before its
+    cluster starts or --out is made (:func:`rothe.eld.studies.check_uniform_runs`: the
+    manufactured problem, the data mode with the scheme, the largest step; each run failed on
+    its own after the cluster had started). The parameters it names are the command's options
+    by the option table (``tau0`` is ``--tau0``)."""
+    check_uniform_runs(
+        args.tau0,
+        scheme,
+        data,
+        args.n,
+        args.degree,
+        damping=damping_of(args),
+        rho=args.rho,
+        lam=args.lam,
+        mu=args.mu,
+        T=args.T,
+    )
 
 
 def check_mms_size(n: int, degree: int) -> None:

@@ -6,9 +6,11 @@ each has ``configure(parser)`` and ``execute(args) -> int``. Errors a user can c
 unknown names, missing files, a checkpoint that cannot be resumed, an ``--out`` that cannot be
 written) print one line ``rothe: error: ...`` and exit with status 2, no traceback; a run that
 fails midway (e.g. step size below tau_min) prints one line and exits with status 1 after writing
-what it computed; a run stopped by SIGINT / SIGTERM writes its results so far and a checkpoint and
-exits with 130 / 143; an output that cannot be written (e.g. a full disk) is one line naming the
-file, exit status 1, the earlier files unchanged.
+what it computed; a run stopped by SIGINT / SIGTERM / SIGHUP / SIGQUIT writes its results so far
+and a checkpoint and exits with 130 / 143 / 129 / 131 (:mod:`rothe.stepping.interrupt`); SIGUSR1
+makes a run write a checkpoint at its next step boundary and go on; an output that cannot be
+written (e.g. a full disk) is one line naming the file, exit status 1, the earlier files
+unchanged.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from pathlib import Path
 
 from .._version import __version__
 from ..errors import OutputWriteError, RotheInputError, RunFailed, RunInterrupted
-from ..io.checkpoint import CheckpointError, load_checkpoint
+from ..io.checkpoint import MAIN, CheckpointError, checkpoint_dir, load_checkpoint
+from ..io.outputs import read_summary
+from ..stepping import interrupt
 from . import registry
 from .common import float_option
 from .session import _run_dir
@@ -123,8 +127,20 @@ class Resume:
         )
 
     def execute(self, args) -> int:
-        """Re-run the command line recorded in DIR's checkpoint with --out DIR --resume DIR."""
-
+        """Re-run the command line recorded in DIR's checkpoint with --out DIR --resume DIR
+        (nothing to do for a run that already completed)."""
+        run_dir = _run_dir(Path(args.dir))
+        if (
+            run_dir.is_dir()
+            and not (checkpoint_dir(run_dir) / MAIN).is_file()
+            and (read_summary(run_dir) or {}).get("status") == "completed"
+        ):
+            # a completed run removes its checkpoint (unless --keep-checkpoint): nothing to do
+            print(
+                f"rothe: {run_dir}: the run already completed; its results are there",
+                file=sys.stderr,
+            )
+            return 0
         ckpt = load_checkpoint(args.dir, header_only=True)
         ckpt.require_resumable()
         argv = ckpt.record.get("argv")
@@ -134,7 +150,6 @@ class Resume:
                 f"Python, not by a rothe command: resume it with "
                 f"{ckpt.api}(..., resume={str(args.dir)!r})"
             )
-        run_dir = _run_dir(Path(args.dir))
         new_argv = list(argv) + ["--out", str(run_dir), "--resume", str(run_dir)]
         if args.quiet:
             new_argv.append("--quiet")
@@ -285,6 +300,9 @@ def _main(argv=None) -> int:
         return 2
     saved_format = warnings.formatwarning
     warnings.formatwarning = _one_line_warning
+    # SIGUSR1 (a scheduler's "time limit ahead") asks for a checkpoint: it must never end the
+    # process, also not while a run is being set up or between the runs of a sweep
+    interrupt.keep_checkpoint_requests()
     try:
         return _dispatch(build_parser(), argv)
     except RotheInputError as exc:

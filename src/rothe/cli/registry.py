@@ -19,6 +19,7 @@ MODULES = (
     "rothe.cli.ris_commands",
     "rothe.cli.ris_fem_commands",
     "rothe.cli.eld_commands",
+    "rothe.cli.coupled_commands",
     "rothe.cli.sweep_commands",
 )
 

@@ -675,6 +675,12 @@ class CompareRIS2D:
         if len(taus) < 2:
             raise fail("--taus", ",".join(map(str, taus)), "needs at least two step sizes")
         controls = [c.strip() for c in args.controls.split(",") if c.strip()]
+        if not controls:  # it ran uniform alone: no comparison, and exit status 0
+            raise fail(
+                "--controls",
+                args.controls,
+                f"must name at least one of {', '.join(COMPARE_CONTROLS)} (uniform always runs)",
+            )
         for c in controls:
             check_choice("--controls", c, COMPARE_CONTROLS)
         if args.mesh is not None and args.n is not None:

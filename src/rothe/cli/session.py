@@ -3,8 +3,12 @@
 What a user sees in ``--out DIR`` (default ``rothe-out/<example>``):
 
 - ``DIR/checkpoint/``: the run's checkpoint, written when the run starts, every
-  ``--checkpoint-every`` seconds (default 60), when it stops for any reason and at the end;
-  ``rothe resume DIR`` continues from it (or ``rothe run ... --resume DIR``).
+  ``--checkpoint-every`` seconds (default 60) and when it stops for any reason;
+  ``rothe resume DIR`` continues from it (or ``rothe run ... --resume DIR``). Once a run has
+  completed and its results are committed, the checkpoint is removed: it would only duplicate
+  ``trajectory.npz`` (22 MB for ris-2d, hundreds of MB for adaptive runs; a sweep keeps one per
+  run). ``--keep-checkpoint`` keeps it. A failed or interrupted run, or one whose results could
+  not be written, always keeps it.
 - ``DIR/summary.json``, ``DIR/trajectory.npz``, figures, ParaView files: the result, committed
   together when the run ends (:mod:`rothe.io.outputs`), whatever its status: ``completed``,
   ``failed`` (exit 1) or ``interrupted`` (SIGINT: exit 130, SIGTERM: exit 143; the trajectory
@@ -27,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import RunFailed, RunInterrupted, check_positive, fail
-from ..io.atomic import check_writable, remove_stale_temporaries
+from ..io.atomic import check_writable, remove_stale_temporaries, temporary_name
 from ..io.checkpoint import (
     CHECKPOINT_SUBDIR,
     MAIN,
@@ -40,7 +44,7 @@ from ..io.checkpoint import (
 )
 from ..io.outputs import OutputSet, read_summary
 from ..stepping import interrupt
-from .common import float_option, progress_of, write_summary
+from .common import float_option, out_path, progress_of, write_summary
 
 #: options that change where and how results are shown, never the results themselves
 PRESENTATION = (
@@ -51,6 +55,7 @@ PRESENTATION = (
     "checkpoint_every",
     "progress_every",
     "discard_checkpoint",
+    "keep_checkpoint",
 )
 #: argparse bookkeeping
 _INTERNAL = ("_command", "_options", "_argv", "_given", "verb", "name")
@@ -81,6 +86,13 @@ def add_run_options(parser) -> None:
         "--discard-checkpoint",
         action="store_true",
         help="start over even if OUT holds the checkpoint of an unfinished run (it is replaced)",
+    )
+    parser.add_argument(
+        "--keep-checkpoint",
+        action="store_true",
+        help="keep OUT/checkpoint after the run completed (by default it is "
+        "removed once the results are written: it duplicates "
+        "trajectory.npz)",
     )
 
 
@@ -136,7 +148,7 @@ class RunSession:
         self.args = args
         self.name = name
         self.command = f"{args.verb} {args.name}"
-        self.out = Path(args.out) if args.out else Path("rothe-out") / name
+        self.out = out_path(args, name)
         self.resume = None
         if args.resume is not None:
             given = Path(args.resume)
@@ -148,6 +160,7 @@ class RunSession:
                 )
             self.resume = self._load_resumable(given)
             self.out = _run_dir(given)
+        self._made_out = not self.out.exists()  # removed again if the run writes nothing
         check_writable(self.out, "--out")
         self.checkpoint_dir = self.out / CHECKPOINT_SUBDIR
         self._lock = DirectoryLock(self.checkpoint_dir)
@@ -223,7 +236,14 @@ class RunSession:
     def __exit__(self, *exc):
         self._guard.__exit__(*exc)
         self._lock.release()
+        if self._made_out:  # e.g. input refused by the run: leave no empty --out behind
+            with contextlib.suppress(OSError):
+                self.out.rmdir()
         return False
+
+    @property
+    def keeps_checkpoint(self) -> bool:
+        return bool(getattr(self.args, "keep_checkpoint", False))
 
     def run(self, fn) -> Outcome:
         """``fn(checkpoint=..., resume=..., progress=...)`` -> result; catches the stops."""
@@ -274,10 +294,16 @@ class RunSession:
         except CheckpointError:
             ckpt = None
         summary["status"] = outcome.status
+        # the command line, so that a completed run is recognized without its checkpoint
+        # (rothe resume, rothe sweep --continue)
+        summary["command"] = self.checkpoint.record["command"]
+        summary["argv"] = self.checkpoint.record["argv"]
         if ckpt is not None:
             summary["run_id"] = ckpt.run_id
             summary["sessions"] = ckpt.sessions
-            summary["checkpoint"] = str(self.checkpoint_dir)
+            kept = outcome.status != "completed" or self.keeps_checkpoint
+            # None: removed when the run completed (the key stays: tables keep their columns)
+            summary["checkpoint"] = str(self.checkpoint_dir) if kept else None
             if ckpt.sessions > 1:
                 summary["wall_time_note"] = (
                     f"wall_time_s sums {ckpt.sessions} sessions (the run was resumed)"
@@ -298,6 +324,8 @@ class RunSession:
             inc = self.out / INCOMPLETE
             if inc.is_dir():
                 shutil.rmtree(inc, ignore_errors=True)
+            if not self.keeps_checkpoint:  # the results are committed: it only duplicates them
+                _remove_checkpoint(self.checkpoint_dir)
             return 0
         exc = outcome.error
         if isinstance(exc, RunInterrupted):
@@ -350,6 +378,21 @@ def run_sequence(args, name: str, run, write, *, prepare=None, completed=None):
         if outcome.status == "completed" and completed is not None:
             completed()
     return code, outcome, results, summary
+
+
+def _remove_checkpoint(directory: Path) -> None:
+    """Remove a checkpoint directory at once for a reader: renamed to a hidden temporary name
+    (atomic), then deleted; a kill in between leaves the temporary, which the next run in OUT
+    removes (:func:`~rothe.io.atomic.remove_stale_temporaries`), never a checkpoint whose
+    segments are half gone."""
+    if not directory.is_dir():
+        return
+    doomed = temporary_name(directory)
+    try:
+        directory.rename(doomed)
+    except OSError:
+        doomed = directory
+    shutil.rmtree(doomed, ignore_errors=True)
 
 
 def _run_dir(path: Path) -> Path:

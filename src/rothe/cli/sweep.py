@@ -31,12 +31,16 @@ from pathlib import Path
 
 from ..cli.common import _jsonable as conv
 from ..errors import RotheInputError, RunInterrupted, fail
+from ..fem.mesh import load_mesh
+from ..io.atomic import check_writable
 from ..io.checkpoint import CHECKPOINT_SUBDIR, MAIN, CheckpointError, load_checkpoint
+from ..io.outputs import read_summary
 from ..parallel.executor import Executor
-from ..parallel.tasks import TaskResult
+from ..parallel.tasks import Task, TaskResult
 from ..plotting.sweep import plot_sweep
 from ..stepping.interrupt import signal_name
 from . import registry
+from .session import strip_argv
 from .tasks import cli_task
 
 #: options the sweep sets for every run itself
@@ -47,6 +51,12 @@ RESERVED = {
     "continues one)",
     "--help": "not an option of a run",
 }
+#: options whose value names an input file, checked for every run before any run starts (a
+#: command adds its own with a ``file_options`` attribute: option strings); a mesh is also read
+#: (once per file), so that a file the run would refuse stops the sweep before the first run
+FILE_OPTIONS = ("--mesh",)
+#: a sweep of more runs than this needs ``--yes`` (``max_runs`` of :func:`run_sweep`)
+CONFIRM_ABOVE = 1000
 _TRUE = ("true", "yes", "on", "1")
 _FALSE = ("false", "no", "off", "0")
 
@@ -70,6 +80,9 @@ class SweepRun:
     argv: list[str]
     out: str
     parsed: dict  # the parameter values as the command's parser converted them
+    #: ``--continue``: the summary of this run's completed result already in its folder (the
+    #: run is not started again; its checkpoint was removed when it completed)
+    done: dict | None = None
 
 
 def split_param(text: str) -> tuple[str, list[str]]:
@@ -191,16 +204,60 @@ def _scalar(value):
     return value if isinstance(value, (int, float, str, bool)) or value is None else None
 
 
+def check_input_file(option: str, value) -> None:
+    """One line naming ``option`` unless ``value`` names a readable regular file."""
+    path = Path(str(value))
+    if not str(value).strip():
+        raise fail(option, str(value), "must name a file")
+    if not path.exists():
+        raise fail(option, str(value), "no such file")
+    if path.is_dir():
+        raise fail(option, str(value), "is a directory, must be a file")
+    if not path.is_file():
+        raise fail(option, str(value), "is not a regular file (a FIFO, socket or device)")
+    try:
+        with open(path, "rb") as f:
+            f.read(1)
+    except OSError as exc:
+        raise fail(option, str(value), f"cannot be read ({exc.strerror or exc})") from None
+
+
+def _check_mesh_file(args, value, seen: set) -> None:
+    """Read a --mesh file as the run will (triangles or tetrahedra by the command's ``dim``,
+    its --duplicate-nodes), once per file and settings."""
+    dim = getattr(args._command, "dim", None)
+    duplicates = getattr(args, "duplicate_nodes", None) or "error"
+    key = (str(value), dim, duplicates)
+    if key not in seen:
+        seen.add(key)
+        load_mesh(value, dim=dim, name="--mesh", duplicate_nodes=duplicates)
+
+
+def _check_files(args, parser, seen: set) -> None:
+    options = FILE_OPTIONS + tuple(getattr(args._command, "file_options", ()))
+    actions = parser._option_string_actions
+    for option in options:
+        if option in actions:
+            value = getattr(args, actions[option].dest, None)
+            if value is not None:
+                check_input_file(option, value)
+                if option == "--mesh":
+                    _check_mesh_file(args, value, seen)
+
+
 def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> None:
-    """Parse every run's argv with the CLI and run the command's own ``validate``; the first
-    refusal is one line naming the run. Fills ``run.parsed`` (the values as the command sees
-    them)."""
+    """Parse every run's argv with the CLI, check its input files (:data:`FILE_OPTIONS`: a
+    sweep over ``mesh=good.msh,missing.msh`` must not find the missing file after the good
+    runs) and run the command's own ``validate``; the first refusal is one line naming the run.
+    Fills ``run.parsed`` (the values as the command sees them)."""
     from .main import build_parser, parse_command  # main imports this module's command
 
     full = build_parser()
+    seen: set = set()
     for run in runs:
         try:
             args = parse_command(full, run.argv)
+            _check_files(args, parser, seen)
             validate = getattr(args._command, "validate", None)
             if validate is not None:
                 validate(args)
@@ -214,11 +271,14 @@ def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> Non
 
 def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
     """``--continue``: every run whose folder holds a resumable checkpoint (the run was
-    interrupted or killed, or it completed) gets ``--resume=<its folder>``: an unfinished run
-    continues from its checkpoint, a completed one is not run again (its summary is its row). The
-    run's session refuses a checkpoint made with other options (status ``error``, the message
-    says which). Runs without a checkpoint, or whose checkpoint is of a failed run, run anew.
-    Returns what happens to each run: ``resume`` | ``run``."""
+    interrupted or killed, or it completed with ``--keep-checkpoint``) gets
+    ``--resume=<its folder>``: an unfinished run continues from its checkpoint, a completed one
+    is not run again (its summary is its row). The run's session refuses a checkpoint made with
+    other options (status ``error``, the message says which). A run whose folder holds the
+    completed result of the same command line (``summary.json``: status ``completed`` and the
+    same ``argv``; a completed run removes its checkpoint) is ``done``: not started, its summary
+    is its row. The other runs, and those whose checkpoint is of a failed run, run anew.
+    Returns what happens to each run: ``resume`` | ``done`` | ``run``."""
 
     what = {}
     for run in runs:
@@ -229,17 +289,36 @@ def continue_runs(runs: list[SweepRun]) -> dict[str, str]:
                 status = load_checkpoint(ckpt_dir, check_version=False, header_only=True).status
             except CheckpointError:
                 status = None  # unreadable: the run starts over (nothing resumable is lost)
+        earlier = read_summary(run.out) if status is None else None
         if status in ("running", "interrupted", "completed"):
             run.argv.append(f"--resume={run.out}")
             what[run.name] = "resume"
+        elif (
+            earlier is not None
+            and earlier.get("status") == "completed"
+            and earlier.get("argv") == strip_argv(run.argv)
+        ):
+            run.done = earlier
+            what[run.name] = "done"
         else:
             what[run.name] = "run"
     return what
 
 
+def earlier_result(summary: dict) -> dict:
+    """The task of a run completed before ``--continue``: its summary is its value."""
+    return summary
+
+
 def sweep_tasks(runs: list[SweepRun]):
-    """One :func:`~rothe.cli.tasks.cli_task` per run of the sweep (its argv and folder)."""
-    return [cli_task(run.name, run.argv, out=run.out) for run in runs]
+    """One :func:`~rothe.cli.tasks.cli_task` per run of the sweep (its argv and folder); a run
+    completed before ``--continue`` is a task that returns its summary."""
+    return [
+        cli_task(run.name, run.argv, out=run.out)
+        if run.done is None
+        else Task(run.name, earlier_result, {"summary": run.done})
+        for run in runs
+    ]
 
 
 def collect_rows(runs: list[SweepRun], results: list[TaskResult]) -> list[dict]:
@@ -249,7 +328,7 @@ def collect_rows(runs: list[SweepRun], results: list[TaskResult]) -> list[dict]:
         row = {"run": run.name, **run.parsed, "status": res.status, "message": res.message}
         summary = res.value if isinstance(res.value, dict) else {}
         for key, value in summary.items():
-            if key == "status":
+            if key in ("status", "command", "argv"):  # the run's command line: its folder says it
                 continue
             if key in row:
                 if _same(row[key], value):
@@ -366,6 +445,17 @@ class SweepResult:
         return all(r["status"] == "completed" for r in self.rows)
 
 
+def check_run_count(runs: list[SweepRun], params: list[SweepParam], max_runs: int | None) -> None:
+    """More than ``max_runs`` runs: one line saying how many (and of what), asking for --yes."""
+    if max_runs is None or len(runs) <= max_runs:
+        return
+    sizes = " x ".join(f"{len(p.values)} {p.name}" for p in params)
+    raise RotheInputError(
+        f"--param: {len(runs)} runs ({sizes}), more than {max_runs}: pass --yes to start them all",
+        "param",
+    )
+
+
 def prepare_sweep(
     example: str,
     params: list[str] | dict,
@@ -374,9 +464,12 @@ def prepare_sweep(
     verb: str = "run",
     out=None,
     continue_sweep: bool = False,
+    max_runs: int | None = None,
 ) -> tuple[list[SweepRun], list[SweepParam], Path]:
     """Plan and validate a sweep (nothing runs): ``params`` as ``NAME=V1,V2`` strings or a dict
-    ``{name: [values]}``; ``continue_sweep``: see :func:`continue_runs`."""
+    ``{name: [values]}``; ``continue_sweep``: see :func:`continue_runs`; ``max_runs``: refuse
+    a sweep of more runs (:func:`check_run_count`; the CLI's limit is :data:`CONFIRM_ABOVE`
+    without ``--yes``)."""
     if isinstance(params, dict):
         params = [
             f"{k}={';'.join(map(str, v))}"
@@ -386,8 +479,13 @@ def prepare_sweep(
         ]
     parser = command_parser(verb, example)
     resolved = resolve_params(parser, verb, example, list(params))
+    if out is not None and not str(out).strip():  # Path('') would be '.'
+        raise fail(
+            "--out", str(out), f"must name a directory (omit --out for rothe-out/sweep-{example})"
+        )
     out = Path(out) if out is not None else Path("rothe-out") / f"sweep-{example}"
     runs = plan_sweep(verb, example, resolved, [str(a) for a in fixed], out)
+    check_run_count(runs, resolved, max_runs)
     if continue_sweep:
         continue_runs(runs)
     validate_runs(runs, parser, resolved)
@@ -404,6 +502,7 @@ def run_sweep(
     executor: Executor | None = None,
     plot: str | tuple | None = None,
     continue_sweep: bool = False,
+    max_runs: int | None = None,
 ) -> SweepResult:
     """Run a sweep (Python API of ``rothe sweep``): plan, validate, run, collect, write.
 
@@ -414,15 +513,19 @@ def run_sweep(
     """
     xy = parse_plot(plot) if isinstance(plot, str) or plot is None else tuple(plot)
     runs, resolved, out = prepare_sweep(
-        example, params, fixed, verb=verb, out=out, continue_sweep=continue_sweep
+        example, params, fixed, verb=verb, out=out, continue_sweep=continue_sweep, max_runs=max_runs
     )
     executor = executor or Executor(1, progress=False)
+    if executor.scheduler is None and executor.workers > len(runs) >= 1:
+        executor.workers = len(runs)  # a local worker without a run would only start and idle
+    check_writable_sweep(out)
     t0 = time.perf_counter()
     interrupted = None
-    with executor:  # connects (or starts the cluster) before any folder is made
-        if out.exists() and not out.is_dir():
-            raise fail("--out", str(out), "must be a directory (a file of that name exists)")
-        out.mkdir(parents=True, exist_ok=True)
+    with executor:  # connects (or starts the cluster) once --out is known to be writable
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise fail("--out", str(out), f"cannot create this directory ({exc})") from None
         try:
             results = executor.map(sweep_tasks(runs))
         except KeyboardInterrupt as exc:  # SIGINT/SIGTERM: keep the table of what finished
@@ -475,6 +578,20 @@ def run_sweep(
                 title=f"rothe sweep {verb} {example}",
             )
     return SweepResult(rows, out, csv_path, json_path, figure, missing, resolved)
+
+
+def check_writable_sweep(out: Path) -> None:
+    """Prove that the sweep's folder can be created and written before any cluster starts: a
+    read-only file system or a missing parent is one line naming --out (it was an OSError
+    traceback from mkdir, after the cluster had started). A folder made only for the check is
+    removed again (a sweep that cannot start leaves nothing)."""
+    missing = [p for p in (out, *out.parents) if not p.exists()]
+    check_writable(out, "--out")
+    for p in missing:  # innermost first
+        try:
+            p.rmdir()
+        except OSError:
+            break
 
 
 def interrupted_results(

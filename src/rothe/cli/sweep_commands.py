@@ -15,11 +15,11 @@ import sys
 from ..errors import RotheInputError
 from .common import add_parallel_options, executor_from_args
 from .registry import command
-from .sweep import format_rows, parse_plot, run_sweep
+from .sweep import CONFIRM_ABOVE, format_rows, parse_plot, run_sweep
 
 #: the sweep's own options; everything else after the example is passed to every run
 _VALUED = ("--param", "--out", "--plot", "--workers", "--scheduler")
-_FLAGS = ("--quiet", "--continue", "-h", "--help")
+_FLAGS = ("--quiet", "--continue", "--yes", "-h", "--help")
 
 
 class _OwnParser(argparse.ArgumentParser):
@@ -60,6 +60,12 @@ def _sweep_options(parser) -> None:
         help="continue a sweep stopped earlier into the same --out: completed "
         "runs are kept, interrupted or killed runs resume from their "
         "checkpoints, the others run",
+    )
+    parser.add_argument(
+        "--yes",
+        action="store_true",
+        help=f"start a sweep of more than {CONFIRM_ABOVE} runs (without it such a "
+        "sweep is refused, saying how many runs it has)",
     )
     add_parallel_options(parser)
 
@@ -123,7 +129,7 @@ class SweepRunCommand:
         own.set_defaults(
             **{
                 k: getattr(args, k)
-                for k in ("out", "plot", "quiet", "workers", "scheduler", "continue_sweep")
+                for k in ("out", "plot", "quiet", "workers", "scheduler", "continue_sweep", "yes")
             }
         )
         opts = own.parse_args(own_tokens)
@@ -140,6 +146,7 @@ class SweepRunCommand:
             executor=executor,
             plot=plot,
             continue_sweep=opts.continue_sweep,
+            max_runs=None if opts.yes else CONFIRM_ABOVE,
         )
         resolved = result.params
         for col in result.missing_plot_columns:

@@ -10,14 +10,15 @@ from pathlib import Path
 
 from ..errors import RunFailed, RunInterrupted
 from ..parallel.tasks import Task, TaskFailed
+from ..stepping import interrupt
 
 
 def run_command(argv: list[str], out: str | None = None) -> dict | None:
     """Parse and execute one ``rothe`` command line; return the summary.json it wrote (or None).
 
     Exceptions propagate (classified by :func:`execute_task`); a run that fails midway still
-    hands back the summary it wrote (status ``failed``). A run stopped by SIGINT/SIGTERM (its
-    session wrote its checkpoint and results so far and returned 130/143) raises
+    hands back the summary it wrote (status ``failed``). A run stopped by a stop signal (its
+    session wrote its checkpoint and results so far and returned 128 + signal) raises
     :class:`~rothe.errors.RunInterrupted`: the signal was meant for the whole sweep, whose
     executor stops instead of starting the next run. Only a summary this run wrote counts:
     ``out/summary.json``, or ``out/incomplete/summary.json`` where a run that does not complete
@@ -47,7 +48,7 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
         code = execute(args)
     except RunFailed as exc:
         raise TaskFailed(str(exc), value=summary()) from exc
-    if code - 128 in (signal.SIGINT, signal.SIGTERM):
+    if code - 128 in interrupt.SIGNALS:  # SIGINT, SIGTERM, SIGHUP, SIGQUIT
         raise RunInterrupted(f"interrupted by {signal.Signals(code - 128).name}", signum=code - 128)
     if code != 0:
         raise TaskFailed(f"exit status {code}", value=summary())

@@ -20,10 +20,36 @@ The package: :mod:`~rothe.eld.scheme` (the schemes' coefficients), :mod:`~rothe.
 step result), :mod:`~rothe.eld.system` (the linear system on one mesh), :mod:`~rothe.eld.start`
 (initial state, BDF2 history), :mod:`~rothe.eld.stepper` (one step, the adapt step, records,
 checkpoints), :mod:`~rothe.eld.run` (the driver), :mod:`~rothe.eld.adapt` (space adaptivity).
+
+Coupled systems (``docs/coupling.md``, issue 19): components (:mod:`rothe.eld.components`),
+couplings B u = G(t, q) and :class:`CoupledProblem` (:mod:`rothe.eld.coupling`), sensors and
+controllers (:mod:`rothe.eld.control`), the bordered coupled step (:mod:`rothe.eld.coupled_step`),
+coupled runs on the evolve loop (:func:`run_coupled`, :mod:`rothe.eld.coupled_run`), interfaces
+between bodies (:mod:`rothe.eld.interface`), several materials (:class:`PiecewiseMaterial`),
+analytic references (:mod:`rothe.eld.frequencies`).
 """
 
 from .adapt import ELDMeshes
+from .components import (
+    Component,
+    LinearComponent,
+    MassSpringDamper,
+    PointMass,
+    RigidBody,
+    TunedMassDamper,
+    UserComponent,
+)
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
+from .control import LinearController, PointSensor, ReactionSensor, UserController
+from .coupled_run import CoupledResult, CoupledStepper, run_coupled
+from .coupled_step import CoupledStepSystem, coupled_modes, run_coupled_reference
+from .coupling import (
+    CoupledProblem,
+    Coupling,
+    RigidMotion,
+    Translation,
+    UserCoupling,
+)
 from .damping import (
     Damping,
     DampingConstants,
@@ -36,7 +62,8 @@ from .damping import (
 from .data import DataMode, DataNoise, Differenced, Means, Points, StepData
 from .examples import ManufacturedSolution, beam_problem, mms_errors, mms_problem, ramp_problem
 from .form import Form, Original, Regularized
-from .materials import Material
+from .interface import Interface
+from .materials import Material, PiecewiseMaterial
 from .output import write_eld_result
 from .problem import DirichletData, ELDProblem
 from .run import ELDResult, ELDRun, prepare_eld_run, run_eld
@@ -49,6 +76,12 @@ from .system import ELDSystem
 
 __all__ = [
     "BDF2",
+    "Component",
+    "CoupledProblem",
+    "CoupledResult",
+    "CoupledStepper",
+    "CoupledStepSystem",
+    "Coupling",
     "Damping",
     "DampingConstants",
     "DataMode",
@@ -69,7 +102,11 @@ __all__ = [
     "Form",
     "HarmonicLifting",
     "ImplicitEuler",
+    "Interface",
+    "LinearComponent",
+    "LinearController",
     "ManufacturedSolution",
+    "MassSpringDamper",
     "Material",
     "Means",
     "NewtonOptions",
@@ -77,22 +114,36 @@ __all__ = [
     "NodalLifting",
     "NonlinearDamping",
     "Original",
+    "PiecewiseMaterial",
+    "PointMass",
+    "PointSensor",
     "Points",
     "RayleighDamping",
+    "ReactionSensor",
     "Regularized",
+    "RigidBody",
+    "RigidMotion",
     "Scheme",
     "StepData",
     "StressEvaluator",
+    "Translation",
+    "TunedMassDamper",
+    "UserComponent",
+    "UserController",
+    "UserCoupling",
     "UserDamping",
     "beam_problem",
     "cauchy_stress",
     "convergence_study",
+    "coupled_modes",
+    "run_coupled",
     "make_damping",
     "mms_errors",
     "mms_problem",
     "perturbation_study",
     "prepare_eld_run",
     "ramp_problem",
+    "run_coupled_reference",
     "run_eld",
     "von_mises",
     "write_eld_result",

@@ -32,13 +32,19 @@ t <= t_move, then 0; the end x = L and the sides free. The multiplier on x = 0 i
 from __future__ import annotations
 
 import math
+import warnings
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import check_choice, check_positive
+from ..errors import check_choice, check_int, check_nonnegative, check_positive, fail
 from ..fem import mesh as meshes
+from .components import MassSpringDamper
+from .coupled_step import coupled_modes
+from .coupling import CoupledProblem, Translation
 from .damping import Damping, NonlinearDamping, RayleighDamping
+from .frequencies import Attachment, bar_frequencies
 from .materials import Material
 from .problem import DirichletData, ELDProblem
 
@@ -545,3 +551,91 @@ def pulse_problem(
         T=T,
         name="eld-pulse",
     )
+
+
+# -- the bar with a mass-spring at its tip (issue 19) -------------------------------------------
+
+
+@dataclass
+class TipMassExample:
+    """The bar of :func:`tip_mass_problem`: the coupled system, started in its first axial mode,
+    and the frequencies the run is compared with.
+
+    Attributes
+    ----------
+    system : CoupledProblem
+        The strip clamped on ``left``, the mass-spring tied to ``right`` by a translation.
+    analytic : ndarray
+        The first three axial angular frequencies of the 1D bar with the mass-spring at its end
+        (the transcendental equation: :func:`rothe.eld.frequencies.bar_frequencies`).
+    discrete : ndarray
+        The first three axial frequencies of the semi-discrete coupled system
+        (:func:`rothe.eld.coupled_step.coupled_modes`; axial: the tip moves along the bar).
+    """
+
+    system: CoupledProblem
+    analytic: np.ndarray
+    discrete: np.ndarray
+
+
+def tip_mass_problem(
+    n: int = 2,
+    degree: int = 2,
+    *,
+    length: float = 1.0,
+    height: float = 0.25,
+    E: float = 100.0,
+    nu: float = 0.0,
+    rho: float = 1.0,
+    mass: float = 0.25,
+    spring: float = 0.0,
+    damper: float = 0.0,
+    amplitude: float = 0.01,
+    T: float = 2.0,
+) -> TipMassExample:
+    """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
+    along) clamped on ``left``, carrying on ``right`` a mass ``mass`` on a spring ``spring``
+    and a damper ``damper`` to the ground (:class:`~rothe.eld.components.MassSpringDamper`,
+    both axes), tied by B u = q on ``right`` (:class:`~rothe.eld.coupling.Translation`).
+
+    With nu = 0 the axial motion is that of the 1D bar, whose angular frequencies solve the
+    end condition E A beta cos(beta L) = (k - w^2 m) sin(beta L), beta = w sqrt(rho/E),
+    A = height (per unit thickness); the run starts in the first axial mode of the discrete
+    coupled system, scaled so that the tip moves by ``amplitude``, at rest.
+    """
+    n = check_int("n", n, minimum=1)
+    if degree not in (1, 2):
+        raise fail("degree", degree, "must be 1 or 2")
+    length = check_positive("length", length)
+    height = check_positive("height", height)
+    mass = check_positive("mass", mass)
+    spring = check_nonnegative("spring", spring)
+    damper = check_nonnegative("damper", damper)
+    amplitude = check_positive("amplitude", amplitude)
+    material = Material.from_young(E, nu, rho, dim=2, plane="stress")
+    nx = max(1, int(round(n * length / height)))
+    mesh = rectangle(nx, n, length, height)
+
+    def clamp(t, x):
+        return 0.0 * x
+
+    def build(u0=None, q0=None):
+        tip = MassSpringDamper(mass, spring, damper, q0=q0, name="tip")
+        body = ELDProblem(
+            mesh, material, degree=degree, dirichlet={"left": clamp}, u0=u0, T=T, name="tip-mass"
+        )
+        return CoupledProblem(body, [tip], [Translation("right", tip)])
+
+    with warnings.catch_warnings():  # G = 0: its derivatives by differences are exact
+        warnings.filterwarnings("ignore", message="G_d")
+        w, U, Q = coupled_modes(build(), 16)
+        axial = np.flatnonzero(np.abs(Q[0]) > 10 * np.abs(Q[1]))
+        if axial.size < 3:
+            raise fail("n", n, "gives fewer than 3 axial modes among the first 16: refine")
+        k = int(axial[0])
+        scale = amplitude / abs(Q[0, k])
+        system = build(U[:, k] * scale, Q[:, k] * scale)
+    analytic = bar_frequencies(
+        length, E, rho, area=height, right=Attachment.mass_spring(mass, spring), count=3
+    )
+    return TipMassExample(system, analytic, w[axial[:3]])

@@ -21,6 +21,7 @@ def plot_energy_balance(traj, path, title: str = "") -> Path:
     ax.plot(t, traj["energy"], "k", lw=1.6, label="total E")
     ax.set_xlabel("t")
     ax.set_ylabel("energy")
+    ax.set_title("kinetic, elastic and total energy", fontsize=9)
     ax.legend(fontsize=8)
     ax = axes[1]
     e0 = traj["energy"][0]
@@ -32,8 +33,9 @@ def plot_energy_balance(traj, path, title: str = "") -> Path:
     if np.max(np.abs(traj["data_mismatch"])) > 0:
         ax.plot(t, -traj["data_mismatch"], ":", label="- data mismatch")
     res = np.max(np.abs(traj["balance_residual"]))
-    ax.set_title(f"balance residual max {res:.2e}", fontsize=9)
+    ax.set_title(f"energy identity term by term (largest residual {res:.2e})", fontsize=9)
     ax.set_xlabel("t")
+    ax.set_ylabel("energy change, work, dissipation")
     ax.legend(fontsize=7)
     for ax in axes:
         ax.grid(alpha=0.3)
@@ -107,6 +109,32 @@ def plot_perturbation(taus, table: dict, path, title: str = "") -> Path:
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
     axes[0].set_ylabel(r"$\max_j \|\cdot_{pert} - \cdot\| / \delta$")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_tip_mass(traj, path, title: str = "") -> Path:
+    """A coupled run (:func:`rothe.eld.run_coupled`): the component's coordinates q(t) and the
+    reactions -int lambda ds on every constrained part over time."""
+    t = traj["t"]
+    q = np.asarray(traj["q"])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    names = "xyz"
+    for c in range(q.shape[1]):
+        axes[0].plot(t, q[:, c], label=f"q_{names[c]}")
+    axes[0].set_xlabel("t")
+    axes[0].set_ylabel("tip mass displacement q")
+    axes[0].legend(fontsize=8)
+    for key in [k for k in traj.keys() if k.startswith("reaction_")]:
+        R = traj[key]
+        for c in range(R.shape[1]):
+            axes[1].plot(t, R[:, c], label=f"{key[len('reaction_') :]}: R_{names[c]}")
+    axes[1].set_xlabel("t")
+    axes[1].set_ylabel(r"reaction force $-\int \lambda\, ds$")
+    axes[1].legend(fontsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title, fontsize=10)
     return _save(fig, path)

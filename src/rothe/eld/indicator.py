@@ -32,7 +32,7 @@ Why residual and not Zienkiewicz-Zhu recovery: the residual estimator has proven
 lower bounds on every mesh, including the graded meshes and boundary layers of a moving front;
 ZZ recovery is asymptotically exact on smooth solutions but needs superconvergence, which
 graded bisection meshes and P2 do not give. The efficiency band is measured in
-``benchmarks/adapt_efficiency.py`` and asserted in ``tests/estimators``.
+``benchmarks/adapt_efficiency.py`` and asserted in ``tests/eld/test_indicator.py``.
 
 Works for vector P1 and P2 on triangles (plane strain) and tetrahedra, with the dofs
 interleaved as in :class:`rothe.fem.elasticity.VectorSpace` (component c of scalar dof k is
@@ -209,6 +209,13 @@ def eld_indicators_for(
     """
     space = problem.space
     m = problem.material
+    if getattr(problem, "cell_material", None) is not None:
+        raise fail(
+            "material",
+            "a PiecewiseMaterial",
+            "must be one Material for the space "
+            "adaptivity indicator (per-cell constants: not yet supported)",
+        )
     damp = problem.damping
     kw = {}
     if isinstance(damp, RayleighDamping):
@@ -230,7 +237,7 @@ def eld_indicators_for(
     return eld_indicators(
         space.mesh,
         space.degree,
-        m.lam,
+        m.lam_eff,
         m.mu,
         u,
         rho=m.rho,

@@ -11,7 +11,8 @@ ParaView files (two XDMF time series with HDF5 heavy data, :mod:`rothe.io.xdmf`;
   Cauchy stress sigma(u) = lam tr(eps) I + 2 mu eps; in 2D plane strain with sigma_zz =
   lam tr(eps)) and ``von_mises``. See :mod:`rothe.eld.stress`.
 - ``<name>_multiplier.xdmf``: the facets of Gamma_D with point data ``lambda`` (the multiplier,
-  a traction density) and ``reaction_density = -lambda`` (the traction the support exerts).
+  a traction density) and ``reaction_density = -lambda`` (the traction the support exerts), at
+  the same times as the body (the frame at t = 0 holds the consistent lambda(0)).
 
 ``trajectory.npz`` (:func:`mesh_arrays` are added to the trajectory's series):
 
@@ -98,9 +99,15 @@ class EldXdmfWriter:
             return np.ascontiguousarray(values)
         return np.column_stack([values, np.zeros(len(values))])
 
-    def write(self, t: float, u: np.ndarray, v: np.ndarray, lam: np.ndarray | None) -> None:
-        """Stream the state at t: u, v, the stresses and (if given) lambda."""
+    def write(self, t: float, u: np.ndarray, v: np.ndarray, lam: np.ndarray) -> None:
+        """Stream the state at t: u, v, the stresses into the body's series and lambda into the
+        multiplier's (both series on one time axis: every frame has both; the frame at t = 0
+        takes the consistent lambda(0), which the run computes with its initial state, see
+        :mod:`rothe.eld.start`)."""
         space = self.problem.space
+        if lam is None:  # a frame without a multiplier would break the common time axis
+            raise fail("lam", None, f"must be the multiplier at t = {float(t):g}")
+        L = np.asarray(lam).reshape(-1, space.dim)[self._lam_rows]
         sigma = self.stresses.stress(u)
         vm = von_mises(sigma)
         sigma_nodal = self.stresses.nodal(sigma)
@@ -115,11 +122,9 @@ class EldXdmfWriter:
             },
             cell_fields={"stress": sigma.reshape(-1, 9), "von_mises": vm},
         )
-        if lam is not None:
-            L = np.asarray(lam).reshape(-1, space.dim)[self._lam_rows]
-            self._bnd.write_step(
-                float(t), {"lambda": self._vec3(L), "reaction_density": self._vec3(-L)}
-            )
+        self._bnd.write_step(
+            float(t), {"lambda": self._vec3(L), "reaction_density": self._vec3(-L)}
+        )
         self.steps_written += 1
 
     # -- checkpoint protocol (attachment of the run's checkpoint) ---------------------------------
@@ -284,7 +289,14 @@ def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dic
                 np.linalg.norm(vertex(u, m), axis=1) for u, m in zip(sp.kept["u"], ids, strict=True)
             ]
             plot_mesh_snapshots(
-                out / "fig_mesh.png", sp.series, ids, traj["kept_t"], norms, picks, title=title
+                out / "fig_mesh.png",
+                sp.series,
+                ids,
+                traj["kept_t"],
+                norms,
+                picks,
+                title=title,
+                label=r"$|u|$ (displacement)",
             )
             figs.append(out / "fig_mesh.png")
         paths["figures"] = figs

@@ -41,7 +41,7 @@ from ..fem.elasticity import VectorSpace
 from ..io.checkpoint import digest
 from .constraint import DirichletConstraint
 from .damping import Damping, NoDamping
-from .materials import Material
+from .materials import Material, PiecewiseMaterial
 
 #: relative tolerance of the consistency G(0) = u0 on Gamma_D (Remark 2.2)
 CONSISTENCY_TOL = 1e-8
@@ -112,7 +112,8 @@ class ELDProblem:
     mesh : skfem.MeshTri or skfem.MeshTet
         With named boundary parts (``rothe.fem.mesh``: ``unit_square(n, named=True)``, ``box``,
         ``tag_box_faces``, ``load_mesh``).
-    material : Material
+    material : Material or PiecewiseMaterial
+        One material, or several on regions of the mesh (subdomains or centroid predicates).
     degree : {1, 2}
         Vector P1 or P2 elements.
     damping : Damping, optional
@@ -166,8 +167,12 @@ class ELDProblem:
             load_quadrature=load_quadrature,
         )
         self.space = VectorSpace(mesh, degree)
-        if not isinstance(material, Material):
-            raise fail("material", type(material).__name__, "must be a rothe.eld.Material")
+        if not isinstance(material, Material | PiecewiseMaterial):
+            raise fail(
+                "material",
+                type(material).__name__,
+                "must be a rothe.eld.Material or PiecewiseMaterial",
+            )
         if material.dim != self.space.dim:
             raise fail(
                 "material.dim", material.dim, f"must equal the mesh dimension {self.space.dim}"
@@ -215,9 +220,17 @@ class ELDProblem:
         )
 
         sp_ = self.space
-        self.M = sp_.mass()
         # BSR with d x d blocks (rothe.fem.elasticity.BlockMatrix): 30 % less memory than CSR
-        self.K = sp_.stiffness(material.lam, material.mu, format="bsr")
+        if isinstance(material, PiecewiseMaterial):
+            # per-cell data; M is weighted by rho_c/rho_ref so that material.rho * M is the
+            # mass of the actual density (rothe.eld.materials)
+            self.cell_material = material.on_mesh(mesh)
+            self.M = sp_.mass(self.cell_material.density_weight)
+            self.K = sp_.stiffness(self.cell_material.lam, self.cell_material.mu, format="bsr")
+        else:
+            self.cell_material = None
+            self.M = sp_.mass()
+            self.K = sp_.stiffness(material.lam_eff, material.mu, format="bsr")
         self.damping_op = self.damping.operator(sp_, self.M, self.K)
         self.u0 = self._initial(u0, "u0")
         self.v0 = self._initial(v0, "v0")
@@ -398,9 +411,7 @@ class ELDProblem:
             "ndofs": self.space.ndofs,
             "constrained_dofs": self.constraint.m,
             "cells": int(self.space.mesh.t.shape[1]),
-            "rho": m.rho,
-            "lam": m.lam,
-            "mu": m.mu,
+            **m.describe(),
             "damping": self.damping.describe(),
             "dirichlet_parts": list(self.constraint.parts),
             "traction_parts": list(self._traction),

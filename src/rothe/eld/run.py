@@ -378,8 +378,10 @@ def run_eld(problem: ELDProblem, *, progress=False, **options) -> ELDResult:
         Keep u, v, a, lambda of every ``keep_every``-th state, t = 0 and the last.
     keep_every : int
     observer : callable(state, result), optional
-        Called after every accepted step (e.g. an output writer; one that keeps state is
-        passed as a checkpoint attachment so that it is restored too).
+        Called with the initial state (``result`` None; its ``lam`` is the consistent
+        multiplier lambda(0) of :mod:`rothe.eld.start`) and after every accepted step (e.g. an
+        output writer; one that keeps state is passed as a checkpoint attachment so that it is
+        restored too, and a resumed run does not call it for the initial state again).
     progress : bool or ProgressOptions
     linear_rtol : float
         Relative residual of iterative linear solves.

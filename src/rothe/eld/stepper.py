@@ -137,6 +137,19 @@ def as_control(control):
     )
 
 
+def uniform_steps(tau: float, T: float, scheme: Scheme, bound: float) -> int:
+    """The number of equal steps tau in [0, T]; refuses (naming ``tau``) a tau that the
+    ``scheme`` cannot take under Lemma 3.2's ``bound`` (:meth:`ELDProblem.step_bound`) or that
+    does not divide T. Also a check before runs start (:func:`rothe.eld.studies`): tau/2^k
+    divides T when tau does, and the bound is hardest for the largest step."""
+    scheme.check_step(tau, bound)
+    ratio = T / tau
+    n = round(ratio) if math.isfinite(ratio) and ratio < 2**62 else -1
+    if n < 1 or abs(ratio - n) > 1e-9 * max(1.0, ratio):
+        raise fail("tau", tau, f"must divide T = {T:g} into equal steps (T/tau = {ratio:.6g})")
+    return int(n)
+
+
 class ELDStepper:
     """One step of Euler or BDF2 in either form (module docstring); the evolve loop drives it.
 
@@ -157,7 +170,9 @@ class ELDStepper:
     keep_every : int
         Keep u, v, a, lambda of every k-th state (and the last).
     observer : callable(state, result), optional
-        Called after every accepted step (e.g. to write XDMF).
+        Called with the initial state (``result`` None; it holds the consistent lambda(0)) and
+        after every accepted step (e.g. to write XDMF). A resumed run does not call it for the
+        initial state again.
     linear_rtol : float
         Relative residual of iterative linear solves.
     error_scale : float, optional
@@ -250,14 +265,7 @@ class ELDStepper:
             return
         if isinstance(control, Uniform):
             self.tau = tau = control.tau
-            self.scheme.check_step(tau, self.bound)
-            ratio = T / tau
-            n = round(ratio) if math.isfinite(ratio) and ratio < 2**62 else -1
-            if n < 1 or abs(ratio - n) > 1e-9 * max(1.0, ratio):
-                raise fail(
-                    "tau", tau, f"must divide T = {T:g} into equal steps (T/tau = {ratio:.6g})"
-                )
-            self.n_steps = int(n)
+            self.n_steps = uniform_steps(tau, T, self.scheme, self.bound)
             self.tau_uniform = tau
             return
         self.tau = tau = DEFAULT_FIRST_STEP if control.tau is None else control.tau
@@ -360,6 +368,8 @@ class ELDStepper:
             traj.append(**self._mesh_record(state, self.system))
         if self.store_fields:
             self._keep(traj, state)
+        if self.observer is not None:  # lambda(0) is known here: an output starts at t = 0
+            self.observer(state, None)
 
     def _keep(self, traj: Trajectory, state: ELDState) -> None:
         if self.adaptivity is not None:

@@ -6,8 +6,10 @@ For u_h in a vector P1/P2 space on simplices:
   where the strain is constant; for P2 the strain is linear and its mean is its value at the
   centroid), from the gradients at the quadrature points of the space (no loop over cells);
 - **Cauchy stress** sigma_T = lam tr(eps_T) I + 2 mu eps_T, always as a 3 x 3 tensor: in 2D
-  (plane strain, eps_zz = eps_xz = eps_yz = 0) sigma_zz = lam tr(eps) is kept (it is nonzero)
-  and sigma_xz = sigma_yz = 0;
+  plane strain (eps_zz = eps_xz = eps_yz = 0) sigma_zz = lam tr(eps) is kept (it is nonzero)
+  and sigma_xz = sigma_yz = 0; in plane stress sigma_zz = 0 and the in-plane law uses
+  lam* = 2 lam mu/(lam + 2 mu) (:mod:`rothe.eld.materials`); with several materials
+  (:class:`~rothe.eld.materials.PiecewiseMaterial`) lam and mu are those of each cell;
 - **von Mises stress** sigma_vM = (3/2 s:s)^{1/2} with the deviator s = sigma - tr(sigma)/3 I,
   i.e. sqrt(1/2 [(s_xx - s_yy)^2 + (s_yy - s_zz)^2 + (s_zz - s_xx)^2]
   + 3 (s_xy^2 + s_yz^2 + s_zx^2)), with sigma_zz included in 2D;
@@ -23,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .materials import PiecewiseMaterial
+
 
 class StressEvaluator:
     """Cell stresses and their nodal averages on one :class:`~rothe.fem.elasticity.VectorSpace`.
@@ -37,8 +41,14 @@ class StressEvaluator:
 
     def __init__(self, space, material):
         self.space = space
-        self.lam = float(material.lam)
-        self.mu = float(material.mu)
+        if isinstance(material, PiecewiseMaterial):
+            cells = material.on_mesh(space.mesh)
+            self.lam, self.mu = cells.lam[:, None, None], cells.mu[:, None, None]
+        else:
+            self.lam = float(material.lam_eff)
+            self.mu = float(material.mu)
+        # plane stress: sigma_zz = 0, the in-plane law with lam* (rothe.eld.materials)
+        self.plane_stress = space.dim == 2 and material.plane == "stress"
         basis = space.grad_basis
         dx = np.asarray(basis.dx)  # (ne, nq)
         vol = dx.sum(axis=1)
@@ -68,8 +78,9 @@ class StressEvaluator:
         tr = np.trace(eps, axis1=1, axis2=2)
         sig = np.zeros((ne, 3, 3))
         sig[:, :d, :d] = 2.0 * self.mu * eps
-        for k in range(3):
-            sig[:, k, k] += self.lam * tr
+        lam_tr = self.lam * tr[:, None, None]
+        for k in range(d if self.plane_stress else 3):
+            sig[:, k, k] += lam_tr[:, 0, 0]
         return sig
 
     def nodal(self, cell_values: np.ndarray) -> np.ndarray:

@@ -24,14 +24,15 @@ import time
 
 import numpy as np
 
-from ..errors import check_int, check_positive, fail
+from ..errors import RotheInputError, check_int, check_positive, fail
 from ..parallel import Executor, Task
 from ..stepping.controllers import Uniform
-from .data import DEFAULT_DATA, NOISE_TARGETS, DataMode, DataNoise
+from .data import DEFAULT_DATA, NOISE_TARGETS, DataMode, DataNoise, as_data_mode
 from .examples import mms_errors, mms_problem
 from .form import DEFAULT_FORM, Form, Original, Regularized, as_form
 from .run import run_eld
 from .scheme import DEFAULT_SCHEME, Scheme, as_scheme
+from .stepper import uniform_steps
 
 #: the forms of the perturbation study, by their names in its tables
 FORMS = (Regularized(), Original())
@@ -134,6 +135,20 @@ def convergence_run(
     }
 
 
+def check_uniform_runs(tau0: float, scheme: Scheme, data: DataMode, n, degree, **problem):
+    """What every run of a study checks, once, before any run (or a cluster) starts: the
+    manufactured problem (``n``, ``degree``, ``damping``, ``rho``, ``lam``, ``mu``, ``T``), the
+    data mode with the scheme, and the largest step ``tau0`` (tau0/2^k divides T when tau0
+    does, and Lemma 3.2's bound is hardest for tau0; named ``tau0``). Without it each run
+    failed on its own after the cluster had started (issue 21)."""
+    as_data_mode(data).check(scheme)
+    built, _ = mms_problem(n, degree, **problem)
+    try:
+        uniform_steps(tau0, built.T, scheme, built.step_bound())
+    except RotheInputError as exc:
+        raise (exc.renamed("tau0") if exc.parameter == "tau" else exc) from None
+
+
 def _problem_meta(results, n, degree, damping, **kw) -> dict:
     """ndofs and damping of the study's problem: from a run, else built here (all failed)."""
     for r in results:
@@ -196,6 +211,7 @@ def convergence_study(
     tau0 = check_positive("tau0", tau0)
     halvings = check_halvings("halvings", halvings, tau0, T)
     taus = [tau0 / 2**k for k in range(halvings + 1)]
+    check_uniform_runs(tau0, scheme, data, n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
     common = dict(

@@ -75,7 +75,9 @@ def _cell_positions(ed, c, diag, upper, lower, pair_ids, pi, pj, pos):
 
 
 @_jit
-def _stiffness(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref, lam, mu, blocks):
+def _stiffness(
+    p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref, lam_c, mu_c, blocks
+):
     d = p.shape[0]
     nbf = ed.shape[0]
     nq = wref.size
@@ -86,6 +88,8 @@ def _stiffness(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref
     for o in range(order.size):
         c = order[o]
         det = _geometry(p, t, c, inv)
+        lam = lam_c[c]
+        mu = mu_c[c]
         for q in range(nq):
             for i in range(nbf):
                 for a in range(d):
@@ -123,14 +127,14 @@ def _stiffness(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, dref, wref
 
 
 @_jit
-def _mass(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, mref, out):
+def _mass(p, t, ed, diag, upper, lower, pair_ids, pi, pj, order, mref, weight_c, out):
     d = p.shape[0]
     nbf = ed.shape[0]
     inv = np.empty((d, d))
     pos = np.empty((nbf, nbf), dtype=np.int64)
     for o in range(order.size):
         c = order[o]
-        det = _geometry(p, t, c, inv)
+        det = _geometry(p, t, c, inv) * weight_c[c]
         _cell_positions(ed, c, diag, upper, lower, pair_ids, pi, pj, pos)
         for i in range(nbf):
             for j in range(nbf):
@@ -150,7 +154,9 @@ def _pattern_args(pattern):
 
 
 def stiffness_blocks(p, t, ed, pattern, dref, wref, lam, mu, blocks) -> None:
-    """blocks += K's element blocks (see VectorSpace.stiffness_blocks)."""
+    """blocks += K's element blocks (see VectorSpace.stiffness_blocks); ``lam``, ``mu`` are
+    per-cell arrays (n_cells,) (a constant is passed as a constant array: the same products,
+    hence the same bits)."""
     _stiffness(
         np.ascontiguousarray(p, dtype=float),
         np.ascontiguousarray(t),
@@ -158,20 +164,24 @@ def stiffness_blocks(p, t, ed, pattern, dref, wref, lam, mu, blocks) -> None:
         *_pattern_args(pattern),
         np.ascontiguousarray(dref, dtype=float),
         np.ascontiguousarray(wref, dtype=float),
-        float(lam),
-        float(mu),
+        np.ascontiguousarray(lam, dtype=float),
+        np.ascontiguousarray(mu, dtype=float),
         blocks,
     )
 
 
-def scalar_mass(p, t, ed, pattern, mref, out) -> None:
-    """out += the scalar mass |det J| mref of every cell."""
+def scalar_mass(p, t, ed, pattern, mref, out, weight=None) -> None:
+    """out += the scalar mass |det J| w_c mref of every cell c (w = 1 without ``weight``:
+    |det J| * 1.0 is |det J| exactly)."""
+    ne = np.asarray(t).shape[1]
+    w = np.ones(ne) if weight is None else np.ascontiguousarray(weight, dtype=float)
     _mass(
         np.ascontiguousarray(p, dtype=float),
         np.ascontiguousarray(t),
         np.ascontiguousarray(ed),
         *_pattern_args(pattern),
         np.ascontiguousarray(mref, dtype=float),
+        w,
         out,
     )
 

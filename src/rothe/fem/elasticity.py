@@ -52,7 +52,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import check_int, check_positive, check_real, fail
+from ..errors import check_int, check_positive, check_real, described, fail
 from . import _assembly_numba
 from .mesh import check_simplex_mesh, with_fast_edges, with_fast_facets
 
@@ -539,13 +539,36 @@ class VectorSpace:
         return affine_geometry(np.asarray(self.mesh.p), t)[1] / math.factorial(self.dim)
 
     # -- matrices -------------------------------------------------------------------------------
-    def stiffness_blocks(self, lam: float, mu: float) -> np.ndarray:
-        """Block values (nnz_scalar, d, d) of K of (2.3) on the scalar pattern."""
-        lam, mu = float(lam), float(mu)
+    def cell_coefficient(self, name: str, value) -> float | np.ndarray:
+        """A material coefficient as a float (constant) or a finite array (n_cells,) (one value
+        per cell, e.g. from subdomain tags: :class:`rothe.eld.materials.PiecewiseMaterial`)."""
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim == 0:
+            return check_real(name, float(arr))
+        ne = self.element_dofs.shape[1]
+        if arr.shape != (ne,):
+            raise fail(
+                name,
+                described(f"an array of shape {arr.shape}"),
+                f"must be a number or one value per cell, shape ({ne},)",
+            )
+        if not np.all(np.isfinite(arr)):
+            raise fail(name, described("non-finite values"), "must be finite")
+        return arr
+
+    def stiffness_blocks(self, lam, mu) -> np.ndarray:
+        """Block values (nnz_scalar, d, d) of K of (2.3) on the scalar pattern.
+
+        ``lam``, ``mu``: constants, or arrays (n_cells,) of per-cell Lamé constants (several
+        materials in one body; the element matrix of cell c is lam_c S_lam + mu_c S_mu, so
+        the assembly stays one vectorized pass over chunks of cells)."""
+        lam = self.cell_coefficient("lam", lam)
+        mu = self.cell_coefficient("mu", mu)
         d, ref = self.dim, self._ref
         pat = self.pattern
         blocks = np.zeros((pat.nnz, d, d))
         if self.compiled_assembly:
+            ne = self.element_dofs.shape[1]
             _assembly_numba.stiffness_blocks(
                 np.asarray(self.mesh.p),
                 np.asarray(self.mesh.t),
@@ -553,11 +576,12 @@ class VectorSpace:
                 pat,
                 ref.grads,
                 ref.grad_weights,
-                lam,
-                mu,
+                np.broadcast_to(lam, (ne,)),
+                np.broadcast_to(mu, (ne,)),
                 blocks,
             )
             return blocks
+        cellwise = isinstance(lam, np.ndarray) or isinstance(mu, np.ndarray)
         nbf = ref.nbf
         flat = blocks.reshape(-1)
         ab = np.arange(d)[:, None, None] * d + np.arange(d)[None, None, :]  # a d + b, (d, 1, d)
@@ -571,9 +595,17 @@ class VectorSpace:
             # S[c, i, a, j, b] = int d_a phi_i d_b phi_j (one small matmul per cell)
             S = np.matmul(G.transpose(0, 2, 1), G).reshape(C, nbf, d, nbf, d)
             del G
-            local = lam * S
-            local += mu * S.transpose(0, 1, 4, 3, 2)
-            trace = mu * np.einsum("ciaja->cij", S)
+            if cellwise:
+                ne = self.element_dofs.shape[1]
+                lam_c = np.broadcast_to(lam, (ne,))[cells].reshape(-1, 1, 1, 1, 1)
+                mu_c = np.broadcast_to(mu, (ne,))[cells]
+                local = lam_c * S
+                local += mu_c.reshape(-1, 1, 1, 1, 1) * S.transpose(0, 1, 4, 3, 2)
+                trace = mu_c.reshape(-1, 1, 1) * np.einsum("ciaja->cij", S)
+            else:
+                local = lam * S
+                local += mu * S.transpose(0, 1, 4, 3, 2)
+                trace = mu * np.einsum("ciaja->cij", S)
             del S
             for a in range(d):
                 local[:, :, a, :, a] += trace
@@ -582,14 +614,23 @@ class VectorSpace:
             _scatter_chunk(flat, index, local)
         return blocks
 
-    def stiffness(self, lam: float, mu: float, format: str = "csr"):
-        """K of (2.3) for Lamé constants lam, mu (constant over the mesh); CSR or BSR."""
+    def stiffness(self, lam, mu, format: str = "csr"):
+        """K of (2.3) for Lamé constants lam, mu (constants or per-cell arrays); CSR or BSR."""
         return self.block_matrix(self.stiffness_blocks(lam, mu), format=format)
 
     @cached_property
     def scalar_mass_values(self) -> np.ndarray:
         """Values of the scalar mass int phi_i phi_j on the scalar pattern (exact)."""
+        return self.weighted_scalar_mass_values(None)
+
+    def weighted_scalar_mass_values(self, weight) -> np.ndarray:
+        """Values of int w phi_i phi_j on the scalar pattern for a per-cell weight w (n_cells,)
+        (None: w = 1), exact on affine cells (|det J| w_c times the reference mass)."""
         ref = self._ref
+        if weight is not None:
+            weight = np.broadcast_to(
+                self.cell_coefficient("density", weight), (self.element_dofs.shape[1],)
+            )
         out = np.zeros(self.nnz_scalar)
         if self.compiled_assembly:
             _assembly_numba.scalar_mass(
@@ -599,10 +640,13 @@ class VectorSpace:
                 self.pattern,
                 ref.mass,
                 out,
+                weight,
             )
             return out
         for cells in self._chunks(ref.nbf * ref.nbf):
             _, det = self._geometry(cells)
+            if weight is not None:
+                det = det * weight[cells]
             _scatter_chunk(out, self._chunk_map(cells), det[:, None, None] * ref.mass[None])
         return out
 
@@ -638,9 +682,12 @@ class VectorSpace:
             indices[pos] = cols + a
         return sp.csr_matrix((data, indices, vptr.astype(idx_dtype)), shape=(d * n, d * n))
 
-    def mass(self) -> sp.csr_matrix:
-        """Vector mass M = (scalar mass) x I_d, density 1 (d nonzeros per block)."""
-        return self.kron_identity(self.scalar_mass_values)
+    def mass(self, density=None) -> sp.csr_matrix:
+        """Vector mass M = (scalar mass) x I_d (d nonzeros per block): density 1, or the
+        weighted mass int density u . v dx for a per-cell ``density`` (n_cells,)."""
+        if density is None:
+            return self.kron_identity(self.scalar_mass_values)
+        return self.kron_identity(self.weighted_scalar_mass_values(density))
 
     def coefficient_mass(self, C: np.ndarray) -> sp.csr_matrix:
         """Matrix of  int (C(x) u) . v dx  for a d x d field C given at the quadrature points.

@@ -18,12 +18,15 @@ Files
     :func:`load_mesh` reads anything meshio reads (gmsh ``.msh`` 2.2/4.x, ``.vtu``, ``.xdmf``,
     ...), keeps the triangle (2D) or tetrahedron (3D) cells and turns gmsh physical groups
     (``gmsh:physical`` cell data + ``field_data`` names) or meshio ``cell_sets`` on the facet
-    cells (lines in 2D, triangles in 3D) into named boundary parts. Nodes used by no cell are
-    dropped (gmsh files often keep geometry points).
+    cells (lines in 2D, triangles in 3D) into named boundary parts, and those on the volume
+    cells into named subdomains (``mesh.subdomains``: cell indices, the material regions of
+    :class:`rothe.eld.materials.PiecewiseMaterial`). Nodes used by no cell are dropped (gmsh
+    files often keep geometry points).
 
-Checks (:func:`check_mesh`): finite coordinates, cell indices in range, no degenerate cell
-(|volume| > 1e-12 * h^d for the cell's longest edge h). Every failure is a one-line
-:class:`~rothe.errors.RotheInputError`.
+Checks (:func:`check_mesh`): finite coordinates of magnitude at most :data:`MAX_COORDINATE`,
+cell indices in range, no degenerate cell (|volume| > 1e-12 * h^d for the cell's longest edge
+h). Every failure is a one-line :class:`~rothe.errors.RotheInputError`; :func:`load_mesh` checks
+the coordinates before anything else computes with them.
 """
 
 from __future__ import annotations
@@ -39,6 +42,9 @@ from ..errors import RotheInputError, check_int, check_positive, fail
 #: meshio cell type of the volume cells and of the boundary facets, by dimension
 CELL_TYPE = {2: "triangle", 3: "tetra"}
 FACET_TYPE = {2: "line", 3: "triangle"}
+#: largest node coordinate (in magnitude) a mesh may have: squared lengths and tetrahedron
+#: volumes (products of three lengths) of larger coordinates overflow double precision (1.8e308)
+MAX_COORDINATE = 1e100
 
 
 def bad(name: str, what: str, allowed: str) -> RotheInputError:
@@ -221,6 +227,23 @@ def cell_volumes(mesh) -> np.ndarray:
     return np.abs(np.linalg.det(B)) / (2.0 if d == 2 else 6.0)
 
 
+def coordinates_problem(p: np.ndarray) -> str | None:
+    """What is wrong with node coordinates ``p`` (non-finite, or larger than
+    :data:`MAX_COORDINATE` in magnitude), as the end of a one-line message; None if nothing."""
+    p = np.asarray(p, dtype=float)
+    finite = np.isfinite(p)
+    if not np.all(finite):
+        return f"has a non-finite node coordinate ({p[~finite][0]:g}), coordinates must be finite"
+    biggest = float(np.abs(p).max()) if p.size else 0.0
+    if biggest > MAX_COORDINATE:
+        return (
+            f"has node coordinates up to {biggest:.3g} in magnitude, must be at most "
+            f"{MAX_COORDINATE:g} (squared lengths and volumes would overflow; rescale the "
+            "mesh)"
+        )
+    return None
+
+
 def check_mesh(mesh, name: str = "mesh"):
     """Validate a P1 simplex mesh; returns it. One-line errors name ``name``."""
     p, t = np.asarray(mesh.p), np.asarray(mesh.t)
@@ -233,8 +256,9 @@ def check_mesh(mesh, name: str = "mesh"):
         )
     if t.shape[1] == 0:
         raise bad(name, "a mesh with 0 cells", "must have at least one cell")
-    if not np.all(np.isfinite(p)):
-        raise bad(name, "non-finite node coordinates", "coordinates must be finite")
+    problem = coordinates_problem(p)
+    if problem is not None:
+        raise RotheInputError(f"{name}: {problem}", name)
     if t.min() < 0 or t.max() >= p.shape[1]:
         raise bad(
             name,
@@ -297,15 +321,20 @@ DUPLICATE_NODES = ("error", "merge", "keep")
 def coincident_nodes(p: np.ndarray, rel: float = 1e-12) -> np.ndarray:
     """(k, 2) pairs i < j of nodes closer than ``rel`` times the bounding-box diameter.
 
-    ``p``: (d, n) coordinates. A k-d tree (scipy.spatial.cKDTree), so O(n log n) in C: no
-    Python loop over nodes.
+    ``p``: (d, n) finite coordinates. A k-d tree (scipy.spatial.cKDTree), so O(n log n) in C: no
+    Python loop over nodes. The tree works on the coordinates scaled to the unit box, so that
+    any finite coordinates (1e200 included) give squared distances without overflow.
     """
     from scipy.spatial import cKDTree  # heavy: imported when first needed (start-up time)
 
     if p.shape[1] < 2:
         return np.empty((0, 2), dtype=np.int64)
-    diameter = float(np.linalg.norm(np.ptp(p, axis=1)))
-    pairs = cKDTree(p.T).query_pairs(rel * max(diameter, 1e-300), output_type="ndarray")
+    lo = p.min(axis=1, keepdims=True)
+    span = p.max(axis=1, keepdims=True) - lo  # may overflow to inf for |x| ~ 1e308
+    scale = float(np.max(span)) if np.all(np.isfinite(span)) else float(np.abs(p).max())
+    q = (p - lo) / scale if scale > 0 else p - lo
+    diameter = float(np.linalg.norm(np.ptp(q, axis=1)))
+    pairs = cKDTree(q.T).query_pairs(rel * max(diameter, 1e-300), output_type="ndarray")
     return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
 
 
@@ -330,7 +359,8 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh", duplicate_nodes:
 
     ``dim`` = 2 or 3 asks for that cell type; ``None`` takes tetrahedra if there are any, else
     triangles. Named boundary parts come from gmsh physical groups (``$PhysicalNames``) or
-    meshio cell sets on the facet cells; unnamed physical tags are called ``tag<k>``.
+    meshio cell sets on the facet cells, named subdomains (``mesh.subdomains``, cell indices)
+    from those on the volume cells; unnamed physical tags are called ``tag<k>``.
 
     ``duplicate_nodes``: what to do with coincident nodes (closer than 1e-12 of the diameter)
     used by different cells. Such a mesh is cut there -- a crack: the cells on the two sides
@@ -395,6 +425,9 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh", duplicate_nodes:
     new_index[used] = np.arange(int(used.sum()))
     p = points[used].T.copy()
     t = new_index[cells].T.copy()
+    problem = coordinates_problem(p)  # before the k-d tree and the volumes compute with them
+    if problem is not None:
+        raise fail(name, str(path), problem)
     if duplicate_nodes != "keep":
         pairs = coincident_nodes(p)
         if len(pairs) and duplicate_nodes == "error":
@@ -420,15 +453,57 @@ def load_mesh(path, dim: int | None = None, name: str = "mesh", duplicate_nodes:
     mesh = cls(p, t, validate=False)
     check_mesh(mesh, name)
     parts = _boundary_parts(m, blocks, dim, new_index)
-    if parts:
-        facets = mesh.facets.T  # (nf, dim), each row sorted
-        bnd = {}
-        for part, rows in parts.items():
-            idx = _match_rows(rows, facets) if len(rows) else np.empty(0, dtype=np.int64)
-            # kept even when empty, so that choosing it for Dirichlet data gets a clear error
-            bnd[part] = np.unique(idx[idx >= 0]).astype(np.int64)
-        mesh = cls(p, mesh.t, _boundaries=bnd, validate=False)
+    subdomains = _subdomains(m, dim)
+    if parts or subdomains:
+        bnd = None
+        if parts:
+            facets = mesh.facets.T  # (nf, dim), each row sorted
+            bnd = {}
+            for part, rows in parts.items():
+                idx = _match_rows(rows, facets) if len(rows) else np.empty(0, dtype=np.int64)
+                # kept even when empty, so that choosing it for Dirichlet data gets a clear error
+                bnd[part] = np.unique(idx[idx >= 0]).astype(np.int64)
+        mesh = cls(p, mesh.t, _boundaries=bnd, _subdomains=subdomains or None, validate=False)
     return mesh
+
+
+def _subdomains(m, dim) -> dict[str, np.ndarray]:
+    """Cell indices of every named group on the volume cells (gmsh physical groups of
+    dimension ``dim``, unnamed ones ``tag<k>``, tag 0 -- no group -- skipped, and meshio cell
+    sets): the material regions.
+
+    Cell k of the mesh is row k of the volume blocks stacked in file order (as in
+    :func:`load_mesh`)."""
+    ctype = CELL_TYPE[dim]
+    offsets, start = [], 0
+    for block in m.cells:
+        offsets.append(start)
+        if block.type == ctype:
+            start += len(block.data)
+    out: dict[str, list[np.ndarray]] = {}
+    tags_by_block = m.cell_data.get("gmsh:physical") if m.cell_data else None
+    names = {}
+    for key, val in (m.field_data or {}).items():
+        val = np.asarray(val).ravel()
+        if val.size >= 2 and int(val[1]) == dim:
+            names[int(val[0])] = key
+    if tags_by_block is not None:
+        for block, tags, off in zip(m.cells, tags_by_block, offsets, strict=True):
+            if block.type != ctype:
+                continue
+            tags = np.asarray(tags).ravel()
+            for tag in np.unique(tags):
+                if tag == 0:  # gmsh's "in no physical group" (meshio writes it for untagged)
+                    continue
+                label = names.get(int(tag), f"tag{int(tag)}")
+                out.setdefault(label, []).append(off + np.flatnonzero(tags == tag))
+    for label, per_block in (m.cell_sets or {}).items():
+        if label.startswith("gmsh:"):
+            continue
+        for block, ids, off in zip(m.cells, per_block, offsets, strict=True):
+            if block.type == ctype and ids is not None and len(ids):
+                out.setdefault(label, []).append(off + np.asarray(ids, dtype=np.int64))
+    return {k: np.unique(np.concatenate(v)).astype(np.int64) for k, v in out.items()}
 
 
 def _boundary_parts(m, blocks, dim, new_index) -> dict[str, np.ndarray]:

@@ -9,14 +9,25 @@ A checkpoint directory (``<out>/checkpoint/`` for the command line) holds
     traj<i>-<seq>.npz   the entries trajectory i gained since the previous checkpoint: append-only
                         segments, written once and referenced by every later checkpoint, so that
                         checkpointing a run of K steps costs O(K) in total, not O(K^2)
+    arrays-<seq>.npz    the *frozen* arrays of the state (read-only arrays that own their data,
+                        :func:`frozen`: the meshes of a run's mesh series) first seen at
+                        checkpoint ``seq``: each written once and referenced by every later
+                        checkpoint that still holds it, so a series of K meshes costs O(K) in
+                        total too (the checkpoint of an adaptive run used to rewrite every mesh
+                        of the series every time: 405 MB per checkpoint at 2 279 meshes)
     stream/             heavy output streamed during the run (eld-beam's XDMF segments)
     .lock               held (flock) by the process that writes the checkpoint
 
 Every file is written atomically (:mod:`rothe.io.atomic`): a kill at any instant leaves the
 previous complete ``checkpoint.npz`` (and the segments it references) or the new one. Loading
-uses ``np.load(..., allow_pickle=False)``; zip CRCs detect truncated or damaged files.
+uses ``np.load(..., allow_pickle=False)``; zip CRCs detect truncated or damaged files, and the
+``seal`` (a SHA-256 of the state, the trajectory records and the CRC-32 of every array of the
+state, written with them) detects a checkpoint whose state was changed after it was written --
+an edited JSON without ``state``, a state vector of another length: such a checkpoint is refused
+in one line when it is read, before anything is restored from it.
 
-The JSON document (format ``rothe-checkpoint``, ``format_version`` 1) records
+The JSON document (format ``rothe-checkpoint``, ``format_version`` 2; version 1, without
+``external`` and ``seal``, is still read) records
 
 - ``rothe_version``, ``run_id``, ``sequence`` (checkpoints written), ``sessions`` (1 + resumes),
   ``status`` (running | interrupted | failed | completed), ``where`` (step, s, t of the state);
@@ -27,7 +38,9 @@ The JSON document (format ``rothe-checkpoint``, ``format_version`` 1) records
 - ``state``: ``stepper`` (``stepper.checkpoint_state(state)``), ``controller``
   (``controller.checkpoint_state()``), ``run`` (the driver's context, e.g. which nested run is
   going) and ``attachments`` (objects such as the XDMF stream writer);
-- ``trajectories``: per trajectory its ``meta``, ``stats`` and the list of segments.
+- ``trajectories``: per trajectory its ``meta``, ``stats`` and the list of segments;
+- ``external``: the arrays of the state stored in ``arrays-<seq>.npz`` files (name -> file,
+  key, CRC-32) and ``seal``.
 
 The protocol the state comes from (see docs/robustness.md): a stepper implements
 ``checkpoint_state(state) -> dict`` and ``restore_state(data) -> state``, a controller
@@ -48,6 +61,7 @@ import time
 import uuid
 import warnings
 import zipfile
+import zlib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -55,16 +69,30 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import OutputWriteError, RotheInputError, check_positive
-from .atomic import atomic_path, remove_stale_temporaries
+from .atomic import atomic_path, check_writable, remove_stale_temporaries
+from .frozen import frozen, is_frozen
 from .trajectory import RAGGED_LENGTHS, RunStatistics, Trajectory
 
 FORMAT = "rothe-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: format versions this rothe reads (1: without frozen arrays and seal)
+READABLE_FORMATS = (1, 2)
 MAIN = "checkpoint.npz"
 CHECKPOINT_SUBDIR = "checkpoint"
 STATUSES = ("running", "interrupted", "failed", "completed")
 RESUMABLE = ("running", "interrupted", "completed")
 _SEGMENT_RE = re.compile(r"^traj(\d+)-(\d+)\.npz$")
+_ARRAYS_RE = re.compile(r"^arrays-(\d+)\.npz$")
+#: what the JSON document must hold to be a checkpoint at all (besides format and version)
+_REQUIRED = {
+    "status": str,
+    "run_id": str,
+    "sequence": int,
+    "api": str,
+    "state": dict,
+    "trajectories": list,
+}
+_STATE_PARTS = ("stepper", "controller", "run", "attachments")
 
 
 class CheckpointWarning(UserWarning):
@@ -145,6 +173,89 @@ def normalized(value):
     return json.loads(json.dumps(value, default=str))
 
 
+def _crc(array: np.ndarray) -> int:
+    """CRC-32 of an array's dtype, shape and bytes (zlib: about 1 GB/s)."""
+    a = np.ascontiguousarray(array)
+    crc = zlib.crc32(f"{a.dtype.str}{a.shape}".encode())
+    return zlib.crc32(memoryview(a).cast("B") if a.size else b"", crc)
+
+
+def _seal(header: dict, crcs: dict[str, int]) -> str:
+    """SHA-256 of what a resume restores: the state, the trajectory records, the table of
+    external arrays, and the CRC-32 of every array (by name)."""
+    h = hashlib.sha256()
+    part = {k: header.get(k) for k in ("state", "trajectories", "external")}
+    h.update(json.dumps(part, sort_keys=True, allow_nan=True).encode())
+    for name in sorted(crcs):
+        h.update(f"{name}:{crcs[name]:08x};".encode())
+    return h.hexdigest()[:32]
+
+
+def _array_refs(obj, out: list) -> list:
+    if isinstance(obj, dict):
+        if len(obj) == 1 and "__array__" in obj:
+            out.append(obj["__array__"])
+        else:
+            for v in obj.values():
+                _array_refs(v, out)
+    elif isinstance(obj, list):
+        for v in obj:
+            _array_refs(v, out)
+    return out
+
+
+def _check_structure(main: Path, header: dict, arrays: dict | None) -> None:
+    """One line if the JSON document is not a checkpoint's (a key missing or of another type,
+    or, with ``arrays``, a reference to an array that is not there)."""
+
+    def refuse(what):
+        raise CheckpointError(f"{main}: not a readable checkpoint ({what})")
+
+    for key, kind in _REQUIRED.items():
+        if key not in header:
+            refuse(f"no {key!r} entry")
+        if not isinstance(header[key], kind) or (kind is int and isinstance(header[key], bool)):
+            refuse(f"{key!r} is a {type(header[key]).__name__}, must be a {kind.__name__}")
+    if header["status"] not in STATUSES:
+        refuse(f"status {header['status']!r} is not one of {', '.join(STATUSES)}")
+    missing = [k for k in _STATE_PARTS if k not in header["state"]]
+    if missing:
+        refuse(f"its state has no {', '.join(map(repr, missing))}")
+    for i, rec in enumerate(header["trajectories"]):
+        if not isinstance(rec, dict) or not isinstance(rec.get("segments"), list):
+            refuse(f"trajectory {i} has no list of segments")
+    if arrays is not None:
+        absent = [n for n in _array_refs(header["state"], []) if n not in arrays]
+        if absent:
+            refuse(f"its state refers to an array {absent[0]!r} that is not stored")
+
+
+def restored_vector(
+    data: dict, key: str, length: int | None = None, *, where: str = "stepper"
+) -> np.ndarray:
+    """``data[key]`` as a 1-D float array of ``length`` entries, for a stepper's
+    ``restore_state``; else :class:`CheckpointError` naming the entry, e.g. ``checkpoint state
+    stepper.z: 840 entries, this problem has 841 (the checkpoint is of another problem, or
+    damaged)``. A resumed run then never fails later in its first step with a shape error."""
+    name = f"checkpoint state {where}.{key}"
+    if not isinstance(data, dict) or key not in data:
+        raise CheckpointError(f"{name}: missing (the checkpoint is of another stepper, or damaged)")
+    value = data[key]
+    if not isinstance(value, np.ndarray) or value.ndim != 1 or value.dtype.kind not in "biuf":
+        what = (
+            f"an array of shape {value.shape} and dtype {value.dtype}"
+            if isinstance(value, np.ndarray)
+            else f"a {type(value).__name__}"
+        )
+        raise CheckpointError(f"{name}: {what}, must be a vector of real numbers")
+    if length is not None and value.size != int(length):
+        raise CheckpointError(
+            f"{name}: {value.size} entries, this problem has {int(length)} "
+            "(the checkpoint is of another problem, or damaged)"
+        )
+    return np.array(value, dtype=float)
+
+
 # -- fingerprints -----------------------------------------------------------------------------
 
 
@@ -215,6 +326,16 @@ class Checkpoint:
         self.header = header
         self._arrays = arrays
         self._state = None
+
+    @property
+    def external(self) -> dict[str, tuple[str, str, int]]:
+        """The frozen arrays of the state stored beside it: name -> (file, key, CRC-32)."""
+        return {k: tuple(v) for k, v in (self.header.get("external") or {}).items()}
+
+    def frozen_arrays(self) -> dict[str, np.ndarray]:
+        """The loaded frozen arrays by name (what a checkpointer in the same directory adopts
+        instead of writing them again)."""
+        return {k: self._arrays[k] for k in self.external if k in self._arrays}
 
     path = property(lambda self: self.directory / MAIN)
     status = property(lambda self: self.header["status"])
@@ -370,15 +491,64 @@ def load_checkpoint(path, *, check_version: bool = True, header_only: bool = Fal
         ) from None
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise CheckpointError(f"{main}: not a rothe checkpoint")
-    if header.get("format_version") != FORMAT_VERSION:
+    if header.get("format_version") not in READABLE_FORMATS:
         raise CheckpointError(
             f"{main}: checkpoint format {header.get('format_version')}, this "
-            f"rothe reads format {FORMAT_VERSION}"
+            f"rothe reads format {', '.join(map(str, READABLE_FORMATS))}"
         )
+    _check_structure(main, header, None)
+    if not header_only:
+        arrays.update(_load_external(directory, header))
+        _check_structure(main, header, arrays)
+        if "seal" in header:
+            crcs = {name: _crc(a) for name, a in arrays.items()}
+            if header["seal"] != _seal(header, crcs):
+                raise CheckpointError(
+                    f"{main}: not a readable checkpoint (its state differs "
+                    "from what rothe wrote: edited or damaged after it was "
+                    "written)"
+                )
     ckpt = Checkpoint(directory, header, arrays)
     if check_version:
         ckpt.require_version()
     return ckpt
+
+
+def _load_external(directory: Path, header: dict) -> dict[str, np.ndarray]:
+    """The frozen arrays the checkpoint refers to, read from their ``arrays-<seq>.npz`` files
+    (each array frozen, so that a checkpointer adopting them does not write them again)."""
+    table = header.get("external") or {}
+    if not isinstance(table, dict):
+        raise CheckpointError(
+            f"{directory / MAIN}: not a readable checkpoint ('external' is a "
+            f"{type(table).__name__}, must be a dict)"
+        )
+    by_file: dict[str, list] = {}
+    for name, entry in table.items():
+        if not (
+            isinstance(entry, list)
+            and len(entry) == 3
+            and isinstance(entry[0], str)
+            and _ARRAYS_RE.match(entry[0])
+        ):
+            raise CheckpointError(
+                f"{directory / MAIN}: not a readable checkpoint (external "
+                f"array {name!r}: {entry!r})"
+            )
+        by_file.setdefault(entry[0], []).append((name, entry[1]))
+    out = {}
+    for file, names in sorted(by_file.items()):
+        path = directory / file
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                for name, key in names:
+                    out[name] = frozen(data[key])
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            raise CheckpointError(
+                f"{path}: an array file of the checkpoint is missing or "
+                f"damaged ({type(exc).__name__}: {exc})"
+            ) from None
+    return out
 
 
 # -- writing ----------------------------------------------------------------------------------
@@ -414,6 +584,12 @@ class DirectoryLock:
     Re-entrant within a process (the command line holds it for the whole run, the checkpointer
     inside it again); released by the kernel if the process dies, so a killed run never leaves
     a stale lock. Raises :class:`CheckpointError` naming the other process's pid.
+
+    When the last holder releases it and nothing but ``.lock`` is in the directory (no
+    checkpoint was written: e.g. a run refused its input after the command line had taken the
+    lock), the file and the directory are removed, so a refused run leaves nothing behind. The
+    file is unlinked while the lock is still held: a process that opens it at that moment locks
+    an unlinked file and proceeds alone, which is harmless because there is nothing to protect.
     """
 
     def __init__(self, directory):
@@ -462,6 +638,12 @@ class DirectoryLock:
         entry[1] -= 1
         if entry[1] == 0:
             del _HELD[key]
+            directory = self.path.parent
+            with contextlib.suppress(OSError):
+                if [e.name for e in os.scandir(directory)] == [self.path.name]:
+                    os.unlink(self.path)
+                    with contextlib.suppress(OSError):
+                        os.rmdir(directory)
             with contextlib.suppress(OSError):
                 os.close(entry[0])
 
@@ -490,6 +672,7 @@ class Checkpointer:
         arguments: dict,
         fingerprint: dict,
         restored: Checkpoint | None = None,
+        parameter: str = "checkpoint",
     ):
         self.options = options
         self.directory = Path(options.path)
@@ -504,7 +687,12 @@ class Checkpointer:
         self._saved: list[dict[str, int]] = []
         self._last = time.monotonic()
         self._warned = False
-        self.directory.mkdir(parents=True, exist_ok=True)
+        # frozen arrays already in a file of this directory: id -> (array, file, key, crc); the
+        # array is held so that its id cannot be reused by another object
+        self._frozen: dict[int, tuple[np.ndarray, str, str, int]] = {}
+        self._external_files: set[str] = set()
+        # one line naming the parameter (e.g. checkpoint='/proc/ckpt'), not a FileNotFoundError
+        check_writable(self.directory, parameter)
         self._lock = DirectoryLock(self.directory).acquire()
         remove_stale_temporaries(self.directory)
         same_dir = restored is not None and _same_dir(restored.directory, self.directory)
@@ -520,6 +708,11 @@ class Checkpointer:
         if same_dir:
             for rec in restored.header["trajectories"]:
                 self._adopted.append(rec["segments"])
+            arrays = restored.frozen_arrays()
+            for name, (file, key, crc) in restored.external.items():
+                if name in arrays:
+                    self._frozen[id(arrays[name])] = (arrays[name], file, key, int(crc))
+                    self._external_files.add(file)
 
     # -- registration ----------------------------------------------------------------------
     def register(self, traj: Trajectory) -> int:
@@ -589,6 +782,8 @@ class Checkpointer:
                 {"meta": normalized(traj.meta), "stats": traj.stats.as_dict(), "segments": segs}
             )
         arrays: dict = {}
+        state = encode(payload, arrays)
+        main_arrays, external, fresh_frozen = self._split_frozen(arrays, seq)
         header = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -606,16 +801,30 @@ class Checkpointer:
             "record": normalized(self.options.record or {}),
             "every_seconds": self.every,
             "trajectories": traj_records,
+            "state": state,
+            "external": {name: [file, key, crc] for name, (file, key, crc) in external.items()},
         }
-        header["state"] = encode(payload, arrays)
+        header = normalized_header(header)
+        crcs = {name: _crc(a) for name, a in main_arrays.items()}
+        crcs.update({name: crc for name, (_, _, crc) in external.items()})
+        header["seal"] = _seal(header, crcs)
+        if fresh_frozen:
+            with atomic_path(self.directory / f"arrays-{seq:06d}.npz") as tmp:
+                np.savez(tmp, **{key: a for key, a in fresh_frozen.values()})
         text = json.dumps(header, allow_nan=True).encode("utf-8")
         with atomic_path(self.directory / MAIN) as tmp:
-            np.savez(tmp, __checkpoint__=np.frombuffer(text, dtype=np.uint8), **arrays)
-        # only now are the new segments part of a checkpoint
+            np.savez(tmp, __checkpoint__=np.frombuffer(text, dtype=np.uint8), **main_arrays)
+        # only now are the new segments and frozen arrays part of a checkpoint
         for i, seg in new_segments:
             self._segments[i].append(seg)
             for key, n in seg["counts"].items():
                 self._saved[i][key] = self._saved[i].get(key, 0) + n
+        referenced = {}
+        for name, (file, key, crc) in external.items():
+            a = arrays[name]
+            referenced[id(a)] = (a, file, key, crc)
+        self._frozen = referenced  # arrays the state no longer holds are forgotten
+        self._external_files = {file for file, _, _ in external.values()}
         self._remove_unreferenced()
         self._last = time.monotonic()
         return self.directory
@@ -639,11 +848,32 @@ class Checkpointer:
                 )
             return None
 
+    def _split_frozen(self, arrays: dict, seq: int):
+        """(arrays stored in checkpoint.npz, external name -> (file, key, crc), the frozen
+        arrays new in this checkpoint: id -> (key, array)) -- see :func:`frozen`."""
+        main, external, fresh = {}, {}, {}
+        file = f"arrays-{seq:06d}.npz"
+        for name, a in arrays.items():
+            if not is_frozen(a):
+                main[name] = a
+                continue
+            known = self._frozen.get(id(a))
+            if known is not None and known[0] is a:
+                external[name] = known[1:]
+                continue
+            if id(a) not in fresh:
+                fresh[id(a)] = (f"f{len(fresh)}", a)
+            key = fresh[id(a)][0]
+            external[name] = (file, key, _crc(a))
+        return main, external, fresh
+
     def _remove_unreferenced(self) -> None:
-        keep = {s["file"] for segs in self._segments for s in segs}
+        keep = {s["file"] for segs in self._segments for s in segs} | self._external_files
         with contextlib.suppress(OSError):
             for entry in os.scandir(self.directory):
-                if _SEGMENT_RE.match(entry.name) and entry.name not in keep:
+                if (
+                    _SEGMENT_RE.match(entry.name) or _ARRAYS_RE.match(entry.name)
+                ) and entry.name not in keep:
                     with contextlib.suppress(OSError):
                         os.unlink(entry.path)
 
@@ -657,6 +887,11 @@ class Checkpointer:
         for name, obj in self.attachments.items():
             if name in saved:
                 obj.restore_state(saved[name])
+
+
+def normalized_header(header: dict) -> dict:
+    """The header as it reads back from its JSON text (the seal is computed on that)."""
+    return json.loads(json.dumps(header, allow_nan=True))
 
 
 def _same_dir(a: Path, b: Path) -> bool:
@@ -685,6 +920,7 @@ class RunCheckpointing:
         if checkpoint is None and resume is None:
             return
         fingerprint = problem_fingerprint(problem)
+        parameter = "checkpoint"
         if resume is not None:
             ckpt = resume if isinstance(resume, Checkpoint) else load_checkpoint(resume)
             ckpt.require_version()
@@ -696,6 +932,7 @@ class RunCheckpointing:
                 checkpoint = CheckpointOptions(
                     ckpt.directory, every_seconds=ckpt.every_seconds, record=ckpt.record
                 )
+                parameter = "resume"  # it keeps writing where it was resumed from
         if not isinstance(checkpoint, CheckpointOptions):
             checkpoint = CheckpointOptions(checkpoint)
         self.checkpointer = Checkpointer(
@@ -704,6 +941,7 @@ class RunCheckpointing:
             arguments=arguments,
             fingerprint=fingerprint,
             restored=self.restored,
+            parameter=parameter,
         )
         if self.restored is not None:
             try:
@@ -715,6 +953,28 @@ class RunCheckpointing:
     @property
     def resuming(self) -> bool:
         return self.restored is not None
+
+    def restore(self, stepper, controller=None):
+        """``stepper.restore_state`` and ``controller.restore_state`` from the resumed
+        checkpoint; returns the state. A state that does not fit the stepper (a key missing, a
+        value of another type or shape: a checkpoint of another version of a stepper, or one
+        that was changed) is :class:`CheckpointError` with one line, not a traceback. Drivers
+        call this instead of the two ``restore_state`` calls."""
+        if self.restored is None:
+            raise ValueError("restore: this run is not resumed from a checkpoint")
+        saved = self.restored.state
+        try:
+            state = stepper.restore_state(saved["stepper"])
+            if controller is not None:
+                controller.restore_state(saved["controller"])
+        except RotheInputError:
+            raise
+        except (KeyError, IndexError, TypeError, ValueError, AttributeError) as exc:
+            raise CheckpointError(
+                f"{self.restored.directory}: the checkpoint's state does not "
+                f"fit this run ({type(exc).__name__}: {exc})"
+            ) from None
+        return state
 
     def close(self) -> None:
         """Release the checkpoint directory (if the run writes checkpoints)."""

@@ -29,6 +29,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .atomic import atomic_path, atomic_write_text
+from .frozen import frozen
 
 _CELL_TYPES = {2: "line", 3: "triangle", 4: "tetra"}
 _KEY = re.compile(r"^mesh_points_(\d+)$")
@@ -55,8 +56,11 @@ class MeshSeries:
     """Every distinct mesh of a run, stored once under its mesh id.
 
     ``add`` with an id already present is ignored (the caller registers the mesh of every
-    accepted state; only a change brings a new id). Arrays are copied on ``add``, so later
-    changes of the caller's mesh cannot alter what was stored.
+    accepted state; only a change brings a new id). Arrays are copied on ``add`` and stored
+    read-only (:func:`rothe.io.frozen.frozen`), so later changes of the caller's mesh cannot
+    alter what was stored, and a checkpoint writes every mesh once: ``checkpoint_state`` returns
+    the same array objects every time and the checkpointer only refers to those it already
+    wrote (O(K) in total for K meshes, not O(K^2)).
     """
 
     def __init__(self) -> None:
@@ -72,7 +76,7 @@ class MeshSeries:
         if mesh_id in self._meshes:
             return
         points, cells = _as_mesh(points, cells)
-        self._meshes[mesh_id] = (points.copy(), cells.copy())
+        self._meshes[mesh_id] = (frozen(points), frozen(cells))
 
     def __contains__(self, mesh_id) -> bool:
         return int(mesh_id) in self._meshes
@@ -132,7 +136,8 @@ class MeshSeries:
         return series, state_ids
 
     def checkpoint_state(self) -> dict:
-        """Plain dict of arrays (the checkpoint protocol of issue 10: no objects)."""
+        """Plain dict of arrays (the checkpoint protocol of issue 10: no objects); the meshes
+        are the stored (frozen) arrays themselves, written once by the checkpointer."""
         return {
             "ids": np.array(self.ids, dtype=np.int64),
             "points": {str(k): self._meshes[k][0] for k in self.ids},

@@ -21,7 +21,7 @@ are started first.
 Progress: on a terminal a bar of runs done / total; otherwise (logs, CI) one line per finished
 run (and, in-process, one per started run), so a log says which run of how many is going.
 
-Signals: during a map (in the main thread) SIGINT and SIGTERM stop it with
+Signals: during a map (in the main thread) SIGINT, SIGTERM, SIGHUP and SIGQUIT stop it with
 :class:`~rothe.errors.RunInterrupted` instead of killing the process (the default for SIGTERM),
 so that the cluster is closed and the caller can keep what finished (:attr:`Executor.finished`,
 :attr:`Executor.started`). A run under way in this process handles the signal itself (its
@@ -70,14 +70,36 @@ def cpu_count() -> int:
         return os.cpu_count() or 1
 
 
+def check_workers(name: str, workers) -> int:
+    """A local cluster's worker count: an integer from 1 to the cores this process may use.
+
+    Every worker is a process running one single-threaded run, so workers beyond the cores only
+    share them (each run slower, the total no faster) and multiply the memory; --workers 1000
+    started 1000 processes and failed after 106 s with a "Nanny failed to start" traceback. A
+    larger cluster is reached with ``scheduler`` instead (the message mentions it: the command
+    line names it ``--scheduler``)."""
+    n = check_int(name, workers, minimum=1)
+    cores = cpu_count()
+    if n > cores:
+        raise RotheInputError(
+            f"{name}: got {n}, must be at most {cores} (the cores this process may use; a "
+            "worker runs one single-threaded run, more workers than cores only share them; "
+            "scheduler runs on a larger cluster)",
+            name,
+            mentions=("scheduler",),
+        )
+    return n
+
+
 def default_workers() -> int:
     """``ROTHE_WORKERS`` if set, else the number of cores when Dask is installed, else 1."""
     env = os.environ.get("ROTHE_WORKERS")
     if env:
         try:
-            return check_int("ROTHE_WORKERS", int(env), minimum=1)
+            n = int(env)
         except ValueError:
             raise fail("ROTHE_WORKERS", env, "must be an integer >= 1") from None
+        return check_workers("ROTHE_WORKERS", n)
     return cpu_count() if dask_available() else 1
 
 
@@ -181,7 +203,9 @@ class _StopOnSignals:
     @staticmethod
     def _handler(signum, frame):  # noqa: ARG004 - signal API
         for sig in interrupt.SIGNALS:
-            signal.signal(sig, signal.SIG_DFL)
+            # a hang-up often comes twice (kernel and shell): never escalate on it
+            hup = sig == getattr(signal, "SIGHUP", None)
+            signal.signal(sig, signal.SIG_IGN if hup else signal.SIG_DFL)
         raise RunInterrupted(f"interrupted by {interrupt.signal_name(signum)}", signum=signum)
 
     def __exit__(self, *exc):
@@ -204,7 +228,11 @@ class Executor:
     ):
         if workers is None:
             workers = 1 if scheduler is not None else default_workers()
-        self.workers = check_int("workers", workers, minimum=1)
+        self.workers = (
+            check_int("workers", workers, minimum=1)
+            if scheduler is not None
+            else check_workers("workers", workers)
+        )
         self.scheduler = scheduler
         self.progress = progress
         self.title = title

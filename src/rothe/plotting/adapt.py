@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .common import plt, save_figure
+from .common import draw_edges, plt, save_figure, snapshot_axes, snapshot_grid
 
 
 def plot_dofs(path, t, dofs, s=None, title=None) -> None:
@@ -50,36 +50,51 @@ def _visible_triangles(points: np.ndarray, cells: np.ndarray):
     return points[:, :2], faces[normal[:, 2] > 1e-14 * np.abs(normal).max()]
 
 
-def plot_mesh_snapshots(path, series, state_mesh_id, times, values, indices, title=None) -> None:
-    """Mesh and a vertex field at the states ``indices`` (one panel each).
+def plot_mesh_snapshots(
+    path,
+    series,
+    state_mesh_id,
+    times,
+    values,
+    indices,
+    title=None,
+    label: str = "value at the vertices",
+) -> None:
+    """Mesh and a vertex field at the states ``indices`` (one panel each): one colour scale
+    (its bar labelled ``label``), the cell edges, the vertices of each mesh in its panel's
+    title; panels sized by the domain's aspect ratio (no empty margins).
 
     ``values[i]`` holds the vertex values (nv,) of state ``i`` on its own mesh; only the entries
-    at ``indices`` are read. 3D meshes show their boundary as seen from +z.
+    at ``indices`` are read. 3D meshes show their boundary as seen from +z. The title says what
+    is shown after the caller's ``title`` (the run), with the range of mesh sizes over the
+    panels.
     """
     indices = [int(i) for i in indices]
     if not indices:
         raise ValueError("indices must name at least one state")
     state_mesh_id = np.asarray(state_mesh_id).ravel()
-    fig, axes = plt.subplots(1, len(indices), figsize=(3.6 * len(indices), 3.4), squeeze=False)
+    meshes = [series.mesh(state_mesh_id[i]) for i in indices]
+    lo_xy = np.min([p[:, :2].min(axis=0) for p, _ in meshes], axis=0)
+    hi_xy = np.max([p[:, :2].max(axis=0) for p, _ in meshes], axis=0)
+    fig, axes = snapshot_grid(len(indices), hi_xy - lo_xy)
     vals = [np.asarray(values[i], dtype=float) for i in indices]
+    vals = [np.linalg.norm(v, axis=1) if v.ndim == 2 else v for v in vals]
     lo = min(float(v.min()) for v in vals)
     hi = max(float(v.max()) for v in vals)
     if hi <= lo:
         hi = lo + 1.0
-    for ax, i, v in zip(axes[0], indices, vals, strict=True):
-        points, cells = series.mesh(state_mesh_id[i])
+    pc = None
+    for k, (ax, i, v, (points, cells)) in enumerate(zip(axes, indices, vals, meshes, strict=True)):
         xy, tri = _visible_triangles(points, cells)
-        if v.ndim == 2:
-            v = np.linalg.norm(v, axis=1)
         pc = ax.tripcolor(
             xy[:, 0], xy[:, 1], tri, v, shading="gouraud", vmin=lo, vmax=hi, cmap="viridis"
         )
-        ax.triplot(xy[:, 0], xy[:, 1], tri, color="k", lw=0.2, alpha=0.6)
-        ax.set_aspect("equal")
+        draw_edges(ax, xy[:, 0], xy[:, 1], tri)
+        snapshot_axes(ax, first=k == 0)
         ax.set_title(f"t = {times[i]:.4g}, {len(points)} vertices", fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.colorbar(pc, ax=list(axes[0]), shrink=0.8)
-    if title:
-        fig.suptitle(title)
+    fig.colorbar(pc, ax=list(axes), shrink=0.9, label=label)
+    sizes = [len(p) for p, _ in meshes]
+    span = f"{min(sizes)}" if min(sizes) == max(sizes) else f"{min(sizes)}-{max(sizes)}"
+    what = f"{label} on the adapted meshes ({span} vertices)"
+    fig.suptitle(f"{title}: {what}" if title else what, fontsize=10)
     save_figure(fig, path, tight=False)

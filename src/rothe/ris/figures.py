@@ -8,40 +8,50 @@ from pathlib import Path
 import matplotlib.tri as mtri
 import numpy as np
 
-from ..plotting.common import plt, save_figure
+from ..plotting.common import draw_edges, plt, save_figure, snapshot_axes, snapshot_grid
 from .run import stored_states
 
 
 def plot_path(traj, path, exact=None, title="", component=None) -> Path:
     """Fig. 1 analogue: t^(s) and z^(s) (the affine interpolants), with the exact solution.
 
-    For vector states, z^ is shown as its min, max and V-mean over the nodes unless
-    ``component`` selects one entry.
+    For vector states (a mesh), z^ is shown as its minimum and mean over the nodes, and its
+    maximum only where that moves (on ris-2d it stays at the Dirichlet value 0: a flat line
+    that said nothing), unless ``component`` selects one entry. A legend only where a panel has
+    several curves.
     """
     s, t, z = stored_states(traj)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     axes[0].plot(traj["s"], traj["t"], "-", lw=1.4, label="numerical")
     ragged = isinstance(z, list)  # states on different meshes (space adaptivity)
+    what = r"$\hat z(s)$"
     if not ragged and z.ndim == 2 and z.shape[1] == 1:
-        z1 = z[:, 0]
-        axes[1].plot(s, z1, "-", lw=1.4, label="numerical")
+        axes[1].plot(s, z[:, 0], "-", lw=1.4, label="numerical")
     elif component is not None and not ragged:
         axes[1].plot(s, z[:, component], "-", lw=1.4, label=f"z[{component}]")
+        what = rf"$\hat z_{{{component}}}(s)$"
     else:
-        axes[1].plot(s, [np.max(v) for v in z], "-", lw=1.2, label="max z")
-        axes[1].plot(s, [np.min(v) for v in z], "-", lw=1.2, label="min z")
+        lo = np.array([np.min(v) for v in z])
+        hi = np.array([np.max(v) for v in z])
+        axes[1].plot(s, lo, "-", lw=1.3, label="min over the nodes")
+        axes[1].plot(s, [np.mean(v) for v in z], "-", lw=1.3, label="mean over the nodes")
+        if np.ptp(hi) > 1e-12 * max(1.0, np.abs(hi).max()):
+            axes[1].plot(s, hi, "-", lw=1.3, label="max over the nodes")
+        what = r"$\hat z(s)$ at the nodes"
     if exact is not None:
         ss = np.linspace(0, max(s[-1], 16.0), 801)
         te, ze = exact(ss)
         axes[0].plot(ss, te, "k--", lw=1, label="exact (7.1)")
         axes[1].plot(ss, ze, "k--", lw=1, label="exact (7.1)")
-    axes[0].set_xlabel("s")
     axes[0].set_ylabel(r"$\hat t(s)$")
-    axes[1].set_xlabel("s")
-    axes[1].set_ylabel(r"$\hat z(s)$")
+    axes[0].set_title("physical time along the path", fontsize=9)
+    axes[1].set_ylabel(what)
+    axes[1].set_title("state along the path", fontsize=9)
     for ax in axes:
+        ax.set_xlabel("s (arc length)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        if len(ax.get_lines()) > 1:
+            ax.legend(fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)
     return save_figure(fig, path)
@@ -135,22 +145,40 @@ def plot_residual_vs_steps(rows, path, title="") -> Path:
 
 
 def plot_fig4(runs, path, title: str = "") -> Path:
-    """Fig. 4 of the paper: for each run (one row), t^(s) (left) and tau_k against s (right)."""
+    """The step control of each run (one row): the accepted step sizes tau_k against s (left,
+    Fig. 4 of the paper) and what decided them, the local residual I_1^k + I_2^k of every
+    accepted step with the tolerance (right). t^(s), the other panel of the paper's Fig. 4, is
+    in ``fig1_path.png`` and not repeated here."""
     runs = list(runs)
-    fig, axes = plt.subplots(len(runs), 2, figsize=(10, 3.0 * len(runs)), squeeze=False)
+    fig, axes = plt.subplots(len(runs), 2, figsize=(10, 0.4 + 3.2 * len(runs)), squeeze=False)
     for row, traj in zip(axes, runs, strict=True):
-        s, t, tau = traj["s"], traj["t"], traj["tau"]
+        s, tau = traj["s"], traj["tau"]
         tol = traj.meta.get("tol")
-        label = f"{traj.meta.get('control')}" + (f", tol = {tol:g}" if tol is not None else "")
-        row[0].plot(s, t, "-", lw=1.3)
-        row[0].set_ylabel(r"$\hat t(s)$")
-        row[0].set_title(label, fontsize=9)
+        control = traj.meta.get("control")
+        label = f"{control}" + (f", tol = {tol:g}" if tol is not None else "")
         if len(tau):
-            row[1].semilogy(s[1:], tau, ".", ms=2.5)
-        row[1].set_ylabel(r"$\tau_k$")
-        row[1].set_title(f"{len(tau)} accepted steps", fontsize=9)
+            row[0].semilogy(s[1:], tau, ".", ms=2.5)
+        row[0].set_ylabel(r"step size $\tau_k$")
+        row[0].set_title(f"{label}: {len(tau)} accepted steps", fontsize=9)
+        if "I1" in traj and "I2" in traj and len(tau):
+            residual = np.asarray(traj["I1"]) + np.asarray(traj["I2"])
+            positive = residual > 0
+            row[1].semilogy(
+                s[1:][positive],
+                residual[positive],
+                ".",
+                ms=2.5,
+                color="C1",
+                label=r"$I_1^k + I_2^k$",
+            )
+            if tol is not None and control != "uniform":
+                row[1].axhline(tol, color="k", ls="--", lw=1, label=f"tol = {tol:g}")
+                row[1].legend(fontsize=8, loc="lower right")
+        row[1].set_ylabel(r"local residual $I_1^k + I_2^k$")
+        row[1].set_title("residual of each accepted step", fontsize=9)
+        row[1].set_xlim(row[0].get_xlim())
         for ax in row:
-            ax.set_xlabel("s")
+            ax.set_xlabel("s (arc length)")
             ax.grid(alpha=0.3, which="both")
     if title:
         fig.suptitle(title, fontsize=10)
@@ -189,7 +217,8 @@ def _triangulation(nodes: np.ndarray, cells: np.ndarray):
 
 
 def plot_snapshots(nodes, cells, s, t, Z, path, count: int = 4, title: str = "") -> Path:
-    """z at a few s (nearest accepted states to S/4, S/2, 3S/4, S), one colour scale.
+    """z at a few s (nearest accepted states to S/4, S/2, 3S/4, S), one colour scale, with the
+    cell edges; panels sized by the domain's aspect ratio (no empty margins).
 
     In 3D the slice through the middle of the last coordinate is shown.
     """
@@ -200,15 +229,20 @@ def plot_snapshots(nodes, cells, s, t, Z, path, count: int = 4, title: str = "")
     vmin, vmax = float(vals.min()), float(vals.max())
     if vmin == vmax:
         vmin, vmax = vmin - 1.0, vmax + 1.0
-    fig, axes = plt.subplots(1, len(idx), figsize=(3.4 * len(idx) + 0.8, 3.4), squeeze=False)
+    extent = np.ptp(nodes[:, :2], axis=0)
+    fig, axes = snapshot_grid(len(idx), extent)
     im = None
-    for ax, k, v in zip(axes[0], idx, vals, strict=True):
+    for i, (ax, k, v) in enumerate(zip(axes, idx, vals, strict=True)):
         im = ax.tripcolor(tri, v, shading="gouraud", vmin=vmin, vmax=vmax, cmap="viridis")
-        ax.set_aspect("equal")
+        if nodes.shape[1] == 2:  # a 3D slice is triangulated for drawing: no mesh edges
+            draw_edges(ax, tri.x, tri.y, tri.triangles)
+        snapshot_axes(ax, first=i == 0)
         ax.set_title(f"s = {s[k]:.4g}, t = {t[k]:.4g}", fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.colorbar(im, ax=axes[0].tolist(), shrink=0.85, label="z")
-    if title:
-        fig.suptitle(title + (" (mid-plane slice)" if nodes.shape[1] == 3 else ""), fontsize=10)
+    fig.colorbar(im, ax=list(axes), shrink=0.9, label=r"$z$ (state at the nodes)")
+    slice_note = " (mid-plane slice)" if nodes.shape[1] == 3 else ""
+    fig.suptitle(
+        (f"{title}: " if title else "") + f"the state z at {len(idx)} points of the "
+        f"path{slice_note}",
+        fontsize=10,
+    )
     return save_figure(fig, path, dpi=110, tight=False)

@@ -1,17 +1,18 @@
 """The evolve loop shared by every step controller (and every stepper): every phase in one place.
 
     while not stepper.finished(state):
-        (stop here if SIGINT/SIGTERM arrived: checkpoint, then RunInterrupted)
+        (stop here if a stop signal arrived: checkpoint, then RunInterrupted)
         tau, s_end = controller.propose(s)          # propose: the controller
         result = stepper.step(state, tau, s_end)    # step: the stepper does one step, decides
                                                     #   nothing (shortened while it overshoots
-                                                    #   the end: stepper.overshoot)
+                                                    #   the end: stepper.overshoot); a stop
+                                                    #   signal may abandon it (interrupt.check)
         decision = controller.decide(result)        # accept or reject: the controller
         if decision.accept:
             state = stepper.adapt(result.state, result)   # adapt: a new mesh, or the same state
             stepper.record(trajectory, result, state)     # record the accepted step
         else: retry with decision.next_tau
-        (write a checkpoint when one is due)        # checkpoint
+        (write a checkpoint when one is due, or SIGUSR1 asked for one)   # checkpoint
 
 A stepper provides ``step(state, tau, s_end) -> result`` (with ``converged``, ``code``, ``tau``,
 ``errors``, ``state`` and solver counters), ``adapt(state, result) -> state`` (the state to go on
@@ -21,6 +22,7 @@ the adapt step), ``finished(state)``, ``limit(state, tau)`` (e.g. to stop at a g
 ``overshoot(state, attempts)`` (a shorter tau that lands on the end time, or None, given the
 attempts of this step so far) with ``pick_landing(state, attempts)`` (the attempt to hand to the
 controller), ``where(state, result)``, ``progress_fields(state)``, optionally
+``abandon(state)`` (undo what an abandoned attempt changed in the stepper, see *Signals*),
 ``progress_position(state) -> (label, value, total)`` and ``times`` (a
 :class:`~rothe.timing.PhaseTimes` of the phases inside its step and adapt step: estimate,
 mark, refine, transfer, rebuild, factor, solve), added to ``trajectory.stats.seconds`` with the
@@ -32,10 +34,15 @@ controller: ``checkpoint_state() -> dict``, ``restore_state(data)``); see
 If a rejection would push the step below ``tau_min``, the loop raises :class:`RunFailed` naming
 the step, s, t, tau and the residuals; the trajectory so far is attached to the exception.
 
-Signals (:mod:`rothe.stepping.interrupt`): between two steps the loop checks whether SIGINT or
-SIGTERM arrived; if so it writes a checkpoint (when it has a checkpointer) and raises
-:class:`~rothe.errors.RunInterrupted` with the trajectory so far. The step under way when the
-signal came is finished first, never abandoned halfway.
+Signals (:mod:`rothe.stepping.interrupt`): between two steps the loop checks whether a stop
+signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT) arrived; if so it writes a checkpoint (when it has a
+checkpointer) and raises :class:`~rothe.errors.RunInterrupted` with the trajectory so far.
+Inside a step, a stepper that calls :func:`rothe.stepping.interrupt.check` between its
+iterations lets the signal take effect at once: the step under way raises
+:class:`~rothe.stepping.interrupt.StepAbandoned`, the loop drops it (never accepted, its
+attempts not counted), calls ``stepper.abandon(state)`` when the stepper has it, and stops as
+above with the last accepted state. A stepper that never calls ``check`` finishes its step
+first. SIGUSR1 asks for a checkpoint: written at the next step boundary, the run goes on.
 """
 
 from __future__ import annotations
@@ -183,23 +190,60 @@ class _Loop:
                 return None
             raise
 
-    def stop_if_signalled(self, state) -> None:
+    def stop_if_signalled(self, state, abandoned: bool = False) -> None:
         signum = interrupt.requested()
         if signum is None:
             return
         name = interrupt.signal_name(signum)
+        extra = {"signal": name}
+        if abandoned:
+            extra["abandoned_step"] = True
         where = self.where(state)
-        where["signal"] = name
-        path = self.checkpoint("interrupted", where={"signal": name})
+        where.update(extra)
+        path = self.checkpoint("interrupted", where=extra)
         raise RunInterrupted(
             f"interrupted by {name} after {where['accepted_steps']} accepted steps "
-            f"(s = {where.get('s', float('nan')):.6g}, t = {where.get('t', float('nan')):.6g})",
+            f"(s = {where.get('s', float('nan')):.6g}, t = {where.get('t', float('nan')):.6g}"
+            + ("; the step under way was abandoned)" if abandoned else ")"),
             signum=signum,
             where=where,
             trajectory=self.trajectory,
             checkpoint=path,
             state=state,
         )
+
+    def abandon(self, state, counts: dict) -> None:
+        """A stop signal abandoned the step under way (StepAbandoned): forget its attempts
+        (the statistics go back to ``counts``, taken before the step; the stepper undoes its
+        own changes in ``abandon``), then stop with the last accepted ``state``."""
+        stats = self.trajectory.stats
+        for key, value in counts.items():
+            setattr(stats, key, value)
+        undo = getattr(self.stepper, "abandon", None)
+        if undo is not None:
+            undo(state)
+        self.stop_if_signalled(state, abandoned=True)
+        raise AssertionError("a step was abandoned without a stop signal")  # pragma: no cover
+
+    def checkpoint_if_asked(self) -> None:
+        """A checkpoint when one is due, or now if SIGUSR1 asked for one (the run goes on)."""
+        asked = interrupt.checkpoint_requested()
+        if self.checkpointer is None:
+            if asked:
+                self.progress.note(
+                    "rothe: SIGUSR1: this run writes no checkpoint (none was asked for)"
+                )
+            return
+        if asked or self.checkpointer.due():
+            path = self.checkpoint("running")
+            if asked:
+                w = self.where(self.state)
+                written = f"written to {path}" if path is not None else "NOT written"
+                self.progress.note(
+                    f"rothe: SIGUSR1: checkpoint {written} after {w['accepted_steps']} accepted "
+                    f"steps (s = {w.get('s', float('nan')):.6g}, t = "
+                    f"{w.get('t', float('nan')):.6g}); the run goes on"
+                )
 
     def run(self, state, tau_min, max_attempts, max_landing_retries, max_steps):
         stepper, controller, trajectory = self.stepper, self.controller, self.trajectory
@@ -225,20 +269,24 @@ class _Loop:
             tau_lim = stepper.limit(state, tau)
             if tau_lim < tau:
                 tau, s_end = tau_lim, None
-            # step (shortened while it overshoots the end)
-            with times.phase("step"):
-                result = stepper.step(state, tau, s_end)
-                _count(stats, result)
-                attempts_here = [result]
-                for _ in range(max_landing_retries):
-                    shorter = stepper.overshoot(state, attempts_here)
-                    if shorter is None:
-                        break
-                    stats.landing_retries += 1
-                    attempts_here.append(stepper.step(state, shorter, None))
-                    _count(stats, attempts_here[-1])
-                if len(attempts_here) > 1:
-                    result = stepper.pick_landing(state, attempts_here)
+            # step (shortened while it overshoots the end); a stop signal may abandon it
+            counts = {key: getattr(stats, key) for key in _COUNTED}
+            try:
+                with times.phase("step"), interrupt.abandonable():
+                    result = stepper.step(state, tau, s_end)
+                    _count(stats, result)
+                    attempts_here = [result]
+                    for _ in range(max_landing_retries):
+                        shorter = stepper.overshoot(state, attempts_here)
+                        if shorter is None:
+                            break
+                        stats.landing_retries += 1
+                        attempts_here.append(stepper.step(state, shorter, None))
+                        _count(stats, attempts_here[-1])
+                    if len(attempts_here) > 1:
+                        result = stepper.pick_landing(state, attempts_here)
+            except interrupt.StepAbandoned:
+                self.abandon(state, counts)
             # accept or reject
             decision = controller.decide(result)
             if decision.accept:
@@ -269,8 +317,7 @@ class _Loop:
                         trajectory=trajectory,
                     )
             self.progress.update(state, stats)
-            if self.checkpointer is not None and self.checkpointer.due():
-                self.checkpoint("running")
+            self.checkpoint_if_asked()
         return state
 
     def close(self) -> None:
@@ -282,13 +329,19 @@ class _Loop:
             )
 
 
+#: the statistics a step attempt adds to (put back when the step is abandoned)
+_COUNTED = (
+    "inner_solves",
+    "newton_iterations",
+    "fb_steps",
+    "linear_factorizations",
+    "linear_solves",
+    "krylov_iterations",
+    "landing_retries",
+)
+
+
 def _count(stats, result) -> None:
     stats.inner_solves += 1
-    for key in (
-        "newton_iterations",
-        "fb_steps",
-        "linear_factorizations",
-        "linear_solves",
-        "krylov_iterations",
-    ):
+    for key in _COUNTED[1:-1]:
         setattr(stats, key, getattr(stats, key) + int(result.counters.get(key, 0)))

@@ -1,18 +1,43 @@
-"""SIGINT / SIGTERM during a run: the handlers only set a flag; the evolve loop stops between steps.
+"""Signals during a run: the handlers only set flags; the evolve loop acts on them.
 
-Inside :func:`interruptible` the first SIGINT or SIGTERM is recorded (:func:`requested`) and
-nothing else happens at that instant: the step under way finishes, then the evolve loop writes a
-checkpoint and raises :class:`~rothe.errors.RunInterrupted` with the trajectory so far. A handler
-never touches files or solver state, so a signal cannot leave anything half-updated.
+Inside :func:`interruptible`:
 
-The second signal is not deferred:
+- **SIGINT, SIGTERM, SIGHUP, SIGQUIT** (:data:`SIGNALS`) ask the run to stop. The first one is
+  recorded (:func:`requested`) and nothing else happens at that instant. The evolve loop stops
+  at the next step boundary, or sooner, inside a long step, at the next :func:`check` the step
+  makes (between Newton iterations, between inner solves): that step is *abandoned* -- never
+  accepted, never recorded. Either way the loop writes a checkpoint of the last accepted state
+  and raises :class:`~rothe.errors.RunInterrupted` (exit status 128 + signal: 130, 143, 129,
+  131). SIGHUP is what a dropped SSH session sends: the run stops like on SIGTERM, and standard
+  output and error, if they are a terminal (now gone), are sent to ``/dev/null`` so that
+  writing the results and the last messages cannot fail on it. SIGQUIT (Ctrl-\\) stops like
+  SIGTERM; a second one dumps core at once, as usual.
+- **SIGUSR1** asks for a checkpoint *now* (:func:`checkpoint_requested`): the loop writes one at
+  the next step boundary and the run goes on. Batch schedulers send it before a time limit
+  (SLURM ``--signal=USR1@300``), so that the kill at the limit loses little.
 
-- ``hard_second=True`` (the command line): the first signal resets both signals to the system
-  default, so a second Ctrl-C (or TERM) ends the process at once, even inside a long
+A handler never touches files or solver state, so a signal cannot leave anything half-updated.
+The second stop signal is not deferred:
+
+- ``hard_second=True`` (the command line): after the first stop signal SIGINT, SIGTERM and
+  SIGQUIT get the system default, so a second one ends the process at once, even inside a long
   factorization. Files stay consistent because every output is written atomically
   (:mod:`rothe.io.atomic`); at worst a hidden temporary file is left, which the next run removes.
 - ``hard_second=False`` (the Python API): the handlers that were installed before are restored,
   so in an interactive session a second Ctrl-C raises ``KeyboardInterrupt`` as usual.
+
+A repeated SIGHUP never escalates (a hang-up often comes twice: from the kernel and from the
+shell): after the first stop signal it is ignored.
+
+**Abandoning a step** (:func:`check`, :class:`StepAbandoned`): code that runs for long inside a
+step calls :func:`check` between its iterations. Inside the loop's :func:`abandonable` region
+(the step and its landing retries, never the adaptation or the bookkeeping after acceptance) a
+recorded stop signal makes it raise :class:`StepAbandoned`, a ``BaseException`` so that the
+``except Exception`` of a solver that turns errors into a failed step lets it through; anywhere
+else :func:`check` does nothing. The loop then calls the stepper's ``abandon(state)`` (if it has
+one), which must undo what the abandoned attempt changed in the stepper (a refactorization, a
+warm-start hint, counters), so that the checkpoint of the last accepted state resumes exactly
+like the uninterrupted run (docs/robustness.md, *Signals*).
 
 Handlers can only be installed from the main thread; elsewhere (e.g. a Dask worker thread)
 :func:`interruptible` does nothing and runs are stopped the usual way.
@@ -20,32 +45,89 @@ Handlers can only be installed from the main thread; elsewhere (e.g. a Dask work
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
+import stat
+import sys
 import threading
 
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: signals that stop a run (the first is deferred to a step boundary or a check())
+SIGNALS = tuple(
+    getattr(signal, name)
+    for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
+    if hasattr(signal, name)
+)
+#: the signal that asks for a checkpoint now (the run goes on)
+CHECKPOINT_SIGNALS = tuple(getattr(signal, name) for name in ("SIGUSR1",) if hasattr(signal, name))
+_HUP = getattr(signal, "SIGHUP", None)
 _active: _Guard | None = None
+_checkpoint_now = False  # SIGUSR1 arrived and no checkpoint was written since
+
+
+class StepAbandoned(BaseException):
+    """Raised by :func:`check` inside a step when a stop signal arrived: the evolve loop
+    abandons the step under way (it is never accepted) and stops with RunInterrupted.
+
+    A ``BaseException``: solvers that catch ``Exception`` to report a failed step let it
+    through. Code between :func:`check` and the loop must not swallow it."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"step abandoned on {signal_name(signum)}")
+        self.signum = int(signum)
 
 
 class _Guard:
     def __init__(self, hard_second: bool):
         self.hard_second = hard_second
         self.signum: int | None = None
+        self.abandonable = 0  # depth of abandonable() regions
         self.previous: dict[int, object] = {}
 
     def handler(self, signum, frame):  # noqa: ARG002 - signal API
-        if self.signum is None:
-            self.signum = signum
-            for sig in SIGNALS:
-                if self.hard_second:
-                    signal.signal(sig, signal.SIG_DFL)
-                else:
-                    prev = self.previous.get(sig)
-                    signal.signal(sig, prev if prev is not None else signal.SIG_DFL)
+        if signum in CHECKPOINT_SIGNALS:
+            _ask_for_checkpoint(signum, frame)
+            return
+        if signum == _HUP:
+            _detach_terminal()
+        if self.signum is not None:  # only SIGHUP comes here again (ignored, see below)
+            return
+        self.signum = signum
+        for sig in SIGNALS:
+            if sig == _HUP:
+                signal.signal(sig, self.handler)  # a repeated hang-up: nothing more to do
+            elif self.hard_second:
+                signal.signal(sig, signal.SIG_DFL)
+            else:
+                prev = self.previous.get(sig)
+                signal.signal(sig, prev if prev is not None else signal.SIG_DFL)
+
+
+def _detach_terminal() -> None:
+    """After a hang-up: standard output and error that are a terminal (a character device other
+    than /dev/null) go to /dev/null, so that writes to the vanished terminal (EIO) cannot stop
+    the run from writing its results. Files and pipes (a log, nohup) are left alone."""
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+    except OSError:
+        return
+    try:
+        null_dev = os.fstat(null).st_rdev
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                fd = stream.fileno()
+                st = os.fstat(fd)
+                if stat.S_ISCHR(st.st_mode) and st.st_rdev != null_dev:
+                    with contextlib.suppress(OSError, ValueError):
+                        stream.flush()
+                    os.dup2(null, fd)
+    finally:
+        os.close(null)
 
 
 class interruptible:
-    """Context manager: SIGINT/SIGTERM set the flag that :func:`requested` reports.
+    """Context manager: stop signals set the flag that :func:`requested` reports, SIGUSR1 the
+    one :func:`checkpoint_requested` reports (module docstring).
 
     Re-entrant: inside an active guard (e.g. the command line's, around the whole run and the
     writing of its results) a nested one (the evolve loop's) is a no-op.
@@ -60,7 +142,7 @@ class interruptible:
         if _active is not None or threading.current_thread() is not threading.main_thread():
             return self
         guard = _Guard(self.hard_second)
-        for sig in SIGNALS:
+        for sig in SIGNALS + CHECKPOINT_SIGNALS:
             guard.previous[sig] = signal.getsignal(sig)
             signal.signal(sig, guard.handler)
         _active = guard
@@ -79,8 +161,63 @@ class interruptible:
 
 
 def requested() -> int | None:
-    """The number of the signal received inside the active guard, or None."""
+    """The number of the stop signal received inside the active guard, or None."""
     return None if _active is None else _active.signum
+
+
+def _ask_for_checkpoint(signum, frame):  # noqa: ARG001 - signal API
+    global _checkpoint_now
+    _checkpoint_now = True
+
+
+def keep_checkpoint_requests() -> None:
+    """For the whole process (the command line calls it first): SIGUSR1 never ends it -- its
+    default action -- but is kept as a request that the next run's loop honours at its first
+    step boundary (it may arrive while the run is still being set up, or between the runs of a
+    sweep). Main thread only; elsewhere a no-op."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in CHECKPOINT_SIGNALS:
+        signal.signal(sig, _ask_for_checkpoint)
+
+
+def checkpoint_requested() -> bool:
+    """Whether SIGUSR1 arrived since the last call inside a guard (the request is taken: a
+    second call returns False until the next SIGUSR1)."""
+    global _checkpoint_now
+    if _active is None or not _checkpoint_now:
+        return False
+    _checkpoint_now = False
+    return True
+
+
+@contextlib.contextmanager
+def abandonable():
+    """The region in which :func:`check` may abandon the work under way (the evolve loop puts
+    the step and its landing retries in it)."""
+    guard = _active
+    if guard is None:
+        yield
+        return
+    guard.abandonable += 1
+    try:
+        yield
+    finally:
+        guard.abandonable -= 1
+
+
+def check() -> None:
+    """Raise :class:`StepAbandoned` if a stop signal arrived and the code runs inside an
+    :func:`abandonable` region (a step of the evolve loop); else do nothing (cheap: call it
+    between iterations).
+
+    Where the families call it: between Newton iterations of a step and between the inner
+    solves of a step (after each linear solve), so that an interruption takes effect within
+    one iteration instead of after the whole step; never inside an adaptation or after the
+    step was accepted."""
+    guard = _active
+    if guard is not None and guard.signum is not None and guard.abandonable > 0:
+        raise StepAbandoned(guard.signum)
 
 
 def signal_name(signum: int) -> str:

@@ -171,6 +171,16 @@ class Progress:
         print("  ".join(parts), file=self.stream, flush=True)
         self.lines += 1
 
+    def note(self, text: str) -> None:
+        """One line for the user (e.g. a checkpoint written on SIGUSR1), above the bar on a
+        terminal; nothing with ``--quiet``."""
+        if not self.o.enabled:
+            return
+        if self.bar is not None:
+            self.bar.write(text, file=self.stream)
+        else:
+            print(text, file=self.stream, flush=True)
+
     def close(self, state=None, stats=None, how: str = "stopped") -> None:
         """Close the bar, or print a last line ``rothe: <how> at ...`` if lines were printed."""
         if self.bar is not None:

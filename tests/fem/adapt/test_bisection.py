@@ -294,17 +294,15 @@ def test_gmsh_mesh_keeps_its_named_parts(tmp_path, gmsh_text, dim):
 
 
 def test_adaptation_refuses_meshes_it_cannot_bisect():
-    with pytest.raises(RotheInputError, match=r"--adapt-space: got a mesh of quadrilaterals"):
+    with pytest.raises(RotheInputError, match=r"^mesh: got a mesh of quadrilaterals"):
         AdaptiveMesh(MeshQuad())
-    with pytest.raises(RotheInputError, match=r"--adapt-space: got a mesh of hexahedra"):
+    with pytest.raises(RotheInputError, match=r"^mesh: got a mesh of hexahedra"):
         check_adaptable(MeshHex())
     mixed = meshio.Mesh(
         np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1.0]]),
         [("triangle", np.array([[0, 1, 2], [0, 2, 3]])), ("quad", np.array([[1, 4, 5, 2]]))],
     )
-    with pytest.raises(
-        RotheInputError, match=r"--adapt-space: got a mixed mesh \(triangle, quad\)"
-    ):
+    with pytest.raises(RotheInputError, match=r"^mesh: got a mixed mesh \(triangle, quad\)"):
         check_adaptable(mixed)
     assert check_adaptable(unit_cube(2)) is not None
     am = AdaptiveMesh(unit_square(2))

@@ -1,0 +1,701 @@
+"""Coupled runs on the shared evolve loop: :func:`run_coupled` (issue 19, phase 2).
+
+A coupled run steps an elastic body tied to components (and controllers) by couplings
+B u = G(t, q) (:class:`~rothe.eld.coupling.CoupledProblem`) with the bordered step of
+:mod:`rothe.eld.coupled_step` (``docs/coupling.md``, Sec. 4): per step one back-substitution
+with the body's step matrix A_II (one factorization per effective step size tau/alpha_0, the
+border X = A_II^-1 (A Phi)_I with it) and an (r + s) dense solve; Newton on the border unknowns
+for nonlinear components, a failure of which is a rejected step, never an accepted one.
+
+The driver is the one every run uses (:func:`rothe.stepping.evolve.evolve`): the stepper
+(:class:`CoupledStepper`) does one step and never decides acceptance; the controller comes
+from the same step-control objects as :func:`~rothe.eld.run.run_eld`:
+:class:`~rothe.stepping.controllers.Uniform` (T/tau equal steps) and
+:class:`~rothe.stepping.controllers.Adaptive` (the error-norm controller of
+:func:`rothe.eld.controllers.adaptive_controller`, order 1 or 2).
+
+**Local error estimate** (adaptive steps). The trapezoidal residuals of the step on the whole
+system -- the body's r_u = u^j - u^{j-1} - tau/2 (v^j + v^{j-1}), r_v = v^j - v^{j-1} -
+tau/2 (a^j + a^{j-1}) and the components' r_q, r_p from q, p, pdot -- in the energy norm of the
+coupled system, relative to the largest energy norm so far:
+
+    local_error = c(omega) (r_u.K r_u + rho r_v.M r_v + r_q.K_q r_q + r_p.M_q r_p)^{1/2} / S_j
+
+(c(omega) the scheme's factor, :meth:`~rothe.eld.scheme.Scheme.estimate_factor`; K_q the
+linear components' stiffness; S_j >= ``error_scale``). Controller states z are not in the norm
+(they have no energy; a controller's effect shows in q and u).
+
+**Why a function of its own** and not ``run_eld(CoupledProblem)``: the same keywords
+(``scheme=``, ``form=``, ``control=``) mean the same objects, but a coupled run has a different
+state (q, p, z next to the fields), a different result (the components' trajectories and the
+whole-system ledger), and today neither ``data=`` (the prescribed part's data are taken at the
+step's points) nor ``adapt=`` (space adaptivity) nor checkpoints; ``run_eld`` accepting a
+CoupledProblem would have to refuse half its keywords for one kind of problem. When the coupled
+step moves into :class:`~rothe.eld.stepper.ELDStepper` (docs/coupling.md, Sec. 12), this
+function becomes run_eld's branch with the same signature.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import RunFailed, fail
+from ..io.trajectory import Trajectory
+from ..stepping.controllers import Adaptive, FixedStepController, Uniform
+from ..stepping.evolve import evolve
+from ..timing import PhaseTimes
+from .controllers import adaptive_controller
+from .coupled_step import CoupledStepSystem
+from .coupling import CoupledProblem
+from .form import DEFAULT_FORM, Original, as_form
+from .scheme import BDF2, DEFAULT_SCHEME, as_scheme
+from .state import ELDCode
+
+#: the history a step needs (two states for BDF2)
+_HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
+
+
+@dataclass
+class CoupledState:
+    """The state after step j: fields u, v, a, lam of the body, q, p, pdot of the components,
+    z of the controllers, the scheme's history (``hist``: lists of the last states of x = u -
+    L(S u), y, q, p, z, g_k, g'_k, u, v), the whole-system ledger and the error scale."""
+
+    t: float
+    j: int
+    tau_prev: float | None
+    u: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    lam: np.ndarray
+    q: np.ndarray
+    p: np.ndarray
+    pdot: np.ndarray
+    z: np.ndarray
+    zdot: np.ndarray
+    hist: dict
+    ledger: dict
+    energy_start: float
+    energy_norm_max: float = 0.0
+
+    @property
+    def s(self) -> float:
+        """The evolve loop's position: t."""
+        return self.t
+
+
+@dataclass
+class CoupledStepResult:
+    """One step attempt: the new state (None if it failed), the step, the estimate, the
+    balance of the ledger and the residuals; ``errors`` for the controller."""
+
+    state: CoupledState | None
+    tau: float
+    estimate: float = math.nan
+    balance: float = 0.0
+    residual_body: float = 0.0
+    residual_components: float = 0.0
+    constraint: float = 0.0
+    reactions: dict = field(default_factory=dict)
+    counters: dict = field(default_factory=dict)
+    converged: bool = True
+    code: ELDCode = ELDCode.OK
+    message: str = ""
+    where: dict = field(default_factory=dict)
+
+    @property
+    def errors(self) -> dict:
+        return {"local_error": self.estimate}
+
+
+@dataclass
+class CoupledResult:
+    """What :func:`run_coupled` returns.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+        Point series (t = 0 included): ``t, q, p, z`` (the components' coordinates, velocities
+        and the controllers' states, one row per state), ``lam_norm``, ``reaction_<part>``
+        (the resultant of lambda on every constrained part), ``energy, energy_body,
+        energy_components, work, work_components, work_controllers, work_prescribed,
+        dissipated, numerical_dissipation, data_mismatch, residual_work, balance`` (the ledger
+        of docs/coupling.md Sec. 5; ``balance`` its mismatch, round-off), ``residual_body,
+        residual_components``, ``constraint`` (max |S u - G(t) - Gamma q| / max(1, max |u|):
+        the coupling B u = G(t, q) at every accepted state), and with ``watch`` ``watch_u,
+        watch_v``; step series ``tau, local_error``; ``stats`` and ``meta``.
+    state : CoupledState
+        The final state (fields u, v, a, lam of the body).
+    stepper : CoupledStepper
+    controller : object
+    """
+
+    trajectory: Trajectory
+    state: CoupledState
+    stepper: CoupledStepper
+    controller: object
+
+    @property
+    def statistics(self):
+        return self.trajectory.stats
+
+
+def _taylor(x0, v0, a0, h):
+    return x0 - h * v0 + 0.5 * h * h * a0, v0 - h * a0
+
+
+class CoupledStepper:
+    """One step of the coupled scheme at a time for the evolve loop (module docstring).
+
+    Parameters
+    ----------
+    system : CoupledProblem
+        Body with linear damping, linear couplings; components may be nonlinear.
+    scheme : ImplicitEuler or BDF2
+        BDF2 (``start='taylor'``) starts from the Taylor history with the consistent initial
+        accelerations of the body and the components.
+    form : Regularized or Original
+        Regularized: the known data's g', g'' evaluated (G_dot, G_ddot of the prescribed
+        parts); Original: nodal lifting, the known data differenced with the scheme's
+        quotients (2.7).
+    T : float
+        End time.
+    watch : sparse (k, n) matrix, optional
+        Rows recorded on u and v at every state (``watch_u``, ``watch_v``).
+    error_scale : float
+        The floor of the estimate's scale S_j (default 1e-12).
+    """
+
+    def __init__(self, system, scheme, form, T, *, watch=None, error_scale=1e-12):
+        if isinstance(scheme, BDF2) and scheme.start != "taylor":
+            raise fail("scheme", f"BDF2(start={scheme.start!r})", "must start 'taylor' here")
+        self.system = system
+        self.scheme = scheme
+        self.form = form
+        self.T = float(T)
+        self.watch = watch
+        self.error_scale = float(error_scale)
+        lifting = "nodal" if isinstance(form, Original) else form.lifting
+        kern = self.kern = CoupledStepSystem(system, lifting)
+        body = self.body = system.body
+        self.c = kern.constraint
+        self.n, self.r, self.s_ctrl = body.space.ndofs, kern.r, kern.s
+        self.rhoM = (kern.rho * kern.M).tocsr()
+        self.BT = self.c.B.T.tocsr()
+        self.C = body.damping_op.linear
+        self.comps_linear = all(cmp.is_linear for cmp in system.components)
+        self.Mq = system.mass()
+        r = self.r
+        self.Kq = np.zeros((r, r))
+        self.Cq = np.zeros((r, r))
+        for cmp in system.components:
+            if cmp.is_linear:
+                sl = system.slice(cmp)
+                self.Kq[sl, sl], self.Cq[sl, sl] = cmp.stiffness, cmp.damping
+        self.order = scheme.order
+        self.max_ratio = scheme.ratio_cap
+        self.n_steps = None
+        self.times = PhaseTimes()
+        self._last_newton = 0
+
+    def max_step(self, tau_prev: float | None) -> float:
+        """No solvability bound: the coupled step takes linear damping, whose step matrix
+        rho kappa^2 M + kappa C + K is positive definite on ker B for C >= 0."""
+        return math.inf
+
+    # -- helpers ---------------------------------------------------------------------------------
+    def _split(self, u_, v_, q_, p_):
+        kern, c = self.kern, self.c
+        gu, gv = u_[c.dofs], v_[c.dofs]
+        x_ = u_ - kern.lift(gu)
+        y_ = v_ - kern.lift(gv)
+        x_[c.dofs] = 0.0
+        y_[c.dofs] = 0.0
+        return x_, y_, gu - kern.Gamma @ q_, gv - kern.Gamma @ p_
+
+    def _energies(self, u_, v_, q_, p_):
+        kin, _ = self.system.component_energy(q_, p_)
+        return (
+            0.5 * v_ @ (self.rhoM @ v_) + 0.5 * u_ @ (self.kern.K @ u_),
+            kin + 0.5 * q_ @ (self.Kq @ q_),
+        )
+
+    def _norm(self, u_, v_, q_, p_):
+        Eb, Ec = self._energies(u_, v_, q_, p_)
+        return math.sqrt(max(2.0 * (Eb + Ec), 0.0))
+
+    # -- the initial state -----------------------------------------------------------------------
+    def initial_state(self) -> CoupledState:
+        """Consistent u0, v0 traces and accelerations (the index-1 system at t = 0)."""
+        system, kern, body, c = self.system, self.kern, self.body, self.c
+        I, n = kern.I, self.n
+        ctrls = system.controllers
+        q0, p0 = system.q0.copy(), system.p0.copy()
+        z0 = np.concatenate([k.z0 for k in ctrls]) if ctrls else np.zeros(0)
+        system.check_initial_consistency()
+        gk0, gdk0, gddk0 = body.G(0.0), body.G_dot(0.0), body.G_ddot(0.0)
+        u0 = body.u0.copy()
+        u0[c.dofs] = gk0 + kern.Gamma @ q0
+        v0 = body.v0.copy()
+        v0[c.dofs] = gdk0 + kern.Gamma @ p0
+        F0 = body.load(0.0)
+        kern.factor(1.0, 0.0, 0.0, 0.0, 0.0, None)
+        r_k = kern.rho * (kern.M @ kern.lift(gddk0)) + self.C @ v0 + kern.K @ u0 - F0
+        y_k = kern.Y_u @ u0 + kern.Y_v @ v0 - kern._LZ.T @ r_k if kern.k_in else np.zeros(0)
+        w_k = kern.Cc @ z0 + kern.Dc @ y_k if kern.o else np.zeros(0)
+        rhs_q = (
+            system.load(0.0)
+            - system.force(0.0, q0, p0)
+            - kern.Phi.T @ r_k
+            + (kern.E @ w_k if kern.o else 0.0)
+        )
+        a1_I, pdot0, _ = kern.solve(-r_k[I], rhs_q, np.zeros(0), self.Mq)
+        a0 = np.zeros(n)
+        a0[I] = a1_I
+        a0 = a0 + kern.lift(gddk0) + kern.Phi @ pdot0
+        lam0 = kern.multiplier(self.rhoM @ a0 + self.C @ v0 + kern.K @ u0 - F0)
+        ys0 = kern.Y_u @ u0 + kern.Y_v @ v0 + kern.Y_lam @ lam0 if kern.k_in else np.zeros(0)
+        zdot0 = kern.Ac @ z0 + kern.Bc @ ys0 if self.s_ctrl else np.zeros(0)
+        x0, y0, g0, gd0 = self._split(u0, v0, q0, p0)
+        hist = {
+            "x": [x0],
+            "y": [y0],
+            "q": [q0],
+            "p": [p0],
+            "z": [z0],
+            "gk": [g0],
+            "gdk": [gd0],
+            "u": [u0],
+            "v": [v0],
+        }
+        Eb, Ec = self._energies(u0, v0, q0, p0)
+        ledger = dict.fromkeys(
+            (
+                "work",
+                "work_components",
+                "work_controllers",
+                "work_prescribed",
+                "dissipated",
+                "numerical_dissipation",
+                "data_mismatch",
+                "residual_work",
+            ),
+            0.0,
+        )
+        return CoupledState(
+            t=0.0,
+            j=0,
+            tau_prev=None,
+            u=u0,
+            v=v0,
+            a=a0,
+            lam=lam0,
+            q=q0,
+            p=p0,
+            pdot=pdot0,
+            z=z0,
+            zdot=zdot0,
+            hist=hist,
+            ledger=ledger,
+            energy_start=Eb + Ec,
+            energy_norm_max=self._norm(u0, v0, q0, p0),
+        )
+
+    def _history(self, state: CoupledState, tau: float) -> dict:
+        """The history of this step: BDF2's first step prepends the Taylor states at -tau."""
+        hist = {k: list(v) for k, v in state.hist.items()}
+        if isinstance(self.scheme, BDF2) and state.j == 0:
+            um, vm = _taylor(state.u, state.v, state.a, tau)
+            qm, pm = _taylor(state.q, state.p, state.pdot, tau)
+            zm = state.z - tau * state.zdot
+            xm, ym, gkm, gdkm = self._split(um, vm, qm, pm)
+            for key, val in zip(_HISTORY, (xm, ym, qm, pm, zm, gkm, gdkm, um, vm), strict=True):
+                hist[key].insert(0, val)
+        return hist
+
+    # -- the step --------------------------------------------------------------------------------
+    def step(self, state: CoupledState, tau: float, s_end=None) -> CoupledStepResult:
+        """One step from ``state`` with step ``tau`` (never decides acceptance)."""
+        before = dict(self.kern.stats)
+        try:
+            with self.times.phase("solve"):
+                new, info = self._step(state, tau)
+        except (RunFailed, np.linalg.LinAlgError, FloatingPointError) as exc:
+            return CoupledStepResult(
+                None,
+                tau,
+                converged=False,
+                code=ELDCode.NEWTON if isinstance(exc, RunFailed) else ELDCode.LINEAR_SOLVE,
+                message=f"coupled step at t = {state.t + tau:.6g} failed: {exc}",
+                where=self.where(state, None),
+                counters=self._counters(before),
+            )
+        finite = all(np.all(np.isfinite(a)) for a in (new.u, new.v, new.q, new.p, new.z, new.lam))
+        if not finite:
+            return CoupledStepResult(
+                None,
+                tau,
+                converged=False,
+                code=ELDCode.NON_FINITE,
+                message=f"coupled step at t = {state.t + tau:.6g}: the state is not finite",
+                where=self.where(state, None),
+                counters=self._counters(before),
+            )
+        self._last_newton = self.kern.stats["newton_iterations"] - before["newton_iterations"]
+        return CoupledStepResult(new, tau, counters=self._counters(before), **info)
+
+    def _counters(self, before: dict) -> dict:
+        st = self.kern.stats
+        return {
+            "newton_iterations": st["newton_iterations"] - before["newton_iterations"],
+            "linear_factorizations": st["factorizations"] - before["factorizations"],
+            "linear_solves": st["back_substitutions"] - before["back_substitutions"],
+        }
+
+    def _step(self, state: CoupledState, tau: float):
+        system, kern, body, c = self.system, self.kern, self.body, self.c
+        I, n, s = kern.I, self.n, self.s_ctrl
+        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi, self.Mq, self.Kq, self.Cq
+        rhoM, K, Cmat = self.rhoM, kern.K, self.C
+        hist = self._history(state, tau)
+        if isinstance(self.scheme, BDF2):
+            al0, al1, al2 = self.scheme.coefficients(tau, tau if state.j == 0 else state.tau_prev)
+        else:
+            al0, al1, al2 = self.scheme.coefficients(tau)
+        kap = al0 / tau
+        t = state.t + tau
+        if abs(t - self.T) <= 4.0 * np.finfo(float).eps * max(1.0, self.T):
+            t = self.T
+
+        def hpart(key):
+            h = hist[key]
+            out = al1 * h[-1]
+            if al2 != 0.0:
+                out = out + al2 * h[-2]
+            return out / tau
+
+        c_x, c_y = hpart("x"), hpart("y")
+        c_q, c_p = hpart("q"), hpart("p")
+        c_z = hpart("z") if s else np.zeros(0)
+        gk = body.G(t)
+        if isinstance(self.form, Original):
+            gdk = kap * gk + hpart("gk")
+            gddk = kap * gdk + hpart("gdk")
+        else:
+            gdk, gddk = body.G_dot(t), body.G_ddot(t)
+        u_k = kern.lift(gk)
+        v_k = c_x + kern.lift(gdk) + Phi @ c_q
+        a_k = kap * c_x + c_y + kern.lift(gddk) + Phi @ (kap * c_q + c_p)
+        F = body.load(t)
+        r_k = rhoM @ a_k + Cmat @ v_k + K @ u_k - F
+        with self.times.phase("factor"):
+            kern.factor(kap * kap, kap, 1.0, 1.0, kap, kap)
+        y_k = (kern.Y_u @ u_k + kern.Y_v @ v_k - kern._LZ.T @ r_k) if kern.k_in else np.zeros(0)
+        pd_k = kap * c_q + c_p
+        f_ext = system.load(t)
+        w_k = kern.Dc @ y_k if kern.o else np.zeros(0)
+        rhs_z = kern.Bc @ y_k - c_z if s else np.zeros(0)
+        Ew_k = kern.E @ w_k if kern.o else np.zeros(self.r)
+        if self.comps_linear:
+            rhs_q = f_ext - Mq @ pd_k - Cq @ c_q - Phi.T @ r_k + Ew_k
+            Jq = kap * kap * Mq + kap * Cq + Kq
+            x_I, q, z = kern.solve(-r_k[I], rhs_q, rhs_z, Jq)
+        else:
+
+            def residual(x_I, q_, z_):
+                p_ = kap * q_ + c_q
+                pdot_ = kap * kap * q_ + pd_k
+                X = np.zeros(n)
+                X[I] = x_I
+                X = X + Phi @ q_
+                r_full = kern.A @ X + r_k
+                ys = kern.W @ X + y_k if kern.k_in else np.zeros(0)
+                w = kern.Cc @ z_ + kern.Dc @ ys if kern.o else np.zeros(0)
+                res = Mq @ pdot_ + system.force(t, q_, p_) + Phi.T @ r_full - f_ext
+                if kern.o:
+                    res = res - kern.E @ w
+                fq, fp = system.force_jacobians(t, q_, p_)
+                return res, kap * kap * Mq + kap * fp + fq
+
+            x_I, q, z = kern.solve(
+                -r_k[I],
+                f_ext - Mq @ pd_k - Phi.T @ r_k + Ew_k,
+                rhs_z,
+                kap * kap * Mq,
+                residual=residual,
+            )
+        x = np.zeros(n)
+        x[I] = x_I
+        y = kap * x + c_x
+        b = kap * y + c_y
+        p = kap * q + c_q
+        pdot = kap * p + c_p
+        u = x + kern.lift(gk + Gam @ q)
+        v = y + kern.lift(gdk + Gam @ p)
+        a = b + kern.lift(gddk + Gam @ pdot)
+        res = rhoM @ a + Cmat @ v + K @ u - F
+        lam = kern.multiplier(res)
+        R = res + self.BT @ lam
+        ys = kern.Y_u @ u + kern.Y_v @ v + kern.Y_lam @ lam if kern.k_in else np.zeros(0)
+        w = kern.Cc @ z + kern.Dc @ ys if kern.o else np.zeros(0)
+        zdot = kern.Ac @ z + kern.Bc @ ys if s else np.zeros(0)
+        Ew = kern.E @ w if kern.o else np.zeros(self.r)
+        Rq = Mq @ pdot + system.force(t, q, p) - Gam.T @ (c.boundary_mass @ lam) - f_ext - Ew
+
+        # -- ledger (docs/coupling.md, Sec. 5) ----------------------------------------------------
+        def quot(key, now):
+            h = hist[key]
+            val = al0 * now + al1 * h[-1]
+            return (val + al2 * h[-2]) / tau if al2 != 0.0 else val / tau
+
+        def N(key, now, W):
+            h = hist[key]
+            dz = now - h[-1]
+            out = 0.5 * dz @ (W @ dz)
+            dprev = h[-1] - h[-2] if al2 != 0.0 else 0.0 * dz
+            return out + now @ (W @ ((al0 - 1.0) * dz - al2 * dprev))
+
+        L = dict(state.ledger)
+        L["numerical_dissipation"] += N("v", v, rhoM) + N("u", u, K) + N("p", p, Mq)
+        L["numerical_dissipation"] += N("q", q, Kq)
+        L["data_mismatch"] += tau * (rhoM @ (a - quot("v", v))) @ v + tau * (K @ u) @ (
+            v - quot("u", u)
+        )
+        L["work"] += tau * F @ v
+        L["work_components"] += tau * f_ext @ p
+        L["work_controllers"] += tau * p @ Ew
+        diss = tau * (Cmat @ v) @ v + tau * p @ (Cq @ p)
+        if not self.comps_linear:
+            diss += tau * p @ (system.force(t, q, p) - Kq @ q - Cq @ p)
+        L["dissipated"] += diss
+        L["work_prescribed"] += -tau * lam @ (c.boundary_mass @ gdk)
+        L["residual_work"] += tau * R @ v + tau * Rq @ p
+        Eb, Ec = self._energies(u, v, q, p)
+        balance = (Eb + Ec - state.energy_start) - (
+            L["work"]
+            + L["work_components"]
+            + L["work_controllers"]
+            + L["work_prescribed"]
+            - L["dissipated"]
+            + L["residual_work"]
+            - L["numerical_dissipation"]
+            - L["data_mismatch"]
+        )
+        # -- local error estimate (module docstring) ---------------------------------------------
+        ru = u - state.u - 0.5 * tau * (v + state.v)
+        rv = v - state.v - 0.5 * tau * (a + state.a)
+        rq = q - state.q - 0.5 * tau * (p + state.p)
+        rp = p - state.p - 0.5 * tau * (pdot + state.pdot)
+        omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
+        norm_new = self._norm(u, v, q, p)
+        scale = max(self.error_scale, state.energy_norm_max, norm_new)
+        est = (
+            self.scheme.estimate_factor(omega)
+            * math.sqrt(max(ru @ (K @ ru) + rv @ (rhoM @ rv) + rq @ (Kq @ rq) + rp @ (Mq @ rp), 0))
+            / scale
+        )
+        x_now, y_now, gk_now, gdk_now = x, y, gk, gdk
+        new_hist = {}
+        for key, val in zip(_HISTORY, (x_now, y_now, q, p, z, gk_now, gdk_now, u, v), strict=True):
+            new_hist[key] = (hist[key] + [val])[-2:]
+        new = CoupledState(
+            t=t,
+            j=state.j + 1,
+            tau_prev=tau,
+            u=u,
+            v=v,
+            a=a,
+            lam=lam,
+            q=q,
+            p=p,
+            pdot=pdot,
+            z=z,
+            zdot=zdot,
+            hist=new_hist,
+            ledger=L,
+            energy_start=state.energy_start,
+            energy_norm_max=max(state.energy_norm_max, norm_new),
+        )
+        info = {
+            "estimate": est,
+            "balance": float(balance),
+            "residual_body": float(
+                np.abs(R).max() / max(1.0, np.abs(F).max(), np.abs(K @ u).max())
+            ),
+            "residual_components": float(np.abs(Rq).max(initial=0.0)),
+            "constraint": float(
+                np.abs(u[c.dofs] - gk - Gam @ q).max(initial=0.0)
+                / max(1.0, np.abs(u).max(initial=0.0))
+            ),
+            "reactions": c.reactions(lam),
+        }
+        return new, info
+
+    # -- evolve-loop interface -------------------------------------------------------------------
+    def finished(self, state: CoupledState) -> bool:
+        if self.n_steps is not None:
+            return state.j >= self.n_steps
+        return state.t >= self.T
+
+    def limit(self, state: CoupledState, tau: float) -> float:
+        """Land on T (the last two steps split the rest evenly instead of leaving a sliver)."""
+        if self.n_steps is not None:
+            return tau
+        rest = self.T - state.t
+        if tau >= rest * (1.0 - 1e-12):
+            return rest
+        if tau < rest < 2.0 * tau:
+            return 0.5 * rest
+        return tau
+
+    def overshoot(self, state, attempts):
+        return None
+
+    def pick_landing(self, state, attempts):
+        return attempts[-1]
+
+    def adapt(self, state: CoupledState, result: CoupledStepResult) -> CoupledState:
+        """No space adaptivity for coupled runs yet: the accepted state."""
+        return state
+
+    def where(self, state: CoupledState, result=None) -> dict:
+        return {
+            "step": state.j + 1,
+            "s": state.t,
+            "t": state.t,
+            "tau": result.tau if result is not None else math.nan,
+            "form": self.form.name,
+            "scheme": self.scheme.name,
+        }
+
+    def progress_fields(self, state: CoupledState) -> dict:
+        return {"t": f"{state.t:.4g}", "newton": self._last_newton}
+
+    # -- records ---------------------------------------------------------------------------------
+    def record_state(
+        self, traj: Trajectory, state: CoupledState, reactions, balance, rb, rc, constraint=0.0
+    ):
+        Eb, Ec = self._energies(state.u, state.v, state.q, state.p)
+        values = {
+            "t": state.t,
+            "q": state.q.copy(),
+            "p": state.p.copy(),
+            "z": state.z.copy(),
+            "lam_norm": self.c.l2_norm(state.lam),
+            "energy_body": Eb,
+            "energy_components": Ec,
+            "energy": Eb + Ec,
+            "balance": balance,
+            "residual_body": rb,
+            "residual_components": rc,
+            "constraint": constraint,
+            **state.ledger,
+            **{f"reaction_{part}": R for part, R in reactions.items()},
+        }
+        if self.watch is not None:
+            values["watch_u"] = self.watch @ state.u
+            values["watch_v"] = self.watch @ state.v
+        traj.append(**values)
+
+    def record_initial(self, traj: Trajectory, state: CoupledState) -> None:
+        c = self.c
+        g0 = self.body.G(0.0) + self.kern.Gamma @ state.q
+        constraint = np.abs(state.u[c.dofs] - g0).max(initial=0.0)
+        constraint /= max(1.0, np.abs(state.u).max(initial=0.0))
+        self.record_state(traj, state, c.reactions(state.lam), 0.0, 0.0, 0.0, float(constraint))
+
+    def record(self, traj: Trajectory, result: CoupledStepResult, state: CoupledState) -> None:
+        self.record_state(
+            traj,
+            state,
+            result.reactions,
+            result.balance,
+            result.residual_body,
+            result.residual_components,
+            result.constraint,
+        )
+        traj.append(tau=result.tau, local_error=result.estimate)
+
+
+def run_coupled(
+    system: CoupledProblem,
+    *,
+    scheme=DEFAULT_SCHEME,
+    form=DEFAULT_FORM,
+    control=None,
+    T: float | None = None,
+    watch=None,
+    error_scale: float = 1e-12,
+    progress=False,
+) -> CoupledResult:
+    """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
+
+    Parameters
+    ----------
+    system : CoupledProblem
+        The body, its couplings, components and controllers.
+    scheme : ImplicitEuler or BDF2
+    form : Regularized or Original
+    control : Uniform or Adaptive
+        Uniform(tau): T/tau equal steps (tau must divide T); Adaptive(tol, tau=None,
+        tau_min=None, tau_max=None): the local error estimate below tol, first step ``tau``
+        (default T/100), steps in [tau_min (default 1e-10 T), tau_max (default T)].
+    T : float, optional
+        End time (default the body's T).
+    watch : sparse (k, n) matrix, optional
+        Rows of u and v recorded at every state (``watch_u``, ``watch_v``).
+    error_scale : float
+        The floor of the error estimate's scale.
+    progress : bool or ProgressOptions
+
+    Returns
+    -------
+    CoupledResult
+    """
+    if not isinstance(system, CoupledProblem):
+        raise fail("system", type(system).__name__, "must be a rothe.eld.CoupledProblem")
+    scheme = as_scheme(scheme)
+    form = as_form(form)
+    T = system.body.T if T is None else float(T)
+    if not (math.isfinite(T) and T > 0):
+        raise fail("T", T, "must be positive and finite")
+    stepper = CoupledStepper(system, scheme, form, T, watch=watch, error_scale=error_scale)
+    if control is None:
+        raise fail("control", None, "must be Uniform(tau) or Adaptive(tol)")
+    if isinstance(control, Uniform):
+        n = int(round(T / control.tau))
+        if n < 1 or not math.isclose(n * control.tau, T, rel_tol=1e-9):
+            raise fail("tau", control.tau, f"must divide T = {T:g} into equal steps")
+        stepper.n_steps = n
+        controller = FixedStepController.uniform(T / n, n)
+        tau_min = 1e-12
+    elif isinstance(control, Adaptive):
+        tau0 = control.tau if control.tau is not None else T / 100
+        tau_min = control.tau_min if control.tau_min is not None else 1e-10 * T
+        tau_max = control.tau_max if control.tau_max is not None else T
+        controller = adaptive_controller(
+            stepper, control.tol, min(tau0, T), tau_min=tau_min, tau_max=tau_max
+        )
+    else:
+        raise fail(
+            "control",
+            type(control).__name__,
+            "must be Uniform(tau) or Adaptive(tol) (rothe.stepping.controllers)",
+        )
+    traj = Trajectory(
+        meta={
+            "kind": "eld-coupled",
+            **form.describe(),
+            **scheme.describe(),
+            "T": T,
+            "components": [cmp.name for cmp in system.components],
+            "parts": list(stepper.c.parts),
+        }
+    )
+    state = stepper.initial_state()
+    stepper.record_initial(traj, state)
+    state = evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress)
+    return CoupledResult(traj, state, stepper, controller)

@@ -1,0 +1,406 @@
+"""Analytic references for coupled examples: bars and beams with attached components, the rigid
+limit, and the decay of the first mode under feedback (issue 19).
+
+**Longitudinal bar** (length L, Young's modulus E, density rho, cross-section A; wave speed
+c = (E/rho)^{1/2}): harmonic motion u(x, t) = phi(x) e^{i w t} with phi = a cos(beta x) +
+b sin(beta x), beta = w/c, normal force N = E A phi'. An end is ``"clamped"`` (phi = 0),
+``"free"`` (N = 0) or tied to a linear component (an :class:`Attachment`: mass and stiffness
+matrices, the coordinate k that moves with the end): (K - w^2 M) q = f e_k, phi(end) = q_k, with
+the force of the bar on the component f = +N(0) at x = 0 and f = -N(L) at x = L.
+:func:`bar_frequencies` finds the zeros of the determinant of this (2 + m_0 + m_L) linear
+system (entire in w: no poles to mistake for roots) by sign changes on a grid refined by
+Brent's method.
+
+- Tip mass m at x = L, clamped at 0: beta L tan(beta L) = rho A L / m (:func:`tip_mass_roots`;
+  e.g. for a mass equal to the bar's, beta L = 0.8603, 3.4256, 6.4373).
+- A bar on a mass-spring support (mass m, spring k to the ground) at x = 0, free at L:
+  k - m w^2 = E A beta tan(beta L); the **rigid limit** E -> infinity gives the single degree
+  of freedom w^2 = k / (m + rho A L) (:func:`rigid_limit_frequency`), with the first correction
+  w^2 = k/(m + m_b) (1 - k m_b^2/(3 E A/L (m + m_b)^2) + ...) (m_b = rho A L; the bar's
+  compliance L/(E A) in series, weighted by its mass distribution) -- not used by the tests,
+  which compare with the determinant.
+
+**Euler-Bernoulli beam** (bending stiffness E I, mass per length rho A; beta^4 = rho A w^2/(E I)):
+w = a_1 cos + a_2 sin + a_3 cosh + a_4 sinh (beta x); ``"clamped"`` (w = w' = 0), ``"free"``
+(w'' = w''' = 0) or an :class:`Attachment` moving with the end's deflection (no moment:
+w'' = 0, force of the beam on the component -E I w'''(0) at x = 0, +E I w'''(L) at x = L).
+Clamped-free: 1 + cos(bL) cosh(bL) = 0, bL = 1.8751, 4.6941, 7.8548; with a tip mass m:
+1 + cos cosh + (m/(rho A L)) bL (cos sinh - sin cosh) = 0 (:func:`beam_tip_mass_equation`).
+In 2D (plane strain) the beam's E is E/(1 - nu^2); plane stress and 3D: E.
+
+**Feedback on a bar** (:func:`controlled_bar_roots`, the ``eld-control`` set-up): the bar's end
+x = 0 is held by a base (mass m_b, spring k_b to the ground) driven by an actuator force
+f = -H(s) u(L) from the tip's displacement u(L) (velocity feedback: H = k_v s; PD on the tip
+velocity with a filtered derivative: H = s (k_p + k_d s/(1 + T_f s))); the tip x = L is free.
+With u = phi(x) e^{s t}, phi = a cosh(s x/c) + b sinh(s x/c):
+
+    phi'(L) = 0,   (m_b s^2 + k_b) phi(0) = E A phi'(0) - H(s) phi(L).
+
+Its roots s = -alpha + i w near the uncontrolled i w_1 give the decay rate alpha of the first
+mode (complex Newton from i w_1). For small gains the first-order perturbation is the modal
+formula (:func:`first_mode_decay_rate`)
+
+    alpha_1 = Re[H(i w_1)/(i w_1)] W_1 U_1 / (2 m_1),
+
+W_1, U_1 the base and tip amplitudes of the first mode, m_1 = m_b W_1^2 + rho A int phi_1^2 its
+modal mass; for velocity feedback alpha_1 = k_v W_1 U_1/(2 m_1) > 0 when base and tip move in
+phase (the first mode), while modes with W U < 0 are destabilized (spillover of non-collocated
+feedback): what the ``eld-control`` example must show against the analytic rates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from ..errors import check_int, check_positive, fail
+from .components import Component, check_spd
+
+ENDS = ("clamped", "free")
+
+
+@dataclass
+class Attachment:
+    """A linear component (mass M, stiffness K; damping ignored: undamped frequencies) tied to
+    an end of a bar or beam by its coordinate ``at`` (moving with the end's displacement)."""
+
+    mass: np.ndarray
+    stiffness: np.ndarray
+    at: int = 0
+
+    def __post_init__(self):
+        self.mass = check_spd("mass", np.atleast_2d(np.asarray(self.mass, dtype=float)))
+        m = self.mass.shape[0]
+        K = np.asarray(self.stiffness, dtype=float)
+        self.stiffness = np.zeros((m, m)) + (
+            K if K.ndim == 2 else np.diag(np.atleast_1d(K)) if K.size == m else float(K) * np.eye(m)
+        )
+        self.at = check_int("at", self.at)
+        if not 0 <= self.at < m:
+            raise fail("at", self.at, f"must be a coordinate index 0..{m - 1}")
+
+    @classmethod
+    def of(cls, component: Component, at: int = 0) -> Attachment:
+        """From a linear component (its mass and stiffness)."""
+        if not component.is_linear:
+            raise fail("component", component.name, "must be linear for frequencies")
+        return cls(component.mass, component.stiffness, at)
+
+    @classmethod
+    def point_mass(cls, m: float) -> Attachment:
+        return cls(np.array([[check_positive("mass", m)]]), np.zeros((1, 1)))
+
+    @classmethod
+    def mass_spring(cls, m: float, k: float) -> Attachment:
+        """A mass on a spring to the ground, tied to the end."""
+        return cls(np.array([[check_positive("mass", m)]]), np.array([[float(k)]]))
+
+    @classmethod
+    def suspended(cls, m_end: float, m: float, k: float) -> Attachment:
+        """A mass m_end at the end carrying a mass m on a spring k (a tuned mass damper)."""
+        return cls(
+            np.diag([check_positive("m_end", m_end), check_positive("mass", m)]),
+            np.array([[k, -k], [-k, k]], dtype=float),
+            at=0,
+        )
+
+
+def _end(name, value):
+    if isinstance(value, Attachment):
+        return value
+    if value not in ENDS:
+        raise fail(name, value, "must be 'clamped', 'free' or an Attachment")
+    return value
+
+
+def _find_roots(f, w_max: float, count: int, n_grid: int) -> np.ndarray:
+    """The first ``count`` sign changes of f on (0, w_max], refined by Brent's method."""
+    w = np.linspace(w_max / n_grid, w_max, n_grid)
+    vals = np.array([f(x) for x in w])
+    roots = []
+    for k in range(n_grid - 1):
+        if vals[k] == 0.0:
+            roots.append(w[k])
+        elif vals[k] * vals[k + 1] < 0:
+            roots.append(brentq(f, w[k], w[k + 1], xtol=1e-14 * w[k + 1], rtol=1e-15, maxiter=200))
+        if len(roots) == count:
+            break
+    return np.asarray(roots)
+
+
+def bar_frequencies(
+    length: float,
+    E: float,
+    rho: float,
+    *,
+    area: float = 1.0,
+    left="clamped",
+    right="free",
+    count: int = 3,
+    w_max: float | None = None,
+    n_grid: int = 4000,
+) -> np.ndarray:
+    """The first ``count`` angular frequencies of a longitudinal bar with the given ends
+    (module docstring): 'clamped', 'free' or an :class:`Attachment` at each end."""
+    L = check_positive("length", length)
+    E = check_positive("E", E)
+    rho = check_positive("rho", rho)
+    A = check_positive("area", area)
+    count = check_int("count", count, minimum=1)
+    left, right = _end("left", left), _end("right", right)
+    if left == "free" and right == "free":
+        raise fail("left", left, "and right both free: the bar is not held (rigid motion)")
+    c = np.sqrt(E / rho)
+    EA = E * A
+    m0 = left.mass.shape[0] if isinstance(left, Attachment) else 0
+    mL = right.mass.shape[0] if isinstance(right, Attachment) else 0
+    size = 2 + m0 + mL
+
+    def det(w):
+        beta = w / c
+        M = np.zeros((size, size))
+        row = 0
+        for x, end, off, sgn in ((0.0, left, 2, +1.0), (L, right, 2 + m0, -1.0)):
+            cb, sb = np.cos(beta * x), np.sin(beta * x)
+            phi = np.array([cb, sb])
+            dphi = beta * np.array([-sb, cb])  # phi' (N = E A phi')
+            if end == "clamped":
+                M[row, :2] = phi
+                row += 1
+            elif end == "free":
+                M[row, :2] = dphi / beta
+                row += 1
+            else:
+                m = end.mass.shape[0]
+                # phi(end) - q_at = 0
+                M[row, :2] = phi
+                M[row, off + end.at] = -1.0
+                row += 1
+                # (K - w^2 M) q - sgn N e_at = 0
+                M[row : row + m, off : off + m] = end.stiffness - w * w * end.mass
+                M[row + end.at, :2] -= sgn * EA * dphi
+                row += m
+        return np.linalg.det(M)
+
+    if w_max is None:
+        w_max = (count + 2) * np.pi * c / L
+    return _find_roots(det, w_max, count, n_grid)
+
+
+def tip_mass_roots(mass_ratio: float, count: int = 3) -> np.ndarray:
+    """The roots x_k of x tan x = mass_ratio (= rho A L / m_tip), one in each
+    (k pi, k pi + pi/2): the frequencies of a clamped bar with a tip mass are
+    w_k = x_k c / L."""
+    mu = check_positive("mass_ratio", mass_ratio)
+    count = check_int("count", count, minimum=1)
+    return np.array(
+        [
+            brentq(
+                lambda x: x * np.sin(x) - mu * np.cos(x),
+                k * np.pi,
+                k * np.pi + np.pi / 2,
+                xtol=1e-15,
+            )
+            for k in range(count)
+        ]
+    )
+
+
+def rigid_limit_frequency(stiffness: float, *masses: float) -> float:
+    """w = (k / sum of the masses)^{1/2}: a rigid body on a spring (the limit of a stiff
+    elastic body on a mass-spring)."""
+    k = check_positive("stiffness", stiffness)
+    m = sum(check_positive("masses", x) for x in masses)
+    return float(np.sqrt(k / m))
+
+
+def beam_frequencies(
+    length: float,
+    EI: float,
+    rho_A: float,
+    *,
+    left="clamped",
+    right="free",
+    count: int = 3,
+    w_max: float | None = None,
+    n_grid: int = 4000,
+) -> np.ndarray:
+    """The first angular frequencies of an Euler-Bernoulli beam (bending stiffness EI, mass
+    per length rho_A) with 'clamped', 'free' or :class:`Attachment` ends (translational:
+    module docstring)."""
+    L = check_positive("length", length)
+    EI = check_positive("EI", EI)
+    rA = check_positive("rho_A", rho_A)
+    count = check_int("count", count, minimum=1)
+    left, right = _end("left", left), _end("right", right)
+    m0 = left.mass.shape[0] if isinstance(left, Attachment) else 0
+    mL = right.mass.shape[0] if isinstance(right, Attachment) else 0
+    size = 4 + m0 + mL
+
+    def derivs(b, x):
+        """(4, 4): rows w, w', w'', w''' of the basis cos, sin, cosh, sinh (beta x)."""
+        c, s, ch, sh = np.cos(b * x), np.sin(b * x), np.cosh(b * x), np.sinh(b * x)
+        return np.array(
+            [
+                [c, s, ch, sh],
+                [-b * s, b * c, b * sh, b * ch],
+                [-(b**2) * c, -(b**2) * s, b**2 * ch, b**2 * sh],
+                [b**3 * s, -(b**3) * c, b**3 * sh, b**3 * ch],
+            ]
+        )
+
+    def det(w):
+        b = (rA * w * w / EI) ** 0.25
+        M = np.zeros((size, size))
+        row = 0
+        for x, end, off, sgn in ((0.0, left, 4, -1.0), (L, right, 4 + m0, +1.0)):
+            D = derivs(b, x) / np.array([1.0, b, b**2, b**3])[:, None] / np.cosh(b * L)
+            if end == "clamped":
+                M[row : row + 2, :4] = D[:2]
+                row += 2
+            elif end == "free":
+                M[row : row + 2, :4] = D[2:]
+                row += 2
+            else:
+                m = end.mass.shape[0]
+                M[row, :4] = D[2]  # no moment
+                M[row + 1, :4] = D[0]  # w(end) = q_at
+                M[row + 1, off + end.at] = -1.0 / np.cosh(b * L)
+                row += 2
+                # (K - w^2 M) q = (force of the beam on the component) e_at, i.e. with the
+                # rows scaled like D: (K - w^2 M)/(E I b^3 cosh(bL)) q - sgn D[3] e_at = 0
+                M[row : row + m, off : off + m] = (end.stiffness - w * w * end.mass) / (
+                    EI * b**3 * np.cosh(b * L)
+                )
+                M[row + end.at, :4] -= sgn * D[3]
+                row += m
+        return np.linalg.det(M)
+
+    if w_max is None:
+        w_max = ((count + 1.5) * np.pi / L) ** 2 * np.sqrt(EI / rA)
+    return _find_roots(det, w_max, count, n_grid)
+
+
+def beam_tip_mass_equation(lam: float, mass_ratio: float) -> float:
+    """1 + cos(l) cosh(l) + mu l (cos(l) sinh(l) - sin(l) cosh(l)): zero at l = beta L of a
+    clamped beam with a tip mass mu rho A L (no rotary inertia)."""
+    c, s, ch, sh = np.cos(lam), np.sin(lam), np.cosh(lam), np.sinh(lam)
+    return 1.0 + c * ch + mass_ratio * lam * (c * sh - s * ch)
+
+
+def _controlled_char(s, L, E, rho, A, m_b, k_b, H, b=0.0):
+    """det of the 3 x 3 system in (a, b, W) of the controlled bar (module docstring); with
+    Kelvin-Voigt damping sigma = E (eps + b eps') the modulus is E (1 + b s)."""
+    Es = E * (1.0 + b * s)
+    c = np.sqrt(Es / rho + 0j)
+    z = s * L / c
+    ch, sh = np.cosh(z), np.sinh(z)
+    EA = Es * A
+    # phi = a cosh(s x/c) + b sinh(s x/c); phi'(x) = (s/c)(a sinh + b cosh)
+    M = np.array(
+        [
+            [1.0, 0.0, -1.0],  # phi(0) = W
+            [sh, ch, 0.0],  # phi'(L) = 0 (divided by s/c)
+            [0.0, -EA * s / c, m_b * s * s + k_b],  # (m_b s^2 + k_b) W - E A phi'(0) + H phi(L)
+        ],
+        dtype=complex,
+    )
+    M[2, 0] += H(s) * ch
+    M[2, 1] += H(s) * sh
+    return np.linalg.det(M) / np.cosh(z)
+
+
+def controlled_bar_roots(
+    length: float,
+    E: float,
+    rho: float,
+    *,
+    area: float = 1.0,
+    base_mass: float,
+    base_stiffness: float = 0.0,
+    H=None,
+    kelvin_voigt: float = 0.0,
+    count: int = 2,
+) -> np.ndarray:
+    """The roots s = -alpha + i w of the controlled bar (module docstring) near the first
+    ``count`` uncontrolled frequencies; H(s) the feedback's transfer function from the tip
+    displacement to the actuator force (None: no feedback); ``kelvin_voigt`` b of the bar's
+    stiffness-proportional damping (Rayleigh b K: the modulus E (1 + b s))."""
+    L = check_positive("length", length)
+    E = check_positive("E", E)
+    rho = check_positive("rho", rho)
+    A = check_positive("area", area)
+    mb = check_positive("base_mass", base_mass)
+    kb = float(base_stiffness)
+    kv = float(kelvin_voigt)
+    H0 = (lambda s: 0.0) if H is None else H
+    free = bar_frequencies(
+        L,
+        E,
+        rho,
+        area=A,
+        left=Attachment.mass_spring(mb, kb),
+        right="free",
+        count=count + (1 if kb == 0 else 0),
+    )
+    if kb == 0:
+        free = free[free > 1e-9 * free.max()][:count]
+    out = []
+    for w in free:
+        s = 1j * w
+        for _ in range(100):
+            f = _controlled_char(s, L, E, rho, A, mb, kb, H0, kv)
+            h = 1e-7 * abs(s)
+            df = (
+                _controlled_char(s + h, L, E, rho, A, mb, kb, H0, kv)
+                - _controlled_char(s - h, L, E, rho, A, mb, kb, H0, kv)
+            ) / (2 * h)
+            step = f / df
+            s = s - step
+            if abs(step) < 1e-13 * abs(s):
+                break
+        else:  # pragma: no cover - Newton from the uncontrolled root
+            raise RuntimeError("controlled_bar_roots: Newton did not converge")
+        out.append(s)
+    return np.asarray(out)
+
+
+def bar_mode(length: float, E: float, rho: float, w: float, *, area: float = 1.0, n: int = 2001):
+    """Base and tip amplitudes (W, U) and the modal mass of the mode of the base-mounted,
+    free-tipped bar at frequency w, normalized to W = 1: phi = cos(beta (L - x))/cos(beta L).
+    Returns (W, U, rho A int phi^2 dx)."""
+    c = np.sqrt(E / rho)
+    beta = w / c
+    x = np.linspace(0.0, length, n)
+    phi = np.cos(beta * (length - x)) / np.cos(beta * length)
+    integral = float(np.sum((phi[1:] ** 2 + phi[:-1] ** 2) / 2 * np.diff(x)))  # trapezoid
+    return 1.0, float(phi[-1]), rho * area * integral
+
+
+def first_mode_decay_rate(
+    length: float,
+    E: float,
+    rho: float,
+    *,
+    area: float = 1.0,
+    base_mass: float,
+    base_stiffness: float = 0.0,
+    H,
+) -> float:
+    """alpha_1 = Re[H(i w_1)/(i w_1)] W_1 U_1 / (2 m_1) (module docstring): the first-order
+    decay rate of the first mode under feedback H (for small gains)."""
+    w1 = controlled_bar_roots(
+        length,
+        E,
+        rho,
+        area=area,
+        base_mass=base_mass,
+        base_stiffness=base_stiffness,
+        H=None,
+        count=1,
+    )[0].imag
+    W, U, m_bar = bar_mode(length, E, rho, w1, area=area)
+    m1 = base_mass * W**2 + m_bar
+    return float((H(1j * w1) / (1j * w1)).real * W * U / (2 * m1))
