@@ -497,6 +497,19 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
             E + r"--refine-fraction \+ --coarsen-fraction: got 0.7 \+ 0.4 = 1.1, must be <= 1",
         ),
         (["--adapt-space", "--max-dofs", "10"], E + r"--max-dofs: got 10, must be >= the 25 d"),
+        (["--coarsen-delay", "2"], E + r"--coarsen-delay: got 2, is used by --adapt-space only"),
+        (
+            ["--adapt-space", "--coarsen-delay", "-1"],
+            E + r"--coarsen-delay: got -1, must be an integer >= 0",
+        ),
+        (
+            ["--adapt-space", "--refine-band", "-0.1"],
+            E + r"--refine-band: got -0.1, must be >= 0 \(a length\)",
+        ),
+        (
+            ["--adapt-space", "--coarsen-batch", "1"],
+            E + r"--coarsen-batch: got 1(\.0)?, must be in \[0, 1\)",
+        ),
     ],
 )
 def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
@@ -586,6 +599,14 @@ def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["adapt_space"]["max_dofs"] == 400
     assert summary["n_meshes"] > 2 and abs(summary["t_final"] - 1.0) <= 1e-10
+    # the ledger of the mesh changes against the path's dissipation (issue 18, item 0)
+    traj_ = Trajectory.load_npz(out / "trajectory.npz")
+    assert summary["relax_energy_sum"] == pytest.approx(float(np.sum(traj_["relax_energy"])))
+    assert summary["dissipation_sum"] == pytest.approx(float(np.sum(traj_["dissipation"])))
+    assert summary["dissipation_sum"] > 0.0 and summary["relax_dissipation_sum"] >= 0.0
+    assert summary["transfer_energy_abs_sum"] >= abs(summary["transfer_energy_sum"])
+    assert 0 <= summary["max_recoarsened"] <= 2  # the RIS default max_recoarsen
+    assert summary["relax_refused"] >= 0
     traj = Trajectory.load_npz(out / "trajectory.npz")
     for mesh_id in set(traj["z_mesh_id"].tolist()):
         points, cells = traj.meshes.mesh(mesh_id)
@@ -624,3 +645,25 @@ def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
         "--max-dofs MAX_DOFS cap on the degrees of freedom of the finite-element space after "
         f"an adaptation (default {number}" in help_text
     )
+
+
+def test_the_hysteresis_options_are_those_of_ris_only(capsys):
+    # RIS's adapt cycle has hysteresis (rothe.ris.adapt.HYSTERESIS); ELD's has none, so its
+    # parser and help have no such options
+    def help_of(command):
+        capsys.readouterr()
+        try:
+            main(["run", command, "--help"])
+        except SystemExit:
+            pass
+        return " ".join(capsys.readouterr().out.split())
+
+    for command in ("ris-2d", "ris-3d", "ris-front"):
+        text = help_of(command)
+        assert "adaptations do not coarsen (default 4)" in text
+        assert "refined and coarsened again at most k times (default 2)" in text
+        assert "--refine-band" in text and "--coarsen-batch" in text
+    for command in ("eld-mms", "eld-beam", "eld-pulse"):
+        text = help_of(command)
+        for option in ("--refine-band", "--coarsen-delay", "--max-recoarsen", "--coarsen-batch"):
+            assert option not in text

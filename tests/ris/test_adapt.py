@@ -151,7 +151,11 @@ def test_nothing_marked_is_the_fixed_mesh_run_bit_for_bit():
 
 def test_the_front_example_coarsens_behind_its_front():
     """The refined band follows the front: the dofs rise while it crosses and fall after it
-    passed; the final mesh has cells of the initial level where the front was."""
+    passed; the final mesh has cells of the initial level where the front was.
+
+    Counted where the front has been and nothing else is (x < 0.75): the boundary layer at the
+    Dirichlet side x = 1 is static and stays refined (it is resolved further once the state
+    behind the front has arrived there)."""
     p = example_front(4, T=1.0)
     traj = run_ris(
         p, Uniform(0.1), inner=DIRECT, adapt=front_options(max_dofs=400, space_tol=3.0)
@@ -159,7 +163,11 @@ def test_the_front_example_coarsens_behind_its_front():
     dofs = np.asarray(traj["n_dofs"])
     peak = int(np.argmax(dofs))
     assert dofs[peak] > 2 * dofs[0]
-    assert dofs[-1] < 0.7 * dofs[peak]  # coarsened after the front passed
+
+    def behind(i):  # mesh nodes away from the Dirichlet side
+        return int(np.count_nonzero(traj.meshes.mesh(traj["mesh_id"][i])[0][:, 0] < 0.75))
+
+    assert behind(len(dofs) - 1) < 0.7 * behind(peak)  # coarsened after the front passed
     assert np.all(np.asarray(traj["z"][-1]) <= 1e-12)  # the whole square flipped
     points, cells = traj.meshes.mesh(traj["z_mesh_id"][peak])
     last_points, last_cells = traj.meshes.mesh(traj["z_mesh_id"][-1])
@@ -201,7 +209,7 @@ def test_checkpoint_round_trip_continues_bit_for_bit():
     stepper, controller = fresh()
     traj = initial_trajectory(p, {}, stepper.adaptivity)
     state = RISState(s=0.0, t=0.0, z=p.z0.copy())
-    state = _run_to(stepper, controller, traj, state, 0.3)
+    state = _run_to(stepper, controller, traj, state, 0.4)  # after several mesh changes
     assert stepper.adaptivity.mesh_id >= 2
     saved = copy.deepcopy((stepper.checkpoint_state(state), controller.checkpoint_state()))
     a_traj, b_traj = Trajectory(), Trajectory()

@@ -8,6 +8,11 @@ every command: the **degrees of freedom of the finite-element space** of the unk
 an adaptation (RIS's P1 scalar field: its nodes; ELD's P_k vector field: components x nodes of
 degree k; the multiplier is not counted). Its default is the command's cap, or twice the initial
 mesh's dofs when that is more (:func:`fit_default_cap`).
+
+A family whose adapt cycle has hysteresis (RIS: ``hysteresis=`` its defaults) also gets
+``--refine-band``, ``--coarsen-delay``, ``--max-recoarsen``, ``--coarsen-batch``
+(:mod:`rothe.fem.adapt.hysteresis`, :mod:`rothe.fem.adapt.marking`); the others' options and
+help stay without them.
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ SPACE_OPTIONS = (
     "--max-dofs",
     "--adapt-every",
 )
+#: the hysteresis options of a family that has them (``hysteresis=``; unset: its defaults)
+HYSTERESIS_OPTIONS = ("--refine-band", "--coarsen-delay", "--max-recoarsen", "--coarsen-batch")
 #: defaults of the marking options (those of SpaceAdaptivity: the help texts state them)
 MARKING_DEFAULTS = {
     "refine_fraction": SpaceAdaptivity.refine_fraction,
@@ -46,9 +53,13 @@ def add_space_options(
     default_tol: float | None = None,
     default_max_dofs: int | None = None,
     indicator: str = "the step's residual indicator",
+    hysteresis: dict | None = None,
 ) -> None:
     """--adapt-space (``on``: adapting by default, --no-adapt-space keeps the mesh) and its
-    options, read by :func:`space_adaptivity`; help texts state the defaults the run uses."""
+    options, read by :func:`space_adaptivity`; help texts state the defaults the run uses.
+    ``hysteresis``: the family's defaults of the hysteresis options (``coarsen_delay``,
+    ``max_recoarsen``, ``refine_band``, ``coarsen_batch``; missing ones: off), which adds
+    those options; None: a family without them."""
     parser.add_argument(
         "--adapt-space",
         action=argparse.BooleanOptionalAction if on else "store_true",
@@ -98,15 +109,52 @@ def add_space_options(
         default=None,
         help=f"adapt after every k-th accepted step (default {MARKING_DEFAULTS['adapt_every']})",
     )
+    if hysteresis is None:
+        return
+    delay, recoarsen = hysteresis.get("coarsen_delay", 0), hysteresis.get("max_recoarsen")
+    float_option(
+        parser,
+        "--refine-band",
+        default=None,
+        help="refine a band of this width around the refined cells with them, a length "
+        f"(default {hysteresis.get('refine_band', 0):g})",
+    )
+    parser.add_argument(
+        "--coarsen-delay",
+        type=int,
+        default=None,
+        help=f"cells refined in the last k adaptations do not coarsen (default {delay})",
+    )
+    parser.add_argument(
+        "--max-recoarsen",
+        type=int,
+        default=None,
+        help="a cell is refined and coarsened again at most k times "
+        f"(default {_number(recoarsen)})",
+    )
+    float_option(
+        parser,
+        "--coarsen-batch",
+        default=None,
+        help="an adaptation that only coarsens needs this share of the cells marked "
+        f"(default {hysteresis.get('coarsen_batch', 0):g})",
+    )
 
 
 def space_adaptivity(
-    args, *, default_tol: float | None = None, default_max_dofs: int | None = None
+    args,
+    *,
+    default_tol: float | None = None,
+    default_max_dofs: int | None = None,
+    hysteresis: bool = False,
 ) -> SpaceAdaptivity | None:
     """The SpaceAdaptivity of the --adapt-space options, or None without --adapt-space (an
     option given then is refused in one line). Bad values are refused by SpaceAdaptivity itself
-    and renamed to their option by the command line."""
-    values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in SPACE_OPTIONS}
+    and renamed to their option by the command line. ``hysteresis``: the parser has the
+    hysteresis options (:func:`add_space_options`); unset ones stay None (the family's
+    defaults)."""
+    options = SPACE_OPTIONS + (HYSTERESIS_OPTIONS if hysteresis else ())
+    values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in options}
     if not args.adapt_space:
         for option, value in values.items():
             if value is not None:
@@ -120,6 +168,8 @@ def space_adaptivity(
         for key in MARKING_DEFAULTS
         if values["--" + key.replace("_", "-")] is not None
     }
+    if hysteresis:
+        kw.update({o.lstrip("-").replace("-", "_"): values[o] for o in HYSTERESIS_OPTIONS})
     max_dofs = values["--max-dofs"] if values["--max-dofs"] is not None else default_max_dofs
     return SpaceAdaptivity(space_tol=tol, max_dofs=max_dofs, **kw)
 

@@ -11,7 +11,8 @@ scheme at the same global residual (:func:`compare_rows`).
 ``run ris-front`` is a phase front crossing the unit square (space adaptivity pays there).
 
 ``--adapt-space`` (with ``--space-tol``, ``--refine-fraction``, ``--coarsen-fraction``,
-``--max-dofs``, ``--adapt-every``) adapts the mesh between steps
+``--max-dofs``, ``--adapt-every``, ``--refine-band``, ``--coarsen-delay``, ``--max-recoarsen``,
+``--coarsen-batch``) adapts the mesh between steps
 (:mod:`rothe.ris.adapt`); the run then writes every distinct mesh into trajectory.npz,
 ``solution.pvd`` + one VTU per state (its own mesh) instead of solution.xdmf, the dofs against
 t and s (``fig_dofs.png``) and snapshots of mesh and z (``fig_mesh_snapshots.png``).
@@ -33,6 +34,7 @@ from ..io.mesh_series import write_vtu_series
 from ..io.xdmf import write_series
 from ..parallel import Task, TaskFailed
 from ..ris import examples
+from ..ris.adapt import HYSTERESIS
 from ..ris.inner import InnerOptions, amg_threshold_for
 from ..ris.run import run_ris, stored_states
 from ..ris.summary import (
@@ -212,6 +214,7 @@ class _RunRISFem(RISRunBase):
             default_tol=self.default_space_tol,
             default_max_dofs=self.default_max_dofs,
             indicator="the step's residual indicator (docs/ris_fem.md)",
+            hysteresis=HYSTERESIS,
         )
 
     amplitude_help = (
@@ -240,7 +243,10 @@ class _RunRISFem(RISRunBase):
         if args.adapt_space and args.mesh is not None:  # before loading: a quad file is named so
             check_adaptable(args.mesh, "--adapt-space")
         self._adapt = space_adaptivity(
-            args, default_tol=self.default_space_tol, default_max_dofs=self.default_max_dofs
+            args,
+            default_tol=self.default_space_tol,
+            default_max_dofs=self.default_max_dofs,
+            hysteresis=True,
         )
         if self._adapt is not None and args.max_dofs is not None:
             check_memory("--max-dofs", args.max_dofs, args.max_dofs, RIS_BYTES_PER_NODE[self.dim])
@@ -314,6 +320,14 @@ class _RunRISFem(RISRunBase):
                 n_dofs_max=int(dofs.max()),
                 dofs_summed=int(dofs[1:].sum()),
                 transfer_energy_sum=float(np.sum(traj["transfer_energy"])),
+                # the ledger of the mesh changes against the path's own dissipation
+                # (rothe.ris.adapt: the relaxation at fixed t is no step of the path)
+                transfer_energy_abs_sum=float(np.sum(np.abs(traj["transfer_energy"]))),
+                relax_energy_sum=float(np.sum(traj["relax_energy"])),
+                relax_dissipation_sum=float(np.sum(traj["relax_dissipation"])),
+                dissipation_sum=float(np.sum(traj["dissipation"])),
+                relax_refused=traj.meta.get("relax_refused"),
+                max_recoarsened=traj.meta.get("max_recoarsened"),
             )
         return extra
 

@@ -328,7 +328,7 @@ class BallStepSolver:
         return out + hess_F * v
 
     # -- init / step / terminate --------------------------------------------------------------
-    def init(self, t: float, zprev: np.ndarray, tau: float, hint=None) -> InnerState:
+    def init(self, t: float, zprev: np.ndarray, tau: float, hint=None, start=None) -> InnerState:
         """State at d = 0 (z = z_{k-1}). ``hint``: an increment tried as the first candidate.
 
         The iteration always starts at z_{k-1} (it must: from there descent finds the stationary
@@ -336,8 +336,18 @@ class BallStepSolver:
         to the new tau -- is only a line-search candidate of the first iteration, taken if it
         lowers J; in a viscous jump it replaces a useless Newton step with the indefinite Hessian
         at the start of the step by a point on the sphere with a good multiplier.
+
+        ``start``: an increment to start from instead of 0 (scaled into the ball), for a solve
+        that must find the stationary point nearest a given point rather than the one nearest
+        z_{k-1}: the relaxation of a transferred state (:mod:`rothe.ris.adapt`). J never
+        increases from J(start) then.
         """
         d = np.zeros_like(zprev)
+        if start is not None:
+            d = np.array(start, dtype=float)
+            nd0 = self.p.norm_V(d)
+            if nd0 > tau:
+                d *= tau / nd0
         z, Az, g, J = self._evaluate(t, zprev, d)
         p = self.p
         scale = p.norm_Vinv(p.r) + p.norm_Vinv(g)
@@ -351,7 +361,10 @@ class BallStepSolver:
         # forward-backward backtracking starts from a long step (small c): it reaches the sphere
         # at once when the ball is active, and halves the step from there otherwise
         st.c_fb = max(1e-4 * self._c_scale, 1e-12)
-        st.kkt = kkt_residual(p, d, g, 0.0, tau)
+        if start is not None:
+            self._set_multiplier(st)
+        else:
+            st.kkt = kkt_residual(p, d, g, 0.0, tau)
         if hint is not None and np.any(hint):
             h = np.asarray(hint, dtype=float).copy()
             nh = p.norm_V(h)
@@ -425,10 +438,11 @@ class BallStepSolver:
         cand = st.d * (st.tau / nd)
         return self._line_search(st, cand, None, sphere=True, full_only=True)
 
-    def solve(self, t: float, zprev: np.ndarray, tau: float, hint=None) -> InnerResult:
+    def solve(self, t: float, zprev: np.ndarray, tau: float, hint=None, start=None) -> InnerResult:
         """The step (3.1)-(3.2) from ``zprev`` at time ``t`` on the ball of radius ``tau``
-        (``hint``: a candidate increment tried once, e.g. the previous step's)."""
-        st = self.init(t, zprev, tau, hint)
+        (``hint``: a candidate increment tried once, e.g. the previous step's; ``start``: the
+        first iterate, e.g. a transferred state to relax)."""
+        st = self.init(t, zprev, tau, hint, start)
         while True:
             done, code = self.terminate(st)
             if done:

@@ -186,9 +186,7 @@ def _evolve(
         traj.meta["linear_solver"] = stepper.solver.linear.kind_used
         adaptivity = stepper.adaptivity
         if adaptivity is not None:
-            traj.meta["space_adaptations"] = adaptivity.adaptations
-            traj.meta["transfer_failures"] = adaptivity.transfer_failures
-            traj.meta["final_mesh_id"] = adaptivity.mesh_id
+            traj.meta.update(adaptivity.meta())  # space_adaptations, transfer_failures, ...
     _keep_last_z(stepper, traj, state)
     traj.meta["landing"] = landing_record(stepper, state)
     return state

@@ -203,7 +203,7 @@ class RISStepper:
         # meshes that change between steps (rothe.ris.adapt): None keeps the mesh of ``problem``
         self.adaptivity: RISAdaptivity | None = None
         if adapt is not None:
-            self.adaptivity = RISAdaptivity(problem, adapt, times=self.times)
+            self.adaptivity = RISAdaptivity(problem, adapt, times=self.times, inner=inner)
         self._adapted: RISAdaptStep | None = None  # what the last adapt step did
         self._inner = inner
         self._start: tuple[float, np.ndarray] | None = None  # (t, z) the attempts start from
@@ -401,7 +401,7 @@ class RISStepper:
         state; the accepted one is never changed); otherwise ``state`` itself."""
         self._adapted = None
         adaptivity = self.adaptivity
-        if adaptivity is None or not adaptivity.options.due(state.k) or self.finished(state):
+        if adaptivity is None or self.finished(state):  # due or not: RISAdaptivity.adapt
             return state
         t_prev, z_prev = self._start
         out = adaptivity.adapt(
@@ -413,6 +413,8 @@ class RISStepper:
             result.increment,
             state.t,
             result.energy,
+            step=state.k,
+            tau=result.tau,
         )
         self._adapted = out
         if not out.changed:
@@ -423,7 +425,8 @@ class RISStepper:
 
     def record(self, traj: Trajectory, result: RISStepResult, state: RISState) -> None:
         """The accepted step ``result`` (on its own mesh) and, with space adaptivity, what the
-        adapt step did (``transfer_energy``); ``state`` is the state the run goes on from."""
+        adapt step did (``transfer_energy``, ``relax_energy``, ...); ``state`` is the state the
+        run goes on from."""
         st = result.state
         adapted = self._adapted
         increment = adapted.increment if adapted is not None else result.increment
@@ -451,7 +454,7 @@ class RISStepper:
         )
         if adaptive:
             traj.append(mesh_id=result.mesh_id, n_dofs=result.problem.n)
-            traj.append(transfer_energy=adapted.transfer_energy if adapted is not None else 0.0)
+            traj.append(**self.adaptivity.ledger(adapted, result))  # transfer_energy, relax_...
 
     def where(self, state: RISState, result: RISStepResult | None) -> dict:
         """Where the run is (step, s, t, the mesh) and what the attempt ``result`` gave."""

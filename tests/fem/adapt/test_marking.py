@@ -13,6 +13,7 @@ from rothe.fem.adapt import AdaptiveMesh
 from rothe.fem.adapt.marking import (
     SpaceAdaptivity,
     adapt_mesh,
+    band_marking,
     coarsen_marking,
     doerfler_marking,
 )
@@ -87,6 +88,24 @@ def test_mark_refines_only_above_the_tolerance_and_never_both():
         ({"space_tol": 1.0, "adapt_every": 0}, r"^adapt_every: got 0, must be an integer >= 1$"),
         ({"space_tol": 1.0, "max_dofs": 0}, r"^max_dofs: got 0, must be an integer >= 1$"),
         ({"space_tol": "x"}, r"^space_tol: got 'x', must be a real number$"),
+        (
+            {"space_tol": 1.0, "coarsen_delay": -1},
+            r"^coarsen_delay: got -1, must be an integer >= 0$",
+        ),
+        ({"space_tol": 1.0, "max_recoarsen": 1.5}, r"^max_recoarsen: got 1.5, must be an integer$"),
+        (
+            {"space_tol": 1.0, "refine_band": -0.1},
+            r"^refine_band: got -0.1, must be >= 0 \(a length\)$",
+        ),
+        (
+            {"space_tol": 1.0, "refine_band": float("nan")},
+            r"^refine_band: got nan, must be finite$",
+        ),
+        ({"space_tol": 1.0, "coarsen_batch": 1.0}, r"^coarsen_batch: got 1, must be in \[0, 1\)$"),
+        (
+            {"space_tol": 1.0, "coarsen_batch": -0.5},
+            r"^coarsen_batch: got -0.5, must be in \[0, 1\)$",
+        ),
     ],
 )
 def test_bad_options_are_one_line_errors(kwargs, message):
@@ -115,6 +134,47 @@ def test_refusals_name_the_parameter_and_the_dof_cap_of_the_initial_mesh():
     ):
         SpaceAdaptivity(space_tol=1, max_dofs=100).check_mesh(am, 2, 2)
     assert SpaceAdaptivity(space_tol=1, max_dofs=162).check_mesh(am, 2, 2) == 162
+
+
+def test_hysteresis_and_band_options_are_kept_only_when_set():
+    """The new options are additive: unset, a description (and so a checkpoint's arguments)
+    is what it was; set, they are in it."""
+    plain = SpaceAdaptivity(space_tol=1.0).describe()
+    assert set(plain) == {
+        "space_tol",
+        "refine_fraction",
+        "coarsen_fraction",
+        "max_dofs",
+        "adapt_every",
+        "max_level",
+        "coarsen_rounds",
+    }
+    full = SpaceAdaptivity(
+        space_tol=1.0, coarsen_delay=3, max_recoarsen=0, refine_band=0.05, coarsen_batch=0.1
+    ).describe()
+    assert (
+        full["coarsen_delay"],
+        full["max_recoarsen"],
+        full["refine_band"],
+        full["coarsen_batch"],
+    ) == (3, 0, 0.05, 0.1)
+
+
+def test_band_marks_the_cells_near_the_core_below_its_target():
+    am = AdaptiveMesh(meshes.unit_square(8))
+    x = am.points[am.cells].mean(axis=1)
+    core = np.abs(x[:, 0] - 0.5) < 0.05  # a column of cells
+    centres, target = x[core], am.levels[core] + 1
+    near, behind = band_marking(am.points, am.cells, am.levels, centres, target, 0.2)
+    d = np.abs(x[:, 0] - 0.5)
+    assert near[d < 0.15].all() and not near[d > 0.3].any()
+    assert np.array_equal(behind, near)  # everything is at level 0, the target is 1
+    am.refine(near)
+    x2 = am.points[am.cells].mean(axis=1)
+    near2, behind2 = band_marking(am.points, am.cells, am.levels, centres, target, 0.2)
+    assert near2.sum() > near.sum() and not behind2.any()  # the band has reached its target
+    assert not band_marking(am.points, am.cells, am.levels, centres, target, 0.0)[0].any()
+    assert np.all(np.abs(x2[near2, 0] - 0.5) < 0.3)
 
 
 def test_adapt_mesh_under_the_cap():

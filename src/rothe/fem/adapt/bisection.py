@@ -520,6 +520,19 @@ class AdaptiveMesh:
         """Bisection generation of every current cell (0 for cells of the initial mesh)."""
         return self._level[self._leaves].astype(np.int64)
 
+    def vertex_parents(self) -> np.ndarray:
+        """The edge each vertex bisects: (nv, 2) vertex numbers, -1 for the initial vertices.
+
+        Removing a vertex v (coarsening) replaces a P1 function by one that is affine on the
+        parent edge (a, b): its value at v changes by the hierarchical surplus
+        z_v - (z_a + z_b)/2, which a family can use to keep its state from being coarsened
+        away (:mod:`rothe.ris.adapt`)."""
+        out = np.full((self._nv, 2), -1, dtype=np.int64)
+        n = self._n
+        split = np.flatnonzero(self._child[:n] >= 0)
+        out[self._mid[split]] = self._cells[split, :2]
+        return out
+
     @property
     def boundary_names(self) -> list[str]:
         return sorted(self._parts)

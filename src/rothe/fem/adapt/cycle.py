@@ -9,15 +9,20 @@ after a step whose own estimate is too large) the family's stepper calls
    current mesh; the residual indicators of :mod:`rothe.ris.indicator` or
    :mod:`rothe.eld.indicator`);
 2. **mark**: :meth:`SpaceAdaptivity.mark` (Doerfler refinement while eta > space_tol, coarsening
-   of the cells carrying a coarsen_fraction share), or refinement only (``refine_only``);
+   of the cells carrying a coarsen_fraction share), or refinement only (``refine_only``); with
+   the hysteresis (:mod:`.hysteresis`), the refinement band, the coarsening batch
+   (:mod:`.marking`) and, if the family has it, ``family.keep_cells(problem, target, amesh)``
+   (a mask of cells that must not coarsen);
 3. **refine/coarsen**: :meth:`AdaptiveMesh.adapt` under the dof cap; nothing changed -> the cycle
    ends here and the run goes on exactly as on a fixed mesh;
 4. **rebuild**: ``family.rebuild(problem, mesh) -> new_problem`` (the same problem on the new
    mesh: operators, constraint, loads; the stepper's linear system with it);
 5. **transfer**: ``family.transfer(state, change, problem, new_problem) -> new_state`` (the
-   history through ``change.transfer``: exact on refinement, an injection on coarsening).
+   history through ``change.transfer``: exact on refinement, an injection on coarsening);
+6. **relax** (if the family has it): ``family.relax(new_problem, new_state) -> new_state``
+   (RIS: the transferred state made consistent with the step's equations again).
 
-Any exception in 1-5 (or a non-finite estimate) rolls the mesh hierarchy back to where it was
+Any exception in 1-6 (or a non-finite estimate) rolls the mesh hierarchy back to where it was
 and raises :class:`AdaptationFailed`: a failed adaptation never replaces the accepted state. The
 family decides what follows (RIS goes on on the step's mesh, ELD stops the run).
 
@@ -34,8 +39,9 @@ import numpy as np
 
 from ...errors import RotheInputError, described, fail
 from ...timing import PhaseTimes
-from .bisection import AdaptiveMesh, MeshChange
-from .marking import SpaceAdaptivity, doerfler_marking
+from .bisection import AdaptiveMesh, MeshChange, _compose
+from .hysteresis import VertexHistory
+from .marking import SpaceAdaptivity, band_marking, doerfler_marking
 
 
 class AdaptationFailed(RuntimeError):
@@ -85,6 +91,10 @@ class MeshAdaptation:
         The finite element whose dofs ``max_dofs`` counts (P``degree``, ``components`` fields).
     times : PhaseTimes, optional
         Where the phases are timed (a new one by default).
+    hysteresis : dict, optional
+        The family's defaults of ``coarsen_delay``, ``max_recoarsen``, ``refine_band`` and
+        ``coarsen_batch`` (used where the options leave them None; :mod:`.hysteresis`,
+        :mod:`.marking`); none: no hysteresis, no band, no batch.
     """
 
     def __init__(
@@ -95,6 +105,7 @@ class MeshAdaptation:
         degree: int = 1,
         components: int = 1,
         times: PhaseTimes | None = None,
+        hysteresis: dict | None = None,
     ):
         if not isinstance(options, SpaceAdaptivity):
             raise fail(
@@ -108,6 +119,18 @@ class MeshAdaptation:
         self.amesh = AdaptiveMesh(mesh)
         options.check_mesh(self.amesh, self.degree, self.components)
         self.times = times if times is not None else PhaseTimes()
+        defaults = dict(hysteresis or {})
+
+        def option(key, default):
+            value = getattr(options, key)
+            return value if value is not None else defaults.get(key, default)
+
+        self.coarsen_delay = int(option("coarsen_delay", 0))
+        self.max_recoarsen = option("max_recoarsen", None)
+        self.refine_band = float(option("refine_band", 0.0))
+        self.coarsen_batch = float(option("coarsen_batch", 0.0))
+        self.history = VertexHistory(self.amesh.n_vertices)
+        self._band = None  # (barycentres, target generations) of the band's core, when refining
 
     @property
     def mesh_id(self) -> int:
@@ -128,7 +151,8 @@ class MeshAdaptation:
         ``refine_only``: refine (Doerfler) while eta > space_tol, never coarsen. Returns an
         :class:`Adaptation`; raises :class:`AdaptationFailed` (hierarchy rolled back)."""
         opts, times = self.options, self.times
-        snapshot = self.amesh.checkpoint_state()
+        snapshot = history = None  # taken once the marks say the mesh may change
+        self._band = None
         try:
             with times.phase("estimate"):
                 eta = np.asarray(family.indicators(problem, target), dtype=float)
@@ -144,10 +168,16 @@ class MeshAdaptation:
                     )
                     coarsen = None
                 else:
-                    refine, coarsen = opts.mark(eta)
-            if refine is None:
+                    keep = getattr(family, "keep_cells", None)
+                    refine, coarsen = self._mark(
+                        eta, None if keep is None else keep(problem, target, self.amesh)
+                    )
+            if refine is None or not (np.any(refine) or (coarsen is not None and np.any(coarsen))):
+                self.history.cycles += 1
                 return Adaptation(False, estimate, eta=eta)
             with times.phase("refine"):
+                snapshot = self.amesh.checkpoint_state()
+                history = self.history.checkpoint_state()
                 change = self.amesh.adapt(
                     refine=refine,
                     coarsen=coarsen,
@@ -158,14 +188,25 @@ class MeshAdaptation:
                     priority=eta,
                     max_level=opts.max_level,
                 )
+                if self._band is not None and change.changed:
+                    change = self._refine_band(change)
             if not change.changed:
+                self.history.cycles += 1
                 return Adaptation(False, estimate, eta=eta)
+            self.history.observe(change)
+            self.history.cycles += 1
             with times.phase("rebuild"):
                 new_problem = family.rebuild(problem, self.amesh.mesh)
             with times.phase("transfer"):
                 new_state = family.transfer(state, change, problem, new_problem)
+            relax = getattr(family, "relax", None)
+            if relax is not None:
+                with times.phase("relax"):
+                    new_state = relax(new_problem, new_state)
         except Exception as exc:  # noqa: BLE001 - any failure: the accepted state stands
-            self.amesh = AdaptiveMesh.restore_state(snapshot)
+            if snapshot is not None:
+                self.amesh = AdaptiveMesh.restore_state(snapshot)
+                self.history = VertexHistory.restore_state(history)
             if isinstance(exc, AdaptationFailed):
                 raise
             if isinstance(exc, RotheInputError):
@@ -175,14 +216,80 @@ class MeshAdaptation:
             raise AdaptationFailed(detail, exc) from exc
         return Adaptation(True, estimate, new_problem, new_state, change, eta)
 
+    def _mark(self, eta: np.ndarray, keep: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`SpaceAdaptivity.mark` with the hysteresis, the refinement band, the
+        coarsening batch (:mod:`.marking`, :mod:`.hysteresis`) and the cells the family keeps
+        from coarsening (``keep``, a mask or None)."""
+        opts, amesh = self.options, self.amesh
+        frozen = None if keep is None else np.asarray(keep, dtype=bool)
+        if self.coarsen_delay > 0 or self.max_recoarsen is not None:
+            held = self.history.frozen_cells(
+                amesh.points, amesh.cells, self.coarsen_delay, self.max_recoarsen
+            )
+            frozen = held if frozen is None else (frozen | held)
+        self._band = None
+        if self.refine_band > 0.0:
+            core = doerfler_marking(eta, opts.refine_fraction)
+            points, cells, levels = amesh.points, amesh.cells, amesh.levels
+            centres = points[cells[core]].mean(axis=1)
+            target = levels[core] + 1
+            if opts.max_level is not None:
+                target = np.minimum(target, opts.max_level)
+            band, behind = band_marking(points, cells, levels, centres, target, self.refine_band)
+            frozen = band if frozen is None else (frozen | band)
+            self._band = (centres, target)
+        refine, coarsen = opts.mark(eta, frozen)
+        if self._band is not None and refine.any():
+            refine = refine | behind
+        else:
+            self._band = None  # the band is refined only when the estimate asks to refine
+        if (
+            not refine.any()
+            and self.coarsen_batch > 0.0
+            and np.count_nonzero(coarsen) < self.coarsen_batch * len(eta)
+        ):
+            coarsen = np.zeros_like(coarsen)
+        return refine, coarsen
+
+    def _refine_band(self, change: MeshChange) -> MeshChange:
+        """Bisect the band cells still below their target generation (:meth:`_mark`), a few
+        rounds, composed into one change with one mesh id."""
+        centres, target = self._band
+        opts, amesh = self.options, self.amesh
+        mesh_id = change.new_mesh_id
+        for _ in range(4 * amesh.dim):
+            _, behind = band_marking(
+                amesh.points, amesh.cells, amesh.levels, centres, target, self.refine_band
+            )
+            if not behind.any():
+                break
+            more = amesh.adapt(
+                refine=behind,
+                max_dofs=opts.max_dofs,
+                degree=self.degree,
+                components=self.components,
+                max_level=opts.max_level,
+            )
+            if not more.changed:
+                break
+            change = _compose(change, more)
+        amesh.mesh_id = mesh_id
+        change.new_mesh_id = mesh_id
+        return change
+
     # -- checkpoint protocol ----------------------------------------------------------------
     def checkpoint_state(self) -> dict:
-        """The adaptive mesh's whole hierarchy as arrays, for a checkpoint."""
-        return {"amesh": self.amesh.checkpoint_state()}
+        """The adaptive mesh's whole hierarchy and the vertex history (:mod:`.hysteresis`) as
+        arrays, for a checkpoint."""
+        return {"amesh": self.amesh.checkpoint_state(), "history": self.history.checkpoint_state()}
 
     def restore_state(self, data: dict) -> None:
-        """Restore the adaptive mesh from :meth:`checkpoint_state`."""
+        """Restore the adaptive mesh and the vertex history from :meth:`checkpoint_state`."""
         self.amesh = AdaptiveMesh.restore_state(data["amesh"])
+        if data.get("history") is not None:
+            self.history = VertexHistory.restore_state(data["history"])
+        else:  # a checkpoint without it: the vertices of the mesh count as initial
+            self.history = VertexHistory(self.amesh.n_vertices)
 
 
 def finite_or_fail(name: str, values) -> np.ndarray:

@@ -32,6 +32,22 @@ Given cell indicators eta_K >= 0 with the global estimate eta = (sum_K eta_K^2)^
   the mesh is only coarsened.
 * **adapt_every** = k: the stepper adapts after every k-th accepted step (the counter is the
   stepper's; :meth:`SpaceAdaptivity.due` says whether step number n is one).
+* **refine_band** = r (a length): the cells within r of the Doerfler set D (barycentre to
+  barycentre, D computed whatever the estimate) are kept from coarsening, and when refining,
+  they are refined, in the same adaptation, until they reach the generation D is refined to
+  (:func:`band_marking`; a few bisection rounds, one mesh change). A moving feature then finds
+  a refined band where it goes next: with r = the distance it travels in ``adapt_every``
+  steps, the mesh keeps up with one adaptation every ``adapt_every`` steps instead of one per
+  step, and a fine band reaches ahead of it at once instead of one generation per step.
+* **coarsen_batch** = b: an adaptation that would only coarsen happens when at least a share b
+  of the cells is marked (a mesh change costs a rebuild, a transfer and a new factorization;
+  merging a handful of cells does not pay that back). Coarsening together with a refinement
+  always happens.
+* **Hysteresis** (:mod:`.hysteresis`): ``coarsen_delay`` = k keeps the cells of vertices created
+  in the last k adaptations from coarsening, ``max_recoarsen`` = m keeps a vertex that has been
+  removed m times for good; so no cell is refined and coarsened again more than m times. None
+  (the default) leaves the choice to the family (:class:`~rothe.fem.adapt.cycle.MeshAdaptation`
+  ``hysteresis=``: RIS 4 and 2, ELD none).
 """
 
 from __future__ import annotations
@@ -39,6 +55,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ...errors import RotheInputError, check_int, check_real, described, fail
 
@@ -87,6 +104,33 @@ def coarsen_marking(
     return mask
 
 
+def band_marking(
+    points: np.ndarray,
+    cells: np.ndarray,
+    levels: np.ndarray,
+    core_centres: np.ndarray,
+    core_target: np.ndarray,
+    radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The band of width ``radius`` around core cells: (near, behind).
+
+    ``core_centres`` (k, d) are the barycentres of the core cells (the Doerfler set), and
+    ``core_target`` (k,) the generation each is refined to. ``near``: the cells of the mesh
+    (``points``, ``cells``, ``levels``) whose barycentre is within ``radius`` of a core
+    barycentre; ``behind``: those of them below the target of that nearest core cell (to be
+    refined). One k-d tree query (scipy), no loop over cells.
+    """
+    near = np.zeros(len(cells), dtype=bool)
+    if radius <= 0.0 or len(core_centres) == 0:
+        return near, near.copy()
+    centres = np.asarray(points)[np.asarray(cells)].mean(axis=1)
+    dist, j = cKDTree(core_centres).query(centres, distance_upper_bound=radius)
+    near = np.isfinite(dist)
+    behind = np.zeros(len(cells), dtype=bool)
+    behind[near] = levels[near] < core_target[j[near]]
+    return near, behind
+
+
 @dataclass
 class SpaceAdaptivity:
     """Options of space adaptivity, validated where they enter (one-line errors).
@@ -110,6 +154,19 @@ class SpaceAdaptivity:
         Marked cells of this bisection generation are not refined further.
     coarsen_rounds : int >= 1
         Generations of bisection that one adaptation may undo.
+    coarsen_delay : int >= 0 or None
+        Hysteresis: cells with a vertex created in the last ``coarsen_delay`` adaptations are
+        not coarsened (None: the family's default).
+    max_recoarsen : int >= 0 or None
+        Hysteresis: a vertex removed this many times is never removed again, so no cell is
+        refined and coarsened again more often (None: the family's default, which may be no
+        bound).
+    refine_band : float >= 0 or None
+        Width of the band around the Doerfler set that is refined with it and kept from
+        coarsening (a length; None: the family's default, 0 = none).
+    coarsen_batch : float in [0, 1) or None
+        Least share of the cells marked for an adaptation that only coarsens (None: the
+        family's default, 0 = any).
     """
 
     space_tol: float
@@ -119,6 +176,10 @@ class SpaceAdaptivity:
     adapt_every: int = 1
     max_level: int | None = None
     coarsen_rounds: int = 1
+    coarsen_delay: int | None = None
+    max_recoarsen: int | None = None
+    refine_band: float | None = None
+    coarsen_batch: float | None = None
 
     def __post_init__(self):
         tol = check_real("space_tol", self.space_tol)
@@ -145,6 +206,19 @@ class SpaceAdaptivity:
         if self.max_level is not None:
             self.max_level = check_int("max_level", self.max_level, minimum=0)
         self.coarsen_rounds = check_int("coarsen_rounds", self.coarsen_rounds, minimum=1)
+        for key in ("coarsen_delay", "max_recoarsen"):
+            if getattr(self, key) is not None:
+                setattr(self, key, check_int(key, getattr(self, key), minimum=0))
+        if self.refine_band is not None:
+            band = check_real("refine_band", self.refine_band)
+            if not band >= 0.0:
+                raise fail("refine_band", self.refine_band, "must be >= 0 (a length)")
+            self.refine_band = band
+        if self.coarsen_batch is not None:
+            batch = check_real("coarsen_batch", self.coarsen_batch)
+            if not 0.0 <= batch < 1.0:
+                raise fail("coarsen_batch", self.coarsen_batch, "must be in [0, 1)")
+            self.coarsen_batch = batch
 
     def check_mesh(self, amesh, degree: int = 1, components: int = 1) -> int:
         """Check max_dofs against the dofs on ``amesh`` (an AdaptiveMesh); returns those dofs."""
@@ -161,8 +235,11 @@ class SpaceAdaptivity:
         """Whether to adapt after the accepted step with this (1-based) number."""
         return accepted_steps > 0 and accepted_steps % self.adapt_every == 0
 
-    def mark(self, eta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(refine, coarsen) masks from the cell indicators (see the module docstring)."""
+    def mark(
+        self, eta: np.ndarray, frozen: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(refine, coarsen) masks from the cell indicators (see the module docstring);
+        ``frozen`` (a cell mask) is never marked for coarsening (hysteresis, the band)."""
         eta = np.asarray(eta, dtype=float)
         if eta.ndim != 1 or not np.all(np.isfinite(eta)) or np.any(eta < 0):
             raise fail(
@@ -177,12 +254,13 @@ class SpaceAdaptivity:
             else np.zeros(eta.shape, dtype=bool)
         )
         budget = self.coarsen_fraction * max(est, self.space_tol) ** 2
-        coarsen = coarsen_marking(eta, budget, exclude=refine)
+        exclude = refine if frozen is None else (refine | np.asarray(frozen, dtype=bool))
+        coarsen = coarsen_marking(eta, budget, exclude=exclude)
         return refine, coarsen
 
     def describe(self) -> dict:
         """The options as in a trajectory's meta data and a summary."""
-        return {
+        out = {
             "space_tol": self.space_tol,
             "refine_fraction": self.refine_fraction,
             "coarsen_fraction": self.coarsen_fraction,
@@ -191,6 +269,12 @@ class SpaceAdaptivity:
             "max_level": self.max_level,
             "coarsen_rounds": self.coarsen_rounds,
         }
+        # the hysteresis options only when set (the descriptions of runs without them, and
+        # their checkpoints, stay as they were)
+        for key in ("coarsen_delay", "max_recoarsen", "refine_band", "coarsen_batch"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        return out
 
 
 def adapt_mesh(

@@ -1,0 +1,165 @@
+"""RIS on changing meshes without artefacts (issue 18, item 0): the table of the docs.
+
+    python benchmarks/ris_adapt.py [--controls regime,adaptive,order2] [--timeout S] [--out DIR]
+
+Runs the command line as a user would, one run after the other (each in its own process, timed
+from outside):
+
+* ``rothe run ris-2d --n 16 --control X --tol 1e-5 --adapt-space`` for X in ``--controls``,
+  and the same without ``--adapt-space`` (the fixed mesh's number of viscous jumps);
+* ``rothe run ris-3d --n 3 --adapt-space`` and ``rothe run ris-front --adapt-space`` with their
+  defaults (and ris-3d on its fixed mesh).
+
+Per run, from its summary.json: whether it reached T (``landing``), the viscous jumps
+(:func:`rothe.ris.summary.viscous_jumps`), the energy the mesh changes moved against the
+path's own dissipation sum_k R(z_k - z_{k-1}): sum_k |transfer_energy_k| (interpolation onto
+the new mesh) and sum_k relax_energy_k (the relaxation of the transferred state at fixed t,
+:mod:`rothe.ris.adapt`; never a step of the path), the most times a vertex was removed again
+after its refinement (``max_recoarsened``), the mesh changes (``space_adaptations``), relaxations
+refused, and the wall seconds of the process. Targets (issue 18, item 0): every run reaches T;
+ris-2d has as many viscous jumps as on the fixed mesh (one, at t ~ 0.172); the transfer energy
+is a small fraction of the dissipation; ris-front --adapt-space with its defaults under 120 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def rothe(argv: list[str], out: Path, timeout: float) -> tuple[dict, float]:
+    """Run ``rothe <argv> --out out --no-plots``; (summary.json, wall seconds), the process's
+    CPU seconds in the summary as ``cpu_s`` (the steadier number on a shared machine). After
+    ``timeout`` seconds the run is stopped with SIGTERM (it writes its checkpoint, no summary):
+    then {"stopped": "t = ..."} from its last progress line."""
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    cmd = [sys.executable, "-m", "rothe.cli.main", *argv, "--out", str(out), "--no-plots"]
+    t0, c0 = time.perf_counter(), _children_cpu()
+    proc = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    try:
+        text, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGTERM)
+        text, _ = proc.communicate()
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
+    path = out / "summary.json"
+    if not path.exists():
+        lines = [ln for ln in text.splitlines() if ln.startswith("rothe:")] or text.splitlines()
+        last = lines[-1] if lines else "?"
+        return {"failed": f"stopped after {wall:.0f} s: {last}", "cpu_s": cpu}, wall
+    return dict(json.loads(path.read_text()), cpu_s=cpu), wall
+
+
+def row(label: str, summary: dict, wall: float, fixed: dict | None) -> dict:
+    """The table's row of one adaptive run (``fixed``: the same run on the fixed mesh)."""
+    if "failed" in summary:
+        return {"run": label, "failed": summary["failed"], "wall": wall, "cpu": summary["cpu_s"]}
+    landing = summary.get("landing") or {}
+    diss = summary.get("dissipation_sum") or float("nan")
+    return {
+        "run": label,
+        "reached_T": bool(landing.get("landed")) and landing.get("ended_by") == "T",
+        "t_final": summary.get("t_final"),
+        "jumps": summary.get("n_viscous_jumps"),
+        "jumps_fixed": None if fixed is None else fixed.get("n_viscous_jumps"),
+        "jump_t": [round(j["t"], 5) for j in summary.get("viscous_jumps", [])][:3],
+        "dissipation": diss,
+        "transfer_frac": summary.get("transfer_energy_abs_sum", float("nan")) / diss,
+        "relax_frac": summary.get("relax_energy_sum", float("nan")) / diss,
+        "max_recoarsened": summary.get("max_recoarsened"),
+        "mesh_changes": summary.get("space_adaptations"),
+        "relax_refused": summary.get("relax_refused"),
+        "steps": summary.get("accepted_steps"),
+        "dofs_max": summary.get("n_dofs_max"),
+        "wall": wall,
+        "cpu": summary.get("cpu_s"),
+    }
+
+
+HEADER = (
+    "| run | reached T | viscous jumps (fixed mesh) | dissipation | Σ abs(transfer E) / diss. | "
+    "Σ relax E / diss. | max re-coarsened | mesh changes (relax refused) | steps | max dofs | "
+    "wall s (CPU s) |"
+)
+
+
+def format_row(r: dict) -> str:
+    if "failed" in r:
+        return (
+            f"| {r['run']} | no: {r['failed']} | | | | | | | | | {r['wall']:.1f} ({r['cpu']:.1f}) |"
+        )
+    fixed = "" if r["jumps_fixed"] is None else f" ({r['jumps_fixed']})"
+    reached = "yes" if r["reached_T"] else f"no (t = {r['t_final']:.5g})"
+    return (
+        f"| {r['run']} | {reached} | {r['jumps']}{fixed} at t = "
+        f"{', '.join(f'{t:g}' for t in r['jump_t']) or '-'} | {r['dissipation']:.4g} | "
+        f"{r['transfer_frac']:.2e} | {r['relax_frac']:.2e} | {r['max_recoarsened']} | "
+        f"{r['mesh_changes']} ({r['relax_refused']}) | {r['steps']} | {r['dofs_max']} | "
+        f"{r['wall']:.1f} ({r['cpu']:.1f}) |"
+    )
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--controls", default="regime,adaptive,order2")
+    ap.add_argument(
+        "--timeout", type=float, default=900.0, help="stop a run after this many seconds"
+    )
+    ap.add_argument("--out", default=None, help="keep the runs' outputs here (default: a tmp dir)")
+    args = ap.parse_args(argv)
+    base = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="ris_adapt_"))
+    runs = []
+    for control in args.controls.split(","):
+        cmd = ["run", "ris-2d", "--n", "16", "--control", control, "--tol", "1e-5"]
+        runs.append((f"ris-2d --n 16 --control {control} --tol 1e-5", cmd, True))
+    runs.append(("ris-3d --n 3", ["run", "ris-3d", "--n", "3"], True))
+    runs.append(("ris-front", ["run", "ris-front"], False))
+    rows = []
+    for i, (label, cmd, with_fixed) in enumerate(runs):
+        fixed = None
+        if with_fixed:
+            fixed, _ = rothe(cmd, base / f"{i}-fixed", args.timeout)
+        summary, wall = rothe([*cmd, "--adapt-space"], base / f"{i}-adapt", args.timeout)
+        r = row(f"`{label} --adapt-space`", summary, wall, fixed)
+        rows.append(r)
+        print(format_row(r), file=sys.stderr, flush=True)
+    print(HEADER)
+    print("|" + "---|" * HEADER.count(" | ") + "---|")
+    for r in rows:
+        print(format_row(r))
+    front = rows[-1]
+    ok_T = all(r.get("reached_T") for r in rows)
+    ok_jumps = all(r.get("jumps") == r.get("jumps_fixed") for r in rows if "ris-2d" in r["run"])
+    print(f"every run reached T: {ok_T}")
+    print(
+        f"ris-2d viscous jumps equal the fixed mesh's: {ok_jumps}"
+        + ("" if ok_T else " (on the part of the path the stopped runs reached)")
+    )
+    print(
+        f"ris-front --adapt-space: {front['wall']:.1f} s wall, {front.get('cpu', float('nan')):.1f}"
+        " s CPU (target < 120 s)"
+    )
+    print(f"outputs in {base}")
+    (base / "ris_adapt.json").write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
