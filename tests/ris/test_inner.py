@@ -155,6 +155,12 @@ def convex_problem(seed, n):
 @given(
     seed=st.integers(0, 10**6), n=st.integers(2, 9), tau=st.floats(1e-2, 3.0), t=st.floats(0.0, 1.0)
 )
+# the Newton candidate overshoots along a descent direction (272169: the Newton point outside the
+# ball, retracted radially onto the sphere; 68455: a node sent back and projected to rest), so the
+# model rises from d to it: the line search gated every shorter trial by the full step's negative
+# predicted decrease, refused them although they lower J, and a forward-backward step was taken
+@example(seed=272169, n=2, tau=2.0, t=0.5)
+@example(seed=68455, n=2, tau=2.0044676301485684, t=0.7078257571931234)
 def test_convex_step_needs_no_forward_backward_step(seed, n, tau, t):
     # With a positive definite Hessian a node that Newton sends back against its predicted sign
     # is the ordinary semismooth case (the coupling overruled the diagonal prediction), not a

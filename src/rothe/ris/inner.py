@@ -610,11 +610,13 @@ class BallStepSolver:
         d = st.d
         noise = 1e-13 * (abs(st.J) + abs(st.J0) + 1.0)
         step = cand - d
-        if hess_F is not None:
-            quad = float(step @ self._apply_H(hess_F, step))
-        else:
-            quad = 0.0
-        pred = -(float(st.g @ step) + 0.5 * quad + p.dissipation(cand) - p.dissipation(d))
+
+        def predicted_decrease(trial):
+            # decrease of the model J(d) + g.s + s.H s / 2 + R(d + s) - R(d) at s = trial - d
+            s = trial - d
+            quad = float(s @ self._apply_H(hess_F, s)) if hess_F is not None else 0.0
+            return -(float(st.g @ s) + 0.5 * quad + p.dissipation(trial) - p.dissipation(d))
+
         for alpha in (1.0,) if full_only else (1.0, 0.5, 0.25):
             trial = d + alpha * step if alpha < 1 else cand
             if sphere and alpha < 1:
@@ -625,8 +627,13 @@ class BallStepSolver:
             if not np.isfinite(J):
                 continue
             # a real predicted decrease is required: a step that only "decreases" J by
-            # round-off (e.g. a Newton step cancelled by the orthant projection) is a stall
-            if pred > noise and J < st.J and J <= st.J - 1e-4 * alpha * pred:
+            # round-off (e.g. a Newton step cancelled by the orthant projection) is a stall.
+            # It is the model's decrease at *this* trial: a projected or retracted Newton point
+            # can overshoot (the model rises again towards it) along a descent direction, and
+            # the full step's prediction refused the shorter trials that decrease J (two convex
+            # problems took forward-backward steps so, found by hypothesis)
+            pred = predicted_decrease(trial)
+            if pred > noise and J < st.J and J <= st.J - 1e-4 * pred:
                 self._accept(st, trial, z, Az, g, J)
                 st.last_alpha = alpha
                 return True
