@@ -18,7 +18,10 @@ The step-control objects of :mod:`rothe.stepping.controllers` become controllers
 
 from __future__ import annotations
 
-from ..stepping.controllers import ErrorNormController
+import math
+
+from ..errors import fail
+from ..stepping.controllers import Adaptive, ErrorNormController, FixedStepController
 
 
 def adaptive_controller(
@@ -55,3 +58,39 @@ def adaptive_controller(
         tau_max=tau_max,
         step_bound=stepper.max_step,
     )
+
+
+def step_controller(stepper, control, T: float, info: dict):
+    """The runtime controller of the step-control object ``control`` for ``stepper`` (a serial
+    or distributed ELD stepper with ``tau``, ``steps``, ``n_steps``, ``max_ratio``): adaptive
+    steps get :func:`~rothe.eld.controllers.adaptive_controller` with tau_min (default
+    1e-10 T) and tau_max (default T) checked against the first step, recorded in ``info``;
+    a fixed grid gets a :class:`~rothe.stepping.controllers.FixedStepController`.
+
+    Returns
+    -------
+    (controller, tol, loop_tau_min)
+        ``tol`` None for a fixed grid; ``loop_tau_min`` the evolve loop's floor (1e-300 on a
+        fixed grid: it never shrinks a step, a failed step stops the run).
+    """
+    if not isinstance(control, Adaptive):
+        if stepper.steps is not None:
+            controller = FixedStepController(stepper.steps)
+        else:
+            controller = FixedStepController.uniform(stepper.tau, stepper.n_steps)
+        return controller, None, 1e-300
+    tol = control.tol
+    tau_min = 1e-10 * T if control.tau_min is None else control.tau_min
+    tau_max = T if control.tau_max is None else control.tau_max
+    if tau_max < stepper.tau:
+        raise fail("tau_max", tau_max, f"must be >= the first step tau = {stepper.tau:g}")
+    if tau_min > stepper.tau:
+        raise fail("tau_min", tau_min, f"must be <= the first step tau = {stepper.tau:g}")
+    controller = adaptive_controller(stepper, tol, stepper.tau, tau_min=tau_min, tau_max=tau_max)
+    info.update(
+        tol=tol,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None,
+    )
+    return controller, tol, tau_min

@@ -21,16 +21,15 @@ far (and a checkpoint).
 from __future__ import annotations
 
 import inspect
-import math
 from dataclasses import asdict, dataclass
 
 from ..errors import RunFailed, check_choice, described, fail
 from ..io.checkpoint import RunCheckpointing, run_arguments
 from ..io.trajectory import Trajectory
-from ..stepping.controllers import Adaptive, FixedStepController, Given
+from ..stepping.controllers import Adaptive, Given
 from ..stepping.evolve import evolve
 from .adapt import ELDMeshes
-from .controllers import adaptive_controller
+from .controllers import step_controller
 from .data import DEFAULT_DATA, DataMode, DataNoise
 from .form import DEFAULT_FORM, Form
 from .problem import ELDProblem
@@ -271,32 +270,8 @@ def prepare_eld_run(
         info["noise"] = noise.describe()
     if adapt is not None:
         info["space"] = adapt.describe()  # the key of the outputs since issue 8
-    tol = tau_min = tau_max = None
-    if adaptive:
-        tol = control.tol
-        T = problem.T
-        tau_min = 1e-10 * T if control.tau_min is None else control.tau_min
-        tau_max = T if control.tau_max is None else control.tau_max
-        if tau_max < stepper.tau:
-            raise fail("tau_max", tau_max, f"must be >= the first step tau = {stepper.tau:g}")
-        if tau_min > stepper.tau:
-            raise fail("tau_min", tau_min, f"must be <= the first step tau = {stepper.tau:g}")
-        controller = adaptive_controller(
-            stepper, tol, stepper.tau, tau_min=tau_min, tau_max=tau_max
-        )
-        info.update(
-            tol=tol,
-            tau_min=tau_min,
-            tau_max=tau_max,
-            ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None,
-        )
-        loop_tau_min = tau_min
-    else:
-        if stepper.steps is not None:
-            controller = FixedStepController(stepper.steps)
-        else:
-            controller = FixedStepController.uniform(stepper.tau, stepper.n_steps)
-        loop_tau_min = 1e-300  # a fixed grid never shrinks a step; a failed step stops the run
+    controller, tol, loop_tau_min = step_controller(stepper, control, problem.T, info)
+    tau_min, tau_max = info.get("tau_min"), info.get("tau_max")  # None on a fixed grid
     info.update(meta or {})
     # what a checkpoint must match to be resumed (the stepper's values after validation)
     arguments = run_arguments(

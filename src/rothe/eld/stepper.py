@@ -212,6 +212,39 @@ def kinematics(h, coeffs, tau, x, Mx, Kx, lifted, damping, with_nonlinear=True) 
     return k
 
 
+def accepted_fields(k: dict, f: dict, pr: dict, u, v, Ku, Mv) -> tuple[dict, dict]:
+    """The fields and products an accepted step keeps: the step's kinematics ``k``
+    (:func:`kinematics`) with u, v, K u, M v as the step defines them, and the previous
+    state's fields ``f`` and products ``pr`` as the ``_1`` history of BDF2 (module docstring).
+    The same on every process of the distributed backend (owned parts)."""
+    fields = {
+        "x": k["x"],
+        "x_1": f["x"],
+        "y": k["y"],
+        "y_1": f["y"],
+        "b": k["b"],
+        "u": u,
+        "u_1": f["u"],
+        "v": v,
+        "v_1": f["v"],
+        "a": k["a"],
+    }
+    products = {
+        "Mx": k["Mx"],
+        "Kx": k["Kx"],
+        "Mx_1": pr["Mx"],
+        "Kx_1": pr["Kx"],
+        "My": k["My"],
+        "Ky": k["Ky"],
+        "My_1": pr["My"],
+        "Ky_1": pr["Ky"],
+        "Mb": k["Mb"],
+        "Ku": Ku,
+        "Mv": Mv,
+    }
+    return fields, products
+
+
 class StepGrid:
     """The time grid of a run: the steps of ``control`` on [0, T] checked against Lemma 3.2
     and, for BDF2, zero-stability (module docstring); the times t_j, the test for the last
@@ -988,31 +1021,7 @@ class ELDStepper:
             * math.sqrt(max(_dot(rx, Kr) + rho * _dot(ry, Mr), 0.0))
             / scale
         )
-        fields = {
-            "x": k["x"],
-            "x_1": f["x"],
-            "y": k["y"],
-            "y_1": f["y"],
-            "b": k["b"],
-            "u": u,
-            "u_1": f["u"],
-            "v": v,
-            "v_1": f["v"],
-            "a": k["a"],
-        }
-        products = {
-            "Mx": k["Mx"],
-            "Kx": k["Kx"],
-            "Mx_1": pr["Mx"],
-            "Kx_1": pr["Kx"],
-            "My": k["My"],
-            "Ky": k["Ky"],
-            "My_1": pr["My"],
-            "Ky_1": pr["Ky"],
-            "Mb": k["Mb"],
-            "Ku": Ku,
-            "Mv": Mv,
-        }
+        fields, products = accepted_fields(k, f, pr, u, v, Ku, Mv)
         boundary = {"lam": lam}
         boundary.update(self.data_mode.next_history(state.boundary, vals))
         new = ELDState(

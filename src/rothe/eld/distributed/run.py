@@ -20,15 +20,14 @@ What is gathered, and where:
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 
-from ...errors import RotheInputError, RunFailed, fail
+from ...errors import RotheInputError, RunFailed
 from ...io.checkpoint import RunCheckpointing, load_checkpoint, run_arguments
 from ...io.trajectory import RunStatistics, Trajectory
-from ...stepping.controllers import Adaptive, FixedStepController, Given
+from ...stepping.controllers import Adaptive, Given
 from ...stepping.evolve import evolve
-from ..controllers import adaptive_controller
+from ..controllers import step_controller
 from ..data import DEFAULT_DATA, DataMode
 from ..form import DEFAULT_FORM, Form
 from ..scheme import DEFAULT_SCHEME, Scheme
@@ -191,31 +190,8 @@ def run_eld_petsc(
     }
     if isinstance(control, Given):
         info["control"] = "given steps"
-    tol = tau_min = tau_max = None
-    if adaptive:
-        tol = control.tol
-        tau_min = 1e-10 * problem.T if control.tau_min is None else control.tau_min
-        tau_max = problem.T if control.tau_max is None else control.tau_max
-        if tau_max < stepper.tau:
-            raise fail("tau_max", tau_max, f"must be >= the first step tau = {stepper.tau:g}")
-        if tau_min > stepper.tau:
-            raise fail("tau_min", tau_min, f"must be <= the first step tau = {stepper.tau:g}")
-        controller = adaptive_controller(
-            stepper, tol, stepper.tau, tau_min=tau_min, tau_max=tau_max
-        )
-        info.update(
-            tol=tol,
-            tau_min=tau_min,
-            tau_max=tau_max,
-            ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None,
-        )
-        loop_tau_min = tau_min
-    else:
-        if stepper.steps is not None:
-            controller = FixedStepController(stepper.steps)
-        else:
-            controller = FixedStepController.uniform(stepper.tau, stepper.n_steps)
-        loop_tau_min = 1e-300  # a fixed grid never shrinks a step; a failed step stops the run
+    controller, tol, loop_tau_min = step_controller(stepper, control, problem.T, info)
+    tau_min, tau_max = info.get("tau_min"), info.get("tau_max")  # None on a fixed grid
     info.update(meta or {})
     arguments = run_arguments(
         form=form.name,
