@@ -114,17 +114,18 @@ def execute_beam(command, args) -> int:
         if session.resume is None:  # segments of an earlier run are not this run's
             shutil.rmtree(stream, ignore_errors=True)
         writer = EldXdmfWriter(stream, view, name="beam")
-        if session.resume is None:
-            writer.write(0.0, view.u0, view.v0, None)
         session.checkpoint.attachments = {"xdmf": writer}
         writers.append(writer)
 
     def observer(state, result):
+        # collective (every process gathers); result None: the initial state with lambda(0),
+        # so that both series start at t = 0 (not called again on resume)
         # n tau may round to just below T: the last step by a relative margin
-        if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
+        if result is None or state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
             u, v = part.gather_serial(state.u), part.gather_serial(state.v)
             if writers:
-                writers[0].write(state.t, u, v, result.lam)
+                lam = state.lam if result is None else result.lam
+                writers[0].write(state.t, u, v, lam)
 
     def run(checkpoint=None, resume=None, progress=False):
         try:

@@ -55,6 +55,7 @@ from ..stepper import (
     DEFAULT_CONTROL,
     NewtonOptions,
     StepGrid,
+    accepted_fields,
     as_control,
     history_terms,
     kinematics,
@@ -461,6 +462,8 @@ class PetscELDStepper:
         traj.append(t=0.0, **state.ledger.record())
         if self.store_fields:
             self._keep(traj, state)
+        if self.observer is not None:  # as the serial stepper: lambda(0) is known here
+            self.observer(state, None)
 
     def _keep(self, traj: Trajectory, state: ELDState) -> None:
         part = self.problem.partition
@@ -951,31 +954,7 @@ class PetscELDStepper:
         norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
         scale = max(state.energy_norm_max, norm_new, 1e-300)
         est = scheme.estimate_factor(omega) * math.sqrt(max(rxKr + rho * ryMr, 0.0)) / scale
-        fields = {
-            "x": k["x"],
-            "x_1": f["x"],
-            "y": k["y"],
-            "y_1": f["y"],
-            "b": k["b"],
-            "u": u,
-            "u_1": f["u"],
-            "v": v,
-            "v_1": f["v"],
-            "a": k["a"],
-        }
-        products = {
-            "Mx": k["Mx"],
-            "Kx": k["Kx"],
-            "Mx_1": pr["Mx"],
-            "Kx_1": pr["Kx"],
-            "My": k["My"],
-            "Ky": k["Ky"],
-            "My_1": pr["My"],
-            "Ky_1": pr["Ky"],
-            "Mb": k["Mb"],
-            "Ku": Ku,
-            "Mv": Mv,
-        }
+        fields, products = accepted_fields(k, f, pr, u, v, Ku, Mv)
         new = ELDState(
             t=t_new,
             j=state.j + 1,
