@@ -79,6 +79,7 @@ class RunEldTipMass:
     name = "eld-tip-mass"
 
     def configure(self, parser) -> None:
+        """Add the eld-tip-mass options (step, lifting, bar, material, mass, spring, damper)."""
         step_options(parser, 0.005, scheme_default="bdf2")
         lifting_option(parser)
         parser.add_argument(
@@ -158,6 +159,7 @@ class RunEldTipMass:
         return {"scheme": scheme_of(args), "form": form_of(args), "control": control}, n
 
     def execute(self, args) -> int:
+        """Run the tip-mass example; write trajectory, summary and figure; returns 0."""
         objects, n = self.validate(args)
         example = tip_mass_problem(
             n,

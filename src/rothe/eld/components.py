@@ -221,9 +221,11 @@ class Component(ABC):
         return None
 
     def kinetic_energy(self, p: np.ndarray) -> float:
+        """The kinetic energy 1/2 p . (M p)."""
         return 0.5 * float(p @ (self.mass @ p))
 
     def describe(self) -> dict:
+        """Type, name, size and coordinate names, for summaries."""
         return {
             "type": type(self).__name__,
             "name": self.name,
@@ -283,12 +285,15 @@ class LinearComponent(Component):
         return True
 
     def force(self, t, q, p):
+        """The linear force K q + C p (the component protocol)."""
         return self.stiffness @ q + self.damping @ p
 
     def jacobians(self, t, q, p):
+        """(K, C): the constant stiffness and damping matrices (the component protocol)."""
         return self.stiffness, self.damping
 
     def load(self, t):
+        """The user load at t (checked to have shape (size,)), or zeros without one."""
         if self._load is None:
             return np.zeros(self.size)
         f = np.asarray(self._load(float(t)), dtype=float)
@@ -299,6 +304,7 @@ class LinearComponent(Component):
         return f
 
     def potential(self, q):
+        """The elastic potential 1/2 q . (K q)."""
         return 0.5 * float(q @ (self.stiffness @ q))
 
 
@@ -617,16 +623,20 @@ class UserComponent(Component):
         return self._linear
 
     def force(self, t, q, p):
+        """The user's force callable at (t, q, p), as a float array (the component protocol)."""
         return np.asarray(self._force(float(t), q, p), dtype=float)
 
     def jacobians(self, t, q, p):
+        """The user's (df/dq, df/dp) at (t, q, p), as float arrays (the component protocol)."""
         fq, fp = self._jac(float(t), q, p)
         return np.asarray(fq, dtype=float), np.asarray(fp, dtype=float)
 
     def load(self, t):
+        """The user's load at t, or zeros without one."""
         if self._load is None:
             return np.zeros(self.size)
         return np.asarray(self._load(float(t)), dtype=float)
 
     def potential(self, q):
+        """The user's potential V(q), or None if none was given."""
         return None if self._potential is None else float(self._potential(q))

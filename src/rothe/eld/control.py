@@ -80,6 +80,7 @@ class Sensor(ABC):
         """{'u': (k, n) or None, 'v': (k, n) or None, 'lam': (k, m) or None} sparse."""
 
     def describe(self) -> dict:
+        """The sensor's type, for summaries."""
         return {"type": type(self).__name__}
 
 
@@ -104,6 +105,7 @@ class PointSensor(Sensor):
         self.size = x.size if self.axes is None else len(self.axes)
 
     def rows(self, system, name):
+        """Sparse rows giving the displacement or velocity at the point (the sensor protocol)."""
         space = system.body.space
         d = space.dim
         if self.point.size != d:
@@ -129,6 +131,7 @@ class PointSensor(Sensor):
         }
 
     def describe(self):
+        """Type, point, quantity and axes, for summaries."""
         return {
             "type": "PointSensor",
             "point": self.point.tolist(),
@@ -148,6 +151,7 @@ class ReactionSensor(Sensor):
         self.size = None if axes is None else len(self.axes)
 
     def rows(self, system, name):
+        """Sparse rows giving -int_P lambda ds from lambda (the sensor protocol)."""
         c = system.constraint
         d = system.body.space.dim
         if self.part not in c.parts:
@@ -165,6 +169,7 @@ class ReactionSensor(Sensor):
         return {"u": None, "v": None, "lam": sp.csr_matrix(Y)}
 
     def describe(self):
+        """Type, part and axes, for summaries."""
         return {"type": "ReactionSensor", "part": self.part, "axes": self.axes}
 
 
@@ -259,6 +264,7 @@ class Controller(ABC):
         """(h_z, h_y, k_z, k_y)."""
 
     def describe(self) -> dict:
+        """Type, name, number of states, component and sensors, for summaries."""
         return {
             "type": type(self).__name__,
             "name": self.name,
@@ -314,12 +320,15 @@ class LinearController(Controller):
         self.C, self.D = mat("C", C, (o, s)), mat("D", D, (o, k))
 
     def rhs(self, t, z, y):
+        """The state equation's right side A z + B y (the controller protocol)."""
         return self.A @ z + self.B @ y
 
     def output(self, t, z, y):
+        """The output C z + D y (the controller protocol)."""
         return self.C @ z + self.D @ y
 
     def jacobians(self, t, z, y):
+        """The constant matrices (A, B, C, D) (the controller protocol)."""
         return self.A, self.B, self.C, self.D
 
     @classmethod
@@ -426,10 +435,13 @@ class UserController(Controller):
         )
 
     def rhs(self, t, z, y):
+        """The user's h(t, z, y), as a float array (the controller protocol)."""
         return np.asarray(self._h(float(t), z, y), dtype=float)
 
     def output(self, t, z, y):
+        """The user's k(t, z, y), as a float array (the controller protocol)."""
         return np.asarray(self._k(float(t), z, y), dtype=float)
 
     def jacobians(self, t, z, y):
+        """The user's (h_z, h_y, k_z, k_y), each as a 2-D float array (the controller protocol)."""
         return tuple(np.atleast_2d(np.asarray(J, dtype=float)) for J in self._jac(float(t), z, y))

@@ -536,6 +536,7 @@ class CoupledStepper:
 
     # -- evolve-loop interface -------------------------------------------------------------------
     def finished(self, state: CoupledState) -> bool:
+        """Whether the run is done: n_steps taken on a fixed step count, else t >= T."""
         if self.n_steps is not None:
             return state.j >= self.n_steps
         return state.t >= self.T
@@ -552,9 +553,11 @@ class CoupledStepper:
         return tau
 
     def overshoot(self, state, attempts):
+        """None: coupled runs have no event to overshoot."""
         return None
 
     def pick_landing(self, state, attempts):
+        """The last attempt."""
         return attempts[-1]
 
     def adapt(self, state: CoupledState, result: CoupledStepResult) -> CoupledState:
@@ -562,6 +565,7 @@ class CoupledStepper:
         return state
 
     def where(self, state: CoupledState, result=None) -> dict:
+        """Step number, time, tau (NaN without a result), form and scheme, for messages."""
         return {
             "step": state.j + 1,
             "s": state.t,
@@ -572,12 +576,14 @@ class CoupledStepper:
         }
 
     def progress_fields(self, state: CoupledState) -> dict:
+        """The time and the last Newton count, for the progress line."""
         return {"t": f"{state.t:.4g}", "newton": self._last_newton}
 
     # -- records ---------------------------------------------------------------------------------
     def record_state(
         self, traj: Trajectory, state: CoupledState, reactions, balance, rb, rc, constraint=0.0
     ):
+        """Append the state, energies, residuals, reactions and constraint error to ``traj``."""
         Eb, Ec = self._energies(state.u, state.v, state.q, state.p)
         values = {
             "t": state.t,
@@ -601,6 +607,7 @@ class CoupledStepper:
         traj.append(**values)
 
     def record_initial(self, traj: Trajectory, state: CoupledState) -> None:
+        """Record the initial state with its reactions and relative error |u_C - G(0)|."""
         c = self.c
         g0 = self.body.G(0.0) + self.kern.Gamma @ state.q
         constraint = np.abs(state.u[c.dofs] - g0).max(initial=0.0)
@@ -608,6 +615,7 @@ class CoupledStepper:
         self.record_state(traj, state, c.reactions(state.lam), 0.0, 0.0, 0.0, float(constraint))
 
     def record(self, traj: Trajectory, result: CoupledStepResult, state: CoupledState) -> None:
+        """Record an accepted step's state with the result's reactions, balance and residuals."""
         self.record_state(
             traj,
             state,

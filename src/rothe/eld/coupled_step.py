@@ -165,6 +165,7 @@ class CoupledStepSystem:
 
     # -- the lifting and its transpose -----------------------------------------------------------
     def lift(self, g: np.ndarray) -> np.ndarray:
+        """The lifting L g of boundary values g."""
         return self.lifting(g)
 
     def lift_transpose(self, r: np.ndarray) -> np.ndarray:
@@ -233,6 +234,7 @@ class CoupledStepSystem:
         self._key = key
 
     def back_substitute(self, rhs_I: np.ndarray) -> np.ndarray:
+        """K_II^{-1} rhs_I with the stored factorization (counted in the stats)."""
         self.stats["back_substitutions"] += 1
         return self._lu.solve(rhs_I)
 

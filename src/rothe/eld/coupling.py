@@ -115,6 +115,7 @@ class Coupling(ABC):
         )
 
     def describe(self) -> dict:
+        """Type, part and component name, for summaries."""
         return {"type": type(self).__name__, "part": self.part, "component": self.component.name}
 
 
@@ -168,9 +169,11 @@ class Translation(Coupling):
         return P
 
     def values(self, t, q, x):
+        """G(q, x) = D q_sel at every point x (the coupling protocol)."""
         return np.broadcast_to((self._matrix(x.shape[0]) @ q)[:, None], x.shape).copy()
 
     def jacobian(self, t, q, x):
+        """The constant dG/dq, the selection D at every point (the coupling protocol)."""
         P = self._matrix(x.shape[0])
         return np.broadcast_to(P[:, None, :], (x.shape[0], x.shape[1], P.shape[1])).copy()
 
@@ -185,9 +188,11 @@ class RigidMotion(Coupling):
         super().__init__(part, body)
 
     def values(self, t, q, x):
+        """G(q, x) = (dG/dq) q, the linearized rigid motion (the coupling protocol)."""
         return np.einsum("dkm,m->dk", self.jacobian(t, q, x), q)
 
     def jacobian(self, t, q, x):
+        """The rigid-motion matrix at x about the body's reference point (the coupling protocol)."""
         body = self.component
         if x.shape[0] != body.dim:
             raise fail(
@@ -237,12 +242,15 @@ class UserCoupling(Coupling):
         self.is_linear = bool(linear)
 
     def values(self, t, q, x):
+        """The user's G(t, q, x), as a float array (the coupling protocol)."""
         return np.asarray(self._G(float(t), q, x), dtype=float)
 
     def jacobian(self, t, q, x):
+        """The user's dG/dq(t, q, x), as a float array (the coupling protocol)."""
         return np.asarray(self._Gq(float(t), q, x), dtype=float)
 
     def second_derivatives(self, t, q, p, x):
+        """(G_t, curvature, zeros) from the user's callables, zero where not given."""
         z = np.zeros(x.shape)
         G_t = z if self._Gt is None else np.asarray(self._Gt(float(t), q, x), dtype=float)
         curv = z if self._curv is None else np.asarray(self._curv(float(t), q, p, x), dtype=float)
@@ -472,6 +480,7 @@ class CoupledProblem:
 
     # -- coordinates ----------------------------------------------------------------------------
     def slice(self, component: Component) -> slice:
+        """The slice of ``component``'s coordinates in the stacked vector."""
         o = self.offsets[component.name]
         return slice(o, o + component.size)
 
@@ -648,6 +657,7 @@ class CoupledProblem:
         return kin, pot
 
     def describe(self) -> dict:
+        """Components, couplings, controllers and the number of coordinates, for summaries."""
         return {
             "components": [c.describe() for c in self.components],
             "couplings": [cp.describe() for cp in self.couplings],

@@ -90,6 +90,7 @@ class Attachment:
 
     @classmethod
     def point_mass(cls, m: float) -> Attachment:
+        """A point mass m tied to the end (zero stiffness)."""
         return cls(np.array([[check_positive("mass", m)]]), np.zeros((1, 1)))
 
     @classmethod

@@ -401,6 +401,7 @@ class Interface:
         return (T.T @ sp.block_diag([sp.csr_matrix(A1), sp.csr_matrix(A2)]) @ T).tocsr()
 
     def describe(self) -> dict:
+        """The two parts, the method and the node counts, for summaries."""
         return {
             "part1": self.part1,
             "part2": self.part2,

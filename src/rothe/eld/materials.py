@@ -115,6 +115,7 @@ class Material:
         return ((self.lam_eff + 2 * self.mu) / self.rho) ** 0.5, (self.mu / self.rho) ** 0.5
 
     def describe(self) -> dict:
+        """rho, lam, mu (and plane unless plane strain), for summaries."""
         out = {"rho": self.rho, "lam": self.lam, "mu": self.mu}
         if self.plane != "strain":  # (plane strain: the keys summaries always had)
             out["plane"] = self.plane
@@ -265,6 +266,7 @@ class PiecewiseMaterial:
         return CellMaterial(lam=lam, mu=mu, rho=rho, rho_ref=self.rho, names=which)
 
     def describe(self) -> dict:
+        """The materials, the regions and the reference density, for summaries."""
         return {
             "materials": {n: m.describe() for n, m in self.materials.items()},
             "regions": {

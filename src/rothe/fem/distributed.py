@@ -165,6 +165,7 @@ class Partition:
         return M
 
     def comm_petsc(self, PETSc):
+        """The partition's communicator as a PETSc communicator."""
         return PETSc.Comm(self.comm)
 
     # -- vectors --------------------------------------------------------------------------------

@@ -403,6 +403,7 @@ class RISAdaptivity:
 
     # -- checkpoint protocol -------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
+        """The mesh hierarchy's data, the series and the adaptation counters, for a checkpoint."""
         data = self.meshes.checkpoint_state()
         data.update(
             {

@@ -56,6 +56,7 @@ class GlobalBoundary:
         return {p: -(w @ L) for p, w in self._weights.items()}
 
     def l2_norm(self, lam: np.ndarray) -> float:
+        """The L2 norm of lambda, sqrt(lam . (M_b lam))."""
         lam = np.asarray(lam)
         return float(np.sqrt(max(lam @ (self.boundary_mass @ lam), 0.0)))
 
@@ -73,10 +74,12 @@ class DistributedDamping:
         self.is_linear = D.is_linear
 
     def nonlinear_apply(self, v: np.ndarray) -> np.ndarray:
+        """N(v) on the owned rows, by the serial quadrature after a ghost update."""
         p = self._problem
         return self._D.nonlinear_apply(p.local_values(v))[p.partition.own_local]
 
     def nonlinear_jacobian_action(self, v: np.ndarray):
+        """The action w -> N'(v) w on the owned rows."""
         p = self._problem
         act = self._D.nonlinear_jacobian_action(p.local_values(v))
         own = p.partition.own_local
@@ -229,9 +232,11 @@ class DistributedELDProblem:
         return self.local.load(t)[self.partition.own_local]
 
     def step_bound(self) -> float:
+        """The local problem's step bound."""
         return self.local.step_bound()
 
     def check_initial_consistency(self) -> None:
+        """Raise RotheInputError unless u0 equals G(0) on the Dirichlet parts within tolerance."""
         g0 = self.boundary_values(0.0, ("G",))[0]
         u0C = self.gather_boundary(self.u0)[0]
         err = float(np.max(np.abs(u0C - g0))) if g0.size else 0.0
@@ -249,6 +254,7 @@ class DistributedELDProblem:
 
     # -- description and identity -----------------------------------------------------------------
     def describe(self) -> dict:
+        """The local description with global dofs, constrained dofs, cells and processes."""
         info = self.local.describe()
         info.update(
             ndofs=self.ndofs,

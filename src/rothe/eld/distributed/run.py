@@ -59,11 +59,13 @@ class DistributedCheckpointer:
         return self.comm.bcast(self.real.sequence if self.real is not None else None, root=0)
 
     def due(self) -> bool:
+        """Whether a checkpoint is due, decided on rank 0 and broadcast."""
         return bool(self.comm.bcast(self.real.due() if self.real is not None else None, root=0))
 
     def save_or_warn(
         self, stepper, controller, state, *, status: str = "running", where: dict | None = None
     ):
+        """Gather the state and save it on rank 0; the path (or None), broadcast. Collective."""
         data = stepper.checkpoint_state(state)  # collective gather
         path = None
         if self.real is not None:

@@ -72,7 +72,7 @@ REBUILD_FACTOR = 2.0
 
 
 class SolveFailed(Exception):
-    pass
+    """A PETSc linear solve did not converge."""
 
 
 class _NewtonFailed(Exception):
@@ -379,6 +379,7 @@ class PetscELDStepper:
         return a, lam
 
     def initial_state(self) -> ELDState:
+        """The initial state (single-threaded BLAS, floating-point warnings off)."""
         with single_threaded_blas(), np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return self._initial_state()
 
@@ -513,6 +514,7 @@ class PetscELDStepper:
         return info
 
     def progress_fields(self, state: ELDState) -> dict:
+        """The time and the last Newton count, for the progress line."""
         return {"t": f"{state.t:.4g}", "newton": self._last_newton}
 
     def adapt(self, state, result):
@@ -534,6 +536,7 @@ class PetscELDStepper:
         )
 
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
+        """One step of size tau from ``state`` (floating-point warnings off)."""
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return self._step(state, tau)
 

@@ -123,6 +123,7 @@ class VertexHistory:
 
     # -- checkpoint protocol --------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
+        """Birth cycles, removal keys and counts and the cycle number, for a checkpoint."""
         width = self._removed_keys.dtype.itemsize
         raw = (
             np.frombuffer(self._removed_keys.tobytes(), dtype=np.uint8).reshape(-1, width)
@@ -138,6 +139,7 @@ class VertexHistory:
 
     @classmethod
     def restore_state(cls, data: dict) -> VertexHistory:
+        """The history rebuilt from :meth:`checkpoint_state`'s data."""
         out = cls(0)
         out.birth = np.asarray(data["birth"], dtype=np.int64).copy()
         raw = np.ascontiguousarray(data["removed_keys"], dtype=np.uint8)
