@@ -366,7 +366,39 @@ class StepGrid:
         return tau
 
 
-class ELDStepper:
+class GridLoop:
+    """The evolve-loop methods every elastodynamics stepper shares (the serial one and
+    :mod:`rothe.eld.distributed`): steps on a :class:`StepGrid` (``self.grid``) that lands on T
+    exactly, and where a run is. Needs ``grid``, ``tau``, ``form`` and ``scheme``."""
+
+    def limit(self, state: ELDState, tau: float) -> float:
+        """Adaptive control: land on T (:meth:`StepGrid.limit`)."""
+        return self.grid.limit(state, tau)
+
+    def overshoot(self, state, attempts):
+        """Never: the grid (or :meth:`limit`) lands on T exactly."""
+        return None
+
+    def pick_landing(self, state, attempts):
+        """The last attempt (no landing retries)."""
+        return attempts[-1]
+
+    def _where(self, state: ELDState, result=None) -> dict:
+        """Step, s, t, tau, form, scheme (and the Newton iterations of ``result``)."""
+        info = {
+            "step": state.j + 1,
+            "s": state.t,
+            "t": state.t,
+            "tau": result.tau if result is not None else self.tau,
+            "form": self.form.name,
+            "scheme": self.scheme.name,
+        }
+        if result is not None:
+            info["newton_iterations"] = result.newton_iterations
+        return info
+
+
+class ELDStepper(GridLoop):
     """One step of Euler or BDF2 in either form (module docstring); the evolve loop drives it.
 
     Parameters
@@ -556,31 +588,6 @@ class ELDStepper:
     def finished(self, state: ELDState) -> bool:
         """The last step is done: n steps of a fixed grid, or t = T (:meth:`StepGrid.finished`)."""
         return self.grid.finished(state)
-
-    def limit(self, state: ELDState, tau: float) -> float:
-        """Adaptive control: land on T (:meth:`StepGrid.limit`)."""
-        return self.grid.limit(state, tau)
-
-    def overshoot(self, state, attempts):
-        """Never: the grid (or :meth:`limit`) lands on T exactly."""
-        return None
-
-    def pick_landing(self, state, attempts):
-        """The last attempt (no landing retries)."""
-        return attempts[-1]
-
-    def _where(self, state: ELDState, result=None) -> dict:
-        info = {
-            "step": state.j + 1,
-            "s": state.t,
-            "t": state.t,
-            "tau": result.tau if result is not None else self.tau,
-            "form": self.form.name,
-            "scheme": self.scheme.name,
-        }
-        if result is not None:
-            info["newton_iterations"] = result.newton_iterations
-        return info
 
     def where(self, state: ELDState, result=None) -> dict:
         """Where the run is (for messages and checkpoints): step, t, tau, form, scheme (and the

@@ -53,6 +53,7 @@ from ..solvers import SolverStats, resolve_kind
 from ..state import PRODUCTS, ELDCode, ELDState, ELDStepResult, EnergyLedger
 from ..stepper import (
     DEFAULT_CONTROL,
+    GridLoop,
     NewtonOptions,
     StepGrid,
     accepted_fields,
@@ -82,7 +83,7 @@ class _NewtonFailed(Exception):
         self.rnorm = rnorm
 
 
-class PetscELDStepper:
+class PetscELDStepper(GridLoop):
     """One step of Euler or BDF2 in either form on a :class:`DistributedELDProblem` (module
     docstring); the evolve loop drives it on every process. Parameters as
     :class:`rothe.eld.stepper.ELDStepper` (no ``adapt``). The time grid is the serial one
@@ -482,36 +483,13 @@ class PetscELDStepper:
             interrupt.request(anyone)
         return self.grid.finished(state)
 
-    def limit(self, state: ELDState, tau: float) -> float:
-        """Adaptive control: land on T (:meth:`rothe.eld.stepper.StepGrid.limit`)."""
-        return self.grid.limit(state, tau)
-
     def max_step(self, tau_prev: float | None) -> float:
         """The controller's limit after ``tau_prev`` (:meth:`StepGrid.max_step`)."""
         return self.grid.max_step(tau_prev)
 
-    def overshoot(self, state, attempts):
-        """Never: the grid (or :meth:`limit`) lands on T exactly."""
-        return None
-
-    def pick_landing(self, state, attempts):
-        """The last attempt (no landing retries)."""
-        return attempts[-1]
-
     def where(self, state: ELDState, result=None) -> dict:
         """Where the run is: step, t, tau, form, scheme (as serial) and the processes."""
-        info = {
-            "step": state.j + 1,
-            "s": state.t,
-            "t": state.t,
-            "tau": result.tau if result is not None else self.tau,
-            "form": self.form.name,
-            "scheme": self.scheme.name,
-        }
-        if result is not None:
-            info["newton_iterations"] = result.newton_iterations
-        info["processes"] = int(self.comm.size)
-        return info
+        return {**self._where(state, result), "processes": int(self.comm.size)}
 
     def progress_fields(self, state: ELDState) -> dict:
         """The time and the last Newton count, for the progress line."""
