@@ -117,15 +117,57 @@ class NewtonOptions:
             raise fail("newton max_iter", self.max_iter, "must be >= 1")
 
 
-class _NewtonFailed(Exception):
+class NewtonFailed(Exception):
+    """Newton's method stopped without converging (``iterations`` done, residual ``rnorm``)."""
+
     def __init__(self, iterations: int, rnorm: float):
         super().__init__(f"{iterations} iterations, |R| = {rnorm:.3g}")
         self.iterations = iterations
         self.rnorm = rnorm
 
 
-def _dot(a, b) -> float:
-    return float(a @ b)
+def newton(residual, correction, z0, z_prev, options: NewtonOptions, norm=np.linalg.norm):
+    """Newton's method with backtracking on |R|; returns ``(z, aux, iterations)`` or raises
+    :class:`NewtonFailed`. The one copy both steppers use (the PETSc backend passes a global
+    ``norm``).
+
+    ``residual(z)`` returns ``(R, aux)`` and ``correction(R, aux)`` the Newton correction dz
+    (J dz = -R, J the Jacobian at the iterate ``aux`` describes). A correction is damped,
+    alpha = 1, 1/2, ..., until |R(z + alpha dz)| <= (1 - 1e-4 alpha) |R(z)| (or alpha < 1/64).
+    Stops when the estimated error of the iterate, |dz| theta / (1 - theta) with the
+    contraction theta = |dz_k| / |dz_{k-1}| (or |dz| itself in the first iteration and after
+    a damped one), is below ``options.tol`` * max(|z|, |z - z_prev|).
+    """
+    z = z0.copy()
+    R, aux = residual(z)
+    rnorm = norm(R)
+    prev_step = None
+    for it in range(1, options.max_iter + 1):
+        if rnorm == 0.0:
+            return z, aux, it - 1
+        if not math.isfinite(rnorm):
+            raise NewtonFailed(it - 1, rnorm)
+        dz = correction(R, aux)
+        alpha = 1.0
+        while True:
+            z_new = z + alpha * dz
+            R_new, aux_new = residual(z_new)
+            r_new = norm(R_new)
+            if r_new <= (1.0 - 1e-4 * alpha) * rnorm or alpha < 1.0 / 64:
+                break
+            alpha *= 0.5
+        step = alpha * norm(dz)
+        z, R, aux, rnorm = z_new, R_new, aux_new, r_new
+        scale = max(norm(z), norm(z - z_prev), 1e-300)
+        if prev_step is not None and prev_step > 0 and alpha == 1.0:
+            theta = step / prev_step
+            estimate = step * theta / (1.0 - theta) if theta < 1.0 else math.inf
+        else:
+            estimate = step
+        if estimate <= options.tol * scale or step == 0.0:
+            return z, aux, it
+        prev_step = step
+    raise NewtonFailed(options.max_iter, float(rnorm))
 
 
 def as_control(control):
@@ -367,9 +409,20 @@ class StepGrid:
 
 
 class GridLoop:
-    """The evolve-loop methods every elastodynamics stepper shares (the serial one and
-    :mod:`rothe.eld.distributed`): steps on a :class:`StepGrid` (``self.grid``) that lands on T
-    exactly, and where a run is. Needs ``grid``, ``tau``, ``form`` and ``scheme``."""
+    """The evolve-loop methods of a stepper on a :class:`StepGrid` (``self.grid``) that lands
+    on T exactly: the last step, the controller's largest step, the landing. Used by every
+    elastodynamics stepper (:class:`StepperBase`, the coupled one of
+    :mod:`rothe.eld.coupled_run`)."""
+
+    def finished(self, state: ELDState) -> bool:
+        """The last step is done: n steps of a fixed grid, or t = T (:meth:`StepGrid.finished`)."""
+        return self.grid.finished(state)
+
+    def max_step(self, tau_prev: float | None) -> float:
+        """The controller's limit for the step after ``tau_prev``: the step whose effective
+        step tau/alpha_0 is BOUND_SAFETY times the solvability bound
+        (:meth:`StepGrid.max_step`)."""
+        return self.grid.max_step(tau_prev)
 
     def limit(self, state: ELDState, tau: float) -> float:
         """Adaptive control: land on T (:meth:`StepGrid.limit`)."""
@@ -383,8 +436,65 @@ class GridLoop:
         """The last attempt (no landing retries)."""
         return attempts[-1]
 
-    def _where(self, state: ELDState, result=None) -> dict:
-        """Step, s, t, tau, form, scheme (and the Newton iterations of ``result``)."""
+
+class StepperBase(GridLoop):
+    """What every elastodynamics stepper shares: the serial :class:`ELDStepper` and the PETSc
+    one (:mod:`rothe.eld.distributed`). The options and the time grid (:meth:`_set_common`),
+    the evolve-loop methods of a :class:`StepGrid` that lands on T exactly, where a run is, and
+    one step (:meth:`_try_step`): the step's checks (Lemma 3.2, BDF2's zero-stability), its
+    data, the solve, a failed step's result, and the new state with its energy ledger and local
+    error estimate (:meth:`_complete`, module docstring); the record of an accepted step
+    (:meth:`_step_record`).
+
+    The linear algebra is the backend's, through these methods:
+
+    - ``_dots(pairs)``: the inner products a.b of ``pairs`` (on many processes: global sums);
+    - ``_any(flag)``: whether ``flag`` holds on any process;
+    - ``_mult(A, w)``: the product A w;
+    - ``_prehistory(state, tau)``: the state with BDF2's start history
+      (:func:`rothe.eld.start.with_prehistory`);
+    - ``_values(j, state, t_new, coeffs)``: the data of step j (:class:`rothe.eld.data.StepValues`);
+    - ``_nonfinite(vals)``: the name of the first datum with NaN or inf entries, or None;
+    - ``_solve_step(state, vals, coeffs, tau)``: the step's kinematics (:func:`kinematics`,
+      with ``lam`` in the original form's bordered solve) and its Newton iterations; raises
+      :class:`~rothe.eld.solvers.SolveFailed` or :class:`NewtonFailed`;
+    - ``_multiplier(k, vals)``: lambda and v on Gamma_D (in the constraint's order);
+    - ``_linear_stats()``: the linear solver's counters (:class:`~rothe.eld.solvers.SolverStats`);
+    - ``_result_system()``: the system a step result carries (None on many processes).
+
+    and the attributes ``problem``, ``rho``, ``C`` (this process's constrained dofs), ``bpos``
+    (their positions in the constraint's order), ``data_mode`` and ``_estimate_on_fields``.
+    """
+
+    _estimate_on_fields = False
+
+    def _set_common(self, problem, newton, store_fields, keep_every, observer, error_scale) -> None:
+        """The options both backends validate alike, the time grid and the bound of Lemma 3.2
+        (after ``scheme``, ``form``, ``control`` and ``data_mode`` are set)."""
+        if newton is not None and not isinstance(newton, NewtonOptions):
+            raise fail(
+                "newton", described(type(newton).__name__), "must be a rothe.eld.NewtonOptions"
+            )
+        self.newton = newton or NewtonOptions()
+        self.store_fields = bool(store_fields)
+        self.keep_every = check_int("keep_every", keep_every, minimum=1)
+        self.observer = observer
+        self.T = problem.T
+        self.bound = problem.step_bound()
+        self.order = self.scheme.order
+        self.max_ratio = self.scheme.ratio_cap
+        self.grid = StepGrid(self.control, self.scheme, self.T, self.bound)
+        self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
+        problem.check_initial_consistency()
+        self.error_scale = (
+            None if error_scale is None else check_positive("error_scale", error_scale)
+        )
+        self._last_newton = 0
+
+    # -- evolve-loop interface ------------------------------------------------------------------
+    def where(self, state: ELDState, result=None) -> dict:
+        """Step, s, t, tau, form, scheme (and the Newton iterations of ``result``): where the
+        run is, for messages and checkpoints."""
         info = {
             "step": state.j + 1,
             "s": state.t,
@@ -397,8 +507,283 @@ class GridLoop:
             info["newton_iterations"] = result.newton_iterations
         return info
 
+    # -- one step -------------------------------------------------------------------------------
+    def _attempt(self, state: ELDState, tau: float) -> ELDStepResult:
+        # overflow and NaN are detected in the result (a failed step), not reported as warnings
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return self._try_step(state, tau)
 
-class ELDStepper(GridLoop):
+    def _failed(self, state, tau, code: ELDCode, message, its=0, counters=None) -> ELDStepResult:
+        where = self.where(state)
+        where.update(tau=tau, newton_iterations=its)
+        return ELDStepResult(
+            state=None,
+            tau=tau,
+            newton_iterations=its,
+            converged=False,
+            code=code,
+            message=message,
+            where=where,
+            counters=counters or {},
+            system=self._result_system(),
+        )
+
+    def _try_step(self, state: ELDState, tau: float) -> ELDStepResult:
+        """One step of size ``tau`` from ``state``: a result with the new state, or a failed
+        result (a solve failed, Newton did not converge, a field is not finite). Raises
+        RunFailed for a step Lemma 3.2 or BDF2's zero-stability forbids, or non-finite data."""
+        j = state.j + 1
+        t_new = self.grid.time_after(state, tau)
+        scheme = self.scheme
+        if state.j == 0:
+            scheme = self.scheme.first_step()
+            if self.scheme.prehistory:
+                state = self._prehistory(state, tau)
+        coeffs = scheme.coefficients(tau, state.tau_prev)
+        a0 = coeffs[0]
+        limit = self.scheme.zero_stability
+        if math.isfinite(limit) and state.j > 0 and not tau / state.tau_prev < limit:
+            raise RunFailed(
+                f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
+                f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
+                where=self.where(state),
+            )
+        if not tau / a0 < self.bound:
+            raise RunFailed(
+                f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
+                f"{self.bound:g} (Lemma 3.2)",
+                where=self.where(state),
+            )
+        vals = self._values(j, state, t_new, coeffs)
+        bad = self._nonfinite(vals)
+        if bad is not None:
+            what = {
+                "F": "the load F (body force, tractions)",
+                "G": "the Dirichlet data G",
+                "G_dot": "G_dot",
+                "G_ddot": "G_ddot",
+            }[bad]
+            raise RunFailed(
+                f"non-finite data at step {j} (t = {t_new:.6g}): {what} has NaN or inf entries",
+                where=self.where(state),
+            )
+        st = self._linear_stats()
+        before = (st.factorizations, st.backsolves, st.krylov_iterations)
+
+        def counters():
+            return {
+                "newton_iterations": its,
+                "linear_factorizations": st.factorizations - before[0],
+                "linear_solves": st.backsolves - before[1],
+                "krylov_iterations": st.krylov_iterations - before[2],
+            }
+
+        its = 0
+        try:
+            k, its = self._solve_step(state, vals, coeffs, tau)
+        except SolveFailed as exc:
+            return self._failed(
+                state,
+                tau,
+                ELDCode.LINEAR_SOLVE,
+                f"{ELDCode.LINEAR_SOLVE.message} at step {j} (t = {t_new:.6g}, "
+                f"tau = {tau:g}): {exc}; the step is not accepted",
+                its,
+                counters(),
+            )
+        except NewtonFailed as exc:
+            its = exc.iterations
+            return self._failed(
+                state,
+                tau,
+                ELDCode.NEWTON,
+                f"{ELDCode.NEWTON.message} in {exc.iterations} "
+                f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = "
+                f"{exc.rnorm:.3g}); the step is not accepted",
+                its,
+                counters(),
+            )
+        self._last_newton = its
+        new, result_extra = self._complete(state, k, vals, coeffs, tau, t_new, scheme)
+        if new is None:
+            return self._failed(
+                state,
+                tau,
+                ELDCode.NON_FINITE,
+                f"{ELDCode.NON_FINITE.message} at step {j} (t = {t_new:.6g}, "
+                f"tau = {tau:g}): {result_extra} has NaN or inf entries; the "
+                "step is not accepted",
+                its,
+                counters(),
+            )
+        return ELDStepResult(
+            state=new,
+            tau=tau,
+            lam=new.lam,
+            reactions=self.problem.constraint.reactions(new.lam),
+            newton_iterations=its,
+            estimate=result_extra,
+            counters=counters(),
+            system=self._result_system(),
+        )
+
+    @staticmethod
+    def _guess(state: ELDState, tau: float) -> np.ndarray:
+        """The first guess of the step's unknown: x^{j-1} extrapolated linearly (a new array)."""
+        f = state.fields
+        if "x_1" not in f or state.tau_prev is None:
+            return f["x"].copy()
+        return f["x"] + (tau / state.tau_prev) * (f["x"] - f["x_1"])
+
+    # -- the new state: multiplier, ledger, estimate ---------------------------------------------
+    def _complete(self, state: ELDState, k: dict, vals, coeffs, tau: float, t_new: float, scheme):
+        """The state after the step, or (None, name) if a field is not finite.
+
+        lambda from the Gamma_D rows of (3.4a) (or the bordered solve); the ledger's terms
+        (rothe.eld.state) and the local error estimate (module docstring), every inner product
+        through ``_dots`` (one global sum per step on many processes)."""
+        p = self.problem
+        c = p.constraint
+        rho = self.rho
+        a0, _, a2 = coeffs
+        C = self.C
+        lam, v_C = self._multiplier(k, vals)
+        bad = next(
+            (
+                name
+                for name, w in (("u", k["u"]), ("v", k["v"]), ("a", k["a"]))
+                if not np.all(np.isfinite(w))
+            ),
+            None,
+        )
+        if self._any(bad is not None) or not np.all(np.isfinite(lam)):
+            return None, bad or "lambda"
+        f, pr = state.fields, state.products
+        u, v, Ku, Mv, Ma, Dv = k["u"], k["v"], k["Ku"], k["Mv"], k["Ma"], k["Dv"]
+        L = state.ledger
+        # numerical dissipation N^j and its G-form pieces (rothe.eld.state)
+        du, dv = u - f["u"], v - f["v"]
+        dKu, dMv = Ku - pr["Ku"], Mv - pr["Mv"]
+        tdu, tdv = a0 * du, a0 * dv  # tau delta z = alpha_0 Delta z^j - alpha_2 Delta z^{j-1}
+        pairs = [(dMv, dv), (dKu, du), (Mv, dv), (Ku, du)]
+        if a2:
+            du1, dv1 = f["u"] - f["u_1"], f["v"] - f["v_1"]
+            tdu, tdv = tdu - a2 * du1, tdv - a2 * dv1
+            pairs += [(Mv, dv1), (Ku, du1), (dMv, dv1), (dKu, du1)]
+        # the work of the algebraic residual R
+        R = rho * Ma + Dv + Ku - vals.F
+        R[C] += (c.boundary_mass @ lam)[self.bpos]
+        Bv = c.boundary_mass @ v_C
+        # local error estimate (trapezoidal residuals, module docstring)
+        Kr = k["Kx"] - pr["Kx"] - 0.5 * tau * (k["Ky"] + pr["Ky"])
+        rx = k["x"] - f["x"] - 0.5 * tau * (k["y"] + f["y"])
+        Mr = k["My"] - pr["My"] - 0.5 * tau * (k["Mb"] + pr["Mb"])
+        ry = k["y"] - f["y"] - 0.5 * tau * (k["b"] + f["b"])
+        if self._estimate_on_fields:
+            # With differenced data G_dot^j is a difference quotient of G, not integrated by the
+            # step: after a step cut (omega -> 0) it jumps by the previous quotient's O(tau_prev^2)
+            # error, and the harmonic lifting spreads that jump over the interior, where no
+            # smaller step can remove it (the run failed below tau_min). Both liftings give the
+            # same u, v, a with differenced data, so the estimate is taken from them on the free
+            # dofs: the nodal lifting's estimate, which contains the solution's error only.
+            rx = u - f["u"] - 0.5 * tau * (v + f["v"])
+            ry = v - f["v"] - 0.5 * tau * (k["a"] + f["a"])
+            rx[C] = 0.0
+            ry[C] = 0.0
+            Kr = self._mult(p.K, rx)
+            Mr = self._mult(p.M, ry)
+        pairs += [
+            (Ma, v),
+            (Mv, tdv),
+            (Ku, v),
+            (Ku, tdu),
+            (vals.F, v),
+            (Dv, v),
+            (R, v),
+            (v, Mv),
+            (u, Ku),
+            (rx, Kr),
+            (ry, Mr),
+        ]
+        s = self._dots(pairs)
+        sq_kin, sq_el, zd_kin, zd_el = rho * s[0], s[1], rho * s[2], s[3]
+        N = 0.5 * (sq_kin + sq_el) + (a0 - 1.0) * (zd_kin + zd_el)
+        cross = 0.0
+        rest = s[4:]
+        if a2:
+            N -= a2 * (rho * rest[0] + rest[1])
+            cross = rho * rest[2] + rest[3]
+            rest = rest[4:]
+        Ma_v, Mv_tdv, Ku_v, Ku_tdu, F_v, Dv_v, R_v, v_Mv, u_Ku, rxKr, ryMr = rest
+        nu = scheme.g_weight
+        mu = a0 - 1.0
+        N_G = (0.5 - nu) * (sq_kin + sq_el) + nu * (L.g_sq_kin + L.g_sq_el) - a2 * cross
+        S = (L.g_mu - a2) * (L.g_zd_kin + L.g_zd_el)
+        C_new = mu * (zd_kin + zd_el) + nu * (sq_kin + sq_el)
+        # data/start mismatch X
+        X = rho * (tau * Ma_v - Mv_tdv) + (tau * Ku_v - Ku_tdu)
+        kin, el = 0.5 * rho * v_Mv, 0.5 * u_Ku
+        if not math.isfinite(kin + el):
+            return None, "the energy E = 1/2 rho v.M v + 1/2 u.K u"
+        ledger = replace(
+            L,
+            kinetic=kin,
+            elastic=el,
+            work=L.work + tau * F_v,
+            work_reaction=L.work_reaction - tau * float(lam @ Bv),
+            dissipated=L.dissipated + tau * Dv_v,
+            numerical=L.numerical + N,
+            mismatch=L.mismatch + X,
+            residual_work=L.residual_work + tau * R_v,
+            numerical_G=L.numerical_G + N_G,
+            step_change=L.step_change + S,
+            boundary_C=C_new,
+            g_zd_kin=zd_kin,
+            g_sq_kin=sq_kin,
+            g_zd_el=zd_el,
+            g_sq_el=sq_el,
+            g_mu=mu,
+        )
+        omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
+        norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
+        scale = max(state.energy_norm_max, norm_new, 1e-300)
+        est = scheme.estimate_factor(omega) * math.sqrt(max(rxKr + rho * ryMr, 0.0)) / scale
+        fields, products = accepted_fields(k, f, pr, u, v, Ku, Mv)
+        boundary = {"lam": lam}
+        boundary.update(self.data_mode.next_history(state.boundary, vals))
+        new = ELDState(
+            t=t_new,
+            j=state.j + 1,
+            tau_prev=tau,
+            fields=fields,
+            boundary=boundary,
+            products=products,
+            ledger=ledger,
+            energy_norm_max=max(state.energy_norm_max, norm_new),
+            mesh_id=state.mesh_id,
+        )
+        return new, est
+
+    # -- recording ------------------------------------------------------------------------------
+    def _step_record(self, result: ELDStepResult, constraint) -> dict:
+        """The point and step series of an accepted step: t, the ledger (EnergyLedger.record),
+        tau, the estimate, the multiplier's norm on ``constraint``, the Newton iterations and
+        the reactions ``reaction_<part>``."""
+        st = result.state
+        rec = dict(
+            t=st.t,
+            **st.ledger.record(),
+            tau=result.tau,
+            local_error=result.estimate,
+            lam_norm=constraint.l2_norm(result.lam),
+            newton_iterations=result.newton_iterations,
+        )
+        for part, force in result.reactions.items():
+            rec[f"reaction_{part}"] = force
+        return rec
+
+
+class ELDStepper(StepperBase):
     """One step of Euler or BDF2 in either form (module docstring); the evolve loop drives it.
 
     Parameters
@@ -454,24 +839,7 @@ class ELDStepper(GridLoop):
         self.data_mode.check(self.scheme)
         if adapt is not None:
             check_adapt(adapt, data=self.data_mode, noise=noise)
-        if newton is not None and not isinstance(newton, NewtonOptions):
-            raise fail(
-                "newton", described(type(newton).__name__), "must be a rothe.eld.NewtonOptions"
-            )
-        self.newton = newton or NewtonOptions()
-        self.store_fields = bool(store_fields)
-        self.keep_every = check_int("keep_every", keep_every, minimum=1)
-        self.observer = observer
-        self.T = problem.T
-        self.bound = problem.step_bound()
-        self.order = self.scheme.order
-        self.max_ratio = self.scheme.ratio_cap
-        self.grid = StepGrid(self.control, self.scheme, self.T, self.bound)
-        self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
-        problem.check_initial_consistency()
-        self.error_scale = (
-            None if error_scale is None else check_positive("error_scale", error_scale)
-        )
+        self._set_common(problem, newton, store_fields, keep_every, observer, error_scale)
         self.times = PhaseTimes()  # factor, solve; estimate ... transfer of the adapt step
         # the first step's effective step: the stored factorization's matrix
         self.system = ELDSystem.build(
@@ -491,7 +859,6 @@ class ELDStepper(GridLoop):
         self._estimate_on_fields = isinstance(self.data_mode, Differenced) and isinstance(
             self.system.lifting, HarmonicLifting
         )
-        self._last_newton = 0
         self.adaptivity = None
         if adapt is not None:
             self.adaptivity = ELDAdaptivity(problem, adapt, scheme=self.scheme, times=self.times)
@@ -510,11 +877,18 @@ class ELDStepper(GridLoop):
         None on a fixed mesh."""
         return None if self.adaptivity is None else self.adaptivity.meshes
 
-    def max_step(self, tau_prev: float | None) -> float:
-        """The controller's limit for the step after ``tau_prev``: the step whose effective
-        step tau/alpha_0 is BOUND_SAFETY times the solvability bound
-        (:meth:`StepGrid.max_step`)."""
-        return self.grid.max_step(tau_prev)
+    @property
+    def rho(self) -> float:
+        """The density (of the system's material)."""
+        return self.system.rho
+
+    @property
+    def C(self) -> np.ndarray:
+        """The constrained dofs (of the current mesh)."""
+        return self.system.problem.constraint.dofs
+
+    #: the constrained dofs' positions in the constraint's order: all of them, in order
+    bpos = slice(None)
 
     # -- the initial state ----------------------------------------------------------------------
     def initial_state(self) -> ELDState:
@@ -585,14 +959,10 @@ class ELDStepper(GridLoop):
         }
 
     # -- evolve-loop interface ------------------------------------------------------------------
-    def finished(self, state: ELDState) -> bool:
-        """The last step is done: n steps of a fixed grid, or t = T (:meth:`StepGrid.finished`)."""
-        return self.grid.finished(state)
-
     def where(self, state: ELDState, result=None) -> dict:
         """Where the run is (for messages and checkpoints): step, t, tau, form, scheme (and the
         mesh id with space adaptivity)."""
-        info = self._where(state, result)
+        info = super().where(state, result)
         if self.adaptivity is not None:
             info["mesh_id"] = int(state.mesh_id)
         return info
@@ -655,135 +1025,50 @@ class ELDStepper(GridLoop):
             self.adaptivity.adaptation.restore_state({"amesh": base[1]})
             self.system = base[2]
 
-    def _attempt(self, state: ELDState, tau: float) -> ELDStepResult:
-        # overflow and NaN are detected in the result (a failed step), not reported as warnings
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            return self._solve(state, tau)
+    # -- the backend of StepperBase: this process's linear algebra ---------------------------------
+    def _dots(self, pairs) -> list[float]:
+        return [float(a @ b) for a, b in pairs]
 
-    def _failed(self, state, tau, code: ELDCode, message, its=0, counters=None) -> ELDStepResult:
-        where = self._where(state)
-        where.update(tau=tau, newton_iterations=its)
-        return ELDStepResult(
-            state=None,
-            tau=tau,
-            newton_iterations=its,
-            converged=False,
-            code=code,
-            message=message,
-            where=where,
-            counters=counters or {},
-            system=self.system,
-        )
+    def _any(self, flag: bool) -> bool:
+        return bool(flag)
 
-    def _solve(self, state: ELDState, tau: float) -> ELDStepResult:
-        system = self.system
-        j = state.j + 1
-        t_new = self.grid.time_after(state, tau)
-        scheme = self.scheme
-        if state.j == 0:
-            scheme = self.scheme.first_step()
-            if self.scheme.prehistory:
-                state = with_prehistory(system, self.scheme, state, tau)
-        coeffs = scheme.coefficients(tau, state.tau_prev)
-        a0 = coeffs[0]
-        limit = self.scheme.zero_stability
-        if math.isfinite(limit) and state.j > 0 and not tau / state.tau_prev < limit:
-            raise RunFailed(
-                f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
-                f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
-                where=self._where(state),
-            )
-        if not tau / a0 < self.bound:
-            raise RunFailed(
-                f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
-                f"{self.bound:g} (Lemma 3.2)",
-                where=self._where(state),
-            )
+    @staticmethod
+    def _mult(A, w: np.ndarray) -> np.ndarray:
+        return A @ w
+
+    def _prehistory(self, state: ELDState, tau: float) -> ELDState:
+        return with_prehistory(self.system, self.scheme, state, tau)
+
+    def _values(self, j: int, state: ELDState, t_new: float, coeffs):
         hist = self.data_mode.history(state.boundary, coeffs)
-        vals = system.data.at(j, state.t, t_new, coeffs, hist)
-        bad = vals.first_nonfinite()
-        if bad is not None:
-            what = {
-                "F": "the load F (body force, tractions)",
-                "G": "the Dirichlet data G",
-                "G_dot": "G_dot",
-                "G_ddot": "G_ddot",
-            }[bad]
-            raise RunFailed(
-                f"non-finite data at step {j} (t = {t_new:.6g}): {what} has NaN or inf entries",
-                where=self._where(state),
-            )
-        st = system.solver.stats
-        before = (st.factorizations, st.backsolves, st.krylov_iterations, st.solves)
+        return self.system.data.at(j, state.t, t_new, coeffs, hist)
 
-        def counters():
-            return {
-                "newton_iterations": its,
-                "linear_factorizations": st.factorizations - before[0],
-                "linear_solves": st.backsolves - before[1],
-                "krylov_iterations": st.krylov_iterations - before[2],
-            }
+    @staticmethod
+    def _nonfinite(vals) -> str | None:
+        return vals.first_nonfinite()
 
-        its = 0
-        try:
-            if isinstance(self.form, Regularized):
-                k, its = self._step_regularized(state, vals, coeffs, tau)
-            else:
-                k, its = self._step_original(state, vals, coeffs, tau)
-        except SolveFailed as exc:
-            return self._failed(
-                state,
-                tau,
-                ELDCode.LINEAR_SOLVE,
-                f"{ELDCode.LINEAR_SOLVE.message} at step {j} (t = {t_new:.6g}, "
-                f"tau = {tau:g}): {exc}; the step is not accepted",
-                its,
-                counters(),
+    def _linear_stats(self) -> SolverStats:
+        return self.system.solver.stats
+
+    def _result_system(self):
+        return self.system
+
+    def _multiplier(self, k: dict, vals):
+        C = self.C
+        if "lam" in k:
+            lam = k["lam"]
+        else:
+            # (3.4a) tested with V^c: the residual on the constrained rows is B^T lambda
+            lam = self.problem.constraint.multiplier_from_residual(
+                vals.F[C] - self.rho * k["Ma"][C] - k["Dv"][C] - k["Ku"][C]
             )
-        except _NewtonFailed as exc:
-            its = exc.iterations
-            return self._failed(
-                state,
-                tau,
-                ELDCode.NEWTON,
-                f"{ELDCode.NEWTON.message} in {exc.iterations} "
-                f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = "
-                f"{exc.rnorm:.3g}); the step is not accepted",
-                its,
-                counters(),
-            )
-        self._last_newton = its
-        new, result_extra = self._complete(state, k, vals, coeffs, tau, t_new, scheme)
-        if new is None:
-            return self._failed(
-                state,
-                tau,
-                ELDCode.NON_FINITE,
-                f"{ELDCode.NON_FINITE.message} at step {j} (t = {t_new:.6g}, "
-                f"tau = {tau:g}): {result_extra} has NaN or inf entries; the "
-                "step is not accepted",
-                its,
-                counters(),
-            )
-        c = system.problem.constraint
-        return ELDStepResult(
-            state=new,
-            tau=tau,
-            lam=new.lam,
-            reactions=c.reactions(new.lam),
-            newton_iterations=its,
-            estimate=result_extra,
-            counters=counters(),
-            system=system,
-        )
+        return lam, k["v"][C]
 
     # -- the two forms --------------------------------------------------------------------------
-    @staticmethod
-    def _guess(state: ELDState, tau: float) -> np.ndarray:
-        f = state.fields
-        if "x_1" not in f or state.tau_prev is None:
-            return f["x"]
-        return f["x"] + (tau / state.tau_prev) * (f["x"] - f["x_1"])
+    def _solve_step(self, state: ELDState, vals, coeffs, tau):
+        if isinstance(self.form, Regularized):
+            return self._step_regularized(state, vals, coeffs, tau)
+        return self._step_original(state, vals, coeffs, tau)
 
     def _step_parts(self, state: ELDState, vals, coeffs, tau):
         """What both forms' steps start from: the system, the problem, rho, the dofs, alpha_0,
@@ -846,7 +1131,9 @@ class ELDStepper(GridLoop):
             op = spla.LinearOperator((I.size, I.size), matvec=matvec, dtype=float)
             return op, system.assembler(te, v)
 
-        _, its = self._newton(residual, jacobian, guess, state.fields["x"][I])
+        _, _, its = newton(
+            residual, self._correction(jacobian), guess, state.fields["x"][I], self.newton
+        )
         return cache["k"], its
 
     def _step_original(self, state: ELDState, vals, coeffs, tau):
@@ -893,156 +1180,20 @@ class ELDStepper(GridLoop):
 
         x = state.fields["x"]
         z0 = np.concatenate([self._guess(state, tau), lam0])
-        _, its = self._newton(residual, jacobian, z0, np.concatenate([x, lam0]))
+        _, _, its = newton(
+            residual, self._correction(jacobian), z0, np.concatenate([x, lam0]), self.newton
+        )
         return cache["k"], its
 
-    def _newton(self, residual, jacobian, z0, z_prev):
-        """Newton's method with backtracking on |R|; returns (z, iterations) or raises
-        _NewtonFailed.
+    def _correction(self, jacobian):
+        """The Newton correction of :func:`newton`: J dz = -R with J, and the assembler of the
+        stored preconditioner, from ``jacobian(v)`` (v the iterate's velocity)."""
 
-        Stops when the estimated error of the iterate, |dz| theta / (1 - theta) with the
-        contraction theta = |dz_k| / |dz_{k-1}| (or |dz| itself in the first iteration), is below
-        tol * max(|z|, |z - z_prev|).
-        """
-        opts = self.newton
-        z = z0.copy()
-        R, v = residual(z)
-        rnorm = np.linalg.norm(R)
-        prev_step = None
-        for it in range(1, opts.max_iter + 1):
-            if rnorm == 0.0:
-                return z, it - 1
-            if not math.isfinite(rnorm):
-                raise _NewtonFailed(it - 1, rnorm)
+        def correction(R, v):
             J, assemble = jacobian(v)
-            dz = self.system.solve(J, -R, assemble=assemble, rtol=opts.krylov_rtol)
-            alpha = 1.0
-            while True:
-                z_new = z + alpha * dz
-                R_new, v_new = residual(z_new)
-                r_new = np.linalg.norm(R_new)
-                if r_new <= (1.0 - 1e-4 * alpha) * rnorm or alpha < 1.0 / 64:
-                    break
-                alpha *= 0.5
-            step = alpha * np.linalg.norm(dz)
-            z, R, v, rnorm = z_new, R_new, v_new, r_new
-            scale = max(np.linalg.norm(z), np.linalg.norm(z - z_prev), 1e-300)
-            if prev_step is not None and prev_step > 0 and alpha == 1.0:
-                theta = step / prev_step
-                estimate = step * theta / (1.0 - theta) if theta < 1.0 else math.inf
-            else:
-                estimate = step
-            if estimate <= opts.tol * scale or step == 0.0:
-                return z, it
-            prev_step = step
-        raise _NewtonFailed(opts.max_iter, float(rnorm))
+            return self.system.solve(J, -R, assemble=assemble, rtol=self.newton.krylov_rtol)
 
-    # -- the new state: multiplier, ledger, estimate ---------------------------------------------
-    def _complete(self, state: ELDState, k: dict, vals, coeffs, tau: float, t_new: float, scheme):
-        """The state after the step, or (None, name) if a field is not finite."""
-        system = self.system
-        p = system.problem
-        c = p.constraint
-        rho = system.rho
-        a0, _, a2 = coeffs
-        C = c.dofs
-        if "lam" in k:
-            lam = k["lam"]
-        else:
-            # (3.4a) tested with V^c: the residual on the constrained rows is B^T lambda
-            lam = c.multiplier_from_residual(vals.F[C] - rho * k["Ma"][C] - k["Dv"][C] - k["Ku"][C])
-        for name, w in (("u", k["u"]), ("v", k["v"]), ("a", k["a"]), ("lambda", lam)):
-            if not np.all(np.isfinite(w)):
-                return None, name
-        f, pr = state.fields, state.products
-        u, v, Ku, Mv, Ma, Dv = k["u"], k["v"], k["Ku"], k["Mv"], k["Ma"], k["Dv"]
-        L = state.ledger
-        # numerical dissipation N^j and its G-form pieces (rothe.eld.state)
-        du, dv = u - f["u"], v - f["v"]
-        dKu, dMv = Ku - pr["Ku"], Mv - pr["Mv"]
-        sq_kin, sq_el = rho * _dot(dMv, dv), _dot(dKu, du)
-        zd_kin, zd_el = rho * _dot(Mv, dv), _dot(Ku, du)
-        N = 0.5 * (sq_kin + sq_el) + (a0 - 1.0) * (zd_kin + zd_el)
-        tdu, tdv = a0 * du, a0 * dv  # tau delta z = alpha_0 Delta z^j - alpha_2 Delta z^{j-1}
-        cross = 0.0
-        if a2:
-            du1, dv1 = f["u"] - f["u_1"], f["v"] - f["v_1"]
-            N -= a2 * (rho * _dot(Mv, dv1) + _dot(Ku, du1))
-            tdu, tdv = tdu - a2 * du1, tdv - a2 * dv1
-            cross = rho * _dot(dMv, dv1) + _dot(dKu, du1)
-        nu = scheme.g_weight
-        mu = a0 - 1.0
-        N_G = (0.5 - nu) * (sq_kin + sq_el) + nu * (L.g_sq_kin + L.g_sq_el) - a2 * cross
-        S = (L.g_mu - a2) * (L.g_zd_kin + L.g_zd_el)
-        C_new = mu * (zd_kin + zd_el) + nu * (sq_kin + sq_el)
-        # data/start mismatch X and the work of the algebraic residual R
-        X = rho * (tau * _dot(Ma, v) - _dot(Mv, tdv)) + (tau * _dot(Ku, v) - _dot(Ku, tdu))
-        R = rho * Ma + Dv + Ku - vals.F
-        R[C] += c.boundary_mass @ lam
-        Bv = c.boundary_mass @ v[C]
-        kin, el = 0.5 * rho * _dot(v, Mv), 0.5 * _dot(u, Ku)
-        if not math.isfinite(kin + el):
-            return None, "the energy E = 1/2 rho v.M v + 1/2 u.K u"
-        ledger = replace(
-            L,
-            kinetic=kin,
-            elastic=el,
-            work=L.work + tau * _dot(vals.F, v),
-            work_reaction=L.work_reaction - tau * _dot(lam, Bv),
-            dissipated=L.dissipated + tau * _dot(Dv, v),
-            numerical=L.numerical + N,
-            mismatch=L.mismatch + X,
-            residual_work=L.residual_work + tau * _dot(R, v),
-            numerical_G=L.numerical_G + N_G,
-            step_change=L.step_change + S,
-            boundary_C=C_new,
-            g_zd_kin=zd_kin,
-            g_sq_kin=sq_kin,
-            g_zd_el=zd_el,
-            g_sq_el=sq_el,
-            g_mu=mu,
-        )
-        # local error estimate (trapezoidal residuals, module docstring)
-        Kr = k["Kx"] - pr["Kx"] - 0.5 * tau * (k["Ky"] + pr["Ky"])
-        rx = k["x"] - f["x"] - 0.5 * tau * (k["y"] + f["y"])
-        Mr = k["My"] - pr["My"] - 0.5 * tau * (k["Mb"] + pr["Mb"])
-        ry = k["y"] - f["y"] - 0.5 * tau * (k["b"] + f["b"])
-        if self._estimate_on_fields:
-            # With differenced data G_dot^j is a difference quotient of G, not integrated by the
-            # step: after a step cut (omega -> 0) it jumps by the previous quotient's O(tau_prev^2)
-            # error, and the harmonic lifting spreads that jump over the interior, where no
-            # smaller step can remove it (the run failed below tau_min). Both liftings give the
-            # same u, v, a with differenced data, so the estimate is taken from them on the free
-            # dofs: the nodal lifting's estimate, which contains the solution's error only.
-            rx = u - f["u"] - 0.5 * tau * (v + f["v"])
-            ry = v - f["v"] - 0.5 * tau * (k["a"] + f["a"])
-            rx[C] = 0.0
-            ry[C] = 0.0
-            Kr = p.K @ rx
-            Mr = p.M @ ry
-        omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
-        norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
-        scale = max(state.energy_norm_max, norm_new, 1e-300)
-        est = (
-            scheme.estimate_factor(omega)
-            * math.sqrt(max(_dot(rx, Kr) + rho * _dot(ry, Mr), 0.0))
-            / scale
-        )
-        fields, products = accepted_fields(k, f, pr, u, v, Ku, Mv)
-        boundary = {"lam": lam}
-        boundary.update(self.data_mode.next_history(state.boundary, vals))
-        new = ELDState(
-            t=t_new,
-            j=state.j + 1,
-            tau_prev=tau,
-            fields=fields,
-            boundary=boundary,
-            products=products,
-            ledger=ledger,
-            energy_norm_max=max(state.energy_norm_max, norm_new),
-            mesh_id=state.mesh_id,
-        )
-        return new, est
+        return correction
 
     # -- the adapt step -------------------------------------------------------------------------
     def adapt(self, state: ELDState, result: ELDStepResult) -> ELDState:
@@ -1104,30 +1255,7 @@ class ELDStepper(GridLoop):
         step; with space adaptivity its mesh, dofs and what the adapt step did). ``state`` is
         the state the run goes on from."""
         st = result.state
-        L = st.ledger
-        rec = dict(
-            t=st.t,
-            kinetic=L.kinetic,
-            elastic=L.elastic,
-            energy=L.energy,
-            work=L.work,
-            work_reaction=L.work_reaction,
-            dissipated=L.dissipated,
-            numerical_dissipation=L.numerical,
-            numerical_dissipation_G=L.numerical_G,
-            step_change=L.step_change,
-            data_mismatch=L.mismatch,
-            residual_work=L.residual_work,
-            transfer=L.transfer,
-            balance_residual=L.residual,
-            tau=result.tau,
-            local_error=result.estimate,
-            lam_norm=result.system.problem.constraint.l2_norm(result.lam),
-            newton_iterations=result.newton_iterations,
-        )
-        for part, force in result.reactions.items():
-            rec[f"reaction_{part}"] = force
-        traj.append(**rec)
+        traj.append(**self._step_record(result, result.system.problem.constraint))
         ad = self.adaptivity
         if ad is not None:
             traj.append(**self._mesh_record(st, result.system))

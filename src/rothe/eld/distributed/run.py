@@ -23,13 +23,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from ...errors import RotheInputError, RunFailed
-from ...io.checkpoint import RunCheckpointing, load_checkpoint, run_arguments
+from ...io.checkpoint import RunCheckpointing, load_checkpoint
 from ...io.trajectory import RunStatistics, Trajectory
-from ...stepping.controllers import Adaptive, Given
+from ...stepping.controllers import Adaptive
 from ...stepping.evolve import evolve
-from ..controllers import step_controller
 from ..data import DEFAULT_DATA, DataMode
 from ..form import DEFAULT_FORM, Form
+from ..run import describe_run
 from ..scheme import DEFAULT_SCHEME, Scheme
 from ..state import ELDState
 from ..stepper import DEFAULT_CONTROL
@@ -170,53 +170,20 @@ def run_eld_petsc(
         linear_rtol=linear_rtol,
         error_scale=error_scale,
     )
-    scheme, form, control, data = stepper.scheme, stepper.form, stepper.control, stepper.data_mode
-    adaptive = isinstance(control, Adaptive)
-    control_name = "adaptive" if adaptive else "uniform"
-    info = {
-        "example": problem.name,
-        "form": form.name,
-        "scheme": scheme.name,
-        "control": control_name,
-        "tau": stepper.tau,
-        "n_steps": stepper.n_steps,
-        "data": data.name,
-        "lifting": form.lifting,
-        "solver": stepper.kind,
-        "step_bound": problem.step_bound(),
-        "keep_every": stepper.keep_every,
-        "start": scheme.describe()["start"],
-        "backend": "petsc",
-        "processes": int(comm.size),
-        "problem": problem.describe(),
-    }
-    if isinstance(control, Given):
-        info["control"] = "given steps"
-    controller, tol, loop_tau_min = step_controller(stepper, control, problem.T, info)
-    tau_min, tau_max = info.get("tau_min"), info.get("tau_max")  # None on a fixed grid
-    info.update(meta or {})
-    arguments = run_arguments(
-        form=form.name,
-        scheme=scheme.name,
-        control=control_name,
-        tol=tol,
-        tau=stepper.tau,
-        steps=stepper.steps,
-        data=data.name,
-        lifting=form.lifting,
+    info, arguments, controller, loop_tau_min = describe_run(
+        problem,
+        stepper,
+        solver_kind=stepper.kind,
         solver=solver,
-        newton=asdict(stepper.newton),
         noise=None,
+        adapt=None,
         store_fields=store_fields,
-        keep_every=stepper.keep_every,
         linear_rtol=linear_rtol,
-        tau_min=tau_min,
-        tau_max=tau_max,
-        start=scheme.describe()["start"],
         error_scale=error_scale,
-        backend="petsc",
-        processes=int(comm.size),
+        meta=meta,
+        backend={"backend": "petsc", "processes": int(comm.size)},
     )
+    adaptive = isinstance(stepper.control, Adaptive)
     root = comm.rank == 0
     rc = None
     error = None

@@ -40,26 +40,25 @@ from dataclasses import asdict, replace
 
 import numpy as np
 
-from ...errors import RotheInputError, RunFailed, check_int, check_positive, described, fail
+from ...errors import RotheInputError, RunFailed, check_positive, described, fail
 from ...io.trajectory import Trajectory
 from ...stepping import interrupt
 from ...stepping.controllers import Adaptive
 from ...stepping.evolve import single_threaded_blas
 from ...timing import PhaseTimes
-from ..data import DEFAULT_DATA, Points, as_data_mode
+from ..data import DEFAULT_DATA, Points, StepValues, as_data_mode
 from ..form import DEFAULT_FORM, Regularized, as_form
 from ..scheme import DEFAULT_SCHEME, as_scheme
-from ..solvers import SolverStats, resolve_kind
-from ..state import PRODUCTS, ELDCode, ELDState, ELDStepResult, EnergyLedger
+from ..solvers import SolveFailed, SolverStats, resolve_kind
+from ..state import PRODUCTS, ELDState, ELDStepResult, EnergyLedger
 from ..stepper import (
     DEFAULT_CONTROL,
-    GridLoop,
     NewtonOptions,
-    StepGrid,
-    accepted_fields,
+    StepperBase,
     as_control,
     history_terms,
     kinematics,
+    newton,
 )
 from .problem import DistributedDamping
 
@@ -72,18 +71,7 @@ CHECKPOINT_FORMAT = "rothe-eld-petsc-1"
 REBUILD_FACTOR = 2.0
 
 
-class SolveFailed(Exception):
-    """A PETSc linear solve did not converge."""
-
-
-class _NewtonFailed(Exception):
-    def __init__(self, iterations: int, rnorm: float):
-        super().__init__(f"{iterations} iterations, |R| = {rnorm:.3g}")
-        self.iterations = iterations
-        self.rnorm = rnorm
-
-
-class PetscELDStepper(GridLoop):
+class PetscELDStepper(StepperBase):
     """One step of Euler or BDF2 in either form on a :class:`DistributedELDProblem` (module
     docstring); the evolve loop drives it on every process. Parameters as
     :class:`rothe.eld.stepper.ELDStepper` (no ``adapt``). The time grid is the serial one
@@ -139,22 +127,8 @@ class PetscELDStepper(GridLoop):
                 "must be Rayleigh, nonlinear or none with "
                 "backend 'petsc' (a user's damping matrix is not distributed)",
             )
-        if newton is not None and not isinstance(newton, NewtonOptions):
-            raise fail(
-                "newton", described(type(newton).__name__), "must be a rothe.eld.NewtonOptions"
-            )
-        self.newton = newton or NewtonOptions()
-        self.store_fields = bool(store_fields)
-        self.keep_every = check_int("keep_every", keep_every, minimum=1)
-        self.observer = observer
+        self._set_common(p, newton, store_fields, keep_every, observer, error_scale)
         self.linear_rtol = check_positive("linear_rtol", linear_rtol)
-        self.T = p.T
-        self.bound = p.step_bound()
-        self.order = self.scheme.order
-        self.max_ratio = self.scheme.ratio_cap
-        self.grid = StepGrid(self.control, self.scheme, self.T, self.bound)
-        self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
-        p.check_initial_consistency()
         self.rho = p.material.rho
         part = p.partition
         self.C = p.C
@@ -164,10 +138,6 @@ class PetscELDStepper(GridLoop):
         self.stats = SolverStats()
         self.times = PhaseTimes()  # factor (preconditioner set-up) and solve, as serial
         self.krylov_seconds = 0.0  # wall time inside PETSc's CG (benchmarks: per-phase times)
-        self._last_newton = 0
-        self.error_scale = (
-            None if error_scale is None else check_positive("error_scale", error_scale)
-        )
         # PETSc objects: vectors on the owned dofs sharing numpy buffers, thin Gamma_D blocks
         self._in = np.zeros(self.n)
         self._vin = PETSc.Vec().createWithArray(self._in, comm=self.comm)
@@ -483,13 +453,9 @@ class PetscELDStepper(GridLoop):
             interrupt.request(anyone)
         return self.grid.finished(state)
 
-    def max_step(self, tau_prev: float | None) -> float:
-        """The controller's limit after ``tau_prev`` (:meth:`StepGrid.max_step`)."""
-        return self.grid.max_step(tau_prev)
-
     def where(self, state: ELDState, result=None) -> dict:
         """Where the run is: step, t, tau, form, scheme (as serial) and the processes."""
-        return {**self._where(state, result), "processes": int(self.comm.size)}
+        return {**super().where(state, result), "processes": int(self.comm.size)}
 
     def progress_fields(self, state: ELDState) -> dict:
         """The time and the last Newton count, for the progress line."""
@@ -499,124 +465,39 @@ class PetscELDStepper(GridLoop):
         """The mesh stays (no space adaptivity on this backend): the state unchanged."""
         return state
 
-    def _failed(self, state, tau, code, message, its=0, counters=None) -> ELDStepResult:
-        where = self.where(state)
-        where.update(tau=tau, newton_iterations=its)
-        return ELDStepResult(
-            state=None,
-            tau=tau,
-            newton_iterations=its,
-            converged=False,
-            code=code,
-            message=message,
-            where=where,
-            counters=counters or {},
-        )
-
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
-        """One step of size tau from ``state`` (floating-point warnings off)."""
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            return self._step(state, tau)
+        """One step of size tau from ``state`` (:meth:`StepperBase._try_step`, floating-point
+        warnings off)."""
+        return self._attempt(state, tau)
 
-    def _step(self, state: ELDState, tau: float) -> ELDStepResult:
-        j = state.j + 1
-        t_new = self.grid.time_after(state, tau)
-        scheme = self.scheme
-        if state.j == 0:
-            scheme = self.scheme.first_step()
-            if self.scheme.prehistory:
-                state = self._with_prehistory(state, tau)
-        coeffs = scheme.coefficients(tau, state.tau_prev)
-        a0 = coeffs[0]
-        limit = self.scheme.zero_stability
-        if math.isfinite(limit) and state.j > 0 and not tau / state.tau_prev < limit:
-            raise RunFailed(
-                f"step {j}: tau/tau_prev = {tau / state.tau_prev:.6g} is beyond the "
-                f"zero-stability limit 1 + sqrt(2) of variable-step BDF2",
-                where=self.where(state),
-            )
-        if not tau / a0 < self.bound:
-            raise RunFailed(
-                f"step {j}: tau = {tau:g} violates tau/alpha_0 < rho/d0 = "
-                f"{self.bound:g} (Lemma 3.2)",
-                where=self.where(state),
-            )
+    # -- the backend of StepperBase: PETSc's linear algebra on the owned dofs ----------------------
+    def _values(self, j: int, state: ELDState, t_new: float, coeffs) -> StepValues:
         p = self.problem
-        F = p.load(t_new)
-        G, Gd, Gdd = p.boundary_values(t_new)
-        bad = [
-            name
-            for name, w in (("the Dirichlet data G", G), ("G_dot", Gd), ("G_ddot", Gdd))
-            if not np.all(np.isfinite(w))
-        ]
-        if self._any(not np.all(np.isfinite(F))):
-            bad.insert(0, "the load F (body force, tractions)")
-        if bad:
-            raise RunFailed(
-                f"non-finite data at step {j} (t = {t_new:.6g}): {bad[0]} has NaN or inf entries",
-                where=self.where(state),
-            )
-        st = self.stats
-        before = (st.factorizations, st.backsolves, st.krylov_iterations)
+        return StepValues(p.load(t_new), *p.boundary_values(t_new))
 
-        def counters():
-            return {
-                "newton_iterations": self._last_newton,
-                "linear_factorizations": st.factorizations - before[0],
-                "linear_solves": st.backsolves - before[1],
-                "krylov_iterations": st.krylov_iterations - before[2],
-            }
+    def _nonfinite(self, vals: StepValues) -> str | None:
+        # F holds the owned dofs (any process's NaN counts); G, G_dot, G_ddot are replicated
+        if self._any(not np.all(np.isfinite(vals.F))):
+            return "F"
+        for name in ("G", "G_dot", "G_ddot"):
+            if not np.all(np.isfinite(getattr(vals, name))):
+                return name
+        return None
 
-        self._last_newton = 0
-        try:
-            k = self._solve_step(state, F, (G, Gd, Gdd), coeffs, tau)
-        except _NewtonFailed as exc:
-            return self._failed(
-                state,
-                tau,
-                ELDCode.NEWTON,
-                f"{ELDCode.NEWTON.message} in {exc.iterations} "
-                f"iterations at step {j} (t = {t_new:.6g}, tau = {tau:g}, |R| = {exc.rnorm:.3g}); "
-                "the step is not accepted",
-                exc.iterations,
-                counters(),
-            )
-        except SolveFailed as exc:
-            return self._failed(
-                state,
-                tau,
-                ELDCode.LINEAR_SOLVE,
-                f"{ELDCode.LINEAR_SOLVE.message} at step {j} "
-                f"(t = {t_new:.6g}, tau = {tau:g}): {exc}; the step is not "
-                "accepted",
-                0,
-                counters(),
-            )
-        new, extra = self._complete(state, k, F, (G, Gd, Gdd), coeffs, tau, t_new, scheme)
-        if new is None:
-            return self._failed(
-                state,
-                tau,
-                ELDCode.NON_FINITE,
-                f"{ELDCode.NON_FINITE.message} at step {j} (t = "
-                f"{t_new:.6g}, tau = {tau:g}): {extra} has NaN or inf "
-                "entries; the step is not accepted",
-                0,
-                counters(),
-            )
-        c = p.constraint
-        return ELDStepResult(
-            state=new,
-            tau=tau,
-            lam=new.lam,
-            reactions=c.reactions(new.lam),
-            newton_iterations=self._last_newton,
-            estimate=extra,
-            counters=counters(),
-        )
+    def _linear_stats(self) -> SolverStats:
+        return self.stats
+
+    def _result_system(self):
+        return None
+
+    def _multiplier(self, k: dict, vals: StepValues):
+        # (3.4a) tested with V^c on the constrained rows, gathered in the constraint's order
+        r_own = vals.F - self.rho * k["Ma"] - k["Dv"] - k["Ku"]
+        r_C, v_C = self.problem.gather_boundary(r_own, k["v"])
+        return self.problem.constraint.multiplier_from_residual(r_C), v_C
 
     # -- BDF2 start (rothe.eld.start.with_prehistory on the owned dofs) -------------------------
-    def _with_prehistory(self, state: ELDState, tau: float) -> ELDState:
+    def _prehistory(self, state: ELDState, tau: float) -> ELDState:
         p = self.problem
         C = self.C
         f = state.fields
@@ -683,17 +564,11 @@ class PetscELDStepper(GridLoop):
         return out
 
     # -- one step ---------------------------------------------------------------------------------
-    def _guess(self, state: ELDState, tau: float) -> np.ndarray:
-        f = state.fields
-        if "x_1" not in f or state.tau_prev is None:
-            return f["x"].copy()
-        return f["x"] + (tau / state.tau_prev) * (f["x"] - f["x_1"])
-
-    def _solve_step(self, state, F, data, coeffs, tau) -> dict:
-        """The step's solve and the kinematics (ELDStepper._step_regularized/_step_original with
-        linear damping)."""
+    def _solve_step(self, state, vals: StepValues, coeffs, tau) -> tuple[dict, int]:
+        """The step's solve, the kinematics and the Newton iterations
+        (ELDStepper._step_regularized/_step_original)."""
         p, rho, D, C = self.problem, self.rho, self.D, self.C
-        G, Gd, Gdd = data
+        F, G, Gd, Gdd = vals.F, vals.G, vals.G_dot, vals.G_ddot
         a0 = coeffs[0]
         te = tau / a0
         h = history_terms(state, coeffs)
@@ -739,7 +614,7 @@ class PetscELDStepper(GridLoop):
             x = self._solve(rhs, te, guess)
             x[C] = gC
         Mx, Kx = self._mult(p.M, x), self._mult(p.K, x)
-        return kinematics(h, coeffs, tau, x, Mx, Kx, lifted, self.D)
+        return kinematics(h, coeffs, tau, x, Mx, Kx, lifted, self.D), 0
 
     def _norm(self, w: np.ndarray) -> float:
         return math.sqrt(max(self._dot(w, w), 0.0))
@@ -762,40 +637,13 @@ class PetscELDStepper(GridLoop):
             R[C] = 0.0
             return R, k
 
-        z = z0.copy()
-        z_prev = state.fields["x"]
-        R, k = residual(z)
-        rnorm = self._norm(R)
-        prev_step = None
-        for it in range(1, opts.max_iter + 1):
-            if rnorm == 0.0:
-                self._last_newton = it - 1
-                return k
-            if not math.isfinite(rnorm):
-                raise _NewtonFailed(it - 1, rnorm)
+        def correction(R, k):
             dz = self._solve_jacobian(k["v"], -R, te, opts.krylov_rtol)
             dz[C] = 0.0
-            alpha = 1.0
-            while True:
-                z_new = z + alpha * dz
-                R_new, k_new = residual(z_new)
-                r_new = self._norm(R_new)
-                if r_new <= (1.0 - 1e-4 * alpha) * rnorm or alpha < 1.0 / 64:
-                    break
-                alpha *= 0.5
-            step = alpha * self._norm(dz)
-            z, R, k, rnorm = z_new, R_new, k_new, r_new
-            scale = max(self._norm(z), self._norm(z - z_prev), 1e-300)
-            if prev_step is not None and prev_step > 0 and alpha == 1.0:
-                theta = step / prev_step
-                estimate = step * theta / (1.0 - theta) if theta < 1.0 else math.inf
-            else:
-                estimate = step
-            if estimate <= opts.tol * scale or step == 0.0:
-                self._last_newton = it
-                return k
-            prev_step = step
-        raise _NewtonFailed(opts.max_iter, float(rnorm))
+            return dz
+
+        _, k, its = newton(residual, correction, z0, state.fields["x"], opts, norm=self._norm)
+        return k, its
 
     def _solve_jacobian(self, v, rhs, te, rtol) -> np.ndarray:
         """(A(te) + N'(v)/te) dz = rhs on the free dofs (identity on Gamma_D), matrix-free."""
@@ -841,130 +689,12 @@ class PetscELDStepper(GridLoop):
             self._rebuild = True
         return self._x.copy()
 
-    def _complete(self, state, k, F, data, coeffs, tau, t_new, scheme):
-        """The state after the step (the serial stepper's; every inner product global)."""
-        p = self.problem
-        c = p.constraint
-        rho = self.rho
-        a0, _, a2 = coeffs
-        C = self.C
-        G, Gd, Gdd = data
-        r_own = F - rho * k["Ma"] - k["Dv"] - k["Ku"]
-        r_C, v_C = p.gather_boundary(r_own, k["v"])
-        lam = c.multiplier_from_residual(r_C)
-        bad_local = next(
-            (
-                name
-                for name, w in (("u", k["u"]), ("v", k["v"]), ("a", k["a"]))
-                if not np.all(np.isfinite(w))
-            ),
-            None,
-        )
-        if self._any(bad_local is not None) or not np.all(np.isfinite(lam)):
-            return None, bad_local or "lambda"
-        f, pr = state.fields, state.products
-        u, v, Ku, Mv, Ma, Dv = k["u"], k["v"], k["Ku"], k["Mv"], k["Ma"], k["Dv"]
-        L = state.ledger
-        du, dv = u - f["u"], v - f["v"]
-        dKu, dMv = Ku - pr["Ku"], Mv - pr["Mv"]
-        tdu, tdv = a0 * du, a0 * dv
-        pairs = [(dMv, dv), (dKu, du), (Mv, dv), (Ku, du)]
-        if a2:
-            du1, dv1 = f["u"] - f["u_1"], f["v"] - f["v_1"]
-            tdu, tdv = tdu - a2 * du1, tdv - a2 * dv1
-            pairs += [(Mv, dv1), (Ku, du1), (dMv, dv1), (dKu, du1)]
-        R = rho * Ma + Dv + Ku - F
-        R[C] += (c.boundary_mass @ lam)[self.bpos]
-        Bv = c.boundary_mass @ v_C
-        Kr = k["Kx"] - pr["Kx"] - 0.5 * tau * (k["Ky"] + pr["Ky"])
-        rx = k["x"] - f["x"] - 0.5 * tau * (k["y"] + f["y"])
-        Mr = k["My"] - pr["My"] - 0.5 * tau * (k["Mb"] + pr["Mb"])
-        ry = k["y"] - f["y"] - 0.5 * tau * (k["b"] + f["b"])
-        pairs += [
-            (Ma, v),
-            (Mv, tdv),
-            (Ku, v),
-            (Ku, tdu),
-            (F, v),
-            (Dv, v),
-            (R, v),
-            (v, Mv),
-            (u, Ku),
-            (rx, Kr),
-            (ry, Mr),
-        ]
-        s = self._dots(pairs)
-        sq_kin, sq_el, zd_kin, zd_el = rho * s[0], s[1], rho * s[2], s[3]
-        N = 0.5 * (sq_kin + sq_el) + (a0 - 1.0) * (zd_kin + zd_el)
-        cross = 0.0
-        rest = s[4:]
-        if a2:
-            N -= a2 * (rho * rest[0] + rest[1])
-            cross = rho * rest[2] + rest[3]
-            rest = rest[4:]
-        Ma_v, Mv_tdv, Ku_v, Ku_tdu, F_v, Dv_v, R_v, v_Mv, u_Ku, rxKr, ryMr = rest
-        nu = scheme.g_weight
-        mu = a0 - 1.0
-        N_G = (0.5 - nu) * (sq_kin + sq_el) + nu * (L.g_sq_kin + L.g_sq_el) - a2 * cross
-        S = (L.g_mu - a2) * (L.g_zd_kin + L.g_zd_el)
-        C_new = mu * (zd_kin + zd_el) + nu * (sq_kin + sq_el)
-        X = rho * (tau * Ma_v - Mv_tdv) + (tau * Ku_v - Ku_tdu)
-        kin, el = 0.5 * rho * v_Mv, 0.5 * u_Ku
-        if not math.isfinite(kin + el):
-            return None, "the energy E = 1/2 rho v.M v + 1/2 u.K u"
-        ledger = replace(
-            L,
-            kinetic=kin,
-            elastic=el,
-            work=L.work + tau * F_v,
-            work_reaction=L.work_reaction - tau * float(lam @ Bv),
-            dissipated=L.dissipated + tau * Dv_v,
-            numerical=L.numerical + N,
-            mismatch=L.mismatch + X,
-            residual_work=L.residual_work + tau * R_v,
-            numerical_G=L.numerical_G + N_G,
-            step_change=L.step_change + S,
-            boundary_C=C_new,
-            g_zd_kin=zd_kin,
-            g_sq_kin=sq_kin,
-            g_zd_el=zd_el,
-            g_sq_el=sq_el,
-            g_mu=mu,
-        )
-        omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
-        norm_new = math.sqrt(max(2.0 * (kin + el), 0.0))
-        scale = max(state.energy_norm_max, norm_new, 1e-300)
-        est = scheme.estimate_factor(omega) * math.sqrt(max(rxKr + rho * ryMr, 0.0)) / scale
-        fields, products = accepted_fields(k, f, pr, u, v, Ku, Mv)
-        new = ELDState(
-            t=t_new,
-            j=state.j + 1,
-            tau_prev=tau,
-            fields=fields,
-            boundary={"lam": lam},
-            products=products,
-            ledger=ledger,
-            energy_norm_max=max(state.energy_norm_max, norm_new),
-        )
-        return new, est
-
     # -- recording --------------------------------------------------------------------------------
     def record(self, traj: Trajectory, result: ELDStepResult, state=None) -> None:
         """As the serial stepper: scalars on every process, the kept fields gathered to rank 0
         (serial numbering); the observer is called on every process (it is collective)."""
         st = result.state
-        L = st.ledger
-        rec = dict(
-            t=st.t,
-            **L.record(),
-            tau=result.tau,
-            local_error=result.estimate,
-            lam_norm=self.problem.constraint.l2_norm(result.lam),
-            newton_iterations=result.newton_iterations,
-        )
-        for part, force in result.reactions.items():
-            rec[f"reaction_{part}"] = force
-        traj.append(**rec)
+        traj.append(**self._step_record(result, self.problem.constraint))
         if self.store_fields and (st.j % self.keep_every == 0 or self.grid.finished(st)):
             self._keep(traj, st)
         if self.observer is not None:
