@@ -1,5 +1,5 @@
-"""run_coupled: the coupled step on the shared evolve loop, against the reference integrator
-(uniform steps: the same numbers), adaptive steps (the error against a fine reference follows
+"""run_coupled: the coupled step on the shared evolve loop: uniform steps (all accepted, the
+ledger closes), adaptive steps (the error against a fine reference follows
 tol, the whole-system ledger closes on variable steps), a nonlinear component whose Newton
 fails is a rejected step, refusals."""
 
@@ -9,12 +9,11 @@ import pytest
 from rothe.eld import BDF2, ELDProblem, ImplicitEuler, Original, Regularized
 from rothe.eld.components import UserComponent
 from rothe.eld.coupled_run import run_coupled
-from rothe.eld.coupled_step import run_coupled_reference
 from rothe.eld.coupling import CoupledProblem, Translation
 from rothe.errors import RotheInputError, RunFailed
 from rothe.stepping.controllers import Adaptive, Given, Uniform
 
-from .test_coupled_step import BAR, _shaken_tip, _strip, _zero
+from .test_coupled_step import BAR, _shaken_tip, _strip, _zero, uniform_run
 
 pytestmark = pytest.mark.filterwarnings("ignore:G_d")
 
@@ -24,22 +23,14 @@ FORMS = {"regularized": Regularized(), "original": Original()}
 
 @pytest.mark.parametrize("scheme", ["euler", "bdf2"])
 @pytest.mark.parametrize("form", ["regularized", "original"])
-def test_uniform_steps_equal_the_reference_integrator(scheme, form):
+def test_uniform_steps_are_all_accepted_and_the_ledger_closes(scheme, form):
     system = _shaken_tip(controllers=True, T=0.2)
-    ref = run_coupled_reference(system, 0.01, scheme=scheme, form=form)
     res = run_coupled(system, scheme=SCHEMES[scheme], form=FORMS[form], control=Uniform(0.01))
     tr = res.trajectory
     assert tr.stats.accepted_steps == 20 and tr.stats.rejected_steps == 0
-    np.testing.assert_allclose(tr["t"], ref["t"], rtol=0, atol=1e-14)
-    for key in ("q", "p", "z", "lam_norm", "energy", "reaction_left", "work_controllers"):
-        scale = max(np.abs(ref[key]).max(), 1e-300)
-        assert np.abs(tr[key] - ref[key]).max() <= 1e-10 * scale, key
-    # the ledger's mismatch is round-off in both (its bits differ with the order of the sums)
-    assert np.abs(tr["balance"]).max() < 1e-12 * np.abs(ref["energy"]).max()
-    np.testing.assert_allclose(res.state.u, ref["u"], rtol=0, atol=1e-10 * np.abs(ref["u"]).max())
-    np.testing.assert_allclose(
-        res.state.lam, ref["lam"], rtol=0, atol=1e-10 * np.abs(ref["lam"]).max()
-    )
+    np.testing.assert_allclose(tr["t"], 0.01 * np.arange(21), rtol=0, atol=1e-14)
+    assert np.abs(tr["balance"]).max() < 1e-12 * np.abs(tr["energy"]).max()
+    assert np.abs(tr["work_controllers"]).max() > 0  # the controllers act
     # the coupling holds at every accepted state (both forms: the trace is lifted from q)
     assert tr["constraint"].shape == (21,) and tr["constraint"].max() < 1e-14
     # the reaction on the tie acts on the tip: its trajectory is recorded too
@@ -50,7 +41,7 @@ def test_uniform_steps_equal_the_reference_integrator(scheme, form):
 @pytest.mark.parametrize("scheme", ["euler", "bdf2"])
 def test_adaptive_steps_error_follows_tol_and_the_ledger_closes(scheme):
     system = _shaken_tip(T=0.5)
-    fine = run_coupled_reference(system, 0.5 / 2560, scheme="bdf2")
+    fine = uniform_run(system, 0.5 / 2560, scheme="bdf2")
     q_ref, u_ref = fine["q"][-1], fine["u"]
     errs, steps = [], []
     for tol in (1e-2, 1e-3):

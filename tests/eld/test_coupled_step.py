@@ -1,4 +1,4 @@
-"""The coupled step (bordered system, docs/coupling.md Sec. 4) and its reference integrator:
+"""The coupled step (bordered system, docs/coupling.md Sec. 4) on uniform steps of run_coupled:
 the energy ledger of body + components + controllers, BDF2's dissipation, the tip-mass
 frequencies, the rigid limit, orders in tau in both forms, Theorem 4.5 for noise in the
 component's outputs, the decay rate under feedback, the cost per step, Newton for a nonlinear
@@ -8,10 +8,21 @@ import numpy as np
 import pytest
 from skfem import MeshTri
 
-from rothe.eld import DirichletData, ELDProblem, Material, NonlinearDamping, RayleighDamping
+from rothe.eld import (
+    BDF2,
+    DirichletData,
+    ELDProblem,
+    ImplicitEuler,
+    Material,
+    NonlinearDamping,
+    Original,
+    RayleighDamping,
+    Regularized,
+    run_coupled,
+)
 from rothe.eld.components import MassSpringDamper, PointMass, UserComponent
 from rothe.eld.control import LinearController, PointSensor, ReactionSensor
-from rothe.eld.coupled_step import CoupledStepSystem, coupled_modes, run_coupled_reference
+from rothe.eld.coupled_step import CoupledStepSystem, coupled_modes
 from rothe.eld.coupling import CoupledProblem, Translation, UserCoupling
 from rothe.eld.frequencies import (
     Attachment,
@@ -21,6 +32,7 @@ from rothe.eld.frequencies import (
 )
 from rothe.errors import RotheInputError
 from rothe.fem.mesh import tag_box_faces
+from rothe.stepping.controllers import Uniform
 
 pytestmark = pytest.mark.filterwarnings("ignore:G_d")
 
@@ -34,6 +46,23 @@ def _strip(nx, ny=1):
 
 def _zero(t, x):
     return 0 * x
+
+
+def uniform_run(system, tau, *, scheme="euler", form="regularized", lifting="nodal", **options):
+    """run_coupled on uniform steps tau as a dict: the trajectory's series, the final u, v, a,
+    lam, the step system's counters (``stats``) and ``n_steps``."""
+    res = run_coupled(
+        system,
+        scheme={"euler": ImplicitEuler(), "bdf2": BDF2()}[scheme],
+        form=Original() if form == "original" else Regularized(lifting=lifting),
+        control=Uniform(tau),
+        **options,
+    )
+    out = {key: res.trajectory[key] for key in res.trajectory.keys()}
+    st = res.state
+    out.update(u=st.u, v=st.v, a=st.a, lam=st.lam, stats=dict(res.stepper.kern.stats))
+    out["n_steps"] = st.j
+    return out
 
 
 def _crossing_frequency(t, y):
@@ -94,7 +123,7 @@ def _shaken_tip(degree=2, nx=6, controllers=False, T=0.5):
 @pytest.mark.parametrize("form", ["regularized", "original"])
 def test_energy_ledger_of_the_whole_system_closes_to_round_off(scheme, form):
     system = _shaken_tip(controllers=True)
-    res = run_coupled_reference(system, 0.01, scheme=scheme, form=form)
+    res = uniform_run(system, 0.01, scheme=scheme, form=form)
     scale = max(np.abs(res["energy"]).max(), np.abs(res["work_prescribed"]).max())
     assert np.abs(res["balance"]).max() < 1e-12 * scale
     assert res["residual_body"].max() < 1e-11 and res["residual_components"].max() < 1e-10
@@ -106,8 +135,8 @@ def test_energy_ledger_of_the_whole_system_closes_to_round_off(scheme, form):
 
 def test_harmonic_lifting_also_closes_the_ledger_and_agrees_to_first_order():
     system = _shaken_tip()
-    nodal = run_coupled_reference(system, 0.01, scheme="bdf2")
-    harm = run_coupled_reference(system, 0.01, scheme="bdf2", lifting="harmonic")
+    nodal = uniform_run(system, 0.01, scheme="bdf2")
+    harm = uniform_run(system, 0.01, scheme="bdf2", lifting="harmonic")
     assert np.abs(harm["balance"]).max() < 1e-12 * np.abs(harm["energy"]).max()
     # the liftings differ at the order of the scheme (docs/eld.md): close, not equal
     diff = np.abs(harm["q"] - nodal["q"]).max()
@@ -161,12 +190,12 @@ def test_frequency_measured_from_a_run_converges_in_tau():
     )
     freq, energy = [], []
     for tau in (0.01, 0.005):
-        res = run_coupled_reference(system, tau, scheme="bdf2")
+        res = uniform_run(system, tau, scheme="bdf2")
         freq.append(abs(_crossing_frequency(res["t"], res["q"][:, 0]) / w[k] - 1))
         energy.append(abs(res["energy"][-1] / res["energy"][0] - 1))
     assert freq[0] < 3e-3 and freq[0] / freq[1] == pytest.approx(4.0, rel=0.05)
     assert energy[0] < 1e-2 and energy[0] / energy[1] > 2**1.8  # dissipation O(tau^2)
-    euler = run_coupled_reference(system, 0.005, scheme="euler")
+    euler = uniform_run(system, 0.005, scheme="euler")
     assert abs(euler["energy"][-1] / euler["energy"][0] - 1) > 100 * energy[1]
 
 
@@ -185,7 +214,7 @@ def test_rigid_limit_a_stiff_body_on_a_mass_spring():
         v0=lambda x: np.stack([1 + 0 * x[0], 0 * x[0]]),
         T=3.0,
     )
-    res = run_coupled_reference(system, 0.005, scheme="bdf2")
+    res = uniform_run(system, 0.005, scheme="bdf2")
     w = _crossing_frequency(res["t"], res["q"][:, 0])
     assert w == pytest.approx(rigid_limit_frequency(k, m, H * L), rel=5e-4)
     assert w == pytest.approx(
@@ -202,11 +231,11 @@ def test_orders_in_tau_for_u_q_and_lambda(form):
     """BDF2: order >= 1.8 at T in u, q and lambda; Euler: about 1 (reference: BDF2 with
     tau = T/640)."""
     system = _shaken_tip()
-    ref = run_coupled_reference(system, 0.5 / 640, scheme="bdf2", form=form)
+    ref = uniform_run(system, 0.5 / 640, scheme="bdf2", form=form)
     for scheme, low in (("bdf2", 1.8), ("euler", 0.8)):
         errors = []
         for n in (20, 40, 80):
-            res = run_coupled_reference(system, 0.5 / n, scheme=scheme, form=form)
+            res = uniform_run(system, 0.5 / n, scheme=scheme, form=form)
             errors.append(
                 [
                     np.abs(res["u"] - ref["u"]).max(),
@@ -235,10 +264,8 @@ def test_noise_in_the_components_outputs_theorem_4_5():
             vals = {
                 j: tuple(delta * rng.uniform(-1, 1, 2) for _ in range(3)) for j in range(1, n + 1)
             }
-            clean = run_coupled_reference(system, 0.1 / n, scheme="bdf2", form=form)
-            noisy = run_coupled_reference(
-                system, 0.1 / n, scheme="bdf2", form=form, noise=vals.__getitem__
-            )
+            clean = uniform_run(system, 0.1 / n, scheme="bdf2", form=form)
+            noisy = uniform_run(system, 0.1 / n, scheme="bdf2", form=form, noise=vals.__getitem__)
             rows.append(
                 [
                     np.abs(noisy["lam_norm"] - clean["lam_norm"]).max() / delta,
@@ -283,7 +310,7 @@ def test_velocity_feedback_decay_rate_matches_the_controlled_bar():
     w, U, Q = coupled_modes(_uncontrolled(mb, kb), 6)
     k = int(np.argmax(np.abs(Q[0]) > 10 * np.abs(Q[1])))
     scale = 0.01 / np.abs(Q[:, k]).max()
-    res = run_coupled_reference(system(kv, Q[:, k] * scale, U[:, k] * scale), 0.005, scheme="bdf2")
+    res = uniform_run(system(kv, Q[:, k] * scale, U[:, k] * scale), 0.005, scheme="bdf2")
     t, y = res["t"], res["q"][:, 0]
     peaks = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] > y[2:])) + 1
     rate = -np.polyfit(t[peaks], np.log(y[peaks]), 1)[0]
@@ -313,7 +340,7 @@ def _uncontrolled(mb, kb):
 
 def test_one_back_substitution_per_step_and_r_per_factorization():
     system = _shaken_tip(controllers=True)
-    res = run_coupled_reference(system, 0.05, scheme="bdf2")
+    res = uniform_run(system, 0.05, scheme="bdf2")
     st = res["stats"]
     # two factorizations (the initial acceleration with rho M, the step matrix), each with
     # r = 2 border columns; then one back-substitution per step (and one for a_0)
@@ -335,7 +362,7 @@ def test_nonlinear_component_by_newton_on_the_border_alone():
     tip = UserComponent(0.3 * np.eye(2), force, jac, q0=[0.0, 0.0], p0=[0.0, 0.2], name="tip")
     problem = ELDProblem(_strip(6), BAR, degree=1, dirichlet={"left": _zero}, T=0.5)
     system = CoupledProblem(problem, [tip], [Translation("right", tip)])
-    res = run_coupled_reference(system, 0.01, scheme="bdf2")
+    res = uniform_run(system, 0.01, scheme="bdf2")
     assert res["stats"]["newton_iterations"] > res["n_steps"]
     assert res["stats"]["back_substitutions"] == 2 * 2 + res["n_steps"] + 1
     assert res["residual_components"].max() < 1e-9
@@ -374,7 +401,7 @@ def test_refusals_of_the_coupled_step():
     ):
         CoupledStepSystem(curved)
     with pytest.raises(RotheInputError, match=r"^tau: got 0\.3, must divide T = 1"):
-        run_coupled_reference(
+        uniform_run(
             CoupledProblem(
                 ELDProblem(_strip(4), BAR, dirichlet={"left": _zero}),
                 [tip],

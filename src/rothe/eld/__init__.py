@@ -42,7 +42,7 @@ from .components import (
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .control import LinearController, PointSensor, ReactionSensor, UserController
 from .coupled_run import CoupledResult, CoupledStepper, run_coupled
-from .coupled_step import CoupledStepSystem, coupled_modes, run_coupled_reference
+from .coupled_step import CoupledStepSystem, coupled_modes
 from .coupling import (
     CoupledProblem,
     Coupling,
@@ -143,7 +143,6 @@ __all__ = [
     "perturbation_study",
     "prepare_eld_run",
     "ramp_problem",
-    "run_coupled_reference",
     "run_eld",
     "von_mises",
     "write_eld_result",

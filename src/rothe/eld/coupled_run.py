@@ -38,21 +38,22 @@ function becomes run_eld's branch with the same signature.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..errors import RunFailed, fail
 from ..io.trajectory import Trajectory
-from ..stepping.controllers import Adaptive, FixedStepController, Uniform
+from ..stepping.controllers import Adaptive, Uniform
 from ..stepping.evolve import evolve
 from ..timing import PhaseTimes
-from .controllers import adaptive_controller
+from .controllers import step_controller
 from .coupled_step import CoupledStepSystem
 from .coupling import CoupledProblem
 from .form import DEFAULT_FORM, Original, as_form
 from .scheme import BDF2, DEFAULT_SCHEME, as_scheme
 from .state import ELDCode
+from .stepper import GridLoop, StepGrid
 
 #: the history a step needs (two states for BDF2)
 _HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
@@ -147,7 +148,7 @@ def _taylor(x0, v0, a0, h):
     return x0 - h * v0 + 0.5 * h * h * a0, v0 - h * a0
 
 
-class CoupledStepper:
+class CoupledStepper(GridLoop):
     """One step of the coupled scheme at a time for the evolve loop (module docstring).
 
     Parameters
@@ -163,13 +164,29 @@ class CoupledStepper:
         quotients (2.7).
     T : float
         End time.
+    control : Uniform or Adaptive
+        The steps (:class:`rothe.eld.stepper.StepGrid`, without a solvability bound: the
+        coupled step takes linear damping, whose step matrix rho kappa^2 M + kappa C + K is
+        positive definite on ker B for C >= 0).
     watch : sparse (k, n) matrix, optional
         Rows recorded on u and v at every state (``watch_u``, ``watch_v``).
     error_scale : float
         The floor of the estimate's scale S_j (default 1e-12).
+    noise : callable j -> (theta, xi, vartheta), optional
+        Perturbations, each (r,) or None, of the coordinates that enter the coupling data at
+        step j = 1, 2, ... (the components' outputs the body sees; the initial state is exact;
+        Theorem 4.5 with couplings): regularized form g = G + Gamma (q + theta), g' = G_dot +
+        Gamma (p + xi), g'' = G_ddot + Gamma (pdot + vartheta); original form only theta (its
+        quotients enter through the differenced data).
     """
 
-    def __init__(self, system, scheme, form, T, *, watch=None, error_scale=1e-12):
+    def __init__(
+        self, system, scheme, form, T, control, *, watch=None, error_scale=1e-12, noise=None
+    ):
+        if noise is not None and not callable(noise):
+            raise fail(
+                "noise", type(noise).__name__, "must be a callable j -> (theta, xi, vartheta)"
+            )
         if isinstance(scheme, BDF2) and scheme.start != "taylor":
             raise fail("scheme", f"BDF2(start={scheme.start!r})", "must start 'taylor' here")
         self.system = system
@@ -178,6 +195,7 @@ class CoupledStepper:
         self.T = float(T)
         self.watch = watch
         self.error_scale = float(error_scale)
+        self.noise = noise
         lifting = "nodal" if isinstance(form, Original) else form.lifting
         kern = self.kern = CoupledStepSystem(system, lifting)
         body = self.body = system.body
@@ -197,16 +215,26 @@ class CoupledStepper:
                 self.Kq[sl, sl], self.Cq[sl, sl] = cmp.stiffness, cmp.damping
         self.order = scheme.order
         self.max_ratio = scheme.ratio_cap
-        self.n_steps = None
+        self.grid = StepGrid(control, scheme, self.T, math.inf)
+        self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
         self.times = PhaseTimes()
         self._last_newton = 0
 
-    def max_step(self, tau_prev: float | None) -> float:
-        """No solvability bound: the coupled step takes linear damping, whose step matrix
-        rho kappa^2 M + kappa C + K is positive definite on ker B for C >= 0."""
-        return math.inf
-
     # -- helpers ---------------------------------------------------------------------------------
+    def _noise_at(self, j: int):
+        """(theta, xi, vartheta) of step j: zeros without noise; xi, vartheta zero in the
+        original form."""
+        r = self.r
+        if self.noise is None:
+            return np.zeros(r), np.zeros(r), np.zeros(r)
+        th, xi, vt = self.noise(j)
+        original = isinstance(self.form, Original)
+        return (
+            np.zeros(r) if th is None else np.asarray(th, float),
+            np.zeros(r) if xi is None or original else np.asarray(xi, float),
+            np.zeros(r) if vt is None or original else np.asarray(vt, float),
+        )
+
     def _split(self, u_, v_, q_, p_):
         kern, c = self.kern, self.c
         gu, gv = u_[c.dofs], v_[c.dofs]
@@ -366,9 +394,7 @@ class CoupledStepper:
         else:
             al0, al1, al2 = self.scheme.coefficients(tau)
         kap = al0 / tau
-        t = state.t + tau
-        if abs(t - self.T) <= 4.0 * np.finfo(float).eps * max(1.0, self.T):
-            t = self.T
+        t = self.grid.time_after(state, tau)
 
         def hpart(key):
             h = hist[key]
@@ -380,12 +406,13 @@ class CoupledStepper:
         c_x, c_y = hpart("x"), hpart("y")
         c_q, c_p = hpart("q"), hpart("p")
         c_z = hpart("z") if s else np.zeros(0)
-        gk = body.G(t)
-        if isinstance(self.form, Original):
+        th, xi, vt = self._noise_at(state.j + 1)
+        gk = body.G(t) + Gam @ th
+        if isinstance(self.form, Original):  # the known data differenced with the quotients
             gdk = kap * gk + hpart("gk")
             gddk = kap * gdk + hpart("gdk")
         else:
-            gdk, gddk = body.G_dot(t), body.G_ddot(t)
+            gdk, gddk = body.G_dot(t) + Gam @ xi, body.G_ddot(t) + Gam @ vt
         u_k = kern.lift(gk)
         v_k = c_x + kern.lift(gdk) + Phi @ c_q
         a_k = kap * c_x + c_y + kern.lift(gddk) + Phi @ (kap * c_q + c_p)
@@ -535,31 +562,6 @@ class CoupledStepper:
         return new, info
 
     # -- evolve-loop interface -------------------------------------------------------------------
-    def finished(self, state: CoupledState) -> bool:
-        """Whether the run is done: n_steps taken on a fixed step count, else t >= T."""
-        if self.n_steps is not None:
-            return state.j >= self.n_steps
-        return state.t >= self.T
-
-    def limit(self, state: CoupledState, tau: float) -> float:
-        """Land on T (the last two steps split the rest evenly instead of leaving a sliver)."""
-        if self.n_steps is not None:
-            return tau
-        rest = self.T - state.t
-        if tau >= rest * (1.0 - 1e-12):
-            return rest
-        if tau < rest < 2.0 * tau:
-            return 0.5 * rest
-        return tau
-
-    def overshoot(self, state, attempts):
-        """None: coupled runs have no event to overshoot."""
-        return None
-
-    def pick_landing(self, state, attempts):
-        """The last attempt."""
-        return attempts[-1]
-
     def adapt(self, state: CoupledState, result: CoupledStepResult) -> CoupledState:
         """No space adaptivity for coupled runs yet: the accepted state."""
         return state
@@ -637,6 +639,7 @@ def run_coupled(
     T: float | None = None,
     watch=None,
     error_scale: float = 1e-12,
+    noise=None,
     progress=False,
 ) -> CoupledResult:
     """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
@@ -657,6 +660,8 @@ def run_coupled(
         Rows of u and v recorded at every state (``watch_u``, ``watch_v``).
     error_scale : float
         The floor of the error estimate's scale.
+    noise : callable j -> (theta, xi, vartheta), optional
+        Perturbations of the coordinates that enter the coupling data (:class:`CoupledStepper`).
     progress : bool or ProgressOptions
 
     Returns
@@ -670,29 +675,19 @@ def run_coupled(
     T = system.body.T if T is None else float(T)
     if not (math.isfinite(T) and T > 0):
         raise fail("T", T, "must be positive and finite")
-    stepper = CoupledStepper(system, scheme, form, T, watch=watch, error_scale=error_scale)
-    if control is None:
-        raise fail("control", None, "must be Uniform(tau) or Adaptive(tol)")
-    if isinstance(control, Uniform):
-        n = int(round(T / control.tau))
-        if n < 1 or not math.isclose(n * control.tau, T, rel_tol=1e-9):
-            raise fail("tau", control.tau, f"must divide T = {T:g} into equal steps")
-        stepper.n_steps = n
-        controller = FixedStepController.uniform(T / n, n)
-        tau_min = 1e-12
-    elif isinstance(control, Adaptive):
-        tau0 = control.tau if control.tau is not None else T / 100
-        tau_min = control.tau_min if control.tau_min is not None else 1e-10 * T
-        tau_max = control.tau_max if control.tau_max is not None else T
-        controller = adaptive_controller(
-            stepper, control.tol, min(tau0, T), tau_min=tau_min, tau_max=tau_max
-        )
-    else:
+    if not isinstance(control, (Uniform, Adaptive)):
         raise fail(
             "control",
             type(control).__name__,
             "must be Uniform(tau) or Adaptive(tol) (rothe.stepping.controllers)",
         )
+    if isinstance(control, Adaptive) and control.tau is None:
+        control = replace(control, tau=T / 100)  # the first step: 1/100 of the run
+    stepper = CoupledStepper(
+        system, scheme, form, T, control, watch=watch, error_scale=error_scale, noise=noise
+    )
+    info = {}
+    controller, _, tau_min = step_controller(stepper, control, T, info)
     traj = Trajectory(
         meta={
             "kind": "eld-coupled",
@@ -701,6 +696,7 @@ def run_coupled(
             "T": T,
             "components": [cmp.name for cmp in system.components],
             "parts": list(stepper.c.parts),
+            **info,
         }
     )
     state = stepper.initial_state()
