@@ -60,7 +60,7 @@ def test_initial_state_is_consistent_and_the_history_follows_the_taylor_polynomi
     # the BDF2 history: u^{-1} = P(-tau) is u(-tau) up to O(tau^3) (the Taylor polynomial)
     errors = []
     for tau in (0.02, 0.01):
-        new = with_prehistory(system, BDF2(), state, tau)
+        new = with_prehistory(stepper, state, tau)
         u_prev = np.asarray(exact.u(-tau, problem.space.doflocs)).T.ravel()
         errors.append(np.abs(new.fields["u_1"] - u_prev).max())
     assert 0 < errors[1] < 2e-5 and 6.0 <= errors[0] / errors[1] <= 10.0

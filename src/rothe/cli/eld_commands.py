@@ -214,6 +214,22 @@ class EldRunCommand:
     def report(self, args, summary: dict) -> None:
         """Print what the command adds after the summary of a completed run."""
 
+    def add_common_options(self, parser, **space) -> None:
+        """The options every ELD run command ends with: the space options (``space``: the
+        command's defaults for :func:`~rothe.cli.adapt_options.add_space_options`), the
+        outputs and the run options."""
+        add_space_options(parser, **space)
+        add_output_options(parser, self.name)
+        add_run_options(parser)
+
+    @staticmethod
+    def step_checks(args):
+        """The checks every ELD run command starts with: --tau against T, the run's objects
+        (scheme, form, control, data: :func:`~rothe.cli.eld_options.run_objects`) and
+        --keep-every. Returns ``(objects, keep)``."""
+        check_eld_step("--tau", args.tau, args.T)
+        return run_objects(args), check_int("--keep-every", args.keep_every, minimum=1)
+
     def run(self, args, problem, options: dict, label: str, summarize, stream=None) -> int:
         """Run ``problem`` with the :func:`rothe.eld.run_eld` keywords ``options`` as a session;
         write the result (also of a failed or interrupted run), the summary last; print.
@@ -363,18 +379,14 @@ class RunEldMMS(EldRunCommand):
             "(inconsistent with G(0): refused, Remark 2.2) (default exact)",
         )
         mms_options(parser)
-        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
-        add_output_options(parser, self.name)
-        add_run_options(parser)
+        self.add_common_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
 
     def validate(self, args):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
-        check_eld_step("--tau", args.tau, args.T)
-        check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
-        objects = run_objects(args)
-        keep = check_int("--keep-every", args.keep_every, minimum=1)
+        objects, keep = self.step_checks(args)
         n = check_int("--n", args.n, minimum=1)
+        check_mms_size(n, args.degree)
         parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
         if not parts:
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
@@ -484,19 +496,15 @@ class RunEldBeam(EldRunCommand):
         )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
-        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
-        add_output_options(parser, self.name)
-        add_run_options(parser)
+        self.add_common_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
 
     def validate(self, args):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
-        check_eld_step("--tau", args.tau, args.T)
-        check_beam_size(check_int("--n", args.n, minimum=1), args.length, args.degree, args.solver)
-        objects = run_objects(args)
+        objects, keep = self.step_checks(args)
         n = check_int("--n", args.n, minimum=1)
+        check_beam_size(n, args.length, args.degree, args.solver)
         every = check_int("--save-every", args.save_every, minimum=1)
-        keep = check_int("--keep-every", args.keep_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
         if check_choice("--backend", args.backend, BACKENDS) == "petsc" and space is not None:
             raise fail(
@@ -515,18 +523,7 @@ class RunEldBeam(EldRunCommand):
 
             return execute_beam(self, args)
         objects, n, every, keep, damping, space = self.validate(args)
-        problem = beam_problem(
-            n,
-            length=args.length,
-            E=args.E,
-            nu=args.nu,
-            rho=args.rho,
-            damping=damping,
-            amplitude=args.amplitude,
-            t_move=args.t_move,
-            T=args.T,
-            degree=args.degree,
-        )
+        problem = self.beam(args, n, damping)
         fit_default_cap(args, space, problem.space.ndofs)
         label = (
             f"eld-beam, {objects['scheme'].name}, {objects['form'].name}, "
@@ -545,6 +542,38 @@ class RunEldBeam(EldRunCommand):
             else (lambda session, opts: _beam_stream(session, problem, opts, every))
         )
         return self.run(args, problem, options, label, summarize, stream)
+
+    @staticmethod
+    def beam(args, n: int, damping):
+        """The cantilever of the command line with ``n`` cells across
+        (:func:`rothe.eld.examples.beam_problem`)."""
+        return beam_problem(
+            n,
+            length=args.length,
+            E=args.E,
+            nu=args.nu,
+            rho=args.rho,
+            damping=damping,
+            amplitude=args.amplitude,
+            t_move=args.t_move,
+            T=args.T,
+            degree=args.degree,
+        )
+
+    @staticmethod
+    def stream_dir(session):
+        """The directory of the streamed XDMF in the session's checkpoint directory, emptied
+        for a new run (segments of an earlier run are not this run's)."""
+        stream = session.checkpoint_dir / "stream"
+        if session.resume is None:
+            shutil.rmtree(stream, ignore_errors=True)
+        return stream
+
+    @staticmethod
+    def frame_due(state, every: int, T: float) -> bool:
+        """Whether the state after an accepted step is written: every ``every``-th step and the
+        last (n tau may round to just below T: the last by a relative margin)."""
+        return state.j % every == 0 or state.t >= T * (1.0 - 1e-12)
 
     def summarize(self, args, summary: dict, traj) -> None:
         """The beam's fields of the summary: its options, seconds per step, the reactions at
@@ -665,17 +694,13 @@ class RunEldPulse(EldRunCommand):
         )
         lifting_option(parser)
         keep_option(parser, 10)
-        add_space_options(
+        self.add_common_options(
             parser, on=True, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS
         )
-        add_output_options(parser, self.name)
-        add_run_options(parser)
 
     def validate(self, args):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
-        check_eld_step("--tau", args.tau, args.T)
-        objects = run_objects(args)
-        keep = check_int("--keep-every", args.keep_every, minimum=1)
+        objects, keep = self.step_checks(args)
         n = check_int("--n", args.n, minimum=1)
         if args.degree not in (1, 2):
             raise fail("--degree", args.degree, "must be 1 or 2")
@@ -721,17 +746,13 @@ def _beam_stream(session, problem, options: dict, every: int) -> EldXdmfWriter:
     """The beam's XDMF writer in the checkpoint directory (an attachment of the run's
     checkpoint, so a resumed run continues it), fed by the observer with the initial state
     (lambda(0) included: both series start at t = 0) and every ``every``-th step."""
-    stream = session.checkpoint_dir / "stream"
-    if session.resume is None:  # segments of an earlier run are not this run's
-        shutil.rmtree(stream, ignore_errors=True)
-    writer = EldXdmfWriter(stream, problem, name="beam")
+    writer = EldXdmfWriter(RunEldBeam.stream_dir(session), problem, name="beam")
 
     def observer(state, result):
         if result is None:  # the initial state (not on resume): u0, v0 and lambda(0)
             writer.write(0.0, problem.u0, problem.v0, state.lam)
             return
-        # n tau may round to just below T: the last step by a relative margin
-        if state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
+        if RunEldBeam.frame_due(state, every, problem.T):
             writer.write(state.t, state.u, state.v, result.lam)
 
     options["observer"] = observer

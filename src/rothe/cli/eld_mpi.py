@@ -19,12 +19,10 @@ process).
 
 from __future__ import annotations
 
-import shutil
 import sys
 
 from ..eld.constraint import DirichletConstraint
 from ..eld.distributed.problem import DistributedELDProblem
-from ..eld.examples import beam_problem
 from ..eld.output import EldXdmfWriter
 from ..eld.run import ELDResult, run_eld
 from ..errors import RotheInputError, RunFailed, RunInterrupted
@@ -78,18 +76,7 @@ def execute_beam(command, args) -> int:
     objects, n, every, keep, damping, _ = command.validate(args)
     # the beam's data from beam_problem on one cell across (material, damping, G, T: nothing
     # there depends on n), the mesh as beam_problem builds it
-    definition = beam_problem(
-        1,
-        length=args.length,
-        E=args.E,
-        nu=args.nu,
-        rho=args.rho,
-        damping=damping,
-        amplitude=args.amplitude,
-        t_move=args.t_move,
-        T=args.T,
-        degree=args.degree,
-    ).definition
+    definition = command.beam(args, 1, damping).definition
     mesh = meshes.box(max(1, int(round(args.length * n))), n, n, args.length, 1.0, 1.0)
     problem = DistributedELDProblem(mesh, definition, comm)
     view = OutputView(mesh, problem) if root else None
@@ -110,18 +97,14 @@ def execute_beam(command, args) -> int:
     peaks = []  # every process's peak memory (MB), gathered to rank 0 after its run
 
     def prepare(session):
-        stream = session.checkpoint_dir / "stream"
-        if session.resume is None:  # segments of an earlier run are not this run's
-            shutil.rmtree(stream, ignore_errors=True)
-        writer = EldXdmfWriter(stream, view, name="beam")
+        writer = EldXdmfWriter(command.stream_dir(session), view, name="beam")
         session.checkpoint.attachments = {"xdmf": writer}
         writers.append(writer)
 
     def observer(state, result):
         # collective (every process gathers); result None: the initial state with lambda(0),
         # so that both series start at t = 0 (not called again on resume)
-        # n tau may round to just below T: the last step by a relative margin
-        if result is None or state.j % every == 0 or state.t >= problem.T * (1.0 - 1e-12):
+        if result is None or command.frame_due(state, every, problem.T):
             u, v = part.gather_serial(state.u), part.gather_serial(state.v)
             if writers:
                 lam = state.lam if result is None else result.lam

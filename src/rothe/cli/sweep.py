@@ -40,6 +40,7 @@ from ..parallel.tasks import Task, TaskResult
 from ..plotting.sweep import plot_sweep
 from ..stepping.interrupt import signal_name
 from . import registry
+from .main import build_parser, parse_command
 from .session import strip_argv
 from .tasks import cli_task
 
@@ -104,7 +105,6 @@ def split_param(text: str) -> tuple[str, list[str]]:
 
 def command_parser(verb: str, example: str) -> argparse.ArgumentParser:
     """The argparse parser of ``rothe <verb> <example>``, exactly as the CLI builds it."""
-    from .main import build_parser  # main imports this module's command
 
     def sub(parser, name):
         for action in parser._actions:
@@ -250,7 +250,6 @@ def validate_runs(runs: list[SweepRun], parser, params: list[SweepParam]) -> Non
     sweep over ``mesh=good.msh,missing.msh`` must not find the missing file after the good
     runs) and run the command's own ``validate``; the first refusal is one line naming the run.
     Fills ``run.parsed`` (the values as the command sees them)."""
-    from .main import build_parser, parse_command  # main imports this module's command
 
     full = build_parser()
     seen: set = set()

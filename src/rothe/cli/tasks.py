@@ -11,6 +11,7 @@ from pathlib import Path
 from ..errors import RunFailed, RunInterrupted
 from ..parallel.tasks import Task, TaskFailed
 from ..stepping import interrupt
+from .main import build_parser, execute, parse_command
 
 
 def run_command(argv: list[str], out: str | None = None) -> dict | None:
@@ -24,7 +25,6 @@ def run_command(argv: list[str], out: str | None = None) -> dict | None:
     ``out/summary.json``, or ``out/incomplete/summary.json`` where a run that does not complete
     leaves the completed result of an earlier run in place (:mod:`rothe.cli.session`).
     """
-    from .main import build_parser, execute, parse_command  # main imports every command
 
     args = parse_command(build_parser(), list(argv))
     paths = (

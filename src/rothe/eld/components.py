@@ -55,15 +55,7 @@ def check_spd(name: str, M, size: int | None = None) -> np.ndarray:
         raise fail(name, described(f"an array of shape {np.shape(M)}"), f"must be {want}")
     if not np.all(np.isfinite(A)):
         raise fail(name, described("non-finite entries"), "must be finite")
-    scale = max(float(np.max(np.abs(A))), 1e-300)
-    asym = float(np.max(np.abs(A - A.T)))
-    if asym > SYMMETRY_TOL * scale:
-        raise fail(
-            name,
-            described(f"a non-symmetric matrix (max |M - M^T| = {asym:.3g})"),
-            "must be symmetric positive definite",
-        )
-    A = 0.5 * (A + A.T)
+    A = _symmetric(name, A, "M", "must be symmetric positive definite")
     eig = np.linalg.eigvalsh(A)
     if not eig[0] > 1e-12 * max(eig[-1], 0.0):
         raise fail(
@@ -93,16 +85,34 @@ def _matrix(name: str, value, size: int, symmetric: bool = False) -> np.ndarray:
     if not np.all(np.isfinite(A)):
         raise fail(name, described("non-finite entries"), "must be finite")
     if symmetric:
-        scale = max(float(np.max(np.abs(A))), 1e-300)
-        asym = float(np.max(np.abs(A - A.T)))
-        if asym > SYMMETRY_TOL * scale:
-            raise fail(
-                name,
-                described(f"a non-symmetric matrix (max |K - K^T| = {asym:.3g})"),
-                "must be symmetric (a potential force)",
-            )
-        A = 0.5 * (A + A.T)
+        A = _symmetric(name, A, "K", "must be symmetric (a potential force)")
     return A
+
+
+def _symmetric(name: str, A: np.ndarray, symbol: str, allowed: str) -> np.ndarray:
+    """(A + A^T)/2 if max |A - A^T| <= SYMMETRY_TOL max |A|, else a one-line error naming
+    ``name`` (``symbol``: the matrix's letter in the message; ``allowed``: what it must be)."""
+    scale = max(float(np.max(np.abs(A))), 1e-300)
+    asym = float(np.max(np.abs(A - A.T)))
+    if asym > SYMMETRY_TOL * scale:
+        raise fail(
+            name,
+            described(f"a non-symmetric matrix (max |{symbol} - {symbol}^T| = {asym:.3g})"),
+            allowed,
+        )
+    return 0.5 * (A + A.T)
+
+
+def _set_coordinates(component, q0, p0, coordinates) -> None:
+    """The initial q0, p0 (default zero) and the coordinates' names (default q0, q1, ...) of
+    a component with ``component.size`` coordinates."""
+    m = component.size
+    component.q0 = _vector("q0", q0, m)
+    component.p0 = _vector("p0", p0, m)
+    names = tuple(f"q{k}" for k in range(m)) if coordinates is None else tuple(coordinates)
+    if len(names) != m:
+        raise fail("coordinates", list(names), f"must name the {m} coordinates")
+    component.coordinates = names
 
 
 def _vector(name: str, value, size: int) -> np.ndarray:
@@ -273,12 +283,7 @@ class LinearComponent(Component):
         if load is not None and not callable(load):
             raise fail("load", type(load).__name__, "must be a callable t -> forces")
         self._load = load
-        self.q0 = _vector("q0", q0, m)
-        self.p0 = _vector("p0", p0, m)
-        names = tuple(f"q{k}" for k in range(m)) if coordinates is None else tuple(coordinates)
-        if len(names) != m:
-            raise fail("coordinates", list(names), f"must name the {m} coordinates")
-        self.coordinates = names
+        _set_coordinates(self, q0, p0, coordinates)
 
     @property
     def is_linear(self) -> bool:
@@ -569,12 +574,7 @@ class UserComponent(Component):
         if potential is not None and not callable(potential):
             raise fail("potential", type(potential).__name__, "must be a callable q -> V")
         self._force, self._jac, self._load, self._potential = force, jacobians, load, potential
-        self.q0 = _vector("q0", q0, m)
-        self.p0 = _vector("p0", p0, m)
-        names = tuple(f"q{k}" for k in range(m)) if coordinates is None else tuple(coordinates)
-        if len(names) != m:
-            raise fail("coordinates", list(names), f"must name the {m} coordinates")
-        self.coordinates = names
+        _set_coordinates(self, q0, p0, coordinates)
         self._linear = bool(linear)
         f0 = np.asarray(force(0.0, self.q0, self.p0), dtype=float)
         if f0.shape != (m,) or not np.all(np.isfinite(f0)):

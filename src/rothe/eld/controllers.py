@@ -14,14 +14,20 @@ The step-control objects of :mod:`rothe.stepping.controllers` become controllers
   no growth right after a rejection, and never above the solvability bound of the next step or
   (BDF2) :data:`~rothe.eld.scheme.BDF2_RATIO_CAP` times the last accepted step
   (:func:`adaptive_controller`).
+
+:func:`step_controller` builds the controller of a step-control object; :func:`describe_run`
+adds what a run says about itself (the trajectory's meta data) and what its checkpoint must
+match, for both backends of :func:`rothe.eld.run_eld`.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 
 from ..errors import fail
-from ..stepping.controllers import Adaptive, ErrorNormController, FixedStepController
+from ..io.checkpoint import run_arguments
+from ..stepping.controllers import Adaptive, ErrorNormController, FixedStepController, Given
 
 
 def adaptive_controller(
@@ -94,3 +100,79 @@ def step_controller(stepper, control, T: float, info: dict):
         ratio_cap=stepper.max_ratio if math.isfinite(stepper.max_ratio) else None,
     )
     return controller, tol, tau_min
+
+
+def describe_run(
+    problem,
+    stepper,
+    *,
+    solver_kind: str,
+    solver: str,
+    noise,
+    adapt,
+    store_fields: bool,
+    linear_rtol: float,
+    error_scale,
+    meta,
+    backend: dict | None = None,
+):
+    """What a run says about itself and what its checkpoint must match, for both backends:
+    ``(info, arguments, controller, loop_tau_min)``.
+
+    ``info`` is the trajectory's meta data (example, form, scheme, control, steps, data,
+    lifting, solver, Lemma 3.2's bound, the start, the problem; the controller's tol and
+    bounds; ``meta`` last); ``arguments`` the run's arguments a checkpoint is checked against
+    (:func:`rothe.io.checkpoint.run_arguments`, the stepper's values after validation); the
+    step controller built from ``stepper.control`` (:func:`rothe.eld.controllers.step_controller`)
+    and the evolve loop's tau_min. ``backend`` (the PETSc backend: its name and processes)
+    goes into both."""
+    scheme, form, control, data = stepper.scheme, stepper.form, stepper.control, stepper.data_mode
+    control_name = "adaptive" if isinstance(control, Adaptive) else "uniform"
+    info = {
+        "example": problem.name,
+        "form": form.name,
+        "scheme": scheme.name,
+        "control": control_name,
+        "tau": stepper.tau,
+        "n_steps": stepper.n_steps,
+        "data": data.name,
+        "lifting": form.lifting,
+        "solver": solver_kind,
+        "step_bound": problem.step_bound(),
+        "keep_every": stepper.keep_every,
+        "start": scheme.describe()["start"],
+        **(backend or {}),
+        "problem": problem.describe(),
+    }
+    if isinstance(control, Given):
+        info["control"] = "given steps"
+    if noise is not None:
+        info["noise"] = noise.describe()
+    if adapt is not None:
+        info["space"] = adapt.describe()  # the key of the outputs since issue 8
+    controller, tol, loop_tau_min = step_controller(stepper, control, problem.T, info)
+    tau_min, tau_max = info.get("tau_min"), info.get("tau_max")  # None on a fixed grid
+    info.update(meta or {})
+    arguments = run_arguments(
+        form=form.name,
+        scheme=scheme.name,
+        control=control_name,
+        tol=tol,
+        tau=stepper.tau,
+        steps=stepper.steps,
+        data=data.name,
+        lifting=form.lifting,
+        solver=solver,
+        newton=asdict(stepper.newton),
+        noise=None if noise is None else noise.describe(),
+        store_fields=store_fields,
+        keep_every=stepper.keep_every,
+        linear_rtol=linear_rtol,
+        tau_min=tau_min,
+        tau_max=tau_max,
+        start=scheme.describe()["start"],
+        error_scale=error_scale,
+        **({} if adapt is None else {"adapt": adapt.describe()}),
+        **(backend or {}),
+    )
+    return info, arguments, controller, loop_tau_min

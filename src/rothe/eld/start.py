@@ -179,15 +179,20 @@ def data_scale(system, T: float) -> float:
     return math.sqrt(best)
 
 
-def with_prehistory(system, scheme, state: ELDState, tau: float) -> ELDState:
+def with_prehistory(stepper, state: ELDState, tau: float) -> ELDState:
     """The j = 0 state with the BDF2 history u^{-1}, v^0, v^{-1} from the Taylor polynomial P
     (module docstring), for a first step tau (fictitious tau_0 = tau).
 
+    The one copy for both backends: ``stepper`` (:class:`rothe.eld.stepper.StepperBase`, the
+    serial or the PETSc one) supplies the linear algebra -- ``_start_data(tau, cubic)`` (the
+    Gamma_D values of G_dot(0) and of G_3 = (G_ddot(tau) - G_ddot(0))/tau), ``_split`` (the
+    scheme's unknown of a field), ``_fill_products``, ``_mult``, ``_dots`` -- and ``problem``,
+    ``C``, ``rho``, ``scheme`` (its ``start`` says whether P has the cubic Gamma_D term:
+    ``'taylor'``) and ``data_mode``.
+
     Parameters
     ----------
-    system : ELDSystem
-    scheme : BDF2
-        Its ``start`` says whether P has the cubic Gamma_D term (``'taylor'``).
+    stepper : StepperBase
     state : ELDState
         The initial state (not changed).
     tau : float
@@ -197,15 +202,17 @@ def with_prehistory(system, scheme, state: ELDState, tau: float) -> ELDState:
     -------
     ELDState
     """
-    p = system.problem
-    c = p.constraint
+    p = stepper.problem
+    C = stepper.C
     f = state.fields
     u0, a0 = f["u"], f["a"]
+    cubic = stepper.scheme.start == "taylor"
+    gd0, g3 = stepper._start_data(tau, cubic)
     vc = f["v"].copy()
-    vc[c.dofs] = system.data.initial()[1]
-    G3 = np.zeros(p.space.ndofs)
-    if scheme.start == "taylor":
-        G3[c.dofs] = (p.G_ddot(tau) - p.G_ddot(0.0)) / tau
+    vc[C] = gd0
+    G3 = np.zeros(vc.size)
+    if cubic:
+        G3[C] = g3
 
     def P(s):
         return u0 + s * vc + (0.5 * s * s) * a0 + (s**3 / 6.0) * G3
@@ -214,29 +221,39 @@ def with_prehistory(system, scheme, state: ELDState, tau: float) -> ELDState:
     V0 = (1.5 * u0 - 2.0 * U1 + 0.5 * U2) / tau
     V1 = (1.5 * U1 - 2.0 * U2 + 0.5 * U3) / tau
     fields = dict(f)
-    fields.update(x_1=system.split(U1), y=system.split(V0), y_1=system.split(V1))
+    split = stepper._split
+    fields.update(x_1=split(U1), y=split(V0), y_1=split(V1))
     # the ledger follows the history too: v^0 = V0 (O(tau^2) from the initial velocity) with
     # u^{-1} = U1, v^{-1} = V1; the energy difference of V0 and v^0 is booked in X^1
     fields.update(v=V0, u_1=U1, v_1=V1)
     boundary = dict(state.boundary)
-    boundary.update(system.data.mode.start_history(U1, V0, V1, c.dofs))
+    boundary.update(stepper.data_mode.start_history(U1, V0, V1, C))
     products = {k: w for k, w in state.products.items() if k not in ("My", "Ky", "Mv")}
     new = replace(state, tau_prev=tau, fields=fields, boundary=boundary, products=products)
-    system.fill_products(new)
+    stepper._fill_products(new)
     pr = new.products
     L = new.ledger
-    rho = system.rho
-    kin = 0.5 * rho * _dot(V0, pr["Mv"])
+    rho = stepper.rho
     # C^0 with mu_0 = 1/2 (the fictitious equal history)
     dv, du = V0 - V1, u0 - U1
+    v0M, zdk, sqk, zde, sqe = stepper._dots(
+        [
+            (V0, pr["Mv"]),
+            (pr["Mv"], dv),
+            (pr["Mv"] - stepper._mult(p.M, V1), dv),
+            (pr["Ku"], du),
+            (pr["Ku"] - stepper._mult(p.K, U1), du),
+        ]
+    )
+    kin = 0.5 * rho * v0M
     L = replace(
         L,
         kinetic=kin,
         mismatch=L.mismatch - (kin - L.kinetic),
-        g_zd_kin=rho * _dot(pr["Mv"], dv),
-        g_sq_kin=rho * _dot(pr["Mv"] - p.M @ V1, dv),
-        g_zd_el=_dot(pr["Ku"], du),
-        g_sq_el=_dot(pr["Ku"] - p.K @ U1, du),
+        g_zd_kin=rho * zdk,
+        g_sq_kin=rho * sqk,
+        g_zd_el=zde,
+        g_sq_el=sqe,
         g_mu=0.5,
     )
     C0 = 0.5 * (L.g_zd_kin + L.g_zd_el) + 0.25 * (L.g_sq_kin + L.g_sq_el)

@@ -451,8 +451,10 @@ class StepperBase(GridLoop):
     - ``_dots(pairs)``: the inner products a.b of ``pairs`` (on many processes: global sums);
     - ``_any(flag)``: whether ``flag`` holds on any process;
     - ``_mult(A, w)``: the product A w;
-    - ``_prehistory(state, tau)``: the state with BDF2's start history
-      (:func:`rothe.eld.start.with_prehistory`);
+    - ``_start_data(tau, cubic)``, ``_split(w)``, ``_fill_products(state)``: what BDF2's start
+      history needs (:func:`rothe.eld.start.with_prehistory`): the Gamma_D values of G_dot(0)
+      and of (G_ddot(tau) - G_ddot(0))/tau, the scheme's unknown of a field, the cached
+      products;
     - ``_values(j, state, t_new, coeffs)``: the data of step j (:class:`rothe.eld.data.StepValues`);
     - ``_nonfinite(vals)``: the name of the first datum with NaN or inf entries, or None;
     - ``_solve_step(state, vals, coeffs, tau)``: the step's kinematics (:func:`kinematics`,
@@ -508,6 +510,11 @@ class StepperBase(GridLoop):
         return info
 
     # -- one step -------------------------------------------------------------------------------
+    def _prehistory(self, state: ELDState, tau: float) -> ELDState:
+        """The first state with BDF2's start history (:func:`rothe.eld.start.with_prehistory`
+        on this stepper's linear algebra)."""
+        return with_prehistory(self, state, tau)
+
     def _attempt(self, state: ELDState, tau: float) -> ELDStepResult:
         # overflow and NaN are detected in the result (a failed step), not reported as warnings
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -1036,8 +1043,16 @@ class ELDStepper(StepperBase):
     def _mult(A, w: np.ndarray) -> np.ndarray:
         return A @ w
 
-    def _prehistory(self, state: ELDState, tau: float) -> ELDState:
-        return with_prehistory(self.system, self.scheme, state, tau)
+    def _start_data(self, tau: float, cubic: bool):
+        p = self.problem
+        g3 = (p.G_ddot(tau) - p.G_ddot(0.0)) / tau if cubic else None
+        return self.system.data.initial()[1], g3
+
+    def _split(self, w: np.ndarray) -> np.ndarray:
+        return self.system.split(w)
+
+    def _fill_products(self, state: ELDState) -> None:
+        self.system.fill_products(state)
 
     def _values(self, j: int, state: ELDState, t_new: float, coeffs):
         hist = self.data_mode.history(state.boundary, coeffs)

@@ -27,9 +27,9 @@ from ...io.checkpoint import RunCheckpointing, load_checkpoint
 from ...io.trajectory import RunStatistics, Trajectory
 from ...stepping.controllers import Adaptive
 from ...stepping.evolve import evolve
+from ..controllers import describe_run
 from ..data import DEFAULT_DATA, DataMode
 from ..form import DEFAULT_FORM, Form
-from ..run import describe_run
 from ..scheme import DEFAULT_SCHEME, Scheme
 from ..state import ELDState
 from ..stepper import DEFAULT_CONTROL

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict
 
 import numpy as np
 
@@ -497,68 +497,21 @@ class PetscELDStepper(StepperBase):
         return self.problem.constraint.multiplier_from_residual(r_C), v_C
 
     # -- BDF2 start (rothe.eld.start.with_prehistory on the owned dofs) -------------------------
-    def _prehistory(self, state: ELDState, tau: float) -> ELDState:
-        p = self.problem
-        C = self.C
-        f = state.fields
-        u0, a0 = f["u"], f["a"]
-        vc = f["v"].copy()
-        vc[C] = p.boundary_values(0.0, ("G_dot",))[0][self.bpos]
-        G3 = np.zeros(self.n)
-        if self.scheme.start == "taylor":
-            g_tau, g_0 = (
-                p.boundary_values(tau, ("G_ddot",))[0],
-                p.boundary_values(0.0, ("G_ddot",))[0],
-            )
-            G3[C] = ((g_tau - g_0) / tau)[self.bpos]
-
-        def P(s):
-            return u0 + s * vc + (0.5 * s * s) * a0 + (s**3 / 6.0) * G3
-
-        U1, U2, U3 = P(-tau), P(-2.0 * tau), P(-3.0 * tau)
-        V0 = (1.5 * u0 - 2.0 * U1 + 0.5 * U2) / tau
-        V1 = (1.5 * U1 - 2.0 * U2 + 0.5 * U3) / tau
-        fields = dict(f)
-        if isinstance(self.form, Regularized):
-            fields.update(x_1=self._split(U1), y=self._split(V0), y_1=self._split(V1))
-        else:
-            fields.update(x_1=U1, y=V0, y_1=V1)
-        fields.update(v=V0, u_1=U1, v_1=V1)
-        products = {k: w for k, w in state.products.items() if k not in ("My", "Ky", "Mv")}
-        new = replace(
-            state, tau_prev=tau, fields=fields, boundary=dict(state.boundary), products=products
-        )
-        self._fill_products(new)
-        pr = new.products
-        L = new.ledger
-        dv, du = V0 - V1, u0 - U1
-        MV1, KU1 = self._mult(p.M, V1), self._mult(p.K, U1)
-        v0M, zdk, sqk, zde, sqe = self._dots(
-            [
-                (V0, pr["Mv"]),
-                (pr["Mv"], dv),
-                (pr["Mv"] - MV1, dv),
-                (pr["Ku"], du),
-                (pr["Ku"] - KU1, du),
-            ]
-        )
-        kin = 0.5 * self.rho * v0M
-        L = replace(
-            L,
-            kinetic=kin,
-            mismatch=L.mismatch - (kin - L.kinetic),
-            g_zd_kin=self.rho * zdk,
-            g_sq_kin=self.rho * sqk,
-            g_zd_el=zde,
-            g_sq_el=sqe,
-            g_mu=0.5,
-        )
-        C0 = 0.5 * (L.g_zd_kin + L.g_zd_el) + 0.25 * (L.g_sq_kin + L.g_sq_el)
-        new.ledger = replace(L, boundary_C=C0, boundary_C0=C0)
-        return new
+    def _start_data(self, tau: float, cubic: bool):
+        p, bpos = self.problem, self.bpos
+        gd0 = p.boundary_values(0.0, ("G_dot",))[0][bpos]
+        g3 = None
+        if cubic:
+            g_tau = p.boundary_values(tau, ("G_ddot",))[0]
+            g_0 = p.boundary_values(0.0, ("G_ddot",))[0]
+            g3 = ((g_tau - g_0) / tau)[bpos]
+        return gd0, g3
 
     def _split(self, w: np.ndarray) -> np.ndarray:
-        """w - S^T(w|Gamma_D): the kernel part (nodal lifting)."""
+        """The scheme's unknown of a field w: regularized, w - S^T(w|Gamma_D), the kernel part
+        (nodal lifting); original, w itself."""
+        if not isinstance(self.form, Regularized):
+            return w
         out = w.copy()
         out[self.C] = 0.0
         return out
