@@ -107,6 +107,7 @@ CASES: dict[str, list[str]] = {
         "3000",
     ],
     "eld-beam": ["run", "eld-beam", "--n", "2", "--T", "0.2"],
+    "eld-tip-mass": ["run", "eld-tip-mass", "--T", "0.5", "--tau", "0.01"],
     "sweep": ["sweep", "run", "ris-1d", "--param", "tol=1e-3,1e-4", "--param", "control=adaptive"],
 }
 

@@ -8,7 +8,7 @@ import scipy.sparse.linalg as spla
 from skfem import MeshTri
 
 from rothe.eld import ELDProblem, Material, StressEvaluator
-from rothe.eld.materials import PiecewiseMaterial
+from rothe.eld.materials import PiecewiseMaterial, material_from
 from rothe.errors import RotheInputError
 from rothe.fem import mesh as meshes
 from rothe.fem.elasticity import VectorSpace
@@ -166,7 +166,7 @@ def test_bad_material_input_is_one_line_each():
         ),
         (
             lambda: PiecewiseMaterial({"x": one}, regions={"a": "y"}),
-            r"^regions\['a'\]: got 'y', must be one of the materials: x$",
+            r"^regions: got 'a' -> 'y', must map each region to one of the materials: x$",
         ),
         (
             lambda: PiecewiseMaterial(
@@ -205,3 +205,38 @@ def test_bad_material_input_is_one_line_each():
     # plane stress admits what plane strain refuses and vice versa (-mu < lam <= -2 mu / 3)
     Material(1.0, -0.6, 1.0, plane="stress")
     Material(1.0, -0.9, 1.0, plane="strain")
+
+
+def test_material_from_either_pair_and_a_pair_completed_from_the_default():
+    lam, mu = 0.3 * 200 / (1.3 * 0.4), 200 / 2.6
+    by_young = material_from(rho=7.8, E=200.0, nu=0.3, dim=3)
+    assert by_young == Material.from_young(200.0, 0.3, 7.8, dim=3)
+    by_lame = material_from(rho=7.8, lam=lam, mu=mu, dim=3)
+    assert by_lame.lam == lam and by_lame.mu == mu
+    assert by_lame.young == pytest.approx((200.0, 0.3), rel=1e-14)
+    # nothing given: the default, built as the default's pair (bit for bit)
+    assert material_from(rho=1.0, default={"lam": 2.0, "mu": 1.0}) == Material(1.0, 2.0, 1.0)
+    # E alone on a default given as (lam, mu) = (2, 1): nu of that default, 1/3
+    m = material_from(rho=1.0, E=8.0, default={"lam": 2.0, "mu": 1.0}, plane="stress")
+    assert m.young == pytest.approx((8.0, 1 / 3), rel=1e-14) and m.plane == "stress"
+    # mu alone on a default (E, nu) = (100, 0): lam of that default, 0
+    m = material_from(rho=1.0, mu=10.0, default={"E": 100.0, "nu": 0.0})
+    assert (m.lam, m.mu) == (0.0, 10.0)
+
+
+def test_material_from_refuses_mixed_pairs_naming_both():
+    with pytest.raises(RotheInputError) as info:
+        material_from(rho=1.0, E=210.0, mu=80.0)
+    exc = info.value
+    assert str(exc) == "E: got 210, must not be combined with mu: give E, nu or lam, mu"
+    assert exc.parameter == "E" and "mu" in exc.mentions
+    table = {"E": "--E", "nu": "--nu", "lam": "--lam", "mu": "--mu"}
+    assert str(exc.renamed("--E", table)) == (
+        "--E: got 210, must not be combined with --mu: give --E, --nu or --lam, --mu"
+    )
+    with pytest.raises(RotheInputError, match=r"^nu: got 0.2, must not be combined with lam"):
+        material_from(rho=1.0, nu=0.2, lam=1.0)
+    with pytest.raises(RotheInputError, match=r"^nu: got 0.5, must satisfy -1 < nu < 0.5"):
+        material_from(rho=1.0, E=1.0, nu=0.5)
+    with pytest.raises(RotheInputError, match=r"^E: got None, must be given with nu"):
+        material_from(rho=1.0)

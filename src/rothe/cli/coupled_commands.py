@@ -30,11 +30,17 @@ from .eld_options import (
     control_of,
     form_of,
     lifting_option,
+    material_fields,
+    material_of,
+    material_options,
     scheme_of,
     step_options,
 )
 from .registry import command
 
+#: the strip's material (nu = 0: the axial motion is the 1D bar's, the analytic frequencies are
+#: exact for it)
+TIP_MASS_MATERIAL = {"E": 100.0, "nu": 0.0}
 #: the most cells the dense modal analysis behind the reference frequencies takes
 TIP_MASS_MAX_CELLS = 4000
 
@@ -95,17 +101,7 @@ class RunEldTipMass:
             default=0.25,
             help="bar height H, the cross-section per unit thickness (default 0.25)",
         )
-        parser.add_argument(
-            "--E", type=parse_float("--E"), default=100.0, help="Young's modulus (default 100)"
-        )
-        parser.add_argument(
-            "--nu",
-            type=parse_float("--nu"),
-            default=0.0,
-            help="Poisson ratio (default 0: the axial motion is the 1D bar's, the analytic "
-            "frequencies are exact for it)",
-        )
-        parser.add_argument("--rho", type=parse_float("--rho"), default=1.0, help="density")
+        material_options(parser, TIP_MASS_MATERIAL, rho=1.0, plane="stress")
         parser.add_argument(
             "--mass",
             type=parse_float("--mass"),
@@ -156,6 +152,7 @@ class RunEldTipMass:
                 f"gives {cells} cells, must give at most {TIP_MASS_MAX_CELLS} (the reference "
                 "frequencies come from a dense modal analysis)",
             )
+        self.material = material_of(args, TIP_MASS_MATERIAL)
         return {"scheme": scheme_of(args), "form": form_of(args), "control": control}, n
 
     def execute(self, args) -> int:
@@ -166,9 +163,7 @@ class RunEldTipMass:
             args.degree,
             length=args.length,
             height=args.height,
-            E=args.E,
-            nu=args.nu,
-            rho=args.rho,
+            material=self.material,
             mass=args.mass,
             spring=args.spring,
             damper=args.damper,
@@ -198,9 +193,7 @@ class RunEldTipMass:
             "ndofs": example.system.body.space.ndofs,
             "length": args.length,
             "height": args.height,
-            "E": args.E,
-            "nu": args.nu,
-            "rho": args.rho,
+            **material_fields(args, TIP_MASS_MATERIAL, self.material),
             "mass": args.mass,
             "spring": args.spring,
             "damper": args.damper,

@@ -48,6 +48,7 @@ from .common import (
 )
 from .eld_options import (
     ELD_MAX_DOFS,
+    MMS_MATERIAL,
     check_beam_size,
     check_convergence_runs,
     check_damping_options,
@@ -62,6 +63,9 @@ from .eld_options import (
     form_option,
     keep_option,
     lifting_option,
+    material_fields,
+    material_of,
+    material_options,
     mms_options,
     run_objects,
     scheme_of,
@@ -77,6 +81,8 @@ BEAM_DEFAULT_N = 3
 BEAM_DEFAULT_DEGREE = 2
 #: the note on a coarse mesh when a sideways reaction exceeds this fraction of R_z
 BEAM_SIDEWAYS_NOTE = 0.02
+#: eld-beam's material (rothe.eld.examples.beam_problem)
+BEAM_MATERIAL = {"E": 1000.0, "nu": 0.3}
 #: eld-pulse defaults (benchmarks/space_adaptivity.py)
 PULSE_SPACE_TOL = 1e-3
 PULSE_MAX_DOFS = 100_000
@@ -392,22 +398,22 @@ class RunEldMMS(EldRunCommand):
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"])
         check_space_data(args, space)
+        self.material = material_of(args, MMS_MATERIAL)
         return objects, keep, n, parts, damping_of(args), space
 
     def execute(self, args) -> int:
         """Build the manufactured solution, run it as a session; the summary adds its errors."""
         objects, keep, n, parts, damping, space = self.validate(args)
+        material = self.material
         problem, exact = mms_problem(
             n,
             args.degree,
             damping=damping,
-            rho=args.rho,
-            lam=args.lam,
-            mu=args.mu,
             T=args.T,
             dirichlet=parts,
             start=args.start,
             load_quadrature=args.load_quadrature,
+            material=material,
         )
         fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-mms, {objects['scheme'].name}, {objects['form'].name}, " + (
@@ -416,6 +422,7 @@ class RunEldMMS(EldRunCommand):
 
         def summarize(summary, result, completed):
             summary.update(n=n, degree=args.degree, dirichlet=list(parts))
+            summary["material"] = material_fields(args, MMS_MATERIAL, material)
             if completed:
                 summary.update(mms_errors(exact, result))
 
@@ -470,8 +477,7 @@ class RunEldBeam(EldRunCommand):
             help=f"1 or 2 (default {BEAM_DEFAULT_DEGREE})",
         )
         float_option(parser, "--T", default=2.0, help="end time (default 2)")
-        float_option(parser, "--E", default=1000.0, help="Young's modulus")
-        float_option(parser, "--nu", default=0.3, help="Poisson ratio")
+        material_options(parser, BEAM_MATERIAL)
         float_option(
             parser,
             "--amplitude",
@@ -506,6 +512,7 @@ class RunEldBeam(EldRunCommand):
         check_beam_size(n, args.length, args.degree, args.solver)
         every = check_int("--save-every", args.save_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
+        material_of(args, BEAM_MATERIAL, dim=3)
         if check_choice("--backend", args.backend, BACKENDS) == "petsc" and space is not None:
             raise fail(
                 "--adapt-space",
@@ -550,9 +557,7 @@ class RunEldBeam(EldRunCommand):
         return beam_problem(
             n,
             length=args.length,
-            E=args.E,
-            nu=args.nu,
-            rho=args.rho,
+            material=material_of(args, BEAM_MATERIAL, dim=3),
             damping=damping,
             amplitude=args.amplitude,
             t_move=args.t_move,
@@ -578,12 +583,14 @@ class RunEldBeam(EldRunCommand):
     def summarize(self, args, summary: dict, traj) -> None:
         """The beam's fields of the summary: its options, seconds per step, the reactions at
         the held end and the fraction of the energy put in that the scheme dissipated."""
+        material = material_fields(args, BEAM_MATERIAL, material_of(args, BEAM_MATERIAL, dim=3))
         summary.update(
             n=args.n,
             degree=args.degree,
             length=args.length,
-            E=args.E,
-            nu=args.nu,
+            E=material["E"],
+            nu=material["nu"],
+            material=material,
             amplitude=args.amplitude,
             t_move=args.t_move,
             seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
@@ -683,9 +690,7 @@ class RunEldPulse(EldRunCommand):
             default=0.1,
             help="width of the pushed part around y = 1/2 (default 0.1)",
         )
-        float_option(parser, "--lam", default=2.0, help="Lamé lambda")
-        float_option(parser, "--mu", default=1.0, help="Lamé mu")
-        float_option(parser, "--rho", default=1.0, help="density")
+        material_options(parser, MMS_MATERIAL, rho=1.0, plane="strain")
         float_option(
             parser,
             "--b",
@@ -706,9 +711,10 @@ class RunEldPulse(EldRunCommand):
             raise fail("--degree", args.degree, "must be 1 or 2")
         length = check_positive("--length", args.length)
         check_mms_size(max(n, round(n * length)), args.degree)
-        for option in ("--t-pulse", "--width", "--lam", "--mu", "--rho"):
+        for option in ("--t-pulse", "--width"):
             check_positive(option, getattr(args, option.lstrip("-").replace("-", "_")))
         space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS)
+        self.material = material_of(args, MMS_MATERIAL)
         return objects, keep, n, length, space
 
     def execute(self, args) -> int:
@@ -722,10 +728,8 @@ class RunEldPulse(EldRunCommand):
             t_pulse=args.t_pulse,
             width=args.width,
             b=args.b,
-            rho=args.rho,
-            lam=args.lam,
-            mu=args.mu,
             T=args.T,
+            material=self.material,
         )
         fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-pulse, {objects['scheme'].name}, {objects['form'].name}, " + (
@@ -736,6 +740,7 @@ class RunEldPulse(EldRunCommand):
             summary.update(
                 n=n, degree=args.degree, length=length, t_pulse=args.t_pulse, width=args.width
             )
+            summary["material"] = material_fields(args, MMS_MATERIAL, self.material)
 
         return self.run(
             args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
@@ -821,7 +826,7 @@ class StudyEldConvergence:
         parser.add_argument(
             "--halvings", type=int, default=5, help="times tau is halved (default 5)"
         )
-        mms_options(parser, n=4)
+        mms_options(parser, n=4, plane=False)
         add_output_options(parser, self.name)
         add_parallel_options(parser)
 
@@ -837,6 +842,7 @@ class StudyEldConvergence:
         scheme = scheme_of(args)
         halvings = check_int("--halvings", args.halvings, minimum=1)
         data = data_of(args)
+        material = material_of(args, MMS_MATERIAL)
         # what every run would refuse, before the cluster starts or --out is made (issue 21)
         check_convergence_runs(args, scheme, data)
         study, out = run_study(
@@ -847,8 +853,8 @@ class StudyEldConvergence:
             tau0=args.tau0,
             halvings=halvings,
             rho=args.rho,
-            lam=args.lam,
-            mu=args.mu,
+            lam=material.lam,
+            mu=material.mu,
             T=args.T,
             data=data,
             scheme=scheme,

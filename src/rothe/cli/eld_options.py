@@ -19,6 +19,7 @@ from ..eld.constraint import LIFTINGS
 from ..eld.damping import DAMPINGS, make_damping
 from ..eld.data import DATA_MODES, DEFAULT_DATA
 from ..eld.form import DEFAULT_FORM, Original, Regularized
+from ..eld.materials import ELASTIC_PAIRS, PLANES, material_from
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
 from ..eld.studies import check_delta, check_halvings, check_noise_targets, check_uniform_runs
 from ..errors import check_choice, check_int, check_positive, described, fail
@@ -188,17 +189,61 @@ def damping_options(parser, default: str = "nonlinear", default_b: float = 0.01)
     )
 
 
-def mms_options(parser, n: int = 8) -> None:
-    """The manufactured problem's mesh, material, data and damping."""
+def mms_options(parser, n: int = 8, plane: bool = True) -> None:
+    """The manufactured problem's mesh, material (``--plane`` unless ``plane`` is False), data
+    and damping."""
     parser.add_argument(
         "--n", type=int, default=n, help=f"cells per side of the unit square (default {n})"
     )
     parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2: exact in space)")
-    float_option(parser, "--lam", default=2.0, help="Lamé lambda (default 2)")
-    float_option(parser, "--mu", default=1.0, help="Lamé mu (default 1)")
+    material_options(parser, MMS_MATERIAL, plane="strain" if plane else None)
     float_option(parser, "--T", default=1.0, help="end time (default 1)")
     data_options(parser)
     damping_options(parser)
+
+
+#: the manufactured solution's material (rothe.eld.examples.mms_problem), the pulse's
+MMS_MATERIAL = {"lam": 2.0, "mu": 1.0}
+
+
+def material_options(
+    parser, default: dict, *, rho: float | None = None, plane: str | None = None
+) -> None:
+    """``--E``/``--nu`` or ``--lam``/``--mu`` (one pair; ``default`` where none is given:
+    :func:`rothe.eld.materials.material_from`), ``--rho`` when ``rho`` is its default (the
+    commands with a damping get it from :func:`damping_options`) and ``--plane`` on the 2D
+    commands (``plane``: the default model)."""
+    pair = ELASTIC_PAIRS[0] if "E" in default else ELASTIC_PAIRS[1]
+    other = ELASTIC_PAIRS[1] if pair == ELASTIC_PAIRS[0] else ELASTIC_PAIRS[0]
+    names = {"E": "Young's modulus E", "nu": "Poisson ratio", "lam": "Lamé lambda", "mu": "Lamé mu"}
+    for key in pair:
+        mate = "--" + [k for k in pair if k != key][0]
+        float_option(
+            parser,
+            "--" + key,
+            default=None,
+            help=f"{names[key]} (default {default[key]:g}); with {mate}, or give "
+            f"--{other[0]} and --{other[1]} instead (not both pairs)",
+        )
+    described_default = ", ".join(f"{k} = {default[k]:g}" for k in pair)
+    for key in other:
+        float_option(
+            parser,
+            "--" + key,
+            default=None,
+            help=f"{names[key]}: the other way to give the material, with "
+            f"--{[k for k in other if k != key][0]} (default: that of {described_default}; "
+            f"not with --{pair[0]}/--{pair[1]})",
+        )
+    if rho is not None:
+        float_option(parser, "--rho", default=rho, help=f"density (default {rho:g})")
+    if plane is not None:
+        parser.add_argument(
+            "--plane",
+            default=plane,
+            help=f"{' | '.join(PLANES)}: the 2D model, plane strain (eps_zz = 0) or plane "
+            f"stress (sigma_zz = 0) (default {plane})",
+        )
 
 
 # -- names -> objects -----------------------------------------------------------------------------
@@ -244,6 +289,44 @@ def control_of(args):
     if tol is not None:
         raise fail("--tol", tol, "is used by --control adaptive only (this run has uniform steps)")
     return Given(steps) if steps is not None else Uniform(tau)
+
+
+def material_of(args, default: dict, dim: int = 2):
+    """The :class:`~rothe.eld.materials.Material` of ``--E``/``--nu`` or ``--lam``/``--mu``,
+    ``--rho`` and ``--plane`` (where the command has it; plane strain in 3D unless given):
+    :func:`rothe.eld.materials.material_from`, whose refusals name the API parameters the
+    command line renames to the options."""
+    plane = getattr(args, "plane", None) or "strain"
+    if dim == 3 and not given(args, "--plane"):
+        plane = "strain"
+    return material_from(
+        rho=args.rho,
+        E=getattr(args, "E", None),
+        nu=getattr(args, "nu", None),
+        lam=getattr(args, "lam", None),
+        mu=getattr(args, "mu", None),
+        dim=dim,
+        plane=plane,
+        default=default,
+    )
+
+
+def material_fields(args, default: dict, material) -> dict:
+    """The material of a run for its summary: the pair it was built from as given (or the
+    default), the other pair derived, rho and the model."""
+    used = [k for k in ("E", "nu", "lam", "mu") if getattr(args, k, None) is not None]
+    pair = (
+        ELASTIC_PAIRS[0]
+        if any(k in ELASTIC_PAIRS[0] for k in used) or (not used and "E" in default)
+        else ELASTIC_PAIRS[1]
+    )
+    E, nu = material.young
+    out = {"E": E, "nu": nu, "lam": material.lam, "mu": material.mu}
+    for key in pair:
+        value = getattr(args, key, None)
+        out[key] = float(value if value is not None else default.get(key, out[key]))
+    out.update(rho=material.rho, plane=material.plane)
+    return out
 
 
 def data_of(args):
@@ -323,6 +406,7 @@ def check_convergence_runs(args, scheme, data) -> None:
     manufactured problem, the data mode with the scheme, the largest step; each run failed on
     its own after the cluster had started). The parameters it names are the command's options
     by the option table (``tau0`` is ``--tau0``)."""
+    material = material_of(args, MMS_MATERIAL)
     check_uniform_runs(
         args.tau0,
         scheme,
@@ -331,8 +415,8 @@ def check_convergence_runs(args, scheme, data) -> None:
         args.degree,
         damping=damping_of(args),
         rho=args.rho,
-        lam=args.lam,
-        mu=args.mu,
+        lam=material.lam,
+        mu=material.mu,
         T=args.T,
     )
 

@@ -131,9 +131,9 @@ class ManufacturedSolution:
         g = self.grad_u(t, x) + self.b * self.grad_u_dot(t, x)
         eps = 0.5 * (g + g.transpose((1, 0) + tuple(range(2, g.ndim))))
         tr = eps[0, 0] + eps[1, 1]
-        sig = 2 * m.mu * eps
-        sig[0, 0] += m.lam * tr
-        sig[1, 1] += m.lam * tr
+        sig = 2 * m.mu * eps  # lam_eff: lam (plane strain), 2 lam mu/(lam + 2 mu) (plane stress)
+        sig[0, 0] += m.lam_eff * tr
+        sig[1, 1] += m.lam_eff * tr
         return sig
 
     def traction(self, t, x, n):
@@ -149,7 +149,7 @@ class ManufacturedSolution:
         force that makes u exact."""
         m = self.material
         w_coeffs = self._coeffs(t, 0) + self.b * self._coeffs(t, 1)
-        div = _div_sigma_const(w_coeffs, m.lam, m.mu).reshape((2,) + (1,) * (x.ndim - 1))
+        div = _div_sigma_const(w_coeffs, m.lam_eff, m.mu).reshape((2,) + (1,) * (x.ndim - 1))
         v = self.u_dot(t, x)
         f = m.rho * self.u_ddot(t, x) - div
         if isinstance(self.damping, RayleighDamping):
@@ -171,6 +171,7 @@ def mms_problem(
     dirichlet=("left",),
     start: str = "exact",
     load_quadrature: int | None = None,
+    material: Material | None = None,
 ) -> tuple[ELDProblem, ManufacturedSolution]:
     """The manufactured-solution problem on the unit square with n x n cells (module docstring).
 
@@ -194,13 +195,18 @@ def mms_problem(
     start : {'exact', 'rest'}
     load_quadrature : int, optional
         The degree of the quadrature of body force and tractions (default 2 * degree).
+    material : Material, optional
+        Instead of rho, lam, mu: a 2D material, also in plane stress (the body force, traction
+        and multiplier are then those of the plane-stress law, sigma = lam* tr(eps) I + 2 mu eps
+        with lam* = 2 lam mu/(lam + 2 mu)).
 
     Returns
     -------
     (ELDProblem, ManufacturedSolution)
     """
     start = check_choice("start", start, ("exact", "rest"))
-    material = Material(rho=rho, lam=lam, mu=mu, dim=2)
+    if material is None:
+        material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     damping = damping if damping is not None else NonlinearDamping(b=0.01, d0=0.5, d_nl=1.0)
     exact = ManufacturedSolution(material, damping)
     mesh = meshes.unit_square(n, named=True)
@@ -432,6 +438,7 @@ def beam_problem(
     t_move: float = 0.5,
     T: float = 2.0,
     degree: int = 1,
+    material: Material | None = None,
 ) -> ELDProblem:
     """The cantilever: n cells across the unit cross-section, round(length * n) along it.
 
@@ -451,12 +458,15 @@ def beam_problem(
         The end time.
     degree : int
         1 or 2.
+    material : Material, optional
+        A 3D material instead of E, nu, rho.
 
     Returns
     -------
     ELDProblem
     """
-    material = Material.from_young(E, nu, rho, dim=3)
+    if material is None:
+        material = Material.from_young(E, nu, rho, dim=3)
     nx = max(1, int(round(length * n)))
     mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
     motion = EndMotion(amplitude, t_move)
@@ -530,14 +540,17 @@ def pulse_problem(
     mu: float = 1.0,
     T: float = 0.8,
     mesh=None,
+    material: Material | None = None,
 ) -> ELDProblem:
     """The pulse (:class:`BoundaryPulse`): the rectangle [0, length] x [0, 1] with round(length
     n) x n cells, the left side held and pushed by G around y = 1/2, the other sides free, at
     rest at t = 0; Rayleigh damping b K (b = 0.001, it damps the mesh's highest modes). With
     lam = 2, mu = rho = 1 the pressure wave (speed sqrt((lam + 2 mu)/rho) = 2) crosses the
     length 2 in t = 1, the shear wave (speed 1) follows; a front of width ~ 2 t_pulse = 0.2.
-    ``mesh``: a given mesh of the rectangle with the parts named (instead of n, length)."""
-    material = Material(rho=rho, lam=lam, mu=mu, dim=2)
+    ``mesh``: a given mesh of the rectangle with the parts named (instead of n, length);
+    ``material``: a Material (also plane stress) instead of rho, lam, mu."""
+    if material is None:
+        material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     pulse = BoundaryPulse(amplitude, t_pulse, 0.5, width)
     if mesh is None:
         n = int(n)
@@ -592,6 +605,7 @@ def tip_mass_problem(
     damper: float = 0.0,
     amplitude: float = 0.01,
     T: float = 2.0,
+    material: Material | None = None,
 ) -> TipMassExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along) clamped on ``left``, carrying on ``right`` a mass ``mass`` on a spring ``spring``
@@ -602,6 +616,11 @@ def tip_mass_problem(
     end condition E A beta cos(beta L) = (k - w^2 m) sin(beta L), beta = w sqrt(rho/E),
     A = height (per unit thickness); the run starts in the first axial mode of the discrete
     coupled system, scaled so that the tip moves by ``amplitude``, at rest.
+
+    ``material``: a 2D Material instead of E, nu, rho (plane stress by default); the analytic
+    frequencies then take the strip's axial modulus, E in plane stress and E/(1 - nu^2) in
+    plane strain (sigma_yy = 0 across the free sides), with E, nu of
+    :attr:`~rothe.eld.materials.Material.young`.
     """
     n = check_int("n", n, minimum=1)
     if degree not in (1, 2):
@@ -612,7 +631,13 @@ def tip_mass_problem(
     spring = check_nonnegative("spring", spring)
     damper = check_nonnegative("damper", damper)
     amplitude = check_positive("amplitude", amplitude)
-    material = Material.from_young(E, nu, rho, dim=2, plane="stress")
+    if material is None:
+        material = Material.from_young(E, nu, rho, dim=2, plane="stress")
+        modulus = E
+    else:
+        E, nu = material.young
+        modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
+        rho = material.rho
     nx = max(1, int(round(n * length / height)))
     mesh = rectangle(nx, n, length, height)
 
@@ -636,6 +661,6 @@ def tip_mass_problem(
         scale = amplitude / abs(Q[0, k])
         system = build(U[:, k] * scale, Q[:, k] * scale)
     analytic = bar_frequencies(
-        length, E, rho, area=height, right=Attachment.mass_spring(mass, spring), count=3
+        length, modulus, rho, area=height, right=Attachment.mass_spring(mass, spring), count=3
     )
     return TipMassExample(system, analytic, w[axial[:3]])

@@ -12,6 +12,15 @@ three-dimensional Lamé constant; :attr:`Material.lam_eff` is what the 2D assemb
 Positivity: plane strain and 3D need lam > -2 mu / d; plane stress needs the 3D material to be
 admissible, lam > -2 mu / 3 (equivalently lam* > -mu).
 
+**Two ways to give the elastic constants** (:func:`material_from`): Young's modulus and
+Poisson's ratio (E, nu), or the Lamé constants (lam, mu), with
+
+    lam = E nu / ((1 + nu)(1 - 2 nu)),   mu = E / (2 (1 + nu));
+    E = mu (3 lam + 2 mu) / (lam + mu),   nu = lam / (2 (lam + mu)).
+
+One pair at a time: mixing them (E with mu, say) is refused, naming both. A pair given in part
+takes its other member from the caller's default material.
+
 **Several materials in one body** (:class:`PiecewiseMaterial`): materials by name, assigned to
 regions (the subdomains of the mesh, e.g. gmsh physical groups of the cells read by
 :func:`rothe.fem.mesh.load_mesh`, or predicates on the cell centroids). :meth:`
@@ -122,6 +131,81 @@ class Material:
         return out
 
 
+#: the two pairs of elastic constants :func:`material_from` takes
+ELASTIC_PAIRS = (("E", "nu"), ("lam", "mu"))
+
+
+def _young_of(lam: float, mu: float) -> tuple[float, float]:
+    """(E, nu) = (mu (3 lam + 2 mu)/(lam + mu), lam/(2 (lam + mu)))."""
+    return mu * (3 * lam + 2 * mu) / (lam + mu), lam / (2 * (lam + mu))
+
+
+def material_from(
+    *,
+    rho: float,
+    E: float | None = None,
+    nu: float | None = None,
+    lam: float | None = None,
+    mu: float | None = None,
+    dim: int = 2,
+    plane: str = "strain",
+    default: dict | None = None,
+) -> Material:
+    """A :class:`Material` from one of the pairs (E, nu) or (lam, mu) and the density rho.
+
+    (E, nu) gives lam = E nu/((1 + nu)(1 - 2 nu)), mu = E/(2 (1 + nu))
+    (:meth:`Material.from_young`); (lam, mu) is taken as it is. Giving members of both pairs
+    is refused with one line naming both (``E: got 210, must not be combined with lam: give
+    E, nu or lam, mu``).
+
+    Parameters
+    ----------
+    rho : float
+        Density.
+    E, nu, lam, mu : float, optional
+        One pair, or one member of a pair (the other from ``default``).
+    dim : int
+        2 or 3.
+    plane : {'strain', 'stress'}
+        The 2D model.
+    default : dict, optional
+        The material where no constant is given: ``{"E": .., "nu": ..}`` or
+        ``{"lam": .., "mu": ..}``; it also completes a pair given in part (converted by the
+        formulas of the module docstring when it is the other pair).
+
+    Returns
+    -------
+    Material
+    """
+    given = {k: v for k, v in (("E", E), ("nu", nu), ("lam", lam), ("mu", mu)) if v is not None}
+    young = [k for k in ELASTIC_PAIRS[0] if k in given]
+    lame = [k for k in ELASTIC_PAIRS[1] if k in given]
+    if young and lame:
+        a, b = young[0], lame[0]
+        raise RotheInputError(
+            str(fail(a, given[a], f"must not be combined with {b}: give E, nu or lam, mu")),
+            a,
+            mentions=(b, "E", "nu", "lam", "mu"),
+        )
+    default = dict(default or {})
+    if not given and not default:
+        raise fail("E", None, "must be given with nu, or lam with mu")
+    use_young = bool(young) or (not lame and "E" in default)
+    if use_young:
+        if "E" in default:
+            base = (default["E"], default["nu"])
+        else:
+            base = _young_of(default["lam"], default["mu"]) if default else (None, None)
+        values = [given.get(k, d) for k, d in zip(ELASTIC_PAIRS[0], base, strict=True)]
+        return Material.from_young(*values, rho, dim=dim, plane=plane)
+    if "lam" in default:
+        base = (default["lam"], default["mu"])
+    else:
+        base = lame_from_young(default["E"], default["nu"]) if default else (None, None)
+    values = [given.get(k, d) for k, d in zip(ELASTIC_PAIRS[1], base, strict=True)]
+    return Material(rho=rho, lam=values[0], mu=values[1], dim=dim, plane=plane)
+
+
 @dataclass(frozen=True)
 class CellMaterial:
     """Per-cell material data on one mesh: arrays (n_cells,) and the reference density."""
@@ -185,10 +269,12 @@ class PiecewiseMaterial:
             if not (isinstance(region, str) or callable(region)):
                 raise fail("regions", region, "keys must be subdomain names or callables")
             if name not in self.materials:
+                label = region if isinstance(region, str) else getattr(region, "__name__", "?")
                 raise fail(
-                    f"regions[{region!r}]",
-                    name,
-                    "must be one of the materials: " + ", ".join(map(str, self.materials)),
+                    "regions",
+                    described(f"{label!r} -> {name!r}"),
+                    "must map each region to one of the materials: "
+                    + ", ".join(map(str, self.materials)),
                 )
         object.__setattr__(self, "regions", regions)
         object.__setattr__(self, "names", tuple(self.materials))
