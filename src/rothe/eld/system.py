@@ -108,6 +108,7 @@ class ELDSystem:
         self._A_stored = None
         self._parts = None
         self._ref: dict | None = None  # what the solver's stored factorization was built from
+        self._mass_values = None  # the scalar mass of the cells' densities (several materials)
         self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar), c.scalar_dofs)
         self._lean = self.D.matrix is None
         self.kind = resolve_kind(solver, self.I.size, p.space.dim)
@@ -175,10 +176,16 @@ class ELDSystem:
         return A
 
     def _restricted(self, te: float):
-        """A(te) on the free nodes, a BlockMatrix gathered from K and the scalar mass."""
+        """A(te) on the free nodes, a BlockMatrix gathered from K and the scalar mass (of the
+        cells' densities rho_c/rho_ref with several materials, as the problem's M)."""
         c_mass, c_stiff = self.coefficients(te)
         p = self.problem
-        return p.space.restricted_combination(p.K, c_stiff, c_mass, self._free_nodes)
+        cells = getattr(p, "cell_material", None)
+        if cells is not None and self._mass_values is None:
+            self._mass_values = p.space.weighted_scalar_mass_values(cells.density_weight)
+        return p.space.restricted_combination(
+            p.K, c_stiff, c_mass, self._free_nodes, mass_values=self._mass_values
+        )
 
     def _apply_full(self, full: np.ndarray, te: float) -> np.ndarray:
         """A(te) times a full dof vector."""

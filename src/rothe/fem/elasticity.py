@@ -709,11 +709,13 @@ class VectorSpace:
         return self.block_matrix(blocks)
 
     def restricted_combination(
-        self, K, stiffness_coef: float, mass_coef: float, nodes=None
+        self, K, stiffness_coef: float, mass_coef: float, nodes=None, mass_values=None
     ) -> sp.bsr_matrix:
         """(mass_coef M + stiffness_coef K) on the vector dofs of the scalar dofs ``nodes``.
 
-        M is this space's mass (density 1) and K a matrix from :meth:`stiffness` (CSR or BSR):
+        M is this space's mass, of density 1 or with the scalar ``mass_values`` on the pattern
+        (:meth:`weighted_scalar_mass_values` of a per-cell density), and K a matrix from
+        :meth:`stiffness` (CSR or BSR):
         its blocks are gathered directly from K's arrays on the entries whose row and column
         are both kept, so neither the sum nor a row/column slice of K is ever formed. Returns
         a BSR matrix with d x d blocks on the kept nodes in increasing order (the layout of
@@ -727,7 +729,8 @@ class VectorSpace:
             keep[np.asarray(nodes, dtype=np.int64)] = True
         layout = self._stiffness_layout(K)
         if layout is None:
-            A = (mass_coef * self.mass() + stiffness_coef * sp.csr_matrix(K)).tocsr()
+            scalar = self.scalar_mass_values if mass_values is None else mass_values
+            A = (mass_coef * self.kron_identity(scalar) + stiffness_coef * sp.csr_matrix(K)).tocsr()
             dofs = self.vector_dofs(np.flatnonzero(keep))
             return A[dofs][:, dofs].tobsr(blocksize=(d, d))
         new_index = np.cumsum(keep) - 1
@@ -751,7 +754,8 @@ class VectorSpace:
             for a in range(d):
                 for b in range(d):
                     np.multiply(stiffness_coef, K.data[base + a * stride + b], out=data[:, a, b])
-        mass = mass_coef * self.scalar_mass_values[entries]
+        values = self.scalar_mass_values if mass_values is None else mass_values
+        mass = mass_coef * values[entries]
         for a in range(d):
             data[:, a, a] += mass
         return BlockMatrix(
