@@ -12,8 +12,10 @@ import os
 import signal
 from pathlib import Path
 
+import meshio
 import numpy as np
 import pytest
+from skfem import MeshTet, MeshTri
 
 from rothe.cli.main import main
 from rothe.errors import RunInterrupted
@@ -34,6 +36,30 @@ def load_gmsh_text():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def write_gmsh_body(path, dim=2, nx=8, ny=4, length=2.0, height=1.0, split=None):
+    """A box [0, length] x [0, height]^(dim-1) of nx x ny (x ny) cells written by meshio as a gmsh
+    2.2 file with physical groups: the facets ``inlet`` (x = 0), ``outlet`` (x = length),
+    ``wall`` (the rest); the cells ``core`` (centroid x < split) and ``shell`` (the rest; none
+    without ``split``). Returns the path."""
+    xs, ys = np.linspace(0, length, nx + 1), np.linspace(0, height, ny + 1)
+    m = MeshTri.init_tensor(xs, ys) if dim == 2 else MeshTet.init_tensor(xs, ys, ys)
+    facets = m.facets[:, m.boundary_facets()]
+    mid = m.p[:, facets].mean(axis=1)
+    tags = np.where(np.isclose(mid[0], 0), 1, np.where(np.isclose(mid[0], length), 2, 3))
+    centroid = m.p[0, m.t].mean(axis=0)
+    volume = np.where(centroid < (np.inf if split is None else split), 4, 5)
+    points = np.vstack([m.p, np.zeros((3 - dim, m.p.shape[1]))]).T
+    kinds = ("line", "triangle") if dim == 2 else ("triangle", "tetra")
+    groups = {"inlet": 1, "outlet": 2, "wall": 3, "core": 4, "shell": 5}
+    meshio.Mesh(
+        points,
+        [(kinds[0], facets.T), (kinds[1], m.t.T)],
+        cell_data={"gmsh:physical": [tags, volume], "gmsh:geometrical": [tags, volume]},
+        field_data={k: np.array([v, dim - 1 if v <= 3 else dim]) for k, v in groups.items()},
+    ).write(path, file_format="gmsh22", binary=False)
+    return path
 
 
 @pytest.fixture(scope="session")

@@ -8,7 +8,7 @@ import scipy.sparse.linalg as spla
 from skfem import MeshTri
 
 from rothe.eld import ELDProblem, Material, StressEvaluator
-from rothe.eld.materials import PiecewiseMaterial, material_from
+from rothe.eld.materials import PiecewiseMaterial, material_from, materials_from
 from rothe.errors import RotheInputError
 from rothe.fem import mesh as meshes
 from rothe.fem.elasticity import VectorSpace
@@ -240,3 +240,23 @@ def test_material_from_refuses_mixed_pairs_naming_both():
         material_from(rho=1.0, E=1.0, nu=0.5)
     with pytest.raises(RotheInputError, match=r"^E: got None, must be given with nu"):
         material_from(rho=1.0)
+
+
+def test_materials_from_constants_by_name():
+    mats = materials_from(
+        {"steel": {"E": 200.0, "nu": 0.3, "rho": 7.8}, "rubber": {"lam": 1.0, "mu": 0.1}},
+        regions={"a": "steel", "b": "rubber"},
+        rho=1.1,
+    )
+    assert mats.materials["steel"] == Material.from_young(200.0, 0.3, 7.8, dim=2)
+    assert mats.materials["rubber"] == Material(1.1, 1.0, 0.1) and mats.rho == 7.8
+    cases = [
+        ({"s": {"E": -1.0, "nu": 0.3}}, r"^materials: got 's' with E: got -1, must be > 0$"),
+        ({"s": {"E": 1.0, "mu": 0.3}}, r"^materials: got 's' with E: got 1, must not be combined"),
+        ({"s": {"G": 1.0}}, r"^materials: got 's' with 'G', must give E, nu or lam, mu, and rho$"),
+        ({"s": {"rho": 1.0}}, r"^materials: got 's' with E: got None, must be given with nu"),
+        ({}, r"^materials: got \{\}, must map at least one name"),
+    ]
+    for constants, message in cases:
+        with pytest.raises(RotheInputError, match=message):
+            materials_from(constants, rho=1.0)

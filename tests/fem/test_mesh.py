@@ -5,9 +5,19 @@ from __future__ import annotations
 import meshio
 import numpy as np
 import pytest
+from skfem import MeshTri
 
 from rothe.errors import RotheInputError
-from rothe.fem.mesh import cell_volumes, check_mesh, load_mesh, unit_cube, unit_square
+from rothe.fem.mesh import (
+    box,
+    cell_volumes,
+    check_mesh,
+    load_mesh,
+    part_frame,
+    tag_box_faces,
+    unit_cube,
+    unit_square,
+)
 from rothe.fem.scalar import boundary_nodes
 
 
@@ -210,3 +220,19 @@ def test_coincident_nodes_of_large_finite_coordinates():
     p = np.c_[p, p[:, 1]]  # node 4 repeats node 1
     for scale in (1.0, 1e200, 1e-200):
         assert coincident_nodes(p * scale).tolist() == [[1, 4]]
+
+
+def test_part_frame_is_the_exact_midpoint_and_inward_normal_of_a_straight_side():
+    rect = tag_box_faces(MeshTri.init_tensor(np.linspace(0, 2, 9), np.linspace(0, 1, 5)))
+    c, n = part_frame(rect, "left")
+    assert c.tolist() == [0.0, 0.5] and n.tolist() == [1.0, 0.0]  # to the bit
+    c, n = part_frame(rect, "top")
+    assert c.tolist() == [1.0, 1.0] and n.tolist() == [0.0, -1.0]
+    c, n = part_frame(box(2, 2, 2, 3.0, 1.0, 1.0), "right")
+    assert np.allclose(c, [3.0, 0.5, 0.5]) and np.allclose(n, [-1.0, 0.0, 0.0])
+    with pytest.raises(RotheInputError, match=r"^dirichlet: got 'inlet', must be one of bottom"):
+        part_frame(rect, "inlet", "dirichlet")
+    # the whole boundary of the square: its normals cancel
+    whole = rect.with_boundaries({"all": rect.boundary_facets()})
+    with pytest.raises(RotheInputError, match=r"^part: got 'all', has no mean normal"):
+        part_frame(whole, "all")

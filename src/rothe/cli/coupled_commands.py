@@ -15,7 +15,7 @@ import numpy as np
 
 from ..eld.coupled_run import run_coupled
 from ..eld.examples import tip_mass_problem
-from ..errors import check_int, check_positive, fail
+from ..errors import check_int, check_positive, described, fail
 from .common import (
     add_output_options,
     output_dir,
@@ -26,13 +26,20 @@ from .common import (
     write_summary,
 )
 from .eld_options import (
+    MESH_PARAMETERS,
+    body_material,
+    body_mesh,
     check_eld_step,
+    check_mesh_options,
     control_of,
     form_of,
     lifting_option,
     material_fields,
     material_of,
     material_options,
+    mesh_fields,
+    mesh_options,
+    parts_of,
     scheme_of,
     step_options,
 )
@@ -43,6 +50,23 @@ from .registry import command
 TIP_MASS_MATERIAL = {"E": 100.0, "nu": 0.0}
 #: the most cells the dense modal analysis behind the reference frequencies takes
 TIP_MASS_MAX_CELLS = 4000
+#: the most unknowns of a --mesh body for that analysis (the built-in strip's cap in 2D P2)
+TIP_MASS_MAX_DOFS = 16_000
+
+
+def check_modal_size(mesh, degree: int) -> None:
+    """Refuse a --mesh body too large for the dense modal analysis (one line naming --mesh)."""
+    d = mesh.p.shape[0]
+    edges = mesh.facets if d == 2 else mesh.edges  # (P2: one more node per edge)
+    nodes = mesh.p.shape[1] + (edges.shape[1] if degree == 2 else 0)
+    if d * nodes > TIP_MASS_MAX_DOFS:
+        raise fail(
+            "--mesh",
+            described(f"a mesh of {d * nodes} unknowns (P{degree})"),
+            f"must have at most {TIP_MASS_MAX_DOFS} (the reference frequencies come from a dense "
+            "modal analysis)",
+        )
+
 
 TIP_MASS_KEYS = (
     "example",
@@ -83,6 +107,8 @@ class RunEldTipMass:
         "against the bar-with-tip-mass equation"
     )
     name = "eld-tip-mass"
+    #: the library's parameters by their options (the tip's coupling is couplings[0])
+    parameter_options = {**MESH_PARAMETERS, "couplings[0].part": "--tip"}
 
     def configure(self, parser) -> None:
         """Add the eld-tip-mass options (step, lifting, bar, material, mass, spring, damper)."""
@@ -102,6 +128,17 @@ class RunEldTipMass:
             help="bar height H, the cross-section per unit thickness (default 0.25)",
         )
         material_options(parser, TIP_MASS_MATERIAL, rho=1.0, plane="stress")
+        mesh_options(
+            parser,
+            dirichlet="left",
+            dirichlet_help="the clamped boundary parts (u = 0)",
+        )
+        parser.add_argument(
+            "--tip",
+            default="right",
+            metavar="PART",
+            help="the boundary part tied to the mass (B u = q there) (default right)",
+        )
         parser.add_argument(
             "--mass",
             type=parse_float("--mass"),
@@ -139,31 +176,41 @@ class RunEldTipMass:
         """The checks that need no mesh: one line naming the option."""
         check_eld_step("--tau", args.tau, args.T)
         control = control_of(args)
+        check_mesh_options(args, ("--n", "--length", "--height"))
         n = check_int("--n", args.n, minimum=1)
         if args.degree not in (1, 2):
             raise fail("--degree", args.degree, "must be 1 or 2")
         length = check_positive("--length", args.length)
         height = check_positive("--height", args.height)
         cells = 2 * n * max(1, round(n * length / height))
-        if cells > TIP_MASS_MAX_CELLS:
+        if args.mesh is None and cells > TIP_MASS_MAX_CELLS:
             raise fail(
                 "--n",
                 n,
                 f"gives {cells} cells, must give at most {TIP_MASS_MAX_CELLS} (the reference "
                 "frequencies come from a dense modal analysis)",
             )
-        self.material = material_of(args, TIP_MASS_MATERIAL)
+        parts_of(args)
+        if args.mesh is None and not args.material:
+            material_of(args, TIP_MASS_MATERIAL)  # (on a mesh: in its dimension, when loaded)
         return {"scheme": scheme_of(args), "form": form_of(args), "control": control}, n
 
     def execute(self, args) -> int:
         """Run the tip-mass example; write trajectory, summary and figure; returns 0."""
         objects, n = self.validate(args)
+        mesh = body_mesh(args)
+        if mesh is not None:
+            check_modal_size(mesh, args.degree)
+        material = body_material(args, TIP_MASS_MATERIAL, mesh)
         example = tip_mass_problem(
             n,
             args.degree,
             length=args.length,
             height=args.height,
-            material=self.material,
+            material=material,
+            mesh=mesh,
+            clamp=parts_of(args),
+            tip=args.tip,
             mass=args.mass,
             spring=args.spring,
             damper=args.damper,
@@ -193,7 +240,11 @@ class RunEldTipMass:
             "ndofs": example.system.body.space.ndofs,
             "length": args.length,
             "height": args.height,
-            **material_fields(args, TIP_MASS_MATERIAL, self.material),
+            **(
+                {"material": material.describe()}
+                if args.material
+                else material_fields(args, TIP_MASS_MATERIAL, material)
+            ),
             "mass": args.mass,
             "spring": args.spring,
             "damper": args.damper,
@@ -210,6 +261,15 @@ class RunEldTipMass:
             "wall_time_s": traj.stats.wall_time_s,
             "peak_memory_mb": peak_memory_mb(),
         }
+        if mesh is not None:
+            del summary["n"], summary["height"]
+            summary.update(
+                mesh_fields(args, mesh),
+                dirichlet=list(parts_of(args)),
+                tip=args.tip,
+                length=example.length,
+                area=example.area,
+            )
         traj.save_npz(out / "trajectory.npz")
         if not args.no_plots:
             # matplotlib is imported only for the figures

@@ -48,11 +48,15 @@ from .common import (
 )
 from .eld_options import (
     ELD_MAX_DOFS,
+    MESH_PARAMETERS,
     MMS_MATERIAL,
+    body_material,
+    body_mesh,
     check_beam_size,
     check_convergence_runs,
     check_damping_options,
     check_eld_step,
+    check_mesh_options,
     check_mms_size,
     check_space_data,
     check_study_options,
@@ -66,7 +70,10 @@ from .eld_options import (
     material_fields,
     material_of,
     material_options,
+    mesh_fields,
+    mesh_options,
     mms_options,
+    parts_of,
     run_objects,
     scheme_of,
     scheme_option,
@@ -626,10 +633,11 @@ class RunEldPulse(EldRunCommand):
     """``rothe run eld-pulse``: the boundary pulse on adaptive meshes."""
 
     help = (
-        "A 2D body hit by a short boundary pulse: the wave front crosses the body, adaptive "
-        "meshes refine on it and coarsen behind it (space adaptivity)"
+        "A 2D body (or any 2D/3D --mesh) hit by a short boundary pulse: the wave front crosses "
+        "the body, adaptive meshes refine on it and coarsen behind it (space adaptivity)"
     )
     name = "eld-pulse"
+    parameter_options = MESH_PARAMETERS
     keys = (
         "example",
         "form",
@@ -691,6 +699,13 @@ class RunEldPulse(EldRunCommand):
             help="width of the pushed part around y = 1/2 (default 0.1)",
         )
         material_options(parser, MMS_MATERIAL, rho=1.0, plane="strain")
+        mesh_options(
+            parser,
+            dirichlet="left",
+            dirichlet_help="boundary parts held by the multiplier, the first pushed by the pulse "
+            "(along its mean inward normal, around its centre), the others held still; the "
+            "rest is free",
+        )
         float_option(
             parser,
             "--b",
@@ -706,20 +721,26 @@ class RunEldPulse(EldRunCommand):
     def validate(self, args):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         objects, keep = self.step_checks(args)
+        check_mesh_options(args, ("--n", "--length"))
         n = check_int("--n", args.n, minimum=1)
         if args.degree not in (1, 2):
             raise fail("--degree", args.degree, "must be 1 or 2")
         length = check_positive("--length", args.length)
-        check_mms_size(max(n, round(n * length)), args.degree)
+        if args.mesh is None:
+            check_mms_size(max(n, round(n * length)), args.degree)
         for option in ("--t-pulse", "--width"):
             check_positive(option, getattr(args, option.lstrip("-").replace("-", "_")))
         space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS)
-        self.material = material_of(args, MMS_MATERIAL)
-        return objects, keep, n, length, space
+        parts = parts_of(args)
+        if args.mesh is None and not args.material:
+            material_of(args, MMS_MATERIAL)  # (on a mesh: in its dimension, when loaded)
+        return objects, keep, n, length, space, parts
 
     def execute(self, args) -> int:
         """Build the pulse problem and run it as a session."""
-        objects, keep, n, length, space = self.validate(args)
+        objects, keep, n, length, space, parts = self.validate(args)
+        mesh = body_mesh(args)
+        material = body_material(args, MMS_MATERIAL, mesh)
         problem = pulse_problem(
             n,
             args.degree,
@@ -729,7 +750,9 @@ class RunEldPulse(EldRunCommand):
             width=args.width,
             b=args.b,
             T=args.T,
-            material=self.material,
+            material=material,
+            mesh=mesh,
+            dirichlet=parts,
         )
         fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-pulse, {objects['scheme'].name}, {objects['form'].name}, " + (
@@ -737,10 +760,16 @@ class RunEldPulse(EldRunCommand):
         )
 
         def summarize(summary, result, completed):
-            summary.update(
-                n=n, degree=args.degree, length=length, t_pulse=args.t_pulse, width=args.width
+            if mesh is None:
+                summary.update(n=n, length=length)
+            else:
+                summary.update(mesh_fields(args, mesh), dirichlet=list(parts))
+            summary.update(degree=args.degree, t_pulse=args.t_pulse, width=args.width)
+            summary["material"] = (
+                material.describe()
+                if args.material
+                else material_fields(args, MMS_MATERIAL, material)
             )
-            summary["material"] = material_fields(args, MMS_MATERIAL, self.material)
 
         return self.run(
             args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize

@@ -19,10 +19,11 @@ from ..eld.constraint import LIFTINGS
 from ..eld.damping import DAMPINGS, make_damping
 from ..eld.data import DATA_MODES, DEFAULT_DATA
 from ..eld.form import DEFAULT_FORM, Original, Regularized
-from ..eld.materials import ELASTIC_PAIRS, PLANES, material_from
+from ..eld.materials import ELASTIC_PAIRS, PLANES, material_from, materials_from
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
 from ..eld.studies import check_delta, check_halvings, check_noise_targets, check_uniform_runs
 from ..errors import check_choice, check_int, check_positive, described, fail
+from ..fem.mesh import DUPLICATE_NODES, load_mesh, mesh_dim
 from ..stepping.controllers import Adaptive, Given, Uniform
 from .adapt_options import check_memory
 from .common import float_option, given
@@ -327,6 +328,176 @@ def material_fields(args, default: dict, material) -> dict:
         out[key] = float(value if value is not None else default.get(key, out[key]))
     out.update(rho=material.rho, plane=material.plane)
     return out
+
+
+#: API parameters of the --mesh commands whose names are not their options
+MESH_PARAMETERS = {"materials": "--material", "regions": "--region", "adapt": "--adapt-space"}
+
+
+def mesh_options(parser, *, dirichlet: str, dirichlet_help: str) -> None:
+    """``--mesh FILE`` (anything meshio reads; parts and regions by gmsh physical-group
+    name), ``--duplicate-nodes``, ``--dirichlet PART[,PART]`` (default ``dirichlet``),
+    ``--material NAME:KEY=VALUE,...`` and ``--region NAME=GROUP[,GROUP]`` (both repeatable)."""
+    parser.add_argument(
+        "--mesh",
+        default=None,
+        metavar="FILE",
+        help="mesh file instead of the built-in grid: anything meshio reads (gmsh .msh 2.2/4.x, "
+        ".vtu, .xdmf, ...), triangles (2D) or tetrahedra (3D); boundary parts and material "
+        "regions are its physical groups (cell sets) by name",
+    )
+    parser.add_argument(
+        "--duplicate-nodes",
+        default="error",
+        help="coincident nodes of a --mesh file used by different cells (a cut, like a crack): "
+        "error (default) | merge (glue them) | keep (the cut is intended)",
+    )
+    parser.add_argument(
+        "--dirichlet",
+        default=dirichlet,
+        metavar="PART[,PART]",
+        help=f"{dirichlet_help} (default {dirichlet})",
+    )
+    parser.add_argument(
+        "--material",
+        action="append",
+        default=None,
+        metavar="NAME:KEY=VALUE,...",
+        help="with --mesh: a material by name, e.g. steel:E=210e9,nu=0.3,rho=7800 (keys E, nu "
+        "or lam, mu, and rho; rho defaults to --rho); repeat it for several materials; without "
+        "--region a material fills the physical group of its NAME; instead of --E/--nu/--lam/--mu",
+    )
+    parser.add_argument(
+        "--region",
+        action="append",
+        default=None,
+        metavar="NAME=GROUP[,GROUP]",
+        help="with --material: the physical groups (cell regions) of the mesh that material "
+        "NAME fills, e.g. steel=Volume1,Volume3; repeatable; every cell must get one material",
+    )
+
+
+def _split_list(text: str) -> list[str]:
+    return [x.strip() for x in str(text).split(",") if x.strip()]
+
+
+def parts_of(args) -> tuple:
+    """The parts of ``--dirichlet`` (at least one)."""
+    parts = tuple(_split_list(args.dirichlet))
+    if not parts:
+        raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
+    return parts
+
+
+def material_constants(args) -> dict:
+    """name -> {key: value} of the ``--material`` options (the syntax; the values are checked
+    by :func:`rothe.eld.materials.materials_from`)."""
+    out: dict = {}
+    for spec in args.material or ():
+        name, sep, rest = str(spec).partition(":")
+        name = name.strip()
+        pairs = [x.partition("=") for x in _split_list(rest)]
+        if not (name and sep and pairs and all(eq and k.strip() for k, eq, _ in pairs)):
+            raise fail("--material", spec, "must be NAME:KEY=VALUE,... (keys E, nu, lam, mu, rho)")
+        if name in out:
+            raise fail("--material", spec, f"names {name!r} a second time")
+        values = {}
+        for key, _, value in pairs:
+            try:
+                values[key.strip()] = float(value)
+            except ValueError:
+                raise fail(
+                    "--material", spec, f"must give numbers ({key.strip()}={value!r})"
+                ) from None
+        out[name] = values
+    return out
+
+
+def region_map(args) -> dict | None:
+    """group -> material name of the ``--region`` options (None without any)."""
+    if not args.region:
+        return None
+    out: dict = {}
+    for spec in args.region:
+        name, sep, rest = str(spec).partition("=")
+        groups = _split_list(rest)
+        if not (name.strip() and sep and groups):
+            raise fail("--region", spec, "must be NAME=GROUP[,GROUP] (a --material NAME)")
+        for group in groups:
+            if group in out and out[group] != name.strip():
+                raise fail(
+                    "--region", spec, f"puts {group!r} in a second material ({out[group]!r})"
+                )
+            out[group] = name.strip()
+    return out
+
+
+def check_mesh_options(args, grid_options: tuple[str, ...]) -> None:
+    """The --mesh options that need no mesh: --duplicate-nodes, the built-in grid's options
+    not with --mesh, --material/--region with --mesh only and not with the constants of one
+    material, and their syntax."""
+    check_choice("--duplicate-nodes", args.duplicate_nodes, DUPLICATE_NODES)
+    if args.mesh is None:
+        for option in ("--duplicate-nodes", "--material", "--region"):
+            if given(args, option):
+                raise fail(option, _value(args, option), "is used with --mesh only")
+    else:
+        for option in grid_options:
+            if given(args, option):
+                raise fail(
+                    option,
+                    _value(args, option),
+                    "cannot be combined with --mesh (the mesh fixes the body)",
+                )
+    if args.region and not args.material:
+        raise fail("--region", args.region[0], "needs --material (the materials it places)")
+    if args.material:
+        for option in ("--E", "--nu", "--lam", "--mu"):
+            if given(args, option):
+                raise fail(
+                    option,
+                    _value(args, option),
+                    "must not be combined with --material (give the constants in each --material)",
+                )
+        material_constants(args)
+        region_map(args)
+
+
+def _value(args, option: str):
+    value = getattr(args, option.lstrip("-").replace("-", "_"), None)
+    return value[0] if isinstance(value, list) else value
+
+
+def body_mesh(args):
+    """The ``--mesh`` file as a mesh (None without it); refusals name ``--mesh``."""
+    if args.mesh is None:
+        return None
+    return load_mesh(args.mesh, name="mesh", duplicate_nodes=args.duplicate_nodes)
+
+
+def body_material(args, default: dict, mesh=None):
+    """The material of a body: the ``--material``/``--region`` materials (a
+    :class:`~rothe.eld.materials.PiecewiseMaterial`), or one :func:`material_of` in the
+    mesh's dimension."""
+    dim = 2 if mesh is None else mesh_dim(mesh)
+    if args.material:
+        plane = getattr(args, "plane", None) or "strain"
+        if dim == 3 and not given(args, "--plane"):
+            plane = "strain"
+        return materials_from(
+            material_constants(args), regions=region_map(args), dim=dim, plane=plane, rho=args.rho
+        )
+    return material_of(args, default, dim=dim)
+
+
+def mesh_fields(args, mesh) -> dict:
+    """The mesh of a --mesh run for its summary: file, nodes, cells, dimension."""
+    return {
+        "mesh": str(args.mesh),
+        "mesh_nodes": int(mesh.p.shape[1]),
+        "mesh_cells": int(mesh.t.shape[1]),
+        "dim": mesh_dim(mesh),
+    }
 
 
 def data_of(args):

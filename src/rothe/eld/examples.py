@@ -38,14 +38,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import check_choice, check_int, check_nonnegative, check_positive, fail
+from ..errors import check_choice, check_int, check_nonnegative, check_positive, described, fail
 from ..fem import mesh as meshes
 from .components import MassSpringDamper
 from .coupled_step import coupled_modes
 from .coupling import CoupledProblem, Translation
 from .damping import Damping, NonlinearDamping, RayleighDamping
 from .frequencies import Attachment, bar_frequencies
-from .materials import Material
+from .materials import Material, PiecewiseMaterial
 from .problem import DirichletData, ELDProblem
 
 # quadratic polynomials c0 + cx x + cy y + cxx x^2 + cxy x y + cyy y^2, per component
@@ -485,19 +485,43 @@ def beam_problem(
 
 
 class BoundaryPulse(_DirichletMotion):
-    """G(t, x) = (A s(t) w(y), 0) on the left side: a short push localized around y = y0.
+    """G(t, x) = A s(t) w(x) e: a short push along the unit vector e, localized around the
+    point c of a boundary part.
 
     s(t) = sin^4(pi t / t_pulse) for t <= t_pulse, 0 after (C^2: s, s', s'' vanish at 0 and at
-    t_pulse, so u0 = v0 = 0 are consistent and G_ddot is continuous); w(y) = exp(-((y -
-    y0)/width)^2)."""
+    t_pulse, so u0 = v0 = 0 are consistent and G_ddot is continuous); w(x) =
+    exp(-sum_k ((x_k - c_k)/width)^2). On the left side of the rectangle (c = (0, 1/2),
+    e = (1, 0), the defaults) w = exp(-((y - 1/2)/width)^2).
+
+    Parameters
+    ----------
+    amplitude, t_pulse, width : float
+        A, t_pulse and the width of w.
+    center : (d,) array
+        c (default (0, 1/2)).
+    direction : (d,) array
+        e, normalized here (default (1, 0); :func:`rothe.fem.mesh.part_frame` gives a part's
+        mean inward normal).
+    """
 
     def __init__(
-        self, amplitude: float = 0.01, t_pulse: float = 0.1, y0: float = 0.5, width: float = 0.1
+        self,
+        amplitude: float = 0.01,
+        t_pulse: float = 0.1,
+        center=(0.0, 0.5),
+        width: float = 0.1,
+        direction=(1.0, 0.0),
     ):
         self.A = float(amplitude)
         self.t_pulse = check_positive("t_pulse", t_pulse)
-        self.y0 = float(y0)
+        self.center = np.asarray(center, dtype=float).reshape(-1)
         self.width = check_positive("width", width)
+        e = np.asarray(direction, dtype=float).reshape(-1)
+        if e.shape != self.center.shape or not np.linalg.norm(e) > 0:
+            raise fail(
+                "direction", tuple(e.tolist()), f"must be a non-zero {self.center.size}-vector"
+            )
+        self.direction = e / np.linalg.norm(e)
 
     def _s(self, t, order):
         if t <= 0.0 or t >= self.t_pulse:
@@ -511,8 +535,14 @@ class BoundaryPulse(_DirichletMotion):
         return k * k * (12.0 * s * s * c * c - 4.0 * s**4)
 
     def _field(self, t, x, order):
-        out = np.zeros((2,) + x.shape[1:])
-        out[0] = self.A * self._s(t, order) * np.exp(-(((x[1] - self.y0) / self.width) ** 2))
+        out = np.zeros(x.shape)
+        r2 = 0.0
+        for k, ck in enumerate(self.center):
+            r2 = r2 + ((x[k] - ck) / self.width) ** 2
+        g = self.A * self._s(t, order) * np.exp(-r2)
+        for k, ek in enumerate(self.direction):
+            if ek != 0.0:  # (the zero components stay +0)
+                out[k] = g if ek == 1.0 else g * ek
         return out
 
 
@@ -540,27 +570,63 @@ def pulse_problem(
     mu: float = 1.0,
     T: float = 0.8,
     mesh=None,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
+    dirichlet=("left",),
 ) -> ELDProblem:
     """The pulse (:class:`BoundaryPulse`): the rectangle [0, length] x [0, 1] with round(length
     n) x n cells, the left side held and pushed by G around y = 1/2, the other sides free, at
     rest at t = 0; Rayleigh damping b K (b = 0.001, it damps the mesh's highest modes). With
     lam = 2, mu = rho = 1 the pressure wave (speed sqrt((lam + 2 mu)/rho) = 2) crosses the
     length 2 in t = 1, the shear wave (speed 1) follows; a front of width ~ 2 t_pulse = 0.2.
-    ``mesh``: a given mesh of the rectangle with the parts named (instead of n, length);
-    ``material``: a Material (also plane stress) instead of rho, lam, mu."""
-    if material is None:
-        material = Material(rho=rho, lam=lam, mu=mu, dim=2)
-    pulse = BoundaryPulse(amplitude, t_pulse, 0.5, width)
+
+    Any body (2D or 3D): ``mesh`` with named boundary parts (e.g. gmsh physical groups,
+    :func:`rothe.fem.mesh.load_mesh`) instead of n, length; the first of the ``dirichlet``
+    parts is pushed along its mean inward normal around the centre of its bounding box
+    (:func:`rothe.fem.mesh.part_frame`), the others are held (G = 0). ``material``: a
+    Material (also plane stress) or a PiecewiseMaterial on the mesh's regions instead of rho,
+    lam, mu.
+
+    Parameters
+    ----------
+    n, degree : int
+        Cells across the height of the rectangle; 1 or 2.
+    length, amplitude, t_pulse, width, b, rho, lam, mu, T : float
+    mesh : skfem mesh, optional
+    material : Material or PiecewiseMaterial, optional
+    dirichlet : sequence of str
+        The held parts, the pushed one first (default ``("left",)``).
+
+    Returns
+    -------
+    ELDProblem
+    """
+    dirichlet = tuple(dirichlet)
+    if not dirichlet:
+        raise fail("dirichlet", dirichlet, "must name at least one boundary part")
     if mesh is None:
+        if material is None:
+            material = Material(rho=rho, lam=lam, mu=mu, dim=2)
+        pulse = BoundaryPulse(amplitude, t_pulse, (0.0, 0.5), width, (1.0, 0.0))
         n = int(n)
         mesh = rectangle(max(1, round(length * n)), n, length, 1.0)
+    else:
+        dim = meshes.mesh_dim(mesh)
+        if material is None:
+            material = Material(rho=rho, lam=lam, mu=mu, dim=dim)
+        center, normal = meshes.part_frame(mesh, dirichlet[0], "dirichlet")
+        pulse = BoundaryPulse(amplitude, t_pulse, center, width, normal)
+
+    def held(t, x):
+        return np.zeros_like(x)
+
+    data = {p: DirichletData(held, held, held) for p in dirichlet[1:]}
+    data[dirichlet[0]] = DirichletData(pulse.G, pulse.G_dot, pulse.G_ddot)
     return ELDProblem(
         mesh,
         material,
         degree=degree,
         damping=RayleighDamping(0.0, b),
-        dirichlet={"left": DirichletData(pulse.G, pulse.G_dot, pulse.G_ddot)},
+        dirichlet=data,
         T=T,
         name="eld-pulse",
     )
@@ -577,18 +643,25 @@ class TipMassExample:
     Attributes
     ----------
     system : CoupledProblem
-        The strip clamped on ``left``, the mass-spring tied to ``right`` by a translation.
+        The body clamped on its clamped parts (``left``), the mass-spring tied to the tip part
+        (``right``) by a translation.
     analytic : ndarray
-        The first three axial angular frequencies of the 1D bar with the mass-spring at its end
-        (the transcendental equation: :func:`rothe.eld.frequencies.bar_frequencies`).
+        The first three axial angular frequencies of the 1D bar (length, cross-section
+        ``area``) with the mass-spring at its end (the transcendental equation:
+        :func:`rothe.eld.frequencies.bar_frequencies`); NaN for a body of several materials.
     discrete : ndarray
         The first three axial frequencies of the semi-discrete coupled system
-        (:func:`rothe.eld.coupled_step.coupled_modes`; axial: the tip moves along the bar).
+        (:func:`rothe.eld.coupled_step.coupled_modes`; axial: the tip moves along x).
+    length, area : float
+        The bar's length and cross-section behind ``analytic`` (of a mesh: its extent in x
+        and its volume / length, a prismatic bar along x).
     """
 
     system: CoupledProblem
     analytic: np.ndarray
     discrete: np.ndarray
+    length: float = math.nan
+    area: float = math.nan
 
 
 def tip_mass_problem(
@@ -605,62 +678,95 @@ def tip_mass_problem(
     damper: float = 0.0,
     amplitude: float = 0.01,
     T: float = 2.0,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
+    mesh=None,
+    clamp=("left",),
+    tip: str = "right",
 ) -> TipMassExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along) clamped on ``left``, carrying on ``right`` a mass ``mass`` on a spring ``spring``
     and a damper ``damper`` to the ground (:class:`~rothe.eld.components.MassSpringDamper`,
-    both axes), tied by B u = q on ``right`` (:class:`~rothe.eld.coupling.Translation`).
+    all axes), tied by B u = q on ``right`` (:class:`~rothe.eld.coupling.Translation`).
 
     With nu = 0 the axial motion is that of the 1D bar, whose angular frequencies solve the
     end condition E A beta cos(beta L) = (k - w^2 m) sin(beta L), beta = w sqrt(rho/E),
     A = height (per unit thickness); the run starts in the first axial mode of the discrete
     coupled system, scaled so that the tip moves by ``amplitude``, at rest.
 
-    ``material``: a 2D Material instead of E, nu, rho (plane stress by default); the analytic
-    frequencies then take the strip's axial modulus, E in plane stress and E/(1 - nu^2) in
-    plane strain (sigma_yy = 0 across the free sides), with E, nu of
-    :attr:`~rothe.eld.materials.Material.young`.
+    ``material``: a Material instead of E, nu, rho (plane stress by default in 2D); the
+    analytic frequencies then take the axial modulus, E in plane stress and 3D and
+    E/(1 - nu^2) in plane strain (sigma_yy = 0 across the free sides), with E, nu of
+    :attr:`~rothe.eld.materials.Material.young`; or a PiecewiseMaterial (no analytic
+    frequencies). ``mesh``: any body (2D or 3D, named parts) instead of the strip, clamped on
+    the parts ``clamp``, the mass-spring on the part ``tip``; "axial" is along x, and the
+    analytic frequencies are those of a prismatic bar along x (length: the extent in x, area:
+    volume / length).
     """
-    n = check_int("n", n, minimum=1)
-    if degree not in (1, 2):
-        raise fail("degree", degree, "must be 1 or 2")
-    length = check_positive("length", length)
-    height = check_positive("height", height)
     mass = check_positive("mass", mass)
     spring = check_nonnegative("spring", spring)
     damper = check_nonnegative("damper", damper)
     amplitude = check_positive("amplitude", amplitude)
+    if degree not in (1, 2):
+        raise fail("degree", degree, "must be 1 or 2")
+    if mesh is None:
+        n = check_int("n", n, minimum=1)
+        length = check_positive("length", length)
+        height = check_positive("height", height)
+        nx = max(1, int(round(n * length / height)))
+        mesh = rectangle(nx, n, length, height)
+        area, refine = height, "n"
+    else:
+        p = np.asarray(mesh.p)
+        length = float(np.ptp(p[0]))
+        area = float(meshes.cell_volumes(mesh).sum()) / length
+        refine = "mesh"
+    dim = meshes.mesh_dim(mesh)
     if material is None:
-        material = Material.from_young(E, nu, rho, dim=2, plane="stress")
+        material = Material.from_young(
+            E, nu, rho, dim=dim, plane="stress" if dim == 2 else "strain"
+        )
         modulus = E
+    elif isinstance(material, PiecewiseMaterial):
+        modulus = math.nan
     else:
         E, nu = material.young
-        modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
+        modulus = E if material.plane == "stress" or dim == 3 else E / (1.0 - nu * nu)
         rho = material.rho
-    nx = max(1, int(round(n * length / height)))
-    mesh = rectangle(nx, n, length, height)
+    clamp = (clamp,) if isinstance(clamp, str) else tuple(clamp)
 
-    def clamp(t, x):
+    def held(t, x):
         return 0.0 * x
 
     def build(u0=None, q0=None):
-        tip = MassSpringDamper(mass, spring, damper, q0=q0, name="tip")
+        mover = MassSpringDamper(mass, spring, damper, dim=dim, q0=q0, name="tip")
         body = ELDProblem(
-            mesh, material, degree=degree, dirichlet={"left": clamp}, u0=u0, T=T, name="tip-mass"
+            mesh,
+            material,
+            degree=degree,
+            dirichlet={part: held for part in clamp},
+            u0=u0,
+            T=T,
+            name="tip-mass",
         )
-        return CoupledProblem(body, [tip], [Translation("right", tip)])
+        return CoupledProblem(body, [mover], [Translation(tip, mover)])
 
     with warnings.catch_warnings():  # G = 0: its derivatives by differences are exact
         warnings.filterwarnings("ignore", message="G_d")
         w, U, Q = coupled_modes(build(), 16)
-        axial = np.flatnonzero(np.abs(Q[0]) > 10 * np.abs(Q[1]))
+        axial = np.flatnonzero(np.abs(Q[0]) > 10 * np.abs(Q[1:]).max(axis=0))
         if axial.size < 3:
-            raise fail("n", n, "gives fewer than 3 axial modes among the first 16: refine")
+            raise fail(
+                refine,
+                n if refine == "n" else described("the mesh"),
+                "gives fewer than 3 axial modes among the first 16: refine",
+            )
         k = int(axial[0])
         scale = amplitude / abs(Q[0, k])
         system = build(U[:, k] * scale, Q[:, k] * scale)
-    analytic = bar_frequencies(
-        length, modulus, rho, area=height, right=Attachment.mass_spring(mass, spring), count=3
-    )
-    return TipMassExample(system, analytic, w[axial[:3]])
+    if math.isnan(modulus):
+        analytic = np.full(3, math.nan)
+    else:
+        analytic = bar_frequencies(
+            length, modulus, rho, area=area, right=Attachment.mass_spring(mass, spring), count=3
+        )
+    return TipMassExample(system, analytic, w[axial[:3]], length, area)

@@ -206,6 +206,59 @@ def material_from(
     return Material(rho=rho, lam=values[0], mu=values[1], dim=dim, plane=plane)
 
 
+def materials_from(
+    constants: dict,
+    *,
+    regions: dict | None = None,
+    dim: int = 2,
+    plane: str = "strain",
+    rho: float | None = None,
+) -> PiecewiseMaterial:
+    """Materials by name from their constants: ``{"steel": {"E": 210e9, "nu": 0.3, "rho":
+    7800}, "rubber": {"lam": .., "mu": .., "rho": ..}}`` -> a :class:`PiecewiseMaterial` on
+    ``regions`` (region -> material name; default: each name is a region of the mesh).
+
+    Each material takes one pair, (E, nu) or (lam, mu), as :func:`material_from`; ``rho`` is the
+    density of a material that gives none. A bad entry is one line naming ``materials`` and the
+    material: ``materials: got 'steel' with E: got -1, must be > 0``.
+
+    Parameters
+    ----------
+    constants : dict name -> dict
+        The keys of each: E, nu, lam, mu, rho.
+    regions : dict, optional
+        As in :class:`PiecewiseMaterial`.
+    dim : int
+    plane : {'strain', 'stress'}
+    rho : float, optional
+
+    Returns
+    -------
+    PiecewiseMaterial
+    """
+    if not isinstance(constants, dict) or not constants:
+        raise fail("materials", constants, "must map at least one name to its constants")
+    allowed = ("E", "nu", "lam", "mu", "rho")
+    materials = {}
+    for name, values in constants.items():
+        values = dict(values)
+        unknown = [k for k in values if k not in allowed]
+        if unknown:
+            raise fail(
+                "materials",
+                described(f"{name!r} with {unknown[0]!r}"),
+                "must give E, nu or lam, mu, and rho",
+            )
+        density = values.pop("rho", rho)
+        try:
+            if not any(k in values for k in allowed):
+                raise fail("E", None, "must be given with nu, or lam with mu")
+            materials[name] = material_from(rho=density, dim=dim, plane=plane, **values)
+        except RotheInputError as exc:
+            raise RotheInputError(f"materials: got {name!r} with {exc}", "materials") from None
+    return PiecewiseMaterial(materials, regions=regions)
+
+
 @dataclass(frozen=True)
 class CellMaterial:
     """Per-cell material data on one mesh: arrays (n_cells,) and the reference density."""

@@ -545,6 +545,53 @@ def _boundary_parts(m, blocks, dim, new_index) -> dict[str, np.ndarray]:
     return out
 
 
+def part_frame(mesh, part: str, name: str = "part") -> tuple[np.ndarray, np.ndarray]:
+    """The centre of a named boundary part's bounding box and its mean inward unit normal.
+
+    n = sum_f |f| n_f / |sum_f |f| n_f|, n_f the unit normal of facet f pointing into its cell
+    (length-weighted in 2D, area-weighted in 3D); c = (min x + max x)/2 over the part's nodes,
+    per axis. A straight side gets its exact normal and midpoint (the left side of [0, L] x
+    [0, 1]: c = (0, 1/2), n = (1, 0), to the bit). A part whose normals cancel (a closed
+    curve) is refused.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        With named boundary parts (``mesh.boundaries``).
+    part : str
+    name : str
+        The parameter named in errors.
+
+    Returns
+    -------
+    (center (d,), normal (d,))
+    """
+    facets = (mesh.boundaries or {}).get(part)
+    if facets is None or len(facets) == 0:
+        known = ", ".join(boundary_part_names(mesh)) or "(the mesh has no named parts)"
+        raise fail(name, part, f"must be one of {known}")
+    p = np.asarray(mesh.p)
+    nodes = np.asarray(mesh.facets)[:, facets]  # (d, nf)
+    d = p.shape[0]
+    x = p[:, nodes]  # (d, d, nf): coordinate, node, facet
+    if d == 2:
+        e = x[:, 1] - x[:, 0]
+        normal = np.stack([e[1], -e[0]])  # length |f|
+    else:
+        normal = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], axis=0) / 2  # area |f|
+    cells = np.asarray(mesh.f2t)[0, facets]
+    inside = p[:, np.asarray(mesh.t)[:, cells]].mean(axis=1) - x.mean(axis=1)
+    normal = normal * np.where(np.sum(normal * inside, axis=0) < 0, -1.0, 1.0)
+    total = normal.sum(axis=1)
+    size = float(np.sqrt(total @ total))
+    scale = float(np.abs(normal).sum())
+    if not size > 1e-8 * scale:
+        raise fail(name, part, "has no mean normal (its facets' normals cancel: a closed part)")
+    part_nodes = np.unique(nodes)
+    lo, hi = p[:, part_nodes].min(axis=1), p[:, part_nodes].max(axis=1)
+    return (lo + hi) / 2, total / size
+
+
 def boundary_part_names(mesh) -> list[str]:
     """The names of the mesh's boundary parts, sorted (empty without named parts)."""
     return sorted((mesh.boundaries or {}).keys())
