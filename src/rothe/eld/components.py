@@ -406,14 +406,16 @@ class TunedMassDamper(LinearComponent):
 
 def den_hartog(modal_mass: float, frequency: float, mass_ratio: float) -> tuple[float, float]:
     """(k, c) of Den Hartog's optimal absorber for a mode of ``modal_mass`` and angular
-    ``frequency`` with absorber mass mu * modal_mass: k = m_a w_a^2, w_a = w/(1 + mu),
-    c = 2 m_a w_a zeta, zeta = sqrt(3 mu / (8 (1 + mu)^3))."""
+    ``frequency`` w with absorber mass m_a = mu * modal_mass: the absorber's frequency
+    w_a = w/(1 + mu), k = m_a w_a^2, and its damping ratio zeta_a = c/(2 m_a w_a) =
+    sqrt(3 mu / (8 (1 + mu))), i.e. c/(2 m_a w) = sqrt(3 mu / (8 (1 + mu)^3)) (Den Hartog,
+    Mechanical Vibrations, Sec. 3.3; the same c)."""
     M = check_positive("modal_mass", modal_mass)
     w = check_positive("frequency", frequency)
     mu = check_positive("mass_ratio", mass_ratio)
     ma = mu * M
     wa = w / (1 + mu)
-    zeta = np.sqrt(3 * mu / (8 * (1 + mu) ** 3))
+    zeta = np.sqrt(3 * mu / (8 * (1 + mu)))
     return ma * wa**2, 2 * ma * wa * zeta
 
 
