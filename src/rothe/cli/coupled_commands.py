@@ -1,12 +1,20 @@
 """CLI commands for elastic bodies coupled to other dynamical systems (issue 19):
-``rothe run eld-tip-mass``.
+``rothe run eld-tip-mass|eld-tmd|eld-control``.
 
-Outputs: ``summary.json`` (the frequencies measured from the run against the analytic and the
-discrete ones, the energy ledger's closure, steps), ``trajectory.npz`` (the component's q, p,
-the reactions on every constrained part, the whole-system ledger per state, the steps; see
-:class:`rothe.eld.coupled_run.CoupledResult`) and ``fig_tip_mass.png`` unless ``--no-plots``.
-Bad input is one line and exit status 2; a run that fails midway exits 1. Coupled runs have no
-checkpoints, space adaptivity or ParaView output yet (docs/coupling.md, Sec. 12).
+Every command runs :func:`rothe.eld.coupled_run.run_coupled` through the one run sequence of
+the ``run`` commands (:func:`rothe.cli.session.run_sequence`: run -> stage -> write -> annotate
+-> summary last -> finish): results staged and committed together with ``summary.json`` last,
+an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM writes what it has
+(``status: interrupted``, exit 130/143), a failed run ``status: failed`` (exit 1). Coupled runs
+write no checkpoint yet (so no ``--resume``), and have no space adaptivity or ParaView output
+(docs/coupling.md, Sec. 12).
+
+Outputs: ``summary.json``, ``trajectory.npz`` (the run's q, p, z, the reactions on every
+constrained part, the whole-system ledger per state, the steps: see
+:class:`rothe.eld.coupled_run.CoupledResult`), for the commands that compare two runs the
+second as ``trajectory_<label>.npz`` (``trajectory_without_tmd.npz``,
+``trajectory_uncontrolled.npz``), and a figure unless ``--no-plots``. Bad input is one line
+and exit status 2.
 """
 
 from __future__ import annotations
@@ -14,17 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..eld.coupled_run import run_coupled
-from ..eld.examples import tip_mass_problem
+from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..errors import check_int, check_positive, described, fail
-from .common import (
-    add_output_options,
-    output_dir,
-    parse_float,
-    peak_memory_mb,
-    print_summary,
-    progress_of,
-    write_summary,
-)
+from .common import add_output_options, float_option, peak_memory_mb, print_summary
 from .eld_options import (
     MESH_PARAMETERS,
     body_material,
@@ -44,14 +44,20 @@ from .eld_options import (
     step_options,
 )
 from .registry import command
+from .session import run_sequence
 
 #: the strip's material (nu = 0: the axial motion is the 1D bar's, the analytic frequencies are
-#: exact for it)
+#: exact for it); eld-control's too
 TIP_MASS_MATERIAL = {"E": 100.0, "nu": 0.0}
+CONTROL_MATERIAL = TIP_MASS_MATERIAL
+#: eld-tmd's slender strip: E = 10^4 puts its first bending frequency near 9 rad/s
+TMD_MATERIAL = {"E": 1e4, "nu": 0.0}
 #: the most cells the dense modal analysis behind the reference frequencies takes
 TIP_MASS_MAX_CELLS = 4000
 #: the most unknowns of a --mesh body for that analysis (the built-in strip's cap in 2D P2)
 TIP_MASS_MAX_DOFS = 16_000
+#: forcing periods at the end of an eld-tmd run over which the final amplitudes are taken
+TMD_LAST_PERIODS = 2
 
 
 def check_modal_size(mesh, degree: int) -> None:
@@ -68,24 +74,6 @@ def check_modal_size(mesh, degree: int) -> None:
         )
 
 
-TIP_MASS_KEYS = (
-    "example",
-    "scheme",
-    "form",
-    "control",
-    "accepted_steps",
-    "rejected_steps",
-    "ndofs",
-    "frequency_analytic",
-    "frequency_discrete",
-    "frequency_measured",
-    "frequency_error_measured",
-    "energy_drift",
-    "balance_max",
-    "wall_time_s",
-)
-
-
 def crossing_frequency(t: np.ndarray, y: np.ndarray) -> float:
     """pi / the mean time between the zero crossings of y(t) (linear interpolation); nan with
     fewer than two crossings."""
@@ -97,103 +85,208 @@ def crossing_frequency(t: np.ndarray, y: np.ndarray) -> float:
     return float(np.pi / np.mean(np.diff(tz)))
 
 
-@command("run", "eld-tip-mass")
-class RunEldTipMass:
-    """``rothe run eld-tip-mass``: a clamped bar carrying a mass-spring at its tip."""
+def decay_rate(t: np.ndarray, y: np.ndarray) -> float:
+    """alpha of y ~ e^{-alpha t} cos(w t + phi): minus the slope of log y at its local maxima
+    (least squares); nan with fewer than three positive maxima."""
+    k = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] >= y[2:]) & (y[1:-1] > 0)) + 1
+    if k.size < 3:
+        return float("nan")
+    return float(-np.polyfit(t[k], np.log(y[k]), 1)[0])
 
-    help = (
-        "Clamped plane-stress bar carrying a mass on a spring at its free end (a coupled "
-        "component, B u = q on the end): the first axial frequency measured from the run "
-        "against the bar-with-tip-mass equation"
-    )
-    name = "eld-tip-mass"
-    #: the library's parameters by their options (the tip's coupling is couplings[0])
-    parameter_options = {**MESH_PARAMETERS, "couplings[0].part": "--tip"}
 
-    def configure(self, parser) -> None:
-        """Add the eld-tip-mass options (step, lifting, bar, material, mass, spring, damper)."""
-        step_options(parser, 0.005, scheme_default="bdf2")
-        lifting_option(parser)
+class CoupledRunCommand:
+    """Base of the coupled run commands: the options every one has, and :meth:`run`, the run
+    sequence of one or two coupled runs."""
+
+    name = ""
+    #: the summary fields printed after a completed run
+    keys: tuple = ()
+    parameter_options: dict = {}
+
+    @staticmethod
+    def strip_options(parser, *, n: int, length: float, height: float, T: float, what: str):
+        """--n, --degree, --length, --height (the plane-stress strip) and --T."""
         parser.add_argument(
-            "--n", type=int, default=2, help="cells across the bar (default 2; n L/H along)"
+            "--n",
+            type=int,
+            default=n,
+            help=f"cells across the strip (default {n}; round(n L/H) along)",
         )
         parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2)")
-        parser.add_argument(
-            "--length", type=parse_float("--length"), default=1.0, help="bar length L (default 1)"
+        float_option(
+            parser, "--length", default=length, help=f"strip length L (default {length:g})"
         )
-        parser.add_argument(
-            "--height",
-            type=parse_float("--height"),
-            default=0.25,
-            help="bar height H, the cross-section per unit thickness (default 0.25)",
-        )
-        material_options(parser, TIP_MASS_MATERIAL, rho=1.0, plane="stress")
-        mesh_options(
+        float_option(
             parser,
-            dirichlet="left",
-            dirichlet_help="the clamped boundary parts (u = 0)",
+            "--height",
+            default=height,
+            help=f"strip height H, the cross-section per unit thickness (default {height:g})",
         )
-        parser.add_argument(
-            "--tip",
-            default="right",
-            metavar="PART",
-            help="the boundary part tied to the mass (B u = q there) (default right)",
-        )
-        parser.add_argument(
-            "--mass",
-            type=parse_float("--mass"),
-            default=0.25,
-            help="tip mass m (default 0.25 = the bar's mass rho H L)",
-        )
-        parser.add_argument(
-            "--spring",
-            type=parse_float("--spring"),
-            default=0.0,
-            help="stiffness k of the spring from the tip mass to the ground (default 0)",
-        )
-        parser.add_argument(
-            "--damper",
-            type=parse_float("--damper"),
-            default=0.0,
-            help="damping c of the tip mass to the ground (default 0: no damping, the energy "
-            "is kept up to the scheme's numerical dissipation)",
-        )
-        parser.add_argument(
-            "--amplitude",
-            type=parse_float("--amplitude"),
-            default=0.01,
-            help="initial tip displacement in the first axial mode (default 0.01)",
-        )
-        parser.add_argument(
-            "--T",
-            type=parse_float("--T"),
-            default=2.0,
-            help="end time (default 2: about 2.7 periods of the first mode)",
-        )
-        add_output_options(parser, self.name)
+        float_option(parser, "--T", default=T, help=f"end time (default {T:g}: {what})")
 
-    def validate(self, args):
-        """The checks that need no mesh: one line naming the option."""
-        check_eld_step("--tau", args.tau, args.T)
-        control = control_of(args)
-        check_mesh_options(args, ("--n", "--length", "--height"))
+    @staticmethod
+    def strip_checks(args) -> int:
+        """--n, --degree, --length, --height: one line naming the option; returns n."""
         n = check_int("--n", args.n, minimum=1)
         if args.degree not in (1, 2):
             raise fail("--degree", args.degree, "must be 1 or 2")
         length = check_positive("--length", args.length)
         height = check_positive("--height", args.height)
         cells = 2 * n * max(1, round(n * length / height))
-        if args.mesh is None and cells > TIP_MASS_MAX_CELLS:
+        if getattr(args, "mesh", None) is None and cells > TIP_MASS_MAX_CELLS:
             raise fail(
                 "--n",
                 n,
                 f"gives {cells} cells, must give at most {TIP_MASS_MAX_CELLS} (the reference "
                 "frequencies come from a dense modal analysis)",
             )
+        return n
+
+    @staticmethod
+    def run_objects(args) -> dict:
+        """scheme, form and control of the command line (--tau against --T first)."""
+        check_eld_step("--tau", args.tau, args.T)
+        control = control_of(args)
+        return {"scheme": scheme_of(args), "form": form_of(args), "control": control}
+
+    def run(self, args, runs: dict, objects: dict, summarize, draw=None) -> int:
+        """Run the coupled systems ``runs`` (label -> CoupledProblem; the first is the command's
+        run, written to ``trajectory.npz``, the others to ``trajectory_<label>.npz``) one after
+        the other as one session; ``summarize(summary, trajectories, completed)`` adds the
+        command's fields, ``draw(stage, trajectories, summary)`` the figure."""
+        done: dict = {}
+        labels = list(runs)
+
+        def start(checkpoint, resume, progress):
+            # (coupled runs write no checkpoint: the session's options are not used)
+            for label, system in runs.items():
+                done[label] = run_coupled(system, progress=progress, **objects)
+            return done
+
+        def write(stage, outcome):
+            completed = outcome.status == "completed"
+            trajs = {label: result.trajectory for label, result in done.items()}
+            if not completed and outcome.result is not None:
+                trajs[labels[len(done)]] = outcome.result  # the run that stopped, so far
+            for label, traj in trajs.items():
+                name = "trajectory.npz" if label == labels[0] else f"trajectory_{label}.npz"
+                traj.save_npz(stage / name)
+            summary = self.summary_head(args, objects, trajs)
+            summarize(summary, trajs, completed)
+            if completed and not args.no_plots and draw is not None:
+                draw(stage, trajs, summary)
+            return summary
+
+        code, outcome, results, summary = run_sequence(args, self.name, start, write)
+        if outcome is not None and outcome.status == "completed" and not args.quiet:
+            print(f"rothe run {self.name}: wrote {results}/")
+            print_summary(summary, self.keys)
+        return code
+
+    def summary_head(self, args, objects: dict, trajs: dict) -> dict:
+        """The fields every coupled run's summary starts with (of the first run, the wall
+        time of all), the ledger's largest mismatch of each run."""
+        control = objects["control"]
+        first = next(iter(trajs.values()))
+        st = first.stats
+        return {
+            "example": self.name,
+            "status": "completed",
+            "scheme": objects["scheme"].name,
+            "form": objects["form"].name,
+            "lifting": objects["form"].lifting,
+            "control": type(control).__name__.lower(),
+            "tau": args.tau,
+            "tol": getattr(control, "tol", None),
+            "accepted_steps": st.accepted_steps,
+            "rejected_steps": st.rejected_steps,
+            "T": args.T,
+            "wall_time_s": sum(t.stats.wall_time_s for t in trajs.values()),
+            "peak_memory_mb": peak_memory_mb(),
+        }
+
+
+@command("run", "eld-tip-mass")
+class RunEldTipMass(CoupledRunCommand):
+    """``rothe run eld-tip-mass``: a clamped bar carrying a mass-spring at its tip."""
+
+    help = (
+        "Clamped plane-stress bar (or any --mesh body) carrying a mass on a spring at its free "
+        "end (a coupled component, B u = q on the end): the first axial frequency measured from "
+        "the run against the bar-with-tip-mass equation"
+    )
+    name = "eld-tip-mass"
+    #: the library's parameters by their options (the tip's coupling is couplings[0])
+    parameter_options = {**MESH_PARAMETERS, "couplings[0].part": "--tip"}
+    keys = (
+        "example",
+        "scheme",
+        "form",
+        "control",
+        "accepted_steps",
+        "rejected_steps",
+        "ndofs",
+        "frequency_analytic",
+        "frequency_discrete",
+        "frequency_measured",
+        "frequency_error_measured",
+        "energy_drift",
+        "balance_max",
+        "wall_time_s",
+    )
+
+    def configure(self, parser) -> None:
+        """Add the eld-tip-mass options (step, lifting, bar or mesh, material, mass, spring,
+        damper, amplitude)."""
+        step_options(parser, 0.005, scheme_default="bdf2")
+        lifting_option(parser)
+        self.strip_options(
+            parser, n=2, length=1.0, height=0.25, T=2.0, what="about 2.7 periods of the first mode"
+        )
+        material_options(parser, TIP_MASS_MATERIAL, rho=1.0, plane="stress")
+        mesh_options(parser, dirichlet="left", dirichlet_help="the clamped boundary parts (u = 0)")
+        parser.add_argument(
+            "--tip",
+            default="right",
+            metavar="PART",
+            help="the boundary part tied to the mass (B u = q there) (default right)",
+        )
+        float_option(
+            parser,
+            "--mass",
+            default=0.25,
+            help="tip mass m (default 0.25 = the bar's mass rho H L)",
+        )
+        float_option(
+            parser,
+            "--spring",
+            default=0.0,
+            help="stiffness k of the spring from the tip mass to the ground (default 0)",
+        )
+        float_option(
+            parser,
+            "--damper",
+            default=0.0,
+            help="damping c of the tip mass to the ground (default 0: no damping, the energy "
+            "is kept up to the scheme's numerical dissipation)",
+        )
+        float_option(
+            parser,
+            "--amplitude",
+            default=0.01,
+            help="initial tip displacement in the first axial mode (default 0.01)",
+        )
+        add_output_options(parser, self.name)
+
+    def validate(self, args):
+        """The checks that need no mesh: one line naming the option."""
+        objects = self.run_objects(args)
+        check_mesh_options(args, ("--n", "--length", "--height"))
+        n = self.strip_checks(args)
         parts_of(args)
         if args.mesh is None and not args.material:
             material_of(args, TIP_MASS_MATERIAL)  # (on a mesh: in its dimension, when loaded)
-        return {"scheme": scheme_of(args), "form": form_of(args), "control": control}, n
+        return objects, n
 
     def execute(self, args) -> int:
         """Run the tip-mass example; write trajectory, summary and figure; returns 0."""
@@ -217,72 +310,372 @@ class RunEldTipMass:
             amplitude=args.amplitude,
             T=args.T,
         )
-        out = output_dir(args, self.name)
-        result = run_coupled(example.system, progress=progress_of(args), **objects)
-        traj = result.trajectory
-        t, q = traj["t"], np.asarray(traj["q"])
-        measured = crossing_frequency(t, q[:, 0])
-        energy = traj["energy"]
-        control = objects["control"]
-        summary = {
-            "example": self.name,
-            "status": "completed",
-            "scheme": objects["scheme"].name,
-            "form": objects["form"].name,
-            "lifting": objects["form"].lifting,
-            "control": type(control).__name__.lower(),
-            "tau": args.tau,
-            "tol": getattr(control, "tol", None),
-            "accepted_steps": traj.stats.accepted_steps,
-            "rejected_steps": traj.stats.rejected_steps,
-            "n": n,
-            "degree": args.degree,
-            "ndofs": example.system.body.space.ndofs,
-            "length": args.length,
-            "height": args.height,
-            **(
-                {"material": material.describe()}
-                if args.material
-                else material_fields(args, TIP_MASS_MATERIAL, material)
-            ),
-            "mass": args.mass,
-            "spring": args.spring,
-            "damper": args.damper,
-            "T": args.T,
-            "frequency_analytic": example.analytic.tolist(),
-            "frequency_discrete": example.discrete.tolist(),
-            "frequency_error_discrete": (example.discrete / example.analytic - 1).tolist(),
-            "frequency_measured": measured,
-            "frequency_error_measured": measured / example.analytic[0] - 1,
-            "frequency_error_measured_vs_discrete": measured / example.discrete[0] - 1,
-            "energy_initial": float(energy[0]),
-            "energy_drift": float(energy[-1] / energy[0] - 1),
-            "balance_max": float(np.abs(traj["balance"]).max()),
-            "wall_time_s": traj.stats.wall_time_s,
-            "peak_memory_mb": peak_memory_mb(),
-        }
-        if mesh is not None:
-            del summary["n"], summary["height"]
+
+        def summarize(summary, trajs, completed):
+            traj = trajs["tip"]
+            t, q = traj["t"], np.asarray(traj["q"])
+            measured = crossing_frequency(t, q[:, 0])
+            energy = traj["energy"]
             summary.update(
-                mesh_fields(args, mesh),
-                dirichlet=list(parts_of(args)),
-                tip=args.tip,
-                length=example.length,
-                area=example.area,
+                n=n,
+                degree=args.degree,
+                ndofs=example.system.body.space.ndofs,
+                length=args.length,
+                height=args.height,
             )
-        traj.save_npz(out / "trajectory.npz")
-        if not args.no_plots:
+            if args.material:
+                summary["material"] = material.describe()
+            else:
+                summary.update(material_fields(args, TIP_MASS_MATERIAL, material))
+            summary.update(
+                mass=args.mass,
+                spring=args.spring,
+                damper=args.damper,
+                frequency_analytic=example.analytic.tolist(),
+                frequency_discrete=example.discrete.tolist(),
+                frequency_error_discrete=(example.discrete / example.analytic - 1).tolist(),
+                frequency_measured=measured,
+                frequency_error_measured=measured / example.analytic[0] - 1,
+                frequency_error_measured_vs_discrete=measured / example.discrete[0] - 1,
+                energy_initial=float(energy[0]),
+                energy_drift=float(energy[-1] / energy[0] - 1),
+                balance_max=float(np.abs(traj["balance"]).max()),
+            )
+            if mesh is not None:
+                del summary["n"], summary["height"]
+                summary.update(
+                    mesh_fields(args, mesh),
+                    dirichlet=list(parts_of(args)),
+                    tip=args.tip,
+                    length=example.length,
+                    area=example.area,
+                )
+
+        def draw(stage, trajs, summary):
             # matplotlib is imported only for the figures
             from ..eld.figures import plot_tip_mass
 
             plot_tip_mass(
-                traj,
-                out / "fig_tip_mass.png",
+                trajs["tip"],
+                stage / "fig_tip_mass.png",
                 title=f"eld-tip-mass, {summary['scheme']}, {summary['form']}, "
                 f"m = {args.mass:g}, k = {args.spring:g}",
             )
-        write_summary(out, summary)
-        if not args.quiet:
-            print(f"rothe run {self.name}: wrote {out}/")
-            print_summary(summary, TIP_MASS_KEYS)
-        return 0
+
+        return self.run(args, {"tip": example.system}, objects, summarize, draw)
+
+
+@command("run", "eld-tmd")
+class RunEldTmd(CoupledRunCommand):
+    """``rothe run eld-tmd``: a cantilever shaken at its base, with and without a tuned mass
+    damper on its tip."""
+
+    help = (
+        "Cantilever strip on a support pushed at the strip's first bending frequency, with and "
+        "without a tuned mass damper (Den Hartog) on its tip plate: tip amplitude and base "
+        "reaction over time, the amplitude reduction"
+    )
+    name = "eld-tmd"
+    keys = (
+        "example",
+        "scheme",
+        "accepted_steps",
+        "ndofs",
+        "frequency_first_bending",
+        "absorber_mass",
+        "tip_amplitude_max",
+        "tip_amplitude_max_without_tmd",
+        "amplitude_reduction",
+        "amplitude_reduction_last",
+        "base_reaction_max",
+        "base_reaction_max_without_tmd",
+        "balance_max",
+        "wall_time_s",
+    )
+
+    def configure(self, parser) -> None:
+        """The step options, the strip, its material, the absorber and the forcing."""
+        step_options(parser, 0.01, scheme_default="bdf2")
+        lifting_option(parser)
+        self.strip_options(
+            parser, n=2, length=1.0, height=0.1, T=12.0, what="17 periods of the forcing"
+        )
+        material_options(parser, TMD_MATERIAL, rho=1.0, plane="stress")
+        float_option(
+            parser,
+            "--mass-ratio",
+            default=0.05,
+            help="absorber mass / the modal mass of the first bending mode (default 0.05); "
+            "its spring and damper by Den Hartog",
+        )
+        float_option(
+            parser,
+            "--force",
+            default=0.01,
+            help="amplitude of the force f = force sin(W t) e_y on the support (default 0.01)",
+        )
+        float_option(
+            parser,
+            "--forcing-ratio",
+            default=1.0,
+            help="W / w_1, the forcing against the first bending frequency of the system "
+            "without the absorber (default 1: at resonance)",
+        )
+        float_option(
+            parser, "--b", default=0.0, help="Rayleigh damping b K of the strip (default 0)"
+        )
+        add_output_options(parser, self.name)
+
+    def validate(self, args):
+        """The checks that need no system: one line naming the option."""
+        objects = self.run_objects(args)
+        n = self.strip_checks(args)
+        material_of(args, TMD_MATERIAL)
+        return objects, n
+
+    def execute(self, args) -> int:
+        """Build both systems, run them, write both trajectories, the summary and the figure."""
+        objects, n = self.validate(args)
+        example = tmd_problem(
+            n,
+            args.degree,
+            length=args.length,
+            height=args.height,
+            material=material_of(args, TMD_MATERIAL),
+            mass_ratio=args.mass_ratio,
+            force=args.force,
+            forcing_ratio=args.forcing_ratio,
+            b=args.b,
+            T=args.T,
+        )
+        tip = example.with_tmd.offsets["tip"] + 1  # the plate's deflection a_y, in q
+
+        def summarize(summary, trajs, completed):
+            summary.update(
+                n=n,
+                degree=args.degree,
+                ndofs=example.with_tmd.body.space.ndofs,
+                length=args.length,
+                height=args.height,
+                material=material_fields(args, TMD_MATERIAL, material_of(args, TMD_MATERIAL)),
+                b=args.b,
+                frequency_first_bending=example.frequency,
+                frequency_beam_theory=example.beam_frequency,
+                forcing_frequency=example.forcing,
+                modal_mass=example.modal_mass,
+                mass_ratio=args.mass_ratio,
+                absorber_mass=args.mass_ratio * example.modal_mass,
+                absorber_stiffness=example.stiffness,
+                absorber_damping=example.damping,
+            )
+            period = 2 * np.pi / example.forcing
+            for label, suffix in (("with_tmd", ""), ("without_tmd", "_without_tmd")):
+                if label not in trajs:
+                    continue
+                traj = trajs[label]
+                t, q = traj["t"], np.asarray(traj["q"])
+                last = t >= t[-1] - TMD_LAST_PERIODS * period
+                summary[f"tip_amplitude_max{suffix}"] = float(np.abs(q[:, tip]).max())
+                summary[f"tip_amplitude_last{suffix}"] = float(np.abs(q[last, tip]).max())
+                reaction = np.abs(np.asarray(traj["reaction_left"])[:, 1])
+                summary[f"base_reaction_max{suffix}"] = float(reaction.max())
+                summary[f"balance_max{suffix}"] = float(np.abs(traj["balance"]).max())
+                summary[f"energy_final{suffix}"] = float(traj["energy"][-1])
+            if "with_tmd" in trajs:
+                q = np.asarray(trajs["with_tmd"]["q"])
+                summary["absorber_amplitude_max"] = float(np.abs(q[:, tip + 2]).max())
+            if completed:
+                summary["amplitude_reduction"] = (
+                    summary["tip_amplitude_max_without_tmd"] / summary["tip_amplitude_max"]
+                )
+                summary["amplitude_reduction_last"] = (
+                    summary["tip_amplitude_last_without_tmd"] / summary["tip_amplitude_last"]
+                )
+                summary["reaction_reduction"] = (
+                    summary["base_reaction_max_without_tmd"] / summary["base_reaction_max"]
+                )
+
+        def draw(stage, trajs, summary):
+            # matplotlib is imported only for the figures
+            from ..eld.figures import plot_comparison
+
+            plot_comparison(
+                {"with TMD": trajs["with_tmd"], "without TMD": trajs["without_tmd"]},
+                stage / "fig_tmd.png",
+                coordinate=tip,
+                label="tip deflection (end plate a_y)",
+                part="left",
+                axis=1,
+                title=f"eld-tmd, forcing {example.forcing:.4g} rad/s, mass ratio "
+                f"{args.mass_ratio:g}: amplitude / {summary['amplitude_reduction']:.3g}",
+            )
+
+        runs = {"with_tmd": example.with_tmd, "without_tmd": example.without_tmd}
+        return self.run(args, runs, objects, summarize, draw)
+
+
+@command("run", "eld-control")
+class RunEldControl(CoupledRunCommand):
+    """``rothe run eld-control``: the clamped end moved by feedback on the tip velocity."""
+
+    help = (
+        "A bar whose held end (a base on a spring) is pushed by a PD law on the tip velocity: "
+        "the decay rate of its free vibration against the uncontrolled run and the predicted "
+        "rate of the first mode"
+    )
+    name = "eld-control"
+    keys = (
+        "example",
+        "scheme",
+        "accepted_steps",
+        "ndofs",
+        "frequency_first",
+        "decay_rate_measured",
+        "decay_rate_predicted",
+        "decay_rate_error",
+        "decay_rate_modal",
+        "decay_rate_measured_uncontrolled",
+        "decay_rate_predicted_uncontrolled",
+        "mode2_rate_without_material_damping",
+        "work_controller",
+        "balance_max",
+        "wall_time_s",
+    )
+
+    def configure(self, parser) -> None:
+        """The step options, the strip, its material, the base, the feedback and the start."""
+        step_options(parser, 0.005, scheme_default="bdf2")
+        lifting_option(parser)
+        self.strip_options(
+            parser, n=2, length=1.0, height=0.25, T=6.0, what="6 periods of the first mode"
+        )
+        material_options(parser, CONTROL_MATERIAL, rho=1.0, plane="stress")
+        float_option(parser, "--base-mass", default=1.0, help="mass m_b of the base (default 1)")
+        float_option(
+            parser,
+            "--base-spring",
+            default=50.0,
+            help="stiffness k_b of the base's spring along the bar (default 50)",
+        )
+        float_option(
+            parser,
+            "--gain",
+            default=1.0,
+            help="k_p: the actuator force -k_p v_L on the base, v_L the tip's axial velocity "
+            "(a damper; default 1)",
+        )
+        float_option(
+            parser,
+            "--kd",
+            default=0.0,
+            help="k_d: the force -k_d v_L', v_L' by a first-order filter (default 0)",
+        )
+        float_option(
+            parser,
+            "--filter-time",
+            default=0.02,
+            help="T_f of the derivative's filter (1 + T_f s)^-1, with --kd (default 0.02)",
+        )
+        float_option(
+            parser,
+            "--b",
+            default=0.005,
+            help="Rayleigh (Kelvin-Voigt) damping b K of the bar (default 0.005: it holds the "
+            "second mode, which the non-collocated feedback destabilizes)",
+        )
+        float_option(
+            parser,
+            "--amplitude",
+            default=0.01,
+            help="initial displacement of the base in the first mode (default 0.01)",
+        )
+        add_output_options(parser, self.name)
+
+    def validate(self, args):
+        """The checks that need no system: one line naming the option."""
+        objects = self.run_objects(args)
+        n = self.strip_checks(args)
+        material_of(args, CONTROL_MATERIAL)
+        return objects, n
+
+    def execute(self, args) -> int:
+        """Build both systems, run them, write both trajectories, the summary and the figure."""
+        objects, n = self.validate(args)
+        example = control_problem(
+            n,
+            args.degree,
+            length=args.length,
+            height=args.height,
+            material=material_of(args, CONTROL_MATERIAL),
+            base_mass=args.base_mass,
+            base_stiffness=args.base_spring,
+            gain=args.gain,
+            kd=args.kd,
+            filter_time=args.filter_time,
+            b=args.b,
+            amplitude=args.amplitude,
+            T=args.T,
+        )
+        roots, free, undamped = example.roots, example.roots_uncontrolled, example.roots_undamped
+
+        def summarize(summary, trajs, completed):
+            summary.update(
+                n=n,
+                degree=args.degree,
+                ndofs=example.controlled.body.space.ndofs,
+                length=args.length,
+                height=args.height,
+                material=material_fields(
+                    args, CONTROL_MATERIAL, material_of(args, CONTROL_MATERIAL)
+                ),
+                base_mass=args.base_mass,
+                base_spring=args.base_spring,
+                gain=args.gain,
+                kd=args.kd,
+                filter_time=args.filter_time if args.kd > 0 else None,
+                b=args.b,
+                frequency_first=example.frequency,
+                decay_rate_predicted=float(-roots[0].real),
+                frequency_predicted=float(roots[0].imag),
+                decay_rate_modal=example.modal_rate,
+                decay_rate_predicted_uncontrolled=float(-free[0].real),
+                roots=[[float(s.real), float(s.imag)] for s in roots],
+                mode2_rate=float(-roots[1].real),
+                mode2_rate_without_material_damping=float(-undamped[1].real),
+            )
+            for label, suffix in (("controlled", ""), ("uncontrolled", "_uncontrolled")):
+                if label not in trajs:
+                    continue
+                traj = trajs[label]
+                t, y = traj["t"], np.asarray(traj["q"])[:, 0]
+                summary[f"decay_rate_measured{suffix}"] = decay_rate(t, y)
+                summary[f"frequency_measured{suffix}"] = crossing_frequency(t, y)
+                summary[f"balance_max{suffix}"] = float(np.abs(traj["balance"]).max())
+                summary[f"energy_ratio{suffix}"] = float(traj["energy"][-1] / traj["energy"][0])
+            if "controlled" in trajs:
+                summary["work_controller"] = float(trajs["controlled"]["work_controllers"][-1])
+                summary["decay_rate_error"] = (
+                    summary["decay_rate_measured"] / summary["decay_rate_predicted"] - 1
+                )
+
+        def draw(stage, trajs, summary):
+            # matplotlib is imported only for the figures
+            from ..eld.figures import plot_comparison
+
+            plot_comparison(
+                {
+                    f"feedback k_p = {args.gain:g}": trajs["controlled"],
+                    "no feedback": trajs["uncontrolled"],
+                },
+                stage / "fig_control.png",
+                coordinate=0,
+                label="base displacement q_x",
+                part="left",
+                axis=0,
+                title=f"eld-control: decay rate {summary['decay_rate_measured']:.4g} "
+                f"(predicted {summary['decay_rate_predicted']:.4g}, without feedback "
+                f"{summary['decay_rate_measured_uncontrolled']:.3g})",
+            )
+
+        runs = {"controlled": example.controlled, "uncontrolled": example.uncontrolled}
+        return self.run(args, runs, objects, summarize, draw)

@@ -20,6 +20,10 @@ What a user sees in ``--out DIR`` (default ``rothe-out/<example>``):
 - A new run is refused if DIR holds the checkpoint of an unfinished (interrupted or killed)
   run -- resume it, or pass ``--discard-checkpoint`` to start over -- and if another rothe
   process is running in DIR. ``--out`` is checked for writability before the first step.
+- A command without the run options (``--checkpoint-every``, ``--resume``,
+  ``--discard-checkpoint``: the coupled runs, ``rothe run eld-tip-mass|eld-tmd|eld-control``,
+  whose stepper writes no checkpoint yet) goes through the same sequence; its interrupted run
+  writes its results so far and names no ``rothe resume``.
 """
 
 from __future__ import annotations
@@ -63,6 +67,8 @@ _INTERNAL = ("_command", "_options", "_argv", "_given", "verb", "name")
 _STRIP_WITH_VALUE = ("--out", "--resume")
 _STRIP_FLAGS = ("--discard-checkpoint",)
 INCOMPLETE = "incomplete"
+#: --checkpoint-every's default, and the interval of a command without the run options
+DEFAULT_CHECKPOINT_EVERY = 60.0
 
 
 def add_run_options(parser) -> None:
@@ -70,7 +76,7 @@ def add_run_options(parser) -> None:
     float_option(
         parser,
         "--checkpoint-every",
-        default=60.0,
+        default=DEFAULT_CHECKPOINT_EVERY,
         metavar="SECONDS",
         help="write a checkpoint to OUT/checkpoint every SECONDS of wall time "
         "(default 60; also at the start, when stopped, and at the end)",
@@ -150,7 +156,7 @@ class RunSession:
         self.command = f"{args.verb} {args.name}"
         self.out = out_path(args, name)
         self.resume = None
-        if args.resume is not None:
+        if getattr(args, "resume", None) is not None:
             given = Path(args.resume)
             if args.out is not None and _resolved(self.out) != _resolved(_run_dir(given)):
                 raise fail(
@@ -177,7 +183,9 @@ class RunSession:
         argv = list(sys.argv[1:] if argv is None else argv)
         self.checkpoint = CheckpointOptions(
             self.checkpoint_dir,
-            every_seconds=check_positive("--checkpoint-every", args.checkpoint_every),
+            every_seconds=check_positive(
+                "--checkpoint-every", getattr(args, "checkpoint_every", DEFAULT_CHECKPOINT_EVERY)
+            ),
             record={
                 "command": self.command,
                 "argv": strip_argv(argv),
@@ -219,7 +227,8 @@ class RunSession:
             ckpt = load_checkpoint(self.checkpoint_dir, check_version=False, header_only=True)
         except CheckpointError:
             return  # unreadable: nothing that could be resumed is lost by replacing it
-        if ckpt.status in ("running", "interrupted") and not self.args.discard_checkpoint:
+        discard = getattr(self.args, "discard_checkpoint", False)
+        if ckpt.status in ("running", "interrupted") and not discard:
             raise fail(
                 "--out",
                 str(self.out),
@@ -312,7 +321,8 @@ class RunSession:
         if isinstance(exc, RunInterrupted):
             summary["signal"] = interrupt.signal_name(exc.signum)
             summary["where"] = exc.where
-            summary["resume"] = f"rothe resume {self.out}"
+            if ckpt is not None:  # (a run without checkpoints cannot be resumed)
+                summary["resume"] = f"rothe resume {self.out}"
         elif isinstance(exc, RunFailed):
             summary["failure"] = str(exc)
             summary["where"] = exc.where
@@ -334,11 +344,12 @@ class RunSession:
                 if results == self.out
                 else (f" (the earlier completed run stays in {self.out}/)")
             )
-            print(
-                f"rothe: {exc}; results so far in {results}/{where}; continue with: "
-                f"rothe resume {self.out}",
-                file=sys.stderr,
+            resume = (
+                f"; continue with: rothe resume {self.out}"
+                if (self.checkpoint_dir / MAIN).is_file()
+                else " (this run writes no checkpoint: run it again)"
             )
+            print(f"rothe: {exc}; results so far in {results}/{where}{resume}", file=sys.stderr)
             return exc.exit_status
         raise exc
 

@@ -38,13 +38,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import check_choice, check_int, check_nonnegative, check_positive, described, fail
+from ..errors import (
+    check_choice,
+    check_int,
+    check_nonnegative,
+    check_positive,
+    check_real,
+    described,
+    fail,
+)
 from ..fem import mesh as meshes
-from .components import MassSpringDamper
+from .components import LinearComponent, MassSpringDamper, den_hartog, rigid_motion_matrix
+from .control import LinearController, PointSensor
 from .coupled_step import coupled_modes
-from .coupling import CoupledProblem, Translation
+from .coupling import CoupledProblem, Translation, UserCoupling
 from .damping import Damping, NonlinearDamping, RayleighDamping
-from .frequencies import Attachment, bar_frequencies
+from .frequencies import (
+    Attachment,
+    bar_frequencies,
+    beam_frequencies,
+    controlled_bar_roots,
+    first_mode_decay_rate,
+)
 from .materials import Material, PiecewiseMaterial
 from .problem import DirichletData, ELDProblem
 
@@ -770,3 +785,362 @@ def tip_mass_problem(
             length, modulus, rho, area=area, right=Attachment.mass_spring(mass, spring), count=3
         )
     return TipMassExample(system, analytic, w[axial[:3]], length, area)
+
+
+# -- the cantilever on a shaken support, with and without a tuned mass damper (issue 19) --------
+
+
+class PlateAbsorber(LinearComponent):
+    """A rigid end plate (2D small rotations: translation a, rotation theta about its centre
+    x_c; mass m_p, inertia J_p) carrying an absorber mass m_a on a spring k and a damper c along
+    y: coordinates q = (a_x, a_y, theta, s), with s the absorber's displacement,
+
+        M = diag(m_p, m_p, J_p, m_a),   f = k (a_y - s) (e_ay - e_s) + c (p_ay - p_s) (e_ay - e_s).
+
+    Without an absorber (``absorber_mass=0``) only (a_x, a_y, theta): the plate alone, a
+    :class:`~rothe.eld.components.RigidBody`'s coordinates. Tie it to a part with
+    :func:`plate_coupling`.
+
+    Parameters
+    ----------
+    plate_mass, plate_inertia : float
+        m_p > 0, J_p > 0 about the centre.
+    center : (2,) array
+        x_c, the reference point of the rotation.
+    absorber_mass, stiffness, damping : float
+        m_a >= 0 (0: no absorber), k, c >= 0.
+    name : str
+    """
+
+    def __init__(
+        self,
+        plate_mass: float,
+        plate_inertia: float,
+        center,
+        *,
+        absorber_mass: float = 0.0,
+        stiffness: float = 0.0,
+        damping: float = 0.0,
+        name: str = "plate",
+    ):
+        mp = check_positive("plate_mass", plate_mass)
+        Jp = check_positive("plate_inertia", plate_inertia)
+        ma = check_nonnegative("absorber_mass", absorber_mass)
+        k = check_nonnegative("stiffness", stiffness)
+        c = check_nonnegative("damping", damping)
+        self.center = np.asarray(center, dtype=float).reshape(2)
+        names = ("a_x", "a_y", "theta")
+        if ma == 0.0:
+            super().__init__(np.array([mp, mp, Jp]), coordinates=names, name=name)
+            return
+        e = np.array([0.0, 1.0, 0.0, -1.0])  # a_y - s
+        super().__init__(
+            np.array([mp, mp, Jp, ma]),
+            k * np.outer(e, e),
+            c * np.outer(e, e),
+            coordinates=(*names, "absorber_y"),
+            name=name,
+        )
+
+
+def plate_coupling(part: str, plate: PlateAbsorber) -> UserCoupling:
+    """B u = G(q) on ``part``: the part moves with the plate, G(q, x) = a + theta e_z x
+    (x - x_c) (linearized rigid motion, :func:`~rothe.eld.components.rigid_motion_matrix`);
+    the absorber coordinate does not enter G. A linear, time-independent coupling."""
+
+    def G_q(t, q, x):
+        R = rigid_motion_matrix(2, x, plate.center)  # (2, k, 3)
+        out = np.zeros(R.shape[:2] + (plate.size,))
+        out[:, :, :3] = R
+        return out
+
+    def G(t, q, x):
+        return np.einsum("dkm,m->dk", G_q(t, q, x), q)
+
+    return UserCoupling(part, plate, G, G_q, linear=True)
+
+
+@dataclass
+class TMDExample:
+    """The cantilever of :func:`tmd_problem`, with and without the absorber.
+
+    Attributes
+    ----------
+    with_tmd, without_tmd : CoupledProblem
+        Base, strip and end plate; with_tmd adds the absorber on the plate.
+    frequency : float
+        w_1, the first bending frequency of the system without the absorber (discrete modes).
+    modal_mass : float
+        m_1 of that mode with the plate's deflection a_y scaled to 1.
+    stiffness, damping : float
+        The absorber's k, c (Den Hartog: :func:`~rothe.eld.components.den_hartog`).
+    forcing : float
+        The angular frequency of the force on the base.
+    beam_frequency : float
+        w_1 of the Euler-Bernoulli cantilever of the strip (clamped, no plate, no base), for
+        comparison.
+    """
+
+    with_tmd: CoupledProblem
+    without_tmd: CoupledProblem
+    frequency: float
+    modal_mass: float
+    stiffness: float
+    damping: float
+    forcing: float
+    beam_frequency: float
+
+
+def tmd_problem(
+    n: int = 2,
+    degree: int = 2,
+    *,
+    length: float = 1.0,
+    height: float = 0.1,
+    material: Material | None = None,
+    mass_ratio: float = 0.05,
+    force: float = 0.01,
+    forcing_ratio: float = 1.0,
+    b: float = 0.0,
+    T: float = 12.0,
+) -> TMDExample:
+    """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
+    along; default material E = 10^4, nu = 0, rho = 1) whose ``left`` end is tied to a support
+    (:class:`~rothe.eld.components.MassSpringDamper`, mass m_b = the strip's mass, springs
+    k_b = (m_b + strip) (4 w_EB)^2 in x and y: a stiff support, w_EB the strip's clamped-free
+    Euler-Bernoulli frequency) pushed by f(t) = force sin(W t) e_y, and whose ``right`` end is a
+    rigid plate (mass 0.05 of the strip's, inertia m_p height^2/12; :class:`PlateAbsorber`).
+    The system starts at rest; Rayleigh damping b K on the strip.
+
+    ``with_tmd`` carries on the plate an absorber of mass ``mass_ratio`` m_1 tuned by Den
+    Hartog to the first bending mode (w_1, m_1 of the system without it: the discrete coupled
+    modes); W = ``forcing_ratio`` w_1 (default: at that resonance).
+
+    Parameters
+    ----------
+    n, degree : int
+    length, height : float
+    material : Material, optional
+        A 2D material (default E = 10^4, nu = 0, rho = 1, plane stress).
+    mass_ratio, force, forcing_ratio, b, T : float
+
+    Returns
+    -------
+    TMDExample
+    """
+    n = check_int("n", n, minimum=1)
+    if degree not in (1, 2):
+        raise fail("degree", degree, "must be 1 or 2")
+    length = check_positive("length", length)
+    height = check_positive("height", height)
+    mu = check_positive("mass_ratio", mass_ratio)
+    force = check_real("force", force)
+    ratio = check_positive("forcing_ratio", forcing_ratio)
+    b = check_nonnegative("b", b)
+    if material is None:
+        material = Material.from_young(1e4, 0.0, 1.0, dim=2, plane="stress")
+    E, nu = material.young
+    modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
+    rho = material.rho
+    mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
+    strip = rho * length * height
+    w_eb = beam_frequencies(length, modulus * height**3 / 12, rho * height, count=1)[0]
+    base_mass = strip
+    base_k = (base_mass + strip) * (4.0 * w_eb) ** 2
+    plate_mass = 0.05 * strip
+    plate_J = plate_mass * height**2 / 12
+    center = (length, height / 2)
+    damping = RayleighDamping(0.0, b) if b > 0 else None
+
+    def build(absorber=None, forcing=0.0):
+        def push(t):
+            return np.array([0.0, force * math.sin(forcing * t)])
+
+        base = MassSpringDamper(base_mass, base_k, load=push, name="base")
+        k, c = (0.0, 0.0) if absorber is None else absorber[1:]
+        plate = PlateAbsorber(
+            plate_mass,
+            plate_J,
+            center,
+            absorber_mass=0.0 if absorber is None else absorber[0],
+            stiffness=k,
+            damping=c,
+            name="tip",
+        )
+        return CoupledProblem.from_body(
+            mesh,
+            material,
+            degree=degree,
+            damping=damping,
+            components=[base, plate],
+            couplings=[Translation("left", base), plate_coupling("right", plate)],
+            T=T,
+            name="eld-tmd",
+        )
+
+    with warnings.catch_warnings():  # G = 0 on no prescribed part: nothing is differenced
+        warnings.filterwarnings("ignore", message="G_d")
+        bare = build()
+        w, _, Q = coupled_modes(bare, 8)
+        ay = bare.offsets["tip"] + 1
+        ax = bare.offsets["tip"]
+        bending = np.flatnonzero(np.abs(Q[ay]) > 10 * np.abs(Q[ax]))
+        if bending.size == 0:
+            raise fail("n", n, "gives no bending mode among the first 8: refine")
+        k1 = int(bending[0])
+        w1 = float(w[k1])
+        m1 = 1.0 / float(Q[ay, k1]) ** 2  # (mass-normalized modes: the deflection a_y = 1)
+        k_a, c_a = den_hartog(m1, w1, mu)
+        forcing = ratio * w1
+        return TMDExample(
+            with_tmd=build((mu * m1, k_a, c_a), forcing),
+            without_tmd=build(None, forcing),
+            frequency=w1,
+            modal_mass=m1,
+            stiffness=k_a,
+            damping=c_a,
+            forcing=forcing,
+            beam_frequency=float(w_eb),
+        )
+
+
+# -- the bar whose clamped end is moved by feedback on the tip velocity (issue 19) --------------
+
+
+@dataclass
+class ControlExample:
+    """The bar of :func:`control_problem`, with and without the feedback, started in its first
+    mode, and the predicted decay rates.
+
+    Attributes
+    ----------
+    controlled, uncontrolled : CoupledProblem
+    roots : ndarray
+        s = -alpha + i w of the first two modes of the controlled bar (with the Kelvin-Voigt
+        damping b): :func:`rothe.eld.frequencies.controlled_bar_roots` (its Newton from the
+        undamped frequency is not reliable for the third with the default b: at w_3 ~ 48 the
+        material damping b w^2/2 ~ 6 is no perturbation).
+    roots_uncontrolled : ndarray
+        The same without the feedback.
+    roots_undamped : ndarray
+        The controlled bar without material damping: the feedback's own effect per mode
+        (Re s > 0: a mode destabilized by the non-collocated feedback, the spillover).
+    modal_rate : float
+        The first mode's decay rate to first order in the gain:
+        :func:`rothe.eld.frequencies.first_mode_decay_rate` plus the uncontrolled rate.
+    frequency : float
+        w_1 of the discrete uncontrolled system (the mode the runs start in).
+    """
+
+    controlled: CoupledProblem
+    uncontrolled: CoupledProblem
+    roots: np.ndarray
+    roots_uncontrolled: np.ndarray
+    roots_undamped: np.ndarray
+    modal_rate: float
+    frequency: float
+
+
+def control_problem(
+    n: int = 2,
+    degree: int = 2,
+    *,
+    length: float = 1.0,
+    height: float = 0.25,
+    material: Material | None = None,
+    base_mass: float = 1.0,
+    base_stiffness: float = 50.0,
+    gain: float = 1.0,
+    kd: float = 0.0,
+    filter_time: float = 0.02,
+    b: float = 0.005,
+    amplitude: float = 0.01,
+    T: float = 6.0,
+) -> ControlExample:
+    """A plane-stress strip [0, length] x [0, height] (default E = 100, nu = 0, rho = 1: the
+    axial motion is the 1D bar's) whose ``left`` end is held by a base (mass ``base_mass``,
+    spring ``base_stiffness`` along x, 10^4 across) pushed along x by a PD law on the tip's
+    axial velocity v_L at (length, height/2) (:meth:`rothe.eld.control.LinearController.pd`):
+
+        f = -(k_p v_L + k_d v_L'),  v_L' filtered by (1 + T_f s)^-1,
+        i.e. f = -H(s) u_L with H(s) = s (k_p + k_d s/(1 + T_f s));
+
+    the tip is free, Rayleigh damping b K on the strip (Kelvin-Voigt: the modulus E (1 + b s)).
+    Both runs start at rest in the first axial mode of the discrete uncontrolled system, the
+    base displaced by ``amplitude``. The feedback damps that mode at the rate -Re s_1 of the
+    characteristic equation (``roots``); modes whose base and tip move in antiphase are pushed
+    the other way (``roots_undamped``), held by b.
+
+    Parameters
+    ----------
+    n, degree : int
+    length, height : float
+    material : Material, optional
+    base_mass, base_stiffness, gain, kd, filter_time, b, amplitude, T : float
+        m_b, k_b, k_p, k_d, T_f (used with k_d > 0), b, the initial amplitude and T.
+
+    Returns
+    -------
+    ControlExample
+    """
+    n = check_int("n", n, minimum=1)
+    if degree not in (1, 2):
+        raise fail("degree", degree, "must be 1 or 2")
+    length = check_positive("length", length)
+    height = check_positive("height", height)
+    mb = check_positive("base_mass", base_mass)
+    kb = check_nonnegative("base_stiffness", base_stiffness)
+    kp = check_real("gain", gain)
+    kd = check_nonnegative("kd", kd)
+    b = check_nonnegative("b", b)
+    amplitude = check_positive("amplitude", amplitude)
+    if material is None:
+        material = Material.from_young(100.0, 0.0, 1.0, dim=2, plane="stress")
+    E, nu = material.young
+    modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
+    rho = material.rho
+    mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
+    damping = RayleighDamping(0.0, b) if b > 0 else None
+    Tf = check_positive("filter_time", filter_time) if kd > 0 else None
+
+    def build(feedback: bool, q0=None, u0=None):
+        base = MassSpringDamper(mb, [kb, 1e4], q0=q0, name="base")
+        sensor = PointSensor([length, height / 2], "velocity", axes=[0])
+        ctrls = []
+        if feedback:
+            ctrls = [
+                LinearController.pd(kp, kd, sensor, base, filter_time=Tf, directions=[[1.0], [0.0]])
+            ]
+        return CoupledProblem.from_body(
+            mesh,
+            material,
+            degree=degree,
+            damping=damping,
+            components=[base],
+            couplings=[Translation("left", base)],
+            controllers=ctrls,
+            u0=u0,
+            T=T,
+            name="eld-control",
+        )
+
+    with warnings.catch_warnings():  # no prescribed part: nothing is differenced
+        warnings.filterwarnings("ignore", message="G_d")
+        w, U, Q = coupled_modes(build(False), 8)
+        axial = np.flatnonzero(np.abs(Q[0]) > 10 * np.abs(Q[1]))
+        if axial.size == 0:
+            raise fail("n", n, "gives no axial mode among the first 8: refine")
+        k = int(axial[0])
+        scale = amplitude / abs(Q[0, k])
+        q0, u0 = Q[:, k] * scale, U[:, k] * scale
+        controlled, uncontrolled = build(True, q0, u0), build(False, q0, u0)
+
+    def H(s):
+        return s * (kp + (kd * s / (1.0 + Tf * s) if kd > 0 else 0.0))
+
+    bar = dict(area=height, base_mass=mb, base_stiffness=kb)
+    roots = controlled_bar_roots(length, modulus, rho, H=H, kelvin_voigt=b, count=2, **bar)
+    free = controlled_bar_roots(length, modulus, rho, kelvin_voigt=b, count=2, **bar)
+    undamped = controlled_bar_roots(length, modulus, rho, H=H, count=2, **bar)
+    modal = first_mode_decay_rate(length, modulus, rho, H=H, **bar) - free[0].real
+    return ControlExample(controlled, uncontrolled, roots, free, undamped, modal, float(w[k]))

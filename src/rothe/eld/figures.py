@@ -138,3 +138,29 @@ def plot_tip_mass(traj, path, title: str = "") -> Path:
     if title:
         fig.suptitle(title, fontsize=10)
     return _save(fig, path)
+
+
+def plot_comparison(
+    runs: dict, path, *, coordinate: int, label: str, part: str, axis: int, title: str = ""
+) -> Path:
+    """Coupled runs side by side (``runs``: legend label -> trajectory): left the coordinate
+    ``coordinate`` of q(t) (``label`` on the axis), right the component ``axis`` of the reaction
+    -int lambda ds on ``part`` over time (eld-tmd: the tip's deflection and the base's y
+    reaction with and without the absorber; eld-control: the base and its x reaction with and
+    without the feedback)."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for name, traj in runs.items():
+        t = traj["t"]
+        axes[0].plot(t, np.asarray(traj["q"])[:, coordinate], lw=1.0, label=name)
+        R = np.asarray(traj[f"reaction_{part}"])
+        axes[1].plot(t, R[:, axis], lw=1.0, label=name)
+    axes[0].set_xlabel("t")
+    axes[0].set_ylabel(label)
+    axes[1].set_xlabel("t")
+    axes[1].set_ylabel(rf"reaction on '{part}' ({'xyz'[axis]}) $-\int \lambda\, ds$")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
