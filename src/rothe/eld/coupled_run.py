@@ -57,6 +57,9 @@ from .stepper import GridLoop, StepGrid
 
 #: the history a step needs (two states for BDF2)
 _HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
+#: the products with the body's matrices kept with that history (rho M v, K u, K v, rho M a):
+#: the ledger and the estimate take differences of them instead of products of differences
+_PRODUCTS = ("Mv", "Ku", "Kv", "Ma")
 
 
 @dataclass
@@ -245,14 +248,17 @@ class CoupledStepper(GridLoop):
         y_[c.dofs] = 0.0
         return x_, y_, gu - kern.Gamma @ q_, gv - kern.Gamma @ p_
 
-    def _energies(self, u_, v_, q_, p_, Ku=None):
-        """(body, components) energies; ``Ku``: K u_ if the caller has it."""
+    def _energies(self, u_, v_, q_, p_, Ku=None, Mv=None):
+        """(body, components) energies; ``Ku``, ``Mv``: K u_, rho M v_ if the caller has them."""
         kin, _ = self.system.component_energy(q_, p_)
         Ku = self.kern.K @ u_ if Ku is None else Ku
-        return (
-            0.5 * v_ @ (self.rhoM @ v_) + 0.5 * u_ @ Ku,
-            kin + 0.5 * q_ @ (self.Kq @ q_),
-        )
+        Mv = self.rhoM @ v_ if Mv is None else Mv
+        return (0.5 * v_ @ Mv + 0.5 * u_ @ Ku, kin + 0.5 * q_ @ (self.Kq @ q_))
+
+    def _products(self, u_, v_, a_) -> dict:
+        """rho M v, K u, K v, rho M a of one state (:data:`_PRODUCTS`)."""
+        K = self.kern.K
+        return {"Mv": self.rhoM @ v_, "Ku": K @ u_, "Kv": K @ v_, "Ma": self.rhoM @ a_}
 
     def _norm(self, u_, v_, q_, p_):
         Eb, Ec = self._energies(u_, v_, q_, p_)
@@ -302,6 +308,8 @@ class CoupledStepper(GridLoop):
             "u": [u0],
             "v": [v0],
         }
+        for key, val in self._products(u0, v0, a0).items():
+            hist[key] = [val]
         Eb, Ec = self._energies(u0, v0, q0, p0)
         ledger = dict.fromkeys(
             (
@@ -344,6 +352,9 @@ class CoupledStepper(GridLoop):
             zm = state.z - tau * state.zdot
             xm, ym, gkm, gdkm = self._split(um, vm, qm, pm)
             for key, val in zip(_HISTORY, (xm, ym, qm, pm, zm, gkm, gdkm, um, vm), strict=True):
+                hist[key].insert(0, val)
+            # (the Taylor history's acceleration at -tau is a0: it is quadratic)
+            for key, val in self._products(um, vm, state.a).items():
                 hist[key].insert(0, val)
         return hist
 
@@ -466,9 +477,11 @@ class CoupledStepper(GridLoop):
         u = x + kern.lift(gk + Gam @ q)
         v = y + kern.lift(gdk + Gam @ p)
         a = b + kern.lift(gddk + Gam @ pdot)
-        # (each product once: the ledger, the energies and the residual reuse them)
-        Ku, Cv = K @ u, Cmat @ v
-        res = rhoM @ a + Cv + Ku - F
+        # (each product once: the ledger, the energies, the estimate and the residual reuse them,
+        # and the next steps take them from the history)
+        now = {"Mv": rhoM @ v, "Ku": K @ u, "Kv": K @ v, "Ma": rhoM @ a}
+        Ku, Cv, Ma, Mv = now["Ku"], Cmat @ v, now["Ma"], now["Mv"]
+        res = Ma + Cv + Ku - F
         lam = kern.multiplier(res)
         R = res + self.BT @ lam
         ys = kern.Y_u @ u + kern.Y_v @ v + kern.Y_lam @ lam if kern.k_in else np.zeros(0)
@@ -483,17 +496,26 @@ class CoupledStepper(GridLoop):
             val = al0 * now + al1 * h[-1]
             return (val + al2 * h[-2]) / tau if al2 != 0.0 else val / tau
 
-        def N(key, now, W):
+        def N(key, z_now, W=None, product=None):
+            """N(z, W) = 1/2 |dz|_W^2 + z . W ((alpha_0 - 1) dz - alpha_2 dz_prev) (Sec. 5),
+            W dz from the history's ``product`` (the body's matrices) or by W (the
+            components')."""
             h = hist[key]
-            dz = now - h[-1]
-            out = 0.5 * dz @ (W @ dz)
-            dprev = h[-1] - h[-2] if al2 != 0.0 else 0.0 * dz
-            return out + now @ (W @ ((al0 - 1.0) * dz - al2 * dprev))
+            dz = z_now - h[-1]
+            if product is None:
+                Wdz = W @ dz
+                Wdprev = W @ (h[-1] - h[-2]) if al2 != 0.0 else 0.0 * dz
+            else:
+                Wh = hist[product]
+                Wdz = now[product] - Wh[-1]
+                Wdprev = Wh[-1] - Wh[-2] if al2 != 0.0 else 0.0 * dz
+            return 0.5 * dz @ Wdz + z_now @ ((al0 - 1.0) * Wdz - al2 * Wdprev)
 
         L = dict(state.ledger)
-        L["numerical_dissipation"] += N("v", v, rhoM) + N("u", u, K) + N("p", p, Mq)
-        L["numerical_dissipation"] += N("q", q, Kq)
-        L["data_mismatch"] += tau * (rhoM @ (a - quot("v", v))) @ v + tau * Ku @ (v - quot("u", u))
+        L["numerical_dissipation"] += N("v", v, product="Mv") + N("u", u, product="Ku")
+        L["numerical_dissipation"] += N("p", p, Mq) + N("q", q, Kq)
+        # rho M (a - delta v), delta v the scheme's quotient of v: from the products
+        L["data_mismatch"] += tau * (Ma - quot("Mv", Mv)) @ v + tau * Ku @ (v - quot("u", u))
         L["work"] += tau * F @ v
         L["work_components"] += tau * f_ext @ p
         L["work_controllers"] += tau * p @ Ew
@@ -503,7 +525,7 @@ class CoupledStepper(GridLoop):
         L["dissipated"] += diss
         L["work_prescribed"] += -tau * lam @ (c.boundary_mass @ gdk)
         L["residual_work"] += tau * R @ v + tau * Rq @ p
-        Eb, Ec = self._energies(u, v, q, p, Ku)
+        Eb, Ec = self._energies(u, v, q, p, Ku, Mv)
         balance = (Eb + Ec - state.energy_start) - (
             L["work"]
             + L["work_components"]
@@ -522,15 +544,20 @@ class CoupledStepper(GridLoop):
         omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
         norm_new = math.sqrt(max(2.0 * (Eb + Ec), 0.0))  # (self._norm without the products)
         scale = max(self.error_scale, state.energy_norm_max, norm_new)
+        # K ru and rho M rv: the same differences of the products
+        Kru = Ku - hist["Ku"][-1] - 0.5 * tau * (now["Kv"] + hist["Kv"][-1])
+        Mrv = Mv - hist["Mv"][-1] - 0.5 * tau * (Ma + hist["Ma"][-1])
         est = (
             self.scheme.estimate_factor(omega)
-            * math.sqrt(max(ru @ (K @ ru) + rv @ (rhoM @ rv) + rq @ (Kq @ rq) + rp @ (Mq @ rp), 0))
+            * math.sqrt(max(ru @ Kru + rv @ Mrv + rq @ (Kq @ rq) + rp @ (Mq @ rp), 0))
             / scale
         )
         x_now, y_now, gk_now, gdk_now = x, y, gk, gdk
         new_hist = {}
         for key, val in zip(_HISTORY, (x_now, y_now, q, p, z, gk_now, gdk_now, u, v), strict=True):
             new_hist[key] = (hist[key] + [val])[-2:]
+        for key in _PRODUCTS:
+            new_hist[key] = (hist[key] + [now[key]])[-2:]
         new = CoupledState(
             t=t,
             j=state.j + 1,
