@@ -67,6 +67,7 @@ from ..errors import (
 )
 from ..fem.adapt.cycle import AdaptationFailed
 from ..io.trajectory import Trajectory
+from ..stepping import interrupt
 from ..stepping.controllers import Adaptive, Given, Uniform
 from ..stepping.evolve import single_threaded_blas
 from ..timing import PhaseTimes
@@ -497,6 +498,7 @@ class ELDStepper(GridLoop):
             self.adaptivity = ELDAdaptivity(problem, adapt, scheme=self.scheme, times=self.times)
         self._base = None  # (state, mesh hierarchy, system) before a step's own refinements
         self._adapted: float | None = None  # eta of the last adapt step (None: none / failed)
+        self._undo: dict | None = None  # what begin_attempt saw (for abandon)
 
     # -- what the system holds ------------------------------------------------------------------
     @property
@@ -604,6 +606,43 @@ class ELDStepper(GridLoop):
             out["dofs"] = self.problem.space.ndofs
         return out
 
+    # -- an abandoned attempt (rothe.stepping.interrupt) ----------------------------------------
+    def begin_attempt(self, state: ELDState) -> None:
+        """(The evolve loop, before each attempt.) Note what an attempt changes in the stepper
+        -- the system of the current mesh with its stored factorization, the key it was built
+        from and the solver's counters, the Newton count, the factorizations of systems built
+        for refined meshes -- so that :meth:`abandon` can put it back. References and a few
+        numbers: no copy of a matrix or a factorization."""
+        if self.adaptivity is not None:
+            self._back_to_mesh_of(state)  # as step() does first: the state's own mesh
+        self._undo = {
+            "system": self.system,
+            "solver": self.system.snapshot(),
+            "last_newton": self._last_newton,
+            "pending": 0 if self.adaptivity is None else self.adaptivity.pending_factorizations,
+        }
+
+    def abandon(self, state: ELDState) -> None:
+        """(The evolve loop, when a stop signal abandoned the attempt from ``state``: between
+        Newton iterations, between the refine-and-resolve rounds of a step with space
+        adaptivity, or during a factorization -- of the step, or of the new mesh's system in a
+        round or in the adapt step after the accepted step, :func:`rothe.stepping.interrupt.
+        call`.) Back to the mesh of ``state`` (the adapt cycle rolled its own refinement back,
+        ``_back_to_mesh_of`` undoes the rounds') and to what :meth:`begin_attempt` noted, so
+        that a checkpoint of ``state`` resumes like the uninterrupted run. A mesh the attempt
+        added to the series stays there: the resumed run makes the same mesh with the same id.
+        """
+        undo = self._undo
+        if undo is None:
+            return
+        if self.adaptivity is not None:
+            self._back_to_mesh_of(state)
+            self.adaptivity.pending_factorizations = undo["pending"]
+        self.system = undo["system"]
+        self.system.rollback(undo["solver"])
+        self._last_newton = undo["last_newton"]
+        self._undo = None
+
     # -- the step -------------------------------------------------------------------------------
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
         """One step from ``state`` with step ``tau``. With space adaptivity: while the step's
@@ -612,7 +651,10 @@ class ELDStepper(GridLoop):
         mesh, at most :data:`~rothe.eld.adapt.STEP_ROUNDS` times (a wave that enters a coarse
         region, or the data of a boundary pulse, is resolved in the step that creates it). The
         result is that of the last solve; ``result.counters['dofs']`` sums the dofs of every
-        solve, ``result.refinements`` counts the refinements."""
+        solve, ``result.refinements`` counts the refinements.
+
+        A stop signal abandons the step between the rounds (and between Newton iterations):
+        :func:`rothe.stepping.interrupt.check`, :meth:`abandon`."""
         if self.adaptivity is None:
             return self._attempt(state, tau)
         self._back_to_mesh_of(state)
@@ -623,6 +665,7 @@ class ELDStepper(GridLoop):
         for _ in range(STEP_ROUNDS):
             if not result.converged or result.state is None:
                 break
+            interrupt.check()
             base = self._base
             if base is None or base[0] is not original:
                 base = (original, adaptation.amesh.checkpoint_state(), self.system)
@@ -640,6 +683,7 @@ class ELDStepper(GridLoop):
                 break
             self._base = base
             self.system, state = out.problem, out.state
+            interrupt.check()  # abandon() goes back to the mesh of the original state
             refinements = result.refinements + 1
             result = self._attempt(state, tau)
             result.refinements = refinements
@@ -902,7 +946,8 @@ class ELDStepper(GridLoop):
 
         Stops when the estimated error of the iterate, |dz| theta / (1 - theta) with the
         contraction theta = |dz_k| / |dz_{k-1}| (or |dz| itself in the first iteration), is below
-        tol * max(|z|, |z - z_prev|).
+        tol * max(|z|, |z - z_prev|). After the linear solve of every iteration a stop signal
+        abandons the step (:func:`rothe.stepping.interrupt.check`).
         """
         opts = self.newton
         z = z0.copy()
@@ -916,6 +961,7 @@ class ELDStepper(GridLoop):
                 raise _NewtonFailed(it - 1, rnorm)
             J, assemble = jacobian(v)
             dz = self.system.solve(J, -R, assemble=assemble, rtol=opts.krylov_rtol)
+            interrupt.check()  # after the expensive part of the iteration
             alpha = 1.0
             while True:
                 z_new = z + alpha * dz
@@ -1056,15 +1102,18 @@ class ELDStepper(GridLoop):
         ad = self.adaptivity
         if ad is None:
             return state
-        self._base = None  # accepted: the state's mesh is the current one
         ad.register_mesh()
         estimate = math.nan
         if ad.options.due(state.j) and not self.finished(state):
             old_id = int(state.mesh_id)
             t_next = min(state.t + result.tau, self.T)
             try:
+                # a stop signal during the new mesh's factorization abandons the attempt: the
+                # cycle rolls the hierarchy back, and _base (the mesh before the step's own
+                # refinements) lets abandon() go back to the previous state's mesh
                 out = ad.adaptation.cycle(ad, self.system, (state, result.tau, t_next), state)
             except AdaptationFailed as exc:
+                self._base = None
                 raise RunFailed(
                     f"space adaptivity: the transfer to the new mesh after step "
                     f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
@@ -1092,6 +1141,7 @@ class ELDStepper(GridLoop):
                     }
                 )
                 state = new
+        self._base = None  # accepted: the state's mesh is the current one
         self._adapted = estimate
         return state
 
