@@ -1,6 +1,7 @@
 """The ELD commands: outputs, summary fields, and one-line errors with exit status 2."""
 
 import json
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -402,3 +403,17 @@ def test_an_adaptive_run_prints_its_initial_final_and_largest_dofs(tmp_path, cap
     assert list(printed) == ["ndofs_initial", "ndofs", "ndofs_max"]
     assert [int(v) for v in printed.values()] == [s["ndofs_initial"], s["ndofs"], s["ndofs_max"]]
     assert s["ndofs_initial"] == 50 < s["ndofs_max"]
+
+
+def test_steps_takes_step_sizes_as_the_docs_say(tmp_path, capsys):
+    """Issue 21: docs/eld.md wrote ``--steps t1,t2,...`` (times); the option takes the step
+    sizes tau_1, ..., tau_n summing to T, and the docs now say so with this example."""
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "eld.md").read_text()
+    assert "--steps t1" not in doc and "`--T 1 --steps 0.5,0.25,0.25` ends its steps" in doc
+    out = tmp_path / "steps"
+    argv = ["run", "eld-mms", "--n", "2", "--T", "1", "--steps", "0.5,0.25,0.25"]
+    code, _, err = _run(argv + ["--no-plots", "--quiet", "--out", str(out)], capsys)
+    assert code == 0, err
+    with np.load(out / "trajectory.npz") as f:
+        assert np.allclose(f["t"], [0.0, 0.5, 0.75, 1.0])
+        assert np.allclose(f["tau"], [0.5, 0.25, 0.25])
