@@ -1,6 +1,7 @@
 """Helpers and fixtures shared by the test folders: ``run_cli`` (the command line in this process),
-gmsh files written by the test itself (no binaries), a signal sent at the k-th step attempt and
-the bit-for-bit comparison of trajectories (checkpoint/resume tests).
+gmsh files written by the test itself (no binaries), a signal sent at the k-th step attempt or at
+the k-th call of any method (inside a step), and the bit-for-bit comparison of trajectories
+(checkpoint/resume tests).
 
 Test modules import the plain helpers with ``from ..conftest import run_cli`` (pytest's importlib
 mode makes ``tests`` a package)."""
@@ -84,6 +85,31 @@ def signal_at_attempt(monkeypatch):
             return original(self, state, tau, s_end)
 
         monkeypatch.setattr(cls, "step", step)
+        return calls
+
+    return install
+
+
+@pytest.fixture
+def signal_at_call(monkeypatch):
+    """``signal_at_call(cls, name, k, sig)``: the k-th call of the method ``cls.name`` (counted
+    from now, whatever its arguments) sends ``sig`` to this process before it runs; returns the
+    call counter (a list). A signal in the middle of a step: e.g. the k-th iteration of the RIS
+    inner solver (``BallStepSolver.step``) or the k-th Newton solve of an ELD step."""
+
+    def install(cls, name: str, k: int, sig=signal.SIGINT):
+        key = f"_rothe_original_{name}"
+        original = cls.__dict__.get(key, getattr(cls, name))
+        monkeypatch.setattr(cls, key, original, raising=False)
+        calls = [0]
+
+        def method(self, *args, **kwargs):
+            calls[0] += 1
+            if calls[0] == k:
+                os.kill(os.getpid(), sig)
+            return original(self, *args, **kwargs)
+
+        monkeypatch.setattr(cls, name, method)
         return calls
 
     return install

@@ -47,6 +47,22 @@ def test_run_ris_1d_writes_results_and_figures(tmp_path, capsys):
     assert (out / "fig2_steps.png").stat().st_size > 1000
 
 
+def test_run_ris_1d_says_why_it_rejects_one_attempt_per_acceptance(tmp_path, capsys):
+    """Issue 21: 682 accepted and 682 rejected steps with no word why; the summary line of
+    rejected_steps now names Alg. 3.2's double/reject cycle (docs/ris.md)."""
+    assert main(["run", "ris-1d", "--out", str(tmp_path / "run"), "--no-plots"]) == 0
+    stdout = capsys.readouterr().out
+    (line,) = [ln for ln in stdout.splitlines() if ln.split()[:1] == ["rejected_steps"]]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["rejected_steps"] == summary["accepted_steps"] == 682
+    assert line.split()[1] == "682" and "(1.00 per accepted step: Alg. 3.2's double/" in line
+    assert "rejects up to one attempt per acceptance" in line
+    # other controls reject few and need no remark
+    regime = ["run", "ris-1d", "--control", "regime", "--no-plots", "--out", str(tmp_path / "r")]
+    assert main(regime) == 0
+    assert "per accepted step" not in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     "control, extra",
     [

@@ -571,6 +571,31 @@ def test_cli_run_writes_meshes_pvd_and_figures(capsys, tmp_path):
         assert (out / name).stat().st_size > 0
 
 
+def test_cli_adaptive_run_prints_its_initial_final_and_largest_dofs(capsys, tmp_path):
+    """Issue 21: the terminal summary of an ``--adapt-space`` run prints the initial, final and
+    largest dofs (and summary.json has them), not only the initial mesh's nodes."""
+    out = tmp_path / "front"
+    argv = ["run", "ris-front", "--n", "4", "--adapt-space", "--control", "uniform"]
+    argv += ["--tau", "0.1", "--max-dofs", "300", "--space-tol", "3", "--no-plots"]
+    code, stdout, err = run_cli(capsys, *argv, "--out", str(out))
+    assert code == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    traj = Trajectory.load_npz(out / "trajectory.npz")
+    dofs = np.asarray(traj["n_dofs"])
+    assert [s["n_dofs_initial"], s["n_dofs_final"], s["n_dofs_max"]] == [
+        dofs[0],
+        dofs[-1],
+        dofs.max(),
+    ]
+    assert s["n_dofs_initial"] < s["n_dofs_max"]
+    printed = [line.split() for line in stdout.splitlines() if line.startswith("  n_dofs")]
+    assert printed == [
+        ["n_dofs_initial", str(s["n_dofs_initial"])],
+        ["n_dofs_final", str(s["n_dofs_final"])],
+        ["n_dofs_max", str(s["n_dofs_max"])],
+    ]
+
+
 def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
     """The 3D command adapts (bisected tetrahedra, coarsening included) and keeps every mesh
     within --max-dofs; the run still ends on T with every step KKT-exact."""

@@ -1,7 +1,8 @@
 """The run commands as sessions (in-process): signals, resume, refusals, what --out holds; a
 completed run removes its checkpoint unless ``--keep-checkpoint``, an interrupted one keeps it, a
 refused input leaves no ``--out`` and no ``.lock``, ``--continue`` and ``rothe resume``
-recognize a completed run without its checkpoint (issue 21)."""
+recognize a completed run without its checkpoint, a signal inside a step abandons it (issue
+21)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import pytest
 from rothe.cli.main import main
 from rothe.cli.session import _remove_checkpoint
 from rothe.io.checkpoint import MAIN, load_checkpoint
+from rothe.ris.inner import BallStepSolver
 from rothe.ris.stepper import RISStepper
 
 from ..conftest import assert_same_trajectory, run_cli
@@ -80,6 +82,33 @@ def test_signal_writes_results_so_far_and_a_checkpoint_then_resume_is_bit_identi
     # resuming a completed run does nothing
     code, _, err = _run(["resume", out], capsys)
     assert code == 0 and "already completed" in err
+
+
+def test_a_signal_inside_a_step_abandons_it_exit_130_and_resume_is_bit_identical(
+    tmp_path, capsys, signal_at_call
+):
+    """Issue 21: SIGINT between two iterations of the inner solver stops the run at once; the
+    step under way is abandoned (not in the trajectory), the checkpoint holds the previous
+    accepted state, exit status 130; ``rothe resume`` then gives the uninterrupted run."""
+    ref = tmp_path / "ref"
+    assert _run(RIS2D + ["--out", ref], capsys)[0] == 0
+    out = tmp_path / "run"
+    signal_at_call(BallStepSolver, "step", 60)
+    code, _, err = _run(RIS2D + ["--out", out], capsys)
+    assert code == 130
+    (line,) = _lines(err)
+    assert "; the step under way was abandoned)" in line, line
+    s = _summary(out)
+    assert s["status"] == "interrupted" and s["where"]["abandoned_step"] is True
+    ckpt = load_checkpoint(out)
+    assert ckpt.status == "interrupted" and ckpt.where["abandoned_step"] is True
+    assert ckpt.state["stepper"]["k"] == s["accepted_steps"] == s["where"]["accepted_steps"] > 0
+    with np.load(out / "trajectory.npz") as f:
+        assert f["tau"].size == s["accepted_steps"]
+    signal_at_call(BallStepSolver, "step", 10**9)
+    assert _run(["resume", out, "--quiet"], capsys)[0] == 0
+    with np.load(ref / "trajectory.npz") as a, np.load(out / "trajectory.npz") as b:
+        assert_same_trajectory(a, b)
 
 
 def test_resume_refusals_are_one_line_with_exit_status_2(tmp_path, capsys):

@@ -1,7 +1,8 @@
 """Space-adaptive ELD runs (rothe.eld.adapt): constraint and lifting after every change, the
 ledger closing with the transfer term, nothing marked = the fixed mesh bit for bit, coarsening
 behind the pulse, the adapt step (a new state, the accepted one untouched; its phases timed),
-bad input, checkpoint/resume bit for bit."""
+bad input, checkpoint/resume bit for bit, also after a stop signal between the refinement
+rounds of a step (issue 21)."""
 
 from __future__ import annotations
 
@@ -368,6 +369,87 @@ def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch
         assert all(np.array_equal(x, y) for x, y in zip(a.kept[key], b.kept[key], strict=True))
     assert a.adaptations == b.adaptations
     assert full.stats.untimed() == resumed.stats.untimed()
+
+
+def test_a_signal_between_the_refinement_rounds_of_a_step_abandons_it(tmp_path, signal_at_call):
+    """Issue 21: a step re-solved on meshes refined within the step (up to STEP_ROUNDS) is
+    abandoned by a stop signal between its rounds; abandon goes back to the mesh and system of
+    the last accepted state, and the resumed run is the uninterrupted one, bit for bit."""
+    from rothe.eld import ELDStepper
+
+    problem = pulse(0.2)
+
+    def make_run(**kw):
+        return run_eld(problem, adapt=adaptivity(), **PULSE, **kw)
+
+    full_run = make_run()
+    full = full_run.trajectory
+    assert np.sum(full["step_refinements"]) >= 10  # steps 1-5 are re-solved 3 times each
+    ckpt, resume = tmp_path / "c", None
+    # attempts 1-4 are step 1 and its three re-solves, 5-8 step 2, ...: k = 10 is the first
+    # re-solve of step 3 in the first session, k = 6 that of step 4 in the resumed one
+    for k, accepted in ((10, 2), (6, 3)):
+        signal_at_call(ELDStepper, "_attempt", k)
+        with pytest.raises(RunInterrupted) as info:
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        exc = info.value
+        assert exc.where["abandoned_step"] is True and exc.where["accepted_steps"] == accepted
+        saved = load_checkpoint(ckpt)
+        assert saved.status == "interrupted" and saved.state["stepper"]["j"] == accepted
+        # the mesh of the last accepted state, not the one refined for the abandoned step
+        assert (
+            saved.state["stepper"]["adapt"]["amesh"]["mesh_id"]
+            == (saved.state["stepper"]["mesh_id"])
+        )
+        resume = ckpt
+    signal_at_call(ELDStepper, "_attempt", 10**9)
+    resumed_run = make_run(resume=ckpt)
+    resumed = resumed_run.trajectory
+    for key in full.keys():  # space_estimate is NaN after the steps not adapted after
+        assert np.array_equal(full[key], resumed[key], equal_nan=True), key
+    assert full.stats.untimed() == resumed.stats.untimed()
+    assert full_run.meshes.series.ids == resumed_run.meshes.series.ids
+    ls = resumed.meta["linear_solver"]
+    assert full.meta["linear_solver"] == ls | {
+        "setup_seconds": full.meta["linear_solver"]["setup_seconds"]
+    }
+
+
+def test_a_signal_in_the_adapt_step_abandons_the_accepted_step(tmp_path, signal_at_call):
+    """Issue 21: a stop signal during the adapt step after an accepted step (here during the
+    factorization of the new mesh's system, which runs abandonable: interrupt.call) abandons the
+    whole attempt -- the accepted step, the decision, the new mesh and the rounds' refinements --
+    and the resumed run is the uninterrupted one, bit for bit."""
+    from rothe.eld import ELDStepper
+
+    problem = pulse(0.2)
+
+    def make_run(**kw):
+        return run_eld(problem, adapt=adaptivity(), **PULSE, **kw)
+
+    full = make_run().trajectory
+    ckpt, resume = tmp_path / "c", None
+    for k, accepted in ((3, 2), (2, 3)):  # every one of these adapt steps changes the mesh
+        signal_at_call(ELDStepper, "adapt", k)
+        with pytest.raises(RunInterrupted) as info:
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        exc = info.value
+        assert exc.where["abandoned_step"] is True and exc.where["accepted_steps"] == accepted
+        assert len(exc.trajectory["tau"]) == accepted  # the step whose adapt step it was: gone
+        saved = load_checkpoint(ckpt)
+        assert saved.state["stepper"]["j"] == accepted
+        stepper = saved.state["stepper"]
+        assert stepper["adapt"]["amesh"]["mesh_id"] == stepper["mesh_id"]
+        resume = ckpt
+    signal_at_call(ELDStepper, "adapt", 10**9)
+    resumed = make_run(resume=ckpt).trajectory
+    for key in full.keys():
+        assert np.array_equal(full[key], resumed[key], equal_nan=True), key
+    assert full.stats.untimed() == resumed.stats.untimed()
+    ls = resumed.meta["linear_solver"]
+    assert full.meta["linear_solver"] == ls | {
+        "setup_seconds": full.meta["linear_solver"]["setup_seconds"]
+    }
 
 
 # -- command line --------------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """The ELD commands: outputs, summary fields, and one-line errors with exit status 2."""
 
 import json
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -234,33 +235,31 @@ def test_run_eld_beam_writes_xdmf_of_u_v_and_the_multiplier(tmp_path, capsys):
     assert data["reaction_left"][0, 2] > 0
 
 
-def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(tmp_path, capsys):
+@pytest.mark.parametrize(
+    "degree, T, remedy",
+    [("1", "0.3", "use --degree 2 or a larger --n"), ("2", "2", "use a larger --n")],
+)
+def test_eld_beam_reports_numerical_dissipation_and_a_coarse_mesh(
+    tmp_path, capsys, degree, T, remedy
+):
+    """The note on a coarse mesh advises --degree 2 only when the degree is not 2 already
+    (issue 21: ``eld-beam --n 1`` at its default degree 2 was told to use --degree 2)."""
     out = tmp_path / "coarse"
     code, stdout, _ = _run(
-        [
-            "run",
-            "eld-beam",
-            "--n",
-            "1",
-            "--degree",
-            "1",
-            "--T",
-            "0.3",
-            "--no-plots",
-            "--out",
-            str(out),
-        ],
+        ["run", "eld-beam", "--n", "1", "--degree", degree, "--T", T, "--no-plots"]
+        + ["--out", str(out)],
         capsys,
     )
     assert code == 0
     assert "numerical dissipation: " in stdout and "put in by the support" in stdout
-    assert "note: coarse mesh for the reactions: the sideways reactions are" in stdout
+    (note,) = [line for line in stdout.splitlines() if line.startswith("note: coarse mesh")]
+    assert "the sideways reactions are" in note and note.endswith(remedy), note
     s = json.loads((out / "summary.json").read_text())
     assert max(s["reaction_sideways_over_z"]) > 0.02
     assert 0 < s["numerical_dissipation_fraction"] < 1
     data = np.load(out / "trajectory.npz")
     assert data["nodes"].shape[1] == 3 and data["cells"].shape[1] == 4
-    assert data["kept_step"][-1] == 30
+    assert data["kept_step"][-1] == round(float(T) / 0.01)
 
 
 @pytest.mark.parametrize(
@@ -388,3 +387,33 @@ def test_help_states_the_default_the_command_runs(capsys, command, option, defau
     )
     block = " ".join(" ".join(lines[start:end]).split())
     assert f"(default {default})" in block, block
+
+
+def test_an_adaptive_run_prints_its_initial_final_and_largest_dofs(tmp_path, capsys):
+    """Issue 21: the terminal summary of ``--adapt-space`` runs says how the mesh grew."""
+    out = tmp_path / "mms"
+    argv = ["run", "eld-mms", "--n", "2", "--T", "0.2", "--tau", "0.05", "--adapt-space"]
+    argv += ["--space-tol", "1e-3", "--max-dofs", "2000", "--no-plots", "--out", str(out)]
+    code, stdout, _ = _run(argv, capsys)
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    printed = {
+        line.split()[0]: line.split()[1] for line in stdout.splitlines() if line.startswith("  nd")
+    }
+    assert list(printed) == ["ndofs_initial", "ndofs", "ndofs_max"]
+    assert [int(v) for v in printed.values()] == [s["ndofs_initial"], s["ndofs"], s["ndofs_max"]]
+    assert s["ndofs_initial"] == 50 < s["ndofs_max"]
+
+
+def test_steps_takes_step_sizes_as_the_docs_say(tmp_path, capsys):
+    """Issue 21: docs/eld.md wrote ``--steps t1,t2,...`` (times); the option takes the step
+    sizes tau_1, ..., tau_n summing to T, and the docs now say so with this example."""
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "eld.md").read_text()
+    assert "--steps t1" not in doc and "`--T 1 --steps 0.5,0.25,0.25` ends its steps" in doc
+    out = tmp_path / "steps"
+    argv = ["run", "eld-mms", "--n", "2", "--T", "1", "--steps", "0.5,0.25,0.25"]
+    code, _, err = _run(argv + ["--no-plots", "--quiet", "--out", str(out)], capsys)
+    assert code == 0, err
+    with np.load(out / "trajectory.npz") as f:
+        assert np.allclose(f["t"], [0.0, 0.5, 0.75, 1.0])
+        assert np.allclose(f["tau"], [0.5, 0.25, 0.25])

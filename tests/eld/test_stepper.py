@@ -1,5 +1,7 @@
 """One step (rothe.eld.stepper): the checks of Lemma 3.2 and of the step sequences before the
-first step, failed steps (never accepted), the local error estimate."""
+first step, failed steps (never accepted), the local error estimate, and a stop signal between
+Newton iterations that abandons the step (issue 21: begin_attempt / abandon, the resumed run bit
+for bit)."""
 
 import math
 
@@ -18,14 +20,20 @@ from rothe.eld import (
     NewtonOptions,
     NonlinearDamping,
     Original,
+    Regularized,
     UserDamping,
+    make_damping,
     mms_problem,
     run_eld,
 )
 from rothe.eld.scheme import BDF2_ZERO_STABILITY
-from rothe.errors import RotheInputError, RunFailed
+from rothe.eld.system import ELDSystem
+from rothe.errors import RotheInputError, RunFailed, RunInterrupted
 from rothe.fem import mesh as meshes
+from rothe.io.checkpoint import CheckpointOptions, load_checkpoint
 from rothe.stepping.controllers import Adaptive, Given, Uniform
+
+from ..conftest import assert_same_trajectory
 
 
 def test_step_bound_of_lemma_3_2_is_checked_before_any_step():
@@ -224,3 +232,47 @@ def test_stepper_options_refuse_bad_input_in_one_line_naming_the_parameter():
         assert len(str(info.value).splitlines()) == 1
     with pytest.raises(RotheInputError, match=r"^newton max_iter: got 0, must be >= 1$"):
         NewtonOptions(max_iter=0)
+
+
+# -- a stop signal between Newton iterations (issue 21, item 3) -------------------------------
+
+
+@pytest.mark.parametrize("form", [Regularized(), Original()], ids=["regularized", "original"])
+def test_a_signal_between_newton_iterations_abandons_the_step_and_resumes_bit_for_bit(
+    tmp_path, signal_at_call, form
+):
+    """Nonlinear damping, adaptive BDF2 steps: every step is Newton's method with Krylov solves
+    on the stored factorization (refactored when they stall). A stop signal sent at a Newton
+    solve abandons the step after that iteration; the checkpoint holds the last accepted state
+    with the solver as it was then (abandon puts back the factorization, its key and the
+    counters), and the resumed run is the uninterrupted one, bit for bit."""
+    p, _ = mms_problem(3, 2, damping=make_damping("nonlinear", b=0.01, d0=0.5))
+
+    def make_run(**kw):
+        return run_eld(p, form=form, scheme=BDF2(), control=Adaptive(1e-4, tau=0.02), **kw)
+
+    solves = signal_at_call(ELDSystem, "solve", 10**9)
+    full = make_run()
+    n = solves[0]
+    assert n > 50 and full.trajectory.stats.rejected_steps > 0
+    ckpt, resume = tmp_path / "c", None
+    for k in (n // 6, n // 5, n // 4):
+        signal_at_call(ELDSystem, "solve", k)
+        with pytest.raises(RunInterrupted) as info:
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        exc = info.value
+        assert exc.exit_status == 130 and exc.where["abandoned_step"] is True
+        traj = exc.trajectory
+        assert exc.where["accepted_steps"] == traj.stats.accepted_steps == len(traj["tau"])
+        saved = load_checkpoint(ckpt)
+        assert saved.status == "interrupted" and saved.state["stepper"]["j"] == len(traj["tau"])
+        resume = ckpt
+    signal_at_call(ELDSystem, "solve", 10**9)
+    resumed = make_run(resume=ckpt)
+    assert_same_trajectory(full.trajectory, resumed.trajectory)
+    ls = resumed.trajectory.meta["linear_solver"]
+    assert full.trajectory.meta["linear_solver"] == ls | {
+        "setup_seconds": full.trajectory.meta["linear_solver"]["setup_seconds"]
+    }
+    for name, w in full.state.fields.items():
+        assert np.array_equal(w, resumed.state.fields[name]), name

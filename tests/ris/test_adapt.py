@@ -19,8 +19,9 @@ import pytest
 
 from rothe.errors import RotheInputError, RunInterrupted
 from rothe.fem.adapt import AdaptiveMesh, SpaceAdaptivity, free_transfer
-from rothe.io.checkpoint import CheckpointOptions
+from rothe.io.checkpoint import CheckpointOptions, load_checkpoint
 from rothe.io.trajectory import Trajectory
+from rothe.ris.adapt import RISAdaptivity
 from rothe.ris.controllers import Nested, build_controller
 from rothe.ris.examples import example_7_1, example_7_2, example_front, g_7_2
 from rothe.ris.fem_problem import FERISProblem
@@ -263,6 +264,46 @@ def test_interrupted_adaptive_run_resumes_bit_for_bit(tmp_path, monkeypatch):
     a = full.arrays()
     b = resumed.arrays()
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_a_signal_in_the_relaxation_abandons_the_accepted_step_and_resumes_bit_for_bit(
+    tmp_path, signal_at_call
+):
+    """Issue 21: the relaxation of a transferred state (the adapt step after an accepted step)
+    runs the step's own solver, for as long as a step; a stop signal there abandons the whole
+    attempt -- the accepted step, the controller's decision on it, the refined mesh (the adapt
+    cycle rolls the hierarchy back) -- and the resumed run is the uninterrupted one."""
+    p = example_front(4, T=0.15)
+
+    def make_run(**kw):
+        return run_ris(
+            p, Adaptive(1e-2, tau=0.05), inner=DIRECT, adapt=front_options(max_dofs=250), **kw
+        ).trajectory
+
+    relaxations = signal_at_call(RISAdaptivity, "relax", 10**9)
+    full = make_run()
+    assert relaxations[0] >= 4
+    ckpt = tmp_path / "c"
+    resume = None
+    for k in (2, 2):
+        signal_at_call(RISAdaptivity, "relax", k)
+        with pytest.raises(RunInterrupted) as info:
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        exc = info.value
+        assert exc.where["abandoned_step"] is True and exc.exit_status == 130
+        traj = exc.trajectory
+        assert exc.where["accepted_steps"] == traj.stats.accepted_steps == len(traj["tau"])
+        saved = load_checkpoint(ckpt)
+        assert saved.state["stepper"]["k"] == traj.stats.accepted_steps
+        # the mesh the refinement made for the abandoned step is not in the checkpoint
+        assert saved.state["stepper"]["adapt"]["amesh"]["mesh_id"] == traj["mesh_id"][-1]
+        resume = ckpt
+    signal_at_call(RISAdaptivity, "relax", 10**9)
+    resumed = make_run(resume=ckpt)
+    for key in full.keys():  # z is ragged (one length per mesh): element by element
+        assert all(np.array_equal(x, y) for x, y in zip(full[key], resumed[key], strict=True)), key
+    assert full.stats.untimed() == resumed.stats.untimed()
+    assert full.meshes.ids == resumed.meshes.ids
 
 
 def test_the_adapt_step_records_the_seconds_of_each_phase(tmp_path):

@@ -1,24 +1,29 @@
 """One step of Alg. 3.2 (RISStepper): stagnation is detected and named, data that turns bad
-midway, the result codes of an attempt, and the adapt step that never changes the accepted
-state in place."""
+midway, the result codes of an attempt, the adapt step that never changes the accepted
+state in place, and a stop signal between the inner solver's iterations that abandons the step
+(issue 21: begin_attempt / abandon, the resumed run bit for bit)."""
 
 from __future__ import annotations
 
 import copy
+import signal
 
 import numpy as np
 import pytest
 
 from rothe import RunFailed, run_ris
+from rothe.errors import RunInterrupted
 from rothe.fem.adapt import SpaceAdaptivity
 from rothe.fem.mesh import unit_square
+from rothe.io.checkpoint import CheckpointOptions, load_checkpoint
 from rothe.ris import examples
 from rothe.ris.examples import d2g_7_2, dg_7_2, example_front, g_7_2
 from rothe.ris.fem_problem import FERISProblem
-from rothe.ris.inner import RISCode
+from rothe.ris.inner import BallStepSolver, RISCode
 from rothe.ris.stepper import RISState, RISStepper, StagnationMonitor
 from rothe.stepping.controllers import Adaptive, Uniform
 
+from ..conftest import assert_same_trajectory
 from .conftest import DIRECT, readme_problem, ris_1d_problem
 
 # -- a wrong dF: stagnation is detected and named (spun to the 10^6-attempt cap before) ----------
@@ -142,3 +147,73 @@ def test_the_adapt_step_never_changes_the_accepted_state_in_place():
             assert stepper.problem is result.problem
         state = new
     assert changed >= 2
+
+
+# -- a stop signal between the inner solver's iterations (issue 21, item 3) -------------------
+
+
+def _interrupted_at_iterations(make_run, signal_at_call, ckpt, calls, sig=signal.SIGINT):
+    """Run, stopped by ``sig`` sent at the given iterations of the inner solver (counted per
+    session) and resumed each time; every stop abandons the step under way. Returns the last,
+    uninterrupted session's trajectory."""
+    resume = None
+    for k in calls:
+        signal_at_call(BallStepSolver, "step", k, sig)
+        with pytest.raises(RunInterrupted) as info:
+            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        exc = info.value
+        assert exc.exit_status == 128 + sig and exc.where["abandoned_step"] is True
+        assert str(exc).endswith("; the step under way was abandoned)")
+        traj = exc.trajectory
+        accepted = exc.where["accepted_steps"]
+        # the abandoned attempt is nowhere: not recorded, not counted
+        assert accepted == traj.stats.accepted_steps == len(traj["tau"])
+        assert traj.stats.inner_solves == traj.stats.accepted_steps + traj.stats.rejected_steps
+        saved = load_checkpoint(ckpt)
+        assert saved.status == "interrupted" and saved.where["abandoned_step"] is True
+        assert saved.state["stepper"]["k"] == accepted  # the last accepted state
+        # the stored factorization's counters as at that state (abandon put them back)
+        linear = saved.state["stepper"]["linear"]["stats"]
+        assert linear["factorizations"] == traj.stats.linear_factorizations
+        assert linear["solves"] == traj.stats.linear_solves
+        resume = ckpt
+    signal_at_call(BallStepSolver, "step", 10**9)
+    return make_run(resume=ckpt)
+
+
+def test_a_signal_between_inner_iterations_abandons_the_step_and_resumes_bit_for_bit(
+    tmp_path, signal_at_call
+):
+    p = examples.example_7_2(6, T=0.3)
+
+    def make_run(**kw):
+        return run_ris(p, Adaptive(1e-4, tau=0.1), inner=DIRECT, **kw).trajectory
+
+    counter = signal_at_call(BallStepSolver, "step", 10**9)
+    full = make_run()
+    n = counter[0]  # inner iterations of the whole run
+    assert n > 100
+    resumed = _interrupted_at_iterations(
+        make_run, signal_at_call, tmp_path / "c", (n // 5, n // 4, n // 3)
+    )
+    assert_same_trajectory(full, resumed)
+    assert full.meta["linear_solver"] == resumed.meta["linear_solver"]
+
+
+def test_abandon_puts_back_the_factorization_the_monitor_and_the_last_tau():
+    """What an attempt changes in the stepper, put back by abandon (references, no copies)."""
+    p = examples.example_7_2(6, T=0.3)
+    state = RISState(s=0.0, t=0.0, z=p.z0.copy())
+    probe = RISStepper(p, DIRECT)
+    while probe.solver.linear.stats.factorizations == 0:  # up to a step that moves z
+        before, state = state, probe.step(state, 0.05).state
+    stepper = RISStepper(p, DIRECT)
+    stepper.begin_attempt(before)
+    saved = (stepper.solver.linear.snapshot(), stepper.monitor.checkpoint_state())
+    stepper.step(before, 0.05)
+    lin = stepper.solver.linear
+    assert lin.stats.factorizations > 0 and lin._prec is not None
+    assert stepper.monitor.attempts == 1 and stepper._last_tau == 0.05
+    stepper.abandon(before)
+    assert lin._prec is None and lin.stats == saved[0]["stats"]
+    assert stepper.monitor.checkpoint_state() == saved[1] and stepper._last_tau == 0.0

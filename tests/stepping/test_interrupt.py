@@ -387,3 +387,28 @@ def test_api_guard_second_ctrl_c_raises_keyboard_interrupt():
     proc = _child(signal.SIGINT, signal.SIGINT, "soft")
     assert proc.stdout.splitlines() == [f"recorded {int(signal.SIGINT)}", "KeyboardInterrupt"]
     assert proc.returncode == 0, proc.stderr
+
+
+def test_call_abandons_a_long_compiled_call_within_a_poll():
+    """interrupt.call runs a call that releases the GIL (a sparse LU; here time.sleep) in a
+    worker thread inside a step, so that a stop signal abandons the step at once instead of
+    after the call; elsewhere it is the call itself, in this thread."""
+    where = []
+
+    def long_call():
+        where.append(threading.current_thread() is threading.main_thread())
+        time.sleep(2.0)
+        return 42
+
+    assert interrupt.call(lambda: 7) == 7  # no guard: called as is
+    with interrupt.interruptible():
+        assert interrupt.call(long_call) == 42 and where == [True]  # outside a step
+        with interrupt.abandonable():
+            assert interrupt.call(lambda: 8) == 8
+            with pytest.raises(ZeroDivisionError):
+                interrupt.call(lambda: 1 / 0)  # the worker's exception, raised here
+            sent = signal_after(0.2)
+            with pytest.raises(interrupt.StepAbandoned):
+                interrupt.call(long_call)
+            latency = time.perf_counter() - sent[0]
+    assert where == [True, False] and latency < 0.5, latency  # the call alone takes 2 s

@@ -156,15 +156,28 @@ def write_table(out: Path, text: str, name: str = "table.txt") -> Path:
     return atomic_write_text(Path(out) / name, text)
 
 
-def print_summary(summary: dict, keys) -> None:
-    """Print the fields ``keys`` of ``summary`` that it has, one per line (floats with 6 digits)."""
+def print_summary(summary: dict, keys, notes: dict | None = None) -> None:
+    """Print the fields ``keys`` of ``summary`` that it has, one per line (floats with 6 digits);
+    ``notes`` (key -> text) adds a remark after the value of a key, e.g. what a count means."""
     width = max(len(k) for k in keys)
+    notes = notes or {}
     for k in keys:
         if k in summary:
             v = summary[k]
             if isinstance(v, float):
                 v = f"{v:.6g}"
-            print(f"  {k:<{width}}  {v}")
+            note = f"  ({notes[k]})" if k in notes else ""
+            print(f"  {k:<{width}}  {v}{note}")
+
+
+def dofs_keys(keys, summary: dict, dofs: str, initial: str, largest: str) -> tuple:
+    """``keys`` with the initial and the largest dofs of an adaptive run around the key
+    ``dofs`` (the final ones), when the summary has them (``--adapt-space``)."""
+    keys = tuple(k for k in keys if k not in (initial, largest))
+    if initial not in summary or dofs not in keys:
+        return keys
+    i = keys.index(dofs)
+    return keys[:i] + (initial, dofs, largest) + keys[i + 1 :]
 
 
 # -- parallel runs: --workers, --scheduler ---------------------------------------------------

@@ -36,6 +36,7 @@ from .adapt_options import add_space_options, fit_default_cap, space_adaptivity
 from .common import (
     add_output_options,
     add_parallel_options,
+    dofs_keys,
     executor_from_args,
     float_option,
     output_dir,
@@ -310,7 +311,7 @@ class EldRunCommand:
         if args.quiet:
             return
         print(f"rothe run {self.name}: wrote {results}/")
-        print_summary(summary, self.keys)
+        print_summary(summary, dofs_keys(self.keys, summary, "ndofs", "ndofs_initial", "ndofs_max"))
         print(format_energy_balance(summary))
         self.report(args, summary)
 
@@ -621,10 +622,11 @@ class RunEldBeam(EldRunCommand):
             f"{summary['dissipated_physical']:.4g})"
         )
         if max(sideways) > BEAM_SIDEWAYS_NOTE:
+            remedy = "a larger --n" if args.degree >= 2 else "--degree 2 or a larger --n"
             print(
                 f"note: coarse mesh for the reactions: the sideways reactions are "
                 f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of "
-                "R_z, zero for the exact solution; use --degree 2 or a larger --n"
+                f"R_z, zero for the exact solution; use {remedy}"
             )
 
 

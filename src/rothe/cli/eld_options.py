@@ -112,8 +112,9 @@ def control_options(parser) -> None:
         parser,
         "--tol",
         default=None,
-        help="tolerance of --control adaptive: local error in the energy norm "
-        "relative to the run's energy-norm scale",
+        help="tolerance of --control adaptive: the local error of each step (what one step "
+        "adds) in the energy norm, relative to the run's energy-norm scale; not a bound on "
+        "the error at T, which is the steps' errors added up (docs/eld.md, Step control)",
     )
 
 

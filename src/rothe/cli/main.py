@@ -285,10 +285,13 @@ def main(argv=None) -> int:
     try:
         status = _main(argv)
         sys.stdout.flush()  # a broken pipe surfaces here rather than at interpreter exit
-        return status
     except BrokenPipeError:
         _stdout_to_devnull()
-        return 141
+        status = 141
+    # a factorization abandoned by a stop signal may still run: the process then ends with
+    # this status without waiting for it (rothe.stepping.interrupt.call)
+    interrupt.will_exit_with(status)
+    return status
 
 
 def _main(argv=None) -> int:

@@ -26,6 +26,7 @@ from ..stepping.controllers import Adaptive, Uniform
 from .common import (
     add_output_options,
     add_parallel_options,
+    dofs_keys,
     executor_from_args,
     float_option,
     given,
@@ -55,6 +56,19 @@ SUMMARY_KEYS = (
     "error_linf",
     "wall_time_s",
 )
+
+
+def summary_notes(summary: dict) -> dict:
+    """Remarks on the summary lines of a RIS run: with Alg. 3.2 (``adaptive``, ``nested``) the
+    rejections per acceptance and why there are so many (docs/ris.md, *Step control*)."""
+    accepted, rejected = summary.get("accepted_steps"), summary.get("rejected_steps")
+    if summary.get("control") not in ("adaptive", "nested") or not accepted or not rejected:
+        return {}
+    return {
+        "rejected_steps": f"{rejected / accepted:.2f} per accepted step: Alg. 3.2's double/"
+        "reject cycle -- after a step with I1, I2 < tol/2 the step is doubled, the doubled "
+        "attempt rejected and halved again -- rejects up to one attempt per acceptance"
+    }
 
 
 #: ``--control`` NAME -> the step-control object of the options (--tol, --tols, --tau,
@@ -277,7 +291,9 @@ class RISRunBase(ABC):
         code, outcome, results, summary = run_sequence(args, self.name, run, write)
         if outcome is not None and outcome.status == "completed" and not args.quiet:
             print(f"rothe run {self.name}: wrote {results}/")
-            print_summary(summary, SUMMARY_KEYS + tuple(self.summary_keys_extra()))
+            keys = SUMMARY_KEYS + tuple(self.summary_keys_extra())
+            keys = dofs_keys(keys, summary, "n_dofs_final", "n_dofs_initial", "n_dofs_max")
+            print_summary(summary, keys, summary_notes(summary))
         return code
 
     def write_results(self, args, problem, outcome, out, control, tols, tau) -> dict:

@@ -316,6 +316,7 @@ class _RunRISFem(RISRunBase):
                 space_adaptations=traj.meta.get("space_adaptations"),
                 transfer_failures=traj.meta.get("transfer_failures"),
                 n_meshes=len(traj.meshes),
+                n_dofs_initial=int(dofs[0]),
                 n_dofs_final=int(dofs[-1]),
                 n_dofs_max=int(dofs.max()),
                 dofs_summed=int(dofs[1:].sum()),
@@ -337,9 +338,11 @@ class _RunRISFem(RISRunBase):
         return {"peak_memory_mb": peak_memory_mb()}
 
     def summary_keys_extra(self):
-        """The mesh, the branch, the solver and the memory."""
+        """The mesh (with --adapt-space the initial, final and largest dofs), the branch, the
+        solver and the memory."""
         return (
             "n_nodes",
+            "n_dofs_final",
             "energy_final",
             "z_min",
             "z_max",

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -30,6 +30,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import fail
 from ..fem.linear import reproducible_random
+from ..stepping import interrupt
 from ..stepping.evolve import single_threaded_blas
 from ..timing import PhaseTimes
 
@@ -139,7 +140,9 @@ class ReferenceSolver:
         t0 = time.perf_counter()
         self.stats.factorizations += 1
         if self.kind == "direct":
-            lu = spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A")
+            Ac = sp.csc_matrix(A)
+            # a stop signal may abandon the step during the factorization (interrupt.call)
+            lu = interrupt.call(lambda: spla.splu(Ac, permc_spec="MMD_AT_PLUS_A"))
             self._prec = lu.solve
             self._ml = None
         else:
@@ -160,6 +163,18 @@ class ReferenceSolver:
             self._prec = self._ml.aspreconditioner(cycle="V")
         self._A = A
         self.stats.setup_seconds += time.perf_counter() - t0
+
+    # -- undoing an abandoned step ------------------------------------------------------------
+    def snapshot(self) -> dict:
+        """What factorizations and solves change: the stored reference (by reference: a
+        refactorization replaces it, nothing changes it in place) and a copy of the counters.
+        :meth:`rollback` puts it back when a step is abandoned (:meth:`ELDStepper.abandon`)."""
+        return {"stored": (self._A, self._prec, self._ml), "stats": replace(self.stats)}
+
+    def rollback(self, state: dict) -> None:
+        """Put back what :meth:`snapshot` returned."""
+        self._A, self._prec, self._ml = state["stored"]
+        self.stats = replace(state["stats"])
 
     @property
     def factored(self) -> bool:
@@ -305,6 +320,19 @@ class ConstrainedSolver(ReferenceSolver):
             times=times,
         )
         self._parts = None
+
+    def snapshot(self) -> dict:
+        """The stored reference with the thin blocks and the inner solver's (see
+        :meth:`ReferenceSolver.snapshot`)."""
+        state = super().snapshot()
+        state.update(parts=self._parts, inner=self.inner.snapshot())
+        return state
+
+    def rollback(self, state: dict) -> None:
+        """Put back what :meth:`snapshot` returned."""
+        super().rollback(state)
+        self._parts = state["parts"]
+        self.inner.rollback(state["inner"])
 
     def factor(self, A) -> None:
         """Factor the reference from the bordered matrix or from A (n x n)."""

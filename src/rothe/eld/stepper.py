@@ -67,6 +67,7 @@ from ..errors import (
 )
 from ..fem.adapt.cycle import AdaptationFailed
 from ..io.trajectory import Trajectory
+from ..stepping import interrupt
 from ..stepping.controllers import Adaptive, Given, Uniform
 from ..stepping.evolve import single_threaded_blas
 from ..timing import PhaseTimes
@@ -871,6 +872,7 @@ class ELDStepper(StepperBase):
             self.adaptivity = ELDAdaptivity(problem, adapt, scheme=self.scheme, times=self.times)
         self._base = None  # (state, mesh hierarchy, system) before a step's own refinements
         self._adapted: float | None = None  # eta of the last adapt step (None: none / failed)
+        self._undo: dict | None = None  # what begin_attempt saw (for abandon)
 
     # -- what the system holds ------------------------------------------------------------------
     @property
@@ -981,6 +983,43 @@ class ELDStepper(StepperBase):
             out["dofs"] = self.problem.space.ndofs
         return out
 
+    # -- an abandoned attempt (rothe.stepping.interrupt) ----------------------------------------
+    def begin_attempt(self, state: ELDState) -> None:
+        """(The evolve loop, before each attempt.) Note what an attempt changes in the stepper
+        -- the system of the current mesh with its stored factorization, the key it was built
+        from and the solver's counters, the Newton count, the factorizations of systems built
+        for refined meshes -- so that :meth:`abandon` can put it back. References and a few
+        numbers: no copy of a matrix or a factorization."""
+        if self.adaptivity is not None:
+            self._back_to_mesh_of(state)  # as step() does first: the state's own mesh
+        self._undo = {
+            "system": self.system,
+            "solver": self.system.snapshot(),
+            "last_newton": self._last_newton,
+            "pending": 0 if self.adaptivity is None else self.adaptivity.pending_factorizations,
+        }
+
+    def abandon(self, state: ELDState) -> None:
+        """(The evolve loop, when a stop signal abandoned the attempt from ``state``: between
+        Newton iterations, between the refine-and-resolve rounds of a step with space
+        adaptivity, or during a factorization -- of the step, or of the new mesh's system in a
+        round or in the adapt step after the accepted step, :func:`rothe.stepping.interrupt.
+        call`.) Back to the mesh of ``state`` (the adapt cycle rolled its own refinement back,
+        ``_back_to_mesh_of`` undoes the rounds') and to what :meth:`begin_attempt` noted, so
+        that a checkpoint of ``state`` resumes like the uninterrupted run. A mesh the attempt
+        added to the series stays there: the resumed run makes the same mesh with the same id.
+        """
+        undo = self._undo
+        if undo is None:
+            return
+        if self.adaptivity is not None:
+            self._back_to_mesh_of(state)
+            self.adaptivity.pending_factorizations = undo["pending"]
+        self.system = undo["system"]
+        self.system.rollback(undo["solver"])
+        self._last_newton = undo["last_newton"]
+        self._undo = None
+
     # -- the step -------------------------------------------------------------------------------
     def step(self, state: ELDState, tau: float, s_end=None) -> ELDStepResult:
         """One step from ``state`` with step ``tau``. With space adaptivity: while the step's
@@ -989,7 +1028,10 @@ class ELDStepper(StepperBase):
         mesh, at most :data:`~rothe.eld.adapt.STEP_ROUNDS` times (a wave that enters a coarse
         region, or the data of a boundary pulse, is resolved in the step that creates it). The
         result is that of the last solve; ``result.counters['dofs']`` sums the dofs of every
-        solve, ``result.refinements`` counts the refinements."""
+        solve, ``result.refinements`` counts the refinements.
+
+        A stop signal abandons the step between the rounds (and between Newton iterations):
+        :func:`rothe.stepping.interrupt.check`, :meth:`abandon`."""
         if self.adaptivity is None:
             return self._attempt(state, tau)
         self._back_to_mesh_of(state)
@@ -1000,6 +1042,7 @@ class ELDStepper(StepperBase):
         for _ in range(STEP_ROUNDS):
             if not result.converged or result.state is None:
                 break
+            interrupt.check()
             base = self._base
             if base is None or base[0] is not original:
                 base = (original, adaptation.amesh.checkpoint_state(), self.system)
@@ -1017,6 +1060,7 @@ class ELDStepper(StepperBase):
                 break
             self._base = base
             self.system, state = out.problem, out.state
+            interrupt.check()  # abandon() goes back to the mesh of the original state
             refinements = result.refinements + 1
             result = self._attempt(state, tau)
             result.refinements = refinements
@@ -1206,7 +1250,9 @@ class ELDStepper(StepperBase):
 
         def correction(R, v):
             J, assemble = jacobian(v)
-            return self.system.solve(J, -R, assemble=assemble, rtol=self.newton.krylov_rtol)
+            dz = self.system.solve(J, -R, assemble=assemble, rtol=self.newton.krylov_rtol)
+            interrupt.check()  # after the expensive part of the iteration: a stop abandons it
+            return dz
 
         return correction
 
@@ -1222,15 +1268,18 @@ class ELDStepper(StepperBase):
         ad = self.adaptivity
         if ad is None:
             return state
-        self._base = None  # accepted: the state's mesh is the current one
         ad.register_mesh()
         estimate = math.nan
         if ad.options.due(state.j) and not self.finished(state):
             old_id = int(state.mesh_id)
             t_next = min(state.t + result.tau, self.T)
             try:
+                # a stop signal during the new mesh's factorization abandons the attempt: the
+                # cycle rolls the hierarchy back, and _base (the mesh before the step's own
+                # refinements) lets abandon() go back to the previous state's mesh
                 out = ad.adaptation.cycle(ad, self.system, (state, result.tau, t_next), state)
             except AdaptationFailed as exc:
+                self._base = None
                 raise RunFailed(
                     f"space adaptivity: the transfer to the new mesh after step "
                     f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
@@ -1258,6 +1307,7 @@ class ELDStepper(StepperBase):
                     }
                 )
                 state = new
+        self._base = None  # accepted: the state's mesh is the current one
         self._adapted = estimate
         return state
 

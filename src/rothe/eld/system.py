@@ -295,6 +295,17 @@ class ELDSystem:
                 return self.solver.solve_reference(rhs, x0=guess)
         return self.solve(self._operator(te, n), rhs, assemble=self.assembler(te, None))
 
+    def snapshot(self) -> dict:
+        """The key of the stored factorization and the solver's state (references, see
+        :meth:`~rothe.eld.solvers.ReferenceSolver.snapshot`), for :meth:`rollback`."""
+        return {"ref": self._ref, "solver": self.solver.snapshot()}
+
+    def rollback(self, state: dict) -> None:
+        """Put back what :meth:`snapshot` returned (no refactorization: the stored one is the
+        very object that was stored then)."""
+        self._ref = state["ref"]
+        self.solver.rollback(state["solver"])
+
     @property
     def reference(self) -> dict | None:
         """The key of the stored factorization: {"tau_eff": ..., "v": None or a velocity}."""

@@ -91,6 +91,15 @@ def sparse_from_state(data: dict):
     )
 
 
+def _call(fn):
+    """``fn()``: how a :class:`ReusableSolver` runs a factorization unless told otherwise."""
+    return fn()
+
+
+#: the attributes of a ReusableSolver that a solve may change (besides its counters)
+_SNAPSHOT = ("_prec", "_prec_shape", "_key", "_fresh_its", "kind_used", "_ref", "_ref_kind")
+
+
 class SingularSystem(RuntimeError):
     """The Newton matrix could not be factorized or the Krylov solver did not converge."""
 
@@ -107,6 +116,10 @@ class ReusableSolver:
         Direct: GMRES restart length; more iterations than this mean the stored LU is stale.
         AMG: a solve needing more than ``max(max_krylov, 3 x the iterations right after a
         rebuild)`` iterations triggers a rebuild from the current matrix.
+    call : callable, optional
+        ``call(fn)`` runs the LU factorization ``fn()`` (default: ``fn()``); the RIS inner solver
+        passes :func:`rothe.stepping.interrupt.call`, so that a stop signal abandons a step
+        during a long factorization (this layer knows no signals).
 
     ``solve(K, rhs, key=..., surrogate=..., spd=...)``: a ``key`` (e.g. the active set) that
     differs from the stored one forces a rebuild; ``surrogate`` is the matrix the preconditioner
@@ -114,8 +127,11 @@ class ReusableSolver:
     says K itself is SPD, so AMG runs preconditioned CG instead of GMRES.
     """
 
-    def __init__(self, method: str = "auto", amg_threshold: int = 150_000, max_krylov: int = 12):
+    def __init__(
+        self, method: str = "auto", amg_threshold: int = 150_000, max_krylov: int = 12, call=None
+    ):
         self.method = check_choice("linear_solver", method, LINEAR_SOLVERS)
+        self._call = call if call is not None else _call
         self.amg_threshold = int(amg_threshold)
         self.max_krylov = int(max_krylov)
         self.stats = LinearStats()
@@ -164,7 +180,7 @@ class ReusableSolver:
     def _factor(self, Kc, kind: str) -> None:
         """Build the preconditioner from ``Kc`` (CSC for LU, CSR for AMG) and remember ``Kc``."""
         if kind == "direct":
-            lu = spla.splu(Kc, permc_spec="MMD_AT_PLUS_A")
+            lu = self._call(lambda: spla.splu(Kc, permc_spec="MMD_AT_PLUS_A"))
             self._prec = lu.solve
             self.kind_used = "splu"
         else:
@@ -209,6 +225,21 @@ class ReusableSolver:
         self._fresh_its = None if data["fresh_its"] is None else int(data["fresh_its"])
         self.kind_used = data["kind_used"]
         self.stats = LinearStats(**data["stats"])
+
+    # -- undoing an abandoned attempt ------------------------------------------------------------
+    def snapshot(self) -> dict:
+        """What solves change: the stored preconditioner (by reference: a rebuild replaces it,
+        nothing changes it in place), its key, the iteration baseline and a copy of the
+        counters. :meth:`rollback` puts it back, e.g. when a step is abandoned."""
+        state = {name: getattr(self, name) for name in _SNAPSHOT}
+        state["stats"] = LinearStats(**self.stats.as_dict())
+        return state
+
+    def rollback(self, state: dict) -> None:
+        """Put back what :meth:`snapshot` returned."""
+        for name in _SNAPSHOT:
+            setattr(self, name, state[name])
+        self.stats = LinearStats(**state["stats"].as_dict())
 
     # -- solving -------------------------------------------------------------------------------
     def solve(

@@ -48,6 +48,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..fem.linear import ReusableSolver, SingularSystem
+from ..stepping import interrupt
 from ..stepping.results import ResultCode
 from .problem import RISProblem
 
@@ -287,8 +288,11 @@ class BallStepSolver:
     def __init__(self, problem: RISProblem, options: InnerOptions | None = None):
         self.p = problem
         self.o = options or InnerOptions()
+        # a stop signal may abandon the step during a factorization (stepping.interrupt.call)
         self.linear = ReusableSolver(
-            self.o.linear_solver, amg_threshold=amg_threshold_for(problem, self.o)
+            self.o.linear_solver,
+            amg_threshold=amg_threshold_for(problem, self.o),
+            call=interrupt.call,
         )
         self._K = _NewtonMatrix(problem)
         A = problem.A
@@ -441,13 +445,18 @@ class BallStepSolver:
     def solve(self, t: float, zprev: np.ndarray, tau: float, hint=None, start=None) -> InnerResult:
         """The step (3.1)-(3.2) from ``zprev`` at time ``t`` on the ball of radius ``tau``
         (``hint``: a candidate increment tried once, e.g. the previous step's; ``start``: the
-        first iterate, e.g. a transferred state to relax)."""
+        first iterate, e.g. a transferred state to relax).
+
+        After every iteration (one Newton system: a factorization or Krylov solves, and its
+        line search) a stop signal abandons the attempt of the evolve loop
+        (:func:`rothe.stepping.interrupt.check`; nothing happens outside one)."""
         st = self.init(t, zprev, tau, hint, start)
         while True:
             done, code = self.terminate(st)
             if done:
                 break
             self.step(st)
+            interrupt.check()
         return self._result(st)
 
     # -- pieces -------------------------------------------------------------------------------

@@ -219,6 +219,7 @@ class RISStepper:
         # the last accepted step (its end state, increment and tau): a warm-start candidate
         self._previous: tuple[np.ndarray, np.ndarray, float] | None = None
         self.monitor = StagnationMonitor()
+        self._undo: dict | None = None  # what begin_attempt saw (for abandon)
 
     # -- evolve-loop interface ----------------------------------------------------------------
     def finished(self, state: RISState) -> bool:
@@ -296,6 +297,36 @@ class RISStepper:
             return landed[0]
         useful = [a for a in ok if a.state.t > state.t + self.t_tol] or ok
         return min(useful, key=lambda a: abs(a.state.t - T))
+
+    def begin_attempt(self, state: RISState) -> None:
+        """(The evolve loop, before each attempt.) Note what an attempt changes in the stepper
+        -- the reused factorization of the Newton systems and its counters, the stagnation
+        monitor's window, the last tau, the problem and solver of the current mesh -- so that
+        :meth:`abandon` can put it back. Cheap: references and a few numbers."""
+        self._undo = {
+            "problem": self.problem,
+            "solver": self.solver,
+            "linear": self.solver.linear.snapshot(),
+            "monitor": self.monitor.checkpoint_state(),
+            "last_tau": self._last_tau,
+            "start": self._start,
+        }
+
+    def abandon(self, state: RISState) -> None:
+        """(The evolve loop, when a stop signal abandoned the attempt from ``state``.) Put back
+        what :meth:`begin_attempt` noted, so that a checkpoint of ``state`` resumes like the
+        uninterrupted run. A mesh refined in the attempt's adapt step needs nothing here: the
+        adapt cycle rolls the hierarchy back (:meth:`MeshAdaptation.cycle`), and the stepper
+        takes the new mesh over only after the cycle returned."""
+        undo = self._undo
+        if undo is None:
+            return
+        self.problem, self.solver = undo["problem"], undo["solver"]
+        self.solver.linear.rollback(undo["linear"])
+        self.monitor.restore_state(undo["monitor"])
+        self._last_tau, self._start = undo["last_tau"], undo["start"]
+        self._adapted = None
+        self._undo = None
 
     def step(self, state: RISState, tau: float, s_end: float | None = None) -> RISStepResult:
         """One attempt from ``state`` with step ``tau``.

@@ -355,9 +355,11 @@ class Adaptive:
 
     The family defines the measure and the rule: RIS, Alg. 3.2 of Andreia & Meyer (2022) on the
     residuals I1 (3.3) and I2 (3.4); elastodynamics, the local error estimate in the energy norm
-    with steps from the scheme's order (:class:`ErrorNormController`). ``tau``: the first step
-    (None: the family's default); steps stay in [tau_min, tau_max] (None: the family's
-    defaults).
+    with steps from the scheme's order (:class:`ErrorNormController`): local (what one step
+    adds), relative (to the run's largest energy norm), per step -- no bound on the error at T,
+    which the steps' errors add up to (docs/eld.md, *Step control*: a measured table).
+    ``tau``: the first step (None: the family's default); steps stay in [tau_min, tau_max]
+    (None: the family's defaults).
 
     Parameters
     ----------

@@ -10,6 +10,8 @@
         decision = controller.decide(result)        # accept or reject: the controller
         if decision.accept:
             state = stepper.adapt(result.state, result)   # adapt: a new mesh, or the same state
+                                                    #   (a stop signal may abandon the attempt
+                                                    #   up to here, the adapt step included)
             stepper.record(trajectory, result, state)     # record the accepted step
         else: retry with decision.next_tau
         (write a checkpoint when one is due, or SIGUSR1 asked for one)   # checkpoint
@@ -22,6 +24,7 @@ the adapt step), ``finished(state)``, ``limit(state, tau)`` (e.g. to stop at a g
 ``overshoot(state, attempts)`` (a shorter tau that lands on the end time, or None, given the
 attempts of this step so far) with ``pick_landing(state, attempts)`` (the attempt to hand to the
 controller), ``where(state, result)``, ``progress_fields(state)``, optionally
+``begin_attempt(state)`` (called before each attempt: the point to return to) with
 ``abandon(state)`` (undo what an abandoned attempt changed in the stepper, see *Signals*),
 ``progress_position(state) -> (label, value, total)`` and ``times`` (a
 :class:`~rothe.timing.PhaseTimes` of the phases inside its step and adapt step: estimate,
@@ -37,10 +40,12 @@ the step, s, t, tau and the residuals; the trajectory so far is attached to the 
 Signals (:mod:`rothe.stepping.interrupt`): between two steps the loop checks whether a stop
 signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT) arrived; if so it writes a checkpoint (when it has a
 checkpointer) and raises :class:`~rothe.errors.RunInterrupted` with the trajectory so far.
-Inside a step, a stepper that calls :func:`rothe.stepping.interrupt.check` between its
-iterations lets the signal take effect at once: the step under way raises
-:class:`~rothe.stepping.interrupt.StepAbandoned`, the loop drops it (never accepted, its
-attempts not counted), calls ``stepper.abandon(state)`` when the stepper has it, and stops as
+Inside an attempt -- the step, its landing retries, the decision and, after an acceptance, the
+adapt step (RIS relaxes the transferred state there by the step's own solver) -- a stepper that
+calls :func:`rothe.stepping.interrupt.check` between its iterations lets the signal take effect
+at once: the attempt raises :class:`~rothe.stepping.interrupt.StepAbandoned`, the loop drops it
+(never accepted or recorded, its counts taken back, the controller's state put back as it was
+before the attempt), calls ``stepper.abandon(state)`` when the stepper has it, and stops as
 above with the last accepted state. A stepper that never calls ``check`` finishes its step
 first. SIGUSR1 asks for a checkpoint: written at the next step boundary, the run goes on.
 """
@@ -212,13 +217,16 @@ class _Loop:
             state=state,
         )
 
-    def abandon(self, state, counts: dict) -> None:
-        """A stop signal abandoned the step under way (StepAbandoned): forget its attempts
-        (the statistics go back to ``counts``, taken before the step; the stepper undoes its
-        own changes in ``abandon``), then stop with the last accepted ``state``."""
+    def abandon(self, state, counts: dict, controller_state: dict | None) -> None:
+        """A stop signal abandoned the attempt under way (StepAbandoned): forget it -- the
+        statistics go back to ``counts`` and the controller to ``controller_state``, both taken
+        before the attempt; the stepper undoes its own changes in ``abandon`` -- then stop with
+        the last accepted ``state``."""
         stats = self.trajectory.stats
         for key, value in counts.items():
             setattr(stats, key, value)
+        if controller_state is not None:
+            self.controller.restore_state(controller_state)
         undo = getattr(self.stepper, "abandon", None)
         if undo is not None:
             undo(state)
@@ -264,43 +272,51 @@ class _Loop:
                     where=stepper.where(state, None),
                     trajectory=trajectory,
                 )
-            # propose
-            tau, s_end = controller.propose(state.s)
-            tau_lim = stepper.limit(state, tau)
-            if tau_lim < tau:
-                tau, s_end = tau_lim, None
-            # step (shortened while it overshoots the end); a stop signal may abandon it
+            # one attempt: propose, step (and its landing retries), decide and, when accepted,
+            # the adapt step; a stop signal may abandon it anywhere in there (interrupt.check)
             counts = {key: getattr(stats, key) for key in _COUNTED}
+            before = _controller_state(controller)
+            begin = getattr(stepper, "begin_attempt", None)
+            if begin is not None:
+                begin(state)
             try:
-                with times.phase("step"), interrupt.abandonable():
-                    result = stepper.step(state, tau, s_end)
-                    _count(stats, result)
-                    attempts_here = [result]
-                    for _ in range(max_landing_retries):
-                        shorter = stepper.overshoot(state, attempts_here)
-                        if shorter is None:
-                            break
-                        stats.landing_retries += 1
-                        attempts_here.append(stepper.step(state, shorter, None))
-                        _count(stats, attempts_here[-1])
-                    if len(attempts_here) > 1:
-                        result = stepper.pick_landing(state, attempts_here)
+                with interrupt.abandonable():
+                    # propose
+                    tau, s_end = controller.propose(state.s)
+                    tau_lim = stepper.limit(state, tau)
+                    if tau_lim < tau:
+                        tau, s_end = tau_lim, None
+                    # step (shortened while it overshoots the end)
+                    with times.phase("step"):
+                        result = stepper.step(state, tau, s_end)
+                        _count(stats, result)
+                        attempts_here = [result]
+                        for _ in range(max_landing_retries):
+                            shorter = stepper.overshoot(state, attempts_here)
+                            if shorter is None:
+                                break
+                            stats.landing_retries += 1
+                            attempts_here.append(stepper.step(state, shorter, None))
+                            _count(stats, attempts_here[-1])
+                        if len(attempts_here) > 1:
+                            result = stepper.pick_landing(state, attempts_here)
+                    # accept or reject
+                    decision = controller.decide(result)
+                    if decision.accept:
+                        stats.accepted_steps += 1
+                        # adapt: the state to go on from (a new mesh, or the accepted state)
+                        try:
+                            with times.phase("adapt"):
+                                new_state = stepper.adapt(result.state, result)
+                        except RunFailed:  # the accepted step stands, on its own mesh: keep it
+                            self.state = result.state
+                            stepper.record(trajectory, result, result.state)
+                            raise
             except interrupt.StepAbandoned:
-                self.abandon(state, counts)
-            # accept or reject
-            decision = controller.decide(result)
+                self.abandon(state, counts, before)
             if decision.accept:
-                stats.accepted_steps += 1
                 accepted_here += 1
-                # adapt: the state to go on from (a new mesh, or the accepted state itself)
-                try:
-                    with times.phase("adapt"):
-                        state = stepper.adapt(result.state, result)
-                except RunFailed:  # the accepted step stands, on its own mesh: keep it
-                    self.state = result.state
-                    stepper.record(trajectory, result, result.state)
-                    raise
-                self.state = state
+                state = self.state = new_state
                 # record the accepted step (and what the adapt step did)
                 with times.phase("record"):
                     stepper.record(trajectory, result, state)
@@ -329,7 +345,7 @@ class _Loop:
             )
 
 
-#: the statistics a step attempt adds to (put back when the step is abandoned)
+#: the statistics an attempt adds to (put back when it is abandoned; _count adds the middle ones)
 _COUNTED = (
     "inner_solves",
     "newton_iterations",
@@ -338,10 +354,20 @@ _COUNTED = (
     "linear_solves",
     "krylov_iterations",
     "landing_retries",
+    "accepted_steps",
 )
+
+
+def _controller_state(controller) -> dict | None:
+    """The controller's state before an attempt (put back when the attempt is abandoned after
+    the controller decided on it), or None for a controller without the checkpoint protocol."""
+    save = getattr(controller, "checkpoint_state", None)
+    if save is None or getattr(controller, "restore_state", None) is None:
+        return None
+    return save()
 
 
 def _count(stats, result) -> None:
     stats.inner_solves += 1
-    for key in _COUNTED[1:-1]:
+    for key in _COUNTED[1:-2]:
         setattr(stats, key, getattr(stats, key) + int(result.counters.get(key, 0)))

@@ -31,13 +31,15 @@ shell): after the first stop signal it is ignored.
 
 **Abandoning a step** (:func:`check`, :class:`StepAbandoned`): code that runs for long inside a
 step calls :func:`check` between its iterations. Inside the loop's :func:`abandonable` region
-(the step and its landing retries, never the adaptation or the bookkeeping after acceptance) a
-recorded stop signal makes it raise :class:`StepAbandoned`, a ``BaseException`` so that the
-``except Exception`` of a solver that turns errors into a failed step lets it through; anywhere
-else :func:`check` does nothing. The loop then calls the stepper's ``abandon(state)`` (if it has
-one), which must undo what the abandoned attempt changed in the stepper (a refactorization, a
-warm-start hint, counters), so that the checkpoint of the last accepted state resumes exactly
-like the uninterrupted run (docs/robustness.md, *Signals*).
+(one attempt: the step and its landing retries, the decision and, after an acceptance, the
+adapt step; never the recording, the checkpoint or the set-up) a recorded stop signal makes it
+raise :class:`StepAbandoned`, a ``BaseException`` so that the ``except Exception`` of a solver
+that turns errors into a failed step lets it through; anywhere else :func:`check` does nothing.
+The loop then puts its statistics and the controller back as they were before the attempt and
+calls the stepper's ``abandon(state)`` (if it has one), which must undo what the abandoned
+attempt changed in the stepper (a refactorization, a warm-start hint, counters, a mesh refined
+in the attempt) back to where ``begin_attempt(state)`` found it, so that the checkpoint of the
+last accepted state resumes exactly like the uninterrupted run (docs/robustness.md, *Signals*).
 
 Handlers can only be installed from the main thread; elsewhere (e.g. a Dask worker thread)
 :func:`interruptible` does nothing and runs are stopped the usual way.
@@ -45,6 +47,7 @@ Handlers can only be installed from the main thread; elsewhere (e.g. a Dask work
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import signal
@@ -211,13 +214,93 @@ def check() -> None:
     :func:`abandonable` region (a step of the evolve loop); else do nothing (cheap: call it
     between iterations).
 
-    Where the families call it: between Newton iterations of a step and between the inner
-    solves of a step (after each linear solve), so that an interruption takes effect within
-    one iteration instead of after the whole step; never inside an adaptation or after the
-    step was accepted."""
+    Where the families call it: after every iteration of the RIS inner solver (the step's
+    solve and the relaxation of a transferred state in the adapt step), after every Newton
+    iteration of an ELD step with nonlinear damping and between the refine-and-resolve rounds
+    of an ELD step with space adaptivity; so an interruption takes effect within one iteration
+    (one factorization and its solves) instead of after the whole step."""
     guard = _active
     if guard is not None and guard.signum is not None and guard.abandonable > 0:
         raise StepAbandoned(guard.signum)
+
+
+def call(fn):
+    """``fn()``, made abandonable: a long call into compiled code that releases the GIL (a
+    sparse LU factorization: SuperLU does) cannot itself call :func:`check`. Inside an
+    :func:`abandonable` region of an active guard, ``fn`` runs in a worker thread while this
+    thread waits for it and calls :func:`check` every :data:`POLL_SECONDS`, so a stop signal
+    abandons the step within that time instead of after the call (measured: a 25 s LU of a 3D
+    RIS step, docs/robustness.md). The abandoned call finishes in the background and its result
+    is dropped; ``fn`` must therefore change nothing but its return value. Anywhere else (no
+    guard, outside a step, not the main thread): ``fn()`` as is. The result is the same object
+    either way (the same computation, bit for bit)."""
+    guard = _active
+    if (
+        guard is None
+        or guard.abandonable == 0
+        or threading.current_thread() is not threading.main_thread()
+    ):
+        return fn()
+    out: dict = {}
+
+    def work():
+        try:
+            out["value"] = fn()
+        except BaseException as exc:  # noqa: BLE001 - handed to the waiting thread
+            out["error"] = exc
+
+    worker = threading.Thread(target=work, name="rothe-abandonable-call", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(POLL_SECONDS)
+        try:
+            check()
+        except StepAbandoned:
+            _leave_running(worker)
+            raise
+    if "error" in out:
+        raise out["error"]
+    return out["value"]
+
+
+#: how often :func:`call` looks for a stop signal while its worker runs
+POLL_SECONDS = 0.05
+_abandoned: list[threading.Thread] = []  # workers of abandoned calls (may still run)
+_exit_status: int | None = None  # what the command line returns (will_exit_with)
+
+
+def _leave_running(worker: threading.Thread) -> None:
+    """Remember the worker of an abandoned call (once: the handler at interpreter exit)."""
+    if not _abandoned:
+        atexit.register(_at_exit)
+    _abandoned.append(worker)
+
+
+def will_exit_with(status: int) -> None:
+    """(The command line, with the status it returns to the interpreter.) If a call abandoned
+    by a stop signal (:func:`call`) still runs when the interpreter exits, the process ends with
+    ``status`` at once (standard output and error flushed first) instead of waiting for it."""
+    global _exit_status
+    _exit_status = int(status)
+
+
+def _at_exit() -> None:
+    """At interpreter exit, with workers of abandoned calls still running: scipy's SuperLU
+    worker would run into the interpreter's finalization (measured, Python 3.11: ``Exception
+    ignored in <stdout>``, exit status 120). The command line (:func:`will_exit_with`) ends the
+    process at once with its status, results and checkpoint written; the Python API waits for
+    the workers (the rest of one factorization)."""
+    alive = [w for w in _abandoned if w.is_alive()]
+    if not alive:
+        return
+    if _exit_status is None:
+        for worker in alive:
+            worker.join()
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(_exit_status)
 
 
 def signal_name(signum: int) -> str:

@@ -77,7 +77,15 @@ class PetscELDStepper(StepperBase):
     :class:`rothe.eld.stepper.ELDStepper` (no ``adapt``). The time grid is the serial one
     (:class:`rothe.eld.stepper.StepGrid`), and so are the history terms and the kinematics of
     a step (:func:`rothe.eld.stepper.history_terms`, :func:`rothe.eld.stepper.kinematics`),
-    applied to the owned dofs."""
+    applied to the owned dofs.
+
+    Signals: unlike the serial stepper, a step here never calls
+    :func:`rothe.stepping.interrupt.check` (nor runs a factorization through
+    :func:`~rothe.stepping.interrupt.call`), so it is never abandoned half way. A signal may
+    reach one process and not the others; a process that abandoned its step while the others
+    wait in the step's collective reductions (the norms of Newton's method, the ledger's
+    allreduce, PETSc's solves) would hang the job. All processes stop after the same step
+    instead: :meth:`finished` makes a signal that reached any of them everybody's."""
 
     def __init__(
         self,

@@ -24,7 +24,10 @@ after a step whose own estimate is too large) the family's stepper calls
 
 Any exception in 1-6 (or a non-finite estimate) rolls the mesh hierarchy back to where it was
 and raises :class:`AdaptationFailed`: a failed adaptation never replaces the accepted state. The
-family decides what follows (RIS goes on on the step's mesh, ELD stops the run).
+family decides what follows (RIS goes on on the step's mesh, ELD stops the run). A
+``BaseException`` (a stop signal abandoning the attempt in the relaxation,
+:mod:`rothe.stepping.interrupt`; a ``KeyboardInterrupt``) rolls the hierarchy back too and
+passes through unchanged.
 
 Each phase is timed into ``times`` (a :class:`~rothe.timing.PhaseTimes`, by the names above),
 which the evolve loop adds to ``trajectory.stats.seconds``.
@@ -203,10 +206,12 @@ class MeshAdaptation:
             if relax is not None:
                 with times.phase("relax"):
                     new_state = relax(new_problem, new_state)
-        except Exception as exc:  # noqa: BLE001 - any failure: the accepted state stands
+        except BaseException as exc:  # any failure: the accepted state stands
             if snapshot is not None:
                 self.amesh = AdaptiveMesh.restore_state(snapshot)
                 self.history = VertexHistory.restore_state(history)
+            if not isinstance(exc, Exception):  # e.g. a stop signal that abandons the attempt
+                raise
             if isinstance(exc, AdaptationFailed):
                 raise
             if isinstance(exc, RotheInputError):
