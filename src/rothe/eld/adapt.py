@@ -101,6 +101,15 @@ def dirichlet_data_indicator(problem, t: float) -> np.ndarray:
     return out
 
 
+def pressure_wave_speed(material) -> float:
+    """The fastest pressure wave speed c_p = sqrt((lam + 2 mu)/rho) of ``material`` (of its
+    materials for a piecewise one)."""
+    parts = getattr(material, "materials", None)
+    if parts:
+        return max(m.wave_speeds[0] for m in parts.values())
+    return float(material.wave_speeds[0])
+
+
 def check_adapt(adapt, *, data, noise) -> SpaceAdaptivity:
     """``adapt`` must be a SpaceAdaptivity, the data :class:`~rothe.eld.data.Points` and no
     noise (one-line errors naming ``adapt``, ``data``, ``noise``)."""
@@ -218,6 +227,9 @@ class ELDAdaptivity:
         )
         self.meshes = ELDMeshes(space.degree, space.dim)
         self.meshes.series.add(0, space.mesh.p.T, space.mesh.t.T)
+        #: c_p of the fastest material (the default band, :meth:`set_band`)
+        self.wave_speed = pressure_wave_speed(problem.material)
+        self._memo = None  # (key, system, state, eta) of the last indicators
         #: factorizations of systems built since the last record (the trajectory's statistics)
         self.pending_factorizations = 0
 
@@ -234,22 +246,62 @@ class ELDAdaptivity:
     # -- the family's side of the cycle ----------------------------------------------------------
     def indicators(self, system, target) -> np.ndarray:
         """eta_K of the accepted step that ended at ``state`` on ``system``'s mesh, ``target``
-        = (state, tau, t_next) (module docstring): the residual indicator with the reaction
-        rho (alpha_0/tau)^2, plus the Dirichlet data term of the next step, eta_K^2 +=
-        sum_{F in Gamma_D, F in K} h_F^{-1} ||G(t_next) - I_h G(t_next)||_F^2."""
-        state, tau, t_next = target
+        = (state, tau, times) (module docstring): the residual indicator with the reaction
+        rho (alpha_0/tau)^2, plus the Dirichlet data term over the data times ``times`` (a
+        float or a tuple: the step's own time and those of the steps until the next
+        adaptation, :meth:`data_times`), eta_K^2 += max_{t in times} sum_{F in Gamma_D,
+        F in K} h_F^{-1} ||G(t) - I_h G(t)||_F^2.
+
+        The last result is remembered: the adapt step after a step whose own (in-step)
+        estimate left the mesh as it was asks for the same indicators again and gets them
+        without a second evaluation."""
+        state, tau, times = target
+        times = tuple(times) if isinstance(times, tuple | list) else (float(times),)
+        key = (id(system), id(state), float(tau), times)
+        memo = self._memo
+        if memo is not None and memo[0] == key and memo[1] is system and memo[2] is state:
+            return memo[3]
         problem = system.problem
         f = state.fields
         rho = problem.material.rho
         ind = eld_indicators_for(
             problem, state.t, f["u"], f["v"], f["a"], reaction=rho * (self.alpha0 / tau) ** 2
         )
-        eta = np.sqrt(
-            np.asarray(ind.eta, dtype=float) ** 2 + dirichlet_data_indicator(problem, t_next)
-        )
+        data = dirichlet_data_indicator(problem, times[0])
+        for t in times[1:]:
+            data = np.maximum(data, dirichlet_data_indicator(problem, t))
+        eta = np.sqrt(np.asarray(ind.eta, dtype=float) ** 2 + data)
         if not np.all(np.isfinite(eta)):  # the run stops naming it (ELDStepper.adapt)
             raise FloatingPointError("non-finite error indicators")
+        self._memo = (key, system, state, eta)
         return eta
+
+    def data_times(self, t: float, tau: float, T: float) -> tuple:
+        """The times whose Dirichlet data the mesh adapted after the step ending at ``t`` must
+        resolve: t_j = t and t_j + i tau for i = 1, ..., adapt_every (the steps until the next
+        adaptation), clipped to T, each once."""
+        out = [float(t)]
+        for i in range(1, self.options.adapt_every + 1):
+            ti = min(t + i * tau, T)
+            if ti > out[-1]:
+                out.append(ti)
+        return tuple(out)
+
+    def set_band(self, tau: float) -> None:
+        """The refinement band of the next cycle: ``refine_band`` if the options give one,
+        else the distance the fastest wave travels until the next adaptation,
+        c_p tau adapt_every with c_p = sqrt((lam + 2 mu)/rho) (:func:`pressure_wave_speed`)."""
+        band = self.options.refine_band
+        if band is None:
+            band = self.wave_speed * tau * self.options.adapt_every
+        self.adaptation.refine_band = float(band)
+
+    def due_in_step(self, j: int) -> bool:
+        """Whether the step from state number ``j`` is estimated on its own mesh (and refined
+        and solved again while its estimate exceeds space_tol): the first step, whose data
+        meet the initial mesh, and every step after which an adaptation is due
+        (:meth:`SpaceAdaptivity.due`); the steps between them run on the mesh as it is."""
+        return j == 0 or self.options.due(j + 1)
 
     def rebuild(self, system, mesh):
         """The system of the same problem on ``mesh`` (counters continued; its first

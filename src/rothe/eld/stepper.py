@@ -619,20 +619,19 @@ class ELDStepper(GridLoop):
         original = state
         result = self._attempt(state, tau)
         dofs = self.system.ndofs
-        adaptation = self.adaptivity.adaptation
-        for _ in range(STEP_ROUNDS):
+        ad = self.adaptivity
+        adaptation = ad.adaptation
+        rounds = STEP_ROUNDS if ad.due_in_step(state.j) else 0
+        for _ in range(rounds):
             if not result.converged or result.state is None:
                 break
             base = self._base
             if base is None or base[0] is not original:
                 base = (original, adaptation.amesh.checkpoint_state(), self.system)
+            times = ad.data_times(result.state.t, tau, self.T)
             try:
                 out = adaptation.cycle(
-                    self.adaptivity,
-                    self.system,
-                    (result.state, tau, result.state.t),
-                    state,
-                    refine_only=True,
+                    ad, self.system, (result.state, tau, times), state, refine_only=True
                 )
             except AdaptationFailed:  # no estimate or no transfer: the step stands
                 break
@@ -640,9 +639,9 @@ class ELDStepper(GridLoop):
                 break
             self._base = base
             self.system, state = out.problem, out.state
-            refinements = result.refinements + 1
+            refinements, bisections = result.refinements + 1, result.bisections + out.bisections
             result = self._attempt(state, tau)
-            result.refinements = refinements
+            result.refinements, result.bisections = refinements, bisections
             dofs += self.system.ndofs
         result.counters["dofs"] = dofs
         return result
@@ -1061,9 +1060,10 @@ class ELDStepper(GridLoop):
         estimate = math.nan
         if ad.options.due(state.j) and not self.finished(state):
             old_id = int(state.mesh_id)
-            t_next = min(state.t + result.tau, self.T)
+            times = ad.data_times(state.t, result.tau, self.T)
+            ad.set_band(result.tau)
             try:
-                out = ad.adaptation.cycle(ad, self.system, (state, result.tau, t_next), state)
+                out = ad.adaptation.cycle(ad, self.system, (state, result.tau, times), state)
             except AdaptationFailed as exc:
                 raise RunFailed(
                     f"space adaptivity: the transfer to the new mesh after step "
