@@ -631,7 +631,12 @@ class ELDStepper(GridLoop):
             times = ad.data_times(result.state.t, tau, self.T)
             try:
                 out = adaptation.cycle(
-                    ad, self.system, (result.state, tau, times), state, refine_only=True
+                    ad,
+                    self.system,
+                    (result.state, tau, times),
+                    state,
+                    refine_only=True,
+                    refine_above=ad.refine_above(original.j),
                 )
             except AdaptationFailed:  # no estimate or no transfer: the step stands
                 break
@@ -1198,7 +1203,8 @@ class ELDStepper(GridLoop):
             self.adaptivity.restore_state(data["adapt"])
             if int(data["mesh_id"]) != 0:
                 self.system = self.system.rebuilt(
-                    self.system.problem.on_mesh(self.adaptivity.adaptation.mesh)
+                    self.system.problem.on_mesh(self.adaptivity.adaptation.mesh),
+                    symmetric_lu=True,
                 )
         self.system.restore_reference(data["solver_reference"])
         if data.get("solver_stats") is not None:

@@ -144,12 +144,22 @@ class MeshAdaptation:
         """Whether to adapt after the accepted step with this (1-based) number."""
         return self.options.due(accepted_steps)
 
-    def cycle(self, family, problem, target, state, *, refine_only: bool = False) -> Adaptation:
+    def cycle(
+        self,
+        family,
+        problem,
+        target,
+        state,
+        *,
+        refine_only: bool = False,
+        refine_above: float | None = None,
+    ) -> Adaptation:
         """One adaptation (module docstring): the indicators of ``target`` on ``problem``'s
         mesh decide the new mesh; ``state`` is what moves to it.
 
-        ``refine_only``: refine (Doerfler) while eta > space_tol, never coarsen. Returns an
-        :class:`Adaptation`; raises :class:`AdaptationFailed` (hierarchy rolled back)."""
+        ``refine_only``: refine (Doerfler) while eta > ``refine_above`` (default space_tol),
+        never coarsen. Returns an :class:`Adaptation`; raises :class:`AdaptationFailed`
+        (hierarchy rolled back)."""
         opts, times = self.options, self.times
         snapshot = history = None  # taken once the marks say the mesh may change
         self._band = None
@@ -161,10 +171,9 @@ class MeshAdaptation:
             estimate = float(np.sqrt(np.sum(eta * eta)))
             with times.phase("mark"):
                 if refine_only:
+                    above = opts.space_tol if refine_above is None else refine_above
                     refine = (
-                        doerfler_marking(eta, opts.refine_fraction)
-                        if estimate > opts.space_tol
-                        else None
+                        doerfler_marking(eta, opts.refine_fraction) if estimate > above else None
                     )
                     coarsen = None
                 else:
