@@ -622,6 +622,8 @@ class ELDStepper(GridLoop):
         ad = self.adaptivity
         adaptation = ad.adaptation
         rounds = STEP_ROUNDS if ad.due_in_step(state.j) else 0
+        if rounds:
+            ad.set_band(tau)
         for _ in range(rounds):
             if not result.converged or result.state is None:
                 break

@@ -176,6 +176,8 @@ class MeshAdaptation:
                         doerfler_marking(eta, opts.refine_fraction) if estimate > above else None
                     )
                     coarsen = None
+                    if refine is not None and self.refine_band > 0.0:
+                        self._band = self._deep_band(refine, estimate / above)
                 else:
                     keep = getattr(family, "keep_cells", None)
                     refine, coarsen = self._mark(
@@ -259,6 +261,23 @@ class MeshAdaptation:
         ):
             coarsen = np.zeros_like(coarsen)
         return refine, coarsen
+
+    def _deep_band(self, core: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+        """The band of a refine-only round (``refine_band`` > 0): the Doerfler set ``core`` and
+        the cells within refine_band of it go b generations deeper in one mesh change, b the
+        bisections after which the estimate of a P``degree`` field in d dimensions would meet
+        the threshold if the core carried all of it: eta_K^2 shrinks by 2^(-2p/d) per
+        bisection, so b = ceil((d/p) log2 ``ratio``), 1 <= b <= 2d (``ratio`` = eta over the
+        threshold)."""
+        amesh, opts = self.amesh, self.options
+        d, p = amesh.dim, max(self.degree, 1)
+        b = int(np.clip(math.ceil((d / p) * math.log2(max(ratio, 1.0))), 1, 2 * d))
+        points, cells, levels = amesh.points, amesh.cells, amesh.levels
+        centres = points[cells[core]].mean(axis=1)
+        target = levels[core] + b
+        if opts.max_level is not None:
+            target = np.minimum(target, opts.max_level)
+        return centres, target
 
     def _refine_band(self, change: MeshChange) -> MeshChange:
         """Bisect the band cells still below their target generation (:meth:`_mark`), a few
