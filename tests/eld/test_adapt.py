@@ -404,6 +404,11 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
     s = json.loads((out / "summary.json").read_text())
     assert s["adaptations"] >= 1 and s["meshes"] >= s["adaptations"] + 1
     assert s["ndofs"] > s["ndofs_initial"] and s["balance_residual_max"] < 1e-12
+    # every bisection counts, those of refinements inside a step too: the cells grew by them
+    data0 = np.load(out / "trajectory.npz")
+    cells = data0["cells"]
+    assert s["bisections"] >= cells.max() - cells[0]
+    assert s["refinements_in_steps"] == int(np.sum(data0["step_refinements"]))
     data = np.load(out / "trajectory.npz")
     series, ids = MeshSeries.from_npz(data)
     assert np.array_equal(ids, data["kept_mesh_id"]) and len(series.ids) == s["meshes"]
@@ -414,6 +419,19 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
         assert len(vtu.points) == len(points) and len(vtu.cells[0].data) == len(cells)
         u = data["kept_u"][off[k] : off[k + 1]].reshape(-1, 2)[: len(points)]
         assert np.array_equal(vtu.point_data["u"][:, :2], u)
+        # the fields of the fixed-mesh XDMF: stresses (cells and vertices) and the multiplier
+        sigma = vtu.cell_data["stress"][0]
+        assert sigma.shape == (len(cells), 9) and np.all(np.isfinite(sigma))
+        vm = vtu.cell_data["von_mises"][0]
+        assert vm.shape == (len(cells),) and np.all(vm >= 0)
+        assert vtu.point_data["stress_nodal"].shape == (len(points), 9)
+        assert vtu.point_data["von_mises_nodal"].shape == (len(points),)
+        lam = vtu.point_data["lambda"]
+        assert np.array_equal(vtu.point_data["reaction_density"], -lam)
+        left = points[:, 0] == 0.0  # Gamma_D of the pulse: the left side
+        assert not np.any(lam[~left]) and np.all(np.isfinite(lam))
+        if data["kept_t"][k] > 0:
+            assert np.any(lam[left])
     assert (out / "pulse.pvd").is_file()
     for fig in ("fig_dofs.png", "fig_mesh.png", "fig_energy.png"):
         assert (out / fig).is_file(), fig

@@ -183,9 +183,14 @@ def run_summary(result: ELDResult, example: str) -> dict:
 
 
 def meshes_summary(result: ELDResult) -> dict:
-    """Dofs over the run and the adaptations of a space-adaptive run."""
+    """Dofs over the run and the adaptations of a space-adaptive run: ``adaptations`` after
+    steps, ``refinements_in_steps`` (a step's own mesh refined and the step solved again), and
+    ``bisections`` and ``merges`` of both."""
     traj, meshes = result.trajectory, result.meshes
     dofs = np.asarray(traj["ndofs"])
+    # refinements inside a step (the step solved again on its refined mesh) count too
+    in_steps = int(np.sum(traj["step_bisections"])) if "step_bisections" in traj else 0
+    rounds = int(np.sum(traj["step_refinements"])) if "step_refinements" in traj else 0
     return {
         "space": traj.meta.get("space"),  # the adaptivity options (the key since issue 8)
         "adaptations": len(meshes.adaptations),
@@ -194,7 +199,8 @@ def meshes_summary(result: ELDResult) -> dict:
         "ndofs_initial": int(dofs[0]),
         "ndofs_max": int(dofs.max()),
         "ndofs_summed_over_steps": int(dofs[1:].sum()),
-        "bisections": int(sum(a["bisections"] for a in meshes.adaptations)),
+        "refinements_in_steps": rounds,
+        "bisections": int(sum(a["bisections"] for a in meshes.adaptations)) + in_steps,
         "merges": int(sum(a["merges"] for a in meshes.adaptations)),
         "transfer_energy": float(traj["transfer"][-1]),
     }
@@ -605,6 +611,7 @@ class RunEldPulse(EldRunCommand):
         "ndofs_max",
         "ndofs_summed_over_steps",
         "adaptations",
+        "refinements_in_steps",
         "meshes",
         "bisections",
         "merges",

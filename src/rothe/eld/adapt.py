@@ -50,8 +50,10 @@ written to ``trajectory.npz`` by :func:`rothe.eld.output.write_eld_result`; the 
 adaptations in ``adaptations``. The trajectory gets the point series ``mesh_id``, ``ndofs``,
 ``cells`` (the mesh each state was computed on) and the step series ``space_estimate`` (eta of
 the step, NaN when not adapted after it), ``step_dofs`` (the dofs of every solve of the step
-summed), ``step_refinements``. Checkpoints hold the mesh hierarchy, the series, the kept fields
-and the log; a resumed run continues bit for bit.
+summed), ``step_refinements`` and ``step_bisections`` (the refinements inside the step and their
+bisections). Checkpoints hold the mesh hierarchy, the series, the kept fields (with the cell
+stresses and Gamma_D's dofs per mesh for the VTU series) and the log; a resumed run continues
+bit for bit.
 """
 
 from __future__ import annotations
@@ -64,9 +66,10 @@ from ..fem.adapt.cycle import MeshAdaptation, energy_or_fail, finite_or_fail
 from ..io.mesh_series import MeshSeries
 from .data import Points
 from .indicator import eld_indicators_for
+from .stress import StressEvaluator
 
-#: the kept fields (ragged across meshes)
-KEPT = ("u", "v", "a", "lam")
+#: the kept fields (ragged across meshes); ``stress``: the cell-mean Cauchy stress, 9 per cell
+KEPT = ("u", "v", "a", "lam", "stress")
 #: refinements of a step's own mesh at most, each followed by solving the step again
 STEP_ROUNDS = 6
 #: a step (after the first) is refined and solved again only while its estimate exceeds
@@ -149,8 +152,11 @@ class ELDMeshes:
     series : MeshSeries
         Every distinct mesh once, by mesh id.
     kept : dict
-        ``u``, ``v``, ``a``, ``lam``: lists of the kept states' fields, each on its own mesh
-        (``kept_mesh_id`` of the trajectory).
+        ``u``, ``v``, ``a``, ``lam``, ``stress``: lists of the kept states' fields, each on its
+        own mesh (``kept_mesh_id`` of the trajectory; ``stress`` the cell-mean Cauchy stress,
+        (n_cells, 3, 3) flattened).
+    gamma_dofs : dict
+        Mesh id -> the scalar dofs of Gamma_D on that mesh (lambda's rows).
     adaptations : list of dict
         Per adaptation after a step: step, t, from_mesh, to_mesh, estimate, rounds, bisections,
         merges, cells, ndofs, transfer_energy.
@@ -164,9 +170,14 @@ class ELDMeshes:
         self.series = MeshSeries()
         self.kept: dict[str, list] = {k: [] for k in KEPT}
         self.adaptations: list[dict] = []
+        #: mesh id -> the scalar dofs of Gamma_D on it (the rows of the kept lambda)
+        self.gamma_dofs: dict[int, np.ndarray] = {}
 
-    def keep(self, traj, state) -> None:
-        """Keep u, v, a, lambda of ``state`` (on its mesh) and record it in ``traj``."""
+    def keep(self, traj, state, system=None) -> None:
+        """Keep u, v, a, lambda of ``state`` (on its mesh) and record it in ``traj``; with the
+        ``system`` of the state's mesh also its cell-mean Cauchy stresses (``stress``, 9 per
+        cell, :class:`rothe.eld.stress.StressEvaluator`) and, once per mesh, the scalar dofs of
+        Gamma_D (``gamma_dofs``, where lambda lives): what the VTU series writes."""
         traj.append(kept_step=state.j, kept_t=state.t, kept_mesh_id=state.mesh_id)
         for name, w in (
             ("u", state.u),
@@ -175,6 +186,13 @@ class ELDMeshes:
             ("lam", state.lam),
         ):
             self.kept[name].append(np.array(w, dtype=float))
+        if system is not None:
+            problem = system.problem
+            sigma = StressEvaluator(problem.space, problem.material).stress(state.u)
+            self.kept["stress"].append(sigma.reshape(-1))
+            mesh_id = int(state.mesh_id)
+            if mesh_id not in self.gamma_dofs:
+                self.gamma_dofs[mesh_id] = np.asarray(problem.constraint.scalar_dofs).copy()
 
     def npz_arrays(self, traj) -> dict:
         """The meshes (every distinct one once, ``MeshSeries.npz_arrays`` keyed by the kept
@@ -198,13 +216,20 @@ class ELDMeshes:
             "series": self.series.checkpoint_state(),
             "kept": {k: [w.copy() for w in v] for k, v in self.kept.items()},
             "adaptations": [dict(a) for a in self.adaptations],
+            "gamma_dofs": {str(k): v.copy() for k, v in self.gamma_dofs.items()},
         }
 
     def restore_state(self, data: dict) -> None:
         """Put back what :meth:`checkpoint_state` returned."""
         self.series = MeshSeries.restore_state(data["series"])
-        self.kept = {k: [np.asarray(w, dtype=float).copy() for w in data["kept"][k]] for k in KEPT}
+        self.kept = {
+            k: [np.asarray(w, dtype=float).copy() for w in data["kept"].get(k, [])] for k in KEPT
+        }
         self.adaptations = [dict(a) for a in data["adaptations"]]
+        self.gamma_dofs = {
+            int(k): np.asarray(v, dtype=np.int64).copy()
+            for k, v in (data.get("gamma_dofs") or {}).items()
+        }
 
 
 class ELDAdaptivity:

@@ -559,13 +559,13 @@ class ELDStepper(GridLoop):
         if self.adaptivity is not None:
             traj.append(**self._mesh_record(state, self.system))
         if self.store_fields:
-            self._keep(traj, state)
+            self._keep(traj, state, self.system)
         if self.observer is not None:  # lambda(0) is known here: an output starts at t = 0
             self.observer(state, None)
 
-    def _keep(self, traj: Trajectory, state: ELDState) -> None:
+    def _keep(self, traj: Trajectory, state: ELDState, system=None) -> None:
         if self.adaptivity is not None:
-            self.adaptivity.meshes.keep(traj, state)
+            self.adaptivity.meshes.keep(traj, state, system)
             return
         traj.append(
             kept_step=state.j,
@@ -1141,9 +1141,10 @@ class ELDStepper(GridLoop):
             traj.append(
                 step_dofs=int(result.counters.get("dofs", result.system.ndofs)),
                 step_refinements=result.refinements,
+                step_bisections=result.bisections,
             )
         if self.store_fields and (st.j % self.keep_every == 0 or self.finished(st)):
-            self._keep(traj, st)
+            self._keep(traj, st, result.system)
         if self.observer is not None:
             self.observer(st, result)
         if ad is not None and self._adapted is not None:
