@@ -80,6 +80,18 @@ BEAM_SIDEWAYS_NOTE = 0.02
 #: eld-pulse defaults (benchmarks/space_adaptivity.py)
 PULSE_SPACE_TOL = 1e-3
 PULSE_MAX_DOFS = 100_000
+#: eld-pulse: adapt after every 4th step (benchmarks/space_adaptivity.py: a mesh change costs
+#: about 30 back-substitutions, the band keeps the wave inside the refined region meanwhile)
+PULSE_ADAPT_EVERY = 4
+#: the help texts of ELD's band and hysteresis options (rothe.eld.adapt: the band follows the
+#: pressure wave; no coarsening delay, no bound on re-coarsening, no coarsening batch)
+ELD_HYSTERESIS = {
+    "refine_band": "c_p tau adapt-every, the distance the pressure wave travels until the next "
+    "adaptation",
+    "coarsen_delay": 0,
+    "max_recoarsen": None,
+    "coarsen_batch": 0,
+}
 
 
 # -- summaries ----------------------------------------------------------------------------------
@@ -369,7 +381,7 @@ class RunEldMMS(EldRunCommand):
             "(inconsistent with G(0): refused, Remark 2.2) (default exact)",
         )
         mms_options(parser)
-        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"])
+        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["2d"], hysteresis=ELD_HYSTERESIS)
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -384,7 +396,7 @@ class RunEldMMS(EldRunCommand):
         parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
         if not parts:
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
-        space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"])
+        space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"], hysteresis=True)
         check_space_data(args, space)
         return objects, keep, n, parts, damping_of(args), space
 
@@ -490,7 +502,7 @@ class RunEldBeam(EldRunCommand):
         )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
-        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"])
+        add_space_options(parser, default_max_dofs=ELD_MAX_DOFS["3d"], hysteresis=ELD_HYSTERESIS)
         add_output_options(parser, self.name)
         add_run_options(parser)
 
@@ -503,7 +515,7 @@ class RunEldBeam(EldRunCommand):
         n = check_int("--n", args.n, minimum=1)
         every = check_int("--save-every", args.save_every, minimum=1)
         keep = check_int("--keep-every", args.keep_every, minimum=1)
-        space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"])
+        space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"], hysteresis=True)
         if check_choice("--backend", args.backend, BACKENDS) == "petsc" and space is not None:
             raise fail(
                 "--adapt-space",
@@ -673,7 +685,12 @@ class RunEldPulse(EldRunCommand):
         lifting_option(parser)
         keep_option(parser, 10)
         add_space_options(
-            parser, on=True, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS
+            parser,
+            on=True,
+            default_tol=PULSE_SPACE_TOL,
+            default_max_dofs=PULSE_MAX_DOFS,
+            hysteresis=ELD_HYSTERESIS,
+            default_adapt_every=PULSE_ADAPT_EVERY,
         )
         add_output_options(parser, self.name)
         add_run_options(parser)
@@ -690,7 +707,13 @@ class RunEldPulse(EldRunCommand):
         check_mms_size(max(n, round(n * length)), args.degree)
         for option in ("--t-pulse", "--width", "--lam", "--mu", "--rho"):
             check_positive(option, getattr(args, option.lstrip("-").replace("-", "_")))
-        space = space_adaptivity(args, default_tol=PULSE_SPACE_TOL, default_max_dofs=PULSE_MAX_DOFS)
+        space = space_adaptivity(
+            args,
+            default_tol=PULSE_SPACE_TOL,
+            default_max_dofs=PULSE_MAX_DOFS,
+            hysteresis=True,
+            default_adapt_every=PULSE_ADAPT_EVERY,
+        )
         return objects, keep, n, length, space
 
     def execute(self, args) -> int:
