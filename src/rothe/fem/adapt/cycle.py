@@ -242,10 +242,8 @@ class MeshAdaptation:
         if self.refine_band > 0.0:
             core = doerfler_marking(eta, opts.refine_fraction)
             points, cells, levels = amesh.points, amesh.cells, amesh.levels
-            centres = points[cells[core]].mean(axis=1)
-            target = levels[core] + 1
-            if opts.max_level is not None:
-                target = np.minimum(target, opts.max_level)
+            estimate = float(np.sqrt(np.sum(eta * eta)))
+            centres, target = self._deep_band(core, estimate / opts.space_tol)
             band, behind = band_marking(points, cells, levels, centres, target, self.refine_band)
             frozen = band if frozen is None else (frozen | band)
             self._band = (centres, target)
