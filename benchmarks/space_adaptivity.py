@@ -5,10 +5,12 @@
 ELD (:func:`eld`): ``rothe run eld-pulse``'s problem (:func:`rothe.eld.examples.pulse_problem`:
 the rectangle [0, 2] x [0, 1], P2, the left side pushed by a short pulse localized around
 y = 1/2, a wave front crossing the body), BDF2 with the same uniform step tau for every run.
-Runs: uniform meshes n = 4, 8, 16, 32 (, 64) cells across (the bisection hierarchy's uniform
-refinements of the n = 4 mesh: every mesh of the benchmark is nested in the reference mesh),
-adaptive runs (``SpaceAdaptivity``, adapt after every step, refine_fraction 0.5,
-coarsen_fraction 0.05, at most as fine as the reference) for several ``space_tol``, and a
+Runs: uniform meshes n = 4, 8, 16, ... cells across (the bisection hierarchy's uniform
+refinements of the n = 4 mesh: every mesh of the benchmark is nested in the reference mesh;
+quick: up to n = 32; full: until one run takes ``UNIFORM_SECONDS``, at most n = 128), adaptive
+runs (``SpaceAdaptivity``, adapt after every ``PULSE_ADAPT_EVERY``-th step with ELD's default
+band, refine_fraction 0.5, coarsen_fraction 0.05, at most as fine as the reference) for several
+``space_tol``, and a
 reference on the uniform mesh one refinement finer than the finest compared one (P2: its own L2
 error is about 1/8 of the finest compared one's), all in this run. Error: the largest over the
 output times t = 0.1, 0.2, ..., T of the L2 error of u against the reference, relative to
@@ -25,16 +27,19 @@ norm the indicator estimates, the scale of the time step control and of the ledg
 With the same tau everywhere the time error is common to all runs and the
 comparison is one of the spatial discretizations. Work: dofs summed over the solves (the dofs of
 the mesh each step is computed on; a step refined and solved again counts every solve);
-seconds are wall seconds of the run (2 shared cores: noisy);
+seconds are wall seconds of building the problem and the run (2 shared cores: noisy; solver
+'auto': LU up to 200k unknowns, AMG above);
 ``peak MB`` is the process's peak resident memory after the run (monotone; the runs go from
-small to large and the reference last). The error evaluation after the runs (scikit-fem
-``probes`` of every kept mesh at the reference's dof locations) is not in that column and is
-the memory peak of the script: about 2.4 GB with the 66306-dof reference (sampled with ps).
+small to large and the reference last). The error evaluation after the runs (the nested P2
+interpolation :func:`interpolate_to` of every kept mesh to the reference's dofs) is not in that
+column.
 
-The last line per family: ``work ratio adaptive/uniform at equal error: X``, X = summed dofs of
-the adaptive run with the smallest energy error inside the range of the uniform errors, divided
-by the summed dofs the uniform meshes need for that error (log-log interpolation between the two
-uniform runs around it); the line before gives the same ratio for the L2 error of u.
+The last lines of the family: ``eld: work ratio adaptive/uniform at equal error: X`` and
+``eld: seconds ratio adaptive/uniform at equal error: Y``, X = summed dofs (Y = seconds) of the
+adaptive run with the smallest energy error inside the range of the uniform errors, divided by
+the summed dofs (seconds) the uniform meshes need for that error (log-log interpolation between
+the two uniform runs around it); the two lines marked ``(L2 of u)`` give the same for the L2
+error of u.
 
 RIS: ``space_adaptivity_ris.run_ris_family`` (the front example ``ris-front``; its docstring
 states the error norm and the work measure), printed by ``ris`` below.
@@ -53,6 +58,9 @@ import numpy as np
 UNIFORM_SECONDS = 30.0
 #: ... or is this many refinements of the n = 4 mesh (the reference, one finer, has 1.05M dofs)
 MAX_UNIFORM_LEVEL = 5
+#: the adaptive runs adapt after every 4th step of 0.01, every 0.04 time units (eld-pulse: 6
+#: steps of 0.005); the band is the default, c_p tau adapt_every
+PULSE_ADAPT_EVERY = 4
 
 
 def peak_mb() -> float:
@@ -147,7 +155,6 @@ def log_interp_work(err, uniform):
 
 
 def eld(quick: bool) -> float | None:
-    from rothe.cli.eld_commands import PULSE_ADAPT_EVERY  # adapt as eld-pulse by default
     from rothe.eld import BDF2, run_eld
     from rothe.eld.examples import pulse_problem, rectangle
     from rothe.fem.adapt import AdaptiveMesh, SpaceAdaptivity
@@ -172,8 +179,8 @@ def eld(quick: bool) -> float | None:
         f"ELD pulse: P2, BDF2, tau = {tau:g}, T = {T:g}, outputs every {every} steps; "
         f"uniform meshes: n = {n0} refined 0, 1, ... times "
         + ("(0..3)" if quick else f"until a run takes {UNIFORM_SECONDS:g} s")
-        + f"; adaptive: the eld-pulse defaults (adapt_every {PULSE_ADAPT_EVERY}, the band "
-        "c_p tau adapt_every), at most as fine as the reference (nested in it); seconds: "
+        + f"; adaptive: adapt_every {PULSE_ADAPT_EVERY}, the band c_p tau adapt_every, at most "
+        "as fine as the reference (nested in it); seconds: "
         "building the problem and the run (solver 'auto': LU up to 200k unknowns, AMG above)"
     )
 

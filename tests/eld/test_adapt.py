@@ -397,7 +397,7 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
             "--max-dofs",
             "3000",
             "--adapt-every",
-            "1",  # three steps: the default (4) would adapt inside the first step only
+            "1",  # three steps: the default (6) would adapt inside the first step only
             "--out",
             str(out),
         ]
