@@ -5,10 +5,12 @@
 ELD (:func:`eld`): ``rothe run eld-pulse``'s problem (:func:`rothe.eld.examples.pulse_problem`:
 the rectangle [0, 2] x [0, 1], P2, the left side pushed by a short pulse localized around
 y = 1/2, a wave front crossing the body), BDF2 with the same uniform step tau for every run.
-Runs: uniform meshes n = 4, 8, 16, 32 (, 64) cells across (the bisection hierarchy's uniform
-refinements of the n = 4 mesh: every mesh of the benchmark is nested in the reference mesh),
-adaptive runs (``SpaceAdaptivity``, adapt after every step, refine_fraction 0.5,
-coarsen_fraction 0.05, at most as fine as the reference) for several ``space_tol``, and a
+Runs: uniform meshes n = 4, 8, 16, ... cells across (the bisection hierarchy's uniform
+refinements of the n = 4 mesh: every mesh of the benchmark is nested in the reference mesh;
+quick: up to n = 32; full: until one run takes ``UNIFORM_SECONDS``, at most n = 128), adaptive
+runs (``SpaceAdaptivity``, adapt after every ``PULSE_ADAPT_EVERY``-th step with ELD's default
+band, refine_fraction 0.5, coarsen_fraction 0.05, at most as fine as the reference) for several
+``space_tol``, and a
 reference on the uniform mesh one refinement finer than the finest compared one (P2: its own L2
 error is about 1/8 of the finest compared one's), all in this run. Error: the largest over the
 output times t = 0.1, 0.2, ..., T of the L2 error of u against the reference, relative to
@@ -25,16 +27,19 @@ norm the indicator estimates, the scale of the time step control and of the ledg
 With the same tau everywhere the time error is common to all runs and the
 comparison is one of the spatial discretizations. Work: dofs summed over the solves (the dofs of
 the mesh each step is computed on; a step refined and solved again counts every solve);
-seconds are wall seconds of the run (2 shared cores: noisy);
+seconds are wall seconds of building the problem and the run (2 shared cores: noisy; solver
+'auto': LU up to 200k unknowns, AMG above);
 ``peak MB`` is the process's peak resident memory after the run (monotone; the runs go from
-small to large and the reference last). The error evaluation after the runs (scikit-fem
-``probes`` of every kept mesh at the reference's dof locations) is not in that column and is
-the memory peak of the script: about 2.4 GB with the 66306-dof reference (sampled with ps).
+small to large and the reference last). The error evaluation after the runs (the nested P2
+interpolation :func:`interpolate_to` of every kept mesh to the reference's dofs) is not in that
+column.
 
-The last line per family: ``work ratio adaptive/uniform at equal error: X``, X = summed dofs of
-the adaptive run with the smallest energy error inside the range of the uniform errors, divided
-by the summed dofs the uniform meshes need for that error (log-log interpolation between the two
-uniform runs around it); the line before gives the same ratio for the L2 error of u.
+The last lines of the family: ``eld: work ratio adaptive/uniform at equal error: X`` and
+``eld: seconds ratio adaptive/uniform at equal error: Y``, X = summed dofs (Y = seconds) of the
+adaptive run with the smallest energy error inside the range of the uniform errors, divided by
+the summed dofs (seconds) the uniform meshes need for that error (log-log interpolation between
+the two uniform runs around it); the two lines marked ``(L2 of u)`` give the same for the L2
+error of u.
 
 RIS: ``space_adaptivity_ris.run_ris_family`` (the front example ``ris-front``; its docstring
 states the error norm and the work measure), printed by ``ris`` below.
@@ -49,24 +54,91 @@ import time
 
 import numpy as np
 
+#: the finest uniform run of the full benchmark takes at least this long (issue 18) ...
+UNIFORM_SECONDS = 30.0
+#: ... or is this many refinements of the n = 4 mesh (the reference, one finer, has 1.05M dofs)
+MAX_UNIFORM_LEVEL = 5
+#: the adaptive runs adapt after every 4th step of 0.01, every 0.04 time units (eld-pulse: 6
+#: steps of 0.005); the band is the default, c_p tau adapt_every
+PULSE_ADAPT_EVERY = 4
+
 
 def peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def interpolate_to(points, cells, degree, ref_doflocs):
-    """The sparse P``degree`` interpolation from the mesh (points, cells) to the reference's
-    scalar dof locations (scikit-fem probes; exact for nested meshes)."""
-    import scipy.sparse as sp
-    from skfem import Basis, ElementTriP1, ElementTriP2, MeshTri
+def p2_basis(lam):
+    """The six P2 basis functions of a triangle at barycentric coordinates lam (3, ...) in
+    scikit-fem's local order: vertices 0, 1, 2, then the edges (0, 1), (1, 2), (0, 2)."""
+    l0, l1, l2 = lam
+    return np.stack(
+        [
+            l0 * (2 * l0 - 1),
+            l1 * (2 * l1 - 1),
+            l2 * (2 * l2 - 1),
+            4 * l0 * l1,
+            4 * l1 * l2,
+            4 * l0 * l2,
+        ]
+    )
 
+
+def interpolate_to(points, cells, degree, ref):
+    """The sparse P2 interpolation from the mesh (points (nv, 2), cells (nc, 3)), nested in the
+    reference mesh, to the reference's scalar dofs (``ref``: its VectorSpace). Exact for nested
+    meshes: every reference cell lies in one cell of the coarser mesh, found from the
+    reference cell's barycentre (matplotlib's trapezoid-map point location, O(log n) per point,
+    no dense temporaries: scikit-fem's ``probes`` took 2.4 GB at a 66k-dof reference), and the
+    reference cell's six nodes take the coarse cell's P2 interpolant there."""
+    import scipy.sparse as sp
+    from matplotlib.tri import Triangulation
+    from skfem import MeshTri
+
+    from rothe.fem.elasticity import VectorSpace
+
+    assert degree == 2
     mesh = MeshTri(np.ascontiguousarray(points.T), np.ascontiguousarray(cells.T))
-    basis = Basis(mesh, ElementTriP2() if degree == 2 else ElementTriP1())
-    # in chunks of points: the point location's temporaries grow with the points asked at once
-    n, chunk = ref_doflocs.shape[1], 4096
-    return sp.vstack(
-        [basis.probes(ref_doflocs[:, i : i + chunk]) for i in range(0, n, chunk)]
-    ).tocsr()
+    coarse = VectorSpace(mesh, 2)
+    cp, ct = np.asarray(mesh.p), np.asarray(mesh.t)
+    finder = Triangulation(cp[0], cp[1], ct.T).get_trifinder()
+    rmesh = ref.mesh
+    rp, rt = np.asarray(rmesh.p), np.asarray(rmesh.t)
+    red = ref.element_dofs  # (6, n_ref_cells)
+    # each reference dof once: one reference cell that has it (the last one numpy assigns)
+    first = np.full(ref.n_scalar, -1, dtype=np.int64)
+    first[red.ravel()] = np.tile(np.arange(red.shape[1]), 6)
+    rows, cols, vals = [], [], []
+    chunk = 200_000
+    for lo in range(0, red.shape[1], chunk):
+        rc = np.arange(lo, min(lo + chunk, red.shape[1]))
+        bary = rp[:, rt[:, rc]].mean(axis=1)
+        c = finder(bary[0], bary[1])
+        if np.any(c < 0):
+            raise RuntimeError("a reference cell outside the mesh: not nested")
+        X = cp[:, ct[:, c]]  # (2, 3, n)
+        J = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]], axis=1)  # (2, 2, n): columns
+        Jinv = np.linalg.inv(np.moveaxis(J, -1, 0))  # (n, 2, 2)
+        for k in range(6):
+            dof = red[k, rc]
+            own = first[dof] == rc  # this cell writes the row of this dof
+            if not own.any():
+                continue
+            x = ref.doflocs[:, dof[own]] - X[:, 0][:, own]
+            ab = np.einsum("nij,jn->in", Jinv[own], x)
+            lam = np.stack([1.0 - ab[0] - ab[1], ab[0], ab[1]])
+            if lam.min(initial=0.0) < -1e-9:  # a reference node outside its cell's coarse cell
+                raise RuntimeError("the mesh is finer than the reference somewhere: not nested")
+            phi = p2_basis(lam)  # (6, n)
+            rows.append(np.repeat(dof[own][None, :], 6, axis=0).ravel())
+            cols.append(coarse.element_dofs[:, c[own]].ravel())
+            vals.append(phi.ravel())
+    R = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(ref.n_scalar, coarse.n_scalar),
+    )
+    R.data[np.abs(R.data) < 1e-14] = 0.0
+    R.eliminate_zeros()
+    return R
 
 
 def log_interp_work(err, uniform):
@@ -90,9 +162,10 @@ def eld(quick: bool) -> float | None:
 
     T, tau = (0.6, 0.01) if quick else (0.8, 0.01)
     n0 = 4
-    levels = (0, 1, 2, 3) if quick else (0, 1, 2, 3, 4)  # uniform refinements of the n0 mesh
-    ref_level = levels[-1] + 1
-    tols = (5e-3, 3e-3, 2e-3) if quick else (5e-3, 3e-3, 2e-3, 1.2e-3, 8e-4)
+    # uniform refinements of the n0 mesh: quick a fixed set; full until one run takes
+    # UNIFORM_SECONDS (the finest must take that long, issue 18), at most MAX_UNIFORM_LEVEL
+    # (the reference is one level finer: 1.05M dofs at level 6)
+    tols = (5e-3, 3e-3, 2e-3) if quick else (5e-3, 3e-3, 2e-3, 1.2e-3, 8e-4, 5e-4)
     every = round(0.1 / tau)
     base = dict(control=Uniform(tau), scheme=BDF2(), keep_every=every)
 
@@ -102,19 +175,20 @@ def eld(quick: bool) -> float | None:
             amesh.uniform(2 * level)  # two bisection generations halve h
         return amesh.mesh
 
-    max_dofs = AdaptiveMesh(mesh_at(ref_level)).ndofs(2, 2)
     print(
         f"ELD pulse: P2, BDF2, tau = {tau:g}, T = {T:g}, outputs every {every} steps; "
-        f"uniform meshes: n = {n0} refined {list(levels)} times; reference refined "
-        f"{ref_level} times ({max_dofs} dofs); adaptive: at most {2 * ref_level} bisections "
-        "per initial cell (nested in the reference mesh)"
+        f"uniform meshes: n = {n0} refined 0, 1, ... times "
+        + ("(0..3)" if quick else f"until a run takes {UNIFORM_SECONDS:g} s")
+        + f"; adaptive: adapt_every {PULSE_ADAPT_EVERY}, the band c_p tau adapt_every, at most "
+        "as fine as the reference (nested in it); seconds: "
+        "building the problem and the run (solver 'auto': LU up to 200k unknowns, AMG above)"
     )
 
     runs = []
 
     def run(label, level, space):
-        problem = pulse_problem(T=T, mesh=mesh_at(level))
         t0 = time.perf_counter()
+        problem = pulse_problem(T=T, mesh=mesh_at(level))
         result = run_eld(problem, adapt=space, **base)
         secs = time.perf_counter() - t0
         traj = result.trajectory
@@ -146,10 +220,19 @@ def eld(quick: bool) -> float | None:
         runs.append(rec)
         return rec
 
-    for level in levels:
-        run(f"uniform n={n0 * 2**level}", level, None)
+    level = 0
+    while True:
+        r = run(f"uniform n={n0 * 2**level}", level, None)
+        print(f"  ({r['label']}: {r['seconds']:.1f} s)", flush=True)
+        if (quick and level >= 3) or (
+            not quick and (r["seconds"] >= UNIFORM_SECONDS or level >= MAX_UNIFORM_LEVEL)
+        ):
+            break
+        level += 1
+    ref_level = level + 1
+    max_dofs = AdaptiveMesh(mesh_at(ref_level)).ndofs(2, 2)
     for tol in tols:
-        run(
+        r = run(
             f"adaptive tol={tol:g}",
             0,
             SpaceAdaptivity(
@@ -157,24 +240,18 @@ def eld(quick: bool) -> float | None:
                 refine_fraction=0.5,
                 coarsen_fraction=0.05,
                 max_dofs=max_dofs,
-                adapt_every=1,
+                adapt_every=PULSE_ADAPT_EVERY,
                 max_level=2 * ref_level,
             ),
         )
+        print(f"  ({r['label']}: {r['seconds']:.1f} s)", flush=True)
     ref = run(f"reference n={n0 * 2**ref_level}", ref_level, None)
-
-    from skfem import Basis, BilinearForm
+    print(f"  (reference, {max_dofs} dofs: {ref['seconds']:.1f} s)", flush=True)
 
     ref_problem = pulse_problem(T=T, mesh=mesh_at(ref_level))
     ref_space = ref_problem.space
     K, Mv, rho = ref_problem.K, ref_problem.M, ref_problem.material.rho
-
-    @BilinearForm
-    def mass(u, v, w):
-        return u * v
-
-    M = mass.assemble(Basis(ref_space.mesh, ref_space.element))
-    doflocs = ref_space.doflocs
+    M = ref_space.scalar_mass()
 
     def l2(U):  # U (n_scalar, 2)
         return math.sqrt(float(sum(U[:, c] @ (M @ U[:, c]) for c in range(2))))
@@ -191,7 +268,7 @@ def eld(quick: bool) -> float | None:
         for k, (p, c, u, v) in enumerate(r["states"]):
             key = (p.shape, c.shape, float(p.sum()), int(c.sum()))
             if key not in cache:
-                cache[key] = interpolate_to(p, c, 2, doflocs)
+                cache[key] = interpolate_to(p, c, 2, ref_space)
             U, V = cache[key] @ u.reshape(-1, 2), cache[key] @ v.reshape(-1, 2)
             worst = max(worst, l2(U - ref_states[k][0]))
             worst_e = max(worst_e, energy(U - ref_states[k][0], V - ref_states[k][1]))
@@ -235,22 +312,32 @@ def eld(quick: bool) -> float | None:
                     else f"{w:12.0f}  ratio {ratio:.3f}  (seconds ratio {sratio:.3f})"
                 )
             )
-            if ratio is not None and (best is None or r[key] < best[0]):
-                best = (r[key], ratio)
-        return None if best is None else best[1]
+            if ratio is not None and sratio is not None and (best is None or r[key] < best[0]):
+                best = (r[key], ratio, sratio, r["label"])
+        return best
 
-    X_l2 = ratio_at_equal_error("error", "L2 error of u")
-    X = ratio_at_equal_error("error_energy", "energy error of (u, v)")
+    best_l2 = ratio_at_equal_error("error", "L2 error of u")
+    best = ratio_at_equal_error("error_energy", "energy error of (u, v)")
+
+    def fmt(b, k):
+        return "n/a (no adaptive error inside the uniform range)" if b is None else f"{b[k]:.3f}"
+
+    def who(b):
+        return "" if b is None else f" ({b[3]}, error {b[0]:.3g})"
+
+    print("eld: work ratio adaptive/uniform at equal error: " + fmt(best, 1) + who(best))
+    print("eld: seconds ratio adaptive/uniform at equal error: " + fmt(best, 2) + who(best))
     print(
-        "work ratio adaptive/uniform at equal L2 error of u: "
-        + ("n/a" if X_l2 is None else f"{X_l2:.3f}")
+        "eld: work ratio adaptive/uniform at equal error (L2 of u): "
+        + fmt(best_l2, 1)
+        + who(best_l2)
     )
     print(
-        "work ratio adaptive/uniform at equal error: "
-        + ("n/a (no adaptive error inside the uniform range)" if X is None else f"{X:.3f}")
-        + " (energy norm of (u, v))"
+        "eld: seconds ratio adaptive/uniform at equal error (L2 of u): "
+        + fmt(best_l2, 2)
+        + who(best_l2)
     )
-    return X
+    return None if best is None else best[1]
 
 
 def ris(quick: bool) -> float | None:

@@ -672,9 +672,9 @@ def test_cli_adaptivity_has_a_default_cap_on_the_mesh(capsys, command, cap):
     )
 
 
-def test_the_hysteresis_options_are_those_of_ris_only(capsys):
-    # RIS's adapt cycle has hysteresis (rothe.ris.adapt.HYSTERESIS); ELD's has none, so its
-    # parser and help have no such options
+def test_the_hysteresis_options_carry_each_familys_defaults(capsys):
+    # RIS's adapt cycle has hysteresis (rothe.ris.adapt.HYSTERESIS); ELD's has the band (the
+    # pressure wave's travel until the next adaptation, issue 18) and no hysteresis by default
     def help_of(command):
         capsys.readouterr()
         try:
@@ -691,4 +691,7 @@ def test_the_hysteresis_options_are_those_of_ris_only(capsys):
     for command in ("eld-mms", "eld-beam", "eld-pulse"):
         text = help_of(command)
         for option in ("--refine-band", "--coarsen-delay", "--max-recoarsen", "--coarsen-batch"):
-            assert option not in text
+            assert option in text
+        assert "(default c_p tau adapt-every, the distance the pressure wave travels" in text
+        assert "adaptations do not coarsen (default 0)" in text
+        assert "refined and coarsened again at most k times (default none)" in text

@@ -478,6 +478,8 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
             "1",
             "--max-dofs",
             "3000",
+            "--adapt-every",
+            "1",  # three steps: the default (6) would adapt inside the first step only
             "--out",
             str(out),
         ]
@@ -486,6 +488,11 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
     s = json.loads((out / "summary.json").read_text())
     assert s["adaptations"] >= 1 and s["meshes"] >= s["adaptations"] + 1
     assert s["ndofs"] > s["ndofs_initial"] and s["balance_residual_max"] < 1e-12
+    # every bisection counts, those of refinements inside a step too: the cells grew by them
+    data0 = np.load(out / "trajectory.npz")
+    cells = data0["cells"]
+    assert s["bisections"] >= cells.max() - cells[0]
+    assert s["refinements_in_steps"] == int(np.sum(data0["step_refinements"]))
     data = np.load(out / "trajectory.npz")
     series, ids = MeshSeries.from_npz(data)
     assert np.array_equal(ids, data["kept_mesh_id"]) and len(series.ids) == s["meshes"]
@@ -496,6 +503,19 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
         assert len(vtu.points) == len(points) and len(vtu.cells[0].data) == len(cells)
         u = data["kept_u"][off[k] : off[k + 1]].reshape(-1, 2)[: len(points)]
         assert np.array_equal(vtu.point_data["u"][:, :2], u)
+        # the fields of the fixed-mesh XDMF: stresses (cells and vertices) and the multiplier
+        sigma = vtu.cell_data["stress"][0]
+        assert sigma.shape == (len(cells), 9) and np.all(np.isfinite(sigma))
+        vm = vtu.cell_data["von_mises"][0]
+        assert vm.shape == (len(cells),) and np.all(vm >= 0)
+        assert vtu.point_data["stress_nodal"].shape == (len(points), 9)
+        assert vtu.point_data["von_mises_nodal"].shape == (len(points),)
+        lam = vtu.point_data["lambda"]
+        assert np.array_equal(vtu.point_data["reaction_density"], -lam)
+        left = points[:, 0] == 0.0  # Gamma_D of the pulse: the left side
+        assert not np.any(lam[~left]) and np.all(np.isfinite(lam))
+        if data["kept_t"][k] > 0:
+            assert np.any(lam[left])
     assert (out / "pulse.pvd").is_file()
     for fig in ("fig_dofs.png", "fig_mesh.png", "fig_energy.png"):
         assert (out / fig).is_file(), fig
@@ -512,6 +532,17 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
         ),
         (["run", "eld-pulse", "--max-dofs", "10"], r"--max-dofs: got 10, must be >= the 306 dofs"),
         (["run", "eld-pulse", "--adapt-every", "0"], r"--adapt-every: got 0, must be an integer"),
+        (["run", "eld-pulse", "--adapt-every", "-3"], r"--adapt-every: got -3, must be an integer"),
+        (
+            ["run", "eld-pulse", "--refine-band", "-1"],
+            r"--refine-band: got -1, must be >= 0 \(a length\)",
+        ),
+        (["run", "eld-pulse", "--refine-band", "nan"], r"--refine-band: got .nan., must be finite"),
+        (["run", "eld-pulse", "--coarsen-batch", "1"], r"--coarsen-batch: got 1, must be in"),
+        (
+            ["run", "eld-mms", "--refine-band", "0.1"],
+            r"--refine-band: got 0.1, is used by --adapt-space only",
+        ),
         (
             ["run", "eld-pulse", "--no-adapt-space", "--max-dofs", "1000"],
             r"--max-dofs: got 1000, is used by --adapt-space only",
@@ -593,3 +624,54 @@ def test_cli_default_cap_on_the_adapted_mesh():
     space = space_adaptivity(a, default_max_dofs=ELD_MAX_DOFS["3d"])
     fit_default_cap(a, space, 150_000)  # the user's cap is the user's (run_eld checks it)
     assert space.max_dofs == 5_000
+
+
+# -- the factorization is the current mesh's ------------------------------------------------------
+
+
+def _factor_residual(system) -> float:
+    """|A(te) x - b| / |b| with x from the stored factorization of ``system`` and A(te) the
+    current mesh's step matrix of the factorization's key (inf if the sizes differ)."""
+    ref = system.reference
+    A = system._system_matrix(ref["tau_eff"], None)
+    b = np.random.default_rng(1).standard_normal(A.shape[0])
+    try:
+        x = system.solver._prec(b)
+    except (ValueError, RuntimeError):
+        return float("inf")
+    if x.shape != b.shape:
+        return float("inf")
+    return float(np.linalg.norm(A @ x - b) / np.linalg.norm(b))
+
+
+@pytest.mark.parametrize("adapt_every", [1, 3])
+def test_reused_factorization_is_the_current_meshs(adapt_every):
+    """After every accepted step the stored factorization, which the next steps reuse, solves
+    the step matrix of the mesh the run goes on with (a factor of an earlier mesh would not:
+    other size, or other entries after a refinement that keeps the size)."""
+    run = prepare_eld_run(pulse(T=0.3), adapt=adaptivity(adapt_every=adapt_every), **PULSE)
+    seen = {}
+    original = run.stepper.adapt
+
+    def adapt(state, result):
+        new = original(state, result)
+        system = run.stepper.system
+        seen[int(new.mesh_id)] = max(seen.get(int(new.mesh_id), 0.0), _factor_residual(system))
+        return new
+
+    run.stepper.adapt = adapt
+    run.evolve()
+    assert len(seen) >= 3, seen  # the mesh changed (in steps and after them)
+    assert max(seen.values()) < 1e-10, seen
+
+
+def test_factor_check_catches_a_stale_factorization():
+    """The check above fails for a system that kept the factorization of its previous mesh."""
+    run = prepare_eld_run(pulse(T=0.3), adapt=adaptivity(), **PULSE)
+    run.evolve()
+    system = run.stepper.system
+    assert _factor_residual(system) < 1e-10
+    problem0 = pulse(T=0.3)
+    stale = system.rebuilt(problem0)  # the initial mesh's system ...
+    stale.solver = system.solver  # ... with the factorization of the last mesh
+    assert _factor_residual(stale) > 1e-3

@@ -54,12 +54,15 @@ def add_space_options(
     default_max_dofs: int | None = None,
     indicator: str = "the step's residual indicator",
     hysteresis: dict | None = None,
+    default_adapt_every: int | None = None,
 ) -> None:
     """--adapt-space (``on``: adapting by default, --no-adapt-space keeps the mesh) and its
     options, read by :func:`space_adaptivity`; help texts state the defaults the run uses.
     ``hysteresis``: the family's defaults of the hysteresis options (``coarsen_delay``,
     ``max_recoarsen``, ``refine_band``, ``coarsen_batch``; missing ones: off), which adds
-    those options; None: a family without them."""
+    those options; None: a family without them (a default given as a string is the help
+    text of a default the family computes, e.g. ELD's band). ``default_adapt_every``: the
+    command's default of --adapt-every (None: SpaceAdaptivity's)."""
     parser.add_argument(
         "--adapt-space",
         action=argparse.BooleanOptionalAction if on else "store_true",
@@ -107,17 +110,19 @@ def add_space_options(
         "--adapt-every",
         type=int,
         default=None,
-        help=f"adapt after every k-th accepted step (default {MARKING_DEFAULTS['adapt_every']})",
+        help="adapt after every k-th accepted step, an integer >= 1 (default "
+        f"{default_adapt_every or MARKING_DEFAULTS['adapt_every']})",
     )
     if hysteresis is None:
         return
     delay, recoarsen = hysteresis.get("coarsen_delay", 0), hysteresis.get("max_recoarsen")
+    band = hysteresis.get("refine_band", 0)
     float_option(
         parser,
         "--refine-band",
         default=None,
-        help="refine a band of this width around the refined cells with them, a length "
-        f"(default {hysteresis.get('refine_band', 0):g})",
+        help="refine a band of this width around the refined cells with them, a length >= 0 "
+        f"(default {band if isinstance(band, str) else format(band, 'g')})",
     )
     parser.add_argument(
         "--coarsen-delay",
@@ -147,12 +152,13 @@ def space_adaptivity(
     default_tol: float | None = None,
     default_max_dofs: int | None = None,
     hysteresis: bool = False,
+    default_adapt_every: int | None = None,
 ) -> SpaceAdaptivity | None:
     """The SpaceAdaptivity of the --adapt-space options, or None without --adapt-space (an
     option given then is refused in one line). Bad values are refused by SpaceAdaptivity itself
     and renamed to their option by the command line. ``hysteresis``: the parser has the
     hysteresis options (:func:`add_space_options`); unset ones stay None (the family's
-    defaults)."""
+    defaults). ``default_adapt_every``: the command's default of --adapt-every."""
     options = SPACE_OPTIONS + (HYSTERESIS_OPTIONS if hysteresis else ())
     values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in options}
     if not args.adapt_space:
@@ -168,6 +174,8 @@ def space_adaptivity(
         for key in MARKING_DEFAULTS
         if values["--" + key.replace("_", "-")] is not None
     }
+    if default_adapt_every is not None and values["--adapt-every"] is None:
+        kw["adapt_every"] = default_adapt_every
     if hysteresis:
         kw.update({o.lstrip("-").replace("-", "_"): values[o] for o in HYSTERESIS_OPTIONS})
     max_dofs = values["--max-dofs"] if values["--max-dofs"] is not None else default_max_dofs

@@ -186,8 +186,11 @@ def write_eld_result(
       (state k: ``kept_u[off[k]:off[k + 1]]``, interleaved P``degree`` dofs of its mesh in
       scikit-fem's numbering, vertices first);
     - ``<name>.pvd`` with ``<name>_000000.vtu`` ...: one VTU per kept state on its own mesh
-      (point data ``u``, ``v`` at the vertices), the ``.pvd`` index with the times: ParaView
-      plays the states with their meshes (File > Open the .pvd);
+      (point data ``u``, ``v``, ``stress_nodal``, ``von_mises_nodal``, and ``lambda``,
+      ``reaction_density`` on the vertices of Gamma_D, zero elsewhere; cell data ``stress``,
+      ``von_mises``: the fields of the fixed-mesh XDMF, :func:`adaptive_frame`), the ``.pvd``
+      index with the times: ParaView plays the states with their meshes (File > Open the
+      .pvd);
     - ``fig_energy.png``, ``fig_reaction.png``, ``fig_dofs.png`` (dofs against t) and, in 2D,
       ``fig_mesh.png`` (four kept states: mesh and |u|).
 
@@ -249,6 +252,57 @@ def write_eld_result(
     return paths
 
 
+def nodal_average(points: np.ndarray, cells: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Volume-weighted vertex averages sum_T |T| v_T / sum_T |T| of per-cell ``values``
+    (n_cells, ...) on the simplex mesh (``points`` (nv, d), ``cells`` (n_cells, d + 1)), as
+    :meth:`rothe.eld.stress.StressEvaluator.nodal`; |T| = |det(x_1 - x_0, ...)| / d!."""
+    points, cells = np.asarray(points, dtype=float), np.asarray(cells)
+    d = points.shape[1]
+    edges = points[cells[:, 1:]] - points[cells[:, :1]]  # (ne, d, d)
+    vol = np.abs(np.linalg.det(edges)) / float(np.prod(np.arange(1, d + 1)))
+    vals = np.asarray(values, dtype=float)
+    flat = vals.reshape(len(cells), -1)
+    nv = len(points)
+    num = np.zeros((nv, flat.shape[1]))
+    den = np.zeros(nv)
+    for row in cells.T:
+        den += np.bincount(row, weights=vol, minlength=nv)
+        for c in range(flat.shape[1]):
+            num[:, c] += np.bincount(row, weights=vol * flat[:, c], minlength=nv)
+    return (num / np.maximum(den, 1e-300)[:, None]).reshape((nv,) + vals.shape[1:])
+
+
+def adaptive_frame(meshes, k: int, mesh_id: int) -> tuple[dict, dict]:
+    """Point and cell data of kept state ``k`` of a space-adaptive run on its mesh ``mesh_id``
+    (:class:`rothe.eld.adapt.ELDMeshes`), the fields of the fixed-mesh XDMF: cell data
+    ``stress`` (the cell-mean Cauchy stress, 9 components) and ``von_mises``
+    ((3/2 s:s)^(1/2), s the deviator); point data ``stress_nodal`` and ``von_mises_nodal``
+    (:func:`nodal_average`), and on the vertices of Gamma_D ``lambda`` (the multiplier, a
+    traction density) and ``reaction_density`` = -lambda (zero at the other vertices). A state
+    kept without stresses (an older checkpoint) gets no stress fields."""
+    points, cells = meshes.series.mesh(mesh_id)
+    nv, d = len(points), meshes.components
+    point: dict = {}
+    cell: dict = {}
+    if k < len(meshes.kept["stress"]):
+        sigma = np.asarray(meshes.kept["stress"][k]).reshape(-1, 3, 3)
+        vm = von_mises(sigma)
+        cell = {"stress": sigma.reshape(-1, 9), "von_mises": vm}
+        point = {
+            "stress_nodal": nodal_average(points, cells, sigma.reshape(-1, 9)),
+            "von_mises_nodal": nodal_average(points, cells, vm),
+        }
+    gamma = meshes.gamma_dofs.get(mesh_id)
+    if gamma is not None:
+        lam = np.asarray(meshes.kept["lam"][k]).reshape(-1, d)
+        on_vertex = gamma < nv  # scikit-fem numbers the vertex dofs first
+        field = np.zeros((nv, d))
+        field[gamma[on_vertex]] = lam[on_vertex]
+        point["lambda"] = field
+        point["reaction_density"] = -field
+    return point, cell
+
+
 def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dict:
     """The outputs of a space-adaptive run (:func:`write_eld_result` lists them)."""
     out = Path(out_dir)
@@ -266,11 +320,14 @@ def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dic
         return np.asarray(w).reshape(-1, d)[:nv]
 
     if paraview and kept:
-        data = [
-            {"u": vertex(u, m), "v": vertex(v, m)}
-            for u, v, m in zip(sp.kept["u"], sp.kept["v"], ids, strict=True)
-        ]
-        paths["pvd"] = write_vtu_series(out, name, sp.series, ids, traj["kept_t"], data)
+        data, cells = [], []
+        for k, (u, v, m) in enumerate(zip(sp.kept["u"], sp.kept["v"], ids, strict=True)):
+            point, cell = adaptive_frame(sp, k, int(m))
+            data.append({"u": vertex(u, m), "v": vertex(v, m), **point})
+            cells.append(cell)
+        paths["pvd"] = write_vtu_series(
+            out, name, sp.series, ids, traj["kept_t"], data, cell_data=cells
+        )
     if figures:
         # matplotlib is imported only for the figures
         from ..plotting.adapt import plot_dofs, plot_mesh_snapshots

@@ -59,8 +59,8 @@ class ELDResult:
         ``problem.constraint.dofs``; ``lam[0]`` and ``a[0]`` are the consistent multiplier and
         acceleration at t = 0); ``stats`` and ``meta``. With space adaptivity also ``mesh_id``,
         ``ndofs``, ``cells`` (per state), ``space_estimate``, ``step_dofs``,
-        ``step_refinements`` (per step) and ``kept_mesh_id``; the kept fields are in
-        ``meshes.kept`` then.
+        ``step_refinements``, ``step_bisections`` (per step) and ``kept_mesh_id``; the kept
+        fields are in ``meshes.kept`` then.
     state : ELDState or None
         The final state (None if the run failed before its first state).
     stepper : ELDStepper or None

@@ -257,7 +257,8 @@ class ELDStepResult:
     ``state`` is the state after the step (None if it failed), ``system`` the linear system
     (and with it the mesh and the problem) the step was computed on, ``estimate`` the local
     error estimate, ``refinements`` how often the step's own mesh was refined and the step
-    solved again (space adaptivity), ``code`` an :class:`ELDCode` and ``message`` the one-line
+    solved again (space adaptivity) and ``bisections`` the bisections those refinements made,
+    ``code`` an :class:`ELDCode` and ``message`` the one-line
     account of a failure.
 
     Parameters
@@ -280,6 +281,7 @@ class ELDStepResult:
         Where a failure happened (step, t, tau).
     system : ELDSystem, optional
     refinements : int
+    bisections : int
     """
 
     state: ELDState | None
@@ -295,6 +297,7 @@ class ELDStepResult:
     where: dict = field(default_factory=dict)
     system: object = field(default=None, repr=False)
     refinements: int = 0
+    bisections: int = 0
 
     @property
     def errors(self) -> dict:

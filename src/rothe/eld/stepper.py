@@ -942,13 +942,13 @@ class ELDStepper(StepperBase):
         if self.adaptivity is not None:
             traj.append(**self._mesh_record(state, self.system))
         if self.store_fields:
-            self._keep(traj, state)
+            self._keep(traj, state, self.system)
         if self.observer is not None:  # lambda(0) is known here: an output starts at t = 0
             self.observer(state, None)
 
-    def _keep(self, traj: Trajectory, state: ELDState) -> None:
+    def _keep(self, traj: Trajectory, state: ELDState, system=None) -> None:
         if self.adaptivity is not None:
-            self.adaptivity.meshes.keep(traj, state)
+            self.adaptivity.meshes.keep(traj, state, system)
             return
         traj.append(
             kept_step=state.j,
@@ -1038,21 +1038,27 @@ class ELDStepper(StepperBase):
         original = state
         result = self._attempt(state, tau)
         dofs = self.system.ndofs
-        adaptation = self.adaptivity.adaptation
-        for _ in range(STEP_ROUNDS):
+        ad = self.adaptivity
+        adaptation = ad.adaptation
+        rounds = STEP_ROUNDS if ad.due_in_step(state.j) else 0
+        if rounds:
+            ad.set_band(tau)
+        for _ in range(rounds):
             if not result.converged or result.state is None:
                 break
             interrupt.check()
             base = self._base
             if base is None or base[0] is not original:
                 base = (original, adaptation.amesh.checkpoint_state(), self.system)
+            times = ad.data_times(result.state.t, tau, self.T)
             try:
                 out = adaptation.cycle(
-                    self.adaptivity,
+                    ad,
                     self.system,
-                    (result.state, tau, result.state.t),
+                    (result.state, tau, times),
                     state,
                     refine_only=True,
+                    refine_above=ad.refine_above(original.j),
                 )
             except AdaptationFailed:  # no estimate or no transfer: the step stands
                 break
@@ -1061,9 +1067,9 @@ class ELDStepper(StepperBase):
             self._base = base
             self.system, state = out.problem, out.state
             interrupt.check()  # abandon() goes back to the mesh of the original state
-            refinements = result.refinements + 1
+            refinements, bisections = result.refinements + 1, result.bisections + out.bisections
             result = self._attempt(state, tau)
-            result.refinements = refinements
+            result.refinements, result.bisections = refinements, bisections
             dofs += self.system.ndofs
         result.counters["dofs"] = dofs
         return result
@@ -1272,12 +1278,13 @@ class ELDStepper(StepperBase):
         estimate = math.nan
         if ad.options.due(state.j) and not self.finished(state):
             old_id = int(state.mesh_id)
-            t_next = min(state.t + result.tau, self.T)
+            times = ad.data_times(state.t, result.tau, self.T)
+            ad.set_band(result.tau)
             try:
                 # a stop signal during the new mesh's factorization abandons the attempt: the
                 # cycle rolls the hierarchy back, and _base (the mesh before the step's own
                 # refinements) lets abandon() go back to the previous state's mesh
-                out = ad.adaptation.cycle(ad, self.system, (state, result.tau, t_next), state)
+                out = ad.adaptation.cycle(ad, self.system, (state, result.tau, times), state)
             except AdaptationFailed as exc:
                 self._base = None
                 raise RunFailed(
@@ -1327,9 +1334,10 @@ class ELDStepper(StepperBase):
             traj.append(
                 step_dofs=int(result.counters.get("dofs", result.system.ndofs)),
                 step_refinements=result.refinements,
+                step_bisections=result.bisections,
             )
         if self.store_fields and (st.j % self.keep_every == 0 or self.finished(st)):
-            self._keep(traj, st)
+            self._keep(traj, st, result.system)
         if self.observer is not None:
             self.observer(st, result)
         if ad is not None and self._adapted is not None:
@@ -1391,7 +1399,8 @@ class ELDStepper(StepperBase):
             self.adaptivity.restore_state(data["adapt"])
             if int(data["mesh_id"]) != 0:
                 self.system = self.system.rebuilt(
-                    self.system.problem.on_mesh(self.adaptivity.adaptation.mesh)
+                    self.system.problem.on_mesh(self.adaptivity.adaptation.mesh),
+                    symmetric_lu=True,
                 )
         self.system.restore_reference(data["solver_reference"])
         if data.get("solver_stats") is not None:

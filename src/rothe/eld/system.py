@@ -79,6 +79,9 @@ class ELDSystem:
     noise : DataNoise, optional
     times : PhaseTimes, optional
         Where ``factor`` and ``solve`` are timed.
+    symmetric_lu : bool
+        LU in SuperLU's symmetric mode (:class:`rothe.eld.solvers.ReferenceSolver`; space
+        adaptivity: one factorization per mesh).
     """
 
     #: the right inverse B^- (regularized form), None in the original form
@@ -95,8 +98,10 @@ class ELDSystem:
         data=None,
         noise=None,
         times: PhaseTimes | None = None,
+        symmetric_lu: bool = False,
     ):
         self.problem = p = problem
+        self.symmetric_lu = bool(symmetric_lu)
         self.times = times if times is not None else PhaseTimes()
         self.data = StepData(p, data, noise)
         c = p.constraint
@@ -127,10 +132,11 @@ class ELDSystem:
             return OriginalSystem(problem, **kwargs)
         return RegularizedSystem(problem, lifting=form.lifting, **kwargs)
 
-    def rebuilt(self, problem) -> ELDSystem:
+    def rebuilt(self, problem, **changes) -> ELDSystem:
         """The same system on the problem ``problem`` (on a new mesh), its solver's counters
-        continued from this one's and its first factorization counted."""
-        new = type(self)(problem, **self._arguments)
+        continued from this one's and its first factorization counted; ``changes`` replace
+        keyword arguments of the constructor (e.g. ``symmetric_lu``)."""
+        new = type(self)(problem, **dict(self._arguments, **changes))
         new.solver.stats = replace(self.solver.stats)
         new.solver.stats.factorizations += new.initial_factorizations
         return new
@@ -391,7 +397,12 @@ class RegularizedSystem(ELDSystem):
 
     def _make_solver(self, near_nullspace, rtol):
         return ReferenceSolver(
-            self.kind, spd=True, near_nullspace=near_nullspace, rtol=rtol, times=self.times
+            self.kind,
+            spd=True,
+            near_nullspace=near_nullspace,
+            rtol=rtol,
+            times=self.times,
+            symmetric_lu=self.symmetric_lu,
         )
 
     @property
@@ -475,6 +486,7 @@ class OriginalSystem(ELDSystem):
             near_nullspace=near_nullspace,
             rtol=rtol,
             times=self.times,
+            symmetric_lu=self.symmetric_lu,
         )
 
     def _store_first_matrix(self, te):

@@ -61,6 +61,8 @@ from ..timing import PhaseTimes
 from . import interrupt
 from .progress import Progress, as_progress_options
 
+_BLAS_CONTROLLER = []  # the one threadpoolctl controller of the process (found libraries)
+
 
 def single_threaded_blas():
     """Limit BLAS to one thread while stepping.
@@ -69,16 +71,18 @@ def single_threaded_blas():
     entries and by sparse solves that do not use BLAS threads. Threaded OpenBLAS level-1 calls
     spin-wait for their workers: on 2 busy cores a 25k-entry dot took 650 us instead of 8 us
     and a whole 160x160 run was 3.3x slower. ``threadpoolctl`` sets the limit even when numpy was
-    imported first (environment variables would be too late then).
+    imported first (environment variables would be too late then). Its controller (the scan of
+    the loaded libraries, 2-4 ms) is made once per process: the factorization of every mesh of
+    a space-adaptive run enters this context.
     """
-    try:
-        # heavy: imported when first needed (start-up time of the command line)
-        from threadpoolctl import (
-            threadpool_limits,  # heavy: imported when first needed (start-up time)
-        )
-    except ImportError:  # pragma: no cover - a declared dependency
-        return nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
+    if not _BLAS_CONTROLLER:
+        try:
+            # heavy: imported when first needed (start-up time of the command line)
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - a declared dependency
+            return nullcontext()
+        _BLAS_CONTROLLER.append(ThreadpoolController())
+    return _BLAS_CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
 def evolve(

@@ -147,12 +147,22 @@ class MeshAdaptation:
         """Whether to adapt after the accepted step with this (1-based) number."""
         return self.options.due(accepted_steps)
 
-    def cycle(self, family, problem, target, state, *, refine_only: bool = False) -> Adaptation:
+    def cycle(
+        self,
+        family,
+        problem,
+        target,
+        state,
+        *,
+        refine_only: bool = False,
+        refine_above: float | None = None,
+    ) -> Adaptation:
         """One adaptation (module docstring): the indicators of ``target`` on ``problem``'s
         mesh decide the new mesh; ``state`` is what moves to it.
 
-        ``refine_only``: refine (Doerfler) while eta > space_tol, never coarsen. Returns an
-        :class:`Adaptation`; raises :class:`AdaptationFailed` (hierarchy rolled back)."""
+        ``refine_only``: refine (Doerfler) while eta > ``refine_above`` (default space_tol),
+        never coarsen. Returns an :class:`Adaptation`; raises :class:`AdaptationFailed`
+        (hierarchy rolled back)."""
         opts, times = self.options, self.times
         snapshot = history = None  # taken once the marks say the mesh may change
         self._band = None
@@ -164,12 +174,13 @@ class MeshAdaptation:
             estimate = float(np.sqrt(np.sum(eta * eta)))
             with times.phase("mark"):
                 if refine_only:
+                    above = opts.space_tol if refine_above is None else refine_above
                     refine = (
-                        doerfler_marking(eta, opts.refine_fraction)
-                        if estimate > opts.space_tol
-                        else None
+                        doerfler_marking(eta, opts.refine_fraction) if estimate > above else None
                     )
                     coarsen = None
+                    if refine is not None and self.refine_band > 0.0:
+                        self._band = self._deep_band(refine, estimate / above)
                 else:
                     keep = getattr(family, "keep_cells", None)
                     refine, coarsen = self._mark(
@@ -236,10 +247,8 @@ class MeshAdaptation:
         if self.refine_band > 0.0:
             core = doerfler_marking(eta, opts.refine_fraction)
             points, cells, levels = amesh.points, amesh.cells, amesh.levels
-            centres = points[cells[core]].mean(axis=1)
-            target = levels[core] + 1
-            if opts.max_level is not None:
-                target = np.minimum(target, opts.max_level)
+            estimate = float(np.sqrt(np.sum(eta * eta)))
+            centres, target = self._deep_band(core, estimate / opts.space_tol)
             band, behind = band_marking(points, cells, levels, centres, target, self.refine_band)
             frozen = band if frozen is None else (frozen | band)
             self._band = (centres, target)
@@ -255,6 +264,23 @@ class MeshAdaptation:
         ):
             coarsen = np.zeros_like(coarsen)
         return refine, coarsen
+
+    def _deep_band(self, core: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+        """The band of a refine-only round (``refine_band`` > 0): the Doerfler set ``core`` and
+        the cells within refine_band of it go b generations deeper in one mesh change, b the
+        bisections after which the estimate of a P``degree`` field in d dimensions would meet
+        the threshold if the core carried all of it: eta_K^2 shrinks by 2^(-2p/d) per
+        bisection, so b = ceil((d/p) log2 ``ratio``), 1 <= b <= 2d (``ratio`` = eta over the
+        threshold)."""
+        amesh, opts = self.amesh, self.options
+        d, p = amesh.dim, max(self.degree, 1)
+        b = int(np.clip(math.ceil((d / p) * math.log2(max(ratio, 1.0))), 1, 2 * d))
+        points, cells, levels = amesh.points, amesh.cells, amesh.levels
+        centres = points[cells[core]].mean(axis=1)
+        target = levels[core] + b
+        if opts.max_level is not None:
+            target = np.minimum(target, opts.max_level)
+        return centres, target
 
     def _refine_band(self, change: MeshChange) -> MeshChange:
         """Bisect the band cells still below their target generation (:meth:`_mark`), a few
