@@ -433,7 +433,9 @@ def test_a_signal_between_the_refinement_rounds_of_a_step_abandons_it(
     }
 
 
-def test_a_signal_in_the_adapt_step_abandons_the_accepted_step(tmp_path, signal_at_call):
+def test_a_signal_in_the_adapt_step_abandons_the_accepted_step(
+    tmp_path, signal_at_call, monkeypatch
+):
     """Issue 21: a stop signal during the adapt step after an accepted step (here during the
     factorization of the new mesh's system, which runs abandonable: interrupt.call) abandons the
     whole attempt -- the accepted step, the decision, the new mesh and the rounds' refinements --
@@ -445,9 +447,27 @@ def test_a_signal_in_the_adapt_step_abandons_the_accepted_step(tmp_path, signal_
     def make_run(**kw):
         return run_eld(problem, adapt=adaptivity(), **PULSE, **kw)
 
+    # the uninterrupted run, with the step j after which each adapt step changed the mesh (only
+    # those factor a new system: the abandonable part of an adapt step)
+    changed = []
+    original = ELDStepper.adapt
+
+    def recording(self, state, result):
+        new = original(self, state, result)
+        if new.mesh_id != state.mesh_id:
+            changed.append(int(state.j))
+        return new
+
+    monkeypatch.setattr(ELDStepper, "adapt", recording)
     full = make_run().trajectory
+    monkeypatch.setattr(ELDStepper, "adapt", original)
+    # an adapt step follows every accepted step: the k-th call of a session that starts after
+    # step j0 is the one after step j0 + k; abandoned, the run has j0 + k - 1 accepted steps
+    # (the first interruption after step 2 at the earliest, so that a step is left to keep)
+    first = next(j for j in changed if j >= 2)
+    later = next(j for j in changed if j > first)
     ckpt, resume = tmp_path / "c", None
-    for k, accepted in ((3, 2), (2, 3)):  # every one of these adapt steps changes the mesh
+    for k, accepted in ((first, first - 1), (later - first + 1, later - 1)):
         signal_at_call(ELDStepper, "adapt", k)
         with pytest.raises(RunInterrupted) as info:
             make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
