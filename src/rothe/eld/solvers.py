@@ -148,10 +148,9 @@ class ReferenceSolver:
         t0 = time.perf_counter()
         self.stats.factorizations += 1
         if self.kind == "direct":
-            Ac = sp.csc_matrix(A)
             options = {"SymmetricMode": True} if self.symmetric_lu else {}
-            # a stop signal may abandon the step during the factorization (interrupt.call)
-            lu = interrupt.call(lambda: spla.splu(Ac, permc_spec="MMD_AT_PLUS_A", options=options))
+            # a stop signal may abandon the step during the factorization (interrupt.splu)
+            lu = interrupt.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", options=options)
             self._prec = lu.solve
             self._ml = None
         else:

@@ -91,11 +91,6 @@ def sparse_from_state(data: dict):
     )
 
 
-def _call(fn):
-    """``fn()``: how a :class:`ReusableSolver` runs a factorization unless told otherwise."""
-    return fn()
-
-
 #: the attributes of a ReusableSolver that a solve may change (besides its counters)
 _SNAPSHOT = ("_prec", "_prec_shape", "_key", "_fresh_its", "kind_used", "_ref", "_ref_kind")
 
@@ -116,10 +111,10 @@ class ReusableSolver:
         Direct: GMRES restart length; more iterations than this mean the stored LU is stale.
         AMG: a solve needing more than ``max(max_krylov, 3 x the iterations right after a
         rebuild)`` iterations triggers a rebuild from the current matrix.
-    call : callable, optional
-        ``call(fn)`` runs the LU factorization ``fn()`` (default: ``fn()``); the RIS inner solver
-        passes :func:`rothe.stepping.interrupt.call`, so that a stop signal abandons a step
-        during a long factorization (this layer knows no signals).
+    splu : callable, optional
+        The sparse LU factorization (default scipy's ``splu``); the RIS inner solver passes
+        :func:`rothe.stepping.interrupt.splu`, so that a stop signal abandons a step during a
+        long factorization (this layer knows no signals).
 
     ``solve(K, rhs, key=..., surrogate=..., spd=...)``: a ``key`` (e.g. the active set) that
     differs from the stored one forces a rebuild; ``surrogate`` is the matrix the preconditioner
@@ -128,10 +123,10 @@ class ReusableSolver:
     """
 
     def __init__(
-        self, method: str = "auto", amg_threshold: int = 150_000, max_krylov: int = 12, call=None
+        self, method: str = "auto", amg_threshold: int = 150_000, max_krylov: int = 12, splu=None
     ):
         self.method = check_choice("linear_solver", method, LINEAR_SOLVERS)
-        self._call = call if call is not None else _call
+        self._splu = splu if splu is not None else spla.splu
         self.amg_threshold = int(amg_threshold)
         self.max_krylov = int(max_krylov)
         self.stats = LinearStats()
@@ -180,7 +175,7 @@ class ReusableSolver:
     def _factor(self, Kc, kind: str) -> None:
         """Build the preconditioner from ``Kc`` (CSC for LU, CSR for AMG) and remember ``Kc``."""
         if kind == "direct":
-            lu = self._call(lambda: spla.splu(Kc, permc_spec="MMD_AT_PLUS_A"))
+            lu = self._splu(Kc, permc_spec="MMD_AT_PLUS_A")
             self._prec = lu.solve
             self.kind_used = "splu"
         else:

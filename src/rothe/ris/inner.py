@@ -288,11 +288,11 @@ class BallStepSolver:
     def __init__(self, problem: RISProblem, options: InnerOptions | None = None):
         self.p = problem
         self.o = options or InnerOptions()
-        # a stop signal may abandon the step during a factorization (stepping.interrupt.call)
+        # a stop signal may abandon the step during a factorization (stepping.interrupt.splu)
         self.linear = ReusableSolver(
             self.o.linear_solver,
             amg_threshold=amg_threshold_for(problem, self.o),
-            call=interrupt.call,
+            splu=interrupt.splu,
         )
         self._K = _NewtonMatrix(problem)
         A = problem.A

@@ -5,10 +5,11 @@ Inside :func:`interruptible`:
 - **SIGINT, SIGTERM, SIGHUP, SIGQUIT** (:data:`SIGNALS`) ask the run to stop. The first one is
   recorded (:func:`requested`) and nothing else happens at that instant. The evolve loop stops
   at the next step boundary, or sooner, inside a long step, at the next :func:`check` the step
-  makes (between Newton iterations, between inner solves): that step is *abandoned* -- never
-  accepted, never recorded. Either way the loop writes a checkpoint of the last accepted state
-  and raises :class:`~rothe.errors.RunInterrupted` (exit status 128 + signal: 130, 143, 129,
-  131). SIGHUP is what a dropped SSH session sends: the run stops like on SIGTERM, and standard
+  makes (between Newton iterations, between inner solves, while a factorization runs:
+  :func:`call`, :func:`splu`): that step is *abandoned* -- never accepted, never recorded.
+  Either way the loop writes a checkpoint of the last accepted state and raises
+  :class:`~rothe.errors.RunInterrupted` (exit status 128 + signal: 130, 143, 129, 131).
+  SIGHUP is what a dropped SSH session sends: the run stops like on SIGTERM, and standard
   output and error, if they are a terminal (now gone), are sent to ``/dev/null`` so that
   writing the results and the last messages cannot fail on it. SIGQUIT (Ctrl-\\) stops like
   SIGTERM; a second one dumps core at once, as usual.
@@ -50,6 +51,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import os
+import queue
 import signal
 import stat
 import sys
@@ -217,63 +219,172 @@ def check() -> None:
     Where the families call it: after every iteration of the RIS inner solver (the step's
     solve and the relaxation of a transferred state in the adapt step), after every Newton
     iteration of an ELD step with nonlinear damping and between the refine-and-resolve rounds
-    of an ELD step with space adaptivity; so an interruption takes effect within one iteration
-    (one factorization and its solves) instead of after the whole step."""
+    of an ELD step with space adaptivity; and while a sparse LU factorization of a step runs
+    (:func:`splu`, :func:`call`). So an interruption takes effect within one iteration, not
+    after the whole step."""
     guard = _active
     if guard is not None and guard.signum is not None and guard.abandonable > 0:
         raise StepAbandoned(guard.signum)
 
 
+def _in_a_step() -> bool:
+    """Inside an :func:`abandonable` region of an active guard, in the main thread."""
+    guard = _active
+    return (
+        guard is not None
+        and guard.abandonable > 0
+        and threading.current_thread() is threading.main_thread()
+    )
+
+
 def call(fn):
     """``fn()``, made abandonable: a long call into compiled code that releases the GIL (a
     sparse LU factorization: SuperLU does) cannot itself call :func:`check`. Inside an
-    :func:`abandonable` region of an active guard, ``fn`` runs in a worker thread while this
-    thread waits for it and calls :func:`check` every :data:`POLL_SECONDS`, so a stop signal
-    abandons the step within that time instead of after the call (measured: a 25 s LU of a 3D
-    RIS step, docs/robustness.md). The abandoned call finishes in the background and its result
-    is dropped; ``fn`` must therefore change nothing but its return value. Anywhere else (no
-    guard, outside a step, not the main thread): ``fn()`` as is. The result is the same object
-    either way (the same computation, bit for bit)."""
-    guard = _active
-    if (
-        guard is None
-        or guard.abandonable == 0
-        or threading.current_thread() is not threading.main_thread()
-    ):
+    :func:`abandonable` region of an active guard, ``fn`` runs in the one worker thread of this
+    module while this thread waits for it and calls :func:`check` every :data:`POLL_SECONDS`
+    (and once when it is done), so a stop signal abandons the step within that time instead of
+    after the call (measured: a 25 s LU of a 3D RIS step, docs/robustness.md). The abandoned
+    call finishes in the background and its result is dropped; ``fn`` must therefore change
+    nothing but its return value. Anywhere else (no guard, outside a step, not the main
+    thread): ``fn()`` as is. The result is the same either way (the same computation, bit for
+    bit). For SuperLU use :func:`splu`: its memory must also be released in the worker."""
+    if not _in_a_step():
         return fn()
-    out: dict = {}
-
-    def work():
-        try:
-            out["value"] = fn()
-        except BaseException as exc:  # noqa: BLE001 - handed to the waiting thread
-            out["error"] = exc
-
-    worker = threading.Thread(target=work, name="rothe-abandonable-call", daemon=True)
-    worker.start()
-    while worker.is_alive():
-        worker.join(POLL_SECONDS)
+    job = _Worker.get().submit(fn)
+    while True:
+        finished = job.done.wait(POLL_SECONDS)
         try:
             check()
         except StepAbandoned:
-            _leave_running(worker)
+            if not finished:
+                _leave_running(job)
             raise
-    if "error" in out:
-        raise out["error"]
-    return out["value"]
+        if finished:
+            break
+    if job.error is not None:
+        raise job.error
+    value, job.value = job.value, None
+    return value
+
+
+def splu(A, **kwargs):
+    """``scipy.sparse.linalg.splu(A, **kwargs)``, abandonable inside a step (:func:`call`).
+
+    The factorization is made in the worker thread and, when its last reference goes, released
+    there too: scipy's SuperLU keeps the books of its memory per thread and frees a block only
+    in the thread that allocated it. Released elsewhere, the factors leaked (``ris-front
+    --adapt-space`` grew by 40 MB/s to 10 GB in 4 minutes, where it used to stay at 260 MB).
+    The returned object has SuperLU's ``solve`` (and its other attributes)."""
+    # heavy: imported when first needed (start-up time of the command line)
+    from scipy.sparse.linalg import splu as scipy_splu
+
+    if not _in_a_step():
+        return scipy_splu(A, **kwargs)
+    return call(lambda: _WorkerLU(scipy_splu(A, **kwargs)))
+
+
+class _WorkerLU:
+    """A SuperLU factorization made in the worker thread, released there (:func:`splu`)."""
+
+    def __init__(self, lu):
+        self._lu = lu
+
+    def solve(self, rhs, trans="N"):
+        """SuperLU's solve."""
+        return self._lu.solve(rhs, trans)
+
+    def __getattr__(self, name):
+        if name == "_lu":  # not set (yet): no recursion
+            raise AttributeError(name)
+        return getattr(self._lu, name)
+
+    def __del__(self):
+        lu = self.__dict__.pop("_lu", None)
+        if lu is not None:
+            _Worker.release(lu)
+
+
+class _Job:
+    """One call run by the worker: ``fn``, then ``value`` or ``error``, then ``done``."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        self.done = threading.Event()
+        self.value = None
+        self.error: BaseException | None = None
+
+    def run(self) -> None:
+        """Run ``fn`` (in the worker thread)."""
+        try:
+            self.value = self.fn()
+        except BaseException as exc:  # noqa: BLE001 - handed to the waiting thread
+            self.error = exc
+        finally:
+            self.fn = None
+            self.done.set()
+
+
+class _Worker:
+    """The one worker thread of :func:`call` (started when first needed, stopped at
+    interpreter exit): runs the calls one after another and drops the objects handed to
+    :meth:`release`, so that what a call made is also freed in its thread."""
+
+    _instance: _Worker | None = None
+
+    def __init__(self):
+        self.jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self.stopped = False
+        self.thread = threading.Thread(target=self._run, name="rothe-abandonable-call", daemon=True)
+        self.thread.start()
+        atexit.register(self.stop)
+
+    @classmethod
+    def get(cls) -> _Worker:
+        """The worker (started on first use)."""
+        if cls._instance is None:
+            cls._instance = _Worker()
+        return cls._instance
+
+    def submit(self, fn) -> _Job:
+        """Run ``fn()`` in the worker thread; returns its job."""
+        job = _Job(fn)
+        self.jobs.put(job)
+        return job
+
+    @classmethod
+    def release(cls, obj) -> None:
+        """Drop ``obj`` in the worker thread (here, once the worker has stopped: at exit)."""
+        worker = cls._instance
+        if worker is not None and not worker.stopped:
+            worker.jobs.put(obj)
+
+    def _run(self) -> None:
+        while True:
+            item = self.jobs.get()
+            if item is None:
+                return
+            if isinstance(item, _Job):
+                item.run()
+            del item  # an object handed to release(): its last reference goes here
+
+    def stop(self) -> None:
+        """At interpreter exit (after :func:`_at_exit`): stop the worker once it is idle."""
+        self.stopped = True
+        self.jobs.put(None)
+        self.thread.join(timeout=60)
 
 
 #: how often :func:`call` looks for a stop signal while its worker runs
 POLL_SECONDS = 0.05
-_abandoned: list[threading.Thread] = []  # workers of abandoned calls (may still run)
+_abandoned: list[_Job] = []  # abandoned calls (the worker may still run them)
 _exit_status: int | None = None  # what the command line returns (will_exit_with)
 
 
-def _leave_running(worker: threading.Thread) -> None:
-    """Remember the worker of an abandoned call (once: the handler at interpreter exit)."""
+def _leave_running(job: _Job) -> None:
+    """Remember an abandoned call (once: the handler at interpreter exit)."""
     if not _abandoned:
         atexit.register(_at_exit)
-    _abandoned.append(worker)
+    _abandoned.append(job)
 
 
 def will_exit_with(status: int) -> None:
@@ -285,17 +396,17 @@ def will_exit_with(status: int) -> None:
 
 
 def _at_exit() -> None:
-    """At interpreter exit, with workers of abandoned calls still running: scipy's SuperLU
-    worker would run into the interpreter's finalization (measured, Python 3.11: ``Exception
-    ignored in <stdout>``, exit status 120). The command line (:func:`will_exit_with`) ends the
-    process at once with its status, results and checkpoint written; the Python API waits for
-    the workers (the rest of one factorization)."""
-    alive = [w for w in _abandoned if w.is_alive()]
-    if not alive:
+    """At interpreter exit, with an abandoned call still running: a SuperLU factorization in
+    the worker would run into the interpreter's finalization (measured, Python 3.11:
+    ``Exception ignored in <stdout>``, exit status 120). The command line
+    (:func:`will_exit_with`) ends the process at once with its status, results and checkpoint
+    written; the Python API waits for the call (the rest of one factorization)."""
+    running = [job for job in _abandoned if not job.done.is_set()]
+    if not running:
         return
     if _exit_status is None:
-        for worker in alive:
-            worker.join()
+        for job in running:
+            job.done.wait()
         return
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
