@@ -891,6 +891,24 @@ class TMDExample:
     beam_frequency: float
 
 
+def _strip(n, degree, length, height, material, young):
+    """The strip of the coupled examples: the checked ``n``, ``length``, ``height``, the
+    material (default E = ``young``, nu = 0, rho = 1, plane stress), the axial modulus of the
+    strip (E in plane stress, E/(1 - nu^2) in plane strain) and the mesh, round(n L/H) x n
+    cells on [0, L] x [0, H]."""
+    n = check_int("n", n, minimum=1)
+    if degree not in (1, 2):
+        raise fail("degree", degree, "must be 1 or 2")
+    length = check_positive("length", length)
+    height = check_positive("height", height)
+    if material is None:
+        material = Material.from_young(young, 0.0, 1.0, dim=2, plane="stress")
+    E, nu = material.young
+    modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
+    mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
+    return n, length, height, material, modulus, mesh
+
+
 def tmd_problem(
     n: int = 2,
     degree: int = 2,
@@ -928,21 +946,12 @@ def tmd_problem(
     -------
     TMDExample
     """
-    n = check_int("n", n, minimum=1)
-    if degree not in (1, 2):
-        raise fail("degree", degree, "must be 1 or 2")
-    length = check_positive("length", length)
-    height = check_positive("height", height)
+    n, length, height, material, modulus, mesh = _strip(n, degree, length, height, material, 1e4)
     mu = check_positive("mass_ratio", mass_ratio)
     force = check_real("force", force)
     ratio = check_positive("forcing_ratio", forcing_ratio)
     b = check_nonnegative("b", b)
-    if material is None:
-        material = Material.from_young(1e4, 0.0, 1.0, dim=2, plane="stress")
-    E, nu = material.young
-    modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
     rho = material.rho
-    mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
     strip = rho * length * height
     w_eb = beam_frequencies(length, modulus * height**3 / 12, rho * height, count=1)[0]
     base_mass = strip
@@ -1083,23 +1092,14 @@ def control_problem(
     -------
     ControlExample
     """
-    n = check_int("n", n, minimum=1)
-    if degree not in (1, 2):
-        raise fail("degree", degree, "must be 1 or 2")
-    length = check_positive("length", length)
-    height = check_positive("height", height)
+    n, length, height, material, modulus, mesh = _strip(n, degree, length, height, material, 100.0)
     mb = check_positive("base_mass", base_mass)
     kb = check_nonnegative("base_stiffness", base_stiffness)
     kp = check_real("gain", gain)
     kd = check_nonnegative("kd", kd)
     b = check_nonnegative("b", b)
     amplitude = check_positive("amplitude", amplitude)
-    if material is None:
-        material = Material.from_young(100.0, 0.0, 1.0, dim=2, plane="stress")
-    E, nu = material.young
-    modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
     rho = material.rho
-    mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
     damping = RayleighDamping(0.0, b) if b > 0 else None
     Tf = check_positive("filter_time", filter_time) if kd > 0 else None
 
