@@ -168,7 +168,7 @@ def test_pulse_on_a_3d_gmsh_body_with_space_adaptivity(tmp_path, capsys):
     code, _, err = run_cli(
         capsys, "run", "eld-pulse", "--mesh", mesh, "--dirichlet", "inlet", "--degree", "1",
         "--T", "0.06", "--tau", "0.02", "--width", "0.4", "--space-tol", "1e-4", "--max-dofs",
-        "3000", "--quiet", "--no-plots", "--out", tmp_path / "box",
+        "3000", "--adapt-every", "1", "--quiet", "--no-plots", "--out", tmp_path / "box",
     )  # fmt: skip
     assert code == 0, err
     s = _summary(tmp_path / "box")

@@ -300,8 +300,11 @@ class _WorkerLU:
 
     def __del__(self):
         lu = self.__dict__.pop("_lu", None)
-        if lu is not None:
-            _Worker.release(lu)
+        # at interpreter exit the module's globals may already be gone (None): the process
+        # frees everything then anyway
+        worker = globals().get("_Worker")
+        if lu is not None and worker is not None:
+            worker.release(lu)
 
 
 class _Job:
