@@ -428,13 +428,12 @@ class RunEldMMS(EldRunCommand):
             raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"], hysteresis=True)
         check_space_data(args, space)
-        self.material = material_of(args, MMS_MATERIAL)
-        return objects, keep, n, parts, damping_of(args), space
+        material = material_of(args, MMS_MATERIAL)
+        return objects, keep, n, parts, damping_of(args), space, material
 
     def execute(self, args) -> int:
         """Build the manufactured solution, run it as a session; the summary adds its errors."""
-        objects, keep, n, parts, damping, space = self.validate(args)
-        material = self.material
+        objects, keep, n, parts, damping, space, material = self.validate(args)
         problem, exact = mms_problem(
             n,
             args.degree,
@@ -544,14 +543,14 @@ class RunEldBeam(EldRunCommand):
         check_beam_size(n, args.length, args.degree, args.solver)
         every = check_int("--save-every", args.save_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"], hysteresis=True)
-        material_of(args, BEAM_MATERIAL, dim=3)
+        material = material_of(args, BEAM_MATERIAL, dim=3)
         if check_choice("--backend", args.backend, BACKENDS) == "petsc" and space is not None:
             raise fail(
                 "--adapt-space",
                 described("given"),
                 "is not supported with --backend petsc (space adaptivity is not distributed)",
             )
-        return objects, n, every, keep, damping_of(args), space
+        return objects, n, every, keep, damping_of(args), space, material
 
     def execute(self, args) -> int:
         """Build the cantilever, run it as a session (XDMF streamed while it runs); with
@@ -561,8 +560,8 @@ class RunEldBeam(EldRunCommand):
             from .eld_mpi import execute_beam
 
             return execute_beam(self, args)
-        objects, n, every, keep, damping, space = self.validate(args)
-        problem = self.beam(args, n, damping)
+        objects, n, every, keep, damping, space, material = self.validate(args)
+        problem = self.beam(args, n, damping, material)
         fit_default_cap(args, space, problem.space.ndofs)
         label = (
             f"eld-beam, {objects['scheme'].name}, {objects['form'].name}, "
@@ -571,7 +570,7 @@ class RunEldBeam(EldRunCommand):
         options = dict(objects, solver=args.solver, keep_every=keep, linear_rtol=1e-8, adapt=space)
 
         def summarize(summary, result, completed):
-            self.summarize(args, summary, result.trajectory)
+            self.summarize(args, summary, result.trajectory, material)
 
         # a fixed mesh streams XDMF as it goes (checkpointed with the run); an adaptive run
         # writes one VTU per kept state on its own mesh at the end (rothe.eld.output)
@@ -583,13 +582,13 @@ class RunEldBeam(EldRunCommand):
         return self.run(args, problem, options, label, summarize, stream)
 
     @staticmethod
-    def beam(args, n: int, damping):
-        """The cantilever of the command line with ``n`` cells across
-        (:func:`rothe.eld.examples.beam_problem`)."""
+    def beam(args, n: int, damping, material):
+        """The cantilever of the command line with ``n`` cells across and the ``material``
+        of :meth:`validate` (:func:`rothe.eld.examples.beam_problem`)."""
         return beam_problem(
             n,
             length=args.length,
-            material=material_of(args, BEAM_MATERIAL, dim=3),
+            material=material,
             damping=damping,
             amplitude=args.amplitude,
             t_move=args.t_move,
@@ -612,10 +611,11 @@ class RunEldBeam(EldRunCommand):
         last (n tau may round to just below T: the last by a relative margin)."""
         return state.j % every == 0 or state.t >= T * (1.0 - 1e-12)
 
-    def summarize(self, args, summary: dict, traj) -> None:
-        """The beam's fields of the summary: its options, seconds per step, the reactions at
-        the held end and the fraction of the energy put in that the scheme dissipated."""
-        material = material_fields(args, BEAM_MATERIAL, material_of(args, BEAM_MATERIAL, dim=3))
+    def summarize(self, args, summary: dict, traj, material) -> None:
+        """The beam's fields of the summary: its options, the ``material`` of
+        :meth:`validate`, seconds per step, the reactions at the held end and the fraction of
+        the energy put in that the scheme dissipated."""
+        material = material_fields(args, BEAM_MATERIAL, material)
         summary.update(
             n=args.n,
             degree=args.degree,

@@ -73,10 +73,10 @@ def execute_beam(command, args) -> int:
     MPI, _ = require_petsc("--backend petsc")
     comm = MPI.COMM_WORLD
     root = comm.rank == 0
-    objects, n, every, keep, damping, _ = command.validate(args)
+    objects, n, every, keep, damping, _, material = command.validate(args)
     # the beam's data from beam_problem on one cell across (material, damping, G, T: nothing
     # there depends on n), the mesh as beam_problem builds it
-    definition = command.beam(args, 1, damping).definition
+    definition = command.beam(args, 1, damping, material).definition
     mesh = meshes.box(max(1, int(round(args.length * n))), n, n, args.length, 1.0, 1.0)
     problem = DistributedELDProblem(mesh, definition, comm)
     view = OutputView(mesh, problem) if root else None
@@ -128,7 +128,7 @@ def execute_beam(command, args) -> int:
             peaks.append(comm.gather(peak_memory_mb(), root=0))
 
     def summarize(summary, result, completed):
-        command.summarize(args, summary, result.trajectory)
+        command.summarize(args, summary, result.trajectory, material)
         summary.update(
             backend="petsc",
             processes=comm.size,
