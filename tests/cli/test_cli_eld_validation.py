@@ -77,6 +77,14 @@ from rothe.errors import RotheInputError
             "of size about 1)",
         ),
         (
+            ["study", "eld-coupled-perturbation", "--targets", "q,G"],
+            "rothe: error: --targets: got 'G', must be one of q, q_dot, q_ddot",
+        ),
+        (
+            ["study", "eld-coupled-perturbation", "--n", "0"],
+            "rothe: error: --n: got 0, must be an integer >= 1",
+        ),
+        (
             ["study", "eld-perturbation", "--taus", "1e-320,0.1"],
             "rothe: error: --taus: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of "
             "T = 1)",

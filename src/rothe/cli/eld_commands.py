@@ -22,11 +22,15 @@ import shutil
 import numpy as np
 
 from ..eld.data import NOISE_TARGETS
-from ..eld.examples import beam_problem, mms_errors, mms_problem, pulse_problem
+from ..eld.examples import beam_problem, mms_errors, mms_problem, pulse_problem, tip_mass_problem
 from ..eld.output import EldXdmfWriter, write_eld_result
 from ..eld.run import BACKENDS, ELDResult, prepare_eld_run
 from ..eld.studies import (
+    COUPLED_TARGETS,
+    check_delta,
+    check_noise_targets,
     convergence_study,
+    coupled_perturbation_study,
     format_convergence_table,
     format_perturbation_table,
     perturbation_study,
@@ -966,16 +970,23 @@ class StudyEldPerturbation:
         "both forms, for tau from 1e-1 to 1e-3"
     )
     name = "eld-perturbation"
+    #: the study's defaults and what it perturbs (the coupled study below overrides them)
+    taus = (0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001)
+    n, degree, T = 6, 1, 1.0
+    damping = "nonlinear"
+    targets = NOISE_TARGETS
+    study = staticmethod(perturbation_study)
 
     def configure(self, parser) -> None:
         """--taus, --delta, --n, --degree, --seed, --targets, --scheme, the damping, the outputs and
         the executor.
         """
+        taus = ",".join(f"{t:g}" for t in self.taus)
         parser.add_argument(
             "--taus",
             type=parse_float_list("--taus"),
-            default=[0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001],
-            help="step sizes (default 0.1,0.05,0.02,0.01,0.005,0.002,0.001)",
+            default=list(self.taus),
+            help=f"step sizes (default {taus})",
         )
         float_option(
             parser,
@@ -983,18 +994,27 @@ class StudyEldPerturbation:
             default=1e-6,
             help="size of the noise (default 1e-6)",
         )
-        parser.add_argument("--n", type=int, default=6, help="cells per side (default 6)")
-        parser.add_argument("--degree", type=int, default=1, help="1 or 2 (default 1)")
+        parser.add_argument(
+            "--n", type=int, default=self.n, help=f"cells across (default {self.n})"
+        )
+        parser.add_argument(
+            "--degree", type=int, default=self.degree, help=f"1 or 2 (default {self.degree})"
+        )
         parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
         parser.add_argument(
             "--targets",
-            default="G,G_dot,G_ddot,F",
-            help="the data perturbed, each alone (default G,G_dot,G_ddot,F)",
+            default=",".join(self.targets),
+            help=f"the data perturbed, each alone (default {','.join(self.targets)})",
         )
         scheme_option(parser)
-        damping_options(parser)
+        damping_options(parser, default=self.damping)
         add_output_options(parser, self.name)
         add_parallel_options(parser)
+
+    def check_problem(self, args) -> None:
+        """What the study's problem refuses, before its cluster starts: the manufactured
+        solution's size."""
+        check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
 
     def execute(self, args) -> int:
         """Run the perturbation study of Theorem 4.5 for every ``--taus``; write its table and
@@ -1002,31 +1022,28 @@ class StudyEldPerturbation:
         """
         check_damping_options(args)
         for t in args.taus:
-            check_eld_step("--taus", t, 1.0)
-        check_mms_size(check_int("--n", args.n, minimum=1), args.degree)
-        check_study_options(args)
+            check_eld_step("--taus", t, self.T)
+        self.check_problem(args)
         taus = [check_positive("--taus", t) for t in args.taus]
         if len(taus) < 2:
             raise fail("--taus", ",".join(map(str, args.taus)), "needs at least two step sizes")
-        targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
-        if not targets:
-            raise fail(
-                "--targets", args.targets, "must name at least one of " + ", ".join(NOISE_TARGETS)
-            )
-        for t in targets:
-            check_choice("--targets", t, NOISE_TARGETS)
+        targets = check_noise_targets("--targets", args.targets, self.targets)
+        check_int("--seed", args.seed, minimum=0)
+        check_delta("--delta", args.delta)
         scheme = scheme_of(args)
         study, out = run_study(
             self.name,
             args,
-            perturbation_study,
+            self.study,
             taus,
             delta=args.delta,
             targets=targets,
             seed=args.seed,
             scheme=scheme,
+            rho=args.rho,
         )
         table = format_perturbation_table(study)
+        labels = study.get("norms", {})
 
         def draw():
             # matplotlib is imported only for the figures
@@ -1038,7 +1055,30 @@ class StudyEldPerturbation:
                     study[target],
                     out / f"fig_perturbation_{target}.png",
                     title=f"{scheme.name}: noise in {target}, delta = {args.delta:g}",
+                    labels=labels if "columns" in study else None,
                 )
 
         write_study(args, out, study, table, draw)
         return 0 if "failed" not in study else 1
+
+
+@command("study", "eld-coupled-perturbation")
+class StudyEldCoupledPerturbation(StudyEldPerturbation):
+    """``rothe study eld-coupled-perturbation``: Theorem 4.5 with a coupling (issue 19)."""
+
+    help = (
+        "Theorem 4.5 with a coupling: noise in the tip mass's coordinates as the body sees "
+        "them (q, q', q'' in g, g', g''), both forms (the tip-mass bar, B u = q)"
+    )
+    name = "eld-coupled-perturbation"
+    taus = (0.02, 0.01, 0.005, 0.0025, 0.00125, 0.000625)
+    n, degree, T = 2, 2, 0.2
+    # the coupled step takes linear damping only
+    damping = "rayleigh"
+    targets = COUPLED_TARGETS
+    study = staticmethod(coupled_perturbation_study)
+
+    def check_problem(self, args) -> None:
+        """The tip-mass bar of --n, --degree and the damping (built once here: it refuses a
+        mesh with too few axial modes, naming --n)."""
+        tip_mass_problem(args.n, args.degree, rho=args.rho, T=self.T, damping=damping_of(args))

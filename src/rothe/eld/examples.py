@@ -697,6 +697,7 @@ def tip_mass_problem(
     mesh=None,
     clamp=("left",),
     tip: str = "right",
+    damping: Damping | None = None,
 ) -> TipMassExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along) clamped on ``left``, carrying on ``right`` a mass ``mass`` on a spring ``spring``
@@ -715,7 +716,8 @@ def tip_mass_problem(
     frequencies). ``mesh``: any body (2D or 3D, named parts) instead of the strip, clamped on
     the parts ``clamp``, the mass-spring on the part ``tip``; "axial" is along x, and the
     analytic frequencies are those of a prismatic bar along x (length: the extent in x, area:
-    volume / length).
+    volume / length). ``damping``: the body's damping (default none); the start mode and the
+    frequencies are those of the undamped system.
     """
     mass = check_positive("mass", mass)
     spring = check_nonnegative("spring", spring)
@@ -759,6 +761,7 @@ def tip_mass_problem(
             material,
             degree=degree,
             dirichlet={part: held for part in clamp},
+            damping=damping,
             u0=u0,
             T=T,
             name="tip-mass",

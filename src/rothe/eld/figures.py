@@ -94,11 +94,15 @@ def plot_convergence(
     return _save(fig, path)
 
 
-def plot_perturbation(taus, table: dict, path, title: str = "") -> Path:
-    """Amplification max_j |x_pert^j - x^j| / delta against tau, both forms (Theorem 4.5)."""
+def plot_perturbation(taus, table: dict, path, title: str = "", labels=None) -> Path:
+    """Amplification max_j |x_pert^j - x^j| / delta against tau, both forms (Theorem 4.5).
+    ``labels``: the panels' titles by quantity (``lam``, ``v``, ``u``; default the multiplier,
+    the velocity and the displacement of the body)."""
     taus = np.asarray(taus)
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-    panels = (("amp", r"multiplier $\lambda$"), ("amp_v", "velocity"), ("amp_u", "displacement"))
+    names = {"lam": r"multiplier $\lambda$", "v": "velocity", "u": "displacement"}
+    names.update(labels or {})
+    panels = (("amp", names["lam"]), ("amp_v", names["v"]), ("amp_u", names["u"]))
     for ax, (key, label) in zip(axes, panels, strict=True):
         for form, style in (("regularized", "o-"), ("original", "s--")):
             name = f"{key}_{form}"

@@ -27,8 +27,9 @@ import numpy as np
 from ..errors import RotheInputError, check_int, check_positive, fail
 from ..parallel import Executor, Task
 from ..stepping.controllers import Uniform
+from .coupled_run import run_coupled
 from .data import DEFAULT_DATA, NOISE_TARGETS, DataMode, DataNoise, as_data_mode
-from .examples import mms_errors, mms_problem
+from .examples import mms_errors, mms_problem, tip_mass_problem
 from .form import DEFAULT_FORM, Form, Original, Regularized, as_form
 from .run import run_eld
 from .scheme import DEFAULT_SCHEME, Scheme, as_scheme
@@ -74,17 +75,18 @@ def check_delta(name: str, delta) -> float:
     return delta
 
 
-def check_noise_targets(name: str, targets) -> tuple[str, ...]:
-    """Data to perturb: names of NOISE_TARGETS, as a comma-separated string or a sequence; at
-    least one (an empty list gave StopIteration when the table was formatted)."""
+def check_noise_targets(name: str, targets, allowed=NOISE_TARGETS) -> tuple[str, ...]:
+    """Data to perturb: names of ``allowed`` (NOISE_TARGETS; COUPLED_TARGETS for the coupled
+    study), as a comma-separated string or a sequence; at least one (an empty list gave
+    StopIteration when the table was formatted)."""
     items = targets.split(",") if isinstance(targets, str) else list(targets)
     items = [str(t).strip() for t in items if str(t).strip()]
     if not items:
         shown = targets if isinstance(targets, str) else ""
-        raise fail(name, shown, "must name at least one of " + ", ".join(NOISE_TARGETS))
+        raise fail(name, shown, "must name at least one of " + ", ".join(allowed))
     for t in items:
-        if t not in NOISE_TARGETS:
-            raise fail(name, t, "must be one of " + ", ".join(NOISE_TARGETS))
+        if t not in allowed:
+            raise fail(name, t, "must be one of " + ", ".join(allowed))
     return tuple(dict.fromkeys(items))
 
 
@@ -149,12 +151,13 @@ def check_uniform_runs(tau0: float, scheme: Scheme, data: DataMode, n, degree, *
         raise (exc.renamed("tau0") if exc.parameter == "tau" else exc) from None
 
 
-def _problem_meta(results, n, degree, damping, **kw) -> dict:
-    """ndofs and damping of the study's problem: from a run, else built here (all failed)."""
+def _problem_meta(results, build) -> dict:
+    """ndofs and damping of the study's problem: from a run, else of the ELDProblem
+    ``build()`` returns (all runs failed)."""
     for r in results:
         if isinstance(r.value, dict) and "_problem" in r.value:
             return r.value["_problem"]
-    problem, _ = mms_problem(n, degree, damping=damping, **kw)
+    problem = build()
     return {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}
 
 
@@ -236,7 +239,10 @@ def convergence_study(
         for tau in taus
     ]
     results = (executor or Executor(1, progress=False)).map(tasks)
-    meta = _problem_meta(results, n, degree, damping, rho=rho, lam=lam, mu=mu, T=T)
+    meta = _problem_meta(
+        results,
+        lambda: mms_problem(n, degree, damping=damping, rho=rho, lam=lam, mu=mu, T=T)[0],
+    )
     rows = []
     for tau, res in zip(taus, results, strict=True):
         if res.completed:
@@ -335,11 +341,12 @@ def perturbation_run(
     seed: int,
     T: float,
     scheme: Scheme,
+    rho: float = 1.0,
     progress=False,
 ) -> dict:
     """One (tau, form) of :func:`perturbation_study` (a task: builds the problem itself): the
     unperturbed run and one perturbed run per target; the amplifications by target."""
-    problem, _ = mms_problem(n, degree, damping=damping, T=T)
+    problem, _ = mms_problem(n, degree, damping=damping, rho=rho, T=T)
     options = dict(scheme=scheme, form=form, control=Uniform(tau), progress=progress)
     base = run_eld(problem, **options).trajectory
     out = {"_problem": {"ndofs": problem.space.ndofs, "damping": problem.damping.describe()}}
@@ -361,6 +368,7 @@ def perturbation_study(
     seed: int = 0,
     T: float = 1.0,
     scheme: Scheme = DEFAULT_SCHEME,
+    rho: float = 1.0,
     progress: bool = False,
     executor=None,
 ) -> dict:
@@ -393,6 +401,8 @@ def perturbation_study(
         The noise's seed.
     T : float
     scheme : Scheme
+    rho : float
+        The density of :func:`mms_problem`.
     progress : bool
     executor : Executor, optional
 
@@ -424,6 +434,7 @@ def perturbation_study(
                 "seed": seed,
                 "T": T,
                 "scheme": scheme,
+                "rho": rho,
                 "progress": inner_progress,
             },
             cost=(1 + len(targets)) / tau,
@@ -433,7 +444,7 @@ def perturbation_study(
     ]
     t0 = time.perf_counter()
     results = (executor or Executor(1, progress=False)).map(tasks)
-    meta = _problem_meta(results, n, degree, damping, T=T)
+    meta = _problem_meta(results, lambda: mms_problem(n, degree, damping=damping, rho=rho, T=T)[0])
     out = {
         "example": "eld-mms",
         "scheme": scheme.name,
@@ -447,7 +458,21 @@ def perturbation_study(
         "seed": seed,
         "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"},
     }
-    names = [f.name for f in forms]
+    tables = _amplification_tables(out, tasks, results, targets, [f.name for f in forms])
+    if "G" in tables:
+        for form in (f.name for f in forms):
+            out[f"amp_{form}"] = tables["G"][f"amp_{form}"]
+            out[f"amp_v_{form}"] = tables["G"][f"amp_v_{form}"]
+            out[f"amp_u_{form}"] = tables["G"][f"amp_u_{form}"]
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def _amplification_tables(out: dict, tasks, results, targets, names) -> dict:
+    """The tables of a perturbation study from its (tau, form) tasks' results (each a dict
+    target -> (amp, amp_v, amp_u)): per target ``amp_<form>, amp_v_<form>, amp_u_<form>`` over
+    tau and their fitted slopes, put into ``out`` under the target's name; the (tau, form) whose
+    runs failed get NaN and are listed under ``out["failed"]``. Returns the tables."""
     tables = {
         t: {f"{k}_{f}": [] for k in ("amp", "amp_v", "amp_u") for f in names} for t in targets
     }
@@ -464,17 +489,182 @@ def perturbation_study(
             tables[target][f"amp_{form}"].append(amp)
             tables[target][f"amp_v_{form}"].append(amp_v)
             tables[target][f"amp_u_{form}"].append(amp_u)
+    taus = out["tau"]
     for target, table in tables.items():
         for name in list(table):
             table[f"slope_{name}"] = fitted_rate(taus, table[name])
         out[target] = table
-    if "G" in tables:
-        for form in names:
-            out[f"amp_{form}"] = tables["G"][f"amp_{form}"]
-            out[f"amp_v_{form}"] = tables["G"][f"amp_v_{form}"]
-            out[f"amp_u_{form}"] = tables["G"][f"amp_u_{form}"]
     if failed:
         out["failed"] = failed
+    return tables
+
+
+# -- Theorem 4.5 with couplings: noise in the component's outputs (issue 19) ----------------------
+
+#: the coupled study's targets: noise in the component's coordinates where they enter the
+#: coupling data, each alone: g = G + Gamma (q + theta), g' = G_dot + Gamma (p + xi),
+#: g'' = G_ddot + Gamma (p' + vartheta) (:class:`~rothe.eld.coupled_run.CoupledStepper`)
+COUPLED_TARGETS = ("q", "q_dot", "q_ddot")
+#: the coupled study's tip part (the coupling B u = q of :func:`tip_mass_problem`)
+COUPLED_PART = "right"
+
+
+def coupled_perturbation_run(
+    form: Form,
+    tau: float,
+    *,
+    delta: float,
+    targets,
+    n: int,
+    degree: int,
+    damping,
+    seed: int,
+    T: float,
+    scheme: Scheme,
+    rho: float = 1.0,
+    progress=False,
+) -> dict:
+    """One (tau, form) of :func:`coupled_perturbation_study` (a task: builds the system
+    itself): the unperturbed coupled run and one perturbed run per target; per target
+    (amp, amp_v, amp_u) = max_j of |R_pert - R|, |p_pert - p|, |q_pert - q| over delta, with R
+    the reaction (resultant of lambda) on the coupled part and q, p the tip mass's coordinates
+    and velocity (Euclidean norms)."""
+    system = tip_mass_problem(n, degree, rho=rho, T=T, damping=damping).system
+    options = dict(scheme=scheme, form=form, control=Uniform(tau))
+    base = run_coupled(system, **options)
+    r = base.stepper.r
+    keys = (f"reaction_{COUPLED_PART}", "p", "q")
+    out = {
+        "_problem": {
+            "ndofs": system.body.space.ndofs,
+            "damping": system.body.damping.describe(),
+        }
+    }
+    for target in targets:
+        slot = COUPLED_TARGETS.index(target)
+
+        def noise(j, slot=slot):
+            # the noise of step j depends only on (seed, j): the same in both forms
+            w = delta * np.random.default_rng([seed, j]).uniform(-1.0, 1.0, r)
+            return tuple(w if i == slot else None for i in range(3))
+
+        pert = run_coupled(system, noise=noise, **options)
+        out[target] = tuple(
+            float(
+                np.linalg.norm(
+                    np.asarray(pert.trajectory[k]) - np.asarray(base.trajectory[k]), axis=1
+                ).max()
+            )
+            / delta
+            for k in keys
+        )
+    return out
+
+
+def coupled_perturbation_study(
+    taus=(0.02, 0.01, 0.005, 0.0025, 0.00125, 0.000625),
+    *,
+    delta: float = 1e-6,
+    targets=COUPLED_TARGETS,
+    forms=FORMS,
+    n: int = 2,
+    degree: int = 2,
+    damping=None,
+    seed: int = 0,
+    T: float = 0.2,
+    scheme: Scheme = DEFAULT_SCHEME,
+    rho: float = 1.0,
+    progress: bool = False,
+    executor=None,
+) -> dict:
+    """Theorem 4.5 with a coupling: noise of size delta in the coordinates of a component as
+    the body sees them (the tip mass of :func:`~rothe.eld.examples.tip_mass_problem`, B u = q
+    on ``right``, started in its first axial mode), each target alone (``q``: theta in g,
+    ``q_dot``: xi in g', ``q_ddot``: vartheta in g''), for each tau and form.
+
+    The original form sees only g = G + Gamma (q + theta) and differences it (its xi ~ theta /
+    tau, vartheta ~ theta / tau^2): the reaction's amplification grows like tau^-2 and the tip
+    velocity's like tau^-1; the regularized form takes q, p, p' as separate data and stays
+    bounded. Noise in q_dot, q_ddot does not reach the original form (amplification 0); in the
+    regularized form noise in q_dot enters through the damping only (0 without damping).
+
+    Returns the dict of :func:`perturbation_study` (``tau``, per target ``amp_<form>`` (the
+    reaction on ``right``), ``amp_v_<form>`` (the tip velocity p), ``amp_u_<form>`` (the tip
+    displacement q) and their fitted slopes) with ``columns`` naming the three quantities.
+
+    Parameters
+    ----------
+    taus : sequence of float
+    delta : float
+    targets : sequence of str
+        Names of COUPLED_TARGETS.
+    forms : sequence of Form
+    n, degree : int
+        The strip of :func:`tip_mass_problem` (n cells across).
+    damping : Damping, optional
+        The body's damping (default none).
+    seed : int
+    T : float
+    scheme : Scheme
+    rho : float
+        The bar's density.
+    progress : bool
+        Unused (coupled runs have no progress bar); for the commands' common call.
+    executor : Executor, optional
+    """
+    forms = tuple(as_form(f) for f in forms)
+    scheme = as_scheme(scheme)
+    taus = [check_positive("taus", t) for t in taus]
+    delta = check_delta("delta", delta)
+    targets = check_noise_targets("targets", targets, COUPLED_TARGETS)
+    seed = check_int("seed", seed, minimum=0)
+    tasks = [
+        Task(
+            f"{form.name} tau={tau:g}",
+            coupled_perturbation_run,
+            {
+                "form": form,
+                "tau": tau,
+                "delta": delta,
+                "targets": tuple(targets),
+                "n": n,
+                "degree": degree,
+                "damping": damping,
+                "seed": seed,
+                "T": T,
+                "scheme": scheme,
+                "rho": rho,
+            },
+            cost=(1 + len(targets)) / tau,
+        )
+        for tau in taus
+        for form in forms
+    ]
+    t0 = time.perf_counter()
+    results = (executor or Executor(1, progress=False)).map(tasks)
+    meta = _problem_meta(
+        results, lambda: tip_mass_problem(n, degree, rho=rho, T=T, damping=damping).system.body
+    )
+    out = {
+        "example": "eld-tip-mass",
+        "scheme": scheme.name,
+        "n": n,
+        "degree": degree,
+        "ndofs": meta["ndofs"],
+        "targets": list(targets),
+        "damping": meta["damping"],
+        "T": T,
+        "tau": taus,
+        "delta": delta,
+        "seed": seed,
+        "columns": ["R", "p", "q"],
+        "norms": {
+            "lam": f"|reaction on {COUPLED_PART!r}|",
+            "v": "|p| (tip velocity)",
+            "u": "|q| (tip displacement)",
+        },
+    }
+    _amplification_tables(out, tasks, results, targets, [f.name for f in forms])
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -484,15 +674,20 @@ _WHAT = {
     "G_dot": "noise in G_dot alone (v_2 in the regularized form; unused by the original form)",
     "G_ddot": "noise in G_ddot alone (w_2 in the regularized form; unused by the original form)",
     "F": "noise in F (both forms alike)",
+    "q": "noise theta in the tip's coordinates q as the body sees them (g = G + Gamma (q + theta))",
+    "q_dot": "noise xi in q' (g' in the regularized form, through the damping; unused by the "
+    "original form)",
+    "q_ddot": "noise vartheta in q'' (g'' in the regularized form; unused by the original form)",
 }
 
 
 def format_perturbation_table(study: dict) -> str:
     """The perturbation study as a table per datum: amplifications per tau and form, slopes."""
     lines = []
-    present = [t for t in NOISE_TARGETS if t in study]
+    present = [t for t in NOISE_TARGETS + COUPLED_TARGETS if t in study]
     first = study[present[0]]
     forms = [f.name for f in FORMS if f"amp_{f.name}" in first]
+    lam, v, u = study.get("columns", ("lam", "v", "u"))
     for target in present:
         table = study[target]
         lines.append(
@@ -502,7 +697,7 @@ def format_perturbation_table(study: dict) -> str:
         head = f"{'tau':>8}"
         for f in forms:
             short = f[:3]
-            head += f" {'lam ' + short:>11} {'v ' + short:>10} {'u ' + short:>10}"
+            head += f" {lam + ' ' + short:>11} {v + ' ' + short:>10} {u + ' ' + short:>10}"
         lines += [head, "-" * len(head)]
         for i, tau in enumerate(study["tau"]):
             line = f"{tau:>8.4f}"
