@@ -142,3 +142,17 @@ def test_coupled_study_refuses_targets_of_the_body_data():
         RotheInputError, match=r"^targets: got 'G', must be one of q, q_dot, q_ddot$"
     ):
         coupled_perturbation_study(targets=("G",))
+
+
+def test_perturbation_study_reads_the_density():
+    """--rho reached neither study's problem before (the command accepted and ignored it): the
+    multiplier's response to noise in G'' scales with the density's inertia term."""
+    light, heavy = (
+        perturbation_study((0.1, 0.05), targets=("G_ddot",), n=2, degree=1, rho=rho)
+        for rho in (1.0, 4.0)
+    )
+    a, b = (
+        np.array(light["G_ddot"]["amp_regularized"]),
+        np.array(heavy["G_ddot"]["amp_regularized"]),
+    )
+    assert np.all(b > 1.5 * a), (a, b)
