@@ -85,6 +85,19 @@ from rothe.errors import RotheInputError
             "rothe: error: --n: got 0, must be an integer >= 1",
         ),
         (
+            ["study", "eld-tip-mass", "--ns", "0,2"],
+            "rothe: error: --ns: got 0, must be an integer >= 1",
+        ),
+        (
+            ["study", "eld-tip-mass", "--ns", "2", "--taus", "0.01"],
+            "rothe: error: --ns: got '2', needs two meshes, or --taus two step sizes, to fit an "
+            "order",
+        ),
+        (
+            ["study", "eld-tip-mass", "--degree", "3"],
+            "rothe: error: --degree: got 3, must be 1 or 2",
+        ),
+        (
             ["study", "eld-perturbation", "--taus", "1e-320,0.1"],
             "rothe: error: --taus: got 9.99989e-321, must be >= 1e-07 (at most 1e+07 steps of "
             "T = 1)",

@@ -28,6 +28,7 @@ from rothe.eld.frequencies import (
     Attachment,
     bar_frequencies,
     controlled_bar_roots,
+    crossing_frequency,
     rigid_limit_frequency,
 )
 from rothe.errors import RotheInputError
@@ -63,14 +64,6 @@ def uniform_run(system, tau, *, scheme="euler", form="regularized", lifting="nod
     out.update(u=st.u, v=st.v, a=st.a, lam=st.lam, stats=dict(res.stepper.kern.stats))
     out["n_steps"] = st.j
     return out
-
-
-def _crossing_frequency(t, y):
-    """pi / the mean time between zero crossings (linear interpolation)."""
-    s = np.sign(y)
-    k = np.flatnonzero(s[:-1] * s[1:] < 0)
-    tz = t[k] - y[k] * (t[k + 1] - t[k]) / (y[k + 1] - y[k])
-    return np.pi / np.mean(np.diff(tz))
 
 
 A, OM = 0.01, 2 * np.pi
@@ -191,7 +184,7 @@ def test_frequency_measured_from_a_run_converges_in_tau():
     freq, energy = [], []
     for tau in (0.01, 0.005):
         res = uniform_run(system, tau, scheme="bdf2")
-        freq.append(abs(_crossing_frequency(res["t"], res["q"][:, 0]) / w[k] - 1))
+        freq.append(abs(crossing_frequency(res["t"], res["q"][:, 0]) / w[k] - 1))
         energy.append(abs(res["energy"][-1] / res["energy"][0] - 1))
     assert freq[0] < 3e-3 and freq[0] / freq[1] == pytest.approx(4.0, rel=0.05)
     assert energy[0] < 1e-2 and energy[0] / energy[1] > 2**1.8  # dissipation O(tau^2)
@@ -215,7 +208,7 @@ def test_rigid_limit_a_stiff_body_on_a_mass_spring():
         T=3.0,
     )
     res = uniform_run(system, 0.005, scheme="bdf2")
-    w = _crossing_frequency(res["t"], res["q"][:, 0])
+    w = crossing_frequency(res["t"], res["q"][:, 0])
     assert w == pytest.approx(rigid_limit_frequency(k, m, H * L), rel=5e-4)
     assert w == pytest.approx(
         bar_frequencies(
@@ -326,7 +319,7 @@ def test_velocity_feedback_decay_rate_matches_the_controlled_bar():
         count=1,
     )[0]
     assert rate == pytest.approx(-root.real, rel=0.01)
-    assert _crossing_frequency(t, y) == pytest.approx(root.imag, rel=2e-3)
+    assert crossing_frequency(t, y) == pytest.approx(root.imag, rel=2e-3)
     assert res["work_controllers"][-1] < 0  # the controller takes energy out
     assert np.abs(res["balance"]).max() < 1e-12 * res["energy"][0]
 

@@ -5,7 +5,12 @@ import numpy as np
 import pytest
 
 from rothe.eld import BDF2, Means, Original, RayleighDamping
-from rothe.eld.studies import convergence_study, coupled_perturbation_study, perturbation_study
+from rothe.eld.studies import (
+    convergence_study,
+    coupled_perturbation_study,
+    perturbation_study,
+    tip_mass_study,
+)
 from rothe.errors import RotheInputError
 
 TAUS = (0.1, 0.01, 0.001)
@@ -156,3 +161,23 @@ def test_perturbation_study_reads_the_density():
         np.array(heavy["G_ddot"]["amp_regularized"]),
     )
     assert np.all(b > 1.5 * a), (a, b)
+
+
+# -- the tip-mass bar's first frequency in h and tau (issue 19) ----------------------------------
+
+
+def test_tip_mass_frequency_converges_to_the_analytic_one_in_h_and_tau():
+    """The semi-discrete first frequency converges like h^4 for P2 (twice the energy norm's
+    order), the run's phase error like tau^2 (BDF2), and the measured frequency approaches the
+    root of beta L tan(beta L) = rho A L / m."""
+    study = tip_mass_study((1, 2), (0.01, 0.005), scheme=BDF2(), T=1.0)
+    assert 3.5 < study["order_h"] < 4.5, study["order_h"]
+    assert 1.8 < study["order_tau"] < 2.2, study["order_tau"]
+    err = np.abs(np.array(study["error"]))
+    assert err[-1, -1] < 1e-3 and err[-1, -1] < err[-1, 0] / 3
+    assert abs(study["error_space"][-1]) < abs(study["error_space"][0]) / 8
+
+
+def test_tip_mass_study_refuses_a_single_run():
+    with pytest.raises(RotheInputError, match=r"^ns: got \[2\], needs two meshes or two step"):
+        tip_mass_study((2,), (0.01,))

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..eld.coupled_run import run_coupled
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
+from ..eld.frequencies import crossing_frequency, decay_rate
 from ..errors import check_int, check_positive, described, fail
 from .common import add_output_options, float_option, peak_memory_mb, print_summary
 from .eld_options import (
@@ -72,26 +73,6 @@ def check_modal_size(mesh, degree: int) -> None:
             f"must have at most {TIP_MASS_MAX_DOFS} (the reference frequencies come from a dense "
             "modal analysis)",
         )
-
-
-def crossing_frequency(t: np.ndarray, y: np.ndarray) -> float:
-    """pi / the mean time between the zero crossings of y(t) (linear interpolation); nan with
-    fewer than two crossings."""
-    s = np.sign(y)
-    k = np.flatnonzero(s[:-1] * s[1:] < 0)
-    if k.size < 2:
-        return float("nan")
-    tz = t[k] - y[k] * (t[k + 1] - t[k]) / (y[k + 1] - y[k])
-    return float(np.pi / np.mean(np.diff(tz)))
-
-
-def decay_rate(t: np.ndarray, y: np.ndarray) -> float:
-    """alpha of y ~ e^{-alpha t} cos(w t + phi): minus the slope of log y at its local maxima
-    (least squares); nan with fewer than three positive maxima."""
-    k = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] >= y[2:]) & (y[1:-1] > 0)) + 1
-    if k.size < 3:
-        return float("nan")
-    return float(-np.polyfit(t[k], np.log(y[k]), 1)[0])
 
 
 class CoupledRunCommand:

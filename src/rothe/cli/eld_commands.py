@@ -33,10 +33,12 @@ from ..eld.studies import (
     coupled_perturbation_study,
     format_convergence_table,
     format_perturbation_table,
+    format_tip_mass_table,
     perturbation_study,
+    tip_mass_study,
 )
 from ..errors import check_choice, check_int, check_positive, described, fail
-from .adapt_options import add_space_options, fit_default_cap, space_adaptivity
+from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
 from .common import (
     add_output_options,
     add_parallel_options,
@@ -52,6 +54,7 @@ from .common import (
     write_table,
 )
 from .eld_options import (
+    ELD_BYTES_PER_DOF,
     ELD_MAX_DOFS,
     MESH_PARAMETERS,
     MMS_MATERIAL,
@@ -1082,3 +1085,87 @@ class StudyEldCoupledPerturbation(StudyEldPerturbation):
         """The tip-mass bar of --n, --degree and the damping (built once here: it refuses a
         mesh with too few axial modes, naming --n)."""
         tip_mass_problem(args.n, args.degree, rho=args.rho, T=self.T, damping=damping_of(args))
+
+
+@command("study", "eld-tip-mass")
+class StudyEldTipMass:
+    """``rothe study eld-tip-mass``: the first frequency of the tip-mass bar in h and tau."""
+
+    help = (
+        "The tip-mass bar's first axial frequency measured from runs against the analytic "
+        "value, for every mesh (--ns) and step (--taus): the error split into space and time, "
+        "fitted orders"
+    )
+    name = "eld-tip-mass"
+
+    def configure(self, parser) -> None:
+        """--ns, --taus, --degree, --scheme, --form, --mass, --T, the outputs and the executor."""
+        parser.add_argument(
+            "--ns",
+            type=parse_float_list("--ns"),
+            default=[1, 2, 4],
+            help="cells across the strip, one mesh each (default 1,2,4)",
+        )
+        parser.add_argument(
+            "--taus",
+            type=parse_float_list("--taus"),
+            default=[0.01, 0.005, 0.0025],
+            help="step sizes (default 0.01,0.005,0.0025)",
+        )
+        parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2)")
+        scheme_option(parser, default="bdf2")
+        form_option(parser)
+        float_option(
+            parser, "--mass", default=0.25, help="tip mass (default 0.25 = the bar's mass)"
+        )
+        float_option(parser, "--T", default=2.0, help="end time (default 2: ~2.7 periods)")
+        add_output_options(parser, self.name)
+        add_parallel_options(parser)
+
+    def execute(self, args) -> int:
+        """Run every (n, tau); write the table and the figure."""
+        ns = [check_int("--ns", n, minimum=1) for n in args.ns]
+        T = check_positive("--T", args.T)
+        taus = [check_eld_step("--taus", t, T) for t in args.taus]
+        if len(ns) < 2 and len(taus) < 2:
+            raise fail(
+                "--ns",
+                ",".join(f"{n:g}" for n in args.ns),
+                "needs two meshes, or --taus two step sizes, to fit an order",
+            )
+        if args.degree not in (1, 2):
+            raise fail("--degree", args.degree, "must be 1 or 2")
+        check_positive("--mass", args.mass)
+        for n in ns:  # the strip has 4n x n cells
+            dofs = 2 * (args.degree * 4 * n + 1) * (args.degree * n + 1)
+            check_memory("--ns", n, dofs, ELD_BYTES_PER_DOF["2d"], what="unknowns")
+        scheme, form = scheme_of(args), form_of(args)
+        # the coarsest bar refuses a mesh with too few axial modes, naming --ns, before the
+        # cluster starts
+        tip_mass_problem(min(ns), args.degree, mass=args.mass, T=T)
+        executor = executor_from_args(args, f"rothe study {self.name}")
+        out = output_dir(args, self.name)
+        study = tip_mass_study(
+            ns,
+            taus,
+            degree=args.degree,
+            scheme=scheme,
+            form=form,
+            mass=args.mass,
+            T=T,
+            executor=executor,
+        )
+        table = format_tip_mass_table(study)
+
+        def draw():
+            # matplotlib is imported only for the figures
+            from ..eld.figures import plot_tip_mass_study
+
+            plot_tip_mass_study(
+                study,
+                out / "fig_tip_mass_frequency.png",
+                title=f"eld-tip-mass: first axial frequency, P{args.degree}, m = {args.mass:g}",
+            )
+
+        write_study(args, out, study, table, draw)
+        return 0 if "failed" not in study else 1

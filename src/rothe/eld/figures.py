@@ -168,3 +168,30 @@ def plot_comparison(
     if title:
         fig.suptitle(title, fontsize=10)
     return _save(fig, path)
+
+
+def plot_tip_mass_study(study: dict, path, title: str = "") -> Path:
+    """The tip-mass study (:func:`rothe.eld.studies.tip_mass_study`): left, |w_run / w - 1|
+    against tau for every mesh with the time error of the finest mesh; right, the space error
+    |w_h / w - 1| of the semi-discrete system against h = 1/n."""
+    taus = np.asarray(study["tau"], float)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    for n, row in zip(study["n"], study["error"], strict=True):
+        left.loglog(taus, np.abs(row), "o-", label=f"n = {n}: measured vs analytic")
+    left.loglog(
+        taus, np.abs(study["error_time"][-1]), "k--", label=f"n = {study['n'][-1]}: time error"
+    )
+    left.set_xlabel(r"$\tau$")
+    left.set_ylabel(r"relative error of $\omega_1$")
+    left.set_title(f"first frequency, {study['scheme']}", fontsize=10)
+    h = 1.0 / np.asarray(study["n"], float)
+    right.loglog(h, np.abs(study["error_space"]), "s-", label=r"$|\omega_h/\omega - 1|$")
+    right.set_xlabel(r"$h \sim 1/n$")
+    right.set_ylabel(r"space error of $\omega_1$")
+    right.set_title(f"semi-discrete, P{study['degree']}", fontsize=10)
+    for ax in (left, right):
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)

@@ -405,3 +405,26 @@ def first_mode_decay_rate(
     W, U, m_bar = bar_mode(length, E, rho, w1, area=area)
     m1 = base_mass * W**2 + m_bar
     return float((H(1j * w1) / (1j * w1)).real * W * U / (2 * m1))
+
+
+# -- frequencies and decay rates measured from a run's series -----------------------------------
+
+
+def crossing_frequency(t: np.ndarray, y: np.ndarray) -> float:
+    """pi / the mean time between the zero crossings of y(t) (linear interpolation); nan with
+    fewer than two crossings."""
+    s = np.sign(y)
+    k = np.flatnonzero(s[:-1] * s[1:] < 0)
+    if k.size < 2:
+        return float("nan")
+    tz = t[k] - y[k] * (t[k + 1] - t[k]) / (y[k + 1] - y[k])
+    return float(np.pi / np.mean(np.diff(tz)))
+
+
+def decay_rate(t: np.ndarray, y: np.ndarray) -> float:
+    """alpha of y ~ e^{-alpha t} cos(w t + phi): minus the slope of log y at its local maxima
+    (least squares); nan with fewer than three positive maxima."""
+    k = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] >= y[2:]) & (y[1:-1] > 0)) + 1
+    if k.size < 3:
+        return float("nan")
+    return float(-np.polyfit(t[k], np.log(y[k]), 1)[0])

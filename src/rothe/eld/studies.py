@@ -31,6 +31,7 @@ from .coupled_run import run_coupled
 from .data import DEFAULT_DATA, NOISE_TARGETS, DataMode, DataNoise, as_data_mode
 from .examples import mms_errors, mms_problem, tip_mass_problem
 from .form import DEFAULT_FORM, Form, Original, Regularized, as_form
+from .frequencies import crossing_frequency
 from .run import run_eld
 from .scheme import DEFAULT_SCHEME, Scheme, as_scheme
 from .stepper import uniform_steps
@@ -687,7 +688,7 @@ def format_perturbation_table(study: dict) -> str:
     present = [t for t in NOISE_TARGETS + COUPLED_TARGETS if t in study]
     first = study[present[0]]
     forms = [f.name for f in FORMS if f"amp_{f.name}" in first]
-    lam, v, u = study.get("columns", ("lam", "v", "u"))
+    col_lam, col_v, col_u = study.get("columns", ("lam", "v", "u"))
     for target in present:
         table = study[target]
         lines.append(
@@ -697,7 +698,9 @@ def format_perturbation_table(study: dict) -> str:
         head = f"{'tau':>8}"
         for f in forms:
             short = f[:3]
-            head += f" {lam + ' ' + short:>11} {v + ' ' + short:>10} {u + ' ' + short:>10}"
+            head += (
+                f" {col_lam + ' ' + short:>11} {col_v + ' ' + short:>10} {col_u + ' ' + short:>10}"
+            )
         lines += [head, "-" * len(head)]
         for i, tau in enumerate(study["tau"]):
             line = f"{tau:>8.4f}"
@@ -717,3 +720,160 @@ def format_perturbation_table(study: dict) -> str:
     for f in study.get("failed", ()):
         lines.append(f"tau = {f['tau']:g}, {f['form']}: {f['status']}")
     return "\n".join(lines).rstrip()
+
+
+# -- the tip-mass bar's first frequency in h and tau (issue 19) ----------------------------------
+
+
+def tip_mass_frequency_run(
+    n: int, tau: float, *, degree: int, scheme: Scheme, form: Form, mass: float, T: float
+) -> dict:
+    """One (n, tau) of :func:`tip_mass_study` (a task: builds the bar itself): the first axial
+    angular frequency of the analytic bar, of the semi-discrete system and measured from the
+    run's tip displacement (zero crossings)."""
+    example = tip_mass_problem(n, degree, mass=mass, T=T)
+    res = run_coupled(example.system, scheme=scheme, form=form, control=Uniform(tau))
+    q = np.asarray(res.trajectory["q"])
+    return {
+        "ndofs": example.system.body.space.ndofs,
+        "analytic": float(example.analytic[0]),
+        "discrete": float(example.discrete[0]),
+        "measured": crossing_frequency(np.asarray(res.trajectory["t"]), q[:, 0]),
+    }
+
+
+def tip_mass_study(
+    ns=(1, 2, 4),
+    taus=(0.01, 0.005, 0.0025),
+    *,
+    degree: int = 2,
+    scheme: Scheme = DEFAULT_SCHEME,
+    form: Form = DEFAULT_FORM,
+    mass: float = 0.25,
+    T: float = 2.0,
+    progress: bool = False,
+    executor=None,
+) -> dict:
+    """The first axial frequency of the tip-mass bar (:func:`tip_mass_problem`: P1/P2 strip
+    with n cells across, clamped on ``left``, the mass on ``right`` by B u = q, started in its
+    first mode) against the analytic bar-with-tip-mass value (beta L tan(beta L) = rho A L /
+    m), for every mesh n and step tau.
+
+    The measured error w_run / w - 1 splits into the space error w_h / w - 1 of the semi-
+    discrete system (no tau: :func:`~rothe.eld.coupled_step.coupled_modes`; order 2p in h for
+    P_p elements, the Rayleigh quotient's squared energy error) and the time error w_run / w_h
+    - 1 (the scheme's phase error, order 2 for BDF2 and for implicit Euler alike: Euler's
+    first-order error is in the amplitude, arg 1/(1 - i w tau) = w tau - (w tau)^3/3 + ...; plus
+    the zero crossings' linear interpolation, order 2).
+
+    Returns ``{"n": [...], "tau": [...], "ndofs", "analytic", "discrete": per n, "measured":
+    [n][tau], "error": [n][tau] (measured against analytic), "error_space": per n, "error_time":
+    [n][tau], "order_h"`` (fitted slope of the space error in h ~ 1/n), ``"order_tau"`` (fitted
+    slope of the time error at the finest n)``}``; a failed (n, tau) gets NaN and is listed
+    under ``"failed"``.
+
+    Parameters
+    ----------
+    ns : sequence of int
+        Cells across the strip (h = height / n).
+    taus : sequence of float
+    degree : int
+    scheme : Scheme
+    form : Form
+    mass : float
+        The tip mass (the bar's own mass is 0.25).
+    T : float
+        End time (2: about 2.7 periods).
+    progress : bool
+        Unused (coupled runs have no progress bar); for the commands' common call.
+    executor : Executor, optional
+    """
+    ns = [check_int("ns", n, minimum=1) for n in ns]
+    taus = [check_positive("taus", t) for t in taus]
+    if len(ns) < 2 and len(taus) < 2:
+        raise fail("ns", ns, "needs two meshes or two step sizes (with taus) to fit an order")
+    scheme, form = as_scheme(scheme), as_form(form)
+    options = dict(degree=degree, scheme=scheme, form=form, mass=mass, T=T)
+    tasks = [
+        Task(
+            f"n={n} tau={tau:g}",
+            tip_mass_frequency_run,
+            dict(n=n, tau=tau, **options),
+            cost=n * n / tau,
+        )
+        for n in ns
+        for tau in taus
+    ]
+    t0 = time.perf_counter()
+    results = (executor or Executor(1, progress=False)).map(tasks)
+    nan = float("nan")
+    rows = {n: {} for n in ns}
+    failed = []
+    for task, res in zip(tasks, results, strict=True):
+        n, tau = task.kwargs["n"], task.kwargs["tau"]
+        if res.completed:
+            rows[n][tau] = res.value
+        else:
+            failed.append({"n": n, "tau": tau, "status": f"{res.status}: {res.message}"})
+
+    def first(n, key):
+        return next((r[key] for r in rows[n].values()), nan)
+
+    analytic = next((r["analytic"] for n in ns for r in rows[n].values()), nan)
+    discrete = [first(n, "discrete") for n in ns]
+    measured = [[rows[n].get(tau, {}).get("measured", nan) for tau in taus] for n in ns]
+    out = {
+        "example": "eld-tip-mass",
+        "degree": degree,
+        "scheme": scheme.name,
+        "form": form.name,
+        "mass": mass,
+        "T": T,
+        "n": ns,
+        "tau": taus,
+        "ndofs": [first(n, "ndofs") for n in ns],
+        "analytic": analytic,
+        "discrete": discrete,
+        "measured": measured,
+        "error": [[m / analytic - 1 for m in row] for row in measured],
+        "error_space": [d / analytic - 1 for d in discrete],
+        "error_time": [[m / d - 1 for m in row] for row, d in zip(measured, discrete, strict=True)],
+    }
+    # the space error decreases like h^(2p) = n^(-2p): the slope in h = 1/n
+    out["order_h"] = fitted_rate([1.0 / n for n in ns], np.abs(out["error_space"]))
+    out["order_tau"] = fitted_rate(taus, np.abs(out["error_time"][-1]))
+    if failed:
+        out["failed"] = failed
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def format_tip_mass_table(study: dict) -> str:
+    """The tip-mass study as a table: per (n, tau) the measured first frequency and its error
+    against the analytic value, split into space and time; the fitted orders."""
+    lines = [
+        f"eld-tip-mass, P{study['degree']}, {study['scheme']}, {study['form']}, m = "
+        f"{study['mass']:g}: first axial angular frequency, analytic {study['analytic']:.8g}",
+        f"{'n':>4} {'dofs':>6} {'tau':>9} {'measured':>12} {'error':>10} {'space':>10} "
+        f"{'time':>10}",
+    ]
+    lines.append("-" * len(lines[-1]))
+    for i, n in enumerate(study["n"]):
+        for k, tau in enumerate(study["tau"]):
+            lines.append(
+                f"{n:>4} {study['ndofs'][i]:>6} {tau:>9.5f} {study['measured'][i][k]:>12.8g} "
+                f"{study['error'][i][k]:>10.2e} {study['error_space'][i]:>10.2e} "
+                f"{study['error_time'][i][k]:>10.2e}"
+            )
+
+    def fmt(order):
+        return "n/a" if order is None else f"{order:.2f}"
+
+    lines.append(
+        f"space error (semi-discrete w_h / w - 1): order {fmt(study['order_h'])} in h; "
+        f"time error (w_run / w_h - 1) at n = {study['n'][-1]}: order "
+        f"{fmt(study['order_tau'])} in tau"
+    )
+    for f in study.get("failed", ()):
+        lines.append(f"n = {f['n']}, tau = {f['tau']:g}: {f['status']}")
+    return "\n".join(lines)
