@@ -412,39 +412,25 @@ def perturbation_study(
     dict
         As above.
     """
-    forms = tuple(as_form(f) for f in forms)
-    scheme = as_scheme(scheme)
-    taus = [check_positive("taus", t) for t in taus]
-    delta = check_delta("delta", delta)
-    targets = check_noise_targets("targets", targets)
-    seed = check_int("seed", seed, minimum=0)
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
-    tasks = [
-        Task(
-            f"{form.name} tau={tau:g}",
-            perturbation_run,
-            {
-                "form": form,
-                "tau": tau,
-                "delta": delta,
-                "targets": tuple(targets),
-                "n": n,
-                "degree": degree,
-                "damping": damping,
-                "seed": seed,
-                "T": T,
-                "scheme": scheme,
-                "rho": rho,
-                "progress": inner_progress,
-            },
-            cost=(1 + len(targets)) / tau,
-        )
-        for tau in taus
-        for form in forms
-    ]
-    t0 = time.perf_counter()
-    results = (executor or Executor(1, progress=False)).map(tasks)
+    forms, taus, targets, (delta, seed, scheme), tasks, results, t0 = _noise_runs(
+        perturbation_run,
+        forms,
+        taus,
+        targets,
+        NOISE_TARGETS,
+        executor,
+        delta=delta,
+        seed=seed,
+        scheme=scheme,
+        n=n,
+        degree=degree,
+        damping=damping,
+        T=T,
+        rho=rho,
+        progress=inner_progress,
+    )
     meta = _problem_meta(results, lambda: mms_problem(n, degree, damping=damping, rho=rho, T=T)[0])
     out = {
         "example": "eld-mms",
@@ -467,6 +453,34 @@ def perturbation_study(
             out[f"amp_u_{form}"] = tables["G"][f"amp_u_{form}"]
     out["seconds"] = time.perf_counter() - t0
     return out
+
+
+def _noise_runs(run, forms, taus, targets, allowed, executor, *, delta, seed, scheme, **kwargs):
+    """The (tau, form) tasks of a perturbation study, validated and run: ``run(form, tau,
+    delta=, targets=, seed=, scheme=, **kwargs)`` for every tau and form (``allowed``: the
+    targets the study knows). Returns the checked forms, taus, targets, (delta, seed, scheme),
+    the tasks, their results and the start time."""
+    forms = tuple(as_form(f) for f in forms)
+    scheme = as_scheme(scheme)
+    taus = [check_positive("taus", t) for t in taus]
+    delta = check_delta("delta", delta)
+    targets = check_noise_targets("targets", targets, allowed)
+    seed = check_int("seed", seed, minimum=0)
+    tasks = [
+        Task(
+            f"{form.name} tau={tau:g}",
+            run,
+            dict(
+                form=form, tau=tau, delta=delta, targets=targets, seed=seed, scheme=scheme, **kwargs
+            ),
+            cost=(1 + len(targets)) / tau,
+        )
+        for tau in taus
+        for form in forms
+    ]
+    t0 = time.perf_counter()
+    results = (executor or Executor(1, progress=False)).map(tasks)
+    return forms, taus, targets, (delta, seed, scheme), tasks, results, t0
 
 
 def _amplification_tables(out: dict, tasks, results, targets, names) -> dict:
@@ -613,36 +627,22 @@ def coupled_perturbation_study(
         Unused (coupled runs have no progress bar); for the commands' common call.
     executor : Executor, optional
     """
-    forms = tuple(as_form(f) for f in forms)
-    scheme = as_scheme(scheme)
-    taus = [check_positive("taus", t) for t in taus]
-    delta = check_delta("delta", delta)
-    targets = check_noise_targets("targets", targets, COUPLED_TARGETS)
-    seed = check_int("seed", seed, minimum=0)
-    tasks = [
-        Task(
-            f"{form.name} tau={tau:g}",
-            coupled_perturbation_run,
-            {
-                "form": form,
-                "tau": tau,
-                "delta": delta,
-                "targets": tuple(targets),
-                "n": n,
-                "degree": degree,
-                "damping": damping,
-                "seed": seed,
-                "T": T,
-                "scheme": scheme,
-                "rho": rho,
-            },
-            cost=(1 + len(targets)) / tau,
-        )
-        for tau in taus
-        for form in forms
-    ]
-    t0 = time.perf_counter()
-    results = (executor or Executor(1, progress=False)).map(tasks)
+    forms, taus, targets, (delta, seed, scheme), tasks, results, t0 = _noise_runs(
+        coupled_perturbation_run,
+        forms,
+        taus,
+        targets,
+        COUPLED_TARGETS,
+        executor,
+        delta=delta,
+        seed=seed,
+        scheme=scheme,
+        n=n,
+        degree=degree,
+        damping=damping,
+        T=T,
+        rho=rho,
+    )
     meta = _problem_meta(
         results, lambda: tip_mass_problem(n, degree, rho=rho, T=T, damping=damping).system.body
     )
