@@ -587,6 +587,14 @@ def test_cli_eld_pulse_writes_meshes_vtu_series_and_figures(tmp_path, capsys):
         ),
         (["run", "eld-mms", "--adapt-space"], r"--space-tol: got None, must be given"),
         (
+            ["run", "eld-pulse", "--space-norm", "h1"],
+            r"^rothe: error: --space-norm: got 'h1', must be one of energy, l2$",
+        ),
+        (
+            ["run", "eld-pulse", "--no-adapt-space", "--space-norm", "l2"],
+            r"--space-norm: got 'l2', is used by --adapt-space only",
+        ),
+        (
             ["run", "eld-mms", "--adapt-space", "--space-tol", "1", "--data", "means"],
             r"--data: got 'means', must be points with --adapt-space",
         ),
@@ -713,3 +721,41 @@ def test_factor_check_catches_a_stale_factorization():
     stale = system.rebuilt(problem0)  # the initial mesh's system ...
     stale.solver = system.solver  # ... with the factorization of the last mesh
     assert _factor_residual(stale) > 1e-3
+
+
+def test_l2_norm_indicators_are_the_energy_ones_weighted_by_h_over_h0():
+    """SpaceAdaptivity(norm='l2'): eta_K h_K / h_0 (the duality factor of the L2 norm of u),
+    h_0 the initial mesh's longest edge: equal on the initial mesh's largest cells, smaller on
+    refined ones; and the L2 run refines less where the energy run refines most (a coarser
+    final mesh for the same tolerance)."""
+    from rothe.fem.topology import cell_diameters
+
+    runs = {}
+    for norm in ("energy", "l2"):
+        run = prepare_eld_run(pulse(T=0.12), adapt=adaptivity(norm=norm), **PULSE)
+        result = run.evolve()
+        runs[norm] = (run, result)
+    run_e, res_e = runs["energy"]
+    run_l, _ = runs["l2"]
+    # the same state and mesh through both families' indicators
+    system = run_e.stepper.system
+    state = res_e.state
+    target = (state, 0.02, (state.t,))
+    eta_e = run_e.stepper.adaptivity.indicators(system, target)
+    eta_l = run_l.stepper.adaptivity.indicators(system, target)
+    mesh = system.problem.space.mesh
+    h = cell_diameters(np.asarray(mesh.p), np.asarray(mesh.t))
+    h0 = run_l.stepper.adaptivity.h0
+    first = pulse().space.mesh
+    assert h0 == cell_diameters(np.asarray(first.p), np.asarray(first.t)).max()
+    assert np.allclose(eta_l, eta_e * h / h0, rtol=1e-13, atol=0)
+    assert h.min() < h0  # the energy run refined: there the weights are < 1
+    assert np.all(eta_l <= eta_e * (1 + 1e-13))
+
+
+def test_ris_refuses_the_l2_norm():
+    from rothe.ris.adapt import RISAdaptivity
+    from rothe.ris.examples import example_front
+
+    with pytest.raises(RotheInputError, match=r"^adapt.norm: got 'l2', must be 'energy' for a "):
+        RISAdaptivity(example_front(n=4), adaptivity(norm="l2"))

@@ -20,8 +20,9 @@ from __future__ import annotations
 import argparse
 import os
 
-from ..errors import fail
+from ..errors import check_choice, fail
 from ..fem.adapt import SpaceAdaptivity
+from ..fem.adapt.marking import NORMS
 from .common import float_option
 
 #: the options of space adaptivity (refused without --adapt-space)
@@ -55,6 +56,7 @@ def add_space_options(
     indicator: str = "the step's residual indicator",
     hysteresis: dict | None = None,
     default_adapt_every: int | None = None,
+    norms: bool = False,
 ) -> None:
     """--adapt-space (``on``: adapting by default, --no-adapt-space keeps the mesh) and its
     options, read by :func:`space_adaptivity`; help texts state the defaults the run uses.
@@ -62,7 +64,8 @@ def add_space_options(
     ``max_recoarsen``, ``refine_band``, ``coarsen_batch``; missing ones: off), which adds
     those options; None: a family without them (a default given as a string is the help
     text of a default the family computes, e.g. ELD's band). ``default_adapt_every``: the
-    command's default of --adapt-every (None: SpaceAdaptivity's)."""
+    command's default of --adapt-every (None: SpaceAdaptivity's). ``norms``: the family's
+    indicator can estimate the L2 norm too (adds --space-norm)."""
     parser.add_argument(
         "--adapt-space",
         action=argparse.BooleanOptionalAction if on else "store_true",
@@ -113,6 +116,13 @@ def add_space_options(
         help="adapt after every k-th accepted step, an integer >= 1 (default "
         f"{default_adapt_every or MARKING_DEFAULTS['adapt_every']})",
     )
+    if norms:
+        parser.add_argument(
+            "--space-norm",
+            default=None,
+            help="the norm the indicator estimates: energy (the step's energy norm) or l2 (the "
+            "L2 norm of u: eta_K h_K/h_0, for runs judged by the error in u) (default energy)",
+        )
     if hysteresis is None:
         return
     delay, recoarsen = hysteresis.get("coarsen_delay", 0), hysteresis.get("max_recoarsen")
@@ -160,6 +170,8 @@ def space_adaptivity(
     hysteresis options (:func:`add_space_options`); unset ones stay None (the family's
     defaults). ``default_adapt_every``: the command's default of --adapt-every."""
     options = SPACE_OPTIONS + (HYSTERESIS_OPTIONS if hysteresis else ())
+    if hasattr(args, "space_norm"):
+        options += ("--space-norm",)
     values = {o: getattr(args, o.lstrip("-").replace("-", "_")) for o in options}
     if not args.adapt_space:
         for option, value in values.items():
@@ -178,6 +190,8 @@ def space_adaptivity(
         kw["adapt_every"] = default_adapt_every
     if hysteresis:
         kw.update({o.lstrip("-").replace("-", "_"): values[o] for o in HYSTERESIS_OPTIONS})
+    if values.get("--space-norm") is not None:
+        kw["norm"] = check_choice("--space-norm", values["--space-norm"], NORMS)
     max_dofs = values["--max-dofs"] if values["--max-dofs"] is not None else default_max_dofs
     return SpaceAdaptivity(space_tol=tol, max_dofs=max_dofs, **kw)
 

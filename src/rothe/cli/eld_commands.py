@@ -259,7 +259,7 @@ class EldRunCommand:
         """The options every ELD run command ends with: the space options (``space``: the
         command's defaults for :func:`~rothe.cli.adapt_options.add_space_options`), the
         outputs and the run options."""
-        add_space_options(parser, **space)
+        add_space_options(parser, norms=True, **space)
         add_output_options(parser, self.name)
         add_run_options(parser)
 

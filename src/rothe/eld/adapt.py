@@ -63,6 +63,7 @@ import numpy as np
 from ..errors import described, fail
 from ..fem.adapt import SpaceAdaptivity, check_adaptable, free_transfer
 from ..fem.adapt.cycle import MeshAdaptation, energy_or_fail, finite_or_fail
+from ..fem.topology import cell_diameters
 from ..io.mesh_series import MeshSeries
 from .data import Points
 from .indicator import eld_indicators_for
@@ -273,6 +274,9 @@ class ELDAdaptivity:
         self.meshes.series.add(0, space.mesh.p.T, space.mesh.t.T)
         #: c_p of the fastest material (the default band, :meth:`set_band`)
         self.wave_speed = pressure_wave_speed(problem.material)
+        #: h_0 of the L2 weights h_K / h_0 (``options.norm == 'l2'``): the initial mesh's
+        #: longest cell edge
+        self.h0 = float(cell_diameters(np.asarray(space.mesh.p), np.asarray(space.mesh.t)).max())
         self._memo = None  # (key, system, state, eta) of the last indicators
         #: (eta of the last estimated step, eta of the estimated step before it): the final
         #: estimate of each step (0 before the first)
@@ -319,6 +323,10 @@ class ELDAdaptivity:
         for t in times[1:]:
             data = np.maximum(data, dirichlet_data_indicator(problem, t))
         eta = np.sqrt(np.asarray(ind.eta, dtype=float) ** 2 + data)
+        if self.options.norm == "l2":
+            # the L2 norm of u by duality: eta_K h_K / h_0 (SpaceAdaptivity.norm)
+            mesh = problem.space.mesh
+            eta = eta * (cell_diameters(np.asarray(mesh.p), np.asarray(mesh.t)) / self.h0)
         if not np.all(np.isfinite(eta)):  # the run stops naming it (ELDStepper.adapt)
             raise FloatingPointError("non-finite error indicators")
         self._memo = (key, system, state, eta)

@@ -185,6 +185,14 @@ class RISAdaptivity:
                 "needs a finite-element RIS (FERISProblem) whose mesh can change",
             )
         problem.check_movable()
+        if options.norm != "energy":
+            # the RIS indicator is not a residual estimator of an energy norm of a linear
+            # problem (its complementarity terms have no duality factor h)
+            raise fail(
+                "adapt.norm",
+                options.norm,
+                "must be 'energy' for a rate-independent system ('l2' is elastodynamics')",
+            )
         self.options = options
         self.initial = problem
         self.reaction = reaction

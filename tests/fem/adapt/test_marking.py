@@ -102,6 +102,7 @@ def test_mark_refines_only_above_the_tolerance_and_never_both():
             r"^refine_band: got nan, must be finite$",
         ),
         ({"space_tol": 1.0, "coarsen_batch": 1.0}, r"^coarsen_batch: got 1, must be in \[0, 1\)$"),
+        ({"space_tol": 1.0, "norm": "h1"}, r"^norm: got 'h1', must be one of energy, l2$"),
         (
             {"space_tol": 1.0, "coarsen_batch": -0.5},
             r"^coarsen_batch: got -0.5, must be in \[0, 1\)$",

@@ -57,7 +57,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...errors import RotheInputError, check_int, check_real, described, fail
+from ...errors import RotheInputError, check_choice, check_int, check_real, described, fail
+
+#: the norms an indicator may estimate (SpaceAdaptivity.norm)
+NORMS = ("energy", "l2")
 
 
 def doerfler_marking(eta: np.ndarray, fraction: float) -> np.ndarray:
@@ -167,6 +170,13 @@ class SpaceAdaptivity:
     coarsen_batch : float in [0, 1) or None
         Least share of the cells marked for an adaptation that only coarsens (None: the
         family's default, 0 = any).
+    norm : 'energy' or 'l2'
+        The norm the indicators estimate: ``'energy'``, the step's energy norm (the residual
+        indicator eta_K as it is); ``'l2'``, the L2 norm of u by duality (Aubin-Nitsche: the
+        local factor h of ||e||_L2 <~ (sum_K h_K^2 eta_K^2)^(1/2)), eta_K h_K / h_0 with h_0
+        the longest cell edge of the initial mesh, so that both agree on the initial mesh
+        and ``space_tol`` keeps its scale there. Only families whose indicator is an energy-
+        norm residual estimator take ``'l2'`` (elastodynamics).
     """
 
     space_tol: float
@@ -180,6 +190,7 @@ class SpaceAdaptivity:
     max_recoarsen: int | None = None
     refine_band: float | None = None
     coarsen_batch: float | None = None
+    norm: str = "energy"
 
     def __post_init__(self):
         tol = check_real("space_tol", self.space_tol)
@@ -219,6 +230,7 @@ class SpaceAdaptivity:
             if not 0.0 <= batch < 1.0:
                 raise fail("coarsen_batch", self.coarsen_batch, "must be in [0, 1)")
             self.coarsen_batch = batch
+        self.norm = check_choice("norm", self.norm, NORMS)
 
     def check_mesh(self, amesh, degree: int = 1, components: int = 1) -> int:
         """Check max_dofs against the dofs on ``amesh`` (an AdaptiveMesh); returns those dofs."""
