@@ -190,3 +190,10 @@ def test_adapt_mesh_under_the_cap():
         assert change.new_mesh_id == am.mesh_id
     with pytest.raises(RotheInputError, match=r"^indicators: got 3 values, must have one per"):
         adapt_mesh(am, np.ones(3), opts)
+
+
+def test_the_norm_is_in_the_description_only_when_it_is_not_the_energy_norm():
+    """describe() is the key of a run's checkpoint: an L2-norm run must not resume an energy-
+    norm one, and the energy-norm runs keep the key they had before the option existed."""
+    assert "norm" not in SpaceAdaptivity(1e-3).describe()
+    assert SpaceAdaptivity(1e-3, norm="l2").describe()["norm"] == "l2"

@@ -286,6 +286,8 @@ class SpaceAdaptivity:
         for key in ("coarsen_delay", "max_recoarsen", "refine_band", "coarsen_batch"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
+        if self.norm != "energy":  # likewise: a run in the energy norm keeps its description
+            out["norm"] = self.norm
         return out
 
 
