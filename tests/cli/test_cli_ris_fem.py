@@ -714,6 +714,9 @@ def test_cli_ris_front_unique_runs_and_adapts_at_a_tiny_size(capsys, tmp_path):
     assert code == 0, err
     s = json.loads((out / "summary.json").read_text())
     assert s["n_meshes"] > 1 and s["n_dofs_max"] > s["n_dofs_initial"]
+    # the command's defaults: adapt every 4th step with a band of 0.08 (docs/adaptivity.md)
+    assert s["adapt_space"]["adapt_every"] == 4 and s["adapt_space"]["refine_band"] == 0.08
+    assert s["space_adaptations"] <= len(Trajectory.load_npz(out / "trajectory.npz")) // 4 + 1
 
 
 @pytest.mark.parametrize(

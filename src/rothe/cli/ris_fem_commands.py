@@ -152,6 +152,9 @@ class _RunRISFem(RISRunBase):
     default_amplitude = -200.0
     #: default --space-tol (the indicator overestimates the energy error about 5x)
     default_space_tol = 1.0
+    #: defaults of --adapt-every and --refine-band (None: SpaceAdaptivity's and the family's)
+    default_adapt_every = None
+    default_refine_band = None
     #: default --max-dofs: Example 7.2's state has kinks (sticking/moving interfaces) that keep
     #: the estimate above any tolerance, so an uncapped 3D run went from 27 to 740 000 unknowns
     #: (4.7 GB) before t = 0.64 at --n 4
@@ -216,7 +219,12 @@ class _RunRISFem(RISRunBase):
             default_tol=self.default_space_tol,
             default_max_dofs=self.default_max_dofs,
             indicator="the step's residual indicator (docs/ris_fem.md)",
-            hysteresis=HYSTERESIS,
+            hysteresis=(
+                HYSTERESIS
+                if self.default_refine_band is None
+                else {**HYSTERESIS, "refine_band": self.default_refine_band}
+            ),
+            default_adapt_every=self.default_adapt_every,
         )
 
     amplitude_help = (
@@ -249,7 +257,11 @@ class _RunRISFem(RISRunBase):
             default_tol=self.default_space_tol,
             default_max_dofs=self.default_max_dofs,
             hysteresis=True,
+            default_adapt_every=self.default_adapt_every,
         )
+        if self._adapt is not None and args.refine_band is None:
+            if self.default_refine_band is not None:
+                self._adapt.refine_band = self.default_refine_band
         if self._adapt is not None and args.max_dofs is not None:
             check_memory("--max-dofs", args.max_dofs, args.max_dofs, RIS_BYTES_PER_NODE[self.dim])
         return super().validate(args)
@@ -530,6 +542,11 @@ class RunRISFrontUnique(RunRISFront):
     #: default --space-tol: the estimate of the defaults' state is about 0.1 at h = 1/32 along
     #: the front (0.05 reaches the accuracy of a 64 x 64 grid in benchmarks/space_adaptivity_ris.py)
     default_space_tol = 0.05
+    #: adapt every 4th step with a band of 0.08 around the refined cells: the front moves about
+    #: 0.05 in 4 steps of tau = 0.02; measured to halve the seconds of adapting every step at
+    #: the same error (docs/adaptivity.md)
+    default_adapt_every = 4
+    default_refine_band = 0.08
     amplitude_help = (
         "plateau A of the load density A/2 (1 + tanh((v t - |x|)/w)) (default 3: behind the "
         "front z = (A - kappa)/a = 0.2)"
