@@ -33,7 +33,6 @@ import resource
 import time
 
 import numpy as np
-from skfem import MeshTri
 
 from rothe.fem.adapt import SpaceAdaptivity
 from rothe.ris.examples import (
@@ -57,11 +56,11 @@ def _error(reference, traj, problem):
     errs = []
     for tt in TIMES:
         k = int(np.argmin(np.abs(t[:-1] - tt))) + 1  # step k: load time t[k-1], state z[k]
-        mesh = problem.mesh
         if traj.meshes is not None:
             points, cells = traj.meshes.mesh(traj["z_mesh_id"][k])
-            mesh = MeshTri(points.T, cells.T)
-        errs.append(front_unique_error(reference, t[k - 1], traj["z"][k], mesh, REACTION))
+        else:
+            points, cells = problem.mesh.p.T, problem.mesh.t.T
+        errs.append(front_unique_error(reference, t[k - 1], traj["z"][k], points, cells, REACTION))
     return max(errs)
 
 

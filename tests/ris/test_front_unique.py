@@ -76,7 +76,8 @@ def _error_near(reference, traj, problem, times=(0.25, 0.5, 0.75)):
     errs = []
     for tt in times:
         k = int(np.argmin(np.abs(t[:-1] - tt))) + 1
-        errs.append(front_unique_error(reference, t[k - 1], traj["z"][k], problem.mesh, A))
+        mesh = problem.mesh
+        errs.append(front_unique_error(reference, t[k - 1], traj["z"][k], mesh.p.T, mesh.t.T, A))
     return max(errs)
 
 
@@ -95,10 +96,11 @@ def test_uniform_errors_decrease_monotonically_under_refinement():
 def test_error_of_the_exact_state_is_zero_and_nested_interpolation_exact():
     reference = example_front_unique(16)
     exact = reference.full_state(front_unique_state(reference, 0.4, A))
-    assert front_unique_error(reference, 0.4, exact, reference.mesh, A) <= 1e-12
+    mesh = reference.mesh
+    assert front_unique_error(reference, 0.4, exact, mesh.p.T, mesh.t.T, A) <= 1e-12
     coarse = example_front_unique(8)
     z8 = coarse.full_state(front_unique_state(coarse, 0.4, A))
-    assert front_unique_error(reference, 0.4, z8, coarse.mesh, A) > 1e-3
+    assert front_unique_error(reference, 0.4, z8, coarse.mesh.p.T, coarse.mesh.t.T, A) > 1e-3
 
 
 def test_adaptive_run_refines_at_the_front_and_beats_the_uniform_grid_of_its_start():
@@ -127,9 +129,7 @@ def test_adaptive_run_refines_at_the_front_and_beats_the_uniform_grid_of_its_sta
     assert traj["n_dofs"][k] < 0.5 * 33**2
     # more accurate than the 8 x 8 grid it started from, and than 16 x 16
     reference = example_front_unique(64)
-    from skfem import MeshTri
-
-    err_adapt = front_unique_error(reference, t[k - 1], traj["z"][k], MeshTri(points.T, cells.T), A)
+    err_adapt = front_unique_error(reference, t[k - 1], traj["z"][k], points, cells, A)
     uniform = example_front_unique(16)
     traj16 = run_ris(uniform, Uniform(0.02), inner=DIRECT).trajectory
     assert err_adapt < _error_near(reference, traj16, uniform, times=(0.5,))
