@@ -22,8 +22,9 @@ as the finest uniform one (384 x 384, 192 x 192 with ``--quick``), z_k (P1 on it
 evaluated at the reference vertices, z_ref the obstacle solution on the reference grid (no
 time error enters: the runs' t_k differ). Work: unknowns summed over the accepted steps. Per
 adaptive run the summed dofs and the seconds of a uniform run with the same error (log-log
-interpolation over the two uniform rows around it) and the ratios; the last two lines are those ratios for the adaptive run with the smallest error
-inside the range of the uniform errors.
+interpolation over the two uniform rows around it) and the ratios; the last two lines are
+those ratios for the adaptive run with the smallest error inside the range of the uniform
+errors.
 """
 
 from __future__ import annotations
