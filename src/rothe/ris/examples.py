@@ -420,8 +420,10 @@ def example_front_unique(
     front is the ring where l crosses kappa, a layer about w wide (smoothed over sqrt(c / a) =
     0.01) that sweeps from (0, 0) to radius 0.9 at t = 1 (it never reaches the Dirichlet side).
     On a uniform grid it needs a fine h everywhere, on an adaptive mesh only along the ring.
-    ||dz/dt||_V stays below 1 (about 0.6 at most), so the uniform-in-s steps advance t in every
-    step and the scheme has no viscous steps either.
+    ||dz/dt||_V stays below 1 (0.27 at t = 0.1, 0.61 at t = 0.5, 0.82 at t = 0.9, measured on
+    the 64 x 64 grid), so steps of length tau in s advance t by about tau / (1 + ||dz/dt||_V) and
+    the ball constraint is inactive in almost every step (no viscous steps; on coarse grids a few
+    catch-up steps, see :func:`rothe.ris.summary.viscous_jumps`).
 
     The scheme's step with the ball constraint inactive (lambda_k = 0) is the obstacle problem
     at its load time t_{k-1} exactly (same argument on the mesh): tested.
