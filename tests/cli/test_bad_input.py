@@ -72,7 +72,15 @@ CASES = [
             f"rothe: error: --out: got {out!r}, must name a directory (omit --out for "
             f"rothe-out/{name})",
         )
-        for name in ("ris-1d", "ris-2d", "ris-3d", "ris-front", "eld-mms", "eld-beam")
+        for name in (
+            "ris-1d",
+            "ris-2d",
+            "ris-3d",
+            "ris-front",
+            "ris-front-unique",
+            "eld-mms",
+            "eld-beam",
+        )
         for out in ("", " ")
     ],
     (

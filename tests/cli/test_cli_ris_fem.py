@@ -695,3 +695,42 @@ def test_the_hysteresis_options_carry_each_familys_defaults(capsys):
         assert "(default c_p tau adapt-every, the distance the pressure wave travels" in text
         assert "adaptations do not coarsen (default 0)" in text
         assert "refined and coarsened again at most k times (default none)" in text
+
+
+def test_cli_ris_front_unique_runs_and_adapts_at_a_tiny_size(capsys, tmp_path):
+    """Issue 18, item 3: ``rothe run ris-front-unique`` (the strictly convex front): no viscous
+    jump, z behind the front near (A - kappa)/a = 0.2, and with --adapt-space more than one mesh."""
+    out = tmp_path / "unique"
+    argv = ["run", "ris-front-unique", "--n", "8", "--control", "uniform", "--tau", "0.05"]
+    code, stdout, err = run_cli(capsys, *argv, "--no-plots", "--out", str(out))
+    assert code == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["example"] == "ris-front-unique" and s["n_viscous_jumps"] == 0
+    assert s["t_final"] == pytest.approx(1.0) and 0.19 < s["z_max"] <= 0.2 + 1e-9
+    assert s["z_min"] >= -1e-12
+    code, stdout, err = run_cli(
+        capsys, *argv, "--adapt-space", "--max-dofs", "600", "--no-plots", "--out", str(out)
+    )
+    assert code == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["n_meshes"] > 1 and s["n_dofs_max"] > s["n_dofs_initial"]
+    # the command's defaults: adapt every 4th step with a band of 0.08 (docs/adaptivity.md)
+    assert s["adapt_space"]["adapt_every"] == 4 and s["adapt_space"]["refine_band"] == 0.08
+    assert s["space_adaptations"] <= len(Trajectory.load_npz(out / "trajectory.npz")) // 4 + 1
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--reaction", "0"], "rothe: error: --reaction: got 0"),
+        (["--reaction", "-2"], "rothe: error: --reaction: got -2"),
+        (["--reaction", "nan"], "rothe: error: argument --reaction: got 'nan', must be finite"),
+        (["--coefficient", "0"], "rothe: error: --coefficient: got 0"),
+    ],
+)
+def test_cli_ris_front_unique_refuses_bad_parameters(capsys, tmp_path, argv, message):
+    code, out, err = run_cli(
+        capsys, "run", "ris-front-unique", "--n", "4", "--out", str(tmp_path / "o"), *argv
+    )
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith(message), err

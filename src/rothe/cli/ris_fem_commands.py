@@ -1,5 +1,5 @@
 """CLI commands for finite-element RIS: ``run ris-2d``, ``run ris-3d``, ``run ris-front``,
-``compare ris-2d``.
+``run ris-front-unique``, ``compare ris-2d``.
 
 ``run ris-2d`` is Example 7.2 of Andreia & Meyer (2022) on an N x N grid of the unit square
 (default N = 40: 1681 nodes) or on any 2D mesh file; ``run ris-3d`` the same energy on the unit
@@ -8,7 +8,9 @@ they write the mesh into trajectory.npz (``nodes``, ``cells``), ``solution.xdmf`
 over s, for ParaView), the Fig. 4 analogue and snapshots of z. ``compare ris-2d`` draws Fig. 5
 and writes ``compare.json``: one row per run with its work and the work ratios to the uniform
 scheme at the same global residual (:func:`compare_rows`).
-``run ris-front`` is a phase front crossing the unit square (space adaptivity pays there).
+``run ris-front`` is a phase front crossing the unit square (space adaptivity pays there);
+``run ris-front-unique`` a steep front of a strictly convex energy (a unique solution: the
+benchmark problem of space adaptivity).
 
 ``--adapt-space`` (with ``--space-tol``, ``--refine-fraction``, ``--coarsen-fraction``,
 ``--max-dofs``, ``--adapt-every``, ``--refine-band``, ``--coarsen-delay``, ``--max-recoarsen``,
@@ -150,6 +152,9 @@ class _RunRISFem(RISRunBase):
     default_amplitude = -200.0
     #: default --space-tol (the indicator overestimates the energy error about 5x)
     default_space_tol = 1.0
+    #: defaults of --adapt-every and --refine-band (None: SpaceAdaptivity's and the family's)
+    default_adapt_every = None
+    default_refine_band = None
     #: default --max-dofs: Example 7.2's state has kinks (sticking/moving interfaces) that keep
     #: the estimate above any tolerance, so an uncapped 3D run went from 27 to 740 000 unknowns
     #: (4.7 GB) before t = 0.64 at --n 4
@@ -214,7 +219,12 @@ class _RunRISFem(RISRunBase):
             default_tol=self.default_space_tol,
             default_max_dofs=self.default_max_dofs,
             indicator="the step's residual indicator (docs/ris_fem.md)",
-            hysteresis=HYSTERESIS,
+            hysteresis=(
+                HYSTERESIS
+                if self.default_refine_band is None
+                else {**HYSTERESIS, "refine_band": self.default_refine_band}
+            ),
+            default_adapt_every=self.default_adapt_every,
         )
 
     amplitude_help = (
@@ -247,7 +257,11 @@ class _RunRISFem(RISRunBase):
             default_tol=self.default_space_tol,
             default_max_dofs=self.default_max_dofs,
             hysteresis=True,
+            default_adapt_every=self.default_adapt_every,
         )
+        if self._adapt is not None and args.refine_band is None:
+            if self.default_refine_band is not None:
+                self._adapt.refine_band = self.default_refine_band
         if self._adapt is not None and args.max_dofs is not None:
             check_memory("--max-dofs", args.max_dofs, args.max_dofs, RIS_BYTES_PER_NODE[self.dim])
         return super().validate(args)
@@ -480,20 +494,20 @@ class RunRISFront(_RunRISFem):
         "-120: beyond max |g'| = 73.9 + kappa, so the state flips to the well "
         "near -1 behind the front)"
     )
+    #: the example's parameters (the default of --coefficient)
+    defaults = examples.FRONT_DEFAULTS
+    coefficient_help = (
+        "c of 1/2 int c |grad z|^2 (default 0.1; the interface is about sqrt(c/192) wide)"
+    )
 
     def add_example_options(self, parser) -> None:
         """The options of ris-2d and --coefficient."""
         super().add_example_options(parser)
-        float_option(
-            parser,
-            "--coefficient",
-            default=None,
-            help="c of 1/2 int c |grad z|^2 (default 0.1; the interface is about sqrt(c/192) wide)",
-        )
+        float_option(parser, "--coefficient", default=None, help=self.coefficient_help)
 
     def validate(self, args):
         """--coefficient > 0, then the checks of ris-2d."""
-        default = examples.FRONT_DEFAULTS["coefficient"]
+        default = self.defaults["coefficient"]
         self._coefficient = check_positive(
             "--coefficient", default if args.coefficient is None else args.coefficient
         )
@@ -507,6 +521,69 @@ class RunRISFront(_RunRISFem):
             amplitude=args.amplitude,
             z0=args.z0,
             coefficient=self._coefficient,
+            dirichlet=("right",) if dirichlet is None else dirichlet,
+        )
+
+
+@command("run", "ris-front-unique")
+class RunRISFrontUnique(RunRISFront):
+    """``rothe run ris-front-unique``: a steep front of a strictly convex RIS (unique solution)."""
+
+    help = (
+        "A steep front crossing the unit square whose evolution is unique (strictly convex "
+        "energy c/2 |grad z|^2 + a/2 z^2, a load growing from a corner): the benchmark of "
+        "--adapt-space"
+    )
+    name = "ris-front-unique"
+    default_n = 16
+    default_tau = 0.02
+    default_z0 = 0.0
+    default_amplitude = examples.FRONT_UNIQUE_DEFAULTS["amplitude"]
+    #: default --space-tol: the estimate of the defaults' state is about 0.1 at h = 1/32 along
+    #: the front (0.05 reaches the accuracy of a 64 x 64 grid in benchmarks/space_adaptivity_ris.py)
+    default_space_tol = 0.05
+    #: adapt every 4th step with a band of 0.08 around the refined cells: the front moves about
+    #: 0.05 in 4 steps of tau = 0.02; measured to halve the seconds of adapting every step at
+    #: the same error (docs/adaptivity.md)
+    default_adapt_every = 4
+    default_refine_band = 0.08
+    amplitude_help = (
+        "plateau A of the load density A/2 (1 + tanh((v t - |x|)/w)) (default 3: behind the "
+        "front z = (A - kappa)/a = 0.2)"
+    )
+    defaults = examples.FRONT_UNIQUE_DEFAULTS
+    coefficient_help = (
+        "c of 1/2 int c |grad z|^2 (default 0.001; the front is smoothed over sqrt(c/a))"
+    )
+
+    def add_example_options(self, parser) -> None:
+        """The options of ris-front and --reaction."""
+        super().add_example_options(parser)
+        float_option(
+            parser,
+            "--reaction",
+            default=None,
+            help="a of int a/2 z^2 (default 10; a > 0 makes the energy strictly convex, "
+            "so the solution is unique)",
+        )
+
+    def validate(self, args):
+        """--reaction > 0, then the checks of ris-front."""
+        default = self.defaults["reaction"]
+        self._reaction = check_positive(
+            "--reaction", default if args.reaction is None else args.reaction
+        )
+        return super().validate(args)
+
+    def make_problem(self, n, mesh, args, dirichlet):
+        """The unique front (z = 0 on the right side unless --dirichlet says otherwise)."""
+        return examples.example_front_unique(
+            n,
+            mesh,
+            amplitude=args.amplitude,
+            z0=args.z0,
+            coefficient=self._coefficient,
+            reaction=self._reaction,
             dirichlet=("right",) if dirichlet is None else dirichlet,
         )
 

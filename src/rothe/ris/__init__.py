@@ -39,7 +39,13 @@ See docs/ris.md (scheme, inner solver, step control) and docs/ris_fem.md (finite
 
 from ..stepping.controllers import Adaptive, Uniform
 from .controllers import Nested, Order2, Regime
-from .examples import example_7_1, example_7_2, example_7_2_3d, example_front
+from .examples import (
+    example_7_1,
+    example_7_2,
+    example_7_2_3d,
+    example_front,
+    example_front_unique,
+)
 from .fem_problem import FERISProblem
 from .inner import BallStepSolver, InnerOptions, RISCode
 from .problem import RISProblem
@@ -64,6 +70,7 @@ __all__ = [
     "example_7_2",
     "example_7_2_3d",
     "example_front",
+    "example_front_unique",
     "run_nested",
     "run_ris",
 ]
