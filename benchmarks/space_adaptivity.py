@@ -39,9 +39,10 @@ The last lines of the family: ``eld: work ratio adaptive/uniform at equal error:
 adaptive run with the smallest energy error inside the range of the uniform errors, divided by
 the summed dofs (seconds) the uniform meshes need for that error (log-log interpolation between
 the two uniform runs around it); the two lines marked ``(L2 of u)`` give the same for the L2
-error of u.
+error of u, from a second adaptive series whose indicator estimates the L2 norm of u
+(``SpaceAdaptivity(norm="l2")``); a last line gives the energy-norm series' L2 ratios.
 
-RIS: ``space_adaptivity_ris.run_ris_family`` (the front example ``ris-front``; its docstring
+RIS: ``space_adaptivity_ris.run_ris_family`` (the unique front ``ris-front-unique``; its docstring
 states the error norm and the work measure), printed by ``ris`` below.
 """
 
