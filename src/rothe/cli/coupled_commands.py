@@ -83,6 +83,8 @@ class CoupledRunCommand:
     #: the summary fields printed after a completed run
     keys: tuple = ()
     parameter_options: dict = {}
+    #: the default of the one material of --E/--nu | --lam/--mu (:meth:`validate`)
+    default_material: dict = {}
 
     @staticmethod
     def strip_options(parser, *, n: int, length: float, height: float, T: float, what: str):
@@ -122,6 +124,14 @@ class CoupledRunCommand:
                 "frequencies come from a dense modal analysis)",
             )
         return n
+
+    def validate(self, args):
+        """The checks that need no system, one line naming the option: (objects of
+        :meth:`run_objects`, n of :meth:`strip_checks`, the material of the options with
+        :attr:`default_material`) -- the material built once for execute and the summary."""
+        objects = self.run_objects(args)
+        n = self.strip_checks(args)
+        return objects, n, material_of(args, self.default_material)
 
     @staticmethod
     def run_objects(args) -> dict:
@@ -357,6 +367,7 @@ class RunEldTmd(CoupledRunCommand):
         "reaction over time, the amplitude reduction"
     )
     name = "eld-tmd"
+    default_material = TMD_MATERIAL
     keys = (
         "example",
         "scheme",
@@ -407,22 +418,15 @@ class RunEldTmd(CoupledRunCommand):
         )
         add_output_options(parser, self.name)
 
-    def validate(self, args):
-        """The checks that need no system: one line naming the option."""
-        objects = self.run_objects(args)
-        n = self.strip_checks(args)
-        material_of(args, TMD_MATERIAL)
-        return objects, n
-
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
-        objects, n = self.validate(args)
+        objects, n, material = self.validate(args)
         example = tmd_problem(
             n,
             args.degree,
             length=args.length,
             height=args.height,
-            material=material_of(args, TMD_MATERIAL),
+            material=material,
             mass_ratio=args.mass_ratio,
             force=args.force,
             forcing_ratio=args.forcing_ratio,
@@ -438,7 +442,7 @@ class RunEldTmd(CoupledRunCommand):
                 ndofs=example.with_tmd.body.space.ndofs,
                 length=args.length,
                 height=args.height,
-                material=material_fields(args, TMD_MATERIAL, material_of(args, TMD_MATERIAL)),
+                material=material_fields(args, TMD_MATERIAL, material),
                 b=args.b,
                 frequency_first_bending=example.frequency,
                 frequency_beam_theory=example.beam_frequency,
@@ -505,6 +509,7 @@ class RunEldControl(CoupledRunCommand):
         "rate of the first mode"
     )
     name = "eld-control"
+    default_material = CONTROL_MATERIAL
     keys = (
         "example",
         "scheme",
@@ -572,22 +577,15 @@ class RunEldControl(CoupledRunCommand):
         )
         add_output_options(parser, self.name)
 
-    def validate(self, args):
-        """The checks that need no system: one line naming the option."""
-        objects = self.run_objects(args)
-        n = self.strip_checks(args)
-        material_of(args, CONTROL_MATERIAL)
-        return objects, n
-
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
-        objects, n = self.validate(args)
+        objects, n, material = self.validate(args)
         example = control_problem(
             n,
             args.degree,
             length=args.length,
             height=args.height,
-            material=material_of(args, CONTROL_MATERIAL),
+            material=material,
             base_mass=args.base_mass,
             base_stiffness=args.base_spring,
             gain=args.gain,
@@ -606,9 +604,7 @@ class RunEldControl(CoupledRunCommand):
                 ndofs=example.controlled.body.space.ndofs,
                 length=args.length,
                 height=args.height,
-                material=material_fields(
-                    args, CONTROL_MATERIAL, material_of(args, CONTROL_MATERIAL)
-                ),
+                material=material_fields(args, CONTROL_MATERIAL, material),
                 base_mass=args.base_mass,
                 base_spring=args.base_spring,
                 gain=args.gain,
