@@ -176,6 +176,9 @@ class CoupledStepper(GridLoop):
         Rows recorded on u and v at every state (``watch_u``, ``watch_v``).
     error_scale : float
         The floor of the estimate's scale S_j (default 1e-12).
+    fields : bool
+        Record the body's u, v and lambda at every state (series ``u``, ``v``, ``lam``: the
+        fields of glued bodies, :mod:`rothe.eld.bodies`).
     noise : callable j -> (theta, xi, vartheta), optional
         Perturbations, each (r,) or None, of the coordinates that enter the coupling data at
         step j = 1, 2, ... (the components' outputs the body sees; the initial state is exact;
@@ -185,7 +188,17 @@ class CoupledStepper(GridLoop):
     """
 
     def __init__(
-        self, system, scheme, form, T, control, *, watch=None, error_scale=1e-12, noise=None
+        self,
+        system,
+        scheme,
+        form,
+        T,
+        control,
+        *,
+        watch=None,
+        error_scale=1e-12,
+        noise=None,
+        fields=False,
     ):
         if noise is not None and not callable(noise):
             raise fail(
@@ -198,6 +211,7 @@ class CoupledStepper(GridLoop):
         self.form = form
         self.T = float(T)
         self.watch = watch
+        self.fields = bool(fields)
         self.error_scale = float(error_scale)
         self.noise = noise
         lifting = "nodal" if isinstance(form, Original) else form.lifting
@@ -635,6 +649,8 @@ class CoupledStepper(GridLoop):
         if self.watch is not None:
             values["watch_u"] = self.watch @ state.u
             values["watch_v"] = self.watch @ state.v
+        if self.fields:
+            values.update(u=state.u.copy(), v=state.v.copy(), lam=state.lam.copy())
         traj.append(**values)
 
     def record_initial(self, traj: Trajectory, state: CoupledState) -> None:
@@ -669,6 +685,7 @@ def run_coupled(
     watch=None,
     error_scale: float = 1e-12,
     noise=None,
+    fields: bool = False,
     progress=False,
 ) -> CoupledResult:
     """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
@@ -691,6 +708,8 @@ def run_coupled(
         The floor of the error estimate's scale.
     noise : callable j -> (theta, xi, vartheta), optional
         Perturbations of the coordinates that enter the coupling data (:class:`CoupledStepper`).
+    fields : bool
+        Record u, v, lambda of the body at every state (series ``u``, ``v``, ``lam``).
     progress : bool or ProgressOptions
 
     Returns
@@ -713,7 +732,15 @@ def run_coupled(
     if isinstance(control, Adaptive) and control.tau is None:
         control = replace(control, tau=T / 100)  # the first step: 1/100 of the run
     stepper = CoupledStepper(
-        system, scheme, form, T, control, watch=watch, error_scale=error_scale, noise=noise
+        system,
+        scheme,
+        form,
+        T,
+        control,
+        watch=watch,
+        error_scale=error_scale,
+        noise=noise,
+        fields=fields,
     )
     info = {}
     controller, _, tau_min = step_controller(stepper, control, T, info)
