@@ -165,7 +165,8 @@ class ElasticComponent(Component):
 
     def field(self, q: np.ndarray) -> np.ndarray:
         """The body's dof vector u = E q (zero on the clamped parts); q may be (..., m)."""
-        return np.asarray(q) @ self.E.T.toarray() if np.ndim(q) > 1 else self.E @ q
+        q = np.asarray(q)
+        return (self.E @ q.T).T if q.ndim > 1 else self.E @ q
 
     def describe(self) -> dict:
         return {"type": "ElasticBody", "name": self.name, "size": int(self.size)}
@@ -283,6 +284,12 @@ class GluedBodies:
             if part2 not in parts2:
                 allowed = ", ".join(sorted(parts2)) or "(the mesh has no named parts)"
                 raise fail(f"{label}.body_part", part2, f"must be one of {allowed}")
+            if part2 in (body.traction or {}):
+                raise fail(
+                    f"{label}.traction",
+                    part2,
+                    "is the glued part; a part is either glued or loaded",
+                )
             for p in body.clamped:
                 if p not in parts2 or p == part2:
                     raise fail(
@@ -415,3 +422,20 @@ def run_bodies(glued: GluedBodies, *, fields: bool = True, **options) -> Coupled
     if not math.isfinite(float(options["T"])):
         raise fail("T", options["T"], "must be positive and finite")
     return run_coupled(glued.system, fields=fields, **options)
+
+
+def strip_pair(length: float, height: float, split: float, n1: int, n2: int):
+    """Two triangulated strips [0, split] x [0, H] and [split, L] x [0, H] with n1 and n2
+    cells across (round(n_k len_k / H) along, at least 1) and the parts left, right, bottom,
+    top: the bodies of ``rothe run eld-two-bodies`` (n1 = n2: matching interface nodes)."""
+    from skfem import MeshTri
+
+    from ..fem.mesh import tag_box_faces
+
+    def strip(x0, x1, n):
+        nx = max(1, round(n * (x1 - x0) / height))
+        return tag_box_faces(
+            MeshTri.init_tensor(np.linspace(x0, x1, nx + 1), np.linspace(0, height, n + 1))
+        )
+
+    return strip(0.0, split, n1), strip(split, length, n2)
