@@ -68,6 +68,20 @@ def test_two_bodies_write_each_bodys_fields_the_multiplier_and_paraview(tmp_path
     )
 
 
+@pytest.mark.parametrize("extra", [[], ["--scheme", "euler", "--lam2", "50", "--mu2", "80"]])
+def test_compare_union_equals_the_single_body_with_two_materials(tmp_path, capsys, extra):
+    """--compare-union: the glued run equals the union mesh's single body with per-cell
+    materials to solver tolerance (displacements at every node at T, energy at every state)."""
+    args = ["--T", "0.5", "--tau", "0.01", "--degree", "1", "--compare-union", *extra]
+    code, out, _ = _run(capsys, tmp_path, *args)
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["union_accepted_steps"] == s["accepted_steps"] == 50
+    assert s["union_difference_u"] < 1e-8 and s["union_difference_energy"] < 1e-8
+    assert s["union_ndofs"] == sum(s["ndofs"]) - 2 * 3  # the 3 interface nodes counted once
+    assert s["union_seconds_per_step"] > 0 and s["seconds_per_step_ratio"] > 0
+
+
 def test_mortar_interface_is_close_to_the_matching_one(tmp_path, capsys):
     tips = {}
     for label, n2 in (("matching", "2"), ("mortar", "3")):
@@ -146,6 +160,10 @@ def test_help_states_the_defaults_of_both_bodies(capsys):
         (["--mesh1", "a.msh"], "--mesh2: got None, must be given with the other mesh file"),
         (["--n2", "60"], "--n2: got a body 2 of"),
         (["--tau", "0.003"], "--tau: got 0.003, must divide T = 2 into equal steps"),
+        (
+            ["--compare-union", "--n2", "3"],
+            "--compare-union: got it with --n2 3, needs the strip with matching meshes",
+        ),
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):

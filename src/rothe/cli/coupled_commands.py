@@ -23,12 +23,14 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from ..eld.bodies import Body, GluedBodies, strip_pair
+from ..eld.bodies import Body, GluedBodies, strip_pair, strip_union
 from ..eld.bodies_output import write_bodies_result
 from ..eld.coupled_run import run_coupled
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..eld.frequencies import crossing_frequency, decay_rate
+from ..eld.run import run_eld
 from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
 from ..fem.mesh import load_mesh, mesh_dim
 from .common import add_output_options, float_option, given, peak_memory_mb, print_summary
@@ -719,6 +721,9 @@ class RunEldTwoBodies(CoupledRunCommand):
         "balance_max",
         "constraint_max",
         "seconds_per_step",
+        "union_difference_u",
+        "union_difference_energy",
+        "seconds_per_step_ratio",
         "wall_time_s",
     )
 
@@ -802,6 +807,13 @@ class RunEldTwoBodies(CoupledRunCommand):
         )
         float_option(parser, "--pulse", default=0.5, help="pulse duration T_p (default 0.5)")
         float_option(parser, "--T", default=2.0, help="end time (default 2)")
+        parser.add_argument(
+            "--compare-union",
+            action="store_true",
+            help="also run the single body on the union mesh (two materials per cell, the "
+            "strip with matching meshes only) and report the difference and the seconds per "
+            "step of both",
+        )
         add_output_options(parser, self.name)
 
     def validate(self, args):
@@ -837,8 +849,55 @@ class RunEldTwoBodies(CoupledRunCommand):
         parts = args.interface.split(",")
         if len(parts) != 2 or not all(parts):
             raise fail("--interface", args.interface, "must be PART1,PART2 (body 1's, body 2's)")
+        if args.compare_union:
+            same = {
+                "--mesh1": args.mesh1 is None,
+                "--n2": n2 == n1,
+                "--degree2": args.degree2 in (None, args.degree),
+                "--interface": tuple(parts) == ("right", "left"),
+                "--clamp": args.clamp == "left",
+                "--load-part": args.load_part == "right",
+            }
+            for option, ok in same.items():
+                if not ok:
+                    raise fail(
+                        "--compare-union",
+                        described(
+                            f"it with {option} {getattr(args, option[2:].replace('-', '_'))}"
+                        ),
+                        "needs the strip with matching meshes (no --mesh1/--mesh2, --n2 = --n1, "
+                        "--degree2 = --degree) and the default --interface, --clamp, --load-part",
+                    )
         material1 = material_of(args, TWO_BODIES_MATERIAL)
         return objects, (n1, n2), tuple(parts), material1, self.material2(args)
+
+    @staticmethod
+    def union_fields(glued, traj, problem, result) -> dict:
+        """The glued run against the union-mesh run: max |u_k(T) - u(T)| at every body's
+        nodes relative to max |u(T)|, max |E_glued - E| / max E over the states (uniform
+        steps; the final energies otherwise), the seconds per step of both."""
+        U = result.state.u.reshape(-1, 2)
+        tree = cKDTree(problem.space.doflocs.T)
+        final = glued.fields(np.asarray(traj["u"])[-1], np.asarray(traj["q"])[-1])
+        diff = max(
+            float(np.abs(u.reshape(-1, 2) - U[tree.query(space.doflocs.T)[1]]).max())
+            for u, (_, space) in zip(final, glued.bodies(), strict=True)
+        )
+        E, E1 = np.asarray(traj["energy"]), np.asarray(result.trajectory["energy"])
+        if E.shape != E1.shape:
+            E, E1 = E[-1:], E1[-1:]
+        st = result.trajectory.stats
+        per_step = st.wall_time_s / max(st.accepted_steps, 1)
+        return {
+            "union_ndofs": int(problem.space.ndofs),
+            "union_difference_u": diff / max(float(np.abs(U).max()), 1e-300),
+            "union_difference_energy": float(np.abs(E - E1).max() / max(E1.max(), 1e-300)),
+            "union_seconds_per_step": per_step,
+            "union_accepted_steps": st.accepted_steps,
+            "seconds_per_step_ratio": traj.stats.wall_time_s
+            / max(traj.stats.accepted_steps, 1)
+            / per_step,
+        }
 
     @staticmethod
     def material2(args):
@@ -900,6 +959,20 @@ class RunEldTwoBodies(CoupledRunCommand):
             method=args.method,
             T=args.T,
         )
+        union = None
+        if args.compare_union:  # the reference, like eld-tip-mass's modal analysis: before
+            problem = strip_union(
+                args.length,
+                args.height,
+                args.split,
+                n1,
+                args.degree,
+                material1,
+                material2,
+                traction={"right": traction},
+                T=args.T,
+            )
+            union = (problem, run_eld(problem, **objects))
         comp = glued.components[0]
         space2 = comp.problem.space
         # the watched dof: body 2's node nearest the load part's centre, along the pulse
@@ -941,6 +1014,8 @@ class RunEldTwoBodies(CoupledRunCommand):
                 summary.update(
                     n1=n1, n2=n2, length=args.length, height=args.height, split=args.split
                 )
+            if union is not None and completed:
+                summary.update(self.union_fields(glued, traj, *union))
             else:
                 summary.update(mesh1=args.mesh1, mesh2=args.mesh2)
 

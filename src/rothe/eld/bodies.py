@@ -439,3 +439,41 @@ def strip_pair(length: float, height: float, split: float, n1: int, n2: int):
         )
 
     return strip(0.0, split, n1), strip(split, length, n2)
+
+
+def strip_union(
+    length, height, split, n, degree, material1, material2, *, traction, T, clamp="left"
+) -> ELDProblem:
+    """The single body on the union of :func:`strip_pair` (n cells across both): the same
+    cells, ``material1`` left of ``split`` and ``material2`` right of it (per-cell materials,
+    :class:`~rothe.eld.materials.PiecewiseMaterial`; one Material if they are equal), the
+    part ``clamp`` held at u = 0 and ``traction`` (part -> g) -- the reference a glued run
+    with matching meshes equals (``rothe run eld-two-bodies --compare-union``)."""
+    from skfem import MeshTri
+
+    from ..fem.mesh import tag_box_faces
+    from .materials import PiecewiseMaterial
+
+    nx1 = max(1, round(n * split / height))
+    nx2 = max(1, round(n * (length - split) / height))
+    xs = np.r_[np.linspace(0.0, split, nx1 + 1), np.linspace(split, length, nx2 + 1)[1:]]
+    mesh = tag_box_faces(MeshTri.init_tensor(xs, np.linspace(0, height, n + 1)))
+    material = material1
+    if material1 != material2:
+        cx = mesh.p[0, mesh.t].mean(axis=0)
+        mesh = mesh.with_subdomains(
+            {"body1": np.flatnonzero(cx < split), "body2": np.flatnonzero(cx > split)}
+        )
+        material = PiecewiseMaterial(
+            {"material1": material1, "material2": material2},
+            regions={"body1": "material1", "body2": "material2"},
+        )
+    return ELDProblem(
+        mesh,
+        material,
+        degree=degree,
+        dirichlet={clamp: _CLAMP},
+        traction=traction,
+        T=T,
+        name="union",
+    )
