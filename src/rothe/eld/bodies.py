@@ -143,13 +143,16 @@ class ElasticComponent(Component):
         self.damping = (
             np.zeros_like(self.mass) if C is None else sp.csr_matrix(C)[f][:, f].toarray()
         )
+        # sparse copies for the products of every step (force, energies)
+        self._M, self._K = (rho * M)[f][:, f].tocsr(), K[f][:, f].tocsr()
+        self._C = None if C is None else sp.csr_matrix(C)[f][:, f].tocsr()
         self.q0 = problem.u0[f].copy()
         self.p0 = problem.v0[f].copy()
         self.coordinates = tuple(f"u{k}" for k in f)
 
     def force(self, t, q, p):
         """K_q q + C_q p."""
-        return self.stiffness @ q + self.damping @ p
+        return self._K @ q + (0.0 if self._C is None else self._C @ p)
 
     def jacobians(self, t, q, p):
         """(K_q, C_q)."""
@@ -161,7 +164,11 @@ class ElasticComponent(Component):
 
     def potential(self, q):
         """1/2 q . K_q q."""
-        return 0.5 * float(q @ (self.stiffness @ q))
+        return 0.5 * float(q @ (self._K @ q))
+
+    def kinetic_energy(self, p):
+        """1/2 p . M_q p."""
+        return 0.5 * float(p @ (self._M @ p))
 
     def field(self, q: np.ndarray) -> np.ndarray:
         """The body's dof vector u = E q (zero on the clamped parts); q may be (..., m)."""

@@ -41,6 +41,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import RunFailed, fail
 from ..io.trajectory import Trajectory
@@ -55,6 +56,8 @@ from .scheme import BDF2, DEFAULT_SCHEME, as_scheme
 from .state import ELDCode
 from .stepper import GridLoop, StepGrid
 
+#: from this many component coordinates on (glued bodies) M_q, K_q, C_q are kept sparse
+SPARSE_COORDINATES = 64
 #: the history a step needs (two states for BDF2)
 _HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
 #: the products with the body's matrices kept with that history (rho M v, K u, K v, rho M a):
@@ -231,6 +234,8 @@ class CoupledStepper(GridLoop):
             if cmp.is_linear:
                 sl = system.slice(cmp)
                 self.Kq[sl, sl], self.Cq[sl, sl] = cmp.stiffness, cmp.damping
+        if r >= SPARSE_COORDINATES:  # glued bodies: the components' matrices are FE matrices
+            self.Mq, self.Kq, self.Cq = (sp.csr_matrix(A) for A in (self.Mq, self.Kq, self.Cq))
         self.order = scheme.order
         self.max_ratio = scheme.ratio_cap
         self.grid = StepGrid(control, scheme, self.T, math.inf)
@@ -414,7 +419,7 @@ class CoupledStepper(GridLoop):
     def _step(self, state: CoupledState, tau: float):
         system, kern, body, c = self.system, self.kern, self.body, self.c
         I, n, s = kern.I, self.n, self.s_ctrl
-        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi, self.Mq, self.Kq, self.Cq
+        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi_sparse, self.Mq, self.Kq, self.Cq
         rhoM, K, Cmat = self.rhoM, kern.K, self.C
         hist = self._history(state, tau)
         if isinstance(self.scheme, BDF2):
@@ -473,7 +478,7 @@ class CoupledStepper(GridLoop):
                 if kern.o:
                     res = res - kern.E @ w
                 fq, fp = system.force_jacobians(t, q_, p_)
-                return res, kap * kap * Mq + kap * fp + fq
+                return res, np.asarray(kap * kap * Mq + kap * fp + fq)
 
             x_I, q, z = kern.solve(
                 -r_k[I],
