@@ -55,10 +55,12 @@ import scipy.sparse as sp
 
 from ..errors import RotheInputError, described, fail
 from ..fem.elasticity import VectorSpace
+from ..fem.mesh import tag_box_faces
 from .components import Component
 from .coupled_run import CoupledResult, run_coupled
 from .coupling import CoupledProblem, Coupling
 from .interface import Interface
+from .materials import PiecewiseMaterial
 from .problem import DirichletData, ELDProblem
 
 
@@ -435,9 +437,8 @@ def strip_pair(length: float, height: float, split: float, n1: int, n2: int):
     """Two triangulated strips [0, split] x [0, H] and [split, L] x [0, H] with n1 and n2
     cells across (round(n_k len_k / H) along, at least 1) and the parts left, right, bottom,
     top: the bodies of ``rothe run eld-two-bodies`` (n1 = n2: matching interface nodes)."""
+    # scikit-fem is imported where a mesh is built (the start-up time of the command line)
     from skfem import MeshTri
-
-    from ..fem.mesh import tag_box_faces
 
     def strip(x0, x1, n):
         nx = max(1, round(n * (x1 - x0) / height))
@@ -456,10 +457,8 @@ def strip_union(
     :class:`~rothe.eld.materials.PiecewiseMaterial`; one Material if they are equal), the
     part ``clamp`` held at u = 0 and ``traction`` (part -> g) -- the reference a glued run
     with matching meshes equals (``rothe run eld-two-bodies --compare-union``)."""
+    # scikit-fem is imported where a mesh is built (the start-up time of the command line)
     from skfem import MeshTri
-
-    from ..fem.mesh import tag_box_faces
-    from .materials import PiecewiseMaterial
 
     nx1 = max(1, round(n * split / height))
     nx2 = max(1, round(n * (length - split) / height))
