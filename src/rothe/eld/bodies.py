@@ -47,7 +47,6 @@ star of bodies around the base; chains 1-2-3 are not covered).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -428,8 +427,6 @@ def run_bodies(glued: GluedBodies, *, fields: bool = True, **options) -> Coupled
     if not isinstance(glued, GluedBodies):
         raise fail("glued", type(glued).__name__, "must be a rothe.eld.bodies.GluedBodies")
     options.setdefault("T", glued.T)
-    if not math.isfinite(float(options["T"])):
-        raise fail("T", options["T"], "must be positive and finite")
     return run_coupled(glued.system, fields=fields, **options)
 
 
