@@ -1,13 +1,14 @@
 """CLI commands for elastic bodies coupled to other dynamical systems (issue 19):
-``rothe run eld-tip-mass|eld-tmd|eld-control``.
+``rothe run eld-tip-mass|eld-tmd|eld-control|eld-two-bodies``.
 
 Every command runs :func:`rothe.eld.coupled_run.run_coupled` through the one run sequence of
 the ``run`` commands (:func:`rothe.cli.session.run_sequence`: run -> stage -> write -> annotate
 -> summary last -> finish): results staged and committed together with ``summary.json`` last,
 an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM writes what it has
 (``status: interrupted``, exit 130/143), a failed run ``status: failed`` (exit 1). Coupled runs
-write no checkpoint yet (so no ``--resume``), and have no space adaptivity or ParaView output
-(docs/coupling.md, Sec. 12).
+write no checkpoint yet (so no ``--resume``), and have no space adaptivity; ParaView output
+only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`) (docs/coupling.md,
+Sec. 12).
 
 Outputs: ``summary.json``, ``trajectory.npz`` (the run's q, p, z, the reactions on every
 constrained part, the whole-system ledger per state, the steps: see
@@ -19,13 +20,20 @@ and exit status 2.
 
 from __future__ import annotations
 
-import numpy as np
+import argparse
 
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..eld.bodies import Body, GluedBodies, strip_pair, strip_union
+from ..eld.bodies_output import write_bodies_result
 from ..eld.coupled_run import run_coupled
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..eld.frequencies import crossing_frequency, decay_rate
-from ..errors import check_int, check_positive, described, fail
-from .common import add_output_options, float_option, peak_memory_mb, print_summary
+from ..eld.run import run_eld
+from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
+from ..fem.mesh import load_mesh, mesh_dim
+from .common import add_output_options, float_option, given, peak_memory_mb, print_summary
 from .eld_options import (
     MESH_PARAMETERS,
     body_material,
@@ -83,6 +91,8 @@ class CoupledRunCommand:
     #: the summary fields printed after a completed run
     keys: tuple = ()
     parameter_options: dict = {}
+    #: the default of the one material of --E/--nu | --lam/--mu (:meth:`validate`)
+    default_material: dict = {}
 
     @staticmethod
     def strip_options(parser, *, n: int, length: float, height: float, T: float, what: str):
@@ -123,6 +133,14 @@ class CoupledRunCommand:
             )
         return n
 
+    def validate(self, args):
+        """The checks that need no system, one line naming the option: (objects of
+        :meth:`run_objects`, n of :meth:`strip_checks`, the material of the options with
+        :attr:`default_material`) -- the material built once for execute and the summary."""
+        objects = self.run_objects(args)
+        n = self.strip_checks(args)
+        return objects, n, material_of(args, self.default_material)
+
     @staticmethod
     def run_objects(args) -> dict:
         """scheme, form and control of the command line (--tau against --T first)."""
@@ -130,18 +148,22 @@ class CoupledRunCommand:
         control = control_of(args)
         return {"scheme": scheme_of(args), "form": form_of(args), "control": control}
 
-    def run(self, args, runs: dict, objects: dict, summarize, draw=None) -> int:
+    def run(
+        self, args, runs: dict, objects: dict, summarize, draw=None, *, fields=False, outputs=None
+    ) -> int:
         """Run the coupled systems ``runs`` (label -> CoupledProblem; the first is the command's
         run, written to ``trajectory.npz``, the others to ``trajectory_<label>.npz``) one after
         the other as one session; ``summarize(summary, trajectories, completed)`` adds the
-        command's fields, ``draw(stage, trajectories, summary)`` the figure."""
+        command's fields, ``draw(stage, trajectories, summary)`` the figure. ``fields``: record
+        the body's u, v, lambda (:func:`run_coupled`); ``outputs(stage, label, result)``:
+        writes a completed run's files instead of its ``trajectory.npz`` alone."""
         done: dict = {}
         labels = list(runs)
 
         def start(checkpoint, resume, progress):
             # (coupled runs write no checkpoint: the session's options are not used)
             for label, system in runs.items():
-                done[label] = run_coupled(system, progress=progress, **objects)
+                done[label] = run_coupled(system, progress=progress, fields=fields, **objects)
             return done
 
         def write(stage, outcome):
@@ -150,6 +172,9 @@ class CoupledRunCommand:
             if not completed and outcome.result is not None:
                 trajs[labels[len(done)]] = outcome.result  # the run that stopped, so far
             for label, traj in trajs.items():
+                if outputs is not None and completed:
+                    outputs(stage, label, done[label])
+                    continue
                 name = "trajectory.npz" if label == labels[0] else f"trajectory_{label}.npz"
                 traj.save_npz(stage / name)
             summary = self.summary_head(args, objects, trajs)
@@ -357,6 +382,7 @@ class RunEldTmd(CoupledRunCommand):
         "reaction over time, the amplitude reduction"
     )
     name = "eld-tmd"
+    default_material = TMD_MATERIAL
     keys = (
         "example",
         "scheme",
@@ -407,22 +433,15 @@ class RunEldTmd(CoupledRunCommand):
         )
         add_output_options(parser, self.name)
 
-    def validate(self, args):
-        """The checks that need no system: one line naming the option."""
-        objects = self.run_objects(args)
-        n = self.strip_checks(args)
-        material_of(args, TMD_MATERIAL)
-        return objects, n
-
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
-        objects, n = self.validate(args)
+        objects, n, material = self.validate(args)
         example = tmd_problem(
             n,
             args.degree,
             length=args.length,
             height=args.height,
-            material=material_of(args, TMD_MATERIAL),
+            material=material,
             mass_ratio=args.mass_ratio,
             force=args.force,
             forcing_ratio=args.forcing_ratio,
@@ -438,7 +457,7 @@ class RunEldTmd(CoupledRunCommand):
                 ndofs=example.with_tmd.body.space.ndofs,
                 length=args.length,
                 height=args.height,
-                material=material_fields(args, TMD_MATERIAL, material_of(args, TMD_MATERIAL)),
+                material=material_fields(args, TMD_MATERIAL, material),
                 b=args.b,
                 frequency_first_bending=example.frequency,
                 frequency_beam_theory=example.beam_frequency,
@@ -505,6 +524,7 @@ class RunEldControl(CoupledRunCommand):
         "rate of the first mode"
     )
     name = "eld-control"
+    default_material = CONTROL_MATERIAL
     keys = (
         "example",
         "scheme",
@@ -572,22 +592,15 @@ class RunEldControl(CoupledRunCommand):
         )
         add_output_options(parser, self.name)
 
-    def validate(self, args):
-        """The checks that need no system: one line naming the option."""
-        objects = self.run_objects(args)
-        n = self.strip_checks(args)
-        material_of(args, CONTROL_MATERIAL)
-        return objects, n
-
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
-        objects, n = self.validate(args)
+        objects, n, material = self.validate(args)
         example = control_problem(
             n,
             args.degree,
             length=args.length,
             height=args.height,
-            material=material_of(args, CONTROL_MATERIAL),
+            material=material,
             base_mass=args.base_mass,
             base_stiffness=args.base_spring,
             gain=args.gain,
@@ -606,9 +619,7 @@ class RunEldControl(CoupledRunCommand):
                 ndofs=example.controlled.body.space.ndofs,
                 length=args.length,
                 height=args.height,
-                material=material_fields(
-                    args, CONTROL_MATERIAL, material_of(args, CONTROL_MATERIAL)
-                ),
+                material=material_fields(args, CONTROL_MATERIAL, material),
                 base_mass=args.base_mass,
                 base_spring=args.base_spring,
                 gain=args.gain,
@@ -660,3 +671,371 @@ class RunEldControl(CoupledRunCommand):
 
         runs = {"controlled": example.controlled, "uncontrolled": example.uncontrolled}
         return self.run(args, runs, objects, summarize, draw)
+
+
+#: eld-two-bodies: the clamped soft half and the stiffer, heavier free half
+TWO_BODIES_MATERIAL = {"E": 100.0, "nu": 0.3}
+TWO_BODIES_MATERIAL2 = {"E": 300.0, "nu": 0.2}
+#: body 2's material options -> the API parameters they stand for
+_BODY2_OPTIONS = {"E": "--E2", "nu": "--nu2", "lam": "--lam2", "mu": "--mu2", "rho": "--rho2"}
+#: the most unknowns of body 2 (the attached body's border is dense: docs/coupling.md)
+TWO_BODIES_MAX_DOFS2 = 6000
+
+
+@command("run", "eld-two-bodies")
+class RunEldTwoBodies(CoupledRunCommand):
+    """``rothe run eld-two-bodies``: two bodies of two materials glued along an interface."""
+
+    help = (
+        "Two elastic bodies of different materials glued along an interface (B1 u1 - B2 u2 = 0 "
+        "with a multiplier; matching or mortar meshes): a strip clamped at one end, pulsed at "
+        "the other; each body's fields, the interface reaction over time"
+    )
+    name = "eld-two-bodies"
+    #: the library's parameters by their options
+    parameter_options = {
+        "attached[0].interface": "--interface",
+        "attached[0].interface.part1": "--interface",
+        "attached[0].interface.part2": "--interface",
+        "attached[0].base_part": "--interface",
+        "attached[0].body_part": "--interface",
+        "attached[0].clamped": "--interface",
+        "couplings[0].part": "--interface",
+        "dirichlet": "--clamp",
+        "traction": "--load-part",
+        "attached[0].traction": "--load-part",
+        "material.dim": "--mesh1",
+    }
+    keys = (
+        "example",
+        "scheme",
+        "form",
+        "control",
+        "accepted_steps",
+        "rejected_steps",
+        "ndofs",
+        "interface_method",
+        "tip_deflection_max",
+        "interface_reaction_max",
+        "clamp_reaction_max",
+        "balance_max",
+        "constraint_max",
+        "seconds_per_step",
+        "union_difference_u",
+        "union_difference_energy",
+        "seconds_per_step_ratio",
+        "wall_time_s",
+    )
+
+    def configure(self, parser) -> None:
+        """Step options; the strip (or two meshes); the two materials; the load."""
+        step_options(parser, 0.01, scheme_default="bdf2")
+        lifting_option(parser)
+        parser.add_argument(
+            "--n1", type=int, default=2, help="cells across body 1 (default 2; along in proportion)"
+        )
+        parser.add_argument(
+            "--n2",
+            type=int,
+            default=None,
+            help="cells across body 2 (default --n1: matching interface nodes; otherwise the "
+            "interface is glued by the mortar projection)",
+        )
+        parser.add_argument("--degree", type=int, default=2, help="1 or 2 (default 2), body 1")
+        parser.add_argument(
+            "--degree2", type=int, default=None, help="1 or 2, body 2 (default --degree)"
+        )
+        float_option(parser, "--length", default=1.0, help="strip length L (default 1)")
+        float_option(parser, "--height", default=0.25, help="strip height H (default 0.25)")
+        float_option(
+            parser, "--split", default=0.5, help="x of the interface, 0 < split < L (default 0.5)"
+        )
+        parser.add_argument(
+            "--mesh1",
+            default=None,
+            metavar="FILE",
+            help="body 1's mesh file instead of the strip (with --mesh2; parts by gmsh "
+            "physical-group name)",
+        )
+        parser.add_argument("--mesh2", default=None, metavar="FILE", help="body 2's mesh file")
+        parser.add_argument(
+            "--interface",
+            default="right,left",
+            metavar="PART1,PART2",
+            help="the glued parts of body 1 and body 2 (default right,left)",
+        )
+        parser.add_argument(
+            "--clamp", default="left", metavar="PART", help="body 1's clamped part (default left)"
+        )
+        parser.add_argument(
+            "--load-part",
+            default="right",
+            metavar="PART",
+            help="body 2's part carrying the pulse (default right)",
+        )
+        parser.add_argument(
+            "--method",
+            default="auto",
+            help="auto | matching | mortar: how the interface is glued (default auto: matching "
+            "if the nodes pair up)",
+        )
+        material_options(parser, TWO_BODIES_MATERIAL, rho=1.0, plane="stress")
+        names = {"E": "Young's modulus", "nu": "Poisson ratio", "lam": "Lamé lambda"}
+        names["mu"] = "Lamé mu"
+        for key, option in _BODY2_OPTIONS.items():
+            if key == "rho":
+                float_option(parser, option, default=2.0, help="body 2's density (default 2)")
+                continue
+            default = TWO_BODIES_MATERIAL2.get(key)
+            float_option(
+                parser,
+                option,
+                default=None,
+                help=f"body 2's {names[key]}"
+                + (f" (default {default:g})" if default is not None else "")
+                + " (--E2/--nu2 or --lam2/--mu2)",
+            )
+        float_option(
+            parser,
+            "--force",
+            default=0.1,
+            help="amplitude F of the traction pulse F sin^2(pi t / T_p) (t < T_p) on --load-part "
+            "(default 0.1)",
+        )
+        parser.add_argument(
+            "--direction", default="y", help="x | y: the pulse's direction (default y)"
+        )
+        float_option(parser, "--pulse", default=0.5, help="pulse duration T_p (default 0.5)")
+        float_option(parser, "--T", default=2.0, help="end time (default 2)")
+        parser.add_argument(
+            "--compare-union",
+            action="store_true",
+            help="also run the single body on the union mesh (two materials per cell, the "
+            "strip with matching meshes only) and report the difference and the seconds per "
+            "step of both",
+        )
+        add_output_options(parser, self.name)
+
+    def validate(self, args):
+        """The checks that need no mesh: one line naming the option."""
+        objects = self.run_objects(args)
+        meshes = args.mesh1 is not None or args.mesh2 is not None
+        if meshes:
+            if args.mesh1 is None or args.mesh2 is None:
+                missing = "--mesh1" if args.mesh1 is None else "--mesh2"
+                raise fail(missing, None, "must be given with the other mesh file")
+            for option in ("--n1", "--n2", "--length", "--height", "--split"):
+                if given(args, option):
+                    raise fail(
+                        option,
+                        getattr(args, option[2:]),
+                        "is used without --mesh1/--mesh2 only",
+                    )
+        n1 = check_int("--n1", args.n1, minimum=1)
+        n2 = n1 if args.n2 is None else check_int("--n2", args.n2, minimum=1)
+        for option in ("--degree", "--degree2"):
+            value = getattr(args, option[2:])
+            if value is not None and value not in (1, 2):
+                raise fail(option, value, "must be 1 or 2")
+        length = check_positive("--length", args.length)
+        check_positive("--height", args.height)
+        if not 0 < args.split < length:
+            raise fail(
+                "--split", args.split, f"must lie strictly between 0 and --length {length:g}"
+            )
+        check_choice("--method", args.method, ("auto", "matching", "mortar"))
+        check_choice("--direction", args.direction, ("x", "y"))
+        check_positive("--pulse", args.pulse)
+        parts = args.interface.split(",")
+        if len(parts) != 2 or not all(parts):
+            raise fail("--interface", args.interface, "must be PART1,PART2 (body 1's, body 2's)")
+        if args.compare_union:
+            same = {
+                "--mesh1": args.mesh1 is None,
+                "--n2": n2 == n1,
+                "--degree2": args.degree2 in (None, args.degree),
+                "--interface": tuple(parts) == ("right", "left"),
+                "--clamp": args.clamp == "left",
+                "--load-part": args.load_part == "right",
+            }
+            for option, ok in same.items():
+                if not ok:
+                    raise fail(
+                        "--compare-union",
+                        described(
+                            f"it with {option} {getattr(args, option[2:].replace('-', '_'))}"
+                        ),
+                        "needs the strip with matching meshes (no --mesh1/--mesh2, --n2 = --n1, "
+                        "--degree2 = --degree) and the default --interface, --clamp, --load-part",
+                    )
+        material1 = material_of(args, TWO_BODIES_MATERIAL)
+        return objects, (n1, n2), tuple(parts), material1, self.material2(args)
+
+    @staticmethod
+    def union_fields(glued, traj, problem, result) -> dict:
+        """The glued run against the union-mesh run: max |u_k(T) - u(T)| at every body's
+        nodes relative to max |u(T)|, max |E_glued - E| / max E over the states (uniform
+        steps; the final energies otherwise), the seconds per step of both."""
+        U = result.state.u.reshape(-1, 2)
+        tree = cKDTree(problem.space.doflocs.T)
+        final = glued.fields(np.asarray(traj["u"])[-1], np.asarray(traj["q"])[-1])
+        diff = max(
+            float(np.abs(u.reshape(-1, 2) - U[tree.query(space.doflocs.T)[1]]).max())
+            for u, (_, space) in zip(final, glued.bodies(), strict=True)
+        )
+        E, E1 = np.asarray(traj["energy"]), np.asarray(result.trajectory["energy"])
+        if E.shape != E1.shape:
+            E, E1 = E[-1:], E1[-1:]
+        st = result.trajectory.stats
+        per_step = st.wall_time_s / max(st.accepted_steps, 1)
+        return {
+            "union_ndofs": int(problem.space.ndofs),
+            "union_difference_u": diff / max(float(np.abs(U).max()), 1e-300),
+            "union_difference_energy": float(np.abs(E - E1).max() / max(E1.max(), 1e-300)),
+            "union_seconds_per_step": per_step,
+            "union_accepted_steps": st.accepted_steps,
+            "seconds_per_step_ratio": traj.stats.wall_time_s
+            / max(traj.stats.accepted_steps, 1)
+            / per_step,
+        }
+
+    @staticmethod
+    def material2(args):
+        """Body 2's material of --E2/--nu2 | --lam2/--mu2, --rho2 (errors name them)."""
+        shadow = argparse.Namespace(
+            plane=args.plane, **{key: getattr(args, o[2:]) for key, o in _BODY2_OPTIONS.items()}
+        )
+        try:
+            return material_of(shadow, TWO_BODIES_MATERIAL2)
+        except RotheInputError as exc:
+            if exc.parameter not in _BODY2_OPTIONS:
+                raise
+            raise exc.renamed(_BODY2_OPTIONS[exc.parameter], _BODY2_OPTIONS) from None
+
+    def execute(self, args) -> int:
+        """Build the glued bodies, run them, write trajectory, ParaView series, figure and
+        summary."""
+        objects, (n1, n2), (part1, part2), material1, material2 = self.validate(args)
+        degree2 = args.degree if args.degree2 is None else args.degree2
+        if args.mesh1 is not None:
+            mesh1 = load_mesh(args.mesh1, name="mesh1")
+            mesh2 = load_mesh(args.mesh2, name="mesh2")
+            if mesh_dim(mesh1) != 2 or mesh_dim(mesh2) != 2:
+                bad = "--mesh1" if mesh_dim(mesh1) != 2 else "--mesh2"
+                raise fail(bad, described("a 3D mesh"), "must be 2D (the materials are 2D)")
+        else:
+            mesh1, mesh2 = strip_pair(args.length, args.height, args.split, n1, n2)
+        d2 = 2 * (mesh2.p.shape[1] + (mesh2.facets.shape[1] if degree2 == 2 else 0))
+        if d2 > TWO_BODIES_MAX_DOFS2:
+            raise fail(
+                "--n2" if args.mesh2 is None else "--mesh2",
+                described(f"a body 2 of {d2} unknowns"),
+                f"must have at most {TWO_BODIES_MAX_DOFS2} (body 2's border is dense)",
+            )
+        axis = "xy".index(args.direction)
+        force, pulse = args.force, args.pulse
+
+        def traction(t, x, n):
+            out = np.zeros_like(x)
+            if t < pulse:
+                out[axis] = force * np.sin(np.pi * t / pulse) ** 2
+            return out
+
+        glued = GluedBodies(
+            Body(mesh1, material1, degree=args.degree, clamped=(args.clamp,), name="body1"),
+            [
+                (
+                    Body(
+                        mesh2,
+                        material2,
+                        degree=degree2,
+                        traction={args.load_part: traction},
+                        name="body2",
+                    ),
+                    part1,
+                    part2,
+                )
+            ],
+            method=args.method,
+            T=args.T,
+        )
+        union = None
+        if args.compare_union:  # the reference, like eld-tip-mass's modal analysis: before
+            problem = strip_union(
+                args.length,
+                args.height,
+                args.split,
+                n1,
+                args.degree,
+                material1,
+                material2,
+                traction={"right": traction},
+                T=args.T,
+            )
+            union = (problem, run_eld(problem, **objects))
+        comp = glued.components[0]
+        space2 = comp.problem.space
+        # the watched dof: body 2's node nearest the load part's centre, along the pulse
+        loaded = space2.doflocs[:, space2.scalar_dofs_on((args.load_part,), "traction")]
+        centre = loaded.mean(axis=1)
+        node = int(np.argmin(np.linalg.norm(space2.doflocs - centre[:, None], axis=0)))
+        tip = int(np.searchsorted(comp.free, 2 * node + axis))
+        itf = glued.interfaces[0]
+
+        def summarize(summary, trajs, completed):
+            traj = trajs["bodies"]
+            q = np.asarray(traj["q"])
+            reaction = np.asarray(traj[f"reaction_{part1}"])
+            clamp = np.asarray(traj[f"reaction_{args.clamp}"])
+            steps = summary["accepted_steps"]
+            summary.update(
+                ndofs=[int(s.ndofs) for _, s in glued.bodies()],
+                degree=[args.degree, degree2],
+                material1=material_fields(args, TWO_BODIES_MATERIAL, material1),
+                material2=material2.describe(),
+                interface_method=itf.method,
+                interface=itf.describe(),
+                force=force,
+                direction=args.direction,
+                pulse=pulse,
+                watch_point=space2.doflocs[:, node].tolist(),
+                tip_deflection_max=float(np.abs(q[:, tip]).max()),
+                tip_deflection_final=float(q[-1, tip]),
+                interface_reaction_max=np.abs(reaction).max(axis=0).tolist(),
+                clamp_reaction_max=np.abs(clamp).max(axis=0).tolist(),
+                balance_max=float(np.abs(traj["balance"]).max()),
+                constraint_max=float(np.abs(traj["constraint"]).max()),
+                energy_final=float(traj["energy"][-1]),
+                work_loads=float(traj["work_components"][-1]),
+                seconds_per_step=summary["wall_time_s"] / max(steps, 1),
+                paraview=[f"{n}.xdmf" for n, _ in glued.bodies()],
+            )
+            if args.mesh1 is None:
+                summary.update(
+                    n1=n1, n2=n2, length=args.length, height=args.height, split=args.split
+                )
+            if union is not None and completed:
+                summary.update(self.union_fields(glued, traj, *union))
+            else:
+                summary.update(mesh1=args.mesh1, mesh2=args.mesh2)
+
+        def draw(stage, trajs, summary):
+            # matplotlib is imported only for the figures
+            from ..eld.figures import plot_comparison
+
+            plot_comparison(
+                {"glued bodies": trajs["bodies"]},
+                stage / "fig_two_bodies.png",
+                coordinate=tip,
+                label=f"body 2: u_{args.direction} at {np.round(centre, 3).tolist()}",
+                part=part1,
+                axis=axis,
+                title=f"eld-two-bodies ({itf.method} interface): interface reaction on body 1",
+            )
+
+        def outputs(stage, label, result):
+            return write_bodies_result(result, glued, stage)
+
+        return self.run(
+            args, {"bodies": glued.system}, objects, summarize, draw, fields=True, outputs=outputs
+        )

@@ -25,11 +25,13 @@ Coupled systems (``docs/coupling.md``, issue 19): components (:mod:`rothe.eld.co
 couplings B u = G(t, q) and :class:`CoupledProblem` (:mod:`rothe.eld.coupling`), sensors and
 controllers (:mod:`rothe.eld.control`), the bordered coupled step (:mod:`rothe.eld.coupled_step`),
 coupled runs on the evolve loop (:func:`run_coupled`, :mod:`rothe.eld.coupled_run`), interfaces
-between bodies (:mod:`rothe.eld.interface`), several materials (:class:`PiecewiseMaterial`),
+between bodies (:mod:`rothe.eld.interface`), glued bodies stepped in time (:func:`run_bodies`,
+:mod:`rothe.eld.bodies`), several materials (:class:`PiecewiseMaterial`),
 analytic references (:mod:`rothe.eld.frequencies`).
 """
 
 from .adapt import ELDMeshes
+from .bodies import Body, GluedBodies, run_bodies
 from .components import (
     Component,
     LinearComponent,
@@ -76,6 +78,7 @@ from .system import ELDSystem
 
 __all__ = [
     "BDF2",
+    "Body",
     "Component",
     "CoupledProblem",
     "CoupledResult",
@@ -100,6 +103,7 @@ __all__ = [
     "ELDSystem",
     "EnergyLedger",
     "Form",
+    "GluedBodies",
     "HarmonicLifting",
     "ImplicitEuler",
     "Interface",
@@ -136,6 +140,7 @@ __all__ = [
     "cauchy_stress",
     "convergence_study",
     "coupled_modes",
+    "run_bodies",
     "run_coupled",
     "make_damping",
     "mms_errors",

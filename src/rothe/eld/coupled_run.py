@@ -41,6 +41,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import RunFailed, fail
 from ..io.trajectory import Trajectory
@@ -55,6 +56,8 @@ from .scheme import BDF2, DEFAULT_SCHEME, as_scheme
 from .state import ELDCode
 from .stepper import GridLoop, StepGrid
 
+#: from this many component coordinates on (glued bodies) M_q, K_q, C_q are kept sparse
+SPARSE_COORDINATES = 64
 #: the history a step needs (two states for BDF2)
 _HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
 #: the products with the body's matrices kept with that history (rho M v, K u, K v, rho M a):
@@ -176,6 +179,9 @@ class CoupledStepper(GridLoop):
         Rows recorded on u and v at every state (``watch_u``, ``watch_v``).
     error_scale : float
         The floor of the estimate's scale S_j (default 1e-12).
+    fields : bool
+        Record the body's u, v and lambda at every state (series ``u``, ``v``, ``lam``: the
+        fields of glued bodies, :mod:`rothe.eld.bodies`).
     noise : callable j -> (theta, xi, vartheta), optional
         Perturbations, each (r,) or None, of the coordinates that enter the coupling data at
         step j = 1, 2, ... (the components' outputs the body sees; the initial state is exact;
@@ -185,7 +191,17 @@ class CoupledStepper(GridLoop):
     """
 
     def __init__(
-        self, system, scheme, form, T, control, *, watch=None, error_scale=1e-12, noise=None
+        self,
+        system,
+        scheme,
+        form,
+        T,
+        control,
+        *,
+        watch=None,
+        error_scale=1e-12,
+        noise=None,
+        fields=False,
     ):
         if noise is not None and not callable(noise):
             raise fail(
@@ -198,6 +214,7 @@ class CoupledStepper(GridLoop):
         self.form = form
         self.T = float(T)
         self.watch = watch
+        self.fields = bool(fields)
         self.error_scale = float(error_scale)
         self.noise = noise
         lifting = "nodal" if isinstance(form, Original) else form.lifting
@@ -217,6 +234,8 @@ class CoupledStepper(GridLoop):
             if cmp.is_linear:
                 sl = system.slice(cmp)
                 self.Kq[sl, sl], self.Cq[sl, sl] = cmp.stiffness, cmp.damping
+        if r >= SPARSE_COORDINATES:  # glued bodies: the components' matrices are FE matrices
+            self.Mq, self.Kq, self.Cq = (sp.csr_matrix(A) for A in (self.Mq, self.Kq, self.Cq))
         self.order = scheme.order
         self.max_ratio = scheme.ratio_cap
         self.grid = StepGrid(control, scheme, self.T, math.inf)
@@ -400,7 +419,7 @@ class CoupledStepper(GridLoop):
     def _step(self, state: CoupledState, tau: float):
         system, kern, body, c = self.system, self.kern, self.body, self.c
         I, n, s = kern.I, self.n, self.s_ctrl
-        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi, self.Mq, self.Kq, self.Cq
+        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi_sparse, self.Mq, self.Kq, self.Cq
         rhoM, K, Cmat = self.rhoM, kern.K, self.C
         hist = self._history(state, tau)
         if isinstance(self.scheme, BDF2):
@@ -459,7 +478,7 @@ class CoupledStepper(GridLoop):
                 if kern.o:
                     res = res - kern.E @ w
                 fq, fp = system.force_jacobians(t, q_, p_)
-                return res, kap * kap * Mq + kap * fp + fq
+                return res, np.asarray(kap * kap * Mq + kap * fp + fq)
 
             x_I, q, z = kern.solve(
                 -r_k[I],
@@ -635,6 +654,8 @@ class CoupledStepper(GridLoop):
         if self.watch is not None:
             values["watch_u"] = self.watch @ state.u
             values["watch_v"] = self.watch @ state.v
+        if self.fields:
+            values.update(u=state.u.copy(), v=state.v.copy(), lam=state.lam.copy())
         traj.append(**values)
 
     def record_initial(self, traj: Trajectory, state: CoupledState) -> None:
@@ -669,6 +690,7 @@ def run_coupled(
     watch=None,
     error_scale: float = 1e-12,
     noise=None,
+    fields: bool = False,
     progress=False,
 ) -> CoupledResult:
     """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
@@ -691,6 +713,8 @@ def run_coupled(
         The floor of the error estimate's scale.
     noise : callable j -> (theta, xi, vartheta), optional
         Perturbations of the coordinates that enter the coupling data (:class:`CoupledStepper`).
+    fields : bool
+        Record u, v, lambda of the body at every state (series ``u``, ``v``, ``lam``).
     progress : bool or ProgressOptions
 
     Returns
@@ -713,7 +737,15 @@ def run_coupled(
     if isinstance(control, Adaptive) and control.tau is None:
         control = replace(control, tau=T / 100)  # the first step: 1/100 of the run
     stepper = CoupledStepper(
-        system, scheme, form, T, control, watch=watch, error_scale=error_scale, noise=noise
+        system,
+        scheme,
+        form,
+        T,
+        control,
+        watch=watch,
+        error_scale=error_scale,
+        noise=noise,
+        fields=fields,
     )
     info = {}
     controller, _, tau_min = step_controller(stepper, control, T, info)

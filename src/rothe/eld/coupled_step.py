@@ -54,6 +54,18 @@ from .constraint import HarmonicLifting, NodalLifting
 from .coupling import CoupledProblem
 
 
+def _dense(A):
+    """A dense copy of a sparse matrix (the components' block of glued bodies), else A."""
+    return A.toarray() if sp.issparse(A) else A
+
+
+def _same(A, B) -> bool:
+    """Equal matrices (dense or sparse alike)."""
+    if sp.issparse(A) != sp.issparse(B) or A.shape != B.shape:
+        return False
+    return (A != B).nnz == 0 if sp.issparse(A) else np.array_equal(A, B)
+
+
 class CoupledStepSystem:
     """The bordered system of one coupled step on one mesh (module docstring).
 
@@ -99,6 +111,7 @@ class CoupledStepSystem:
             raise fail("lifting", lifting, "must be one of nodal, harmonic")
         self.Gamma = system.gamma().toarray()
         self.Phi = system.lifted_modes(self.lifting)  # (n, r)
+        self.Phi_sparse = sp.csr_matrix(self.Phi)  # (the products of a step)
         self.r = system.size
         self.Mq = system.mass()
         n, m = body.space.ndofs, c.m
@@ -145,6 +158,7 @@ class CoupledStepSystem:
             "newton_iterations": 0,
         }
         self._key = None
+        self._schur = None  # (LU of S, its component block) of the last linear solve
 
     # -- the lifting and its transpose -----------------------------------------------------------
     def lift(self, g: np.ndarray) -> np.ndarray:
@@ -188,24 +202,30 @@ class CoupledStepSystem:
         self.A = A
         self._lu = spla.splu(sp.csc_matrix(A[I][:, I]), permc_spec="MMD_AT_PLUS_A")
         self.stats["factorizations"] += 1
-        APhi = A @ self.Phi  # (n, r)
-        PhiA = (A.T @ self.Phi).T  # Phi^T A (r, n)
-        self.X = self._lu.solve(APhi[I]) if self.r else np.zeros((I.size, 0))
-        self.stats["back_substitutions"] += self.r
+        # Phi is sparse (rows on the coupled dofs) and, for glued bodies (r in the thousands),
+        # most of its columns are zero: sparse products, back-substitutions for the others only
+        APhi = (A @ self.Phi_sparse).tocsc()  # (n, r)
+        PhiA = (A.T @ self.Phi_sparse).T.tocsr()  # Phi^T A (r, n)
+        self.X = np.zeros((I.size, self.r))
+        cols = np.flatnonzero(np.diff(APhi.indptr))
+        if cols.size:
+            self.X[:, cols] = self._lu.solve(APhi[I][:, cols].toarray())
+        self._cols, self._X_cols = cols, self.X[:, cols]  # x_I = x_0 - X q on them only
+        self.stats["back_substitutions"] += cols.size
         # sensor rows: W (k, n) = wu Y_u + wv Y_v - (A^T L Z)^T
         W = (wu * self.Y_u + wv * self.Y_v).toarray()
         if self.k_in:
             W = W - (A.T @ self._LZ).T
         self.W = W
         r, s = self.r, self.s if kappa_z is not None else 0
-        EDW = self.E @ (self.Dc @ W) if self.k_in else np.zeros((r, A.shape[0]))
-        V = np.zeros((r + s, I.size))
-        V[:r] = (PhiA - EDW)[:, I]
-        if s:
-            V[r:] = -(self.Bc @ W)[:, I]
-        self.V = V
+        EDW = self.E @ (self.Dc @ W) if self.k_in else None
+        top = PhiA[:, I] if EDW is None else sp.csr_matrix(PhiA[:, I].toarray() - EDW[:, I])
+        blocks = [top] + ([sp.csr_matrix(-(self.Bc @ W)[:, I])] if s else [])
+        self.V = V = sp.vstack(blocks, format="csr") if blocks[0].shape[0] or s else top.tocsr()
         C = np.zeros((r + s, r + s))
-        C[:r, :r] = PhiA @ self.Phi - EDW @ self.Phi
+        C[:r, :r] = PhiA @ self.Phi
+        if EDW is not None:
+            C[:r, :r] -= EDW @ self.Phi
         if s:
             C[:r, r:] = -self.E @ self.Cc
             C[r:, :r] = -self.Bc @ (W @ self.Phi)
@@ -213,6 +233,7 @@ class CoupledStepSystem:
         # Schur complement without the components' block: C - V [X, 0]
         C[:, :r] -= V @ self.X
         self.S0 = C
+        self._schur = None
         self._with_z = kappa_z is not None
         self._key = key
 
@@ -229,28 +250,38 @@ class CoupledStepSystem:
         for nonlinear components) Newton on (q, z) with that Jacobian."""
         x0 = self.back_substitute(rhs_I)
         r = self.r
-        S = self.S0.copy()
-        S[:r, :r] += component_matrix
         rhs = np.concatenate([rhs_q, rhs_z if self._with_z else np.zeros(0)]) - self.V @ x0
         self.stats["schur_solves"] += 1
-        xi = np.linalg.solve(S, rhs) if S.size else np.zeros(0)
+        if residual is None and rhs.size:
+            # linear components: S is constant per factorization and component block, so its
+            # LU is kept (glued bodies have r in the thousands: O(r^2) per step, not O(r^3))
+            cached = self._schur
+            if cached is None or not _same(cached[1], component_matrix):
+                S = self.S0.copy()
+                S[:r, :r] += _dense(component_matrix)
+                cached = self._schur = (sla.lu_factor(S), component_matrix.copy())
+            xi = sla.lu_solve(cached[0], rhs)
+        else:
+            S = self.S0.copy()
+            S[:r, :r] += _dense(component_matrix)
+            xi = np.linalg.solve(S, rhs) if S.size else np.zeros(0)
         if residual is not None:
             for _ in range(30):
                 q, z = xi[:r], xi[r:]
-                x_I = x0 - self.X @ q
+                x_I = x0 - self._X_cols @ q[self._cols]
                 res, J = residual(x_I, q, z)
                 if not np.all(np.isfinite(res)):
                     raise RunFailed("component Newton: non-finite residual")
                 if np.linalg.norm(res) <= 1e-12 * max(1.0, np.linalg.norm(rhs)):
                     break
                 S = self.S0.copy()
-                S[:r, :r] += J
+                S[:r, :r] += _dense(J)
                 xi = xi - np.linalg.solve(S, res)
                 self.stats["newton_iterations"] += 1
             else:
                 raise RunFailed("component Newton did not converge in 30 iterations")
         q, z = xi[:r], xi[r:]
-        return x0 - self.X @ q, q, z
+        return x0 - self._X_cols @ q[self._cols], q, z
 
 
 def coupled_modes(system: CoupledProblem, count: int = 6, lifting: str = "nodal"):

@@ -32,7 +32,9 @@ by P_2 is stated), nodes that do not pair up when ``matching`` is asked for.
 :meth:`Interface.substitution` gives T with (u_1, u_2) = T (x_1, u_2) for x_1 the values of
 u_1 off P_1: the glued space. T^T blkdiag(K_1, K_2) T is the stiffness of the glued bodies
 (with matching meshes: the union mesh's stiffness, tested) -- the monolithic alternative to
-a multiplier for phase 2.
+the multiplier. Glued bodies in time (:mod:`rothe.eld.bodies`) take the multiplier route: the
+coupled step of :mod:`rothe.eld.coupled_step` with body 2 as the component (why: its
+docstring).
 """
 
 from __future__ import annotations

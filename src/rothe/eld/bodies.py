@@ -1,0 +1,482 @@
+"""Several elastic bodies glued along interfaces, stepped in time (issue 19, Sec. 2.2.3).
+
+Each body has its own mesh, material (Lamé constants, density; per-cell materials too) and
+element degree. A *base* body carries the prescribed Dirichlet data, tractions and loads of an
+:class:`~rothe.eld.problem.ELDProblem`; every *attached* body k is glued to a boundary part
+P_k of the base along its own part Q_k by :class:`~rothe.eld.interface.Interface`:
+
+    B_1 u_1 - B_k u_k = 0 on Gamma_k,   i.e.  S_{P_k} u_1 = Pi_k S_{Q_k} u_k
+
+(matching nodes: Pi_k a permutation; non-matching: the mortar projection onto the base's
+trace space). The glued system is the multiplier form (C.1) of :mod:`rothe.eld.coupling`
+with the attached body in the role of the *component* (the Interface's docstring): its
+coordinates are its free dofs, q_k = u_k off its clamped parts,
+
+    M_q = rho_k M_k,  K_q = K_k,  C_q = C_k (restricted to the free dofs),  f_ext = F_k(t),
+    G(q_k) = Pi_k S_{Q_k} E_k q_k   (linear, no explicit t, no curvature),
+
+so the multiplier lambda_k on Gamma_k (a traction density in the base's trace space) acts on
+the base by +B_1^T lambda_k and on body k by -(Pi_k S_{Q_k} E_k)^T M_G lambda_k: action =
+reaction (the resultants are -int lambda_k ds and +int lambda_k ds because Pi_k reproduces
+constants; tested to round-off). The glue does no work (G has no explicit t: the power of the
+constraint forces -lambda . M_G g_t vanishes), so the whole-system ledger of
+:func:`~rothe.eld.coupled_run.run_coupled` -- base energy + every attached body's energy
+(the components' kinetic 1/2 p.M_q p and potential 1/2 q.K_q q) against the work of the loads
+of all bodies, damping and the scheme's numerical dissipation -- closes to round-off.
+
+**Why the coupled stepper and not a monolithic one** (``Interface.substitution``: T^T
+blkdiag(A_1, A_k) T): the glued step then is exactly the bordered step of
+:mod:`rothe.eld.coupled_step` -- implicit Euler and BDF2, both forms (regularized: B v_2 =
+G' = Pi S p, B w_2 = G'' = Pi S pdot expressed by the attached body's velocities and
+accelerations; original), uniform and adaptive steps with the attached bodies' energies in the
+error norm, the multiplier, the ledger, the constraint residual at every accepted step -- with
+no new stepper. With the nodal lifting its equations are those of the union mesh (the rows of
+body 1's interface nodes are added to their partners' through Phi^T r), which is why glued
+bodies with matching meshes equal one body (tested). The price: the border is dense in the
+attached bodies' coordinates -- per factorization r = sum_k n_k back-substitutions with the
+base's A_II and per step a dense r x r solve -- so attached bodies should be the smaller ones
+(a few thousand unknowns; the base may be large). The monolithic T^T A T would be sparse
+throughout but needs a stepper of its own on a matrix without a mesh (no lifting, no ledger,
+no error estimate from the ELD machinery); it is the way to large attached bodies
+(docs/coupling.md, "Several bodies").
+
+Attached bodies take no prescribed data other than clamped parts (u = 0: their dofs are left
+out of q), no space adaptivity, and an interface must join the base to an attached body (a
+star of bodies around the base; chains 1-2-3 are not covered).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import RotheInputError, described, fail
+from ..fem.elasticity import VectorSpace
+from ..fem.mesh import tag_box_faces
+from .components import Component
+from .coupled_run import CoupledResult, run_coupled
+from .coupling import CoupledProblem, Coupling
+from .interface import Interface
+from .materials import PiecewiseMaterial
+from .problem import DirichletData, ELDProblem
+
+
+def _zero(t, x):
+    return np.zeros_like(x)
+
+
+_CLAMP = DirichletData(_zero, _zero, _zero)
+
+
+@dataclass
+class Body:
+    """One elastic body of a glued system: the keywords of an
+    :class:`~rothe.eld.problem.ELDProblem` without T.
+
+    Parameters
+    ----------
+    mesh : skfem mesh with named boundary parts
+    material : Material or PiecewiseMaterial
+    degree : 1 or 2
+    dirichlet : dict part -> G, optional
+        Prescribed data (the base only).
+    clamped : sequence of parts held at u = 0
+    traction : dict part -> g(t, x, n), optional
+    body_force : callable (t, x), optional
+    damping : Damping, optional (linear: the coupled step's condition)
+    u0, v0 : initial data (callables x -> (d, k), dof vectors, or None)
+    name : str
+    """
+
+    mesh: object
+    material: object
+    degree: int = 1
+    dirichlet: dict | None = None
+    clamped: tuple = ()
+    traction: dict | None = None
+    body_force: object = None
+    damping: object = None
+    u0: object = None
+    v0: object = None
+    name: str = "body"
+
+
+class ElasticComponent(Component):
+    """An attached body as a linear component (module docstring): coordinates q = its free
+    dofs (off the clamped parts), M_q = rho M, K_q = K, C_q = C restricted to them, load F(t).
+
+    Built from an assembled ELDProblem (``problem``: its dirichlet parts are the clamped ones
+    and the interface part, both only to fix the free dofs; ``clamped`` the former)."""
+
+    is_linear = True
+
+    def __init__(self, problem: ELDProblem, clamped, name: str):
+        space = problem.space
+        self.problem = problem
+        self.name = str(name)
+        held = (
+            space.vector_dofs(space.scalar_dofs_on(tuple(clamped), f"{name}.clamped"))
+            if clamped
+            else np.zeros(0, dtype=np.int64)
+        )
+        self.free = np.setdiff1d(np.arange(space.ndofs), held)
+        self.size = self.free.size
+        f = self.free
+        # E: q -> u (n, m), zero on the clamped dofs
+        self.E = sp.csr_matrix(
+            (np.ones(f.size), (f, np.arange(f.size))), shape=(space.ndofs, f.size)
+        )
+        rho = float(problem.material.rho)
+        M = sp.csr_matrix(problem.M)
+        K = sp.csr_matrix(problem.K)
+        # (dense: the coupled step's border is dense in the component's coordinates)
+        self.mass = (rho * M)[f][:, f].toarray()
+        self.stiffness = K[f][:, f].toarray()
+        if not problem.damping_op.is_linear:
+            raise fail(
+                f"{name}.damping",
+                problem.damping.describe().get("type", "nonlinear"),
+                "must be linear (an attached body is a linear component)",
+            )
+        C = problem.damping_op.linear
+        self.damping = (
+            np.zeros_like(self.mass) if C is None else sp.csr_matrix(C)[f][:, f].toarray()
+        )
+        # sparse copies for the products of every step (force, energies)
+        self._M, self._K = (rho * M)[f][:, f].tocsr(), K[f][:, f].tocsr()
+        self._C = None if C is None else sp.csr_matrix(C)[f][:, f].tocsr()
+        self.q0 = problem.u0[f].copy()
+        self.p0 = problem.v0[f].copy()
+        self.coordinates = tuple(f"u{k}" for k in f)
+
+    def force(self, t, q, p):
+        """K_q q + C_q p."""
+        return self._K @ q + (0.0 if self._C is None else self._C @ p)
+
+    def jacobians(self, t, q, p):
+        """(K_q, C_q)."""
+        return self.stiffness, self.damping
+
+    def load(self, t):
+        """The body's F(t) (tractions, body force) on its free dofs."""
+        return self.problem.load(t)[self.free]
+
+    def potential(self, q):
+        """1/2 q . K_q q."""
+        return 0.5 * float(q @ (self._K @ q))
+
+    def kinetic_energy(self, p):
+        """1/2 p . M_q p."""
+        return 0.5 * float(p @ (self._M @ p))
+
+    def field(self, q: np.ndarray) -> np.ndarray:
+        """The body's dof vector u = E q (zero on the clamped parts); q may be (..., m)."""
+        q = np.asarray(q)
+        return (self.E @ q.T).T if q.ndim > 1 else self.E @ q
+
+    def describe(self) -> dict:
+        return {"type": "ElasticBody", "name": self.name, "size": int(self.size)}
+
+
+class Glue(Coupling):
+    """B u = G(q) on the base's part of an interface: G(q, x) = Pi S_Q E q (module
+    docstring), linear and constant in t; x must be the interface's side-1 points in the
+    order of ``interface.dofs1`` (checked)."""
+
+    is_linear = True
+
+    def __init__(self, interface: Interface, component: ElasticComponent):
+        super().__init__(interface.part1, component)
+        self.interface = interface
+        d = interface.space1.dim
+        S2 = interface.space2.vector_dofs(interface.dofs2)
+        P = (interface.vector(interface.Pi) @ component.E[S2]).toarray()  # (d k1, m)
+        self.J = np.ascontiguousarray(P.reshape(-1, d, P.shape[1]).transpose(1, 0, 2))
+        self._x1 = interface.space1.doflocs[:, interface.dofs1]
+
+    def _check(self, x):
+        if x.shape != self._x1.shape or not np.allclose(x, self._x1, rtol=0, atol=1e-12):
+            raise RotheInputError(
+                f"interface: the points of {self.part!r} are not the interface's side-1 "
+                "points (internal ordering)",
+                "interface",
+            )
+
+    def values(self, t, q, x):
+        """Pi S_Q E q at the part's points, (d, k1)."""
+        if x.shape[1] == self._x1.shape[1]:
+            self._check(x)
+            return np.einsum("dkm,m->dk", self.J, q)
+        return self.jacobian(t, q, x) @ q
+
+    def jacobian(self, t, q, x):
+        """The constant (d, k1, m); for a subset of the points (a dimension check) their
+        rows."""
+        if x.shape[1] == self._x1.shape[1]:
+            self._check(x)
+            return self.J
+        k = [int(np.argmin(np.abs(self._x1 - x[:, [i]]).sum(axis=0))) for i in range(x.shape[1])]
+        return self.J[:, k]
+
+    def describe(self) -> dict:
+        return {
+            "type": "Glue",
+            "part": self.part,
+            "component": self.component.name,
+            **self.interface.describe(),
+        }
+
+
+class GluedBodies:
+    """A base body with bodies glued to it (module docstring).
+
+    Parameters
+    ----------
+    base : Body
+        Prescribed data (``dirichlet``, ``clamped``), tractions, body force, damping of the
+        body that holds the others.
+    attached : sequence of (Body, base_part, body_part)
+        Each body glued along ``body_part`` to the base's ``base_part``; an attached body
+        takes ``clamped`` parts (u = 0) but no other prescribed data.
+    method : 'auto' | 'matching' | 'mortar'
+        Of every :class:`~rothe.eld.interface.Interface`.
+    T : float
+        End time.
+
+    Attributes
+    ----------
+    system : CoupledProblem
+        The base with the attached bodies as components (:func:`run_bodies` runs it).
+    interfaces : list of Interface
+    components : list of ElasticComponent
+    """
+
+    def __init__(self, base: Body, attached, *, method: str = "auto", T: float = 1.0):
+        if not isinstance(base, Body):
+            raise fail("base", type(base).__name__, "must be a rothe.eld.bodies.Body")
+        attached = list(attached)
+        if not attached:
+            raise fail("attached", [], "must glue at least one body to the base")
+        self.base_body = base
+        self.T = float(T)
+        base_parts = set((base.mesh.boundaries or {}).keys())
+        comps, glues, itfs, names = [], [], [], {base.name}
+        seen = {}
+        for k, item in enumerate(attached):
+            label = f"attached[{k}]"
+            if not (isinstance(item, tuple | list) and len(item) == 3):
+                raise fail(
+                    label, described(repr(item)[:60]), "must be (Body, base_part, body_part)"
+                )
+            body, part1, part2 = item
+            if not isinstance(body, Body):
+                raise fail(f"{label}[0]", type(body).__name__, "must be a rothe.eld.bodies.Body")
+            if body.dirichlet:
+                raise fail(
+                    f"{label}.dirichlet",
+                    sorted(body.dirichlet)[0],
+                    "must be empty: an attached body takes clamped parts (u = 0) only",
+                )
+            if body.name in names:
+                raise fail(f"{label}.name", body.name, "must be unique among the bodies")
+            names.add(body.name)
+            if part1 not in base_parts:
+                allowed = ", ".join(sorted(base_parts)) or "(the mesh has no named parts)"
+                raise fail(f"{label}.base_part", part1, f"must be one of {allowed}")
+            if part1 in seen:
+                raise fail(f"{label}.base_part", part1, f"is already glued ({seen[part1]})")
+            seen[part1] = label
+            parts2 = set((body.mesh.boundaries or {}).keys())
+            if part2 not in parts2:
+                allowed = ", ".join(sorted(parts2)) or "(the mesh has no named parts)"
+                raise fail(f"{label}.body_part", part2, f"must be one of {allowed}")
+            if part2 in (body.traction or {}):
+                raise fail(
+                    f"{label}.traction",
+                    part2,
+                    "is the glued part; a part is either glued or loaded",
+                )
+            for p in body.clamped:
+                if p not in parts2 or p == part2:
+                    raise fail(
+                        f"{label}.clamped",
+                        p,
+                        "must be a boundary part of the body other than the glued one: "
+                        + ", ".join(sorted(parts2 - {part2})),
+                    )
+            # the body assembled (its dirichlet: the clamped parts and, to fix nothing but the
+            # free dofs, the glued part; its loads and initial data as given)
+            problem = ELDProblem(
+                body.mesh,
+                body.material,
+                degree=body.degree,
+                damping=body.damping,
+                dirichlet={**{p: _CLAMP for p in body.clamped}, part2: _CLAMP},
+                traction=body.traction,
+                body_force=body.body_force,
+                u0=body.u0,
+                v0=body.v0,
+                T=self.T,
+                name=body.name,
+            )
+            comp = ElasticComponent(problem, body.clamped, body.name)
+            itf = Interface(
+                VectorSpace(base.mesh, base.degree),
+                part1,
+                problem.space,
+                part2,
+                method=method,
+                name=f"{label}.interface",
+            )
+            comps.append(comp)
+            itfs.append(itf)
+            glues.append(Glue(itf, comp))
+        dirichlet = {**{p: _CLAMP for p in base.clamped}, **dict(base.dirichlet or {})}
+        self.system = CoupledProblem.from_body(
+            base.mesh,
+            base.material,
+            components=comps,
+            couplings=glues,
+            dirichlet=dirichlet,
+            degree=base.degree,
+            damping=base.damping,
+            traction=base.traction,
+            body_force=base.body_force,
+            u0=base.u0,
+            v0=base.v0,
+            T=self.T,
+            name=base.name,
+        )
+        self.components, self.interfaces, self.glues = comps, itfs, glues
+        for glue in glues:  # the side-1 points in the interface's order
+            glue._check(self.system._points[glue.part])
+
+    @property
+    def base(self) -> ELDProblem:
+        """The base body's problem (its constraint covers the glued parts)."""
+        return self.system.body
+
+    def bodies(self) -> list:
+        """(name, space) of every body, the base first."""
+        return [(self.base.name, self.base.space)] + [
+            (c.name, c.problem.space) for c in self.components
+        ]
+
+    def fields(self, u: np.ndarray, q: np.ndarray) -> list:
+        """The dof vectors of all bodies, the base first, from the base's u and the stacked
+        coordinates q (one state: (n,), (r,); or series (k, n), (k, r))."""
+        out = [np.asarray(u)]
+        for c in self.components:
+            out.append(c.field(np.asarray(q)[..., self.system.slice(c)]))
+        return out
+
+    def multiplier(self, lam: np.ndarray, k: int = 0) -> np.ndarray:
+        """lambda on interface k (its side-1 nodes, interleaved), from the base's lambda."""
+        c = self.system.constraint
+        d = self.base.space.dim
+        pos = c.part_positions[self.interfaces[k].part1]
+        return np.asarray(lam)[..., (d * pos[:, None] + np.arange(d)).ravel()]
+
+    def interface_forces(self, lam: np.ndarray, k: int = 0):
+        """The nodal forces of interface k's multiplier on the two bodies: (on the base, -B^T
+        lambda, (n_1,); on body k, +(Pi S E)^T M_G lambda as a dof vector of body k,
+        (n_k,)). Their resultants sum to zero (action = reaction)."""
+        c = self.system.constraint
+        f1 = -(c.B.T @ self._only(lam, k))
+        gen = self.system.generalized_reaction(self._only(lam, k))
+        comp = self.components[k]
+        return f1, comp.E @ gen[self.system.slice(comp)]
+
+    def _only(self, lam, k):
+        keep = np.zeros_like(np.asarray(lam, float))
+        c = self.system.constraint
+        d = self.base.space.dim
+        pos = c.part_positions[self.interfaces[k].part1]
+        rows = (d * pos[:, None] + np.arange(d)).ravel()
+        keep[rows] = np.asarray(lam)[rows]
+        return keep
+
+    def describe(self) -> dict:
+        """Bodies (name, unknowns, degree, material) and interfaces, for summaries."""
+        return {
+            "bodies": [
+                {
+                    "name": name,
+                    "ndofs": int(space.ndofs),
+                    "degree": int(space.degree),
+                }
+                for name, space in self.bodies()
+            ],
+            "interfaces": [itf.describe() for itf in self.interfaces],
+        }
+
+
+def run_bodies(glued: GluedBodies, *, fields: bool = True, **options) -> CoupledResult:
+    """Run glued bodies (:class:`GluedBodies`) from 0 to T: :func:`run_coupled` on its
+    system, the keywords of which (scheme, form, control, T, watch, error_scale, progress)
+    ``options`` passes on. With ``fields`` the base's u, v and lambda are recorded at every
+    state (series ``u``, ``v``, ``lam``; the attached bodies' are their coordinates ``q``, ``p``:
+    :meth:`GluedBodies.fields`).
+
+    Trajectory series besides run_coupled's: ``reaction_<base_part>`` is the resultant the
+    attached body exerts on the base through that interface (-int lambda ds), ``constraint``
+    the interface residual max|S u_1 - Pi S u_k| / max(1, max|u_1|) at every accepted state,
+    ``balance`` the whole-system ledger's mismatch."""
+    if not isinstance(glued, GluedBodies):
+        raise fail("glued", type(glued).__name__, "must be a rothe.eld.bodies.GluedBodies")
+    options.setdefault("T", glued.T)
+    return run_coupled(glued.system, fields=fields, **options)
+
+
+def strip_pair(length: float, height: float, split: float, n1: int, n2: int):
+    """Two triangulated strips [0, split] x [0, H] and [split, L] x [0, H] with n1 and n2
+    cells across (round(n_k len_k / H) along, at least 1) and the parts left, right, bottom,
+    top: the bodies of ``rothe run eld-two-bodies`` (n1 = n2: matching interface nodes)."""
+    # scikit-fem is imported where a mesh is built (the start-up time of the command line)
+    from skfem import MeshTri
+
+    def strip(x0, x1, n):
+        nx = max(1, round(n * (x1 - x0) / height))
+        return tag_box_faces(
+            MeshTri.init_tensor(np.linspace(x0, x1, nx + 1), np.linspace(0, height, n + 1))
+        )
+
+    return strip(0.0, split, n1), strip(split, length, n2)
+
+
+def strip_union(
+    length, height, split, n, degree, material1, material2, *, traction, T, clamp="left"
+) -> ELDProblem:
+    """The single body on the union of :func:`strip_pair` (n cells across both): the same
+    cells, ``material1`` left of ``split`` and ``material2`` right of it (per-cell materials,
+    :class:`~rothe.eld.materials.PiecewiseMaterial`; one Material if they are equal), the
+    part ``clamp`` held at u = 0 and ``traction`` (part -> g) -- the reference a glued run
+    with matching meshes equals (``rothe run eld-two-bodies --compare-union``)."""
+    # scikit-fem is imported where a mesh is built (the start-up time of the command line)
+    from skfem import MeshTri
+
+    nx1 = max(1, round(n * split / height))
+    nx2 = max(1, round(n * (length - split) / height))
+    xs = np.r_[np.linspace(0.0, split, nx1 + 1), np.linspace(split, length, nx2 + 1)[1:]]
+    mesh = tag_box_faces(MeshTri.init_tensor(xs, np.linspace(0, height, n + 1)))
+    material = material1
+    if material1 != material2:
+        cx = mesh.p[0, mesh.t].mean(axis=0)
+        mesh = mesh.with_subdomains(
+            {"body1": np.flatnonzero(cx < split), "body2": np.flatnonzero(cx > split)}
+        )
+        material = PiecewiseMaterial(
+            {"material1": material1, "material2": material2},
+            regions={"body1": "material1", "body2": "material2"},
+        )
+    return ELDProblem(
+        mesh,
+        material,
+        degree=degree,
+        dirichlet={clamp: _CLAMP},
+        traction=traction,
+        T=T,
+        name="union",
+    )

@@ -1,0 +1,173 @@
+"""``rothe run eld-two-bodies``: the outputs (trajectory with each body's fields and the
+interface multiplier, one ParaView series per body, figure, summary), the glue at the shared
+nodes, mortar against matching meshes, two mesh files, help texts and one-line refusals."""
+
+from __future__ import annotations
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from ..conftest import run_cli, write_gmsh_body
+
+
+def _run(capsys, tmp_path, *args, plots=False):
+    out = tmp_path / "out"
+    argv = ["run", "eld-two-bodies", "--quiet", "--out", str(out), *args]
+    if not plots:
+        argv.append("--no-plots")
+    code, _, err = run_cli(capsys, *argv)
+    return code, out, err
+
+
+def test_two_bodies_write_each_bodys_fields_the_multiplier_and_paraview(tmp_path, capsys):
+    code, out, _ = _run(capsys, tmp_path, "--T", "0.5", "--tau", "0.01", plots=True)
+    assert code == 0
+    names = {p.name for p in out.iterdir()}
+    assert names >= {
+        "summary.json",
+        "trajectory.npz",
+        "fig_two_bodies.png",
+        "body1.xdmf",
+        "body2.xdmf",
+        "body1_multiplier.xdmf",
+        "body2_multiplier.xdmf",
+    }
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "completed" and s["accepted_steps"] == 50
+    assert s["interface_method"] == "matching" and s["ndofs"] == [90, 90]
+    assert s["material1"]["E"] == 100 and s["material2"]["rho"] == 2.0
+    assert s["constraint_max"] < 1e-14
+    assert s["balance_max"] < 1e-12 * max(s["energy_final"], s["work_loads"])
+    assert s["tip_deflection_max"] > 1e-3
+    d = np.load(out / "trajectory.npz")
+    assert d["body1_u"].shape == (51, 90) and d["body2_u"].shape == (51, 90)
+    lam = d["interface_right_lambda"]
+    assert lam.shape == (51, 2 * d["interface_right_points"].shape[0])
+    # the glue: equal displacements at the shared nodes, at every state
+    x1, x2 = d["body1_doflocs"], d["body2_doflocs"]
+    dist, k = cKDTree(x2).query(x1)
+    shared = dist < 1e-12
+    assert shared.sum() == 5  # P2, 2 cells across: 5 nodes on the interface
+    u1 = d["body1_u"].reshape(51, -1, 2)[:, shared]
+    u2 = d["body2_u"].reshape(51, -1, 2)[:, k[shared]]
+    assert np.abs(u1 - u2).max() < 1e-14 and np.abs(u1).max() > 1e-4
+    # the resultant on body 1 is -int lambda ds of the recorded multiplier (a nonzero force)
+    assert np.abs(d["reaction_right"]).max() > 1e-3
+    # ParaView: body 2's series has its u at the last time
+    with meshio.xdmf.TimeSeriesReader(str(out / "body2.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        assert reader.num_steps == 51
+        t, point_data, _ = reader.read_data(50)
+    assert t == pytest.approx(0.5)
+    assert np.abs(point_data["u"][:, :2]).max() == pytest.approx(
+        np.abs(d["body2_u"][-1]).max(), rel=1e-12
+    )
+
+
+@pytest.mark.parametrize("extra", [[], ["--scheme", "euler", "--lam2", "50", "--mu2", "80"]])
+def test_compare_union_equals_the_single_body_with_two_materials(tmp_path, capsys, extra):
+    """--compare-union: the glued run equals the union mesh's single body with per-cell
+    materials to solver tolerance (displacements at every node at T, energy at every state)."""
+    args = ["--T", "0.5", "--tau", "0.01", "--degree", "1", "--compare-union", *extra]
+    code, out, _ = _run(capsys, tmp_path, *args)
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["union_accepted_steps"] == s["accepted_steps"] == 50
+    assert s["union_difference_u"] < 1e-8 and s["union_difference_energy"] < 1e-8
+    assert s["union_ndofs"] == sum(s["ndofs"]) - 2 * 3  # the 3 interface nodes counted once
+    assert s["union_seconds_per_step"] > 0 and s["seconds_per_step_ratio"] > 0
+
+
+def test_mortar_interface_is_close_to_the_matching_one(tmp_path, capsys):
+    tips = {}
+    for label, n2 in (("matching", "2"), ("mortar", "3")):
+        code, out, _ = _run(capsys, tmp_path, "--T", "0.4", "--tau", "0.02", "--n2", n2)
+        assert code == 0
+        s = json.loads((out / "summary.json").read_text())
+        assert s["interface_method"] == label
+        tips[label] = s["tip_deflection_max"]
+        assert s["balance_max"] < 1e-12 * s["work_loads"]
+    assert abs(tips["mortar"] / tips["matching"] - 1) < 0.05
+
+
+def test_two_mesh_files_glued_and_apart(tmp_path, capsys):
+    one = write_gmsh_body(tmp_path / "one.msh", nx=4, ny=2, length=1.0, height=0.5)
+    two = write_gmsh_body(tmp_path / "two.msh", nx=4, ny=2, length=1.0, height=0.5, x0=1.0)
+    apart = write_gmsh_body(tmp_path / "apart.msh", nx=4, ny=2, length=1.0, height=0.5, x0=1.5)
+    common = ["--interface", "outlet,inlet", "--clamp", "inlet", "--load-part", "outlet"]
+    code, out, _ = _run(
+        capsys,
+        tmp_path,
+        "--mesh1",
+        one,
+        "--mesh2",
+        two,
+        *common,
+        "--degree",
+        "1",
+        "--T",
+        "0.2",
+        "--tau",
+        "0.02",
+    )
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interface_method"] == "matching" and s["mesh2"] == str(two)
+    code, _, err = _run(capsys, tmp_path, "--mesh1", one, "--mesh2", apart, *common)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1
+    assert lines[0].startswith(
+        "rothe: error: --interface: got parts 'outlet' (body 1) and 'inlet' (body 2) that do "
+        "not touch: 0 % of 'outlet' lies on 'inlet' (nearest distance 0.5"
+    ), lines
+
+
+def test_help_states_the_defaults_of_both_bodies(capsys):
+    code, out, _ = run_cli(capsys, "run", "eld-two-bodies", "--help")
+    text = " ".join(out.split())
+    assert code == 0
+    for phrase in (
+        "Young's modulus E (default 100)",
+        "body 2's Young's modulus (default 300)",
+        "body 2's density (default 2)",
+        "cells across body 2 (default --n1",
+        "(default bdf2)",
+    ):
+        assert phrase in text, phrase
+
+
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--n2", "0"], "--n2: got 0, must be an integer >= 1"),
+        (["--degree2", "3"], "--degree2: got 3, must be 1 or 2"),
+        (["--split", "1.5"], "--split: got 1.5, must lie strictly between 0 and --length 1"),
+        (["--method", "nitsche"], "--method: got 'nitsche', must be one of auto, matching"),
+        (["--direction", "z"], "--direction: got 'z', must be one of x, y"),
+        (["--interface", "right"], "--interface: got 'right', must be PART1,PART2"),
+        (["--interface", "rigth,left"], "--interface: got 'rigth', must be one of bottom, left"),
+        (["--interface", "right,lft"], "--interface: got 'lft', must be one of bottom, left"),
+        (["--clamp", "middle"], "--clamp: got 'middle', must be one of"),
+        (["--load-part", "left"], "--load-part: got 'left', is the glued part"),
+        (["--load-part", "back"], "--load-part: got 'back', must be one of"),
+        (["--E2", "-5"], "--E2: got -5, must be > 0"),
+        (["--E2", "1", "--lam2", "2"], "--E2: got 1, must not be combined with --lam2"),
+        (["--nu", "0.6"], "--nu: got 0.6, must satisfy -1 < nu < 0.5"),
+        (["--mesh1", "a.msh"], "--mesh2: got None, must be given with the other mesh file"),
+        (["--n2", "60"], "--n2: got a body 2 of"),
+        (["--tau", "0.003"], "--tau: got 0.003, must divide T = 2 into equal steps"),
+        (
+            ["--compare-union", "--n2", "3"],
+            "--compare-union: got it with --n2 3, needs the strip with matching meshes",
+        ),
+    ],
+)
+def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):
+    code, out, err = _run(capsys, tmp_path, *args)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("rothe: error: " + line), lines
+    assert not (out / "summary.json").exists()

@@ -1,0 +1,275 @@
+"""Glued bodies stepped in time (rothe.eld.bodies): two bodies with matching meshes equal one
+body on the union mesh (one material, two materials, three bodies), action = reaction, the
+whole-system ledger, BDF2's order, mortar interfaces converge to the matching result, and
+one-line refusals."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from skfem import MeshTri
+
+from rothe.eld import (
+    BDF2,
+    Body,
+    ELDProblem,
+    GluedBodies,
+    ImplicitEuler,
+    Material,
+    Original,
+    PiecewiseMaterial,
+    run_bodies,
+    run_eld,
+)
+from rothe.errors import RotheInputError
+from rothe.fem.mesh import tag_box_faces
+from rothe.stepping.controllers import Adaptive, Uniform
+
+H = 0.25
+SOFT = Material.from_young(100.0, 0.3, rho=1.0, dim=2)
+STIFF = Material.from_young(300.0, 0.2, rho=2.0, dim=2)
+
+
+def strip(x0, x1, nx, ny):
+    return tag_box_faces(
+        MeshTri.init_tensor(np.linspace(x0, x1, nx + 1), np.linspace(0, H, ny + 1))
+    )
+
+
+def pull(t, x, n):
+    """A smooth transverse traction on the free end: 0.5 sin^2(pi t) e_y."""
+    out = np.zeros_like(x)
+    out[1] = 0.5 * np.sin(np.pi * t) ** 2
+    return out
+
+
+def zero(t, x):
+    return 0.0 * x
+
+
+def two_bodies(mat1, mat2, *, n=4, ny=(2, 2), degree=1, method="auto", T=0.5):
+    return GluedBodies(
+        Body(strip(0, 0.5, n, ny[0]), mat1, degree=degree, clamped=("left",), name="one"),
+        [
+            (
+                Body(
+                    strip(0.5, 1.0, n, ny[1]),
+                    mat2,
+                    degree=degree,
+                    traction={"right": pull},
+                    name="two",
+                ),
+                "right",
+                "left",
+            )
+        ],
+        method=method,
+        T=T,
+    )
+
+
+def union(mat1, mat2, *, n=4, degree=1, T=0.5, cuts=(0.5,)):
+    """The single body on [0, 1] x [0, H] with mat1 left of the first cut, mat2 right."""
+    xs = np.linspace(0, 1, 2 * n + 1)
+    mesh = tag_box_faces(MeshTri.init_tensor(xs, np.linspace(0, H, 3)))
+    cx = mesh.p[0, mesh.t].mean(axis=0)
+    if mat1 is mat2:
+        material = mat1
+    else:
+        mesh = mesh.with_subdomains(
+            {"a": np.flatnonzero(cx < cuts[0]), "b": np.flatnonzero(cx > cuts[0])}
+        )
+        material = PiecewiseMaterial({"m1": mat1, "m2": mat2}, regions={"a": "m1", "b": "m2"})
+    with pytest.warns(UserWarning):  # (zero data: G_dot by differences, error 0)
+        return ELDProblem(
+            mesh,
+            material,
+            degree=degree,
+            dirichlet={"left": zero},
+            traction={"right": pull},
+            T=T,
+        )
+
+
+def at(space_from, u_from, points):
+    """u_from (interleaved dofs of space_from) at the dof points ``points`` (d, k)."""
+    k = cKDTree(space_from.doflocs.T).query(points.T)[1]
+    return u_from.reshape(-1, 2)[k]
+
+
+@pytest.mark.parametrize(
+    "mat2,scheme,form,degree",
+    [
+        (SOFT, BDF2(), None, 1),
+        (STIFF, BDF2(), None, 2),
+        (STIFF, ImplicitEuler(), Original(), 1),
+    ],
+)
+def test_two_glued_bodies_equal_the_union_mesh_run(mat2, scheme, form, degree):
+    """Matching meshes: the glued run is the single-body run on the union mesh (per-cell
+    materials for two materials) to solver tolerance: displacements at every node, energy."""
+    glued = two_bodies(SOFT, mat2, degree=degree)
+    opts = {"scheme": scheme, "control": Uniform(0.01)}
+    if form is not None:
+        opts["form"] = form
+    res = run_bodies(glued, **opts)
+    prob = union(SOFT, mat2, degree=degree)
+    one = run_eld(prob, **opts)
+    U = one.state.u
+    scale = np.abs(U).max()
+    assert scale > 1e-3  # the load bends the strip
+    for u, (_, space) in zip(glued.fields(res.state.u, res.state.q), glued.bodies(), strict=True):
+        ref = at(prob.space, U, space.doflocs)
+        assert np.abs(u.reshape(-1, 2) - ref).max() < 1e-10 * scale
+    E_glued = res.trajectory["energy"]
+    E_one = np.asarray(one.trajectory["energy"])
+    assert np.abs(E_glued - E_one).max() < 1e-10 * E_one.max()
+
+
+def test_three_bodies_glued_to_a_base_equal_the_union_mesh_run():
+    """Bodies on both sides of the base (a star: each interface joins the base): the left one
+    clamped, the right one loaded; the union mesh with three materials."""
+    base = Body(strip(1 / 3, 2 / 3, 3, 2), STIFF, name="middle")
+    left = Body(strip(0, 1 / 3, 3, 2), SOFT, clamped=("left",), name="left")
+    right = Body(strip(2 / 3, 1, 3, 2), SOFT, traction={"right": pull}, name="right")
+    glued = GluedBodies(base, [(left, "left", "right"), (right, "right", "left")], T=0.3)
+    res = run_bodies(glued, scheme=BDF2(), control=Uniform(0.01))
+    mesh = tag_box_faces(MeshTri.init_tensor(np.linspace(0, 1, 10), np.linspace(0, H, 3)))
+    cx = mesh.p[0, mesh.t].mean(axis=0)
+    mesh = mesh.with_subdomains(
+        {"mid": np.flatnonzero(abs(cx - 0.5) < 1 / 6), "out": np.flatnonzero(abs(cx - 0.5) > 1 / 6)}
+    )
+    material = PiecewiseMaterial({"s": STIFF, "o": SOFT}, regions={"mid": "s", "out": "o"})
+    with pytest.warns(UserWarning):
+        prob = ELDProblem(mesh, material, dirichlet={"left": zero}, traction={"right": pull}, T=0.3)
+    one = run_eld(prob, scheme=BDF2(), control=Uniform(0.01))
+    U = one.state.u
+    for u, (_, space) in zip(glued.fields(res.state.u, res.state.q), glued.bodies(), strict=True):
+        assert (
+            np.abs(u.reshape(-1, 2) - at(prob.space, U, space.doflocs)).max() < 1e-10 * abs(U).max()
+        )
+    assert np.abs(res.trajectory["balance"]).max() < 1e-13 * res.trajectory["energy"].max()
+
+
+def test_action_equals_reaction_and_the_ledger_closes():
+    """The multiplier's nodal forces on the two bodies have opposite resultants (to round-off),
+    the base's equals the recorded reaction; the interface holds at every accepted state; the
+    whole-system ledger closes and the glue does no work (no prescribed work)."""
+    glued = two_bodies(SOFT, STIFF, ny=(2, 3))  # (mortar: Pi reproduces constants)
+    assert glued.interfaces[0].method == "mortar"
+    res = run_bodies(glued, scheme=BDF2(), control=Uniform(0.01))
+    tr = res.trajectory
+    lam = np.asarray(tr["lam"])
+    assert lam.shape == (len(tr["t"]), glued.system.constraint.m)
+    worst, biggest = 0.0, 0.0
+    for k in range(1, lam.shape[0]):
+        f1, f2 = glued.interface_forces(lam[k])
+        s1, s2 = f1.reshape(-1, 2).sum(axis=0), f2.reshape(-1, 2).sum(axis=0)
+        worst = max(worst, np.abs(s1 + s2).max())
+        biggest = max(biggest, np.abs(s1).max())
+        assert np.allclose(s1, tr["reaction_right"][k], rtol=0, atol=1e-14 * max(1, abs(s1).max()))
+    assert biggest > 1e-3
+    assert worst < 1e-13 * biggest
+    assert glued.multiplier(lam[-1]).shape == (2 * glued.interfaces[0].dofs1.size,)
+    assert np.abs(tr["constraint"]).max() < 1e-14
+    E = tr["energy"]
+    assert E[-1] > 1e-4
+    assert np.abs(tr["balance"]).max() < 1e-12 * E.max()
+    assert np.abs(tr["work_prescribed"]).max() < 1e-15
+    # the energy is the loads' work up to the scheme's dissipation (BDF2: small, positive)
+    assert 0 < tr["numerical_dissipation"][-1] < 0.05 * tr["work_components"][-1]
+
+
+def test_bdf2_order_in_u_and_adaptive_steps():
+    """BDF2 on the smooth pull: order >= 1.8 in u of both bodies at T; adaptive steps reach
+    the uniform reference within the tolerance's size."""
+    glued = two_bodies(SOFT, STIFF, T=0.5)
+
+    def final(control):
+        r = run_bodies(glued, scheme=BDF2(), control=control, fields=False)
+        return np.concatenate(glued.fields(r.state.u, r.state.q)), r
+
+    ref, _ = final(Uniform(0.5 / 160))
+    errs = [np.abs(final(Uniform(tau))[0] - ref).max() for tau in (0.5 / 10, 0.5 / 20, 0.5 / 40)]
+    orders = np.log2(np.array(errs[:-1]) / errs[1:])
+    assert orders.min() >= 1.8, orders
+    # adaptive: a tighter tolerance takes more steps and gets closer (1e-2: 51 steps, 1.0 %;
+    # 1e-3: 115 steps, 0.22 % measured)
+    out = {}
+    for tol in (1e-2, 1e-3):
+        u, r = final(Adaptive(tol, tau=0.01))
+        out[tol] = (r.trajectory.stats.accepted_steps, np.abs(u - ref).max() / np.abs(ref).max())
+        assert np.abs(r.trajectory["balance"]).max() < 1e-12 * r.trajectory["energy"].max()
+    assert out[1e-2][0] < out[1e-3][0] < 200
+    assert out[1e-3][1] < 0.5 * out[1e-2][1] < 0.01
+
+
+def test_mortar_interfaces_converge_to_the_matching_result():
+    """Non-matching sides (2n against 3n cells across): the tip deflection approaches the
+    matching meshes' one under refinement, the difference falls by more than 1.6 per
+    halving."""
+
+    def tip(glued):
+        r = run_bodies(glued, scheme=BDF2(), control=Uniform(0.02), fields=False)
+        u2 = glued.fields(r.state.u, r.state.q)[1].reshape(-1, 2)
+        x = glued.components[0].problem.space.doflocs
+        return u2[np.isclose(x[0], 1.0), 1].mean()
+
+    diffs = []
+    for n in (1, 2, 4):
+        mortar = two_bodies(SOFT, STIFF, n=4 * n, ny=(2 * n, 3 * n))
+        assert mortar.interfaces[0].method == "mortar"
+        diffs.append(abs(tip(mortar) - tip(two_bodies(SOFT, STIFF, n=4 * n, ny=(2 * n, 2 * n)))))
+    rates = np.array(diffs[:-1]) / diffs[1:]
+    assert rates.min() > 1.6, (diffs, rates)
+
+
+def test_bad_glued_bodies_are_one_line_each():
+    m1, m2 = strip(0, 0.5, 2, 2), strip(0.5, 1, 2, 2)
+    far = strip(0.7, 1.2, 2, 2)
+    b1 = Body(m1, SOFT, clamped=("left",), name="one")
+    cases = [
+        (
+            lambda: GluedBodies(b1, [(Body(far, SOFT, name="two"), "right", "left")]),
+            r"^attached\[0\]\.interface: got parts 'right' \(body 1\) and 'left' \(body 2\) "
+            r"that do not touch: 0 % of 'right' lies on 'left'",
+        ),
+        (
+            lambda: GluedBodies(b1, [(Body(m2, SOFT, name="two"), "rigth", "left")]),
+            r"^attached\[0\]\.base_part: got 'rigth', must be one of bottom, left, right, top$",
+        ),
+        (
+            lambda: GluedBodies(b1, [(Body(m2, SOFT, name="two"), "right", "lft")]),
+            r"^attached\[0\]\.body_part: got 'lft', must be one of bottom, left, right, top$",
+        ),
+        (
+            lambda: GluedBodies(
+                b1, [(Body(m2, SOFT, clamped=("left",), name="two"), "right", "left")]
+            ),
+            r"^attached\[0\]\.clamped: got 'left', must be a boundary part of the body other "
+            r"than the glued one: bottom, right, top$",
+        ),
+        (
+            lambda: GluedBodies(
+                b1, [(Body(m2, SOFT, dirichlet={"right": zero}, name="two"), "right", "left")]
+            ),
+            r"^attached\[0\]\.dirichlet: got 'right', must be empty",
+        ),
+        (
+            lambda: GluedBodies(b1, [(Body(m2, SOFT, name="one"), "right", "left")]),
+            r"^attached\[0\]\.name: got 'one', must be unique among the bodies$",
+        ),
+        (
+            lambda: GluedBodies(b1, []),
+            r"^attached: got \[\], must glue at least one body to the base$",
+        ),
+        (
+            lambda: GluedBodies(
+                Body(m1, SOFT, clamped=("right",), name="one"),
+                [(Body(m2, SOFT, name="two"), "right", "left")],
+            ),
+            r"^couplings\[0\]\.part: got 'right', also carries prescribed Dirichlet data",
+        ),
+    ]
+    for build, pattern in cases:
+        with pytest.raises(RotheInputError, match=pattern):
+            build()
