@@ -828,7 +828,7 @@ class RunEldPulse(EldRunCommand):
 
 
 #: eld-pulse-3d defaults (docs/adaptivity.md, benchmarks/space_adaptivity.py --family eld3d)
-PULSE3D_SPACE_TOL = 2e-3
+PULSE3D_SPACE_TOL = 8e-3
 PULSE3D_MAX_DOFS = 150_000
 PULSE3D_ADAPT_EVERY = 4
 
