@@ -1,4 +1,4 @@
-"""CLI commands for elastodynamics: ``rothe run eld-mms|eld-beam|eld-pulse``,
+"""CLI commands for elastodynamics: ``rothe run eld-mms|eld-beam|eld-pulse|eld-pulse-3d``,
 ``rothe study eld-convergence|eld-perturbation``.
 
 Outputs: ``summary.json``, ``trajectory.npz`` (runs: with the mesh,
@@ -22,7 +22,14 @@ import shutil
 import numpy as np
 
 from ..eld.data import NOISE_TARGETS
-from ..eld.examples import beam_problem, mms_errors, mms_problem, pulse_problem, tip_mass_problem
+from ..eld.examples import (
+    beam_problem,
+    mms_errors,
+    mms_problem,
+    pulse_3d_problem,
+    pulse_problem,
+    tip_mass_problem,
+)
 from ..eld.output import EldXdmfWriter, write_eld_result
 from ..eld.run import BACKENDS, ELDResult, prepare_eld_run
 from ..eld.studies import (
@@ -757,25 +764,32 @@ class RunEldPulse(EldRunCommand):
             default_adapt_every=PULSE_ADAPT_EVERY,
         )
 
-    def validate(self, args):
-        """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
+    #: the space options' defaults (eld-pulse-3d has its own)
+    space_defaults = dict(
+        default_tol=PULSE_SPACE_TOL,
+        default_max_dofs=PULSE_MAX_DOFS,
+        default_adapt_every=PULSE_ADAPT_EVERY,
+    )
+
+    def pulse_checks(self, args):
+        """The checks of the step, size, pulse and space options (eld-pulse and eld-pulse-3d).
+        Returns ``(objects, keep, n, length, space)``."""
         objects, keep = self.step_checks(args)
-        check_mesh_options(args, ("--n", "--length"))
         n = check_int("--n", args.n, minimum=1)
         if args.degree not in (1, 2):
             raise fail("--degree", args.degree, "must be 1 or 2")
         length = check_positive("--length", args.length)
-        if args.mesh is None:
-            check_mms_size(max(n, round(n * length)), args.degree)
         for option in ("--t-pulse", "--width"):
             check_positive(option, getattr(args, option.lstrip("-").replace("-", "_")))
-        space = space_adaptivity(
-            args,
-            default_tol=PULSE_SPACE_TOL,
-            default_max_dofs=PULSE_MAX_DOFS,
-            hysteresis=True,
-            default_adapt_every=PULSE_ADAPT_EVERY,
-        )
+        space = space_adaptivity(args, hysteresis=True, **self.space_defaults)
+        return objects, keep, n, length, space
+
+    def validate(self, args):
+        """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
+        check_mesh_options(args, ("--n", "--length"))
+        objects, keep, n, length, space = self.pulse_checks(args)
+        if args.mesh is None:
+            check_mms_size(max(n, round(n * length)), args.degree)
         parts = parts_of(args)
         if args.mesh is None and not args.material:
             material_of(args, MMS_MATERIAL)  # (on a mesh: in its dimension, when loaded)
@@ -815,6 +829,122 @@ class RunEldPulse(EldRunCommand):
                 if args.material
                 else material_fields(args, MMS_MATERIAL, material)
             )
+
+        return self.run(
+            args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
+        )
+
+
+#: eld-pulse-3d defaults (docs/adaptivity.md, benchmarks/space_adaptivity.py --family eld3d)
+PULSE3D_SPACE_TOL = 8e-3
+PULSE3D_MAX_DOFS = 150_000
+PULSE3D_ADAPT_EVERY = 4
+
+
+@command("run", "eld-pulse-3d")
+class RunEldPulse3d(RunEldPulse):
+    """``rothe run eld-pulse-3d``: the boundary pulse in a 3D block on adaptive meshes
+    (:func:`rothe.eld.examples.pulse_3d_problem`, P2 by default: why in its docstring)."""
+
+    help = (
+        "The block [0, length] x [0, 1] x [0, 1] pushed by a short pulse around the centre of "
+        "its face x = 0: the pressure and shear fronts cross it, adaptive tetrahedral meshes "
+        "refine on them and coarsen behind (P2 by default)"
+    )
+    name = "eld-pulse-3d"
+    parameter_options: dict = {}
+    space_defaults = dict(
+        default_tol=PULSE3D_SPACE_TOL,
+        default_max_dofs=PULSE3D_MAX_DOFS,
+        default_adapt_every=PULSE3D_ADAPT_EVERY,
+    )
+
+    def configure(self, parser) -> None:
+        """The step options (BDF2, tau 0.01), the block, the pulse, the material and damping,
+        --lifting, --keep-every, the space options (on by default) and the outputs."""
+        step_options(parser, 0.01, scheme_default="bdf2")
+        parser.add_argument(
+            "--n",
+            type=int,
+            default=2,
+            help="cubes (of six tetrahedra) across the block's cross-section in the initial "
+            "mesh (default 2; round(length*n) along x)",
+        )
+        parser.add_argument(
+            "--degree", type=int, default=2, help="1 or 2 (default 2: P2, see the docs)"
+        )
+        float_option(
+            parser, "--length", default=1.0, help="length of the block along x (default 1)"
+        )
+        float_option(
+            parser,
+            "--T",
+            default=0.5,
+            help="end time (default 0.5: the pressure front reaches x = 1)",
+        )
+        float_option(
+            parser,
+            "--amplitude",
+            default=0.01,
+            help="peak displacement of the pulse (default 0.01)",
+        )
+        float_option(parser, "--t-pulse", default=0.1, help="duration of the pulse (default 0.1)")
+        float_option(
+            parser,
+            "--width",
+            default=0.15,
+            help="width of the pushed spot around (0, 1/2, 1/2) (default 0.15)",
+        )
+        material_options(parser, MMS_MATERIAL, rho=1.0)
+        float_option(
+            parser,
+            "--b",
+            default=0.001,
+            help="Rayleigh stiffness-proportional damping b (default 0.001)",
+        )
+        lifting_option(parser)
+        keep_option(parser, 10)
+        self.add_common_options(
+            parser,
+            on=True,
+            default_tol=PULSE3D_SPACE_TOL,
+            default_max_dofs=PULSE3D_MAX_DOFS,
+            hysteresis=ELD_HYSTERESIS,
+            default_adapt_every=PULSE3D_ADAPT_EVERY,
+        )
+
+    def validate(self, args):
+        """The checks of eld-pulse (:meth:`RunEldPulse.pulse_checks`), the block's size
+        against the memory, the material."""
+        objects, keep, n, length, space = self.pulse_checks(args)
+        check_beam_size(n, length, args.degree, "auto")  # the same box of P1/P2 nodes
+        material = material_of(args, MMS_MATERIAL, dim=3)
+        return objects, keep, n, length, space, material
+
+    def execute(self, args) -> int:
+        """Build the 3D pulse problem and run it as a session."""
+        objects, keep, n, length, space, material = self.validate(args)
+        problem = pulse_3d_problem(
+            n,
+            args.degree,
+            length=length,
+            amplitude=args.amplitude,
+            t_pulse=args.t_pulse,
+            width=args.width,
+            b=args.b,
+            T=args.T,
+            material=material,
+        )
+        fit_default_cap(args, space, problem.space.ndofs)
+        label = f"eld-pulse-3d, {objects['scheme'].name}, {objects['form'].name}, " + (
+            f"space_tol={space.space_tol:g}" if space else "fixed mesh"
+        )
+
+        def summarize(summary, result, completed):
+            summary.update(
+                n=n, length=length, degree=args.degree, t_pulse=args.t_pulse, width=args.width
+            )
+            summary["material"] = material_fields(args, MMS_MATERIAL, material)
 
         return self.run(
             args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize

@@ -587,6 +587,7 @@ def pulse_problem(
     mesh=None,
     material: Material | PiecewiseMaterial | None = None,
     dirichlet=("left",),
+    name: str = "eld-pulse",
 ) -> ELDProblem:
     """The pulse (:class:`BoundaryPulse`): the rectangle [0, length] x [0, 1] with round(length
     n) x n cells, the left side held and pushed by G around y = 1/2, the other sides free, at
@@ -610,6 +611,8 @@ def pulse_problem(
     material : Material or PiecewiseMaterial, optional
     dirichlet : sequence of str
         The held parts, the pushed one first (default ``("left",)``).
+    name : str
+        The problem's name (:func:`pulse_3d_problem`: ``"eld-pulse-3d"``).
 
     Returns
     -------
@@ -643,7 +646,99 @@ def pulse_problem(
         damping=RayleighDamping(0.0, b),
         dirichlet=data,
         T=T,
-        name="eld-pulse",
+        name=name,
+    )
+
+
+def block(nx: int, ny: int, nz: int, length: float = 1.0, width: float = 1.0, height: float = 1.0):
+    """[0, length] x [0, width] x [0, height] with nx x ny x nz cubes of six tetrahedra each
+    (scikit-fem's ``MeshTet.init_tensor``), the faces named left/right (x), bottom/top (y),
+    front/back (z)."""
+    # scikit-fem is imported where a mesh is built (the start-up time of the command line)
+    from skfem import MeshTet
+
+    return meshes.tag_box_faces(
+        MeshTet.init_tensor(
+            np.linspace(0.0, length, nx + 1),
+            np.linspace(0.0, width, ny + 1),
+            np.linspace(0.0, height, nz + 1),
+        )
+    )
+
+
+def pulse_3d_problem(
+    n: int = 2,
+    degree: int = 2,
+    *,
+    length: float = 1.0,
+    amplitude: float = 0.01,
+    t_pulse: float = 0.1,
+    width: float = 0.15,
+    b: float = 0.001,
+    rho: float = 1.0,
+    lam: float = 2.0,
+    mu: float = 1.0,
+    T: float = 0.5,
+    material: Material | None = None,
+    mesh=None,
+) -> ELDProblem:
+    """The pulse in 3D: the block [0, length] x [0, 1] x [0, 1] (:func:`block`, round(length n)
+    x n x n cubes of six tetrahedra), its face x = 0 (``left``) held and pushed along x by
+    :class:`BoundaryPulse` around its centre (0, 1/2, 1/2),
+
+        G(t, x) = A s(t) exp(-((y - 1/2)^2 + (z - 1/2)^2) / width^2) e_x,
+
+    s(t) = sin^4(pi t / t_pulse) on [0, t_pulse]; the other faces free, at rest at t = 0,
+    Rayleigh damping b K. With lam = 2, mu = rho = 1 a pressure front (speed 2) leaves the
+    pushed spot as a half sphere of thickness ~ 2 t_pulse = 0.2, the shear front (speed 1)
+    follows; the pressure front reaches x = 1 at t = 0.5 (the default T) and the sides
+    y, z = 0, 1 at t = 0.25, from where reflections follow it. The localized push on part of
+    the face makes the fronts thin shells: the adaptive mesh refines on them and coarsens
+    behind.
+
+    P2 by default, P1 allowed. Why P2: a P2 tetrahedral space has about 8 times the dofs of P1
+    on the same mesh (vertices + edges, ~7 edges per vertex) and its matrix rows about twice
+    the nonzeros, so a P2 dof costs more to assemble, factor and solve; but the energy error
+    of a smooth wave falls as h^2 against P1's h, and at the errors of interest (a few per
+    cent) P2 needs far fewer dofs for the same error (the 2D pulse: P2 reaches P1's error with
+    fewer dofs by a factor that grows as the error falls; in 3D the factor is cubed, h^-3).
+    It also makes a reference one uniform refinement finer 4 times more accurate in the energy
+    norm (8 times in L2), which the 3D benchmark needs (benchmarks/space_adaptivity.py
+    ``--family eld3d``); with P1 the reference would have to be 4 times finer, 64 times the
+    cells.
+
+    Parameters
+    ----------
+    n, degree : int
+        Cubes across the block's cross-section; 1 or 2.
+    length, amplitude, t_pulse, width, b, rho, lam, mu, T : float
+    material : Material, optional
+        Instead of rho, lam, mu (dim 3).
+    mesh : skfem.MeshTet, optional
+        A refinement of the block with its named faces instead of n, length (the nested
+        meshes of the benchmark, :class:`rothe.fem.adapt.AdaptiveMesh` ``.uniform``).
+
+    Returns
+    -------
+    ELDProblem
+    """
+    if mesh is None:
+        n = check_int("n", n, minimum=1)
+        length = check_positive("length", length)
+        mesh = block(max(1, round(length * n)), n, n, length)
+    if material is None:
+        material = Material(rho=rho, lam=lam, mu=mu, dim=3)
+    return pulse_problem(
+        degree=degree,
+        amplitude=amplitude,
+        t_pulse=t_pulse,
+        width=width,
+        b=b,
+        T=T,
+        mesh=mesh,
+        material=material,
+        dirichlet=("left",),
+        name="eld-pulse-3d",
     )
 
 

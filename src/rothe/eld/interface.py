@@ -46,6 +46,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import RotheInputError, described, fail
 from ..fem.elasticity import VectorSpace
+from ..fem.topology import lagrange_values
 
 METHODS = ("auto", "matching", "mortar")
 #: node pairing and coplanarity tolerance, relative to the smallest interface facet size
@@ -80,23 +81,11 @@ def facet_dofs(space: VectorSpace, facets: np.ndarray) -> np.ndarray:
 
 def facet_basis(dim: int, degree: int, bary: np.ndarray) -> np.ndarray:
     """Values of the facet's Lagrange basis (order of :func:`facet_dofs`) at barycentric
-    coordinates ``bary`` (d, ...): shape (nloc, ...)."""
-    if degree == 1:
-        return bary
-    if dim == 2:
-        l0, l1 = bary
-        return np.stack([l0 * (2 * l0 - 1), l1 * (2 * l1 - 1), 4 * l0 * l1])
-    l0, l1, l2 = bary
-    return np.stack(
-        [
-            l0 * (2 * l0 - 1),
-            l1 * (2 * l1 - 1),
-            l2 * (2 * l2 - 1),
-            4 * l0 * l1,
-            4 * l1 * l2,
-            4 * l0 * l2,
-        ]
-    )
+    coordinates ``bary`` (d, ...): shape (nloc, ...). The facet is a simplex of dimension
+    dim - 1: its basis is the general one, :func:`rothe.fem.topology.lagrange_values`
+    (P2: lam_i (2 lam_i - 1) at the vertices, 4 lam_a lam_b on the edges, scikit-fem order)."""
+    assert bary.shape[0] == dim
+    return lagrange_values(bary, degree)
 
 
 def _clip(poly: np.ndarray, count: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:

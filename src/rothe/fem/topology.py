@@ -28,8 +28,13 @@ SKFEM_FACETS = {
     2: np.array([[0, 1], [1, 2], [0, 2]]),
     3: np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]),
 }
-#: local edges of a cell in scikit-fem order (for triangles the edges are the facets)
-SKFEM_EDGES = {2: SKFEM_FACETS[2], 3: np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])}
+#: local edges of a cell in scikit-fem order (for triangles the edges are the facets; a segment
+#: is its own edge: the P2 basis of a facet of a triangle, rothe.eld.interface.facet_basis)
+SKFEM_EDGES = {
+    1: np.array([[0, 1]]),
+    2: SKFEM_FACETS[2],
+    3: np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]]),
+}
 
 
 def opposite_faces(d: int) -> np.ndarray:
