@@ -138,6 +138,7 @@ ELD3D = PulseFamily(
     2,
     3,
     subprocess=True,
+    tols_l2=((6e-3, 3e-3), (6e-3, 3e-3, 1.5e-3, 8e-4)),
 )
 
 
