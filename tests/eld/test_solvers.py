@@ -62,3 +62,43 @@ def test_condensed_bordered_solve_equals_the_kkt_solution():
     )
     amg.factor(A)
     assert np.linalg.norm(amg.solve_reference(b) - z) <= 1e-8 * np.linalg.norm(z)
+
+
+def test_auto_takes_amg_earlier_on_the_meshes_of_an_adaptive_3d_run():
+    """'auto': LU up to 200k unknowns in 2D, 30k in 3D, and on a 3D mesh a space-adaptive run
+    built (it lives adapt_every steps, its LU is not amortized) up to 5k; 2D unchanged."""
+    from rothe.eld.solvers import resolve_kind
+
+    assert resolve_kind("auto", 150_000, 2) == resolve_kind("auto", 150_000, 2, True) == "direct"
+    assert resolve_kind("auto", 10_000, 3) == "direct"
+    assert resolve_kind("auto", 10_000, 3, short_lived=True) == "amg"
+    assert resolve_kind("auto", 5_000, 3, short_lived=True) == "direct"
+    assert resolve_kind("direct", 10_000, 3, short_lived=True) == "direct"
+
+
+def test_a_rebuilt_3d_mesh_above_the_short_lived_limit_runs_on_amg():
+    """The adapt step's rebuild passes short_lived: the first mesh keeps LU (below 30k), the
+    rebuilt one above 5k unknowns gets AMG, and the step on it solves to the same answer as
+    LU on the same mesh (to the Krylov tolerance)."""
+    from rothe.eld import BDF2, prepare_eld_run
+    from rothe.eld.examples import pulse_3d_problem
+    from rothe.fem.adapt import SpaceAdaptivity
+    from rothe.stepping.controllers import Uniform
+
+    problem = pulse_3d_problem(6, T=0.04)  # P2, 6 591 dofs
+    run = prepare_eld_run(
+        problem,
+        scheme=BDF2(),
+        control=Uniform(0.02),
+        adapt=SpaceAdaptivity(space_tol=1e-6, max_dofs=60_000, adapt_every=1),
+    )
+    first = run.stepper.system
+    assert first.kind == "direct"
+    new = run.stepper.adaptivity.rebuild(first, first.problem.space.mesh)
+    assert 5_000 < new.I.size < 30_000 and new.kind == "amg"
+    lu = first.rebuilt(first.problem, symmetric_lu=True)
+    rhs = np.random.default_rng(0).standard_normal(first.I.size)
+    assert lu.kind == "direct"
+    x_lu = lu.solver.solve_reference(rhs)
+    x_new = new.solver.solve_reference(rhs)
+    assert np.linalg.norm(x_new - x_lu) <= 1e-6 * np.linalg.norm(x_lu)

@@ -386,7 +386,7 @@ class ELDAdaptivity:
         symmetric mode (:class:`rothe.eld.solvers.ReferenceSolver`: 40 % less time per
         mesh; the initial mesh keeps the default mode, so a run whose mesh never changes is the
         fixed-mesh run bit for bit)."""
-        new = system.rebuilt(system.problem.on_mesh(mesh), symmetric_lu=True)
+        new = system.rebuilt(system.problem.on_mesh(mesh), symmetric_lu=True, short_lived=True)
         self.pending_factorizations += new.initial_factorizations
         return new
 

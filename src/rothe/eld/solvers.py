@@ -64,18 +64,28 @@ class SolveFailed(RuntimeError):
     """The Krylov method did not converge even with a fresh preconditioner."""
 
 
-def resolve_kind(kind: str, n: int, dim: int) -> str:
-    """'auto': sparse LU in 2D up to 200k unknowns and in 3D up to 30k, AMG above.
+#: 'auto' takes sparse LU up to this many unknowns, AMG above: 2D, 3D, and 3D meshes of a
+#: space-adaptive run (``short_lived``)
+LU_LIMITS = {2: 200_000, 3: 30_000, "3-short": 5_000}
+
+
+def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
+    """'auto': sparse LU in 2D up to 200k unknowns and in 3D up to 30k, AMG above; in 3D on
+    the meshes a space-adaptive run builds (``short_lived``) LU only up to 5k.
 
     3D LU fill grows fast: ``python benchmarks/eld_peers.py`` measured SuperLU at 56,355 dofs
     (P1 beam, N = 16) at 38 s and 0.98 GB peak, while the AMG setup of the 1,075,275-dof beam
-    took 18 s at 2.6 GB peak (docs/eld.md, "Linear algebra and scale").
+    took 18 s at 2.6 GB peak (docs/eld.md, "Linear algebra and scale"). A mesh of an adaptive
+    run lives ``adapt_every`` steps, so its LU is not amortized: on the 3D P2 pulse
+    (``benchmarks/space_adaptivity.py --family eld3d``) the LU of meshes up to 15k unknowns
+    was 11.5 of the 15.3 s of a run and its fill the run's peak memory; with AMG from 5k on
+    the run took 14.3 s, 353 instead of 536 MB (docs/adaptivity.md).
     """
     if kind not in SOLVERS:
         raise fail("solver", kind, "must be one of " + ", ".join(SOLVERS))
     if kind != "auto":
         return kind
-    limit = 200_000 if dim == 2 else 30_000
+    limit = LU_LIMITS[dim if dim == 2 or not short_lived else "3-short"]
     return "direct" if n <= limit else "amg"
 
 

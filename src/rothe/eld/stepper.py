@@ -1401,6 +1401,7 @@ class ELDStepper(StepperBase):
                 self.system = self.system.rebuilt(
                     self.system.problem.on_mesh(self.adaptivity.adaptation.mesh),
                     symmetric_lu=True,
+                    short_lived=True,
                 )
         self.system.restore_reference(data["solver_reference"])
         if data.get("solver_stats") is not None:

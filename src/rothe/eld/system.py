@@ -82,6 +82,9 @@ class ELDSystem:
     symmetric_lu : bool
         LU in SuperLU's symmetric mode (:class:`rothe.eld.solvers.ReferenceSolver`; space
         adaptivity: one factorization per mesh).
+    short_lived : bool
+        A mesh of a space-adaptive run (it lives ``adapt_every`` steps): 'auto' takes LU in
+        3D up to fewer unknowns (:func:`rothe.eld.solvers.resolve_kind`).
     """
 
     #: the right inverse B^- (regularized form), None in the original form
@@ -99,6 +102,7 @@ class ELDSystem:
         noise=None,
         times: PhaseTimes | None = None,
         symmetric_lu: bool = False,
+        short_lived: bool = False,
     ):
         self.problem = p = problem
         self.symmetric_lu = bool(symmetric_lu)
@@ -116,7 +120,7 @@ class ELDSystem:
         self._mass_values = None  # the scalar mass of the cells' densities (several materials)
         self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar), c.scalar_dofs)
         self._lean = self.D.matrix is None
-        self.kind = resolve_kind(solver, self.I.size, p.space.dim)
+        self.kind = resolve_kind(solver, self.I.size, p.space.dim, short_lived)
         rbm = p.space.rigid_body_modes(free_nodes) if self.kind == "amg" else None
         self.solver = self._make_solver(rbm, linear_rtol)
         self._store_first_matrix(tau_eff)
