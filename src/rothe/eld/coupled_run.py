@@ -49,15 +49,13 @@ from ..stepping.controllers import Adaptive, Uniform
 from ..stepping.evolve import evolve
 from ..timing import PhaseTimes
 from .controllers import step_controller
-from .coupled_step import CoupledStepSystem
+from .coupled_step import SPARSE_COORDINATES, CoupledStepSystem
 from .coupling import CoupledProblem
 from .form import DEFAULT_FORM, Original, as_form
 from .scheme import BDF2, DEFAULT_SCHEME, as_scheme
 from .state import ELDCode
 from .stepper import GridLoop, StepGrid
 
-#: from this many component coordinates on (glued bodies) M_q, K_q, C_q are kept sparse
-SPARSE_COORDINATES = 64
 #: the history a step needs (two states for BDF2)
 _HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
 #: the products with the body's matrices kept with that history (rho M v, K u, K v, rho M a):
@@ -419,7 +417,7 @@ class CoupledStepper(GridLoop):
     def _step(self, state: CoupledState, tau: float):
         system, kern, body, c = self.system, self.kern, self.body, self.c
         I, n, s = kern.I, self.n, self.s_ctrl
-        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi_sparse, self.Mq, self.Kq, self.Cq
+        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi_step, self.Mq, self.Kq, self.Cq
         rhoM, K, Cmat = self.rhoM, kern.K, self.C
         hist = self._history(state, tau)
         if isinstance(self.scheme, BDF2):

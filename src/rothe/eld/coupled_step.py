@@ -53,6 +53,10 @@ from ..errors import RunFailed, fail
 from .constraint import HarmonicLifting, NodalLifting
 from .coupling import CoupledProblem
 
+#: from this many coordinates on (glued bodies) the border's matrices are kept sparse; below,
+#: dense (a few coordinates: dense products cost less than sparse ones per step)
+SPARSE_COORDINATES = 64
+
 
 def _dense(A):
     """A dense copy of a sparse matrix (the components' block of glued bodies), else A."""
@@ -111,8 +115,10 @@ class CoupledStepSystem:
             raise fail("lifting", lifting, "must be one of nodal, harmonic")
         self.Gamma = system.gamma().toarray()
         self.Phi = system.lifted_modes(self.lifting)  # (n, r)
-        self.Phi_sparse = sp.csr_matrix(self.Phi)  # (the products of a step)
+        self.Phi_sparse = sp.csr_matrix(self.Phi)
         self.r = system.size
+        #: Phi as the step's products take it (sparse for glued bodies)
+        self.Phi_step = self.Phi_sparse if self.r >= SPARSE_COORDINATES else self.Phi
         self.Mq = system.mass()
         n, m = body.space.ndofs, c.m
         ctrls = system.controllers
@@ -221,7 +227,8 @@ class CoupledStepSystem:
         EDW = self.E @ (self.Dc @ W) if self.k_in else None
         top = PhiA[:, I] if EDW is None else sp.csr_matrix(PhiA[:, I].toarray() - EDW[:, I])
         blocks = [top] + ([sp.csr_matrix(-(self.Bc @ W)[:, I])] if s else [])
-        self.V = V = sp.vstack(blocks, format="csr") if blocks[0].shape[0] or s else top.tocsr()
+        V = sp.vstack(blocks, format="csr") if blocks[0].shape[0] or s else top.tocsr()
+        self.V = V = V if r + s >= SPARSE_COORDINATES else V.toarray()
         C = np.zeros((r + s, r + s))
         C[:r, :r] = PhiA @ self.Phi
         if EDW is not None:
