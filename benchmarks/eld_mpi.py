@@ -86,6 +86,8 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     stamps = []
 
     def observer(state, result):
+        if result is None:  # the initial state (recorded with lambda(0)): not a step
+            return
         stamps.append((time.perf_counter(), result.counters.get("krylov_iterations", 0)))
 
     t0 = clock()

@@ -142,6 +142,8 @@ def rothe_child(
     stamps = []
 
     def observer(state, result):
+        if result is None:  # the initial state (recorded with lambda(0)): not a step
+            return
         stamps.append((time.perf_counter(), result.counters.get("krylov_iterations", 0)))
 
     t0 = time.perf_counter()
