@@ -21,8 +21,8 @@ from ..eld.data import DATA_MODES, DEFAULT_DATA
 from ..eld.form import DEFAULT_FORM, Original, Regularized
 from ..eld.materials import ELASTIC_PAIRS, PLANES, material_from, materials_from
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
-from ..eld.studies import check_delta, check_halvings, check_noise_targets, check_uniform_runs
-from ..errors import check_choice, check_int, check_positive, described, fail
+from ..eld.studies import check_halvings, check_uniform_runs
+from ..errors import check_choice, check_positive, described, fail
 from ..fem.mesh import DUPLICATE_NODES, load_mesh, mesh_dim
 from ..stepping.controllers import Adaptive, Given, Uniform
 from .adapt_options import check_memory
@@ -563,13 +563,11 @@ def check_eld_step(option: str, tau, T: float) -> float:
 
 
 def check_study_options(args) -> None:
-    """The study options that rothe.eld.studies also checks, named as on the command line."""
+    """The study options that rothe.eld.studies also checks, named as on the command line (the
+    perturbation studies check --targets, --seed, --delta themselves, against their own
+    targets: StudyEldPerturbation.execute)."""
     if hasattr(args, "halvings"):
         check_halvings("--halvings", args.halvings, args.tau0, args.T)
-    if hasattr(args, "targets"):
-        check_noise_targets("--targets", args.targets)
-        check_int("--seed", args.seed, minimum=0)
-        check_delta("--delta", args.delta)
 
 
 def check_convergence_runs(args, scheme, data) -> None:
