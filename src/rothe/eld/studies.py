@@ -21,6 +21,7 @@ implicitly (xi ~ theta/tau, vartheta ~ theta/tau^2); noise in G_dot or G_ddot do
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -414,7 +415,7 @@ def perturbation_study(
     """
     # a run's own progress only in this process (a worker's stderr is not the user's)
     inner_progress = progress if executor is None or executor.in_process else False
-    forms, taus, targets, (delta, seed, scheme), tasks, results, t0 = _noise_runs(
+    runs = _noise_runs(
         perturbation_run,
         forms,
         taus,
@@ -431,35 +432,60 @@ def perturbation_study(
         rho=rho,
         progress=inner_progress,
     )
-    meta = _problem_meta(results, lambda: mms_problem(n, degree, damping=damping, rho=rho, T=T)[0])
+    meta = _problem_meta(
+        runs.results, lambda: mms_problem(n, degree, damping=damping, rho=rho, T=T)[0]
+    )
     out = {
         "example": "eld-mms",
-        "scheme": scheme.name,
+        "scheme": runs.scheme.name,
         "n": n,
         "degree": degree,
         "ndofs": meta["ndofs"],
-        "targets": list(targets),
+        "targets": list(runs.targets),
         "damping": meta["damping"],
-        "tau": taus,
-        "delta": delta,
-        "seed": seed,
+        "tau": runs.taus,
+        "delta": runs.delta,
+        "seed": runs.seed,
         "norms": {"lam": "L2(Gamma_D)", "v": "L2(Omega)", "u": "L2(Omega)"},
     }
-    tables = _amplification_tables(out, tasks, results, targets, [f.name for f in forms])
+    tables = runs.tables(out)
     if "G" in tables:
-        for form in (f.name for f in forms):
+        for form in (f.name for f in runs.forms):
             out[f"amp_{form}"] = tables["G"][f"amp_{form}"]
             out[f"amp_v_{form}"] = tables["G"][f"amp_v_{form}"]
             out[f"amp_u_{form}"] = tables["G"][f"amp_u_{form}"]
-    out["seconds"] = time.perf_counter() - t0
+    out["seconds"] = time.perf_counter() - runs.t0
     return out
 
 
-def _noise_runs(run, forms, taus, targets, allowed, executor, *, delta, seed, scheme, **kwargs):
+@dataclass(frozen=True)
+class NoiseRuns:
+    """The (tau, form) runs of a perturbation study, validated and done (:func:`_noise_runs`):
+    the checked ``forms``, ``taus``, ``targets``, ``delta``, ``seed``, ``scheme``, the ``tasks``,
+    their ``results`` (in task order) and ``t0``, the start time of the runs."""
+
+    forms: tuple
+    taus: list
+    targets: tuple
+    delta: float
+    seed: int
+    scheme: object
+    tasks: list
+    results: list
+    t0: float
+
+    def tables(self, out: dict) -> dict:
+        """:func:`_amplification_tables` of these runs, put into ``out``."""
+        names = [f.name for f in self.forms]
+        return _amplification_tables(out, self.tasks, self.results, self.targets, names)
+
+
+def _noise_runs(
+    run, forms, taus, targets, allowed, executor, *, delta, seed, scheme, **kwargs
+) -> NoiseRuns:
     """The (tau, form) tasks of a perturbation study, validated and run: ``run(form, tau,
     delta=, targets=, seed=, scheme=, **kwargs)`` for every tau and form (``allowed``: the
-    targets the study knows). Returns the checked forms, taus, targets, (delta, seed, scheme),
-    the tasks, their results and the start time."""
+    targets the study knows)."""
     forms = tuple(as_form(f) for f in forms)
     scheme = as_scheme(scheme)
     taus = [check_positive("taus", t) for t in taus]
@@ -480,7 +506,7 @@ def _noise_runs(run, forms, taus, targets, allowed, executor, *, delta, seed, sc
     ]
     t0 = time.perf_counter()
     results = (executor or Executor(1, progress=False)).map(tasks)
-    return forms, taus, targets, (delta, seed, scheme), tasks, results, t0
+    return NoiseRuns(forms, taus, targets, delta, seed, scheme, tasks, results, t0)
 
 
 def _amplification_tables(out: dict, tasks, results, targets, names) -> dict:
@@ -627,7 +653,7 @@ def coupled_perturbation_study(
         Unused (coupled runs have no progress bar); for the commands' common call.
     executor : Executor, optional
     """
-    forms, taus, targets, (delta, seed, scheme), tasks, results, t0 = _noise_runs(
+    runs = _noise_runs(
         coupled_perturbation_run,
         forms,
         taus,
@@ -644,20 +670,20 @@ def coupled_perturbation_study(
         rho=rho,
     )
     meta = _problem_meta(
-        results, lambda: tip_mass_problem(n, degree, rho=rho, T=T, damping=damping).system.body
+        runs.results, lambda: tip_mass_problem(n, degree, rho=rho, T=T, damping=damping).system.body
     )
     out = {
         "example": "eld-tip-mass",
-        "scheme": scheme.name,
+        "scheme": runs.scheme.name,
         "n": n,
         "degree": degree,
         "ndofs": meta["ndofs"],
-        "targets": list(targets),
+        "targets": list(runs.targets),
         "damping": meta["damping"],
         "T": T,
-        "tau": taus,
-        "delta": delta,
-        "seed": seed,
+        "tau": runs.taus,
+        "delta": runs.delta,
+        "seed": runs.seed,
         "columns": ["R", "p", "q"],
         "norms": {
             "lam": f"|reaction on {COUPLED_PART!r}|",
@@ -665,8 +691,8 @@ def coupled_perturbation_study(
             "u": "|q| (tip displacement)",
         },
     }
-    _amplification_tables(out, tasks, results, targets, [f.name for f in forms])
-    out["seconds"] = time.perf_counter() - t0
+    runs.tables(out)
+    out["seconds"] = time.perf_counter() - runs.t0
     return out
 
 
