@@ -9,10 +9,14 @@ from mpi4py import MPI
 
 from rothe.eld import BDF2, ImplicitEuler, Original, Regularized, run_eld
 from rothe.eld.damping import NonlinearDamping
+from rothe.eld.distributed import stepper as distributed_stepper
 from rothe.eld.examples import beam_problem
 from rothe.stepping.controllers import Adaptive, Given, Uniform
 
 warnings.simplefilter("ignore")
+released = []  # matrices whose product data each GAMG set-up released
+_release = distributed_stepper.release_product_data
+distributed_stepper.release_product_data = lambda pc: released.append(_release(pc))
 comm = MPI.COMM_WORLD
 solver = sys.argv[1]
 linear = beam_problem(3, degree=1, T=0.1)
@@ -53,4 +57,4 @@ for p, form, scheme, control in (
             else 1.0,
         }
 if comm.rank == 0:
-    print(json.dumps(out))
+    print(json.dumps({"cases": out, "released": released}))

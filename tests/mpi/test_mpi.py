@@ -71,8 +71,13 @@ def test_distributed_assembly_equals_serial(degree):
 @needs_mpi
 @pytest.mark.parametrize("n,solver", [(1, "direct"), (2, "direct"), (2, "amg")])
 def test_beam_equals_serial(n, solver):
-    got = _json(_mpi(n, HERE / "mpi_run.py", solver))
+    run = _json(_mpi(n, HERE / "mpi_run.py", solver))
+    got = run["cases"]
     assert len(got) == 8
+    if solver == "amg":  # every GAMG set-up let go of its products' data (coarse A, P): >= 2 levels
+        assert run["released"] and min(run["released"]) >= 3, run["released"]
+    else:
+        assert run["released"] == []
     for case, r in got.items():
         assert r["steps"][0] == r["steps"][1], case
         assert r["reaction"] < 1e-6, (case, r)  # the issue's target; measured ~1e-11

@@ -48,3 +48,34 @@ def petsc_available() -> str | None:
     except RotheInputError as exc:
         return str(exc)
     return None
+
+
+def release_product_data(pc) -> int:
+    """Free what PETSc keeps with the Galerkin products of a set-up multigrid ``pc``; returns
+    how many matrices were cleared (0 where the C function cannot be reached).
+
+    GAMG forms each coarse operator as P^T A P (and smooths P by a product A T); PETSc keeps the
+    symbolic data of every product (on MPI the off-process rows of P and the A P block) in the
+    result, for a numeric re-product with the same pattern, which rothe never asks for: it sets
+    up a new hierarchy when the step matrix changes. ``MatProductClear`` drops it (measured on
+    the 1.07 M-dof beam, N = 2: 850 MB per process after the steps; docs/scaling.md). petsc4py
+    does not wrap that function, so it is called through ctypes from the library petsc4py's
+    extension module links (dlsym on that module searches its dependencies).
+    """
+    import ctypes
+
+    from petsc4py import PETSc
+
+    try:
+        clear = ctypes.CDLL(PETSc.__file__).MatProductClear
+    except (OSError, AttributeError):  # a build without the symbol: keep the data
+        return 0
+    clear.argtypes = [ctypes.c_void_p]
+    clear.restype = ctypes.c_int
+    levels = pc.getMGLevels()
+    operators = [pc.getMGSmoother(level).getOperators()[0] for level in range(levels)]
+    interpolations = [pc.getMGInterpolation(level) for level in range(1, levels)]
+    for mat in operators + interpolations:
+        if clear(mat.handle) != 0:
+            raise RuntimeError("MatProductClear failed on a matrix of the multigrid hierarchy")
+    return len(operators) + len(interpolations)
