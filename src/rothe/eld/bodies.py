@@ -131,9 +131,10 @@ class ElasticComponent(Component):
         rho = float(problem.material.rho)
         M = sp.csr_matrix(problem.M)
         K = sp.csr_matrix(problem.K)
-        # (dense: the coupled step's border is dense in the component's coordinates)
-        self.mass = (rho * M)[f][:, f].toarray()
-        self.stiffness = K[f][:, f].toarray()
+        # sparse (FE matrices on the free dofs): the coupled step factors the glued system as
+        # one sparse matrix (coupled_step.CoupledStepSystem.solve)
+        self.mass = (rho * M)[f][:, f].tocsr()
+        self.stiffness = K[f][:, f].tocsr()
         if not problem.damping_op.is_linear:
             raise fail(
                 f"{name}.damping",
@@ -141,12 +142,9 @@ class ElasticComponent(Component):
                 "must be linear (an attached body is a linear component)",
             )
         C = problem.damping_op.linear
-        self.damping = (
-            np.zeros_like(self.mass) if C is None else sp.csr_matrix(C)[f][:, f].toarray()
-        )
-        # sparse copies for the products of every step (force, energies)
-        self._M, self._K = (rho * M)[f][:, f].tocsr(), K[f][:, f].tocsr()
         self._C = None if C is None else sp.csr_matrix(C)[f][:, f].tocsr()
+        self.damping = sp.csr_matrix(self.mass.shape) if self._C is None else self._C
+        self._M, self._K = self.mass, self.stiffness
         self.q0 = problem.u0[f].copy()
         self.p0 = problem.v0[f].copy()
         self.coordinates = tuple(f"u{k}" for k in f)

@@ -228,14 +228,22 @@ class CoupledStepper(GridLoop):
         self.comps_linear = all(cmp.is_linear for cmp in system.components)
         self.Mq = system.mass()
         r = self.r
-        self.Kq = np.zeros((r, r))
-        self.Cq = np.zeros((r, r))
+        Ks, Cs = [], []
         for cmp in system.components:
-            if cmp.is_linear:
-                sl = system.slice(cmp)
-                self.Kq[sl, sl], self.Cq[sl, sl] = cmp.stiffness, cmp.damping
+            lin = cmp.is_linear
+            Ks.append(cmp.stiffness if lin else sp.csr_matrix((cmp.size, cmp.size)))
+            Cs.append(cmp.damping if lin else sp.csr_matrix((cmp.size, cmp.size)))
         if r >= SPARSE_COORDINATES:  # glued bodies: the components' matrices are FE matrices
-            self.Mq, self.Kq, self.Cq = (sp.csr_matrix(A) for A in (self.Mq, self.Kq, self.Cq))
+            self.Mq = sp.csr_matrix(self.Mq)
+            self.Kq = sp.block_diag(Ks, format="csr")
+            self.Cq = sp.block_diag(Cs, format="csr")
+        else:
+            self.Kq = np.zeros((r, r))
+            self.Cq = np.zeros((r, r))
+            for cmp, K_, C_ in zip(system.components, Ks, Cs, strict=True):
+                sl = system.slice(cmp)
+                self.Kq[sl, sl] = K_.toarray() if sp.issparse(K_) else K_
+                self.Cq[sl, sl] = C_.toarray() if sp.issparse(C_) else C_
         self.order = scheme.order
         self.max_ratio = scheme.ratio_cap
         self.grid = StepGrid(control, scheme, self.T, math.inf)

@@ -386,10 +386,10 @@ def coupled_modes(system: CoupledProblem, count: int = 6, lifting: str = "nodal"
         if not cmp.is_linear:
             raise fail("components", cmp.name, "must be linear for natural modes")
         sl = system.slice(cmp)
-        Kq[sl, sl] = cmp.stiffness
+        Kq[sl, sl] = _dense(cmp.stiffness)
     KT = T.T @ (kern.K @ T)
     KT[I.size :, I.size :] += Kq
     MT = T.T @ (kern.rho * (kern.M @ T))
-    MT[I.size :, I.size :] += kern.Mq
+    MT[I.size :, I.size :] += _dense(kern.Mq)
     w2, V = sla.eigh(0.5 * (KT + KT.T), 0.5 * (MT + MT.T), subset_by_index=[0, count - 1])
     return np.sqrt(np.maximum(w2, 0.0)), T @ V, V[I.size :]

@@ -511,8 +511,11 @@ class CoupledProblem:
             and all(getattr(k, "is_linear", True) for k in self.controllers)
         )
 
-    def mass(self) -> np.ndarray:
-        """blkdiag(M_q) over the components, (r, r)."""
+    def mass(self):
+        """blkdiag(M_q) over the components, (r, r): sparse if a component's mass is (glued
+        bodies), else dense."""
+        if any(sp.issparse(c.mass) for c in self.components):
+            return sp.block_diag([c.mass for c in self.components], format="csr")
         M = np.zeros((self.size, self.size))
         for c in self.components:
             s = self.slice(c)
@@ -532,7 +535,9 @@ class CoupledProblem:
         Fq, Fp = np.zeros((self.size, self.size)), np.zeros((self.size, self.size))
         for c in self.components:
             s = self.slice(c)
-            Fq[s, s], Fp[s, s] = c.jacobians(t, q[s], p[s])
+            Fq[s, s], Fp[s, s] = (
+                J.toarray() if sp.issparse(J) else J for J in c.jacobians(t, q[s], p[s])
+            )
         return Fq, Fp
 
     def load(self, t: float) -> np.ndarray:
