@@ -33,6 +33,12 @@ x_0 = -A_II^{-1} r_k,I, an (r + s) dense solve, and x_I = x_0 - X q. A nonlinear
 (or controller) is solved by Newton on xi alone (x_I stays the affine function x_0 - X q):
 no further back-substitution.
 
+With many coordinates (r >= :data:`SPARSE_COORDINATES`: glued bodies, whose attached body's
+free dofs are the coordinates) and no controllers the Schur complement would be dense r x r;
+the bordered matrix is then factored as one sparse matrix instead, T^T blkdiag(A, J_q) T with
+T = [[P_I^T, Phi], [0, I]] (the substitution u = P_I^T x_I + Phi q): one sparse LU per step
+size and one back-substitution per step (:meth:`CoupledStepSystem.solve`).
+
 The original form (2.7) with the same couplings is this system with the nodal lifting and the
 data differenced, g'_k = delta g_k, g''_k = delta g'_k (the boundary velocity and
 acceleration of the original form are the scheme's quotients of S u = g): the two forms differ
