@@ -22,7 +22,15 @@ evolve loop: CPU time is the work done, not the waits of a shared machine, and t
 ignores the steps another process disturbed) -- and their ratio, over ``--repeat`` alternating
 rounds. Target: ratio <= 1.3.
 
+Then ``eld-two-bodies`` (``rothe run eld-two-bodies --compare-union`` at its defaults: the
+strip 1 x 0.25 cut at 0.5, P2, E = 100/300, nu = 0.3/0.2, rho = 1/2, plane stress, the
+right end pulsed, tau = 0.01) for ``--bodies-n`` cells across: the glued step
+(:func:`rothe.eld.bodies.run_bodies`, matching meshes, fields not recorded) against the step of
+the single body on the union mesh (:func:`rothe.eld.bodies.strip_union`, ``run_eld``), the
+same clock, the same alternating rounds.
+
     python benchmarks/coupling.py [--n N] [--steps 100] [--repeat 10] [--only eld-tmd,...]
+                                  [--bodies-n 2,8,16]
 """
 
 from __future__ import annotations
@@ -34,7 +42,8 @@ import warnings
 
 import numpy as np
 
-from rothe.eld import BDF2, DirichletData, ELDProblem, run_eld
+from rothe.eld import BDF2, DirichletData, ELDProblem, Material, run_eld
+from rothe.eld.bodies import Body, GluedBodies, run_bodies, strip_pair, strip_union
 from rothe.eld.coupled_run import CoupledStepper, run_coupled
 from rothe.eld.examples import control_problem, tip_mass_problem, tmd_problem
 from rothe.eld.form import Regularized
@@ -137,12 +146,71 @@ def measure(name: str, n: int, steps: int, repeat: int) -> dict:
     }
 
 
+def two_bodies(n: int, T: float):
+    """The glued bodies of ``rothe run eld-two-bodies --n1 n`` (defaults) and the union body."""
+    mat1 = Material.from_young(100.0, 0.3, 1.0, dim=2, plane="stress")
+    mat2 = Material.from_young(300.0, 0.2, 2.0, dim=2, plane="stress")
+
+    def traction(t, x, nrm):
+        out = np.zeros_like(x)
+        if t < 0.5:
+            out[1] = 0.1 * np.sin(np.pi * t / 0.5) ** 2
+        return out
+
+    mesh1, mesh2 = strip_pair(1.0, 0.25, 0.5, n, n)
+    glued = GluedBodies(
+        Body(mesh1, mat1, degree=2, clamped=("left",), name="body1"),
+        [
+            (
+                Body(mesh2, mat2, degree=2, traction={"right": traction}, name="body2"),
+                "right",
+                "left",
+            )
+        ],
+        T=T,
+    )
+    union = strip_union(1.0, 0.25, 0.5, n, 2, mat1, mat2, traction={"right": traction}, T=T)
+    return glued, union
+
+
+def measure_bodies(n: int, steps: int, repeat: int) -> dict:
+    """CPU seconds per step of the glued run and of the union body's (:class:`StepClock`)."""
+    tau = 0.01
+    scheme, form, control = BDF2(), Regularized("nodal"), Uniform(tau)
+    T = steps * tau
+    clocks = {"c": StepClock(CoupledStepper), "p": StepClock(ELDStepper)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        glued, union = two_bodies(n, T)
+        for _ in range(repeat):
+            with clocks["c"]:
+                run_bodies(glued, scheme=scheme, form=form, control=control, fields=False)
+            with clocks["p"]:
+                run_eld(union, scheme=scheme, form=form, control=control, store_fields=False)
+    c, p = clocks["c"].per_step(), clocks["p"].per_step()
+    return {
+        "example": f"two-bodies n={n}",
+        "ndofs": glued.base.space.ndofs,
+        "r": glued.system.size,
+        "union": union.space.ndofs,
+        "steps": steps,
+        "coupled_s": c,
+        "prescribed_s": p,
+        "ratio": c / p,
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=None, help="cells across the strip (default 2)")
     ap.add_argument("--steps", type=int, default=100, help="steps per run (default 100)")
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--only", default=",".join(EXAMPLES))
+    ap.add_argument(
+        "--bodies-n",
+        default="2,8,16",
+        help="cells across of the eld-two-bodies rows (default 2,8,16; empty: none)",
+    )
     args = ap.parse_args(argv)
     rows = []
     header = (
@@ -159,6 +227,22 @@ def main(argv=None) -> int:
             f"{row['example']:14s} {row['ndofs']:6d} {row['r']:2d} {row['steps']:6d} "
             f"{row['coupled_s']:15.3e} {row['prescribed_s']:18.3e} {row['ratio']:6.2f}"
             f"   ({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
+    sizes = [int(x) for x in args.bodies_n.split(",") if x.strip()]
+    if sizes:
+        print(
+            f"\n{'glued bodies':18s} {'dofs 1':>7s} {'dofs 2':>7s} {'union':>6s} {'steps':>6s} "
+            f"{'glued s/step':>13s} {'union s/step':>13s} {'ratio':>6s}"
+        )
+    for n in sizes:
+        t0 = time.perf_counter()
+        row = measure_bodies(n, args.steps, args.repeat)
+        rows.append(row)
+        print(
+            f"{row['example']:18s} {row['ndofs']:7d} {row['r']:7d} {row['union']:6d} "
+            f"{row['steps']:6d} {row['coupled_s']:13.3e} {row['prescribed_s']:13.3e} "
+            f"{row['ratio']:6.2f}   ({time.perf_counter() - t0:.0f} s)",
             flush=True,
         )
     worst = max(r["ratio"] for r in rows)

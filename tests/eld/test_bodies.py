@@ -273,3 +273,33 @@ def test_bad_glued_bodies_are_one_line_each():
     for build, pattern in cases:
         with pytest.raises(RotheInputError, match=pattern):
             build()
+
+
+def test_glued_step_is_one_sparse_factorization_and_agrees_with_the_schur_path(monkeypatch):
+    """P2 bodies (body 2: 90 coordinates): the bordered step factored as one sparse matrix --
+    one factorization per step size (the consistent acceleration's and the step's), one
+    back-substitution per step, no dense border -- and the same numbers as the Schur
+    complement path (forced by raising the threshold) to solver round-off."""
+    from rothe.eld import coupled_run, coupled_step
+
+    opts = {"scheme": BDF2(), "control": Uniform(0.02), "T": 0.2}
+    mono = run_bodies(two_bodies(SOFT, STIFF, degree=2), **opts)
+    kern = mono.stepper.kern
+    assert kern.monolithic and kern.r == 90
+    assert kern.X is None  # no r back-substitutions, no dense r x r Schur complement
+    assert kern.stats["factorizations"] == 2
+    assert kern.stats["back_substitutions"] == mono.state.j + 1
+    monkeypatch.setattr(coupled_step, "SPARSE_COORDINATES", 10**6)
+    monkeypatch.setattr(coupled_run, "SPARSE_COORDINATES", 10**6)
+    schur = run_bodies(two_bodies(SOFT, STIFF, degree=2), **opts)
+    assert not schur.stepper.kern.monolithic
+    # the border's non-zero columns (body 2's 5 interface nodes x 2) per factorization
+    assert schur.stepper.kern.stats["back_substitutions"] == 2 * 10 + schur.state.j + 1
+    scale = np.abs(schur.state.u).max()
+    assert scale > 1e-4
+    assert np.abs(mono.state.u - schur.state.u).max() < 1e-10 * scale
+    assert np.abs(mono.state.q - schur.state.q).max() < 1e-10 * np.abs(schur.state.q).max()
+    assert np.abs(mono.state.lam - schur.state.lam).max() < 1e-9 * np.abs(schur.state.lam).max()
+    assert (
+        np.abs(mono.trajectory["balance"]).max() < 1e-12 * np.abs(mono.trajectory["energy"]).max()
+    )

@@ -300,3 +300,31 @@ def test_bad_coupling_input_is_one_line_each():
         system.check_initial_consistency()
     system.body.u0 = system.consistent_u0()
     assert system.check_initial_consistency() == 0.0
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_known_data_are_the_bodys_data_without_the_coupled_parts(degree):
+    """CoupledProblem.known_data (the step's prescribed data, placeholders skipped) equals the
+    body's G, G_dot, G_ddot on every constrained dof, for data varying along the part."""
+    from rothe.eld import DirichletData
+
+    def f(t, x):
+        return np.stack([np.sin(t) * x[1] ** 2, np.cos(t) * x[1] + x[0]])
+
+    def fd(t, x):
+        return np.stack([np.cos(t) * x[1] ** 2, -np.sin(t) * x[1] + 0 * x[0]])
+
+    def fdd(t, x):
+        return np.stack([-np.sin(t) * x[1] ** 2, -np.cos(t) * x[1] + 0 * x[0]])
+
+    mesh = tag_box_faces(MeshTri.init_tensor(np.linspace(0, 1, 7), np.linspace(0, 0.25, 4)))
+    mat = Material.from_young(100.0, 0.3, 1.0, dim=2, plane="stress")
+    body = ELDProblem(mesh, mat, degree=degree, dirichlet={"left": DirichletData(f, fd, fdd)})
+    tip = PointMass(0.3, dim=2)
+    system = CoupledProblem(body, [tip], [Translation("right", tip)])
+    known = system.known_data(0.7)
+    ref = (system.body.G(0.7), system.body.G_dot(0.7), system.body.G_ddot(0.7))
+    assert np.abs(ref[0]).max() > 0.1 and np.abs(ref[1]).max() > 0.01
+    for a, b in zip(known, ref, strict=True):
+        assert np.array_equal(a, b)
+    assert np.array_equal(system.known_data(0.7, derivatives=False)[0], ref[0])

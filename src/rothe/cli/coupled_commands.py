@@ -678,7 +678,7 @@ TWO_BODIES_MATERIAL = {"E": 100.0, "nu": 0.3}
 TWO_BODIES_MATERIAL2 = {"E": 300.0, "nu": 0.2}
 #: body 2's material options -> the API parameters they stand for
 _BODY2_OPTIONS = {"E": "--E2", "nu": "--nu2", "lam": "--lam2", "mu": "--mu2", "rho": "--rho2"}
-#: the most unknowns of body 2 (the attached body's border is dense: docs/coupling.md)
+#: the most unknowns of body 2 (the glue's Jacobian is built dense in them: docs/coupling.md)
 TWO_BODIES_MAX_DOFS2 = 6000
 
 
@@ -930,7 +930,7 @@ class RunEldTwoBodies(CoupledRunCommand):
             raise fail(
                 "--n2" if args.mesh2 is None else "--mesh2",
                 described(f"a body 2 of {d2} unknowns"),
-                f"must have at most {TWO_BODIES_MAX_DOFS2} (body 2's border is dense)",
+                f"must have at most {TWO_BODIES_MAX_DOFS2} (the glue's Jacobian is dense in them)",
             )
         axis = "xy".index(args.direction)
         force, pulse = args.force, args.pulse

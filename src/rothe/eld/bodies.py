@@ -24,20 +24,18 @@ constraint forces -lambda . M_G g_t vanishes), so the whole-system ledger of
 (the components' kinetic 1/2 p.M_q p and potential 1/2 q.K_q q) against the work of the loads
 of all bodies, damping and the scheme's numerical dissipation -- closes to round-off.
 
-**Why the coupled stepper and not a monolithic one** (``Interface.substitution``: T^T
-blkdiag(A_1, A_k) T): the glued step then is exactly the bordered step of
-:mod:`rothe.eld.coupled_step` -- implicit Euler and BDF2, both forms (regularized: B v_2 =
-G' = Pi S p, B w_2 = G'' = Pi S pdot expressed by the attached body's velocities and
+**Stepped by the coupled stepper, solved monolithically**: the glued step is the bordered
+step of :mod:`rothe.eld.coupled_step` -- implicit Euler and BDF2, both forms (regularized:
+B v_2 = G' = Pi S p, B w_2 = G'' = Pi S pdot expressed by the attached body's velocities and
 accelerations; original), uniform and adaptive steps with the attached bodies' energies in the
 error norm, the multiplier, the ledger, the constraint residual at every accepted step -- with
-no new stepper. With the nodal lifting its equations are those of the union mesh (the rows of
-body 1's interface nodes are added to their partners' through Phi^T r), which is why glued
-bodies with matching meshes equal one body (tested). The price: the border is dense in the
-attached bodies' coordinates -- per factorization r = sum_k n_k back-substitutions with the
-base's A_II and per step a dense r x r solve -- so attached bodies should be the smaller ones
-(a few thousand unknowns; the base may be large). The monolithic T^T A T would be sparse
-throughout but needs a stepper of its own on a matrix without a mesh (no lifting, no ledger,
-no error estimate from the ELD machinery); it is the way to large attached bodies
+no new stepper. With many coordinates (an attached body's free dofs) and no controllers its
+linear system is factored as ONE sparse matrix T^T blkdiag(A_1, J_k) T (the substitution
+u_1 = P_I^T x_I + Phi q of the glue; J_k = kappa^2 rho_k M_k + kappa C_k + K_k), which with
+the nodal lifting and matching meshes is the union mesh's step matrix (the rows of body 1's
+interface nodes added to their partners'): one sparse LU per step size, one back-substitution
+per step, the multiplier from the base's residual afterwards. That is why glued bodies with
+matching meshes equal one body (tested) and why a glued step costs about the union body's
 (docs/coupling.md, "Several bodies").
 
 Attached bodies take no prescribed data other than clamped parts (u = 0: their dofs are left
@@ -131,9 +129,10 @@ class ElasticComponent(Component):
         rho = float(problem.material.rho)
         M = sp.csr_matrix(problem.M)
         K = sp.csr_matrix(problem.K)
-        # (dense: the coupled step's border is dense in the component's coordinates)
-        self.mass = (rho * M)[f][:, f].toarray()
-        self.stiffness = K[f][:, f].toarray()
+        # sparse (FE matrices on the free dofs): the coupled step factors the glued system as
+        # one sparse matrix (coupled_step.CoupledStepSystem.solve)
+        self.mass = (rho * M)[f][:, f].tocsr()
+        self.stiffness = K[f][:, f].tocsr()
         if not problem.damping_op.is_linear:
             raise fail(
                 f"{name}.damping",
@@ -141,12 +140,9 @@ class ElasticComponent(Component):
                 "must be linear (an attached body is a linear component)",
             )
         C = problem.damping_op.linear
-        self.damping = (
-            np.zeros_like(self.mass) if C is None else sp.csr_matrix(C)[f][:, f].toarray()
-        )
-        # sparse copies for the products of every step (force, energies)
-        self._M, self._K = (rho * M)[f][:, f].tocsr(), K[f][:, f].tocsr()
         self._C = None if C is None else sp.csr_matrix(C)[f][:, f].tocsr()
+        self.damping = sp.csr_matrix(self.mass.shape) if self._C is None else self._C
+        self._M, self._K = self.mass, self.stiffness
         self.q0 = problem.u0[f].copy()
         self.p0 = problem.v0[f].copy()
         self.coordinates = tuple(f"u{k}" for k in f)

@@ -48,6 +48,7 @@ from ..io.trajectory import Trajectory
 from ..stepping.controllers import Adaptive, Uniform
 from ..stepping.evolve import evolve
 from ..timing import PhaseTimes
+from .constraint import NodalLifting
 from .controllers import step_controller
 from .coupled_step import SPARSE_COORDINATES, CoupledStepSystem
 from .coupling import CoupledProblem
@@ -58,9 +59,9 @@ from .stepper import GridLoop, StepGrid
 
 #: the history a step needs (two states for BDF2)
 _HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
-#: the products with the body's matrices kept with that history (rho M v, K u, K v, rho M a):
-#: the ledger and the estimate take differences of them instead of products of differences
-_PRODUCTS = ("Mv", "Ku", "Kv", "Ma")
+#: the products kept with that history (rho M v, K u, K v, rho M a; M_q p, K_q q): the ledger
+#: and the estimate take differences of them instead of products of differences
+_PRODUCTS = ("Mv", "Ku", "Kv", "Ma", "Mp", "Kq")
 
 
 @dataclass
@@ -86,6 +87,7 @@ class CoupledState:
     energy_start: float
     energy_norm_max: float = 0.0
     energies: tuple | None = None  # (body, components) at this state, once computed
+    lam_norm: float | None = None  # ||lam||_{L2(Gamma)}, once computed
 
     @property
     def s(self) -> float:
@@ -226,20 +228,36 @@ class CoupledStepper(GridLoop):
         self.comps_linear = all(cmp.is_linear for cmp in system.components)
         self.Mq = system.mass()
         r = self.r
-        self.Kq = np.zeros((r, r))
-        self.Cq = np.zeros((r, r))
+        Ks, Cs = [], []
         for cmp in system.components:
-            if cmp.is_linear:
-                sl = system.slice(cmp)
-                self.Kq[sl, sl], self.Cq[sl, sl] = cmp.stiffness, cmp.damping
+            lin = cmp.is_linear
+            Ks.append(cmp.stiffness if lin else sp.csr_matrix((cmp.size, cmp.size)))
+            Cs.append(cmp.damping if lin else sp.csr_matrix((cmp.size, cmp.size)))
         if r >= SPARSE_COORDINATES:  # glued bodies: the components' matrices are FE matrices
-            self.Mq, self.Kq, self.Cq = (sp.csr_matrix(A) for A in (self.Mq, self.Kq, self.Cq))
+            self.Mq = sp.csr_matrix(self.Mq)
+            self.Kq = sp.block_diag(Ks, format="csr")
+            self.Cq = sp.block_diag(Cs, format="csr")
+        else:
+            self.Kq = np.zeros((r, r))
+            self.Cq = np.zeros((r, r))
+            for cmp, K_, C_ in zip(system.components, Ks, Cs, strict=True):
+                sl = system.slice(cmp)
+                self.Kq[sl, sl] = K_.toarray() if sp.issparse(K_) else K_
+                self.Cq[sl, sl] = C_.toarray() if sp.issparse(C_) else C_
         self.order = scheme.order
         self.max_ratio = scheme.ratio_cap
         self.grid = StepGrid(control, scheme, self.T, math.inf)
         self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
         self.times = PhaseTimes()
         self._last_newton = 0
+        # what the step needs besides (fixed per run; docs/coupling.md, Speed)
+        self._original = isinstance(form, Original)
+        self._nodal = isinstance(kern.lifting, NodalLifting)
+        self._damped = self.C is not None and sp.csr_matrix(self.C).count_nonzero() > 0
+        self._PhiT = kern.Phi.T.tocsr() if sp.issparse(kern.Phi) else kern.Phi.T
+        G = system.gamma()
+        self._GamT = G.T.tocsr() if kern.many else G.T.toarray()
+        self._Jq = (None, None)  # (kappa, kappa^2 M_q + kappa C_q + K_q)
 
     # -- helpers ---------------------------------------------------------------------------------
     def _noise_at(self, j: int):
@@ -272,10 +290,17 @@ class CoupledStepper(GridLoop):
         Mv = self.rhoM @ v_ if Mv is None else Mv
         return (0.5 * v_ @ Mv + 0.5 * u_ @ Ku, kin + 0.5 * q_ @ (self.Kq @ q_))
 
-    def _products(self, u_, v_, a_) -> dict:
-        """rho M v, K u, K v, rho M a of one state (:data:`_PRODUCTS`)."""
+    def _products(self, u_, v_, a_, q_, p_) -> dict:
+        """rho M v, K u, K v, rho M a, M_q p, K_q q of one state (:data:`_PRODUCTS`)."""
         K = self.kern.K
-        return {"Mv": self.rhoM @ v_, "Ku": K @ u_, "Kv": K @ v_, "Ma": self.rhoM @ a_}
+        return {
+            "Mv": self.rhoM @ v_,
+            "Ku": K @ u_,
+            "Kv": K @ v_,
+            "Ma": self.rhoM @ a_,
+            "Mp": self.Mq @ p_,
+            "Kq": self.Kq @ q_,
+        }
 
     def _norm(self, u_, v_, q_, p_):
         Eb, Ec = self._energies(u_, v_, q_, p_)
@@ -325,7 +350,7 @@ class CoupledStepper(GridLoop):
             "u": [u0],
             "v": [v0],
         }
-        for key, val in self._products(u0, v0, a0).items():
+        for key, val in self._products(u0, v0, a0, q0, p0).items():
             hist[key] = [val]
         Eb, Ec = self._energies(u0, v0, q0, p0)
         ledger = dict.fromkeys(
@@ -362,17 +387,18 @@ class CoupledStepper(GridLoop):
 
     def _history(self, state: CoupledState, tau: float) -> dict:
         """The history of this step: BDF2's first step prepends the Taylor states at -tau."""
+        if not (isinstance(self.scheme, BDF2) and state.j == 0):
+            return state.hist  # (read only: the step builds a new history)
         hist = {k: list(v) for k, v in state.hist.items()}
-        if isinstance(self.scheme, BDF2) and state.j == 0:
-            um, vm = _taylor(state.u, state.v, state.a, tau)
-            qm, pm = _taylor(state.q, state.p, state.pdot, tau)
-            zm = state.z - tau * state.zdot
-            xm, ym, gkm, gdkm = self._split(um, vm, qm, pm)
-            for key, val in zip(_HISTORY, (xm, ym, qm, pm, zm, gkm, gdkm, um, vm), strict=True):
-                hist[key].insert(0, val)
-            # (the Taylor history's acceleration at -tau is a0: it is quadratic)
-            for key, val in self._products(um, vm, state.a).items():
-                hist[key].insert(0, val)
+        um, vm = _taylor(state.u, state.v, state.a, tau)
+        qm, pm = _taylor(state.q, state.p, state.pdot, tau)
+        zm = state.z - tau * state.zdot
+        xm, ym, gkm, gdkm = self._split(um, vm, qm, pm)
+        for key, val in zip(_HISTORY, (xm, ym, qm, pm, zm, gkm, gdkm, um, vm), strict=True):
+            hist[key].insert(0, val)
+        # (the Taylor history's acceleration at -tau is a0: it is quadratic)
+        for key, val in self._products(um, vm, state.a, qm, pm).items():
+            hist[key].insert(0, val)
         return hist
 
     # -- the step --------------------------------------------------------------------------------
@@ -392,7 +418,10 @@ class CoupledStepper(GridLoop):
                 where=self.where(state, None),
                 counters=self._counters(before),
             )
-        finite = all(np.all(np.isfinite(a)) for a in (new.u, new.v, new.q, new.p, new.z, new.lam))
+        # (one reduction: a NaN or an infinity anywhere makes the sum non-finite)
+        finite = math.isfinite(
+            sum(float(a.sum()) for a in (new.u, new.v, new.q, new.p, new.z, new.lam))
+        )
         if not finite:
             return CoupledStepResult(
                 None,
@@ -417,7 +446,7 @@ class CoupledStepper(GridLoop):
     def _step(self, state: CoupledState, tau: float):
         system, kern, body, c = self.system, self.kern, self.body, self.c
         I, n, s = kern.I, self.n, self.s_ctrl
-        Gam, Phi, Mq, Kq, Cq = kern.Gamma, kern.Phi_step, self.Mq, self.Kq, self.Cq
+        Gam, Phi, PhiT, Mq, Kq, Cq = kern.Gamma, kern.Phi, self._PhiT, self.Mq, self.Kq, self.Cq
         rhoM, K, Cmat = self.rhoM, kern.K, self.C
         hist = self._history(state, tau)
         if isinstance(self.scheme, BDF2):
@@ -426,42 +455,64 @@ class CoupledStepper(GridLoop):
             al0, al1, al2 = self.scheme.coefficients(tau)
         kap = al0 / tau
         t = self.grid.time_after(state, tau)
+        b1, b2 = al1 / tau, al2 / tau
 
         def hpart(key):
             h = hist[key]
-            out = al1 * h[-1]
-            if al2 != 0.0:
-                out = out + al2 * h[-2]
-            return out / tau
+            return b1 * h[-1] + b2 * h[-2] if al2 != 0.0 else b1 * h[-1]
 
         c_x, c_y = hpart("x"), hpart("y")
         c_q, c_p = hpart("q"), hpart("p")
         c_z = hpart("z") if s else np.zeros(0)
-        th, xi, vt = self._noise_at(state.j + 1)
-        gk = body.G(t) + Gam @ th
-        if isinstance(self.form, Original):  # the known data differenced with the quotients
+        # the known part of the data: prescribed parts (the coupled parts' zero placeholders
+        # are not evaluated) and the noise
+        if self._original:  # the known data differenced with the quotients
+            (gk,) = system.known_data(t, derivatives=False)
+        else:
+            gk, gdk, gddk = system.known_data(t)
+        if self.noise is not None:
+            th, xi, vt = self._noise_at(state.j + 1)
+            gk = gk + Gam @ th
+            if not self._original:
+                gdk, gddk = gdk + Gam @ xi, gddk + Gam @ vt
+        if self._original:
             gdk = kap * gk + hpart("gk")
             gddk = kap * gdk + hpart("gdk")
-        else:
-            gdk, gddk = body.G_dot(t) + Gam @ xi, body.G_ddot(t) + Gam @ vt
-        u_k = kern.lift(gk)
-        v_k = c_x + kern.lift(gdk) + Phi @ c_q
-        a_k = kap * c_x + c_y + kern.lift(gddk) + Phi @ (kap * c_q + c_p)
+        # u_k = L g_k, v_k = c_x + L g'_k + Phi c_q, a_k = kappa c_x + c_y + L g''_k +
+        # Phi (kappa c_q + c_p) (S.1); the lifting is linear: L (g + Gamma q) = L g + Phi q
+        v_k = c_x + Phi @ c_q
+        a_k = kap * c_x + c_y + Phi @ (kap * c_q + c_p)
+        if self._nodal:  # L g = S^T g
+            u_k = np.zeros(n)
+            u_k[c.dofs] = gk
+            v_k[c.dofs] += gdk
+            a_k[c.dofs] += gddk
+        else:  # one back-substitution for the three
+            u_k, Lgd, Lgdd = kern.lifting.lift_many([gk, gdk, gddk])
+            v_k += Lgd
+            a_k += Lgdd
         F = body.load(t)
-        r_k = rhoM @ a_k + Cmat @ v_k + K @ u_k - F
-        with self.times.phase("factor"):
-            kern.factor(kap * kap, kap, 1.0, 1.0, kap, kap)
+        r_k = rhoM @ a_k + K @ u_k - F
+        if self._damped:
+            r_k += Cmat @ v_k
+        if kern._key != (kap * kap, kap, 1.0, 1.0, kap, kap):
+            with self.times.phase("factor"):
+                kern.factor(kap * kap, kap, 1.0, 1.0, kap, kap)
         y_k = (kern.Y_u @ u_k + kern.Y_v @ v_k - kern._LZ.T @ r_k) if kern.k_in else np.zeros(0)
         pd_k = kap * c_q + c_p
         f_ext = system.load(t)
         w_k = kern.Dc @ y_k if kern.o else np.zeros(0)
         rhs_z = kern.Bc @ y_k - c_z if s else np.zeros(0)
-        Ew_k = kern.E @ w_k if kern.o else np.zeros(self.r)
+        rhs_q = f_ext - Mq @ pd_k - PhiT @ r_k
+        if kern.o:
+            rhs_q += kern.E @ w_k
         if self.comps_linear:
-            rhs_q = f_ext - Mq @ pd_k - Cq @ c_q - Phi.T @ r_k + Ew_k
-            Jq = kap * kap * Mq + kap * Cq + Kq
-            x_I, q, z = kern.solve(-r_k[I], rhs_q, rhs_z, Jq)
+            if self._Jq[0] != kap:  # kappa^2 M_q + kappa C_q + K_q: one object per step size
+                self._Jq = (kap, kap * kap * Mq + kap * Cq + Kq)
+            x_I, q, z = kern.solve(-r_k[I], rhs_q - Cq @ c_q, rhs_z, self._Jq[1])
         else:
+            if kern.X is None:
+                kern._border()  # W (sensor rows) for the residual
 
             def residual(x_I, q_, z_):
                 p_ = kap * q_ + c_q
@@ -472,40 +523,50 @@ class CoupledStepper(GridLoop):
                 r_full = kern.A @ X + r_k
                 ys = kern.W @ X + y_k if kern.k_in else np.zeros(0)
                 w = kern.Cc @ z_ + kern.Dc @ ys if kern.o else np.zeros(0)
-                res = Mq @ pdot_ + system.force(t, q_, p_) + Phi.T @ r_full - f_ext
+                res = Mq @ pdot_ + system.force(t, q_, p_) + PhiT @ r_full - f_ext
                 if kern.o:
                     res = res - kern.E @ w
                 fq, fp = system.force_jacobians(t, q_, p_)
                 return res, np.asarray(kap * kap * Mq + kap * fp + fq)
 
-            x_I, q, z = kern.solve(
-                -r_k[I],
-                f_ext - Mq @ pd_k - Phi.T @ r_k + Ew_k,
-                rhs_z,
-                kap * kap * Mq,
-                residual=residual,
-            )
+            x_I, q, z = kern.solve(-r_k[I], rhs_q, rhs_z, kap * kap * Mq, residual=residual)
         x = np.zeros(n)
         x[I] = x_I
         y = kap * x + c_x
-        b = kap * y + c_y
         p = kap * q + c_q
         pdot = kap * p + c_p
-        u = x + kern.lift(gk + Gam @ q)
-        v = y + kern.lift(gdk + Gam @ p)
-        a = b + kern.lift(gddk + Gam @ pdot)
+        # X = x + Phi q: u = X + u_k, v = kappa X + v_k, a = kappa^2 X + a_k (S.1)
+        X = x + Phi @ q
+        u = X + u_k
+        v = kap * X + v_k
+        a = (kap * kap) * X + a_k
         # (each product once: the ledger, the energies, the estimate and the residual reuse them,
         # and the next steps take them from the history)
-        now = {"Mv": rhoM @ v, "Ku": K @ u, "Kv": K @ v, "Ma": rhoM @ a}
-        Ku, Cv, Ma, Mv = now["Ku"], Cmat @ v, now["Ma"], now["Mv"]
-        res = Ma + Cv + Ku - F
+        now = {
+            "Mv": rhoM @ v,
+            "Ku": K @ u,
+            "Kv": K @ v,
+            "Ma": rhoM @ a,
+            "Mp": Mq @ p,
+            "Kq": Kq @ q,
+        }
+        Ku, Ma, Mv, Mp, Kqq = now["Ku"], now["Ma"], now["Mv"], now["Mp"], now["Kq"]
+        Cv = Cmat @ v if self._damped else None
+        res = Ma + Ku - F
+        if Cv is not None:
+            res += Cv
         lam = kern.multiplier(res)
         R = res + self.BT @ lam
+        MGlam = c.boundary_mass @ lam
         ys = kern.Y_u @ u + kern.Y_v @ v + kern.Y_lam @ lam if kern.k_in else np.zeros(0)
         w = kern.Cc @ z + kern.Dc @ ys if kern.o else np.zeros(0)
         zdot = kern.Ac @ z + kern.Bc @ ys if s else np.zeros(0)
-        Ew = kern.E @ w if kern.o else np.zeros(self.r)
-        Rq = Mq @ pdot + system.force(t, q, p) - Gam.T @ (c.boundary_mass @ lam) - f_ext - Ew
+        Ew = kern.E @ w if kern.o else None
+        Cqp = Cq @ p
+        force = Kqq + Cqp if self.comps_linear else system.force(t, q, p)
+        Rq = Mq @ pdot + force - self._GamT @ MGlam - f_ext
+        if Ew is not None:
+            Rq -= Ew
 
         # -- ledger (docs/coupling.md, Sec. 5) ----------------------------------------------------
         def quot(key, now):
@@ -513,36 +574,39 @@ class CoupledStepper(GridLoop):
             val = al0 * now + al1 * h[-1]
             return (val + al2 * h[-2]) / tau if al2 != 0.0 else val / tau
 
-        def N(key, z_now, W=None, product=None):
+        def N(key, z_now, product):
             """N(z, W) = 1/2 |dz|_W^2 + z . W ((alpha_0 - 1) dz - alpha_2 dz_prev) (Sec. 5),
-            W dz from the history's ``product`` (the body's matrices) or by W (the
-            components')."""
-            h = hist[key]
+            W dz from the history's ``product``."""
+            h, Wh = hist[key], hist[product]
             dz = z_now - h[-1]
-            if product is None:
-                Wdz = W @ dz
-                Wdprev = W @ (h[-1] - h[-2]) if al2 != 0.0 else 0.0 * dz
-            else:
-                Wh = hist[product]
-                Wdz = now[product] - Wh[-1]
-                Wdprev = Wh[-1] - Wh[-2] if al2 != 0.0 else 0.0 * dz
-            return 0.5 * dz @ Wdz + z_now @ ((al0 - 1.0) * Wdz - al2 * Wdprev)
+            Wdz = now[product] - Wh[-1]
+            out = 0.5 * (dz @ Wdz)
+            if al2 != 0.0:
+                out += z_now @ ((al0 - 1.0) * Wdz - al2 * (Wh[-1] - Wh[-2]))
+            elif al0 != 1.0:
+                out += (al0 - 1.0) * (z_now @ Wdz)
+            return out
 
         L = dict(state.ledger)
-        L["numerical_dissipation"] += N("v", v, product="Mv") + N("u", u, product="Ku")
-        L["numerical_dissipation"] += N("p", p, Mq) + N("q", q, Kq)
+        L["numerical_dissipation"] += (
+            N("v", v, "Mv") + N("u", u, "Ku") + N("p", p, "Mp") + N("q", q, "Kq")
+        )
         # rho M (a - delta v), delta v the scheme's quotient of v: from the products
         L["data_mismatch"] += tau * (Ma - quot("Mv", Mv)) @ v + tau * Ku @ (v - quot("u", u))
         L["work"] += tau * F @ v
         L["work_components"] += tau * f_ext @ p
-        L["work_controllers"] += tau * p @ Ew
-        diss = tau * Cv @ v + tau * p @ (Cq @ p)
+        if Ew is not None:
+            L["work_controllers"] += tau * p @ Ew
+        diss = tau * (p @ Cqp)
+        if Cv is not None:
+            diss += tau * (Cv @ v)
         if not self.comps_linear:
-            diss += tau * p @ (system.force(t, q, p) - Kq @ q - Cq @ p)
+            diss += tau * p @ (force - Kqq - Cqp)
         L["dissipated"] += diss
-        L["work_prescribed"] += -tau * lam @ (c.boundary_mass @ gdk)
+        L["work_prescribed"] += -tau * (MGlam @ gdk)
         L["residual_work"] += tau * R @ v + tau * Rq @ p
-        Eb, Ec = self._energies(u, v, q, p, Ku, Mv)
+        Eb = 0.5 * (v @ Mv) + 0.5 * (u @ Ku)
+        Ec = 0.5 * (p @ Mp) + 0.5 * (q @ Kqq)
         balance = (Eb + Ec - state.energy_start) - (
             L["work"]
             + L["work_components"]
@@ -554,27 +618,28 @@ class CoupledStepper(GridLoop):
             - L["data_mismatch"]
         )
         # -- local error estimate (module docstring) ---------------------------------------------
-        ru = u - state.u - 0.5 * tau * (v + state.v)
-        rv = v - state.v - 0.5 * tau * (a + state.a)
-        rq = q - state.q - 0.5 * tau * (p + state.p)
-        rp = p - state.p - 0.5 * tau * (pdot + state.pdot)
+        ht = 0.5 * tau
+        ru = u - state.u - ht * (v + state.v)
+        rv = v - state.v - ht * (a + state.a)
+        rq = q - state.q - ht * (p + state.p)
+        rp = p - state.p - ht * (pdot + state.pdot)
         omega = 1.0 if state.tau_prev is None else tau / state.tau_prev
         norm_new = math.sqrt(max(2.0 * (Eb + Ec), 0.0))  # (self._norm without the products)
         scale = max(self.error_scale, state.energy_norm_max, norm_new)
         # K ru and rho M rv: the same differences of the products
-        Kru = Ku - hist["Ku"][-1] - 0.5 * tau * (now["Kv"] + hist["Kv"][-1])
-        Mrv = Mv - hist["Mv"][-1] - 0.5 * tau * (Ma + hist["Ma"][-1])
+        Kru = Ku - hist["Ku"][-1] - ht * (now["Kv"] + hist["Kv"][-1])
+        Mrv = Mv - hist["Mv"][-1] - ht * (Ma + hist["Ma"][-1])
         est = (
             self.scheme.estimate_factor(omega)
             * math.sqrt(max(ru @ Kru + rv @ Mrv + rq @ (Kq @ rq) + rp @ (Mq @ rp), 0))
             / scale
         )
-        x_now, y_now, gk_now, gdk_now = x, y, gk, gdk
-        new_hist = {}
-        for key, val in zip(_HISTORY, (x_now, y_now, q, p, z, gk_now, gdk_now, u, v), strict=True):
-            new_hist[key] = (hist[key] + [val])[-2:]
+        new_hist = {
+            key: [hist[key][-1], val]
+            for key, val in zip(_HISTORY, (x, y, q, p, z, gk, gdk, u, v), strict=True)
+        }
         for key in _PRODUCTS:
-            new_hist[key] = (hist[key] + [now[key]])[-2:]
+            new_hist[key] = [hist[key][-1], now[key]]
         new = CoupledState(
             t=t,
             j=state.j + 1,
@@ -593,6 +658,7 @@ class CoupledStepper(GridLoop):
             energy_start=state.energy_start,
             energy_norm_max=max(state.energy_norm_max, norm_new),
             energies=(Eb, Ec),
+            lam_norm=math.sqrt(max(float(lam @ MGlam), 0.0)),
         )
         info = {
             "estimate": est,
@@ -638,7 +704,7 @@ class CoupledStepper(GridLoop):
             "q": state.q.copy(),
             "p": state.p.copy(),
             "z": state.z.copy(),
-            "lam_norm": self.c.l2_norm(state.lam),
+            "lam_norm": self.c.l2_norm(state.lam) if state.lam_norm is None else state.lam_norm,
             "energy_body": Eb,
             "energy_components": Ec,
             "energy": Eb + Ec,

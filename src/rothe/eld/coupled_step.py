@@ -33,6 +33,12 @@ x_0 = -A_II^{-1} r_k,I, an (r + s) dense solve, and x_I = x_0 - X q. A nonlinear
 (or controller) is solved by Newton on xi alone (x_I stays the affine function x_0 - X q):
 no further back-substitution.
 
+With many coordinates (r >= :data:`SPARSE_COORDINATES`: glued bodies, whose attached body's
+free dofs are the coordinates) and no controllers the Schur complement would be dense r x r;
+the bordered matrix is then factored as one sparse matrix instead, T^T blkdiag(A, J_q) T with
+T = [[P_I^T, Phi], [0, I]] (the substitution u = P_I^T x_I + Phi q): one sparse LU per step
+size and one back-substitution per step (:meth:`CoupledStepSystem.solve`).
+
 The original form (2.7) with the same couplings is this system with the nodal lifting and the
 data differenced, g'_k = delta g_k, g''_k = delta g'_k (the boundary velocity and
 acceleration of the original form are the scheme's quotients of S u = g): the two forms differ
@@ -113,12 +119,23 @@ class CoupledStepSystem:
             self.lifting = HarmonicLifting(c, self.K)
         else:
             raise fail("lifting", lifting, "must be one of nodal, harmonic")
-        self.Gamma = system.gamma().toarray()
-        self.Phi = system.lifted_modes(self.lifting)  # (n, r)
-        self.Phi_sparse = sp.csr_matrix(self.Phi)
         self.r = system.size
-        #: Phi as the step's products take it (sparse for glued bodies)
-        self.Phi_step = self.Phi_sparse if self.r >= SPARSE_COORDINATES else self.Phi
+        #: many coordinates (glued bodies: an attached body's free dofs): Gamma, Phi sparse and
+        #: the step solved monolithically (:meth:`solve`) when there are no controllers
+        self.many = self.r >= SPARSE_COORDINATES
+        Gamma = system.gamma()
+        if self.many and lifting == "nodal":
+            # Phi = S^T Gamma: Gamma's rows on the constrained dofs (no dense n x r copy)
+            G = Gamma.tocoo()
+            self.Phi_sparse = sp.csr_matrix(
+                (G.data, (c.dofs[G.row], G.col)), shape=(body.space.ndofs, self.r)
+            )
+        else:
+            self.Phi_sparse = sp.csr_matrix(system.lifted_modes(self.lifting))  # (n, r)
+        self.Gamma = Gamma.tocsr() if self.many else Gamma.toarray()
+        #: Phi as the step's products take it (sparse for glued bodies, else dense)
+        self.Phi = self.Phi_sparse if self.many else self.Phi_sparse.toarray()
+        self.Phi_step = self.Phi
         self.Mq = system.mass()
         n, m = body.space.ndofs, c.m
         ctrls = system.controllers
@@ -163,8 +180,13 @@ class CoupledStepSystem:
             "schur_solves": 0,
             "newton_iterations": 0,
         }
+        #: the bordered system solved as one sparse matrix (:meth:`solve`): many coordinates,
+        #: no controllers
+        self.monolithic = self.many and self.s == 0
         self._key = None
         self._schur = None  # (LU of S, its component block) of the last linear solve
+        self._mono = None  # (sparse LU of the whole bordered matrix, its component block)
+        self.X = None  # the border columns A_II^{-1} (A Phi)_I, built when the Schur path runs
 
     # -- the lifting and its transpose -----------------------------------------------------------
     def lift(self, g: np.ndarray) -> np.ndarray:
@@ -206,17 +228,39 @@ class CoupledStepSystem:
         I = self.I
         A = self.matrix(cm, cc, ck)
         self.A = A
-        self._lu = spla.splu(sp.csc_matrix(A[I][:, I]), permc_spec="MMD_AT_PLUS_A")
+        self._A_II = sp.csc_matrix(A[I][:, I])
+        self._key = key
+        self._with_z = kappa_z is not None
+        self._kappa_z = kappa_z
+        self._wu, self._wv = wu, wv
+        self._schur = self._mono = None
+        self.X = self._lu = None
+        if self.monolithic:
+            # the whole bordered matrix is factored with the components' block (solve): A_II
+            # alone is never needed
+            return
+        self._lu = spla.splu(self._A_II, permc_spec="MMD_AT_PLUS_A")
         self.stats["factorizations"] += 1
+        self._border()
+
+    def _border(self) -> None:
+        """X = A_II^{-1} (A Phi)_I (back-substitutions for the non-zero border columns only),
+        the sensor rows W, V and the Schur complement S0 = C - V [X, 0] without the
+        components' block: the part of the Schur path that depends on the step size only."""
+        I, A = self.I, self.A
+        if self._lu is None:
+            self._lu = spla.splu(self._A_II, permc_spec="MMD_AT_PLUS_A")
+            self.stats["factorizations"] += 1
+        wu, wv, kappa_z = self._wu, self._wv, self._kappa_z
         # Phi is sparse (rows on the coupled dofs) and, for glued bodies (r in the thousands),
         # most of its columns are zero: sparse products, back-substitutions for the others only
         APhi = (A @ self.Phi_sparse).tocsc()  # (n, r)
         PhiA = (A.T @ self.Phi_sparse).T.tocsr()  # Phi^T A (r, n)
-        self.X = np.zeros((I.size, self.r))
+        X = np.zeros((I.size, self.r))
         cols = np.flatnonzero(np.diff(APhi.indptr))
         if cols.size:
-            self.X[:, cols] = self._lu.solve(APhi[I][:, cols].toarray())
-        self._cols, self._X_cols = cols, self.X[:, cols]  # x_I = x_0 - X q on them only
+            X[:, cols] = self._lu.solve(APhi[I][:, cols].toarray())
+        self._cols, self._X_cols = cols, X[:, cols]  # x_I = x_0 - X q on them only
         self.stats["back_substitutions"] += cols.size
         # sensor rows: W (k, n) = wu Y_u + wv Y_v - (A^T L Z)^T
         W = (wu * self.Y_u + wv * self.Y_v).toarray()
@@ -229,45 +273,84 @@ class CoupledStepSystem:
         blocks = [top] + ([sp.csr_matrix(-(self.Bc @ W)[:, I])] if s else [])
         V = sp.vstack(blocks, format="csr") if blocks[0].shape[0] or s else top.tocsr()
         self.V = V = V if r + s >= SPARSE_COORDINATES else V.toarray()
+        Phi = _dense(self.Phi)
         C = np.zeros((r + s, r + s))
-        C[:r, :r] = PhiA @ self.Phi
+        C[:r, :r] = _dense(PhiA @ Phi)
         if EDW is not None:
-            C[:r, :r] -= EDW @ self.Phi
+            C[:r, :r] -= EDW @ Phi
         if s:
             C[:r, r:] = -self.E @ self.Cc
-            C[r:, :r] = -self.Bc @ (W @ self.Phi)
+            C[r:, :r] = -self.Bc @ (W @ Phi)
             C[r:, r:] = kappa_z * np.eye(s) - self.Ac
         # Schur complement without the components' block: C - V [X, 0]
-        C[:, :r] -= V @ self.X
+        C[:, :r] -= V @ X
         self.S0 = C
-        self._schur = None
-        self._with_z = kappa_z is not None
-        self._key = key
+        self.X = X
 
     def back_substitute(self, rhs_I: np.ndarray) -> np.ndarray:
         """K_II^{-1} rhs_I with the stored factorization (counted in the stats)."""
         self.stats["back_substitutions"] += 1
         return self._lu.solve(rhs_I)
 
+    def _monolithic(self, component_matrix):
+        """The sparse LU of the whole bordered matrix (no controllers)
+
+            [ A_II            (A Phi)_I                        ]
+            [ (Phi^T A)_.I    Phi^T A Phi + component_matrix   ]
+
+        i.e. T^T blkdiag(A, component_matrix) T with T = [[P_I^T, Phi], [0, I]]: the
+        substitution u = P_I^T x_I + Phi q of the constraint into the body and the component.
+        For glued bodies with the nodal lifting it is the union body's step matrix (the rows of
+        the base's interface dofs added to their partners'), as sparse as it: one factorization
+        per step size and component block, one back-substitution per step."""
+        cached = self._mono
+        if cached is not None and (
+            cached[1] is component_matrix or _same(cached[1], component_matrix)
+        ):
+            return cached[0]
+        I, A, Phi = self.I, self.A, self.Phi_sparse
+        APhi = (A @ Phi).tocsr()
+        PhiA = (Phi.T @ A).tocsr()
+        Sqq = (PhiA @ Phi + sp.csr_matrix(component_matrix)).tocsr()
+        big = sp.bmat([[self._A_II, APhi[I]], [PhiA[:, I], Sqq]], format="csc")
+        lu = spla.splu(big, permc_spec="MMD_AT_PLUS_A")
+        self.stats["factorizations"] += 1
+        self._mono = (lu, component_matrix)
+        return lu
+
     def solve(self, rhs_I, rhs_q, rhs_z, component_matrix, residual=None):
         """(x_I, q, z) of the bordered system (module docstring) for the right sides
         ``rhs_I`` (-r_k,I), ``rhs_q``, ``rhs_z`` and the components' block
         ``component_matrix`` (kappa^2 M_q + kappa C_q + K_q, or the Jacobian of a nonlinear
         component). With ``residual`` (a callable (x_I, q, z) -> the component rows' residual,
-        for nonlinear components) Newton on (q, z) with that Jacobian."""
-        x0 = self.back_substitute(rhs_I)
+        for nonlinear components) Newton on (q, z) with that Jacobian.
+
+        Linear components, many coordinates, no controllers (glued bodies): the bordered
+        matrix factored as one sparse matrix (:meth:`_monolithic`). Otherwise the Schur
+        complement on (q, z): one back-substitution and an (r + s) dense solve per step."""
         r = self.r
+        if residual is None and self.monolithic:
+            lu = self._monolithic(component_matrix)
+            self.stats["back_substitutions"] += 1
+            self.stats["schur_solves"] += 1
+            sol = lu.solve(np.concatenate([rhs_I, rhs_q]))
+            return sol[: self.I.size], sol[self.I.size :], np.zeros(0)
+        if self.X is None:
+            self._border()
+        x0 = self.back_substitute(rhs_I)
         rhs = np.concatenate([rhs_q, rhs_z if self._with_z else np.zeros(0)]) - self.V @ x0
         self.stats["schur_solves"] += 1
         if residual is None and rhs.size:
             # linear components: S is constant per factorization and component block, so its
-            # LU is kept (glued bodies have r in the thousands: O(r^2) per step, not O(r^3))
+            # LU is kept (O((r + s)^2) per step)
             cached = self._schur
-            if cached is None or not _same(cached[1], component_matrix):
+            if cached is None or not (
+                cached[1] is component_matrix or _same(cached[1], component_matrix)
+            ):
                 S = self.S0.copy()
                 S[:r, :r] += _dense(component_matrix)
-                cached = self._schur = (sla.lu_factor(S), component_matrix.copy())
-            xi = sla.lu_solve(cached[0], rhs)
+                cached = self._schur = (sla.lu_factor(S, check_finite=False), component_matrix)
+            xi = sla.lu_solve(cached[0], rhs, check_finite=False)
         else:
             S = self.S0.copy()
             S[:r, :r] += _dense(component_matrix)
@@ -303,16 +386,16 @@ def coupled_modes(system: CoupledProblem, count: int = 6, lifting: str = "nodal"
     n, I, r = system.body.space.ndofs, kern.I, kern.r
     T = np.zeros((n, I.size + r))
     T[I, np.arange(I.size)] = 1.0
-    T[:, I.size :] = kern.Phi
+    T[:, I.size :] = _dense(kern.Phi)
     Kq = np.zeros((r, r))
     for cmp in system.components:
         if not cmp.is_linear:
             raise fail("components", cmp.name, "must be linear for natural modes")
         sl = system.slice(cmp)
-        Kq[sl, sl] = cmp.stiffness
+        Kq[sl, sl] = _dense(cmp.stiffness)
     KT = T.T @ (kern.K @ T)
     KT[I.size :, I.size :] += Kq
     MT = T.T @ (kern.rho * (kern.M @ T))
-    MT[I.size :, I.size :] += kern.Mq
+    MT[I.size :, I.size :] += _dense(kern.Mq)
     w2, V = sla.eigh(0.5 * (KT + KT.T), 0.5 * (MT + MT.T), subset_by_index=[0, count - 1])
     return np.sqrt(np.maximum(w2, 0.0)), T @ V, V[I.size :]

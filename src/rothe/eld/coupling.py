@@ -474,6 +474,16 @@ class CoupledProblem:
                 cp.check(self._points[cp.part])
             else:
                 cp.jacobian(0.0, cp.component.q0, self._points[cp.part][:, :1])  # dims checked
+        # the prescribed parts' data and points, for known_data (the coupled parts' placeholders
+        # are zero: not evaluated)
+        self._known = [
+            (self.body.dirichlet[p], space.doflocs[:, c.scalar_dofs[pos]], pos)
+            for p in prescribed
+            for pos in (c.part_positions[p],)
+        ]
+        self._known_direct = all(
+            dp.G_dot is not None and dp.G_ddot is not None for dp, _, _ in self._known
+        )
         self._gamma_cache = None
         for k, ctrl in enumerate(self.controllers):
             ctrl.bind(self, f"controllers[{k}]")
@@ -501,8 +511,11 @@ class CoupledProblem:
             and all(getattr(k, "is_linear", True) for k in self.controllers)
         )
 
-    def mass(self) -> np.ndarray:
-        """blkdiag(M_q) over the components, (r, r)."""
+    def mass(self):
+        """blkdiag(M_q) over the components, (r, r): sparse if a component's mass is (glued
+        bodies), else dense."""
+        if any(sp.issparse(c.mass) for c in self.components):
+            return sp.block_diag([c.mass for c in self.components], format="csr")
         M = np.zeros((self.size, self.size))
         for c in self.components:
             s = self.slice(c)
@@ -522,7 +535,9 @@ class CoupledProblem:
         Fq, Fp = np.zeros((self.size, self.size)), np.zeros((self.size, self.size))
         for c in self.components:
             s = self.slice(c)
-            Fq[s, s], Fp[s, s] = c.jacobians(t, q[s], p[s])
+            Fq[s, s], Fp[s, s] = (
+                J.toarray() if sp.issparse(J) else J for J in c.jacobians(t, q[s], p[s])
+            )
         return Fq, Fp
 
     def load(self, t: float) -> np.ndarray:
@@ -546,6 +561,23 @@ class CoupledProblem:
                 vals = gd if which == "g_dot" else gdd
             out[self._rows[cp.part]] = vals
         return out
+
+    def known_data(self, t: float, derivatives: bool = True) -> tuple:
+        """(G(t), G_dot(t), G_ddot(t)) of the prescribed parts on all constrained dofs, zero on
+        the coupled parts: the body's G, G_dot, G_ddot without evaluating the coupled parts'
+        zero placeholders (the data of every step; the shapes were checked by the body's
+        evaluation at t = 0). ``derivatives=False``: (G(t),)."""
+        body = self.body
+        if not self._known_direct:  # differenced derivatives: the body's own evaluation
+            return (body.G(t), body.G_dot(t), body.G_ddot(t)) if derivatives else (body.G(t),)
+        d, m = body.space.dim, self.constraint.m
+        which = ("G", "G_dot", "G_ddot") if derivatives else ("G",)
+        outs = [np.zeros((m // d, d)) for _ in which]
+        t = float(t)
+        for data, x, pos in self._known:
+            for out, name in zip(outs, which, strict=True):
+                out[pos] = np.asarray(getattr(data, name)(t, x), dtype=float).T
+        return tuple(out.ravel() for out in outs)
 
     def g(self, t: float, q: np.ndarray) -> np.ndarray:
         """Nodal values of G on all constrained dofs: prescribed G(t, x) and coupled
