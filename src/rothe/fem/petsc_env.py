@@ -10,6 +10,8 @@ conda-forge and the same order is harmless.
 
 from __future__ import annotations
 
+import ctypes
+
 from ..errors import RotheInputError
 
 #: what to install, said once wherever the backend is refused
@@ -62,9 +64,7 @@ def release_product_data(pc) -> int:
     does not wrap that function, so it is called through ctypes from the library petsc4py's
     extension module links (dlsym on that module searches its dependencies).
     """
-    import ctypes
-
-    from petsc4py import PETSc
+    from petsc4py import PETSc  # optional, heavy: only where the backend already runs
 
     try:
         clear = ctypes.CDLL(PETSc.__file__).MatProductClear
