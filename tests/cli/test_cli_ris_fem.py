@@ -615,6 +615,8 @@ def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):
         "0.1",
         "--max-dofs",
         "400",
+        "--space-tol",  # the former default (ris-3d's is 12, for its 12^3 grid): adapts at n 3
+        "1",
         "--out",
         str(out),
         "--quiet",
@@ -734,3 +736,30 @@ def test_cli_ris_front_unique_refuses_bad_parameters(capsys, tmp_path, argv, mes
     )
     assert code == 2 and err.count("\n") == 1, err
     assert err.startswith(message), err
+
+
+@pytest.mark.parametrize(
+    "command, control, space_tol, every, band",
+    [
+        ("ris-2d", "adaptive", 2.5, 1, 0.0),
+        ("ris-3d", "adaptive", 12.0, 1, 0.0),
+        ("ris-front", "uniform", 3.0, 4, 0.08),
+        ("ris-front-unique", "adaptive", 0.05, 4, 0.08),
+    ],
+)
+def test_cli_ris_adaptivity_defaults_are_stated_in_the_help(
+    capsys, command, control, space_tol, every, band
+):
+    """Issue 18 item 0: the defaults that let every control reach T (docs/ris_fem.md: ris-2d
+    --space-tol 2.5, ris-3d 12, ris-front uniform steps, --space-tol 3, every 4th step, band
+    0.08), stated in the help the run uses."""
+    capsys.readouterr()
+    try:
+        main(["run", command, "--help"])
+    except SystemExit:
+        pass
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"(default {control};" in text
+    assert f"refine while above; default {space_tol:g})" in text
+    assert f"an integer >= 1 (default {every})" in text
+    assert f"a length >= 0 (default {band:g})" in text

@@ -149,6 +149,8 @@ class RISRunBase(ABC):
 
     name = "ris"
     default_tau = 0.1
+    #: default --control
+    default_control = "adaptive"
     T = 1.0  # end time of the example
 
     def add_example_options(self, parser) -> None:
@@ -159,9 +161,9 @@ class RISRunBase(ABC):
         """The options of every RIS run: the step control, Simpson, keep-every, outputs."""
         parser.add_argument(
             "--control",
-            default="adaptive",
-            help="adaptive | uniform | nested | order2 | regime (default adaptive; regime: "
-            "every step at the same residual, Alg. 3.2's acceptance)",
+            default=self.default_control,
+            help=f"adaptive | uniform | nested | order2 | regime (default {self.default_control}; "
+            "regime: every step at the same residual, Alg. 3.2's acceptance)",
         )
         float_option(
             parser,
