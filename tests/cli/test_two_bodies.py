@@ -82,9 +82,7 @@ def test_compare_union_equals_the_single_body_with_two_materials(tmp_path, capsy
     assert s["union_seconds_per_step"] > 0 and s["seconds_per_step_ratio"] > 0
 
 
-def test_body_2_above_the_former_cap_of_6000_unknowns_runs_and_equals_the_union(
-    tmp_path, capsys
-):
+def test_body_2_above_the_former_cap_of_6000_unknowns_runs_and_equals_the_union(tmp_path, capsys):
     """--n1 19: body 2 has 6006 unknowns (refused before: the glue's Jacobian was dense); the
     glued run equals the union body to solver round-off, the glue holds exactly."""
     code, out, err = _run(
