@@ -303,3 +303,47 @@ def test_glued_step_is_one_sparse_factorization_and_agrees_with_the_schur_path(m
     assert (
         np.abs(mono.trajectory["balance"]).max() < 1e-12 * np.abs(mono.trajectory["energy"]).max()
     )
+
+
+def test_the_glue_and_its_border_are_sparse_in_the_attached_bodys_unknowns():
+    """Body 2 of 16770 unknowns (P2, 32 cells across: above the command's former cap of
+    6000): the glue's Jacobian Pi S E (d k1 x m = 130 x 16770, 17 MB dense), Gamma and the
+    border Phi hold one entry per interface dof (matching: Pi a permutation), and building them
+    allocates less than a tenth of the dense Jacobian (it would fail if a d k1 x m or n x r
+    array were built)."""
+    import tracemalloc
+
+    import scipy.sparse as sp
+
+    from rothe.eld.bodies import Glue
+    from rothe.eld.constraint import HarmonicLifting, NodalLifting
+
+    glued = GluedBodies(
+        Body(strip(0, 0.5, 64, 32), SOFT, degree=2, clamped=("left",), name="one"),
+        [(Body(strip(0.5, 1.0, 64, 32), STIFF, degree=2, name="two"), "right", "left")],
+        T=0.1,
+    )
+    system, itf, comp = glued.system, glued.interfaces[0], glued.components[0]
+    k1, m = itf.dofs1.size, comp.size
+    assert (k1, m) == (65, 16770)
+    dense = 2 * k1 * m * 8
+    tracemalloc.start()
+    try:
+        glue = Glue(itf, comp)
+        system._gamma_cache = None
+        Gamma = system.gamma()
+        Phi = system.lifted_modes(NodalLifting(system.constraint))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < dense / 10, (peak, dense)
+    assert sp.issparse(glue.J) and glue.J.shape == (2 * k1, m) and glue.J.nnz == 2 * k1
+    assert sp.issparse(Gamma) and Gamma.nnz == 2 * k1
+    assert sp.issparse(Phi) and Phi.shape == (system.body.space.ndofs, m) and Phi.nnz == 2 * k1
+    # the same map as the interface's: G(q) = Pi S_Q u_2 at the side-1 points
+    q = np.random.default_rng(1).standard_normal(m)
+    u2 = comp.field(q).reshape(-1, 2)
+    assert np.allclose(glue.values(0.0, q, glue._x1).T, itf.Pi @ u2[itf.dofs2])
+    # harmonic lifting: only Gamma's 130 non-zero columns are lifted (dense in the base's dofs)
+    PhiH = system.lifted_modes(HarmonicLifting(system.constraint, system.body.K))
+    assert sp.issparse(PhiH) and np.unique(PhiH.tocoo().col).size == 2 * k1

@@ -3,6 +3,7 @@ derivatives G', G'' (curvature terms), and the refusals."""
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from skfem import MeshTri
 
 from rothe.eld import ELDProblem, Material
@@ -96,10 +97,14 @@ def test_translation_data_derivatives_and_lifted_modes():
     from rothe.eld.constraint import HarmonicLifting, NodalLifting
 
     Phi = system.lifted_modes(NodalLifting(c))
+    assert sp.issparse(Phi)  # (n, r) sparse: nothing n x r dense for glued bodies
+    Phi = Phi.toarray()
     assert np.allclose(Phi[c.dofs], Gam) and np.abs(Phi[c.free]).max() == 0.0
     # the harmonic lifting of a translation of 'right' with 'left' held: the same trace, and
     # K-orthogonal to ker B (K Phi vanishes on the free dofs)
     PhiH = system.lifted_modes(HarmonicLifting(c, system.body.K))
+    assert sp.issparse(PhiH)
+    PhiH = PhiH.toarray()
     assert np.allclose(PhiH[c.dofs], Gam)
     assert np.abs((system.body.K @ PhiH)[c.free]).max() < 1e-12
     assert system.check_initial_consistency() == 0.0

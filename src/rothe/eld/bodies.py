@@ -49,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from ..errors import RotheInputError, described, fail
 from ..fem.elasticity import VectorSpace
@@ -179,17 +180,25 @@ class ElasticComponent(Component):
 class Glue(Coupling):
     """B u = G(q) on the base's part of an interface: G(q, x) = Pi S_Q E q (module
     docstring), linear and constant in t; x must be the interface's side-1 points in the
-    order of ``interface.dofs1`` (checked)."""
+    order of ``interface.dofs1`` (checked).
+
+    Attributes
+    ----------
+    J : scipy.sparse.csr_matrix (d k1, m)
+        dG/dq = Pi S_Q E on interleaved rows (d j + i: component i at side-1 point j), as
+        sparse as Pi (matching: one entry per row): nothing of size d k1 x m is built dense, so
+        the attached body's unknowns are not capped by it (``docs/coupling.md``, Sec. 13).
+    """
 
     is_linear = True
 
     def __init__(self, interface: Interface, component: ElasticComponent):
         super().__init__(interface.part1, component)
         self.interface = interface
-        d = interface.space1.dim
+        self.dim = interface.space1.dim
         S2 = interface.space2.vector_dofs(interface.dofs2)
-        P = (interface.vector(interface.Pi) @ component.E[S2]).toarray()  # (d k1, m)
-        self.J = np.ascontiguousarray(P.reshape(-1, d, P.shape[1]).transpose(1, 0, 2))
+        self.J = (interface.vector(interface.Pi) @ component.E[S2]).tocsr()
+        self.J.eliminate_zeros()
         self._x1 = interface.space1.doflocs[:, interface.dofs1]
 
     def _check(self, x):
@@ -200,21 +209,40 @@ class Glue(Coupling):
                 "interface",
             )
 
-    def values(self, t, q, x):
-        """Pi S_Q E q at the part's points, (d, k1)."""
+    def _point_rows(self, x) -> np.ndarray | None:
+        """The interleaved rows of J for the points x: None for all (checked), else the rows
+        of the nearest side-1 points (a subset: the system's dimension check)."""
         if x.shape[1] == self._x1.shape[1]:
             self._check(x)
-            return np.einsum("dkm,m->dk", self.J, q)
-        return self.jacobian(t, q, x) @ q
+            return None
+        k = cKDTree(self._x1.T).query(np.asarray(x, float).T)[1]
+        return (self.dim * k[:, None] + np.arange(self.dim)).ravel()
+
+    def _at(self, x, vec) -> np.ndarray:
+        """(J q) at the points x as (d, k)."""
+        rows = self._point_rows(x)
+        J = self.J if rows is None else self.J[rows]
+        return (J @ vec).reshape(-1, self.dim).T
+
+    def values(self, t, q, x):
+        """Pi S_Q E q at the part's points, (d, k1): one sparse product."""
+        return self._at(x, q)
+
+    def derivatives(self, t, q, p, pdot, x):
+        """(G, G', G'') = (J q, J p, J pdot) at the points x, each (d, k): G is linear in q
+        with no explicit t (no curvature), and the products are sparse."""
+        return self._at(x, q), self._at(x, p), self._at(x, pdot)
+
+    def jacobian_matrix(self, t, q, x):
+        """The constant sparse J (d k, m) (rows of the points x if a subset)."""
+        rows = self._point_rows(x)
+        return self.J if rows is None else self.J[rows]
 
     def jacobian(self, t, q, x):
-        """The constant (d, k1, m); for a subset of the points (a dimension check) their
-        rows."""
-        if x.shape[1] == self._x1.shape[1]:
-            self._check(x)
-            return self.J
-        k = [int(np.argmin(np.abs(self._x1 - x[:, [i]]).sum(axis=0))) for i in range(x.shape[1])]
-        return self.J[:, k]
+        """The constant dG/dq as the protocol's dense (d, k, m): for a few points only (the
+        system's dimension check); the system assembles Gamma from :meth:`jacobian_matrix`."""
+        J = self.jacobian_matrix(t, q, x).toarray()
+        return J.reshape(-1, self.dim, J.shape[1]).transpose(1, 0, 2)
 
     def describe(self) -> dict:
         return {
@@ -426,6 +454,20 @@ def run_bodies(glued: GluedBodies, *, fields: bool = True, **options) -> Coupled
     return run_coupled(glued.system, fields=fields, **options)
 
 
+def _along(extent: float, height: float, n: int) -> int:
+    """Cells along a strip of this extent with n across (round(n extent / H), at least 1)."""
+    return max(1, round(n * extent / height))
+
+
+def strip_pair_dofs(length, height, split, n1, n2, degree1, degree2) -> tuple[int, int]:
+    """The unknowns of the two bodies of :func:`strip_pair` (2D vector P1 or P2: 2 (k n_x + 1)
+    (k n_y + 1)), counted without building the meshes (the command's memory check)."""
+    return tuple(
+        2 * (k * _along(extent, height, n) + 1) * (k * n + 1)
+        for extent, n, k in ((split, n1, degree1), (length - split, n2, degree2))
+    )
+
+
 def strip_pair(length: float, height: float, split: float, n1: int, n2: int):
     """Two triangulated strips [0, split] x [0, H] and [split, L] x [0, H] with n1 and n2
     cells across (round(n_k len_k / H) along, at least 1) and the parts left, right, bottom,
@@ -434,7 +476,7 @@ def strip_pair(length: float, height: float, split: float, n1: int, n2: int):
     from skfem import MeshTri
 
     def strip(x0, x1, n):
-        nx = max(1, round(n * (x1 - x0) / height))
+        nx = _along(x1 - x0, height, n)
         return tag_box_faces(
             MeshTri.init_tensor(np.linspace(x0, x1, nx + 1), np.linspace(0, height, n + 1))
         )
@@ -453,8 +495,7 @@ def strip_union(
     # scikit-fem is imported where a mesh is built (the start-up time of the command line)
     from skfem import MeshTri
 
-    nx1 = max(1, round(n * split / height))
-    nx2 = max(1, round(n * (length - split) / height))
+    nx1, nx2 = _along(split, height, n), _along(length - split, height, n)
     xs = np.r_[np.linspace(0.0, split, nx1 + 1), np.linspace(split, length, nx2 + 1)[1:]]
     mesh = tag_box_faces(MeshTri.init_tensor(xs, np.linspace(0, height, n + 1)))
     material = material1

@@ -124,14 +124,8 @@ class CoupledStepSystem:
         #: the step solved monolithically (:meth:`solve`) when there are no controllers
         self.many = self.r >= SPARSE_COORDINATES
         Gamma = system.gamma()
-        if self.many and lifting == "nodal":
-            # Phi = S^T Gamma: Gamma's rows on the constrained dofs (no dense n x r copy)
-            G = Gamma.tocoo()
-            self.Phi_sparse = sp.csr_matrix(
-                (G.data, (c.dofs[G.row], G.col)), shape=(body.space.ndofs, self.r)
-            )
-        else:
-            self.Phi_sparse = sp.csr_matrix(system.lifted_modes(self.lifting))  # (n, r)
+        # Phi = L Gamma, sparse (n, r): no dense n x r copy for glued bodies
+        self.Phi_sparse = system.lifted_modes(self.lifting)
         self.Gamma = Gamma.tocsr() if self.many else Gamma.toarray()
         #: Phi as the step's products take it (sparse for glued bodies, else dense)
         self.Phi = self.Phi_sparse if self.many else self.Phi_sparse.toarray()

@@ -55,6 +55,7 @@ import scipy.sparse as sp
 
 from ..errors import RotheInputError, check_int, described, fail
 from .components import Component, RigidBody, check_jacobian, rigid_motion_matrix
+from .constraint import NodalLifting
 from .problem import DirichletData, ELDProblem
 
 #: relative tolerance of the consistency of u0 with G(0, q0) on coupled parts (Remark 2.2)
@@ -94,6 +95,15 @@ class Coupling(ABC):
     @abstractmethod
     def jacobian(self, t: float, q: np.ndarray, x: np.ndarray) -> np.ndarray:
         """dG/dq at (t, q, x), shape (d, k, m)."""
+
+    def jacobian_matrix(self, t: float, q: np.ndarray, x: np.ndarray) -> sp.csr_matrix:
+        """dG/dq at (t, q, x) as a sparse (d k, m) matrix, the rows point by point (row d j + i:
+        component i at point j): what :meth:`CoupledProblem.gamma` assembles. By default the
+        non-zeros of :meth:`jacobian`; a coupling whose dense (d, k, m) would be large (a glued
+        body: m its unknowns) builds it sparse."""
+        J = np.asarray(self.jacobian(t, q, x))
+        d, k, m = J.shape
+        return sp.csr_matrix(J.transpose(1, 0, 2).reshape(d * k, m))
 
     def second_derivatives(
         self, t: float, q: np.ndarray, p: np.ndarray, x: np.ndarray
@@ -593,43 +603,49 @@ class CoupledProblem:
         return self.body.G_ddot(t) + self._coupled("g_ddot", t, q, p, pdot)
 
     def gamma(self, t: float = 0.0, q: np.ndarray | None = None) -> sp.csr_matrix:
-        """Gamma = dg/dq, (m, r) sparse: rows on the coupled dofs. Cached when every coupling
-        is linear (then it does not depend on t, q)."""
+        """Gamma = dg/dq, (m, r) sparse: rows on the coupled dofs, assembled from every
+        coupling's sparse :meth:`Coupling.jacobian_matrix` (no dense (d, k, m) for a glued body).
+        Cached when every coupling is linear (then it does not depend on t, q)."""
         if self._gamma_cache is not None:
             return self._gamma_cache
         q = self.q0 if q is None else q
-        rows, cols, vals = [], [], []
+        rows, cols, vals = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0)]
         for cp in self.couplings:
             s = self.slice(cp.component)
-            J = cp.jacobian(t, q[s], self._points[cp.part])  # (d, k, m_c)
-            R = np.broadcast_to(self._rows[cp.part][:, :, None], J.shape)
-            C = np.broadcast_to(np.arange(s.start, s.stop)[None, None, :], J.shape)
-            keep = J != 0
-            rows.append(R[keep])
-            cols.append(C[keep])
-            vals.append(J[keep])
+            J = cp.jacobian_matrix(t, q[s], self._points[cp.part]).tocoo()  # (d k, m_c)
+            # local row d j + i -> the constrained row d pos_j + i (self._rows is (d, k))
+            rows.append(self._rows[cp.part].T.ravel()[J.row])
+            cols.append(J.col + s.start)
+            vals.append(J.data)
         G = sp.csr_matrix(
-            (
-                np.concatenate(vals) if vals else np.zeros(0),
-                (
-                    np.concatenate(rows) if rows else np.zeros(0, int),
-                    np.concatenate(cols) if cols else np.zeros(0, int),
-                ),
-            ),
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
             shape=(self.constraint.m, self.size),
         )
+        G.eliminate_zeros()
         if all(cp.is_linear for cp in self.couplings):
             self._gamma_cache = G
         return G
 
-    def lifted_modes(self, lifting) -> np.ndarray:
-        """Phi = L Gamma (n, r): the body displacement of each unit coordinate through the
-        right inverse L = B^- (nodal: Gamma on the coupled dofs, zero elsewhere). The step's
-        border (``docs/coupling.md``)."""
-        G = self.gamma().toarray()
-        if G.shape[1] == 0:
-            return np.zeros((self.body.space.ndofs, 0))
-        return np.column_stack(lifting.lift_many([G[:, k] for k in range(G.shape[1])]))
+    def lifted_modes(self, lifting) -> sp.csr_matrix:
+        """Phi = L Gamma (n, r) sparse: the body displacement of each unit coordinate through the
+        right inverse L = B^- -- the step's border (``docs/coupling.md``). Nodal: Gamma's rows
+        put on the constrained dofs (S^T Gamma); otherwise the lifting of Gamma's non-zero
+        columns only (a glued body's coordinates off its interface move nothing of the base),
+        so nothing n x r is built dense."""
+        G = self.gamma()
+        n, c = self.body.space.ndofs, self.constraint
+        if isinstance(lifting, NodalLifting):
+            G = G.tocoo()
+            return sp.csr_matrix((G.data, (c.dofs[G.row], G.col)), shape=(n, self.size))
+        G = G.tocsc()
+        cols = np.flatnonzero(np.diff(G.indptr))
+        if cols.size == 0:
+            return sp.csr_matrix((n, self.size))
+        lifted = np.column_stack(lifting.lift_many(list(G[:, cols].toarray().T)))  # (n, ncols)
+        place = sp.csr_matrix(
+            (np.ones(cols.size), (np.arange(cols.size), cols)), shape=(cols.size, self.size)
+        )
+        return (sp.csr_matrix(lifted) @ place).tocsr()
 
     # -- forces ---------------------------------------------------------------------------------
     def generalized_reaction(
