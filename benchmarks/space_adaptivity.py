@@ -102,9 +102,10 @@ class PulseFamily:
     ``dim`` 2: the rectangle [0, 2] x [0, 1] of ``n0`` x 2 ``n0`` squares (eld-pulse), 3: the
     cube of ``n0``^3 cubes of six tetrahedra (eld-pulse-3d); a uniform level refines it d
     bisection generations (h halves). ``subprocess``: every run in a fresh process (spawn),
-    its peak memory the child's peak resident size (:func:`peak_mb`) (the whole process, interpreter and imports
-    included) and the same above the child's peak just before the problem is built
-    (``peak MB`` / ``dMB``); otherwise in this process (peak monotone over the runs)."""
+    its peak memory the child's peak resident size (:func:`peak_mb`: the whole process,
+    interpreter and imports included) and the same above the child's peak just before the
+    problem is built (``peak MB`` / ``dMB``); otherwise in this process (peak monotone over
+    the runs)."""
 
     name: str
     dim: int
