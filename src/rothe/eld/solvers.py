@@ -53,6 +53,14 @@ AMG_DEFAULTS = dict(
     postsmoother=("chebyshev", {"degree": 3}),
 )
 
+#: the AMG of a short-lived mesh (a space-adaptive run's, ``ELDSystem(short_lived=True)``):
+#: plain aggregation, no prolongator smoothing. Its setup is a tenth of the smoothed one's (the
+#: Jacobi smoothing of the tentative prolongator and its spectral radius estimate), and on the
+#: mass-dominated step matrices of such runs CG needs as many V-cycles: on a 13 626-dof
+#: matrix of the eld3d pulse (scaled, rtol 1e-10) setup 0.026 s and 12 cycles in 0.35 s,
+#: against 0.30 s and 11 cycles in 0.46 s (docs/adaptivity.md).
+SHORT_LIVED_AMG = {"smooth": None}
+
 
 @dataclass
 class SolverStats:
@@ -89,7 +97,7 @@ class SolveFailed(RuntimeError):
 
 #: 'auto' takes sparse LU up to this many unknowns, AMG above: 2D, 3D, and 3D meshes of a
 #: space-adaptive run (``short_lived``)
-LU_LIMITS = {2: 200_000, 3: 30_000, "3-short": 5_000}
+LU_LIMITS = {2: 200_000, 3: 30_000, "3-short": 1_500}
 
 
 def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
