@@ -102,7 +102,7 @@ LU_LIMITS = {2: 200_000, 3: 30_000, "3-short": 1_500}
 
 def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
     """'auto': sparse LU in 2D up to 200k unknowns and in 3D up to 30k, AMG above; in 3D on
-    the meshes a space-adaptive run builds (``short_lived``) LU only up to 5k.
+    the meshes a space-adaptive run builds (``short_lived``) LU only up to 1.5k.
 
     3D LU fill grows fast: ``python benchmarks/eld_peers.py`` measured SuperLU at 56,355 dofs
     (P1 beam, N = 16) at 38 s and 0.98 GB peak, while the AMG setup of the 1,075,275-dof beam
@@ -110,7 +110,11 @@ def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
     run lives ``adapt_every`` steps, so its LU is not amortized: on the 3D P2 pulse
     (``benchmarks/space_adaptivity.py --family eld3d``) the LU of meshes up to 15k unknowns
     was 11.5 of the 15.3 s of a run and its fill the run's peak memory; with AMG from 5k on
-    the run took 14.3 s, 353 instead of 536 MB (docs/adaptivity.md).
+    the run took 14.3 s, 353 instead of 536 MB (docs/adaptivity.md). Since such meshes get the
+    Jacobi-scaled plain-aggregation AMG (:data:`SHORT_LIVED_AMG`, setup ~0.03 s at 13k) the
+    LUs of the meshes between 1.5k and 5k (0.1-0.4 s each, a dozen per run) cost more than
+    its solves: the limit went down to 1.5k (the tol 6e-3 run: CPU 8.3 -> 7.9 s, peak
+    387 -> 348 MB, measured on loaded cores).
     """
     if kind not in SOLVERS:
         raise fail("solver", kind, "must be one of " + ", ".join(SOLVERS))

@@ -94,7 +94,7 @@ def _compiled():
     (measured: ``import rothe.eld`` 140 MB with it, 83 MB without), and below the thresholds
     (:data:`NUMBA_MIN_WORK`, :data:`NUMBA_MIN_MATVEC`) nothing of it is called: e.g. the meshes
     of a space-adaptive 3D run up to ~15k P2 dofs."""
-    from . import _assembly_numba
+    from . import _assembly_numba  # heavy: numba, imported when first needed (memory)
 
     return _assembly_numba
 
