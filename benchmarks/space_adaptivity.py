@@ -518,7 +518,7 @@ def pulse_family(family: PulseFamily, quick: bool, cache: str | None = None) -> 
         + f"; adaptive: adapt_every {family.adapt_every}, the band c_p tau adapt_every, at "
         "most as fine as the reference (nested in it); seconds: building the problem and the "
         "run (solver 'auto': LU up to "
-        + ("200k" if d == 2 else "30k")
+        + ("200k" if d == 2 else "30k (the adaptive runs' meshes: 1.5k)")
         + " unknowns, AMG above)"
         + ("; every run in its own process" if family.subprocess else "")
     )
@@ -598,6 +598,37 @@ def ris(quick: bool) -> float | None:
     return run_ris_family(quick)
 
 
+def phases_of_one_run(family: PulseFamily, tol: float) -> None:
+    """One adaptive run of the full benchmark's family (space_tol ``tol``, energy norm), in this
+    process: its wall and CPU seconds, peak memory, and the seconds per phase per step (the
+    per-phase table of docs/adaptivity.md; ``--phases TOL``). CPU seconds are what a loaded
+    machine disturbs least."""
+    T = family.T[1]
+    ref_level = family.max_level + 1  # the full benchmark's reference (3D: n = 32, 2D: 256)
+    space = dict(
+        space_tol=tol,
+        refine_fraction=0.5,
+        coarsen_fraction=0.05,
+        max_dofs=pulse_mesh(family, ref_level).ndofs(2, family.dim),
+        adapt_every=family.adapt_every,
+        max_level=family.dim * ref_level,
+        norm="energy",
+    )
+    c0 = time.process_time()
+    r = pulse_run(family, T, f"adaptive tol={tol:g}", 0, space)
+    cpu = time.process_time() - c0
+    steps = r["steps"]
+    print(
+        f"{family.name} adaptive tol={tol:g}: {steps} steps, wall {r['seconds']:.2f} s, CPU "
+        f"{cpu:.2f} s, peak {r['peak']:.0f} MB, dofs summed {r['dofs']}, balance "
+        f"{r['balance']:.1e}"
+    )
+    print(
+        "  seconds per step (wall): "
+        + ", ".join(f"{k} {v / steps:.3f}" for k, v in sorted(r["phases"].items()))
+    )
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller sizes (< 3 min)")
@@ -607,8 +638,23 @@ def main(argv=None) -> None:
         default=None,
         help="ELD: keep every run's record in this directory and reuse kept ones",
     )
+    parser.add_argument(
+        "--phases",
+        type=float,
+        default=None,
+        metavar="TOL",
+        help="only one adaptive run of the family (space_tol TOL) in this process: its phases",
+    )
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
+    if args.phases is not None:
+        fam = {"eld": ELD2D, "eld3d": ELD3D}.get(args.family)
+        if fam is None:
+            parser.error(f"--phases: got --family {args.family}, must be eld or eld3d")
+        if not args.phases > 0:
+            parser.error(f"--phases: got {args.phases:g}, must be > 0")
+        phases_of_one_run(fam, args.phases)
+        return
     if args.family in ("eld", "all"):
         eld(args.quick, args.cache)
     if args.family in ("eld3d", "all"):
