@@ -186,7 +186,7 @@ def pulse_run(family: PulseFamily, T: float, label: str, level: int, space: dict
 
     mesh = pulse_mesh(family, level).mesh
     base_mb = peak_mb()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     problem = pulse_of(family, T, mesh)
     result = run_eld(
         problem,
@@ -195,7 +195,7 @@ def pulse_run(family: PulseFamily, T: float, label: str, level: int, space: dict
         scheme=BDF2(),
         keep_every=round(family.keep / family.tau),
     )
-    secs = time.perf_counter() - t0
+    secs, cpu = time.perf_counter() - t0, time.process_time() - c0
     traj = result.trajectory
     if space is None:
         m = problem.space.mesh
@@ -219,6 +219,7 @@ def pulse_run(family: PulseFamily, T: float, label: str, level: int, space: dict
         "max": int(np.max(traj["ndofs"])) if "ndofs" in traj else final,
         "steps": len(traj["t"]) - 1,
         "seconds": secs,
+        "cpu": cpu,
         "peak": peak_mb(),
         "dpeak": peak_mb() - base_mb,
         "balance": float(np.max(np.abs(traj["balance_residual"]))),
@@ -389,7 +390,7 @@ def print_runs(runs: list, memory_delta: bool) -> None:
     """The table of the runs (errors: ``(ref)`` for the reference)."""
     print(
         f"  {'run':<22} {'steps':>5} {'dofs final':>10} {'dofs max':>9} {'dofs summed':>12} "
-        f"{'rel. L2 err':>11} {'rel. E err':>10} {'seconds':>8} {'peak MB':>8} "
+        f"{'rel. L2 err':>11} {'rel. E err':>10} {'seconds':>8} {'CPU s':>7} {'peak MB':>8} "
         + (f"{'dMB':>7} " if memory_delta else "")
         + f"{'balance':>9}"
     )
@@ -401,7 +402,8 @@ def print_runs(runs: list, memory_delta: bool) -> None:
         )
         print(
             f"  {r['label']:<22} {r['steps']:>5} {r['final']:>10} {r['max']:>9} "
-            f"{r['dofs']:>12} {err} {r['seconds']:>8.1f} {r['peak']:>8.0f} "
+            f"{r['dofs']:>12} {err} {r['seconds']:>8.1f} {r.get('cpu', math.nan):>7.1f} "
+            f"{r['peak']:>8.0f} "
             + (f"{r['dpeak']:>7.0f} " if memory_delta else "")
             + f"{r['balance']:>9.1e}"
         )
@@ -423,9 +425,11 @@ def ratio_at_equal_error(
     runs, ``"adaptive-l2 "`` the L2-norm runs): the uniform runs' summed dofs (seconds, peak
     memory) at its error ``key`` (log-log interpolation, :func:`log_interp_work`) and the
     ratios; returns (error, dofs ratio, seconds ratio, label, memory ratio, memory-above-
-    baseline ratio) of the adaptive run with the smallest error inside the uniform range, or
-    None."""
+    baseline ratio, CPU seconds ratio or None) of the adaptive run with the smallest error
+    inside the uniform range, or None. CPU seconds (the process's, all threads) are what a
+    loaded machine disturbs least: the wall seconds of one run varied 2-5x with the load."""
     uniform = [r for r in runs if r["label"].startswith("uniform")]
+    with_cpu = all("cpu" in u for u in uniform)
 
     def at(r, what):
         return log_interp_work(r[key], [(u[key], u[what]) for u in uniform])
@@ -438,6 +442,9 @@ def ratio_at_equal_error(
         w, s = at(r, "dofs"), at(r, "seconds")
         ratio = None if w is None else r["dofs"] / w
         sratio = None if s is None else r["seconds"] / s
+        cratio = None
+        if with_cpu and "cpu" in r and w is not None:
+            cratio = r["cpu"] / at(r, "cpu")
         mratio = dratio = None
         if memory and w is not None:
             mratio = r["peak"] / at(r, "peak")
@@ -448,12 +455,13 @@ def ratio_at_equal_error(
                 "outside the uniform range"
                 if w is None
                 else f"{w:12.0f}  ratio {ratio:.3f}  (seconds ratio {sratio:.3f}"
+                + ("" if cratio is None else f", CPU seconds ratio {cratio:.3f}")
                 + ("" if mratio is None else f", peak memory ratio {mratio:.3f}")
                 + ")"
             )
         )
         if ratio is not None and sratio is not None and (best is None or r[key] < best[0]):
-            best = (r[key], ratio, sratio, r["label"], mratio, dratio)
+            best = (r[key], ratio, sratio, r["label"], mratio, dratio, cratio)
     return best
 
 
@@ -470,6 +478,12 @@ def print_ratio_lines(name: str, best, best_l2, memory: bool = False, best_l2e=N
 
     print(f"{name}: work ratio adaptive/uniform at equal error: " + fmt(best, 1) + who(best))
     print(f"{name}: seconds ratio adaptive/uniform at equal error: " + fmt(best, 2) + who(best))
+    if best is not None and best[6] is not None:
+        print(
+            f"{name}: CPU seconds ratio adaptive/uniform at equal error: "
+            + fmt(best, 6)
+            + who(best)
+        )
     print(
         f"{name}: work ratio adaptive/uniform at equal error (L2 of u): "
         + fmt(best_l2, 1)
@@ -614,9 +628,8 @@ def phases_of_one_run(family: PulseFamily, tol: float) -> None:
         max_level=family.dim * ref_level,
         norm="energy",
     )
-    c0 = time.process_time()
     r = pulse_run(family, T, f"adaptive tol={tol:g}", 0, space)
-    cpu = time.process_time() - c0
+    cpu = r["cpu"]
     steps = r["steps"]
     print(
         f"{family.name} adaptive tol={tol:g}: {steps} steps, wall {r['seconds']:.2f} s, CPU "
