@@ -614,7 +614,7 @@ def ris(quick: bool) -> float | None:
 
 def phases_of_one_run(family: PulseFamily, tol: float) -> None:
     """One adaptive run of the full benchmark's family (space_tol ``tol``, energy norm), in this
-    process: its wall and CPU seconds, peak memory, and the seconds per phase per step (the
+    process: its wall and CPU seconds and the seconds per phase per step (the
     per-phase table of docs/adaptivity.md; ``--phases TOL``). CPU seconds are what a loaded
     machine disturbs least."""
     T = family.T[1]
@@ -633,7 +633,7 @@ def phases_of_one_run(family: PulseFamily, tol: float) -> None:
     steps = r["steps"]
     print(
         f"{family.name} adaptive tol={tol:g}: {steps} steps, wall {r['seconds']:.2f} s, CPU "
-        f"{cpu:.2f} s, peak {r['peak']:.0f} MB, dofs summed {r['dofs']}, balance "
+        f"{cpu:.2f} s, dofs summed {r['dofs']}, balance "
         f"{r['balance']:.1e}"
     )
     print(

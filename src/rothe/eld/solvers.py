@@ -77,14 +77,16 @@ class SolverStats:
 
 def jacobi_scaled(A):
     """(D^{-1/2} A D^{-1/2}, D^{-1/2} as a vector) for a BSR or CSR matrix A with a positive
-    diagonal D; a BSR matrix stays BSR with the same blocks and pattern (the values scaled in
-    place of a copy: d_i^{-1/2} a_ij d_j^{-1/2}, block by block, vectorized)."""
+    diagonal D; a BSR matrix stays BSR of its own class (a
+    :class:`~rothe.fem.elasticity.BlockMatrix` keeps its compiled product, the AMG cycle's main
+    cost at scale) with the same blocks and pattern (the values d_i^{-1/2} a_ij d_j^{-1/2}
+    block by block, vectorized)."""
     s = 1.0 / np.sqrt(A.diagonal())
     if A.format == "bsr":
         r, c = A.blocksize
         rows = np.repeat(np.arange(A.shape[0] // r), np.diff(A.indptr))
         data = A.data * s.reshape(-1, r)[rows][:, :, None] * s.reshape(-1, c)[A.indices][:, None, :]
-        return sp.bsr_matrix((data, A.indices, A.indptr), shape=A.shape), s
+        return type(A)((data, A.indices, A.indptr), shape=A.shape), s
     A = sp.csr_matrix(A)
     rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
     data = A.data * s[rows] * s[A.indices]
