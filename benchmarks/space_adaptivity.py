@@ -49,8 +49,9 @@ its centre), the same table with tau = 0.02, T = 0.5 (quick: 0.3): uniform meshe
 16 cubes across (three bisection generations halve h; quick: up to n = 8), the reference n = 32
 (823 875 dofs, AMG; quick: n = 16), adaptive runs with adapt_every 2. Every run is made in a
 fresh process (multiprocessing, spawn), so that its peak memory is its own: ``peak MB`` is
-the child's ``ru_maxrss`` (interpreter and imports included, about 150 MB), ``dMB`` the same
-minus the child's ``ru_maxrss`` just before the problem is built; the last line of the
+the child's peak resident size (:func:`peak_mb`: VmHWM, interpreter and imports included,
+about 140 MB), ``dMB`` the same
+minus the child's peak just before the problem is built; the last line of the
 family, ``eld3d: peak memory ratio adaptive/uniform at equal error``, compares ``peak MB``
 (interpolated log-log in the error like the seconds) and gives the ``dMB`` ratio in brackets.
 Both families run through the same code (:func:`pulse_family`, :class:`PulseFamily`).
@@ -78,6 +79,19 @@ MAX_UNIFORM_LEVEL = 5
 
 
 def peak_mb() -> float:
+    """This process's peak resident memory in MB: Linux's VmHWM (the high-water mark of this
+    process's own address space), else ``ru_maxrss``. Not ``ru_maxrss`` on Linux: it survives
+    execve, so a spawned child starts from its parent's resident size at the fork (measured:
+    a child of a parent holding 480 MB reported 486 MB with ru_maxrss, 28 MB with VmHWM; the
+    parent of this benchmark holds the runs' records and the reference mesh hierarchy, which
+    inflated the adaptive runs' peaks by about 110 MB)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -88,9 +102,10 @@ class PulseFamily:
     ``dim`` 2: the rectangle [0, 2] x [0, 1] of ``n0`` x 2 ``n0`` squares (eld-pulse), 3: the
     cube of ``n0``^3 cubes of six tetrahedra (eld-pulse-3d); a uniform level refines it d
     bisection generations (h halves). ``subprocess``: every run in a fresh process (spawn),
-    its peak memory the child's ``ru_maxrss`` (the whole process, interpreter and imports
-    included) and the same above the child's ``ru_maxrss`` just before the problem is built
-    (``peak MB`` / ``dMB``); otherwise in this process (peak monotone over the runs)."""
+    its peak memory the child's peak resident size (:func:`peak_mb`: the whole process,
+    interpreter and imports included) and the same above the child's peak just before the
+    problem is built (``peak MB`` / ``dMB``); otherwise in this process (peak monotone over
+    the runs)."""
 
     name: str
     dim: int
@@ -171,7 +186,7 @@ def pulse_run(family: PulseFamily, T: float, label: str, level: int, space: dict
 
     mesh = pulse_mesh(family, level).mesh
     base_mb = peak_mb()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     problem = pulse_of(family, T, mesh)
     result = run_eld(
         problem,
@@ -180,7 +195,7 @@ def pulse_run(family: PulseFamily, T: float, label: str, level: int, space: dict
         scheme=BDF2(),
         keep_every=round(family.keep / family.tau),
     )
-    secs = time.perf_counter() - t0
+    secs, cpu = time.perf_counter() - t0, time.process_time() - c0
     traj = result.trajectory
     if space is None:
         m = problem.space.mesh
@@ -204,6 +219,7 @@ def pulse_run(family: PulseFamily, T: float, label: str, level: int, space: dict
         "max": int(np.max(traj["ndofs"])) if "ndofs" in traj else final,
         "steps": len(traj["t"]) - 1,
         "seconds": secs,
+        "cpu": cpu,
         "peak": peak_mb(),
         "dpeak": peak_mb() - base_mb,
         "balance": float(np.max(np.abs(traj["balance_residual"]))),
@@ -374,7 +390,7 @@ def print_runs(runs: list, memory_delta: bool) -> None:
     """The table of the runs (errors: ``(ref)`` for the reference)."""
     print(
         f"  {'run':<22} {'steps':>5} {'dofs final':>10} {'dofs max':>9} {'dofs summed':>12} "
-        f"{'rel. L2 err':>11} {'rel. E err':>10} {'seconds':>8} {'peak MB':>8} "
+        f"{'rel. L2 err':>11} {'rel. E err':>10} {'seconds':>8} {'CPU s':>7} {'peak MB':>8} "
         + (f"{'dMB':>7} " if memory_delta else "")
         + f"{'balance':>9}"
     )
@@ -386,7 +402,8 @@ def print_runs(runs: list, memory_delta: bool) -> None:
         )
         print(
             f"  {r['label']:<22} {r['steps']:>5} {r['final']:>10} {r['max']:>9} "
-            f"{r['dofs']:>12} {err} {r['seconds']:>8.1f} {r['peak']:>8.0f} "
+            f"{r['dofs']:>12} {err} {r['seconds']:>8.1f} {r.get('cpu', math.nan):>7.1f} "
+            f"{r['peak']:>8.0f} "
             + (f"{r['dpeak']:>7.0f} " if memory_delta else "")
             + f"{r['balance']:>9.1e}"
         )
@@ -408,9 +425,11 @@ def ratio_at_equal_error(
     runs, ``"adaptive-l2 "`` the L2-norm runs): the uniform runs' summed dofs (seconds, peak
     memory) at its error ``key`` (log-log interpolation, :func:`log_interp_work`) and the
     ratios; returns (error, dofs ratio, seconds ratio, label, memory ratio, memory-above-
-    baseline ratio) of the adaptive run with the smallest error inside the uniform range, or
-    None."""
+    baseline ratio, CPU seconds ratio or None) of the adaptive run with the smallest error
+    inside the uniform range, or None. CPU seconds (the process's, all threads) are what a
+    loaded machine disturbs least: the wall seconds of one run varied 2-5x with the load."""
     uniform = [r for r in runs if r["label"].startswith("uniform")]
+    with_cpu = all("cpu" in u for u in uniform)
 
     def at(r, what):
         return log_interp_work(r[key], [(u[key], u[what]) for u in uniform])
@@ -423,6 +442,9 @@ def ratio_at_equal_error(
         w, s = at(r, "dofs"), at(r, "seconds")
         ratio = None if w is None else r["dofs"] / w
         sratio = None if s is None else r["seconds"] / s
+        cratio = None
+        if with_cpu and "cpu" in r and w is not None:
+            cratio = r["cpu"] / at(r, "cpu")
         mratio = dratio = None
         if memory and w is not None:
             mratio = r["peak"] / at(r, "peak")
@@ -433,12 +455,13 @@ def ratio_at_equal_error(
                 "outside the uniform range"
                 if w is None
                 else f"{w:12.0f}  ratio {ratio:.3f}  (seconds ratio {sratio:.3f}"
+                + ("" if cratio is None else f", CPU seconds ratio {cratio:.3f}")
                 + ("" if mratio is None else f", peak memory ratio {mratio:.3f}")
                 + ")"
             )
         )
         if ratio is not None and sratio is not None and (best is None or r[key] < best[0]):
-            best = (r[key], ratio, sratio, r["label"], mratio, dratio)
+            best = (r[key], ratio, sratio, r["label"], mratio, dratio, cratio)
     return best
 
 
@@ -455,6 +478,12 @@ def print_ratio_lines(name: str, best, best_l2, memory: bool = False, best_l2e=N
 
     print(f"{name}: work ratio adaptive/uniform at equal error: " + fmt(best, 1) + who(best))
     print(f"{name}: seconds ratio adaptive/uniform at equal error: " + fmt(best, 2) + who(best))
+    if best is not None and best[6] is not None:
+        print(
+            f"{name}: CPU seconds ratio adaptive/uniform at equal error: "
+            + fmt(best, 6)
+            + who(best)
+        )
     print(
         f"{name}: work ratio adaptive/uniform at equal error (L2 of u): "
         + fmt(best_l2, 1)
@@ -503,7 +532,7 @@ def pulse_family(family: PulseFamily, quick: bool, cache: str | None = None) -> 
         + f"; adaptive: adapt_every {family.adapt_every}, the band c_p tau adapt_every, at "
         "most as fine as the reference (nested in it); seconds: building the problem and the "
         "run (solver 'auto': LU up to "
-        + ("200k" if d == 2 else "30k")
+        + ("200k" if d == 2 else "30k (the adaptive runs' meshes: 1.5k)")
         + " unknowns, AMG above)"
         + ("; every run in its own process" if family.subprocess else "")
     )
@@ -583,6 +612,36 @@ def ris(quick: bool) -> float | None:
     return run_ris_family(quick)
 
 
+def phases_of_one_run(family: PulseFamily, tol: float) -> None:
+    """One adaptive run of the full benchmark's family (space_tol ``tol``, energy norm), in this
+    process: its wall and CPU seconds and the seconds per phase per step (the
+    per-phase table of docs/adaptivity.md; ``--phases TOL``). CPU seconds are what a loaded
+    machine disturbs least."""
+    T = family.T[1]
+    ref_level = family.max_level + 1  # the full benchmark's reference (3D: n = 32, 2D: 256)
+    space = dict(
+        space_tol=tol,
+        refine_fraction=0.5,
+        coarsen_fraction=0.05,
+        max_dofs=pulse_mesh(family, ref_level).ndofs(2, family.dim),
+        adapt_every=family.adapt_every,
+        max_level=family.dim * ref_level,
+        norm="energy",
+    )
+    r = pulse_run(family, T, f"adaptive tol={tol:g}", 0, space)
+    cpu = r["cpu"]
+    steps = r["steps"]
+    print(
+        f"{family.name} adaptive tol={tol:g}: {steps} steps, wall {r['seconds']:.2f} s, CPU "
+        f"{cpu:.2f} s, dofs summed {r['dofs']}, balance "
+        f"{r['balance']:.1e}"
+    )
+    print(
+        "  seconds per step (wall): "
+        + ", ".join(f"{k} {v / steps:.3f}" for k, v in sorted(r["phases"].items()))
+    )
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller sizes (< 3 min)")
@@ -592,8 +651,23 @@ def main(argv=None) -> None:
         default=None,
         help="ELD: keep every run's record in this directory and reuse kept ones",
     )
+    parser.add_argument(
+        "--phases",
+        type=float,
+        default=None,
+        metavar="TOL",
+        help="only one adaptive run of the family (space_tol TOL) in this process: its phases",
+    )
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
+    if args.phases is not None:
+        fam = {"eld": ELD2D, "eld3d": ELD3D}.get(args.family)
+        if fam is None:
+            parser.error(f"--phases: got --family {args.family}, must be eld or eld3d")
+        if not args.phases > 0:
+            parser.error(f"--phases: got {args.phases:g}, must be > 0")
+        phases_of_one_run(fam, args.phases)
+        return
     if args.family in ("eld", "all"):
         eld(args.quick, args.cache)
     if args.family in ("eld3d", "all"):

@@ -229,3 +229,26 @@ def test_block_matrix_product_is_scipys_bit_for_bit(dim, monkeypatch):
         assert isinstance(A, el.BlockMatrix)
         y = np.random.default_rng(2).standard_normal(A.shape[0])
         assert np.array_equal(A @ y, sp.bsr_matrix(A) @ y)
+
+
+def test_numba_is_imported_only_when_a_kernel_is_used():
+    """Importing numba costs ~35 MB of resident memory in every process: below the thresholds
+    (a small 3D P2 assembly and its products) it is not imported at all."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from skfem import MeshTet\n"
+        "from rothe.fem import elasticity as el\n"
+        "space = el.VectorSpace(MeshTet.init_tensor(*[np.linspace(0, 1, 4)] * 3), 2)\n"
+        "K = space.stiffness(1.0, 1.0, format='bsr')\n"
+        "K @ np.ones(K.shape[0])\n"
+        "print('numba' in sys.modules)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROTHE_")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"

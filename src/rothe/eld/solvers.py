@@ -15,7 +15,14 @@ Kinds:
   matrices, GMRES for the saddle-point matrices of the original form;
 - ``amg``: pyamg smoothed aggregation with the rigid-body modes as near-null space (the
   aggregation must reproduce the kernel of the elasticity operator on the coarse levels: Vanek,
-  Mandel & Brezina, Computing 56 (1996) 179-196), CG accelerated. SPD matrices only.
+  Mandel & Brezina, Computing 56 (1996) 179-196), CG accelerated. SPD matrices only. The
+  hierarchy is built for the symmetrically Jacobi-scaled matrix D^{-1/2} A D^{-1/2}
+  (:func:`jacobi_scaled`): pyamg's Chebyshev smoother is a polynomial in the matrix itself,
+  tuned to its largest eigenvalue, so on a graded mesh, whose diagonal spans the cell volumes
+  (a step matrix (rho/tau^2) M + K of an adaptive 3D P2 mesh: diagonal from 0.19 to 21), it
+  smooths only the dofs of the largest diagonal entries: CG needed 72 V-cycles for rtol
+  1e-10 on such a 13 626-dof matrix, 12 with the scaling (11 either way on the uniform
+  n = 16 mesh, whose diagonal spans 0.10-0.86; docs/adaptivity.md).
 """
 
 from __future__ import annotations
@@ -46,6 +53,14 @@ AMG_DEFAULTS = dict(
     postsmoother=("chebyshev", {"degree": 3}),
 )
 
+#: the AMG of a short-lived mesh (a space-adaptive run's, ``ELDSystem(short_lived=True)``):
+#: plain aggregation, no prolongator smoothing. Its setup is a tenth of the smoothed one's (the
+#: Jacobi smoothing of the tentative prolongator and its spectral radius estimate), and on the
+#: mass-dominated step matrices of such runs CG needs as many V-cycles: on a 13 626-dof
+#: matrix of the eld3d pulse (scaled, rtol 1e-10) setup 0.026 s and 12 cycles in 0.35 s,
+#: against 0.30 s and 11 cycles in 0.46 s (docs/adaptivity.md).
+SHORT_LIVED_AMG = {"smooth": None}
+
 
 @dataclass
 class SolverStats:
@@ -60,18 +75,36 @@ class SolverStats:
     setup_seconds: float = 0.0
 
 
+def jacobi_scaled(A):
+    """(D^{-1/2} A D^{-1/2}, D^{-1/2} as a vector) for a BSR or CSR matrix A with a positive
+    diagonal D; a BSR matrix stays BSR of its own class (a
+    :class:`~rothe.fem.elasticity.BlockMatrix` keeps its compiled product, the AMG cycle's main
+    cost at scale) with the same blocks and pattern (the values d_i^{-1/2} a_ij d_j^{-1/2}
+    block by block, vectorized)."""
+    s = 1.0 / np.sqrt(A.diagonal())
+    if A.format == "bsr":
+        r, c = A.blocksize
+        rows = np.repeat(np.arange(A.shape[0] // r), np.diff(A.indptr))
+        data = A.data * s.reshape(-1, r)[rows][:, :, None] * s.reshape(-1, c)[A.indices][:, None, :]
+        return type(A)((data, A.indices, A.indptr), shape=A.shape), s
+    A = sp.csr_matrix(A)
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    data = A.data * s[rows] * s[A.indices]
+    return sp.csr_matrix((data, A.indices, A.indptr), shape=A.shape), s
+
+
 class SolveFailed(RuntimeError):
     """The Krylov method did not converge even with a fresh preconditioner."""
 
 
 #: 'auto' takes sparse LU up to this many unknowns, AMG above: 2D, 3D, and 3D meshes of a
 #: space-adaptive run (``short_lived``)
-LU_LIMITS = {2: 200_000, 3: 30_000, "3-short": 5_000}
+LU_LIMITS = {2: 200_000, 3: 30_000, "3-short": 1_500}
 
 
 def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
     """'auto': sparse LU in 2D up to 200k unknowns and in 3D up to 30k, AMG above; in 3D on
-    the meshes a space-adaptive run builds (``short_lived``) LU only up to 5k.
+    the meshes a space-adaptive run builds (``short_lived``) LU only up to 1.5k.
 
     3D LU fill grows fast: ``python benchmarks/eld_peers.py`` measured SuperLU at 56,355 dofs
     (P1 beam, N = 16) at 38 s and 0.98 GB peak, while the AMG setup of the 1,075,275-dof beam
@@ -79,7 +112,11 @@ def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
     run lives ``adapt_every`` steps, so its LU is not amortized: on the 3D P2 pulse
     (``benchmarks/space_adaptivity.py --family eld3d``) the LU of meshes up to 15k unknowns
     was 11.5 of the 15.3 s of a run and its fill the run's peak memory; with AMG from 5k on
-    the run took 14.3 s, 353 instead of 536 MB (docs/adaptivity.md).
+    the run took 14.3 s, 353 instead of 536 MB (docs/adaptivity.md). Since such meshes get the
+    Jacobi-scaled plain-aggregation AMG (:data:`SHORT_LIVED_AMG`, setup ~0.03 s at 13k) the
+    LUs of the meshes between 1.5k and 5k (0.1-0.4 s each, a dozen per run) cost more than
+    its solves: the limit went down to 1.5k (the tol 6e-3 run: CPU 8.3 -> 7.9 s, peak
+    387 -> 348 MB, measured on loaded cores).
     """
     if kind not in SOLVERS:
         raise fail("solver", kind, "must be one of " + ", ".join(SOLVERS))
@@ -145,6 +182,7 @@ class ReferenceSolver:
         self._A = None
         self._prec = None
         self._ml = None
+        self._scale = None  # D^{-1/2} of the AMG reference (jacobi_scaled)
 
     # -- reference ------------------------------------------------------------------------------
     def factor(self, A) -> None:
@@ -169,16 +207,24 @@ class ReferenceSolver:
             # BSR (d x d blocks) is kept: pyamg then aggregates nodes, not single components
             if not (sp.issparse(A) and A.format in ("bsr", "csr")):
                 A = sp.csr_matrix(A)
-            B = None if self.near_nullspace is None else np.asarray(self.near_nullspace)
+            # the hierarchy of D^{-1/2} A D^{-1/2} (module docstring); its near-null space is
+            # D^{1/2} times A's
+            As, scale = jacobi_scaled(A)
+            B = None
+            if self.near_nullspace is not None:
+                B = np.asarray(self.near_nullspace) / scale[:, None]
             opts = dict(AMG_DEFAULTS)
             opts.update(self.amg_options)
             with reproducible_random():  # pyamg draws random start vectors: repeatable runs
-                self._ml = pyamg.smoothed_aggregation_solver(A, B=B, **opts)
+                self._ml = pyamg.smoothed_aggregation_solver(As, B=B, **opts)
             # the coarse solver factors lazily on its first call: do it here, in the setup,
             # not in the first time step
             coarse = self._ml.levels[-1].A
             self._ml.coarse_solver(coarse, np.zeros(coarse.shape[0]))
-            self._prec = self._ml.aspreconditioner(cycle="V")
+            self._scale = scale
+            cycle = self._ml.aspreconditioner(cycle="V")
+            # the preconditioner of A itself: D^{-1/2} (V-cycle of the scaled matrix) D^{-1/2}
+            self._prec = lambda r: scale * cycle(scale * r)
         self._A = A
         self.stats.setup_seconds += time.perf_counter() - t0
 
@@ -187,11 +233,14 @@ class ReferenceSolver:
         """What factorizations and solves change: the stored reference (by reference: a
         refactorization replaces it, nothing changes it in place) and a copy of the counters.
         :meth:`rollback` puts it back when a step is abandoned (:meth:`ELDStepper.abandon`)."""
-        return {"stored": (self._A, self._prec, self._ml), "stats": replace(self.stats)}
+        return {
+            "stored": (self._A, self._prec, self._ml, self._scale),
+            "stats": replace(self.stats),
+        }
 
     def rollback(self, state: dict) -> None:
         """Put back what :meth:`snapshot` returned."""
-        self._A, self._prec, self._ml = state["stored"]
+        self._A, self._prec, self._ml, self._scale = state["stored"]
         self.stats = replace(state["stats"])
 
     @property
@@ -200,19 +249,26 @@ class ReferenceSolver:
         return self._prec is not None
 
     def solve_reference(self, b: np.ndarray, x0=None) -> np.ndarray:
-        """x = A_ref^{-1} b: one back-substitution (direct) or AMG-CG to rtol."""
+        """x = A_ref^{-1} b: one back-substitution (direct) or AMG-CG to rtol.
+
+        AMG: CG on the scaled system D^{-1/2} A D^{-1/2} y = D^{-1/2} b, x = D^{-1/2} y, so the
+        relative residual rtol is that of the D^{-1/2}-weighted residual,
+        ||D^{-1/2} (b - A x)|| <= rtol ||D^{-1/2} b||."""
         self.stats.solves += 1
         if self.kind == "direct":
             self.stats.backsolves += 1
             return self._prec(b)
+        s = self._scale
+        sb = s * b
+        y0 = None if x0 is None else np.asarray(x0) / s
         residuals: list[float] = []
-        x = self._ml.solve(b, x0=x0, tol=self.rtol, accel="cg", maxiter=500, residuals=residuals)
+        y = self._ml.solve(sb, x0=y0, tol=self.rtol, accel="cg", maxiter=500, residuals=residuals)
         its = max(len(residuals) - 1, 0)
         self.stats.backsolves += its
         self.stats.krylov_iterations += its
-        if residuals and residuals[-1] > 10 * self.rtol * max(np.linalg.norm(b), 1e-300):
+        if residuals and residuals[-1] > 10 * self.rtol * max(np.linalg.norm(sb), 1e-300):
             raise SolveFailed(f"AMG-CG did not reach rtol {self.rtol:g} in 500 iterations")
-        return x
+        return s * y
 
     def time_backsolve(self, n: int, repeats: int = 20, seed: int = 0) -> float:
         """Median seconds of one application of the stored factorization (one back-substitution

@@ -47,7 +47,7 @@ import scipy.sparse.linalg as spla
 from ..timing import PhaseTimes
 from .constraint import NodalLifting, make_lifting
 from .data import StepData
-from .solvers import ConstrainedSolver, ReferenceSolver, resolve_kind
+from .solvers import SHORT_LIVED_AMG, ConstrainedSolver, ReferenceSolver, resolve_kind
 from .state import PRODUCTS, ELDState
 
 #: below this many unknowns a new tau_eff gets its own LU (cheaper than ~10 preconditioned
@@ -84,7 +84,8 @@ class ELDSystem:
         adaptivity: one factorization per mesh).
     short_lived : bool
         A mesh of a space-adaptive run (it lives ``adapt_every`` steps): 'auto' takes LU in
-        3D up to fewer unknowns (:func:`rothe.eld.solvers.resolve_kind`).
+        3D up to fewer unknowns (:func:`rothe.eld.solvers.resolve_kind`), and AMG builds its
+        hierarchy with the cheap setup :data:`rothe.eld.solvers.SHORT_LIVED_AMG`.
     """
 
     #: the right inverse B^- (regularized form), None in the original form
@@ -121,6 +122,7 @@ class ELDSystem:
         self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar), c.scalar_dofs)
         self._lean = self.D.matrix is None
         self.kind = resolve_kind(solver, self.I.size, p.space.dim, short_lived)
+        self._amg_options = dict(SHORT_LIVED_AMG) if short_lived else None
         rbm = p.space.rigid_body_modes(free_nodes) if self.kind == "amg" else None
         self.solver = self._make_solver(rbm, linear_rtol)
         self._store_first_matrix(tau_eff)
@@ -405,6 +407,7 @@ class RegularizedSystem(ELDSystem):
             spd=True,
             near_nullspace=near_nullspace,
             rtol=rtol,
+            amg_options=self._amg_options,
             times=self.times,
             symmetric_lu=self.symmetric_lu,
         )
@@ -489,6 +492,7 @@ class OriginalSystem(ELDSystem):
             self.kind,
             near_nullspace=near_nullspace,
             rtol=rtol,
+            amg_options=self._amg_options,
             times=self.times,
             symmetric_lu=self.symmetric_lu,
         )

@@ -53,7 +53,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import check_int, check_positive, check_real, described, fail
-from . import _assembly_numba
 from .mesh import check_simplex_mesh, with_fast_edges, with_fast_facets
 
 #: element-matrix entries (floats) per chunk of cells in the numpy assembly (32 MB)
@@ -89,6 +88,17 @@ def _scalar_element(dim: int, degree: int):
     ]()
 
 
+def _compiled():
+    """:mod:`rothe.fem._assembly_numba`, imported when first needed: importing numba (and
+    llvmlite) adds about 35 MB of resident memory and a few tenths of a second to every process
+    (measured: ``import rothe.eld`` 140 MB with it, 83 MB without), and below the thresholds
+    (:data:`NUMBA_MIN_WORK`, :data:`NUMBA_MIN_MATVEC`) nothing of it is called: e.g. the meshes
+    of a space-adaptive 3D run up to ~15k P2 dofs."""
+    from . import _assembly_numba  # heavy: numba, imported when first needed (memory)
+
+    return _assembly_numba
+
+
 def use_numba(work: int | None = None) -> bool:
     """True if the compiled kernels are used for an assembly of this much ``work``
     (:data:`NUMBA_MIN_WORK`; None: whatever the size): numba importable and ROTHE_NO_NUMBA
@@ -99,7 +109,7 @@ def use_numba(work: int | None = None) -> bool:
     if work is not None and work < NUMBA_MIN_WORK and not forced:
         return False
 
-    return _assembly_numba.AVAILABLE
+    return _compiled().AVAILABLE
 
 
 @dataclass
@@ -340,7 +350,7 @@ class BlockMatrix(sp.bsr_matrix):
             and other.ndim == 1
             and use_numba()
         ):
-            return _assembly_numba.bsr_matvec(
+            return _compiled().bsr_matvec(
                 self.indptr, self.indices, self.data, np.ascontiguousarray(other)
             )
         return super()._matmul_vector(other)
@@ -569,7 +579,7 @@ class VectorSpace:
         blocks = np.zeros((pat.nnz, d, d))
         if self.compiled_assembly:
             ne = self.element_dofs.shape[1]
-            _assembly_numba.stiffness_blocks(
+            _compiled().stiffness_blocks(
                 np.asarray(self.mesh.p),
                 np.asarray(self.mesh.t),
                 np.asarray(self.element_dofs),
@@ -633,7 +643,7 @@ class VectorSpace:
             )
         out = np.zeros(self.nnz_scalar)
         if self.compiled_assembly:
-            _assembly_numba.scalar_mass(
+            _compiled().scalar_mass(
                 np.asarray(self.mesh.p),
                 np.asarray(self.mesh.t),
                 np.asarray(self.element_dofs),
