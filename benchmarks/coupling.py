@@ -124,17 +124,15 @@ def measure(name: str, n: int, steps: int, repeat: int) -> dict:
     build, tau, _ = EXAMPLES[name]
     scheme, form, control = BDF2(), Regularized("nodal"), Uniform(tau)
     T = steps * tau
-    clocks = {"c": StepClock(CoupledStepper), "p": StepClock(ELDStepper)}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         system = build(n, T)
         alone = prescribed_body(system, T)
-        for _ in range(repeat):
-            with clocks["c"]:
-                run_coupled(system, scheme=scheme, form=form, control=control, T=T)
-            with clocks["p"]:
-                run_eld(alone, scheme=scheme, form=form, control=control, store_fields=False)
-    c, p = clocks["c"].per_step(), clocks["p"].per_step()
+        c, p = _per_step(
+            lambda: run_coupled(system, scheme=scheme, form=form, control=control, T=T),
+            lambda: run_eld(alone, scheme=scheme, form=form, control=control, store_fields=False),
+            repeat,
+        )
     return {
         "example": name,
         "ndofs": system.body.space.ndofs,
@@ -144,6 +142,18 @@ def measure(name: str, n: int, steps: int, repeat: int) -> dict:
         "prescribed_s": p,
         "ratio": c / p,
     }
+
+
+def _per_step(coupled, prescribed, repeat: int) -> tuple[float, float]:
+    """CPU seconds per step of ``coupled()`` (a coupled or glued run) and of ``prescribed()``
+    (the body with prescribed data, or the union body), alternating ``repeat`` times."""
+    clocks = {"c": StepClock(CoupledStepper), "p": StepClock(ELDStepper)}
+    for _ in range(repeat):
+        with clocks["c"]:
+            coupled()
+        with clocks["p"]:
+            prescribed()
+    return clocks["c"].per_step(), clocks["p"].per_step()
 
 
 def two_bodies(n: int, T: float):
@@ -178,16 +188,14 @@ def measure_bodies(n: int, steps: int, repeat: int) -> dict:
     tau = 0.01
     scheme, form, control = BDF2(), Regularized("nodal"), Uniform(tau)
     T = steps * tau
-    clocks = {"c": StepClock(CoupledStepper), "p": StepClock(ELDStepper)}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         glued, union = two_bodies(n, T)
-        for _ in range(repeat):
-            with clocks["c"]:
-                run_bodies(glued, scheme=scheme, form=form, control=control, fields=False)
-            with clocks["p"]:
-                run_eld(union, scheme=scheme, form=form, control=control, store_fields=False)
-    c, p = clocks["c"].per_step(), clocks["p"].per_step()
+        c, p = _per_step(
+            lambda: run_bodies(glued, scheme=scheme, form=form, control=control, fields=False),
+            lambda: run_eld(union, scheme=scheme, form=form, control=control, store_fields=False),
+            repeat,
+        )
     return {
         "example": f"two-bodies n={n}",
         "ndofs": glued.base.space.ndofs,
