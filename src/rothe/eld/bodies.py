@@ -143,14 +143,13 @@ class ElasticComponent(Component):
         C = problem.damping_op.linear
         self._C = None if C is None else sp.csr_matrix(C)[f][:, f].tocsr()
         self.damping = sp.csr_matrix(self.mass.shape) if self._C is None else self._C
-        self._M, self._K = self.mass, self.stiffness
         self.q0 = problem.u0[f].copy()
         self.p0 = problem.v0[f].copy()
         self.coordinates = tuple(f"u{k}" for k in f)
 
     def force(self, t, q, p):
         """K_q q + C_q p."""
-        return self._K @ q + (0.0 if self._C is None else self._C @ p)
+        return self.stiffness @ q + (0.0 if self._C is None else self._C @ p)
 
     def jacobians(self, t, q, p):
         """(K_q, C_q)."""
@@ -162,11 +161,11 @@ class ElasticComponent(Component):
 
     def potential(self, q):
         """1/2 q . K_q q."""
-        return 0.5 * float(q @ (self._K @ q))
+        return 0.5 * float(q @ (self.stiffness @ q))
 
     def kinetic_energy(self, p):
         """1/2 p . M_q p."""
-        return 0.5 * float(p @ (self._M @ p))
+        return 0.5 * float(p @ (self.mass @ p))
 
     def field(self, q: np.ndarray) -> np.ndarray:
         """The body's dof vector u = E q (zero on the clamped parts); q may be (..., m)."""

@@ -495,9 +495,10 @@ class CoupledStepper(GridLoop):
         r_k = rhoM @ a_k + K @ u_k - F
         if self._damped:
             r_k += Cmat @ v_k
-        if kern._key != (kap * kap, kap, 1.0, 1.0, kap, kap):
+        coefficients = (kap * kap, kap, 1.0, 1.0, kap, kap)
+        if kern.needs_factor(*coefficients):
             with self.times.phase("factor"):
-                kern.factor(kap * kap, kap, 1.0, 1.0, kap, kap)
+                kern.factor(*coefficients)
         y_k = (kern.Y_u @ u_k + kern.Y_v @ v_k - kern._LZ.T @ r_k) if kern.k_in else np.zeros(0)
         pd_k = kap * c_q + c_p
         f_ext = system.load(t)

@@ -129,7 +129,6 @@ class CoupledStepSystem:
         self.Gamma = Gamma.tocsr() if self.many else Gamma.toarray()
         #: Phi as the step's products take it (sparse for glued bodies, else dense)
         self.Phi = self.Phi_sparse if self.many else self.Phi_sparse.toarray()
-        self.Phi_step = self.Phi
         self.Mq = system.mass()
         n, m = body.space.ndofs, c.m
         ctrls = system.controllers
@@ -208,6 +207,13 @@ class CoupledStepSystem:
             A = A + cc * D.matrix
         return sp.csr_matrix(A)
 
+    def needs_factor(
+        self, cm: float, cc: float, ck: float, wu: float, wv: float, kappa_z: float | None
+    ) -> bool:
+        """Whether :meth:`factor` with these coefficients would factor anew (they differ from
+        the stored factorization's); the stepper asks so as not to time an empty phase."""
+        return (cm, cc, ck, wu, wv, kappa_z) != self._key
+
     def factor(
         self, cm: float, cc: float, ck: float, wu: float, wv: float, kappa_z: float | None
     ) -> None:
@@ -216,9 +222,9 @@ class CoupledStepSystem:
         part of the Schur complement that does not depend on the components' Jacobian.
         ``kappa_z``: controller states are unknowns with delta z = kappa_z z + c_z (None:
         they are known, e.g. for the consistent initial acceleration)."""
-        key = (cm, cc, ck, wu, wv, kappa_z)
-        if key == self._key:
+        if not self.needs_factor(cm, cc, ck, wu, wv, kappa_z):
             return
+        key = (cm, cc, ck, wu, wv, kappa_z)
         I = self.I
         A = self.matrix(cm, cc, ck)
         self.A = A
