@@ -65,7 +65,6 @@ from __future__ import annotations
 import argparse
 import math
 import pickle
-import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,20 +78,13 @@ MAX_UNIFORM_LEVEL = 5
 
 
 def peak_mb() -> float:
-    """This process's peak resident memory in MB: Linux's VmHWM (the high-water mark of this
-    process's own address space), else ``ru_maxrss``. Not ``ru_maxrss`` on Linux: it survives
-    execve, so a spawned child starts from its parent's resident size at the fork (measured:
-    a child of a parent holding 480 MB reported 486 MB with ru_maxrss, 28 MB with VmHWM; the
-    parent of this benchmark holds the runs' records and the reference mesh hierarchy, which
-    inflated the adaptive runs' peaks by about 110 MB)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """This process's peak resident memory in MB (:func:`rothe.cli.common.peak_memory_mb`:
+    VmHWM, not ``ru_maxrss``, which a spawned child inherits from its parent: the parent of this
+    benchmark holds the runs' records and the reference mesh hierarchy, which inflated the
+    adaptive runs' peaks by about 110 MB)."""
+    from rothe.cli.common import peak_memory_mb  # the children import rothe after the spawn
+
+    return peak_memory_mb()
 
 
 @dataclass(frozen=True)
