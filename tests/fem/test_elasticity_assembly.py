@@ -252,3 +252,51 @@ def test_numba_is_imported_only_when_a_kernel_is_used():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
+
+
+# -- incremental assembly: element matrices of unchanged cells reused -----------------------------
+
+
+@pytest.mark.parametrize("dim, degree", [(2, 2), (3, 1), (3, 2)])
+def test_incremental_stiffness_equals_the_full_assembly_bit_for_bit(dim, degree):
+    """After a refinement, a coarsening and both at once, K assembled with the element matrices
+    of the unchanged cells taken from the previous mesh equals the full assembly exactly (same
+    chunks, same scatter); most cells of the coarsening are reused (the test sees reuse)."""
+    from rothe.eld.examples import block, rectangle
+    from rothe.fem.adapt import AdaptiveMesh
+
+    amesh = AdaptiveMesh(rectangle(4, 2) if dim == 2 else block(2, 2, 2))
+    amesh.uniform(4)  # below NUMBA_MIN_WORK: the compiled loops neither keep nor reuse
+    old = el.VectorSpace(amesh.mesh, degree)
+    old.stiffness_blocks(2.0, 1.5, keep=True)
+    rng = np.random.default_rng(3)
+    for what in ("refine", "coarsen", "both"):
+        n = amesh.n_cells
+        change = amesh.adapt(
+            refine=rng.random(n) < 0.2 if what != "coarsen" else None,
+            coarsen=rng.random(n) < 0.6 if what != "refine" else None,
+        )
+        assert change.changed
+        source = np.where(change.unchanged, change.old_start, -1)
+        assert 0 < np.count_nonzero(source >= 0) < n
+        new = el.VectorSpace(amesh.mesh, degree)
+        full = new.stiffness_blocks(2.0, 1.5)
+        assert new.element_stiffness is None
+        inc = new.stiffness_blocks(2.0, 1.5, reuse=(old.element_stiffness, source), keep=True)
+        assert np.array_equal(full, inc), what
+        # the kept matrices are the cells' own: an unchanged cell has its old one
+        kept = new.element_stiffness
+        assert np.array_equal(kept[source >= 0], old.element_stiffness[source[source >= 0]])
+        old = new
+
+
+def test_incremental_stiffness_refuses_matrices_of_another_element():
+    from rothe.fem.adapt import AdaptiveMesh
+
+    amesh = AdaptiveMesh(_mesh(2))
+    p1 = el.VectorSpace(amesh.mesh, 1)
+    p1.stiffness_blocks(1.0, 1.0, keep=True)
+    p2 = el.VectorSpace(amesh.mesh, 2)
+    source = np.arange(amesh.n_cells)
+    with pytest.raises(Exception, match=r"^reuse: got .*must give"):
+        p2.stiffness_blocks(1.0, 1.0, reuse=(p1.element_stiffness, source))

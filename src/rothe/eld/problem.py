@@ -133,6 +133,12 @@ class ELDProblem:
         The problem's name in outputs.
     load_quadrature : int, optional
         Degree of the quadrature rule for body force and tractions (default 2p).
+    element_cache : bool or tuple, optional
+        Incremental rebuilds (space adaptivity, :meth:`on_mesh`): True keeps the element
+        matrices of K (``space.element_stiffness``); (matrices, source) also takes those of the
+        cells with ``source[c] >= 0`` from ``matrices[source[c]]`` (another mesh's, cells that
+        did not change) instead of computing them (:meth:`VectorSpace.stiffness_blocks`: K is
+        the same bit for bit).
     """
 
     def __init__(
@@ -150,6 +156,7 @@ class ELDProblem:
         T: float = 1.0,
         name: str = "eld",
         load_quadrature: int | None = None,
+        element_cache=False,
     ):
         self.name = name
         # what on_mesh needs to build the same problem on another mesh (space adaptivity)
@@ -230,7 +237,13 @@ class ELDProblem:
         else:
             self.cell_material = None
             self.M = sp_.mass()
-            self.K = sp_.stiffness(material.lam_eff, material.mu, format="bsr")
+            keep = element_cache is not False
+            reuse = element_cache if isinstance(element_cache, tuple) else None
+            if reuse is not None and reuse[0] is None:
+                reuse = None  # the other mesh kept none (a problem built without the cache)
+            self.K = sp_.stiffness(
+                material.lam_eff, material.mu, format="bsr", reuse=reuse, keep=keep
+            )
         self.damping_op = self.damping.operator(sp_, self.M, self.K)
         self.u0 = self._initial(u0, "u0")
         self.v0 = self._initial(v0, "v0")
@@ -247,9 +260,15 @@ class ELDProblem:
         another mesh or only on a part of it (:mod:`rothe.eld.distributed`). A copy."""
         return dict(self._data)
 
-    def on_mesh(self, mesh) -> ELDProblem:
+    def on_mesh(self, mesh, source=None) -> ELDProblem:
         """The same problem (material, damping, data, T) on another mesh with the same named
         boundary parts (space adaptivity: :mod:`rothe.eld.adapt`).
+
+        Its element matrices of K are kept for the next mesh; ``source`` (n_cells of
+        ``mesh``,): per new cell the cell of this problem's mesh it equals (-1: a new cell,
+        from :class:`rothe.fem.adapt.MeshChange`'s ``unchanged`` and ``old_start``): those
+        cells' element matrices are taken from this problem's kept ones (an incremental
+        rebuild, bit for bit the full one; without kept ones or ``source``: all computed).
 
         Initial data given as callables are interpolated on the new mesh; given as dof
         vectors they cannot be, and the new problem gets u0 = G(0) on Gamma_D and 0 elsewhere,
@@ -261,7 +280,8 @@ class ELDProblem:
             data[k] = None
         with warnings.catch_warnings():  # the derivative notes were given for the first mesh
             warnings.simplefilter("ignore")
-            new = ELDProblem(mesh, **data)
+            cache = True if source is None else (self.space.element_stiffness, source)
+            new = ELDProblem(mesh, **data, element_cache=cache)
         if "u0" in arrays:
             c = new.constraint
             new.u0 = c.embed(new.G(0.0))

@@ -421,6 +421,8 @@ class VectorSpace:
             self.element_dofs = np.asarray(self._dofs.element_dofs)
             self.n_scalar = int(self._dofs.N)
         self.ndofs = self.dim * self.n_scalar
+        #: the element matrices of K kept by its last assembly (``stiffness(..., keep=True)``)
+        self.element_stiffness = None
 
     # -- dofs -----------------------------------------------------------------------------------
     @cached_property
@@ -566,17 +568,27 @@ class VectorSpace:
             raise fail(name, described("non-finite values"), "must be finite")
         return arr
 
-    def stiffness_blocks(self, lam, mu) -> np.ndarray:
+    def stiffness_blocks(self, lam, mu, *, reuse=None, keep: bool = False) -> np.ndarray:
         """Block values (nnz_scalar, d, d) of K of (2.3) on the scalar pattern.
 
         ``lam``, ``mu``: constants, or arrays (n_cells,) of per-cell Lamé constants (several
         materials in one body; the element matrix of cell c is lam_c S_lam + mu_c S_mu, so
-        the assembly stays one vectorized pass over chunks of cells)."""
+        the assembly stays one vectorized pass over chunks of cells).
+
+        Incremental assembly (space adaptivity, :mod:`rothe.eld.adapt`): ``keep`` stores the
+        element matrices K_c[i, a, j, b] in :attr:`element_stiffness` (n_cells, nbf, d, nbf,
+        d); ``reuse`` = (matrices, source) takes them for the cells with ``source[c] >= 0``
+        from ``matrices[source[c]]`` (another mesh's :attr:`element_stiffness`, the cells
+        that did not change: same vertices in the same order, so the same element matrix)
+        instead of computing them. The scatter is the same in both cases (same chunks, same
+        order), so the result equals a full assembly bit for bit. The compiled loops (large
+        meshes, :func:`use_numba`) neither keep nor reuse."""
         lam = self.cell_coefficient("lam", lam)
         mu = self.cell_coefficient("mu", mu)
         d, ref = self.dim, self._ref
         pat = self.pattern
         blocks = np.zeros((pat.nnz, d, d))
+        self.element_stiffness = None
         if self.compiled_assembly:
             ne = self.element_dofs.shape[1]
             _compiled().stiffness_blocks(
@@ -593,40 +605,75 @@ class VectorSpace:
             return blocks
         cellwise = isinstance(lam, np.ndarray) or isinstance(mu, np.ndarray)
         nbf = ref.nbf
+        ne = self.element_dofs.shape[1]
         flat = blocks.reshape(-1)
         ab = np.arange(d)[:, None, None] * d + np.arange(d)[None, None, :]  # a d + b, (d, 1, d)
+        kept = np.empty((ne, nbf, d, nbf, d)) if keep else None
+        if reuse is not None:
+            old, source = reuse
+            source = np.asarray(source, dtype=np.int64)
+            if source.shape != (ne,) or old.shape[1:] != (nbf, d, nbf, d):
+                raise fail(
+                    "reuse",
+                    described(f"element matrices {old.shape} for {source.shape} cells"),
+                    f"must give ({ne},) sources of ({nbf}, {d}, {nbf}, {d}) matrices",
+                )
         for cells in self._chunks(d * d * nbf * nbf):
-            inv, det = self._geometry(cells)
-            C = det.size
-            # G[c, q, i d + a] = sum_k dref[q, i, k] invJ[k, a, c]: gradients at the points
-            G = np.einsum("qik,kac->cqia", ref.grads, inv).reshape(C, -1, nbf * d)
-            # the weights split evenly (w > 0) keep S, hence K, exactly symmetric
-            G *= np.sqrt(det[:, None] * ref.grad_weights)[:, :, None]
-            # S[c, i, a, j, b] = int d_a phi_i d_b phi_j (one small matmul per cell)
-            S = np.matmul(G.transpose(0, 2, 1), G).reshape(C, nbf, d, nbf, d)
-            del G
-            if cellwise:
-                ne = self.element_dofs.shape[1]
-                lam_c = np.broadcast_to(lam, (ne,))[cells].reshape(-1, 1, 1, 1, 1)
-                mu_c = np.broadcast_to(mu, (ne,))[cells]
-                local = lam_c * S
-                local += mu_c.reshape(-1, 1, 1, 1, 1) * S.transpose(0, 1, 4, 3, 2)
-                trace = mu_c.reshape(-1, 1, 1) * np.einsum("ciaja->cij", S)
+            if reuse is not None:
+                src = source[cells]
+                fresh = src < 0
+                local = np.empty((cells.size, nbf, d, nbf, d))
+                local[~fresh] = old[src[~fresh]]
+                if fresh.any():
+                    local[fresh] = self._element_stiffness(cells[fresh], lam, mu, cellwise)
             else:
-                local = lam * S
-                local += mu * S.transpose(0, 1, 4, 3, 2)
-                trace = mu * np.einsum("ciaja->cij", S)
-            del S
-            for a in range(d):
-                local[:, :, a, :, a] += trace
+                local = self._element_stiffness(cells, lam, mu, cellwise)
+            if kept is not None:
+                kept[cells] = local
             # entry (i, a, j, b) of cell c goes to block (a, b) of position (c, i, j)
             index = (self._chunk_map(cells) * (d * d))[:, :, None, :, None] + ab
             _scatter_chunk(flat, index, local)
+        self.element_stiffness = kept
         return blocks
 
-    def stiffness(self, lam, mu, format: str = "csr"):
-        """K of (2.3) for Lamé constants lam, mu (constants or per-cell arrays); CSR or BSR."""
-        return self.block_matrix(self.stiffness_blocks(lam, mu), format=format)
+    def _element_stiffness(self, cells, lam, mu, cellwise: bool) -> np.ndarray:
+        """Element matrices (C, nbf, d, nbf, d) of K of the cells ``cells``:
+        K_c[i, a, j, b] = lam_c S[i, a, j, b] + mu_c (S[i, b, j, a] + delta_ab sum_e S[i, e, j,
+        e]) with S[i, a, j, b] = int_c d_a phi_i d_b phi_j (the bilinear form of (2.3))."""
+        d, ref = self.dim, self._ref
+        nbf = ref.nbf
+        inv, det = self._geometry(cells)
+        C = det.size
+        # G[c, q, i d + a] = sum_k dref[q, i, k] invJ[k, a, c]: gradients at the points
+        G = np.einsum("qik,kac->cqia", ref.grads, inv).reshape(C, -1, nbf * d)
+        # the weights split evenly (w > 0) keep S, hence K, exactly symmetric
+        G *= np.sqrt(det[:, None] * ref.grad_weights)[:, :, None]
+        # S[c, i, a, j, b] = int d_a phi_i d_b phi_j (one small matmul per cell)
+        S = np.matmul(G.transpose(0, 2, 1), G).reshape(C, nbf, d, nbf, d)
+        del G
+        if cellwise:
+            ne = self.element_dofs.shape[1]
+            lam_c = np.broadcast_to(lam, (ne,))[cells].reshape(-1, 1, 1, 1, 1)
+            mu_c = np.broadcast_to(mu, (ne,))[cells]
+            local = lam_c * S
+            local += mu_c.reshape(-1, 1, 1, 1, 1) * S.transpose(0, 1, 4, 3, 2)
+            trace = mu_c.reshape(-1, 1, 1) * np.einsum("ciaja->cij", S)
+        else:
+            local = lam * S
+            local += mu * S.transpose(0, 1, 4, 3, 2)
+            trace = mu * np.einsum("ciaja->cij", S)
+        del S
+        for a in range(d):
+            local[:, :, a, :, a] += trace
+        return local
+
+    def stiffness(self, lam, mu, format: str = "csr", *, reuse=None, keep: bool = False):
+        """K of (2.3) for Lamé constants lam, mu (constants or per-cell arrays); CSR or BSR.
+        ``reuse``, ``keep``: element matrices of unchanged cells taken from another mesh /
+        kept for the next one (:meth:`stiffness_blocks`)."""
+        return self.block_matrix(
+            self.stiffness_blocks(lam, mu, reuse=reuse, keep=keep), format=format
+        )
 
     @cached_property
     def scalar_mass_values(self) -> np.ndarray:

@@ -134,6 +134,9 @@ class MeshAdaptation:
         self.coarsen_batch = float(option("coarsen_batch", 0.0))
         self.history = VertexHistory(self.amesh.n_vertices)
         self._band = None  # (barycentres, target generations) of the band's core, when refining
+        #: the MeshChange of the cycle under way (set before the family's rebuild: an
+        #: incremental rebuild reuses what belongs to its unchanged cells)
+        self.change = None
 
     @property
     def mesh_id(self) -> int:
@@ -209,6 +212,8 @@ class MeshAdaptation:
                 return Adaptation(False, estimate, eta=eta)
             self.history.observe(change)
             self.history.cycles += 1
+            # what the family's rebuild may reuse (the cells that did not change)
+            self.change = change
             with times.phase("rebuild"):
                 new_problem = family.rebuild(problem, self.amesh.mesh)
             with times.phase("transfer"):
