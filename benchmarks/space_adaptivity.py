@@ -626,7 +626,8 @@ def phases_of_one_run(family: PulseFamily, tol: float) -> None:
     print(
         f"{family.name} adaptive tol={tol:g}: {steps} steps, wall {r['seconds']:.2f} s, CPU "
         f"{cpu:.2f} s, dofs summed {r['dofs']}, balance "
-        f"{r['balance']:.1e}"
+        f"{r['balance']:.1e}, peak {r['peak']:.0f} MB ({r['dpeak']:.0f} MB above the peak "
+        "before the problem was built)"
     )
     print(
         "  seconds per step (wall): "

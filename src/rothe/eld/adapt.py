@@ -71,7 +71,7 @@ from .stress import StressEvaluator
 
 #: rebuilds reuse the element matrices of the cells an adaptation left unchanged
 #: (:meth:`ELDAdaptivity.rebuild`)
-INCREMENTAL = True
+INCREMENTAL = False
 #: the kept fields (ragged across meshes); ``stress``: the cell-mean Cauchy stress, 9 per cell
 KEPT = ("u", "v", "a", "lam", "stress")
 #: refinements of a step's own mesh at most, each followed by solving the step again
@@ -396,7 +396,7 @@ class ELDAdaptivity:
         if change is not None and self.incremental and len(change.unchanged) == mesh.t.shape[1]:
             # incremental: the element matrices of the cells that did not change are reused
             source = np.where(change.unchanged, change.old_start, -1)
-        problem = system.problem.on_mesh(mesh, source)
+        problem = system.problem.on_mesh(mesh, source, keep=self.incremental)
         new = system.rebuilt(problem, symmetric_lu=True, short_lived=True)
         self.pending_factorizations += new.initial_factorizations
         return new

@@ -260,15 +260,16 @@ class ELDProblem:
         another mesh or only on a part of it (:mod:`rothe.eld.distributed`). A copy."""
         return dict(self._data)
 
-    def on_mesh(self, mesh, source=None) -> ELDProblem:
+    def on_mesh(self, mesh, source=None, *, keep: bool = False) -> ELDProblem:
         """The same problem (material, damping, data, T) on another mesh with the same named
         boundary parts (space adaptivity: :mod:`rothe.eld.adapt`).
 
-        Its element matrices of K are kept for the next mesh; ``source`` (n_cells of
-        ``mesh``,): per new cell the cell of this problem's mesh it equals (-1: a new cell,
-        from :class:`rothe.fem.adapt.MeshChange`'s ``unchanged`` and ``old_start``): those
-        cells' element matrices are taken from this problem's kept ones (an incremental
-        rebuild, bit for bit the full one; without kept ones or ``source``: all computed).
+        ``keep``: its element matrices of K are kept for the next mesh (about 7 KB per P2
+        tetrahedron); ``source`` (n_cells of ``mesh``,): per new cell the cell of this
+        problem's mesh it equals (-1: a new cell, from :class:`rothe.fem.adapt.MeshChange`'s
+        ``unchanged`` and ``old_start``): those cells' element matrices are taken from this
+        problem's kept ones (an incremental rebuild, bit for bit the full one; without kept
+        ones or ``source``: all computed).
 
         Initial data given as callables are interpolated on the new mesh; given as dof
         vectors they cannot be, and the new problem gets u0 = G(0) on Gamma_D and 0 elsewhere,
@@ -280,7 +281,7 @@ class ELDProblem:
             data[k] = None
         with warnings.catch_warnings():  # the derivative notes were given for the first mesh
             warnings.simplefilter("ignore")
-            cache = True if source is None else (self.space.element_stiffness, source)
+            cache = keep if source is None else (self.space.element_stiffness, source)
             new = ELDProblem(mesh, **data, element_cache=cache)
         if "u0" in arrays:
             c = new.constraint
