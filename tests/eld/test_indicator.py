@@ -116,3 +116,25 @@ def test_adaptive_refinement_reaches_the_error_with_fewer_dofs():
     target = uniform[-1]["error"]
     assert uniform[-1]["dofs"] == 2178
     assert dofs_for_error(adaptive, target) < 0.5 * uniform[-1]["dofs"]
+
+
+@pytest.mark.parametrize("dim, degree", [(2, 1), (2, 2), (3, 2)])
+def test_gradients_from_vertex_values_are_the_basis_gradients(dim, degree):
+    """The jump terms take grad w on a facet as the barycentric combination of its values at
+    the cell's vertices (the gradient of P1/P2 is affine on a cell): the same numbers as the
+    n_local basis gradients, to round-off, on cells of unsorted vertices."""
+    from rothe.fem.simplex import SimplexEvaluator
+
+    mesh = meshes.unit_square(3, named=True) if dim == 2 else meshes.box(2, 2, 2)
+    ev = SimplexEvaluator(mesh, degree)
+    rng = np.random.default_rng(5)
+    U = rng.standard_normal((ev.ndofs, dim))
+    topo = ev.topology
+    cells, local = topo.inner_cells[0], topo.inner_local[0]
+    lam = ev.facet_lambda(cells, local, topo.facets[:, topo.interior])
+    direct = ev.gradients_at(U, cells, lam)
+    via = ev.gradients_from_vertices(ev.vertex_gradients(U), cells, lam)
+    assert direct.shape == via.shape
+    assert np.max(np.abs(direct - via)) <= 1e-12 * np.max(np.abs(direct))
+    # and the Hessians from the same vertex values are the ones computed alone
+    assert np.array_equal(ev.hessians(U), ev.hessians(U, ev.vertex_gradients(U)))

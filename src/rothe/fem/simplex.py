@@ -138,28 +138,47 @@ class SimplexEvaluator:
             return np.einsum("kc,kdcq->dcq", U[self.edofs], dphi)
         return np.einsum("kcm,kdcq->mdcq", U[self.edofs], dphi)
 
-    def hessians(self, U: np.ndarray) -> np.ndarray:
+    def hessians(self, U: np.ndarray, gv: np.ndarray | None = None) -> np.ndarray:
         """Cellwise constant Hessians of P2 fields: (ndofs,) -> (d, d, nc); (ndofs, m) -> (m, ...).
 
         grad u is affine on K, so H (x_k - x_0) = grad u(x_k) - grad u(x_0) for the edges from
         vertex 0: H = [grad u(x_k) - grad u(x_0)]_k E^{-1}, E = [x_1 - x_0, ...]. Zero for P1.
+        ``gv``: U's :meth:`vertex_gradients` if the caller has them already.
         """
         U = np.asarray(U, dtype=float)
         d, nc = self.dim, self.t.shape[1]
         shape = (d, d, nc) if U.ndim == 1 else (U.shape[1], d, d, nc)
         if self.degree == 1:
             return np.zeros(shape)
-        eye = np.eye(d + 1)
-        lam = np.broadcast_to(eye[:, None, :], (d + 1, nc, d + 1))  # vertex k: lambda = e_k
-        dphi = lagrange_gradients(lam, self.glam, self.degree)  # (nloc, d, nc, d+1)
-        Um = U[:, None] if U.ndim == 1 else U
-        g = np.einsum("kcm,kdcv->mdcv", Um[self.edofs], dphi)  # (m, d, nc, vertex)
+        g = self.vertex_gradients(U) if gv is None else gv  # (m, d, nc, vertex)
         dg = g[..., 1:] - g[..., :1]  # (m, d_grad, nc, k)
         # E^{-1} = rows grad lambda_1..d: (E^{-1})_{k,j} = d_j lambda_{k+1}
         Einv = self.glam[1:]  # (k, j, nc)
         H = np.einsum("mick,kjc->mijc", dg, Einv)
         H = 0.5 * (H + H.transpose(0, 2, 1, 3))
         return H[0] if U.ndim == 1 else H
+
+    def vertex_gradients(self, U: np.ndarray) -> np.ndarray:
+        """grad u at the d+1 vertices of every cell: (ndofs,) or (ndofs, m) -> (m, d, nc, d+1).
+
+        grad u of a P1/P2 field is affine on each cell, so these values give it everywhere in
+        the cell: grad u(x) = sum_v lambda_v(x) grad u(x_v) (:meth:`gradients_from_vertices`)."""
+        U = np.asarray(U, dtype=float)
+        d, nc = self.dim, self.t.shape[1]
+        eye = np.eye(d + 1)
+        lam = np.broadcast_to(eye[:, None, :], (d + 1, nc, d + 1))  # vertex k: lambda = e_k
+        dphi = lagrange_gradients(lam, self.glam, self.degree)  # (nloc, d, nc, d+1)
+        Um = U[:, None] if U.ndim == 1 else U
+        # optimize: a BLAS contraction, 2-3x faster than the plain loop at 4k P2 cells
+        return np.einsum("kcm,kdcv->mdcv", Um[self.edofs], dphi, optimize=True)
+
+    @staticmethod
+    def gradients_from_vertices(gv: np.ndarray, cells: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """grad u at barycentric points lam (d+1, n, nq) of cells (n,) from its vertex values
+        ``gv`` (m, d, nc, d+1) (:meth:`vertex_gradients`): sum_v lam_v grad u(x_v), exact for
+        P1/P2 (the gradient is affine); (m, d, n, nq). The same values as :meth:`gradients_at`
+        with d+1 terms per point instead of the n_local basis gradients."""
+        return np.einsum("mdnv,vnq->mdnq", gv[:, :, cells], lam, optimize=True)
 
     # -- facets ---------------------------------------------------------------------------------
     def facet_geometry(self, cells: np.ndarray, local: np.ndarray):
