@@ -11,6 +11,7 @@ import signal
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from rothe.eld import BDF2, Differenced, ImplicitEuler, Regularized, prepare_eld_run, run_eld
 from rothe.eld.examples import mms_problem, pulse_problem
@@ -761,6 +762,51 @@ def test_factor_check_catches_a_stale_factorization():
     stale = system.rebuilt(problem0)  # the initial mesh's system ...
     stale.solver = system.solver  # ... with the factorization of the last mesh
     assert _factor_residual(stale) > 1e-3
+
+
+def _amg_mismatch(system) -> float:
+    """max |A_0 - D^{-1/2} A D^{-1/2}| / max |A_0| between the finest level A_0 of the stored
+    AMG hierarchy of ``system`` and the scaled step matrix A of its current mesh at the
+    hierarchy's key (inf if the sizes differ)."""
+    from rothe.eld.solvers import jacobi_scaled
+
+    solver = system.solver
+    A = system._system_matrix(system.reference["tau_eff"], None)
+    A0 = solver._ml.levels[0].A
+    if A0.shape != A.shape:
+        return float("inf")
+    scaled = jacobi_scaled(A)[0]
+    diff = abs(sp.csr_matrix(A0) - sp.csr_matrix(scaled)).max()
+    return float(diff / abs(sp.csr_matrix(scaled)).max())
+
+
+def test_reused_amg_hierarchy_is_the_current_meshs():
+    """With AMG (solver='amg'), after every accepted step the stored hierarchy, which the next
+    steps' solves reuse, is built from the step matrix of the mesh the run goes on with; a
+    system given the previous mesh's solver fails the same check."""
+    run = prepare_eld_run(pulse(T=0.3), adapt=adaptivity(), solver="amg", **PULSE)
+    seen = {}
+    previous = {}
+    original = run.stepper.adapt
+
+    def adapt(state, result):
+        before = run.stepper.system
+        new = original(state, result)
+        system = run.stepper.system
+        assert system.kind == "amg"
+        seen[int(new.mesh_id)] = max(seen.get(int(new.mesh_id), 0.0), _amg_mismatch(system))
+        if system is not before:
+            previous[int(new.mesh_id)] = (system, before.solver)
+        return new
+
+    run.stepper.adapt = adapt
+    run.evolve()
+    assert len(seen) >= 3, seen
+    assert max(seen.values()) < 1e-12, seen
+    system, old_solver = next(iter(previous.values()))
+    stale = system.rebuilt(system.problem)
+    stale.solver, stale._ref = old_solver, system._ref
+    assert _amg_mismatch(stale) > 1e-3
 
 
 def test_l2_norm_indicators_are_the_energy_ones_weighted_by_h_over_h0():

@@ -58,6 +58,8 @@ bit for bit.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from ..errors import described, fail
@@ -280,7 +282,7 @@ class ELDAdaptivity:
         #: h_0 of the L2 weights h_K / h_0 (``options.norm == 'l2'``): the initial mesh's
         #: longest cell edge
         self.h0 = float(cell_diameters(np.asarray(space.mesh.p), np.asarray(space.mesh.t)).max())
-        self._memo = None  # (key, system, state, eta) of the last indicators
+        self._memo = None  # (key, weakref system, weakref state, eta) of the last indicators
         #: (eta of the last estimated step, eta of the estimated step before it): the final
         #: estimate of each step (0 before the first)
         self.estimates = (0.0, 0.0)
@@ -316,7 +318,7 @@ class ELDAdaptivity:
         times = tuple(times) if isinstance(times, tuple | list) else (float(times),)
         key = (id(system), id(state), float(tau), times)
         memo = self._memo
-        if memo is not None and memo[0] == key and memo[1] is system and memo[2] is state:
+        if memo is not None and memo[0] == key and memo[1]() is system and memo[2]() is state:
             return memo[3]
         problem = system.problem
         f = state.fields
@@ -334,7 +336,10 @@ class ELDAdaptivity:
             eta = eta * (cell_diameters(np.asarray(mesh.p), np.asarray(mesh.t)) / self.h0)
         if not np.all(np.isfinite(eta)):  # the run stops naming it (ELDStepper.adapt)
             raise FloatingPointError("non-finite error indicators")
-        self._memo = (key, system, state, eta)
+        # weak references: the memo must not keep the system of a mesh the run has left alive
+        # (its matrices and solver are most of a mesh's memory: the old system stayed until
+        # the next estimate, next to the new one, at the peak of an adaptive 3D run)
+        self._memo = (key, weakref.ref(system), weakref.ref(state), eta)
         value = float(np.sqrt(np.sum(eta * eta)))
         step = (int(state.j), float(state.t))
         if step == self._estimated_step:  # the same step again (a round or the adapt step)

@@ -1345,6 +1345,12 @@ class ELDStepper(StepperBase):
             if ad.pending_factorizations:
                 traj.stats.linear_factorizations += ad.pending_factorizations
                 ad.pending_factorizations = 0
+        if ad is not None and result.system is not self.system and self._base is None:
+            # the adapt step left this step's mesh: once recorded, nothing needs its system (the
+            # run goes on with self.system), but the evolve loop holds the result until the
+            # next step is solved, and that mesh's matrices and solver stayed alive next to the
+            # new ones (the memory peak of an adaptive 3D run)
+            result.system = None
 
     # -- checkpoints ----------------------------------------------------------------------------
     def checkpoint_state(self, state: ELDState) -> dict:
