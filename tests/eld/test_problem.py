@@ -88,3 +88,19 @@ def test_the_fingerprint_names_what_differs_and_is_what_checkpoints_compare():
     other = mms_problem(2, 1, damping=RayleighDamping(0.1, 0.01))[0].fingerprint()
     assert {k for k in fp if fp[k] != other[k]} == {"load", "damping", "description"}
     assert mms_problem(3, 1)[0].fingerprint()["M"] != fp["M"]
+
+
+def test_element_cache_keeps_the_element_matrices_and_refuses_other_values():
+    """ELDProblem(element_cache=True) keeps the element matrices of K (incremental rebuilds of
+    space adaptivity) and builds the same K; anything but a bool or a pair is one line."""
+    mesh = meshes.unit_square(3, named=True)
+    zero = lambda t, x: np.zeros_like(x)  # noqa: E731
+    kw = dict(degree=2, dirichlet={"left": DirichletData(zero, zero, zero)})
+    material = Material(lam=1.0, mu=1.0, rho=1.0, dim=2)
+    plain = ELDProblem(mesh, material, **kw)
+    kept = ELDProblem(mesh, material, element_cache=True, **kw)
+    assert plain.space.element_stiffness is None
+    assert kept.space.element_stiffness.shape == (mesh.t.shape[1], 6, 2, 6, 2)
+    assert np.array_equal(plain.K.data, kept.K.data)
+    with pytest.raises(RotheInputError, match=r"^element_cache: got .*list.*must be True, False"):
+        ELDProblem(mesh, material, element_cache=[1], **kw)

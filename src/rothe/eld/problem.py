@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import RotheInputError, check_int, check_positive, fail
+from ..errors import RotheInputError, check_int, check_positive, described, fail
 from ..fem.elasticity import VectorSpace
 from ..io.checkpoint import digest
 from .constraint import DirichletConstraint
@@ -159,6 +159,15 @@ class ELDProblem:
         element_cache=False,
     ):
         self.name = name
+        if not (
+            isinstance(element_cache, bool)
+            or (isinstance(element_cache, tuple) and len(element_cache) == 2)
+        ):
+            raise fail(
+                "element_cache",
+                described(type(element_cache).__name__),
+                "must be True, False or (element matrices, source cells)",
+            )
         # what on_mesh needs to build the same problem on another mesh (space adaptivity)
         self._data = dict(
             material=material,
