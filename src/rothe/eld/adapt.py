@@ -64,7 +64,12 @@ import numpy as np
 
 from ..errors import described, fail
 from ..fem.adapt import SpaceAdaptivity, check_adaptable, free_transfer
-from ..fem.adapt.cycle import MeshAdaptation, energy_or_fail, finite_or_fail
+from ..fem.adapt.cycle import (
+    MeshAdaptation,
+    energy_or_fail,
+    finite_or_fail,
+    return_free_memory,
+)
 from ..fem.topology import cell_diameters
 from ..io.mesh_series import MeshSeries
 from .data import Points
@@ -396,6 +401,7 @@ class ELDAdaptivity:
         symmetric mode (:class:`rothe.eld.solvers.ReferenceSolver`: 40 % less time per
         mesh; the initial mesh keeps the default mode, so a run whose mesh never changes is the
         fixed-mesh run bit for bit)."""
+        return_free_memory()  # the peak of an adaptive 3D run is the rebuild's (docs)
         change = self.adaptation.change
         source = None
         if change is not None and self.incremental and len(change.unchanged) == mesh.t.shape[1]:

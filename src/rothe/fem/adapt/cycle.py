@@ -328,6 +328,28 @@ class MeshAdaptation:
             self.history = VertexHistory(self.amesh.n_vertices)
 
 
+_LIBC = None  # glibc, once looked up (False: not there)
+
+
+def return_free_memory() -> None:
+    """Hand the free pages of the heap back to the system (glibc's ``malloc_trim(0)``; nothing
+    where there is no glibc). A family's rebuild calls it before it builds the new mesh's
+    matrices: the arrays of the previous meshes, freed in pieces of many sizes, stay resident
+    as free heap and the new mesh's arrays come on top of them (the adaptive 3D pulse:
+    peak -20 MB at the same CPU time; a fixed mmap threshold instead: -38 MB but +30 % CPU)."""
+    global _LIBC
+    if _LIBC is None:
+        try:
+            import ctypes
+
+            _LIBC = ctypes.CDLL("libc.so.6")
+            _LIBC.malloc_trim  # noqa: B018 - present in glibc only
+        except (OSError, AttributeError):
+            _LIBC = False
+    if _LIBC:
+        _LIBC.malloc_trim(0)
+
+
 def finite_or_fail(name: str, values) -> np.ndarray:
     """``values`` as a float array, or FloatingPointError naming ``name`` (a transfer check)."""
     arr = np.asarray(values, dtype=float)
