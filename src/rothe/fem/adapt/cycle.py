@@ -35,6 +35,7 @@ which the evolve loop adds to ``trajectory.stats.seconds``.
 
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass, field
 
@@ -340,8 +341,6 @@ def return_free_memory() -> None:
     global _LIBC
     if _LIBC is None:
         try:
-            import ctypes
-
             _LIBC = ctypes.CDLL("libc.so.6")
             _LIBC.malloc_trim  # noqa: B018 - present in glibc only
         except (OSError, AttributeError):
