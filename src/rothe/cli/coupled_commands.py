@@ -99,7 +99,7 @@ class CoupledRunCommand:
     name = ""
     #: the summary fields printed after a completed run
     keys: tuple = ()
-    parameter_options: dict = {}
+    parameter_options: dict = {"adapt": "--adapt-space"}
     #: the default of the one material of --E/--nu | --lam/--mu (:meth:`validate`)
     default_material: dict = {}
 
@@ -762,6 +762,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         "traction": "--load-part",
         "attached[0].traction": "--load-part",
         "material.dim": "--mesh1",
+        "adapt": "--adapt-space",
     }
     keys = (
         "example",

@@ -39,8 +39,10 @@ matching meshes equal one body (tested) and why a glued step costs about the uni
 (docs/coupling.md, "Several bodies").
 
 Attached bodies take no prescribed data other than clamped parts (u = 0: their dofs are left
-out of q), no space adaptivity, and an interface must join the base to an attached body (a
-star of bodies around the base; chains 1-2-3 are not covered).
+out of q) and keep their meshes (their dofs are q; the base may adapt its mesh,
+``run_bodies(..., fields=False, adapt=SpaceAdaptivity(...))``: the glue is rebuilt on every
+mesh, :meth:`Glue.on_mesh`, :mod:`rothe.eld.coupled_adapt`), and an interface must join the
+base to an attached body (a star of bodies around the base; chains 1-2-3 are not covered).
 """
 
 from __future__ import annotations

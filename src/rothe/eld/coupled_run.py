@@ -208,6 +208,10 @@ class CoupledStepper(GridLoop):
     fields : bool
         Record the body's u, v and lambda at every state (series ``u``, ``v``, ``lam``: the
         fields of glued bodies, :mod:`rothe.eld.bodies`).
+    adapt : SpaceAdaptivity, optional
+        Adapt the body's mesh after accepted steps (:mod:`rothe.eld.coupled_adapt`:
+        :meth:`adapt`, :meth:`transferred`); the stepper is bound to one mesh at a time
+        (:meth:`_bind`).
     noise : callable j -> (theta, xi, vartheta), optional
         Perturbations, each (r,) or None, of the coordinates that enter the coupling data at
         step j = 1, 2, ... (the components' outputs the body sees; the initial state is exact;
