@@ -30,7 +30,8 @@ log of adaptations) whose rebuild and transfer act on the coupled system:
 Not here (yet): the in-step refinement rounds of run_eld (a step whose own estimate is too
 large is not solved again on a refined mesh: the mesh follows after the step), checkpoints,
 fields or ``watch`` rows recorded per state (they live on the mesh), noise (Theorem 4.5's
-study runs on a fixed mesh), a body of several materials (refused by ELDAdaptivity).
+study runs on a fixed mesh). A body of several materials adapts like one (its regions are
+carried to the refined cells, the indicator takes per-cell constants).
 """
 
 from __future__ import annotations
