@@ -76,6 +76,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import described, fail
 from ..fem.adapt import SpaceAdaptivity, free_transfer
@@ -157,7 +158,10 @@ class _FixedMultiplier:
         return self._p.dF(z) + self._lm * (z - self._anchor)
 
     def d2F(self, z):
-        return self._p.d2F(z) + self._lm
+        h = self._p.d2F(z)
+        if sp.issparse(h):  # the consistent quadrature's F'' (a matrix with A's sparsity)
+            return (h + sp.diags(self._lm)).tocsr()
+        return h + self._lm
 
 
 class RISAdaptivity:
