@@ -523,11 +523,15 @@ def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
 @pytest.mark.parametrize(
     "command, argv, message",
     [
-        ("ris-2d", ["--quadrature", "gauss"], "--quadrature: got gauss, must be one of lumped, c"),
+        (
+            "ris-2d",
+            ["--quadrature", "gauss"],
+            "--quadrature: got 'gauss', must be one of lumped, c",
+        ),
         (
             "ris-front-unique",
             ["--quadrature", "consistent"],
-            "--quadrature: got consistent, must be one of lumped",
+            "--quadrature: got 'consistent', must be one of lumped",
         ),
     ],
 )
@@ -545,7 +549,17 @@ def test_cli_adapted_runs_use_the_consistent_quadrature(capsys, tmp_path, argv, 
     refinement does not change it; the fixed grid keeps the vertex rule."""
     out = tmp_path / "o"
     code, _, err = run_cli(
-        capsys, "run", "ris-2d", "--n", "4", "--T", "0.2", "--out", str(out), "--no-plots", *argv
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--control",
+        "uniform",
+        "--out",
+        str(out),
+        "--no-plots",
+        *argv,
     )
     assert code == 0, err
     assert json.loads((out / "summary.json").read_text())["quadrature"] == quadrature
