@@ -395,7 +395,8 @@ def test_a_refinement_across_an_interface_keeps_the_energy_only_with_the_consist
     """With the cell rule, int g(z_h) depends on the P1 function only, and interpolation onto a
     refined mesh keeps the function: I(t, T z) = I(t, z) to round-off (constant load density:
     <l, z> = c int z is exact too). The vertex rule changes F by m_v (g(z_v) - (g(z_a) +
-    g(z_b))/2) at every new midpoint, 48 m_v across the interface: measured +0.55 here."""
+    g(z_b))/2) at every new midpoint, 48 m_v across the interface: measured +2.03 here (the
+    cell rule: 0.0)."""
     p = example_7_2(8, quadrature=quadrature)
     z = _interface_state(p)
     amesh = AdaptiveMesh(p.mesh)
@@ -406,7 +407,7 @@ def test_a_refinement_across_an_interface_keeps_the_energy_only_with_the_consist
     if quadrature == "consistent":
         assert abs(de) <= 1e-12 * abs(p.energy(0.5, z))
     else:
-        assert de > 0.3
+        assert de > 1.0
 
 
 @pytest.mark.parametrize("quadrature", ["lumped", "consistent"])

@@ -32,6 +32,13 @@ Which quadrature F uses, and why
     data, for which dist (2.4) has a closed form and the KKT system of Lemma 4.1
     decouples except through A.
 
+    ``quadrature="consistent"``: F(z) = int g(z_h) by a cell rule of degree 4
+    (:class:`_CellQuadrature`; a load density by the same rule). It costs the non-diagonal F''
+    (Example 7.2 on 40 x 40: 59 s against 21 s, one jump at t = 0.1719 with both, dissipation
+    +0.1 %) and buys an energy that does not change when the mesh is refined: under the vertex
+    rule a new midpoint v of the edge (a, b) changes F by m_v (g(z_v) - (g(z_a) + g(z_b))/2)
+    although z_h is the same function (issue 18; docs/ris_fem.md, *An energy-neutral transfer*).
+
 Load
     ``load(t)`` returns either a number c -- the constant density, <l(t), phi_i> = c m_i (exact,
     since m_i = int phi_i) -- or a vector of nodal functionals over all nodes (values at the
