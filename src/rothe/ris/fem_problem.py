@@ -66,6 +66,7 @@ from ..errors import (
 )
 from ..fem.mesh import bad, cell_volumes, check_mesh, describe, mesh_dim
 from ..fem.scalar import boundary_nodes, lumped_mass, split_dofs, stiffness
+from ..fem.simplex import _rule
 from ..io.checkpoint import digest
 from .problem import RISProblem
 
@@ -487,7 +488,6 @@ class _CellQuadrature:
     """
 
     def __init__(self, mesh, free: np.ndarray):
-        from ..fem.simplex import _rule
 
         t = np.asarray(mesh.t)
         d1 = t.shape[0]
