@@ -4,10 +4,11 @@ The P1 beam of ``rothe run eld-beam`` (E = 1000, nu = 0.3, rho = 1, Rayleigh b =
 x = 0), implicit Euler, tau = 0.01, ``--steps`` steps, CG to 1e-8, every tool its own process,
 the tools alternating inside each repeat (docs/scaling.md, "Measured"):
 
-- ``rothe serial``: the default install (pyamg smoothed aggregation + CG; the child of
-  ``benchmarks/eld_peers.py``);
+- ``rothe serial``: the default install, without petsc4py (pyamg smoothed aggregation + CG;
+  ``--backend serial``; the child of ``benchmarks/eld_peers.py``);
 - ``rothe petsc N=k``: ``mpiexec -n k`` with ``run_eld(..., backend='petsc')`` (PETSc CG + GAMG
-  with the rigid-body near-nullspace, regularized form);
+  with the rigid-body near-nullspace, regularized form); N = 1 is also what ``rothe run
+  eld-beam`` takes by default on one process where petsc4py is installed (``--backend auto``);
 - ``dolfinx N=k``: FEniCSx 0.11 (``../shared/anchors/eld_beam_dolfinx011.py``, strong
   Dirichlet, CG + GAMG) on the identical mesh, ``mpiexec -n k``.
 
@@ -39,11 +40,10 @@ TAU = 0.01
 
 def petsc_child(n: int, steps: int, rtol: float) -> None:
     """One run of the PETSc backend on the processes of mpiexec; rank 0 prints one JSON line."""
-    import resource
-
     import skfem  # noqa: F401
     from mpi4py import MPI  # noqa: F401 - before petsc4py (the wheel's order)
 
+    from rothe.cli.common import peak_memory_mb
     from rothe.eld.distributed.problem import DistributedELDProblem
     from rothe.eld.distributed.stepper import PetscELDStepper
     from rothe.eld.examples import beam_problem
@@ -59,7 +59,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
         """Resident and peak memory (largest over the processes) after a phase, in MB."""
         with open("/proc/self/status") as f:
             rss = next(int(ln.split()[1]) for ln in f if ln.startswith("VmRSS")) / 1024.0
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        peak = peak_memory_mb()
         memory[phase] = {
             "rss": round(comm.allreduce(rss, op=MPI.MAX)),
             "peak": round(comm.allreduce(peak, op=MPI.MAX)),
@@ -125,7 +125,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
     out["memory_mb"] = memory
     out["total_s"] = out["mesh_s"] + t_problem + t_stepper + out["steps_s"]
     out["reaction_final"] = np.asarray(traj["reaction_left"][-1]).tolist()
-    peaks = comm.gather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, root=0)
+    peaks = comm.gather(peak_memory_mb(), root=0)
     if comm.rank == 0:
         out["peak_mb_max"] = max(peaks)
         out["peak_mb_sum"] = sum(peaks)
@@ -363,7 +363,9 @@ def main(argv=None) -> int:
         "peak/proc <= 0.6 x serial rothe, step <= 1.0 x dolfinx N=2):"
     )
     ratio("rothe serial", "dolfinx 0.11 N=1", "step_s")
+    # the default where petsc4py is installed (--backend auto on one process)
     ratio("rothe petsc N=1", "dolfinx 0.11 N=1", "step_s")
+    ratio("rothe petsc N=2", "rothe petsc N=1", "peak_mb")
     ratio("rothe petsc N=2", "rothe serial", "step_s")
     ratio("rothe petsc N=2", "rothe serial", "peak_mb")
     ratio("rothe petsc N=2", "dolfinx 0.11 N=2", "step_s")

@@ -1,14 +1,20 @@
 """RIS on changing meshes without artefacts (issue 18, item 0): the table of the docs.
 
     python benchmarks/ris_adapt.py [--controls uniform,adaptive,nested,order2,regime]
-                                   [--n3 12] [--fixed] [--timeout S] [--out DIR]
+                                   [--n3 12] [--control3 C] [--front-controls C,...]
+                                   [--quadrature lumped|consistent] [--fixed] [--timeout S]
+                                   [--out DIR]
 
 Runs the command line as a user would, one run after the other (each in its own process, timed
 from outside), every run with its command's defaults:
 
 * ``rothe run ris-2d --control X --adapt-space`` for X in ``--controls`` (with ``--fixed`` also
   without ``--adapt-space``: the fixed mesh's number of viscous jumps);
-* ``rothe run ris-3d --n N3 --adapt-space`` and ``rothe run ris-front --adapt-space``.
+* ``rothe run ris-3d --n N3 --adapt-space`` (``--control C`` with ``--control3``) and
+  ``rothe run ris-front --adapt-space``, with ``--front-controls`` also ``rothe run ris-front
+  --control C --adapt-space`` for each C (the residual controls, issue 18 item 0);
+* ``--quadrature Q`` is passed to every run (default: the command's, ``consistent`` with
+  ``--adapt-space`` since issue 18's transfer item; ``lumped`` gives the table before it).
 
 Per run, from its summary.json: whether it reached T (``landing``), the viscous jumps
 (:func:`rothe.ris.summary.viscous_jumps`), the energy the mesh changes moved against the
@@ -127,6 +133,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--controls", default="uniform,adaptive,nested,order2,regime")
     ap.add_argument("--n3", type=int, default=12, help="--n of the ris-3d run (its default 12)")
+    ap.add_argument("--control3", default=None, help="--control of the ris-3d run")
+    ap.add_argument(
+        "--front-controls", default="", help="ris-front runs with these --control values too"
+    )
+    ap.add_argument("--quadrature", default=None, help="--quadrature of every run")
+    ap.add_argument(
+        "--only", default=None, help="comma-separated subset: ris-2d, ris-front, ris-3d"
+    )
     ap.add_argument("--fixed", action="store_true", help="also run ris-2d/3d on the fixed mesh")
     ap.add_argument(
         "--timeout", type=float, default=900.0, help="stop a run after this many seconds"
@@ -134,12 +148,26 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="keep the runs' outputs here (default: a tmp dir)")
     args = ap.parse_args(argv)
     base = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="ris_adapt_"))
+    only = set(args.only.split(",")) if args.only else {"ris-2d", "ris-front", "ris-3d"}
     runs = []
-    for control in args.controls.split(","):
-        cmd = ["run", "ris-2d", "--control", control]
-        runs.append((f"ris-2d --control {control}", cmd, args.fixed))
-    runs.append(("ris-front", ["run", "ris-front"], False))
-    runs.append((f"ris-3d --n {args.n3}", ["run", "ris-3d", "--n", str(args.n3)], args.fixed))
+    if "ris-2d" in only:
+        for control in args.controls.split(","):
+            cmd = ["run", "ris-2d", "--control", control]
+            runs.append((f"ris-2d --control {control}", cmd, args.fixed))
+    if "ris-front" in only:
+        runs.append(("ris-front", ["run", "ris-front"], False))
+        for control in filter(None, args.front_controls.split(",")):
+            cmd = ["run", "ris-front", "--control", control]
+            runs.append((f"ris-front --control {control}", cmd, False))
+    if "ris-3d" in only:
+        cmd = ["run", "ris-3d", "--n", str(args.n3)]
+        label = f"ris-3d --n {args.n3}"
+        if args.control3:
+            cmd += ["--control", args.control3]
+            label += f" --control {args.control3}"
+        runs.append((label, cmd, args.fixed))
+    extra = [] if args.quadrature is None else ["--quadrature", args.quadrature]
+    runs = [(label + " ".join([""] + extra), cmd + extra, f) for label, cmd, f in runs]
     rows = []
     for i, (label, cmd, with_fixed) in enumerate(runs):
         fixed = None
@@ -153,7 +181,7 @@ def main(argv=None) -> int:
     print("|" + "---|" * HEADER.count(" | ") + "---|")
     for r in rows:
         print(format_row(r))
-    front = rows[-2]
+    front = next((r for r in rows if r["run"].startswith("`ris-front ")), None)
     ok_T = all(r.get("reached_T") for r in rows)
     ok_jumps = all(r.get("jumps") == 1 for r in rows if "ris-2d" in r["run"])
     print(f"every run reached T: {ok_T}")
@@ -161,10 +189,11 @@ def main(argv=None) -> int:
         f"ris-2d: one viscous jump (the fixed 40 x 40 grid's count) in every run: {ok_jumps}"
         + ("" if ok_T else " (on the part of the path the stopped runs reached)")
     )
-    print(
-        f"ris-front --adapt-space: {front['wall']:.1f} s wall, {front.get('cpu', float('nan')):.1f}"
-        " s CPU (target < 120 s)"
-    )
+    if front is not None:
+        print(
+            f"ris-front --adapt-space: {front['wall']:.1f} s wall, "
+            f"{front.get('cpu', float('nan')):.1f} s CPU (target < 120 s)"
+        )
     print(f"outputs in {base}")
     (base / "ris_adapt.json").write_text(json.dumps(rows, indent=1))
     return 0

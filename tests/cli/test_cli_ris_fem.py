@@ -520,6 +520,51 @@ def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
     assert __import__("re").match(message, err), err
 
 
+@pytest.mark.parametrize(
+    "command, argv, message",
+    [
+        (
+            "ris-2d",
+            ["--quadrature", "gauss"],
+            "--quadrature: got 'gauss', must be one of lumped, c",
+        ),
+        (
+            "ris-front-unique",
+            ["--quadrature", "consistent"],
+            "--quadrature: got 'consistent', must be one of lumped",
+        ),
+    ],
+)
+def test_cli_refuses_an_unknown_quadrature(capsys, tmp_path, command, argv, message):
+    code, out, err = run_cli(
+        capsys, "run", command, "--n", "4", "--out", str(tmp_path / "o"), *argv
+    )
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith("rothe: error: " + message), err
+
+
+@pytest.mark.parametrize("argv, quadrature", [([], "lumped"), (["--adapt-space"], "consistent")])
+def test_cli_adapted_runs_use_the_consistent_quadrature(capsys, tmp_path, argv, quadrature):
+    """Issue 18 (transfer): with --adapt-space the energy is the cell rule's, under which a
+    refinement does not change it; the fixed grid keeps the vertex rule."""
+    out = tmp_path / "o"
+    code, _, err = run_cli(
+        capsys,
+        "run",
+        "ris-2d",
+        "--n",
+        "4",
+        "--control",
+        "uniform",
+        "--out",
+        str(out),
+        "--no-plots",
+        *argv,
+    )
+    assert code == 0, err
+    assert json.loads((out / "summary.json").read_text())["quadrature"] == quadrature
+
+
 def test_cli_refuses_a_quadrilateral_mesh(capsys, tmp_path):
     import meshio
 

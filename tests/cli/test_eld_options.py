@@ -211,9 +211,6 @@ def test_tip_mass_on_a_3d_gmsh_bar_against_the_bar_equation(tmp_path, capsys):
         ("eld-pulse", ["--mesh", "{two}", "--dirichlet", "inlet", "--material", "a:E=1,nu=0",
                        "--region", "b=core"],
          "--region: got 'core' -> 'b', must map each region to one of the materials: a"),
-        ("eld-pulse", ["--mesh", "{two}", "--dirichlet", "inlet", "--material", "core:E=1,nu=0",
-                       "--material", "shell:E=2,nu=0"],
-         "--adapt-space: got given, is not supported for a body of several materials"),
         ("eld-pulse", ["--mesh", "{two}", "--material", "core:E=-1,nu=0"],
          "--material: got 'core' with E: got -1, must be > 0"),
         ("eld-pulse", ["--mesh", "{two}", "--material", "core:E=one"],
@@ -242,3 +239,19 @@ def test_bad_mesh_input_is_one_line_and_exit_2(tmp_path, capsys, command, args, 
     assert code == 2 and len(lines) == 1, err
     assert lines[0].startswith("rothe: error: " + line.format(**files)), lines[0]
     assert not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_a_body_of_two_materials_adapts_its_mesh(tmp_path, capsys):
+    """Refused before (the space indicator took one material): the regions are carried to the
+    refined cells and the indicator takes per-cell constants (tests/eld/
+    test_indicator_materials.py), so eld-pulse adapts a two-material gmsh body by default."""
+    two = write_gmsh_body(tmp_path / "two.msh", nx=8, ny=4, split=1.0)
+    code, _, err = run_cli(
+        capsys, "run", "eld-pulse", "--mesh", two, "--dirichlet", "inlet",
+        "--material", "core:E=1,nu=0", "--material", "shell:E=2,nu=0", "--out", tmp_path / "out",
+    )  # fmt: skip
+    assert code == 0, err
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    data = np.load(tmp_path / "out" / "trajectory.npz")
+    assert len(np.unique(data["mesh_id"])) >= 3
+    assert s["balance_residual_max"] < 1e-10

@@ -117,7 +117,7 @@ def test_cli_beam_petsc_writes_the_serial_files(tmp_path):
         "--quiet",
     ]
     subprocess.run(
-        [sys.executable, *args, "--out", tmp_path / "s"],
+        [sys.executable, *args, "--backend", "serial", "--out", tmp_path / "s"],
         check=True,
         env=_env(),
         capture_output=True,
@@ -131,6 +131,45 @@ def test_cli_beam_petsc_writes_the_serial_files(tmp_path):
     assert {"beam.xdmf", "beam.h5", "beam_multiplier.xdmf", "summary.json"} <= names
     summary = json.loads((tmp_path / "p" / "summary.json").read_text())
     assert summary["processes"] == 2 and summary["status"] == "completed"
+
+
+@needs_mpi
+def test_cli_auto_takes_petsc_on_one_process_where_installed(tmp_path):
+    """Without --backend, an AMG-sized run (here --solver amg) on one process, without mpiexec,
+    takes the PETSc backend where petsc4py is installed, and gives the serial answer."""
+    args = [
+        "-m",
+        "rothe.cli.main",
+        "run",
+        "eld-beam",
+        "--n",
+        "2",
+        "--degree",
+        "1",
+        "--T",
+        "0.05",
+        "--solver",
+        "amg",
+        "--quiet",
+    ]
+    env = {k: v for k, v in _env().items() if k not in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE")}
+    for out, extra in (("auto", []), ("serial", ["--backend", "serial"])):
+        subprocess.run(
+            [sys.executable, *args, *extra, "--out", tmp_path / out],
+            check=True,
+            env=env,
+            capture_output=True,
+        )
+    auto = json.loads((tmp_path / "auto" / "summary.json").read_text())
+    serial = json.loads((tmp_path / "serial" / "summary.json").read_text())
+    assert auto["backend"] == "petsc" and auto["processes"] == 1
+    assert serial["backend"] == "serial"
+    a, b = (
+        np.load(tmp_path / "serial" / "trajectory.npz"),
+        np.load(tmp_path / "auto" / "trajectory.npz"),
+    )
+    for key in ("u", "lam", "reaction_left", "energy"):
+        np.testing.assert_allclose(b[key], a[key], rtol=1e-7, atol=1e-11, err_msg=key)
 
 
 @needs_mpi

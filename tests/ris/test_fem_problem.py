@@ -257,3 +257,55 @@ def test_only_data_defined_on_the_domain_moves_to_another_mesh():
     from rothe.ris.adapt import RISAdaptivity
 
     assert RISAdaptivity(front, SpaceAdaptivity(space_tol=1.0)).mesh_id == 0
+
+
+def test_the_consistent_quadrature_integrates_the_double_well_exactly_with_its_derivatives():
+    """quadrature="consistent": F(z) = int g(z_h) exactly for the quartic g of (7.2) (checked
+    against a 4x finer grid's integral of the same P1 function, which the rule also integrates
+    exactly), F' and F'' (a sparse matrix) match central differences."""
+    p = example_7_2(6, quadrature="consistent")
+    rng = np.random.default_rng(7)
+    z = rng.uniform(-1.3, 1.3, p.n)
+    from rothe.fem.adapt import AdaptiveMesh, free_transfer
+
+    amesh = AdaptiveMesh(p.mesh)
+    change = amesh.refine(np.ones(amesh.n_cells, dtype=bool))
+    q = p.on_mesh(amesh.mesh)
+    zq = free_transfer(change.transfer(1), p.free, q.free) @ z
+    assert q.F(zq) == pytest.approx(p.F(z), rel=1e-13)
+    lumped = example_7_2(6)
+    assert abs(lumped.F(z) - p.F(z)) > 1.0  # the vertex rule is another energy
+    v = rng.standard_normal(p.n)
+    h = 1e-6
+    fd = (p.F(z + h * v) - p.F(z - h * v)) / (2 * h)
+    assert p.dF(z) @ v == pytest.approx(fd, rel=1e-7)
+    H = p.d2F(z)
+    assert H.shape == (p.n, p.n) and H.nnz == p.A.nnz
+    fd2 = (p.dF(z + h * v) - p.dF(z - h * v)) / (2 * h)
+    assert np.allclose(H @ v, fd2, rtol=1e-6, atol=1e-6 * np.abs(fd2).max())
+    assert abs(H - H.T).max() <= 1e-12 * abs(H).max()
+
+
+def test_the_consistent_quadrature_of_a_load_density_and_bad_input():
+    """<l(t), z_h> = int l z_h by the cell rule: exact for l = x^2 y^2 against the affine
+    z_h = 1 - x (zero on the Dirichlet side x = 1): 1/36; the lumped m_i l(x_i) z_i is off by
+    O(h^2). An unknown quadrature is refused in one line."""
+
+    def problem(quadrature):
+        return FERISProblem(
+            unit_square(4),
+            g_7_2,
+            dg_7_2,
+            d2g_7_2,
+            None,
+            load_density=lambda t, x: x[0] ** 2 * x[1] ** 2,
+            dirichlet=["right"],
+            quadrature=quadrature,
+        )
+
+    p, lumped = problem("consistent"), problem("lumped")
+    z = 1.0 - p.nodes[p.free, 0]
+    assert p.load(0.0) @ z == pytest.approx(1.0 / 36.0, rel=1e-13)
+    assert abs(lumped.load(0.0) @ z - 1.0 / 36.0) > 5e-4  # measured 9.2e-4
+    with pytest.raises(RotheInputError, match=r"^quadrature: got 'gauss', must be one of lumped"):
+        example_7_2(4, quadrature="gauss")

@@ -6,9 +6,14 @@ the ``run`` commands (:func:`rothe.cli.session.run_sequence`: run -> stage -> wr
 -> summary last -> finish): results staged and committed together with ``summary.json`` last,
 an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM writes what it has
 (``status: interrupted``, exit 130/143), a failed run ``status: failed`` (exit 1). Coupled runs
-write no checkpoint yet (so no ``--resume``), and have no space adaptivity; ParaView output
-only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`) (docs/coupling.md,
-Sec. 12).
+write no checkpoint yet (so no ``--resume``); ParaView output only eld-two-bodies (one series
+per body, :mod:`rothe.eld.bodies_output`) on fixed meshes (docs/coupling.md, Sec. 12).
+
+``--adapt-space`` (every command; with ``--space-tol`` and the usual options of
+:mod:`rothe.cli.adapt_options`) adapts the mesh of the elastic body between accepted steps
+(:mod:`rothe.eld.coupled_adapt`; eld-two-bodies: body 1, the base); ``trajectory.npz`` then
+also holds every mesh once (``mesh_ids``, ``mesh_points_<k>``, ``mesh_cells_<k>``,
+``state_mesh_id``) and the series ``mesh_id``, ``ndofs``, ``space_estimate``, ``transfer``.
 
 Outputs: ``summary.json``, ``trajectory.npz`` (the run's q, p, z, the reactions on every
 constrained part, the whole-system ledger per state, the steps: see
@@ -33,7 +38,7 @@ from ..eld.frequencies import crossing_frequency, decay_rate
 from ..eld.run import run_eld
 from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
 from ..fem.mesh import load_mesh, mesh_dim
-from .adapt_options import check_memory
+from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
 from .common import add_output_options, float_option, given, peak_memory_mb, print_summary
 from .eld_options import (
     MESH_PARAMETERS,
@@ -68,6 +73,9 @@ TIP_MASS_MAX_CELLS = 4000
 TIP_MASS_MAX_DOFS = 16_000
 #: forcing periods at the end of an eld-tmd run over which the final amplitudes are taken
 TMD_LAST_PERIODS = 2
+#: --max-dofs of --adapt-space by default (the body's P_k vector unknowns; twice the initial
+#: mesh's when that is more): the examples' 2D strips run with a few hundred to a few thousand
+COUPLED_MAX_DOFS = 50_000
 
 
 def check_modal_size(mesh, degree: int) -> None:
@@ -91,7 +99,7 @@ class CoupledRunCommand:
     name = ""
     #: the summary fields printed after a completed run
     keys: tuple = ()
-    parameter_options: dict = {}
+    parameter_options: dict = {"adapt": "--adapt-space"}
     #: the default of the one material of --E/--nu | --lam/--mu (:meth:`validate`)
     default_material: dict = {}
 
@@ -142,11 +150,25 @@ class CoupledRunCommand:
         n = self.strip_checks(args)
         return objects, n, material_of(args, self.default_material)
 
+    #: the SpaceAdaptivity of --adapt-space (None: fixed mesh), set by :meth:`run_objects`
+    adapt = None
+
     @staticmethod
-    def run_objects(args) -> dict:
-        """scheme, form and control of the command line (--tau against --T first)."""
+    def space_options(parser) -> None:
+        """--adapt-space and its options (the body's mesh; :mod:`rothe.eld.coupled_adapt`)."""
+        add_space_options(
+            parser,
+            default_max_dofs=COUPLED_MAX_DOFS,
+            indicator="the body's residual indicator (the coupled run's explicit adapt step)",
+            norms=True,
+        )
+
+    def run_objects(self, args) -> dict:
+        """scheme, form and control of the command line (--tau against --T first); the
+        --adapt-space options checked too (:attr:`adapt`)."""
         check_eld_step("--tau", args.tau, args.T)
         control = control_of(args)
+        self.adapt = space_adaptivity(args, default_max_dofs=COUPLED_MAX_DOFS)
         return {"scheme": scheme_of(args), "form": form_of(args), "control": control}
 
     def run(
@@ -159,12 +181,17 @@ class CoupledRunCommand:
         the body's u, v, lambda (:func:`run_coupled`); ``outputs(stage, label, result)``:
         writes a completed run's files instead of its ``trajectory.npz`` alone."""
         done: dict = {}
+        self.results = done  # (the command's summary reads the runs' final systems)
         labels = list(runs)
+        adapt = self.adapt
+        fit_default_cap(args, adapt, next(iter(runs.values())).body.space.ndofs)
 
         def start(checkpoint, resume, progress):
             # (coupled runs write no checkpoint: the session's options are not used)
             for label, system in runs.items():
-                done[label] = run_coupled(system, progress=progress, fields=fields, **objects)
+                done[label] = run_coupled(
+                    system, progress=progress, fields=fields, adapt=adapt, **objects
+                )
             return done
 
         def write(stage, outcome):
@@ -177,7 +204,8 @@ class CoupledRunCommand:
                     outputs(stage, label, done[label])
                     continue
                 name = "trajectory.npz" if label == labels[0] else f"trajectory_{label}.npz"
-                traj.save_npz(stage / name)
+                meshes = done[label].mesh_arrays() if label in done else None
+                traj.save_npz(stage / name, extra=meshes or None)
             summary = self.summary_head(args, objects, trajs)
             summarize(summary, trajs, completed)
             if completed and not args.no_plots and draw is not None:
@@ -210,7 +238,27 @@ class CoupledRunCommand:
             "T": args.T,
             "wall_time_s": sum(t.stats.wall_time_s for t in trajs.values()),
             "peak_memory_mb": peak_memory_mb(),
+            **self.adapt_fields(trajs),
         }
+
+    def adapt_fields(self, trajs: dict) -> dict:
+        """With --adapt-space: the options, and per run (suffix ``_<label>`` for all but the
+        first) the meshes, the smallest and largest unknowns of the body, the adaptations and
+        the energy the transfers changed (the ledger's ``transfer``)."""
+        if self.adapt is None:
+            return {"adapt_space": False}
+        out = {"adapt_space": True, "space_options": self.adapt.describe()}
+        for k, (label, traj) in enumerate(trajs.items()):
+            suffix = "" if k == 0 else f"_{label}"
+            ids, ndofs = np.asarray(traj["mesh_id"]), np.asarray(traj["ndofs"])
+            out[f"meshes{suffix}"] = int(np.unique(ids).size)
+            out[f"adaptations{suffix}"] = int(np.count_nonzero(np.diff(ids)))
+            out[f"ndofs_min{suffix}"] = int(ndofs.min())
+            out[f"ndofs_max{suffix}"] = int(ndofs.max())
+            out[f"ndofs_final{suffix}"] = int(ndofs[-1])
+            out[f"transfer_energy{suffix}"] = float(traj["transfer"][-1])
+            out[f"constraint_max{suffix}"] = float(np.abs(traj["constraint"]).max())
+        return out
 
 
 @command("run", "eld-tip-mass")
@@ -283,6 +331,7 @@ class RunEldTipMass(CoupledRunCommand):
             default=0.01,
             help="initial tip displacement in the first axial mode (default 0.01)",
         )
+        self.space_options(parser)
         add_output_options(parser, self.name)
 
     def validate(self, args):
@@ -432,6 +481,7 @@ class RunEldTmd(CoupledRunCommand):
         float_option(
             parser, "--b", default=0.0, help="Rayleigh damping b K of the strip (default 0)"
         )
+        self.space_options(parser)
         add_output_options(parser, self.name)
 
     def execute(self, args) -> int:
@@ -591,6 +641,7 @@ class RunEldControl(CoupledRunCommand):
             default=0.01,
             help="initial displacement of the base in the first mode (default 0.01)",
         )
+        self.space_options(parser)
         add_output_options(parser, self.name)
 
     def execute(self, args) -> int:
@@ -711,6 +762,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         "traction": "--load-part",
         "attached[0].traction": "--load-part",
         "material.dim": "--mesh1",
+        "adapt": "--adapt-space",
     }
     keys = (
         "example",
@@ -820,6 +872,7 @@ class RunEldTwoBodies(CoupledRunCommand):
             "strip with matching meshes only) and report the difference and the seconds per "
             "step of both",
         )
+        self.space_options(parser)
         add_output_options(parser, self.name)
 
     def validate(self, args):
@@ -855,6 +908,13 @@ class RunEldTwoBodies(CoupledRunCommand):
         parts = args.interface.split(",")
         if len(parts) != 2 or not all(parts):
             raise fail("--interface", args.interface, "must be PART1,PART2 (body 1's, body 2's)")
+        if args.compare_union and args.adapt_space:
+            raise fail(
+                "--compare-union",
+                described("it with --adapt-space"),
+                "needs the fixed matching meshes (the union body's cells are both bodies'); "
+                "compare an adaptive run with the fixed-mesh run by its summary instead",
+            )
         if args.compare_union:
             same = {
                 "--mesh1": args.mesh1 is None,
@@ -1015,6 +1075,7 @@ class RunEldTwoBodies(CoupledRunCommand):
                 material2=material2.describe(),
                 interface_method=itf.method,
                 interface=itf.describe(),
+                adaptive_body="body1" if self.adapt is not None else None,
                 force=force,
                 direction=args.direction,
                 pulse=pulse,
@@ -1028,8 +1089,17 @@ class RunEldTwoBodies(CoupledRunCommand):
                 energy_final=float(traj["energy"][-1]),
                 work_loads=float(traj["work_components"][-1]),
                 seconds_per_step=summary["wall_time_s"] / max(steps, 1),
-                paraview=[f"{n}.xdmf" for n, _ in glued.bodies()],
+                paraview=[] if self.adapt is not None else [f"{n}.xdmf" for n, _ in glued.bodies()],
             )
+            final = self.results.get("bodies")
+            if self.adapt is not None and final is not None:
+                # the glue of the last mesh: matching while body 1's interface facets are as
+                # they started, mortar once they are refined
+                itf_final = final.stepper.system.couplings[0].interface
+                summary.update(
+                    interface_method_final=itf_final.method,
+                    interface_final=itf_final.describe(),
+                )
             if args.mesh1 is None:
                 summary.update(
                     n1=n1, n2=n2, length=args.length, height=args.height, split=args.split
@@ -1056,6 +1126,13 @@ class RunEldTwoBodies(CoupledRunCommand):
         def outputs(stage, label, result):
             return write_bodies_result(result, glued, stage)
 
+        adaptive = self.adapt is not None  # (fields and ParaView series live on one mesh)
         return self.run(
-            args, {"bodies": glued.system}, objects, summarize, draw, fields=True, outputs=outputs
+            args,
+            {"bodies": glued.system},
+            objects,
+            summarize,
+            draw,
+            fields=not adaptive,
+            outputs=None if adaptive else outputs,
         )

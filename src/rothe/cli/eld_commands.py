@@ -21,7 +21,7 @@ import shutil
 
 import numpy as np
 
-from ..eld.data import NOISE_TARGETS
+from ..eld.data import NOISE_TARGETS, Points
 from ..eld.examples import (
     beam_problem,
     mms_errors,
@@ -45,6 +45,8 @@ from ..eld.studies import (
     tip_mass_study,
 )
 from ..errors import check_choice, check_int, check_positive, described, fail
+from ..fem.petsc_env import launched_processes, petsc_installed
+from ..io.checkpoint import CheckpointError, load_checkpoint
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
 from .common import (
     add_output_options,
@@ -65,6 +67,7 @@ from .eld_options import (
     ELD_MAX_DOFS,
     MESH_PARAMETERS,
     MMS_MATERIAL,
+    beam_uses_amg,
     body_material,
     body_mesh,
     check_beam_size,
@@ -474,6 +477,10 @@ class RunEldMMS(EldRunCommand):
         )
 
 
+#: --backend of eld-beam: the run's backends and ``auto`` (:meth:`RunEldBeam.backend`)
+BEAM_BACKENDS = ("auto", *BACKENDS)
+
+
 @command("run", "eld-beam")
 class RunEldBeam(EldRunCommand):
     """``rothe run eld-beam``: the cantilever, XDMF streamed while it runs."""
@@ -539,9 +546,13 @@ class RunEldBeam(EldRunCommand):
         )
         parser.add_argument(
             "--backend",
-            default="serial",
-            help="serial | petsc: one process (default), or one mesh on the processes of "
-            "mpiexec -n N with PETSc (docs/scaling.md)",
+            default="auto",
+            help="auto | serial | petsc: serial is one process with pyamg; petsc one mesh on "
+            "the processes of mpiexec -n N (or on one) with PETSc's GAMG; auto (default) takes "
+            "petsc under mpiexec -n N > 1, and on one process when petsc4py and mpi4py are "
+            "installed and the run suits it (AMG: more than 30k unknowns or --solver amg; no "
+            "--adapt-space; --data points; the nodal lifting), serial otherwise "
+            "(docs/scaling.md)",
         )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
@@ -558,23 +569,52 @@ class RunEldBeam(EldRunCommand):
         every = check_int("--save-every", args.save_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"], hysteresis=True)
         material = material_of(args, BEAM_MATERIAL, dim=3)
-        if check_choice("--backend", args.backend, BACKENDS) == "petsc" and space is not None:
+        if self.backend(args, n, space, objects) == "petsc" and space is not None:
             raise fail(
                 "--adapt-space",
                 described("given"),
-                "is not supported with --backend petsc (space adaptivity is not distributed)",
+                "is not supported with --backend petsc (space adaptivity is not distributed)"
+                + ("" if args.backend == "petsc" else f" under mpiexec -n {launched_processes()}"),
             )
         return objects, n, every, keep, damping_of(args), space, material
+
+    @staticmethod
+    def backend(args, n: int, space, objects: dict) -> str:
+        """--backend with ``auto`` resolved (the option's help; docs/scaling.md, "Which
+        backend"): petsc under ``mpiexec -n N`` with N > 1 (every process would otherwise run
+        the whole serial problem), the backend of the checkpoint a resumed run continues, and
+        on one process petsc when petsc4py and mpi4py are installed and the run is one the
+        PETSc backend serves and wins: an AMG-sized beam (per step 0.85x the serial pyamg
+        cycle at 1.07 M dofs, docs/scaling.md), no space adaptivity, point data, the nodal
+        lifting. Serial otherwise."""
+        backend = check_choice("--backend", args.backend, BEAM_BACKENDS)
+        if backend != "auto":
+            return backend
+        if launched_processes() > 1:
+            return "petsc"
+        if getattr(args, "resume", None) is not None:
+            try:
+                header = load_checkpoint(args.resume, header_only=True).header
+            except CheckpointError:  # the session says what is wrong with it
+                return "serial"
+            return "petsc" if header.get("arguments", {}).get("backend") == "petsc" else "serial"
+        suits = (
+            space is None
+            and isinstance(objects["data"], Points)
+            and objects["form"].lifting in (None, "nodal")
+            and beam_uses_amg(n, args.length, args.degree, args.solver)
+        )
+        return "petsc" if suits and petsc_installed() else "serial"
 
     def execute(self, args) -> int:
         """Build the cantilever, run it as a session (XDMF streamed while it runs); with
         ``--backend petsc`` on the processes of mpiexec (:mod:`rothe.cli.eld_mpi`)."""
-        if args.backend == "petsc":
+        objects, n, every, keep, damping, space, material = self.validate(args)
+        if self.backend(args, n, space, objects) == "petsc":
             # mpi4py and petsc4py (optional, heavy) are imported only for this backend
             from .eld_mpi import execute_beam
 
             return execute_beam(self, args)
-        objects, n, every, keep, damping, space, material = self.validate(args)
         problem = self.beam(args, n, damping, material)
         fit_default_cap(args, space, problem.space.ndofs)
         label = (
@@ -585,6 +625,7 @@ class RunEldBeam(EldRunCommand):
 
         def summarize(summary, result, completed):
             self.summarize(args, summary, result.trajectory, material)
+            summary.update(backend="serial")  # which --backend auto took (as the petsc run)
 
         # a fixed mesh streams XDMF as it goes (checkpointed with the run); an adaptive run
         # writes one VTU per kept state on its own mesh at the end (rothe.eld.output)

@@ -598,11 +598,23 @@ def check_mms_size(n: int, degree: int) -> None:
         check_memory("--n", n, dofs, ELD_BYTES_PER_DOF["2d"], what="unknowns")
 
 
+def beam_unknowns(n: int, length: float, degree: int) -> int:
+    """The dofs of the beam of ``rothe run eld-beam`` (round(length n) x n x n cubes, P1/P2)."""
+    nx = max(1, round(length * n))
+    return 3 * (degree * nx + 1) * (degree * n + 1) ** 2
+
+
+def beam_uses_amg(n: int, length: float, degree: int, solver: str) -> bool:
+    """Whether the beam's linear solver is AMG: --solver amg, or auto above BEAM_LU_LIMIT."""
+    return solver == "amg" or (
+        solver == "auto" and beam_unknowns(n, length, degree) > BEAM_LU_LIMIT
+    )
+
+
 def check_beam_size(n: int, length: float, degree: int, solver: str) -> None:
     """Refuse an --n whose beam (with its solver) cannot fit in memory."""
     if degree in (1, 2) and length > 0:
-        nx = max(1, round(length * n))
-        dofs = 3 * (degree * nx + 1) * (degree * n + 1) ** 2
+        dofs = beam_unknowns(n, length, degree)
         lu = solver == "direct" or (solver == "auto" and dofs <= BEAM_LU_LIMIT)
         check_memory(
             "--n", n, dofs, ELD_BYTES_PER_DOF["3d-lu" if lu else "3d-amg"], what="unknowns"

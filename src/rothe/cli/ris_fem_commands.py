@@ -165,6 +165,8 @@ class _RunRISFem(RISRunBase):
     #: the estimate above any tolerance, so an uncapped 3D run went from 27 to 740 000 unknowns
     #: (4.7 GB) before t = 0.64 at --n 4
     default_max_dofs = 100_000
+    #: the choices of --quadrature (rothe.ris.fem_problem.QUADRATURES)
+    quadratures = ("lumped", "consistent")
 
     def add_example_options(self, parser) -> None:
         """The grid or mesh file, Dirichlet parts, z0, load, linear solver, outputs, meshes."""
@@ -197,6 +199,16 @@ class _RunRISFem(RISRunBase):
             "--amplitude",
             default=self.default_amplitude,
             help=self.amplitude_help,
+        )
+        parser.add_argument(
+            "--quadrature",
+            default=None,
+            help=" | ".join(self.quadratures)
+            + ": the quadrature of int g(z) (and of a load density); default lumped (vertex "
+            "rule), with --adapt-space consistent (a cell rule of degree 4: a refinement "
+            "does not change the energy, docs/ris_fem.md)"
+            if len(self.quadratures) > 1
+            else "lumped (the only quadrature of this example: its energy is quadratic)",
         )
         parser.add_argument(
             "--linear-solver",
@@ -241,6 +253,13 @@ class _RunRISFem(RISRunBase):
     def validate(self, args):
         """The FE options (memory for --n, --adapt-space), then the common checks."""
         check_choice("--linear-solver", args.linear_solver, LINEAR_SOLVERS)
+        quadrature = args.quadrature
+        if quadrature is None:
+            # an adapted run's energy must not change when the mesh does (issue 18)
+            adapted = args.adapt_space and "consistent" in self.quadratures
+            quadrature = "consistent" if adapted else "lumped"
+        check_choice("--quadrature", quadrature, self.quadratures)
+        self._quadrature = quadrature
         check_choice("--duplicate-nodes", args.duplicate_nodes, DUPLICATE_NODES)
         check_choice("--xdmf-time", args.xdmf_time, XDMF_TIME)
         if args.mesh is None and given(args, "--duplicate-nodes"):
@@ -279,7 +298,14 @@ class _RunRISFem(RISRunBase):
     def make_problem(self, n, mesh, args, dirichlet):
         """Example 7.2 (or its 3D analogue) on the grid or the mesh."""
         factory = examples.example_7_2 if self.dim == 2 else examples.example_7_2_3d
-        return factory(n, mesh, amplitude=args.amplitude, z0=args.z0, dirichlet=dirichlet)
+        return factory(
+            n,
+            mesh,
+            amplitude=args.amplitude,
+            z0=args.z0,
+            dirichlet=dirichlet,
+            quadrature=self._quadrature,
+        )
 
     # hooks -----------------------------------------------------------------------------------
     def build_problem(self, args):
@@ -327,6 +353,7 @@ class _RunRISFem(RISRunBase):
             "peak_memory_mb": peak_memory_mb(),  # updated at the very end (summary_at_end)
             "z0": args.z0,
             "amplitude": args.amplitude,
+            "quadrature": getattr(problem, "quadrature", "lumped"),
         }
         extra.update(describe_branch(problem, traj))
         if traj.meshes is not None:
@@ -543,6 +570,7 @@ class RunRISFront(_RunRISFem):
             z0=args.z0,
             coefficient=self._coefficient,
             dirichlet=("right",) if dirichlet is None else dirichlet,
+            quadrature=self._quadrature,
         )
 
 
@@ -574,6 +602,8 @@ class RunRISFrontUnique(RunRISFront):
         "front z = (A - kappa)/a = 0.2)"
     )
     defaults = examples.FRONT_UNIQUE_DEFAULTS
+    #: its energy is quadratic and its reference (front_unique_state) uses the lumped a z^2/2
+    quadratures = ("lumped",)
     coefficient_help = (
         "c of 1/2 int c |grad z|^2 (default 0.001; the front is smoothed over sqrt(c/a))"
     )

@@ -266,14 +266,8 @@ class ELDAdaptivity:
 
     def __init__(self, problem, options: SpaceAdaptivity, *, scheme, times):
         check_adaptable(problem.space.mesh, "adapt")
-        if getattr(problem, "cell_material", None) is not None:
-            # refused here, before the first step, not by the indicator after it
-            raise fail(
-                "adapt",
-                described("given"),
-                "is not supported for a body of several materials (a PiecewiseMaterial: the "
-                "space indicator takes one material); run it on a fixed mesh",
-            )
+        # (a body of several materials adapts too: every cell's region is carried to its
+        # children by the bisection forest, the indicator takes per-cell constants)
         self.options = options
         self.alpha0 = scheme.alpha0
         space = problem.space

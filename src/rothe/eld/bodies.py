@@ -39,8 +39,10 @@ matching meshes equal one body (tested) and why a glued step costs about the uni
 (docs/coupling.md, "Several bodies").
 
 Attached bodies take no prescribed data other than clamped parts (u = 0: their dofs are left
-out of q), no space adaptivity, and an interface must join the base to an attached body (a
-star of bodies around the base; chains 1-2-3 are not covered).
+out of q) and keep their meshes (their dofs are q; the base may adapt its mesh,
+``run_bodies(..., fields=False, adapt=SpaceAdaptivity(...))``: the glue is rebuilt on every
+mesh, :meth:`Glue.on_mesh`, :mod:`rothe.eld.coupled_adapt`), and an interface must join the
+base to an attached body (a star of bodies around the base; chains 1-2-3 are not covered).
 """
 
 from __future__ import annotations
@@ -242,6 +244,27 @@ class Glue(Coupling):
         system's dimension check); the system assembles Gamma from :meth:`jacobian_matrix`."""
         J = self.jacobian_matrix(t, q, x).toarray()
         return J.reshape(-1, self.dim, J.shape[1]).transpose(1, 0, 2)
+
+    def on_mesh(self, mesh, degree: int) -> Glue:
+        """The glue for the base body on another mesh (space adaptivity of the base): the
+        interface rebuilt between the new base mesh and the same attached body. Matching nodes
+        stay matching while the base's interface facets are not refined; once they are, the
+        base's trace space is finer than the attached body's and the interface is glued by the
+        mortar projection (exact there: the attached trace lies in the finer space, so Pi is
+        its interpolation), unless ``method='matching'`` was asked for -- then ``auto``."""
+        itf = self.interface
+        method = "mortar" if itf.requested == "mortar" else "auto"
+        new = Interface(
+            VectorSpace(mesh, degree),
+            itf.part1,
+            itf.space2,
+            itf.part2,
+            method=method,
+            tol=itf.tol,
+            name=itf.name,
+        )
+        new.requested = itf.requested
+        return Glue(new, self.component)
 
     def describe(self) -> dict:
         return {

@@ -29,7 +29,7 @@ linear components' stiffness; S_j >= ``error_scale``). Controller states z are n
 (``scheme=``, ``form=``, ``control=``) mean the same objects, but a coupled run has a different
 state (q, p, z next to the fields), a different result (the components' trajectories and the
 whole-system ledger), and today neither ``data=`` (the prescribed part's data are taken at the
-step's points) nor ``adapt=`` (space adaptivity) nor checkpoints; ``run_eld`` accepting a
+step's points) nor checkpoints; ``run_eld`` accepting a
 CoupledProblem would have to refuse half its keywords for one kind of problem. When the coupled
 step moves into :class:`~rothe.eld.stepper.ELDStepper` (docs/coupling.md, Sec. 12), this
 function becomes run_eld's branch with the same signature.
@@ -44,14 +44,19 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import RunFailed, fail
+from ..fem.adapt import free_transfer
+from ..fem.adapt.cycle import AdaptationFailed, energy_or_fail, finite_or_fail
 from ..io.trajectory import Trajectory
 from ..stepping.controllers import Adaptive, Uniform
 from ..stepping.evolve import evolve
 from ..timing import PhaseTimes
+from .adapt import check_adapt
 from .constraint import NodalLifting
 from .controllers import step_controller
+from .coupled_adapt import CoupledAdaptivity, CoupledMesh, check_coupled_adapt
 from .coupled_step import SPARSE_COORDINATES, CoupledStepSystem
 from .coupling import CoupledProblem
+from .data import Points
 from .form import DEFAULT_FORM, Original, as_form
 from .scheme import BDF2, DEFAULT_SCHEME, as_scheme
 from .state import ELDCode
@@ -88,6 +93,12 @@ class CoupledState:
     energy_norm_max: float = 0.0
     energies: tuple | None = None  # (body, components) at this state, once computed
     lam_norm: float | None = None  # ||lam||_{L2(Gamma)}, once computed
+    mesh_id: int = 0  # the body's mesh (space adaptivity)
+
+    @property
+    def fields(self) -> dict:
+        """The body's u, v, a by name (what the space indicator of the adapt step reads)."""
+        return {"u": self.u, "v": self.v, "a": self.a}
 
     @property
     def s(self) -> float:
@@ -150,6 +161,21 @@ class CoupledResult:
     def statistics(self):
         return self.trajectory.stats
 
+    @property
+    def meshes(self):
+        """The series of meshes and the log of adaptations of a space-adaptive run
+        (:class:`rothe.eld.adapt.ELDMeshes`), None on a fixed mesh."""
+        ad = self.stepper.adaptivity
+        return None if ad is None else ad.meshes
+
+    def mesh_arrays(self) -> dict:
+        """What ``trajectory.npz`` stores of the meshes of a space-adaptive run (every mesh
+        once, ``state_mesh_id`` the mesh of every state: MeshSeries.npz_arrays); {} on a fixed
+        mesh."""
+        if self.meshes is None:
+            return {}
+        return self.meshes.series.npz_arrays(np.asarray(self.trajectory["mesh_id"]))
+
 
 def _taylor(x0, v0, a0, h):
     return x0 - h * v0 + 0.5 * h * h * a0, v0 - h * a0
@@ -182,6 +208,10 @@ class CoupledStepper(GridLoop):
     fields : bool
         Record the body's u, v and lambda at every state (series ``u``, ``v``, ``lam``: the
         fields of glued bodies, :mod:`rothe.eld.bodies`).
+    adapt : SpaceAdaptivity, optional
+        Adapt the body's mesh after accepted steps (:mod:`rothe.eld.coupled_adapt`:
+        :meth:`adapt`, :meth:`transferred`); the stepper is bound to one mesh at a time
+        (:meth:`_bind`).
     noise : callable j -> (theta, xi, vartheta), optional
         Perturbations, each (r,) or None, of the coordinates that enter the coupling data at
         step j = 1, 2, ... (the components' outputs the body sees; the initial state is exact;
@@ -202,6 +232,7 @@ class CoupledStepper(GridLoop):
         error_scale=1e-12,
         noise=None,
         fields=False,
+        adapt=None,
     ):
         if noise is not None and not callable(noise):
             raise fail(
@@ -217,14 +248,12 @@ class CoupledStepper(GridLoop):
         self.fields = bool(fields)
         self.error_scale = float(error_scale)
         self.noise = noise
-        lifting = "nodal" if isinstance(form, Original) else form.lifting
-        kern = self.kern = CoupledStepSystem(system, lifting)
-        body = self.body = system.body
-        self.c = kern.constraint
-        self.n, self.r, self.s_ctrl = body.space.ndofs, kern.r, kern.s
-        self.rhoM = (kern.rho * kern.M).tocsr()
-        self.BT = self.c.B.T.tocsr()
-        self.C = body.damping_op.linear
+        #: the lifting of the step system ('nodal' in the original form)
+        self.lifting = "nodal" if isinstance(form, Original) else form.lifting
+        self._original = isinstance(form, Original)
+        kern = CoupledStepSystem(system, self.lifting)
+        self._bind(system, kern)
+        self.r, self.s_ctrl = kern.r, kern.s
         self.comps_linear = all(cmp.is_linear for cmp in system.components)
         self.Mq = system.mass()
         r = self.r
@@ -250,14 +279,31 @@ class CoupledStepper(GridLoop):
         self.tau, self.steps, self.n_steps = self.grid.tau, self.grid.steps, self.grid.n_steps
         self.times = PhaseTimes()
         self._last_newton = 0
-        # what the step needs besides (fixed per run; docs/coupling.md, Speed)
-        self._original = isinstance(form, Original)
+        self._Jq = (None, None)  # (kappa, kappa^2 M_q + kappa C_q + K_q)
+        #: space adaptivity of the body (rothe.eld.coupled_adapt), None on a fixed mesh
+        self.adaptivity = None if adapt is None else CoupledAdaptivity(self, adapt)
+        self._adapted: float | None = None  # eta of the last adapt step (None: none)
+
+    def _bind(self, system, kern) -> None:
+        """Bind the stepper to the body's mesh: the system on it, its step algebra and what the
+        step takes from them (docs/coupling.md, Speed) -- everything that lives on the mesh
+        (space adaptivity binds the new mesh's, :meth:`transferred`)."""
+        self.system, self.kern = system, kern
+        body = self.body = system.body
+        self.c = kern.constraint
+        self.n = body.space.ndofs
+        self.rhoM = (kern.rho * kern.M).tocsr()
+        self.BT = self.c.B.T.tocsr()
+        self.C = body.damping_op.linear
         self._nodal = isinstance(kern.lifting, NodalLifting)
         self._damped = self.C is not None and sp.csr_matrix(self.C).count_nonzero() > 0
         self._PhiT = kern.Phi.T.tocsr() if sp.issparse(kern.Phi) else kern.Phi.T
         G = system.gamma()
         self._GamT = G.T.tocsr() if kern.many else G.T.toarray()
-        self._Jq = (None, None)  # (kappa, kappa^2 M_q + kappa C_q + K_q)
+
+    def _mesh(self):
+        """The current mesh's system and step algebra (the adapt cycle's "problem")."""
+        return CoupledMesh(self.system, self.kern)
 
     # -- helpers ---------------------------------------------------------------------------------
     def _noise_at(self, j: int):
@@ -366,6 +412,8 @@ class CoupledStepper(GridLoop):
             ),
             0.0,
         )
+        if self.adaptivity is not None:  # the body's energy change on every new mesh
+            ledger["transfer"] = 0.0
         return CoupledState(
             t=0.0,
             j=0,
@@ -617,6 +665,7 @@ class CoupledStepper(GridLoop):
             + L["residual_work"]
             - L["numerical_dissipation"]
             - L["data_mismatch"]
+            + L.get("transfer", 0.0)
         )
         # -- local error estimate (module docstring) ---------------------------------------------
         ht = 0.5 * tau
@@ -660,6 +709,7 @@ class CoupledStepper(GridLoop):
             energy_norm_max=max(state.energy_norm_max, norm_new),
             energies=(Eb, Ec),
             lam_norm=math.sqrt(max(float(lam @ MGlam), 0.0)),
+            mesh_id=state.mesh_id,
         )
         info = {
             "estimate": est,
@@ -674,9 +724,123 @@ class CoupledStepper(GridLoop):
         }
         return new, info
 
+    # -- space adaptivity (rothe.eld.coupled_adapt) ---------------------------------------------
+    def transferred(self, state: CoupledState, T, current, new) -> CoupledState:
+        """``state`` on the mesh of ``new`` (a :class:`~rothe.eld.coupled_adapt.CoupledMesh`)
+        through the dof transfer ``T`` (new x old), the stepper bound to it
+        (:mod:`rothe.eld.coupled_adapt`, step 4): u, v, a and the history's u, v mapped, the
+        coupled trace re-evaluated from q (u|Gamma = g_k(t_j) + Gamma q; regularized also
+        v|Gamma, a|Gamma from p, pdot), x, y, g_k, g'_k split off by the new lifting, the
+        products recomputed, lambda by the trace transfer; q, p, pdot, z unchanged. The
+        body's energy change is added to the ledger's ``transfer``. On failure the stepper
+        stays bound to ``current``."""
+        old_c = self.c
+        E_old = (
+            state.energies[0]
+            if state.energies
+            else self._energies(state.u, state.v, state.q, state.p)[0]
+        )
+        self._bind(new.system, new.kern)
+        try:
+            return self._transferred(state, T, old_c, E_old)
+        except BaseException:
+            self._bind(current.system, current.kern)
+            raise
+
+    def _transferred(self, state, T, old_c, E_old) -> CoupledState:
+        c, Gam = self.c, self.kern.Gamma
+        u, v, a = (finite_or_fail(name, T @ getattr(state, name)) for name in "uva")
+        t = state.t
+        if self._original:
+            (gk,) = self.system.known_data(t, derivatives=False)
+            u[c.dofs] = gk + Gam @ state.q
+        else:
+            gk, gdk, gddk = self.system.known_data(t)
+            u[c.dofs] = gk + Gam @ state.q
+            v[c.dofs] = gdk + Gam @ state.p
+            a[c.dofs] = gddk + Gam @ state.pdot
+        old = state.hist
+        levels = len(old["u"])
+        hist = {key: [] for key in list(_HISTORY) + list(_PRODUCTS)}
+        for i in range(levels):
+            if i == levels - 1:  # the current state: the data of t_j on the new boundary
+                ui, vi, ai = u, v, a
+            else:  # t_{j-1}: its transferred trace (its acceleration enters no product used)
+                ui, vi = T @ old["u"][i], T @ old["v"][i]
+                ai = np.zeros_like(ui)
+            qi, pi, zi = old["q"][i], old["p"][i], old["z"][i]
+            xi, yi, gki, gdki = self._split(ui, vi, qi, pi)
+            for key, val in zip(_HISTORY, (xi, yi, qi, pi, zi, gki, gdki, ui, vi), strict=True):
+                hist[key].append(val)
+            for key, val in self._products(ui, vi, ai, qi, pi).items():
+                hist[key].append(val)
+        Eb = 0.5 * (v @ hist["Mv"][-1]) + 0.5 * (u @ hist["Ku"][-1])
+        Ec = state.energies[1] if state.energies else self._energies(u, v, state.q, state.p)[1]
+        energy_or_fail(Eb + Ec)
+        ledger = dict(state.ledger)
+        ledger["transfer"] = ledger.get("transfer", 0.0) + (Eb - E_old)
+        lam = free_transfer(T, old_c.dofs, c.dofs) @ state.lam
+        return replace(
+            state,
+            u=u,
+            v=v,
+            a=a,
+            lam=lam,
+            hist=hist,
+            ledger=ledger,
+            energies=(Eb, Ec),
+            lam_norm=None,
+            energy_norm_max=max(state.energy_norm_max, math.sqrt(max(2.0 * (Eb + Ec), 0.0))),
+        )
+
     # -- evolve-loop interface -------------------------------------------------------------------
     def adapt(self, state: CoupledState, result: CoupledStepResult) -> CoupledState:
-        """No space adaptivity for coupled runs yet: the accepted state."""
+        """The adapt step after the accepted ``result`` (:mod:`rothe.eld.coupled_adapt`): with
+        space adaptivity, when due and the run goes on, the state on a new mesh (a new state;
+        the accepted one is never changed); otherwise ``state`` itself. The same cycle and
+        bookkeeping as :meth:`rothe.eld.stepper.ELDStepper.adapt`; a failed adaptation stops
+        the run with RunFailed, the accepted step standing on its own mesh."""
+        self._adapted = None
+        ad = self.adaptivity
+        if ad is None:
+            return state
+        ad.register_mesh()
+        estimate = math.nan
+        if ad.options.due(state.j) and not self.finished(state):
+            old_id = int(state.mesh_id)
+            times = ad.data_times(state.t, result.tau, self.T)
+            ad.set_band(result.tau)
+            try:
+                out = ad.adaptation.cycle(ad, self._mesh(), (state, result.tau, times), state)
+            except AdaptationFailed as exc:
+                raise RunFailed(
+                    f"space adaptivity: the transfer to the new mesh after step "
+                    f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
+                    f"on mesh {old_id}",
+                    where=self.where(state),
+                ) from exc
+            estimate = out.estimate
+            if out.changed:
+                new = out.state
+                ad.register_mesh()
+                transfer = new.ledger["transfer"] - state.ledger["transfer"]
+                ad.meshes.adaptations.append(
+                    {
+                        "step": state.j,
+                        "t": float(state.t),
+                        "from_mesh": old_id,
+                        "to_mesh": int(new.mesh_id),
+                        "estimate": estimate,
+                        "rounds": 1,
+                        "bisections": out.bisections,
+                        "merges": out.merges,
+                        "cells": int(ad.adaptation.amesh.n_cells),
+                        "ndofs": int(self.n),
+                        "transfer_energy": float(transfer),
+                    }
+                )
+                state = new
+        self._adapted = estimate
         return state
 
     def where(self, state: CoupledState, result=None) -> dict:
@@ -721,6 +885,8 @@ class CoupledStepper(GridLoop):
             values["watch_v"] = self.watch @ state.v
         if self.fields:
             values.update(u=state.u.copy(), v=state.v.copy(), lam=state.lam.copy())
+        if self.adaptivity is not None:  # the mesh the state was computed on
+            values.update(mesh_id=int(state.mesh_id), ndofs=int(state.u.size))
         traj.append(**values)
 
     def record_initial(self, traj: Trajectory, state: CoupledState) -> None:
@@ -743,6 +909,8 @@ class CoupledStepper(GridLoop):
             result.constraint,
         )
         traj.append(tau=result.tau, local_error=result.estimate)
+        if self.adaptivity is not None:  # eta of the adapt step after it (NaN: none)
+            traj.append(space_estimate=math.nan if self._adapted is None else self._adapted)
 
 
 def run_coupled(
@@ -756,6 +924,7 @@ def run_coupled(
     error_scale: float = 1e-12,
     noise=None,
     fields: bool = False,
+    adapt=None,
     progress=False,
 ) -> CoupledResult:
     """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
@@ -780,6 +949,12 @@ def run_coupled(
         Perturbations of the coordinates that enter the coupling data (:class:`CoupledStepper`).
     fields : bool
         Record u, v, lambda of the body at every state (series ``u``, ``v``, ``lam``).
+    adapt : SpaceAdaptivity, optional
+        Adapt the body's mesh between accepted steps (:mod:`rothe.eld.coupled_adapt`): the
+        trajectory gets the point series ``mesh_id``, ``ndofs``, the step series
+        ``space_estimate`` and the ledger term ``transfer``; the result's ``meshes``
+        (:class:`rothe.eld.adapt.ELDMeshes`) every mesh once and the log of adaptations. Not
+        with ``watch``, ``fields`` or ``noise`` (they live on one mesh).
     progress : bool or ProgressOptions
 
     Returns
@@ -801,6 +976,9 @@ def run_coupled(
         )
     if isinstance(control, Adaptive) and control.tau is None:
         control = replace(control, tau=T / 100)  # the first step: 1/100 of the run
+    if adapt is not None:
+        check_adapt(adapt, data=Points(), noise=None)
+        check_coupled_adapt(adapt, watch=watch, fields=fields, noise=noise)
     stepper = CoupledStepper(
         system,
         scheme,
@@ -811,6 +989,7 @@ def run_coupled(
         error_scale=error_scale,
         noise=noise,
         fields=fields,
+        adapt=adapt,
     )
     info = {}
     controller, _, tau_min = step_controller(stepper, control, T, info)
@@ -823,6 +1002,7 @@ def run_coupled(
             "components": [cmp.name for cmp in system.components],
             "parts": list(stepper.c.parts),
             **info,
+            **({} if adapt is None else {"adapt": adapt.describe()}),
         }
     )
     state = stepper.initial_state()

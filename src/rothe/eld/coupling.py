@@ -124,6 +124,12 @@ class Coupling(ABC):
             curv + np.einsum("dkm,m->dk", J, pdot),
         )
 
+    def on_mesh(self, mesh, degree: int) -> Coupling:
+        """The coupling for the body on another mesh (space adaptivity,
+        :meth:`CoupledProblem.on_mesh`): itself -- G(t, q, x) is evaluated at the new part's
+        points; a coupling that holds mesh operators (the glue of two bodies) rebuilds them."""
+        return self
+
     def describe(self) -> dict:
         """Type, part and component name, for summaries."""
         return {"type": type(self).__name__, "part": self.part, "component": self.component.name}
@@ -397,6 +403,9 @@ class CoupledProblem:
         return self
 
     def _setup(self, mesh, data, problem, components, couplings, controllers):
+        # what on_mesh needs to build the same system on another mesh (space adaptivity): the
+        # data before the coupled parts' placeholders are added, the problem they came from
+        self._source = (dict(data, dirichlet=dict(data["dirichlet"])), problem)
         self.components = list(components)
         self.couplings = list(couplings)
         self.controllers = list(controllers)
@@ -497,6 +506,28 @@ class CoupledProblem:
         self._gamma_cache = None
         for k, ctrl in enumerate(self.controllers):
             ctrl.bind(self, f"controllers[{k}]")
+
+    def on_mesh(self, mesh) -> CoupledProblem:
+        """The same system (components, controllers, the body's material, damping, data, T) on
+        another mesh of the body with the same named boundary parts (space adaptivity,
+        :mod:`rothe.eld.coupled_adapt`): the body rebuilt (:meth:`ELDProblem.on_mesh`: initial
+        data given as dof vectors are not carried over -- an adaptive run transfers its state
+        instead), every coupling for the new mesh (:meth:`Coupling.on_mesh`), the controllers
+        bound to the new body (their sensor rows). The components are the same objects: q does
+        not live on the mesh."""
+        data, problem = self._source
+        data = dict(data)
+        if problem is not None:
+            problem = problem.on_mesh(mesh)
+            data = dict(problem._data)
+        else:
+            for key in ("u0", "v0"):
+                if data[key] is not None and not callable(data[key]):
+                    data[key] = None
+        couplings = [cp.on_mesh(mesh, data["degree"]) for cp in self.couplings]
+        new = CoupledProblem.__new__(CoupledProblem)
+        new._setup(mesh, data, problem, self.components, couplings, self.controllers)
+        return new
 
     # -- coordinates ----------------------------------------------------------------------------
     def slice(self, component: Component) -> slice:

@@ -72,6 +72,45 @@ def _at(data, x: np.ndarray, *extra) -> np.ndarray:
     return np.broadcast_to(np.asarray(vals, dtype=float), x.shape)
 
 
+def _coefficient(name: str, value, n_cells: int, minimum: str):
+    """A material coefficient of the indicator: a float, or one value per cell (an (n_cells,)
+    array: a body of several materials); ``minimum`` 'positive', 'nonnegative' or 'real'."""
+    if np.ndim(value) == 0:
+        check = {"positive": check_positive, "nonnegative": check_nonnegative}.get(minimum)
+        return check(name, value) if check else float(value)
+    arr = np.asarray(value, dtype=float)
+    bad = {
+        "positive": ~(arr > 0),
+        "nonnegative": ~(arr >= 0),
+        "real": ~np.isfinite(arr),
+    }[minimum]
+    if arr.shape != (n_cells,) or bad.any():
+        raise fail(
+            name,
+            described(f"an array of shape {arr.shape}"),
+            f"must be a number or {minimum} values, one per cell ({n_cells},)",
+        )
+    return arr
+
+
+def _on(value, cells, trailing: int = 0):
+    """A coefficient on ``cells`` (a float stays a float), with ``trailing`` axes appended for
+    broadcasting against (..., cells, q) arrays."""
+    if np.ndim(value) == 0:
+        return value
+    return value[cells].reshape((-1,) + (1,) * trailing)
+
+
+def _weight(h: np.ndarray, mu, reaction) -> np.ndarray:
+    """robust_weight with per-cell (or per-facet) mu and reaction: min(h/sqrt(mu),
+    1/sqrt(kappa)) elementwise (h/sqrt(mu) where kappa = 0)."""
+    if np.ndim(reaction) == 0:
+        return robust_weight(h, mu, reaction)
+    a = robust_weight(h, mu, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.minimum(a, np.where(reaction > 0, 1.0 / np.sqrt(reaction), np.inf))
+
+
 def stress(grad: np.ndarray, lam: float, mu: float) -> np.ndarray:
     """sigma = lam tr(eps) I + 2 mu eps for grad[c, k] = d_k w_c (leading axes (d, d, ...))."""
     d = grad.shape[0]
@@ -106,9 +145,13 @@ def eld_indicators(
     ----------
     mesh : skfem.MeshTri | skfem.MeshTet with named boundaries (the step's mesh)
     degree : 1 | 2
-    lam, mu : Lame constants (mu > 0 also scales the weights)
+    lam, mu : Lame constants (mu > 0 also scales the weights); floats, or one value per cell
+        ((n_cells,) arrays: a body of several materials -- the stresses of each cell with its
+        own constants, the jump across a material interface of the two sides' normal
+        stresses, a facet weighted by the smaller mu and reaction of its two cells)
     u : (d * n,) displacement u^j (interleaved dofs)
-    rho, accel : density and the scheme's acceleration a^j as a field (None: 0)
+    rho, accel : density (a float or per cell) and the scheme's acceleration a^j as a field
+        (None: 0)
     velocity : the scheme's velocity v^j as a field (None: 0); enters through
         ``mass_damping`` c_M (c_M v), ``stiffness_damping`` b (sigma(u + b v)) and
         ``pointwise_damping`` (a callable v -> force density, v and the result (d, ...)).
@@ -117,12 +160,16 @@ def eld_indicators(
     traction : dict part -> callable g(x, n) (x, n (d, nf, nq)) on Neumann parts; boundary
         facets on no Dirichlet part and not in ``traction`` are traction free (g = 0).
     dirichlet_parts : names of the Dirichlet parts (excluded from the boundary residual).
-    reaction : kappa >= 0 of the robust weights (rho/tau^2 for an implicit Euler step).
+    reaction : kappa >= 0 of the robust weights (rho/tau^2 for an implicit Euler step); a float
+        or per cell.
     evaluator : a :class:`SimplexEvaluator` of (mesh, degree) to reuse, optional.
     """
-    mu = check_positive("mu", mu)
-    reaction = check_nonnegative("reaction", reaction)
     ev = evaluator if evaluator is not None else SimplexEvaluator(mesh, degree)
+    nc = ev.h.shape[0]
+    mu = _coefficient("mu", mu, nc, "positive")
+    lam = _coefficient("lam", lam, nc, "real")
+    rho = _coefficient("rho", rho, nc, "nonnegative")
+    reaction = _coefficient("reaction", reaction, nc, "nonnegative")
     d, n = ev.dim, ev.ndofs
     U = _as_field(u, n, d, "u")
     W = U.copy()
@@ -137,8 +184,8 @@ def eld_indicators(
     R = np.zeros_like(x)
     if body_force is not None:
         R += _at(body_force, x)
-    if accel is not None and rho:
-        R -= rho * ev.values(_as_field(accel, n, d, "accel"))
+    if accel is not None and np.any(rho):
+        R -= _on(rho, slice(None), 1) * ev.values(_as_field(accel, n, d, "accel"))
     if V is not None:
         vq = ev.values(V)  # (d, nc, nq)
         if mass_damping:
@@ -155,7 +202,7 @@ def eld_indicators(
         grad_div = np.einsum("kkic->ic", H)  # d_i (div w)
         div_sigma = mu * lap + (lam + mu) * grad_div
         R += div_sigma[:, :, None]
-    alpha_K = robust_weight(ev.h / ev.degree, mu, reaction)
+    alpha_K = _weight(ev.h / ev.degree, mu, reaction)
     cell_sq = alpha_K**2 * np.sum(np.sum(R * R, axis=0) * ev.cell_dx, axis=1)
 
     topo = ev.topology
@@ -169,13 +216,17 @@ def eld_indicators(
         f = slice(f0, f0 + FACET_CHUNK)
         c0, c1, l0, l1, fv = ic[0, f], ic[1, f], il[0, f], il[1, f], fverts[:, f]
         meas, normal, diam = ev.facet_geometry(c0, l0)
-        S0 = stress(at(gv, c0, ev.facet_lambda(c0, l0, fv)), lam, mu)
-        S0 -= stress(at(gv, c1, ev.facet_lambda(c1, l1, fv)), lam, mu)
+        S0 = stress(at(gv, c0, ev.facet_lambda(c0, l0, fv)), _on(lam, c0, 1), _on(mu, c0, 1))
+        S0 -= stress(at(gv, c1, ev.facet_lambda(c1, l1, fv)), _on(lam, c1, 1), _on(mu, c1, 1))
         J = np.einsum("ijfq,jf->ifq", S0, normal)
         del S0
-        alpha_F = robust_weight(diam / ev.degree, mu, reaction)
+        # a facet between two materials: the smaller mu and reaction of its cells (the larger
+        # weight)
+        mu_F = mu if np.ndim(mu) == 0 else np.minimum(mu[c0], mu[c1])
+        kappa_F = reaction if np.ndim(reaction) == 0 else np.minimum(reaction[c0], reaction[c1])
+        alpha_F = _weight(diam / ev.degree, mu_F, kappa_F)
         w_f = meas[:, None] * ev.facet_w[None, :]
-        inner_sq[f] = alpha_F / np.sqrt(mu) * np.sum(np.sum(J * J, axis=0) * w_f, axis=1)
+        inner_sq[f] = alpha_F / np.sqrt(mu_F) * np.sum(np.sum(J * J, axis=0) * w_f, axis=1)
 
     # Neumann facets: g - sigma(w) n
     bc, bl = topo.boundary_cells, topo.boundary_local
@@ -187,7 +238,7 @@ def eld_indicators(
     bfacets = topo.boundary[neu]
     bverts = topo.facets[:, bfacets]
     meas_b, normal_b, diam_b = ev.facet_geometry(bc, bl)
-    Sb = stress(at(gv, bc, ev.facet_lambda(bc, bl, bverts)), lam, mu)
+    Sb = stress(at(gv, bc, ev.facet_lambda(bc, bl, bverts)), _on(lam, bc, 1), _on(mu, bc, 1))
     Jb = -np.einsum("ijfq,jf->ifq", Sb, normal_b)
     if traction:
         xb = ev.facet_points(bverts)
@@ -200,9 +251,10 @@ def eld_indicators(
             if on.any():
                 Jb[:, on] += _at(g, xb[:, on], nb[:, on])
     w_b = meas_b[:, None] * ev.facet_w[None, :]
+    mu_b = _on(mu, bc)
     bnd_sq = (
-        robust_weight(diam_b / ev.degree, mu, reaction)
-        / np.sqrt(mu)
+        _weight(diam_b / ev.degree, mu_b, _on(reaction, bc))
+        / np.sqrt(mu_b)
         * np.sum(np.sum(Jb * Jb, axis=0) * w_b, axis=1)
     )
     return assemble_indicators(ev, cell_sq, inner_sq, ic, bnd_sq, bc)
@@ -223,16 +275,19 @@ def eld_indicators_for(
     Damping: ``NoDamping``; ``RayleighDamping(a, b)`` (c_M = a, Kelvin-Voigt b);
     ``NonlinearDamping(b, d0, d_nl, v_ref)`` (c_M = -d0, b, N = d_nl v/sqrt(1+|v|^2/v_ref^2)).
     A ``UserDamping`` has no pointwise form: its force is left out of the cell residual.
+
+    A body of several materials (``problem.cell_material``): per-cell lam, mu, rho, and the
+    ``reaction`` -- given as rho kappa with rho the material's rho, i.e. the reference density
+    rho_ref of a PiecewiseMaterial -- scaled to each cell's rho_c kappa (``density_weight``).
     """
     space = problem.space
     m = problem.material
-    if getattr(problem, "cell_material", None) is not None:
-        raise fail(
-            "material",
-            "a PiecewiseMaterial",
-            "must be one Material for the space "
-            "adaptivity indicator (per-cell constants: not yet supported)",
-        )
+    cells = getattr(problem, "cell_material", None)
+    if cells is None:
+        lam, mu, rho = m.lam_eff, m.mu, m.rho
+    else:
+        lam, mu, rho = cells.lam, cells.mu, cells.rho
+        reaction = reaction * cells.density_weight
     damp = problem.damping
     kw = {}
     if isinstance(damp, RayleighDamping):
@@ -254,10 +309,10 @@ def eld_indicators_for(
     return eld_indicators(
         space.mesh,
         space.degree,
-        m.lam_eff,
-        m.mu,
+        lam,
+        mu,
         u,
-        rho=m.rho,
+        rho=rho,
         accel=accel,
         velocity=velocity,
         body_force=body,

@@ -173,6 +173,9 @@ class Interface:
             self._sizes(space1, self.facets1).min(), self._sizes(space2, self.facets2).min()
         )
         self.abs_tol = tol * self.h
+        self.tol = tol
+        #: the method asked for (``method`` becomes the one used)
+        self.requested = method
         self.method = method
         pairing = self._pair()
         if method == "matching" and pairing is None:

@@ -11,6 +11,8 @@ conda-forge and the same order is harmless.
 from __future__ import annotations
 
 import ctypes
+import importlib.util
+import os
 
 from ..errors import RotheInputError
 
@@ -50,6 +52,26 @@ def petsc_available() -> str | None:
     except RotheInputError as exc:
         return str(exc)
     return None
+
+
+def petsc_installed() -> bool:
+    """Whether petsc4py and mpi4py can be found, without importing them (which starts MPI)."""
+    return all(importlib.util.find_spec(name) is not None for name in ("mpi4py", "petsc4py"))
+
+
+#: the environment variables through which MPI launchers tell a process the job's size: MPICH's
+#: Hydra and srun with PMI (PMI_SIZE), Open MPI (OMPI_COMM_WORLD_SIZE)
+LAUNCHER_SIZE_VARIABLES = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE")
+
+
+def launched_processes() -> int:
+    """The number of processes of the MPI job this process was started in (``mpiexec -n N``),
+    read from the launcher's environment without starting MPI; 1 outside a launcher."""
+    for name in LAUNCHER_SIZE_VARIABLES:
+        value = os.environ.get(name, "")
+        if value.isdigit() and int(value) > 0:
+            return int(value)
+    return 1
 
 
 def release_product_data(pc) -> int:

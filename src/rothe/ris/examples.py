@@ -224,7 +224,16 @@ def _grid_cells(n) -> int:
 
 
 def _energy_7_2_on(
-    mesh, dim, name, *, amplitude=-200.0, z0=0.0, kappa=1.0, T=1.0, dirichlet=None
+    mesh,
+    dim,
+    name,
+    *,
+    amplitude=-200.0,
+    z0=0.0,
+    kappa=1.0,
+    T=1.0,
+    dirichlet=None,
+    quadrature="lumped",
 ) -> FERISProblem:
     """g of (7.2) and the load amplitude t^3 int z on a ``dim``-dimensional mesh (the defaults
     of Example 7.2)."""
@@ -248,6 +257,7 @@ def _energy_7_2_on(
         T=T,
         dirichlet=dirichlet,
         name=name,
+        quadrature=quadrature,
     )
 
 
@@ -290,6 +300,7 @@ def example_front(
     dirichlet=("right",),
     pattern: str = "tensor",
     name: str = "ris-front",
+    quadrature: str = "lumped",
 ) -> FERISProblem:
     """A phase front crossing the unit square: the double well of (7.2) under a growing load.
 
@@ -352,6 +363,7 @@ def example_front(
         T=T,
         dirichlet=None if dirichlet is None else list(dirichlet),
         name=name,
+        quadrature=quadrature,
     )
 
 

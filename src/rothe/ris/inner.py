@@ -319,10 +319,11 @@ class BallStepSolver:
         return self.p.A_diag + hess_F
 
     def _convexifying_shift(self, z) -> float:
-        """max(0, -min_i F''_ii / m_i) for a diagonal F'' (0 for a general F'')."""
+        """max(0, -min_i F''_ii / m_i) (for a general F'' from its diagonal: the consistent
+        quadrature of a FERISProblem, whose F'' is mass-like)."""
         h = self.p.d2F(z)
         if sp.issparse(h) or np.ndim(h) == 2:
-            return 0.0
+            h = np.asarray(h.diagonal() if sp.issparse(h) else np.diag(h))
         return float(max(0.0, np.max(-h / self.p.m)))
 
     def _apply_H(self, hess_F, v):

@@ -1,0 +1,104 @@
+"""``rothe run eld-beam --backend auto`` (the default): which backend it takes, and when.
+
+The choice itself needs no PETSc: petsc4py's presence and the launcher's process count are
+replaced here; the runs that take the PETSc backend are in tests/mpi.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from rothe.cli import eld_commands
+from rothe.cli.eld_commands import RunEldBeam
+from rothe.cli.main import build_parser, parse_command
+from rothe.eld.data import Points
+from rothe.eld.form import Regularized
+from rothe.fem import petsc_env
+
+
+def _args(*extra):
+    return parse_command(build_parser(), ["run", "eld-beam", *map(str, extra)])
+
+
+@pytest.fixture
+def one_process(monkeypatch):
+    for name in petsc_env.LAUNCHER_SIZE_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+
+
+def _choice(monkeypatch, installed: bool, *extra):
+    monkeypatch.setattr(eld_commands, "petsc_installed", lambda: installed)
+    args = _args(*extra)
+    objects, n, _, _, _, space, _ = RunEldBeam().validate(args)
+    return RunEldBeam.backend(args, n, space, objects)
+
+
+def test_the_lu_limit_lies_between_n_12_and_13():
+    from rothe.cli.eld_options import BEAM_LU_LIMIT, beam_unknowns
+
+    assert beam_unknowns(12, 4.0, 1) == 3 * 49 * 13**2 <= BEAM_LU_LIMIT
+    assert beam_unknowns(13, 4.0, 1) == 3 * 53 * 14**2 > BEAM_LU_LIMIT
+
+
+@pytest.mark.parametrize(
+    "installed,extra,expected",
+    [
+        (True, ["--n", "12", "--degree", "1"], "serial"),  # 24.8 k dofs: LU
+        (True, ["--n", "13", "--degree", "1"], "petsc"),  # 31.2 k dofs: AMG
+        (False, ["--n", "16", "--degree", "1"], "serial"),  # no petsc4py
+        (True, ["--n", "16", "--degree", "1"], "petsc"),  # 62 k dofs: AMG
+        (True, ["--n", "4", "--degree", "1"], "serial"),  # 1.2 k dofs: LU, serial
+        (True, ["--n", "4", "--degree", "1", "--solver", "amg"], "petsc"),
+        (True, ["--n", "16", "--degree", "1", "--solver", "direct"], "serial"),
+        (True, ["--n", "16", "--degree", "1", "--form", "original"], "petsc"),
+        (True, ["--n", "16", "--degree", "1", "--adapt-space", "--space-tol", "1"], "serial"),
+        (True, ["--n", "16", "--degree", "1", "--backend", "serial"], "serial"),
+        (False, ["--n", "4", "--degree", "1", "--backend", "petsc"], "petsc"),
+    ],
+)
+def test_auto_takes_petsc_only_where_it_is_installed_and_serves(
+    monkeypatch, one_process, installed, extra, expected
+):
+    assert _choice(monkeypatch, installed, *extra) == expected
+
+
+@pytest.mark.parametrize("variable", petsc_env.LAUNCHER_SIZE_VARIABLES)
+def test_under_mpiexec_auto_is_petsc_and_refuses_adapt_space(monkeypatch, one_process, variable):
+    monkeypatch.setenv(variable, "2")
+    assert petsc_env.launched_processes() == 2
+    # a small LU-sized beam too: N processes must share one mesh, not run it N times
+    assert _choice(monkeypatch, False, "--n", "2", "--degree", "1") == "petsc"
+    with pytest.raises(Exception, match=r"--adapt-space: got given, .* under mpiexec -n 2"):
+        _choice(monkeypatch, True, "--n", "2", "--degree", "1", "--adapt-space", "--space-tol", 1)
+
+
+def test_launched_processes_outside_a_launcher(monkeypatch, one_process):
+    assert petsc_env.launched_processes() == 1
+    monkeypatch.setenv("PMI_SIZE", "")  # set but empty: not a launcher's count
+    assert petsc_env.launched_processes() == 1
+
+
+def test_resume_follows_the_checkpoint_backend(monkeypatch, one_process, tmp_path, capsys):
+    """A serial run's checkpoint resumes serially under auto even where petsc4py is installed
+    (the PETSc backend would refuse it)."""
+    from rothe.cli.main import main
+
+    out = tmp_path / "o"
+    argv = ["run", "eld-beam", "--n", "1", "--degree", "1", "--T", "0.02", "--quiet"]
+    assert main([*argv, "--backend", "serial", "--out", str(out)]) == 0
+    monkeypatch.setattr(eld_commands, "petsc_installed", lambda: True)
+    args = _args("--n", "1", "--degree", "1", "--T", "0.02", "--solver", "amg", "--resume", out)
+    objects = {"data": Points(), "form": Regularized()}
+    assert RunEldBeam.backend(args, 1, None, objects) == "serial"
+    # a missing checkpoint: serial, and the session's own check names the problem
+    args = _args("--n", "1", "--degree", "1", "--resume", tmp_path / "nothing")
+    assert RunEldBeam.backend(args, 1, None, objects) == "serial"
+
+
+def test_backend_name_is_checked(monkeypatch, one_process, capsys):
+    from rothe.cli.main import main
+
+    code = main(["run", "eld-beam", "--n", "1", "--backend", "mpi"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err == ["rothe: error: --backend: got 'mpi', must be one of auto, serial, petsc"]
