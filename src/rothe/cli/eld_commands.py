@@ -584,7 +584,7 @@ class RunEldBeam(EldRunCommand):
         backend"): petsc under ``mpiexec -n N`` with N > 1 (every process would otherwise run
         the whole serial problem), the backend of the checkpoint a resumed run continues, and
         on one process petsc when petsc4py and mpi4py are installed and the run is one the
-        PETSc backend serves and wins: an AMG-sized beam (per step 0.85x the serial pyamg
+        PETSc backend serves and wins: an AMG-sized beam (per step 0.81-0.85x the serial pyamg
         cycle at 1.07 M dofs, docs/scaling.md), no space adaptivity, point data, the nodal
         lifting. Serial otherwise."""
         backend = check_choice("--backend", args.backend, BEAM_BACKENDS)
