@@ -101,21 +101,14 @@ def test_checkpoint_resume_and_signal_on_one_rank(tmp_path):
     assert "\n" not in other["refused"]
 
 
+#: a small beam on the command line (P1, 2 cells across, 5 steps)
+BEAM_ARGS = ["-m", "rothe.cli.main", "run", "eld-beam", "--n", "2", "--degree", "1"]
+BEAM_ARGS += ["--T", "0.05", "--quiet"]
+
+
 @needs_mpi
 def test_cli_beam_petsc_writes_the_serial_files(tmp_path):
-    args = [
-        "-m",
-        "rothe.cli.main",
-        "run",
-        "eld-beam",
-        "--n",
-        "2",
-        "--degree",
-        "1",
-        "--T",
-        "0.05",
-        "--quiet",
-    ]
+    args = BEAM_ARGS
     subprocess.run(
         [sys.executable, *args, "--backend", "serial", "--out", tmp_path / "s"],
         check=True,
@@ -137,21 +130,7 @@ def test_cli_beam_petsc_writes_the_serial_files(tmp_path):
 def test_cli_auto_takes_petsc_on_one_process_where_installed(tmp_path):
     """Without --backend, an AMG-sized run (here --solver amg) on one process, without mpiexec,
     takes the PETSc backend where petsc4py is installed, and gives the serial answer."""
-    args = [
-        "-m",
-        "rothe.cli.main",
-        "run",
-        "eld-beam",
-        "--n",
-        "2",
-        "--degree",
-        "1",
-        "--T",
-        "0.05",
-        "--solver",
-        "amg",
-        "--quiet",
-    ]
+    args = [*BEAM_ARGS, "--solver", "amg"]
     env = {k: v for k, v in _env().items() if k not in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE")}
     for out, extra in (("auto", []), ("serial", ["--backend", "serial"])):
         subprocess.run(

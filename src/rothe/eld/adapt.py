@@ -62,9 +62,10 @@ import weakref
 
 import numpy as np
 
-from ..errors import described, fail
+from ..errors import RunFailed, described, fail
 from ..fem.adapt import SpaceAdaptivity, check_adaptable, free_transfer
 from ..fem.adapt.cycle import (
+    AdaptationFailed,
     MeshAdaptation,
     energy_or_fail,
     finite_or_fail,
@@ -367,6 +368,52 @@ class ELDAdaptivity:
         if band is None:
             band = self.wave_speed * tau * self.options.adapt_every
         self.adaptation.refine_band = float(band)
+
+    def after_step(
+        self, current, state, result, T: float, *, finished: bool, where, ndofs, transfer
+    ):
+        """The adapt step after the accepted ``result`` (the one copy of
+        :meth:`rothe.eld.stepper.ELDStepper.adapt` and
+        :meth:`rothe.eld.coupled_run.CoupledStepper.adapt`): when due and the run goes on,
+        the cycle on ``current`` (what lives on the state's mesh) with the data times and band
+        of the step; on a change the new mesh registered and the adaptation logged, with
+        ``ndofs(out)`` unknowns and ``transfer(new_state)`` the energy the transfer moved.
+        Returns (the cycle's outcome or None, the estimate or NaN). A failed adaptation (the
+        cycle rolled back) raises :class:`~rothe.errors.RunFailed` naming the step; ``where()``
+        gives its place."""
+        self.register_mesh()
+        if not self.options.due(state.j) or finished:
+            return None, np.nan
+        old_id = int(state.mesh_id)
+        times = self.data_times(state.t, result.tau, T)
+        self.set_band(result.tau)
+        try:
+            out = self.adaptation.cycle(self, current, (state, result.tau, times), state)
+        except AdaptationFailed as exc:
+            raise RunFailed(
+                f"space adaptivity: the transfer to the new mesh after step "
+                f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
+                f"on mesh {old_id}",
+                where=where(),
+            ) from exc
+        if out.changed:
+            self.register_mesh()
+            self.meshes.adaptations.append(
+                {
+                    "step": state.j,
+                    "t": float(state.t),
+                    "from_mesh": old_id,
+                    "to_mesh": int(out.state.mesh_id),
+                    "estimate": out.estimate,
+                    "rounds": 1,
+                    "bisections": out.bisections,
+                    "merges": out.merges,
+                    "cells": int(self.adaptation.amesh.n_cells),
+                    "ndofs": int(ndofs(out)),
+                    "transfer_energy": float(transfer(out.state)),
+                }
+            )
+        return out, out.estimate
 
     def due_in_step(self, j: int) -> bool:
         """Whether the step from state number ``j`` is estimated on its own mesh (and refined

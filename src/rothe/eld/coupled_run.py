@@ -45,7 +45,7 @@ import scipy.sparse as sp
 
 from ..errors import RunFailed, fail
 from ..fem.adapt import free_transfer
-from ..fem.adapt.cycle import AdaptationFailed, energy_or_fail, finite_or_fail
+from ..fem.adapt.cycle import energy_or_fail, finite_or_fail
 from ..io.trajectory import Trajectory
 from ..stepping.controllers import Adaptive, Uniform
 from ..stepping.evolve import evolve
@@ -804,42 +804,18 @@ class CoupledStepper(GridLoop):
         ad = self.adaptivity
         if ad is None:
             return state
-        ad.register_mesh()
-        estimate = math.nan
-        if ad.options.due(state.j) and not self.finished(state):
-            old_id = int(state.mesh_id)
-            times = ad.data_times(state.t, result.tau, self.T)
-            ad.set_band(result.tau)
-            try:
-                out = ad.adaptation.cycle(ad, self._mesh(), (state, result.tau, times), state)
-            except AdaptationFailed as exc:
-                raise RunFailed(
-                    f"space adaptivity: the transfer to the new mesh after step "
-                    f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
-                    f"on mesh {old_id}",
-                    where=self.where(state),
-                ) from exc
-            estimate = out.estimate
-            if out.changed:
-                new = out.state
-                ad.register_mesh()
-                transfer = new.ledger["transfer"] - state.ledger["transfer"]
-                ad.meshes.adaptations.append(
-                    {
-                        "step": state.j,
-                        "t": float(state.t),
-                        "from_mesh": old_id,
-                        "to_mesh": int(new.mesh_id),
-                        "estimate": estimate,
-                        "rounds": 1,
-                        "bisections": out.bisections,
-                        "merges": out.merges,
-                        "cells": int(ad.adaptation.amesh.n_cells),
-                        "ndofs": int(self.n),
-                        "transfer_energy": float(transfer),
-                    }
-                )
-                state = new
+        out, estimate = ad.after_step(
+            self._mesh(),
+            state,
+            result,
+            self.T,
+            finished=self.finished(state),
+            where=lambda: self.where(state),
+            ndofs=lambda out: self.n,
+            transfer=lambda new: new.ledger["transfer"] - state.ledger["transfer"],
+        )
+        if out is not None and out.changed:
+            state = out.state
         self._adapted = estimate
         return state
 

@@ -1274,46 +1274,26 @@ class ELDStepper(StepperBase):
         ad = self.adaptivity
         if ad is None:
             return state
-        ad.register_mesh()
-        estimate = math.nan
-        if ad.options.due(state.j) and not self.finished(state):
-            old_id = int(state.mesh_id)
-            times = ad.data_times(state.t, result.tau, self.T)
-            ad.set_band(result.tau)
-            try:
-                # a stop signal during the new mesh's factorization abandons the attempt: the
-                # cycle rolls the hierarchy back, and _base (the mesh before the step's own
-                # refinements) lets abandon() go back to the previous state's mesh
-                out = ad.adaptation.cycle(ad, self.system, (state, result.tau, times), state)
-            except AdaptationFailed as exc:
-                self._base = None
-                raise RunFailed(
-                    f"space adaptivity: the transfer to the new mesh after step "
-                    f"{state.j} (t = {state.t:.6g}) failed ({exc}); the run stops "
-                    f"on mesh {old_id}",
-                    where=self.where(state),
-                ) from exc
-            estimate = out.estimate
-            if out.changed:
-                new = out.state
-                self.system = out.problem
-                ad.register_mesh()
-                ad.meshes.adaptations.append(
-                    {
-                        "step": state.j,
-                        "t": float(state.t),
-                        "from_mesh": old_id,
-                        "to_mesh": int(new.mesh_id),
-                        "estimate": estimate,
-                        "rounds": 1,
-                        "bisections": out.bisections,
-                        "merges": out.merges,
-                        "cells": int(ad.adaptation.amesh.n_cells),
-                        "ndofs": int(self.problem.space.ndofs),
-                        "transfer_energy": float(new.ledger.energy - state.ledger.energy),
-                    }
-                )
-                state = new
+        try:
+            # a stop signal during the new mesh's factorization abandons the attempt: the
+            # cycle rolls the hierarchy back, and _base (the mesh before the step's own
+            # refinements) lets abandon() go back to the previous state's mesh
+            out, estimate = ad.after_step(
+                self.system,
+                state,
+                result,
+                self.T,
+                finished=self.finished(state),
+                where=lambda: self.where(state),
+                ndofs=lambda out: out.problem.problem.space.ndofs,
+                transfer=lambda new: new.ledger.energy - state.ledger.energy,
+            )
+        except RunFailed:
+            self._base = None
+            raise
+        if out is not None and out.changed:
+            self.system = out.problem
+            state = out.state
         self._base = None  # accepted: the state's mesh is the current one
         self._adapted = estimate
         return state
