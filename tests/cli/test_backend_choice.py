@@ -29,8 +29,9 @@ def one_process(monkeypatch):
 def _choice(monkeypatch, installed: bool, *extra):
     monkeypatch.setattr(eld_commands, "petsc_installed", lambda: installed)
     args = _args(*extra)
-    objects, n, _, _, _, space, _ = RunEldBeam().validate(args)
-    return RunEldBeam.backend(args, n, space, objects)
+    objects, n, _, _, _, space, _, backend = RunEldBeam().validate(args)
+    assert RunEldBeam.backend(args, n, space, objects) == backend  # what execute runs
+    return backend
 
 
 def test_the_lu_limit_lies_between_n_12_and_13():

@@ -569,14 +569,15 @@ class RunEldBeam(EldRunCommand):
         every = check_int("--save-every", args.save_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"], hysteresis=True)
         material = material_of(args, BEAM_MATERIAL, dim=3)
-        if self.backend(args, n, space, objects) == "petsc" and space is not None:
+        backend = self.backend(args, n, space, objects)
+        if backend == "petsc" and space is not None:
             raise fail(
                 "--adapt-space",
                 described("given"),
                 "is not supported with --backend petsc (space adaptivity is not distributed)"
                 + ("" if args.backend == "petsc" else f" under mpiexec -n {launched_processes()}"),
             )
-        return objects, n, every, keep, damping_of(args), space, material
+        return objects, n, every, keep, damping_of(args), space, material, backend
 
     @staticmethod
     def backend(args, n: int, space, objects: dict) -> str:
@@ -609,8 +610,8 @@ class RunEldBeam(EldRunCommand):
     def execute(self, args) -> int:
         """Build the cantilever, run it as a session (XDMF streamed while it runs); with
         ``--backend petsc`` on the processes of mpiexec (:mod:`rothe.cli.eld_mpi`)."""
-        objects, n, every, keep, damping, space, material = self.validate(args)
-        if self.backend(args, n, space, objects) == "petsc":
+        objects, n, every, keep, damping, space, material, backend = self.validate(args)
+        if backend == "petsc":
             # mpi4py and petsc4py (optional, heavy) are imported only for this backend
             from .eld_mpi import execute_beam
 

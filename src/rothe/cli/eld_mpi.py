@@ -73,7 +73,7 @@ def execute_beam(command, args) -> int:
     MPI, _ = require_petsc("--backend petsc")
     comm = MPI.COMM_WORLD
     root = comm.rank == 0
-    objects, n, every, keep, damping, _, material = command.validate(args)
+    objects, n, every, keep, damping, _, material, _ = command.validate(args)
     # the beam's data from beam_problem on one cell across (material, damping, G, T: nothing
     # there depends on n), the mesh as beam_problem builds it
     definition = command.beam(args, 1, damping, material).definition
