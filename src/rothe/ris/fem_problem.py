@@ -455,17 +455,23 @@ def _nodal_from_density(density, mesh, m_all: np.ndarray, label: str, cells=None
     x = np.asarray(mesh.p, dtype=float)
 
     def nodal(t):
-        val = np.asarray(density(t, x), dtype=float)
-        if val.ndim == 0:
-            return float(val) * m_all
-        if val.shape != (x.shape[1],):
-            raise DataError(
-                f"{label}(t={t:g}): got an array of shape {val.shape}, must be one "
-                f"value per point ({x.shape[1]})"
-            )
-        return val * m_all
+        return _density_values(density, t, x, label) * m_all
 
     return nodal
+
+
+def _density_values(density, t: float, points: np.ndarray, label: str) -> np.ndarray:
+    """l(t, x) at the points (d, n) as an array (n,) (a number: the same at every point), or
+    DataError naming ``label`` for an array of another shape."""
+    val = np.asarray(density(t, points), dtype=float)
+    if val.ndim == 0:
+        return np.full(points.shape[1], float(val))
+    if val.shape != (points.shape[1],):
+        raise DataError(
+            f"{label}(t={t:g}): got an array of shape {val.shape}, must be one "
+            f"value per point ({points.shape[1]})"
+        )
+    return val
 
 
 class _CellQuadrature:
@@ -488,7 +494,6 @@ class _CellQuadrature:
     """
 
     def __init__(self, mesh, free: np.ndarray):
-
         t = np.asarray(mesh.t)
         d1 = t.shape[0]
         self.t = t
@@ -536,14 +541,7 @@ class _CellQuadrature:
         pts = self.x.reshape(d, nq * nc)
 
         def nodal(t):
-            val = np.asarray(density(t, pts), dtype=float)
-            if val.ndim == 0:
-                val = np.full(nq * nc, float(val))
-            if val.shape != (nq * nc,):
-                raise DataError(
-                    f"{label}(t={t:g}): got an array of shape {val.shape}, must be one "
-                    f"value per point ({nq * nc})"
-                )
+            val = _density_values(density, t, pts, label)
             local = self.lam @ (self.wvol * val.reshape(nq, nc))
             return np.bincount(self.t.ravel(), weights=local.ravel(), minlength=self.n_nodes)
 
