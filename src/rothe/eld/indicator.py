@@ -101,16 +101,6 @@ def _on(value, cells, trailing: int = 0):
     return value[cells].reshape((-1,) + (1,) * trailing)
 
 
-def _weight(h: np.ndarray, mu, reaction) -> np.ndarray:
-    """robust_weight with per-cell (or per-facet) mu and reaction: min(h/sqrt(mu),
-    1/sqrt(kappa)) elementwise (h/sqrt(mu) where kappa = 0)."""
-    if np.ndim(reaction) == 0:
-        return robust_weight(h, mu, reaction)
-    a = robust_weight(h, mu, 0.0)
-    with np.errstate(divide="ignore"):
-        return np.minimum(a, np.where(reaction > 0, 1.0 / np.sqrt(reaction), np.inf))
-
-
 def stress(grad: np.ndarray, lam: float, mu: float) -> np.ndarray:
     """sigma = lam tr(eps) I + 2 mu eps for grad[c, k] = d_k w_c (leading axes (d, d, ...))."""
     d = grad.shape[0]
@@ -202,7 +192,7 @@ def eld_indicators(
         grad_div = np.einsum("kkic->ic", H)  # d_i (div w)
         div_sigma = mu * lap + (lam + mu) * grad_div
         R += div_sigma[:, :, None]
-    alpha_K = _weight(ev.h / ev.degree, mu, reaction)
+    alpha_K = robust_weight(ev.h / ev.degree, mu, reaction)
     cell_sq = alpha_K**2 * np.sum(np.sum(R * R, axis=0) * ev.cell_dx, axis=1)
 
     topo = ev.topology
@@ -224,7 +214,7 @@ def eld_indicators(
         # weight)
         mu_F = mu if np.ndim(mu) == 0 else np.minimum(mu[c0], mu[c1])
         kappa_F = reaction if np.ndim(reaction) == 0 else np.minimum(reaction[c0], reaction[c1])
-        alpha_F = _weight(diam / ev.degree, mu_F, kappa_F)
+        alpha_F = robust_weight(diam / ev.degree, mu_F, kappa_F)
         w_f = meas[:, None] * ev.facet_w[None, :]
         inner_sq[f] = alpha_F / np.sqrt(mu_F) * np.sum(np.sum(J * J, axis=0) * w_f, axis=1)
 
@@ -253,7 +243,7 @@ def eld_indicators(
     w_b = meas_b[:, None] * ev.facet_w[None, :]
     mu_b = _on(mu, bc)
     bnd_sq = (
-        _weight(diam_b / ev.degree, mu_b, _on(reaction, bc))
+        robust_weight(diam_b / ev.degree, mu_b, _on(reaction, bc))
         / np.sqrt(mu_b)
         * np.sum(np.sum(Jb * Jb, axis=0) * w_b, axis=1)
     )

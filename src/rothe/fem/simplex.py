@@ -245,12 +245,14 @@ class SimplexEvaluator:
         return sel[self.topology.boundary]
 
 
-def robust_weight(h: np.ndarray, stiffness, reaction: float) -> np.ndarray:
-    """alpha = min(h / sqrt(s), 1 / sqrt(kappa)) (h / sqrt(s) when kappa = 0)."""
+def robust_weight(h: np.ndarray, stiffness, reaction) -> np.ndarray:
+    """alpha = min(h / sqrt(s), 1 / sqrt(kappa)) (h / sqrt(s) where kappa = 0), elementwise:
+    s and kappa numbers or arrays like h (per cell or facet: a body of several materials)."""
     a = h / np.sqrt(stiffness)
-    if reaction > 0:
-        a = np.minimum(a, 1.0 / np.sqrt(reaction))
-    return a
+    if np.ndim(reaction) == 0:
+        return np.minimum(a, 1.0 / np.sqrt(reaction)) if reaction > 0 else a
+    with np.errstate(divide="ignore"):
+        return np.minimum(a, np.where(reaction > 0, 1.0 / np.sqrt(reaction), np.inf))
 
 
 def assemble_indicators(
