@@ -371,6 +371,12 @@ def run_eld(
 
         done = run_eld_petsc(problem, progress=progress, **options)
         return ELDResult(done.trajectory, done.state, done.stepper, done.controller, done.problem)
+    if "amg_products" in options:
+        raise fail(
+            "amg_products",
+            options["amg_products"],
+            "is an option of backend 'petsc' (PETSc's GAMG); the serial backend's AMG is pyamg",
+        )
     return prepare_eld_run(problem, **options).evolve(progress=progress)
 
 
@@ -406,6 +412,11 @@ def _run_eld_signature() -> inspect.Signature:
         "backend", inspect.Parameter.KEYWORD_ONLY, default="serial", annotation="str"
     )
     params.append(backend)
+    params.append(
+        inspect.Parameter(
+            "amg_products", inspect.Parameter.KEYWORD_ONLY, default="fast", annotation="str"
+        )
+    )
     return prepare.replace(parameters=params, return_annotation="ELDResult")
 
 
