@@ -347,6 +347,11 @@ def run_eld(
         ``problem`` may then be a :class:`~rothe.eld.distributed.DistributedELDProblem`. The
         answer is the serial one to the solver tolerance; the fields of the trajectory are
         complete on rank 0, the state holds each process's owned dofs.
+    amg_products : {'fast', 'lean'}
+        Backend ``'petsc'`` only: how GAMG forms its coarse operators P^T A P
+        (:data:`rothe.eld.solvers.AMG_PRODUCTS`). ``'fast'`` (default): PETSc's two-step
+        product; ``'lean'``: the all-at-once product, which never stores A P — about 0.75x the
+        peak memory per process on two processes, for a set-up 5-7x slower (docs/scaling.md).
 
     Returns
     -------
