@@ -9,6 +9,8 @@ the tools alternating inside each repeat (docs/scaling.md, "Measured"):
 - ``rothe petsc N=k``: ``mpiexec -n k`` with ``run_eld(..., backend='petsc')`` (PETSc CG + GAMG
   with the rigid-body near-nullspace, regularized form); N = 1 is also what ``rothe run
   eld-beam`` takes by default on one process where petsc4py is installed (``--backend auto``);
+- ``rothe petsc N=k lean`` (``--lean``, default N = 2): the same with ``amg_products='lean'``
+  (GAMG's all-at-once Galerkin products: less memory, slower set-up);
 - ``dolfinx N=k``: FEniCSx 0.11 (``../shared/anchors/eld_beam_dolfinx011.py``, strong
   Dirichlet, CG + GAMG) on the identical mesh, ``mpiexec -n k``.
 
@@ -38,7 +40,7 @@ REPO = HERE.parent
 TAU = 0.01
 
 
-def petsc_child(n: int, steps: int, rtol: float) -> None:
+def petsc_child(n: int, steps: int, rtol: float, amg_products: str = "fast") -> None:
     """One run of the PETSc backend on the processes of mpiexec; rank 0 prints one JSON line."""
     import skfem  # noqa: F401
     from mpi4py import MPI  # noqa: F401 - before petsc4py (the wheel's order)
@@ -98,6 +100,7 @@ def petsc_child(n: int, steps: int, rtol: float) -> None:
         store_fields=False,
         observer=observer,
         linear_rtol=rtol,
+        amg_products=amg_products,
     )
     t_stepper = clock() - t0
     mark("stepper (A, GAMG setup)")
@@ -205,9 +208,15 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(REPO / "rothe-out" / "eld_mpi"))
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--rtol", type=float, default=1e-8)
+    ap.add_argument(
+        "--lean",
+        default="2",
+        help="process counts of an extra rothe petsc row with --amg-products lean ('' none)",
+    )
+    ap.add_argument("--amg-products", default="fast", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
-        petsc_child(args.n, args.steps, args.rtol)
+        petsc_child(args.n, args.steps, args.rtol, args.amg_products)
         return 0
     if args.quick:
         args.n, args.repeats = 12, 1
@@ -219,6 +228,7 @@ def main(argv=None) -> int:
     if not (peer / "eld_beam_dolfinx011.py").is_file():
         peer = Path("/work/shared/anchors")
     procs = [int(k) for k in args.processes.split(",")]
+    lean = [int(k) for k in args.lean.split(",") if k]
     tools = [
         (
             "rothe serial",
@@ -255,25 +265,11 @@ def main(argv=None) -> int:
     if have_dolfinx:
         export_mesh(work, args.n)
     for k in procs:
-        tools.append(
-            (
-                f"rothe petsc N={k}",
-                [
-                    mpiexec,
-                    "-n",
-                    str(k),
-                    py,
-                    str(Path(__file__)),
-                    "--child",
-                    "--n",
-                    str(args.n),
-                    "--steps",
-                    str(args.steps),
-                    "--rtol",
-                    str(args.rtol),
-                ],
-            )
-        )
+        child = [mpiexec, "-n", str(k), py, str(Path(__file__)), "--child", "--n", str(args.n)]
+        child += ["--steps", str(args.steps), "--rtol", str(args.rtol)]
+        tools.append((f"rothe petsc N={k}", child))
+        if k in lean:
+            tools.append((f"rothe petsc N={k} lean", child + ["--amg-products", "lean"]))
         if have_dolfinx:
             tools.append(
                 (
@@ -368,6 +364,9 @@ def main(argv=None) -> int:
     ratio("rothe petsc N=2", "rothe petsc N=1", "peak_mb")
     ratio("rothe petsc N=2", "rothe serial", "step_s")
     ratio("rothe petsc N=2", "rothe serial", "peak_mb")
+    ratio("rothe petsc N=2 lean", "rothe serial", "peak_mb")
+    ratio("rothe petsc N=2 lean", "rothe serial", "step_s")
+    ratio("rothe petsc N=2 lean", "rothe petsc N=2", "setup_s")
     ratio("rothe petsc N=2", "dolfinx 0.11 N=2", "step_s")
     ratio("rothe petsc N=2", "rothe petsc N=1", "step_s")
     if "rothe petsc N=1" in best:

@@ -103,3 +103,35 @@ def test_backend_name_is_checked(monkeypatch, one_process, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert err == ["rothe: error: --backend: got 'mpi', must be one of auto, serial, petsc"]
+
+
+@pytest.mark.parametrize(
+    "extra,line",
+    [
+        (
+            ["--amg-products", "small"],
+            "rothe: error: --amg-products: got 'small', must be one of fast, lean",
+        ),
+        (
+            ["--amg-products", "lean", "--backend", "serial"],
+            "rothe: error: --amg-products: got 'lean', is an option of the petsc backend "
+            "(PETSc's GAMG); this run takes the serial backend (pyamg): use --backend petsc",
+        ),
+    ],
+)
+def test_amg_products_is_checked(monkeypatch, one_process, capsys, extra, line):
+    from rothe.cli.main import main
+
+    monkeypatch.setattr(eld_commands, "petsc_installed", lambda: False)
+    code = main(["run", "eld-beam", "--n", "1", *extra])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [line]
+
+
+def test_amg_products_on_the_serial_backend_is_refused():
+    from rothe.eld import run_eld
+    from rothe.eld.examples import beam_problem
+    from rothe.errors import RotheInputError
+
+    with pytest.raises(RotheInputError, match=r"^amg_products: got 'lean', is an option of"):
+        run_eld(beam_problem(1, degree=1, T=0.02), amg_products="lean")

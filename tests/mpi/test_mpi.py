@@ -152,6 +152,36 @@ def test_cli_auto_takes_petsc_on_one_process_where_installed(tmp_path):
 
 
 @needs_mpi
+def test_cli_lean_amg_products_give_the_same_run(tmp_path):
+    """--amg-products lean: GAMG's coarse operators by the all-at-once product (PETSc's -info
+    logs no two-step PtAP, which the default logs), the run equal to the default's to the
+    solver tolerance, the choice in summary.json; the option is set for the set-up only (no
+    'option left' warning of PETSc at the end)."""
+    args = [*BEAM_ARGS, "--backend", "petsc", "--solver", "amg"]
+    logs = {}
+    for products in ("fast", "lean"):
+        env = dict(_env(), PETSC_OPTIONS="-info :mat")
+        proc = subprocess.run(
+            [_mpiexec(), "-n", "2", sys.executable, *args, "--amg-products", products]
+            + ["--out", str(tmp_path / products)],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=600,
+        )
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        logs[products] = proc.stdout + proc.stderr
+        summary = json.loads((tmp_path / products / "summary.json").read_text())
+        assert summary["amg_products"] == products and summary["processes"] == 2
+    two_step = "MatPtAPSymbolic_MPIAIJ_MPIAIJ()"
+    assert two_step in logs["fast"] and two_step not in logs["lean"]
+    assert "Option left" not in logs["lean"]
+    a, b = (np.load(tmp_path / k / "trajectory.npz") for k in ("fast", "lean"))
+    for key in ("u", "lam", "reaction_left", "energy"):
+        np.testing.assert_allclose(b[key], a[key], rtol=1e-7, atol=1e-11, err_msg=key)
+
+
+@needs_mpi
 @pytest.mark.parametrize(
     "extra,says",
     [

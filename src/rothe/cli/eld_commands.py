@@ -32,6 +32,7 @@ from ..eld.examples import (
 )
 from ..eld.output import EldXdmfWriter, write_eld_result
 from ..eld.run import BACKENDS, ELDResult, prepare_eld_run
+from ..eld.solvers import AMG_PRODUCTS
 from ..eld.studies import (
     COUPLED_TARGETS,
     check_delta,
@@ -554,6 +555,14 @@ class RunEldBeam(EldRunCommand):
             "--adapt-space; --data points; the nodal lifting), serial otherwise "
             "(docs/scaling.md)",
         )
+        parser.add_argument(
+            "--amg-products",
+            default=None,
+            help="fast | lean, with the petsc backend: how PETSc's GAMG forms its coarse "
+            "operators; fast (default) PETSc's two-step products, lean the all-at-once ones, "
+            "which never store A P: about 0.75x the peak memory per process on two processes, "
+            "for a set-up 5-7x slower (docs/scaling.md)",
+        )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)
         self.add_common_options(
@@ -577,6 +586,15 @@ class RunEldBeam(EldRunCommand):
                 "is not supported with --backend petsc (space adaptivity is not distributed)"
                 + ("" if args.backend == "petsc" else f" under mpiexec -n {launched_processes()}"),
             )
+        if args.amg_products is not None:
+            check_choice("--amg-products", args.amg_products, AMG_PRODUCTS)
+            if backend != "petsc":
+                raise fail(
+                    "--amg-products",
+                    args.amg_products,
+                    "is an option of the petsc backend (PETSc's GAMG); this run takes the "
+                    "serial backend (pyamg): use --backend petsc",
+                )
         return objects, n, every, keep, damping_of(args), space, material, backend
 
     @staticmethod

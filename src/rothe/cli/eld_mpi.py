@@ -123,6 +123,7 @@ def execute_beam(command, args) -> int:
                 resume=resume,
                 progress=progress,
                 backend="petsc",
+                amg_products=args.amg_products or "fast",
             )
         finally:  # a collective: every process, however its run ended
             peaks.append(comm.gather(peak_memory_mb(), root=0))
@@ -132,6 +133,7 @@ def execute_beam(command, args) -> int:
         summary.update(
             backend="petsc",
             processes=comm.size,
+            amg_products=args.amg_products or "fast",
             peak_memory_mb=max(peaks[0]),
             peak_memory_mb_per_process=peaks[0],
         )

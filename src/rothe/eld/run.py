@@ -347,6 +347,11 @@ def run_eld(
         ``problem`` may then be a :class:`~rothe.eld.distributed.DistributedELDProblem`. The
         answer is the serial one to the solver tolerance; the fields of the trajectory are
         complete on rank 0, the state holds each process's owned dofs.
+    amg_products : {'fast', 'lean'}
+        Backend ``'petsc'`` only: how GAMG forms its coarse operators P^T A P
+        (:data:`rothe.eld.solvers.AMG_PRODUCTS`). ``'fast'`` (default): PETSc's two-step
+        product; ``'lean'``: the all-at-once product, which never stores A P — about 0.75x the
+        peak memory per process on two processes, for a set-up 5-7x slower (docs/scaling.md).
 
     Returns
     -------
@@ -371,6 +376,12 @@ def run_eld(
 
         done = run_eld_petsc(problem, progress=progress, **options)
         return ELDResult(done.trajectory, done.state, done.stepper, done.controller, done.problem)
+    if "amg_products" in options:
+        raise fail(
+            "amg_products",
+            options["amg_products"],
+            "is an option of backend 'petsc' (PETSc's GAMG); the serial backend's AMG is pyamg",
+        )
     return prepare_eld_run(problem, **options).evolve(progress=progress)
 
 
@@ -406,6 +417,11 @@ def _run_eld_signature() -> inspect.Signature:
         "backend", inspect.Parameter.KEYWORD_ONLY, default="serial", annotation="str"
     )
     params.append(backend)
+    params.append(
+        inspect.Parameter(
+            "amg_products", inspect.Parameter.KEYWORD_ONLY, default="fast", annotation="str"
+        )
+    )
     return prepare.replace(parameters=params, return_annotation="ELDResult")
 
 

@@ -62,6 +62,14 @@ AMG_DEFAULTS = dict(
 SHORT_LIVED_AMG = {"smooth": None}
 
 
+#: how GAMG forms its coarse operators P^T A P (``amg_products``): ``fast`` is PETSc's default
+#: two-step product, which stores A P on every process (on MPI the set-up's peak: about 1.3 KB
+#: per owned dof above what the hierarchy keeps); ``lean`` PETSc's all-at-once product
+#: (``-matptap_via allatonce``), which never forms A P: 0.76x the peak memory per process on
+#: the 1.07 M-dof beam at N = 2, for a set-up 5-7x slower (docs/scaling.md, "--amg-products")
+AMG_PRODUCTS = ("fast", "lean")
+
+
 @dataclass
 class SolverStats:
     """Counters of a linear solver: factorizations (LU or AMG setups), backsolves (applications of

@@ -635,13 +635,25 @@ class StepperBase(GridLoop):
             system=self._result_system(),
         )
 
-    @staticmethod
-    def _guess(state: ELDState, tau: float) -> np.ndarray:
-        """The first guess of the step's unknown: x^{j-1} extrapolated linearly (a new array)."""
+    def _guess(self, state: ELDState, tau: float) -> np.ndarray:
+        """The first guess of the step's unknown (a new array): the Taylor polynomial of x at
+        t_{j-1} from the scheme's derivatives y ~ x' and b ~ x'' of the state,
+
+            x + tau y + c b,   c = tau^2/2                      (y exact or second order:
+                                                                 the initial state, BDF2)
+                               c = tau (tau + tau_{j-1})/2      (after an implicit Euler step,
+                                                                 y = x' - tau_{j-1}/2 x'' + ...),
+
+        off by O(tau^3) where the linear extrapolation x + tau/tau_{j-1} (x - x^{j-2}) is off by
+        O(tau^2). Only the iterative solvers' start depends on it (and Newton's): on the P1 beam
+        CG + AMG needs about 9 % fewer iterations per step (docs/scaling.md)."""
         f = state.fields
-        if "x_1" not in f or state.tau_prev is None:
-            return f["x"].copy()
-        return f["x"] + (tau / state.tau_prev) * (f["x"] - f["x_1"])
+        after_euler = state.tau_prev is not None and self.scheme.order == 1
+        c = 0.5 * tau * (tau + state.tau_prev) if after_euler else 0.5 * tau * tau
+        guess = tau * f["y"]
+        guess += f["x"]
+        guess += c * f["b"]
+        return guess
 
     # -- the new state: multiplier, ledger, estimate ---------------------------------------------
     def _complete(self, state: ELDState, k: dict, vals, coeffs, tau: float, t_new: float, scheme):

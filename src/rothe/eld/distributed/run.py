@@ -135,9 +135,12 @@ def run_eld_petsc(
     checkpoint=None,
     resume=None,
     comm=None,
+    amg_products: str = "fast",
 ) -> DistributedRun:
     """:func:`rothe.eld.run_eld` on the processes of ``comm`` (module docstring); the
-    parameters are run_eld's (no ``adapt``: space adaptivity is not distributed).
+    parameters are run_eld's (no ``adapt``: space adaptivity is not distributed) and
+    ``amg_products`` (:class:`PetscELDStepper`: ``'fast'`` or ``'lean'``, how GAMG forms its
+    coarse operators; recorded, and a resumed run must use the same).
 
     Parameters
     ----------
@@ -169,6 +172,7 @@ def run_eld_petsc(
         observer=observer,
         linear_rtol=linear_rtol,
         error_scale=error_scale,
+        amg_products=amg_products,
     )
     info, arguments, controller, loop_tau_min = describe_run(
         problem,
@@ -181,7 +185,11 @@ def run_eld_petsc(
         linear_rtol=linear_rtol,
         error_scale=error_scale,
         meta=meta,
-        backend={"backend": "petsc", "processes": int(comm.size)},
+        backend={
+            "backend": "petsc",
+            "processes": int(comm.size),
+            "amg_products": stepper.amg_products,
+        },
     )
     adaptive = isinstance(stepper.control, Adaptive)
     root = comm.rank == 0

@@ -40,7 +40,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from ...errors import RotheInputError, RunFailed, check_positive, described, fail
+from ...errors import RotheInputError, RunFailed, check_choice, check_positive, described, fail
 from ...fem.petsc_env import release_product_data
 from ...io.trajectory import Trajectory
 from ...stepping import interrupt
@@ -50,7 +50,7 @@ from ...timing import PhaseTimes
 from ..data import DEFAULT_DATA, Points, StepValues, as_data_mode
 from ..form import DEFAULT_FORM, Regularized, as_form
 from ..scheme import DEFAULT_SCHEME, as_scheme
-from ..solvers import SolveFailed, SolverStats, resolve_kind
+from ..solvers import AMG_PRODUCTS, SolveFailed, SolverStats, resolve_kind
 from ..state import PRODUCTS, ELDState, ELDStepResult, EnergyLedger
 from ..stepper import (
     DEFAULT_CONTROL,
@@ -75,7 +75,9 @@ REBUILD_FACTOR = 2.0
 class PetscELDStepper(StepperBase):
     """One step of Euler or BDF2 in either form on a :class:`DistributedELDProblem` (module
     docstring); the evolve loop drives it on every process. Parameters as
-    :class:`rothe.eld.stepper.ELDStepper` (no ``adapt``). The time grid is the serial one
+    :class:`rothe.eld.stepper.ELDStepper` (no ``adapt``), and ``amg_products`` (``'fast'``,
+    default, or ``'lean'``: how GAMG forms its coarse operators,
+    :data:`rothe.eld.solvers.AMG_PRODUCTS`). The time grid is the serial one
     (:class:`rothe.eld.stepper.StepGrid`), and so are the history terms and the kinematics of
     a step (:func:`rothe.eld.stepper.history_terms`, :func:`rothe.eld.stepper.kinematics`),
     applied to the owned dofs.
@@ -104,8 +106,10 @@ class PetscELDStepper(StepperBase):
         observer=None,
         linear_rtol: float = 1e-10,
         error_scale: float | None = None,
+        amg_products: str = "fast",
     ):
         self.problem = p = problem
+        self.amg_products = check_choice("amg_products", amg_products, AMG_PRODUCTS)
         self.comm = p.comm
         self.PETSc = PETSc = p.PETSc
         self.scheme = as_scheme(scheme)
@@ -252,7 +256,21 @@ class PetscELDStepper(StepperBase):
         t0 = time.perf_counter()
         self._ksp.getPC().setReusePreconditioner(False)
         self._ksp.setOperators(self._A)
-        self._ksp.setUp()
+        if self.kind == "amg" and self.amg_products == "lean":
+            # PETSc reads the product algorithm when GAMG creates each product, from the global
+            # options (GAMG gives its products no prefix of ours): set for this set-up only
+            # (a -matptap_via the user gave, e.g. in PETSC_OPTIONS, is theirs and stays)
+            options = self.PETSc.Options()
+            own = not options.hasName("matptap_via")
+            if own:
+                options["matptap_via"] = "allatonce"
+            try:
+                self._ksp.setUp()
+            finally:
+                if own:
+                    options.delValue("matptap_via")
+        else:
+            self._ksp.setUp()
         if self.kind == "amg":
             release_product_data(self._ksp.getPC())
         self._ksp.getPC().setReusePreconditioner(True)
