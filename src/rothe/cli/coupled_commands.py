@@ -5,9 +5,13 @@ Every command runs :func:`rothe.eld.coupled_run.run_coupled` through the one run
 the ``run`` commands (:func:`rothe.cli.session.run_sequence`: run -> stage -> write -> annotate
 -> summary last -> finish): results staged and committed together with ``summary.json`` last,
 an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM writes what it has
-(``status: interrupted``, exit 130/143), a failed run ``status: failed`` (exit 1). Coupled runs
-write no checkpoint yet (so no ``--resume``); ParaView output only eld-two-bodies (one series
-per body, :mod:`rothe.eld.bodies_output`) on fixed meshes (docs/coupling.md, Sec. 12).
+(``status: interrupted``, exit 130/143) and a checkpoint, a failed run ``status: failed`` (exit
+1). Checkpoints in ``OUT/checkpoint`` (``--checkpoint-every``, ``--resume DIR``, ``rothe resume
+OUT``, as the other run commands): the commands that compare two runs checkpoint both as one
+(:func:`rothe.eld.coupled_run.run_coupled_many`); a resumed run writes the uninterrupted run's
+results bit for bit; a resume with other options is refused in one line (exit 2). ParaView
+output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`) on fixed
+meshes (docs/coupling.md, Sec. 12).
 
 ``--adapt-space`` (every command; with ``--space-tol`` and the usual options of
 :mod:`rothe.cli.adapt_options`) adapts the mesh of the elastic body between accepted steps
@@ -32,7 +36,7 @@ from scipy.spatial import cKDTree
 
 from ..eld.bodies import Body, GluedBodies, strip_pair, strip_pair_dofs, strip_union
 from ..eld.bodies_output import write_bodies_result
-from ..eld.coupled_run import run_coupled
+from ..eld.coupled_run import run_coupled_many
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..eld.frequencies import crossing_frequency, decay_rate
 from ..eld.run import run_eld
@@ -59,7 +63,7 @@ from .eld_options import (
     step_options,
 )
 from .registry import command
-from .session import run_sequence
+from .session import add_run_options, run_sequence
 
 #: the strip's material (nu = 0: the axial motion is the 1D bar's, the analytic frequencies are
 #: exact for it); eld-control's too
@@ -187,12 +191,18 @@ class CoupledRunCommand:
         fit_default_cap(args, adapt, next(iter(runs.values())).body.space.ndofs)
 
         def start(checkpoint, resume, progress):
-            # (coupled runs write no checkpoint: the session's options are not used)
-            for label, system in runs.items():
-                done[label] = run_coupled(
-                    system, progress=progress, fields=fields, adapt=adapt, **objects
-                )
-            return done
+            # the runs one after the other with one checkpoint (the finished runs and the one
+            # under way); ``done`` gets each as it finishes, restored ones first
+            return run_coupled_many(
+                runs,
+                progress=progress,
+                fields=fields,
+                adapt=adapt,
+                checkpoint=checkpoint,
+                resume=resume,
+                results=done,
+                **objects,
+            )
 
         def write(stage, outcome):
             completed = outcome.status == "completed"
@@ -333,6 +343,7 @@ class RunEldTipMass(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def validate(self, args):
         """The checks that need no mesh: one line naming the option."""
@@ -483,6 +494,7 @@ class RunEldTmd(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
@@ -643,6 +655,7 @@ class RunEldControl(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
@@ -874,6 +887,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def validate(self, args):
         """The checks that need no mesh: one line naming the option."""

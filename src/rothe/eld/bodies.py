@@ -461,8 +461,8 @@ class GluedBodies:
 
 def run_bodies(glued: GluedBodies, *, fields: bool = True, **options) -> CoupledResult:
     """Run glued bodies (:class:`GluedBodies`) from 0 to T: :func:`run_coupled` on its
-    system, the keywords of which (scheme, form, control, T, watch, error_scale, progress)
-    ``options`` passes on. With ``fields`` the base's u, v and lambda are recorded at every
+    system, the keywords of which (scheme, form, control, T, watch, error_scale, adapt,
+    progress, checkpoint, resume) ``options`` passes on. With ``fields`` the base's u, v and lambda are recorded at every
     state (series ``u``, ``v``, ``lam``; the attached bodies' are their coordinates ``q``, ``p``:
     :meth:`GluedBodies.fields`).
 
