@@ -44,6 +44,7 @@ from ..errors import RotheInputError, check_choice, check_int, check_positive, d
 from ..fem.mesh import load_mesh, mesh_dim
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
 from .common import add_output_options, float_option, given, peak_memory_mb, print_summary
+from .eld_commands import meshes_summary
 from .eld_options import (
     MESH_PARAMETERS,
     body_material,
@@ -252,22 +253,29 @@ class CoupledRunCommand:
         }
 
     def adapt_fields(self, trajs: dict) -> dict:
-        """With --adapt-space: the options, and per run (suffix ``_<label>`` for all but the
-        first) the meshes, the smallest and largest unknowns of the body, the adaptations and
-        the energy the transfers changed (the ledger's ``transfer``)."""
+        """With --adapt-space: ``adapt_space``, the options (``space``, as run_eld's summary,
+        and ``space_options``), and per run (suffix ``_<label>`` for all but the first) the
+        keys of run_eld's summary (:func:`~rothe.cli.eld_commands.meshes_summary`: meshes,
+        adaptations, ndofs, ndofs_initial, ndofs_max, ndofs_summed_over_steps, bisections,
+        merges, transfer_energy; the body's unknowns) with the coupled run's own:
+        ``ndofs_min``, ``ndofs_final`` and ``constraint_max``."""
         if self.adapt is None:
             return {"adapt_space": False}
-        out = {"adapt_space": True, "space_options": self.adapt.describe()}
+        space = self.adapt.describe()
+        out = {"adapt_space": True, "space_options": space}
         for k, (label, traj) in enumerate(trajs.items()):
             suffix = "" if k == 0 else f"_{label}"
-            ids, ndofs = np.asarray(traj["mesh_id"]), np.asarray(traj["ndofs"])
-            out[f"meshes{suffix}"] = int(np.unique(ids).size)
-            out[f"adaptations{suffix}"] = int(np.count_nonzero(np.diff(ids)))
-            out[f"ndofs_min{suffix}"] = int(ndofs.min())
-            out[f"ndofs_max{suffix}"] = int(ndofs.max())
-            out[f"ndofs_final{suffix}"] = int(ndofs[-1])
-            out[f"transfer_energy{suffix}"] = float(traj["transfer"][-1])
-            out[f"constraint_max{suffix}"] = float(np.abs(traj["constraint"]).max())
+            done = self.results.get(label)  # None: the run that stopped (no result yet)
+            fields = meshes_summary(traj, None if done is None else done.meshes, space)
+            ndofs = np.asarray(traj["ndofs"])
+            fields.update(
+                ndofs_min=int(ndofs.min()),
+                ndofs_final=int(ndofs[-1]),
+                constraint_max=float(np.abs(traj["constraint"]).max()),
+            )
+            if k:
+                del fields["space"]
+            out.update({f"{key}{suffix}": value for key, value in fields.items()})
         return out
 
 
@@ -386,7 +394,8 @@ class RunEldTipMass(CoupledRunCommand):
             summary.update(
                 n=n,
                 degree=args.degree,
-                ndofs=example.system.body.space.ndofs,
+                # (--adapt-space: the last state's, as run_eld's summary: meshes_summary)
+                ndofs=summary.get("ndofs", example.system.body.space.ndofs),
                 length=args.length,
                 height=args.height,
             )
@@ -517,7 +526,7 @@ class RunEldTmd(CoupledRunCommand):
             summary.update(
                 n=n,
                 degree=args.degree,
-                ndofs=example.with_tmd.body.space.ndofs,
+                ndofs=summary.get("ndofs", example.with_tmd.body.space.ndofs),
                 length=args.length,
                 height=args.height,
                 material=material_fields(args, TMD_MATERIAL, material),
@@ -681,7 +690,7 @@ class RunEldControl(CoupledRunCommand):
             summary.update(
                 n=n,
                 degree=args.degree,
-                ndofs=example.controlled.body.space.ndofs,
+                ndofs=summary.get("ndofs", example.controlled.body.space.ndofs),
                 length=args.length,
                 height=args.height,
                 material=material_fields(args, CONTROL_MATERIAL, material),
@@ -1083,7 +1092,7 @@ class RunEldTwoBodies(CoupledRunCommand):
             clamp = np.asarray(traj[f"reaction_{args.clamp}"])
             steps = summary["accepted_steps"]
             summary.update(
-                ndofs=[int(s.ndofs) for _, s in glued.bodies()],
+                ndofs=[summary.get("ndofs", glued.base.space.ndofs), comp.problem.space.ndofs],
                 degree=[args.degree, degree2],
                 material1=material_fields(args, TWO_BODIES_MATERIAL, material1),
                 material2=material2.describe(),
