@@ -43,6 +43,16 @@ def test_tip_mass_adapts_the_bar_and_the_ledger_closes(tmp_path):
         assert np.all(data["ndofs"][ids == k] == 2 * points.shape[0])
     assert np.isfinite(data["space_estimate"]).sum() >= 3
     assert abs(data["transfer"][-1]) > 0
+    # the keys of run_eld's summary (one function makes both: meshes_summary), read back
+    dofs = data["ndofs"]
+    assert s["ndofs"] == s["ndofs_final"] == dofs[-1] and s["ndofs_initial"] == dofs[0]
+    assert s["ndofs_max"] == dofs.max() and s["ndofs_min"] == dofs.min()
+    assert s["ndofs_summed_over_steps"] == dofs[1:].sum()
+    assert s["adaptations"] == np.count_nonzero(np.diff(ids)) >= 2
+    assert s["meshes"] == np.unique(ids).size and s["refinements_in_steps"] == 0
+    assert s["bisections"] > 0 and s["merges"] >= 0
+    assert s["transfer_energy"] == data["transfer"][-1]
+    assert s["space"] == s["space_options"] and s["space"]["space_tol"] == 1e-3
 
 
 @pytest.mark.parametrize("command", ["eld-control", "eld-tmd"])
@@ -61,6 +71,11 @@ def test_control_and_tmd_adapt_both_runs(tmp_path, command):
         data = np.load(out / name)
         assert np.abs(data["balance"]).max() <= 1e-10 * np.abs(data["energy"]).max()
         assert len(np.unique(data["state_mesh_id"])) == s[f"meshes{suffix}"]
+        assert s[f"ndofs{suffix}"] == s[f"ndofs_final{suffix}"] == data["ndofs"][-1]
+        assert s[f"ndofs_initial{suffix}"] == data["ndofs"][0]
+        assert s[f"adaptations{suffix}"] == np.count_nonzero(np.diff(data["mesh_id"]))
+        assert s[f"bisections{suffix}"] > 0 and f"merges{suffix}" in s
+    assert "space" in s and f"space_{second}" not in s
 
 
 def test_two_bodies_adapt_body_1_the_glue_turns_mortar_and_the_tip_stays(tmp_path):
@@ -91,6 +106,8 @@ def test_two_bodies_adapt_body_1_the_glue_turns_mortar_and_the_tip_stays(tmp_pat
     assert abs(tips["adapt"] - ref) < 0.15 * abs(tips["coarse"] - ref)
     data = np.load(out / "trajectory.npz")
     assert len(np.unique(data["state_mesh_id"])) == s["meshes"]
+    # ndofs per body: the adaptive base's last, body 2's
+    assert s["ndofs"][0] == data["ndofs"][-1] == s["ndofs_final"] and s["ndofs"][1] > 0
 
 
 @pytest.mark.parametrize(

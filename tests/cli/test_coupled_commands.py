@@ -7,6 +7,7 @@ one-line refusals (exit 2)."""
 from __future__ import annotations
 
 import json
+import signal
 
 import numpy as np
 import pytest
@@ -14,6 +15,8 @@ import pytest
 from rothe.cli.coupled_commands import crossing_frequency, decay_rate
 from rothe.cli.main import main
 from rothe.eld.coupled_run import CoupledStepper
+from rothe.io.checkpoint import load_checkpoint
+from rothe.io.trajectory import is_timing_array
 
 
 def _run(tmp_path, *args, plots=False, command="eld-tip-mass"):
@@ -173,18 +176,101 @@ def test_feedback_decay_rate_against_the_characteristic_equation(tmp_path):
     assert d["z"].shape[1] == 0 and np.load(out / "trajectory.npz")["q"].shape[1] == 2
 
 
-def test_a_coupled_run_interrupted_writes_what_it_has(tmp_path, capsys, signal_at_attempt):
-    """The coupled commands run through the run sequence of every run command: SIGINT stops
-    the run after a step, the results so far are written with status interrupted, exit 130;
-    no checkpoint, so no 'rothe resume' offered."""
-    signal_at_attempt(CoupledStepper, 30)
-    code, out = _run(tmp_path, "--T", "4", "--no-plots", command="eld-control")
+def _same_npz(a, b):
+    """Every array of two trajectory files equal (NaN where the other has NaN), the timings
+    and the meta data (the number of sessions) aside."""
+
+    def same(x, y):
+        return np.array_equal(x, y, equal_nan=x.dtype.kind == "f")
+
+    with np.load(a) as fa, np.load(b) as fb:
+        keys = {k for k in fa.files if not is_timing_array(k) and k != "meta"}
+        assert keys == {k for k in fb.files if not is_timing_array(k) and k != "meta"}
+        bad = [k for k in sorted(keys) if not same(fa[k], fb[k])]
+    assert not bad, f"differ: {bad}"
+
+
+CONTROL_SHORT = ("--T", "0.5", "--tau", "0.01", "--no-plots")
+
+
+def test_a_coupled_run_interrupted_then_resumed_equals_the_uninterrupted_run(
+    tmp_path, capsys, signal_at_attempt
+):
+    """eld-control (two runs, one checkpoint): SIGINT in the second run writes what it has
+    (status interrupted, exit 130, the checkpoint and 'rothe resume'); ``rothe resume OUT``
+    completes it; both trajectories equal the uninterrupted run's bit for bit."""
+    ref = tmp_path / "ref"
+    argv = ["run", "eld-control", "--quiet", *CONTROL_SHORT]
+    assert main([*argv, "--out", str(ref)]) == 0
+    out = tmp_path / "out"
+    # 50 steps per run: the second run's 20th step (it finishes: the signal is seen after it)
+    signal_at_attempt(CoupledStepper, 70)
+    code = main([*argv, "--out", str(out)])
     err = capsys.readouterr().err
-    assert code == 130 and "rothe resume" not in err and "writes no checkpoint" in err
+    assert code == 130 and f"rothe resume {out}" in err
     s = json.loads((out / "summary.json").read_text())
-    assert s["status"] == "interrupted" and "resume" not in s
-    assert s["accepted_steps"] == 30 and not (out / "checkpoint").exists()
-    assert np.load(out / "trajectory.npz")["t"].size == 31  # the step under way finished
+    assert s["status"] == "interrupted" and s["resume"] == f"rothe resume {out}"
+    assert s["accepted_steps"] == 50 and s["where"]["accepted_steps"] == 20
+    assert np.load(out / "trajectory_uncontrolled.npz")["t"].size == 21
+    assert load_checkpoint(out).status == "interrupted"
+    signal_at_attempt(CoupledStepper, 10**9)
+    assert main(["resume", str(out), "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "completed" and s["sessions"] == 2
+    assert not (out / "checkpoint").exists()  # removed once the results are committed
+    r = json.loads((ref / "summary.json").read_text())
+    for key in ("decay_rate_measured", "decay_rate_measured_uncontrolled", "balance_max"):
+        assert s[key] == r[key], key
+    for name in ("trajectory.npz", "trajectory_uncontrolled.npz"):
+        _same_npz(ref / name, out / name)
+
+
+def test_two_bodies_with_an_adaptive_base_sigterm_then_resume(tmp_path, capsys, signal_at_attempt):
+    """eld-two-bodies --adapt-space: SIGTERM (exit 143), then --resume: the meshes and the
+    trajectory are the uninterrupted run's bit for bit."""
+    argv = ["run", "eld-two-bodies", "--quiet", "--no-plots", "--T", "0.3", "--tau", "0.01"]
+    argv += ["--n1", "2", "--degree", "1", "--adapt-space", "--space-tol", "2e-3"]
+    ref = tmp_path / "ref"
+    assert main([*argv, "--out", str(ref)]) == 0
+    assert json.loads((ref / "summary.json").read_text())["adaptations"] >= 2
+    out = tmp_path / "out"
+    signal_at_attempt(CoupledStepper, 12, signal.SIGTERM)
+    assert main([*argv, "--out", str(out)]) == 143
+    s = json.loads((out / "summary.json").read_text())
+    # the run that stopped has no series of meshes yet: its counts from the states' mesh ids
+    assert s["status"] == "interrupted" and s["bisections"] is None and s["meshes"] >= 1
+    assert s["ndofs"][0] == np.load(out / "trajectory.npz")["ndofs"][-1]
+    signal_at_attempt(CoupledStepper, 10**9)
+    capsys.readouterr()
+    assert main([*argv, "--resume", str(out)]) == 0
+    _same_npz(ref / "trajectory.npz", out / "trajectory.npz")
+
+
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--gain", "2"], "--gain 2 (checkpoint: 1)"),
+        (["--scheme", "euler"], "--scheme euler (checkpoint: bdf2)"),
+        (["--adapt-space", "--space-tol", "0.01"], "--adapt-space True (checkpoint: False)"),
+    ],
+)
+def test_a_resume_with_other_options_is_refused_in_one_line(
+    tmp_path, capsys, signal_at_attempt, args, line
+):
+    out = tmp_path / "out"
+    argv = ["run", "eld-control", "--quiet", *CONTROL_SHORT]
+    signal_at_attempt(CoupledStepper, 5)
+    assert main([*argv, "--out", str(out)]) == 130
+    capsys.readouterr()
+    signal_at_attempt(CoupledStepper, 10**9)
+    code = main([*argv, *args, "--resume", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "the command line differs from the checkpoint's" in err[0] and line in err[0], err
+    code = main(["run", "eld-tmd", "--quiet", *CONTROL_SHORT, "--resume", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "the checkpoint is of 'rothe run eld-control', not 'rothe run eld-tmd'" in err[0]
 
 
 @pytest.mark.parametrize(

@@ -150,6 +150,121 @@ def test_three_bodies_glued_to_a_base_equal_the_union_mesh_run():
     assert np.abs(res.trajectory["balance"]).max() < 1e-13 * res.trajectory["energy"].max()
 
 
+def _chain(ny3=2, T=0.3):
+    """base (clamped) - middle - tip (pulled): the tip glued to the middle body, not to the
+    base (body 2 to body 1)."""
+    base = Body(strip(0, 1 / 3, 3, 2), SOFT, clamped=("left",), name="one")
+    middle = Body(strip(1 / 3, 2 / 3, 3, 2), STIFF, name="two")
+    tip = Body(strip(2 / 3, 1, 3, ny3), SOFT, traction={"right": pull}, name="three")
+    return GluedBodies(base, [(middle, "right", "left"), (tip, "right", "left", 1)], T=T)
+
+
+def test_a_chain_of_three_bodies_equals_the_union_mesh_run():
+    """base - 1 - 2 (the tip glued to the middle body: its glue substituted into the middle
+    body's component): the union mesh with the stiff middle third to solver tolerance at
+    every node of every body and in the energy; the ledger closes; the chain's interface holds
+    to round-off at every state, the base's too."""
+    glued = _chain()
+    assert len(glued.components) == 1 and len(glued.chains) == 1
+    assert [name for name, _ in glued.bodies()] == ["one", "two", "three"]
+    comp = glued.components[0]
+    assert [name for name, _, _ in comp.maps] == ["two", "three"]
+    res = run_bodies(glued, scheme=BDF2(), control=Uniform(0.01))
+    mesh = tag_box_faces(MeshTri.init_tensor(np.linspace(0, 1, 10), np.linspace(0, H, 3)))
+    cx = mesh.p[0, mesh.t].mean(axis=0)
+    mesh = mesh.with_subdomains(
+        {"mid": np.flatnonzero(abs(cx - 0.5) < 1 / 6), "out": np.flatnonzero(abs(cx - 0.5) > 1 / 6)}
+    )
+    material = PiecewiseMaterial({"s": STIFF, "o": SOFT}, regions={"mid": "s", "out": "o"})
+    with pytest.warns(UserWarning):
+        prob = ELDProblem(mesh, material, dirichlet={"left": zero}, traction={"right": pull}, T=0.3)
+    one = run_eld(prob, scheme=BDF2(), control=Uniform(0.01))
+    U = one.state.u
+    assert np.abs(U).max() > 1e-3
+    fields = glued.fields(res.state.u, res.state.q)
+    for u, (_, space) in zip(fields, glued.bodies(), strict=True):
+        assert (
+            np.abs(u.reshape(-1, 2) - at(prob.space, U, space.doflocs)).max() < 1e-10 * abs(U).max()
+        )
+    E, E1 = res.trajectory["energy"], np.asarray(one.trajectory["energy"])
+    assert np.abs(E - E1).max() < 1e-10 * E1.max()
+    assert glued.describe()["chains"][0]["method"] == "matching"
+    tr = res.trajectory
+    assert np.abs(tr["balance"]).max() < 1e-13 * tr["energy"].max()
+    assert tr["constraint"].max() < 1e-13
+    u, q = np.asarray(tr["u"]), np.asarray(tr["q"])
+    assert max(glued.interface_residual(u[i], q[i]) for i in range(len(u))) < 1e-14
+    # the body loads of the chain reach the base through body 1: the clamp holds them all
+    assert abs(tr["work_components"][-1]) > 0
+    # the ParaView writer covers bodies glued to the base only: a chain is refused in one line
+    from rothe.eld.bodies_output import write_bodies_result
+
+    with pytest.raises(RotheInputError, match=r"^glued: got a chain of bodies \(1 interface"):
+        write_bodies_result(res, glued, "/nonexistent-never-written")
+
+
+def test_a_non_matching_chain_interface_is_glued_by_the_mortar_projection():
+    """The tip with 3 cells across against the middle body's 2: the chain's glue is the mortar
+    Pi, substituted. The same discrete problem as the star with the middle body as the base
+    (the clamped body and the tip glued to it: the same interfaces, the middle body side 1 of
+    the mortar one, the multiplier route instead of the substitution): equal to solver
+    tolerance at every node, in the energy; the interfaces hold, the ledger closes."""
+    glued = _chain(ny3=3)
+    assert glued.chains[0].method == "mortar"
+    res = run_bodies(glued, scheme=BDF2(), control=Uniform(0.01))
+    tr = res.trajectory
+    assert np.abs(tr["balance"]).max() < 1e-13 * tr["energy"].max()
+    assert glued.interface_residual(res.state.u, res.state.q) < 1e-13
+    star = GluedBodies(
+        Body(strip(1 / 3, 2 / 3, 3, 2), STIFF, name="two"),
+        [
+            (Body(strip(0, 1 / 3, 3, 2), SOFT, clamped=("left",), name="one"), "left", "right"),
+            (
+                Body(strip(2 / 3, 1, 3, 3), SOFT, traction={"right": pull}, name="three"),
+                "right",
+                "left",
+            ),
+        ],
+        T=0.3,
+    )
+    assert star.interfaces[1].method == "mortar"
+    ref = run_bodies(star, scheme=BDF2(), control=Uniform(0.01))
+    mine = {
+        n: w
+        for (n, _), w in zip(glued.bodies(), glued.fields(res.state.u, res.state.q), strict=True)
+    }
+    theirs = {
+        n: w for (n, _), w in zip(star.bodies(), star.fields(ref.state.u, ref.state.q), strict=True)
+    }
+    scale = max(np.abs(w).max() for w in theirs.values())
+    assert scale > 1e-3
+    for name, w in theirs.items():
+        assert np.abs(mine[name] - w).max() < 1e-10 * scale, name
+    E, E1 = tr["energy"], np.asarray(ref.trajectory["energy"])
+    assert np.abs(E - E1).max() < 1e-10 * E1.max()
+
+
+@pytest.mark.parametrize(
+    "item, line",
+    [
+        (2, "attached[1][3]: got 2, must be the number of a body before it: 0 (the base) to 1"),
+        (-1, "attached[1][3]: got -1, must be the number of a body before it"),
+        ("1", "attached[1][3]: got '1', must be the number of a body before it"),
+    ],
+)
+def test_a_chain_to_a_body_not_before_it_is_refused(item, line):
+    base = Body(strip(0, 1 / 3, 1, 1), SOFT, clamped=("left",), name="one")
+    middle = Body(strip(1 / 3, 2 / 3, 1, 1), STIFF, name="two")
+    tip = Body(strip(2 / 3, 1, 1, 1), SOFT, name="three")
+    with pytest.raises(RotheInputError) as info:
+        GluedBodies(base, [(middle, "right", "left"), (tip, "right", "left", item)])
+    assert str(info.value).startswith(line)
+    with pytest.raises(RotheInputError, match=r"^attached\[1\]\.part_j: got 'left', is loaded, "):
+        GluedBodies(base, [(middle, "right", "left"), (tip, "left", "left", 1)])
+    with pytest.raises(RotheInputError, match=r"^attached\[1\]\.part_j: got 'middle', must be one"):
+        GluedBodies(base, [(middle, "right", "left"), (tip, "middle", "left", 1)])
+
+
 def test_action_equals_reaction_and_the_ledger_closes():
     """The multiplier's nodal forces on the two bodies have opposite resultants (to round-off),
     the base's equals the recorded reaction; the interface holds at every accepted state; the

@@ -79,6 +79,63 @@ def test_mortar_projection_passes_the_patch_test(dim, degree):
     assert np.allclose(proj[:, 1], fields[1](x1), atol=1e-12)
 
 
+@pytest.mark.parametrize("dim,degree", [(2, 2), (3, 1), (3, 2)])
+def test_the_sparse_mortar_projection_equals_the_dense_one(dim, degree, monkeypatch):
+    """Pi = D^{-1} M_12 built by blocks of columns (no dense k1 x k2) equals the dense
+    formula it replaced (the full solve, entries below 1e-14 of the largest dropped) to
+    round-off, with the same entries kept; several blocks (block = 7 columns) and one; the
+    patch test holds for the result."""
+    import scipy.sparse.linalg as spla
+
+    from rothe.eld import interface
+
+    if dim == 2:
+        a, b = VectorSpace(_square(0, 1, 2, 13), degree), VectorSpace(_square(1, 2, 3, 17), degree)
+    else:
+        a, b = VectorSpace(_cube(0, 1, 2, 4), degree), VectorSpace(_cube(1, 2, 2, 5), degree)
+    itf = Interface(a, "right", b, "left")
+    assert itf.method == "mortar" and sp.issparse(itf.Pi)
+    dense = spla.splu(sp.csc_matrix(itf.D)).solve(itf.M12.toarray())
+    dense[np.abs(dense) < 1e-14 * np.abs(dense).max()] = 0.0
+    k1, k2 = dense.shape
+    assert k2 > 14  # several blocks of 7
+    for block in (7, 10_000):
+        Pi = interface.mortar_projection(itf.D, itf.M12, block=block)
+        assert Pi.shape == (k1, k2) and isinstance(Pi, sp.csr_matrix)
+        assert np.abs(Pi.toarray() - dense).max() <= 1e-15 * np.abs(dense).max()
+        assert Pi.nnz == np.count_nonzero(dense)
+        assert np.array_equal(Pi.toarray() != 0, dense != 0)
+    # the interface builds it without a dense k1 x k2: its largest dense array is k1 x block
+    shapes = []
+    original = interface.mortar_projection
+
+    def spy(D, M12, block=interface.PI_BLOCK):
+        real = spla.splu
+
+        def splu(A, *args, **kw):
+            lu = real(A, *args, **kw)
+
+            class Spy:
+                def solve(self, rhs):
+                    shapes.append(rhs.shape)
+                    return lu.solve(rhs)
+
+            return Spy()
+
+        monkeypatch.setattr(interface.spla, "splu", splu)
+        try:
+            return original(D, M12, block=5)
+        finally:
+            monkeypatch.setattr(interface.spla, "splu", real)
+
+    monkeypatch.setattr(interface, "mortar_projection", spy)
+    again = Interface(a, "right", b, "left")
+    assert shapes and max(c for _, c in shapes) == 5 and len(shapes) == -(-k2 // 5)
+    assert np.abs((again.Pi - itf.Pi).toarray()).max() <= 1e-15
+    x1, x2 = a.doflocs[:, itf.dofs1], b.doflocs[:, itf.dofs2]
+    assert np.abs(again.Pi @ (1 + 2 * x2[1]) - (1 + 2 * x1[1])).max() < 1e-12
+
+
 @pytest.mark.parametrize("degree", [1, 2])
 def test_glued_bodies_of_two_materials_equal_one_body_with_two_materials(degree):
     """Matching meshes: T^T blkdiag(K_1, K_2) T is the stiffness of the union mesh with the

@@ -5,9 +5,13 @@ Every command runs :func:`rothe.eld.coupled_run.run_coupled` through the one run
 the ``run`` commands (:func:`rothe.cli.session.run_sequence`: run -> stage -> write -> annotate
 -> summary last -> finish): results staged and committed together with ``summary.json`` last,
 an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM writes what it has
-(``status: interrupted``, exit 130/143), a failed run ``status: failed`` (exit 1). Coupled runs
-write no checkpoint yet (so no ``--resume``); ParaView output only eld-two-bodies (one series
-per body, :mod:`rothe.eld.bodies_output`) on fixed meshes (docs/coupling.md, Sec. 12).
+(``status: interrupted``, exit 130/143) and a checkpoint, a failed run ``status: failed`` (exit
+1). Checkpoints in ``OUT/checkpoint`` (``--checkpoint-every``, ``--resume DIR``, ``rothe resume
+OUT``, as the other run commands): the commands that compare two runs checkpoint both as one
+(:func:`rothe.eld.coupled_run.run_coupled_many`); a resumed run writes the uninterrupted run's
+results bit for bit; a resume with other options is refused in one line (exit 2). ParaView
+output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`) on fixed
+meshes (docs/coupling.md, Sec. 12).
 
 ``--adapt-space`` (every command; with ``--space-tol`` and the usual options of
 :mod:`rothe.cli.adapt_options`) adapts the mesh of the elastic body between accepted steps
@@ -32,7 +36,7 @@ from scipy.spatial import cKDTree
 
 from ..eld.bodies import Body, GluedBodies, strip_pair, strip_pair_dofs, strip_union
 from ..eld.bodies_output import write_bodies_result
-from ..eld.coupled_run import run_coupled
+from ..eld.coupled_run import run_coupled_many
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..eld.frequencies import crossing_frequency, decay_rate
 from ..eld.run import run_eld
@@ -40,6 +44,7 @@ from ..errors import RotheInputError, check_choice, check_int, check_positive, d
 from ..fem.mesh import load_mesh, mesh_dim
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
 from .common import add_output_options, float_option, given, peak_memory_mb, print_summary
+from .eld_commands import meshes_summary
 from .eld_options import (
     MESH_PARAMETERS,
     body_material,
@@ -59,7 +64,7 @@ from .eld_options import (
     step_options,
 )
 from .registry import command
-from .session import run_sequence
+from .session import add_run_options, run_sequence
 
 #: the strip's material (nu = 0: the axial motion is the 1D bar's, the analytic frequencies are
 #: exact for it); eld-control's too
@@ -187,12 +192,18 @@ class CoupledRunCommand:
         fit_default_cap(args, adapt, next(iter(runs.values())).body.space.ndofs)
 
         def start(checkpoint, resume, progress):
-            # (coupled runs write no checkpoint: the session's options are not used)
-            for label, system in runs.items():
-                done[label] = run_coupled(
-                    system, progress=progress, fields=fields, adapt=adapt, **objects
-                )
-            return done
+            # the runs one after the other with one checkpoint (the finished runs and the one
+            # under way); ``done`` gets each as it finishes, restored ones first
+            return run_coupled_many(
+                runs,
+                progress=progress,
+                fields=fields,
+                adapt=adapt,
+                checkpoint=checkpoint,
+                resume=resume,
+                results=done,
+                **objects,
+            )
 
         def write(stage, outcome):
             completed = outcome.status == "completed"
@@ -242,22 +253,29 @@ class CoupledRunCommand:
         }
 
     def adapt_fields(self, trajs: dict) -> dict:
-        """With --adapt-space: the options, and per run (suffix ``_<label>`` for all but the
-        first) the meshes, the smallest and largest unknowns of the body, the adaptations and
-        the energy the transfers changed (the ledger's ``transfer``)."""
+        """With --adapt-space: ``adapt_space``, the options (``space``, as run_eld's summary,
+        and ``space_options``), and per run (suffix ``_<label>`` for all but the first) the
+        keys of run_eld's summary (:func:`~rothe.cli.eld_commands.meshes_summary`: meshes,
+        adaptations, ndofs, ndofs_initial, ndofs_max, ndofs_summed_over_steps, bisections,
+        merges, transfer_energy; the body's unknowns) with the coupled run's own:
+        ``ndofs_min``, ``ndofs_final`` and ``constraint_max``."""
         if self.adapt is None:
             return {"adapt_space": False}
-        out = {"adapt_space": True, "space_options": self.adapt.describe()}
+        space = self.adapt.describe()
+        out = {"adapt_space": True, "space_options": space}
         for k, (label, traj) in enumerate(trajs.items()):
             suffix = "" if k == 0 else f"_{label}"
-            ids, ndofs = np.asarray(traj["mesh_id"]), np.asarray(traj["ndofs"])
-            out[f"meshes{suffix}"] = int(np.unique(ids).size)
-            out[f"adaptations{suffix}"] = int(np.count_nonzero(np.diff(ids)))
-            out[f"ndofs_min{suffix}"] = int(ndofs.min())
-            out[f"ndofs_max{suffix}"] = int(ndofs.max())
-            out[f"ndofs_final{suffix}"] = int(ndofs[-1])
-            out[f"transfer_energy{suffix}"] = float(traj["transfer"][-1])
-            out[f"constraint_max{suffix}"] = float(np.abs(traj["constraint"]).max())
+            done = self.results.get(label)  # None: the run that stopped (no result yet)
+            fields = meshes_summary(traj, None if done is None else done.meshes, space)
+            ndofs = np.asarray(traj["ndofs"])
+            fields.update(
+                ndofs_min=int(ndofs.min()),
+                ndofs_final=int(ndofs[-1]),
+                constraint_max=float(np.abs(traj["constraint"]).max()),
+            )
+            if k:
+                del fields["space"]
+            out.update({f"{key}{suffix}": value for key, value in fields.items()})
         return out
 
 
@@ -333,6 +351,7 @@ class RunEldTipMass(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def validate(self, args):
         """The checks that need no mesh: one line naming the option."""
@@ -375,7 +394,8 @@ class RunEldTipMass(CoupledRunCommand):
             summary.update(
                 n=n,
                 degree=args.degree,
-                ndofs=example.system.body.space.ndofs,
+                # (--adapt-space: the last state's, as run_eld's summary: meshes_summary)
+                ndofs=summary.get("ndofs", example.system.body.space.ndofs),
                 length=args.length,
                 height=args.height,
             )
@@ -483,6 +503,7 @@ class RunEldTmd(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
@@ -505,7 +526,7 @@ class RunEldTmd(CoupledRunCommand):
             summary.update(
                 n=n,
                 degree=args.degree,
-                ndofs=example.with_tmd.body.space.ndofs,
+                ndofs=summary.get("ndofs", example.with_tmd.body.space.ndofs),
                 length=args.length,
                 height=args.height,
                 material=material_fields(args, TMD_MATERIAL, material),
@@ -643,6 +664,7 @@ class RunEldControl(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
@@ -668,7 +690,7 @@ class RunEldControl(CoupledRunCommand):
             summary.update(
                 n=n,
                 degree=args.degree,
-                ndofs=example.controlled.body.space.ndofs,
+                ndofs=summary.get("ndofs", example.controlled.body.space.ndofs),
                 length=args.length,
                 height=args.height,
                 material=material_fields(args, CONTROL_MATERIAL, material),
@@ -874,6 +896,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         )
         self.space_options(parser)
         add_output_options(parser, self.name)
+        add_run_options(parser)
 
     def validate(self, args):
         """The checks that need no mesh: one line naming the option."""
@@ -1069,7 +1092,7 @@ class RunEldTwoBodies(CoupledRunCommand):
             clamp = np.asarray(traj[f"reaction_{args.clamp}"])
             steps = summary["accepted_steps"]
             summary.update(
-                ndofs=[int(s.ndofs) for _, s in glued.bodies()],
+                ndofs=[summary.get("ndofs", glued.base.space.ndofs), comp.problem.space.ndofs],
                 degree=[args.degree, degree2],
                 material1=material_fields(args, TWO_BODIES_MATERIAL, material1),
                 material2=material2.describe(),

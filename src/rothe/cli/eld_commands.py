@@ -224,30 +224,48 @@ def run_summary(result: ELDResult, example: str) -> dict:
     if "energy" in traj:
         summary.update(energy_summary(traj))
     if result.meshes is not None:
-        summary.update(meshes_summary(result))
+        summary.update(meshes_summary(traj, result.meshes))
     return summary
 
 
-def meshes_summary(result: ELDResult) -> dict:
-    """Dofs over the run and the adaptations of a space-adaptive run: ``adaptations`` after
-    steps, ``refinements_in_steps`` (a step's own mesh refined and the step solved again), and
-    ``bisections`` and ``merges`` of both."""
-    traj, meshes = result.trajectory, result.meshes
+def meshes_summary(traj, meshes=None, space=None) -> dict:
+    """Dofs over the run and the adaptations of a space-adaptive run -- ``run_eld``'s and the
+    coupled runs' (``rothe run eld-tip-mass|eld-tmd|eld-control|eld-two-bodies
+    --adapt-space``): ``adaptations`` after steps, ``meshes``, ``ndofs`` (the last state's),
+    ``ndofs_initial``, ``ndofs_max``, ``ndofs_summed_over_steps``, ``refinements_in_steps`` (a
+    step's own mesh refined and the step solved again: run_eld), ``bisections`` and ``merges``
+    of both, ``transfer_energy`` (the ledger's ``transfer`` at the end).
+
+    ``traj``: the trajectory (point series ``ndofs``, ``mesh_id``, ``transfer``; step series
+    ``step_refinements``, ``step_bisections`` where the stepper refines in steps); ``meshes``:
+    the run's series of meshes and log of adaptations (:class:`rothe.eld.adapt.ELDMeshes`),
+    None for a run that stopped before it had a result (then the counts come from the
+    states' mesh ids, ``bisections`` and ``merges`` are None); ``space``: the adaptivity
+    options as described (default the trajectory's meta ``space``)."""
     dofs = np.asarray(traj["ndofs"])
     # refinements inside a step (the step solved again on its refined mesh) count too
     in_steps = int(np.sum(traj["step_bisections"])) if "step_bisections" in traj else 0
     rounds = int(np.sum(traj["step_refinements"])) if "step_refinements" in traj else 0
+    if meshes is not None:
+        log = meshes.adaptations
+        adaptations, count = len(log), len(meshes.series.ids)
+        bisections = int(sum(a["bisections"] for a in log)) + in_steps
+        merges = int(sum(a["merges"] for a in log))
+    else:
+        ids = np.asarray(traj["mesh_id"])
+        adaptations, count = int(np.count_nonzero(np.diff(ids))), int(np.unique(ids).size)
+        bisections = merges = None
     return {
-        "space": traj.meta.get("space"),  # the adaptivity options (the key since issue 8)
-        "adaptations": len(meshes.adaptations),
-        "meshes": len(meshes.series.ids),
+        "space": traj.meta.get("space") if space is None else space,  # (the key since issue 8)
+        "adaptations": adaptations,
+        "meshes": count,
         "ndofs": int(dofs[-1]),
         "ndofs_initial": int(dofs[0]),
         "ndofs_max": int(dofs.max()),
         "ndofs_summed_over_steps": int(dofs[1:].sum()),
         "refinements_in_steps": rounds,
-        "bisections": int(sum(a["bisections"] for a in meshes.adaptations)) + in_steps,
-        "merges": int(sum(a["merges"] for a in meshes.adaptations)),
+        "bisections": bisections,
+        "merges": merges,
         "transfer_energy": float(traj["transfer"][-1]),
     }
 

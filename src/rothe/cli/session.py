@@ -21,10 +21,8 @@ What a user sees in ``--out DIR`` (default ``rothe-out/<example>``):
   run -- resume it, or pass ``--discard-checkpoint`` to start over -- and if another rothe
   process is running in DIR. ``--out`` is checked for writability before the first step.
 - A command without the run options (``--checkpoint-every``, ``--resume``,
-  ``--discard-checkpoint``: the coupled runs, ``rothe run
-  eld-tip-mass|eld-tmd|eld-control|eld-two-bodies``, whose stepper writes no checkpoint yet)
-  goes through the same sequence; its interrupted run writes its results so far and names no
-  ``rothe resume``.
+  ``--discard-checkpoint``) goes through the same sequence; its interrupted run writes its
+  results so far and names no ``rothe resume``.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ from .components import (
 )
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .control import LinearController, PointSensor, ReactionSensor, UserController
-from .coupled_run import CoupledResult, CoupledStepper, run_coupled
+from .coupled_run import CoupledResult, CoupledStepper, run_coupled, run_coupled_many
 from .coupled_step import CoupledStepSystem, coupled_modes
 from .coupling import (
     CoupledProblem,
@@ -142,6 +142,7 @@ __all__ = [
     "coupled_modes",
     "run_bodies",
     "run_coupled",
+    "run_coupled_many",
     "make_damping",
     "mms_errors",
     "mms_problem",

@@ -41,8 +41,17 @@ matching meshes equal one body (tested) and why a glued step costs about the uni
 Attached bodies take no prescribed data other than clamped parts (u = 0: their dofs are left
 out of q) and keep their meshes (their dofs are q; the base may adapt its mesh,
 ``run_bodies(..., fields=False, adapt=SpaceAdaptivity(...))``: the glue is rebuilt on every
-mesh, :meth:`Glue.on_mesh`, :mod:`rothe.eld.coupled_adapt`), and an interface must join the
-base to an attached body (a star of bodies around the base; chains 1-2-3 are not covered).
+mesh, :meth:`Glue.on_mesh`, :mod:`rothe.eld.coupled_adapt`).
+
+**Chains** (and trees): body k may be glued to an attached body j < k instead of the base
+(``(Body, part_j, body_part, j)``). Such a glue carries no multiplier: body j's dofs on the
+interface are slaved to body k's trace (u_j|P = Pi S_Q u_k, body j side 1 as the base is) and
+body k's coordinates join body j's component -- the substitution of
+:meth:`Interface.substitution`, made inside :class:`ElasticComponent` (``children``): the
+component of a body glued to the base is then the glued subtree, its M_q, K_q, C_q, f_ext the
+glued ones (with matching meshes the union mesh's on the glued space). A chain base - 1 - 2
+with matching meshes equals the union mesh run; a non-matching chain interface is glued by
+the mortar Pi (tested against the same bodies glued as a star around body 1).
 """
 
 from __future__ import annotations
@@ -109,11 +118,26 @@ class ElasticComponent(Component):
     dofs (off the clamped parts), M_q = rho M, K_q = K, C_q = C restricted to them, load F(t).
 
     Built from an assembled ELDProblem (``problem``: its dirichlet parts are the clamped ones
-    and the interface part, both only to fix the free dofs; ``clamped`` the former)."""
+    and the interface part, both only to fix the free dofs; ``clamped`` the former).
+
+    **Chains** (``children``: pairs (Interface, ElasticComponent) of bodies glued to this one
+    along this body's part ``interface.part1``): the children are eliminated by substitution,
+    as the glue of :meth:`Interface.substitution` does. This body's dofs on a child's
+    interface are slaved to the child's trace, u|P = Pi S_Q u_child (the same orientation as
+    the base's glue: this body is side 1); the coordinates are this body's free dofs off those
+    interfaces, then each child's coordinates. Every body b of the subtree has its map
+    u_b = E_b q (:attr:`maps`) and the component's matrices are the glued ones,
+
+        M_q = sum_b E_b^T rho_b M_b E_b,  K_q = sum_b E_b^T K_b E_b,  C_q likewise,
+        f_ext(t) = sum_b E_b^T F_b(t),
+
+    so a chain of bodies is one linear component of the base (with matching meshes: the union
+    mesh's matrices on the glued space). Without children E_b is the selection of the free
+    dofs and this is the component above, entry for entry."""
 
     is_linear = True
 
-    def __init__(self, problem: ELDProblem, clamped, name: str):
+    def __init__(self, problem: ELDProblem, clamped, name: str, children=()):
         space = problem.space
         self.problem = problem
         self.name = str(name)
@@ -123,31 +147,82 @@ class ElasticComponent(Component):
             else np.zeros(0, dtype=np.int64)
         )
         self.free = np.setdiff1d(np.arange(space.ndofs), held)
-        self.size = self.free.size
-        f = self.free
-        # E: q -> u (n, m), zero on the clamped dofs
-        self.E = sp.csr_matrix(
-            (np.ones(f.size), (f, np.arange(f.size))), shape=(space.ndofs, f.size)
-        )
-        rho = float(problem.material.rho)
-        M = sp.csr_matrix(problem.M)
-        K = sp.csr_matrix(problem.K)
+        children = list(children)
+        slaved = [space.vector_dofs(itf.dofs1) for itf, _ in children]
+        for (itf, child), rows in zip(children, slaved, strict=True):
+            clash = np.intersect1d(rows, held).size
+            if clash:
+                raise fail(
+                    f"{child.name}.interface",
+                    itf.part1,
+                    f"shares {clash // space.dim} node(s) with a clamped part of {name!r}; "
+                    "a glued part must not touch a clamped one",
+                )
+        every = np.concatenate(slaved) if slaved else np.zeros(0, dtype=np.int64)
+        if np.unique(every).size != every.size:
+            raise fail(
+                f"{name}.interfaces",
+                [itf.part1 for itf, _ in children],
+                "must not share nodes: a node is glued to one body",
+            )
+        own = np.setdiff1d(self.free, every)
+        sizes = [own.size] + [child.size for _, child in children]
+        self.size = int(sum(sizes))
+        starts = np.concatenate([[0], np.cumsum(sizes)])
+        m = self.size
+        # E: q -> u (n, m): the own coordinates, and each child's trace on its interface
+        E = sp.csr_matrix((np.ones(own.size), (own, np.arange(own.size))), shape=(space.ndofs, m))
+        #: (name, problem, E_b) of every body of the subtree, this one first
+        self.maps = []
+        for (itf, child), rows, start in zip(children, slaved, starts[1:-1], strict=True):
+            place = sp.csr_matrix(
+                (np.ones(child.size), (np.arange(child.size), start + np.arange(child.size))),
+                shape=(child.size, m),
+            )
+            S2 = itf.space2.vector_dofs(itf.dofs2)
+            trace = (itf.vector(itf.Pi) @ child.E[S2] @ place).tocoo()  # (rows, m)
+            E = E + sp.csr_matrix((trace.data, (rows[trace.row], trace.col)), shape=E.shape)
+            self.maps += [(b, prob, (Eb @ place).tocsr()) for b, prob, Eb in child.maps]
+        self.E = E.tocsr()
+        self.E.eliminate_zeros()
+        self.maps.insert(0, (self.name, problem, self.E))
+        self.children = children
+        mass = stiffness = damping = None
+        for _, prob, Eb in self.maps:
+            if not prob.damping_op.is_linear:
+                raise fail(
+                    f"{prob.name}.damping",
+                    prob.damping.describe().get("type", "nonlinear"),
+                    "must be linear (an attached body is a linear component)",
+                )
+            rho = float(prob.material.rho)
+            Mb = (Eb.T @ (rho * sp.csr_matrix(prob.M)) @ Eb).tocsr()
+            Kb = (Eb.T @ sp.csr_matrix(prob.K) @ Eb).tocsr()
+            mass = Mb if mass is None else mass + Mb
+            stiffness = Kb if stiffness is None else stiffness + Kb
+            C = prob.damping_op.linear
+            if C is not None:
+                Cb = (Eb.T @ sp.csr_matrix(C) @ Eb).tocsr()
+                damping = Cb if damping is None else damping + Cb
         # sparse (FE matrices on the free dofs): the coupled step factors the glued system as
         # one sparse matrix (coupled_step.CoupledStepSystem.solve)
-        self.mass = (rho * M)[f][:, f].tocsr()
-        self.stiffness = K[f][:, f].tocsr()
-        if not problem.damping_op.is_linear:
-            raise fail(
-                f"{name}.damping",
-                problem.damping.describe().get("type", "nonlinear"),
-                "must be linear (an attached body is a linear component)",
-            )
-        C = problem.damping_op.linear
-        self._C = None if C is None else sp.csr_matrix(C)[f][:, f].tocsr()
+        self.mass, self.stiffness = mass.tocsr(), stiffness.tocsr()
+        self._C = None if damping is None else damping.tocsr()
         self.damping = sp.csr_matrix(self.mass.shape) if self._C is None else self._C
-        self.q0 = problem.u0[f].copy()
-        self.p0 = problem.v0[f].copy()
-        self.coordinates = tuple(f"u{k}" for k in f)
+        self.q0 = np.concatenate([problem.u0[own]] + [child.q0 for _, child in children])
+        self.p0 = np.concatenate([problem.v0[own]] + [child.p0 for _, child in children])
+        for (itf, child), rows in zip(children, slaved, strict=True):
+            for label, given, q in (("u0", problem.u0, self.q0), ("v0", problem.v0, self.p0)):
+                gap = np.abs(given[rows] - self.E[rows] @ q).max(initial=0.0)
+                if gap > 1e-10 * max(1.0, np.abs(given).max(initial=0.0)):
+                    raise fail(
+                        f"{name}.{label}",
+                        described(f"values off by {gap:.3g} on {itf.part1!r}"),
+                        f"must equal those of the glued body {child.name!r} there",
+                    )
+        self.coordinates = tuple(f"u{k}" for k in own) + tuple(
+            f"{child.name}.{c}" for _, child in children for c in child.coordinates
+        )
 
     def force(self, t, q, p):
         """K_q q + C_q p."""
@@ -158,8 +233,12 @@ class ElasticComponent(Component):
         return self.stiffness, self.damping
 
     def load(self, t):
-        """The body's F(t) (tractions, body force) on its free dofs."""
-        return self.problem.load(t)[self.free]
+        """The bodies' F(t) (tractions, body force) on the coordinates: sum_b E_b^T F_b(t)
+        (without children: F(t) on the free dofs)."""
+        out = np.zeros(self.size)
+        for _, prob, Eb in self.maps:
+            out += Eb.T @ prob.load(t)
+        return out
 
     def potential(self, q):
         """1/2 q . K_q q."""
@@ -276,16 +355,22 @@ class Glue(Coupling):
 
 
 class GluedBodies:
-    """A base body with bodies glued to it (module docstring).
+    """A base body with bodies glued to it, or glued to each other in chains (module
+    docstring).
 
     Parameters
     ----------
     base : Body
         Prescribed data (``dirichlet``, ``clamped``), tractions, body force, damping of the
-        body that holds the others.
-    attached : sequence of (Body, base_part, body_part)
-        Each body glued along ``body_part`` to the base's ``base_part``; an attached body
-        takes ``clamped`` parts (u = 0) but no other prescribed data.
+        body that holds the others (body 0).
+    attached : sequence of (Body, part_j, body_part) or (Body, part_j, body_part, j)
+        Body k (the k-th item, k = 1, 2, ...) glued along its ``body_part`` to body j's part
+        ``part_j``: j = 0 (the base; the default of a triple) or an attached body j < k (a
+        chain: base - 1 - 2 - ..., or any tree). An attached body takes ``clamped`` parts
+        (u = 0) but no other prescribed data. Bodies glued to the base are the system's
+        components, each with the bodies glued to it eliminated by substitution
+        (:class:`ElasticComponent`'s ``children``); only the base's interfaces carry a
+        multiplier.
     method : 'auto' | 'matching' | 'mortar'
         Of every :class:`~rothe.eld.interface.Interface`.
     T : float
@@ -294,9 +379,13 @@ class GluedBodies:
     Attributes
     ----------
     system : CoupledProblem
-        The base with the attached bodies as components (:func:`run_bodies` runs it).
+        The base with the bodies glued to it as components (:func:`run_bodies` runs it).
     interfaces : list of Interface
+        The base's interfaces (with a multiplier), in the order of ``components``.
     components : list of ElasticComponent
+        The bodies glued to the base (with their chains).
+    chains : list of Interface
+        The interfaces between attached bodies (eliminated: no multiplier).
     """
 
     def __init__(self, base: Body, attached, *, method: str = "auto", T: float = 1.0):
@@ -307,16 +396,27 @@ class GluedBodies:
             raise fail("attached", [], "must glue at least one body to the base")
         self.base_body = base
         self.T = float(T)
-        base_parts = set((base.mesh.boundaries or {}).keys())
-        comps, glues, itfs, names = [], [], [], {base.name}
-        seen = {}
+        parts = [set((base.mesh.boundaries or {}).keys())]
+        bodies, names, seen = [base], {base.name}, {}
+        links, problems = [], []  # per attached body: (j, part on j, own part); its problem
+        glued_parts = [set() for _ in range(len(attached) + 1)]  # parts glued, per body
         for k, item in enumerate(attached):
             label = f"attached[{k}]"
-            if not (isinstance(item, tuple | list) and len(item) == 3):
+            if not (isinstance(item, tuple | list) and len(item) in (3, 4)):
                 raise fail(
-                    label, described(repr(item)[:60]), "must be (Body, base_part, body_part)"
+                    label,
+                    described(repr(item)[:60]),
+                    "must be (Body, part_j, body_part) or (Body, part_j, body_part, j)",
                 )
-            body, part1, part2 = item
+            body, part1, part2 = item[:3]
+            j = 0 if len(item) == 3 else item[3]
+            if not isinstance(j, int | np.integer) or isinstance(j, bool) or not 0 <= j <= k:
+                raise fail(
+                    f"{label}[3]",
+                    j,
+                    f"must be the number of a body before it: 0 (the base) to {k}",
+                )
+            j = int(j)
             if not isinstance(body, Body):
                 raise fail(f"{label}[0]", type(body).__name__, "must be a rothe.eld.bodies.Body")
             if body.dirichlet:
@@ -328,12 +428,24 @@ class GluedBodies:
             if body.name in names:
                 raise fail(f"{label}.name", body.name, "must be unique among the bodies")
             names.add(body.name)
-            if part1 not in base_parts:
-                allowed = ", ".join(sorted(base_parts)) or "(the mesh has no named parts)"
-                raise fail(f"{label}.base_part", part1, f"must be one of {allowed}")
-            if part1 in seen:
-                raise fail(f"{label}.base_part", part1, f"is already glued ({seen[part1]})")
-            seen[part1] = label
+            where = "base_part" if j == 0 else "part_j"
+            if part1 not in parts[j]:
+                allowed = ", ".join(sorted(parts[j])) or "(the mesh has no named parts)"
+                raise fail(f"{label}.{where}", part1, f"must be one of {allowed}")
+            if (j, part1) in seen:
+                raise fail(f"{label}.{where}", part1, f"is already glued ({seen[(j, part1)]})")
+            if j and (
+                part1 in (bodies[j].traction or {})
+                or part1 in bodies[j].clamped
+                or part1 in glued_parts[j]
+            ):
+                raise fail(
+                    f"{label}.part_j",
+                    part1,
+                    f"is loaded, clamped or glued on {bodies[j].name!r}; a part is one of them",
+                )
+            seen[(j, part1)] = label
+            glued_parts[j].add(part1)
             parts2 = set((body.mesh.boundaries or {}).keys())
             if part2 not in parts2:
                 allowed = ", ".join(sorted(parts2)) or "(the mesh has no named parts)"
@@ -352,33 +464,69 @@ class GluedBodies:
                         "must be a boundary part of the body other than the glued one: "
                         + ", ".join(sorted(parts2 - {part2})),
                     )
+            glued_parts[k + 1].add(part2)
             # the body assembled (its dirichlet: the clamped parts and, to fix nothing but the
             # free dofs, the glued part; its loads and initial data as given)
-            problem = ELDProblem(
-                body.mesh,
-                body.material,
-                degree=body.degree,
-                damping=body.damping,
-                dirichlet={**{p: _CLAMP for p in body.clamped}, part2: _CLAMP},
-                traction=body.traction,
-                body_force=body.body_force,
-                u0=body.u0,
-                v0=body.v0,
-                T=self.T,
-                name=body.name,
+            problems.append(
+                ELDProblem(
+                    body.mesh,
+                    body.material,
+                    degree=body.degree,
+                    damping=body.damping,
+                    dirichlet={**{p: _CLAMP for p in body.clamped}, part2: _CLAMP},
+                    traction=body.traction,
+                    body_force=body.body_force,
+                    u0=body.u0,
+                    v0=body.v0,
+                    T=self.T,
+                    name=body.name,
+                )
             )
-            comp = ElasticComponent(problem, body.clamped, body.name)
+            bodies.append(body)
+            parts.append(parts2)
+            links.append((j, part1, part2))
+        # the components bottom-up: every body with the bodies glued to it (its children)
+        base_space = VectorSpace(base.mesh, base.degree)
+        spaces = [base_space] + [prob.space for prob in problems]
+        built: dict = {}
+        self.chains = []
+        sides = []  # (interface, the body of side 1, the body of side 2): body numbers
+        for k in range(len(attached), 0, -1):
+            children = []
+            for c in range(k + 1, len(attached) + 1):  # in the order given
+                j, part1, part2 = links[c - 1]
+                if j == k:
+                    itf = Interface(
+                        spaces[k],
+                        part1,
+                        spaces[c],
+                        part2,
+                        method=method,
+                        name=f"attached[{c - 1}].interface",
+                    )
+                    children.append((itf, built.pop(c)))
+                    self.chains.insert(0, itf)
+                    sides.insert(0, (itf, k, c))
+            body = bodies[k]
+            built[k] = ElasticComponent(problems[k - 1], body.clamped, body.name, children)
+        comps, glues, itfs = [], [], []
+        for k in range(1, len(attached) + 1):
+            j, part1, part2 = links[k - 1]
+            if j:
+                continue
+            comp = built.pop(k)
             itf = Interface(
-                VectorSpace(base.mesh, base.degree),
+                base_space,
                 part1,
-                problem.space,
+                problems[k - 1].space,
                 part2,
                 method=method,
-                name=f"{label}.interface",
+                name=f"attached[{k - 1}].interface",
             )
             comps.append(comp)
             itfs.append(itf)
             glues.append(Glue(itf, comp))
+            sides.append((itf, 0, k))
         dirichlet = {**{p: _CLAMP for p in base.clamped}, **dict(base.dirichlet or {})}
         self.system = CoupledProblem.from_body(
             base.mesh,
@@ -398,6 +546,10 @@ class GluedBodies:
         self.components, self.interfaces, self.glues = comps, itfs, glues
         for glue in glues:  # the side-1 points in the interface's order
             glue._check(self.system._points[glue.part])
+        # every attached body in the order given: (its component, its map u_b = E_b q_c)
+        where = {name: (comp, prob, Eb) for comp in comps for name, prob, Eb in comp.maps}
+        self._attached = [where[b.name] for b in bodies[1:]]
+        self._sides = sides
 
     @property
     def base(self) -> ELDProblem:
@@ -405,17 +557,24 @@ class GluedBodies:
         return self.system.body
 
     def bodies(self) -> list:
-        """(name, space) of every body, the base first."""
+        """(name, space) of every body, the base first, then the attached ones as given."""
         return [(self.base.name, self.base.space)] + [
-            (c.name, c.problem.space) for c in self.components
+            (prob.name, prob.space) for _, prob, _ in self._attached
         ]
+
+    def problems(self) -> list:
+        """The problem of every body (the base's with its constraint), in :meth:`bodies`'s
+        order."""
+        return [self.base] + [prob for _, prob, _ in self._attached]
 
     def fields(self, u: np.ndarray, q: np.ndarray) -> list:
         """The dof vectors of all bodies, the base first, from the base's u and the stacked
-        coordinates q (one state: (n,), (r,); or series (k, n), (k, r))."""
+        coordinates q (one state: (n,), (r,); or series (k, n), (k, r)): u_b = E_b q_c of the
+        component c that holds body b."""
         out = [np.asarray(u)]
-        for c in self.components:
-            out.append(c.field(np.asarray(q)[..., self.system.slice(c)]))
+        for comp, _, Eb in self._attached:
+            qc = np.asarray(q)[..., self.system.slice(comp)]
+            out.append((Eb @ qc.T).T if qc.ndim > 1 else Eb @ qc)
         return out
 
     def multiplier(self, lam: np.ndarray, k: int = 0) -> np.ndarray:
@@ -430,10 +589,18 @@ class GluedBodies:
         lambda, (n_1,); on body k, +(Pi S E)^T M_G lambda as a dof vector of body k,
         (n_k,)). Their resultants sum to zero (action = reaction)."""
         c = self.system.constraint
-        f1 = -(c.B.T @ self._only(lam, k))
-        gen = self.system.generalized_reaction(self._only(lam, k))
-        comp = self.components[k]
-        return f1, comp.E @ gen[self.system.slice(comp)]
+        only = self._only(lam, k)
+        f1 = -(c.B.T @ only)
+        # (Pi S_Q)^T M_G lambda on body k's interface dofs (zero where it is clamped): the
+        # generalized force Gamma^T M_G lambda before the component's map E, which for a
+        # chain mixes in the bodies glued to body k
+        itf, comp = self.interfaces[k], self.components[k]
+        local = (c.boundary_mass @ only)[self.system._rows[itf.part1].T.ravel()]
+        f2 = np.zeros(comp.problem.space.ndofs)
+        f2[itf.space2.vector_dofs(itf.dofs2)] = itf.vector(itf.Pi).T @ local
+        held = np.setdiff1d(np.arange(f2.size), comp.free)
+        f2[held] = 0.0
+        return f1, f2
 
     def _only(self, lam, k):
         keep = np.zeros_like(np.asarray(lam, float))
@@ -443,6 +610,17 @@ class GluedBodies:
         rows = (d * pos[:, None] + np.arange(d)).ravel()
         keep[rows] = np.asarray(lam)[rows]
         return keep
+
+    def interface_residual(self, u: np.ndarray, q: np.ndarray) -> float:
+        """max |S_1 u_j - Pi S_2 u_k| over every interface (the base's and the chains') of
+        one state, relative to max(1, max |u|): zero up to round-off on the chains (their
+        glue is substituted), the coupling's residual on the base's."""
+        us = self.fields(u, q)
+        worst = 0.0
+        for itf, j, k in self._sides:
+            side1 = us[j].reshape(-1, itf.space1.dim)[itf.dofs1].ravel()
+            worst = max(worst, float(np.abs(side1 - itf.project(us[k])).max(initial=0.0)))
+        return worst / max(1.0, max(float(np.abs(w).max(initial=0.0)) for w in us))
 
     def describe(self) -> dict:
         """Bodies (name, unknowns, degree, material) and interfaces, for summaries."""
@@ -456,15 +634,16 @@ class GluedBodies:
                 for name, space in self.bodies()
             ],
             "interfaces": [itf.describe() for itf in self.interfaces],
+            "chains": [itf.describe() for itf in self.chains],
         }
 
 
 def run_bodies(glued: GluedBodies, *, fields: bool = True, **options) -> CoupledResult:
     """Run glued bodies (:class:`GluedBodies`) from 0 to T: :func:`run_coupled` on its
-    system, the keywords of which (scheme, form, control, T, watch, error_scale, progress)
-    ``options`` passes on. With ``fields`` the base's u, v and lambda are recorded at every
-    state (series ``u``, ``v``, ``lam``; the attached bodies' are their coordinates ``q``, ``p``:
-    :meth:`GluedBodies.fields`).
+    system, the keywords of which (scheme, form, control, T, watch, error_scale, adapt,
+    progress, checkpoint, resume) ``options`` passes on. With ``fields`` the base's u, v and
+    lambda are recorded at every state (series ``u``, ``v``, ``lam``; the attached bodies'
+    are their coordinates ``q``, ``p``: :meth:`GluedBodies.fields`).
 
     Trajectory series besides run_coupled's: ``reaction_<base_part>`` is the resultant the
     attached body exerts on the base through that interface (-int lambda ds), ``constraint``

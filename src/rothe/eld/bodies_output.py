@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import described, fail
 from ..io.atomic import TMP_PREFIX
 from .output import EldXdmfWriter
 
@@ -66,6 +67,14 @@ def attached_multiplier(glued, lam: np.ndarray, k: int) -> np.ndarray:
 def write_bodies_result(result, glued, out_dir, *, paraview: bool = True, npz: bool = True):
     """Write ``trajectory.npz`` and the ParaView series of a :func:`rothe.eld.run_bodies`
     result (``fields=True``) into ``out_dir``; returns the written paths by kind."""
+    if glued.chains:
+        raise fail(
+            "glued",
+            described(
+                f"a chain of bodies ({len(glued.chains)} interface(s) between attached bodies)"
+            ),
+            "is not written yet: the bodies' series are glued.fields(u, q) of the trajectory",
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     traj = result.trajectory
@@ -76,7 +85,7 @@ def write_bodies_result(result, glued, out_dir, *, paraview: bool = True, npz: b
         t, u, v, q, p = (np.asarray(traj[k]) for k in ("t", "u", "v", "q", "p"))
         lam = np.asarray(traj["lam"])
         us, vs = glued.fields(u, q), glued.fields(v, p)
-        problems = [glued.base] + [c.problem for c in glued.components]
+        problems = glued.problems()
         paths["xdmf"] = []
         for i, problem in enumerate(problems):
             work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{problem.name}.parts"

@@ -28,9 +28,19 @@ linear components' stiffness; S_j >= ``error_scale``). Controller states z are n
 **Why a function of its own** and not ``run_eld(CoupledProblem)``: the same keywords
 (``scheme=``, ``form=``, ``control=``) mean the same objects, but a coupled run has a different
 state (q, p, z next to the fields), a different result (the components' trajectories and the
-whole-system ledger), and today neither ``data=`` (the prescribed part's data are taken at the
-step's points) nor checkpoints; ``run_eld`` accepting a
-CoupledProblem would have to refuse half its keywords for one kind of problem. When the coupled
+whole-system ledger), and today no ``data=`` (the prescribed part's data are taken at the
+step's points); ``run_eld`` accepting a CoupledProblem would have to refuse half its keywords
+for one kind of problem.
+
+**Checkpoints** (``checkpoint=``, ``resume=``: the words and files of ``run_eld``,
+:mod:`rothe.io.checkpoint`): :meth:`CoupledStepper.checkpoint_state` holds the state (the
+body's u, v, a, lambda, the components' q, p, pdot, the controllers' z, the scheme's history
+per BDF level with its products, the whole-system ledger), the key of the stored factorization
+and the step algebra's counters, and with space adaptivity the mesh hierarchy and the series of
+meshes; the controller its step-size state; the checkpoint the trajectory so far. A resumed
+run refactors from the key (not counted) and continues bit for bit; SIGINT / SIGTERM stop it
+with the trajectory so far and a checkpoint. :func:`run_coupled_many` runs several systems
+with one checkpoint (the commands that compare two runs). When the coupled
 step moves into :class:`~rothe.eld.stepper.ELDStepper` (docs/coupling.md, Sec. 12), this
 function becomes run_eld's branch with the same signature.
 """
@@ -38,14 +48,21 @@ function becomes run_eld's branch with the same signature.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import RunFailed, fail
+from ..errors import RunFailed, described, fail
 from ..fem.adapt import free_transfer
 from ..fem.adapt.cycle import energy_or_fail, finite_or_fail
+from ..io.checkpoint import (
+    CheckpointError,
+    RunCheckpointing,
+    digest,
+    restored_vector,
+    run_arguments,
+)
 from ..io.trajectory import Trajectory
 from ..stepping.controllers import Adaptive, Uniform
 from ..stepping.evolve import evolve
@@ -64,6 +81,10 @@ from .stepper import GridLoop, StepGrid
 
 #: the history a step needs (two states for BDF2)
 _HISTORY = ("x", "y", "q", "p", "z", "gk", "gdk", "u", "v")
+#: the vectors of a state (besides its history) a checkpoint stores
+_STATE_VECTORS = ("u", "v", "a", "lam", "q", "p", "pdot", "z", "zdot")
+#: the checkpoint format of :meth:`CoupledStepper.checkpoint_state`
+CHECKPOINT_FORMAT = "rothe-coupled-state-1"
 #: the products kept with that history (rho M v, K u, K v, rho M a; M_q p, K_q q): the ledger
 #: and the estimate take differences of them instead of products of differences
 _PRODUCTS = ("Mv", "Ku", "Kv", "Ma", "Mp", "Kq")
@@ -252,6 +273,7 @@ class CoupledStepper(GridLoop):
         self.lifting = "nodal" if isinstance(form, Original) else form.lifting
         self._original = isinstance(form, Original)
         kern = CoupledStepSystem(system, self.lifting)
+        self._start = CoupledMesh(system, kern)  # the initial mesh's (a resumed run rebuilds)
         self._bind(system, kern)
         self.r, self.s_ctrl = kern.r, kern.s
         self.comps_linear = all(cmp.is_linear for cmp in system.components)
@@ -888,6 +910,102 @@ class CoupledStepper(GridLoop):
         if self.adaptivity is not None:  # eta of the adapt step after it (NaN: none)
             traj.append(space_estimate=math.nan if self._adapted is None else self._adapted)
 
+    # -- checkpoints -----------------------------------------------------------------------------
+    def checkpoint_state(self, state: CoupledState) -> dict:
+        """Everything that influences the rest of the run, as arrays and plain values
+        (:mod:`rothe.io.checkpoint`): the state -- the body's u, v, a, lambda, the components'
+        q, p, pdot, the controllers' z, zdot, the scheme's history (x, y, q, p, z, g_k, g'_k,
+        u, v and their products per level), the whole-system ledger, the energies the next
+        record reads --, the key of the stored factorization with the step algebra's
+        counters, the Newton count of the progress line, and with space adaptivity the mesh
+        hierarchy, the series of meshes and the log (:class:`CoupledAdaptivity`)."""
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "scheme": self.scheme.name,
+            "form": self.form.name,
+            "lifting": self.lifting,
+            "t": float(state.t),
+            "j": int(state.j),
+            "tau_prev": state.tau_prev,
+            **{key: getattr(state, key).copy() for key in _STATE_VECTORS},
+            "hist": {key: [w.copy() for w in levels] for key, levels in state.hist.items()},
+            "ledger": {key: float(v) for key, v in state.ledger.items()},
+            "energy_start": float(state.energy_start),
+            "energy_norm_max": float(state.energy_norm_max),
+            "energies": None if state.energies is None else [float(e) for e in state.energies],
+            "lam_norm": None if state.lam_norm is None else float(state.lam_norm),
+            "mesh_id": int(state.mesh_id),
+            "kern": self.kern.checkpoint_state(),
+            "last_newton": int(self._last_newton),
+            "adapt": None if self.adaptivity is None else self.adaptivity.checkpoint_state(),
+        }
+
+    def restore_state(self, data: dict) -> CoupledState:
+        """The state of :meth:`checkpoint_state`. With space adaptivity the mesh is restored and
+        the system rebuilt on it (:meth:`CoupledAdaptivity.rebuild` from the initial mesh's);
+        the stored factorization is made again from its key (not counted). A state of another
+        scheme, form, lifting or kind of mesh, or whose vectors do not fit this system, is
+        refused in one line (:class:`~rothe.io.checkpoint.CheckpointError`)."""
+        if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+            got = data.get("format") if isinstance(data, dict) else type(data).__name__
+            raise CheckpointError(
+                f"checkpoint state stepper: format {got!r}, must be {CHECKPOINT_FORMAT!r} "
+                "(the checkpoint is of another run)"
+            )
+        for key, mine in (
+            ("scheme", self.scheme.name),
+            ("form", self.form.name),
+            ("lifting", self.lifting),
+        ):
+            if data.get(key) != mine:
+                raise CheckpointError(
+                    f"checkpoint state stepper: {key} {data.get(key)!r}, this run has {mine!r}"
+                )
+        if (data.get("adapt") is None) != (self.adaptivity is None):
+            kind = "a fixed-mesh" if data.get("adapt") is None else "a space-adaptive"
+            raise CheckpointError(
+                f"checkpoint state stepper: {kind} run's state, this run "
+                + ("adapts its mesh" if self.adaptivity is not None else "keeps its mesh")
+            )
+        if self.adaptivity is not None:
+            self.adaptivity.restore_state(data["adapt"])
+            if int(data["mesh_id"]) != 0:
+                new = self.adaptivity.rebuild(self._start, self.adaptivity.adaptation.mesh)
+                self._bind(new.system, new.kern)
+        sizes = {"u": self.n, "lam": self.c.m, "q": self.r, "z": self.s_ctrl}
+        sizes.update(v=self.n, a=self.n, p=self.r, pdot=self.r, zdot=self.s_ctrl)
+        vectors = {key: restored_vector(data, key, sizes[key]) for key in _STATE_VECTORS}
+        component_matrix = None
+        key = data["kern"].get("key")
+        stepped = key is not None and key[2] == 1.0  # a step's (kappa^2, kappa, 1, 1, ...)
+        if stepped and self.comps_linear:
+            # the components' block of the last step, as _step makes it
+            kap = float(key[1])
+            self._Jq = (kap, kap * kap * self.Mq + kap * self.Cq + self.Kq)
+            component_matrix = self._Jq[1]
+        self.kern.restore_state(
+            data["kern"], component_matrix, border=stepped and not self.comps_linear
+        )
+        self._last_newton = int(data.get("last_newton", 0))
+        energies = data.get("energies")
+        tp, lam_norm = data["tau_prev"], data.get("lam_norm")
+        return CoupledState(
+            t=float(data["t"]),
+            j=int(data["j"]),
+            tau_prev=None if tp is None else float(tp),
+            **vectors,
+            hist={
+                key: [np.array(w, dtype=float) for w in levels]
+                for key, levels in data["hist"].items()
+            },
+            ledger={key: float(v) for key, v in data["ledger"].items()},
+            energy_start=float(data["energy_start"]),
+            energy_norm_max=float(data["energy_norm_max"]),
+            energies=None if energies is None else tuple(float(e) for e in energies),
+            lam_norm=None if lam_norm is None else float(lam_norm),
+            mesh_id=int(data.get("mesh_id", 0)),
+        )
+
 
 def run_coupled(
     system: CoupledProblem,
@@ -902,6 +1020,8 @@ def run_coupled(
     fields: bool = False,
     adapt=None,
     progress=False,
+    checkpoint=None,
+    resume=None,
 ) -> CoupledResult:
     """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
 
@@ -922,7 +1042,8 @@ def run_coupled(
     error_scale : float
         The floor of the error estimate's scale.
     noise : callable j -> (theta, xi, vartheta), optional
-        Perturbations of the coordinates that enter the coupling data (:class:`CoupledStepper`).
+        Perturbations of the coordinates that enter the coupling data (:class:`CoupledStepper`;
+        not with checkpoints: a callable cannot be compared on resume).
     fields : bool
         Record u, v, lambda of the body at every state (series ``u``, ``v``, ``lam``).
     adapt : SpaceAdaptivity, optional
@@ -932,56 +1053,216 @@ def run_coupled(
         (:class:`rothe.eld.adapt.ELDMeshes`) every mesh once and the log of adaptations. Not
         with ``watch``, ``fields`` or ``noise`` (they live on one mesh).
     progress : bool or ProgressOptions
+    checkpoint, resume : optional
+        As for :func:`~rothe.eld.run.run_eld`: a directory or
+        :class:`~rothe.io.checkpoint.CheckpointOptions` to write checkpoints to (at the start,
+        every 60 s, when stopped, at the end), and one written by ``run_coupled`` with the same
+        arguments and system to continue from. A resumed run returns the trajectory of the
+        uninterrupted run bit for bit (its statistics too, but the wall time, which sums the
+        sessions); SIGINT / SIGTERM raise :class:`~rothe.errors.RunInterrupted` with the
+        trajectory so far and a checkpoint.
 
     Returns
     -------
     CoupledResult
     """
-    if not isinstance(system, CoupledProblem):
-        raise fail("system", type(system).__name__, "must be a rothe.eld.CoupledProblem")
+    (result,) = run_coupled_many(
+        {"run": system},
+        scheme=scheme,
+        form=form,
+        control=control,
+        T=T,
+        watch=watch,
+        error_scale=error_scale,
+        noise=noise,
+        fields=fields,
+        adapt=adapt,
+        progress=progress,
+        checkpoint=checkpoint,
+        resume=resume,
+    ).values()
+    return result
+
+
+def run_coupled_many(
+    systems: dict,
+    *,
+    scheme=DEFAULT_SCHEME,
+    form=DEFAULT_FORM,
+    control=None,
+    T: float | None = None,
+    watch=None,
+    error_scale: float = 1e-12,
+    noise=None,
+    fields: bool = False,
+    adapt=None,
+    progress=False,
+    checkpoint=None,
+    resume=None,
+    results: dict | None = None,
+) -> dict:
+    """Run several coupled systems one after the other with the same options (those of
+    :func:`run_coupled`), with one checkpoint for all: the commands that compare two runs
+    (``rothe run eld-tmd``: with and without the absorber; ``eld-control``: with and without
+    the feedback) checkpoint and resume as one run. The checkpoint holds the finished runs
+    (their trajectories, final states and controllers) and the state of the one under way;
+    a resumed sequence restores the finished runs and continues the one under way bit for bit.
+
+    Parameters
+    ----------
+    systems : dict label -> CoupledProblem
+        The runs in order (``run_coupled``'s is ``{'run': system}``).
+    results : dict, optional
+        Filled with label -> :class:`CoupledResult` as the runs finish (restored ones first),
+        so that a caller has the finished runs when a later one stops (RunInterrupted,
+        RunFailed carry the trajectory of the run under way).
+
+    Returns
+    -------
+    dict label -> CoupledResult
+    """
+    if not isinstance(systems, dict) or not systems:
+        raise fail("systems", described(repr(systems)[:60]), "must be a dict label -> system")
+    for system in systems.values():
+        if not isinstance(system, CoupledProblem):
+            raise fail("system", type(system).__name__, "must be a rothe.eld.CoupledProblem")
     scheme = as_scheme(scheme)
     form = as_form(form)
-    T = system.body.T if T is None else float(T)
-    if not (math.isfinite(T) and T > 0):
-        raise fail("T", T, "must be positive and finite")
+    if T is not None:
+        T = float(T)
+        if not (math.isfinite(T) and T > 0):
+            raise fail("T", T, "must be positive and finite")
     if not isinstance(control, (Uniform, Adaptive)):
         raise fail(
             "control",
             type(control).__name__,
             "must be Uniform(tau) or Adaptive(tol) (rothe.stepping.controllers)",
         )
-    if isinstance(control, Adaptive) and control.tau is None:
-        control = replace(control, tau=T / 100)  # the first step: 1/100 of the run
     if adapt is not None:
         check_adapt(adapt, data=Points(), noise=None)
         check_coupled_adapt(adapt, watch=watch, fields=fields, noise=noise)
-    stepper = CoupledStepper(
-        system,
-        scheme,
-        form,
-        T,
-        control,
-        watch=watch,
+    if noise is not None and (checkpoint is not None or resume is not None):
+        raise fail(
+            "noise",
+            described("a callable"),
+            "is not supported with checkpoint or resume (a callable cannot be compared on "
+            "resume): run the perturbation study without checkpoints",
+        )
+    options = dict(watch=watch, error_scale=error_scale, noise=noise, fields=fields, adapt=adapt)
+    ends = {label: system.body.T if T is None else T for label, system in systems.items()}
+    arguments = run_arguments(
+        runs=list(systems),
+        scheme=scheme.describe(),
+        form=form.describe(),
+        control={"type": type(control).__name__, **asdict(control)},
+        T=[ends[label] for label in systems],
+        watch=None if watch is None else digest(watch),
         error_scale=error_scale,
-        noise=noise,
-        fields=fields,
-        adapt=adapt,
+        fields=bool(fields),
+        **({} if adapt is None else {"adapt": adapt.describe()}),
     )
-    info = {}
-    controller, _, tau_min = step_controller(stepper, control, T, info)
-    traj = Trajectory(
-        meta={
+    done = {} if results is None else results
+    labels = list(systems)
+    with RunCheckpointing("run_coupled", _Systems(systems), arguments, checkpoint, resume) as rc:
+        cp, restored = rc.checkpointer, rc.restored
+        start, finished = 0, []
+        if restored is not None:
+            context = restored.state["run"] or {}
+            start = int(context.get("index", 0))
+            finished = list(context.get("finished", []))
+            for i in range(start):
+                label = labels[i]
+                run = _CoupledRun(systems[label], scheme, form, control, ends[label], options)
+                state = run.stepper.restore_state(finished[i]["stepper"])
+                run.controller.restore_state(finished[i]["controller"])
+                traj = restored.trajectory(i)
+                if cp is not None:
+                    cp.register(traj)
+                done[label] = CoupledResult(traj, state, run.stepper, run.controller)
+        for i in range(start, len(labels)):
+            label = labels[i]
+            run = _CoupledRun(systems[label], scheme, form, control, ends[label], options)
+            if cp is not None:
+                cp.context = {"index": i, "finished": finished}
+            if restored is not None and i == start:
+                traj = restored.trajectory(i)
+                traj.meta.update(run.info)
+                traj.meta["sessions"] = restored.sessions + 1
+                state = rc.restore(run.stepper, run.controller)
+            else:
+                traj = Trajectory(meta=run.info)
+                state = run.stepper.initial_state()
+                run.stepper.record_initial(traj, state)
+            if cp is not None:
+                cp.register(traj)
+                if not (restored is not None and i == start):
+                    cp.save_or_warn(run.stepper, run.controller, state, where=_where(traj, state))
+            state = evolve(
+                run.stepper,
+                run.controller,
+                state,
+                traj,
+                tau_min=run.tau_min,
+                progress=progress,
+                checkpointer=cp,
+            )
+            done[label] = CoupledResult(traj, state, run.stepper, run.controller)
+            if cp is not None:
+                finished = finished + [
+                    {
+                        "stepper": run.stepper.checkpoint_state(state),
+                        "controller": run.controller.checkpoint_state(),
+                    }
+                ]
+        if cp is not None:
+            cp.context = {"index": len(labels), "finished": finished}
+            last = done[labels[-1]]
+            cp.save_or_warn(status="completed", where=_where(last.trajectory, last.state))
+    return {label: done[label] for label in labels}
+
+
+class _CoupledRun:
+    """One run of :func:`run_coupled_many`: the stepper, its controller, the trajectory's meta
+    data and the evolve loop's tau_min."""
+
+    def __init__(self, system, scheme, form, control, T, options):
+        if isinstance(control, Adaptive) and control.tau is None:
+            control = replace(control, tau=T / 100)  # the first step: 1/100 of the run
+        self.stepper = CoupledStepper(system, scheme, form, T, control, **options)
+        info = {}
+        self.controller, _, self.tau_min = step_controller(self.stepper, control, T, info)
+        adapt = options["adapt"]
+        self.info = {
             "kind": "eld-coupled",
             **form.describe(),
             **scheme.describe(),
             "T": T,
             "components": [cmp.name for cmp in system.components],
-            "parts": list(stepper.c.parts),
+            "parts": list(self.stepper.c.parts),
             **info,
             **({} if adapt is None else {"adapt": adapt.describe()}),
         }
-    )
-    state = stepper.initial_state()
-    stepper.record_initial(traj, state)
-    state = evolve(stepper, controller, state, traj, tau_min=tau_min, progress=progress)
-    return CoupledResult(traj, state, stepper, controller)
+
+
+class _Systems:
+    """The systems of :func:`run_coupled_many` as the one problem a checkpoint fingerprints:
+    every system's :meth:`CoupledProblem.fingerprint` under its label."""
+
+    def __init__(self, systems: dict):
+        self.systems = systems
+
+    def fingerprint(self) -> dict:
+        return {
+            f"{label}.{key}": value
+            for label, system in self.systems.items()
+            for key, value in system.fingerprint().items()
+        }
+
+
+def _where(traj: Trajectory, state: CoupledState) -> dict:
+    return {
+        "accepted_steps": traj.stats.accepted_steps,
+        "s": float(state.t),
+        "t": float(state.t),
+        "j": int(state.j),
+    }

@@ -243,6 +243,32 @@ class CoupledStepSystem:
         self.stats["factorizations"] += 1
         self._border()
 
+    # -- checkpoints -----------------------------------------------------------------------------
+    def checkpoint_state(self) -> dict:
+        """The key of the stored factorization (its coefficients) and the counters: what a
+        resumed run needs to go on as the uninterrupted one (:meth:`restore_state`)."""
+        return {
+            "key": None if self._key is None else list(self._key),
+            "stats": {k: int(v) for k, v in self.stats.items()},
+        }
+
+    def restore_state(self, data: dict, component_matrix=None, border: bool = False) -> None:
+        """Factor the matrix the key of :meth:`checkpoint_state` names -- on the monolithic
+        path the bordered matrix with ``component_matrix`` (the components' block of the last
+        step, linear components) or, with ``border`` (nonlinear ones after a step), A_II and
+        the border -- then continue the counters from the checkpoint's: the refactorization is
+        not counted, the uninterrupted run did not do it. The same matrices factored by the
+        same SuperLU give the same factors, so the next steps are the uninterrupted run's bit
+        for bit."""
+        key = data.get("key")
+        if key is not None:
+            self.factor(*key)
+            if self.monolithic and component_matrix is not None:
+                self._monolithic(component_matrix)
+            elif self.monolithic and border:
+                self._border()
+        self.stats = {k: int(v) for k, v in data["stats"].items()}
+
     def _border(self) -> None:
         """X = A_II^{-1} (A Phi)_I (back-substitutions for the non-zero border columns only),
         the sensor rows W, V and the Schur complement S0 = C - V [X, 0] without the

@@ -47,6 +47,7 @@ matrix Gamma = g_q (constrained dofs x all coordinates).
 
 from __future__ import annotations
 
+import json
 import warnings
 from abc import ABC, abstractmethod
 
@@ -54,6 +55,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import RotheInputError, check_int, described, fail
+from ..io.checkpoint import digest
 from .components import Component, RigidBody, check_jacobian, rigid_motion_matrix
 from .constraint import NodalLifting
 from .problem import DirichletData, ELDProblem
@@ -734,6 +736,40 @@ class CoupledProblem:
             v = c.potential(q[s])
             pot = None if (pot is None or v is None) else pot + v
         return kin, pot
+
+    def fingerprint(self) -> dict:
+        """Cheap hashes that identify the system (what a checkpoint of :func:`run_coupled` must
+        match to be resumed, :mod:`rothe.io.checkpoint`): the body's own
+        (:meth:`ELDProblem.fingerprint`) and, per entry so that a refusal says what differs,
+        the components (M_q, the force at a fixed (t, q, p) -- a spring, a damper, a user's
+        force --, the loads at 0, T/3, T, q0, p0), the couplings (Gamma at q0, the data g at
+        T/3) and the controllers (their Jacobians at z0, z0, the sensor rows)."""
+        T = float(self.body.T)
+        r = self.size
+        q = np.sin(np.arange(1, r + 1))
+        p = np.cos(np.arange(1, r + 1))
+        out = {f"body.{k}": v for k, v in self.body.fingerprint().items()}
+        mass = self.mass()
+        out["components"] = digest(
+            mass if sp.issparse(mass) else np.asarray(mass),
+            self.force(T / 3.0, q, p),
+            *[self.load(t) for t in (0.0, T / 3.0, T)],
+            self.q0,
+            self.p0,
+        )
+        out["couplings"] = digest(self.gamma(), self.g(T / 3.0, q))
+        parts = []
+        for k in self.controllers:
+            z0 = np.asarray(k.z0, float)
+            parts += [z0, k.Y_u, k.Y_v, k.Y_lam]
+            parts += [np.asarray(J, float) for J in k.jacobians(0.0, z0, np.ones(k.n_inputs))]
+        out["controllers"] = digest(*parts) if parts else None
+        out["system"] = digest(
+            np.frombuffer(
+                json.dumps(self.describe(), sort_keys=True, default=str).encode(), np.uint8
+            )
+        )
+        return out
 
     def describe(self) -> dict:
         """Components, couplings, controllers and the number of coordinates, for summaries."""

@@ -22,7 +22,9 @@ body 1, -(Pi S_2)^T M_G lambda on body 2 (action = reaction).
   of the facets of the two sides (2D: overlapping segments; 3D: the polygons of two coplanar
   triangles, clipped by Sutherland-Hodgman, vectorized over all candidate pairs, fan-
   triangulated, degree-4 rule), so Pi reproduces every field both trace spaces contain (the
-  patch test: constants and linear fields exactly) and rows of M_12 sum to those of D.
+  patch test: constants and linear fields exactly) and rows of M_12 sum to those of D;
+  Pi = D^{-1} M_12 solved by blocks of columns into a sparse matrix, no dense k1 x k2
+  (:func:`mortar_projection`).
 - ``method="auto"`` (default): matching if every node pairs up, else mortar.
 
 Refused with one line: a part that does not exist, bodies of different dimensions, a side-1
@@ -60,6 +62,52 @@ _TRI_X = np.array(
     [[_a, _a], [1 - 2 * _a, _a], [_a, 1 - 2 * _a], [_b, _b], [1 - 2 * _b, _b], [_b, 1 - 2 * _b]]
 )
 _TRI_W = np.array([_c, _c, _c, _d, _d, _d])  # weights sum to 1/2 (the reference area)
+
+
+#: columns of M_12 solved at once by :func:`mortar_projection` (its dense work array is
+#: k1 x PI_BLOCK: 2 MB for k1 = 1000)
+PI_BLOCK = 256
+#: entries of Pi below this, relative to its largest, are dropped: the tail of D^{-1}, which
+#: decays exponentially away from the overlap of the supports (round-off, not the projection)
+PI_DROP = 1e-14
+
+
+def mortar_projection(D: sp.spmatrix, M12: sp.spmatrix, block: int = PI_BLOCK) -> sp.csr_matrix:
+    """The mortar (L2) projection Pi = D^{-1} M_12 onto body 1's trace space as a sparse
+    (k1, k2) matrix, with no dense k1 x k2 array: one sparse LU of the side-1 mass D, then the
+    columns of the sparse mixed mass M_12 (built from the facet pairs' overlaps,
+    :meth:`Interface._mixed_mass`) solved ``block`` at a time, each block's entries below
+    :data:`PI_DROP` times the largest so far dropped before it is stored sparse; a last pass
+    drops those below PI_DROP times the largest of all. Every entry the dense formula
+    (``lu.solve(M12.toarray())`` with the same drop) keeps is kept and every one it drops is
+    dropped (a running maximum is never above the final one): the two agree to round-off
+    (tested). Memory k1 x block + the entries kept, instead of k1 x k2 (docs/coupling.md,
+    Sec. 16: on a 2D interface Pi itself is dense, D^{-1} decays slowly; dual multipliers would
+    make it sparse)."""
+    lu = spla.splu(sp.csc_matrix(D))
+    M = sp.csc_matrix(M12)
+    k1, k2 = M.shape
+    data, rows, counts, top = [], [], [np.zeros(1, np.int64)], 0.0
+    for start in range(0, k2, block):  # blocks of columns, not nodes: k2 / block solves
+        X = lu.solve(M[:, start : start + block].toarray())
+        top = max(top, float(np.abs(X).max(initial=0.0)))
+        keep = np.abs(X) >= PI_DROP * top
+        # column by column (CSC): the kept rows of each column of the block, in order
+        cols, r = np.nonzero(keep.T)
+        data.append(X.T[cols, r])
+        rows.append(r.astype(np.int32))
+        counts.append(np.bincount(cols, minlength=X.shape[1]))
+    Pi = sp.csc_matrix(
+        (
+            np.concatenate(data or [np.zeros(0)]),
+            np.concatenate(rows or [np.zeros(0, np.int32)]),
+            np.cumsum(np.concatenate(counts)),
+        ),
+        shape=(k1, k2),
+    )
+    Pi.data[np.abs(Pi.data) < PI_DROP * max(top, 1e-300)] = 0.0
+    Pi.eliminate_zeros()
+    return Pi.tocsr()
 
 
 def facet_dofs(space: VectorSpace, facets: np.ndarray) -> np.ndarray:
@@ -203,10 +251,7 @@ class Interface:
                     f"(nearest distance {d:.3g}, tolerance {self.abs_tol:.3g}), must cover it",
                     name,
                 )
-            lu = spla.splu(sp.csc_matrix(self.D))
-            Pi = lu.solve(self.M12.toarray())
-            Pi[np.abs(Pi) < 1e-14 * max(np.abs(Pi).max(), 1e-300)] = 0.0
-            self.Pi = sp.csr_matrix(Pi)
+            self.Pi = mortar_projection(self.D, self.M12)
             self.method = "mortar"
 
     # -- geometry ------------------------------------------------------------------------------
