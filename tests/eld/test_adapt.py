@@ -365,7 +365,13 @@ def test_bad_input_one_line():
         SpaceAdaptivity(space_tol=0)
 
 
-def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch):
+@pytest.mark.parametrize(
+    "hysteresis",
+    [{}, {"coarsen_delay": 2, "max_recoarsen": 1}, {"coarsen_delay": 3}, {"max_recoarsen": 0}],
+)
+def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch, hysteresis):
+    """Interrupted twice and resumed: bit for bit the uninterrupted run; with hysteresis the
+    vertex history, which decides which cells may coarsen, comes back from the checkpoint."""
     import os
 
     from rothe.eld import ELDStepper
@@ -373,7 +379,7 @@ def test_resumed_adaptive_run_equals_the_uninterrupted_run(tmp_path, monkeypatch
     problem = pulse(0.2)
 
     def make_run(**kw):
-        return run_eld(problem, adapt=adaptivity(), **PULSE, **kw)
+        return run_eld(problem, adapt=adaptivity(**hysteresis), **PULSE, **kw)
 
     full_run = make_run()
     full = full_run.trajectory

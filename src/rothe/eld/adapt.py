@@ -493,10 +493,13 @@ class ELDAdaptivity:
 
     # -- checkpoints ----------------------------------------------------------------------------
     def checkpoint_state(self) -> dict:
-        """The mesh hierarchy, the series, the kept fields and the log."""
-        return {"amesh": self.adaptation.amesh.checkpoint_state(), **self.meshes.checkpoint_state()}
+        """The mesh hierarchy, the vertex history of the hysteresis (``coarsen_delay``,
+        ``max_recoarsen``: it decides which cells may coarsen, so a resumed run needs it), the
+        series, the kept fields and the log."""
+        return {**self.adaptation.checkpoint_state(), **self.meshes.checkpoint_state()}
 
     def restore_state(self, data: dict) -> None:
-        """Put back what :meth:`checkpoint_state` returned."""
-        self.adaptation.restore_state({"amesh": data["amesh"]})
+        """Put back what :meth:`checkpoint_state` returned (a checkpoint without the vertex
+        history counts the mesh's vertices as initial)."""
+        self.adaptation.restore_state(data)
         self.meshes.restore_state(data)

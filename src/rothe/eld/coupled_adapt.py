@@ -28,8 +28,8 @@ log of adaptations) whose rebuild and transfer act on the coupled system:
    ``transfer`` in the whole-system ledger, which therefore closes to round-off over the run.
 
 **Checkpoints** (``run_coupled(..., checkpoint=...)``): the mesh hierarchy, the series of
-meshes and the log (:meth:`ELDAdaptivity.checkpoint_state`, with the hysteresis' vertex
-history, :meth:`CoupledAdaptivity.checkpoint_state`); the resumed stepper rebuilds the system
+meshes, the log and the hysteresis' vertex history (:meth:`ELDAdaptivity.checkpoint_state`,
+as for run_eld); the resumed stepper rebuilds the system
 on the restored mesh (:meth:`CoupledAdaptivity.rebuild` from the initial system:
 :meth:`CoupledProblem.on_mesh` assembles from the mesh alone, so it is the system the run had).
 
@@ -45,7 +45,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import described, fail
-from ..fem.adapt.hysteresis import VertexHistory
 from .adapt import ELDAdaptivity
 from .coupled_step import CoupledStepSystem
 
@@ -82,21 +81,6 @@ class CoupledAdaptivity(ELDAdaptivity):
         """The coupled system on ``mesh`` and its step algebra (module docstring, step 3)."""
         system = current.system.on_mesh(mesh)
         return CoupledMesh(system, CoupledStepSystem(system, self.stepper.lifting))
-
-    def checkpoint_state(self) -> dict:
-        """:meth:`ELDAdaptivity.checkpoint_state` (the mesh hierarchy, the series of meshes,
-        the log) and the vertex history of the hysteresis (``--coarsen-delay``,
-        ``--max-recoarsen``: it decides which cells may coarsen, so a resumed run needs it)."""
-        return {
-            **super().checkpoint_state(),
-            "history": self.adaptation.history.checkpoint_state(),
-        }
-
-    def restore_state(self, data: dict) -> None:
-        """Put back what :meth:`checkpoint_state` returned."""
-        super().restore_state(data)
-        if data.get("history") is not None:
-            self.adaptation.history = VertexHistory.restore_state(data["history"])
 
     def transfer(self, state, change, current: CoupledMesh, new: CoupledMesh):
         """``state`` on the new mesh (module docstring, step 4); the stepper is bound to the new
