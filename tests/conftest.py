@@ -130,11 +130,20 @@ def assert_same_trajectory(a, b, skip=("meta",)):
 
 
 def interrupted_thrice(
-    make_run, stepper_cls, signal_at_attempt, ckpt, sig=signal.SIGINT, attempts=(5, 40, 90)
+    make_run,
+    stepper_cls,
+    signal_at_attempt,
+    ckpt,
+    sig=signal.SIGINT,
+    attempts=(5, 40, 90),
+    runs=None,
 ):
-    """Run, interrupted at the given step attempts (counted per session); each time resumed."""
+    """Run, interrupted at the given step attempts (counted per session); each time resumed
+    from the checkpoint it left; then run to the end. Checks what every stop left: the signal,
+    the checkpoint, the partial result (every accepted step recorded, t = 0 included) and, for
+    a sequence of runs, ``runs``: the index of the run under way at each stop."""
     resume = None
-    for k in attempts:
+    for i, k in enumerate(attempts):
         signal_at_attempt(stepper_cls, k, sig)
         with pytest.raises(RunInterrupted) as info:
             make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
@@ -142,7 +151,10 @@ def interrupted_thrice(
         assert exc.signum == sig and exc.exit_status == 128 + sig
         assert exc.checkpoint == ckpt and exc.trajectory is not None
         assert exc.where["accepted_steps"] == exc.trajectory.stats.accepted_steps
+        assert len(exc.trajectory["t"]) == exc.trajectory.stats.accepted_steps + 1
         assert load_checkpoint(ckpt).status == "interrupted"
+        if runs is not None:
+            assert load_checkpoint(ckpt).state["run"]["index"] == runs[i]
         resume = ckpt
     signal_at_attempt(stepper_cls, 10**9)  # no more signals
     return make_run(resume=ckpt)

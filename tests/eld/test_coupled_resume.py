@@ -13,11 +13,12 @@ import pytest
 from rothe.eld import BDF2, ImplicitEuler, Original
 from rothe.eld.bodies import run_bodies
 from rothe.eld.coupled_run import CoupledStepper, run_coupled, run_coupled_many
-from rothe.errors import RotheInputError, RunInterrupted
+from rothe.errors import RotheInputError
 from rothe.fem.adapt import SpaceAdaptivity
-from rothe.io.checkpoint import CheckpointError, CheckpointOptions, load_checkpoint
+from rothe.io.checkpoint import CheckpointError, load_checkpoint
 from rothe.stepping.controllers import Adaptive, Uniform
 
+from ..conftest import interrupted_thrice
 from .test_bodies import SOFT, STIFF, two_bodies
 from .test_coupled_step import _shaken_tip
 
@@ -38,26 +39,10 @@ def assert_same(a, b):
 
 
 def interrupted(make_run, signal_at_attempt, ckpt, attempts, sig=signal.SIGINT, runs=None):
-    """Run, stopped by ``sig`` at the given step attempts (counted per session), each time
-    resumed from the checkpoint it left; then run to the end. Checks what every stop left
-    (``runs``: the index of the run under way at each stop, of a sequence of runs)."""
-    resume = None
-    for i, k in enumerate(attempts):
-        signal_at_attempt(CoupledStepper, k, sig)
-        with pytest.raises(RunInterrupted) as info:
-            make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
-        exc = info.value
-        assert exc.signum == sig and exc.exit_status == 128 + sig
-        assert exc.checkpoint == ckpt and exc.trajectory is not None
-        # the partial result: every accepted step recorded, t = 0 included
-        assert exc.where["accepted_steps"] == exc.trajectory.stats.accepted_steps
-        assert len(exc.trajectory["t"]) == exc.trajectory.stats.accepted_steps + 1
-        assert load_checkpoint(ckpt).status == "interrupted"
-        if runs is not None:
-            assert load_checkpoint(ckpt).state["run"]["index"] == runs[i]
-        resume = ckpt
-    signal_at_attempt(CoupledStepper, 10**9)  # no more signals
-    return make_run(resume=ckpt)
+    """:func:`tests.conftest.interrupted_thrice` for the coupled stepper."""
+    return interrupted_thrice(
+        make_run, CoupledStepper, signal_at_attempt, ckpt, sig, attempts, runs=runs
+    )
 
 
 def test_fixed_mesh_adaptive_bdf2_with_controllers_resumes_bit_for_bit(tmp_path, signal_at_attempt):
