@@ -127,7 +127,7 @@ def format_row(r: dict) -> str:
     return (
         f"| {r['run']} | {reached} | {r['jumps']}{fixed} at t = "
         f"{', '.join(f'{t:g}' for t in r['jump_t']) or '-'} | {r['dissipation']:.4g} | "
-        f"{r['transfer_frac']:.3f} | {r['relax_frac']:.3f} | {r['net_frac']:.3f} | "
+        f"{r['transfer_frac']:.2g} | {r['relax_frac']:.3g} | {r['net_frac']:.3g} | "
         f"{r['max_recoarsened']} | "
         f"{r['mesh_changes']} ({r['relax_refused']}) | {r['steps']} ({r['rejected']}) | "
         f"{r['dofs_max']} | {r['wall']:.1f} ({r['cpu']:.1f}) | {r['load']:.1f} |"
