@@ -22,8 +22,9 @@ path's own dissipation sum_k R(z_k - z_{k-1}): sum_k |transfer_energy_k| (interp
 the new mesh), sum_k relax_energy_k (the relaxation of the transferred state at fixed t,
 :mod:`rothe.ris.adapt`; never a step of the path) and their sum (what the mesh changes left in
 the state), the most times a vertex was removed again after its refinement
-(``max_recoarsened``), the mesh changes (``space_adaptations``), relaxations refused, and the
-wall seconds of the process. Targets (issue 18, item 0): every run reaches T; ris-2d has as many
+(``max_recoarsened``), the mesh changes (``space_adaptations``), relaxations refused, the accepted
+(rejected) steps, the wall and CPU seconds of the process and the 1-minute load average when it
+ended. Targets (issue 18, item 0): every run reaches T; ris-2d has as many
 viscous jumps as on the fixed mesh (one, at t ~ 0.172); the transfer energy is a small fraction
 of the dissipation; ris-front --adapt-space with its defaults under 120 s.
 """
@@ -99,6 +100,7 @@ def row(label: str, summary: dict, wall: float, fixed: dict | None) -> dict:
         "mesh_changes": summary.get("space_adaptations"),
         "relax_refused": summary.get("relax_refused"),
         "steps": summary.get("accepted_steps"),
+        "rejected": summary.get("rejected_steps"),
         "dofs_max": summary.get("n_dofs_max"),
         "wall": wall,
         "cpu": summary.get("cpu_s"),
@@ -108,24 +110,27 @@ def row(label: str, summary: dict, wall: float, fixed: dict | None) -> dict:
 HEADER = (
     "| run | reached T | viscous jumps (fixed mesh) | dissipation | Σ abs(transfer E) / diss. | "
     "Σ relax E / diss. | Σ (transfer + relax) E / diss. | max re-coarsened | "
-    "mesh changes (relax refused) | steps | max dofs | "
-    "wall s (CPU s) |"
+    "mesh changes (relax refused) | steps (rejected) | max dofs | "
+    "wall s (CPU s) | load |"
 )
 
 
 def format_row(r: dict) -> str:
     if "failed" in r:
         blank = " |" * 10
-        return f"| {r['run']} | no: {r['failed']} |{blank} {r['wall']:.1f} ({r['cpu']:.1f}) |"
+        return (
+            f"| {r['run']} | no: {r['failed']} |{blank} {r['wall']:.1f} ({r['cpu']:.1f}) | "
+            f"{r['load']:.1f} |"
+        )
     fixed = "" if r["jumps_fixed"] is None else f" ({r['jumps_fixed']})"
     reached = "yes" if r["reached_T"] else f"no (t = {r['t_final']:.5g})"
     return (
         f"| {r['run']} | {reached} | {r['jumps']}{fixed} at t = "
         f"{', '.join(f'{t:g}' for t in r['jump_t']) or '-'} | {r['dissipation']:.4g} | "
-        f"{r['transfer_frac']:.3f} | {r['relax_frac']:.3f} | {r['net_frac']:.3f} | "
+        f"{r['transfer_frac']:.2g} | {r['relax_frac']:.3g} | {r['net_frac']:.3g} | "
         f"{r['max_recoarsened']} | "
-        f"{r['mesh_changes']} ({r['relax_refused']}) | {r['steps']} | {r['dofs_max']} | "
-        f"{r['wall']:.1f} ({r['cpu']:.1f}) |"
+        f"{r['mesh_changes']} ({r['relax_refused']}) | {r['steps']} ({r['rejected']}) | "
+        f"{r['dofs_max']} | {r['wall']:.1f} ({r['cpu']:.1f}) | {r['load']:.1f} |"
     )
 
 
@@ -175,6 +180,7 @@ def main(argv=None) -> int:
             fixed, _ = rothe(cmd, base / f"{i}-fixed", args.timeout)
         summary, wall = rothe([*cmd, "--adapt-space"], base / f"{i}-adapt", args.timeout)
         r = row(f"`{label} --adapt-space`", summary, wall, fixed)
+        r["load"] = os.getloadavg()[0]  # the 1-minute load average when the run ended
         rows.append(r)
         print(format_row(r), file=sys.stderr, flush=True)
     print(HEADER)

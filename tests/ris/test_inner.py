@@ -217,3 +217,61 @@ def test_a_solve_that_runs_out_of_iterations_says_so():
     assert not res.converged and res.code is RISCode.MAX_ITERATIONS
     res = BallStepSolver(problem).solve(0.5, problem.z0, 1.0)
     assert res.converged and res.code is RISCode.CONVERGED
+
+
+def _newton_matrix_by_sparse_products(problem, chi, hess_F, shift, inactive_diag):
+    """The reference K = S (A + F'') S + diag(chi shift m + (1 - chi) inactive_diag) by sparse
+    algebra: what _NewtonMatrix.build computed for a sparse F'' before its fixed pattern."""
+    chif = chi.astype(float)
+    S = sp.diags(chif)
+    K = S @ (sp.csr_matrix(problem.A) + sp.csr_matrix(hess_F)) @ S
+    return (K + sp.diags(chif * shift * problem.m + (1 - chif) * inactive_diag)).tocsr()
+
+
+def test_newton_matrix_of_a_sparse_second_derivative_equals_the_sparse_products():
+    """The cell rule's F'' filled into the union pattern of A and F'' (cached per pattern) gives
+    the same K as S (A + F'') S + diag(...) by sparse products, for several active sets, for two
+    iterates with one pattern, and after a F'' with another pattern (the cache is refreshed)."""
+    from rothe.ris.examples import example_7_2
+    from rothe.ris.inner import _NewtonMatrix
+
+    p = example_7_2(8, quadrature="consistent")
+    rng = np.random.default_rng(3)
+    K = _NewtonMatrix(p)
+    other = sp.random(p.n, p.n, density=0.05, random_state=4, format="csr")
+    for hess in (p.d2F(rng.uniform(-1.3, 1.3, p.n)), p.d2F(rng.uniform(-1.3, 1.3, p.n)), other):
+        for fraction in (1.0, 0.5, 0.0):
+            chi = rng.random(p.n) < fraction
+            diag = rng.uniform(1.0, 2.0, p.n)
+            got = K.build(chi, hess, 0.7, diag)
+            want = _newton_matrix_by_sparse_products(p, chi, hess, 0.7, diag)
+            assert abs(got - want).max() <= 1e-13 * abs(want).max()
+
+
+def test_cell_rule_step_equals_the_step_with_the_sparse_product_newton_matrix(monkeypatch):
+    """Example 7.2 with the cell rule, the jump step at t = 0.18 and a slip step after it: the
+    solver with the fixed-pattern Newton matrix returns the same z, multiplier and iteration
+    count as with K by sparse products (the path before), both KKT-exact."""
+    from rothe.ris.examples import example_7_2
+    from rothe.ris.inner import _NewtonMatrix
+
+    p = example_7_2(12, quadrature="consistent")
+    fast = BallStepSolver(p, InnerOptions(linear_solver="direct"))
+    jump = fast.solve(0.18, p.z0.copy(), 0.02)
+    slip = fast.solve(0.3, jump.z, 0.02)
+    monkeypatch.setattr(
+        _NewtonMatrix,
+        "build",
+        lambda self, chi, hess, shift, diag: _newton_matrix_by_sparse_products(
+            self.p, chi, hess, shift, diag
+        ),
+    )
+    ref = BallStepSolver(p, InnerOptions(linear_solver="direct"))
+    ref_jump = ref.solve(0.18, p.z0.copy(), 0.02)
+    ref_slip = ref.solve(0.3, ref_jump.z, 0.02)
+    assert jump.lam > 0 and p.norm_V(jump.d) == pytest.approx(0.02, rel=1e-10)  # a jump
+    for got, want in ((jump, ref_jump), (slip, ref_slip)):
+        assert got.converged and want.converged and got.kkt_residual <= got.tolerance
+        assert np.abs(got.z - want.z).max() <= 1e-9 * np.abs(want.z).max()
+        assert got.lam == pytest.approx(want.lam, rel=1e-8, abs=1e-10)
+        assert got.iterations == want.iterations

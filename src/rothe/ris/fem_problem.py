@@ -406,17 +406,17 @@ class FERISProblem(RISProblem):
     # -- F by nodal quadrature ----------------------------------------------------------------
     def _F(self, z: np.ndarray) -> float:
         if self._cells is not None:
-            return self._cells.F(self.g, self.full_state(z))
+            return self._cells.F(self.g, z)
         return float(self.m @ self.g(z)) + self._F_fixed
 
     def _dF(self, z: np.ndarray) -> np.ndarray:
         if self._cells is not None:
-            return self._cells.dF(self.dg, self.full_state(z))
+            return self._cells.dF(self.dg, z)
         return self.m * self.dg(z)
 
     def _d2F(self, z: np.ndarray):
         if self._cells is not None:
-            return self._cells.d2F(self.d2g, self.full_state(z))
+            return self._cells.d2F(self.d2g, z)
         return self.m * self.d2g(z)
 
     def fingerprint(self) -> dict:
@@ -504,33 +504,45 @@ class _CellQuadrature:
         p = np.asarray(mesh.p, dtype=float)
         # quadrature points (d, nq, nc)
         self.x = np.einsum("jq,djc->dqc", self.lam, p[:, t])
-        # the free-free entries of the local matrices, summed into a CSR pattern
+        # the cells' vertices as free-node numbers, the Dirichlet nodes as the extra slot nf
+        # of a zero-padded z: z_{K,q} = lam^T z[lt] and F' a bincount over lt, no full-length
+        # state per evaluation (measured faster than einsum, and than a CSR gather matrix)
         nf = free.size
-        local = np.full(self.n_nodes, -1, dtype=np.int64)
+        local = np.full(self.n_nodes, nf, dtype=np.int64)
         local[free] = np.arange(nf)
-        rows = np.broadcast_to(local[t][:, None, :], (d1, d1, t.shape[1])).ravel()
-        cols = np.broadcast_to(local[t][None, :, :], (d1, d1, t.shape[1])).ravel()
-        self._keep = (rows >= 0) & (cols >= 0)
-        keys, self._inv = np.unique(rows[self._keep] * nf + cols[self._keep], return_inverse=True)
+        self._lt = local[t]  # (d+1, nc)
+        self._lt_flat = self._lt.ravel()
+        self._lamT = np.ascontiguousarray(self.lam.T)  # (nq, d+1)
+        # F'': lam_iq lam_jq for every (i, j) (rows i (d+1) + j), and the free-free entries of
+        # the cells' local matrices summed into a CSR pattern by one sparse product
+        nc = t.shape[1]
+        self._LL = np.einsum("iq,jq->ijq", self.lam, self.lam).reshape(d1 * d1, -1)
+        rows = np.broadcast_to(self._lt[:, None, :], (d1, d1, nc)).ravel()
+        cols = np.broadcast_to(self._lt[None, :, :], (d1, d1, nc)).ravel()
+        keep = np.flatnonzero((rows < nf) & (cols < nf))
+        keys, inv = np.unique(rows[keep] * nf + cols[keep], return_inverse=True)
+        self._assemble = sp.csr_matrix(
+            (np.ones(keep.size), (inv, keep)), shape=(keys.size, d1 * d1 * nc)
+        )
         self._indices = keys % nf
         self._indptr = np.concatenate([[0], np.cumsum(np.bincount(keys // nf, minlength=nf))])
         self._nf = nf
 
-    def _at_points(self, z_full):
-        return np.einsum("jq,jc->qc", self.lam, z_full[self.t])  # (nq, nc)
+    def _at_points(self, z):
+        """z_{K,q} (nq, nc) from the values ``z`` at the free nodes (0 at Dirichlet nodes)."""
+        return self._lamT @ np.append(z, 0.0)[self._lt]
 
-    def F(self, g, z_full) -> float:
-        return float(np.sum(self.wvol * g(self._at_points(z_full))))
+    def F(self, g, z) -> float:
+        return float(np.sum(self.wvol * g(self._at_points(z))))
 
-    def dF(self, dg, z_full) -> np.ndarray:
-        local = self.lam @ (self.wvol * dg(self._at_points(z_full)))  # (d+1, nc)
-        out = np.bincount(self.t.ravel(), weights=local.ravel(), minlength=self.n_nodes)
-        return out[self.free]
+    def dF(self, dg, z) -> np.ndarray:
+        local = self.lam @ (self.wvol * dg(self._at_points(z)))  # (d+1, nc)
+        out = np.bincount(self._lt_flat, weights=local.ravel(), minlength=self._nf + 1)
+        return out[: self._nf]
 
-    def d2F(self, d2g, z_full) -> sp.csr_matrix:
-        h = self.wvol * d2g(self._at_points(z_full))  # (nq, nc)
-        local = np.einsum("iq,jq,qc->ijc", self.lam, self.lam, h).ravel()
-        data = np.bincount(self._inv, weights=local[self._keep], minlength=len(self._indices))
+    def d2F(self, d2g, z) -> sp.csr_matrix:
+        h = self.wvol * d2g(self._at_points(z))  # (nq, nc)
+        data = self._assemble @ (self._LL @ h).ravel()
         return sp.csr_matrix(
             (data, self._indices.copy(), self._indptr.copy()), shape=(self._nf, self._nf)
         )
