@@ -69,6 +69,7 @@ from ..fem.adapt.cycle import (
     MeshAdaptation,
     energy_or_fail,
     finite_or_fail,
+    mesh_arrays_mapped,
     return_free_memory,
 )
 from ..fem.topology import cell_diameters
@@ -455,8 +456,9 @@ class ELDAdaptivity:
         if change is not None and self.incremental and len(change.unchanged) == mesh.t.shape[1]:
             # incremental: the element matrices of the cells that did not change are reused
             source = np.where(change.unchanged, change.old_start, -1)
-        problem = system.problem.on_mesh(mesh, source, keep=self.incremental)
-        new = system.rebuilt(problem, symmetric_lu=True, short_lived=True)
+        with mesh_arrays_mapped():  # released with the mesh, they leave no holes in the heap
+            problem = system.problem.on_mesh(mesh, source, keep=self.incremental)
+            new = system.rebuilt(problem, symmetric_lu=True, short_lived=True)
         new.owns_problem = True
         self.pending_factorizations += new.initial_factorizations
         return new
