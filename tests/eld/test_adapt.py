@@ -567,8 +567,10 @@ def test_a_signal_in_the_adapt_step_abandons_the_accepted_step(
     revive = ELDSystem.revived
 
     def counting(self):
-        revived.append(self.released)
-        return revive(self)
+        new = revive(self)
+        if new is not self:
+            revived.append(new)
+        return new
 
     monkeypatch.setattr(ELDSystem, "revived", counting)
     ckpt, resume = tmp_path / "c", None
@@ -577,7 +579,7 @@ def test_a_signal_in_the_adapt_step_abandons_the_accepted_step(
         revived.clear()
         with pytest.raises(RunInterrupted) as info:
             make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
-        assert revived == [True]
+        assert len(revived) >= 1 and all(r is revived[0] for r in revived)  # built once
         exc = info.value
         assert exc.where["abandoned_step"] is True and exc.where["accepted_steps"] == accepted
         assert len(exc.trajectory["tau"]) == accepted  # the step whose adapt step it was: gone

@@ -362,12 +362,16 @@ class ELDSystem:
         adaptation or a rejected step that goes back to a mesh the run had left."""
         if not self.released:
             return self
+        again = getattr(self, "_revival", None)
+        if again is not None and not again.released:
+            return again  # revived already (abandon after going back to the step's mesh)
         p = self.problem
         problem = p.on_mesh(p.space.mesh) if self.owns_problem else p
         new = type(self)(problem, **self._arguments)
         new.owns_problem = self.owns_problem
         new.restore_reference(self._ref)
         new.solver.rollback(self.solver.snapshot(stored=False))
+        self._revival = new
         return new
 
     @property
