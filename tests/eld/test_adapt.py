@@ -341,6 +341,58 @@ def test_non_finite_indicators_stop_the_run_on_the_last_mesh(monkeypatch):
     assert "space_estimate" not in traj  # the adapt step of step 1 did not complete
 
 
+def test_a_failed_transfer_after_the_release_stops_the_run_on_a_working_system(monkeypatch):
+    """The rebuild releases the system of the mesh the run leaves (ELDSystem.release: one mesh's
+    matrices and solver alive at a time); a transfer that fails after it stops the run on the
+    last mesh with its system revived: its matrices and its stored factorization are those of
+    the system before the release, bit for bit, and its counters continue unchanged."""
+    from rothe.eld import ELDStepper
+    from rothe.eld.adapt import ELDAdaptivity
+
+    run = prepare_eld_run(pulse(0.2), adapt=adaptivity(), **PULSE)
+    seen = {}
+    transfer = ELDAdaptivity.transfer
+    adapt = ELDStepper.adapt
+
+    def failing(self, state, change, system, new_system):
+        # in the adapt step after a few meshes (not the caller's problem)
+        if "system" not in seen and seen.get("adapting") and state.j >= 3:
+            assert system.released and system.problem.K is None and system.solver._prec is None
+            seen["system"] = system
+            raise FloatingPointError("injected")
+        return transfer(self, state, change, system, new_system)
+
+    def keeping(self, state, result):
+        # before the adapt step: what the system of the state's mesh holds
+        seen["before"] = (
+            self.system,
+            self.system.problem.K.toarray(),
+            self.system.solver.stats.factorizations,
+            self.system.reference,
+        )
+        seen["adapting"] = True
+        try:
+            return adapt(self, state, result)
+        finally:
+            seen["adapting"] = False
+
+    monkeypatch.setattr(ELDAdaptivity, "transfer", failing)
+    monkeypatch.setattr(ELDStepper, "adapt", keeping)
+    with pytest.raises(RunFailed, match=r"FloatingPointError: injected\); the run stops on mesh"):
+        run.evolve()
+    system = run.stepper.system
+    old, K, factorizations, reference = seen["before"]
+    assert seen["system"] is old and old.released
+    assert system is not old and not system.released and system.owns_problem
+    assert np.array_equal(system.problem.K.toarray(), K)
+    assert system.reference == reference and system.solver.stats.factorizations == factorizations
+    rhs = np.linspace(0.0, 1.0, system.size)
+    x = system.solve_linear(rhs, reference["tau_eff"])
+    assert np.linalg.norm(system.apply_A(x, reference["tau_eff"]) - rhs) < 1e-8 * np.linalg.norm(
+        rhs
+    )
+
+
 def test_bad_input_one_line():
     problem = pulse(0.2)
     with pytest.raises(
@@ -513,11 +565,27 @@ def test_a_signal_in_the_adapt_step_abandons_the_accepted_step(
     # (the first interruption after step 2 at the earliest, so that a step is left to keep)
     first = next(j for j in changed if j >= 2)
     later = next(j for j in changed if j > first)
+    # the rebuild released the system of the mesh it left before the abandoned factorization:
+    # abandon revives it (built again, its factorization's key refactored)
+    from rothe.eld.system import ELDSystem
+
+    revived = []
+    revive = ELDSystem.revived
+
+    def counting(self):
+        new = revive(self)
+        if new is not self:
+            revived.append(new)
+        return new
+
+    monkeypatch.setattr(ELDSystem, "revived", counting)
     ckpt, resume = tmp_path / "c", None
     for k, accepted in ((first, first - 1), (later - first + 1, later - 1)):
         signal_at_call(ELDStepper, "adapt", k)
+        revived.clear()
         with pytest.raises(RunInterrupted) as info:
             make_run(checkpoint=CheckpointOptions(ckpt, every_seconds=0.01), resume=resume)
+        assert len(revived) >= 1 and all(r is revived[0] for r in revived)  # built once
         exc = info.value
         assert exc.where["abandoned_step"] is True and exc.where["accepted_steps"] == accepted
         assert len(exc.trajectory["tau"]) == accepted  # the step whose adapt step it was: gone
@@ -797,20 +865,29 @@ def test_reused_amg_hierarchy_is_the_current_meshs():
 
     def adapt(state, result):
         before = run.stepper.system
+        # the previous mesh's hierarchy, held here: the rebuild releases the system it leaves
+        stored = before.solver.snapshot()
         new = original(state, result)
         system = run.stepper.system
         assert system.kind == "amg"
         seen[int(new.mesh_id)] = max(seen.get(int(new.mesh_id), 0.0), _amg_mismatch(system))
         if system is not before:
-            previous[int(new.mesh_id)] = (system, before.solver)
+            assert before.released and before.solver._ml is None
+            previous[int(new.mesh_id)] = (system, before.solver, stored)
         return new
 
     run.stepper.adapt = adapt
     run.evolve()
     assert len(seen) >= 3, seen
     assert max(seen.values()) < 1e-12, seen
-    system, old_solver = next(iter(previous.values()))
-    stale = system.rebuilt(system.problem)
+    system, old_solver, stored = next(iter(previous.values()))
+    # the run left that mesh: its system was released, revived it is the system it was
+    assert system.released
+    stale = system.revived()
+    assert stale is not system and not stale.released
+    assert _amg_mismatch(stale) < 1e-12
+    assert stale.reference == system.reference
+    old_solver.rollback(stored)
     stale.solver, stale._ref = old_solver, system._ref
     assert _amg_mismatch(stale) > 1e-3
 

@@ -118,6 +118,51 @@ def test_adaptive_refinement_reaches_the_error_with_fewer_dofs():
     assert dofs_for_error(adaptive, target) < 0.5 * uniform[-1]["dofs"]
 
 
+@pytest.mark.parametrize("dim, degree", [(2, 2), (3, 2)])
+def test_the_indicators_chunks_change_no_value(monkeypatch, dim, degree):
+    """The cell residual, the vertex gradients and the jumps are computed in chunks of cells
+    and facets (the estimate's temporaries were the peak memory of an adaptive 3D run): chunks
+    of 7, 5 and 3 (not dividing the counts) give the indicators of one chunk, bit for bit,
+    with body force, acceleration, damping and a traction."""
+    import rothe.eld.indicator as indicator
+    import rothe.fem.simplex as simplex
+
+    mesh = meshes.unit_square(4, named=True) if dim == 2 else meshes.box(2, 2, 2)
+    rng = np.random.default_rng(11)
+    n = VectorSpace(mesh, degree).ndofs
+    u, v, a = (rng.standard_normal(n) for _ in range(3))
+
+    def run():
+        return eld_indicators(
+            mesh,
+            degree,
+            2.0,
+            1.5,
+            u,
+            rho=1.3,
+            accel=a,
+            velocity=v,
+            body_force=lambda x: np.sin(x),
+            traction={"right": lambda x, nrm: x * nrm},
+            mass_damping=0.2,
+            stiffness_damping=0.01,
+            pointwise_damping=lambda vq: vq**3,
+            reaction=4.0,
+        )
+
+    whole = run()
+    for name, module, size in (
+        ("CELL_CHUNK", indicator, 7),
+        ("FACET_CHUNK", indicator, 5),
+        ("VERTEX_CHUNK", simplex, 3),
+    ):
+        monkeypatch.setattr(module, name, size)
+    chunked = run()
+    for part in ("eta", "cell", "jump", "boundary"):
+        assert np.array_equal(getattr(whole, part), getattr(chunked, part)), part
+    assert np.all(whole.cell > 0) and np.any(whole.boundary > 0)
+
+
 @pytest.mark.parametrize("dim, degree", [(2, 1), (2, 2), (3, 2)])
 def test_gradients_from_vertex_values_are_the_basis_gradients(dim, degree):
     """The jump terms take grad w on a facet as the barycentric combination of its values at

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -143,3 +145,19 @@ def test_cli_bad_input_one_line_exit_2(tmp_path, capsys, args, message):
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1, err
     assert re.search(message, err), err
+
+
+def test_importing_the_eld_family_loads_no_heavy_module_it_does_not_use():
+    # the interpreter and imports are a third of the adaptive 3D pulse's peak memory
+    # (docs/adaptivity.md): what only frequencies, figures or written files need is imported
+    # there (scipy.optimize alone held 10 MB resident)
+    code = (
+        "import sys, rothe.eld, rothe.eld.examples, rothe.fem.adapt; "
+        "print(' '.join(m for m in ('scipy.optimize', 'xml.sax.saxutils', 'urllib.request', "
+        "'ssl', 'matplotlib', 'numba', 'h5py', 'meshio', 'dask', 'tqdm', 'skfem', 'pyamg') "
+        "if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+    )
+    assert out.stdout.split() == []

@@ -69,6 +69,7 @@ from ..fem.adapt.cycle import (
     MeshAdaptation,
     energy_or_fail,
     finite_or_fail,
+    mesh_arrays_mapped,
     return_free_memory,
 )
 from ..fem.topology import cell_diameters
@@ -441,15 +442,24 @@ class ELDAdaptivity:
         factorization is counted in :attr:`pending_factorizations`), factored by SuperLU in its
         symmetric mode (:class:`rothe.eld.solvers.ReferenceSolver`: 40 % less time per
         mesh; the initial mesh keeps the default mode, so a run whose mesh never changes is the
-        fixed-mesh run bit for bit)."""
+        fixed-mesh run bit for bit).
+
+        ``system`` is released first (:meth:`ELDSystem.release`: its matrices and solver go,
+        what the transfer and the record of its step need stays): one mesh's system lives at
+        a time, and the rebuild of a large mesh no longer comes on top of the previous one's
+        (the peak of an adaptive 3D run, docs/adaptivity.md). Going back to it (a stop
+        signal, a failed transfer, a rejected step after in-step refinements) revives it."""
+        system.release()
         return_free_memory()  # the peak of an adaptive 3D run is the rebuild's (docs)
         change = self.adaptation.change
         source = None
         if change is not None and self.incremental and len(change.unchanged) == mesh.t.shape[1]:
             # incremental: the element matrices of the cells that did not change are reused
             source = np.where(change.unchanged, change.old_start, -1)
-        problem = system.problem.on_mesh(mesh, source, keep=self.incremental)
-        new = system.rebuilt(problem, symmetric_lu=True, short_lived=True)
+        with mesh_arrays_mapped():  # released with the mesh, they leave no holes in the heap
+            problem = system.problem.on_mesh(mesh, source, keep=self.incremental)
+            new = system.rebuilt(problem, symmetric_lu=True, short_lived=True)
+        new.owns_problem = True
         self.pending_factorizations += new.initial_factorizations
         return new
 

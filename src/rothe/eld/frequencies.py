@@ -53,7 +53,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..errors import check_int, check_positive, fail
 from .components import Component, check_spd
@@ -118,6 +117,10 @@ def _end(name, value):
 
 def _find_roots(f, w_max: float, count: int, n_grid: int) -> np.ndarray:
     """The first ``count`` sign changes of f on (0, w_max], refined by Brent's method."""
+    # heavy: scipy.optimize (10 MB resident) only when frequencies are computed, not on
+    # every run that imports rothe.eld
+    from scipy.optimize import brentq
+
     w = np.linspace(w_max / n_grid, w_max, n_grid)
     vals = np.array([f(x) for x in w])
     roots = []
@@ -196,6 +199,9 @@ def tip_mass_roots(mass_ratio: float, count: int = 3) -> np.ndarray:
     w_k = x_k c / L."""
     mu = check_positive("mass_ratio", mass_ratio)
     count = check_int("count", count, minimum=1)
+    # heavy: scipy.optimize (10 MB resident) only when frequencies are computed
+    from scipy.optimize import brentq
+
     return np.array(
         [
             brentq(

@@ -64,6 +64,11 @@ def _as_field(U, n: int, d: int, name: str) -> np.ndarray:
 #: stresses on both sides, about 5 KB per P2 facet in 3D) were the peak of the estimate phase
 #: of an adaptive 3D run (about 50 MB at 15k dofs in one piece)
 FACET_CHUNK = 2048
+#: cells per chunk of the cell residual: its quadrature values (coordinates, a, v, R: (d, n,
+#: nq) each, 24 points per P2 tetrahedron) in one piece were 20 MB of the estimate's
+#: temporaries at 6k cells, the peak of an adaptive 3D run once one mesh's system lives at a
+#: time (docs/adaptivity.md)
+CELL_CHUNK = 1024
 
 
 def _at(data, x: np.ndarray, *extra) -> np.ndarray:
@@ -169,31 +174,40 @@ def eld_indicators(
         if stiffness_damping:
             W = W + stiffness_damping * V
 
-    # cell residual R = f - rho a - c_M v - N(v) + div sigma(w)
-    x = ev.cell_points  # (d, nc, nq)
-    R = np.zeros_like(x)
-    if body_force is not None:
-        R += _at(body_force, x)
-    if accel is not None and np.any(rho):
-        R -= _on(rho, slice(None), 1) * ev.values(_as_field(accel, n, d, "accel"))
-    if V is not None:
-        vq = ev.values(V)  # (d, nc, nq)
-        if mass_damping:
-            R -= mass_damping * vq
-        if pointwise_damping is not None:
-            R -= np.asarray(pointwise_damping(vq), dtype=float)
     # grad w at the cells' vertices, once: its Hessian (P2) and, on the facets, its
     # barycentric combination (affine on each cell: 4 terms per point in 3D instead of 10 P2
     # basis gradients)
     gv = ev.vertex_gradients(W)
+    div_sigma = None
     if ev.degree == 2:
         H = ev.hessians(W, gv)  # (c, i, j, nc): d_i d_j w_c
         lap = np.trace(H, axis1=1, axis2=2)  # (c, nc)
         grad_div = np.einsum("kkic->ic", H)  # d_i (div w)
         div_sigma = mu * lap + (lam + mu) * grad_div
-        R += div_sigma[:, :, None]
+        del H
     alpha_K = robust_weight(ev.h / ev.degree, mu, reaction)
-    cell_sq = alpha_K**2 * np.sum(np.sum(R * R, axis=0) * ev.cell_dx, axis=1)
+    A = None if accel is None or not np.any(rho) else _as_field(accel, n, d, "accel")
+    # cell residual R = f - rho a - c_M v - N(v) + div sigma(w), in chunks of CELL_CHUNK cells
+    # (each cell's term is its own: the chunks change no value)
+    cell_sq = np.empty(nc)
+    dx = ev.cell_dx
+    for k0 in range(0, nc, CELL_CHUNK):
+        c = slice(k0, k0 + CELL_CHUNK)
+        R = np.zeros((d, len(range(nc)[c]), len(ev.cell_w)))
+        if body_force is not None:
+            R += _at(body_force, ev.cell_points_of(c))
+        if A is not None:
+            R -= _on(rho, c, 1) * ev.values(A, c)
+        if V is not None:
+            vq = ev.values(V, c)  # (d, n, nq)
+            if mass_damping:
+                R -= mass_damping * vq
+            if pointwise_damping is not None:
+                R -= np.asarray(pointwise_damping(vq), dtype=float)
+            del vq
+        if div_sigma is not None:
+            R += div_sigma[:, c, None]
+        cell_sq[c] = alpha_K[c] ** 2 * np.sum(np.sum(R * R, axis=0) * dx[c], axis=1)
 
     topo = ev.topology
     # interior facets: J = sigma(w)|_K0 n0 + sigma(w)|_K1 n1 (n1 = -n0), in chunks of

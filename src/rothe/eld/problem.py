@@ -261,6 +261,13 @@ class ELDProblem:
         }
         self.derivative_info = self._derivative_info()
 
+    def release_operators(self) -> None:
+        """Drop K, M and the damping operator (a space-adaptive run, on a problem it made
+        itself and has left: :meth:`rothe.eld.system.ELDSystem.release`); the space, the
+        constraint, the material and the data stay. Nothing that needs the matrices works
+        afterwards; :meth:`on_mesh` on the same mesh builds them again."""
+        self.K = self.M = self.damping_op = None
+
     @property
     def definition(self) -> dict:
         """The problem's definition without the mesh: the keyword arguments it was built with

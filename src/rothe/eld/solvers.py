@@ -237,19 +237,27 @@ class ReferenceSolver:
         self.stats.setup_seconds += time.perf_counter() - t0
 
     # -- undoing an abandoned step ------------------------------------------------------------
-    def snapshot(self) -> dict:
+    def snapshot(self, stored: bool = True) -> dict:
         """What factorizations and solves change: the stored reference (by reference: a
         refactorization replaces it, nothing changes it in place) and a copy of the counters.
-        :meth:`rollback` puts it back when a step is abandoned (:meth:`ELDStepper.abandon`)."""
+        :meth:`rollback` puts it back when a step is abandoned (:meth:`ELDStepper.abandon`).
+        ``stored=False``: the counters only (the reference is not kept alive by the snapshot:
+        a space-adaptive run releases the systems it leaves, :meth:`release`)."""
         return {
-            "stored": (self._A, self._prec, self._ml, self._scale),
+            "stored": (self._A, self._prec, self._ml, self._scale) if stored else None,
             "stats": replace(self.stats),
         }
 
     def rollback(self, state: dict) -> None:
-        """Put back what :meth:`snapshot` returned."""
-        self._A, self._prec, self._ml, self._scale = state["stored"]
+        """Put back what :meth:`snapshot` returned (the stored reference only if it holds one)."""
+        if state["stored"] is not None:
+            self._A, self._prec, self._ml, self._scale = state["stored"]
         self.stats = replace(state["stats"])
+
+    def release(self) -> None:
+        """Drop the stored reference (matrix, factorization or AMG hierarchy); the counters
+        stay. The solver cannot solve until it is factored again."""
+        self._A = self._prec = self._ml = self._scale = None
 
     @property
     def factored(self) -> bool:
@@ -405,18 +413,25 @@ class ConstrainedSolver(ReferenceSolver):
         )
         self._parts = None
 
-    def snapshot(self) -> dict:
+    def snapshot(self, stored: bool = True) -> dict:
         """The stored reference with the thin blocks and the inner solver's (see
         :meth:`ReferenceSolver.snapshot`)."""
-        state = super().snapshot()
-        state.update(parts=self._parts, inner=self.inner.snapshot())
+        state = super().snapshot(stored)
+        state.update(parts=self._parts if stored else None, inner=self.inner.snapshot(stored))
         return state
 
     def rollback(self, state: dict) -> None:
         """Put back what :meth:`snapshot` returned."""
         super().rollback(state)
-        self._parts = state["parts"]
+        if state["stored"] is not None:
+            self._parts = state["parts"]
         self.inner.rollback(state["inner"])
+
+    def release(self) -> None:
+        """Drop the stored reference, the thin blocks and the inner solver's."""
+        super().release()
+        self._parts = None
+        self.inner.release()
 
     def factor(self, A) -> None:
         """Factor the reference from the bordered matrix or from A (n x n)."""

@@ -1001,12 +1001,14 @@ class ELDStepper(StepperBase):
         -- the system of the current mesh with its stored factorization, the key it was built
         from and the solver's counters, the Newton count, the factorizations of systems built
         for refined meshes -- so that :meth:`abandon` can put it back. References and a few
-        numbers: no copy of a matrix or a factorization."""
+        numbers: no copy of a matrix or a factorization. With space adaptivity not even a
+        reference to the factorization: the adapt cycle releases the system of a mesh it
+        leaves (:meth:`ELDSystem.release`), and abandon revives it."""
         if self.adaptivity is not None:
             self._back_to_mesh_of(state)  # as step() does first: the state's own mesh
         self._undo = {
             "system": self.system,
-            "solver": self.system.snapshot(),
+            "solver": self.system.snapshot(stored=self.adaptivity is None),
             "last_newton": self._last_newton,
             "pending": 0 if self.adaptivity is None else self.adaptivity.pending_factorizations,
         }
@@ -1027,7 +1029,7 @@ class ELDStepper(StepperBase):
         if self.adaptivity is not None:
             self._back_to_mesh_of(state)
             self.adaptivity.pending_factorizations = undo["pending"]
-        self.system = undo["system"]
+        self.system = undo["system"].revived()  # rebuilt if a rebuild released it
         self.system.rollback(undo["solver"])
         self._last_newton = undo["last_newton"]
         self._undo = None
@@ -1073,6 +1075,7 @@ class ELDStepper(StepperBase):
                     refine_above=ad.refine_above(original.j),
                 )
             except AdaptationFailed:  # no estimate or no transfer: the step stands
+                self.system = self.system.revived()  # a failed transfer left it released
                 break
             if not out.changed:
                 break
@@ -1092,7 +1095,9 @@ class ELDStepper(StepperBase):
         base = self._base
         if base is not None and base[0] is state and state.mesh_id != self.adaptivity.mesh_id:
             self.adaptivity.adaptation.restore_state({"amesh": base[1]})
-            self.system = base[2]
+            # the first round's rebuild released it (one mesh's system at a time)
+            self.system = base[2].revived()
+            self._base = (base[0], base[1], self.system)
 
     # -- the backend of StepperBase: this process's linear algebra ---------------------------------
     def _dots(self, pairs) -> list[float]:
@@ -1302,6 +1307,7 @@ class ELDStepper(StepperBase):
             )
         except RunFailed:
             self._base = None
+            self.system = self.system.revived()  # a failed transfer left it released
             raise
         if out is not None and out.changed:
             self.system = out.problem
@@ -1401,6 +1407,7 @@ class ELDStepper(StepperBase):
                     symmetric_lu=True,
                     short_lived=True,
                 )
+                self.system.owns_problem = True
         self.system.restore_reference(data["solver_reference"])
         if data.get("solver_stats") is not None:
             self.system.solver.stats = SolverStats(**data["solver_stats"])

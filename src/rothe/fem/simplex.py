@@ -86,6 +86,10 @@ class CellIndicators:
         }
 
 
+#: cells per chunk of :meth:`SimplexEvaluator.vertex_gradients`
+VERTEX_CHUNK = 1024
+
+
 class SimplexEvaluator:
     """Geometry, dofs, quadrature and facet topology of a P1/P2 mesh (see the module doc)."""
 
@@ -112,7 +116,11 @@ class SimplexEvaluator:
     @cached_property
     def cell_points(self) -> np.ndarray:
         """Quadrature points (d, nc, nq) of the cell rule."""
-        X = self.p[:, self.t]  # (d, d+1, nc)
+        return self.cell_points_of(slice(None))
+
+    def cell_points_of(self, cells) -> np.ndarray:
+        """Quadrature points (d, n, nq) of the cell rule on ``cells`` (indices or a slice)."""
+        X = self.p[:, self.t[:, cells]]  # (d, d+1, n)
         return np.einsum("dkc,kq->dcq", X, self.cell_lam)
 
     @property
@@ -120,13 +128,14 @@ class SimplexEvaluator:
         """Weights (nc, nq) (|K| included)."""
         return self.vol[:, None] * self.cell_w[None, :]
 
-    def values(self, U: np.ndarray) -> np.ndarray:
-        """Field values at the cell points: U (ndofs,) -> (nc, nq); (ndofs, m) -> (m, nc, nq)."""
+    def values(self, U: np.ndarray, cells=slice(None)) -> np.ndarray:
+        """Field values at the cell points: U (ndofs,) -> (nc, nq); (ndofs, m) -> (m, nc, nq);
+        only on ``cells`` (indices or a slice) if given."""
         phi = lagrange_values(self.cell_lam, self.degree)  # (nloc, nq)
         U = np.asarray(U, dtype=float)
         if U.ndim == 1:
-            return np.einsum("kc,kq->cq", U[self.edofs], phi)
-        return np.einsum("kcm,kq->mcq", U[self.edofs], phi)
+            return np.einsum("kc,kq->cq", U[self.edofs[:, cells]], phi)
+        return np.einsum("kcm,kq->mcq", U[self.edofs[:, cells]], phi)
 
     def gradients(self, U: np.ndarray) -> np.ndarray:
         """grad u at the cell points: (ndofs,) -> (d, nc, nq); (ndofs, m) -> (m, d, nc, nq)."""
@@ -166,11 +175,19 @@ class SimplexEvaluator:
         U = np.asarray(U, dtype=float)
         d, nc = self.dim, self.t.shape[1]
         eye = np.eye(d + 1)
-        lam = np.broadcast_to(eye[:, None, :], (d + 1, nc, d + 1))  # vertex k: lambda = e_k
-        dphi = lagrange_gradients(lam, self.glam, self.degree)  # (nloc, d, nc, d+1)
         Um = U[:, None] if U.ndim == 1 else U
-        # optimize: a BLAS contraction, 2-3x faster than the plain loop at 4k P2 cells
-        return np.einsum("kcm,kdcv->mdcv", Um[self.edofs], dphi, optimize=True)
+        out = np.empty((Um.shape[1], d, nc, d + 1))
+        # in chunks of VERTEX_CHUNK cells: the basis gradients (nloc, d, n, d+1) and the
+        # contraction's copies of them, 14 MB at 6k P2 tetrahedra in one piece, were the peak of
+        # the estimate phase of an adaptive 3D run (each cell's values are its own)
+        for k0 in range(0, nc, VERTEX_CHUNK):
+            c = slice(k0, min(k0 + VERTEX_CHUNK, nc))
+            n = c.stop - c.start
+            lam = np.broadcast_to(eye[:, None, :], (d + 1, n, d + 1))  # vertex k: lambda = e_k
+            dphi = lagrange_gradients(lam, self.glam[:, :, c], self.degree)  # (nloc, d, n, d+1)
+            # optimize: a BLAS contraction, 2-3x faster than the plain loop at 4k P2 cells
+            out[:, :, c] = np.einsum("kcm,kdcv->mdcv", Um[self.edofs[:, c]], dphi, optimize=True)
+        return out
 
     @staticmethod
     def gradients_from_vertices(gv: np.ndarray, cells: np.ndarray, lam: np.ndarray) -> np.ndarray:

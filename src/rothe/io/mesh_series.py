@@ -24,7 +24,6 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
@@ -183,6 +182,10 @@ def write_vtu_series(
     each is written atomically, the ``.pvd`` last (it is what a reader opens), so an interrupted
     write leaves the previous index valid. Returns the path of the ``.pvd``.
     """
+    # heavy: xml.sax.saxutils pulls in urllib.request, http.client, ssl and email (2 MB
+    # resident) for every run that imports rothe; only a written series needs it
+    from xml.sax.saxutils import quoteattr
+
     import meshio  # heavy: imported when first needed (start-up time)
 
     directory = Path(directory)

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -330,6 +331,27 @@ class MeshAdaptation:
 
 
 _LIBC = None  # glibc, once looked up (False: not there)
+#: glibc's mallopt parameter of the mmap threshold
+_M_MMAP_THRESHOLD = -3
+#: during a rebuild (:func:`mesh_arrays_mapped`) arrays from this size on get a mapping of
+#: their own; above the assembly's 4 MB chunk temporaries (rothe.fem.elasticity.CHUNK_ENTRIES)
+MAPPED_FROM = 5 << 20
+#: the threshold outside a rebuild: glibc's largest dynamic one on 64-bit systems (what the
+#: dynamic threshold rises to once an array of that size was freed)
+HEAP_UP_TO = 32 << 20
+
+
+def _libc():
+    """glibc (ctypes), or False where there is none."""
+    global _LIBC
+    if _LIBC is None:
+        try:
+            _LIBC = ctypes.CDLL("libc.so.6")
+            _LIBC.malloc_trim  # noqa: B018 - present in glibc only
+            _LIBC.mallopt  # noqa: B018
+        except (OSError, AttributeError):
+            _LIBC = False
+    return _LIBC
 
 
 def return_free_memory() -> None:
@@ -338,15 +360,33 @@ def return_free_memory() -> None:
     matrices: the arrays of the previous meshes, freed in pieces of many sizes, stay resident
     as free heap and the new mesh's arrays come on top of them (the adaptive 3D pulse:
     peak -20 MB at the same CPU time; a fixed mmap threshold instead: -38 MB but +30 % CPU)."""
-    global _LIBC
-    if _LIBC is None:
-        try:
-            _LIBC = ctypes.CDLL("libc.so.6")
-            _LIBC.malloc_trim  # noqa: B018 - present in glibc only
-        except (OSError, AttributeError):
-            _LIBC = False
-    if _LIBC:
-        _LIBC.malloc_trim(0)
+    libc = _libc()
+    if libc:
+        libc.malloc_trim(0)
+
+
+@contextmanager
+def mesh_arrays_mapped():
+    """While a family's rebuild builds the new mesh's matrices, every array of at least
+    :data:`MAPPED_FROM` bytes gets a mapping of its own (glibc's mmap threshold; nothing where
+    there is no glibc); after it the threshold is :data:`HEAP_UP_TO`. Why: glibc's dynamic
+    threshold puts the mesh's long-lived matrices (K, M, the step matrix and its scaled copy:
+    5-10 MB each at 15k P2 dofs in 3D) on the heap among the steps' small arrays; released
+    with the mesh (:meth:`rothe.eld.system.ELDSystem.release`) they left holes that the heap
+    kept resident and the later meshes' arrays came on top: the adaptive 3D pulse's peak
+    167-172 -> 153-154 MB at the same CPU time (+1 %; the same threshold for the whole run:
+    -17 MB but +8-20 % CPU, every large temporary mapped and faulted in again,
+    docs/adaptivity.md). Side effect on the process: the dynamic threshold is off from the
+    first rebuild on, fixed at its own maximum."""
+    libc = _libc()
+    if not libc:
+        yield
+        return
+    libc.mallopt(_M_MMAP_THRESHOLD, MAPPED_FROM)
+    try:
+        yield
+    finally:
+        libc.mallopt(_M_MMAP_THRESHOLD, HEAP_UP_TO)
 
 
 def finite_or_fail(name: str, values) -> np.ndarray:
