@@ -58,6 +58,18 @@ def _json(proc) -> dict:
     return json.loads([ln for ln in proc.stdout.splitlines() if ln.startswith("{")][-1])
 
 
+def _same_to_solver_tolerance(a, b) -> None:
+    """Two runs whose solves are CG to rtol 1e-8 with different AMG hierarchies agree to the
+    solver tolerance: u and lambda of every kept state in norm (the issue's measure), not entry
+    by entry (an entry of u of 3e-6 differed by 1.4e-11, 4e-6 of itself), the reaction and the
+    energy series entry by entry."""
+    for key in ("u", "lam"):
+        for k, (x, y) in enumerate(zip(b[key], a[key], strict=True)):
+            assert np.linalg.norm(x - y) <= 1e-8 * np.linalg.norm(y), (key, k)
+    for key in ("reaction_left", "energy"):
+        np.testing.assert_allclose(b[key], a[key], rtol=1e-7, atol=1e-11, err_msg=key)
+
+
 @needs_mpi
 @pytest.mark.parametrize("degree", [1, 2])
 def test_distributed_assembly_equals_serial(degree):
@@ -147,8 +159,7 @@ def test_cli_auto_takes_petsc_on_one_process_where_installed(tmp_path):
         np.load(tmp_path / "serial" / "trajectory.npz"),
         np.load(tmp_path / "auto" / "trajectory.npz"),
     )
-    for key in ("u", "lam", "reaction_left", "energy"):
-        np.testing.assert_allclose(b[key], a[key], rtol=1e-7, atol=1e-11, err_msg=key)
+    _same_to_solver_tolerance(a, b)
 
 
 @needs_mpi
@@ -177,8 +188,7 @@ def test_cli_lean_amg_products_give_the_same_run(tmp_path):
     assert two_step in logs["fast"] and two_step not in logs["lean"]
     assert "Option left" not in logs["lean"]
     a, b = (np.load(tmp_path / k / "trajectory.npz") for k in ("fast", "lean"))
-    for key in ("u", "lam", "reaction_left", "energy"):
-        np.testing.assert_allclose(b[key], a[key], rtol=1e-7, atol=1e-11, err_msg=key)
+    _same_to_solver_tolerance(a, b)
 
 
 @needs_mpi
