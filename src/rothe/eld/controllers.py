@@ -176,3 +176,15 @@ def describe_run(
         **(backend or {}),
     )
     return info, arguments, controller, loop_tau_min
+
+
+def checkpoint_where(traj, state) -> dict:
+    """Where a run of elastodynamics stands, for a checkpoint's ``where``: the accepted steps
+    of its trajectory and the state's time (t, and s = t: the loop's position) and index j.
+    The same for run_eld on either backend and for coupled runs."""
+    return {
+        "accepted_steps": traj.stats.accepted_steps,
+        "s": float(state.t),
+        "t": float(state.t),
+        "j": int(state.j),
+    }

@@ -69,7 +69,7 @@ from ..stepping.evolve import evolve
 from ..timing import PhaseTimes
 from .adapt import check_adapt
 from .constraint import NodalLifting
-from .controllers import step_controller
+from .controllers import checkpoint_where, step_controller
 from .coupled_adapt import CoupledAdaptivity, CoupledMesh, check_coupled_adapt
 from .coupled_step import SPARSE_COORDINATES, CoupledStepSystem
 from .coupling import CoupledProblem
@@ -1196,7 +1196,9 @@ def run_coupled_many(
             if cp is not None:
                 cp.register(traj)
                 if not (restored is not None and i == start):
-                    cp.save_or_warn(run.stepper, run.controller, state, where=_where(traj, state))
+                    cp.save_or_warn(
+                        run.stepper, run.controller, state, where=checkpoint_where(traj, state)
+                    )
             state = evolve(
                 run.stepper,
                 run.controller,
@@ -1217,7 +1219,7 @@ def run_coupled_many(
         if cp is not None:
             cp.context = {"index": len(labels), "finished": finished}
             last = done[labels[-1]]
-            cp.save_or_warn(status="completed", where=_where(last.trajectory, last.state))
+            cp.save_or_warn(status="completed", where=checkpoint_where(last.trajectory, last.state))
     return {label: done[label] for label in labels}
 
 
@@ -1257,12 +1259,3 @@ class _Systems:
             for label, system in self.systems.items()
             for key, value in system.fingerprint().items()
         }
-
-
-def _where(traj: Trajectory, state: CoupledState) -> dict:
-    return {
-        "accepted_steps": traj.stats.accepted_steps,
-        "s": float(state.t),
-        "t": float(state.t),
-        "j": int(state.j),
-    }

@@ -29,7 +29,7 @@ from ..io.trajectory import Trajectory
 from ..stepping.controllers import Adaptive
 from ..stepping.evolve import evolve
 from .adapt import ELDMeshes
-from .controllers import describe_run
+from .controllers import checkpoint_where, describe_run
 from .data import DEFAULT_DATA, DataMode, DataNoise
 from .form import DEFAULT_FORM, Form
 from .problem import ELDProblem
@@ -157,7 +157,7 @@ class ELDRun:
                     self.stepper,
                     self.controller,
                     self.state,
-                    where=_eld_where(self.trajectory, self.state),
+                    where=checkpoint_where(self.trajectory, self.state),
                 )
             try:
                 final = evolve(
@@ -181,7 +181,7 @@ class ELDRun:
                     self.controller,
                     final,
                     status="completed",
-                    where=_eld_where(self.trajectory, final),
+                    where=checkpoint_where(self.trajectory, final),
                 )
         finally:
             self.close()
@@ -383,15 +383,6 @@ def run_eld(
             "is an option of backend 'petsc' (PETSc's GAMG); the serial backend's AMG is pyamg",
         )
     return prepare_eld_run(problem, **options).evolve(progress=progress)
-
-
-def _eld_where(traj: Trajectory, state: ELDState) -> dict:
-    return {
-        "accepted_steps": traj.stats.accepted_steps,
-        "s": float(state.t),
-        "t": float(state.t),
-        "j": int(state.j),
-    }
 
 
 def _finish_meta(traj: Trajectory, stepper: ELDStepper) -> None:

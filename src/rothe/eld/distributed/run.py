@@ -27,7 +27,7 @@ from ...io.checkpoint import RunCheckpointing, load_checkpoint
 from ...io.trajectory import RunStatistics, Trajectory
 from ...stepping.controllers import Adaptive
 from ...stepping.evolve import evolve
-from ..controllers import describe_run
+from ..controllers import checkpoint_where, describe_run
 from ..data import DEFAULT_DATA, DataMode
 from ..form import DEFAULT_FORM, Form
 from ..scheme import DEFAULT_SCHEME, Scheme
@@ -260,12 +260,7 @@ def run_eld_petsc(
                 controller,
                 final,
                 status="completed",
-                where={
-                    "accepted_steps": traj.stats.accepted_steps,
-                    "s": float(final.t),
-                    "t": float(final.t),
-                    "j": int(final.j),
-                },
+                where=checkpoint_where(traj, final),
             )
     finally:
         if rc is not None:
