@@ -74,6 +74,7 @@ def execute_beam(command, args) -> int:
     comm = MPI.COMM_WORLD
     root = comm.rank == 0
     objects, n, every, keep, damping, _, material, _ = command.validate(args)
+    products = args.amg_products or "fast"  # validated above; fast: PETSc's default products
     # the beam's data from beam_problem on one cell across (material, damping, G, T: nothing
     # there depends on n), the mesh as beam_problem builds it
     definition = command.beam(args, 1, damping, material).definition
@@ -123,7 +124,7 @@ def execute_beam(command, args) -> int:
                 resume=resume,
                 progress=progress,
                 backend="petsc",
-                amg_products=args.amg_products or "fast",
+                amg_products=products,
             )
         finally:  # a collective: every process, however its run ended
             peaks.append(comm.gather(peak_memory_mb(), root=0))
@@ -133,7 +134,7 @@ def execute_beam(command, args) -> int:
         summary.update(
             backend="petsc",
             processes=comm.size,
-            amg_products=args.amg_products or "fast",
+            amg_products=products,
             peak_memory_mb=max(peaks[0]),
             peak_memory_mb_per_process=peaks[0],
         )
