@@ -161,6 +161,10 @@ def convex_problem(seed, n):
 # predicted decrease, refused them although they lower J, and a forward-backward step was taken
 @example(seed=272169, n=2, tau=2.0, t=0.5)
 @example(seed=68455, n=2, tau=2.0044676301485684, t=0.7078257571931234)
+# 1882: from d = 0 the Newton point lies outside the ball and its retraction onto the sphere
+# raises J, while the minimizer lies inside: every shorter trial retracted onto the sphere was
+# that same point, so a forward-backward step was taken; the chord inside the ball is tried now
+@example(seed=1882, n=4, tau=1.25, t=0.0)
 def test_convex_step_needs_no_forward_backward_step(seed, n, tau, t):
     # With a positive definite Hessian a node that Newton sends back against its predicted sign
     # is the ordinary semismooth case (the coupling overruled the diagonal prediction), not a

@@ -599,6 +599,7 @@ class BallStepSolver:
             return False
         trial[wrong] = 0.0
         nt = p.norm_V(trial)
+        retracted = False
         if on_sphere and lam_new > 0 and nt > 0:
             trial *= tau / nt
             sphere = True
@@ -606,8 +607,19 @@ class BallStepSolver:
             sphere = False
             if nt > tau:
                 trial *= tau / nt
-                sphere = True
-        return self._line_search(st, trial, hess_F, sphere=sphere)
+                sphere = retracted = True
+        if self._line_search(st, trial, hess_F, sphere=sphere):
+            return True
+        # a Newton point outside the ball, retracted onto the sphere, from an iterate inside
+        # it: the shorter trials retracted onto the sphere too are all the same point when
+        # d = 0, while the minimizer may lie inside the ball (a wrong first active-set
+        # prediction; convex_problem(1882, 4), tau = 1.25, found by hypothesis: a
+        # forward-backward step). Then the chord from d to the retracted point, inside the
+        # ball, before giving up; tried only where the sphere's trials failed, so every step
+        # that succeeded before is unchanged
+        if retracted and p.norm_V(d) < tau * (1 - 1e-12):
+            return self._line_search(st, trial, hess_F, sphere=False)
+        return False
 
     def _positive_curvature(self, hess_F, hdiag, shift, nodes, delta) -> bool:
         """Whether H + shift*M (H = A + F''(z)) curves upwards along the given nodes.
