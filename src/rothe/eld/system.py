@@ -44,9 +44,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..fem.topology import cell_diameters
 from ..timing import PhaseTimes
 from .constraint import NodalLifting, make_lifting
 from .data import StepData
+from .materials import pressure_wave_speed
 from .solvers import SHORT_LIVED_AMG, ConstrainedSolver, ReferenceSolver, resolve_kind
 from .state import PRODUCTS, ELDState
 
@@ -84,8 +86,9 @@ class ELDSystem:
         adaptivity: one factorization per mesh).
     short_lived : bool
         A mesh of a space-adaptive run (it lives ``adapt_every`` steps): 'auto' takes LU in
-        3D up to fewer unknowns (:func:`rothe.eld.solvers.resolve_kind`), and AMG builds its
-        hierarchy with the cheap setup :data:`rothe.eld.solvers.SHORT_LIVED_AMG`.
+        3D up to fewer unknowns and above them Jacobi-CG when the CFL number (:meth:`cfl`) is
+        moderate (:func:`rothe.eld.solvers.resolve_kind`), and AMG builds its hierarchy with
+        the cheap setup :data:`rothe.eld.solvers.SHORT_LIVED_AMG`.
     """
 
     #: the right inverse B^- (regularized form), None in the original form
@@ -126,7 +129,13 @@ class ELDSystem:
         self._mass_values = None  # the scalar mass of the cells' densities (several materials)
         self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar), c.scalar_dofs)
         self._lean = self.D.matrix is None
-        self.kind = resolve_kind(solver, self.I.size, p.space.dim, short_lived)
+        self.kind = resolve_kind(
+            solver,
+            self.I.size,
+            p.space.dim,
+            short_lived,
+            self.cfl(tau_eff) if short_lived and p.space.dim == 3 else None,
+        )
         self._amg_options = dict(SHORT_LIVED_AMG) if short_lived else None
         rbm = p.space.rigid_body_modes(free_nodes) if self.kind == "amg" else None
         self.solver = self._make_solver(rbm, linear_rtol)
@@ -134,6 +143,18 @@ class ELDSystem:
         if self.D.is_linear:
             self.factor(tau_eff, None)
         self.initial_factorizations = self.solver.stats.factorizations
+
+    def cfl(self, te: float) -> float:
+        """The CFL number of A(te) on this mesh, c_p sqrt(rho c_stiff / c_mass) / h_min
+        (= c_p te / h_min undamped; c_p of the fastest material, h_min the shortest cell
+        diameter): with it the Jacobi-scaled A(te) has a bounded condition number (mass-
+        dominated), which decides the solver of a short-lived 3D mesh
+        (:func:`rothe.eld.solvers.resolve_kind`)."""
+        c_mass, c_stiff = self.coefficients(te)
+        mesh = self.problem.space.mesh
+        h_min = float(cell_diameters(mesh.p, mesh.t).min())
+        c_p = pressure_wave_speed(self.problem.material)
+        return c_p * float(np.sqrt(self.rho * c_stiff / c_mass)) / h_min
 
     @staticmethod
     def build(problem, form, **kwargs) -> ELDSystem:
@@ -439,6 +460,38 @@ class ELDSystem:
         return state
 
 
+class FreeStepOperator:
+    """A(te) = c_mass M + c_stiff K on the free dofs I as an operator, never assembled: the
+    step matrix of a Jacobi-CG mesh (:func:`rothe.eld.solvers.resolve_kind`), whose solver
+    needs only products and the diagonal. A_II y = (c_mass M z + c_stiff K z)[I] with z = y on
+    I and 0 on Gamma_D (the same sums as the assembled A_II up to the order of two terms:
+    equal to round-off). Keeping no A_II saves its memory (about K's size: 8 MB at 15k P2
+    dofs in 3D) and its assembly per mesh, for a K and an M product per iteration instead of
+    one A_II product (docs/adaptivity.md)."""
+
+    format = None
+
+    def __init__(self, M, K, c_mass: float, c_stiff: float, free: np.ndarray):
+        self.M, self.K, self.c_mass, self.c_stiff = M, K, float(c_mass), float(c_stiff)
+        self.free = free
+        self.n_full = K.shape[0]
+        self.shape = (free.size, free.size)
+
+    def diagonal(self) -> np.ndarray:
+        """diag(A_II) = c_mass diag(M)[I] + c_stiff diag(K)[I]."""
+        return (self.c_mass * self.M.diagonal() + self.c_stiff * self.K.diagonal())[self.free]
+
+    def __matmul__(self, y: np.ndarray) -> np.ndarray:
+        z = np.zeros(self.n_full)
+        z[self.free] = y
+        out = self.K @ z
+        out *= self.c_stiff
+        out += self.c_mass * (self.M @ z)
+        return out[self.free]
+
+    dot = __matmul__
+
+
 class RegularizedSystem(ELDSystem):
     """The regularized form: unknowns on the free dofs (ker B), the lifting B^-, an SPD
     matrix; the products with lifted data by the thin columns of M and K on Gamma_D (nodal
@@ -482,6 +535,9 @@ class RegularizedSystem(ELDSystem):
         return self._A_stored
 
     def _operator_matrix(self, te: float):
+        if self._lean and self.kind == "jacobi":
+            c_mass, c_stiff = self.coefficients(te)
+            return FreeStepOperator(self.problem.M, self.problem.K, c_mass, c_stiff, self.I)
         if self._lean:
             return self._restricted(te)
         return self._step_matrix(te)[self.I][:, self.I].tocsr()
