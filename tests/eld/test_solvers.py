@@ -101,7 +101,6 @@ def test_a_rebuilt_3d_mesh_above_the_short_lived_limit_runs_on_jacobi_cg_or_amg(
     import rothe.eld.solvers as solvers
     from rothe.eld import BDF2, prepare_eld_run
     from rothe.eld.examples import pulse_3d_problem
-    from rothe.eld.system import FreeStepOperator
     from rothe.fem.adapt import SpaceAdaptivity
     from rothe.stepping.controllers import Uniform
 
@@ -120,8 +119,9 @@ def test_a_rebuilt_3d_mesh_above_the_short_lived_limit_runs_on_jacobi_cg_or_amg(
     cfl = 2.0 * np.sqrt((1.0 + 0.001 / te) / (1.0 / te**2)) / (np.sqrt(3.0) / 6)
     assert abs(new.cfl(te) - cfl) <= 1e-12 * cfl and cfl < 0.1
     assert 1_500 < new.I.size < 30_000 and new.kind == "jacobi"
-    # no step matrix is assembled: products through K and M
-    assert isinstance(new.A_II, FreeStepOperator) and new.solver._ml is None
+    # no setup: the stored step matrix itself and its inverse diagonal, no hierarchy
+    assert new.solver._A is new.A_II and new.solver._ml is None
+    assert np.array_equal(new.solver._scale, 1.0 / new.A_II.diagonal())
     monkeypatch.setattr(solvers, "JACOBI_CFL", 0.5 * cfl)
     amg = run.stepper.adaptivity.rebuild(new, first.problem.space.mesh)
     assert amg.kind == "amg"
@@ -174,24 +174,6 @@ def test_jacobi_cg_stops_on_the_scaled_residual_and_gives_up_at_maxiter():
     assert np.array_equal(solver.solve_reference(b), x)
     assert solver.stats.krylov_iterations == its and solver.stats.solves == 1
     assert not np.any(solver.solve_reference(np.zeros_like(b)))
-
-
-def test_free_step_operator_is_the_assembled_step_matrix():
-    """FreeStepOperator: (c_mass M + c_stiff K) restricted to the free dofs, never assembled,
-    equals restricted_combination's A_II in products and diagonal to round-off."""
-    from rothe.eld.system import FreeStepOperator
-
-    problem = beam_problem(3, damping=RayleighDamping(0.0, 0.002), T=0.02)
-    stepper = ELDStepper(problem, control=Uniform(0.01), solver="direct")
-    system = stepper.system
-    te = 0.01
-    c_mass, c_stiff = system.coefficients(te)
-    A = system._restricted(te)
-    op = FreeStepOperator(problem.M, problem.K, c_mass, c_stiff, system.I)
-    y = np.random.default_rng(2).standard_normal(A.shape[0])
-    assert op.shape == A.shape
-    assert np.linalg.norm(op @ y - A @ y) <= 1e-13 * np.linalg.norm(A @ y)
-    assert np.max(np.abs(op.diagonal() - A.diagonal())) <= 1e-13 * np.max(A.diagonal())
 
 
 def test_jacobi_iterations_are_bounded_by_the_cfl_number_not_the_mesh():

@@ -263,9 +263,8 @@ class ReferenceSolver:
             self._prec = lu.solve
             self._ml = None
         elif self.kind == "jacobi":
-            # no setup: the inverse diagonal (the preconditioner) and A itself (by reference:
-            # a sparse matrix or an operator with a diagonal, rothe.eld.system.FreeStepOperator)
-            if sp.issparse(A) and A.format not in ("bsr", "csr"):
+            # no setup: the inverse diagonal (the preconditioner) and A itself (by reference)
+            if not (sp.issparse(A) and A.format in ("bsr", "csr")):
                 A = sp.csr_matrix(A)
             inv = 1.0 / A.diagonal()
             self._scale = inv

@@ -460,38 +460,6 @@ class ELDSystem:
         return state
 
 
-class FreeStepOperator:
-    """A(te) = c_mass M + c_stiff K on the free dofs I as an operator, never assembled: the
-    step matrix of a Jacobi-CG mesh (:func:`rothe.eld.solvers.resolve_kind`), whose solver
-    needs only products and the diagonal. A_II y = (c_mass M z + c_stiff K z)[I] with z = y on
-    I and 0 on Gamma_D (the same sums as the assembled A_II up to the order of two terms:
-    equal to round-off). Keeping no A_II saves its memory (about K's size: 8 MB at 15k P2
-    dofs in 3D) and its assembly per mesh, for a K and an M product per iteration instead of
-    one A_II product (docs/adaptivity.md)."""
-
-    format = None
-
-    def __init__(self, M, K, c_mass: float, c_stiff: float, free: np.ndarray):
-        self.M, self.K, self.c_mass, self.c_stiff = M, K, float(c_mass), float(c_stiff)
-        self.free = free
-        self.n_full = K.shape[0]
-        self.shape = (free.size, free.size)
-
-    def diagonal(self) -> np.ndarray:
-        """diag(A_II) = c_mass diag(M)[I] + c_stiff diag(K)[I]."""
-        return (self.c_mass * self.M.diagonal() + self.c_stiff * self.K.diagonal())[self.free]
-
-    def __matmul__(self, y: np.ndarray) -> np.ndarray:
-        z = np.zeros(self.n_full)
-        z[self.free] = y
-        out = self.K @ z
-        out *= self.c_stiff
-        out += self.c_mass * (self.M @ z)
-        return out[self.free]
-
-    dot = __matmul__
-
-
 class RegularizedSystem(ELDSystem):
     """The regularized form: unknowns on the free dofs (ker B), the lifting B^-, an SPD
     matrix; the products with lifted data by the thin columns of M and K on Gamma_D (nodal
@@ -535,9 +503,6 @@ class RegularizedSystem(ELDSystem):
         return self._A_stored
 
     def _operator_matrix(self, te: float):
-        if self._lean and self.kind == "jacobi":
-            c_mass, c_stiff = self.coefficients(te)
-            return FreeStepOperator(self.problem.M, self.problem.K, c_mass, c_stiff, self.I)
         if self._lean:
             return self._restricted(te)
         return self._step_matrix(te)[self.I][:, self.I].tocsr()
