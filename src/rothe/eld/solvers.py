@@ -86,12 +86,13 @@ AMG_PRODUCTS = ("fast", "lean")
 
 @dataclass
 class SolverStats:
-    """Counters of a linear solver: factorizations (LU or AMG setups), backsolves (applications of
-    the stored factorization or V-cycles), Krylov iterations, systems solved and setup seconds.
+    """Counters of a linear solver: factorizations (LU or AMG setups; for Jacobi-CG the
+    reference and its diagonal taken), backsolves (applications of the stored factorization,
+    V-cycles or Jacobi-CG iterations), Krylov iterations, systems solved and setup seconds.
     """
 
-    factorizations: int = 0  # LU factorizations or AMG setups
-    backsolves: int = 0  # applications of the stored factorization / V-cycles
+    factorizations: int = 0  # LU factorizations, AMG setups or Jacobi references
+    backsolves: int = 0  # applications of the stored factorization / V-cycles / CG iterations
     krylov_iterations: int = 0
     solves: int = 0  # systems solved
     setup_seconds: float = 0.0
