@@ -524,8 +524,13 @@ def pulse_family(family: PulseFamily, quick: bool, cache: str | None = None) -> 
         + f"; adaptive: adapt_every {family.adapt_every}, the band c_p tau adapt_every, at "
         "most as fine as the reference (nested in it); seconds: building the problem and the "
         "run (solver 'auto': LU up to "
-        + ("200k" if d == 2 else "30k (the adaptive runs' meshes: 1.5k)")
-        + " unknowns, AMG above)"
+        + (
+            "200k unknowns, AMG above"
+            if d == 2
+            else "30k unknowns, AMG above; the adaptive runs' meshes: LU up to 1.5k, above it "
+            "Jacobi-CG up to CFL c_p tau_eff / h_min 2, AMG above"
+        )
+        + ")"
         + ("; every run in its own process" if family.subprocess else "")
     )
     runs = []

@@ -161,3 +161,53 @@ def test_importing_the_eld_family_loads_no_heavy_module_it_does_not_use():
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
     )
     assert out.stdout.split() == []
+
+
+@pytest.mark.parametrize("original", [False, True])
+def test_adaptive_p2_run_on_jacobi_cg_equals_the_run_on_amg(monkeypatch, original):
+    """The meshes of an adaptive P2 run above 1.5k unknowns are solved by Jacobi-CG (their CFL
+    number is below JACOBI_CFL); forcing AMG instead (JACOBI_CFL < 0) gives the same meshes
+    (same dofs per step) and the same kept states to the solvers' tolerance (measured
+    1.3e-10 / 2.0e-10 relative in u, 1.0e-10 in lambda of the original form; both stop on the
+    scaled residual 1e-10), and the ledger closes in both. Regularized and original form
+    (whose condensed solve runs Jacobi-CG on A_II)."""
+    import rothe.eld.solvers as solvers
+    import rothe.eld.system as system_mod
+    from rothe.eld import Original, Regularized
+
+    kinds = []
+    resolve = system_mod.resolve_kind
+
+    def recorded(*args, **kwargs):
+        kinds.append(resolve(*args, **kwargs))
+        return kinds[-1]
+
+    monkeypatch.setattr(system_mod, "resolve_kind", recorded)
+    runs = {}
+    for limit in (solvers.JACOBI_CFL, -1.0):
+        monkeypatch.setattr(solvers, "JACOBI_CFL", limit)
+        kinds.clear()
+        space = SpaceAdaptivity(
+            space_tol=0.006,
+            refine_fraction=0.5,
+            coarsen_fraction=0.05,
+            adapt_every=2,
+            max_level=9,
+        )
+        runs[limit] = run_eld(
+            pulse_3d_problem(2, T=0.08),
+            form=Original() if original else Regularized(),
+            control=Uniform(0.02),
+            scheme=BDF2(),
+            keep_every=1,
+            adapt=space,
+        )
+        iterative = "jacobi" if limit > 0 else "amg"
+        assert kinds.count(iterative) >= 3 and set(kinds) == {"direct", iterative}
+        assert np.max(np.abs(runs[limit].trajectory["balance_residual"])) <= 1e-15
+    jac, amg = runs.values()
+    assert np.array_equal(jac.trajectory["step_dofs"], amg.trajectory["step_dofs"])
+    assert max(jac.trajectory["step_dofs"]) > 5_000
+    for name in ("u", "lam") if original else ("u",):
+        for u, w in zip(jac.meshes.kept[name], amg.meshes.kept[name], strict=True):
+            assert np.linalg.norm(u - w) <= 1e-8 * max(np.linalg.norm(w), 1e-300)

@@ -6,6 +6,7 @@ import scipy.sparse as sp
 
 from rothe.eld import ELDStepper, Original, RayleighDamping, beam_problem
 from rothe.eld.solvers import (
+    JACOBI_CFL,
     SHORT_LIVED_AMG,
     ConstrainedSolver,
     ReferenceSolver,
@@ -81,12 +82,23 @@ def test_auto_takes_amg_earlier_on_the_meshes_of_an_adaptive_3d_run():
     assert resolve_kind("auto", 2_000, 3, short_lived=True) == "amg"
     assert resolve_kind("auto", 1_500, 3, short_lived=True) == "direct"
     assert resolve_kind("direct", 10_000, 3, short_lived=True) == "direct"
+    # above the LU limit: Jacobi-CG when the mesh's CFL number is moderate, else AMG; never
+    # on fixed meshes, in 2D, or when a kind is asked for
+    assert resolve_kind("auto", 10_000, 3, True, cfl=0.4) == "jacobi"
+    assert resolve_kind("auto", 10_000, 3, True, cfl=JACOBI_CFL) == "jacobi"
+    assert resolve_kind("auto", 10_000, 3, True, cfl=1.01 * JACOBI_CFL) == "amg"
+    assert resolve_kind("auto", 1_000, 3, True, cfl=0.4) == "direct"
+    assert resolve_kind("auto", 40_000, 3, False, cfl=0.4) == "amg"
+    assert resolve_kind("auto", 250_000, 2, True, cfl=0.4) == "amg"
+    assert resolve_kind("amg", 10_000, 3, True, cfl=0.4) == "amg"
 
 
-def test_a_rebuilt_3d_mesh_above_the_short_lived_limit_runs_on_amg():
+def test_a_rebuilt_3d_mesh_above_the_short_lived_limit_runs_on_jacobi_cg_or_amg(monkeypatch):
     """The adapt step's rebuild passes short_lived: the first mesh keeps LU (below 30k), the
-    rebuilt one above 5k unknowns gets AMG, and the step on it solves to the same answer as
-    LU on the same mesh (to the Krylov tolerance)."""
+    rebuilt one above 1.5k unknowns gets Jacobi-CG at its CFL number (0.09 here) and AMG
+    above JACOBI_CFL; either solves to the LU answer on the same mesh (to the Krylov
+    tolerance: the scaled residual 1e-10 of a matrix of condition ~10)."""
+    import rothe.eld.solvers as solvers
     from rothe.eld import BDF2, prepare_eld_run
     from rothe.eld.examples import pulse_3d_problem
     from rothe.fem.adapt import SpaceAdaptivity
@@ -102,16 +114,92 @@ def test_a_rebuilt_3d_mesh_above_the_short_lived_limit_runs_on_amg():
     first = run.stepper.system
     assert first.kind == "direct"
     new = run.stepper.adaptivity.rebuild(first, first.problem.space.mesh)
-    assert 5_000 < new.I.size < 30_000 and new.kind == "amg"
+    te = 0.02 / 1.5  # BDF2's tau / alpha_0
+    # c_p tau_eff / h_min with the Rayleigh term: c_p = 2, h_min = sqrt(3)/6
+    cfl = 2.0 * np.sqrt((1.0 + 0.001 / te) / (1.0 / te**2)) / (np.sqrt(3.0) / 6)
+    assert abs(new.cfl(te) - cfl) <= 1e-12 * cfl and cfl < 0.1
+    assert 1_500 < new.I.size < 30_000 and new.kind == "jacobi"
+    # no setup: the stored step matrix itself and its inverse diagonal, no hierarchy
+    assert new.solver._A is new.A_II and new.solver._ml is None
+    assert np.array_equal(new.solver._scale, 1.0 / new.A_II.diagonal())
+    monkeypatch.setattr(solvers, "JACOBI_CFL", 0.5 * cfl)
+    amg = run.stepper.adaptivity.rebuild(new, first.problem.space.mesh)
+    assert amg.kind == "amg"
     # the short-lived mesh's AMG: plain aggregation (one level of smoothed prolongation less)
-    assert new.solver.amg_options == SHORT_LIVED_AMG == {"smooth": None}
+    assert amg.solver.amg_options == SHORT_LIVED_AMG == {"smooth": None}
     assert first.rebuilt(first.problem, solver="amg").solver.amg_options == {}
     lu = first.rebuilt(first.problem, symmetric_lu=True)
     rhs = np.random.default_rng(0).standard_normal(first.I.size)
     assert lu.kind == "direct"
     x_lu = lu.solver.solve_reference(rhs)
-    x_new = new.solver.solve_reference(rhs)
-    assert np.linalg.norm(x_new - x_lu) <= 1e-6 * np.linalg.norm(x_lu)
+    for system, most in ((new.revived(), 40), (amg, 15)):
+        before = system.solver.stats.krylov_iterations
+        x = system.solver.solve_reference(rhs)
+        assert system.solver.stats.krylov_iterations - before <= most
+        assert np.linalg.norm(x - x_lu) <= 1e-8 * np.linalg.norm(x_lu)
+
+
+def test_jacobi_cg_stops_on_the_scaled_residual_and_gives_up_at_maxiter():
+    """jacobi_cg: ||D^{-1/2}(b - A x)|| <= rtol ||D^{-1/2} b|| at the end (the AMG path's
+    rule), the iterates of CG on the scaled system (same iteration count as scipy's CG on
+    D^{-1/2} A D^{-1/2}), no iteration from the solution, None at maxiter."""
+    from rothe.eld.solvers import jacobi_cg
+
+    problem = beam_problem(4, damping=RayleighDamping(0.0, 0.002), T=0.02)
+    stepper = ELDStepper(problem, control=Uniform(0.01), solver="direct")
+    A = stepper.system.A_II
+    inv = 1.0 / A.diagonal()
+    b = A @ np.linspace(-1.0, 1.0, A.shape[0])
+    x, its = jacobi_cg(A, inv, b, None, 1e-10, 500)
+    r = np.sqrt(inv) * (b - A @ x)
+    assert np.linalg.norm(r) <= 1.01e-10 * np.linalg.norm(np.sqrt(inv) * b)
+    As, s = jacobi_scaled(A)
+    count = [0]
+    sp.linalg.cg(
+        As,
+        s * b,
+        rtol=1e-10,
+        atol=0.0,
+        maxiter=500,
+        callback=lambda _: count.__setitem__(0, count[0] + 1),
+    )
+    assert abs(its - count[0]) <= 1 and its > 5
+    exact = sp.linalg.spsolve(A.tocsc(), b)
+    assert np.linalg.norm(x - exact) <= 1e-7 * np.linalg.norm(exact)
+    assert jacobi_cg(A, inv, b, exact, 1e-10, 500)[1] <= 1
+    assert jacobi_cg(A, inv, b, None, 1e-10, its - 2) == (None, its - 2)
+    # the solver kind: the same answer, its iterations counted; nothing to solve: zero
+    solver = ReferenceSolver("jacobi", spd=True, rtol=1e-10)
+    solver.factor(A)
+    assert np.array_equal(solver.solve_reference(b), x)
+    assert solver.stats.krylov_iterations == its and solver.stats.solves == 1
+    assert not np.any(solver.solve_reference(np.zeros_like(b)))
+
+
+def test_jacobi_iterations_are_bounded_by_the_cfl_number_not_the_mesh():
+    """At the same CFL number c_p tau_eff / h_min the Jacobi-CG iterations of the step matrix
+    stay put when the mesh is refined (8 times the cells; measured for a random right-hand
+    side, n = 2, 3, 4, 6, 8: 72-74 at CFL 0.5, 105-132 at 1), and grow with the CFL number."""
+    from rothe.eld.examples import pulse_3d_problem
+    from rothe.eld.form import Regularized
+    from rothe.eld.system import ELDSystem
+
+    rng = np.random.default_rng(4)
+    its = {}
+    for n in (3, 6):
+        problem = pulse_3d_problem(n, T=0.1)
+        h = np.sqrt(3.0) / n
+        for cfl in (0.5, 1.0):
+            system = ELDSystem.build(
+                problem, Regularized(), tau_eff=cfl * h / 2.0, variable_steps=False, solver="direct"
+            )
+            solver = ReferenceSolver("jacobi", spd=True, rtol=1e-10)
+            solver.factor(system.A_II)
+            solver.solve_reference(rng.standard_normal(system.I.size))
+            its[n, cfl] = solver.stats.krylov_iterations
+    for cfl in (0.5, 1.0):
+        assert its[6, cfl] <= 1.2 * its[3, cfl]
+    assert its[3, 1.0] > 1.4 * its[3, 0.5] and its[6, 1.0] > 1.4 * its[6, 0.5]
 
 
 def test_amg_is_blind_to_a_diagonal_scaling_of_the_matrix():

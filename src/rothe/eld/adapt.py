@@ -76,6 +76,7 @@ from ..fem.topology import cell_diameters
 from ..io.mesh_series import MeshSeries
 from .data import Points
 from .indicator import eld_indicators_for
+from .materials import pressure_wave_speed
 from .stress import StressEvaluator
 
 #: rebuilds reuse the element matrices of the cells an adaptation left unchanged
@@ -126,15 +127,6 @@ def dirichlet_data_indicator(problem, t: float) -> np.ndarray:
         h = measure ** (1.0 / (d - 1)) if d > 2 else measure
         np.add.at(out, mesh.f2t[0, facets], (err2 * q.dx).sum(axis=1) / h)
     return out
-
-
-def pressure_wave_speed(material) -> float:
-    """The fastest pressure wave speed c_p = sqrt((lam + 2 mu)/rho) of ``material`` (of its
-    materials for a piecewise one)."""
-    parts = getattr(material, "materials", None)
-    if parts:
-        return max(m.wave_speeds[0] for m in parts.values())
-    return float(material.wave_speeds[0])
 
 
 def check_adapt(adapt, *, data, noise) -> SpaceAdaptivity:

@@ -414,3 +414,12 @@ class PiecewiseMaterial:
             },
             "rho_ref": self.rho,
         }
+
+
+def pressure_wave_speed(material) -> float:
+    """The fastest pressure wave speed c_p = sqrt((lam + 2 mu)/rho) of ``material`` (of its
+    materials for a piecewise one)."""
+    parts = getattr(material, "materials", None)
+    if parts:
+        return max(m.wave_speeds[0] for m in parts.values())
+    return float(material.wave_speeds[0])

@@ -241,11 +241,10 @@ class ELDProblem:
             # per-cell data; M is weighted by rho_c/rho_ref so that material.rho * M is the
             # mass of the actual density (rothe.eld.materials)
             self.cell_material = material.on_mesh(mesh)
-            self.M = sp_.mass(self.cell_material.density_weight)
             self.K = sp_.stiffness(self.cell_material.lam, self.cell_material.mu, format="bsr")
+            self.M = sp_.mass(self.cell_material.density_weight)
         else:
             self.cell_material = None
-            self.M = sp_.mass()
             keep = element_cache is not False
             reuse = element_cache if isinstance(element_cache, tuple) else None
             if reuse is not None and reuse[0] is None:
@@ -253,6 +252,7 @@ class ELDProblem:
             self.K = sp_.stiffness(
                 material.lam_eff, material.mu, format="bsr", reuse=reuse, keep=keep
             )
+            self.M = sp_.mass()
         self.damping_op = self.damping.operator(sp_, self.M, self.K)
         self.u0 = self._initial(u0, "u0")
         self.v0 = self._initial(v0, "v0")

@@ -23,6 +23,12 @@ Kinds:
   smooths only the dofs of the largest diagonal entries: CG needed 72 V-cycles for rtol
   1e-10 on such a 13 626-dof matrix, 12 with the scaling (11 either way on the uniform
   n = 16 mesh, whose diagonal spans 0.10-0.86; docs/adaptivity.md).
+- ``jacobi`` (chosen by 'auto' only, on the 3D meshes of a space-adaptive run whose CFL number
+  is moderate, :func:`resolve_kind`): CG preconditioned by the diagonal, no setup beyond the
+  diagonal and no hierarchy. The step matrix (rho/tau_eff^2) M + K scaled by its diagonal has
+  a condition number bounded by the CFL number c_p tau_eff / h_min (mass-dominated), not by
+  the number of unknowns, so the iterations stay bounded under refinement
+  (docs/adaptivity.md: 43 per solve on average, at most 57, on the eld3d pulse).
 """
 
 from __future__ import annotations
@@ -62,6 +68,14 @@ AMG_DEFAULTS = dict(
 SHORT_LIVED_AMG = {"smooth": None}
 
 
+#: 'auto' takes CG with the Jacobi preconditioner (kind ``jacobi``) on a short-lived 3D mesh
+#: above the LU limit when its CFL number c_p tau_eff / h_min (:func:`resolve_kind`) is at most
+#: this; AMG above
+JACOBI_CFL = 2.0
+#: the iterations of a Jacobi-CG solve before it gives up (:class:`SolveFailed`)
+JACOBI_MAXITER = 1000
+
+
 #: how GAMG forms its coarse operators P^T A P (``amg_products``): ``fast`` is PETSc's default
 #: two-step product, which stores A P on every process (on MPI the set-up's peak: about 1.3 KB
 #: per owned dof above what the hierarchy keeps); ``lean`` PETSc's all-at-once product
@@ -72,12 +86,13 @@ AMG_PRODUCTS = ("fast", "lean")
 
 @dataclass
 class SolverStats:
-    """Counters of a linear solver: factorizations (LU or AMG setups), backsolves (applications of
-    the stored factorization or V-cycles), Krylov iterations, systems solved and setup seconds.
+    """Counters of a linear solver: factorizations (LU or AMG setups; for Jacobi-CG the
+    reference and its diagonal taken), backsolves (applications of the stored factorization,
+    V-cycles or Jacobi-CG iterations), Krylov iterations, systems solved and setup seconds.
     """
 
-    factorizations: int = 0  # LU factorizations or AMG setups
-    backsolves: int = 0  # applications of the stored factorization / V-cycles
+    factorizations: int = 0  # LU factorizations, AMG setups or Jacobi references
+    backsolves: int = 0  # applications of the stored factorization / V-cycles / CG iterations
     krylov_iterations: int = 0
     solves: int = 0  # systems solved
     setup_seconds: float = 0.0
@@ -105,14 +120,49 @@ class SolveFailed(RuntimeError):
     """The Krylov method did not converge even with a fresh preconditioner."""
 
 
+def jacobi_cg(A, inv_diag: np.ndarray, b: np.ndarray, x0, rtol: float, maxiter: int):
+    """(x, iterations) of CG for the SPD system A x = b preconditioned by the diagonal,
+    z = D^{-1} r; (None, maxiter) if it did not converge.
+
+    Stops when ||D^{-1/2} r|| <= rtol ||D^{-1/2} b|| (r.z = ||D^{-1/2} r||^2: the residual of
+    CG on D^{-1/2} A D^{-1/2} y = D^{-1/2} b, whose iterates these are, x = D^{-1/2} y, the
+    AMG path's stopping rule); the recurrences of Hestenes & Stiefel (1952), updated in place
+    (one product with A, two inner products and four vector updates per iteration)."""
+    x = np.zeros_like(b) if x0 is None else np.array(x0, dtype=float)
+    r = b - A @ x if x0 is not None else b.copy()
+    z = inv_diag * r
+    rz = float(r @ z)
+    stop = rtol * rtol * float(b @ (inv_diag * b))
+    p = z.copy()
+    its = 0
+    while rz > stop:
+        if its == maxiter:
+            return None, its
+        q = A @ p
+        alpha = rz / float(p @ q)
+        x += alpha * p
+        r -= alpha * q
+        np.multiply(inv_diag, r, out=z)
+        rz_new = float(r @ z)
+        p *= rz_new / rz
+        p += z
+        rz = rz_new
+        its += 1
+    return x, its
+
+
 #: 'auto' takes sparse LU up to this many unknowns, AMG above: 2D, 3D, and 3D meshes of a
 #: space-adaptive run (``short_lived``)
 LU_LIMITS = {2: 200_000, 3: 30_000, "3-short": 1_500}
 
 
-def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
+def resolve_kind(
+    kind: str, n: int, dim: int, short_lived: bool = False, cfl: float | None = None
+) -> str:
     """'auto': sparse LU in 2D up to 200k unknowns and in 3D up to 30k, AMG above; in 3D on
-    the meshes a space-adaptive run builds (``short_lived``) LU only up to 1.5k.
+    the meshes a space-adaptive run builds (``short_lived``) LU only up to 1.5k, above it
+    Jacobi-CG (``jacobi``) when the mesh's CFL number ``cfl`` = c_p tau_eff / h_min is at most
+    :data:`JACOBI_CFL`, else AMG.
 
     3D LU fill grows fast: ``python benchmarks/eld_peers.py`` measured SuperLU at 56,355 dofs
     (P1 beam, N = 16) at 38 s and 0.98 GB peak, while the AMG setup of the 1,075,275-dof beam
@@ -131,7 +181,11 @@ def resolve_kind(kind: str, n: int, dim: int, short_lived: bool = False) -> str:
     if kind != "auto":
         return kind
     limit = LU_LIMITS[dim if dim == 2 or not short_lived else "3-short"]
-    return "direct" if n <= limit else "amg"
+    if n <= limit:
+        return "direct"
+    if dim == 3 and short_lived and cfl is not None and cfl <= JACOBI_CFL:
+        return "jacobi"
+    return "amg"
 
 
 class ReferenceSolver:
@@ -139,7 +193,7 @@ class ReferenceSolver:
 
     Parameters
     ----------
-    kind : 'direct' | 'amg'
+    kind : 'direct' | 'amg' | 'jacobi'
     spd : bool
         The matrices are symmetric positive definite (CG) or not (GMRES; direct only).
     near_nullspace : ndarray, optional
@@ -169,12 +223,12 @@ class ReferenceSolver:
         times: PhaseTimes | None = None,
         symmetric_lu: bool = False,
     ):
-        if kind not in ("direct", "amg"):
-            raise fail("solver", kind, "must be direct or amg")
-        if kind == "amg" and not spd:
+        if kind not in ("direct", "amg", "jacobi"):
+            raise fail("solver", kind, "must be direct, amg or jacobi")
+        if kind in ("amg", "jacobi") and not spd:
             raise fail(
                 "solver",
-                "amg",
+                kind,
                 "needs a symmetric positive definite system; the original "
                 "form's saddle-point system is solved by sparse LU (use solver='direct')",
             )
@@ -208,6 +262,14 @@ class ReferenceSolver:
             # a stop signal may abandon the step during the factorization (interrupt.splu)
             lu = interrupt.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", options=options)
             self._prec = lu.solve
+            self._ml = None
+        elif self.kind == "jacobi":
+            # no setup: the inverse diagonal (the preconditioner) and A itself (by reference)
+            if not (sp.issparse(A) and A.format in ("bsr", "csr")):
+                A = sp.csr_matrix(A)
+            inv = 1.0 / A.diagonal()
+            self._scale = inv
+            self._prec = lambda r: inv * r
             self._ml = None
         else:
             import pyamg  # heavy: imported when first needed (start-up time)
@@ -265,15 +327,25 @@ class ReferenceSolver:
         return self._prec is not None
 
     def solve_reference(self, b: np.ndarray, x0=None) -> np.ndarray:
-        """x = A_ref^{-1} b: one back-substitution (direct) or AMG-CG to rtol.
+        """x = A_ref^{-1} b: one back-substitution (direct), AMG-CG or Jacobi-CG to rtol.
 
         AMG: CG on the scaled system D^{-1/2} A D^{-1/2} y = D^{-1/2} b, x = D^{-1/2} y, so the
         relative residual rtol is that of the D^{-1/2}-weighted residual,
-        ||D^{-1/2} (b - A x)|| <= rtol ||D^{-1/2} b||."""
+        ||D^{-1/2} (b - A x)|| <= rtol ||D^{-1/2} b||; Jacobi-CG (:func:`jacobi_cg`) stops on
+        the same residual (its iterates are those of CG on the scaled system)."""
         self.stats.solves += 1
         if self.kind == "direct":
             self.stats.backsolves += 1
             return self._prec(b)
+        if self.kind == "jacobi":
+            x, its = jacobi_cg(self._A, self._scale, b, x0, self.rtol, JACOBI_MAXITER)
+            self.stats.backsolves += its
+            self.stats.krylov_iterations += its
+            if x is None:
+                raise SolveFailed(
+                    f"Jacobi-CG did not reach rtol {self.rtol:g} in {JACOBI_MAXITER} iterations"
+                )
+            return x
         s = self._scale
         sb = s * b
         y0 = None if x0 is None else np.asarray(x0) / s
@@ -342,9 +414,10 @@ class ReferenceSolver:
             its[0] += 1
 
         if self.spd:
-            x, info = spla.cg(
-                A, b, x0=x0, rtol=rtol, atol=0.0, maxiter=self.max_krylov, M=M, callback=cb
-            )
+            # Jacobi preconditions a nearby matrix as well as the reference: its iterations
+            # are those of the reference's solves, not a few
+            maxiter = JACOBI_MAXITER if self.kind == "jacobi" else self.max_krylov
+            x, info = spla.cg(A, b, x0=x0, rtol=rtol, atol=0.0, maxiter=maxiter, M=M, callback=cb)
         else:
             # scipy's GMRES stops its inner iterations on the preconditioned residual and checks
             # the true one at restarts: allow a few restarts before calling the reference stale
@@ -481,7 +554,7 @@ class ConstrainedSolver(ReferenceSolver):
         inner = self.inner.stats
         before = (inner.backsolves, inner.krylov_iterations)
         guess = None
-        if x0 is not None and self.inner.kind == "amg":
+        if x0 is not None and self.inner.kind != "direct":
             guess = np.asarray(x0)[: self.n][self.constraint.free]
         z = self._condensed(b, x0=guess)
         self.stats.solves += 1

@@ -44,9 +44,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..fem.topology import cell_diameters
 from ..timing import PhaseTimes
 from .constraint import NodalLifting, make_lifting
 from .data import StepData
+from .materials import pressure_wave_speed
 from .solvers import SHORT_LIVED_AMG, ConstrainedSolver, ReferenceSolver, resolve_kind
 from .state import PRODUCTS, ELDState
 
@@ -84,8 +86,9 @@ class ELDSystem:
         adaptivity: one factorization per mesh).
     short_lived : bool
         A mesh of a space-adaptive run (it lives ``adapt_every`` steps): 'auto' takes LU in
-        3D up to fewer unknowns (:func:`rothe.eld.solvers.resolve_kind`), and AMG builds its
-        hierarchy with the cheap setup :data:`rothe.eld.solvers.SHORT_LIVED_AMG`.
+        3D up to fewer unknowns and above them Jacobi-CG when the CFL number (:meth:`cfl`) is
+        moderate (:func:`rothe.eld.solvers.resolve_kind`), and AMG builds its hierarchy with
+        the cheap setup :data:`rothe.eld.solvers.SHORT_LIVED_AMG`.
     """
 
     #: the right inverse B^- (regularized form), None in the original form
@@ -126,7 +129,13 @@ class ELDSystem:
         self._mass_values = None  # the scalar mass of the cells' densities (several materials)
         self._free_nodes = free_nodes = np.setdiff1d(np.arange(p.space.n_scalar), c.scalar_dofs)
         self._lean = self.D.matrix is None
-        self.kind = resolve_kind(solver, self.I.size, p.space.dim, short_lived)
+        self.kind = resolve_kind(
+            solver,
+            self.I.size,
+            p.space.dim,
+            short_lived,
+            self.cfl(tau_eff) if short_lived and p.space.dim == 3 else None,
+        )
         self._amg_options = dict(SHORT_LIVED_AMG) if short_lived else None
         rbm = p.space.rigid_body_modes(free_nodes) if self.kind == "amg" else None
         self.solver = self._make_solver(rbm, linear_rtol)
@@ -134,6 +143,18 @@ class ELDSystem:
         if self.D.is_linear:
             self.factor(tau_eff, None)
         self.initial_factorizations = self.solver.stats.factorizations
+
+    def cfl(self, te: float) -> float:
+        """The CFL number of A(te) on this mesh, c_p sqrt(rho c_stiff / c_mass) / h_min
+        (= c_p te / h_min undamped; c_p of the fastest material, h_min the shortest cell
+        diameter): with it the Jacobi-scaled A(te) has a bounded condition number (mass-
+        dominated), which decides the solver of a short-lived 3D mesh
+        (:func:`rothe.eld.solvers.resolve_kind`)."""
+        c_mass, c_stiff = self.coefficients(te)
+        mesh = self.problem.space.mesh
+        h_min = float(cell_diameters(mesh.p, mesh.t).min())
+        c_p = pressure_wave_speed(self.problem.material)
+        return c_p * float(np.sqrt(self.rho * c_stiff / c_mass)) / h_min
 
     @staticmethod
     def build(problem, form, **kwargs) -> ELDSystem:

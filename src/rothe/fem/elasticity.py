@@ -55,10 +55,12 @@ import scipy.sparse as sp
 from ..errors import check_int, check_positive, check_real, described, fail
 from .mesh import check_simplex_mesh, with_fast_edges, with_fast_facets
 
-#: element-matrix entries (floats) per chunk of cells in the numpy assembly (4 MB; the
-#: chunk's index and scatter temporaries are several times that: 2**22 made the rebuild of a
-#: 15k-dof P2 mesh the peak of an adaptive 3D run, +36 MB over 2**19 at the same CPU time)
-CHUNK_ENTRIES = 2**19
+#: element-matrix entries (floats) per chunk of cells in the numpy assembly (1 MB, at least
+#: 256 cells: 1.8 MB for P2 tetrahedra; the chunk's index and scatter temporaries are several
+#: times that: the stiffness assembly is the peak of an adaptive 3D run's rebuild, 2**22
+#: +36 MB over 2**19, 2**19 +10 MB over 2**17 on the eld3d pulse at the same CPU time,
+#: docs/adaptivity.md)
+CHUNK_ENTRIES = 2**17
 #: the compiled loops are used from this much work on (d^2 nbf^2 nq per cell, summed): below,
 #: importing numba and loading its cached kernels (about a second) costs more than the numpy
 #: assembly saves (3D: from about 120k P1 or 5k P2 tetrahedra)
