@@ -8,7 +8,7 @@ import pytest
 
 from rothe.eld import BDF2, ImplicitEuler, Original, Regularized
 from rothe.eld.bodies import run_bodies
-from rothe.eld.coupled_run import run_coupled
+from rothe.eld.coupled_run import CoupledStepper, run_coupled
 from rothe.errors import RotheInputError
 from rothe.fem.adapt import SpaceAdaptivity
 from rothe.stepping.controllers import Adaptive, Uniform
@@ -79,6 +79,60 @@ def test_adaptive_mesh_adaptive_steps_regularized_harmonic():
     assert res.trajectory["t"][-1] == 0.1
     _check(res)
     assert res.trajectory["local_error"].max() <= 3e-3
+
+
+def _watch_accepted_states(monkeypatch) -> list:
+    """Action = reaction at every accepted state, on its own mesh: the adapt step is called
+    with each accepted state before the mesh changes; returns the list it fills with
+    (generalized reaction on the tip + the multiplier's resultant on 'right', resultant)."""
+    seen = []
+    adapt = CoupledStepper.adapt
+
+    def watched(self, state, result):
+        assert state.mesh_id == self.adaptivity.mesh_id  # the stepper is on the state's mesh
+        reaction = self.c.reactions(state.lam)["right"]
+        seen.append((self.system.generalized_reaction(state.lam)[:2] + reaction, reaction))
+        return adapt(self, state, result)
+
+    monkeypatch.setattr(CoupledStepper, "adapt", watched)
+    return seen
+
+
+@pytest.mark.parametrize(
+    "scheme,form,control,tol,every",
+    [
+        ("euler", "regularized", Uniform(0.01), 1e-3, 1),
+        # adaptive steps: steps rejected after their mesh was refined go back to their start
+        # state's mesh
+        ("bdf2", "original", Adaptive(1e-2, tau=0.01), 3e-4, 2),
+    ],
+)
+def test_in_step_refinement_rounds(monkeypatch, scheme, form, control, tol, every):
+    """A step whose own estimate exceeds space_tol (1.3 space_tol after the first) is solved
+    again on its refined mesh (run_eld's rounds, ELDAdaptivity.refine_in_step): the rounds
+    happen, each such step solved more than once (its dofs summed over the solves exceed its
+    start mesh's), the ledger closes with the transfers of the start states, the coupling
+    and action = reaction hold at every accepted state."""
+    seen = _watch_accepted_states(monkeypatch)
+    system = _shaken_tip(degree=1, nx=6, controllers=True, T=0.1)
+    adapt = SpaceAdaptivity(space_tol=tol, adapt_every=every, max_dofs=3000)
+    res = run_coupled(
+        system, scheme=SCHEMES[scheme], form=FORMS[form], control=control, adapt=adapt
+    )
+    tr = res.trajectory
+    assert tr["t"][-1] == pytest.approx(0.1)
+    rounds = np.asarray(tr["step_refinements"])
+    assert rounds.sum() >= 3
+    assert np.all(tr["step_bisections"][rounds > 0] > 0)
+    assert np.all(tr["step_bisections"][rounds == 0] == 0)
+    assert np.all(tr["step_dofs"][rounds > 0] > tr["ndofs"][:-1][rounds > 0])
+    assert np.all(tr["step_dofs"][rounds == 0] == tr["ndofs"][:-1][rounds == 0])
+    if isinstance(control, Adaptive):
+        assert tr.stats.rejected_steps > 0
+    _check(res)
+    assert len(seen) == len(tr["t"]) - 1
+    worst = max(np.abs(gap).max() / max(np.abs(reaction).max(), 1e-300) for gap, reaction in seen)
+    assert worst <= 1e-12
 
 
 def test_a_mesh_that_never_changes_is_the_fixed_mesh_run():

@@ -33,11 +33,18 @@ as for run_eld); the resumed stepper rebuilds the system
 on the restored mesh (:meth:`CoupledAdaptivity.rebuild` from the initial system:
 :meth:`CoupledProblem.on_mesh` assembles from the mesh alone, so it is the system the run had).
 
-Not here (yet): the in-step refinement rounds of run_eld (a step whose own estimate is too
-large is not solved again on a refined mesh: the mesh follows after the step), fields or
-``watch`` rows recorded per state (they live on the mesh), noise (Theorem 4.5's study runs on
-a fixed mesh). A body of several materials adapts like one (its regions are
-carried to the refined cells, the indicator takes per-cell constants).
+**Within a step** (:meth:`rothe.eld.coupled_run.CoupledStepper.step`): the refinement rounds
+of run_eld, the one copy :meth:`ELDAdaptivity.refine_in_step` -- while the step's estimate on
+its own mesh exceeds space_tol (1.3 space_tol after the first step) the body's mesh is refined
+(Doerfler, no coarsening) and the step solved again from its start state transferred to the
+refined mesh (steps 3-4: q, p, z unchanged, the body's energy change booked as ``transfer``
+in the start state's ledger), at most 6 times; a step the controller rejects goes back to its
+start state's mesh. The trajectory's ``step_refinements``, ``step_bisections``, ``step_dofs``
+count them.
+
+Not here (yet): fields or ``watch`` rows recorded per state (they live on the mesh), noise
+(Theorem 4.5's study runs on a fixed mesh). A body of several materials adapts like one (its
+regions are carried to the refined cells, the indicator takes per-cell constants).
 """
 
 from __future__ import annotations

@@ -145,6 +145,9 @@ class CoupledStepResult:
     code: ELDCode = ELDCode.OK
     message: str = ""
     where: dict = field(default_factory=dict)
+    refinements: int = 0  # of the step's own mesh, each followed by a solve (space adaptivity)
+    bisections: int = 0
+    dofs: int = 0  # the body's unknowns of every solve of the step summed
 
     @property
     def errors(self) -> dict:
@@ -305,12 +308,17 @@ class CoupledStepper(GridLoop):
         #: space adaptivity of the body (rothe.eld.coupled_adapt), None on a fixed mesh
         self.adaptivity = None if adapt is None else CoupledAdaptivity(self, adapt)
         self._adapted: float | None = None  # eta of the last adapt step (None: none)
+        #: (state, mesh hierarchy, CoupledMesh) before a step's own refinements: a rejected
+        #: step goes back to its start state's mesh (:meth:`_back_to_mesh_of`)
+        self._base = None
 
     def _bind(self, system, kern) -> None:
         """Bind the stepper to the body's mesh: the system on it, its step algebra and what the
         step takes from them (docs/coupling.md, Speed) -- everything that lives on the mesh
         (space adaptivity binds the new mesh's, :meth:`transferred`)."""
         self.system, self.kern = system, kern
+        # one object per mesh: the indicators' memo knows the mesh by it (ELDAdaptivity)
+        self._current = CoupledMesh(system, kern)
         body = self.body = system.body
         self.c = kern.constraint
         self.n = body.space.ndofs
@@ -325,7 +333,7 @@ class CoupledStepper(GridLoop):
 
     def _mesh(self):
         """The current mesh's system and step algebra (the adapt cycle's "problem")."""
-        return CoupledMesh(self.system, self.kern)
+        return self._current
 
     # -- helpers ---------------------------------------------------------------------------------
     def _noise_at(self, j: int):
@@ -473,7 +481,74 @@ class CoupledStepper(GridLoop):
 
     # -- the step --------------------------------------------------------------------------------
     def step(self, state: CoupledState, tau: float, s_end=None) -> CoupledStepResult:
-        """One step from ``state`` with step ``tau`` (never decides acceptance)."""
+        """One step from ``state`` with step ``tau`` (never decides acceptance). With space
+        adaptivity the in-step refinement rounds of run_eld
+        (:meth:`rothe.eld.adapt.ELDAdaptivity.refine_in_step`): while the step's estimate on
+        its mesh exceeds space_tol (first step; 1.3 space_tol after), the body's mesh is
+        refined and the step solved again from ``state`` transferred to it (q, p, z
+        unchanged; the body's energy change booked as ``transfer``, :meth:`transferred`). The
+        result is the last solve's, its counters those of every solve; ``refinements``,
+        ``bisections`` and ``dofs`` count the rounds. A step rejected by the controller goes
+        back to its start state's mesh. Never abandoned by a stop signal (the step is short):
+        a stop takes effect at the next step boundary."""
+        if self.adaptivity is None:
+            return self._attempt(state, tau)
+        self._back_to_mesh_of(state)
+        original = state
+        first = self._attempt(state, tau)
+        counters = [first.counters]
+
+        def remember():
+            base = self._base
+            if base is None or base[0] is not original:
+                base = (
+                    original,
+                    self.adaptivity.adaptation.amesh.checkpoint_state(),
+                    self._current,
+                )
+            return base
+
+        def adopt(out, base):  # (the transfer bound the stepper to out's mesh)
+            self._base = base
+            return out.problem
+
+        def attempt(state):
+            result = self._attempt(state, tau)
+            counters.append(result.counters)
+            return result
+
+        done = self.adaptivity.refine_in_step(
+            self._current,
+            state,
+            first,
+            tau,
+            self.T,
+            attempt=attempt,
+            remember=remember,
+            adopt=adopt,
+            failed=lambda: None,  # (a failed transfer left the stepper on its mesh)
+            ndofs=lambda current: current.system.body.space.ndofs,
+        )
+        result = done.result
+        result.refinements, result.bisections, result.dofs = (
+            done.refinements,
+            done.bisections,
+            done.dofs,
+        )
+        result.counters = {key: sum(c.get(key, 0) for c in counters) for key in counters[-1]}
+        return result
+
+    def _back_to_mesh_of(self, state: CoupledState) -> None:
+        """A step retried (rejected by the time controller, or checkpointed after that) from a
+        state whose mesh was refined during the rejected attempt: back to that state's mesh
+        and its system (kept alive in ``_base``: the coupled rebuild releases nothing)."""
+        base = self._base
+        if base is not None and base[0] is state and state.mesh_id != self.adaptivity.mesh_id:
+            self.adaptivity.adaptation.restore_state({"amesh": base[1]})
+            self._bind(base[2].system, base[2].kern)
+
+    def _attempt(self, state: CoupledState, tau: float) -> CoupledStepResult:
+        """One solve of the step from ``state`` on the current mesh."""
         before = dict(self.kern.stats)
         try:
             with self.times.phase("solve"):
@@ -826,6 +901,7 @@ class CoupledStepper(GridLoop):
         ad = self.adaptivity
         if ad is None:
             return state
+        self._base = None  # accepted: the state's mesh is the current one (a failed adapt too)
         out, estimate = ad.after_step(
             self._mesh(),
             state,
@@ -908,7 +984,13 @@ class CoupledStepper(GridLoop):
         )
         traj.append(tau=result.tau, local_error=result.estimate)
         if self.adaptivity is not None:  # eta of the adapt step after it (NaN: none)
-            traj.append(space_estimate=math.nan if self._adapted is None else self._adapted)
+            traj.append(
+                space_estimate=math.nan if self._adapted is None else self._adapted,
+                # the step's own refinements (summed as run_eld's: meshes_summary)
+                step_dofs=int(result.dofs),
+                step_refinements=int(result.refinements),
+                step_bisections=int(result.bisections),
+            )
 
     # -- checkpoints -----------------------------------------------------------------------------
     def checkpoint_state(self, state: CoupledState) -> dict:
@@ -919,6 +1001,8 @@ class CoupledStepper(GridLoop):
         record reads --, the key of the stored factorization with the step algebra's
         counters, the Newton count of the progress line, and with space adaptivity the mesh
         hierarchy, the series of meshes and the log (:class:`CoupledAdaptivity`)."""
+        if self.adaptivity is not None:
+            self._back_to_mesh_of(state)  # e.g. stopped after a rejected, refined attempt
         return {
             "format": CHECKPOINT_FORMAT,
             "scheme": self.scheme.name,
@@ -1049,7 +1133,9 @@ def run_coupled(
     adapt : SpaceAdaptivity, optional
         Adapt the body's mesh between accepted steps (:mod:`rothe.eld.coupled_adapt`): the
         trajectory gets the point series ``mesh_id``, ``ndofs``, the step series
-        ``space_estimate`` and the ledger term ``transfer``; the result's ``meshes``
+        ``space_estimate``, ``step_refinements``, ``step_bisections``, ``step_dofs`` (a step
+        whose own estimate is too large is solved again on its refined mesh, as in run_eld)
+        and the ledger term ``transfer``; the result's ``meshes``
         (:class:`rothe.eld.adapt.ELDMeshes`) every mesh once and the log of adaptations. Not
         with ``watch``, ``fields`` or ``noise`` (they live on one mesh).
     progress : bool or ProgressOptions
