@@ -1112,7 +1112,11 @@ class RunEldTwoBodies(CoupledRunCommand):
                 energy_final=float(traj["energy"][-1]),
                 work_loads=float(traj["work_components"][-1]),
                 seconds_per_step=summary["wall_time_s"] / max(steps, 1),
-                paraview=[] if self.adapt is not None else [f"{n}.xdmf" for n, _ in glued.bodies()],
+                # one series per body; an adaptive base's is a .pvd of VTU files
+                paraview=[
+                    f"{n}.pvd" if k == 0 and self.adapt is not None else f"{n}.xdmf"
+                    for k, (n, _) in enumerate(glued.bodies())
+                ],
             )
             final = self.results.get("bodies")
             if self.adapt is not None and final is not None:
@@ -1149,13 +1153,6 @@ class RunEldTwoBodies(CoupledRunCommand):
         def outputs(stage, label, result):
             return write_bodies_result(result, glued, stage)
 
-        adaptive = self.adapt is not None  # (fields and ParaView series live on one mesh)
         return self.run(
-            args,
-            {"bodies": glued.system},
-            objects,
-            summarize,
-            draw,
-            fields=not adaptive,
-            outputs=None if adaptive else outputs,
+            args, {"bodies": glued.system}, objects, summarize, draw, fields=True, outputs=outputs
         )

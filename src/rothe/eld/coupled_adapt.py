@@ -42,8 +42,13 @@ in the start state's ledger), at most 6 times; a step the controller rejects goe
 start state's mesh. The trajectory's ``step_refinements``, ``step_bisections``, ``step_dofs``
 count them.
 
-Not here (yet): fields or ``watch`` rows recorded per state (they live on the mesh), noise
-(Theorem 4.5's study runs on a fixed mesh). A body of several materials adapts like one (its
+**Fields** (``fields=True``): every accepted state's u, v, a, lambda and cell stresses are
+kept on the mesh it was computed on (:meth:`ELDMeshes.keep`, as run_eld keeps its states),
+what the ParaView series of an adaptive body is written from
+(:func:`rothe.eld.bodies_output.write_bodies_result`).
+
+Not here (yet): ``watch`` rows recorded per state (they live on the mesh), noise (Theorem
+4.5's study runs on a fixed mesh). A body of several materials adapts like one (its
 regions are carried to the refined cells, the indicator takes per-cell constants).
 """
 
@@ -99,12 +104,11 @@ class CoupledAdaptivity(ELDAdaptivity):
         return out
 
 
-def check_coupled_adapt(adapt, *, watch, fields, noise) -> None:
+def check_coupled_adapt(adapt, *, watch, noise) -> None:
     """What a space-adaptive coupled run does not take yet (one line naming the keyword):
-    ``watch`` rows, recorded ``fields`` and ``noise`` live on one mesh."""
+    ``watch`` rows and ``noise`` live on one mesh (``fields`` are kept on their meshes)."""
     for name, value, why in (
         ("watch", watch, "rows of u on one mesh"),
-        ("fields", fields or None, "u, v, lambda per state on one mesh"),
         ("noise", noise, "the perturbation study runs on a fixed mesh"),
     ):
         if adapt is not None and value is not None:

@@ -148,6 +148,7 @@ class CoupledStepResult:
     refinements: int = 0  # of the step's own mesh, each followed by a solve (space adaptivity)
     bisections: int = 0
     dofs: int = 0  # the body's unknowns of every solve of the step summed
+    mesh: object = None  # the CoupledMesh the state was computed on (space adaptivity)
 
     @property
     def errors(self) -> dict:
@@ -231,7 +232,11 @@ class CoupledStepper(GridLoop):
         The floor of the estimate's scale S_j (default 1e-12).
     fields : bool
         Record the body's u, v and lambda at every state (series ``u``, ``v``, ``lam``: the
-        fields of glued bodies, :mod:`rothe.eld.bodies`).
+        fields of glued bodies, :mod:`rothe.eld.bodies`) and the components' accelerations
+        (``pdot``). With ``adapt`` the body's fields live on changing meshes: every accepted
+        state is kept on the mesh it was computed on, as run_eld keeps its states
+        (:meth:`rothe.eld.adapt.ELDMeshes.keep`: u, v, a, lambda and the cell stresses in the
+        result's ``meshes.kept``, the series ``kept_step``, ``kept_t``, ``kept_mesh_id``).
     adapt : SpaceAdaptivity, optional
         Adapt the body's mesh after accepted steps (:mod:`rothe.eld.coupled_adapt`:
         :meth:`adapt`, :meth:`transferred`); the stepper is bound to one mesh at a time
@@ -536,6 +541,7 @@ class CoupledStepper(GridLoop):
             done.dofs,
         )
         result.counters = {key: sum(c.get(key, 0) for c in counters) for key in counters[-1]}
+        result.mesh = self._current
         return result
 
     def _back_to_mesh_of(self, state: CoupledState) -> None:
@@ -958,7 +964,9 @@ class CoupledStepper(GridLoop):
             values["watch_u"] = self.watch @ state.u
             values["watch_v"] = self.watch @ state.v
         if self.fields:
-            values.update(u=state.u.copy(), v=state.v.copy(), lam=state.lam.copy())
+            values["pdot"] = state.pdot.copy()
+            if self.adaptivity is None:  # (adaptive: kept on their meshes, record())
+                values.update(u=state.u.copy(), v=state.v.copy(), lam=state.lam.copy())
         if self.adaptivity is not None:  # the mesh the state was computed on
             values.update(mesh_id=int(state.mesh_id), ndofs=int(state.u.size))
         traj.append(**values)
@@ -970,6 +978,8 @@ class CoupledStepper(GridLoop):
         constraint = np.abs(state.u[c.dofs] - g0).max(initial=0.0)
         constraint /= max(1.0, np.abs(state.u).max(initial=0.0))
         self.record_state(traj, state, c.reactions(state.lam), 0.0, 0.0, 0.0, float(constraint))
+        if self.fields and self.adaptivity is not None:
+            self.adaptivity.meshes.keep(traj, state, self._current)
 
     def record(self, traj: Trajectory, result: CoupledStepResult, state: CoupledState) -> None:
         """Record an accepted step's state with the result's reactions, balance and residuals."""
@@ -983,6 +993,10 @@ class CoupledStepper(GridLoop):
             result.constraint,
         )
         traj.append(tau=result.tau, local_error=result.estimate)
+        if self.fields and self.adaptivity is not None:
+            # the accepted state on the mesh it was computed on (the state recorded above is
+            # the one after the adapt step, on the next mesh)
+            self.adaptivity.meshes.keep(traj, result.state, result.mesh)
         if self.adaptivity is not None:  # eta of the adapt step after it (NaN: none)
             traj.append(
                 space_estimate=math.nan if self._adapted is None else self._adapted,
@@ -1136,8 +1150,9 @@ def run_coupled(
         ``space_estimate``, ``step_refinements``, ``step_bisections``, ``step_dofs`` (a step
         whose own estimate is too large is solved again on its refined mesh, as in run_eld)
         and the ledger term ``transfer``; the result's ``meshes``
-        (:class:`rothe.eld.adapt.ELDMeshes`) every mesh once and the log of adaptations. Not
-        with ``watch``, ``fields`` or ``noise`` (they live on one mesh).
+        (:class:`rothe.eld.adapt.ELDMeshes`) every mesh once and the log of adaptations; with
+        ``fields`` every accepted state's fields on its own mesh (:class:`CoupledStepper`). Not
+        with ``watch`` or ``noise`` (they live on one mesh).
     progress : bool or ProgressOptions
     checkpoint, resume : optional
         As for :func:`~rothe.eld.run.run_eld`: a directory or
@@ -1226,7 +1241,7 @@ def run_coupled_many(
         )
     if adapt is not None:
         check_adapt(adapt, data=Points(), noise=None)
-        check_coupled_adapt(adapt, watch=watch, fields=fields, noise=noise)
+        check_coupled_adapt(adapt, watch=watch, noise=noise)
     if noise is not None and (checkpoint is not None or resume is not None):
         raise fail(
             "noise",
