@@ -21,10 +21,14 @@ log of adaptations) whose rebuild and transfer act on the coupled system:
    t_{j-1} history of u, v by the nodal interpolation T of the adaptation layer (exact on
    refinement, an injection on coarsening), lambda by its trace part; q, p, pdot, z (the
    components' and controllers' states) do not live on the mesh and carry over unchanged. The
-   coupled trace is re-evaluated from q: u^j|Gamma = g_k(t_j) + Gamma q^j (and, regularized,
-   v^j|Gamma = g'_k + Gamma p^j, a^j|Gamma = g''_k + Gamma pdot^j), so B u = G(t, q) holds on
-   the new boundary; the scheme's x, y (and the traces g_k, g'_k of the history) are split off
-   the transferred u, v by the new lifting. The body's energy change E(T u) - E(u) is booked as
+   trace of t_j is re-evaluated from the data and q: u^j|Gamma = g_k(t_j) + Gamma q^j,
+   v^j|Gamma = g'_k + Gamma p^j, a^j|Gamma = g''_k + Gamma pdot^j, so B u = G(t, q) holds on
+   the new boundary -- in the original form too, whose differenced boundary velocity thereby
+   restarts from the data's derivative as at t = 0 (the quotient of the step before lags by
+   tau_{j-1} G''/2 under implicit Euler, which the first, shorter step on the new mesh turned
+   into an acceleration ~ tau_{j-1}/tau: an estimate no step size brought below tol); the
+   scheme's x, y (and the traces g_k, g'_k of the history) are split off the transferred u, v
+   by the new lifting. The body's energy change E(T u) - E(u) is booked as
    ``transfer`` in the whole-system ledger, which therefore closes to round-off over the run.
 
 **Checkpoints** (``run_coupled(..., checkpoint=...)``): the mesh hierarchy, the series of

@@ -832,8 +832,10 @@ class CoupledStepper(GridLoop):
         """``state`` on the mesh of ``new`` (a :class:`~rothe.eld.coupled_adapt.CoupledMesh`)
         through the dof transfer ``T`` (new x old), the stepper bound to it
         (:mod:`rothe.eld.coupled_adapt`, step 4): u, v, a and the history's u, v mapped, the
-        coupled trace re-evaluated from q (u|Gamma = g_k(t_j) + Gamma q; regularized also
-        v|Gamma, a|Gamma from p, pdot), x, y, g_k, g'_k split off by the new lifting, the
+        trace of t_j re-evaluated from the data and q, p, pdot (u|Gamma = g_k(t_j) + Gamma q,
+        v|Gamma = g'_k(t_j) + Gamma p, a|Gamma = g''_k(t_j) + Gamma pdot; in the original form
+        too: its differenced boundary velocity restarts there as at t = 0), x, y, g_k, g'_k
+        split off by the new lifting, the
         products recomputed, lambda by the trace transfer; q, p, pdot, z unchanged. The
         body's energy change is added to the ledger's ``transfer``. On failure the stepper
         stays bound to ``current``."""
@@ -853,15 +855,15 @@ class CoupledStepper(GridLoop):
     def _transferred(self, state, T, old_c, E_old) -> CoupledState:
         c, Gam = self.c, self.kern.Gamma
         u, v, a = (finite_or_fail(name, T @ getattr(state, name)) for name in "uva")
-        t = state.t
-        if self._original:
-            (gk,) = self.system.known_data(t, derivatives=False)
-            u[c.dofs] = gk + Gam @ state.q
-        else:
-            gk, gdk, gddk = self.system.known_data(t)
-            u[c.dofs] = gk + Gam @ state.q
-            v[c.dofs] = gdk + Gam @ state.p
-            a[c.dofs] = gddk + Gam @ state.pdot
+        # the trace of t_j from the data and q, p, pdot, in both forms: the original form's
+        # boundary velocity restarts from G_dot(t_j) as at t = 0 (initial_state) instead of
+        # keeping the quotient of the previous step, whose lag tau_{j-1} G''/2 (Euler) the
+        # next step turns into an acceleration ~ tau_{j-1}/tau after the controller cuts tau
+        # on the new mesh: an estimate that no tau brings below tol (docs/coupling.md, Sec. 14)
+        gk, gdk, gddk = self.system.known_data(state.t)
+        u[c.dofs] = gk + Gam @ state.q
+        v[c.dofs] = gdk + Gam @ state.p
+        a[c.dofs] = gddk + Gam @ state.pdot
         old = state.hist
         levels = len(old["u"])
         hist = {key: [] for key in list(_HISTORY) + list(_PRODUCTS)}
