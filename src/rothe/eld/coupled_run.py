@@ -47,6 +47,7 @@ function becomes run_eld's branch with the same signature.
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import asdict, dataclass, field, replace
 
@@ -1107,22 +1108,7 @@ class CoupledStepper(GridLoop):
         )
 
 
-def run_coupled(
-    system: CoupledProblem,
-    *,
-    scheme=DEFAULT_SCHEME,
-    form=DEFAULT_FORM,
-    control=None,
-    T: float | None = None,
-    watch=None,
-    error_scale: float = 1e-12,
-    noise=None,
-    fields: bool = False,
-    adapt=None,
-    progress=False,
-    checkpoint=None,
-    resume=None,
-) -> CoupledResult:
+def run_coupled(system: CoupledProblem, **options) -> CoupledResult:
     """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
 
     Parameters
@@ -1169,21 +1155,10 @@ def run_coupled(
     -------
     CoupledResult
     """
-    (result,) = run_coupled_many(
-        {"run": system},
-        scheme=scheme,
-        form=form,
-        control=control,
-        T=T,
-        watch=watch,
-        error_scale=error_scale,
-        noise=noise,
-        fields=fields,
-        adapt=adapt,
-        progress=progress,
-        checkpoint=checkpoint,
-        resume=resume,
-    ).values()
+    # (the keywords are run_coupled_many's: its signature, _run_coupled_signature; a keyword
+    # it does not take, or results=, is a TypeError as for any function)
+    run_coupled.__signature__.bind(system, **options)
+    (result,) = run_coupled_many({"run": system}, **options).values()
     return result
 
 
@@ -1362,3 +1337,16 @@ class _Systems:
             for label, system in self.systems.items()
             for key, value in system.fingerprint().items()
         }
+
+
+# help(run_coupled) and inspect show every keyword: run_coupled_many's (one list, not two)
+def _run_coupled_signature() -> inspect.Signature:
+    many = inspect.signature(run_coupled_many)
+    system = inspect.Parameter(
+        "system", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation="CoupledProblem"
+    )
+    keywords = [p for name, p in many.parameters.items() if name not in ("systems", "results")]
+    return many.replace(parameters=[system, *keywords], return_annotation="CoupledResult")
+
+
+run_coupled.__signature__ = _run_coupled_signature()
