@@ -10,8 +10,9 @@ an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM wri
 OUT``, as the other run commands): the commands that compare two runs checkpoint both as one
 (:func:`rothe.eld.coupled_run.run_coupled_many`); a resumed run writes the uninterrupted run's
 results bit for bit; a resume with other options is refused in one line (exit 2). ParaView
-output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`) on fixed
-meshes (docs/coupling.md, Sec. 12).
+output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`; with
+``--adapt-space`` body 1 as ``body1.pvd``, one VTU per state on its own mesh: docs/coupling.md,
+Sec. 14).
 
 ``--adapt-space`` (every command; with ``--space-tol`` and the usual options of
 :mod:`rothe.cli.adapt_options`) adapts the mesh of the elastic body between accepted steps
