@@ -75,6 +75,7 @@ def test_adaptive_mesh_resumes_bit_for_bit(tmp_path, signal_at_attempt):
     )
     full = run_coupled(_tip(), **options)
     assert len(set(full.trajectory["mesh_id"].tolist())) >= 3
+    assert full.trajectory["step_refinements"].sum() > 0  # with the in-step rounds
 
     def make_run(**kw):
         return run_coupled(_tip(), **options, **kw)
@@ -87,6 +88,54 @@ def test_adaptive_mesh_resumes_bit_for_bit(tmp_path, signal_at_attempt):
     assert res.meshes.adaptations == full.meshes.adaptations
     a, b = full.mesh_arrays(), res.mesh_arrays()
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_stopped_after_a_step_rejected_on_its_refined_mesh_resumes_bit_for_bit(
+    tmp_path, signal_at_attempt, monkeypatch
+):
+    """In-step refinement rounds with adaptive steps: the stop comes after an attempt whose
+    mesh was refined in its rounds and that the controller rejected -- the checkpoint is of
+    the state before it, on that state's mesh (the stepper goes back to it), and the resumed
+    run goes on as the uninterrupted one (the in-step estimates of adapt_every = 2 included)."""
+    options = dict(
+        scheme=BDF2(),
+        form=Original(),
+        control=Adaptive(1e-2, tau=0.01),
+        adapt=SpaceAdaptivity(space_tol=3e-4, adapt_every=2, max_dofs=3000),
+    )
+    attempts = []  # (start state, refinements) of every attempt of the uninterrupted run
+    step = CoupledStepper.step
+
+    def counted(self, state, tau, s_end=None):
+        result = step(self, state, tau, s_end)
+        attempts.append((state, result.refinements))
+        return result
+
+    with monkeypatch.context() as m:
+        m.setattr(CoupledStepper, "step", counted)
+        full = run_coupled(_tip(), **options)
+    # the attempts refined in their rounds and then rejected (the next one from the same state)
+    rejected = [
+        k + 1
+        for k in range(len(attempts) - 1)
+        if attempts[k][1] > 0 and attempts[k + 1][0] is attempts[k][0]
+    ]
+    assert len(rejected) >= 2 and full.trajectory["step_refinements"].sum() > 0
+
+    def make_run(**kw):
+        return run_coupled(_tip(), **options, **kw)
+
+    # (the signal arrives before the k-th attempt, the stop after it; the second session
+    # counts from its resumed state, whose next attempt is the rejected one's retry)
+    res = interrupted(
+        make_run,
+        signal_at_attempt,
+        tmp_path / "c",
+        attempts=(rejected[0], rejected[1] - rejected[0]),
+    )
+    assert_same(full.trajectory, res.trajectory)
+    assert res.state.mesh_id == full.state.mesh_id and np.array_equal(res.state.u, full.state.u)
+    assert res.meshes.adaptations == full.meshes.adaptations
 
 
 def test_glued_bodies_resume_bit_for_bit(tmp_path, signal_at_attempt):

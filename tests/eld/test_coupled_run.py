@@ -113,3 +113,24 @@ def test_refusals_of_run_coupled():
     refused = "^system: got 'ELDProblem', must be a rothe.eld.CoupledProblem"
     with pytest.raises(RotheInputError, match=refused):
         run_coupled(system.body, control=Uniform(0.01))
+
+
+def test_run_coupled_takes_the_keywords_of_run_coupled_many():
+    """One keyword list (run_coupled_many's): run_coupled's signature derives from it, so
+    help() and inspect show every keyword of both; one it does not take, or ``results``, is
+    a TypeError before anything runs."""
+    import inspect
+
+    from rothe.eld.coupled_run import run_coupled_many
+
+    mine = inspect.signature(run_coupled).parameters
+    many = inspect.signature(run_coupled_many).parameters
+    assert list(mine) == ["system"] + [k for k in many if k not in ("systems", "results")]
+    assert all(mine[k].default is many[k].default for k in mine if k != "system")
+    assert "adapt" in str(inspect.signature(run_coupled)) and "fields :" in run_coupled.__doc__
+    system = _shaken_tip(degree=1, nx=2, T=0.02)
+    for bad in ({"results": {}}, {"tol": 1e-3}):
+        with pytest.raises(TypeError, match=f"unexpected keyword argument '{next(iter(bad))}'"):
+            run_coupled(system, control=Uniform(0.01), **bad)
+    res = run_coupled(system=system, control=Uniform(0.01))
+    assert res.trajectory["t"][-1] == pytest.approx(0.02)

@@ -10,8 +10,9 @@ an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM wri
 OUT``, as the other run commands): the commands that compare two runs checkpoint both as one
 (:func:`rothe.eld.coupled_run.run_coupled_many`); a resumed run writes the uninterrupted run's
 results bit for bit; a resume with other options is refused in one line (exit 2). ParaView
-output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`) on fixed
-meshes (docs/coupling.md, Sec. 12).
+output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`; with
+``--adapt-space`` body 1 as ``body1.pvd``, one VTU per state on its own mesh: docs/coupling.md,
+Sec. 14).
 
 ``--adapt-space`` (every command; with ``--space-tol`` and the usual options of
 :mod:`rothe.cli.adapt_options`) adapts the mesh of the elastic body between accepted steps
@@ -1112,7 +1113,11 @@ class RunEldTwoBodies(CoupledRunCommand):
                 energy_final=float(traj["energy"][-1]),
                 work_loads=float(traj["work_components"][-1]),
                 seconds_per_step=summary["wall_time_s"] / max(steps, 1),
-                paraview=[] if self.adapt is not None else [f"{n}.xdmf" for n, _ in glued.bodies()],
+                # one series per body; an adaptive base's is a .pvd of VTU files
+                paraview=[
+                    f"{n}.pvd" if k == 0 and self.adapt is not None else f"{n}.xdmf"
+                    for k, (n, _) in enumerate(glued.bodies())
+                ],
             )
             final = self.results.get("bodies")
             if self.adapt is not None and final is not None:
@@ -1149,13 +1154,6 @@ class RunEldTwoBodies(CoupledRunCommand):
         def outputs(stage, label, result):
             return write_bodies_result(result, glued, stage)
 
-        adaptive = self.adapt is not None  # (fields and ParaView series live on one mesh)
         return self.run(
-            args,
-            {"bodies": glued.system},
-            objects,
-            summarize,
-            draw,
-            fields=not adaptive,
-            outputs=None if adaptive else outputs,
+            args, {"bodies": glued.system}, objects, summarize, draw, fields=True, outputs=outputs
         )

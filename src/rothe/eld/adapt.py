@@ -59,6 +59,7 @@ bit for bit.
 from __future__ import annotations
 
 import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -152,6 +153,18 @@ def check_adapt(adapt, *, data, noise) -> SpaceAdaptivity:
             "is not supported with space adaptivity (noise vectors live on one mesh)",
         )
     return adapt
+
+
+@dataclass
+class StepRounds:
+    """What :meth:`ELDAdaptivity.refine_in_step` did in one step: the ``result`` of the last
+    solve, the ``refinements`` of the step's own mesh (each followed by a solve), their
+    ``bisections`` and the ``dofs`` of every solve summed."""
+
+    result: object
+    refinements: int = 0
+    bisections: int = 0
+    dofs: int = 0
 
 
 class ELDMeshes:
@@ -424,6 +437,76 @@ class ELDAdaptivity:
             or last > STEP_GROWTH * before
         )
 
+    def refine_in_step(
+        self,
+        current,
+        state,
+        result,
+        tau: float,
+        T: float,
+        *,
+        attempt,
+        remember,
+        adopt,
+        failed,
+        ndofs,
+        check=None,
+    ) -> StepRounds:
+        """The refinement rounds inside one step (module docstring, *Within a step*), the one
+        copy of :meth:`rothe.eld.stepper.ELDStepper.step`'s and
+        :meth:`rothe.eld.coupled_run.CoupledStepper.step`'s: when the step from ``state``
+        (number j) is estimated on its own mesh (:meth:`due_in_step`), while the estimate eta
+        of its ``result`` exceeds :meth:`refine_above` (space_tol on the first step,
+        :data:`STEP_MARGIN` space_tol after) the mesh is refined (the cycle on ``current``
+        with ``refine_only``: Doerfler, no coarsening, the band of the step) and the step
+        solved again from ``state`` transferred to the refined mesh, at most
+        :data:`STEP_ROUNDS` times; a failed estimate or transfer leaves the step as it was.
+
+        The stepper's side, as callables: ``attempt(state)`` solves the step from ``state``
+        on the current mesh; ``remember()`` (before each cycle) what the stepper needs to go
+        back to the step's start mesh if the step is rejected -- handed to ``adopt(out,
+        remembered)`` after a change, which binds the stepper to ``out``'s mesh and returns
+        what lives on it (the next cycle's ``current``); ``failed()`` after a failed cycle
+        (the stepper stays on the mesh it solved the step on); ``ndofs(current)`` the
+        unknowns of a solve; ``check()`` between the rounds
+        (:func:`rothe.stepping.interrupt.check` where the stepper can abandon a step).
+
+        Returns the last solve's result with the rounds' counts (:class:`StepRounds`)."""
+        check = check or (lambda: None)
+        adaptation = self.adaptation
+        above = self.refine_above(state.j)
+        rounds = STEP_ROUNDS if self.due_in_step(state.j) else 0
+        if rounds:
+            self.set_band(tau)
+        done = StepRounds(result, dofs=int(ndofs(current)))
+        for _ in range(rounds):
+            if not result.converged or result.state is None:
+                break
+            check()
+            remembered = remember()
+            times = self.data_times(result.state.t, tau, T)
+            try:
+                out = adaptation.cycle(
+                    self,
+                    current,
+                    (result.state, tau, times),
+                    state,
+                    refine_only=True,
+                    refine_above=above,
+                )
+            except AdaptationFailed:  # no estimate or no transfer: the step stands
+                failed()
+                break
+            if not out.changed:
+                break
+            current, state = adopt(out, remembered), out.state
+            check()  # (an abandoning stepper goes back to the mesh of the original state)
+            done.refinements += 1
+            done.bisections += out.bisections
+            result = done.result = attempt(state)
+            done.dofs += int(ndofs(current))
+        return done
+
     def refine_above(self, j: int) -> float:
         """The estimate above which the step from state ``j`` is refined and solved again:
         space_tol on the first step, :data:`STEP_MARGIN` times it after."""
@@ -498,10 +581,21 @@ class ELDAdaptivity:
         """The mesh hierarchy, the vertex history of the hysteresis (``coarsen_delay``,
         ``max_recoarsen``: it decides which cells may coarsen, so a resumed run needs it), the
         series, the kept fields and the log."""
-        return {**self.adaptation.checkpoint_state(), **self.meshes.checkpoint_state()}
+        return {
+            **self.adaptation.checkpoint_state(),
+            **self.meshes.checkpoint_state(),
+            # the last estimates decide which steps refine in their rounds (due_in_step)
+            "step_estimates": [float(e) for e in self.estimates],
+            "estimated_step": None if self._estimated_step is None else list(self._estimated_step),
+        }
 
     def restore_state(self, data: dict) -> None:
         """Put back what :meth:`checkpoint_state` returned (a checkpoint without the vertex
-        history counts the mesh's vertices as initial)."""
+        history counts the mesh's vertices as initial; one without the last estimates takes
+        them as none)."""
         self.adaptation.restore_state(data)
         self.meshes.restore_state(data)
+        last, before = data.get("step_estimates", (0.0, 0.0))
+        self.estimates = (float(last), float(before))
+        step = data.get("estimated_step")
+        self._estimated_step = None if step is None else (int(step[0]), float(step[1]))

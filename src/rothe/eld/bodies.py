@@ -577,6 +577,39 @@ class GluedBodies:
             out.append((Eb @ qc.T).T if qc.ndim > 1 else Eb @ qc)
         return out
 
+    def interface_tractions(self, t, q, p, pdot) -> list:
+        """Every attached body's traction on its constrained parts -- the part glued to the
+        body before it (the base, or in a chain an attached body) and its clamped parts -- at
+        the states ``t`` (k,), ``q``, ``p``, ``pdot`` (k, r), from the body's residual: with
+        u_b = E_b q, v_b = E_b p, a_b = E_b pdot (its map, :meth:`fields`),
+
+            f_b = rho_b M_b a_b + C_b v_b + K_b u_b - F_b(t),   lambda_b = -M_{G,b}^{-1} f_b|_C
+
+        (C: the body's constrained dofs, M_{G,b} its boundary mass there; f_b vanishes on its
+        other free dofs up to the step's residual). f_b is the nodal force the neighbour or
+        the clamp exerts on body b: on a body glued to the base the multiplier's
+        (Pi S)^T M_G lambda (:meth:`interface_forces`) to solver tolerance; on a chain
+        interface, which has no multiplier (its glue is substituted), the consistent reaction
+        of the substitution (the slaved side's residual pushed onto the body's dofs); on a
+        clamped part the clamp's reaction. lambda_b is the multiplier the body's constrained
+        parts would carry as Dirichlet boundaries (the base's convention: the force on the
+        body is -B^T lambda, the traction exerted on it -lambda). Returns per attached body
+        (in :meth:`bodies`'s order) a (k, m_b) array on its problem's constrained dofs."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        q, p, pdot = (np.atleast_2d(np.asarray(w, dtype=float)) for w in (q, p, pdot))
+        out = []
+        for comp, prob, Eb in self._attached:
+            sl = self.system.slice(comp)
+            u, v, a = (Eb @ w[:, sl].T for w in (q, p, pdot))  # (n_b, k)
+            f = float(prob.material.rho) * (prob.M @ a) + prob.K @ u
+            C = prob.damping_op.linear
+            if C is not None:
+                f += C @ v
+            f -= np.column_stack([prob.load(ti) for ti in t])  # (per state: not per cell)
+            c = prob.constraint
+            out.append(-c.multiplier_from_residual(f[c.dofs]).T)
+        return out
+
     def multiplier(self, lam: np.ndarray, k: int = 0) -> np.ndarray:
         """lambda on interface k (its side-1 nodes, interleaved), from the base's lambda."""
         c = self.system.constraint

@@ -1,23 +1,35 @@
 """Outputs of glued-body runs (:mod:`rothe.eld.bodies`): ``trajectory.npz`` with every body's
-fields and the interface multipliers, one ParaView series per body.
+fields and the interface multipliers, one ParaView series per body -- on fixed meshes, with an
+adaptive base (``run_bodies(..., adapt=...)``: its mesh changes between states) and for chains.
 
 ``trajectory.npz`` (the run's series, :func:`rothe.eld.run_bodies` with ``fields=True``, and):
 
-- per body ``<body>_nodes``, ``<body>_cells``, ``<body>_doflocs`` (its mesh and dof points)
-  and ``<body>_u``, ``<body>_v`` (n_states, n_<body>): interleaved dof vectors at every state
-  (the attached bodies' zero on their clamped parts);
-- per interface k (base part P): ``interface_<P>_points`` (k1, d), the base's interface
-  nodes, and ``interface_<P>_lambda`` (n_states, d k1): the multiplier there (a traction
-  density; the force on the base is -B^T lambda, on the attached body +(Pi S)^T M_G lambda),
-  ``reaction_<P>`` (n_states, d): the resultant on the base, -int lambda ds;
-- ``lam`` (n_states, m): the base's multiplier on all its constrained dofs (clamped and
-  glued parts), ``q``, ``p``: the attached bodies' coordinates (their free dofs).
+- per attached body ``<body>_nodes``, ``<body>_cells``, ``<body>_doflocs`` (its mesh and dof
+  points), ``<body>_u``, ``<body>_v`` (n_states, n_<body>): interleaved dof vectors at every
+  state (zero on its clamped parts), and ``<body>_lambda`` (n_states, m_<body>): its traction
+  on its constrained dofs ``<body>_lam_dofs`` -- the part glued to the body before it and
+  its clamped parts -- from its residual (:meth:`GluedBodies.interface_tractions`:
+  lambda_b = -M_{G,b}^{-1} (rho_b M_b a_b + C_b v_b + K_b u_b - F_b(t)) there; the only
+  traction a chain interface has, since its glue is substituted and carries no multiplier);
+- the base on a fixed mesh: ``<base>_nodes``, ``_cells``, ``_doflocs``, ``_u``, ``_v`` as
+  above, and per interface k (base part P) ``interface_<P>_points`` (k1, d), the base's
+  interface nodes, and ``interface_<P>_lambda`` (n_states, d k1): the multiplier there (a
+  traction density; the force on the base is -B^T lambda, on the attached body
+  +(Pi S)^T M_G lambda), ``reaction_<P>`` (n_states, d): the resultant on the base,
+  -int lambda ds; ``lam`` (n_states, m): the base's multiplier on all its constrained dofs;
+- the base adaptive: its states kept on their own meshes as run_eld keeps them (every mesh
+  once: ``mesh_ids``, ``mesh_points_<k>``, ``mesh_cells_<k>``; ``kept_u``, ``kept_v``,
+  ``kept_a``, ``kept_lam``, ``kept_stress`` with ``kept_<f>_offsets``, ``kept_mesh_id``:
+  :meth:`rothe.eld.adapt.ELDMeshes.npz_arrays`), ``state_mesh_id`` the mesh of every
+  recorded state (after the adapt step);
+- ``q``, ``p``, ``pdot``: the attached bodies' coordinates and their derivatives.
 
-ParaView: ``<body>.xdmf`` (u, v, stresses at the vertices and cells) and
-``<body>_multiplier.xdmf`` for every body (:class:`~rothe.eld.output.EldXdmfWriter`): the
-base's multiplier on its clamped and glued parts; an attached body's on its glued part is
-its interface traction lambda_k = -M_{G,k}^{-1} f_k (f_k the multiplier's nodal force on it;
-zero on its clamped parts, whose reactions a glued run does not compute).
+ParaView, one series per body: the base on a fixed mesh ``<base>.xdmf`` (u, v, stresses at the
+vertices and cells) and ``<base>_multiplier.xdmf`` (lambda on its clamped and glued parts,
+:class:`~rothe.eld.output.EldXdmfWriter`); an adaptive base ``<base>.pvd`` with one VTU per
+state on the mesh it was computed on (the same fields, lambda on the vertices of its
+constrained parts: :func:`~rothe.eld.output.write_adaptive_series`); every attached body
+(fixed mesh) ``<body>.xdmf`` and ``<body>_multiplier.xdmf`` with ``<body>_lambda`` above.
 """
 
 from __future__ import annotations
@@ -29,24 +41,35 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import described, fail
 from ..io.atomic import TMP_PREFIX
-from .output import EldXdmfWriter
+from .output import EldXdmfWriter, write_adaptive_series
 
 
-def body_series(glued, traj) -> dict:
-    """Every body's u, v over the states of ``traj`` and each interface's multiplier, by the
-    names of the module docstring."""
+def _attached_series(glued, traj) -> list:
+    """(problem, u, v, lambda) over the states of ``traj`` of every attached body."""
+    t, q, p, pdot = (np.asarray(traj[k]) for k in ("t", "q", "p", "pdot"))
+    # (glued.fields gives the base's u first: not recorded with an adaptive base, not needed)
+    us, vs = glued.fields(np.zeros(0), q)[1:], glued.fields(np.zeros(0), p)[1:]
+    lams = glued.interface_tractions(t, q, p, pdot)
+    return list(zip(glued.problems()[1:], us, vs, lams, strict=True))
+
+
+def body_series(glued, traj, meshes=None) -> dict:
+    """Every body's fields over the states of ``traj`` and the interfaces' multipliers, by
+    the names of the module docstring; ``meshes``: the adaptive base's series of meshes with
+    its kept states (:class:`rothe.eld.adapt.ELDMeshes`), None on a fixed mesh."""
     out = {}
-    u, v = np.asarray(traj["u"]), np.asarray(traj["v"])
-    q, p = np.asarray(traj["q"]), np.asarray(traj["p"])
-    us, vs = glued.fields(u, q), glued.fields(v, p)
-    for (name, space), uk, vk in zip(glued.bodies(), us, vs, strict=True):
-        mesh = space.mesh
-        out[f"{name}_nodes"] = np.ascontiguousarray(mesh.p.T)
-        out[f"{name}_cells"] = np.ascontiguousarray(mesh.t.T)
-        out[f"{name}_doflocs"] = np.ascontiguousarray(space.doflocs.T)
-        out[f"{name}_u"], out[f"{name}_v"] = uk, vk
+    for problem, u, v, lam in _attached_series(glued, traj):
+        space, name = problem.space, problem.name
+        out.update(_mesh_of(name, space))
+        out[f"{name}_u"], out[f"{name}_v"] = u, v
+        out[f"{name}_lambda"] = lam
+        out[f"{name}_lam_dofs"] = np.asarray(problem.constraint.dofs)
+    if meshes is not None:
+        return {**out, **meshes.npz_arrays(traj)}
+    base = glued.base
+    out.update(_mesh_of(base.name, base.space))
+    out[f"{base.name}_u"], out[f"{base.name}_v"] = np.asarray(traj["u"]), np.asarray(traj["v"])
     lam = np.asarray(traj["lam"])
     for k, itf in enumerate(glued.interfaces):
         out[f"interface_{itf.part1}_points"] = np.ascontiguousarray(
@@ -56,45 +79,51 @@ def body_series(glued, traj) -> dict:
     return out
 
 
-def attached_multiplier(glued, lam: np.ndarray, k: int) -> np.ndarray:
-    """Body k's interface traction in its own trace space (module docstring), on its
-    problem's constrained dofs."""
-    _, f2 = glued.interface_forces(lam, k)
-    c = glued.components[k].problem.constraint
-    return -c.multiplier_from_residual(f2[c.dofs])
+def _mesh_of(name: str, space) -> dict:
+    mesh = space.mesh
+    return {
+        f"{name}_nodes": np.ascontiguousarray(mesh.p.T),
+        f"{name}_cells": np.ascontiguousarray(mesh.t.T),
+        f"{name}_doflocs": np.ascontiguousarray(space.doflocs.T),
+    }
+
+
+def _xdmf(out: Path, problem, t, us, vs, lams) -> list:
+    """The XDMF series of one body on its fixed mesh (segments in a hidden work directory
+    beside the results, then both series atomically)."""
+    work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{problem.name}.parts"
+    try:
+        writer = EldXdmfWriter(work, problem, name=problem.name)
+        for j in range(len(t)):
+            writer.write(t[j], us[j], vs[j], lams[j])
+        return list(writer.export(out))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
 
 
 def write_bodies_result(result, glued, out_dir, *, paraview: bool = True, npz: bool = True):
     """Write ``trajectory.npz`` and the ParaView series of a :func:`rothe.eld.run_bodies`
-    result (``fields=True``) into ``out_dir``; returns the written paths by kind."""
-    if glued.chains:
-        raise fail(
-            "glued",
-            described(
-                f"a chain of bodies ({len(glued.chains)} interface(s) between attached bodies)"
-            ),
-            "is not written yet: the bodies' series are glued.fields(u, q) of the trajectory",
-        )
+    result (``fields=True``) into ``out_dir`` (module docstring: fixed meshes, an adaptive
+    base, chains); returns the written paths by kind (``npz``; ``xdmf``: every XDMF file,
+    ``pvd``: the adaptive base's index)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     traj = result.trajectory
+    meshes = result.meshes
     paths: dict = {}
     if npz:
-        paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=body_series(glued, traj))
+        extra = body_series(glued, traj, meshes)
+        if meshes is not None:  # the meshes of the recorded states (after the adapt step)
+            extra.update(result.mesh_arrays())
+        paths["npz"] = traj.save_npz(out / "trajectory.npz", extra=extra)
     if paraview:
-        t, u, v, q, p = (np.asarray(traj[k]) for k in ("t", "u", "v", "q", "p"))
-        lam = np.asarray(traj["lam"])
-        us, vs = glued.fields(u, q), glued.fields(v, p)
-        problems = glued.problems()
+        t = np.asarray(traj["t"])
         paths["xdmf"] = []
-        for i, problem in enumerate(problems):
-            work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{problem.name}.parts"
-            try:
-                writer = EldXdmfWriter(work, problem, name=problem.name)
-                for j in range(len(t)):
-                    lam_j = lam[j] if i == 0 else attached_multiplier(glued, lam[j], i - 1)
-                    writer.write(t[j], us[i][j], vs[i][j], lam_j)
-                paths["xdmf"] += list(writer.export(out))
-            finally:
-                shutil.rmtree(work, ignore_errors=True)
+        if meshes is None:
+            u, v, lam = (np.asarray(traj[k]) for k in ("u", "v", "lam"))
+            paths["xdmf"] += _xdmf(out, glued.base, t, u, v, lam)
+        else:
+            paths["pvd"] = write_adaptive_series(out, glued.base.name, meshes, traj)
+        for problem, u, v, lam in _attached_series(glued, traj):
+            paths["xdmf"] += _xdmf(out, problem, t, u, v, lam)
     return paths

@@ -21,10 +21,14 @@ log of adaptations) whose rebuild and transfer act on the coupled system:
    t_{j-1} history of u, v by the nodal interpolation T of the adaptation layer (exact on
    refinement, an injection on coarsening), lambda by its trace part; q, p, pdot, z (the
    components' and controllers' states) do not live on the mesh and carry over unchanged. The
-   coupled trace is re-evaluated from q: u^j|Gamma = g_k(t_j) + Gamma q^j (and, regularized,
-   v^j|Gamma = g'_k + Gamma p^j, a^j|Gamma = g''_k + Gamma pdot^j), so B u = G(t, q) holds on
-   the new boundary; the scheme's x, y (and the traces g_k, g'_k of the history) are split off
-   the transferred u, v by the new lifting. The body's energy change E(T u) - E(u) is booked as
+   trace of t_j is re-evaluated from the data and q: u^j|Gamma = g_k(t_j) + Gamma q^j,
+   v^j|Gamma = g'_k + Gamma p^j, a^j|Gamma = g''_k + Gamma pdot^j, so B u = G(t, q) holds on
+   the new boundary -- in the original form too, whose differenced boundary velocity thereby
+   restarts from the data's derivative as at t = 0 (the quotient of the step before lags by
+   tau_{j-1} G''/2 under implicit Euler, which the first, shorter step on the new mesh turned
+   into an acceleration ~ tau_{j-1}/tau: an estimate no step size brought below tol); the
+   scheme's x, y (and the traces g_k, g'_k of the history) are split off the transferred u, v
+   by the new lifting. The body's energy change E(T u) - E(u) is booked as
    ``transfer`` in the whole-system ledger, which therefore closes to round-off over the run.
 
 **Checkpoints** (``run_coupled(..., checkpoint=...)``): the mesh hierarchy, the series of
@@ -33,11 +37,23 @@ as for run_eld); the resumed stepper rebuilds the system
 on the restored mesh (:meth:`CoupledAdaptivity.rebuild` from the initial system:
 :meth:`CoupledProblem.on_mesh` assembles from the mesh alone, so it is the system the run had).
 
-Not here (yet): the in-step refinement rounds of run_eld (a step whose own estimate is too
-large is not solved again on a refined mesh: the mesh follows after the step), fields or
-``watch`` rows recorded per state (they live on the mesh), noise (Theorem 4.5's study runs on
-a fixed mesh). A body of several materials adapts like one (its regions are
-carried to the refined cells, the indicator takes per-cell constants).
+**Within a step** (:meth:`rothe.eld.coupled_run.CoupledStepper.step`): the refinement rounds
+of run_eld, the one copy :meth:`ELDAdaptivity.refine_in_step` -- while the step's estimate on
+its own mesh exceeds space_tol (1.3 space_tol after the first step) the body's mesh is refined
+(Doerfler, no coarsening) and the step solved again from its start state transferred to the
+refined mesh (steps 3-4: q, p, z unchanged, the body's energy change booked as ``transfer``
+in the start state's ledger), at most 6 times; a step the controller rejects goes back to its
+start state's mesh. The trajectory's ``step_refinements``, ``step_bisections``, ``step_dofs``
+count them.
+
+**Fields** (``fields=True``): every accepted state's u, v, a, lambda and cell stresses are
+kept on the mesh it was computed on (:meth:`ELDMeshes.keep`, as run_eld keeps its states),
+what the ParaView series of an adaptive body is written from
+(:func:`rothe.eld.bodies_output.write_bodies_result`).
+
+Not here (yet): ``watch`` rows recorded per state (they live on the mesh), noise (Theorem
+4.5's study runs on a fixed mesh). A body of several materials adapts like one (its
+regions are carried to the refined cells, the indicator takes per-cell constants).
 """
 
 from __future__ import annotations
@@ -92,12 +108,11 @@ class CoupledAdaptivity(ELDAdaptivity):
         return out
 
 
-def check_coupled_adapt(adapt, *, watch, fields, noise) -> None:
+def check_coupled_adapt(adapt, *, watch, noise) -> None:
     """What a space-adaptive coupled run does not take yet (one line naming the keyword):
-    ``watch`` rows, recorded ``fields`` and ``noise`` live on one mesh."""
+    ``watch`` rows and ``noise`` live on one mesh (``fields`` are kept on their meshes)."""
     for name, value, why in (
         ("watch", watch, "rows of u on one mesh"),
-        ("fields", fields or None, "u, v, lambda per state on one mesh"),
         ("noise", noise, "the perturbation study runs on a fixed mesh"),
     ):
         if adapt is not None and value is not None:

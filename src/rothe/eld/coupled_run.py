@@ -47,6 +47,7 @@ function becomes run_eld's branch with the same signature.
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import asdict, dataclass, field, replace
 
@@ -145,6 +146,10 @@ class CoupledStepResult:
     code: ELDCode = ELDCode.OK
     message: str = ""
     where: dict = field(default_factory=dict)
+    refinements: int = 0  # of the step's own mesh, each followed by a solve (space adaptivity)
+    bisections: int = 0
+    dofs: int = 0  # the body's unknowns of every solve of the step summed
+    mesh: object = None  # the CoupledMesh the state was computed on (space adaptivity)
 
     @property
     def errors(self) -> dict:
@@ -228,7 +233,11 @@ class CoupledStepper(GridLoop):
         The floor of the estimate's scale S_j (default 1e-12).
     fields : bool
         Record the body's u, v and lambda at every state (series ``u``, ``v``, ``lam``: the
-        fields of glued bodies, :mod:`rothe.eld.bodies`).
+        fields of glued bodies, :mod:`rothe.eld.bodies`) and the components' accelerations
+        (``pdot``). With ``adapt`` the body's fields live on changing meshes: every accepted
+        state is kept on the mesh it was computed on, as run_eld keeps its states
+        (:meth:`rothe.eld.adapt.ELDMeshes.keep`: u, v, a, lambda and the cell stresses in the
+        result's ``meshes.kept``, the series ``kept_step``, ``kept_t``, ``kept_mesh_id``).
     adapt : SpaceAdaptivity, optional
         Adapt the body's mesh after accepted steps (:mod:`rothe.eld.coupled_adapt`:
         :meth:`adapt`, :meth:`transferred`); the stepper is bound to one mesh at a time
@@ -305,12 +314,17 @@ class CoupledStepper(GridLoop):
         #: space adaptivity of the body (rothe.eld.coupled_adapt), None on a fixed mesh
         self.adaptivity = None if adapt is None else CoupledAdaptivity(self, adapt)
         self._adapted: float | None = None  # eta of the last adapt step (None: none)
+        #: (state, mesh hierarchy, CoupledMesh) before a step's own refinements: a rejected
+        #: step goes back to its start state's mesh (:meth:`_back_to_mesh_of`)
+        self._base = None
 
     def _bind(self, system, kern) -> None:
         """Bind the stepper to the body's mesh: the system on it, its step algebra and what the
         step takes from them (docs/coupling.md, Speed) -- everything that lives on the mesh
         (space adaptivity binds the new mesh's, :meth:`transferred`)."""
         self.system, self.kern = system, kern
+        # one object per mesh: the indicators' memo knows the mesh by it (ELDAdaptivity)
+        self._current = CoupledMesh(system, kern)
         body = self.body = system.body
         self.c = kern.constraint
         self.n = body.space.ndofs
@@ -325,7 +339,7 @@ class CoupledStepper(GridLoop):
 
     def _mesh(self):
         """The current mesh's system and step algebra (the adapt cycle's "problem")."""
-        return CoupledMesh(self.system, self.kern)
+        return self._current
 
     # -- helpers ---------------------------------------------------------------------------------
     def _noise_at(self, j: int):
@@ -473,7 +487,75 @@ class CoupledStepper(GridLoop):
 
     # -- the step --------------------------------------------------------------------------------
     def step(self, state: CoupledState, tau: float, s_end=None) -> CoupledStepResult:
-        """One step from ``state`` with step ``tau`` (never decides acceptance)."""
+        """One step from ``state`` with step ``tau`` (never decides acceptance). With space
+        adaptivity the in-step refinement rounds of run_eld
+        (:meth:`rothe.eld.adapt.ELDAdaptivity.refine_in_step`): while the step's estimate on
+        its mesh exceeds space_tol (first step; 1.3 space_tol after), the body's mesh is
+        refined and the step solved again from ``state`` transferred to it (q, p, z
+        unchanged; the body's energy change booked as ``transfer``, :meth:`transferred`). The
+        result is the last solve's, its counters those of every solve; ``refinements``,
+        ``bisections`` and ``dofs`` count the rounds. A step rejected by the controller goes
+        back to its start state's mesh. Never abandoned by a stop signal (the step is short):
+        a stop takes effect at the next step boundary."""
+        if self.adaptivity is None:
+            return self._attempt(state, tau)
+        self._back_to_mesh_of(state)
+        original = state
+        first = self._attempt(state, tau)
+        counters = [first.counters]
+
+        def remember():
+            base = self._base
+            if base is None or base[0] is not original:
+                base = (
+                    original,
+                    self.adaptivity.adaptation.amesh.checkpoint_state(),
+                    self._current,
+                )
+            return base
+
+        def adopt(out, base):  # (the transfer bound the stepper to out's mesh)
+            self._base = base
+            return out.problem
+
+        def attempt(state):
+            result = self._attempt(state, tau)
+            counters.append(result.counters)
+            return result
+
+        done = self.adaptivity.refine_in_step(
+            self._current,
+            state,
+            first,
+            tau,
+            self.T,
+            attempt=attempt,
+            remember=remember,
+            adopt=adopt,
+            failed=lambda: None,  # (a failed transfer left the stepper on its mesh)
+            ndofs=lambda current: current.system.body.space.ndofs,
+        )
+        result = done.result
+        result.refinements, result.bisections, result.dofs = (
+            done.refinements,
+            done.bisections,
+            done.dofs,
+        )
+        result.counters = {key: sum(c.get(key, 0) for c in counters) for key in counters[-1]}
+        result.mesh = self._current
+        return result
+
+    def _back_to_mesh_of(self, state: CoupledState) -> None:
+        """A step retried (rejected by the time controller, or checkpointed after that) from a
+        state whose mesh was refined during the rejected attempt: back to that state's mesh
+        and its system (kept alive in ``_base``: the coupled rebuild releases nothing)."""
+        base = self._base
+        if base is not None and base[0] is state and state.mesh_id != self.adaptivity.mesh_id:
+            self.adaptivity.adaptation.restore_state({"amesh": base[1]})
+            self._bind(base[2].system, base[2].kern)
+
+    def _attempt(self, state: CoupledState, tau: float) -> CoupledStepResult:
+        """One solve of the step from ``state`` on the current mesh."""
         before = dict(self.kern.stats)
         try:
             with self.times.phase("solve"):
@@ -751,8 +833,10 @@ class CoupledStepper(GridLoop):
         """``state`` on the mesh of ``new`` (a :class:`~rothe.eld.coupled_adapt.CoupledMesh`)
         through the dof transfer ``T`` (new x old), the stepper bound to it
         (:mod:`rothe.eld.coupled_adapt`, step 4): u, v, a and the history's u, v mapped, the
-        coupled trace re-evaluated from q (u|Gamma = g_k(t_j) + Gamma q; regularized also
-        v|Gamma, a|Gamma from p, pdot), x, y, g_k, g'_k split off by the new lifting, the
+        trace of t_j re-evaluated from the data and q, p, pdot (u|Gamma = g_k(t_j) + Gamma q,
+        v|Gamma = g'_k(t_j) + Gamma p, a|Gamma = g''_k(t_j) + Gamma pdot; in the original form
+        too: its differenced boundary velocity restarts there as at t = 0), x, y, g_k, g'_k
+        split off by the new lifting, the
         products recomputed, lambda by the trace transfer; q, p, pdot, z unchanged. The
         body's energy change is added to the ledger's ``transfer``. On failure the stepper
         stays bound to ``current``."""
@@ -772,15 +856,15 @@ class CoupledStepper(GridLoop):
     def _transferred(self, state, T, old_c, E_old) -> CoupledState:
         c, Gam = self.c, self.kern.Gamma
         u, v, a = (finite_or_fail(name, T @ getattr(state, name)) for name in "uva")
-        t = state.t
-        if self._original:
-            (gk,) = self.system.known_data(t, derivatives=False)
-            u[c.dofs] = gk + Gam @ state.q
-        else:
-            gk, gdk, gddk = self.system.known_data(t)
-            u[c.dofs] = gk + Gam @ state.q
-            v[c.dofs] = gdk + Gam @ state.p
-            a[c.dofs] = gddk + Gam @ state.pdot
+        # the trace of t_j from the data and q, p, pdot, in both forms: the original form's
+        # boundary velocity restarts from G_dot(t_j) as at t = 0 (initial_state) instead of
+        # keeping the quotient of the previous step, whose lag tau_{j-1} G''/2 (Euler) the
+        # next step turns into an acceleration ~ tau_{j-1}/tau after the controller cuts tau
+        # on the new mesh: an estimate that no tau brings below tol (docs/coupling.md, Sec. 14)
+        gk, gdk, gddk = self.system.known_data(state.t)
+        u[c.dofs] = gk + Gam @ state.q
+        v[c.dofs] = gdk + Gam @ state.p
+        a[c.dofs] = gddk + Gam @ state.pdot
         old = state.hist
         levels = len(old["u"])
         hist = {key: [] for key in list(_HISTORY) + list(_PRODUCTS)}
@@ -826,6 +910,7 @@ class CoupledStepper(GridLoop):
         ad = self.adaptivity
         if ad is None:
             return state
+        self._base = None  # accepted: the state's mesh is the current one (a failed adapt too)
         out, estimate = ad.after_step(
             self._mesh(),
             state,
@@ -882,7 +967,9 @@ class CoupledStepper(GridLoop):
             values["watch_u"] = self.watch @ state.u
             values["watch_v"] = self.watch @ state.v
         if self.fields:
-            values.update(u=state.u.copy(), v=state.v.copy(), lam=state.lam.copy())
+            values["pdot"] = state.pdot.copy()
+            if self.adaptivity is None:  # (adaptive: kept on their meshes, record())
+                values.update(u=state.u.copy(), v=state.v.copy(), lam=state.lam.copy())
         if self.adaptivity is not None:  # the mesh the state was computed on
             values.update(mesh_id=int(state.mesh_id), ndofs=int(state.u.size))
         traj.append(**values)
@@ -894,6 +981,8 @@ class CoupledStepper(GridLoop):
         constraint = np.abs(state.u[c.dofs] - g0).max(initial=0.0)
         constraint /= max(1.0, np.abs(state.u).max(initial=0.0))
         self.record_state(traj, state, c.reactions(state.lam), 0.0, 0.0, 0.0, float(constraint))
+        if self.fields and self.adaptivity is not None:
+            self.adaptivity.meshes.keep(traj, state, self._current)
 
     def record(self, traj: Trajectory, result: CoupledStepResult, state: CoupledState) -> None:
         """Record an accepted step's state with the result's reactions, balance and residuals."""
@@ -907,8 +996,18 @@ class CoupledStepper(GridLoop):
             result.constraint,
         )
         traj.append(tau=result.tau, local_error=result.estimate)
+        if self.fields and self.adaptivity is not None:
+            # the accepted state on the mesh it was computed on (the state recorded above is
+            # the one after the adapt step, on the next mesh)
+            self.adaptivity.meshes.keep(traj, result.state, result.mesh)
         if self.adaptivity is not None:  # eta of the adapt step after it (NaN: none)
-            traj.append(space_estimate=math.nan if self._adapted is None else self._adapted)
+            traj.append(
+                space_estimate=math.nan if self._adapted is None else self._adapted,
+                # the step's own refinements (summed as run_eld's: meshes_summary)
+                step_dofs=int(result.dofs),
+                step_refinements=int(result.refinements),
+                step_bisections=int(result.bisections),
+            )
 
     # -- checkpoints -----------------------------------------------------------------------------
     def checkpoint_state(self, state: CoupledState) -> dict:
@@ -919,6 +1018,8 @@ class CoupledStepper(GridLoop):
         record reads --, the key of the stored factorization with the step algebra's
         counters, the Newton count of the progress line, and with space adaptivity the mesh
         hierarchy, the series of meshes and the log (:class:`CoupledAdaptivity`)."""
+        if self.adaptivity is not None:
+            self._back_to_mesh_of(state)  # e.g. stopped after a rejected, refined attempt
         return {
             "format": CHECKPOINT_FORMAT,
             "scheme": self.scheme.name,
@@ -1007,22 +1108,7 @@ class CoupledStepper(GridLoop):
         )
 
 
-def run_coupled(
-    system: CoupledProblem,
-    *,
-    scheme=DEFAULT_SCHEME,
-    form=DEFAULT_FORM,
-    control=None,
-    T: float | None = None,
-    watch=None,
-    error_scale: float = 1e-12,
-    noise=None,
-    fields: bool = False,
-    adapt=None,
-    progress=False,
-    checkpoint=None,
-    resume=None,
-) -> CoupledResult:
+def run_coupled(system: CoupledProblem, **options) -> CoupledResult:
     """Run a coupled system from t = 0 to T on the evolve loop (module docstring).
 
     Parameters
@@ -1049,9 +1135,12 @@ def run_coupled(
     adapt : SpaceAdaptivity, optional
         Adapt the body's mesh between accepted steps (:mod:`rothe.eld.coupled_adapt`): the
         trajectory gets the point series ``mesh_id``, ``ndofs``, the step series
-        ``space_estimate`` and the ledger term ``transfer``; the result's ``meshes``
-        (:class:`rothe.eld.adapt.ELDMeshes`) every mesh once and the log of adaptations. Not
-        with ``watch``, ``fields`` or ``noise`` (they live on one mesh).
+        ``space_estimate``, ``step_refinements``, ``step_bisections``, ``step_dofs`` (a step
+        whose own estimate is too large is solved again on its refined mesh, as in run_eld)
+        and the ledger term ``transfer``; the result's ``meshes``
+        (:class:`rothe.eld.adapt.ELDMeshes`) every mesh once and the log of adaptations; with
+        ``fields`` every accepted state's fields on its own mesh (:class:`CoupledStepper`). Not
+        with ``watch`` or ``noise`` (they live on one mesh).
     progress : bool or ProgressOptions
     checkpoint, resume : optional
         As for :func:`~rothe.eld.run.run_eld`: a directory or
@@ -1066,21 +1155,10 @@ def run_coupled(
     -------
     CoupledResult
     """
-    (result,) = run_coupled_many(
-        {"run": system},
-        scheme=scheme,
-        form=form,
-        control=control,
-        T=T,
-        watch=watch,
-        error_scale=error_scale,
-        noise=noise,
-        fields=fields,
-        adapt=adapt,
-        progress=progress,
-        checkpoint=checkpoint,
-        resume=resume,
-    ).values()
+    # (the keywords are run_coupled_many's: its signature, _run_coupled_signature; a keyword
+    # it does not take, or results=, is a TypeError as for any function)
+    run_coupled.__signature__.bind(system, **options)
+    (result,) = run_coupled_many({"run": system}, **options).values()
     return result
 
 
@@ -1140,7 +1218,7 @@ def run_coupled_many(
         )
     if adapt is not None:
         check_adapt(adapt, data=Points(), noise=None)
-        check_coupled_adapt(adapt, watch=watch, fields=fields, noise=noise)
+        check_coupled_adapt(adapt, watch=watch, noise=noise)
     if noise is not None and (checkpoint is not None or resume is not None):
         raise fail(
             "noise",
@@ -1259,3 +1337,16 @@ class _Systems:
             for label, system in self.systems.items()
             for key, value in system.fingerprint().items()
         }
+
+
+# help(run_coupled) and inspect show every keyword: run_coupled_many's (one list, not two)
+def _run_coupled_signature() -> inspect.Signature:
+    many = inspect.signature(run_coupled_many)
+    system = inspect.Parameter(
+        "system", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation="CoupledProblem"
+    )
+    keywords = [p for name, p in many.parameters.items() if name not in ("systems", "results")]
+    return many.replace(parameters=[system, *keywords], return_annotation="CoupledResult")
+
+
+run_coupled.__signature__ = _run_coupled_signature()

@@ -303,6 +303,30 @@ def adaptive_frame(meshes, k: int, mesh_id: int) -> tuple[dict, dict]:
     return point, cell
 
 
+def _vertex_values(meshes, w, mesh_id) -> np.ndarray:
+    """The vertex values (nv, d) of the interleaved dof vector ``w`` on mesh ``mesh_id``
+    (scikit-fem numbers the vertex dofs first)."""
+    nv = len(meshes.series.mesh(mesh_id)[0])
+    return np.asarray(w).reshape(-1, meshes.components)[:nv]
+
+
+def write_adaptive_series(out_dir, name: str, meshes, traj) -> Path:
+    """``<name>.pvd`` and one VTU per kept state of a space-adaptive run on its own mesh
+    (:class:`rothe.eld.adapt.ELDMeshes` ``meshes``; ``traj`` with ``kept_t``,
+    ``kept_mesh_id``): point data ``u``, ``v`` and the fields of :func:`adaptive_frame`.
+    run_eld's series and that of the adaptive body of glued bodies
+    (:func:`rothe.eld.bodies_output.write_bodies_result`). Returns the ``.pvd``."""
+    ids = np.asarray(traj["kept_mesh_id"], dtype=np.int64)
+    data, cells = [], []
+    for k, (u, v, m) in enumerate(zip(meshes.kept["u"], meshes.kept["v"], ids, strict=True)):
+        point, cell = adaptive_frame(meshes, k, int(m))
+        data.append({"u": _vertex_values(meshes, u, m), "v": _vertex_values(meshes, v, m), **point})
+        cells.append(cell)
+    return write_vtu_series(
+        out_dir, name, meshes.series, ids, traj["kept_t"], data, cell_data=cells
+    )
+
+
 def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dict:
     """The outputs of a space-adaptive run (:func:`write_eld_result` lists them)."""
     out = Path(out_dir)
@@ -316,18 +340,10 @@ def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dic
     d = sp.components
 
     def vertex(w, mesh_id):
-        nv = len(sp.series.mesh(mesh_id)[0])
-        return np.asarray(w).reshape(-1, d)[:nv]
+        return _vertex_values(sp, w, mesh_id)
 
     if paraview and kept:
-        data, cells = [], []
-        for k, (u, v, m) in enumerate(zip(sp.kept["u"], sp.kept["v"], ids, strict=True)):
-            point, cell = adaptive_frame(sp, k, int(m))
-            data.append({"u": vertex(u, m), "v": vertex(v, m), **point})
-            cells.append(cell)
-        paths["pvd"] = write_vtu_series(
-            out, name, sp.series, ids, traj["kept_t"], data, cell_data=cells
-        )
+        paths["pvd"] = write_adaptive_series(out, name, sp, traj)
     if figures:
         # matplotlib is imported only for the figures
         from ..plotting.adapt import plot_dofs, plot_mesh_snapshots

@@ -65,13 +65,12 @@ from ..errors import (
     described,
     fail,
 )
-from ..fem.adapt.cycle import AdaptationFailed
 from ..io.trajectory import Trajectory
 from ..stepping import interrupt
 from ..stepping.controllers import Adaptive, Given, Uniform
 from ..stepping.evolve import single_threaded_blas
 from ..timing import PhaseTimes
-from .adapt import STEP_ROUNDS, ELDAdaptivity, check_adapt
+from .adapt import ELDAdaptivity, check_adapt
 from .constraint import HarmonicLifting
 from .data import DEFAULT_DATA, DataMode, Differenced, as_data_mode
 from .form import DEFAULT_FORM, Form, Regularized, as_form
@@ -1050,43 +1049,38 @@ class ELDStepper(StepperBase):
             return self._attempt(state, tau)
         self._back_to_mesh_of(state)
         original = state
-        result = self._attempt(state, tau)
-        dofs = self.system.ndofs
-        ad = self.adaptivity
-        adaptation = ad.adaptation
-        rounds = STEP_ROUNDS if ad.due_in_step(state.j) else 0
-        if rounds:
-            ad.set_band(tau)
-        for _ in range(rounds):
-            if not result.converged or result.state is None:
-                break
-            interrupt.check()
+        first = self._attempt(state, tau)
+
+        def remember():  # the mesh before the step's own refinements (_back_to_mesh_of)
             base = self._base
             if base is None or base[0] is not original:
-                base = (original, adaptation.amesh.checkpoint_state(), self.system)
-            times = ad.data_times(result.state.t, tau, self.T)
-            try:
-                out = adaptation.cycle(
-                    ad,
-                    self.system,
-                    (result.state, tau, times),
-                    state,
-                    refine_only=True,
-                    refine_above=ad.refine_above(original.j),
-                )
-            except AdaptationFailed:  # no estimate or no transfer: the step stands
-                self.system = self.system.revived()  # a failed transfer left it released
-                break
-            if not out.changed:
-                break
+                base = (original, self.adaptivity.adaptation.amesh.checkpoint_state(), self.system)
+            return base
+
+        def adopt(out, base):
             self._base = base
-            self.system, state = out.problem, out.state
-            interrupt.check()  # abandon() goes back to the mesh of the original state
-            refinements, bisections = result.refinements + 1, result.bisections + out.bisections
-            result = self._attempt(state, tau)
-            result.refinements, result.bisections = refinements, bisections
-            dofs += self.system.ndofs
-        result.counters["dofs"] = dofs
+            self.system = out.problem
+            return self.system
+
+        def failed():  # a failed transfer left it released
+            self.system = self.system.revived()
+
+        done = self.adaptivity.refine_in_step(
+            self.system,
+            state,
+            first,
+            tau,
+            self.T,
+            attempt=lambda state: self._attempt(state, tau),
+            remember=remember,
+            adopt=adopt,
+            failed=failed,
+            ndofs=lambda system: system.ndofs,
+            check=interrupt.check,
+        )
+        result = done.result
+        result.refinements, result.bisections = done.refinements, done.bisections
+        result.counters["dofs"] = done.dofs
         return result
 
     def _back_to_mesh_of(self, state: ELDState) -> None:
