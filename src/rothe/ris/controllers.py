@@ -176,7 +176,11 @@ class CatchUp:
 
     def state(self) -> dict:
         """What a checkpoint keeps."""
-        return {"kappa": list(map(float, self.kappa)), "C_t": float(self.C_t), "C3": list(map(float, self.C3))}
+        return {
+            "kappa": list(map(float, self.kappa)),
+            "C_t": float(self.C_t),
+            "C3": list(map(float, self.C3)),
+        }
 
     def restore(self, data: dict | None) -> None:
         """Put back :meth:`state` (None: start afresh)."""
