@@ -1,16 +1,17 @@
 """ris-front on a fixed grid: what each step control costs and how far its path is from a fine one.
 
     python benchmarks/ris_front_tol.py [--n 16] [--runs ref,uniform0.02,order2-1e-3,...]
-                                       [--out DIR]
+                                       [--ref-tau 5e-4] [--out DIR]
 
-Runs :func:`rothe.ris.examples.example_front` (n x n, the command's data: z = 0 on the right
-side, the vertex rule of ``rothe run ris-front`` without ``--adapt-space``) one after another in
-this process, each control from the table ``RUNS``; ``ref`` is the uniform step 5e-4, the fine
-path the others are compared with. Per run: reached T, accepted (rejected) steps, Newton
-iterations, viscous jumps (:func:`rothe.ris.summary.viscous_jumps`), wall and CPU seconds, and
-the relative V-norm distance of z(t) from the reference's at t = 0.25, 0.5, 0.75, 1 (z(t) = the
-last state with t_k <= t). ``ref`` first: its states are kept in ``--out`` (default a tmp dir)
-for the runs after it. Issue 18, item 0: should ris-front's residual controls default to
+Runs :func:`rothe.ris.examples.example_front` (n x n, the command's data: z = 0 on the
+right side, the vertex rule of ``rothe run ris-front`` without ``--adapt-space``) one after
+another in this process, each control from the table ``RUNS``; ``ref`` is the uniform step
+``--ref-tau`` (5e-4), the fine path the others are compared with. Per run: reached T,
+accepted (rejected) steps, Newton iterations, viscous jumps
+(:func:`rothe.ris.summary.viscous_jumps`), wall and CPU seconds, and the relative V-norm
+distance of z(t) from the reference's at t = 0.25, 0.5, 0.75, 1 (z(t) = the last state with
+t_k <= t). ``ref`` first: its states are kept in ``--out`` (default a tmp dir) for the runs
+after it. Issue 18, item 0: should ris-front's residual controls default to
 ``--tol 1e-3``?
 """
 
@@ -59,7 +60,9 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=16)
     ap.add_argument("--runs", default=",".join(RUNS))
     ap.add_argument("--out", default=None)
+    ap.add_argument("--ref-tau", type=float, default=5e-4, help="the reference's uniform step")
     args = ap.parse_args(argv)
+    RUNS["ref"] = Uniform(args.ref_tau)
     out = Path(args.out or tempfile.mkdtemp(prefix="ris_front_tol_"))
     out.mkdir(parents=True, exist_ok=True)
     print(
