@@ -203,7 +203,9 @@ class Order2Controller(StepController):
     the scheme can carry a neutral period-2 oscillation of the time increments (in Example 7.1,
     dt_k = tau - dt_{k-1}), so I alternates between two levels at a fixed tau, and a controller
     that follows the last value alone oscillates and rejects every other step.
-    Acceptance is that of Alg. 3.2 (I1 < tol and I2 < tol).
+    Acceptance is that of Alg. 3.2 (I1 < tol and I2 < tol). After an accepted step whose end
+    state lags behind the load, the proposal is the :class:`CatchUp` step instead (clipped to
+    [tau/4, 4 tau] like the model's).
 
     Parameters
     ----------
@@ -292,7 +294,10 @@ class RegimeController(StepController):
         tau_{k+1} = clip((theta tol / C)^(1/p), tau_k / 4, grow tau_k),
         tau_{k+1} = max(tau_{k+1}, min(grow tau_k, 1/2 sqrt(theta tol / C2)))      (floor)
 
-    (tau_{k+1} = grow tau_k if C = 0, e.g. while sticking at a stable state). After a rejected
+    (tau_{k+1} = grow tau_k if C = 0, e.g. while sticking at a stable state); where the state
+    at the end of step k lags behind the load, the :class:`CatchUp` step aimed at theta tol
+    replaces the model's (clipped to [tau_k / 4, grow tau_k]), and the floor still applies, so
+    the bound (5.7) below is unchanged. After a rejected
     attempt (e >= tol): tau = clip(tau (theta tol / e)^(1/p), tau / 10, 0.9 tau). Leaving
     sticking: two rejected sticking attempts locate the onset s* of instability and the slope L
     of dist there (:meth:`_sticking_crossing`); from s <= s* the step ends at s* + delta,
