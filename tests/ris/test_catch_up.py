@@ -125,19 +125,20 @@ def test_the_front_with_a_residual_control_on_changing_meshes_reaches_T_in_bound
 ):
     """A coarse ris-front (6 x 6, T = 0.25, order2 at tol 1e-3, changing meshes): every accepted
     step is KKT-exact on its mesh, T is reached, and steps, rejections and viscous jumps stay
-    bounded: measured 389 accepted, 56 rejected, 48 jumps; without the catch-up rule 453, 214
-    and 80."""
+    bounded: measured 259 accepted, 67 rejected, 8 jumps, 2 mesh changes; without the
+    catch-up rule 453, 214 and 80 (25 mesh changes)."""
     options = SpaceAdaptivity(space_tol=3.0, adapt_every=4, refine_band=0.08, max_dofs=400)
     p = example_front(6, T=0.25, quadrature="consistent")
     r = run_ris(p, controllers.Order2(1e-3, tau=0.02), inner=DIRECT, adapt=options)
     st = r.statistics
     assert r.state.t == pytest.approx(0.25, abs=1e-10)
     assert checked_steps["steps"] == st.accepted_steps == len(r.trajectory)
-    assert r.trajectory.meta["space_adaptations"] >= 5
+    assert r.trajectory.meta["space_adaptations"] >= 2
+    assert len(checked_steps["mesh_ids"]) >= 2  # the steps ran on several meshes
     assert r.trajectory.meta["max_recoarsened"] <= 2
-    assert st.accepted_steps <= 450
+    assert st.accepted_steps <= 320
     assert st.rejected_steps <= 100
-    assert len(viscous_jumps(r.trajectory)) <= 65
+    assert len(viscous_jumps(r.trajectory)) <= 20
 
 
 def test_the_load_is_kept_read_only_and_equals_a_fresh_evaluation():

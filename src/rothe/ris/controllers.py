@@ -142,13 +142,17 @@ class CatchUp:
     end), C_t = max(I1, I2) / (t_k - t_{k-1})^2 on the last step that advanced t (Lemma 5.3's
     quotient in the advance of t). A step of that size lands where the catch-up is done and t
     has moved by dt*, instead of one step for each. None when kappa or C_t is not known yet,
-    or the state at the end is stable (d1 = 0): the controller's own proposal then stands.
+    or the state at the end is stable (d1 = 0), or neither this step nor the one before it was
+    a viscous-jump step (no catch-up cycle: in a slip where z keeps pace with t, as in
+    Example 7.1, the lag is the slip's own and kappa a stale value of an earlier jump): the
+    controller's own proposal then stands.
     """
 
     def __init__(self):
         self.kappa: list = []  # (d0 - d1) / tau of the last two viscous-jump steps
         self.C_t = 0.0
         self.C3: list = []  # e / tau^3 of the last three viscous-jump steps
+        self.last_was_jump = False
 
     def propose(self, result, tol: float, safety: float) -> float | None:
         """The catch-up step after the accepted ``result``, or None (class docstring)."""
@@ -158,7 +162,10 @@ class CatchUp:
             return None
         tau = result.tau
         e = max(_max_error(result), 0.0)
-        if step_regime(result) == "jump":
+        jump = step_regime(result) == "jump"
+        in_cycle = jump or self.last_was_jump
+        self.last_was_jump = jump
+        if jump:
             if d0 > d1 >= 0.0:
                 self.kappa = (self.kappa + [(d0 - d1) / tau])[-2:]
             if e > 0.0:  # the jump's own residual: I2 ~ C3 tau^3 (Example 7.2's order)
@@ -167,7 +174,7 @@ class CatchUp:
             dt = tau - getattr(result, "step_norm", 0.0)
             if dt > 0.0 and e > 0.0:
                 self.C_t = e / (dt * dt)
-        if not self.kappa or self.C_t <= 0.0 or d1 <= 0.0:
+        if not in_cycle or not self.kappa or self.C_t <= 0.0 or d1 <= 0.0:
             return None
         step = d1 / min(self.kappa) + safety * math.sqrt(tol / self.C_t)
         if self.C3:  # no longer than one jump step can go within tol
@@ -180,6 +187,7 @@ class CatchUp:
             "kappa": list(map(float, self.kappa)),
             "C_t": float(self.C_t),
             "C3": list(map(float, self.C3)),
+            "last_was_jump": bool(self.last_was_jump),
         }
 
     def restore(self, data: dict | None) -> None:
@@ -188,6 +196,7 @@ class CatchUp:
             self.kappa = [float(k) for k in data["kappa"]]
             self.C_t = float(data["C_t"])
             self.C3 = [float(c) for c in data["C3"]]
+            self.last_was_jump = bool(data["last_was_jump"])
 
 
 class Order2Controller(StepController):
