@@ -123,6 +123,82 @@ class AdaptiveController(StepController):
         return Decision(False, self.sigma, f"I1={I1:.3g}, I2={I2:.3g} >= tol={self.tol:g}")
 
 
+class CatchUp:
+    """The catch-up rule of the residual controllers (beyond the paper; issue 18, item 0).
+
+    Step (3.1) minimizes at the old time t_{k-1}: a step that advances t leaves z_k behind the
+    load, unstable at t_k (dist(-D_z I(t_k, z_k), dR(0)) = d1 > 0), and the next step first
+    moves z at fixed t. Where the state must move faster than t in V (a front: ||z'||_V / t'
+    > 1) the split t_k - t_{k-1} = tau_k - ||z_k - z_{k-1}||_V swings to its extremes and the
+    run alternates steps that only advance t with viscous-jump steps that only catch z up: the
+    "lattice jumps" of ris-front (half of its steps), each a real step on the sphere.
+
+    The rule sizes the next step as the catch-up plus the wanted advance of t,
+
+        tau_{k+1} = d1_k / kappa + dt*,   kappa = (d0 - d1) / tau_j,   dt* = safety sqrt(tol / C_t),
+
+    kappa the decay of dist per unit of arclength measured on the last viscous-jump step j (at
+    fixed t the jump is the V-gradient flow of I + R, so dist falls about linearly to 0 at its
+    end), C_t = max(I1, I2) / (t_k - t_{k-1})^2 on the last step that advanced t (Lemma 5.3's
+    quotient in the advance of t). A step of that size lands where the catch-up is done and t
+    has moved by dt*, instead of one step for each. None when kappa or C_t is not known yet,
+    or the state at the end is stable (d1 = 0), or neither this step nor the one before it was
+    a viscous-jump step (no catch-up cycle: in a slip where z keeps pace with t, as in
+    Example 7.1, the lag is the slip's own and kappa a stale value of an earlier jump): the
+    controller's own proposal then stands.
+    """
+
+    def __init__(self):
+        self.kappa: list = []  # (d0 - d1) / tau of the last two viscous-jump steps
+        self.C_t = 0.0
+        self.C3: list = []  # e / tau^3 of the last three viscous-jump steps
+        self.last_was_jump = False
+
+    def propose(self, result, tol: float, safety: float) -> float | None:
+        """The catch-up step after the accepted ``result``, or None (class docstring)."""
+        d0 = getattr(result, "dist_start", math.nan)
+        d1 = getattr(result, "dist_end", math.nan)
+        if not (math.isfinite(d0) and math.isfinite(d1)):
+            return None
+        tau = result.tau
+        e = max(_max_error(result), 0.0)
+        jump = step_regime(result) == "jump"
+        in_cycle = jump or self.last_was_jump
+        self.last_was_jump = jump
+        if jump:
+            if d0 > d1 >= 0.0:
+                self.kappa = (self.kappa + [(d0 - d1) / tau])[-2:]
+            if e > 0.0:  # the jump's own residual: I2 ~ C3 tau^3 (Example 7.2's order)
+                self.C3 = (self.C3 + [e / tau**3])[-3:]
+        else:
+            dt = tau - getattr(result, "step_norm", 0.0)
+            if dt > 0.0 and e > 0.0:
+                self.C_t = e / (dt * dt)
+        if not in_cycle or not self.kappa or self.C_t <= 0.0 or d1 <= 0.0:
+            return None
+        step = d1 / min(self.kappa) + safety * math.sqrt(tol / self.C_t)
+        if self.C3:  # no longer than one jump step can go within tol
+            step = min(step, safety * (tol / max(self.C3)) ** (1.0 / 3.0))
+        return step
+
+    def state(self) -> dict:
+        """What a checkpoint keeps."""
+        return {
+            "kappa": list(map(float, self.kappa)),
+            "C_t": float(self.C_t),
+            "C3": list(map(float, self.C3)),
+            "last_was_jump": bool(self.last_was_jump),
+        }
+
+    def restore(self, data: dict | None) -> None:
+        """Put back :meth:`state` (None: start afresh)."""
+        if data is not None:
+            self.kappa = [float(k) for k in data["kappa"]]
+            self.C_t = float(data["C_t"])
+            self.C3 = [float(c) for c in data["C3"]]
+            self.last_was_jump = bool(data["last_was_jump"])
+
+
 class Order2Controller(StepController):
     """Beyond the paper: propose tau from the known order of the residuals.
 
@@ -136,7 +212,9 @@ class Order2Controller(StepController):
     the scheme can carry a neutral period-2 oscillation of the time increments (in Example 7.1,
     dt_k = tau - dt_{k-1}), so I alternates between two levels at a fixed tau, and a controller
     that follows the last value alone oscillates and rejects every other step.
-    Acceptance is that of Alg. 3.2 (I1 < tol and I2 < tol).
+    Acceptance is that of Alg. 3.2 (I1 < tol and I2 < tol). After an accepted step whose end
+    state lags behind the load, the proposal is the :class:`CatchUp` step instead (clipped to
+    [tau/4, 4 tau] like the model's).
 
     Parameters
     ----------
@@ -153,6 +231,7 @@ class Order2Controller(StepController):
         self.tol = check_positive("tol", tol)
         self.safety = check_positive("safety", safety)
         self._C_prev = 0.0
+        self._catch_up = CatchUp()
 
     def decide(self, result) -> Decision:
         """Accept as Alg. 3.2; the next step from C = max(I1, I2) / tau^2 (class docstring)."""
@@ -167,16 +246,21 @@ class Order2Controller(StepController):
         ideal = math.inf if C_eff == 0.0 else self.safety * math.sqrt(self.tol / C_eff)
         if accept:
             self._C_prev = C
-            self.sigma = self._clamp(min(4 * tau, max(tau / 4, ideal)))
+            new = min(4 * tau, max(tau / 4, ideal))
+            guided = self._catch_up.propose(result, self.tol, self.safety)
+            if guided is not None:
+                new = min(4 * tau, max(tau / 4, guided))
+            self.sigma = self._clamp(new)
             return Decision(True, self.sigma, "accepted")
         self.sigma = min(tau / 2, max(tau / 4, ideal))
         return Decision(False, self.sigma, f"max(I1, I2)={err:.3g} >= tol={self.tol:g}")
 
     def _extra_state(self) -> dict:
-        return {"C_prev": float(self._C_prev)}
+        return {"C_prev": float(self._C_prev), "catch_up": self._catch_up.state()}
 
     def _restore_extra(self, data: dict) -> None:
         self._C_prev = float(data["C_prev"])
+        self._catch_up.restore(data.get("catch_up"))  # None: a checkpoint before the rule
 
 
 #: the three regimes of a BV solution, read off one step (t' = 1 - ||z'||_V on [s_{k-1}, s_k])
@@ -219,7 +303,10 @@ class RegimeController(StepController):
         tau_{k+1} = clip((theta tol / C)^(1/p), tau_k / 4, grow tau_k),
         tau_{k+1} = max(tau_{k+1}, min(grow tau_k, 1/2 sqrt(theta tol / C2)))      (floor)
 
-    (tau_{k+1} = grow tau_k if C = 0, e.g. while sticking at a stable state). After a rejected
+    (tau_{k+1} = grow tau_k if C = 0, e.g. while sticking at a stable state); where the state
+    at the end of step k lags behind the load, the :class:`CatchUp` step aimed at theta tol
+    replaces the model's (clipped to [tau_k / 4, grow tau_k]), and the floor still applies, so
+    the bound (5.7) below is unchanged. After a rejected
     attempt (e >= tol): tau = clip(tau (theta tol / e)^(1/p), tau / 10, 0.9 tau). Leaving
     sticking: two rejected sticking attempts locate the onset s* of instability and the slope L
     of dist there (:meth:`_sticking_crossing`); from s <= s* the step ends at s* + delta,
@@ -293,6 +380,7 @@ class RegimeController(StepController):
         self._s = 0.0  # s_{k-1} of the step being tried (from propose)
         # end of a sticking phase: [s_end, I1] of rejected sticking attempts with I1 > 0
         self._onset_samples: list = []
+        self._catch_up = CatchUp()
 
     def _model(self, regime: str) -> dict:
         return self._models.setdefault(regime, {"p": 2.0, "history": []})
@@ -372,6 +460,9 @@ class RegimeController(StepController):
         self._last_regime = regime
         ideal = self.grow * tau if C == 0.0 else (target / C) ** (1.0 / p)
         new = min(max(ideal, tau / 4), self.grow * tau)
+        guided = self._catch_up.propose(result, target, 1.0)
+        if guided is not None:
+            new = min(max(guided, tau / 4), self.grow * tau)
         if C2 > 0.0:  # the floor behind (5.7): never below half the tau^2-law step
             new = max(new, min(self.grow * tau, 0.5 * math.sqrt(target / C2)))
         self.sigma = self._clamp(new)
@@ -387,6 +478,7 @@ class RegimeController(StepController):
             "rejected": None if self._rejected is None else dict(self._rejected),
             "s": float(self._s),
             "onset_samples": [[float(a), float(b)] for a, b in self._onset_samples],
+            "catch_up": self._catch_up.state(),
         }
 
     def _restore_extra(self, data: dict) -> None:
@@ -403,6 +495,7 @@ class RegimeController(StepController):
         )
         self._s = float(data["s"])
         self._onset_samples = [[float(a), float(b)] for a, b in data["onset_samples"]]
+        self._catch_up.restore(data.get("catch_up"))  # None: a checkpoint before the rule
 
 
 def _quotient(e: float, tau: float, p: float) -> float:

@@ -200,8 +200,31 @@ class RISProblem:
         h = np.asarray(h, dtype=float)
         return h.reshape(self.n) if h.size == self.n else h.reshape(self.n, self.n)
 
+    #: how many l(t) the problem keeps (the last ones asked for)
+    LOAD_CACHE_SIZE = 4
+
     def load(self, t: float) -> np.ndarray:
-        """l(t); a non-finite value raises :class:`~rothe.errors.DataError` naming t."""
+        """l(t); a non-finite value raises :class:`~rothe.errors.DataError` naming t.
+
+        The last :attr:`LOAD_CACHE_SIZE` values are kept, read-only: a step asks for l(t_{k-1})
+        at every Newton iterate and line-search trial (t is fixed in (3.1)) and a viscous-jump
+        step at all Simpson points; a finite-element load integrates a density at every
+        quadrature point (on ris-front 26 % of a run's seconds were this recomputation).
+        """
+        t = float(t)
+        cache = self.__dict__.setdefault("_load_cache", {})
+        hit = cache.get(t)
+        if hit is not None:
+            return hit
+        l_t = self._load_uncached(t).copy()  # never the caller's own array made read-only
+        l_t.setflags(write=False)
+        if len(cache) >= self.LOAD_CACHE_SIZE:
+            cache.pop(next(iter(cache)))
+        cache[t] = l_t
+        return l_t
+
+    def _load_uncached(self, t: float) -> np.ndarray:
+        """l(t) from the data (:meth:`load`)."""
         try:
             l_t = np.asarray(self._load(t), dtype=float).reshape(self.n)
         except DataError:

@@ -39,6 +39,10 @@ class StepResiduals:
     I2: float
     I1_err: float  # |S_n - S_{n/2}| for I1
     I2_err: float  # |S_n - S_{n/2}| for I2
+    # dist(-D_z I, dR(0)) at the two ends of the segment: (t_{k-1}, z_{k-1}) and (t_k, z_k);
+    # in a viscous jump (t_k = t_{k-1}) their decrease tells how far the jump still goes
+    dist_start: float = float("nan")
+    dist_end: float = float("nan")
 
 
 def simpson_weights(n: int) -> np.ndarray:
@@ -98,4 +102,11 @@ def step_residuals(
     I1c = dt * float(wc @ f1)
     I2 = float(w @ f2)
     I2c = float(wc @ f2)
-    return StepResiduals(I1=I1, I2=I2, I1_err=abs(I1 - I1c), I2_err=abs(I2 - I2c))
+    return StepResiduals(
+        I1=I1,
+        I2=I2,
+        I1_err=abs(I1 - I1c),
+        I2_err=abs(I2 - I2c),
+        dist_start=float(f1[0]),
+        dist_end=float(f1[-1]),
+    )

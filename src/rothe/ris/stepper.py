@@ -74,6 +74,10 @@ class RISStepResult:
     J_final: float
     energy: float  # I(t_k, z_k)
     step_norm: float = 0.0  # ||z_k - z_{k-1}||_V
+    # dist(-D_z I(t, z), dR(0)) at the start (t_{k-1}, z_{k-1}) and the end (t_k, z_k) of the
+    # step (the ends of (3.3)'s integrand): the jump rule of the residual controllers reads them
+    dist_start: float = math.nan
+    dist_end: float = math.nan
     increment: np.ndarray | None = None  # z_k - z_{k-1}
     counters: dict = field(default_factory=dict)
     # the problem (and its mesh) the step was computed on: the record of the step uses it
@@ -420,6 +424,8 @@ class RISStepper:
             J_final=res.J_final,
             energy=energy,
             step_norm=nd,
+            dist_start=r.dist_start if r else nan,
+            dist_end=r.dist_end if r else nan,
             increment=res.d,
             counters=counters,
             problem=p,
