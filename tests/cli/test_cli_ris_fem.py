@@ -808,3 +808,15 @@ def test_cli_ris_adaptivity_defaults_are_stated_in_the_help(
     assert f"refine while above; default {space_tol:g})" in text
     assert f"an integer >= 1 (default {every})" in text
     assert f"a length >= 0 (default {band:g})" in text
+
+
+@pytest.mark.parametrize(
+    "command, tol", [("ris-front", "0.001"), ("ris-2d", "0.0001"), ("ris-front-unique", "0.0001")]
+)
+def test_residual_tolerance_default_per_command(capsys, command, tol):
+    """ris-front's residual controls default to --tol 1e-3 (their paths stay within 1e-3 of a
+    fine one there, and every control reaches T with --adapt-space); the others keep 1e-4."""
+    code, out, _ = run_cli(capsys, "run", command, "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    assert f"residual tolerance of adaptive/order2/regime (default {tol})" in text

@@ -151,6 +151,8 @@ class RISRunBase(ABC):
     default_tau = 0.1
     #: default --control
     default_control = "adaptive"
+    #: --tol of the residual controls (adaptive, order2, regime)
+    default_tol = 1e-4
     T = 1.0  # end time of the example
 
     def add_example_options(self, parser) -> None:
@@ -168,8 +170,8 @@ class RISRunBase(ABC):
         float_option(
             parser,
             "--tol",
-            default=1e-4,
-            help="residual tolerance of adaptive/order2/regime (default 1e-4)",
+            default=self.default_tol,
+            help=f"residual tolerance of adaptive/order2/regime (default {self.default_tol:g})",
         )
         parser.add_argument(
             "--tols",
