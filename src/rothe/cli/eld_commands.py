@@ -21,7 +21,7 @@ import shutil
 
 import numpy as np
 
-from ..eld.data import NOISE_TARGETS, Points
+from ..eld.data import NOISE_TARGETS
 from ..eld.examples import (
     beam_problem,
     mms_errors,
@@ -46,7 +46,7 @@ from ..eld.studies import (
     tip_mass_study,
 )
 from ..errors import check_choice, check_int, check_positive, described, fail
-from ..fem.petsc_env import launched_processes, petsc_installed
+from ..fem.petsc_env import launched_processes
 from ..io.checkpoint import CheckpointError, load_checkpoint
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
 from .common import (
@@ -68,7 +68,6 @@ from .eld_options import (
     ELD_MAX_DOFS,
     MESH_PARAMETERS,
     MMS_MATERIAL,
-    beam_uses_amg,
     body_material,
     body_mesh,
     check_beam_size,
@@ -568,10 +567,8 @@ class RunEldBeam(EldRunCommand):
             default="auto",
             help="auto | serial | petsc: serial is one process with pyamg; petsc one mesh on "
             "the processes of mpiexec -n N (or on one) with PETSc's GAMG; auto (default) takes "
-            "petsc under mpiexec -n N > 1, and on one process when petsc4py and mpi4py are "
-            "installed and the run suits it (AMG: more than 30k unknowns or --solver amg; no "
-            "--adapt-space; --data points; the nodal lifting), serial otherwise "
-            "(docs/scaling.md)",
+            "petsc under mpiexec -n N > 1 and serial on one process, where its step is the "
+            "faster one (docs/scaling.md)",
         )
         parser.add_argument(
             "--amg-products",
@@ -596,7 +593,7 @@ class RunEldBeam(EldRunCommand):
         every = check_int("--save-every", args.save_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"], hysteresis=True)
         material = material_of(args, BEAM_MATERIAL, dim=3)
-        backend = self.backend(args, n, space, objects)
+        backend = self.backend(args)
         if backend == "petsc" and space is not None:
             raise fail(
                 "--adapt-space",
@@ -616,14 +613,15 @@ class RunEldBeam(EldRunCommand):
         return objects, n, every, keep, damping_of(args), space, material, backend
 
     @staticmethod
-    def backend(args, n: int, space, objects: dict) -> str:
+    def backend(args) -> str:
         """--backend with ``auto`` resolved (the option's help; docs/scaling.md, "Which
         backend"): petsc under ``mpiexec -n N`` with N > 1 (every process would otherwise run
         the whole serial problem), the backend of the checkpoint a resumed run continues, and
-        on one process petsc when petsc4py and mpi4py are installed and the run is one the
-        PETSc backend serves and wins: an AMG-sized beam (per step 0.81-0.85x the serial pyamg
-        cycle at 1.07 M dofs, docs/scaling.md), no space adaptivity, point data, the nodal
-        lifting. Serial otherwise."""
+        serial on one process, with or without petsc4py: its pyamg cycle (scipy's CG around
+        :func:`rothe.fem.linear.v_cycle`) takes 0.87x the seconds per step of PETSc's GAMG
+        on one process at 1.07 M dofs, and its set-up less (docs/scaling.md, seventh
+        session). Until then, auto took petsc on one process where petsc4py was installed
+        (0.81-0.85x the former pyamg step)."""
         backend = check_choice("--backend", args.backend, BEAM_BACKENDS)
         if backend != "auto":
             return backend
@@ -635,13 +633,7 @@ class RunEldBeam(EldRunCommand):
             except CheckpointError:  # the session says what is wrong with it
                 return "serial"
             return "petsc" if header.get("arguments", {}).get("backend") == "petsc" else "serial"
-        suits = (
-            space is None
-            and isinstance(objects["data"], Points)
-            and objects["form"].lifting in (None, "nodal")
-            and beam_uses_amg(n, args.length, args.degree, args.solver)
-        )
-        return "petsc" if suits and petsc_installed() else "serial"
+        return "serial"
 
     def execute(self, args) -> int:
         """Build the cantilever, run it as a session (XDMF streamed while it runs); with

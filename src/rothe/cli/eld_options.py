@@ -604,13 +604,6 @@ def beam_unknowns(n: int, length: float, degree: int) -> int:
     return 3 * (degree * nx + 1) * (degree * n + 1) ** 2
 
 
-def beam_uses_amg(n: int, length: float, degree: int, solver: str) -> bool:
-    """Whether the beam's linear solver is AMG: --solver amg, or auto above BEAM_LU_LIMIT."""
-    return solver == "amg" or (
-        solver == "auto" and beam_unknowns(n, length, degree) > BEAM_LU_LIMIT
-    )
-
-
 def check_beam_size(n: int, length: float, degree: int, solver: str) -> None:
     """Refuse an --n whose beam (with its solver) cannot fit in memory."""
     if degree in (1, 2) and length > 0:
