@@ -150,6 +150,23 @@ def test_three_bodies_glued_to_a_base_equal_the_union_mesh_run():
     assert np.abs(res.trajectory["balance"]).max() < 1e-13 * res.trajectory["energy"].max()
 
 
+def _star():
+    """The bodies of :func:`_chain` with 3 cells across the tip, glued as a star around the
+    middle body (both interfaces by multipliers, the tip's a mortar one)."""
+    return GluedBodies(
+        Body(strip(1 / 3, 2 / 3, 3, 2), STIFF, name="two"),
+        [
+            (Body(strip(0, 1 / 3, 3, 2), SOFT, clamped=("left",), name="one"), "left", "right"),
+            (
+                Body(strip(2 / 3, 1, 3, 3), SOFT, traction={"right": pull}, name="three"),
+                "right",
+                "left",
+            ),
+        ],
+        T=0.3,
+    )
+
+
 def _chain(ny3=2, T=0.3):
     """base (clamped) - middle - tip (pulled): the tip glued to the middle body, not to the
     base (body 2 to body 1)."""
@@ -211,18 +228,7 @@ def test_a_non_matching_chain_interface_is_glued_by_the_mortar_projection():
     tr = res.trajectory
     assert np.abs(tr["balance"]).max() < 1e-13 * tr["energy"].max()
     assert glued.interface_residual(res.state.u, res.state.q) < 1e-13
-    star = GluedBodies(
-        Body(strip(1 / 3, 2 / 3, 3, 2), STIFF, name="two"),
-        [
-            (Body(strip(0, 1 / 3, 3, 2), SOFT, clamped=("left",), name="one"), "left", "right"),
-            (
-                Body(strip(2 / 3, 1, 3, 3), SOFT, traction={"right": pull}, name="three"),
-                "right",
-                "left",
-            ),
-        ],
-        T=0.3,
-    )
+    star = _star()
     assert star.interfaces[1].method == "mortar"
     ref = run_bodies(star, scheme=BDF2(), control=Uniform(0.01))
     mine = {

@@ -8,13 +8,13 @@ import pytest
 
 meshio = pytest.importorskip("meshio")
 
-from rothe.eld import BDF2, Body, GluedBodies, run_bodies  # noqa: E402
+from rothe.eld import BDF2, run_bodies  # noqa: E402
 from rothe.eld.bodies_output import write_bodies_result  # noqa: E402
 from rothe.fem.adapt import SpaceAdaptivity  # noqa: E402
 from rothe.io.mesh_series import MeshSeries  # noqa: E402
 from rothe.stepping.controllers import Uniform  # noqa: E402
 
-from .test_bodies import SOFT, STIFF, _chain, pull, strip, two_bodies  # noqa: E402
+from .test_bodies import SOFT, STIFF, _chain, _star, two_bodies  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore:G_d")
 
@@ -93,18 +93,7 @@ def test_a_chain_writes_every_body_and_its_chain_traction_is_the_stars_multiplie
     glued = _chain(ny3=3)
     res = run_bodies(glued, scheme=BDF2(), control=Uniform(0.01))
     tr = res.trajectory
-    star = GluedBodies(
-        Body(strip(1 / 3, 2 / 3, 3, 2), STIFF, name="two"),
-        [
-            (Body(strip(0, 1 / 3, 3, 2), SOFT, clamped=("left",), name="one"), "left", "right"),
-            (
-                Body(strip(2 / 3, 1, 3, 3), SOFT, traction={"right": pull}, name="three"),
-                "right",
-                "left",
-            ),
-        ],
-        T=0.3,
-    )
+    star = _star()
     ref = run_bodies(star, scheme=BDF2(), control=Uniform(0.01)).trajectory
     _, tip = glued.interface_tractions(tr["t"], tr["q"], tr["p"], tr["pdot"])
     theirs = np.array([_traction_by_multiplier(star, lam, 1) for lam in ref["lam"]])
