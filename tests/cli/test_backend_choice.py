@@ -23,8 +23,7 @@ def one_process(monkeypatch):
         monkeypatch.delenv(name, raising=False)
 
 
-def _choice(monkeypatch, installed: bool, *extra):
-    monkeypatch.setattr(petsc_env, "petsc_installed", lambda: installed)
+def _choice(*extra):
     args = _args(*extra)
     backend = RunEldBeam().validate(args)[-1]
     assert RunEldBeam.backend(args) == backend  # what execute runs
@@ -39,26 +38,23 @@ def test_the_lu_limit_lies_between_n_12_and_13():
 
 
 @pytest.mark.parametrize(
-    "installed,extra,expected",
+    "extra,expected",
     [
-        (True, ["--n", "12", "--degree", "1"], "serial"),  # 24.8 k dofs: LU
-        (True, ["--n", "13", "--degree", "1"], "serial"),  # 31.2 k dofs: AMG
-        (False, ["--n", "16", "--degree", "1"], "serial"),  # no petsc4py
-        (True, ["--n", "16", "--degree", "1"], "serial"),  # 62 k dofs: AMG, pyamg
-        (True, ["--n", "4", "--degree", "1", "--solver", "amg"], "serial"),
-        (True, ["--n", "16", "--degree", "1", "--form", "original"], "serial"),
-        (True, ["--n", "16", "--degree", "1", "--adapt-space", "--space-tol", "1"], "serial"),
-        (True, ["--n", "16", "--degree", "1", "--backend", "serial"], "serial"),
-        (False, ["--n", "4", "--degree", "1", "--backend", "petsc"], "petsc"),
-        (True, ["--n", "16", "--degree", "1", "--backend", "petsc"], "petsc"),
+        (["--n", "12", "--degree", "1"], "serial"),  # 24.8 k dofs: LU
+        (["--n", "13", "--degree", "1"], "serial"),  # 31.2 k dofs: AMG
+        (["--n", "16", "--degree", "1"], "serial"),  # 62 k dofs: AMG, pyamg
+        (["--n", "4", "--degree", "1", "--solver", "amg"], "serial"),
+        (["--n", "16", "--degree", "1", "--form", "original"], "serial"),
+        (["--n", "16", "--degree", "1", "--adapt-space", "--space-tol", "1"], "serial"),
+        (["--n", "16", "--degree", "1", "--backend", "serial"], "serial"),
+        (["--n", "4", "--degree", "1", "--backend", "petsc"], "petsc"),
     ],
 )
-def test_auto_takes_serial_on_one_process_whether_petsc_is_installed_or_not(
-    monkeypatch, one_process, installed, extra, expected
-):
+def test_auto_takes_serial_on_one_process(one_process, extra, expected):
     """On one process the serial pyamg step is faster than PETSc's GAMG (docs/scaling.md):
-    auto takes serial there, whatever is installed; --backend petsc is taken as given."""
-    assert _choice(monkeypatch, installed, *extra) == expected
+    auto takes serial there, whatever is installed (tests/mpi checks it where petsc4py is);
+    --backend petsc is taken as given."""
+    assert _choice(*extra) == expected
 
 
 @pytest.mark.parametrize("variable", petsc_env.LAUNCHER_SIZE_VARIABLES)
@@ -66,9 +62,9 @@ def test_under_mpiexec_auto_is_petsc_and_refuses_adapt_space(monkeypatch, one_pr
     monkeypatch.setenv(variable, "2")
     assert petsc_env.launched_processes() == 2
     # a small LU-sized beam too: N processes must share one mesh, not run it N times
-    assert _choice(monkeypatch, False, "--n", "2", "--degree", "1") == "petsc"
+    assert _choice("--n", "2", "--degree", "1") == "petsc"
     with pytest.raises(Exception, match=r"--adapt-space: got given, .* under mpiexec -n 2"):
-        _choice(monkeypatch, True, "--n", "2", "--degree", "1", "--adapt-space", "--space-tol", 1)
+        _choice("--n", "2", "--degree", "1", "--adapt-space", "--space-tol", 1)
 
 
 def test_launched_processes_outside_a_launcher(monkeypatch, one_process):

@@ -11,7 +11,6 @@ conda-forge and the same order is harmless.
 from __future__ import annotations
 
 import ctypes
-import importlib.util
 import os
 
 from ..errors import RotheInputError
@@ -52,11 +51,6 @@ def petsc_available() -> str | None:
     except RotheInputError as exc:
         return str(exc)
     return None
-
-
-def petsc_installed() -> bool:
-    """Whether petsc4py and mpi4py can be found, without importing them (which starts MPI)."""
-    return all(importlib.util.find_spec(name) is not None for name in ("mpi4py", "petsc4py"))
 
 
 #: the environment variables through which MPI launchers tell a process the job's size: MPICH's
