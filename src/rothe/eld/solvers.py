@@ -120,25 +120,33 @@ class SolveFailed(RuntimeError):
     """The Krylov method did not converge even with a fresh preconditioner."""
 
 
-def jacobi_cg(A, inv_diag: np.ndarray, b: np.ndarray, x0, rtol: float, maxiter: int):
-    """(x, iterations) of CG for the SPD system A x = b preconditioned by the diagonal;
-    (None, maxiter) if it did not converge.
-
-    scipy's CG on the scaled system D^{-1/2} A D^{-1/2} y = D^{-1/2} b, x = D^{-1/2} y (the
-    iterates of Jacobi-preconditioned CG), applied as an operator (no scaled copy of A): it
-    stops when ||D^{-1/2} r|| <= rtol ||D^{-1/2} b||, the AMG path's stopping rule."""
-    s = np.sqrt(inv_diag)
-    op = spla.LinearOperator(A.shape, matvec=lambda y: s * (A @ (s * y)), dtype=float)
+def scaled_cg(op, s: np.ndarray, b: np.ndarray, x0, rtol: float, maxiter: int, M=None):
+    """(x, iterations) of scipy's CG on the scaled system S A S y = S b, x = S y (``op``
+    applies S A S, ``s`` the diagonal of S = D^{-1/2}, ``M`` an optional preconditioner of
+    S A S): it stops when ||S (b - A x)|| <= rtol ||S b||. (None, iterations) if it did not
+    converge or x is not finite."""
     count = [0]
 
     def cb(_):
         count[0] += 1
 
     y0 = None if x0 is None else np.asarray(x0, dtype=float) / s
-    y, info = spla.cg(op, s * b, x0=y0, rtol=rtol, atol=0.0, maxiter=maxiter, callback=cb)
-    if info != 0:
-        return None, maxiter
+    y, info = spla.cg(op, s * b, x0=y0, rtol=rtol, atol=0.0, maxiter=maxiter, M=M, callback=cb)
+    if info != 0 or not np.all(np.isfinite(y)):
+        return None, count[0]
     return s * y, count[0]
+
+
+def jacobi_cg(A, inv_diag: np.ndarray, b: np.ndarray, x0, rtol: float, maxiter: int):
+    """(x, iterations) of CG for the SPD system A x = b preconditioned by the diagonal;
+    (None, maxiter) if it did not converge.
+
+    :func:`scaled_cg` with S = D^{-1/2} (the iterates of Jacobi-preconditioned CG), S A S
+    applied as an operator (no scaled copy of A): it stops when
+    ||D^{-1/2} r|| <= rtol ||D^{-1/2} b||, the AMG path's stopping rule."""
+    s = np.sqrt(inv_diag)
+    op = spla.LinearOperator(A.shape, matvec=lambda y: s * (A @ (s * y)), dtype=float)
+    return scaled_cg(op, s, b, x0, rtol, maxiter)
 
 
 #: 'auto' takes sparse LU up to this many unknowns, AMG above: 2D, 3D, and 3D meshes of a
@@ -328,31 +336,19 @@ class ReferenceSolver:
             self.stats.backsolves += 1
             return self._prec(b)
         if self.kind == "jacobi":
-            x, its = jacobi_cg(self._A, self._scale, b, x0, self.rtol, JACOBI_MAXITER)
-            self.stats.backsolves += its
-            self.stats.krylov_iterations += its
-            if x is None:
-                raise SolveFailed(
-                    f"Jacobi-CG did not reach rtol {self.rtol:g} in {JACOBI_MAXITER} iterations"
-                )
-            return x
-        s = self._scale
-        sb = s * b
-        y0 = None if x0 is None else np.asarray(x0) / s
-        As = self._ml.levels[0].A
-        ml = self._ml
-        M = spla.LinearOperator(As.shape, matvec=lambda r: v_cycle(ml, r), dtype=float)
-        count = [0]
-
-        def cb(_):
-            count[0] += 1
-
-        y, info = spla.cg(As, sb, x0=y0, rtol=self.rtol, atol=0.0, maxiter=500, M=M, callback=cb)
-        self.stats.backsolves += count[0]
-        self.stats.krylov_iterations += count[0]
-        if info != 0 or not np.all(np.isfinite(y)):
-            raise SolveFailed(f"AMG-CG did not reach rtol {self.rtol:g} in 500 iterations")
-        return s * y
+            method, cap = "Jacobi-CG", JACOBI_MAXITER
+            x, its = jacobi_cg(self._A, self._scale, b, x0, self.rtol, cap)
+        else:  # the hierarchy's fine level is the scaled matrix itself
+            method, cap = "AMG-CG", 500
+            ml = self._ml
+            shape = ml.levels[0].A.shape
+            M = spla.LinearOperator(shape, matvec=lambda r: v_cycle(ml, r), dtype=float)
+            x, its = scaled_cg(ml.levels[0].A, self._scale, b, x0, self.rtol, cap, M=M)
+        self.stats.backsolves += its
+        self.stats.krylov_iterations += its
+        if x is None:
+            raise SolveFailed(f"{method} did not reach rtol {self.rtol:g} in {cap} iterations")
+        return x
 
     def time_backsolve(self, n: int, repeats: int = 20, seed: int = 0) -> float:
         """Median seconds of one application of the stored factorization (one back-substitution
