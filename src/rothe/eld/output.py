@@ -338,10 +338,6 @@ def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dic
     kept = "kept_t" in traj and len(sp.kept["u"]) > 0
     ids = np.asarray(traj["kept_mesh_id"], dtype=np.int64) if kept else np.zeros(0, np.int64)
     d = sp.components
-
-    def vertex(w, mesh_id):
-        return _vertex_values(sp, w, mesh_id)
-
     if paraview and kept:
         paths["pvd"] = write_adaptive_series(out, name, sp, traj)
     if figures:
@@ -359,7 +355,8 @@ def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dic
             k = len(ids)
             picks = sorted({round(i * (k - 1) / 3) for i in range(4)})
             norms = [
-                np.linalg.norm(vertex(u, m), axis=1) for u, m in zip(sp.kept["u"], ids, strict=True)
+                np.linalg.norm(_vertex_values(sp, u, m), axis=1)
+                for u, m in zip(sp.kept["u"], ids, strict=True)
             ]
             plot_mesh_snapshots(
                 out / "fig_mesh.png",

@@ -105,7 +105,6 @@ def v_cycle(ml, b: np.ndarray) -> np.ndarray:
     seconds (P1 beam, 107k dofs, docs/scaling.md)."""
     levels = ml.levels
     x = np.zeros_like(b)
-    level = levels[0]
     # descend: smooth, restrict the residual; the right-hand sides and iterates kept per level
     stack = []
     for k in range(len(levels) - 1):
