@@ -113,6 +113,7 @@ class RISProblem:
             )
         self._F, self._dF, self._d2F = F, dF, d2F
         self._load, self._load_rate = load, load_rate
+        self._load_cache: dict = {}  # t -> l(t), the last LOAD_CACHE_SIZE values (load)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported as such
             self._check_callables()
         if check_coercivity:
@@ -212,7 +213,7 @@ class RISProblem:
         quadrature point (on ris-front 26 % of a run's seconds were this recomputation).
         """
         t = float(t)
-        cache = self.__dict__.setdefault("_load_cache", {})
+        cache = self._load_cache
         hit = cache.get(t)
         if hit is not None:
             return hit
