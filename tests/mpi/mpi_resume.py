@@ -1,6 +1,7 @@
-"""Run by test_mpi.py under mpiexec: SIGTERM on the last rank at step 5, resume, compare.
+"""Run by test_mpi.py under mpiexec: SIGTERM on the last rank at step 5, resume, compare; or
+SIGUSR1 on the last rank at step 5 (a checkpoint written by all, the run goes on).
 
-argv: checkpoint directory, mode ('interrupt-then-resume' | 'resume')."""
+argv: checkpoint directory, mode ('interrupt-then-resume' | 'resume' | 'checkpoint-signal')."""
 
 import json
 import os
@@ -43,6 +44,16 @@ if mode == "interrupt-then-resume":
             k: bool(np.array_equal(np.asarray(full[k]), np.asarray(resumed[k])))
             for k in ("t", "u", "v", "lam", "reaction_left", "energy", "balance_residual")
         }
+elif mode == "checkpoint-signal":
+
+    def asker(state, result):
+        if state.j == 5 and comm.rank == comm.size - 1:
+            os.kill(os.getpid(), signal.SIGUSR1)  # one process only: all write the checkpoint
+
+    full = run_eld(p, **kw).trajectory
+    asked = run_eld(p, observer=asker, checkpoint=ckpt, progress=True, **kw).trajectory
+    if comm.rank == 0:
+        out["equal"] = bool(np.array_equal(np.asarray(full["u"]), np.asarray(asked["u"])))
 else:
     try:
         run_eld(p, resume=ckpt, **kw)

@@ -46,9 +46,9 @@ def _env():
     )
 
 
-def _mpi(n: int, *args, cwd=None, check=True) -> subprocess.CompletedProcess:
+def _mpi(n: int, *args, cwd=None, check=True, timeout=600) -> subprocess.CompletedProcess:
     cmd = [_mpiexec(), "-n", str(n), sys.executable, *map(str, args)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=cwd, timeout=600)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=cwd, timeout=timeout)
     if check and proc.returncode != 0:
         raise AssertionError(f"{' '.join(cmd)} exited {proc.returncode}:\n{proc.stderr[-3000:]}")
     return proc
@@ -111,6 +111,19 @@ def test_checkpoint_resume_and_signal_on_one_rank(tmp_path):
     assert other["refused"] is not None
     assert "written by 2 processes, this run has 1" in other["refused"]
     assert "\n" not in other["refused"]
+
+
+@needs_mpi
+def test_sigusr1_on_one_rank_writes_the_checkpoint_on_all(tmp_path):
+    """SIGUSR1 reaches the last process only: every process writes the checkpoint at the same
+    step boundary (the signal is agreed first, rothe.stepping.interrupt.agree) and the run goes
+    on unchanged. Acting on its own flag, that process alone entered the checkpoint's gather
+    and the job hung (also the race behind a SIGTERM that arrives during the agreement)."""
+    proc = _mpi(2, HERE / "mpi_resume.py", tmp_path / "ck", "checkpoint-signal", timeout=240)
+    got = _json(proc)
+    assert got["equal"] is True  # the checkpoint changed nothing in the run
+    notes = [ln for ln in proc.stderr.splitlines() if "SIGUSR1: checkpoint written" in ln]
+    assert len(notes) == 1 and "after 6 accepted steps" in notes[0], proc.stderr[-2000:]
 
 
 #: a small beam on the command line (P1, 2 cells across, 5 steps)

@@ -269,6 +269,40 @@ def test_check_does_nothing_outside_a_step():
     interrupt.check()  # no guard at all
 
 
+def test_agree_acts_only_on_what_every_process_was_told():
+    """Many processes (interrupt.agree, the PETSc backend): a signal that arrives while this
+    process waits in the agreement's allreduce (here: inside reduce) must not make it stop, or
+    write a checkpoint, alone -- the others have passed that agreement and would wait in the
+    next collective operation for ever (the CI hang of tests/mpi's SIGTERM test). It becomes
+    everybody's at the next agreement; what another process received arrives through reduce."""
+    others = [0, 0]  # what the other process contributes to the maximum
+
+    def reduce(mine):
+        os.kill(os.getpid(), signal.SIGTERM)  # arrives "during" the allreduce, after the send
+        time.sleep(0.01)
+        return [max(a, b) for a, b in zip(others, [0, 0], strict=True)]  # sent before it came
+
+    with interrupt.interruptible():
+        interrupt.agree(reduce)
+        assert interrupt.requested() is None  # received here, not yet agreed
+        with interrupt.abandonable():
+            interrupt.check()  # nothing to act on either
+        assert interrupt.checkpoint_requested() is False
+        sent = []
+        interrupt.agree(lambda mine: sent.append(list(mine)) or list(mine))
+        assert sent == [[signal.SIGTERM, 0]]
+        assert interrupt.requested() == signal.SIGTERM
+    # the other side: a checkpoint request and a stop that reached another process
+    with interrupt.interruptible():
+        interrupt.agree(lambda mine: [max(mine[0], signal.SIGINT), max(mine[1], 1)])
+        assert interrupt.requested() == signal.SIGINT
+        assert interrupt.checkpoint_requested() is True
+        assert interrupt.checkpoint_requested() is False  # taken once
+        interrupt.agree(lambda mine: [signal.SIGTERM, 0])
+        assert interrupt.requested() == signal.SIGINT  # the first agreed signal stays
+    interrupt.agree(lambda mine: pytest.fail("no guard: no collective call"))
+
+
 CHILD = textwrap.dedent("""
     import os, signal, sys, time
     from rothe.stepping import interrupt

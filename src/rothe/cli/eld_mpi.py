@@ -147,23 +147,27 @@ def execute_beam(command, args) -> int:
         return command.write_result(args, stage, result, completed, writers[0], summarize, label)
 
     outcome, pending = None, None
-    if root:
-        try:
-            code, outcome, results, summary = run_sequence(
-                args,
-                command.name,
-                run,
-                write,
-                prepare=prepare,
-                completed=lambda: writers[0].discard(),
-                session=session,
-            )
-        except RunFailed as exc:  # raised by session.finish: after the others know the status
-            pending, code = exc, 1
-    elif done:
-        code = 0
-    else:
-        with interrupt.interruptible(hard_second=True):
+    # one guard on every process from the first step to the broadcast of the exit status (rank
+    # 0's session guard, inside it, is then a no-op): a signal after the last step, while rank
+    # 0 writes the results, leaves the finished run as a serial run does, instead of killing
+    # the other processes with SIGTERM's default action
+    with interrupt.interruptible(hard_second=True):
+        if root:
+            try:
+                code, outcome, results, summary = run_sequence(
+                    args,
+                    command.name,
+                    run,
+                    write,
+                    prepare=prepare,
+                    completed=lambda: writers[0].discard(),
+                    session=session,
+                )
+            except RunFailed as exc:  # raised by session.finish: after the others know the status
+                pending, code = exc, 1
+        elif done:
+            code = 0
+        else:
             try:
                 run()
                 code = 0
@@ -171,7 +175,7 @@ def execute_beam(command, args) -> int:
                 code = 1
             except RunInterrupted as exc:
                 code = exc.exit_status
-    code = comm.bcast(code, root=0)
+        code = comm.bcast(code, root=0)
     if pending is not None:
         raise pending
     if outcome is not None and outcome.status == "completed":

@@ -85,9 +85,19 @@ class StepAbandoned(BaseException):
 class _Guard:
     def __init__(self, hard_second: bool):
         self.hard_second = hard_second
-        self.signum: int | None = None
+        self.received: int | None = None  # the first stop signal this process received
         self.abandonable = 0  # depth of abandonable() regions
         self.previous: dict[int, object] = {}
+        # many processes (agree()): what the last agreement made common to all of them
+        self.collective = False
+        self.agreed: int | None = None
+        self.checkpoint_agreed = False
+
+    @property
+    def signum(self) -> int | None:
+        """The stop signal the run acts on: the received one, or on many processes the agreed
+        one (:func:`agree`)."""
+        return self.agreed if self.collective else self.received
 
     def handler(self, signum, frame):  # noqa: ARG002 - signal API
         if signum in CHECKPOINT_SIGNALS:
@@ -95,9 +105,9 @@ class _Guard:
             return
         if signum == _HUP:
             _detach_terminal()
-        if self.signum is not None:  # only SIGHUP comes here again (ignored, see below)
+        if self.received is not None:  # only SIGHUP comes here again (ignored, see below)
             return
-        self.signum = signum
+        self.received = signum
         for sig in SIGNALS:
             if sig == _HUP:
                 signal.signal(sig, self.handler)  # a repeated hang-up: nothing more to do
@@ -188,9 +198,16 @@ def keep_checkpoint_requests() -> None:
 
 def checkpoint_requested() -> bool:
     """Whether SIGUSR1 arrived since the last call inside a guard (the request is taken: a
-    second call returns False until the next SIGUSR1)."""
+    second call returns False until the next SIGUSR1); on many processes, whether the last
+    :func:`agree` found one on any process."""
     global _checkpoint_now
-    if _active is None or not _checkpoint_now:
+    guard = _active
+    if guard is None:
+        return False
+    if guard.collective:
+        asked, guard.checkpoint_agreed = guard.checkpoint_agreed, False
+        return asked
+    if not _checkpoint_now:
         return False
     _checkpoint_now = False
     return True
@@ -425,10 +442,26 @@ def signal_name(signum: int) -> str:
         return f"signal {signum}"
 
 
-def request(signum: int) -> None:
-    """Record ``signum`` as if it had arrived here (inside an active guard; else nothing).
+def agree(reduce) -> None:
+    """Runs on many processes: make the signals that reached any process everybody's, at the
+    same point of every process's loop (the distributed backend calls it on every process at
+    the loop's stop test, :mod:`rothe.eld.distributed`).
 
-    The distributed backend calls it on every process when a signal reached any one of them,
-    so that all stop after the same step (:mod:`rothe.eld.distributed`)."""
-    if _active is not None and _active.signum is None:
-        _active.signum = int(signum)
+    ``reduce(values) -> values``: the elementwise maximum of a list of ints over the processes
+    (an allreduce). From the first call on, inside the active guard, :func:`requested`,
+    :func:`check` and :func:`checkpoint_requested` report only what an agreement made common:
+    a signal that reaches one process while the others are already past their last agreement
+    (e.g. while this process waits in that very allreduce) waits for the next one. Reading the
+    process's own flag instead would let that process alone stop, or alone write a
+    checkpoint, and leave the others waiting in a collective operation for ever. Outside a
+    guard: nothing (no collective call either, so every process must be in the same case)."""
+    global _checkpoint_now
+    guard = _active
+    if guard is None:
+        return
+    guard.collective = True
+    asked, _checkpoint_now = _checkpoint_now, False
+    stop, checkpoint = reduce([guard.received or 0, int(asked)])
+    if stop and guard.agreed is None:
+        guard.agreed = int(stop)
+    guard.checkpoint_agreed = guard.checkpoint_agreed or bool(checkpoint)

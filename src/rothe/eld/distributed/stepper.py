@@ -494,13 +494,20 @@ class PetscELDStepper(StepperBase):
 
     # -- evolve-loop interface ------------------------------------------------------------------
     def finished(self, state: ELDState) -> bool:
-        """The serial test, after making a signal that reached any process everybody's (the
-        loop checks :func:`rothe.stepping.interrupt.requested` right after this call)."""
-        got = interrupt.requested() or 0
-        anyone = self.comm.allreduce(int(got), op=self.problem.MPI.MAX)
-        if anyone and not got:
-            interrupt.request(anyone)
+        """The serial test, after making the signals that reached any process everybody's (the
+        loop checks :func:`rothe.stepping.interrupt.requested` right after this call, and
+        :func:`~rothe.stepping.interrupt.checkpoint_requested` at the end of the attempt):
+        :func:`rothe.stepping.interrupt.agree`, one allreduce."""
+        interrupt.agree(self._maximum)
         return self.grid.finished(state)
+
+    def _maximum(self, values: list[int]) -> list[int]:
+        """The elementwise maximum over the processes (one Allreduce of an int64 array;
+        mpi4py's allreduce of a list would take Python's max of whole lists)."""
+        mine = np.asarray(values, dtype=np.int64)
+        out = np.empty_like(mine)
+        self.comm.Allreduce(mine, out, op=self.problem.MPI.MAX)
+        return out.tolist()
 
     def where(self, state: ELDState, result=None) -> dict:
         """Where the run is: step, t, tau, form, scheme (as serial) and the processes."""
