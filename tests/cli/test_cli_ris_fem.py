@@ -510,6 +510,24 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
             ["--adapt-space", "--coarsen-batch", "1"],
             E + r"--coarsen-batch: got 1(\.0)?, must be in \[0, 1\)",
         ),
+        # an automatic choice (issue 18, bad input): none exists (no family has a cost model),
+        # and the refusal says what is allowed (argparse's own: "invalid int value: 'auto'")
+        (
+            ["--adapt-space", "--adapt-every", "auto"],
+            E + r"argument --adapt-every: got 'auto', must be an integer >= 1$",
+        ),
+        (
+            ["--adapt-space", "--coarsen-delay", "1.5"],
+            E + r"argument --coarsen-delay: got '1.5', must be an integer >= 0$",
+        ),
+        (
+            ["--adapt-space", "--max-recoarsen", "auto"],
+            E + r"argument --max-recoarsen: got 'auto', must be an integer >= 0$",
+        ),
+        (
+            ["--adapt-space", "--max-dofs", "1e5"],
+            E + r"argument --max-dofs: got '1e5', must be an integer >= 1$",
+        ),
     ],
 )
 def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
