@@ -185,15 +185,26 @@ def check_nonnegative(name: str, value) -> float:
     return x
 
 
+def _at_least(minimum: int | None) -> str:
+    """The range of :func:`check_int`'s message: `` >= minimum``, or nothing."""
+    return "" if minimum is None else f" >= {minimum}"
+
+
 def check_int(name: str, value, minimum: int | None = None) -> int:
     """``value`` as an int (an integral float is accepted, a bool is not), at least ``minimum``
-    if given; else a one-line error naming ``name``.
+    if given; else a one-line error naming ``name``. A value that is no number at all (a
+    string such as ``'auto'``, None) gets the same line, with the allowed range.
     """
-    if isinstance(value, bool) or not float(value).is_integer():
-        raise fail(name, value, "must be an integer")
-    n = int(value)
+    try:
+        integral = not isinstance(value, bool) and float(value).is_integer()
+    except (TypeError, ValueError):
+        # float('auto') or float(None): it raised its own ValueError/TypeError, naming nothing
+        integral = False
+    if not integral:
+        raise fail(name, value, "must be an integer" + _at_least(minimum))
+    n = int(float(value)) if isinstance(value, str) else int(value)  # int('4.0') raises
     if minimum is not None and n < minimum:
-        raise fail(name, value, f"must be an integer >= {minimum}")
+        raise fail(name, value, "must be an integer" + _at_least(minimum))
     return n
 
 

@@ -510,6 +510,24 @@ def test_disk_mesh_reports_one_viscous_jump(tmp_path, capsys, gmsh_text):
             ["--adapt-space", "--coarsen-batch", "1"],
             E + r"--coarsen-batch: got 1(\.0)?, must be in \[0, 1\)",
         ),
+        # an automatic choice (issue 18, bad input): none exists (no family has a cost model),
+        # and the refusal says what is allowed (argparse's own: "invalid int value: 'auto'")
+        (
+            ["--adapt-space", "--adapt-every", "auto"],
+            E + r"argument --adapt-every: got 'auto', must be an integer >= 1$",
+        ),
+        (
+            ["--adapt-space", "--coarsen-delay", "1.5"],
+            E + r"argument --coarsen-delay: got '1.5', must be an integer >= 0$",
+        ),
+        (
+            ["--adapt-space", "--max-recoarsen", "auto"],
+            E + r"argument --max-recoarsen: got 'auto', must be an integer >= 0$",
+        ),
+        (
+            ["--adapt-space", "--max-dofs", "1e5"],
+            E + r"argument --max-dofs: got '1e5', must be an integer >= 1$",
+        ),
     ],
 )
 def test_cli_refuses_bad_space_options(capsys, tmp_path, argv, message):
@@ -639,6 +657,39 @@ def test_cli_adaptive_run_prints_its_initial_final_and_largest_dofs(capsys, tmp_
         ["n_dofs_final", str(s["n_dofs_final"])],
         ["n_dofs_max", str(s["n_dofs_max"])],
     ]
+
+
+def test_cli_adaptive_run_prints_the_ledger_of_its_mesh_changes(capsys, tmp_path):
+    """Issue 18, item 0: the terminal summary of an ``--adapt-space`` run prints how many mesh
+    changes there were, the transfer and relaxation energy with their shares of the path's
+    dissipation and the most re-coarsenings of a cell (summary.json alone had them); a run on
+    a fixed mesh prints none of these lines."""
+    out = tmp_path / "front"
+    argv = ["run", "ris-front", "--n", "4", "--control", "uniform", "--tau", "0.1", "--no-plots"]
+    adapt = ["--adapt-space", "--max-dofs", "300", "--space-tol", "3"]
+    code, stdout, err = run_cli(capsys, *argv, *adapt, "--out", str(out))
+    assert code == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    # the hysteresis in effect, the family's defaults included (summary.json had only the
+    # options given, so no RIS run recorded its coarsen delay and re-coarsening bound)
+    hysteresis = {"coarsen_delay": 4, "max_recoarsen": 2, "refine_band": 0.08, "coarsen_batch": 0}
+    assert {k: s["adapt_space"][k] for k in hysteresis} == hysteresis
+    printed = {
+        line.split()[0]: line.split()[1:] for line in stdout.splitlines() if line.startswith("  ")
+    }
+    assert s["space_adaptations"] >= 1
+    for key in ("space_adaptations", "max_recoarsened", "relax_refused"):
+        assert printed[key] == [str(s[key])], key
+    assert float(printed["dissipation_sum"][0]) == pytest.approx(s["dissipation_sum"], rel=1e-5)
+    for key in ("transfer_energy_abs_sum", "relax_energy_sum"):
+        value, *note = printed[key]
+        assert float(value) == pytest.approx(s[key], rel=1e-5), key
+        share = f"{s[key] / s['dissipation_sum']:.2g}"
+        assert " ".join(note) == f"({share} of the dissipation)", key
+    code, stdout, err = run_cli(capsys, *argv, "--out", str(tmp_path / "fixed"))
+    assert code == 0, err
+    for key in ("space_adaptations", "transfer_energy_abs_sum", "max_recoarsened"):
+        assert f"  {key} " not in stdout, key
 
 
 def test_cli_ris_3d_adapts_tetrahedra_under_the_cap(capsys, tmp_path):

@@ -118,7 +118,20 @@ def test_cli_eld_pulse_3d_writes_its_outputs(tmp_path):
     for k in range(3):
         vtu = meshio.read(out / f"pulse-3d_{k:06d}.vtu")
         assert vtu.points.shape[1] == 3 and vtu.cells[0].type == "tetra"
-        assert vtu.cell_data["von_mises"][0].shape == (len(vtu.cells[0].data),)
+        # issue 18, item 4: the adaptive VTU carries what the fixed-mesh XDMF does -- the Cauchy
+        # stress and von Mises on cells and vertices, the multiplier on Gamma_D (x = 0 only)
+        nc, nv = len(vtu.cells[0].data), len(vtu.points)
+        assert vtu.cell_data["von_mises"][0].shape == (nc,)
+        assert vtu.cell_data["stress"][0].shape == (nc, 9)
+        assert vtu.point_data["stress_nodal"].shape == (nv, 9)
+        assert vtu.point_data["von_mises_nodal"].shape == (nv,)
+        lam = vtu.point_data["lambda"]
+        assert lam.shape == (nv, 3) and np.all(np.isfinite(lam))
+        assert np.array_equal(vtu.point_data["reaction_density"], -lam)
+        left = vtu.points[:, 0] == 0.0
+        assert not np.any(lam[~left])
+        if data["kept_t"][k] > 0:  # the pulse pushes from t = 0 on: a reaction on Gamma_D
+            assert np.any(lam[left]) and np.max(vtu.cell_data["von_mises"][0]) > 0
     assert (out / "pulse-3d.pvd").is_file()
     for fig in ("fig_dofs.png", "fig_energy.png", "fig_reaction.png"):  # (fig_mesh: 2D only)
         assert (out / fig).is_file(), fig
@@ -133,6 +146,11 @@ def test_cli_eld_pulse_3d_writes_its_outputs(tmp_path):
         (["--width", "0"], r"--width: got 0, must be > 0"),
         (["--space-tol", "0"], r"--space-tol: got 0, must be > 0"),
         (["--adapt-every", "0"], r"--adapt-every: got 0, must be an integer"),
+        (["--adapt-every", "auto"], r"--adapt-every: got 'auto', must be an integer >= 1$"),
+        (["--coarsen-delay", "-1"], r"--coarsen-delay: got -1, must be an integer >= 0$"),
+        (["--max-recoarsen", "x"], r"--max-recoarsen: got 'x', must be an integer >= 0$"),
+        (["--refine-band", "-1"], r"--refine-band: got -1, must be >= 0 \(a length\)$"),
+        (["--coarsen-batch", "1"], r"--coarsen-batch: got 1, must be in \[0, 1\)$"),
         (["--tau", "0.03"], r"--tau: got 0.03"),
         (["--rho", "0"], r"--rho: got 0"),
         (["--n", "400"], r"--n: got 400"),

@@ -23,7 +23,7 @@ import os
 from ..errors import check_choice, fail
 from ..fem.adapt import SpaceAdaptivity
 from ..fem.adapt.marking import NORMS
-from .common import float_option
+from .common import float_option, parse_int
 
 #: the options of space adaptivity (refused without --adapt-space)
 SPACE_OPTIONS = (
@@ -97,7 +97,7 @@ def add_space_options(
     )
     parser.add_argument(
         "--max-dofs",
-        type=int,
+        type=parse_int("--max-dofs", 1),
         default=None,
         help="cap on the degrees of freedom of the finite-element space after an adaptation "
         f"(default {_number(default_max_dofs)}"
@@ -111,7 +111,8 @@ def add_space_options(
     )
     parser.add_argument(
         "--adapt-every",
-        type=int,
+        # 'auto' is refused by the parser: no family has a cost model to choose k from
+        type=parse_int("--adapt-every", 1),
         default=None,
         help="adapt after every k-th accepted step, an integer >= 1 (default "
         f"{default_adapt_every or MARKING_DEFAULTS['adapt_every']})",
@@ -136,13 +137,13 @@ def add_space_options(
     )
     parser.add_argument(
         "--coarsen-delay",
-        type=int,
+        type=parse_int("--coarsen-delay", 0),
         default=None,
         help=f"cells refined in the last k adaptations do not coarsen (default {delay})",
     )
     parser.add_argument(
         "--max-recoarsen",
-        type=int,
+        type=parse_int("--max-recoarsen", 0),
         default=None,
         help="a cell is refined and coarsened again at most k times "
         f"(default {_number(recoarsen)})",

@@ -92,6 +92,21 @@ def float_option(parser, name: str, **kwargs) -> None:
     parser.add_argument(name, type=parse_float(name), **kwargs)
 
 
+def parse_int(name: str, minimum: int | None = None):
+    """argparse type for an integer whose errors say what is allowed (argparse's own says only
+    ``invalid int value: 'auto'``); the range itself is checked where the value is used, so
+    an integer out of range keeps that check's message."""
+
+    def conv(text):
+        try:
+            return int(text)
+        except ValueError:
+            allowed = "an integer" + ("" if minimum is None else f" >= {minimum}")
+            raise argparse.ArgumentTypeError(f"got {text!r}, must be {allowed}") from None
+
+    return conv
+
+
 def parse_float_list(name: str):
     """argparse type for ``1e-3,1e-4``: every item a finite number, none empty (``--tols ''``
     must not silently mean "the defaults")."""

@@ -60,15 +60,23 @@ SUMMARY_KEYS = (
 
 def summary_notes(summary: dict) -> dict:
     """Remarks on the summary lines of a RIS run: with Alg. 3.2 (``adaptive``, ``nested``) the
-    rejections per acceptance and why there are so many (docs/ris.md, *Step control*)."""
+    rejections per acceptance and why there are so many (docs/ris.md, *Step control*); with
+    --adapt-space the transfer and relaxation energy as shares of the path's dissipation."""
+    notes = {}
+    dissipation = summary.get("dissipation_sum")
+    if dissipation:  # --adapt-space: the mesh changes' energy against the path's dissipation
+        for key in ("transfer_energy_abs_sum", "relax_energy_sum"):
+            if summary.get(key) is not None:
+                notes[key] = f"{summary[key] / dissipation:.2g} of the dissipation"
     accepted, rejected = summary.get("accepted_steps"), summary.get("rejected_steps")
     if summary.get("control") not in ("adaptive", "nested") or not accepted or not rejected:
-        return {}
-    return {
-        "rejected_steps": f"{rejected / accepted:.2f} per accepted step: Alg. 3.2's double/"
+        return notes
+    notes["rejected_steps"] = (
+        f"{rejected / accepted:.2f} per accepted step: Alg. 3.2's double/"
         "reject cycle -- after a step with I1, I2 < tol/2 the step is doubled, the doubled "
         "attempt rejected and halved again -- rejects up to one attempt per acceptance"
-    }
+    )
+    return notes
 
 
 #: ``--control`` NAME -> the step-control object of the options (--tol, --tols, --tau,

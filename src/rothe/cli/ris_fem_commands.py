@@ -80,6 +80,17 @@ COMPARE_TAUS = tuple(0.01 / 2**k for k in range(9))
 COMPARE_CONTROLS = ("adaptive", "order2", "regime")
 
 
+#: the summary lines of an --adapt-space run's mesh changes (printed when summary.json has them)
+MESH_CHANGE_KEYS = (
+    "space_adaptations",
+    "transfer_energy_abs_sum",
+    "relax_energy_sum",
+    "dissipation_sum",
+    "max_recoarsened",
+    "relax_refused",
+)
+
+
 def linear_solver_used(traj, problem, method: str = "auto") -> str:
     """The linear solver of the run's Newton systems.
 
@@ -359,7 +370,8 @@ class _RunRISFem(RISRunBase):
         if traj.meshes is not None:
             dofs = np.asarray(traj["n_dofs"])
             extra.update(
-                adapt_space=self._adapt.describe(),
+                # with the hysteresis the run used (the family's defaults where not given)
+                adapt_space=self._adapt.describe() | (traj.meta.get("hysteresis") or {}),
                 space_adaptations=traj.meta.get("space_adaptations"),
                 transfer_failures=traj.meta.get("transfer_failures"),
                 n_meshes=len(traj.meshes),
@@ -385,8 +397,10 @@ class _RunRISFem(RISRunBase):
         return {"peak_memory_mb": peak_memory_mb()}
 
     def summary_keys_extra(self):
-        """The mesh (with --adapt-space the initial, final and largest dofs), the branch, the
-        solver and the memory."""
+        """The mesh (with --adapt-space the initial, final and largest dofs), the branch, with
+        --adapt-space the ledger of the mesh changes (issue 18: how many, the transfer and the
+        relaxation energy against the path's dissipation, the most re-coarsenings of a cell;
+        only summary.json had them), the solver and the memory."""
         return (
             "n_nodes",
             "n_dofs_final",
@@ -395,6 +409,7 @@ class _RunRISFem(RISRunBase):
             "z_max",
             "n_viscous_jumps",
             "branch",
+            *MESH_CHANGE_KEYS,
             "linear_solver",
             "peak_memory_mb",
         )

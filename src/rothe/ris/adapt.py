@@ -406,13 +406,22 @@ class RISAdaptivity:
         }
 
     def meta(self) -> dict:
-        """The counts of the run's adaptations, for ``trajectory.meta``."""
+        """The counts of the run's adaptations, for ``trajectory.meta``, and the hysteresis in
+        effect (the options' values or, where they are None, :data:`HYSTERESIS`'s: the
+        options' own description leaves those out)."""
+        m = self.meshes
         return {
             "space_adaptations": self.adaptations,
             "transfer_failures": self.transfer_failures,
             "final_mesh_id": self.mesh_id,
             "relax_refused": self.relax_refused,
             "max_recoarsened": self.max_recoarsened(),
+            "hysteresis": {
+                "coarsen_delay": m.coarsen_delay,
+                "max_recoarsen": m.max_recoarsen,
+                "refine_band": m.refine_band,
+                "coarsen_batch": m.coarsen_batch,
+            },
         }
 
     def max_recoarsened(self) -> int:

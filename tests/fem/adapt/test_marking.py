@@ -92,7 +92,33 @@ def test_mark_refines_only_above_the_tolerance_and_never_both():
             {"space_tol": 1.0, "coarsen_delay": -1},
             r"^coarsen_delay: got -1, must be an integer >= 0$",
         ),
-        ({"space_tol": 1.0, "max_recoarsen": 1.5}, r"^max_recoarsen: got 1.5, must be an integer$"),
+        (
+            {"space_tol": 1.0, "max_recoarsen": 1.5},
+            r"^max_recoarsen: got 1.5, must be an integer >= 0$",
+        ),
+        # an automatic choice (issue 18, bad input): no family has a cost model to choose from,
+        # so 'auto' is refused naming the parameter and the range (it was float()'s own
+        # "could not convert string to float: 'auto'", and None a TypeError)
+        (
+            {"space_tol": 1.0, "adapt_every": "auto"},
+            r"^adapt_every: got 'auto', must be an integer >= 1$",
+        ),
+        (
+            {"space_tol": 1.0, "adapt_every": None},
+            r"^adapt_every: got None, must be an integer >= 1$",
+        ),
+        (
+            {"space_tol": 1.0, "coarsen_delay": "auto"},
+            r"^coarsen_delay: got 'auto', must be an integer >= 0$",
+        ),
+        (
+            {"space_tol": 1.0, "max_recoarsen": "auto"},
+            r"^max_recoarsen: got 'auto', must be an integer >= 0$",
+        ),
+        (
+            {"space_tol": 1.0, "max_dofs": "auto"},
+            r"^max_dofs: got 'auto', must be an integer >= 1$",
+        ),
         (
             {"space_tol": 1.0, "refine_band": -0.1},
             r"^refine_band: got -0.1, must be >= 0 \(a length\)$",
