@@ -862,12 +862,19 @@ def test_cli_ris_adaptivity_defaults_are_stated_in_the_help(
 
 
 @pytest.mark.parametrize(
-    "command, tol", [("ris-front", "0.001"), ("ris-2d", "0.0001"), ("ris-front-unique", "0.0001")]
+    "command, tol, tols",
+    [
+        ("ris-front", "0.001", "0.01,0.001"),
+        ("ris-2d", "0.0001", "0.001,0.0001,1e-05"),
+        ("ris-front-unique", "0.0001", "0.001,0.0001,1e-05"),
+    ],
 )
-def test_residual_tolerance_default_per_command(capsys, command, tol):
+def test_residual_tolerance_default_per_command(capsys, command, tol, tols):
     """ris-front's residual controls default to --tol 1e-3 (their paths stay within 1e-3 of a
-    fine one there, and every control reaches T with --adapt-space); the others keep 1e-4."""
+    fine one there, and every control reaches T with --adapt-space) and its nested control to
+    --tols 1e-2,1e-3 (its last pass at that tol); the others keep 1e-4 and 1e-3,1e-4,1e-5."""
     code, out, _ = run_cli(capsys, "run", command, "--help")
     assert code == 0
     text = " ".join(out.split())
     assert f"residual tolerance of adaptive/order2/regime (default {tol})" in text
+    assert f"decreasing tolerances for --control nested (default {tols})" in text

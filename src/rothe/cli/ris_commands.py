@@ -161,6 +161,8 @@ class RISRunBase(ABC):
     default_control = "adaptive"
     #: --tol of the residual controls (adaptive, order2, regime)
     default_tol = 1e-4
+    #: --tols of the nested control (its passes, decreasing; the last equals default_tol / 10)
+    default_tols = (1e-3, 1e-4, 1e-5)
     T = 1.0  # end time of the example
 
     def add_example_options(self, parser) -> None:
@@ -185,7 +187,9 @@ class RISRunBase(ABC):
             "--tols",
             type=parse_float_list("--tols"),
             default=None,
-            help="decreasing tolerances for --control nested (default 1e-3,1e-4,1e-5)",
+            help="decreasing tolerances for --control nested (default "
+            + ",".join(f"{x:g}" for x in self.default_tols)
+            + ")",
         )
         float_option(
             parser,
@@ -268,7 +272,7 @@ class RISRunBase(ABC):
             raise fail("--tau-min", tau_min, f"must be <= --tau (= {tau:g})")
         tols = None
         if control == "nested":
-            tols = check_decreasing("--tols", args.tols or [1e-3, 1e-4, 1e-5])
+            tols = check_decreasing("--tols", args.tols or list(self.default_tols))
         if args.keep_every < 1:
             raise fail("--keep-every", args.keep_every, "must be an integer >= 1")
         if args.simpson < 2 or args.simpson % 2:

@@ -551,6 +551,10 @@ class RunRISFront(_RunRISFem):
     #: do, in 215-251 s (docs/adaptivity.md, "Should ris-front's residual controls default to
     #: --tol 1e-3?")
     default_tol = 1e-3
+    #: --tols 1e-2,1e-3 for nested: its last pass at the residual controls' --tol (the default
+    #: 1e-3,1e-4,1e-5 had not reached T with --adapt-space after 20 minutes, its 1e-5 pass at
+    #: t = 0.2; docs/adaptivity.md, "ris-front's nested control")
+    default_tols = (1e-2, 1e-3)
     #: default --space-tol 3, --adapt-every 4, --refine-band 0.08: at tol 1 the indicator
     #: resolves the 0.023-wide interface and the static boundary layer at x = 1 to 8 000 nodes
     #: by t = 0.42 (126 s); at 3 the mesh stays under 2 000 nodes; adapting every 4th step with
@@ -608,6 +612,7 @@ class RunRISFrontUnique(RunRISFront):
     name = "ris-front-unique"
     default_control = "adaptive"
     default_tol = 1e-4  # the benchmark's (not ris-front's double-well lattice jumps)
+    default_tols = RISRunBase.default_tols
     default_n = 16
     default_tau = 0.02
     default_z0 = 0.0
