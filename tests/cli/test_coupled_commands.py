@@ -75,6 +75,37 @@ def test_tip_mass_on_a_spring_adaptive_steps_and_halved_tau_error(tmp_path):
     assert s["accepted_steps"] > 500 and abs(s["frequency_error_measured_vs_discrete"]) < 1e-3
 
 
+def _strict_json(path):
+    """summary.json parsed as strict JSON: NaN or Infinity, which json.dumps writes for
+    non-finite floats and JSON parsers refuse, is an error."""
+
+    def refuse(constant):
+        raise AssertionError(f"{path.name} holds {constant}, not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_a_run_too_short_to_measure_writes_null_not_nan(tmp_path):
+    """T = 0.1 is less than half a period of the first mode: no two zero crossings, so the
+    measured frequency and its errors are unknown -- null in summary.json, which stays strict
+    JSON (before: NaN for the errors, numpy floats, while the frequency itself was null)."""
+    code, out = _run(tmp_path, "--T", "0.1", "--tau", "0.01")
+    assert code == 0
+    s = _strict_json(out / "summary.json")
+    assert s["frequency_measured"] is None
+    assert s["frequency_error_measured"] is None
+    assert s["frequency_error_measured_vs_discrete"] is None
+    assert abs(s["frequency_error_discrete"][0]) < 1e-6  # the modal analysis is there
+
+
+def test_summary_json_writes_every_non_finite_float_as_null(tmp_path):
+    from rothe.cli.common import write_summary
+
+    values = {"a": np.float64("nan"), "b": np.array([1.0, np.inf]), "c": [np.float32("-inf")]}
+    s = _strict_json(write_summary(tmp_path, {**values, "d": float("nan"), "e": np.int64(3)}))
+    assert s == {"a": None, "b": [1.0, None], "c": [None], "d": None, "e": 3}
+
+
 def test_crossing_frequency_of_a_sine():
     t = np.linspace(0, 3, 3001)
     assert crossing_frequency(t, np.sin(7.0 * t + 0.3)) == pytest.approx(7.0, rel=1e-5)
