@@ -313,6 +313,8 @@ def test_a_resume_with_other_options_is_refused_in_one_line(
         ("eld-tmd", ["--tau", "0.007"], "--tau: got 0.007, must divide T = 12 into equal steps"),
         ("eld-tmd", ["--E", "1", "--lam", "2"], "--E: got 1, must not be combined with --lam"),
         ("eld-control", ["--base-mass", "0"], "--base-mass: got 0, must be > 0"),
+        # (named base_stiffness, control_problem's parameter, before)
+        ("eld-control", ["--base-spring", "-1"], "--base-spring: got -1, must be >= 0"),
         ("eld-control", ["--kd", "-1"], "--kd: got -1, must be >= 0"),
         ("eld-control", ["--kd", "1", "--filter-time", "0"], "--filter-time: got 0, must be > 0"),
         ("eld-control", ["--n", "0"], "--n: got 0, must be an integer >= 1"),

@@ -39,6 +39,8 @@ def test_two_bodies_write_each_bodys_fields_the_multiplier_and_paraview(tmp_path
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "completed" and s["accepted_steps"] == 50
     assert s["interface_method"] == "matching" and s["ndofs"] == [90, 90]
+    # the strip's sizes, no mesh files (mesh1 = mesh2 = null before)
+    assert (s["n1"], s["n2"], s["split"]) == (2, 2, 0.5) and "mesh1" not in s
     assert s["material1"]["E"] == 100 and s["material2"]["rho"] == 2.0
     assert s["constraint_max"] < 1e-14
     assert s["balance_max"] < 1e-12 * max(s["energy_final"], s["work_loads"])
@@ -130,6 +132,7 @@ def test_two_mesh_files_glued_and_apart(tmp_path, capsys):
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["interface_method"] == "matching" and s["mesh2"] == str(two)
+    assert s["mesh1"] == str(one) and "n1" not in s and "split" not in s
     code, _, err = _run(capsys, tmp_path, "--mesh1", one, "--mesh2", apart, *common)
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1
@@ -166,6 +169,13 @@ def test_help_states_the_defaults_of_both_bodies(capsys):
         (["--interface", "right,lft"], "--interface: got 'lft', must be one of bottom, left"),
         (["--clamp", "middle"], "--clamp: got 'middle', must be one of"),
         (["--load-part", "left"], "--load-part: got 'left', is the glued part"),
+        # (before: "--interface: got 'right', also carries prescribed Dirichlet data", naming
+        # an option not given)
+        (
+            ["--clamp", "right"],
+            "--clamp: got 'right', is body 1's glued part (--interface right,left); a part is "
+            "either clamped or glued",
+        ),
         (["--load-part", "back"], "--load-part: got 'back', must be one of"),
         (["--E2", "-5"], "--E2: got -5, must be > 0"),
         (["--E2", "1", "--lam2", "2"], "--E2: got 1, must not be combined with --lam2"),

@@ -598,6 +598,8 @@ class RunEldControl(CoupledRunCommand):
     )
     name = "eld-control"
     default_material = CONTROL_MATERIAL
+    #: the library's parameters by their options (control_problem's base_stiffness)
+    parameter_options = {**CoupledRunCommand.parameter_options, "base_stiffness": "--base-spring"}
     keys = (
         "example",
         "scheme",
@@ -932,6 +934,13 @@ class RunEldTwoBodies(CoupledRunCommand):
         parts = args.interface.split(",")
         if len(parts) != 2 or not all(parts):
             raise fail("--interface", args.interface, "must be PART1,PART2 (body 1's, body 2's)")
+        if args.clamp == parts[0]:
+            raise fail(
+                "--clamp",
+                args.clamp,
+                f"is body 1's glued part (--interface {args.interface}); a part is either "
+                "clamped or glued",
+            )
         if args.compare_union and args.adapt_space:
             raise fail(
                 "--compare-union",
@@ -1128,14 +1137,16 @@ class RunEldTwoBodies(CoupledRunCommand):
                     interface_method_final=itf_final.method,
                     interface_final=itf_final.describe(),
                 )
+            # the strip's sizes or the mesh files (before: mesh1 = mesh2 = null on every strip
+            # run without --compare-union, the else of the union's test)
             if args.mesh1 is None:
                 summary.update(
                     n1=n1, n2=n2, length=args.length, height=args.height, split=args.split
                 )
-            if union is not None and completed:
-                summary.update(self.union_fields(glued, traj, *union))
             else:
                 summary.update(mesh1=args.mesh1, mesh2=args.mesh2)
+            if union is not None and completed:
+                summary.update(self.union_fields(glued, traj, *union))
 
         def draw(stage, trajs, summary):
             # matplotlib is imported only for the figures
