@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import signal
 
+import meshio
 import numpy as np
 import pytest
 
@@ -47,6 +48,24 @@ def test_tip_mass_run_writes_summary_trajectory_and_figure(tmp_path):
     assert abs(np.abs(data["q"][:, 0]).max() - 0.01) < 1e-3  # --amplitude
     # the reaction at the clamp balances the bar's and the mass's inertia: it oscillates
     assert np.ptp(data["reaction_left"][:, 0]) > 0.1
+    # the body in ParaView (issue 19, "Outputs"; none before): u at the last state, and the
+    # multiplier on the clamp and on the coupled tip, whose resultant is the recorded reaction
+    # (--keep-every 5 by default: the states 0, 5, ..., 200)
+    assert s["paraview"] == ["body.xdmf"] and data["u"].shape == (41, 170)
+    assert np.array_equal(data["kept_states"], np.arange(0, 201, 5))
+    with meshio.xdmf.TimeSeriesReader(str(out / "body.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        assert reader.num_steps == 41
+        t, point_data, _ = reader.read_data(40)
+    assert t == pytest.approx(2.0)
+    nv = len(points)
+    assert np.array_equal(point_data["u"][:, :2], data["u"][-1].reshape(-1, 2)[:nv])
+    with meshio.xdmf.TimeSeriesReader(str(out / "body_multiplier.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        _, point_data, _ = reader.read_data(40)
+    on = {"left": np.isclose(points[:, 0], 0.0), "right": np.isclose(points[:, 0], 1.0)}
+    assert on["left"].any() and on["right"].any() and np.all(on["left"] | on["right"])
+    assert np.abs(point_data["lambda"][on["right"]]).max() > 0
 
 
 def test_tip_mass_on_a_spring_adaptive_steps_and_halved_tau_error(tmp_path):
@@ -140,6 +159,7 @@ def test_help_states_the_defaults(capsys):
         (["--nu", "0.6"], "--nu: got 0.6, must satisfy -1 < nu < 0.5"),
         (["--height", "0"], "--height: got 0, must be > 0"),
         (["--lifting", "l2"], "--lifting: got 'l2', must be one of"),
+        (["--keep-every", "0"], "--keep-every: got 0, must be an integer >= 1"),
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):
@@ -163,6 +183,8 @@ def test_tuned_mass_damper_reduces_the_resonant_tip_amplitude(tmp_path):
     assert code == 0
     files = {p.name for p in out.iterdir()}
     assert files >= {"summary.json", "trajectory.npz", "trajectory_without_tmd.npz", "fig_tmd.png"}
+    # both runs' bodies in ParaView
+    assert files >= {"body.xdmf", "body_multiplier.xdmf", "body_without_tmd.xdmf"}
     s = json.loads((out / "summary.json").read_text())
     # 4.0 at T = 6 (8.3 at the default T = 12): the resonance is detuned by the absorber
     assert s["amplitude_reduction"] > 3 and s["reaction_reduction"] > 3

@@ -10,9 +10,11 @@ an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM wri
 OUT``, as the other run commands): the commands that compare two runs checkpoint both as one
 (:func:`rothe.eld.coupled_run.run_coupled_many`); a resumed run writes the uninterrupted run's
 results bit for bit; a resume with other options is refused in one line (exit 2). ParaView
-output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`; with
-``--adapt-space`` body 1 as ``body1.pvd``, one VTU per state on its own mesh: docs/coupling.md,
-Sec. 14).
+output of every command, one series per body and run (:mod:`rothe.eld.bodies_output`):
+eld-two-bodies ``body1``, ``body2``; the one-body commands ``body`` and, for the second run,
+``body_<label>``; ``.xdmf`` (with ``_multiplier.xdmf``) on a fixed mesh, with
+``--adapt-space`` the adaptive body as a ``.pvd``, one VTU per state on its own mesh
+(docs/coupling.md, Sec. 14).
 
 ``--adapt-space`` (every command; with ``--space-tol`` and the usual options of
 :mod:`rothe.cli.adapt_options`) adapts the mesh of the elastic body between accepted steps
@@ -24,8 +26,9 @@ Outputs: ``summary.json``, ``trajectory.npz`` (the run's q, p, z, the reactions 
 constrained part, the whole-system ledger per state, the steps: see
 :class:`rothe.eld.coupled_run.CoupledResult`), for the commands that compare two runs the
 second as ``trajectory_<label>.npz`` (``trajectory_without_tmd.npz``,
-``trajectory_uncontrolled.npz``), and a figure unless ``--no-plots``. Bad input is one line
-and exit status 2.
+``trajectory_uncontrolled.npz``; every run records its body's fields: ``u``, ``v``, ``lam``,
+``pdot`` per state, or the kept fields on their meshes with ``--adapt-space``), the ParaView
+series above, and a figure unless ``--no-plots``. Bad input is one line and exit status 2.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..eld.bodies import Body, GluedBodies, strip_pair, strip_pair_dofs, strip_union
-from ..eld.bodies_output import write_bodies_result
+from ..eld.bodies_output import write_bodies_result, write_body_result
 from ..eld.coupled_run import run_coupled_many
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..eld.frequencies import crossing_frequency, decay_rate
@@ -54,6 +57,7 @@ from .eld_options import (
     check_mesh_options,
     control_of,
     form_of,
+    keep_option,
     lifting_option,
     material_fields,
     material_of,
@@ -158,6 +162,38 @@ class CoupledRunCommand:
 
     #: the SpaceAdaptivity of --adapt-space (None: fixed mesh), set by :meth:`run_objects`
     adapt = None
+    #: the ParaView series of a one-body command, set by :meth:`body_outputs` (the summary's
+    #: ``paraview``)
+    paraview: list | None = None
+    #: --keep-every of the one-body commands by default: the body's fields of every 5th state
+    #: (and the first and last) in ParaView and trajectory.npz, as eld-beam -- every state made
+    #: eld-tmd's default output 61 MB instead of 0.5 MB (docs/coupling.md, Sec. 18)
+    KEEP_EVERY = 5
+
+    def body_outputs(self, runs: dict, every: int):
+        """``outputs`` of :meth:`run` for the one-body commands: every completed run's
+        ``trajectory[_<label>].npz`` and its body's ParaView series ``body[_<label>]`` (u, v,
+        stresses and the multiplier on every constrained part; ``.xdmf`` on a fixed mesh, a
+        ``.pvd`` of VTU files with --adapt-space: :func:`rothe.eld.bodies_output.
+        write_body_result`) of every ``every``-th state (--keep-every), the first run without
+        the suffix."""
+        labels = list(runs)
+        suffixes = {label: "" if k == 0 else f"_{label}" for k, label in enumerate(labels)}
+        kind = "xdmf" if self.adapt is None else "pvd"
+        self.paraview = [f"body{suffixes[label]}.{kind}" for label in labels]
+
+        def outputs(stage, label, result):
+            suffix = suffixes[label]
+            return write_body_result(
+                result,
+                runs[label].body,
+                stage,
+                f"body{suffix}",
+                npz=f"trajectory{suffix}.npz",
+                every=every,
+            )
+
+        return outputs
 
     @staticmethod
     def space_options(parser) -> None:
@@ -173,6 +209,8 @@ class CoupledRunCommand:
         """scheme, form and control of the command line (--tau against --T first); the
         --adapt-space options checked too (:attr:`adapt`)."""
         check_eld_step("--tau", args.tau, args.T)
+        if hasattr(args, "keep_every"):  # (the one-body commands: body_outputs)
+            check_int("--keep-every", args.keep_every, minimum=1)
         control = control_of(args)
         self.adapt = space_adaptivity(args, default_max_dofs=COUPLED_MAX_DOFS)
         return {"scheme": scheme_of(args), "form": form_of(args), "control": control}
@@ -220,6 +258,8 @@ class CoupledRunCommand:
                 traj.save_npz(stage / name, extra=meshes or None)
             summary = self.summary_head(args, objects, trajs)
             summarize(summary, trajs, completed)
+            if completed and self.paraview is not None:
+                summary.setdefault("paraview", self.paraview)
             if completed and not args.no_plots and draw is not None:
                 draw(stage, trajs, summary)
             return summary
@@ -350,6 +390,7 @@ class RunEldTipMass(CoupledRunCommand):
             default=0.01,
             help="initial tip displacement in the first axial mode (default 0.01)",
         )
+        keep_option(parser, self.KEEP_EVERY)
         self.space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
@@ -439,7 +480,16 @@ class RunEldTipMass(CoupledRunCommand):
                 f"m = {args.mass:g}, k = {args.spring:g}",
             )
 
-        return self.run(args, {"tip": example.system}, objects, summarize, draw)
+        runs = {"tip": example.system}
+        return self.run(
+            args,
+            runs,
+            objects,
+            summarize,
+            draw,
+            fields=True,
+            outputs=self.body_outputs(runs, args.keep_every),
+        )
 
 
 @command("run", "eld-tmd")
@@ -502,6 +552,7 @@ class RunEldTmd(CoupledRunCommand):
         float_option(
             parser, "--b", default=0.0, help="Rayleigh damping b K of the strip (default 0)"
         )
+        keep_option(parser, self.KEEP_EVERY)
         self.space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
@@ -584,7 +635,15 @@ class RunEldTmd(CoupledRunCommand):
             )
 
         runs = {"with_tmd": example.with_tmd, "without_tmd": example.without_tmd}
-        return self.run(args, runs, objects, summarize, draw)
+        return self.run(
+            args,
+            runs,
+            objects,
+            summarize,
+            draw,
+            fields=True,
+            outputs=self.body_outputs(runs, args.keep_every),
+        )
 
 
 @command("run", "eld-control")
@@ -665,6 +724,7 @@ class RunEldControl(CoupledRunCommand):
             default=0.01,
             help="initial displacement of the base in the first mode (default 0.01)",
         )
+        keep_option(parser, self.KEEP_EVERY)
         self.space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
@@ -747,7 +807,15 @@ class RunEldControl(CoupledRunCommand):
             )
 
         runs = {"controlled": example.controlled, "uncontrolled": example.uncontrolled}
-        return self.run(args, runs, objects, summarize, draw)
+        return self.run(
+            args,
+            runs,
+            objects,
+            summarize,
+            draw,
+            fields=True,
+            outputs=self.body_outputs(runs, args.keep_every),
+        )
 
 
 #: eld-two-bodies: the clamped soft half and the stiffer, heavier free half
