@@ -169,6 +169,24 @@ def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):
     assert not (out / "summary.json").exists()
 
 
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--dim", "4"], "--dim: got 4, must be 2 or 3"),
+        (
+            ["--dim", "3", "--ns", "2,6"],
+            "--ns: got 6, gives 24843 unknowns in 3D (P2), must give at most 16000",
+        ),
+    ],
+)
+def test_tip_mass_study_3d_refusals_are_one_line(tmp_path, capsys, args, line):
+    out = tmp_path / "out"
+    code = main(["study", "eld-tip-mass", "--quiet", "--out", str(out), *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("rothe: error: " + line), err
+    assert not out.exists()
+
+
 def test_decay_rate_of_a_damped_cosine():
     t = np.linspace(0, 6, 6001)
     assert decay_rate(t, np.exp(-0.4 * t) * np.cos(6.0 * t)) == pytest.approx(0.4, rel=1e-3)

@@ -51,6 +51,7 @@ from .common import add_output_options, float_option, given, peak_memory_mb, pri
 from .eld_commands import meshes_summary
 from .eld_options import (
     MESH_PARAMETERS,
+    TIP_MASS_MAX_DOFS,
     body_material,
     body_mesh,
     check_eld_step,
@@ -79,8 +80,6 @@ CONTROL_MATERIAL = TIP_MASS_MATERIAL
 TMD_MATERIAL = {"E": 1e4, "nu": 0.0}
 #: the most cells the dense modal analysis behind the reference frequencies takes
 TIP_MASS_MAX_CELLS = 4000
-#: the most unknowns of a --mesh body for that analysis (the built-in strip's cap in 2D P2)
-TIP_MASS_MAX_DOFS = 16_000
 #: forcing periods at the end of an eld-tmd run over which the final amplitudes are taken
 TMD_LAST_PERIODS = 2
 #: --max-dofs of --adapt-space by default (the body's P_k vector unknowns; twice the initial
