@@ -953,7 +953,9 @@ class RunEldTwoBodies(CoupledRunCommand):
             "(default 0.1)",
         )
         parser.add_argument(
-            "--direction", default="y", help="x | y: the pulse's direction (default y)"
+            "--direction",
+            default="y",
+            help="x | y | z: the pulse's direction (z with 3D mesh files) (default y)",
         )
         float_option(parser, "--pulse", default=0.5, help="pulse duration T_p (default 0.5)")
         float_option(parser, "--T", default=2.0, help="end time (default 2)")
@@ -996,7 +998,9 @@ class RunEldTwoBodies(CoupledRunCommand):
                 "--split", args.split, f"must lie strictly between 0 and --length {length:g}"
             )
         check_choice("--method", args.method, ("auto", "matching", "mortar"))
-        check_choice("--direction", args.direction, ("x", "y"))
+        check_choice("--direction", args.direction, ("x", "y", "z"))
+        if args.direction == "z" and args.mesh1 is None:
+            raise fail("--direction", "z", "needs 3D bodies (--mesh1/--mesh2); the strip is 2D")
         check_positive("--pulse", args.pulse)
         parts = args.interface.split(",")
         if len(parts) != 2 or not all(parts):
@@ -1066,13 +1070,14 @@ class RunEldTwoBodies(CoupledRunCommand):
         }
 
     @staticmethod
-    def material2(args):
-        """Body 2's material of --E2/--nu2 | --lam2/--mu2, --rho2 (errors name them)."""
+    def material2(args, dim: int = 2):
+        """Body 2's material of --E2/--nu2 | --lam2/--mu2, --rho2 (errors name them), in
+        ``dim`` (3D: plane strain, --plane is body 1's option and refused there)."""
         shadow = argparse.Namespace(
             plane=args.plane, **{key: getattr(args, o[2:]) for key, o in _BODY2_OPTIONS.items()}
         )
         try:
-            return material_of(shadow, TWO_BODIES_MATERIAL2)
+            return material_of(shadow, TWO_BODIES_MATERIAL2, dim=dim)
         except RotheInputError as exc:
             if exc.parameter not in _BODY2_OPTIONS:
                 raise
@@ -1089,11 +1094,21 @@ class RunEldTwoBodies(CoupledRunCommand):
         if args.mesh1 is not None:
             mesh1 = load_mesh(args.mesh1, name="mesh1")
             mesh2 = load_mesh(args.mesh2, name="mesh2")
-            if mesh_dim(mesh1) != 2 or mesh_dim(mesh2) != 2:
-                bad = "--mesh1" if mesh_dim(mesh1) != 2 else "--mesh2"
-                raise fail(bad, described("a 3D mesh"), "must be 2D (the materials are 2D)")
+            d = mesh_dim(mesh1)
+            if mesh_dim(mesh2) != d:
+                raise fail(
+                    "--mesh2",
+                    described(f"a {mesh_dim(mesh2)}D mesh"),
+                    f"must have body 1's dimension {d}",
+                )
+            if d == 3:  # (validate built the materials in 2D, before the meshes were read)
+                material1 = material_of(args, TWO_BODIES_MATERIAL, dim=3)
+                material2 = self.material2(args, dim=3)
+            elif args.direction == "z":
+                raise fail("--direction", "z", "needs 3D bodies; the mesh files are 2D")
+            # P2: one more node per edge (the facets in 2D)
             dofs = sum(
-                2 * (m.p.shape[1] + (m.facets.shape[1] if k == 2 else 0))
+                d * (m.p.shape[1] + ((m.facets if d == 2 else m.edges).shape[1] if k == 2 else 0))
                 for m, k in ((mesh1, args.degree), (mesh2, degree2))
             )
             option, value = "--mesh2", args.mesh2
@@ -1112,7 +1127,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         )
         if args.mesh1 is None:
             mesh1, mesh2 = strip_pair(args.length, args.height, args.split, n1, n2)
-        axis = "xy".index(args.direction)
+        axis = "xyz".index(args.direction)
         force, pulse = args.force, args.pulse
 
         def traction(t, x, n):
@@ -1159,7 +1174,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         loaded = space2.doflocs[:, space2.scalar_dofs_on((args.load_part,), "traction")]
         centre = loaded.mean(axis=1)
         node = int(np.argmin(np.linalg.norm(space2.doflocs - centre[:, None], axis=0)))
-        tip = int(np.searchsorted(comp.free, 2 * node + axis))
+        tip = int(np.searchsorted(comp.free, space2.dim * node + axis))
         itf = glued.interfaces[0]
 
         def summarize(summary, trajs, completed):
@@ -1211,7 +1226,7 @@ class RunEldTwoBodies(CoupledRunCommand):
                     n1=n1, n2=n2, length=args.length, height=args.height, split=args.split
                 )
             else:
-                summary.update(mesh1=args.mesh1, mesh2=args.mesh2)
+                summary.update(mesh1=args.mesh1, mesh2=args.mesh2, dim=space2.dim)
             if union is not None and completed:
                 summary.update(self.union_fields(glued, traj, *union))
 
