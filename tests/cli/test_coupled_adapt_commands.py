@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 
+import meshio
 import numpy as np
 import pytest
 
@@ -92,7 +93,21 @@ def test_control_and_tmd_adapt_both_runs(tmp_path, command):
         assert s[f"ndofs_initial{suffix}"] == data["ndofs"][0]
         _check_mesh_changes(s, data, suffix)
         assert s[f"bisections{suffix}"] > 0 and f"merges{suffix}" in s
+        # each run's body in ParaView: one VTU per kept state (--keep-every 5: 0, 5, ..., the
+        # last) on the mesh it was computed on
+        pvd = out / f"body{suffix}.pvd"
+        vtus = sorted(out.glob(f"body{suffix}_[0-9]*.vtu"))
+        n = data["t"].size
+        assert n == data["kept_t"].size and data["kept_states"][-1] == n - 1
+        keep = np.union1d(np.arange(0, n, 5), [n - 1])
+        assert pvd.exists() and len(vtus) == keep.size
+        assert np.array_equal(data["kept_states"], keep)
+        last = meshio.read(vtus[-1])
+        offsets = data["kept_u_offsets"]
+        u = data["kept_u"][offsets[-2] : offsets[-1]].reshape(-1, 2)
+        assert np.array_equal(last.point_data["u"][:, :2], u[: len(last.points)])
     assert "space" in s and f"space_{second}" not in s
+    assert s["paraview"] == ["body.pvd", f"body_{second}.pvd"]
 
 
 def test_two_bodies_adapt_body_1_the_glue_turns_mortar_and_the_tip_stays(tmp_path):

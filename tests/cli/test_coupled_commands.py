@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import signal
 
+import meshio
 import numpy as np
 import pytest
 
@@ -47,6 +48,24 @@ def test_tip_mass_run_writes_summary_trajectory_and_figure(tmp_path):
     assert abs(np.abs(data["q"][:, 0]).max() - 0.01) < 1e-3  # --amplitude
     # the reaction at the clamp balances the bar's and the mass's inertia: it oscillates
     assert np.ptp(data["reaction_left"][:, 0]) > 0.1
+    # the body in ParaView (issue 19, "Outputs"; none before): u at the last state, and the
+    # multiplier on the clamp and on the coupled tip, whose resultant is the recorded reaction
+    # (--keep-every 5 by default: the states 0, 5, ..., 200)
+    assert s["paraview"] == ["body.xdmf"] and data["u"].shape == (41, 170)
+    assert np.array_equal(data["kept_states"], np.arange(0, 201, 5))
+    with meshio.xdmf.TimeSeriesReader(str(out / "body.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        assert reader.num_steps == 41
+        t, point_data, _ = reader.read_data(40)
+    assert t == pytest.approx(2.0)
+    nv = len(points)
+    assert np.array_equal(point_data["u"][:, :2], data["u"][-1].reshape(-1, 2)[:nv])
+    with meshio.xdmf.TimeSeriesReader(str(out / "body_multiplier.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        _, point_data, _ = reader.read_data(40)
+    on = {"left": np.isclose(points[:, 0], 0.0), "right": np.isclose(points[:, 0], 1.0)}
+    assert on["left"].any() and on["right"].any() and np.all(on["left"] | on["right"])
+    assert np.abs(point_data["lambda"][on["right"]]).max() > 0
 
 
 def test_tip_mass_on_a_spring_adaptive_steps_and_halved_tau_error(tmp_path):
@@ -73,6 +92,37 @@ def test_tip_mass_on_a_spring_adaptive_steps_and_halved_tau_error(tmp_path):
     assert data["local_error"].max() <= 1e-4 and data["t"][-1] == 1.0
     # one mode, one time scale: nearly equal steps, whose Euler phase error is small
     assert s["accepted_steps"] > 500 and abs(s["frequency_error_measured_vs_discrete"]) < 1e-3
+
+
+def _strict_json(path):
+    """summary.json parsed as strict JSON: NaN or Infinity, which json.dumps writes for
+    non-finite floats and JSON parsers refuse, is an error."""
+
+    def refuse(constant):
+        raise AssertionError(f"{path.name} holds {constant}, not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_a_run_too_short_to_measure_writes_null_not_nan(tmp_path):
+    """T = 0.1 is less than half a period of the first mode: no two zero crossings, so the
+    measured frequency and its errors are unknown -- null in summary.json, which stays strict
+    JSON (before: NaN for the errors, numpy floats, while the frequency itself was null)."""
+    code, out = _run(tmp_path, "--T", "0.1", "--tau", "0.01")
+    assert code == 0
+    s = _strict_json(out / "summary.json")
+    assert s["frequency_measured"] is None
+    assert s["frequency_error_measured"] is None
+    assert s["frequency_error_measured_vs_discrete"] is None
+    assert abs(s["frequency_error_discrete"][0]) < 1e-6  # the modal analysis is there
+
+
+def test_summary_json_writes_every_non_finite_float_as_null(tmp_path):
+    from rothe.cli.common import write_summary
+
+    values = {"a": np.float64("nan"), "b": np.array([1.0, np.inf]), "c": [np.float32("-inf")]}
+    s = _strict_json(write_summary(tmp_path, {**values, "d": float("nan"), "e": np.int64(3)}))
+    assert s == {"a": None, "b": [1.0, None], "c": [None], "d": None, "e": 3}
 
 
 def test_crossing_frequency_of_a_sine():
@@ -109,6 +159,7 @@ def test_help_states_the_defaults(capsys):
         (["--nu", "0.6"], "--nu: got 0.6, must satisfy -1 < nu < 0.5"),
         (["--height", "0"], "--height: got 0, must be > 0"),
         (["--lifting", "l2"], "--lifting: got 'l2', must be one of"),
+        (["--keep-every", "0"], "--keep-every: got 0, must be an integer >= 1"),
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):
@@ -116,6 +167,24 @@ def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("rothe: error: " + line), err
     assert not (out / "summary.json").exists()
+
+
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--dim", "4"], "--dim: got 4, must be 2 or 3"),
+        (
+            ["--dim", "3", "--ns", "2,6"],
+            "--ns: got 6, gives 24843 unknowns in 3D (P2), must give at most 16000",
+        ),
+    ],
+)
+def test_tip_mass_study_3d_refusals_are_one_line(tmp_path, capsys, args, line):
+    out = tmp_path / "out"
+    code = main(["study", "eld-tip-mass", "--quiet", "--out", str(out), *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("rothe: error: " + line), err
+    assert not out.exists()
 
 
 def test_decay_rate_of_a_damped_cosine():
@@ -132,6 +201,8 @@ def test_tuned_mass_damper_reduces_the_resonant_tip_amplitude(tmp_path):
     assert code == 0
     files = {p.name for p in out.iterdir()}
     assert files >= {"summary.json", "trajectory.npz", "trajectory_without_tmd.npz", "fig_tmd.png"}
+    # both runs' bodies in ParaView
+    assert files >= {"body.xdmf", "body_multiplier.xdmf", "body_without_tmd.xdmf"}
     s = json.loads((out / "summary.json").read_text())
     # 4.0 at T = 6 (8.3 at the default T = 12): the resonance is detuned by the absorber
     assert s["amplitude_reduction"] > 3 and s["reaction_reduction"] > 3
@@ -282,6 +353,8 @@ def test_a_resume_with_other_options_is_refused_in_one_line(
         ("eld-tmd", ["--tau", "0.007"], "--tau: got 0.007, must divide T = 12 into equal steps"),
         ("eld-tmd", ["--E", "1", "--lam", "2"], "--E: got 1, must not be combined with --lam"),
         ("eld-control", ["--base-mass", "0"], "--base-mass: got 0, must be > 0"),
+        # (named base_stiffness, control_problem's parameter, before)
+        ("eld-control", ["--base-spring", "-1"], "--base-spring: got -1, must be >= 0"),
         ("eld-control", ["--kd", "-1"], "--kd: got -1, must be >= 0"),
         ("eld-control", ["--kd", "1", "--filter-time", "0"], "--filter-time: got 0, must be > 0"),
         ("eld-control", ["--n", "0"], "--n: got 0, must be an integer >= 1"),

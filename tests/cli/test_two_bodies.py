@@ -39,6 +39,8 @@ def test_two_bodies_write_each_bodys_fields_the_multiplier_and_paraview(tmp_path
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "completed" and s["accepted_steps"] == 50
     assert s["interface_method"] == "matching" and s["ndofs"] == [90, 90]
+    # the strip's sizes, no mesh files (mesh1 = mesh2 = null before)
+    assert (s["n1"], s["n2"], s["split"]) == (2, 2, 0.5) and "mesh1" not in s
     assert s["material1"]["E"] == 100 and s["material2"]["rho"] == 2.0
     assert s["constraint_max"] < 1e-14
     assert s["balance_max"] < 1e-12 * max(s["energy_final"], s["work_loads"])
@@ -130,6 +132,7 @@ def test_two_mesh_files_glued_and_apart(tmp_path, capsys):
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["interface_method"] == "matching" and s["mesh2"] == str(two)
+    assert s["mesh1"] == str(one) and "n1" not in s and "split" not in s
     code, _, err = _run(capsys, tmp_path, "--mesh1", one, "--mesh2", apart, *common)
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1
@@ -137,6 +140,54 @@ def test_two_mesh_files_glued_and_apart(tmp_path, capsys):
         "rothe: error: --interface: got parts 'outlet' (body 1) and 'inlet' (body 2) that do "
         "not touch: 0 % of 'outlet' lies on 'inlet' (nearest distance 0.5"
     ), lines
+
+
+def test_two_3d_mesh_files_glued_matching_and_mortar(tmp_path, capsys):
+    """3D bodies from gmsh files (refused before: '--mesh1: got a 3D mesh, must be 2D'): two
+    boxes glued along x = 0.5, pulsed along z; the glue holds at every state (matching: equal
+    displacements at the shared nodes; mortar with body 2 twice as fine across), the ledger
+    closes, both bodies in ParaView; a 2D body 2, or z on 2D bodies, is one line."""
+    one = write_gmsh_body(tmp_path / "one.msh", dim=3, nx=2, ny=1, length=0.5, height=0.25)
+    two = write_gmsh_body(tmp_path / "two.msh", dim=3, nx=2, ny=1, length=0.5, height=0.25, x0=0.5)
+    fine = write_gmsh_body(
+        tmp_path / "fine.msh", dim=3, nx=2, ny=2, length=0.5, height=0.25, x0=0.5
+    )
+    flat = write_gmsh_body(tmp_path / "flat.msh", nx=2, ny=1, length=0.5, height=0.25, x0=0.5)
+    common = ["--interface", "outlet,inlet", "--clamp", "inlet", "--load-part", "outlet"]
+    run = [*common, "--degree", "1", "--T", "0.2", "--tau", "0.02", "--direction", "z"]
+    tips = {}
+    for label, mesh2 in (("matching", two), ("mortar", fine)):
+        code, out, err = _run(capsys, tmp_path, "--mesh1", one, "--mesh2", mesh2, *run)
+        assert code == 0, err
+        s = json.loads((out / "summary.json").read_text())
+        assert s["interface_method"] == label and len(s["interface_reaction_max"]) == 3
+        # body 2's material in 3D: the Lamé constants of E = 300, nu = 0.2
+        assert s["dim"] == 3 and s["material1"]["plane"] == "strain"
+        assert s["material2"]["lam"] == pytest.approx(83.3333333) and s["material2"]["mu"] == 125
+        assert s["constraint_max"] < 1e-14 and s["balance_max"] < 1e-12 * s["work_loads"]
+        assert {"body1.xdmf", "body2.xdmf"} <= {p.name for p in out.iterdir()}
+        tips[label] = s["tip_deflection_max"]
+        d = np.load(out / "trajectory.npz")
+        if label == "matching":  # the glue: equal displacements at the shared nodes
+            dist, k = cKDTree(d["body2_doflocs"]).query(d["body1_doflocs"])
+            shared = dist < 1e-12
+            assert shared.sum() == 4  # P1, 1 x 1 cubes across: 4 nodes on the interface
+            u1 = d["body1_u"].reshape(11, -1, 3)[:, shared]
+            u2 = d["body2_u"].reshape(11, -1, 3)[:, k[shared]]
+            assert np.abs(u1 - u2).max() < 1e-14 and np.abs(u1[..., 2]).max() > 1e-5
+    # (coarse: P1, one cube across body 1; the same motion within half)
+    assert abs(tips["mortar"] / tips["matching"] - 1) < 0.5
+    for args, line in (
+        (
+            ["--mesh1", one, "--mesh2", flat],
+            "--mesh2: got a 2D mesh, must have body 1's dimension 3",
+        ),
+        (["--direction", "z"], "--direction: got 'z', needs 3D bodies (--mesh1/--mesh2)"),
+        (["--mesh1", one, "--mesh2", two, "--plane", "stress"], "--plane: got 'stress', must be"),
+    ):
+        code, out, err = _run(capsys, tmp_path, *(common if "--mesh1" in args else []), *args)
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and lines[0].startswith("rothe: error: " + line)
 
 
 def test_help_states_the_defaults_of_both_bodies(capsys):
@@ -160,12 +211,19 @@ def test_help_states_the_defaults_of_both_bodies(capsys):
         (["--degree2", "3"], "--degree2: got 3, must be 1 or 2"),
         (["--split", "1.5"], "--split: got 1.5, must lie strictly between 0 and --length 1"),
         (["--method", "nitsche"], "--method: got 'nitsche', must be one of auto, matching"),
-        (["--direction", "z"], "--direction: got 'z', must be one of x, y"),
+        (["--direction", "w"], "--direction: got 'w', must be one of x, y, z"),
         (["--interface", "right"], "--interface: got 'right', must be PART1,PART2"),
         (["--interface", "rigth,left"], "--interface: got 'rigth', must be one of bottom, left"),
         (["--interface", "right,lft"], "--interface: got 'lft', must be one of bottom, left"),
         (["--clamp", "middle"], "--clamp: got 'middle', must be one of"),
         (["--load-part", "left"], "--load-part: got 'left', is the glued part"),
+        # (before: "--interface: got 'right', also carries prescribed Dirichlet data", naming
+        # an option not given)
+        (
+            ["--clamp", "right"],
+            "--clamp: got 'right', is body 1's glued part (--interface right,left); a part is "
+            "either clamped or glued",
+        ),
         (["--load-part", "back"], "--load-part: got 'back', must be one of"),
         (["--E2", "-5"], "--E2: got -5, must be > 0"),
         (["--E2", "1", "--lam2", "2"], "--E2: got 1, must not be combined with --lam2"),

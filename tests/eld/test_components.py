@@ -141,6 +141,12 @@ def test_bad_component_input_is_one_line_each():
             r"^inertia: got a singular or indefinite matrix",
         ),
         (
+            # (before: "max |K - K^T| ..., must be symmetric (a potential force)", a stiffness's)
+            lambda: RigidBody(1.0, [[1, 0.3, 0], [0, 1, 0], [0, 0, 1]], [0, 0, 0], dim=3),
+            r"^inertia: got a non-symmetric matrix \(max \|J - J\^T\| = 0\.3\), must be "
+            r"symmetric positive definite$",
+        ),
+        (
             lambda: RigidBody(1.0, 1.0, [0, 0, 0], dim=2),
             r"^center: got an array of shape "
             r"\(3,\), must have shape \(2,\)$",

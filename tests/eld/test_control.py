@@ -162,6 +162,18 @@ def test_bad_control_input_is_one_line_each():
             r"^sensor: got 'ReactionSensor', must be a sensor of known size",
         ),
         (
+            # (before: numpy's "could not broadcast input array from shape (10,) into shape (9,)")
+            lambda: _system(
+                lambda s: [
+                    LinearController(
+                        None, None, None, -np.eye(2, 1), ReactionSensor("left", axes=[2]), s
+                    )
+                ]
+            ),
+            r"^controllers\[0\]\.sensors\[0\]\.axes: got \[2\], must be axes 0\.\.1 of the 2D "
+            r"body$",
+        ),
+        (
             lambda: _system(user(2.0)),
             r"^controllers\[0\]\.jacobians: got a Jacobian that disagrees with finite differences "
             r"of rhs in \(z, y\)",

@@ -150,14 +150,17 @@ def peak_memory_mb() -> float:
 
 
 def _jsonable(value):
+    """``value`` with numpy scalars and arrays as Python numbers and lists, and every
+    non-finite float -- also a numpy one, also inside an array -- as None: ``summary.json``
+    stays strict JSON (json.dumps would write NaN, which JSON parsers refuse)."""
     if isinstance(value, dict):
         return {k: _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_jsonable(v) for v in value]
     if isinstance(value, np.generic):
-        return value.item()
+        return _jsonable(value.item())
     if isinstance(value, np.ndarray):
-        return value.tolist()
+        return _jsonable(value.tolist())
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value

@@ -10,9 +10,11 @@ an earlier completed result never destroyed, a run stopped by SIGINT/SIGTERM wri
 OUT``, as the other run commands): the commands that compare two runs checkpoint both as one
 (:func:`rothe.eld.coupled_run.run_coupled_many`); a resumed run writes the uninterrupted run's
 results bit for bit; a resume with other options is refused in one line (exit 2). ParaView
-output only eld-two-bodies (one series per body, :mod:`rothe.eld.bodies_output`; with
-``--adapt-space`` body 1 as ``body1.pvd``, one VTU per state on its own mesh: docs/coupling.md,
-Sec. 14).
+output of every command, one series per body and run (:mod:`rothe.eld.bodies_output`):
+eld-two-bodies ``body1``, ``body2``; the one-body commands ``body`` and, for the second run,
+``body_<label>``; ``.xdmf`` (with ``_multiplier.xdmf``) on a fixed mesh, with
+``--adapt-space`` the adaptive body as a ``.pvd``, one VTU per state on its own mesh
+(docs/coupling.md, Sec. 14).
 
 ``--adapt-space`` (every command; with ``--space-tol`` and the usual options of
 :mod:`rothe.cli.adapt_options`) adapts the mesh of the elastic body between accepted steps
@@ -24,8 +26,9 @@ Outputs: ``summary.json``, ``trajectory.npz`` (the run's q, p, z, the reactions 
 constrained part, the whole-system ledger per state, the steps: see
 :class:`rothe.eld.coupled_run.CoupledResult`), for the commands that compare two runs the
 second as ``trajectory_<label>.npz`` (``trajectory_without_tmd.npz``,
-``trajectory_uncontrolled.npz``), and a figure unless ``--no-plots``. Bad input is one line
-and exit status 2.
+``trajectory_uncontrolled.npz``; every run records its body's fields: ``u``, ``v``, ``lam``,
+``pdot`` per state, or the kept fields on their meshes with ``--adapt-space``), the ParaView
+series above, and a figure unless ``--no-plots``. Bad input is one line and exit status 2.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..eld.bodies import Body, GluedBodies, strip_pair, strip_pair_dofs, strip_union
-from ..eld.bodies_output import write_bodies_result
+from ..eld.bodies_output import write_bodies_result, write_body_result
 from ..eld.coupled_run import run_coupled_many
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..eld.frequencies import crossing_frequency, decay_rate
@@ -48,12 +51,14 @@ from .common import add_output_options, float_option, given, peak_memory_mb, pri
 from .eld_commands import meshes_summary
 from .eld_options import (
     MESH_PARAMETERS,
+    TIP_MASS_MAX_DOFS,
     body_material,
     body_mesh,
     check_eld_step,
     check_mesh_options,
     control_of,
     form_of,
+    keep_option,
     lifting_option,
     material_fields,
     material_of,
@@ -75,8 +80,6 @@ CONTROL_MATERIAL = TIP_MASS_MATERIAL
 TMD_MATERIAL = {"E": 1e4, "nu": 0.0}
 #: the most cells the dense modal analysis behind the reference frequencies takes
 TIP_MASS_MAX_CELLS = 4000
-#: the most unknowns of a --mesh body for that analysis (the built-in strip's cap in 2D P2)
-TIP_MASS_MAX_DOFS = 16_000
 #: forcing periods at the end of an eld-tmd run over which the final amplitudes are taken
 TMD_LAST_PERIODS = 2
 #: --max-dofs of --adapt-space by default (the body's P_k vector unknowns; twice the initial
@@ -158,6 +161,38 @@ class CoupledRunCommand:
 
     #: the SpaceAdaptivity of --adapt-space (None: fixed mesh), set by :meth:`run_objects`
     adapt = None
+    #: the ParaView series of a one-body command, set by :meth:`body_outputs` (the summary's
+    #: ``paraview``)
+    paraview: list | None = None
+    #: --keep-every of the one-body commands by default: the body's fields of every 5th state
+    #: (and the first and last) in ParaView and trajectory.npz, as eld-beam -- every state made
+    #: eld-tmd's default output 61 MB instead of 0.5 MB (docs/coupling.md, Sec. 18)
+    KEEP_EVERY = 5
+
+    def body_outputs(self, runs: dict, every: int):
+        """``outputs`` of :meth:`run` for the one-body commands: every completed run's
+        ``trajectory[_<label>].npz`` and its body's ParaView series ``body[_<label>]`` (u, v,
+        stresses and the multiplier on every constrained part; ``.xdmf`` on a fixed mesh, a
+        ``.pvd`` of VTU files with --adapt-space: :func:`rothe.eld.bodies_output.
+        write_body_result`) of every ``every``-th state (--keep-every), the first run without
+        the suffix."""
+        labels = list(runs)
+        suffixes = {label: "" if k == 0 else f"_{label}" for k, label in enumerate(labels)}
+        kind = "xdmf" if self.adapt is None else "pvd"
+        self.paraview = [f"body{suffixes[label]}.{kind}" for label in labels]
+
+        def outputs(stage, label, result):
+            suffix = suffixes[label]
+            return write_body_result(
+                result,
+                runs[label].body,
+                stage,
+                f"body{suffix}",
+                npz=f"trajectory{suffix}.npz",
+                every=every,
+            )
+
+        return outputs
 
     @staticmethod
     def space_options(parser) -> None:
@@ -173,6 +208,8 @@ class CoupledRunCommand:
         """scheme, form and control of the command line (--tau against --T first); the
         --adapt-space options checked too (:attr:`adapt`)."""
         check_eld_step("--tau", args.tau, args.T)
+        if hasattr(args, "keep_every"):  # (the one-body commands: body_outputs)
+            check_int("--keep-every", args.keep_every, minimum=1)
         control = control_of(args)
         self.adapt = space_adaptivity(args, default_max_dofs=COUPLED_MAX_DOFS)
         return {"scheme": scheme_of(args), "form": form_of(args), "control": control}
@@ -220,6 +257,8 @@ class CoupledRunCommand:
                 traj.save_npz(stage / name, extra=meshes or None)
             summary = self.summary_head(args, objects, trajs)
             summarize(summary, trajs, completed)
+            if completed and self.paraview is not None:
+                summary.setdefault("paraview", self.paraview)
             if completed and not args.no_plots and draw is not None:
                 draw(stage, trajs, summary)
             return summary
@@ -350,6 +389,7 @@ class RunEldTipMass(CoupledRunCommand):
             default=0.01,
             help="initial tip displacement in the first axial mode (default 0.01)",
         )
+        keep_option(parser, self.KEEP_EVERY)
         self.space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
@@ -439,7 +479,16 @@ class RunEldTipMass(CoupledRunCommand):
                 f"m = {args.mass:g}, k = {args.spring:g}",
             )
 
-        return self.run(args, {"tip": example.system}, objects, summarize, draw)
+        runs = {"tip": example.system}
+        return self.run(
+            args,
+            runs,
+            objects,
+            summarize,
+            draw,
+            fields=True,
+            outputs=self.body_outputs(runs, args.keep_every),
+        )
 
 
 @command("run", "eld-tmd")
@@ -502,6 +551,7 @@ class RunEldTmd(CoupledRunCommand):
         float_option(
             parser, "--b", default=0.0, help="Rayleigh damping b K of the strip (default 0)"
         )
+        keep_option(parser, self.KEEP_EVERY)
         self.space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
@@ -584,7 +634,15 @@ class RunEldTmd(CoupledRunCommand):
             )
 
         runs = {"with_tmd": example.with_tmd, "without_tmd": example.without_tmd}
-        return self.run(args, runs, objects, summarize, draw)
+        return self.run(
+            args,
+            runs,
+            objects,
+            summarize,
+            draw,
+            fields=True,
+            outputs=self.body_outputs(runs, args.keep_every),
+        )
 
 
 @command("run", "eld-control")
@@ -598,6 +656,8 @@ class RunEldControl(CoupledRunCommand):
     )
     name = "eld-control"
     default_material = CONTROL_MATERIAL
+    #: the library's parameters by their options (control_problem's base_stiffness)
+    parameter_options = {**CoupledRunCommand.parameter_options, "base_stiffness": "--base-spring"}
     keys = (
         "example",
         "scheme",
@@ -663,6 +723,7 @@ class RunEldControl(CoupledRunCommand):
             default=0.01,
             help="initial displacement of the base in the first mode (default 0.01)",
         )
+        keep_option(parser, self.KEEP_EVERY)
         self.space_options(parser)
         add_output_options(parser, self.name)
         add_run_options(parser)
@@ -745,7 +806,15 @@ class RunEldControl(CoupledRunCommand):
             )
 
         runs = {"controlled": example.controlled, "uncontrolled": example.uncontrolled}
-        return self.run(args, runs, objects, summarize, draw)
+        return self.run(
+            args,
+            runs,
+            objects,
+            summarize,
+            draw,
+            fields=True,
+            outputs=self.body_outputs(runs, args.keep_every),
+        )
 
 
 #: eld-two-bodies: the clamped soft half and the stiffer, heavier free half
@@ -884,7 +953,9 @@ class RunEldTwoBodies(CoupledRunCommand):
             "(default 0.1)",
         )
         parser.add_argument(
-            "--direction", default="y", help="x | y: the pulse's direction (default y)"
+            "--direction",
+            default="y",
+            help="x | y | z: the pulse's direction (z with 3D mesh files) (default y)",
         )
         float_option(parser, "--pulse", default=0.5, help="pulse duration T_p (default 0.5)")
         float_option(parser, "--T", default=2.0, help="end time (default 2)")
@@ -927,11 +998,20 @@ class RunEldTwoBodies(CoupledRunCommand):
                 "--split", args.split, f"must lie strictly between 0 and --length {length:g}"
             )
         check_choice("--method", args.method, ("auto", "matching", "mortar"))
-        check_choice("--direction", args.direction, ("x", "y"))
+        check_choice("--direction", args.direction, ("x", "y", "z"))
+        if args.direction == "z" and args.mesh1 is None:
+            raise fail("--direction", "z", "needs 3D bodies (--mesh1/--mesh2); the strip is 2D")
         check_positive("--pulse", args.pulse)
         parts = args.interface.split(",")
         if len(parts) != 2 or not all(parts):
             raise fail("--interface", args.interface, "must be PART1,PART2 (body 1's, body 2's)")
+        if args.clamp == parts[0]:
+            raise fail(
+                "--clamp",
+                args.clamp,
+                f"is body 1's glued part (--interface {args.interface}); a part is either "
+                "clamped or glued",
+            )
         if args.compare_union and args.adapt_space:
             raise fail(
                 "--compare-union",
@@ -990,13 +1070,14 @@ class RunEldTwoBodies(CoupledRunCommand):
         }
 
     @staticmethod
-    def material2(args):
-        """Body 2's material of --E2/--nu2 | --lam2/--mu2, --rho2 (errors name them)."""
+    def material2(args, dim: int = 2):
+        """Body 2's material of --E2/--nu2 | --lam2/--mu2, --rho2 (errors name them), in
+        ``dim`` (3D: plane strain, --plane is body 1's option and refused there)."""
         shadow = argparse.Namespace(
             plane=args.plane, **{key: getattr(args, o[2:]) for key, o in _BODY2_OPTIONS.items()}
         )
         try:
-            return material_of(shadow, TWO_BODIES_MATERIAL2)
+            return material_of(shadow, TWO_BODIES_MATERIAL2, dim=dim)
         except RotheInputError as exc:
             if exc.parameter not in _BODY2_OPTIONS:
                 raise
@@ -1013,11 +1094,21 @@ class RunEldTwoBodies(CoupledRunCommand):
         if args.mesh1 is not None:
             mesh1 = load_mesh(args.mesh1, name="mesh1")
             mesh2 = load_mesh(args.mesh2, name="mesh2")
-            if mesh_dim(mesh1) != 2 or mesh_dim(mesh2) != 2:
-                bad = "--mesh1" if mesh_dim(mesh1) != 2 else "--mesh2"
-                raise fail(bad, described("a 3D mesh"), "must be 2D (the materials are 2D)")
+            d = mesh_dim(mesh1)
+            if mesh_dim(mesh2) != d:
+                raise fail(
+                    "--mesh2",
+                    described(f"a {mesh_dim(mesh2)}D mesh"),
+                    f"must have body 1's dimension {d}",
+                )
+            if d == 3:  # (validate built the materials in 2D, before the meshes were read)
+                material1 = material_of(args, TWO_BODIES_MATERIAL, dim=3)
+                material2 = self.material2(args, dim=3)
+            elif args.direction == "z":
+                raise fail("--direction", "z", "needs 3D bodies; the mesh files are 2D")
+            # P2: one more node per edge (the facets in 2D)
             dofs = sum(
-                2 * (m.p.shape[1] + (m.facets.shape[1] if k == 2 else 0))
+                d * (m.p.shape[1] + ((m.facets if d == 2 else m.edges).shape[1] if k == 2 else 0))
                 for m, k in ((mesh1, args.degree), (mesh2, degree2))
             )
             option, value = "--mesh2", args.mesh2
@@ -1036,7 +1127,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         )
         if args.mesh1 is None:
             mesh1, mesh2 = strip_pair(args.length, args.height, args.split, n1, n2)
-        axis = "xy".index(args.direction)
+        axis = "xyz".index(args.direction)
         force, pulse = args.force, args.pulse
 
         def traction(t, x, n):
@@ -1083,7 +1174,7 @@ class RunEldTwoBodies(CoupledRunCommand):
         loaded = space2.doflocs[:, space2.scalar_dofs_on((args.load_part,), "traction")]
         centre = loaded.mean(axis=1)
         node = int(np.argmin(np.linalg.norm(space2.doflocs - centre[:, None], axis=0)))
-        tip = int(np.searchsorted(comp.free, 2 * node + axis))
+        tip = int(np.searchsorted(comp.free, space2.dim * node + axis))
         itf = glued.interfaces[0]
 
         def summarize(summary, trajs, completed):
@@ -1128,14 +1219,16 @@ class RunEldTwoBodies(CoupledRunCommand):
                     interface_method_final=itf_final.method,
                     interface_final=itf_final.describe(),
                 )
+            # the strip's sizes or the mesh files (before: mesh1 = mesh2 = null on every strip
+            # run without --compare-union, the else of the union's test)
             if args.mesh1 is None:
                 summary.update(
                     n1=n1, n2=n2, length=args.length, height=args.height, split=args.split
                 )
+            else:
+                summary.update(mesh1=args.mesh1, mesh2=args.mesh2, dim=space2.dim)
             if union is not None and completed:
                 summary.update(self.union_fields(glued, traj, *union))
-            else:
-                summary.update(mesh1=args.mesh1, mesh2=args.mesh2)
 
         def draw(stage, trajs, summary):
             # matplotlib is imported only for the figures

@@ -43,6 +43,7 @@ from ..eld.studies import (
     format_perturbation_table,
     format_tip_mass_table,
     perturbation_study,
+    tip_mass_bar,
     tip_mass_study,
 )
 from ..errors import check_choice, check_int, check_positive, described, fail
@@ -68,6 +69,7 @@ from .eld_options import (
     ELD_MAX_DOFS,
     MESH_PARAMETERS,
     MMS_MATERIAL,
+    TIP_MASS_MAX_DOFS,
     body_material,
     body_mesh,
     check_beam_size,
@@ -1319,6 +1321,13 @@ class StudyEldTipMass:
             parser, "--mass", default=0.25, help="tip mass (default 0.25 = the bar's mass)"
         )
         float_option(parser, "--T", default=2.0, help="end time (default 2: ~2.7 periods)")
+        parser.add_argument(
+            "--dim",
+            type=int,
+            default=2,
+            help="2: the plane-stress strip 1 x 0.25, n cells across; 3: the bar 1 x 0.25 x "
+            "0.25, n x n cubes across (6 tetrahedra each) (default 2)",
+        )
         add_output_options(parser, self.name)
         add_parallel_options(parser)
 
@@ -1336,13 +1345,24 @@ class StudyEldTipMass:
         if args.degree not in (1, 2):
             raise fail("--degree", args.degree, "must be 1 or 2")
         check_positive("--mass", args.mass)
-        for n in ns:  # the strip has 4n x n cells
-            dofs = 2 * (args.degree * 4 * n + 1) * (args.degree * n + 1)
+        dim = args.dim
+        if dim not in (2, 3):
+            raise fail("--dim", dim, "must be 2 or 3")
+        for n in ns:  # the strip has 4n x n cells, the 3D bar 4n x n x n cubes
+            dofs = dim * (args.degree * 4 * n + 1) * (args.degree * n + 1) ** (dim - 1)
             check_memory("--ns", n, dofs, ELD_BYTES_PER_DOF["2d"], what="unknowns")
+            if dim == 3 and dofs > TIP_MASS_MAX_DOFS:
+                raise fail(
+                    "--ns",
+                    n,
+                    f"gives {dofs} unknowns in 3D (P{args.degree}), must give at most "
+                    f"{TIP_MASS_MAX_DOFS} (the reference frequencies come from a dense modal "
+                    "analysis)",
+                )
         scheme, form = scheme_of(args), form_of(args)
         # the coarsest bar refuses a mesh with too few axial modes, naming --ns, before the
         # cluster starts
-        tip_mass_problem(min(ns), args.degree, mass=args.mass, T=T)
+        tip_mass_problem(min(ns), args.degree, mass=args.mass, T=T, mesh=tip_mass_bar(min(ns), dim))
         executor = executor_from_args(args, f"rothe study {self.name}")
         out = output_dir(args, self.name)
         study = tip_mass_study(
@@ -1353,6 +1373,7 @@ class StudyEldTipMass:
             form=form,
             mass=args.mass,
             T=T,
+            dim=dim,
             executor=executor,
         )
         table = format_tip_mass_table(study)
@@ -1364,7 +1385,8 @@ class StudyEldTipMass:
             plot_tip_mass_study(
                 study,
                 out / "fig_tip_mass_frequency.png",
-                title=f"eld-tip-mass: first axial frequency, P{args.degree}, m = {args.mass:g}",
+                title=f"eld-tip-mass: first axial frequency, {dim}D, P{args.degree}, "
+                f"m = {args.mass:g}",
             )
 
         write_study(args, out, study, table, draw)

@@ -60,6 +60,9 @@ MAX_ELD_STEPS = 10**7
 ELD_BYTES_PER_DOF = {"2d": 6000, "3d-lu": 50_000, "3d-amg": 3000}
 #: 3D unknowns up to which the beam's auto solver is sparse LU (rothe.eld.solvers)
 BEAM_LU_LIMIT = 30_000
+#: the most unknowns of a tip-mass body for the dense modal analysis behind its reference
+#: frequencies (the built-in strip's cap in 2D P2): eld-tip-mass --mesh, study eld-tip-mass
+TIP_MASS_MAX_DOFS = 16_000
 
 
 # -- options ----------------------------------------------------------------------------------

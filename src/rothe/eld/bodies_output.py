@@ -88,17 +88,54 @@ def _mesh_of(name: str, space) -> dict:
     }
 
 
-def _xdmf(out: Path, problem, t, us, vs, lams) -> list:
-    """The XDMF series of one body on its fixed mesh (segments in a hidden work directory
-    beside the results, then both series atomically)."""
-    work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{problem.name}.parts"
+def _xdmf(out: Path, problem, t, us, vs, lams, name: str | None = None) -> list:
+    """The XDMF series of one body on its fixed mesh, ``<name>.xdmf`` and
+    ``<name>_multiplier.xdmf`` (``name``: the problem's by default; segments in a hidden work
+    directory beside the results, then both series atomically)."""
+    name = problem.name if name is None else name
+    work = out / f"{TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}-{name}.parts"
     try:
-        writer = EldXdmfWriter(work, problem, name=problem.name)
+        writer = EldXdmfWriter(work, problem, name=name)
         for j in range(len(t)):
             writer.write(t[j], us[j], vs[j], lams[j])
         return list(writer.export(out))
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+def kept_states(n: int, every: int) -> np.ndarray:
+    """The states 0, every, 2 every, ... and the last of ``n`` recorded states."""
+    return np.union1d(np.arange(0, n, max(int(every), 1)), [n - 1])
+
+
+def write_body_result(
+    result, problem, out_dir, name: str, npz: str = "trajectory.npz", every: int = 1
+) -> dict:
+    """Write ``npz`` and the ParaView series ``<name>`` of a one-body coupled run
+    (:func:`rothe.eld.run_coupled` with ``fields=True``; ``problem`` its system's body, whose
+    constraint covers the prescribed and the coupled parts): on a fixed mesh ``<name>.xdmf`` (u,
+    v, stresses) and ``<name>_multiplier.xdmf`` (lambda on every constrained part), with
+    ``adapt=`` ``<name>.pvd`` and one VTU per state on its own mesh -- the series of the base of
+    glued bodies (:func:`write_bodies_result`). ``every``: the series, and on a fixed mesh the
+    fields ``u``, ``v``, ``lam`` in ``npz``, keep every k-th state, the first and the last
+    (:func:`kept_states`; their numbers in ``kept_states``); the other series of the run keep
+    every state. Returns the written paths by kind (``npz``, ``xdmf`` or ``pvd``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    traj, meshes = result.trajectory, result.meshes
+    t = np.asarray(traj["t"])
+    if meshes is None:
+        keep = kept_states(t.size, every)
+        u, v, lam = (np.asarray(traj[k])[keep] for k in ("u", "v", "lam"))
+        # (save_npz writes extra after the series: the kept rows replace the full ones)
+        extra = {"u": u, "v": v, "lam": lam, "kept_states": keep}
+        paths: dict = {"xdmf": _xdmf(out, problem, t[keep], u, v, lam, name=name)}
+    else:
+        keep = kept_states(len(meshes.kept["u"]), every)
+        extra = {**meshes.npz_arrays(traj), **result.mesh_arrays(), "kept_states": keep}
+        paths = {"pvd": write_adaptive_series(out, name, meshes, traj, states=keep)}
+    paths["npz"] = traj.save_npz(out / npz, extra=extra)
+    return paths
 
 
 def write_bodies_result(result, glued, out_dir, *, paraview: bool = True, npz: bool = True):

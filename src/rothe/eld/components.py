@@ -47,15 +47,16 @@ SYMMETRY_TOL = 1e-12
 FD_TOL = 1e-5
 
 
-def check_spd(name: str, M, size: int | None = None) -> np.ndarray:
-    """A symmetric positive definite (m, m) matrix, or a one-line error naming ``name``."""
+def check_spd(name: str, M, size: int | None = None, symbol: str = "M") -> np.ndarray:
+    """A symmetric positive definite (m, m) matrix, or a one-line error naming ``name``
+    (``symbol``: the matrix's letter in the message)."""
     A = np.atleast_2d(np.asarray(M, dtype=float))
     if A.ndim != 2 or A.shape[0] != A.shape[1] or (size is not None and A.shape[0] != size):
         want = f"({size}, {size})" if size is not None else "square"
         raise fail(name, described(f"an array of shape {np.shape(M)}"), f"must be {want}")
     if not np.all(np.isfinite(A)):
         raise fail(name, described("non-finite entries"), "must be finite")
-    A = _symmetric(name, A, "M", "must be symmetric positive definite")
+    A = _symmetric(name, A, symbol, "must be symmetric positive definite")
     eig = np.linalg.eigvalsh(A)
     if not eig[0] > 1e-12 * max(eig[-1], 0.0):
         raise fail(
@@ -481,7 +482,8 @@ class RigidBody(LinearComponent):
         if d == 2:
             J = np.atleast_2d(check_positive("inertia", inertia))
         else:
-            J = check_spd("inertia", _matrix("inertia", inertia, 3, symmetric=True))
+            # (not _matrix(symmetric=True): its refusal is a stiffness's, "a potential force")
+            J = check_spd("inertia", _matrix("inertia", inertia, 3), symbol="J")
         S = skew(c).reshape(d, nrot)  # 2D: (-c_y, c_x); 3D: [c]_x, the translational coupling
         if d == 3:
             S = -S  # a' . (theta' x c) = a' . (-[c]_x theta')

@@ -162,6 +162,8 @@ class ReactionSensor(Sensor):
             )
         w = c._reaction_weights[self.part]  # int_P lambda_c ds = w . lambda_c
         axes = list(range(d)) if self.axes is None else self.axes
+        if any(not 0 <= a < d for a in axes):  # (the body's dimension is known only here)
+            raise fail(f"{name}.axes", self.axes, f"must be axes 0..{d - 1} of the {d}D body")
         Y = np.zeros((len(axes), c.m))
         for k, a in enumerate(axes):
             Y[k, a::d] = -w

@@ -310,21 +310,23 @@ def _vertex_values(meshes, w, mesh_id) -> np.ndarray:
     return np.asarray(w).reshape(-1, meshes.components)[:nv]
 
 
-def write_adaptive_series(out_dir, name: str, meshes, traj) -> Path:
+def write_adaptive_series(out_dir, name: str, meshes, traj, states=None) -> Path:
     """``<name>.pvd`` and one VTU per kept state of a space-adaptive run on its own mesh
     (:class:`rothe.eld.adapt.ELDMeshes` ``meshes``; ``traj`` with ``kept_t``,
     ``kept_mesh_id``): point data ``u``, ``v`` and the fields of :func:`adaptive_frame`.
     run_eld's series and that of the adaptive body of glued bodies
-    (:func:`rothe.eld.bodies_output.write_bodies_result`). Returns the ``.pvd``."""
+    (:func:`rothe.eld.bodies_output.write_bodies_result`); ``states``: the indices of the kept
+    states to write (default all). Returns the ``.pvd``."""
     ids = np.asarray(traj["kept_mesh_id"], dtype=np.int64)
+    states = np.arange(ids.size) if states is None else np.asarray(states, dtype=np.int64)
     data, cells = [], []
-    for k, (u, v, m) in enumerate(zip(meshes.kept["u"], meshes.kept["v"], ids, strict=True)):
-        point, cell = adaptive_frame(meshes, k, int(m))
+    for k in states:
+        u, v, m = meshes.kept["u"][k], meshes.kept["v"][k], ids[k]
+        point, cell = adaptive_frame(meshes, int(k), int(m))
         data.append({"u": _vertex_values(meshes, u, m), "v": _vertex_values(meshes, v, m), **point})
         cells.append(cell)
-    return write_vtu_series(
-        out_dir, name, meshes.series, ids, traj["kept_t"], data, cell_data=cells
-    )
+    times = np.asarray(traj["kept_t"])[states]
+    return write_vtu_series(out_dir, name, meshes.series, ids[states], times, data, cell_data=cells)
 
 
 def _write_adaptive(result, out_dir, name, paraview, figures, npz, title) -> dict:

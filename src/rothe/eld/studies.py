@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import RotheInputError, check_int, check_positive, fail
+from ..fem.mesh import box
 from ..parallel import Executor, Task
 from ..stepping.controllers import Uniform
 from .coupled_run import run_coupled
@@ -751,13 +752,35 @@ def format_perturbation_table(study: dict) -> str:
 # -- the tip-mass bar's first frequency in h and tau (issue 19) ----------------------------------
 
 
+#: the tip-mass bar of the study: length and height (and width in 3D) of the strip or the box
+TIP_MASS_BAR = (1.0, 0.25)
+
+
+def tip_mass_bar(n: int, dim: int = 2):
+    """The study's 3D bar [0, 1] x [0, 0.25]^2 with n cubes across and 4n along (six
+    tetrahedra each; parts ``left`` .. ``back``: :func:`rothe.fem.mesh.box`); None in 2D (the
+    strip of :func:`tip_mass_problem`, n cells across)."""
+    if dim == 2:
+        return None
+    length, height = TIP_MASS_BAR
+    return box(max(1, round(n * length / height)), n, n, length, height, height)
+
+
 def tip_mass_frequency_run(
-    n: int, tau: float, *, degree: int, scheme: Scheme, form: Form, mass: float, T: float
+    n: int,
+    tau: float,
+    *,
+    degree: int,
+    scheme: Scheme,
+    form: Form,
+    mass: float,
+    T: float,
+    dim: int = 2,
 ) -> dict:
     """One (n, tau) of :func:`tip_mass_study` (a task: builds the bar itself): the first axial
     angular frequency of the analytic bar, of the semi-discrete system and measured from the
     run's tip displacement (zero crossings)."""
-    example = tip_mass_problem(n, degree, mass=mass, T=T)
+    example = tip_mass_problem(n, degree, mass=mass, T=T, mesh=tip_mass_bar(n, dim))
     res = run_coupled(example.system, scheme=scheme, form=form, control=Uniform(tau))
     q = np.asarray(res.trajectory["q"])
     return {
@@ -777,13 +800,16 @@ def tip_mass_study(
     form: Form = DEFAULT_FORM,
     mass: float = 0.25,
     T: float = 2.0,
+    dim: int = 2,
     progress: bool = False,
     executor=None,
 ) -> dict:
     """The first axial frequency of the tip-mass bar (:func:`tip_mass_problem`: P1/P2 strip
-    with n cells across, clamped on ``left``, the mass on ``right`` by B u = q, started in its
-    first mode) against the analytic bar-with-tip-mass value (beta L tan(beta L) = rho A L /
-    m), for every mesh n and step tau.
+    with n cells across -- or with ``dim=3`` the box bar 1 x 0.25 x 0.25 with n x n cubes
+    across, :func:`tip_mass_bar` --, clamped on ``left``, the mass on ``right`` by B u = q,
+    started in its first mode) against the analytic bar-with-tip-mass value (beta L tan(beta
+    L) = rho A L / m; A = 0.25 per unit thickness in 2D, 0.0625 in 3D), for every mesh n and
+    step tau.
 
     The measured error w_run / w - 1 splits into the space error w_h / w - 1 of the semi-
     discrete system (no tau: :func:`~rothe.eld.coupled_step.coupled_modes`; order 2p in h for
@@ -807,9 +833,11 @@ def tip_mass_study(
     scheme : Scheme
     form : Form
     mass : float
-        The tip mass (the bar's own mass is 0.25).
+        The tip mass (the bar's own mass is 0.25 in 2D, 0.0625 in 3D).
     T : float
-        End time (2: about 2.7 periods).
+        End time (2: about 2.7 periods in 2D).
+    dim : int
+        2 (the plane-stress strip) or 3 (the box bar, nu = 0: both are exact 1D bars axially).
     progress : bool
         Unused (coupled runs have no progress bar); for the commands' common call.
     executor : Executor, optional
@@ -818,14 +846,16 @@ def tip_mass_study(
     taus = [check_positive("taus", t) for t in taus]
     if len(ns) < 2 and len(taus) < 2:
         raise fail("ns", ns, "needs two meshes or two step sizes (with taus) to fit an order")
+    if dim not in (2, 3):
+        raise fail("dim", dim, "must be 2 or 3")
     scheme, form = as_scheme(scheme), as_form(form)
-    options = dict(degree=degree, scheme=scheme, form=form, mass=mass, T=T)
+    options = dict(degree=degree, scheme=scheme, form=form, mass=mass, T=T, dim=dim)
     tasks = [
         Task(
             f"n={n} tau={tau:g}",
             tip_mass_frequency_run,
             dict(n=n, tau=tau, **options),
-            cost=n * n / tau,
+            cost=n**dim / tau,
         )
         for n in ns
         for tau in taus
@@ -850,6 +880,7 @@ def tip_mass_study(
     measured = [[rows[n].get(tau, {}).get("measured", nan) for tau in taus] for n in ns]
     out = {
         "example": "eld-tip-mass",
+        "dim": dim,
         "degree": degree,
         "scheme": scheme.name,
         "form": form.name,
@@ -878,7 +909,8 @@ def format_tip_mass_table(study: dict) -> str:
     """The tip-mass study as a table: per (n, tau) the measured first frequency and its error
     against the analytic value, split into space and time; the fitted orders."""
     lines = [
-        f"eld-tip-mass, P{study['degree']}, {study['scheme']}, {study['form']}, m = "
+        f"eld-tip-mass, {study.get('dim', 2)}D, P{study['degree']}, {study['scheme']}, "
+        f"{study['form']}, m = "
         f"{study['mass']:g}: first axial angular frequency, analytic {study['analytic']:.8g}",
         f"{'n':>4} {'dofs':>6} {'tau':>9} {'measured':>12} {'error':>10} {'space':>10} "
         f"{'time':>10}",
