@@ -21,6 +21,7 @@ from rothe.eld.control import LinearController, PointSensor
 from rothe.eld.coupling import CoupledProblem, Translation
 from rothe.stepping.controllers import Adaptive
 
+from .test_coupled_resume import assert_same, interrupted
 from .test_coupled_step import H, _shake, _shake_ddot, _shake_dot, _shaken_tip, _strip
 
 pytestmark = pytest.mark.filterwarnings("ignore:G_d")
@@ -106,3 +107,18 @@ def test_a_run_without_controller_states_steps_as_before_bit_for_bit(
     assert len(tr["tau"]) == steps
     assert [float(x).hex() for x in tr["q"][-1]] == list(q_end)
     assert float(tr["local_error"][-1]).hex() == error_end
+
+
+def test_resume_keeps_the_z_scale_bit_for_bit(tmp_path, signal_at_attempt):
+    """The running maximum Z_j is in the checkpoint: a run whose steps the oscillator's z sets,
+    stopped thrice and resumed, equals the uninterrupted run (with Z_j taken from the state's
+    |z| on resume instead, the last bits of the estimate and then the steps differ)."""
+    options = dict(scheme=BDF2(), control=Adaptive(1e-3, tau=0.01))
+    full = run_coupled(_tip_with_oscillator(T=0.1), **options)
+
+    def make_run(**kw):
+        return run_coupled(_tip_with_oscillator(T=0.1), **options, **kw)
+
+    res = interrupted(make_run, signal_at_attempt, tmp_path / "c", attempts=(5, 9, 7))
+    assert_same(full.trajectory, res.trajectory)
+    assert res.trajectory.meta["sessions"] == 4
