@@ -22,8 +22,23 @@ coupled system, relative to the largest energy norm so far:
     local_error = c(omega) (r_u.K r_u + rho r_v.M r_v + r_q.K_q r_q + r_p.M_q r_p)^{1/2} / S_j
 
 (c(omega) the scheme's factor, :meth:`~rothe.eld.scheme.Scheme.estimate_factor`; K_q the
-linear components' stiffness; S_j >= ``error_scale``). Controller states z are not in the norm
-(they have no energy; a controller's effect shows in q and u).
+linear components' stiffness; S_j >= ``error_scale``). The controllers' states z have no
+energy: their trapezoidal residual r_z = z^j - z^{j-1} - tau/2 (zdot^j + zdot^{j-1}) is measured
+in the Euclidean norm relative to their own scale, and the step's estimate is the larger of the
+two (issue 19, item 2; docs/coupling.md, Sec. 11):
+
+    local_error = max(above, c(omega) |r_z| / Z_j),
+    Z_j = max(error_scale, max_{i <= j} max(|z^i|, theta |B_c y^i|)),  theta = 1/max(|A_c|_2, 1/T)
+
+(A_c, B_c the controllers' state matrices, y the sensors' readings). The maximum and not a sum:
+the two parts have different units (energy^{1/2} and z's), each is made relative to its own
+scale, and the step must meet tol in both -- the mixed norm of ODE codes (a weighted max over
+groups of unknowns). The floor theta |B_c y| is the z the sensors drive the controllers to on
+their own time scale (y for a filter z' = (y - z)/T_f; T |B_c y| for an integrator): without it
+a controller starting at z = 0 from a body at rest is a pure power law z ~ t^k at the start,
+whose residual relative to |z| does not fall with tau there (self-similar) -- the steps fell
+to 1e-10 on eld-control with --kd (measured, docs/coupling.md). Without controllers' states
+the estimate is the energy part alone, bit for bit as before.
 
 **Why a function of its own** and not ``run_eld(CoupledProblem)``: the same keywords
 (``scheme=``, ``form=``, ``control=``) mean the same objects, but a coupled run has a different
@@ -113,6 +128,7 @@ class CoupledState:
     ledger: dict
     energy_start: float
     energy_norm_max: float = 0.0
+    z_norm_max: float = 0.0  # max over states of max(||z||, theta ||B_c y||): z's error scale
     energies: tuple | None = None  # (body, components) at this state, once computed
     lam_norm: float | None = None  # ||lam||_{L2(Gamma)}, once computed
     mesh_id: int = 0  # the body's mesh (space adaptivity)
@@ -285,6 +301,9 @@ class CoupledStepper(GridLoop):
         self._start = CoupledMesh(system, kern)  # the initial mesh's (a resumed run rebuilds)
         self._bind(system, kern)
         self.r, self.s_ctrl = kern.r, kern.s
+        #: theta = 1 / max(||A_c||_2, 1/T): the controllers' time scale; theta ||B_c y|| is the z
+        #: the sensors' reading drives them to (the z floor of the estimate, module docstring)
+        self._z_time = 1.0 / max(float(np.linalg.norm(kern.Ac, 2)), 1.0 / self.T) if kern.s else 0.0
         self.comps_linear = all(cmp.is_linear for cmp in system.components)
         self.Mq = system.mass()
         r = self.r
@@ -467,6 +486,13 @@ class CoupledStepper(GridLoop):
             ledger=ledger,
             energy_start=Eb + Ec,
             energy_norm_max=self._norm(u0, v0, q0, p0),
+            z_norm_max=self._z_size(z0, ys0) if self.s_ctrl else 0.0,
+        )
+
+    def _z_size(self, z, ys) -> float:
+        """max(||z||, theta ||B_c y||): the controllers' size at a state (module docstring)."""
+        return max(
+            float(np.linalg.norm(z)), self._z_time * float(np.linalg.norm(self.kern.Bc @ ys))
         )
 
     def _history(self, state: CoupledState, tau: float) -> dict:
@@ -783,11 +809,17 @@ class CoupledStepper(GridLoop):
         # K ru and rho M rv: the same differences of the products
         Kru = Ku - hist["Ku"][-1] - ht * (now["Kv"] + hist["Kv"][-1])
         Mrv = Mv - hist["Mv"][-1] - ht * (Ma + hist["Ma"][-1])
+        factor = self.scheme.estimate_factor(omega)
         est = (
-            self.scheme.estimate_factor(omega)
+            factor
             * math.sqrt(max(ru @ Kru + rv @ Mrv + rq @ (Kq @ rq) + rp @ (Mq @ rp), 0))
             / scale
         )
+        z_norm_max = state.z_norm_max
+        if s:  # the controllers' z: their own residual and scale, the larger estimate counts
+            rz = z - state.z - ht * (zdot + state.zdot)
+            z_norm_max = max(z_norm_max, self._z_size(z, ys))
+            est = max(est, factor * float(np.linalg.norm(rz)) / max(self.error_scale, z_norm_max))
         new_hist = {
             key: [hist[key][-1], val]
             for key, val in zip(_HISTORY, (x, y, q, p, z, gk, gdk, u, v), strict=True)
@@ -811,6 +843,7 @@ class CoupledStepper(GridLoop):
             ledger=L,
             energy_start=state.energy_start,
             energy_norm_max=max(state.energy_norm_max, norm_new),
+            z_norm_max=z_norm_max,
             energies=(Eb, Ec),
             lam_norm=math.sqrt(max(float(lam @ MGlam), 0.0)),
             mesh_id=state.mesh_id,
@@ -1033,6 +1066,7 @@ class CoupledStepper(GridLoop):
             "ledger": {key: float(v) for key, v in state.ledger.items()},
             "energy_start": float(state.energy_start),
             "energy_norm_max": float(state.energy_norm_max),
+            "z_norm_max": float(state.z_norm_max),
             "energies": None if state.energies is None else [float(e) for e in state.energies],
             "lam_norm": None if state.lam_norm is None else float(state.lam_norm),
             "mesh_id": int(state.mesh_id),
@@ -1102,6 +1136,8 @@ class CoupledStepper(GridLoop):
             ledger={key: float(v) for key, v in data["ledger"].items()},
             energy_start=float(data["energy_start"]),
             energy_norm_max=float(data["energy_norm_max"]),
+            # (a checkpoint from before z entered the norm: ||z|| now, 0 without controllers)
+            z_norm_max=float(data.get("z_norm_max", np.linalg.norm(vectors["z"]))),
             energies=None if energies is None else tuple(float(e) for e in energies),
             lam_norm=None if lam_norm is None else float(lam_norm),
             mesh_id=int(data.get("mesh_id", 0)),
