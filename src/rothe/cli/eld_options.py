@@ -338,10 +338,11 @@ def material_fields(args, default: dict, material) -> dict:
 MESH_PARAMETERS = {"materials": "--material", "regions": "--region", "adapt": "--adapt-space"}
 
 
-def mesh_options(parser, *, dirichlet: str, dirichlet_help: str) -> None:
+def mesh_options(parser, *, dirichlet: str | None, dirichlet_help: str = "") -> None:
     """``--mesh FILE`` (anything meshio reads; parts and regions by gmsh physical-group
-    name), ``--duplicate-nodes``, ``--dirichlet PART[,PART]`` (default ``dirichlet``),
-    ``--material NAME:KEY=VALUE,...`` and ``--region NAME=GROUP[,GROUP]`` (both repeatable)."""
+    name), ``--duplicate-nodes``, ``--dirichlet PART[,PART]`` (default ``dirichlet``; none
+    with ``dirichlet=None``: a body held by its couplings only), ``--material
+    NAME:KEY=VALUE,...`` and ``--region NAME=GROUP[,GROUP]`` (both repeatable)."""
     parser.add_argument(
         "--mesh",
         default=None,
@@ -356,12 +357,13 @@ def mesh_options(parser, *, dirichlet: str, dirichlet_help: str) -> None:
         help="coincident nodes of a --mesh file used by different cells (a cut, like a crack): "
         "error (default) | merge (glue them) | keep (the cut is intended)",
     )
-    parser.add_argument(
-        "--dirichlet",
-        default=dirichlet,
-        metavar="PART[,PART]",
-        help=f"{dirichlet_help} (default {dirichlet})",
-    )
+    if dirichlet is not None:
+        parser.add_argument(
+            "--dirichlet",
+            default=dirichlet,
+            metavar="PART[,PART]",
+            help=f"{dirichlet_help} (default {dirichlet})",
+        )
     parser.add_argument(
         "--material",
         action="append",
@@ -379,6 +381,27 @@ def mesh_options(parser, *, dirichlet: str, dirichlet_help: str) -> None:
         help="with --material: the physical groups (cell regions) of the mesh that material "
         "NAME fills, e.g. steel=Volume1,Volume3; repeatable; every cell must get one material",
     )
+
+
+def part_option(parser, option: str, default: str, what: str) -> None:
+    """A boundary part by name (``--tip``, ``--base``, ...): a part of the built-in grid or a
+    physical group of the ``--mesh`` file."""
+    parser.add_argument(
+        option,
+        default=default,
+        metavar="PART",
+        help=f"{what}: a boundary part (a physical group with --mesh) (default {default})",
+    )
+
+
+def check_one_material(args, command: str, why: str) -> None:
+    """Refuse ``--material`` on a command whose example takes one material (one line)."""
+    if args.material:
+        raise fail(
+            "--material",
+            args.material[0],
+            f"is not taken by {command} (one material, --E/--nu or --lam/--mu and --rho: {why})",
+        )
 
 
 def _split_list(text: str) -> list[str]:

@@ -977,6 +977,8 @@ class TMDExample:
     beam_frequency : float
         w_1 of the Euler-Bernoulli cantilever of the strip (clamped, no plate, no base), for
         comparison.
+    length, height : float
+        The strip's L and H (of a mesh: its extent in x and area / L).
     """
 
     with_tmd: CoupledProblem
@@ -987,24 +989,56 @@ class TMDExample:
     damping: float
     forcing: float
     beam_frequency: float
+    length: float = math.nan
+    height: float = math.nan
 
 
-def _strip(n, degree, length, height, material, young):
-    """The strip of the coupled examples: the checked ``n``, ``length``, ``height``, the
+def _strip(n, degree, length, height, material, young, mesh=None, base="left", tip="right"):
+    """The body of the coupled examples: the checked ``n``, ``length``, ``height``, the
     material (default E = ``young``, nu = 0, rho = 1, plane stress), the axial modulus of the
-    strip (E in plane stress, E/(1 - nu^2) in plane strain) and the mesh, round(n L/H) x n
-    cells on [0, L] x [0, H]."""
-    n = check_int("n", n, minimum=1)
+    strip (E in plane stress, E/(1 - nu^2) in plane strain), the mesh, round(n L/H) x n cells on
+    [0, L] x [0, H], and the centroid and length of the ``tip`` part (the right side: (L, H/2)
+    and H).
+
+    ``mesh``: a 2D body with the named parts ``base`` and ``tip`` instead of the strip; it is
+    taken as a strip along x: L its extent in x, H = area / L (the strip's own L, H to
+    round-off), the tip's centroid and length from its facets
+    (:func:`rothe.fem.mesh.part_centroid`)."""
     if degree not in (1, 2):
         raise fail("degree", degree, "must be 1 or 2")
-    length = check_positive("length", length)
-    height = check_positive("height", height)
+    if isinstance(material, PiecewiseMaterial):
+        raise fail(
+            "material",
+            described("a PiecewiseMaterial"),
+            "must be one Material (the example sizes its support and predicts its frequencies "
+            "by the strip's E and rho)",
+        )
+    if mesh is None:
+        n = check_int("n", n, minimum=1)
+        length = check_positive("length", length)
+        height = check_positive("height", height)
+        mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
+        meshes.part_centroid(mesh, base, "base")
+        if tip == "right":  # (exact, as before the parts could be named)
+            center, tip_size = np.array([length, height / 2]), height
+        else:
+            center, tip_size = meshes.part_centroid(mesh, tip, "tip")
+    else:
+        if meshes.mesh_dim(mesh) != 2:
+            raise fail(
+                "mesh",
+                described(f"a {meshes.mesh_dim(mesh)}D mesh ({meshes.describe(mesh)})"),
+                "must be 2D (this example's support and tip plate are plane)",
+            )
+        meshes.part_centroid(mesh, base, "base")
+        center, tip_size = meshes.part_centroid(mesh, tip, "tip")
+        length = float(np.ptp(np.asarray(mesh.p)[0]))
+        height = float(meshes.cell_volumes(mesh).sum()) / length
     if material is None:
         material = Material.from_young(young, 0.0, 1.0, dim=2, plane="stress")
     E, nu = material.young
     modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
-    mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
-    return n, length, height, material, modulus, mesh
+    return n, length, height, material, modulus, mesh, center, tip_size
 
 
 def tmd_problem(
@@ -1019,6 +1053,9 @@ def tmd_problem(
     forcing_ratio: float = 1.0,
     b: float = 0.0,
     T: float = 12.0,
+    mesh=None,
+    base: str = "left",
+    tip: str = "right",
 ) -> TMDExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along; default material E = 10^4, nu = 0, rho = 1) whose ``left`` end is tied to a support
@@ -1039,12 +1076,22 @@ def tmd_problem(
     material : Material, optional
         A 2D material (default E = 10^4, nu = 0, rho = 1, plane stress).
     mass_ratio, force, forcing_ratio, b, T : float
+    mesh : skfem.MeshTri, optional
+        A 2D body along x with the named parts ``base`` (tied to the support) and ``tip`` (the
+        plate, centred at the part's centroid, J_p by the part's length) instead of the strip
+        (:func:`_strip`: L its extent in x, H = area / L; a gmsh mesh of the strip with these
+        parts gives the strip's run to round-off).
+    base, tip : str
+        The boundary parts (default ``left``, ``right``: the strip's).
 
     Returns
     -------
     TMDExample
     """
-    n, length, height, material, modulus, mesh = _strip(n, degree, length, height, material, 1e4)
+    refine = ("n", n) if mesh is None else ("mesh", described("the mesh"))
+    n, length, height, material, modulus, mesh, center, tip_size = _strip(
+        n, degree, length, height, material, 1e4, mesh, base, tip
+    )
     mu = check_positive("mass_ratio", mass_ratio)
     force = check_real("force", force)
     ratio = check_positive("forcing_ratio", forcing_ratio)
@@ -1055,15 +1102,14 @@ def tmd_problem(
     base_mass = strip
     base_k = (base_mass + strip) * (4.0 * w_eb) ** 2
     plate_mass = 0.05 * strip
-    plate_J = plate_mass * height**2 / 12
-    center = (length, height / 2)
+    plate_J = plate_mass * tip_size**2 / 12
     damping = RayleighDamping(0.0, b) if b > 0 else None
 
     def build(absorber=None, forcing=0.0):
         def push(t):
             return np.array([0.0, force * math.sin(forcing * t)])
 
-        base = MassSpringDamper(base_mass, base_k, load=push, name="base")
+        support = MassSpringDamper(base_mass, base_k, load=push, name="base")
         k, c = (0.0, 0.0) if absorber is None else absorber[1:]
         plate = PlateAbsorber(
             plate_mass,
@@ -1079,8 +1125,8 @@ def tmd_problem(
             material,
             degree=degree,
             damping=damping,
-            components=[base, plate],
-            couplings=[Translation("left", base), plate_coupling("right", plate)],
+            components=[support, plate],
+            couplings=[Translation(base, support), plate_coupling(tip, plate)],
             T=T,
             name="eld-tmd",
         )
@@ -1093,7 +1139,7 @@ def tmd_problem(
         ax = bare.offsets["tip"]
         bending = np.flatnonzero(np.abs(Q[ay]) > 10 * np.abs(Q[ax]))
         if bending.size == 0:
-            raise fail("n", n, "gives no bending mode among the first 8: refine")
+            raise fail(*refine, "gives no bending mode among the first 8: refine")
         k1 = int(bending[0])
         w1 = float(w[k1])
         m1 = 1.0 / float(Q[ay, k1]) ** 2  # (mass-normalized modes: the deflection a_y = 1)
@@ -1108,6 +1154,8 @@ def tmd_problem(
             damping=c_a,
             forcing=forcing,
             beam_frequency=float(w_eb),
+            length=length,
+            height=height,
         )
 
 
@@ -1137,6 +1185,8 @@ class ControlExample:
         :func:`rothe.eld.frequencies.first_mode_decay_rate` plus the uncontrolled rate.
     frequency : float
         w_1 of the discrete uncontrolled system (the mode the runs start in).
+    length, height : float
+        The strip's L and H (of a mesh: its extent in x and area / L).
     """
 
     controlled: CoupledProblem
@@ -1146,6 +1196,8 @@ class ControlExample:
     roots_undamped: np.ndarray
     modal_rate: float
     frequency: float
+    length: float = math.nan
+    height: float = math.nan
 
 
 def control_problem(
@@ -1163,6 +1215,9 @@ def control_problem(
     b: float = 0.005,
     amplitude: float = 0.01,
     T: float = 6.0,
+    mesh=None,
+    base: str = "left",
+    tip: str = "right",
 ) -> ControlExample:
     """A plane-stress strip [0, length] x [0, height] (default E = 100, nu = 0, rho = 1: the
     axial motion is the 1D bar's) whose ``left`` end is held by a base (mass ``base_mass``,
@@ -1185,12 +1240,21 @@ def control_problem(
     material : Material, optional
     base_mass, base_stiffness, gain, kd, filter_time, b, amplitude, T : float
         m_b, k_b, k_p, k_d, T_f (used with k_d > 0), b, the initial amplitude and T.
+    mesh : skfem.MeshTri, optional
+        A 2D body along x with the named parts ``base`` (held by the base) and ``tip`` (the
+        sensor at its centroid) instead of the strip (:func:`_strip`: L its extent in x,
+        H = area / L in the predicted roots).
+    base, tip : str
+        The boundary parts (default ``left``, ``right``: the strip's).
 
     Returns
     -------
     ControlExample
     """
-    n, length, height, material, modulus, mesh = _strip(n, degree, length, height, material, 100.0)
+    refine = ("n", n) if mesh is None else ("mesh", described("the mesh"))
+    n, length, height, material, modulus, mesh, center, _ = _strip(
+        n, degree, length, height, material, 100.0, mesh, base, tip
+    )
     mb = check_positive("base_mass", base_mass)
     kb = check_nonnegative("base_stiffness", base_stiffness)
     kp = check_real("gain", gain)
@@ -1202,20 +1266,22 @@ def control_problem(
     Tf = check_positive("filter_time", filter_time) if kd > 0 else None
 
     def build(feedback: bool, q0=None, u0=None):
-        base = MassSpringDamper(mb, [kb, 1e4], q0=q0, name="base")
-        sensor = PointSensor([length, height / 2], "velocity", axes=[0])
+        support = MassSpringDamper(mb, [kb, 1e4], q0=q0, name="base")
+        sensor = PointSensor(center, "velocity", axes=[0])
         ctrls = []
         if feedback:
             ctrls = [
-                LinearController.pd(kp, kd, sensor, base, filter_time=Tf, directions=[[1.0], [0.0]])
+                LinearController.pd(
+                    kp, kd, sensor, support, filter_time=Tf, directions=[[1.0], [0.0]]
+                )
             ]
         return CoupledProblem.from_body(
             mesh,
             material,
             degree=degree,
             damping=damping,
-            components=[base],
-            couplings=[Translation("left", base)],
+            components=[support],
+            couplings=[Translation(base, support)],
             controllers=ctrls,
             u0=u0,
             T=T,
@@ -1227,7 +1293,7 @@ def control_problem(
         w, U, Q = coupled_modes(build(False), 8)
         axial = np.flatnonzero(np.abs(Q[0]) > 10 * np.abs(Q[1]))
         if axial.size == 0:
-            raise fail("n", n, "gives no axial mode among the first 8: refine")
+            raise fail(*refine, "gives no axial mode among the first 8: refine")
         k = int(axial[0])
         scale = amplitude / abs(Q[0, k])
         q0, u0 = Q[:, k] * scale, U[:, k] * scale
@@ -1241,4 +1307,6 @@ def control_problem(
     free = controlled_bar_roots(length, modulus, rho, kelvin_voigt=b, count=2, **bar)
     undamped = controlled_bar_roots(length, modulus, rho, H=H, count=2, **bar)
     modal = first_mode_decay_rate(length, modulus, rho, H=H, **bar) - free[0].real
-    return ControlExample(controlled, uncontrolled, roots, free, undamped, modal, float(w[k]))
+    return ControlExample(
+        controlled, uncontrolled, roots, free, undamped, modal, float(w[k]), length, height
+    )
