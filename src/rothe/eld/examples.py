@@ -453,9 +453,12 @@ def beam_problem(
     t_move: float = 0.5,
     T: float = 2.0,
     degree: int = 1,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
+    mesh=None,
+    dirichlet=("left",),
 ) -> ELDProblem:
-    """The cantilever: n cells across the unit cross-section, round(length * n) along it.
+    """The cantilever: n cells across the unit cross-section, round(length * n) along it; the
+    ``dirichlet`` parts (default ``left``, x = 0) held and moved along z by G(t).
 
     Parameters
     ----------
@@ -473,8 +476,13 @@ def beam_problem(
         The end time.
     degree : int
         1 or 2.
-    material : Material, optional
-        A 3D material instead of E, nu, rho.
+    material : Material or PiecewiseMaterial, optional
+        A 3D material instead of E, nu, rho (materials by region with a ``mesh``).
+    mesh : skfem.MeshTet, optional
+        Any 3D body with named boundary parts (e.g. gmsh physical groups,
+        :func:`rothe.fem.mesh.load_mesh`) instead of the box; ``n`` and ``length`` unused.
+    dirichlet : str or tuple of str
+        The held and moved parts (an unknown name: one line listing the mesh's parts).
 
     Returns
     -------
@@ -482,15 +490,24 @@ def beam_problem(
     """
     if material is None:
         material = Material.from_young(E, nu, rho, dim=3)
-    nx = max(1, int(round(length * n)))
-    mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
+    if mesh is None:
+        nx = max(1, int(round(length * n)))
+        mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
+    elif meshes.mesh_dim(mesh) != 3:
+        raise fail(
+            "mesh",
+            described(f"a 2D mesh ({meshes.describe(mesh)})"),
+            "must be 3D (tetrahedra: the held end moves along z)",
+        )
     motion = EndMotion(amplitude, t_move)
+    held = DirichletData(motion.G, motion.G_dot, motion.G_ddot)
+    parts = (dirichlet,) if isinstance(dirichlet, str) else tuple(dirichlet)
     return ELDProblem(
         mesh,
         material,
         degree=degree,
         damping=damping,
-        dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
+        dirichlet={part: held for part in parts},
         T=T,
         name="eld-beam",
     )
@@ -679,8 +696,9 @@ def pulse_3d_problem(
     lam: float = 2.0,
     mu: float = 1.0,
     T: float = 0.5,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
     mesh=None,
+    dirichlet=("left",),
 ) -> ELDProblem:
     """The pulse in 3D: the block [0, length] x [0, 1] x [0, 1] (:func:`block`, round(length n)
     x n x n cubes of six tetrahedra), its face x = 0 (``left``) held and pushed along x by
@@ -716,7 +734,13 @@ def pulse_3d_problem(
         Instead of rho, lam, mu (dim 3).
     mesh : skfem.MeshTet, optional
         A refinement of the block with its named faces instead of n, length (the nested
-        meshes of the benchmark, :class:`rothe.fem.adapt.AdaptiveMesh` ``.uniform``).
+        meshes of the benchmark, :class:`rothe.fem.adapt.AdaptiveMesh` ``.uniform``), or any
+        3D body with named parts (a gmsh file): the first ``dirichlet`` part pushed along its
+        mean inward normal around the centre of its bounding box
+        (:func:`rothe.fem.mesh.part_frame`: on the block's ``left`` exactly e_x at
+        (0, 1/2, 1/2)), the others held (:func:`pulse_problem`).
+    dirichlet : sequence of str
+        The held parts, the pushed one first (default ``("left",)``).
 
     Returns
     -------
@@ -726,6 +750,12 @@ def pulse_3d_problem(
         n = check_int("n", n, minimum=1)
         length = check_positive("length", length)
         mesh = block(max(1, round(length * n)), n, n, length)
+    elif meshes.mesh_dim(mesh) != 3:
+        raise fail(
+            "mesh",
+            described(f"a 2D mesh ({meshes.describe(mesh)})"),
+            "must be 3D (tetrahedra; the 2D pulse is eld-pulse)",
+        )
     if material is None:
         material = Material(rho=rho, lam=lam, mu=mu, dim=3)
     return pulse_problem(
@@ -737,7 +767,7 @@ def pulse_3d_problem(
         T=T,
         mesh=mesh,
         material=material,
-        dirichlet=("left",),
+        dirichlet=dirichlet,
         name="eld-pulse-3d",
     )
 
