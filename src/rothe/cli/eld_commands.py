@@ -47,6 +47,7 @@ from ..eld.studies import (
     tip_mass_study,
 )
 from ..errors import check_choice, check_int, check_positive, described, fail
+from ..fem.mesh import boundary_part_names
 from ..fem.petsc_env import launched_processes
 from ..io.checkpoint import CheckpointError, load_checkpoint
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
@@ -56,6 +57,7 @@ from .common import (
     dofs_keys,
     executor_from_args,
     float_option,
+    given,
     output_dir,
     parse_float_list,
     peak_memory_mb,
@@ -79,6 +81,7 @@ from .eld_options import (
     check_mesh_dim,
     check_mesh_options,
     check_mms_size,
+    check_one_material,
     check_space_data,
     check_study_options,
     damping_of,
@@ -442,8 +445,11 @@ class RunEldMMS(EldRunCommand):
         parser.add_argument(
             "--dirichlet",
             default="left",
-            help="comma-separated Dirichlet parts (default left); traction on the rest",
+            metavar="PART[,PART]",
+            help="comma-separated Dirichlet parts (default left; with --mesh every physical "
+            "group of the boundary); the exact traction on the rest",
         )
+        mesh_options(parser, dirichlet=None)
         parser.add_argument(
             "--start",
             default="exact",
@@ -459,11 +465,13 @@ class RunEldMMS(EldRunCommand):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
         objects, keep = self.step_checks(args)
+        check_mesh_options(args, ("--n",))
+        check_one_material(args, self.name, "the manufactured body force is of one material")
         n = check_int("--n", args.n, minimum=1)
-        check_mms_size(n, args.degree)
-        parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
-        if not parts:
-            raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
+        if args.mesh is None:
+            check_mms_size(n, args.degree)
+        # (--mesh without --dirichlet: every boundary part, read with the mesh in execute)
+        parts = parts_of(args) if args.mesh is None or given(args, "--dirichlet") else None
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"], hysteresis=True)
         check_space_data(args, space)
         material = material_of(args, MMS_MATERIAL)
@@ -472,6 +480,9 @@ class RunEldMMS(EldRunCommand):
     def execute(self, args) -> int:
         """Build the manufactured solution, run it as a session; the summary adds its errors."""
         objects, keep, n, parts, damping, space, material = self.validate(args)
+        mesh = body_mesh(args)
+        if parts is None:
+            parts = tuple(boundary_part_names(mesh))
         problem, exact = mms_problem(
             n,
             args.degree,
@@ -481,6 +492,7 @@ class RunEldMMS(EldRunCommand):
             start=args.start,
             load_quadrature=args.load_quadrature,
             material=material,
+            mesh=mesh,
         )
         fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-mms, {objects['scheme'].name}, {objects['form'].name}, " + (
@@ -488,7 +500,8 @@ class RunEldMMS(EldRunCommand):
         )
 
         def summarize(summary, result, completed):
-            summary.update(n=n, degree=args.degree, dirichlet=list(parts))
+            summary.update({"n": n} if mesh is None else mesh_fields(args, mesh))
+            summary.update(degree=args.degree, dirichlet=list(parts))
             summary["material"] = material_fields(args, MMS_MATERIAL, material)
             if completed:
                 summary.update(mms_errors(exact, result))

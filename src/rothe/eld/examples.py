@@ -187,8 +187,13 @@ def mms_problem(
     start: str = "exact",
     load_quadrature: int | None = None,
     material: Material | None = None,
+    mesh=None,
 ) -> tuple[ELDProblem, ManufacturedSolution]:
     """The manufactured-solution problem on the unit square with n x n cells (module docstring).
+
+    ``mesh``: any 2D body instead (u is defined everywhere): the exact data on the
+    ``dirichlet`` parts, its traction on every other named part; every boundary facet must be
+    in a named part (an unnamed one would be traction-free, not the manufactured solution's).
 
     Default damping: NonlinearDamping(b=0.01, d0=0.5, d_nl=1, v_ref=1). ``start='rest'`` starts
     from u0 = v0 = 0 instead of the exact initial data, which is inconsistent with G(0) != 0
@@ -224,8 +229,11 @@ def mms_problem(
         material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     damping = damping if damping is not None else NonlinearDamping(b=0.01, d0=0.5, d_nl=1.0)
     exact = ManufacturedSolution(material, damping)
-    mesh = meshes.unit_square(n, named=True)
-    dirichlet = tuple(dirichlet)
+    if mesh is None:
+        mesh = meshes.unit_square(n, named=True)
+    else:
+        _check_mms_mesh(mesh)
+    dirichlet = (dirichlet,) if isinstance(dirichlet, str) else tuple(dirichlet)
     data = DirichletData(exact.u, exact.u_dot, exact.u_ddot)
     names = sorted((mesh.boundaries or {}).keys())
     # an unknown Dirichlet name is reported by ELDProblem (one line, naming the known parts)
@@ -245,6 +253,32 @@ def mms_problem(
         load_quadrature=load_quadrature,
     )
     return problem, exact
+
+
+def _check_mms_mesh(mesh) -> None:
+    """A mesh for :func:`mms_problem`: 2D (the manufactured solution is plane), every boundary
+    facet in a named part; one line naming ``mesh`` otherwise."""
+    if meshes.mesh_dim(mesh) != 2:
+        raise fail(
+            "mesh",
+            described(f"a 3D mesh ({meshes.describe(mesh)})"),
+            "must be 2D (triangles: the manufactured solution is plane)",
+        )
+    named = [np.asarray(f) for f in (mesh.boundaries or {}).values()]
+    outside = np.setdiff1d(
+        np.asarray(mesh.boundary_facets()), np.concatenate(named) if named else []
+    )
+    if outside.size:
+        x = np.asarray(mesh.p)[:, np.asarray(mesh.facets)[:, outside[0]]].mean(axis=1)
+        raise fail(
+            "mesh",
+            described(
+                f"{outside.size} boundary facets in no named part (the first at "
+                f"({x[0]:.4g}, {x[1]:.4g}))"
+            ),
+            "must put every boundary facet in a physical group (the exact data or traction "
+            "goes on each part)",
+        )
 
 
 def mms_errors(exact: ManufacturedSolution, result) -> dict:
