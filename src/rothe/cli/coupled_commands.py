@@ -160,6 +160,12 @@ class CoupledRunCommand:
         mesh_options(parser, dirichlet=None)
         part_option(parser, "--base", "left", base)
         part_option(parser, "--tip", "right", tip)
+        parser.add_argument(
+            "--axis",
+            default="x",
+            help="x | y: the body's long axis (default x; y with --mesh only, the strip lies "
+            "along x); L is the mesh's extent along it",
+        )
 
     #: why --material is refused (eld-tmd, eld-control: the example takes one material)
     one_material = ""
@@ -172,6 +178,8 @@ class CoupledRunCommand:
         objects = self.run_objects(args)
         check_mesh_options(args, ("--n", "--length", "--height"))
         check_one_material(args, self.name, self.one_material)
+        if check_choice("--axis", args.axis, ("x", "y")) == "y" and args.mesh is None:
+            raise fail("--axis", "y", "needs --mesh (the built-in strip lies along x)")
         n = self.strip_checks(args)
         return objects, n, material_of(args, self.default_material)
 
@@ -185,6 +193,7 @@ class CoupledRunCommand:
             **mesh_fields(args, mesh),
             "base": args.base,
             "tip": args.tip,
+            "axis": args.axis,
             "length": example.length,
             "height": example.height,
         }
@@ -607,13 +616,15 @@ class RunEldTmd(CoupledRunCommand):
             mesh=mesh,
             base=args.base,
             tip=args.tip,
+            axis="xy".index(args.axis),
             mass_ratio=args.mass_ratio,
             force=args.force,
             forcing_ratio=args.forcing_ratio,
             b=args.b,
             T=args.T,
         )
-        tip = example.with_tmd.offsets["tip"] + 1  # the plate's deflection a_y, in q
+        across = 1 - "xy".index(args.axis)  # (pushed and measured across the body)
+        tip = example.with_tmd.offsets["tip"] + across  # the plate's deflection a_y, in q
 
         def summarize(summary, trajs, completed):
             summary.update(
@@ -640,7 +651,7 @@ class RunEldTmd(CoupledRunCommand):
                 last = t >= t[-1] - TMD_LAST_PERIODS * period
                 summary[f"tip_amplitude_max{suffix}"] = float(np.abs(q[:, tip]).max())
                 summary[f"tip_amplitude_last{suffix}"] = float(np.abs(q[last, tip]).max())
-                reaction = np.abs(np.asarray(traj[f"reaction_{args.base}"])[:, 1])
+                reaction = np.abs(np.asarray(traj[f"reaction_{args.base}"])[:, across])
                 summary[f"base_reaction_max{suffix}"] = float(reaction.max())
                 summary[f"balance_max{suffix}"] = float(np.abs(traj["balance"]).max())
                 summary[f"energy_final{suffix}"] = float(traj["energy"][-1])
@@ -666,9 +677,9 @@ class RunEldTmd(CoupledRunCommand):
                 {"with TMD": trajs["with_tmd"], "without TMD": trajs["without_tmd"]},
                 stage / "fig_tmd.png",
                 coordinate=tip,
-                label="tip deflection (end plate a_y)",
+                label=f"tip deflection (end plate a_{'xy'[across]})",
                 part=args.base,
-                axis=1,
+                axis=across,
                 title=f"eld-tmd, forcing {example.forcing:.4g} rad/s, mass ratio "
                 f"{args.mass_ratio:g}: amplitude / {summary['amplitude_reduction']:.3g}",
             )
@@ -789,6 +800,7 @@ class RunEldControl(CoupledRunCommand):
             mesh=mesh,
             base=args.base,
             tip=args.tip,
+            axis="xy".index(args.axis),
             base_mass=args.base_mass,
             base_stiffness=args.base_spring,
             gain=args.gain,
@@ -799,6 +811,7 @@ class RunEldControl(CoupledRunCommand):
             T=args.T,
         )
         roots, free, undamped = example.roots, example.roots_uncontrolled, example.roots_undamped
+        axis = "xy".index(args.axis)  # (the base's displacement along the bar: q[axis])
 
         def summarize(summary, trajs, completed):
             summary.update(
@@ -825,7 +838,7 @@ class RunEldControl(CoupledRunCommand):
                 if label not in trajs:
                     continue
                 traj = trajs[label]
-                t, y = traj["t"], np.asarray(traj["q"])[:, 0]
+                t, y = traj["t"], np.asarray(traj["q"])[:, axis]
                 summary[f"decay_rate_measured{suffix}"] = decay_rate(t, y)
                 summary[f"frequency_measured{suffix}"] = crossing_frequency(t, y)
                 summary[f"balance_max{suffix}"] = float(np.abs(traj["balance"]).max())
@@ -846,10 +859,10 @@ class RunEldControl(CoupledRunCommand):
                     "no feedback": trajs["uncontrolled"],
                 },
                 stage / "fig_control.png",
-                coordinate=0,
-                label="base displacement q_x",
+                coordinate=axis,
+                label=f"base displacement q_{args.axis}",
                 part=args.base,
-                axis=0,
+                axis=axis,
                 title=f"eld-control: decay rate {summary['decay_rate_measured']:.4g} "
                 f"(predicted {summary['decay_rate_predicted']:.4g}, without feedback "
                 f"{summary['decay_rate_measured_uncontrolled']:.3g})",

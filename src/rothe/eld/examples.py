@@ -972,6 +972,8 @@ class PlateAbsorber(LinearComponent):
     absorber_mass, stiffness, damping : float
         m_a >= 0 (0: no absorber), k, c >= 0.
     name : str
+    axis : int
+        The absorber's direction: 1 (y, default: the formulas above) or 0 (x: a_x - s).
     """
 
     def __init__(
@@ -984,6 +986,7 @@ class PlateAbsorber(LinearComponent):
         stiffness: float = 0.0,
         damping: float = 0.0,
         name: str = "plate",
+        axis: int = 1,
     ):
         mp = check_positive("plate_mass", plate_mass)
         Jp = check_positive("plate_inertia", plate_inertia)
@@ -995,12 +998,15 @@ class PlateAbsorber(LinearComponent):
         if ma == 0.0:
             super().__init__(np.array([mp, mp, Jp]), coordinates=names, name=name)
             return
-        e = np.array([0.0, 1.0, 0.0, -1.0])  # a_y - s
+        if axis not in (0, 1):
+            raise fail("axis", axis, "must be 0 (x) or 1 (y)")
+        e = np.array([0.0, 0.0, 0.0, -1.0])
+        e[axis] = 1.0  # a_y - s (a_x - s along x)
         super().__init__(
             np.array([mp, mp, Jp, ma]),
             k * np.outer(e, e),
             c * np.outer(e, e),
-            coordinates=(*names, "absorber_y"),
+            coordinates=(*names, "absorber_" + "xy"[axis]),
             name=name,
         )
 
@@ -1057,7 +1063,7 @@ class TMDExample:
     height: float = math.nan
 
 
-def _strip(n, degree, length, height, material, young, mesh=None, base="left", tip="right"):
+def _strip(n, degree, length, height, material, young, mesh=None, base="left", tip="right", axis=0):
     """The body of the coupled examples: the checked ``n``, ``length``, ``height``, the
     material (default E = ``young``, nu = 0, rho = 1, plane stress), the axial modulus of the
     strip (E in plane stress, E/(1 - nu^2) in plane strain), the mesh, round(n L/H) x n cells on
@@ -1067,7 +1073,12 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
     ``mesh``: a 2D body with the named parts ``base`` and ``tip`` instead of the strip; it is
     taken as a strip along x: L its extent in x, H = area / L (the strip's own L, H to
     round-off), the tip's centroid and length from its facets
-    (:func:`rothe.fem.mesh.part_centroid`)."""
+    (:func:`rothe.fem.mesh.part_centroid`). ``axis`` 1: a mesh along y (L its extent in y);
+    the built-in strip lies along x only."""
+    if axis not in (0, 1):
+        raise fail("axis", axis, "must be 0 (x) or 1 (y)")
+    if axis == 1 and mesh is None:
+        raise fail("axis", "y", "needs a mesh (the built-in strip lies along x)")
     if degree not in (1, 2):
         raise fail("degree", degree, "must be 1 or 2")
     if isinstance(material, PiecewiseMaterial):
@@ -1096,7 +1107,7 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
             )
         meshes.part_centroid(mesh, base, "base")
         center, tip_size = meshes.part_centroid(mesh, tip, "tip")
-        length = float(np.ptp(np.asarray(mesh.p)[0]))
+        length = float(np.ptp(np.asarray(mesh.p)[axis]))
         height = float(meshes.cell_volumes(mesh).sum()) / length
     if material is None:
         material = Material.from_young(young, 0.0, 1.0, dim=2, plane="stress")
@@ -1120,6 +1131,7 @@ def tmd_problem(
     mesh=None,
     base: str = "left",
     tip: str = "right",
+    axis: int = 0,
 ) -> TMDExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along; default material E = 10^4, nu = 0, rho = 1) whose ``left`` end is tied to a support
@@ -1147,6 +1159,9 @@ def tmd_problem(
         parts gives the strip's run to round-off).
     base, tip : str
         The boundary parts (default ``left``, ``right``: the strip's).
+    axis : int
+        The body's long axis, 0 (x, default) or 1 (y, a mesh only); the support is pushed and
+        the absorber swings across it (y, or x).
 
     Returns
     -------
@@ -1154,8 +1169,9 @@ def tmd_problem(
     """
     refine = ("n", n) if mesh is None else ("mesh", described("the mesh"))
     n, length, height, material, modulus, mesh, center, tip_size = _strip(
-        n, degree, length, height, material, 1e4, mesh, base, tip
+        n, degree, length, height, material, 1e4, mesh, base, tip, axis
     )
+    across = 1 - axis
     mu = check_positive("mass_ratio", mass_ratio)
     force = check_real("force", force)
     ratio = check_positive("forcing_ratio", forcing_ratio)
@@ -1171,7 +1187,9 @@ def tmd_problem(
 
     def build(absorber=None, forcing=0.0):
         def push(t):
-            return np.array([0.0, force * math.sin(forcing * t)])
+            f = np.zeros(2)
+            f[across] = force * math.sin(forcing * t)
+            return f
 
         support = MassSpringDamper(base_mass, base_k, load=push, name="base")
         k, c = (0.0, 0.0) if absorber is None else absorber[1:]
@@ -1183,6 +1201,7 @@ def tmd_problem(
             stiffness=k,
             damping=c,
             name="tip",
+            axis=across,
         )
         return CoupledProblem.from_body(
             mesh,
@@ -1199,8 +1218,8 @@ def tmd_problem(
         warnings.filterwarnings("ignore", message="G_d")
         bare = build()
         w, _, Q = coupled_modes(bare, 8)
-        ay = bare.offsets["tip"] + 1
-        ax = bare.offsets["tip"]
+        ay = bare.offsets["tip"] + across  # (the deflection across the body, a_y along x)
+        ax = bare.offsets["tip"] + axis
         bending = np.flatnonzero(np.abs(Q[ay]) > 10 * np.abs(Q[ax]))
         if bending.size == 0:
             raise fail(*refine, "gives no bending mode among the first 8: refine")
@@ -1282,6 +1301,7 @@ def control_problem(
     mesh=None,
     base: str = "left",
     tip: str = "right",
+    axis: int = 0,
 ) -> ControlExample:
     """A plane-stress strip [0, length] x [0, height] (default E = 100, nu = 0, rho = 1: the
     axial motion is the 1D bar's) whose ``left`` end is held by a base (mass ``base_mass``,
@@ -1310,6 +1330,9 @@ def control_problem(
         H = area / L in the predicted roots).
     base, tip : str
         The boundary parts (default ``left``, ``right``: the strip's).
+    axis : int
+        The bar's axis, 0 (x, default) or 1 (y, a mesh only): the base's spring k_b, the push
+        and the fed-back velocity along it.
 
     Returns
     -------
@@ -1317,10 +1340,11 @@ def control_problem(
     """
     refine = ("n", n) if mesh is None else ("mesh", described("the mesh"))
     n, length, height, material, modulus, mesh, center, _ = _strip(
-        n, degree, length, height, material, 100.0, mesh, base, tip
+        n, degree, length, height, material, 100.0, mesh, base, tip, axis
     )
     mb = check_positive("base_mass", base_mass)
     kb = check_nonnegative("base_stiffness", base_stiffness)
+    springs = [kb, 1e4] if axis == 0 else [1e4, kb]  # (k_b along the bar, stiff across)
     kp = check_real("gain", gain)
     kd = check_nonnegative("kd", kd)
     b = check_nonnegative("b", b)
@@ -1330,15 +1354,12 @@ def control_problem(
     Tf = check_positive("filter_time", filter_time) if kd > 0 else None
 
     def build(feedback: bool, q0=None, u0=None):
-        support = MassSpringDamper(mb, [kb, 1e4], q0=q0, name="base")
-        sensor = PointSensor(center, "velocity", axes=[0])
+        support = MassSpringDamper(mb, springs, q0=q0, name="base")
+        sensor = PointSensor(center, "velocity", axes=[axis])
+        along = [[1.0], [0.0]] if axis == 0 else [[0.0], [1.0]]
         ctrls = []
         if feedback:
-            ctrls = [
-                LinearController.pd(
-                    kp, kd, sensor, support, filter_time=Tf, directions=[[1.0], [0.0]]
-                )
-            ]
+            ctrls = [LinearController.pd(kp, kd, sensor, support, filter_time=Tf, directions=along)]
         return CoupledProblem.from_body(
             mesh,
             material,
@@ -1355,11 +1376,11 @@ def control_problem(
     with warnings.catch_warnings():  # no prescribed part: nothing is differenced
         warnings.filterwarnings("ignore", message="G_d")
         w, U, Q = coupled_modes(build(False), 8)
-        axial = np.flatnonzero(np.abs(Q[0]) > 10 * np.abs(Q[1]))
+        axial = np.flatnonzero(np.abs(Q[axis]) > 10 * np.abs(Q[1 - axis]))
         if axial.size == 0:
             raise fail(*refine, "gives no axial mode among the first 8: refine")
         k = int(axial[0])
-        scale = amplitude / abs(Q[0, k])
+        scale = amplitude / abs(Q[axis, k])
         q0, u0 = Q[:, k] * scale, U[:, k] * scale
         controlled, uncontrolled = build(True, q0, u0), build(False, q0, u0)
 
