@@ -237,6 +237,13 @@ def test_beam_on_a_gmsh_file_of_the_box_is_the_built_in_run(tmp_path, capsys):
     s = _summary(tmp_path / "file")
     assert (s["mesh_cells"], s["dim"], s["dirichlet"]) == (24, 3, ["inlet"])
     assert len(s["reaction_inlet_max_abs"]) == 3 and "n" not in s
+    # the terminal summary names the part's reactions; the coarse-mesh note a finer mesh
+    code, out, _ = run_cli(
+        capsys, "run", "eld-beam", "--mesh", mesh, "--dirichlet", "inlet", "--T", "0.1",
+        "--tau", "0.02", "--degree", "1", "--no-plots", "--out", tmp_path / "printed",
+    )  # fmt: skip
+    assert code == 0 and "reaction_inlet_max_abs" in out
+    assert "use --degree 2 or a finer --mesh" in out
 
 
 def test_pulse_3d_on_a_gmsh_file_of_the_block_is_the_built_in_run(tmp_path, capsys):

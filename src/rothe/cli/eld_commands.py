@@ -289,6 +289,10 @@ class EldRunCommand:
     def report(self, args, summary: dict) -> None:
         """Print what the command adds after the summary of a completed run."""
 
+    def summary_keys(self, args) -> tuple:
+        """The summary fields printed after a completed run (:attr:`keys`)."""
+        return self.keys
+
     def add_common_options(self, parser, **space) -> None:
         """The options every ELD run command ends with: the space options (``space``: the
         command's defaults for :func:`~rothe.cli.adapt_options.add_space_options`), the
@@ -372,7 +376,8 @@ class EldRunCommand:
         if args.quiet:
             return
         print(f"rothe run {self.name}: wrote {results}/")
-        print_summary(summary, dofs_keys(self.keys, summary, "ndofs", "ndofs_initial", "ndofs_max"))
+        keys = self.summary_keys(args)
+        print_summary(summary, dofs_keys(keys, summary, "ndofs", "ndofs_initial", "ndofs_max"))
         print(format_energy_balance(summary))
         self.report(args, summary)
 
@@ -761,6 +766,11 @@ class RunEldBeam(EldRunCommand):
                 summary["dissipated_numerical"] / put_in if put_in > 0 else None
             )
 
+    def summary_keys(self, args) -> tuple:
+        """:attr:`keys` with the reactions of the first --dirichlet part (``left`` on the box)."""
+        part = parts_of(args)[0]
+        return tuple(k.replace("reaction_left_", f"reaction_{part}_") for k in self.keys)
+
     def report(self, args, summary) -> None:
         """Print the numerical dissipation against the work put in, and a note when the sideways
         reactions show a too coarse mesh.
@@ -773,7 +783,8 @@ class RunEldBeam(EldRunCommand):
             f"{summary['dissipated_physical']:.4g})"
         )
         if max(sideways) > BEAM_SIDEWAYS_NOTE:
-            remedy = "a larger --n" if args.degree >= 2 else "--degree 2 or a larger --n"
+            finer = "a larger --n" if args.mesh is None else "a finer --mesh"
+            remedy = finer if args.degree >= 2 else f"--degree 2 or {finer}"
             print(
                 f"note: coarse mesh for the reactions: the sideways reactions are "
                 f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of "
