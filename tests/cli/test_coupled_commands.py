@@ -19,6 +19,8 @@ from rothe.eld.coupled_run import CoupledStepper
 from rothe.io.checkpoint import load_checkpoint
 from rothe.io.trajectory import is_timing_array
 
+from ..conftest import write_gmsh_body
+
 
 def _run(tmp_path, *args, plots=False, command="eld-tip-mass"):
     out = tmp_path / "out"
@@ -366,3 +368,122 @@ def test_tmd_and_control_refusals_are_one_line(tmp_path, capsys, command, args, 
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("rothe: error: " + line), err
     assert not out.exists()
+
+
+# -- --mesh FILE on eld-tmd and eld-control: the strip as a gmsh file reproduces the strip's run --
+
+
+@pytest.mark.parametrize(
+    "command, nx, ny, height, tau",
+    [("eld-tmd", 20, 2, 0.1, "0.02"), ("eld-control", 8, 2, 0.25, "0.01")],
+)
+def test_a_gmsh_file_of_the_strip_is_the_built_in_run(tmp_path, command, nx, ny, height, tau):
+    """The built-in strip written as a gmsh file (meshio) with the parts 'inlet' (x = 0) and
+    'outlet' (x = L) as --base and --tip: the same modes (the plate's centre and length, the
+    sensor point from the tip's facets; L, H from the mesh), the same run: q and the base's
+    reaction equal to round-off of the modal analysis (measured 5e-10 of max |q|)."""
+    mesh = write_gmsh_body(tmp_path / "strip.msh", nx=nx, ny=ny, length=1.0, height=height)
+    common = ("--T", "0.4", "--tau", tau)
+    code, grid = _run(tmp_path / "grid", *common, command=command)
+    assert code == 0
+    code, file = _run(
+        tmp_path / "file", *common, "--mesh", str(mesh), "--base", "inlet", "--tip", "outlet",
+        command=command,
+    )  # fmt: skip
+    assert code == 0
+    for name in (
+        "trajectory.npz",
+        f"trajectory_{'without_tmd' if command == 'eld-tmd' else 'uncontrolled'}.npz",
+    ):
+        a, b = np.load(grid / name), np.load(file / name)
+        assert np.abs(a["q"] - b["q"]).max() < 1e-8 * np.abs(a["q"]).max()
+        scale = np.abs(a["reaction_left"]).max()
+        assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-8 * scale
+    s = json.loads((file / "summary.json").read_text())
+    assert (s["mesh_cells"], s["dim"], s["base"], s["tip"]) == (2 * nx * ny, 2, "inlet", "outlet")
+    assert s["length"] == 1.0 and s["height"] == pytest.approx(height, rel=1e-14)
+    assert "n" not in s
+
+
+def _swap_xy(path, out):
+    """The gmsh file ``path`` reflected in y = x (x and y swapped, the triangles reversed to
+    keep their orientation), written to ``out``."""
+    m = meshio.read(path)
+    p = m.points.copy()
+    p[:, [0, 1]] = p[:, [1, 0]]
+    cells = [(c.type, c.data[:, ::-1] if c.type == "triangle" else c.data) for c in m.cells]
+    meshio.Mesh(p, cells, cell_data=m.cell_data, field_data=m.field_data).write(
+        out, file_format="gmsh22", binary=False
+    )
+    return out
+
+
+@pytest.mark.parametrize(
+    "command, nx, height, tau, swap, sign",
+    [
+        # q = (base x, y; plate a_x, a_y, theta, absorber): x <-> y, theta -> -theta
+        ("eld-tmd", 20, 0.1, "0.02", [1, 0, 3, 2, 4, 5], [1, 1, 1, 1, -1, 1]),
+        ("eld-control", 8, 0.25, "0.01", [1, 0], [1, 1]),
+    ],
+)
+def test_axis_y_on_the_reflected_strip_is_the_strip_run(
+    tmp_path, command, nx, height, tau, swap, sign
+):
+    """--axis y on the strip reflected in y = x (a body along y): the support/base pushed and
+    measured in the reflected directions, the same run with x and y swapped (the plate's
+    rotation changes sign): q to 1e-8 of its maximum (the modal analyses differ in the 10th
+    digit); the same predicted rate, frequencies and amplitudes."""
+    mesh = write_gmsh_body(tmp_path / "x.msh", nx=nx, ny=2, length=1.0, height=height)
+    common = ("--T", "0.4", "--tau", tau, "--base", "inlet", "--tip", "outlet")
+    code, along_x = _run(tmp_path / "x", *common, "--mesh", str(mesh), command=command)
+    assert code == 0
+    along_y = _swap_xy(mesh, tmp_path / "y.msh")
+    code, along_y = _run(
+        tmp_path / "y", *common, "--mesh", str(along_y), "--axis", "y", command=command
+    )
+    assert code == 0
+    a, b = np.load(along_x / "trajectory.npz")["q"], np.load(along_y / "trajectory.npz")["q"]
+    b = b[:, swap] * sign
+    b = b * np.sign(b[0] @ a[0]) if np.abs(a[0]).max() > 0 else b  # (a mode's sign is free)
+    assert np.abs(a - b).max() < 1e-8 * np.abs(a).max()
+    sa, sb = (json.loads((d / "summary.json").read_text()) for d in (along_x, along_y))
+    assert sb["axis"] == "y" and sb["length"] == 1.0
+    for key in ("decay_rate_predicted", "frequency_first", "frequency_first_bending",
+                "tip_amplitude_max", "base_reaction_max"):  # fmt: skip
+        if key in sa:
+            assert sb[key] == pytest.approx(sa[key], rel=1e-8), key
+
+
+@pytest.mark.parametrize("command", ["eld-tmd", "eld-control"])
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--mesh", "{two}", "--base", "inlet", "--tip", "top"],
+         "--tip: got 'top', must be one of inlet, outlet, wall (boundary parts of the mesh)"),
+        (["--mesh", "{two}"],
+         "--base: got 'left', must be one of inlet, outlet, wall (boundary parts of the mesh)"),
+        (["--base", "nope"],
+         "--base: got 'nope', must be one of bottom, left, right, top (boundary parts of the "
+         "mesh)"),
+        (["--mesh", "{two}", "--base", "inlet", "--tip", "outlet", "--height", "0.5"],
+         "--height: got 0.5, cannot be combined with --mesh (the mesh fixes the body)"),
+        (["--mesh", "{two}", "--material", "a:E=1,nu=0"], "--material: got 'a:E=1,nu=0', is not "
+         "taken by {command} (one material, --E/--nu or --lam/--mu and --rho"),
+        (["--mesh", "{box}", "--base", "inlet", "--tip", "outlet"],
+         "--mesh: got a 3D mesh (12 nodes, 12 tetrahedra), must be 2D"),
+        (["--region", "a=core"], "--region: got 'a=core', is used with --mesh only"),
+        (["--axis", "y"], "--axis: got 'y', needs --mesh (the built-in strip lies along x)"),
+        (["--axis", "z"], "--axis: got 'z', must be one of x, y"),
+    ],
+)  # fmt: skip
+def test_tmd_and_control_mesh_refusals_are_one_line(tmp_path, capsys, command, args, line):
+    files = {
+        "command": command,
+        "two": write_gmsh_body(tmp_path / "two.msh", nx=8, ny=4, split=1.0),
+        "box": write_gmsh_body(tmp_path / "box.msh", dim=3, nx=2, ny=1),
+    }
+    code, out = _run(tmp_path, *[a.format(**files) for a in args], command=command)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith("rothe: error: " + line.format(**files)), err
+    assert not (out / "summary.json").exists()

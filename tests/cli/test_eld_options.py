@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import meshio
 import numpy as np
 import pytest
 
@@ -208,6 +209,120 @@ def test_tip_mass_on_a_3d_gmsh_bar_against_the_bar_equation(tmp_path, capsys):
     assert s["balance_max"] < 1e-12 * s["energy_initial"]
 
 
+def _grid_and_file_runs(tmp_path, capsys, command, grid_args, file_args, common):
+    """The command on its built-in grid and on a gmsh file of it: the two trajectories."""
+    code, _, err = run_cli(capsys, "run", command, *grid_args, *common, "--out", tmp_path / "grid")
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "run", command, *file_args, *common, "--out", tmp_path / "file")
+    assert code == 0, err
+    return (np.load(tmp_path / "grid" / "trajectory.npz"),
+            np.load(tmp_path / "file" / "trajectory.npz"))  # fmt: skip
+
+
+def test_beam_on_a_gmsh_file_of_the_box_is_the_built_in_run(tmp_path, capsys):
+    """eld-beam's box 4 x 1 x 1 (n = 1, P1) written as a gmsh file with its end x = 0 as the
+    physical group 'inlet' (--dirichlet inlet, moved along z): u at every kept state, the
+    reaction and the energy equal the built-in run's (measured: bit for bit)."""
+    mesh = write_gmsh_body(tmp_path / "beam.msh", dim=3, nx=4, ny=1, length=4.0, height=1.0)
+    common = ("--T", "0.2", "--tau", "0.02", "--degree", "1", "--quiet", "--no-plots")
+    a, b = _grid_and_file_runs(
+        tmp_path, capsys, "eld-beam", ("--n", "1"), ("--mesh", mesh, "--dirichlet", "inlet"),
+        common,
+    )  # fmt: skip
+    scale = np.abs(a["u"][-1]).max()
+    assert scale > 0 and np.abs(a["u"] - b["u"]).max() < 1e-12 * scale
+    scale = np.abs(a["reaction_left"]).max()
+    assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-12 * scale
+    assert np.allclose(a["energy"], b["energy"], rtol=1e-12, atol=1e-15)
+    s = _summary(tmp_path / "file")
+    assert (s["mesh_cells"], s["dim"], s["dirichlet"]) == (24, 3, ["inlet"])
+    assert len(s["reaction_inlet_max_abs"]) == 3 and "n" not in s
+    # the terminal summary names the part's reactions; the coarse-mesh note a finer mesh
+    code, out, _ = run_cli(
+        capsys, "run", "eld-beam", "--mesh", mesh, "--dirichlet", "inlet", "--T", "0.1",
+        "--tau", "0.02", "--degree", "1", "--no-plots", "--out", tmp_path / "printed",
+    )  # fmt: skip
+    assert code == 0 and "reaction_inlet_max_abs" in out
+    assert "use --degree 2 or a finer --mesh" in out
+
+
+def test_pulse_3d_on_a_gmsh_file_of_the_block_is_the_built_in_run(tmp_path, capsys):
+    """eld-pulse-3d's block (n = 2, P1, fixed mesh) written as a gmsh file with its face x = 0
+    as 'inlet': the pulse on the first --dirichlet part along its mean inward normal around its
+    centre is the built-in e_x at (0, 1/2, 1/2): u, the reaction and the energy bit for bit."""
+    mesh = write_gmsh_body(tmp_path / "block.msh", dim=3, nx=2, ny=2, length=1.0, height=1.0)
+    common = ("--T", "0.06", "--tau", "0.02", "--degree", "1", "--no-adapt-space", "--quiet",
+              "--no-plots")  # fmt: skip
+    a, b = _grid_and_file_runs(
+        tmp_path, capsys, "eld-pulse-3d", ("--n", "2"), ("--mesh", mesh, "--dirichlet", "inlet"),
+        common,
+    )  # fmt: skip
+    scale = np.abs(a["u"][-1]).max()
+    assert scale > 0 and np.abs(a["u"] - b["u"]).max() < 1e-12 * scale
+    scale = np.abs(a["reaction_left"]).max()
+    assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-12 * scale
+    assert np.allclose(a["energy"], b["energy"], rtol=1e-12, atol=1e-15)
+    s = _summary(tmp_path / "file")
+    assert (s["mesh_cells"], s["dim"], s["dirichlet"]) == (48, 3, ["inlet"]) and "n" not in s
+
+
+def test_mms_on_a_gmsh_file_of_the_square_is_the_built_in_run(tmp_path, capsys):
+    """eld-mms on the unit square (n = 4, P1) written as a gmsh file: --dirichlet inlet is the
+    built-in --dirichlet left bit for bit (u, the reaction, the errors against the exact
+    solution); without --dirichlet every physical group of the boundary is held, the built-in
+    run held on all four sides."""
+    mesh = write_gmsh_body(tmp_path / "square.msh", nx=4, ny=4, length=1.0, height=1.0)
+    common = ("--T", "0.1", "--tau", "0.02", "--degree", "1", "--quiet", "--no-plots")
+    a, b = _grid_and_file_runs(
+        tmp_path, capsys, "eld-mms", ("--n", "4"), ("--mesh", mesh, "--dirichlet", "inlet"),
+        common,
+    )  # fmt: skip
+    scale = np.abs(a["u"][-1]).max()
+    assert scale > 0 and np.abs(a["u"] - b["u"]).max() < 1e-12 * scale
+    scale = np.abs(a["reaction_left"]).max()
+    assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-12 * scale
+    grid, file = _summary(tmp_path / "grid"), _summary(tmp_path / "file")
+    for key in ("error_u_l2", "error_v_l2", "error_lam_l2"):
+        assert file[key] == pytest.approx(grid[key], rel=1e-12), key
+    assert (file["mesh_cells"], file["dim"], file["dirichlet"]) == (32, 2, ["inlet"])
+    for out, args in (
+        ("all", ("--mesh", mesh)),
+        ("sides", ("--n", "4", "--dirichlet", "left,right,top,bottom")),
+    ):
+        code, _, err = run_cli(capsys, "run", "eld-mms", *args, *common, "--out", tmp_path / out)
+        assert code == 0, err
+    every, sides = _summary(tmp_path / "all"), _summary(tmp_path / "sides")
+    assert every["dirichlet"] == ["inlet", "outlet", "wall"]
+    assert every["error_u_l2"] == pytest.approx(sides["error_u_l2"], rel=1e-10)
+    assert every["error_lam_l2"] == pytest.approx(sides["error_lam_l2"], rel=1e-10)
+
+
+def test_mms_refuses_a_mesh_with_unnamed_boundary_facets(tmp_path, capsys):
+    """A boundary facet in no physical group would be traction-free, not the manufactured
+    solution's: one line naming --mesh, the count and the first facet."""
+    path = write_gmsh_body(tmp_path / "square.msh", nx=4, ny=4, length=1.0, height=1.0)
+    m = meshio.read(path)
+    tags = m.cell_data["gmsh:physical"]
+    named = tags[0] != 3  # (drop the group 'wall': top and bottom)
+    meshio.Mesh(
+        m.points,
+        [(m.cells[0].type, m.cells[0].data[named]), (m.cells[1].type, m.cells[1].data)],
+        cell_data={"gmsh:physical": [tags[0][named], tags[1]],
+                   "gmsh:geometrical": [tags[0][named], tags[1]]},
+        field_data={k: v for k, v in m.field_data.items() if k != "wall"},
+    ).write(tmp_path / "open.msh", file_format="gmsh22", binary=False)  # fmt: skip
+    code, _, err = run_cli(
+        capsys, "run", "eld-mms", "--mesh", tmp_path / "open.msh", "--out", tmp_path / "out"
+    )
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert lines[0] == (
+        "rothe: error: --mesh: got 8 boundary facets in no named part (the first at (0.125, 0)), "
+        "must put every boundary facet in a physical group (the exact data or traction goes on "
+        "each part)"
+    )
+
+
 @pytest.mark.parametrize(
     "command, args, line",
     [
@@ -240,6 +355,38 @@ def test_tip_mass_on_a_3d_gmsh_bar_against_the_bar_equation(tmp_path, capsys):
          "--height: got 0.5, cannot be combined with --mesh (the mesh fixes the body)"),
         ("eld-pulse", ["--mesh", "{box}", "--dirichlet", "inlet", "--plane", "stress"],
          "--plane: got 'stress', must be 'strain' (the default) in 3D"),
+        ("eld-beam", ["--mesh", "{two}", "--dirichlet", "inlet"],
+         "--mesh: got a 2D mesh (45 nodes, 64 triangles), must be 3D (tetrahedra: the held end "
+         "moves along z)"),
+        ("eld-beam", ["--mesh", "{box}"],
+         "--dirichlet: got 'left', must be one of inlet, outlet, wall (boundary parts of the "
+         "mesh)"),
+        ("eld-beam", ["--mesh", "{box}", "--length", "2"],
+         "--length: got 2, cannot be combined with --mesh (the mesh fixes the body)"),
+        ("eld-beam", ["--mesh", "{box}", "--dirichlet", "inlet", "--backend", "petsc"],
+         "--mesh: got '{box}', is not supported with --backend petsc (the distributed beam "
+         "builds its own box)"),
+        ("eld-pulse-3d", ["--mesh", "{two}", "--dirichlet", "inlet"],
+         "--mesh: got a 2D mesh (45 nodes, 64 triangles), must be 3D (tetrahedra; the 2D pulse "
+         "is eld-pulse)"),
+        ("eld-pulse-3d", ["--mesh", "{box}"],
+         "--dirichlet: got 'left', must be one of inlet, outlet, wall"),
+        ("eld-pulse-3d", ["--mesh", "{box}", "--n", "3"],
+         "--n: got 3, cannot be combined with --mesh (the mesh fixes the body)"),
+        ("eld-pulse-3d", ["--mesh", "{box}", "--dirichlet", "inlet", "--material", "a:E=1,nu=0",
+                          "--region", "a=core,mantle", "--no-adapt-space"],
+         "--region: got 'mantle', must be one of the mesh's subdomains: core"),
+        ("eld-mms", ["--mesh", "{box}"],
+         "--mesh: got a 3D mesh (12 nodes, 12 tetrahedra), must be 2D (triangles: the "
+         "manufactured solution is plane)"),
+        ("eld-mms", ["--mesh", "{two}", "--dirichlet", "left"],
+         "--dirichlet: got 'left', must be one of inlet, outlet, wall"),
+        ("eld-mms", ["--mesh", "{two}", "--n", "4"],
+         "--n: got 4, cannot be combined with --mesh (the mesh fixes the body)"),
+        ("eld-mms", ["--mesh", "{two}", "--material", "a:E=1,nu=0"],
+         "--material: got 'a:E=1,nu=0', is not taken by eld-mms (one material"),
+        ("eld-beam", ["--dirichlet", ","],
+         "--dirichlet: got ',', must name at least one boundary part"),
     ],
 )  # fmt: skip
 def test_bad_mesh_input_is_one_line_and_exit_2(tmp_path, capsys, command, args, line):

@@ -56,6 +56,7 @@ from .eld_options import (
     body_mesh,
     check_eld_step,
     check_mesh_options,
+    check_one_material,
     control_of,
     form_of,
     keep_option,
@@ -65,6 +66,7 @@ from .eld_options import (
     material_options,
     mesh_fields,
     mesh_options,
+    part_option,
     parts_of,
     scheme_of,
     step_options,
@@ -151,13 +153,50 @@ class CoupledRunCommand:
             )
         return n
 
+    @staticmethod
+    def base_tip_options(parser, *, base: str, tip: str) -> None:
+        """``--mesh`` and its options (no ``--dirichlet``: the body is held by its couplings),
+        ``--base PART`` and ``--tip PART`` (eld-tmd, eld-control)."""
+        mesh_options(parser, dirichlet=None)
+        part_option(parser, "--base", "left", base)
+        part_option(parser, "--tip", "right", tip)
+        parser.add_argument(
+            "--axis",
+            default="x",
+            help="x | y: the body's long axis (default x; y with --mesh only, the strip lies "
+            "along x); L is the mesh's extent along it",
+        )
+
+    #: why --material is refused (eld-tmd, eld-control: the example takes one material)
+    one_material = ""
+
     def validate(self, args):
         """The checks that need no system, one line naming the option: (objects of
         :meth:`run_objects`, n of :meth:`strip_checks`, the material of the options with
-        :attr:`default_material`) -- the material built once for execute and the summary."""
+        :attr:`default_material`) -- the material built once for execute and the summary.
+        With ``--mesh``: not with the strip's --n/--length/--height, one material."""
         objects = self.run_objects(args)
+        check_mesh_options(args, ("--n", "--length", "--height"))
+        check_one_material(args, self.name, self.one_material)
+        if check_choice("--axis", args.axis, ("x", "y")) == "y" and args.mesh is None:
+            raise fail("--axis", "y", "needs --mesh (the built-in strip lies along x)")
         n = self.strip_checks(args)
         return objects, n, material_of(args, self.default_material)
+
+    @staticmethod
+    def body_of(args, example, mesh):
+        """The summary's fields of the body: the strip's n, L, H, or the mesh file's fields with
+        the parts and the L, H the example took from the mesh (extent in x, area / L)."""
+        if args.mesh is None:
+            return {"n": args.n, "length": args.length, "height": args.height}
+        return {
+            **mesh_fields(args, mesh),
+            "base": args.base,
+            "tip": args.tip,
+            "axis": args.axis,
+            "length": example.length,
+            "height": example.height,
+        }
 
     #: the SpaceAdaptivity of --adapt-space (None: fixed mesh), set by :meth:`run_objects`
     adapt = None
@@ -503,6 +542,7 @@ class RunEldTmd(CoupledRunCommand):
     )
     name = "eld-tmd"
     default_material = TMD_MATERIAL
+    one_material = "the support's springs and the beam frequency take the strip's E and rho"
     keys = (
         "example",
         "scheme",
@@ -528,6 +568,11 @@ class RunEldTmd(CoupledRunCommand):
             parser, n=2, length=1.0, height=0.1, T=12.0, what="17 periods of the forcing"
         )
         material_options(parser, TMD_MATERIAL, rho=1.0, plane="stress")
+        self.base_tip_options(
+            parser,
+            base="the end tied to the support (pushed along y)",
+            tip="the end carrying the rigid plate and the absorber (centred at its centroid)",
+        )
         float_option(
             parser,
             "--mass-ratio",
@@ -559,27 +604,33 @@ class RunEldTmd(CoupledRunCommand):
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
         objects, n, material = self.validate(args)
+        mesh = body_mesh(args)
+        if mesh is not None:
+            check_modal_size(mesh, args.degree)
         example = tmd_problem(
             n,
             args.degree,
             length=args.length,
             height=args.height,
             material=material,
+            mesh=mesh,
+            base=args.base,
+            tip=args.tip,
+            axis="xy".index(args.axis),
             mass_ratio=args.mass_ratio,
             force=args.force,
             forcing_ratio=args.forcing_ratio,
             b=args.b,
             T=args.T,
         )
-        tip = example.with_tmd.offsets["tip"] + 1  # the plate's deflection a_y, in q
+        across = 1 - "xy".index(args.axis)  # (pushed and measured across the body)
+        tip = example.with_tmd.offsets["tip"] + across  # the plate's deflection a_y, in q
 
         def summarize(summary, trajs, completed):
             summary.update(
-                n=n,
+                **self.body_of(args, example, mesh),
                 degree=args.degree,
                 ndofs=summary.get("ndofs", example.with_tmd.body.space.ndofs),
-                length=args.length,
-                height=args.height,
                 material=material_fields(args, TMD_MATERIAL, material),
                 b=args.b,
                 frequency_first_bending=example.frequency,
@@ -600,7 +651,7 @@ class RunEldTmd(CoupledRunCommand):
                 last = t >= t[-1] - TMD_LAST_PERIODS * period
                 summary[f"tip_amplitude_max{suffix}"] = float(np.abs(q[:, tip]).max())
                 summary[f"tip_amplitude_last{suffix}"] = float(np.abs(q[last, tip]).max())
-                reaction = np.abs(np.asarray(traj["reaction_left"])[:, 1])
+                reaction = np.abs(np.asarray(traj[f"reaction_{args.base}"])[:, across])
                 summary[f"base_reaction_max{suffix}"] = float(reaction.max())
                 summary[f"balance_max{suffix}"] = float(np.abs(traj["balance"]).max())
                 summary[f"energy_final{suffix}"] = float(traj["energy"][-1])
@@ -626,9 +677,9 @@ class RunEldTmd(CoupledRunCommand):
                 {"with TMD": trajs["with_tmd"], "without TMD": trajs["without_tmd"]},
                 stage / "fig_tmd.png",
                 coordinate=tip,
-                label="tip deflection (end plate a_y)",
-                part="left",
-                axis=1,
+                label=f"tip deflection (end plate a_{'xy'[across]})",
+                part=args.base,
+                axis=across,
                 title=f"eld-tmd, forcing {example.forcing:.4g} rad/s, mass ratio "
                 f"{args.mass_ratio:g}: amplitude / {summary['amplitude_reduction']:.3g}",
             )
@@ -656,6 +707,7 @@ class RunEldControl(CoupledRunCommand):
     )
     name = "eld-control"
     default_material = CONTROL_MATERIAL
+    one_material = "the predicted roots are the bar's of one E and rho"
     #: the library's parameters by their options (control_problem's base_stiffness)
     parameter_options = {**CoupledRunCommand.parameter_options, "base_stiffness": "--base-spring"}
     keys = (
@@ -684,6 +736,11 @@ class RunEldControl(CoupledRunCommand):
             parser, n=2, length=1.0, height=0.25, T=6.0, what="6 periods of the first mode"
         )
         material_options(parser, CONTROL_MATERIAL, rho=1.0, plane="stress")
+        self.base_tip_options(
+            parser,
+            base="the end held by the base (pushed along x)",
+            tip="the end whose axial velocity is fed back (at its centroid)",
+        )
         float_option(parser, "--base-mass", default=1.0, help="mass m_b of the base (default 1)")
         float_option(
             parser,
@@ -731,12 +788,19 @@ class RunEldControl(CoupledRunCommand):
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
         objects, n, material = self.validate(args)
+        mesh = body_mesh(args)
+        if mesh is not None:
+            check_modal_size(mesh, args.degree)
         example = control_problem(
             n,
             args.degree,
             length=args.length,
             height=args.height,
             material=material,
+            mesh=mesh,
+            base=args.base,
+            tip=args.tip,
+            axis="xy".index(args.axis),
             base_mass=args.base_mass,
             base_stiffness=args.base_spring,
             gain=args.gain,
@@ -747,14 +811,13 @@ class RunEldControl(CoupledRunCommand):
             T=args.T,
         )
         roots, free, undamped = example.roots, example.roots_uncontrolled, example.roots_undamped
+        axis = "xy".index(args.axis)  # (the base's displacement along the bar: q[axis])
 
         def summarize(summary, trajs, completed):
             summary.update(
-                n=n,
+                **self.body_of(args, example, mesh),
                 degree=args.degree,
                 ndofs=summary.get("ndofs", example.controlled.body.space.ndofs),
-                length=args.length,
-                height=args.height,
                 material=material_fields(args, CONTROL_MATERIAL, material),
                 base_mass=args.base_mass,
                 base_spring=args.base_spring,
@@ -775,7 +838,7 @@ class RunEldControl(CoupledRunCommand):
                 if label not in trajs:
                     continue
                 traj = trajs[label]
-                t, y = traj["t"], np.asarray(traj["q"])[:, 0]
+                t, y = traj["t"], np.asarray(traj["q"])[:, axis]
                 summary[f"decay_rate_measured{suffix}"] = decay_rate(t, y)
                 summary[f"frequency_measured{suffix}"] = crossing_frequency(t, y)
                 summary[f"balance_max{suffix}"] = float(np.abs(traj["balance"]).max())
@@ -796,10 +859,10 @@ class RunEldControl(CoupledRunCommand):
                     "no feedback": trajs["uncontrolled"],
                 },
                 stage / "fig_control.png",
-                coordinate=0,
-                label="base displacement q_x",
-                part="left",
-                axis=0,
+                coordinate=axis,
+                label=f"base displacement q_{args.axis}",
+                part=args.base,
+                axis=axis,
                 title=f"eld-control: decay rate {summary['decay_rate_measured']:.4g} "
                 f"(predicted {summary['decay_rate_predicted']:.4g}, without feedback "
                 f"{summary['decay_rate_measured_uncontrolled']:.3g})",

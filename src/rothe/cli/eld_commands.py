@@ -47,6 +47,7 @@ from ..eld.studies import (
     tip_mass_study,
 )
 from ..errors import check_choice, check_int, check_positive, described, fail
+from ..fem.mesh import boundary_part_names
 from ..fem.petsc_env import launched_processes
 from ..io.checkpoint import CheckpointError, load_checkpoint
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
@@ -56,6 +57,7 @@ from .common import (
     dofs_keys,
     executor_from_args,
     float_option,
+    given,
     output_dir,
     parse_float_list,
     peak_memory_mb,
@@ -76,8 +78,10 @@ from .eld_options import (
     check_convergence_runs,
     check_damping_options,
     check_eld_step,
+    check_mesh_dim,
     check_mesh_options,
     check_mms_size,
+    check_one_material,
     check_space_data,
     check_study_options,
     damping_of,
@@ -285,6 +289,10 @@ class EldRunCommand:
     def report(self, args, summary: dict) -> None:
         """Print what the command adds after the summary of a completed run."""
 
+    def summary_keys(self, args) -> tuple:
+        """The summary fields printed after a completed run (:attr:`keys`)."""
+        return self.keys
+
     def add_common_options(self, parser, **space) -> None:
         """The options every ELD run command ends with: the space options (``space``: the
         command's defaults for :func:`~rothe.cli.adapt_options.add_space_options`), the
@@ -368,7 +376,8 @@ class EldRunCommand:
         if args.quiet:
             return
         print(f"rothe run {self.name}: wrote {results}/")
-        print_summary(summary, dofs_keys(self.keys, summary, "ndofs", "ndofs_initial", "ndofs_max"))
+        keys = self.summary_keys(args)
+        print_summary(summary, dofs_keys(keys, summary, "ndofs", "ndofs_initial", "ndofs_max"))
         print(format_energy_balance(summary))
         self.report(args, summary)
 
@@ -441,8 +450,11 @@ class RunEldMMS(EldRunCommand):
         parser.add_argument(
             "--dirichlet",
             default="left",
-            help="comma-separated Dirichlet parts (default left); traction on the rest",
+            metavar="PART[,PART]",
+            help="comma-separated Dirichlet parts (default left; with --mesh every physical "
+            "group of the boundary); the exact traction on the rest",
         )
+        mesh_options(parser, dirichlet=None)
         parser.add_argument(
             "--start",
             default="exact",
@@ -458,11 +470,13 @@ class RunEldMMS(EldRunCommand):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
         objects, keep = self.step_checks(args)
+        check_mesh_options(args, ("--n",))
+        check_one_material(args, self.name, "the manufactured body force is of one material")
         n = check_int("--n", args.n, minimum=1)
-        check_mms_size(n, args.degree)
-        parts = tuple(p.strip() for p in args.dirichlet.split(",") if p.strip())
-        if not parts:
-            raise fail("--dirichlet", args.dirichlet, "must name at least one boundary part")
+        if args.mesh is None:
+            check_mms_size(n, args.degree)
+        # (--mesh without --dirichlet: every boundary part, read with the mesh in execute)
+        parts = parts_of(args) if args.mesh is None or given(args, "--dirichlet") else None
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"], hysteresis=True)
         check_space_data(args, space)
         material = material_of(args, MMS_MATERIAL)
@@ -471,6 +485,9 @@ class RunEldMMS(EldRunCommand):
     def execute(self, args) -> int:
         """Build the manufactured solution, run it as a session; the summary adds its errors."""
         objects, keep, n, parts, damping, space, material = self.validate(args)
+        mesh = body_mesh(args)
+        if parts is None:
+            parts = tuple(boundary_part_names(mesh))
         problem, exact = mms_problem(
             n,
             args.degree,
@@ -480,6 +497,7 @@ class RunEldMMS(EldRunCommand):
             start=args.start,
             load_quadrature=args.load_quadrature,
             material=material,
+            mesh=mesh,
         )
         fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-mms, {objects['scheme'].name}, {objects['form'].name}, " + (
@@ -487,7 +505,8 @@ class RunEldMMS(EldRunCommand):
         )
 
         def summarize(summary, result, completed):
-            summary.update(n=n, degree=args.degree, dirichlet=list(parts))
+            summary.update({"n": n} if mesh is None else mesh_fields(args, mesh))
+            summary.update(degree=args.degree, dirichlet=list(parts))
             summary["material"] = material_fields(args, MMS_MATERIAL, material)
             if completed:
                 summary.update(mms_errors(exact, result))
@@ -548,6 +567,12 @@ class RunEldBeam(EldRunCommand):
         )
         float_option(parser, "--T", default=2.0, help="end time (default 2)")
         material_options(parser, BEAM_MATERIAL)
+        mesh_options(
+            parser,
+            dirichlet="left",
+            dirichlet_help="the held boundary parts, moved along z by G(t) (tetrahedra: --mesh "
+            "is 3D)",
+        )
         float_option(
             parser,
             "--amplitude",
@@ -590,12 +615,23 @@ class RunEldBeam(EldRunCommand):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_damping_options(args)
         objects, keep = self.step_checks(args)
+        check_mesh_options(args, ("--n", "--length"))
         n = check_int("--n", args.n, minimum=1)
         check_beam_size(n, args.length, args.degree, args.solver)
+        parts_of(args)
         every = check_int("--save-every", args.save_every, minimum=1)
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["3d"], hysteresis=True)
-        material = material_of(args, BEAM_MATERIAL, dim=3)
+        # (--material: built on the mesh, in execute)
+        material = None if args.material else material_of(args, BEAM_MATERIAL, dim=3)
         backend = self.backend(args)
+        if backend == "petsc" and args.mesh is not None:
+            raise fail(
+                "--mesh",
+                args.mesh,
+                "is not supported with --backend petsc (the distributed beam builds its own "
+                "box)"
+                + ("" if args.backend == "petsc" else f" under mpiexec -n {launched_processes()}"),
+            )
         if backend == "petsc" and space is not None:
             raise fail(
                 "--adapt-space",
@@ -646,7 +682,10 @@ class RunEldBeam(EldRunCommand):
             from .eld_mpi import execute_beam
 
             return execute_beam(self, args)
-        problem = self.beam(args, n, damping, material)
+        mesh = check_mesh_dim(body_mesh(args), 3, "tetrahedra: the held end moves along z")
+        if mesh is not None:
+            material = body_material(args, BEAM_MATERIAL, mesh)
+        problem = self.beam(args, n, damping, material, mesh)
         fit_default_cap(args, space, problem.space.ndofs)
         label = (
             f"eld-beam, {objects['scheme'].name}, {objects['form'].name}, "
@@ -655,7 +694,7 @@ class RunEldBeam(EldRunCommand):
         options = dict(objects, solver=args.solver, keep_every=keep, linear_rtol=1e-8, adapt=space)
 
         def summarize(summary, result, completed):
-            self.summarize(args, summary, result.trajectory, material)
+            self.summarize(args, summary, result.trajectory, material, mesh)
             summary.update(backend="serial")  # which --backend auto took (as the petsc run)
 
         # a fixed mesh streams XDMF as it goes (checkpointed with the run); an adaptive run
@@ -668,9 +707,10 @@ class RunEldBeam(EldRunCommand):
         return self.run(args, problem, options, label, summarize, stream)
 
     @staticmethod
-    def beam(args, n: int, damping, material):
-        """The cantilever of the command line with ``n`` cells across and the ``material``
-        of :meth:`validate` (:func:`rothe.eld.examples.beam_problem`)."""
+    def beam(args, n: int, damping, material, mesh=None):
+        """The cantilever of the command line with ``n`` cells across (or the ``mesh`` of
+        --mesh) and the ``material`` of :meth:`validate`, held on the --dirichlet parts
+        (:func:`rothe.eld.examples.beam_problem`)."""
         return beam_problem(
             n,
             length=args.length,
@@ -680,6 +720,8 @@ class RunEldBeam(EldRunCommand):
             t_move=args.t_move,
             T=args.T,
             degree=args.degree,
+            mesh=mesh,
+            dirichlet=parts_of(args),
         )
 
     @staticmethod
@@ -697,28 +739,37 @@ class RunEldBeam(EldRunCommand):
         last (n tau may round to just below T: the last by a relative margin)."""
         return state.j % every == 0 or state.t >= T * (1.0 - 1e-12)
 
-    def summarize(self, args, summary: dict, traj, material) -> None:
-        """The beam's fields of the summary: its options, the ``material`` of
-        :meth:`validate`, seconds per step, the reactions at the held end and the fraction of
-        the energy put in that the scheme dissipated."""
-        material = material_fields(args, BEAM_MATERIAL, material)
+    def summarize(self, args, summary: dict, traj, material, mesh=None) -> None:
+        """The beam's fields of the summary: its options (or the ``mesh`` of --mesh and its
+        held parts), the ``material`` of :meth:`validate`, seconds per step, the reactions at
+        the (first) held part and the fraction of the energy put in that the scheme
+        dissipated."""
+        if args.material:
+            summary["material"] = material.describe()
+        else:
+            fields = material_fields(args, BEAM_MATERIAL, material)
+            summary.update(E=fields["E"], nu=fields["nu"], material=fields)
+        if mesh is None:
+            summary.update(n=args.n, length=args.length)
+        else:
+            summary.update(mesh_fields(args, mesh), dirichlet=list(parts_of(args)))
         summary.update(
-            n=args.n,
             degree=args.degree,
-            length=args.length,
-            E=material["E"],
-            nu=material["nu"],
-            material=material,
             amplitude=args.amplitude,
             t_move=args.t_move,
             seconds_per_step=traj.stats.wall_time_s / max(traj.stats.accepted_steps, 1),
         )
         if traj.stats.accepted_steps:
-            summary.update(_beam_reactions(traj))
+            summary.update(_beam_reactions(traj, parts_of(args)[0]))
             put_in = summary["work_support"] + summary["work_loads"]
             summary["numerical_dissipation_fraction"] = (
                 summary["dissipated_numerical"] / put_in if put_in > 0 else None
             )
+
+    def summary_keys(self, args) -> tuple:
+        """:attr:`keys` with the reactions of the first --dirichlet part (``left`` on the box)."""
+        part = parts_of(args)[0]
+        return tuple(k.replace("reaction_left_", f"reaction_{part}_") for k in self.keys)
 
     def report(self, args, summary) -> None:
         """Print the numerical dissipation against the work put in, and a note when the sideways
@@ -732,7 +783,8 @@ class RunEldBeam(EldRunCommand):
             f"{summary['dissipated_physical']:.4g})"
         )
         if max(sideways) > BEAM_SIDEWAYS_NOTE:
-            remedy = "a larger --n" if args.degree >= 2 else "--degree 2 or a larger --n"
+            finer = "a larger --n" if args.mesh is None else "a finer --mesh"
+            remedy = finer if args.degree >= 2 else f"--degree 2 or {finer}"
             print(
                 f"note: coarse mesh for the reactions: the sideways reactions are "
                 f"{100 * sideways[0]:.1f} % (x) and {100 * sideways[1]:.1f} % (y) of "
@@ -924,7 +976,7 @@ class RunEldPulse3d(RunEldPulse):
         "refine on them and coarsen behind (P2 by default)"
     )
     name = "eld-pulse-3d"
-    parameter_options: dict = {}
+    parameter_options = MESH_PARAMETERS
     space_defaults = dict(
         default_tol=PULSE3D_SPACE_TOL,
         default_max_dofs=PULSE3D_MAX_DOFS,
@@ -968,6 +1020,13 @@ class RunEldPulse3d(RunEldPulse):
             help="width of the pushed spot around (0, 1/2, 1/2) (default 0.15)",
         )
         material_options(parser, MMS_MATERIAL, rho=1.0)
+        mesh_options(
+            parser,
+            dirichlet="left",
+            dirichlet_help="boundary parts held by the multiplier (tetrahedra: --mesh is 3D), the "
+            "first pushed by the pulse (along its mean inward normal, around its centre), the "
+            "others held still; the rest is free",
+        )
         float_option(
             parser,
             "--b",
@@ -988,14 +1047,20 @@ class RunEldPulse3d(RunEldPulse):
     def validate(self, args):
         """The checks of eld-pulse (:meth:`RunEldPulse.pulse_checks`), the block's size
         against the memory, the material."""
+        check_mesh_options(args, ("--n", "--length"))
         objects, keep, n, length, space = self.pulse_checks(args)
         check_beam_size(n, length, args.degree, "auto")  # the same box of P1/P2 nodes
-        material = material_of(args, MMS_MATERIAL, dim=3)
-        return objects, keep, n, length, space, material
+        parts = parts_of(args)
+        # (--material: built on the mesh, in execute)
+        material = None if args.material else material_of(args, MMS_MATERIAL, dim=3)
+        return objects, keep, n, length, space, material, parts
 
     def execute(self, args) -> int:
         """Build the 3D pulse problem and run it as a session."""
-        objects, keep, n, length, space, material = self.validate(args)
+        objects, keep, n, length, space, material, parts = self.validate(args)
+        mesh = check_mesh_dim(body_mesh(args), 3, "tetrahedra; the 2D pulse is eld-pulse")
+        if mesh is not None:
+            material = body_material(args, MMS_MATERIAL, mesh)
         problem = pulse_3d_problem(
             n,
             args.degree,
@@ -1006,6 +1071,8 @@ class RunEldPulse3d(RunEldPulse):
             b=args.b,
             T=args.T,
             material=material,
+            mesh=mesh,
+            dirichlet=parts,
         )
         fit_default_cap(args, space, problem.space.ndofs)
         label = f"eld-pulse-3d, {objects['scheme'].name}, {objects['form'].name}, " + (
@@ -1013,10 +1080,16 @@ class RunEldPulse3d(RunEldPulse):
         )
 
         def summarize(summary, result, completed):
-            summary.update(
-                n=n, length=length, degree=args.degree, t_pulse=args.t_pulse, width=args.width
+            if mesh is None:
+                summary.update(n=n, length=length)
+            else:
+                summary.update(mesh_fields(args, mesh), dirichlet=list(parts))
+            summary.update(degree=args.degree, t_pulse=args.t_pulse, width=args.width)
+            summary["material"] = (
+                material.describe()
+                if args.material
+                else material_fields(args, MMS_MATERIAL, material)
             )
-            summary["material"] = material_fields(args, MMS_MATERIAL, material)
 
         return self.run(
             args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
@@ -1041,12 +1114,12 @@ def _beam_stream(session, problem, options: dict, every: int) -> EldXdmfWriter:
     return writer
 
 
-def _beam_reactions(traj) -> dict:
-    """The peak reactions at the held end and the sideways ones relative to R_z (the motion is
-    purely in z and the beam symmetric: R_x, R_y vanish for the exact solution)."""
-    peak = np.max(np.abs(traj["reaction_left"]), axis=0)
+def _beam_reactions(traj, part: str = "left") -> dict:
+    """The peak reactions at the held ``part`` and the sideways ones relative to R_z (the motion
+    is purely in z and the beam symmetric: R_x, R_y vanish for the exact solution)."""
+    peak = np.max(np.abs(traj[f"reaction_{part}"]), axis=0)
     sideways = (peak[:2] / peak[2]).tolist() if peak[2] > 0 else [0.0, 0.0]
-    return {"reaction_left_max_abs": peak.tolist(), "reaction_sideways_over_z": sideways}
+    return {f"reaction_{part}_max_abs": peak.tolist(), "reaction_sideways_over_z": sideways}
 
 
 # -- studies --------------------------------------------------------------------------------------

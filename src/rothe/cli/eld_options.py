@@ -23,7 +23,7 @@ from ..eld.materials import ELASTIC_PAIRS, PLANES, material_from, materials_from
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
 from ..eld.studies import check_halvings, check_uniform_runs
 from ..errors import check_choice, check_positive, described, fail
-from ..fem.mesh import DUPLICATE_NODES, load_mesh, mesh_dim
+from ..fem.mesh import DUPLICATE_NODES, describe, load_mesh, mesh_dim
 from ..stepping.controllers import Adaptive, Given, Uniform
 from .adapt_options import check_memory
 from .common import float_option, given
@@ -338,10 +338,11 @@ def material_fields(args, default: dict, material) -> dict:
 MESH_PARAMETERS = {"materials": "--material", "regions": "--region", "adapt": "--adapt-space"}
 
 
-def mesh_options(parser, *, dirichlet: str, dirichlet_help: str) -> None:
+def mesh_options(parser, *, dirichlet: str | None, dirichlet_help: str = "") -> None:
     """``--mesh FILE`` (anything meshio reads; parts and regions by gmsh physical-group
-    name), ``--duplicate-nodes``, ``--dirichlet PART[,PART]`` (default ``dirichlet``),
-    ``--material NAME:KEY=VALUE,...`` and ``--region NAME=GROUP[,GROUP]`` (both repeatable)."""
+    name), ``--duplicate-nodes``, ``--dirichlet PART[,PART]`` (default ``dirichlet``; none
+    with ``dirichlet=None``: a body held by its couplings only), ``--material
+    NAME:KEY=VALUE,...`` and ``--region NAME=GROUP[,GROUP]`` (both repeatable)."""
     parser.add_argument(
         "--mesh",
         default=None,
@@ -356,12 +357,13 @@ def mesh_options(parser, *, dirichlet: str, dirichlet_help: str) -> None:
         help="coincident nodes of a --mesh file used by different cells (a cut, like a crack): "
         "error (default) | merge (glue them) | keep (the cut is intended)",
     )
-    parser.add_argument(
-        "--dirichlet",
-        default=dirichlet,
-        metavar="PART[,PART]",
-        help=f"{dirichlet_help} (default {dirichlet})",
-    )
+    if dirichlet is not None:
+        parser.add_argument(
+            "--dirichlet",
+            default=dirichlet,
+            metavar="PART[,PART]",
+            help=f"{dirichlet_help} (default {dirichlet})",
+        )
     parser.add_argument(
         "--material",
         action="append",
@@ -379,6 +381,27 @@ def mesh_options(parser, *, dirichlet: str, dirichlet_help: str) -> None:
         help="with --material: the physical groups (cell regions) of the mesh that material "
         "NAME fills, e.g. steel=Volume1,Volume3; repeatable; every cell must get one material",
     )
+
+
+def part_option(parser, option: str, default: str, what: str) -> None:
+    """A boundary part by name (``--tip``, ``--base``, ...): a part of the built-in grid or a
+    physical group of the ``--mesh`` file."""
+    parser.add_argument(
+        option,
+        default=default,
+        metavar="PART",
+        help=f"{what}: a boundary part (a physical group with --mesh) (default {default})",
+    )
+
+
+def check_one_material(args, command: str, why: str) -> None:
+    """Refuse ``--material`` on a command whose example takes one material (one line)."""
+    if args.material:
+        raise fail(
+            "--material",
+            args.material[0],
+            f"is not taken by {command} (one material, --E/--nu or --lam/--mu and --rho: {why})",
+        )
 
 
 def _split_list(text: str) -> list[str]:
@@ -477,6 +500,17 @@ def body_mesh(args):
     if args.mesh is None:
         return None
     return load_mesh(args.mesh, name="mesh", duplicate_nodes=args.duplicate_nodes)
+
+
+def check_mesh_dim(mesh, dim: int, why: str):
+    """``mesh`` if it is ``dim``-dimensional, else one line naming ``--mesh``."""
+    if mesh is not None and mesh_dim(mesh) != dim:
+        raise fail(
+            "--mesh",
+            described(f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})"),
+            f"must be {dim}D ({why})",
+        )
+    return mesh
 
 
 def body_material(args, default: dict, mesh=None):

@@ -187,8 +187,13 @@ def mms_problem(
     start: str = "exact",
     load_quadrature: int | None = None,
     material: Material | None = None,
+    mesh=None,
 ) -> tuple[ELDProblem, ManufacturedSolution]:
     """The manufactured-solution problem on the unit square with n x n cells (module docstring).
+
+    ``mesh``: any 2D body instead (u is defined everywhere): the exact data on the
+    ``dirichlet`` parts, its traction on every other named part; every boundary facet must be
+    in a named part (an unnamed one would be traction-free, not the manufactured solution's).
 
     Default damping: NonlinearDamping(b=0.01, d0=0.5, d_nl=1, v_ref=1). ``start='rest'`` starts
     from u0 = v0 = 0 instead of the exact initial data, which is inconsistent with G(0) != 0
@@ -224,8 +229,11 @@ def mms_problem(
         material = Material(rho=rho, lam=lam, mu=mu, dim=2)
     damping = damping if damping is not None else NonlinearDamping(b=0.01, d0=0.5, d_nl=1.0)
     exact = ManufacturedSolution(material, damping)
-    mesh = meshes.unit_square(n, named=True)
-    dirichlet = tuple(dirichlet)
+    if mesh is None:
+        mesh = meshes.unit_square(n, named=True)
+    else:
+        _check_mms_mesh(mesh)
+    dirichlet = (dirichlet,) if isinstance(dirichlet, str) else tuple(dirichlet)
     data = DirichletData(exact.u, exact.u_dot, exact.u_ddot)
     names = sorted((mesh.boundaries or {}).keys())
     # an unknown Dirichlet name is reported by ELDProblem (one line, naming the known parts)
@@ -245,6 +253,32 @@ def mms_problem(
         load_quadrature=load_quadrature,
     )
     return problem, exact
+
+
+def _check_mms_mesh(mesh) -> None:
+    """A mesh for :func:`mms_problem`: 2D (the manufactured solution is plane), every boundary
+    facet in a named part; one line naming ``mesh`` otherwise."""
+    if meshes.mesh_dim(mesh) != 2:
+        raise fail(
+            "mesh",
+            described(f"a 3D mesh ({meshes.describe(mesh)})"),
+            "must be 2D (triangles: the manufactured solution is plane)",
+        )
+    named = [np.asarray(f) for f in (mesh.boundaries or {}).values()]
+    outside = np.setdiff1d(
+        np.asarray(mesh.boundary_facets()), np.concatenate(named) if named else []
+    )
+    if outside.size:
+        x = np.asarray(mesh.p)[:, np.asarray(mesh.facets)[:, outside[0]]].mean(axis=1)
+        raise fail(
+            "mesh",
+            described(
+                f"{outside.size} boundary facets in no named part (the first at "
+                f"({x[0]:.4g}, {x[1]:.4g}))"
+            ),
+            "must put every boundary facet in a physical group (the exact data or traction "
+            "goes on each part)",
+        )
 
 
 def mms_errors(exact: ManufacturedSolution, result) -> dict:
@@ -453,9 +487,12 @@ def beam_problem(
     t_move: float = 0.5,
     T: float = 2.0,
     degree: int = 1,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
+    mesh=None,
+    dirichlet=("left",),
 ) -> ELDProblem:
-    """The cantilever: n cells across the unit cross-section, round(length * n) along it.
+    """The cantilever: n cells across the unit cross-section, round(length * n) along it; the
+    ``dirichlet`` parts (default ``left``, x = 0) held and moved along z by G(t).
 
     Parameters
     ----------
@@ -473,8 +510,13 @@ def beam_problem(
         The end time.
     degree : int
         1 or 2.
-    material : Material, optional
-        A 3D material instead of E, nu, rho.
+    material : Material or PiecewiseMaterial, optional
+        A 3D material instead of E, nu, rho (materials by region with a ``mesh``).
+    mesh : skfem.MeshTet, optional
+        Any 3D body with named boundary parts (e.g. gmsh physical groups,
+        :func:`rothe.fem.mesh.load_mesh`) instead of the box; ``n`` and ``length`` unused.
+    dirichlet : str or tuple of str
+        The held and moved parts (an unknown name: one line listing the mesh's parts).
 
     Returns
     -------
@@ -482,15 +524,24 @@ def beam_problem(
     """
     if material is None:
         material = Material.from_young(E, nu, rho, dim=3)
-    nx = max(1, int(round(length * n)))
-    mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
+    if mesh is None:
+        nx = max(1, int(round(length * n)))
+        mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
+    elif meshes.mesh_dim(mesh) != 3:
+        raise fail(
+            "mesh",
+            described(f"a 2D mesh ({meshes.describe(mesh)})"),
+            "must be 3D (tetrahedra: the held end moves along z)",
+        )
     motion = EndMotion(amplitude, t_move)
+    held = DirichletData(motion.G, motion.G_dot, motion.G_ddot)
+    parts = (dirichlet,) if isinstance(dirichlet, str) else tuple(dirichlet)
     return ELDProblem(
         mesh,
         material,
         degree=degree,
         damping=damping,
-        dirichlet={"left": DirichletData(motion.G, motion.G_dot, motion.G_ddot)},
+        dirichlet={part: held for part in parts},
         T=T,
         name="eld-beam",
     )
@@ -679,8 +730,9 @@ def pulse_3d_problem(
     lam: float = 2.0,
     mu: float = 1.0,
     T: float = 0.5,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
     mesh=None,
+    dirichlet=("left",),
 ) -> ELDProblem:
     """The pulse in 3D: the block [0, length] x [0, 1] x [0, 1] (:func:`block`, round(length n)
     x n x n cubes of six tetrahedra), its face x = 0 (``left``) held and pushed along x by
@@ -716,7 +768,13 @@ def pulse_3d_problem(
         Instead of rho, lam, mu (dim 3).
     mesh : skfem.MeshTet, optional
         A refinement of the block with its named faces instead of n, length (the nested
-        meshes of the benchmark, :class:`rothe.fem.adapt.AdaptiveMesh` ``.uniform``).
+        meshes of the benchmark, :class:`rothe.fem.adapt.AdaptiveMesh` ``.uniform``), or any
+        3D body with named parts (a gmsh file): the first ``dirichlet`` part pushed along its
+        mean inward normal around the centre of its bounding box
+        (:func:`rothe.fem.mesh.part_frame`: on the block's ``left`` exactly e_x at
+        (0, 1/2, 1/2)), the others held (:func:`pulse_problem`).
+    dirichlet : sequence of str
+        The held parts, the pushed one first (default ``("left",)``).
 
     Returns
     -------
@@ -726,6 +784,12 @@ def pulse_3d_problem(
         n = check_int("n", n, minimum=1)
         length = check_positive("length", length)
         mesh = block(max(1, round(length * n)), n, n, length)
+    elif meshes.mesh_dim(mesh) != 3:
+        raise fail(
+            "mesh",
+            described(f"a 2D mesh ({meshes.describe(mesh)})"),
+            "must be 3D (tetrahedra; the 2D pulse is eld-pulse)",
+        )
     if material is None:
         material = Material(rho=rho, lam=lam, mu=mu, dim=3)
     return pulse_problem(
@@ -737,7 +801,7 @@ def pulse_3d_problem(
         T=T,
         mesh=mesh,
         material=material,
-        dirichlet=("left",),
+        dirichlet=dirichlet,
         name="eld-pulse-3d",
     )
 
@@ -908,6 +972,8 @@ class PlateAbsorber(LinearComponent):
     absorber_mass, stiffness, damping : float
         m_a >= 0 (0: no absorber), k, c >= 0.
     name : str
+    axis : int
+        The absorber's direction: 1 (y, default: the formulas above) or 0 (x: a_x - s).
     """
 
     def __init__(
@@ -920,6 +986,7 @@ class PlateAbsorber(LinearComponent):
         stiffness: float = 0.0,
         damping: float = 0.0,
         name: str = "plate",
+        axis: int = 1,
     ):
         mp = check_positive("plate_mass", plate_mass)
         Jp = check_positive("plate_inertia", plate_inertia)
@@ -931,12 +998,15 @@ class PlateAbsorber(LinearComponent):
         if ma == 0.0:
             super().__init__(np.array([mp, mp, Jp]), coordinates=names, name=name)
             return
-        e = np.array([0.0, 1.0, 0.0, -1.0])  # a_y - s
+        if axis not in (0, 1):
+            raise fail("axis", axis, "must be 0 (x) or 1 (y)")
+        e = np.array([0.0, 0.0, 0.0, -1.0])
+        e[axis] = 1.0  # a_y - s (a_x - s along x)
         super().__init__(
             np.array([mp, mp, Jp, ma]),
             k * np.outer(e, e),
             c * np.outer(e, e),
-            coordinates=(*names, "absorber_y"),
+            coordinates=(*names, "absorber_" + "xy"[axis]),
             name=name,
         )
 
@@ -977,6 +1047,8 @@ class TMDExample:
     beam_frequency : float
         w_1 of the Euler-Bernoulli cantilever of the strip (clamped, no plate, no base), for
         comparison.
+    length, height : float
+        The strip's L and H (of a mesh: its extent in x and area / L).
     """
 
     with_tmd: CoupledProblem
@@ -987,24 +1059,61 @@ class TMDExample:
     damping: float
     forcing: float
     beam_frequency: float
+    length: float = math.nan
+    height: float = math.nan
 
 
-def _strip(n, degree, length, height, material, young):
-    """The strip of the coupled examples: the checked ``n``, ``length``, ``height``, the
+def _strip(n, degree, length, height, material, young, mesh=None, base="left", tip="right", axis=0):
+    """The body of the coupled examples: the checked ``n``, ``length``, ``height``, the
     material (default E = ``young``, nu = 0, rho = 1, plane stress), the axial modulus of the
-    strip (E in plane stress, E/(1 - nu^2) in plane strain) and the mesh, round(n L/H) x n
-    cells on [0, L] x [0, H]."""
-    n = check_int("n", n, minimum=1)
+    strip (E in plane stress, E/(1 - nu^2) in plane strain), the mesh, round(n L/H) x n cells on
+    [0, L] x [0, H], and the centroid and length of the ``tip`` part (the right side: (L, H/2)
+    and H).
+
+    ``mesh``: a 2D body with the named parts ``base`` and ``tip`` instead of the strip; it is
+    taken as a strip along x: L its extent in x, H = area / L (the strip's own L, H to
+    round-off), the tip's centroid and length from its facets
+    (:func:`rothe.fem.mesh.part_centroid`). ``axis`` 1: a mesh along y (L its extent in y);
+    the built-in strip lies along x only."""
+    if axis not in (0, 1):
+        raise fail("axis", axis, "must be 0 (x) or 1 (y)")
+    if axis == 1 and mesh is None:
+        raise fail("axis", "y", "needs a mesh (the built-in strip lies along x)")
     if degree not in (1, 2):
         raise fail("degree", degree, "must be 1 or 2")
-    length = check_positive("length", length)
-    height = check_positive("height", height)
+    if isinstance(material, PiecewiseMaterial):
+        raise fail(
+            "material",
+            described("a PiecewiseMaterial"),
+            "must be one Material (the example sizes its support and predicts its frequencies "
+            "by the strip's E and rho)",
+        )
+    if mesh is None:
+        n = check_int("n", n, minimum=1)
+        length = check_positive("length", length)
+        height = check_positive("height", height)
+        mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
+        meshes.part_centroid(mesh, base, "base")
+        if tip == "right":  # (exact, as before the parts could be named)
+            center, tip_size = np.array([length, height / 2]), height
+        else:
+            center, tip_size = meshes.part_centroid(mesh, tip, "tip")
+    else:
+        if meshes.mesh_dim(mesh) != 2:
+            raise fail(
+                "mesh",
+                described(f"a {meshes.mesh_dim(mesh)}D mesh ({meshes.describe(mesh)})"),
+                "must be 2D (this example's support and tip plate are plane)",
+            )
+        meshes.part_centroid(mesh, base, "base")
+        center, tip_size = meshes.part_centroid(mesh, tip, "tip")
+        length = float(np.ptp(np.asarray(mesh.p)[axis]))
+        height = float(meshes.cell_volumes(mesh).sum()) / length
     if material is None:
         material = Material.from_young(young, 0.0, 1.0, dim=2, plane="stress")
     E, nu = material.young
     modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
-    mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
-    return n, length, height, material, modulus, mesh
+    return n, length, height, material, modulus, mesh, center, tip_size
 
 
 def tmd_problem(
@@ -1019,6 +1128,10 @@ def tmd_problem(
     forcing_ratio: float = 1.0,
     b: float = 0.0,
     T: float = 12.0,
+    mesh=None,
+    base: str = "left",
+    tip: str = "right",
+    axis: int = 0,
 ) -> TMDExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along; default material E = 10^4, nu = 0, rho = 1) whose ``left`` end is tied to a support
@@ -1039,12 +1152,26 @@ def tmd_problem(
     material : Material, optional
         A 2D material (default E = 10^4, nu = 0, rho = 1, plane stress).
     mass_ratio, force, forcing_ratio, b, T : float
+    mesh : skfem.MeshTri, optional
+        A 2D body along x with the named parts ``base`` (tied to the support) and ``tip`` (the
+        plate, centred at the part's centroid, J_p by the part's length) instead of the strip
+        (:func:`_strip`: L its extent in x, H = area / L; a gmsh mesh of the strip with these
+        parts gives the strip's run to round-off).
+    base, tip : str
+        The boundary parts (default ``left``, ``right``: the strip's).
+    axis : int
+        The body's long axis, 0 (x, default) or 1 (y, a mesh only); the support is pushed and
+        the absorber swings across it (y, or x).
 
     Returns
     -------
     TMDExample
     """
-    n, length, height, material, modulus, mesh = _strip(n, degree, length, height, material, 1e4)
+    refine = ("n", n) if mesh is None else ("mesh", described("the mesh"))
+    n, length, height, material, modulus, mesh, center, tip_size = _strip(
+        n, degree, length, height, material, 1e4, mesh, base, tip, axis
+    )
+    across = 1 - axis
     mu = check_positive("mass_ratio", mass_ratio)
     force = check_real("force", force)
     ratio = check_positive("forcing_ratio", forcing_ratio)
@@ -1055,15 +1182,16 @@ def tmd_problem(
     base_mass = strip
     base_k = (base_mass + strip) * (4.0 * w_eb) ** 2
     plate_mass = 0.05 * strip
-    plate_J = plate_mass * height**2 / 12
-    center = (length, height / 2)
+    plate_J = plate_mass * tip_size**2 / 12
     damping = RayleighDamping(0.0, b) if b > 0 else None
 
     def build(absorber=None, forcing=0.0):
         def push(t):
-            return np.array([0.0, force * math.sin(forcing * t)])
+            f = np.zeros(2)
+            f[across] = force * math.sin(forcing * t)
+            return f
 
-        base = MassSpringDamper(base_mass, base_k, load=push, name="base")
+        support = MassSpringDamper(base_mass, base_k, load=push, name="base")
         k, c = (0.0, 0.0) if absorber is None else absorber[1:]
         plate = PlateAbsorber(
             plate_mass,
@@ -1073,14 +1201,15 @@ def tmd_problem(
             stiffness=k,
             damping=c,
             name="tip",
+            axis=across,
         )
         return CoupledProblem.from_body(
             mesh,
             material,
             degree=degree,
             damping=damping,
-            components=[base, plate],
-            couplings=[Translation("left", base), plate_coupling("right", plate)],
+            components=[support, plate],
+            couplings=[Translation(base, support), plate_coupling(tip, plate)],
             T=T,
             name="eld-tmd",
         )
@@ -1089,11 +1218,11 @@ def tmd_problem(
         warnings.filterwarnings("ignore", message="G_d")
         bare = build()
         w, _, Q = coupled_modes(bare, 8)
-        ay = bare.offsets["tip"] + 1
-        ax = bare.offsets["tip"]
+        ay = bare.offsets["tip"] + across  # (the deflection across the body, a_y along x)
+        ax = bare.offsets["tip"] + axis
         bending = np.flatnonzero(np.abs(Q[ay]) > 10 * np.abs(Q[ax]))
         if bending.size == 0:
-            raise fail("n", n, "gives no bending mode among the first 8: refine")
+            raise fail(*refine, "gives no bending mode among the first 8: refine")
         k1 = int(bending[0])
         w1 = float(w[k1])
         m1 = 1.0 / float(Q[ay, k1]) ** 2  # (mass-normalized modes: the deflection a_y = 1)
@@ -1108,6 +1237,8 @@ def tmd_problem(
             damping=c_a,
             forcing=forcing,
             beam_frequency=float(w_eb),
+            length=length,
+            height=height,
         )
 
 
@@ -1137,6 +1268,8 @@ class ControlExample:
         :func:`rothe.eld.frequencies.first_mode_decay_rate` plus the uncontrolled rate.
     frequency : float
         w_1 of the discrete uncontrolled system (the mode the runs start in).
+    length, height : float
+        The strip's L and H (of a mesh: its extent in x and area / L).
     """
 
     controlled: CoupledProblem
@@ -1146,6 +1279,8 @@ class ControlExample:
     roots_undamped: np.ndarray
     modal_rate: float
     frequency: float
+    length: float = math.nan
+    height: float = math.nan
 
 
 def control_problem(
@@ -1163,6 +1298,10 @@ def control_problem(
     b: float = 0.005,
     amplitude: float = 0.01,
     T: float = 6.0,
+    mesh=None,
+    base: str = "left",
+    tip: str = "right",
+    axis: int = 0,
 ) -> ControlExample:
     """A plane-stress strip [0, length] x [0, height] (default E = 100, nu = 0, rho = 1: the
     axial motion is the 1D bar's) whose ``left`` end is held by a base (mass ``base_mass``,
@@ -1185,14 +1324,27 @@ def control_problem(
     material : Material, optional
     base_mass, base_stiffness, gain, kd, filter_time, b, amplitude, T : float
         m_b, k_b, k_p, k_d, T_f (used with k_d > 0), b, the initial amplitude and T.
+    mesh : skfem.MeshTri, optional
+        A 2D body along x with the named parts ``base`` (held by the base) and ``tip`` (the
+        sensor at its centroid) instead of the strip (:func:`_strip`: L its extent in x,
+        H = area / L in the predicted roots).
+    base, tip : str
+        The boundary parts (default ``left``, ``right``: the strip's).
+    axis : int
+        The bar's axis, 0 (x, default) or 1 (y, a mesh only): the base's spring k_b, the push
+        and the fed-back velocity along it.
 
     Returns
     -------
     ControlExample
     """
-    n, length, height, material, modulus, mesh = _strip(n, degree, length, height, material, 100.0)
+    refine = ("n", n) if mesh is None else ("mesh", described("the mesh"))
+    n, length, height, material, modulus, mesh, center, _ = _strip(
+        n, degree, length, height, material, 100.0, mesh, base, tip, axis
+    )
     mb = check_positive("base_mass", base_mass)
     kb = check_nonnegative("base_stiffness", base_stiffness)
+    springs = [kb, 1e4] if axis == 0 else [1e4, kb]  # (k_b along the bar, stiff across)
     kp = check_real("gain", gain)
     kd = check_nonnegative("kd", kd)
     b = check_nonnegative("b", b)
@@ -1202,20 +1354,19 @@ def control_problem(
     Tf = check_positive("filter_time", filter_time) if kd > 0 else None
 
     def build(feedback: bool, q0=None, u0=None):
-        base = MassSpringDamper(mb, [kb, 1e4], q0=q0, name="base")
-        sensor = PointSensor([length, height / 2], "velocity", axes=[0])
+        support = MassSpringDamper(mb, springs, q0=q0, name="base")
+        sensor = PointSensor(center, "velocity", axes=[axis])
+        along = [[1.0], [0.0]] if axis == 0 else [[0.0], [1.0]]
         ctrls = []
         if feedback:
-            ctrls = [
-                LinearController.pd(kp, kd, sensor, base, filter_time=Tf, directions=[[1.0], [0.0]])
-            ]
+            ctrls = [LinearController.pd(kp, kd, sensor, support, filter_time=Tf, directions=along)]
         return CoupledProblem.from_body(
             mesh,
             material,
             degree=degree,
             damping=damping,
-            components=[base],
-            couplings=[Translation("left", base)],
+            components=[support],
+            couplings=[Translation(base, support)],
             controllers=ctrls,
             u0=u0,
             T=T,
@@ -1225,11 +1376,11 @@ def control_problem(
     with warnings.catch_warnings():  # no prescribed part: nothing is differenced
         warnings.filterwarnings("ignore", message="G_d")
         w, U, Q = coupled_modes(build(False), 8)
-        axial = np.flatnonzero(np.abs(Q[0]) > 10 * np.abs(Q[1]))
+        axial = np.flatnonzero(np.abs(Q[axis]) > 10 * np.abs(Q[1 - axis]))
         if axial.size == 0:
-            raise fail("n", n, "gives no axial mode among the first 8: refine")
+            raise fail(*refine, "gives no axial mode among the first 8: refine")
         k = int(axial[0])
-        scale = amplitude / abs(Q[0, k])
+        scale = amplitude / abs(Q[axis, k])
         q0, u0 = Q[:, k] * scale, U[:, k] * scale
         controlled, uncontrolled = build(True, q0, u0), build(False, q0, u0)
 
@@ -1241,4 +1392,6 @@ def control_problem(
     free = controlled_bar_roots(length, modulus, rho, kelvin_voigt=b, count=2, **bar)
     undamped = controlled_bar_roots(length, modulus, rho, H=H, count=2, **bar)
     modal = first_mode_decay_rate(length, modulus, rho, H=H, **bar) - free[0].real
-    return ControlExample(controlled, uncontrolled, roots, free, undamped, modal, float(w[k]))
+    return ControlExample(
+        controlled, uncontrolled, roots, free, undamped, modal, float(w[k]), length, height
+    )

@@ -592,6 +592,31 @@ def part_frame(mesh, part: str, name: str = "part") -> tuple[np.ndarray, np.ndar
     return (lo + hi) / 2, total / size
 
 
+def part_centroid(mesh, part: str, name: str = "part") -> tuple[np.ndarray, float]:
+    """The centroid of a named boundary part and its measure (length in 2D, area in 3D).
+
+    c = sum_f |f| m_f / sum_f |f|, m_f the midpoint (centroid) of facet f; the right side
+    x = L of [0, L] x [0, H] gives c = (L, H/2), |part| = H (to round-off). An unknown part is
+    refused in one line naming ``name`` and listing the mesh's parts.
+
+    Returns
+    -------
+    (center (d,), measure)
+    """
+    facets = (mesh.boundaries or {}).get(part)
+    if facets is None or len(facets) == 0:
+        known = ", ".join(boundary_part_names(mesh)) or "(the mesh has no named parts)"
+        raise fail(name, part, f"must be one of {known} (boundary parts of the mesh)")
+    p = np.asarray(mesh.p)
+    x = p[:, np.asarray(mesh.facets)[:, facets]]  # (d, d, nf): coordinate, node, facet
+    if p.shape[0] == 2:
+        size = np.linalg.norm(x[:, 1] - x[:, 0], axis=0)
+    else:
+        size = np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], axis=0), axis=0) / 2
+    total = float(size.sum())
+    return (x.mean(axis=1) * size).sum(axis=1) / total, total
+
+
 def boundary_part_names(mesh) -> list[str]:
     """The names of the mesh's boundary parts, sorted (empty without named parts)."""
     return sorted((mesh.boundaries or {}).keys())
