@@ -116,7 +116,8 @@ def control_options(parser) -> None:
         "--tol",
         default=None,
         help="tolerance of --control adaptive: the local error of each step (what one step "
-        "adds) in the energy norm, relative to the run's energy-norm scale; not a bound on "
+        "adds) in the energy norm, relative to the run's energy-norm scale (with controllers: "
+        "also their states z, relative to the largest z so far); not a bound on "
         "the error at T, which is the steps' errors added up (docs/eld.md, Step control)",
     )
 
