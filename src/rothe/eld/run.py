@@ -351,8 +351,8 @@ def run_eld(
         Backend ``'petsc'`` only: how GAMG forms its coarse operators P^T A P
         (:data:`rothe.eld.solvers.AMG_PRODUCTS`). ``'fast'`` (default): PETSc's two-step
         product; ``'lean'``: the all-at-once product on the finest level, which never stores
-        A P there — about 0.76x the peak memory per process on two processes, for a set-up
-        3-4x slower (docs/scaling.md; on one process both are PETSc's sequential product).
+        A P there — about 0.77x the peak memory per process on two processes, for a set-up
+        about 3x slower (docs/scaling.md; on one process both are PETSc's sequential product).
 
     Returns
     -------

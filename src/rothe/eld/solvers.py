@@ -81,7 +81,8 @@ JACOBI_MAXITER = 1000
 #: per owned dof above what the hierarchy keeps); ``lean`` PETSc's all-at-once product for the
 #: finest level (``-matptap_via allatonce_merged`` for that product only), which never forms
 #: A P there: 0.77x the peak memory per process on the 1.07 M-dof beam at N = 2, for a set-up
-#: 3-4x slower (all levels all-at-once: the same peak, 5-7x; docs/scaling.md, eighth session)
+#: about 3x slower (all levels all-at-once: a peak 1 % lower, 5-7x; docs/scaling.md, eighth
+#: session)
 AMG_PRODUCTS = ("fast", "lean")
 
 
