@@ -10,7 +10,7 @@ the tools alternating inside each repeat (docs/scaling.md, "Measured"):
   with the rigid-body near-nullspace, regularized form); N = 1 is also what ``rothe run
   eld-beam`` takes by default on one process where petsc4py is installed (``--backend auto``);
 - ``rothe petsc N=k lean`` (``--lean``, default N = 2): the same with ``amg_products='lean'``
-  (GAMG's all-at-once Galerkin products: less memory, slower set-up);
+  (GAMG's all-at-once Galerkin product on its finest level: less memory, slower set-up);
 - ``dolfinx N=k``: FEniCSx 0.11 (``../shared/anchors/eld_beam_dolfinx011.py``, strong
   Dirichlet, CG + GAMG) on the identical mesh, ``mpiexec -n k``.
 

@@ -41,7 +41,7 @@ from dataclasses import asdict
 import numpy as np
 
 from ...errors import RotheInputError, RunFailed, check_choice, check_positive, described, fail
-from ...fem.petsc_env import release_product_data
+from ...fem.petsc_env import finest_level_product, release_product_data
 from ...io.trajectory import Trajectory
 from ...stepping import interrupt
 from ...stepping.controllers import Adaptive
@@ -66,6 +66,11 @@ from .problem import DistributedDamping
 #: the checkpoint format of :meth:`PetscELDStepper.checkpoint_state` (the serial stepper's
 #: state gathered in the serial numbering, plus the number of processes)
 CHECKPOINT_FORMAT = "rothe-eld-petsc-1"
+
+#: PETSc's product algorithm for the finest Galerkin product with ``amg_products='lean'``: the
+#: all-at-once product, its merged variant (n = 32, N = 2: 20 s against plain allatonce's 27 s
+#: and the default's 4.7 s at load 6, the same 75 MB transient; docs/scaling.md)
+LEAN_FINEST_PRODUCT = "allatonce_merged"
 
 #: CG iterations relative to those right after the preconditioner was built, beyond which it
 #: is rebuilt for the current A(tau_eff) (the serial ReferenceSolver's stall rule)
@@ -257,18 +262,7 @@ class PetscELDStepper(StepperBase):
         self._ksp.getPC().setReusePreconditioner(False)
         self._ksp.setOperators(self._A)
         if self.kind == "amg" and self.amg_products == "lean":
-            # PETSc reads the product algorithm when GAMG creates each product, from the global
-            # options (GAMG gives its products no prefix of ours): set for this set-up only
-            # (a -matptap_via the user gave, e.g. in PETSC_OPTIONS, is theirs and stays)
-            options = self.PETSc.Options()
-            own = not options.hasName("matptap_via")
-            if own:
-                options["matptap_via"] = "allatonce"
-            try:
-                self._ksp.setUp()
-            finally:
-                if own:
-                    options.delValue("matptap_via")
+            self._setup_lean()
         else:
             self._ksp.setUp()
         if self.kind == "amg":
@@ -279,6 +273,29 @@ class PetscELDStepper(StepperBase):
         self._pc_te = self._A_te
         self._pc_its = None
         self._rebuild = False
+
+    def _setup_lean(self) -> None:
+        """GAMG's set-up with the all-at-once Galerkin product on the finest level, where the
+        default product's A P is the set-up's peak; the coarser levels keep PETSc's default
+        (all-at-once there cost as much time again for no lower peak: docs/scaling.md, eighth
+        session). A ``-matptap_via`` the user gave (e.g. in PETSC_OPTIONS) is theirs and
+        applies to every level; a PETSc whose log events cannot single out the finest product
+        takes the all-at-once product on every level (the option set for this set-up only)."""
+        options = self.PETSc.Options()
+        if options.hasName("matptap_via") or self.comm.size == 1:
+            # on one process the products are sequential (SeqAIJ, which stores no A P and knows
+            # no all-at-once algorithm: PETSc refused the option, 'Unknown option')
+            self._ksp.setUp()
+            return
+        with finest_level_product(self.comm, LEAN_FINEST_PRODUCT) as finest_only:
+            if finest_only:
+                self._ksp.setUp()
+                return
+        options["matptap_via"] = "allatonce"
+        try:
+            self._ksp.setUp()
+        finally:
+            options.delValue("matptap_via")
 
     def _solve(self, rhs: np.ndarray, te: float, guess: np.ndarray) -> np.ndarray:
         """A(te) x = rhs by CG with the stored preconditioner (module docstring)."""
