@@ -601,9 +601,9 @@ class RunEldBeam(EldRunCommand):
             "--amg-products",
             default=None,
             help="fast | lean, with the petsc backend: how PETSc's GAMG forms its coarse "
-            "operators; fast (default) PETSc's two-step products, lean the all-at-once one on "
-            "the finest level, which never stores A P there: about 0.77x the peak memory per "
-            "process on two processes, for a set-up about 3x slower (docs/scaling.md)",
+            "operators; fast (default) PETSc's two-step products, lean the all-at-once ones, "
+            "which never store A P: about 0.75x the peak memory per process on two processes, "
+            "for a set-up 5-7x slower (docs/scaling.md)",
         )
         keep_option(parser, 5)
         damping_options(parser, default="rayleigh", default_b=0.002)

@@ -350,9 +350,9 @@ def run_eld(
     amg_products : {'fast', 'lean'}
         Backend ``'petsc'`` only: how GAMG forms its coarse operators P^T A P
         (:data:`rothe.eld.solvers.AMG_PRODUCTS`). ``'fast'`` (default): PETSc's two-step
-        product; ``'lean'``: the all-at-once product on the finest level, which never stores
-        A P there — about 0.77x the peak memory per process on two processes, for a set-up
-        about 3x slower (docs/scaling.md; on one process both are PETSc's sequential product).
+        product; ``'lean'``: the all-at-once product, which never stores A P — about 0.75x the
+        peak memory per process on two processes, for a set-up 5-7x slower (docs/scaling.md;
+        on one process both are PETSc's sequential product).
 
     Returns
     -------

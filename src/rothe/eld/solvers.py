@@ -78,11 +78,11 @@ JACOBI_MAXITER = 1000
 
 #: how GAMG forms its coarse operators P^T A P (``amg_products``): ``fast`` is PETSc's default
 #: two-step product, which stores A P on every process (on MPI the set-up's peak: about 1.3 KB
-#: per owned dof above what the hierarchy keeps); ``lean`` PETSc's all-at-once product for the
-#: finest level (``-matptap_via allatonce_merged`` for that product only), which never forms
-#: A P there: 0.77x the peak memory per process on the 1.07 M-dof beam at N = 2, for a set-up
-#: about 3x slower (all levels all-at-once: a peak 1 % lower, 5-7x; docs/scaling.md, eighth
-#: session)
+#: per owned dof above what the hierarchy keeps); ``lean`` PETSc's all-at-once product
+#: (``-matptap_via allatonce``), which never forms A P: 0.76x the peak memory per process on
+#: the 1.07 M-dof beam at N = 2, for a set-up 5-7x slower (docs/scaling.md, "--amg-products";
+#: the all-at-once product on the finest level only: half that set-up, a peak 15-40 MB
+#: higher, not taken: eighth session)
 AMG_PRODUCTS = ("fast", "lean")
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import ctypes
 import os
-from contextlib import contextmanager
 
 from ..errors import RotheInputError
 
@@ -96,86 +95,3 @@ def release_product_data(pc) -> int:
         if clear(mat.handle) != 0:
             raise RuntimeError("MatProductClear failed on a matrix of the multigrid hierarchy")
     return len(operators) + len(interpolations)
-
-
-#: PETSc's log event around GAMG's Galerkin product P^T A P on its finest level (gamg.c registers
-#: "PCGAMG Gal lNN" per level; l00 is the step matrix's)
-FINEST_GALERKIN_EVENT = b"PCGAMG Gal l00"
-
-
-@contextmanager
-def finest_level_product(comm, algorithm: str):
-    """During the block, PETSc's ``-matptap_via ALGORITHM`` for the Galerkin product of GAMG's
-    finest level only; yields False (and sets nothing) where that product cannot be told apart.
-
-    PETSc reads ``-matptap_via`` from the global options when GAMG creates each level's product
-    (the products carry no prefix), so an option set around the whole set-up applies to every
-    level. The finest product is the one whose A P is large (about 1.3 KB per owned dof on the
-    1.07 M-dof beam at N = 2); the coarser products are small but, all-at-once, as slow as the
-    finest (docs/scaling.md, eighth session). The option is therefore set and removed by a log
-    handler at the begin and end of that product's log event (PETSc's legacy callback handler,
-    ``PetscLogHandlerCreateLegacy``, reached through ctypes as :func:`release_product_data`);
-    a PETSc built without logging (the event unknown) or without those functions yields False.
-    ``comm``: the mpi4py communicator of the set-up.
-    """
-    from petsc4py import PETSc  # optional, heavy: only where the backend already runs
-
-    try:
-        lib = ctypes.CDLL(PETSc.__file__)
-        get_id = lib.PetscLogEventGetId
-        create, start = lib.PetscLogHandlerCreateLegacy, lib.PetscLogHandlerStart
-        stop, destroy = lib.PetscLogHandlerStop, lib.PetscLogHandlerDestroy
-    except (OSError, AttributeError):
-        yield False
-        return
-    event = ctypes.c_int(-1)
-    get_id.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_int)]
-    if get_id(FINEST_GALERKIN_EVENT, ctypes.byref(event)) != 0 or event.value < 0:
-        yield False
-        return
-    from mpi4py import MPI  # loaded before petsc4py already (require_petsc)
-
-    options = PETSc.Options()
-    eid = event.value
-
-    def begin(e, _i, _o1, _o2, _o3, _o4):
-        if e == eid:
-            options["matptap_via"] = algorithm
-        return 0
-
-    def end(e, _i, _o1, _o2, _o3, _o4):
-        if e == eid:
-            options.delValue("matptap_via")
-        return 0
-
-    callback = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_int, ctypes.c_int, *[ctypes.c_void_p] * 4)
-    callbacks = (callback(begin), callback(end))  # referenced until the handler is destroyed
-    comm_type = (
-        ctypes.c_int if MPI._sizeof(MPI.Comm) == ctypes.sizeof(ctypes.c_int) else ctypes.c_void_p
-    )
-    create.argtypes = [
-        comm_type,
-        callback,
-        callback,
-        ctypes.c_void_p,
-        ctypes.c_void_p,
-        ctypes.POINTER(ctypes.c_void_p),
-    ]
-    start.argtypes = stop.argtypes = [ctypes.c_void_p]
-    destroy.argtypes = [ctypes.POINTER(ctypes.c_void_p)]
-    handler = ctypes.c_void_p()
-    if create(MPI._handleof(comm), *callbacks, None, None, ctypes.byref(handler)) != 0:
-        yield False
-        return
-    try:
-        if start(handler) != 0:
-            yield False
-            return
-        try:
-            yield True
-        finally:
-            stop(handler)
-            options.delValue("matptap_via")  # an error inside the product: not left behind
-    finally:
-        destroy(ctypes.byref(handler))
-        del callbacks

@@ -41,7 +41,7 @@ from dataclasses import asdict
 import numpy as np
 
 from ...errors import RotheInputError, RunFailed, check_choice, check_positive, described, fail
-from ...fem.petsc_env import finest_level_product, release_product_data
+from ...fem.petsc_env import release_product_data
 from ...io.trajectory import Trajectory
 from ...stepping import interrupt
 from ...stepping.controllers import Adaptive
@@ -67,10 +67,6 @@ from .problem import DistributedDamping
 #: state gathered in the serial numbering, plus the number of processes)
 CHECKPOINT_FORMAT = "rothe-eld-petsc-1"
 
-#: PETSc's product algorithm for the finest Galerkin product with ``amg_products='lean'``: the
-#: all-at-once product, its merged variant (n = 32, N = 2: 20 s against plain allatonce's 27 s
-#: and the default's 4.7 s at load 6, the same 75 MB transient; docs/scaling.md)
-LEAN_FINEST_PRODUCT = "allatonce_merged"
 
 #: CG iterations relative to those right after the preconditioner was built, beyond which it
 #: is rebuilt for the current A(tau_eff) (the serial ReferenceSolver's stall rule)
@@ -275,22 +271,18 @@ class PetscELDStepper(StepperBase):
         self._rebuild = False
 
     def _setup_lean(self) -> None:
-        """GAMG's set-up with the all-at-once Galerkin product on the finest level, where the
-        default product's A P is the set-up's peak; the coarser levels keep PETSc's default
-        (all-at-once there cost as much time again for no lower peak: docs/scaling.md, eighth
-        session). A ``-matptap_via`` the user gave (e.g. in PETSC_OPTIONS) is theirs and
-        applies to every level; a PETSc whose log events cannot single out the finest product
-        takes the all-at-once product on every level (the option set for this set-up only)."""
+        """GAMG's set-up with PETSc's all-at-once Galerkin products (``-matptap_via
+        allatonce``), which never form A P: the least memory per process (docs/scaling.md).
+        A ``-matptap_via`` the user gave (e.g. in PETSC_OPTIONS) is theirs and stays. The
+        all-at-once product on the finest level only halves the set-up but leaves the peak
+        15-40 MB higher, above the issue's 0.6 of the serial peak (docs/scaling.md, eighth
+        session): not taken, ``lean`` is the choice for the least memory."""
         options = self.PETSc.Options()
         if options.hasName("matptap_via") or self.comm.size == 1:
             # on one process the products are sequential (SeqAIJ, which stores no A P and knows
             # no all-at-once algorithm: PETSc refused the option, 'Unknown option')
             self._ksp.setUp()
             return
-        with finest_level_product(self.comm, LEAN_FINEST_PRODUCT) as finest_only:
-            if finest_only:
-                self._ksp.setUp()
-                return
         options["matptap_via"] = "allatonce"
         try:
             self._ksp.setUp()
