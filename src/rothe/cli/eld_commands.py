@@ -908,6 +908,31 @@ class RunEldPulse(EldRunCommand):
         space = space_adaptivity(args, hysteresis=True, **self.space_defaults)
         return objects, keep, n, length, space
 
+    def run_pulse(self, args, problem, objects, keep, space, grid, mesh, parts, material):
+        """Run the pulse ``problem`` (2D or 3D: this command's) as a session: its label, and
+        its summary's grid (``grid`` = (n, length)) or mesh file with the held parts, the
+        pulse's parameters and the material."""
+        fit_default_cap(args, space, problem.space.ndofs)
+        label = f"{self.name}, {objects['scheme'].name}, {objects['form'].name}, " + (
+            f"space_tol={space.space_tol:g}" if space else "fixed mesh"
+        )
+
+        def summarize(summary, result, completed):
+            if mesh is None:
+                summary.update(n=grid[0], length=grid[1])
+            else:
+                summary.update(mesh_fields(args, mesh), dirichlet=list(parts))
+            summary.update(degree=args.degree, t_pulse=args.t_pulse, width=args.width)
+            summary["material"] = (
+                material.describe()
+                if args.material
+                else material_fields(args, MMS_MATERIAL, material)
+            )
+
+        return self.run(
+            args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
+        )
+
     def validate(self, args):
         """The checks that need no mesh (also run by ``rothe sweep`` before any run starts)."""
         check_mesh_options(args, ("--n", "--length"))
@@ -937,25 +962,8 @@ class RunEldPulse(EldRunCommand):
             mesh=mesh,
             dirichlet=parts,
         )
-        fit_default_cap(args, space, problem.space.ndofs)
-        label = f"eld-pulse, {objects['scheme'].name}, {objects['form'].name}, " + (
-            f"space_tol={space.space_tol:g}" if space else "fixed mesh"
-        )
-
-        def summarize(summary, result, completed):
-            if mesh is None:
-                summary.update(n=n, length=length)
-            else:
-                summary.update(mesh_fields(args, mesh), dirichlet=list(parts))
-            summary.update(degree=args.degree, t_pulse=args.t_pulse, width=args.width)
-            summary["material"] = (
-                material.describe()
-                if args.material
-                else material_fields(args, MMS_MATERIAL, material)
-            )
-
-        return self.run(
-            args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
+        return self.run_pulse(
+            args, problem, objects, keep, space, (n, length), mesh, parts, material
         )
 
 
@@ -1074,25 +1082,8 @@ class RunEldPulse3d(RunEldPulse):
             mesh=mesh,
             dirichlet=parts,
         )
-        fit_default_cap(args, space, problem.space.ndofs)
-        label = f"eld-pulse-3d, {objects['scheme'].name}, {objects['form'].name}, " + (
-            f"space_tol={space.space_tol:g}" if space else "fixed mesh"
-        )
-
-        def summarize(summary, result, completed):
-            if mesh is None:
-                summary.update(n=n, length=length)
-            else:
-                summary.update(mesh_fields(args, mesh), dirichlet=list(parts))
-            summary.update(degree=args.degree, t_pulse=args.t_pulse, width=args.width)
-            summary["material"] = (
-                material.describe()
-                if args.material
-                else material_fields(args, MMS_MATERIAL, material)
-            )
-
-        return self.run(
-            args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize
+        return self.run_pulse(
+            args, problem, objects, keep, space, (n, length), mesh, parts, material
         )
 
 
