@@ -41,7 +41,9 @@ the summed dofs (seconds) the uniform meshes need for that error (log-log interp
 the two uniform runs around it); the two lines marked ``(L2 of u)`` give the same for the L2
 error of u, from a second adaptive series whose indicator estimates the L2 norm of u
 (``SpaceAdaptivity(norm="l2")``, ``adaptive-l2`` in the table; a family without that series
-takes them from the energy-norm runs); a last line gives the energy-norm series' L2 ratios.
+takes them from the energy-norm runs). Those four lines come last, exactly in the issue's
+format; the lines before them name the runs the ratios come from and give the CPU-seconds and
+peak-memory ratios and the energy-norm series' L2 ratios.
 
 ELD 3D (:func:`eld3d`, the family :data:`ELD3D`): ``rothe run eld-pulse-3d``'s problem
 (:func:`rothe.eld.examples.pulse_3d_problem`: the unit cube, P2, the face x = 0 pushed around
@@ -51,8 +53,8 @@ its centre), the same table with tau = 0.02, T = 0.5 (quick: 0.3): uniform meshe
 fresh process (multiprocessing, spawn), so that its peak memory is its own: ``peak MB`` is
 the child's peak resident size (:func:`peak_mb`: VmHWM, interpreter and imports included,
 about 140 MB), ``dMB`` the same
-minus the child's peak just before the problem is built; the last line of the
-family, ``eld3d: peak memory ratio adaptive/uniform at equal error``, compares ``peak MB``
+minus the child's peak just before the problem is built; the line
+``eld3d: peak memory ratio adaptive/uniform at equal error`` compares ``peak MB``
 (interpolated log-log in the error like the seconds) and gives the ``dMB`` ratio in brackets.
 Both families run through the same code (:func:`pulse_family`, :class:`PulseFamily`).
 
@@ -458,51 +460,34 @@ def ratio_at_equal_error(
 
 
 def print_ratio_lines(name: str, best, best_l2, memory: bool = False, best_l2e=None) -> None:
-    """The family's last lines (issue 18): work and seconds ratios at equal energy error and
-    in L2 of u (and the peak-memory ratio at equal energy error); ``best_l2e``: the energy-
-    norm series in L2 of u when the L2 lines come from an L2-norm series."""
+    """The family's last lines (issue 18): what the ratios come from, the CPU-seconds and
+    peak-memory ratios, then, last, the issue's four lines exactly: ``<name>: work ratio
+    adaptive/uniform at equal error: X``, the seconds ratio, and both again marked ``(L2 of
+    u)``; ``best_l2e``: the energy-norm series in L2 of u when the L2 lines come from an
+    L2-norm series."""
 
     def fmt(b, k):
         return "n/a (no adaptive error inside the uniform range)" if b is None else f"{b[k]:.3f}"
 
     def who(b):
-        return "" if b is None else f" ({b[3]}, error {b[0]:.3g})"
+        return "n/a" if b is None else f"{b[3]}, error {b[0]:.3g}"
 
-    print(f"{name}: work ratio adaptive/uniform at equal error: " + fmt(best, 1) + who(best))
-    print(f"{name}: seconds ratio adaptive/uniform at equal error: " + fmt(best, 2) + who(best))
-    if best is not None and best[6] is not None:
-        print(
-            f"{name}: CPU seconds ratio adaptive/uniform at equal error: "
-            + fmt(best, 6)
-            + who(best)
-        )
-    print(
-        f"{name}: work ratio adaptive/uniform at equal error (L2 of u): "
-        + fmt(best_l2, 1)
-        + who(best_l2)
-    )
-    print(
-        f"{name}: seconds ratio adaptive/uniform at equal error (L2 of u): "
-        + fmt(best_l2, 2)
-        + who(best_l2)
-    )
+    print(f"{name}: the ratios at equal energy error are those of {who(best)}")
+    print(f"{name}: the ratios in L2 of u are those of {who(best_l2)}")
     if best_l2e is not None:
         print(
-            "  (the energy-norm runs in L2 of u: work ratio "
-            + fmt(best_l2e, 1)
-            + ", seconds ratio "
-            + fmt(best_l2e, 2)
-            + who(best_l2e)
-            + ")"
+            f"{name}: the energy-norm runs in L2 of u: work ratio {fmt(best_l2e, 1)}, seconds "
+            f"ratio {fmt(best_l2e, 2)} ({who(best_l2e)})"
         )
+    if best is not None and best[6] is not None:
+        print(f"{name}: CPU seconds ratio adaptive/uniform at equal error: {fmt(best, 6)}")
     if memory:
         extra = "" if best is None else f" (above the process's start: {best[5]:.3f})"
-        print(
-            f"{name}: peak memory ratio adaptive/uniform at equal error: "
-            + fmt(best, 4)
-            + extra
-            + who(best)
-        )
+        print(f"{name}: peak memory ratio adaptive/uniform at equal error: {fmt(best, 4)}{extra}")
+    print(f"{name}: work ratio adaptive/uniform at equal error: {fmt(best, 1)}")
+    print(f"{name}: seconds ratio adaptive/uniform at equal error: {fmt(best, 2)}")
+    print(f"{name}: work ratio adaptive/uniform at equal error (L2 of u): {fmt(best_l2, 1)}")
+    print(f"{name}: seconds ratio adaptive/uniform at equal error (L2 of u): {fmt(best_l2, 2)}")
 
 
 def pulse_family(family: PulseFamily, quick: bool, cache: str | None = None) -> float | None:
