@@ -219,6 +219,15 @@ def _grid_and_file_runs(tmp_path, capsys, command, grid_args, file_args, common)
             np.load(tmp_path / "file" / "trajectory.npz"))  # fmt: skip
 
 
+def _assert_same_u_and_reaction(a, b):
+    """u at every kept state and the reaction of the held part (the grid's ``left``, the
+    file's ``inlet``) equal to 1e-12 of their largest values, which are not zero."""
+    scale = np.abs(a["u"][-1]).max()
+    assert scale > 0 and np.abs(a["u"] - b["u"]).max() < 1e-12 * scale
+    scale = np.abs(a["reaction_left"]).max()
+    assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-12 * scale
+
+
 def test_beam_on_a_gmsh_file_of_the_box_is_the_built_in_run(tmp_path, capsys):
     """eld-beam's box 4 x 1 x 1 (n = 1, P1) written as a gmsh file with its end x = 0 as the
     physical group 'inlet' (--dirichlet inlet, moved along z): u at every kept state, the
@@ -229,10 +238,7 @@ def test_beam_on_a_gmsh_file_of_the_box_is_the_built_in_run(tmp_path, capsys):
         tmp_path, capsys, "eld-beam", ("--n", "1"), ("--mesh", mesh, "--dirichlet", "inlet"),
         common,
     )  # fmt: skip
-    scale = np.abs(a["u"][-1]).max()
-    assert scale > 0 and np.abs(a["u"] - b["u"]).max() < 1e-12 * scale
-    scale = np.abs(a["reaction_left"]).max()
-    assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-12 * scale
+    _assert_same_u_and_reaction(a, b)
     assert np.allclose(a["energy"], b["energy"], rtol=1e-12, atol=1e-15)
     s = _summary(tmp_path / "file")
     assert (s["mesh_cells"], s["dim"], s["dirichlet"]) == (24, 3, ["inlet"])
@@ -257,10 +263,7 @@ def test_pulse_3d_on_a_gmsh_file_of_the_block_is_the_built_in_run(tmp_path, caps
         tmp_path, capsys, "eld-pulse-3d", ("--n", "2"), ("--mesh", mesh, "--dirichlet", "inlet"),
         common,
     )  # fmt: skip
-    scale = np.abs(a["u"][-1]).max()
-    assert scale > 0 and np.abs(a["u"] - b["u"]).max() < 1e-12 * scale
-    scale = np.abs(a["reaction_left"]).max()
-    assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-12 * scale
+    _assert_same_u_and_reaction(a, b)
     assert np.allclose(a["energy"], b["energy"], rtol=1e-12, atol=1e-15)
     s = _summary(tmp_path / "file")
     assert (s["mesh_cells"], s["dim"], s["dirichlet"]) == (48, 3, ["inlet"]) and "n" not in s
@@ -277,10 +280,7 @@ def test_mms_on_a_gmsh_file_of_the_square_is_the_built_in_run(tmp_path, capsys):
         tmp_path, capsys, "eld-mms", ("--n", "4"), ("--mesh", mesh, "--dirichlet", "inlet"),
         common,
     )  # fmt: skip
-    scale = np.abs(a["u"][-1]).max()
-    assert scale > 0 and np.abs(a["u"] - b["u"]).max() < 1e-12 * scale
-    scale = np.abs(a["reaction_left"]).max()
-    assert scale > 0 and np.abs(a["reaction_left"] - b["reaction_inlet"]).max() < 1e-12 * scale
+    _assert_same_u_and_reaction(a, b)
     grid, file = _summary(tmp_path / "grid"), _summary(tmp_path / "file")
     for key in ("error_u_l2", "error_v_l2", "error_lam_l2"):
         assert file[key] == pytest.approx(grid[key], rel=1e-12), key

@@ -208,6 +208,19 @@ class CoupledRunCommand:
     #: eld-tmd's default output 61 MB instead of 0.5 MB (docs/coupling.md, Sec. 18)
     KEEP_EVERY = 5
 
+    def run_body(self, args, runs: dict, objects, summarize, draw) -> int:
+        """:meth:`run` of a one-body command (eld-tip-mass, eld-tmd, eld-control): the runs
+        record their body's fields, written by :meth:`body_outputs` every --keep-every states."""
+        return self.run(
+            args,
+            runs,
+            objects,
+            summarize,
+            draw,
+            fields=True,
+            outputs=self.body_outputs(runs, args.keep_every),
+        )
+
     def body_outputs(self, runs: dict, every: int):
         """``outputs`` of :meth:`run` for the one-body commands: every completed run's
         ``trajectory[_<label>].npz`` and its body's ParaView series ``body[_<label>]`` (u, v,
@@ -519,15 +532,7 @@ class RunEldTipMass(CoupledRunCommand):
             )
 
         runs = {"tip": example.system}
-        return self.run(
-            args,
-            runs,
-            objects,
-            summarize,
-            draw,
-            fields=True,
-            outputs=self.body_outputs(runs, args.keep_every),
-        )
+        return self.run_body(args, runs, objects, summarize, draw)
 
 
 @command("run", "eld-tmd")
@@ -685,15 +690,7 @@ class RunEldTmd(CoupledRunCommand):
             )
 
         runs = {"with_tmd": example.with_tmd, "without_tmd": example.without_tmd}
-        return self.run(
-            args,
-            runs,
-            objects,
-            summarize,
-            draw,
-            fields=True,
-            outputs=self.body_outputs(runs, args.keep_every),
-        )
+        return self.run_body(args, runs, objects, summarize, draw)
 
 
 @command("run", "eld-control")
@@ -869,15 +866,7 @@ class RunEldControl(CoupledRunCommand):
             )
 
         runs = {"controlled": example.controlled, "uncontrolled": example.uncontrolled}
-        return self.run(
-            args,
-            runs,
-            objects,
-            summarize,
-            draw,
-            fields=True,
-            outputs=self.body_outputs(runs, args.keep_every),
-        )
+        return self.run_body(args, runs, objects, summarize, draw)
 
 
 #: eld-two-bodies: the clamped soft half and the stiffer, heavier free half
