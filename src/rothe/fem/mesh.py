@@ -545,6 +545,25 @@ def _boundary_parts(m, blocks, dim, new_index) -> dict[str, np.ndarray]:
     return out
 
 
+def _part_facets(mesh, part: str, name: str, where: str = "") -> np.ndarray:
+    """The facets of the named boundary ``part``; an unknown or empty part is refused in one
+    line naming ``name`` and listing the mesh's parts (``where`` ends that line)."""
+    facets = (mesh.boundaries or {}).get(part)
+    if facets is None or len(facets) == 0:
+        known = ", ".join(boundary_part_names(mesh)) or "(the mesh has no named parts)"
+        raise fail(name, part, f"must be one of {known}{where}")
+    return facets
+
+
+def _facet_normals(x: np.ndarray) -> np.ndarray:
+    """Normals of the facets with nodes ``x`` (d, d, nf: coordinate, node, facet) whose length
+    is the facet's measure |f| (length in 2D, area in 3D); their orientation is the node order's."""
+    if x.shape[0] == 2:
+        e = x[:, 1] - x[:, 0]
+        return np.stack([e[1], -e[0]])
+    return np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], axis=0) / 2
+
+
 def part_frame(mesh, part: str, name: str = "part") -> tuple[np.ndarray, np.ndarray]:
     """The centre of a named boundary part's bounding box and its mean inward unit normal.
 
@@ -566,19 +585,11 @@ def part_frame(mesh, part: str, name: str = "part") -> tuple[np.ndarray, np.ndar
     -------
     (center (d,), normal (d,))
     """
-    facets = (mesh.boundaries or {}).get(part)
-    if facets is None or len(facets) == 0:
-        known = ", ".join(boundary_part_names(mesh)) or "(the mesh has no named parts)"
-        raise fail(name, part, f"must be one of {known}")
+    facets = _part_facets(mesh, part, name)
     p = np.asarray(mesh.p)
     nodes = np.asarray(mesh.facets)[:, facets]  # (d, nf)
-    d = p.shape[0]
     x = p[:, nodes]  # (d, d, nf): coordinate, node, facet
-    if d == 2:
-        e = x[:, 1] - x[:, 0]
-        normal = np.stack([e[1], -e[0]])  # length |f|
-    else:
-        normal = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], axis=0) / 2  # area |f|
+    normal = _facet_normals(x)
     cells = np.asarray(mesh.f2t)[0, facets]
     inside = p[:, np.asarray(mesh.t)[:, cells]].mean(axis=1) - x.mean(axis=1)
     normal = normal * np.where(np.sum(normal * inside, axis=0) < 0, -1.0, 1.0)
@@ -603,16 +614,10 @@ def part_centroid(mesh, part: str, name: str = "part") -> tuple[np.ndarray, floa
     -------
     (center (d,), measure)
     """
-    facets = (mesh.boundaries or {}).get(part)
-    if facets is None or len(facets) == 0:
-        known = ", ".join(boundary_part_names(mesh)) or "(the mesh has no named parts)"
-        raise fail(name, part, f"must be one of {known} (boundary parts of the mesh)")
+    facets = _part_facets(mesh, part, name, " (boundary parts of the mesh)")
     p = np.asarray(mesh.p)
     x = p[:, np.asarray(mesh.facets)[:, facets]]  # (d, d, nf): coordinate, node, facet
-    if p.shape[0] == 2:
-        size = np.linalg.norm(x[:, 1] - x[:, 0], axis=0)
-    else:
-        size = np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], axis=0), axis=0) / 2
+    size = np.linalg.norm(_facet_normals(x), axis=0)
     total = float(size.sum())
     return (x.mean(axis=1) * size).sum(axis=1) / total, total
 

@@ -67,7 +67,6 @@ from .problem import DistributedDamping
 #: state gathered in the serial numbering, plus the number of processes)
 CHECKPOINT_FORMAT = "rothe-eld-petsc-1"
 
-
 #: CG iterations relative to those right after the preconditioner was built, beyond which it
 #: is rebuilt for the current A(tau_eff) (the serial ReferenceSolver's stall rule)
 REBUILD_FACTOR = 2.0
