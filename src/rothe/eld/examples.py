@@ -1088,25 +1088,24 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
             "must be one Material (the example sizes its support and predicts its frequencies "
             "by the strip's E and rho)",
         )
-    if mesh is None:
+    strip = mesh is None
+    if strip:
         n = check_int("n", n, minimum=1)
         length = check_positive("length", length)
         height = check_positive("height", height)
         mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
-        meshes.part_centroid(mesh, base, "base")
-        if tip == "right":  # (exact, as before the parts could be named)
-            center, tip_size = np.array([length, height / 2]), height
-        else:
-            center, tip_size = meshes.part_centroid(mesh, tip, "tip")
+    elif meshes.mesh_dim(mesh) != 2:
+        raise fail(
+            "mesh",
+            described(f"a {meshes.mesh_dim(mesh)}D mesh ({meshes.describe(mesh)})"),
+            "must be 2D (this example's support and tip plate are plane)",
+        )
+    meshes.part_centroid(mesh, base, "base")  # (the base must be a part: one line if not)
+    if strip and tip == "right":  # (exact, as before the parts could be named)
+        center, tip_size = np.array([length, height / 2]), height
     else:
-        if meshes.mesh_dim(mesh) != 2:
-            raise fail(
-                "mesh",
-                described(f"a {meshes.mesh_dim(mesh)}D mesh ({meshes.describe(mesh)})"),
-                "must be 2D (this example's support and tip plate are plane)",
-            )
-        meshes.part_centroid(mesh, base, "base")
         center, tip_size = meshes.part_centroid(mesh, tip, "tip")
+    if not strip:
         length = float(np.ptp(np.asarray(mesh.p)[axis]))
         height = float(meshes.cell_volumes(mesh).sum()) / length
     if material is None:
