@@ -467,8 +467,14 @@ def test_axis_y_on_the_reflected_strip_is_the_strip_run(
          "mesh)"),
         (["--mesh", "{two}", "--base", "inlet", "--tip", "outlet", "--height", "0.5"],
          "--height: got 0.5, cannot be combined with --mesh (the mesh fixes the body)"),
-        (["--mesh", "{two}", "--material", "a:E=1,nu=0"], "--material: got 'a:E=1,nu=0', is not "
-         "taken by {command} (one material, --E/--nu or --lam/--mu and --rho"),
+        (["--mesh", "{two}", "--base", "inlet", "--tip", "outlet", "--material", "a:E=1,nu=0",
+          "--region", "a=core,mantle"],
+         "--region: got 'mantle', must be one of the mesh's subdomains: core, shell"),
+        (["--mesh", "{two}", "--base", "inlet", "--tip", "outlet", "--material", "core:E=1,nu=0"],
+         "--material: got 32 of 64 cells in no region with a material (the first at"),
+        (["--mesh", "{two}", "--material", "a:E=1,nu=0", "--E", "2"],
+         "--E: got 2, must not be combined with --material"),
+        (["--material", "a:E=1,nu=0"], "--material: got 'a:E=1,nu=0', is used with --mesh only"),
         (["--mesh", "{box}", "--base", "inlet", "--tip", "outlet"],
          "--mesh: got a 3D mesh (12 nodes, 12 tetrahedra), must be 2D"),
         (["--region", "a=core"], "--region: got 'a=core', is used with --mesh only"),
@@ -487,3 +493,100 @@ def test_tmd_and_control_mesh_refusals_are_one_line(tmp_path, capsys, command, a
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith("rothe: error: " + line.format(**files)), err
     assert not (out / "summary.json").exists()
+
+
+# -- several materials on eld-tmd and eld-control (issue 19; refused before: "--material: got
+# 'a:E=1,nu=0', is not taken by eld-tmd (one material ...)") -----------------------------------
+
+#: the strips of the --mesh tests as gmsh files with the cell groups 'core' (x < 1/2), 'shell'
+_STRIPS = {"eld-tmd": (20, 0.1, "0.02", 1e4), "eld-control": (8, 0.25, "0.01", 100.0)}
+
+
+def _two_regions(tmp_path, command, *materials, T="0.4"):
+    nx, height, tau, _ = _STRIPS[command]
+    mesh = write_gmsh_body(tmp_path / "two.msh", nx=nx, ny=2, length=1.0, height=height, split=0.5)
+    args = ["--mesh", mesh, "--base", "inlet", "--tip", "outlet", "--T", T, "--tau", tau]
+    code, out = _run(tmp_path / "-".join(materials or ("one",)), *map(str, args), *materials,
+                     command=command)  # fmt: skip
+    assert code == 0
+    return out
+
+
+@pytest.mark.parametrize("command", ["eld-tmd", "eld-control"])
+def test_two_regions_of_one_material_are_the_one_material_run(tmp_path, command):
+    """--material a --material b with equal constants on the regions core and shell: the
+    PiecewiseMaterial's per-cell K and M are the single material's, so both runs (q, the body's
+    u at the kept states, the base's reaction) equal the --E/--nu run to round-off (measured:
+    bit for bit); the summary lists the materials by region, the uniform strip's predictions
+    are null with the reason (they need one E and rho)."""
+    E = _STRIPS[command][3]
+    T = "0.4" if command == "eld-tmd" else "4"  # (eld-control: 3 maxima for the decay rate)
+    one = _two_regions(tmp_path, command, "--E", str(E), "--nu", "0", T=T)
+    two = _two_regions(
+        tmp_path, command, f"--material=a:E={E},nu=0", f"--material=b:E={E},nu=0",
+        "--region=a=core", "--region=b=shell", T=T,
+    )  # fmt: skip
+    second = "trajectory_without_tmd.npz" if command == "eld-tmd" else "trajectory_uncontrolled.npz"
+    for name in ("trajectory.npz", second):
+        a, b = np.load(one / name), np.load(two / name)
+        for key in ("q", "u", "reaction_inlet"):
+            scale = np.abs(a[key]).max()
+            assert scale > 0 and np.abs(a[key] - b[key]).max() <= 1e-12 * scale, (name, key)
+    s1, s2 = (json.loads((d / "summary.json").read_text()) for d in (one, two))
+    assert s2["material"]["regions"] == {"core": "a", "shell": "b"}
+    assert s2["prediction"].startswith("n/a: several materials")
+    if command == "eld-tmd":
+        assert s2["frequency_first_bending"] == pytest.approx(s1["frequency_first_bending"], 1e-12)
+        assert s2["frequency_beam_theory"] is None and s1["frequency_beam_theory"] > 10
+        assert s2["amplitude_reduction"] == pytest.approx(s1["amplitude_reduction"], rel=1e-12)
+    else:
+        assert s2["decay_rate_measured"] == pytest.approx(s1["decay_rate_measured"], rel=1e-12)
+        assert s2["decay_rate_predicted"] is None and s2["decay_rate_error"] is None
+        assert s2["roots"] == [[None, None], [None, None]] and s2["mode2_rate"] is None
+        assert s1["decay_rate_predicted"] == pytest.approx(0.4632, rel=1e-3)
+
+
+def test_tmd_with_two_materials_tunes_and_sizes_by_the_body_as_built(tmp_path):
+    """A stiffer, heavier half (E 3x, rho 2x at x > 1/2): the support sized by the clamped
+    body's discrete frequency w_c (the beam formula needs one E and rho), the absorber tuned to
+    the discrete first bending mode of the body as built -- both lower than the uniform strip's
+    (the tip half weighs twice as much for 3x the stiffness); the absorber still reduces the
+    resonant amplitude, the ledgers close."""
+    out = _two_regions(
+        tmp_path, "eld-tmd", "--material=a:E=1e4,nu=0", "--material=b:E=3e4,nu=0,rho=2",
+        "--region=a=core", "--region=b=shell", T="6",
+    )  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    assert s["frequency_beam_theory"] is None and s["prediction"].startswith("n/a")
+    assert 6.5 < s["frequency_first_bending"] < 7.1 and 7.1 < s["frequency_clamped"] < 7.6
+    assert s["absorber_stiffness"] == pytest.approx(
+        s["absorber_mass"] * (s["frequency_first_bending"] / 1.05) ** 2, rel=1e-12
+    )  # (Den Hartog: w_a = w_1 / (1 + mu))
+    assert s["amplitude_reduction"] > 2
+    for name in ("trajectory.npz", "trajectory_without_tmd.npz"):
+        # the ledger closes to round-off of its largest term (the support's work)
+        d = np.load(out / name)
+        scale = max(np.abs(d[k]).max() for k in ("energy", "work_components", "dissipated"))
+        assert np.abs(d["balance"]).max() < 1e-10 * scale
+
+
+def test_control_with_two_materials_measures_the_decay_and_predicts_nothing(tmp_path):
+    """Two materials (E 3x, rho 2x at x > 1/2): the decay rates of both runs measured (the
+    feedback damps the first mode > 50x faster than the material damping alone), the
+    predictions of the uniform bar null with the reason; the ledgers close."""
+    out = _two_regions(
+        tmp_path, "eld-control", "--material=a:E=100,nu=0", "--material=b:E=300,nu=0,rho=2",
+        "--region=a=core", "--region=b=shell", T="4",
+    )  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    assert s["prediction"].startswith("n/a: several materials")
+    for key in ("decay_rate_predicted", "decay_rate_error", "decay_rate_modal",
+                "decay_rate_predicted_uncontrolled", "frequency_predicted", "mode2_rate",
+                "mode2_rate_without_material_damping"):  # fmt: skip
+        assert s[key] is None, key
+    assert 0.3 < s["decay_rate_measured"] and 0 < s["decay_rate_measured_uncontrolled"] < 0.02
+    assert s["decay_rate_measured"] > 50 * s["decay_rate_measured_uncontrolled"]
+    assert s["frequency_measured"] == pytest.approx(s["frequency_first"], rel=0.02)
+    assert s["material"]["materials"]["b"]["rho"] == 2.0
+    for suffix in ("", "_uncontrolled"):
+        assert s[f"balance_max{suffix}"] < 1e-13

@@ -245,3 +245,99 @@ def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and lines[0].startswith("rothe: error: " + line), lines
     assert not (out / "summary.json").exists()
+
+
+# -- several materials per body: --material1/--region1, --material2/--region2 (issue 19; one
+# material per body before) -------------------------------------------------------------------
+
+
+def _region_bodies(tmp_path):
+    """Body 1 on [0, 1] x [0, 0.5], body 2 on [1, 2] x [0, 0.5], each with the cell groups
+    'core' (its left half) and 'shell'; the options that glue and load them."""
+    one = write_gmsh_body(tmp_path / "one.msh", nx=4, ny=2, length=1.0, height=0.5, split=0.5)
+    two = write_gmsh_body(
+        tmp_path / "two.msh", nx=4, ny=2, length=1.0, height=0.5, x0=1.0, split=1.5
+    )
+    return [
+        "--mesh1", one, "--mesh2", two, "--interface", "outlet,inlet", "--clamp", "inlet",
+        "--load-part", "outlet", "--degree", "1", "--T", "0.2", "--tau", "0.02",
+    ]  # fmt: skip
+
+
+def test_materials_per_body_by_region_equal_the_one_material_run(tmp_path, capsys):
+    """--material1/--region1 and --material2/--region2 with each body's default constants on
+    its two regions: the same run as the one material per body (q, both bodies' u at every
+    state: bit for bit measured); with different constants the run differs, the glue holds and
+    the ledger closes; the summary lists each body's materials by region."""
+    common = _region_bodies(tmp_path)
+    runs = {}
+    for label, extra in (
+        ("one", []),
+        ("equal", ["--material1", "a:E=100,nu=0.3", "--material1", "b:E=100,nu=0.3",
+                   "--region1", "a=core", "--region1", "b=shell",
+                   "--material2", "c:E=300,nu=0.2,rho=2", "--material2", "d:E=300,nu=0.2,rho=2",
+                   "--region2", "c=core", "--region2", "d=shell"]),
+        # (without --region2 each material fills the group of its name)
+        ("soft", ["--material1", "a:E=100,nu=0.3", "--material1", "b:E=20,nu=0.3,rho=3",
+                  "--region1", "a=core", "--region1", "b=shell",
+                  "--material2", "core:E=300,nu=0.2", "--material2", "shell:E=30,nu=0.2"]),
+    ):  # fmt: skip
+        code, out, err = _run(capsys, tmp_path / label, *common, *extra)
+        assert code == 0, err
+        runs[label] = (
+            json.loads((out / "summary.json").read_text()),
+            np.load(out / "trajectory.npz"),
+        )
+    (s1, a), (s2, b) = runs["one"], runs["equal"]
+    for key in ("q", "body1_u", "body2_u"):
+        scale = np.abs(a[key]).max()
+        assert scale > 0 and np.abs(a[key] - b[key]).max() <= 1e-12 * scale, key
+    assert s2["material1"]["regions"] == {"core": "a", "shell": "b"}
+    assert s2["material2"]["materials"]["c"]["rho"] == 2.0 and s2["material2"]["rho_ref"] == 2.0
+    s3, c = runs["soft"]
+    assert s3["material2"]["regions"] == {"core": "core", "shell": "shell"}
+    assert s3["material2"]["materials"]["shell"]["rho"] == 2.0  # (--rho2's default)
+    assert s3["material1"]["materials"]["b"]["rho"] == 3.0
+    # softer halves: the load deflects the tip more
+    assert s3["tip_deflection_max"] > 1.5 * s1["tip_deflection_max"]
+    assert s3["constraint_max"] < 1e-14 and s3["balance_max"] < 1e-12 * s3["work_loads"]
+
+
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--region1", "a=core"], "--region1: got 'a=core', needs --material1 (the materials it "
+         "places)"),
+        (["--region2", "a=core", "--material1", "a:E=1,nu=0"],
+         "--region2: got 'a=core', needs --material2"),
+        (["--material1", "a:E=1,nu=0", "--region1", "a=core,mantle"],
+         "--region1: got 'mantle', must be one of the mesh's subdomains: core, shell"),
+        (["--material2", "core:E=1,nu=0"],
+         "--material2: got 8 of 16 cells in no region with a material (the first at (1.583, "
+         "0.1667)), every cell must be in one of the regions core"),
+        (["--material1", "a:E=1,nu=0", "--region1", "b=core"],
+         "--region1: got 'core' -> 'b', must map each region to one of the materials: a"),
+        (["--material1", "core:E=-1,nu=0"], "--material1: got 'core' with E: got -1, must be > 0"),
+        (["--material2", "core"],
+         "--material2: got 'core', must be NAME:KEY=VALUE,... (keys E, nu, lam, mu, rho)"),
+        (["--material1", "a:E=1,nu=0", "--E", "3"],
+         "--E: got 3, must not be combined with --material1 (give body 1's constants in each "
+         "--material1)"),
+        (["--material2", "a:E=1,nu=0", "--nu2", "0.1"],
+         "--nu2: got 0.1, must not be combined with --material2"),
+    ],
+)  # fmt: skip
+def test_material_per_body_refusals_are_one_line(tmp_path, capsys, args, line):
+    code, out, err = _run(capsys, tmp_path, *_region_bodies(tmp_path), *args)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("rothe: error: " + line), lines
+    assert not (out / "summary.json").exists()
+
+
+def test_material_per_body_needs_its_mesh_file(tmp_path, capsys):
+    code, out, err = _run(capsys, tmp_path, "--material1", "a:E=1,nu=0")
+    assert code == 2 and err.strip().splitlines() == [
+        "rothe: error: --material1: got 'a:E=1,nu=0', is used with --mesh1 only (its regions "
+        "are the mesh file's physical groups)"
+    ]
+    assert not out.exists()

@@ -43,6 +43,7 @@ from ..eld.bodies_output import write_bodies_result, write_body_result
 from ..eld.coupled_run import run_coupled_many
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
 from ..eld.frequencies import crossing_frequency, decay_rate
+from ..eld.materials import PiecewiseMaterial
 from ..eld.run import run_eld
 from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
 from ..fem.mesh import load_mesh, mesh_dim
@@ -56,11 +57,11 @@ from .eld_options import (
     body_mesh,
     check_eld_step,
     check_mesh_options,
-    check_one_material,
     control_of,
     form_of,
     keep_option,
     lifting_option,
+    material_constants,
     material_fields,
     material_of,
     material_options,
@@ -68,6 +69,7 @@ from .eld_options import (
     mesh_options,
     part_option,
     parts_of,
+    region_map,
     scheme_of,
     step_options,
 )
@@ -167,21 +169,34 @@ class CoupledRunCommand:
             "along x); L is the mesh's extent along it",
         )
 
-    #: why --material is refused (eld-tmd, eld-control: the example takes one material)
-    one_material = ""
-
     def validate(self, args):
         """The checks that need no system, one line naming the option: (objects of
         :meth:`run_objects`, n of :meth:`strip_checks`, the material of the options with
-        :attr:`default_material`) -- the material built once for execute and the summary.
-        With ``--mesh``: not with the strip's --n/--length/--height, one material."""
+        :attr:`default_material`, None with ``--material``: it needs the mesh's regions,
+        :meth:`body_material_of`) -- the material built once for execute and the summary.
+        With ``--mesh``: not with the strip's --n/--length/--height."""
         objects = self.run_objects(args)
         check_mesh_options(args, ("--n", "--length", "--height"))
-        check_one_material(args, self.name, self.one_material)
         if check_choice("--axis", args.axis, ("x", "y")) == "y" and args.mesh is None:
             raise fail("--axis", "y", "needs --mesh (the built-in strip lies along x)")
         n = self.strip_checks(args)
-        return objects, n, material_of(args, self.default_material)
+        material = None if args.material else material_of(args, self.default_material)
+        return objects, n, material
+
+    def body_material_of(self, args, material, mesh):
+        """The body's material: ``material`` of :meth:`validate`, or with ``--material``/
+        ``--region`` the :class:`~rothe.eld.materials.PiecewiseMaterial` on the mesh's
+        regions (its refusals name --material/--region: ``MESH_PARAMETERS``)."""
+        if material is not None:
+            return material
+        return body_material(args, self.default_material, mesh)
+
+    def material_summary(self, args, material) -> dict:
+        """The summary's ``material``: the pair as given and derived (one material), or the
+        materials, their regions and rho_ref (several)."""
+        if isinstance(material, PiecewiseMaterial):
+            return material.describe()
+        return material_fields(args, self.default_material, material)
 
     @staticmethod
     def body_of(args, example, mesh):
@@ -547,7 +562,7 @@ class RunEldTmd(CoupledRunCommand):
     )
     name = "eld-tmd"
     default_material = TMD_MATERIAL
-    one_material = "the support's springs and the beam frequency take the strip's E and rho"
+    parameter_options = MESH_PARAMETERS
     keys = (
         "example",
         "scheme",
@@ -612,6 +627,7 @@ class RunEldTmd(CoupledRunCommand):
         mesh = body_mesh(args)
         if mesh is not None:
             check_modal_size(mesh, args.degree)
+        material = self.body_material_of(args, material, mesh)
         example = tmd_problem(
             n,
             args.degree,
@@ -636,10 +652,12 @@ class RunEldTmd(CoupledRunCommand):
                 **self.body_of(args, example, mesh),
                 degree=args.degree,
                 ndofs=summary.get("ndofs", example.with_tmd.body.space.ndofs),
-                material=material_fields(args, TMD_MATERIAL, material),
+                material=self.material_summary(args, material),
                 b=args.b,
                 frequency_first_bending=example.frequency,
+                frequency_clamped=example.clamped_frequency,
                 frequency_beam_theory=example.beam_frequency,
+                prediction=example.prediction or "beam theory: the strip's E, rho, L, H",
                 forcing_frequency=example.forcing,
                 modal_mass=example.modal_mass,
                 mass_ratio=args.mass_ratio,
@@ -704,9 +722,8 @@ class RunEldControl(CoupledRunCommand):
     )
     name = "eld-control"
     default_material = CONTROL_MATERIAL
-    one_material = "the predicted roots are the bar's of one E and rho"
     #: the library's parameters by their options (control_problem's base_stiffness)
-    parameter_options = {**CoupledRunCommand.parameter_options, "base_stiffness": "--base-spring"}
+    parameter_options = {**MESH_PARAMETERS, "base_stiffness": "--base-spring"}
     keys = (
         "example",
         "scheme",
@@ -788,6 +805,7 @@ class RunEldControl(CoupledRunCommand):
         mesh = body_mesh(args)
         if mesh is not None:
             check_modal_size(mesh, args.degree)
+        material = self.body_material_of(args, material, mesh)
         example = control_problem(
             n,
             args.degree,
@@ -809,13 +827,17 @@ class RunEldControl(CoupledRunCommand):
         )
         roots, free, undamped = example.roots, example.roots_uncontrolled, example.roots_undamped
         axis = "xy".index(args.axis)  # (the base's displacement along the bar: q[axis])
+        # several materials: the uniform bar's predictions are NaN (null in summary.json, the
+        # reason in "prediction"), the measured rates of both runs are reported as for one
+        predicted = example.prediction is None
 
         def summarize(summary, trajs, completed):
             summary.update(
                 **self.body_of(args, example, mesh),
                 degree=args.degree,
                 ndofs=summary.get("ndofs", example.controlled.body.space.ndofs),
-                material=material_fields(args, CONTROL_MATERIAL, material),
+                material=self.material_summary(args, material),
+                prediction=example.prediction or "the uniform bar's characteristic equation",
                 base_mass=args.base_mass,
                 base_spring=args.base_spring,
                 gain=args.gain,
@@ -844,6 +866,8 @@ class RunEldControl(CoupledRunCommand):
                 summary["work_controller"] = float(trajs["controlled"]["work_controllers"][-1])
                 summary["decay_rate_error"] = (
                     summary["decay_rate_measured"] / summary["decay_rate_predicted"] - 1
+                    if predicted
+                    else None
                 )
 
         def draw(stage, trajs, summary):
@@ -861,8 +885,8 @@ class RunEldControl(CoupledRunCommand):
                 part=args.base,
                 axis=axis,
                 title=f"eld-control: decay rate {summary['decay_rate_measured']:.4g} "
-                f"(predicted {summary['decay_rate_predicted']:.4g}, without feedback "
-                f"{summary['decay_rate_measured_uncontrolled']:.3g})",
+                + (f"(predicted {summary['decay_rate_predicted']:.4g}, " if predicted else "(")
+                + f"without feedback {summary['decay_rate_measured_uncontrolled']:.3g})",
             )
 
         runs = {"controlled": example.controlled, "uncontrolled": example.uncontrolled}
@@ -874,6 +898,11 @@ TWO_BODIES_MATERIAL = {"E": 100.0, "nu": 0.3}
 TWO_BODIES_MATERIAL2 = {"E": 300.0, "nu": 0.2}
 #: body 2's material options -> the API parameters they stand for
 _BODY2_OPTIONS = {"E": "--E2", "nu": "--nu2", "lam": "--lam2", "mu": "--mu2", "rho": "--rho2"}
+#: each body's constants of one material, which its --material<k> replaces
+_BODY_CONSTANTS = {
+    1: ("--E", "--nu", "--lam", "--mu"),
+    2: ("--E2", "--nu2", "--lam2", "--mu2"),
+}
 #: eld-two-bodies' peak memory per unknown (both bodies; twice with --compare-union): a fixed
 #: part and one per recorded state (the fields of both bodies at every state). Measured here
 #: (peak RSS, T = 2, 201 states, --compare-union): 0.98 GB at 2 x 16770 and 3.26 GB at
@@ -982,6 +1011,26 @@ class RunEldTwoBodies(CoupledRunCommand):
             "if the nodes pair up)",
         )
         material_options(parser, TWO_BODIES_MATERIAL, rho=1.0, plane="stress")
+        for k in (1, 2):
+            parser.add_argument(
+                f"--material{k}",
+                action="append",
+                default=None,
+                metavar="NAME:KEY=VALUE,...",
+                help=f"with --mesh{k}: a material of body {k} by name, as --material of "
+                f"eld-tip-mass (keys E, nu or lam, mu, and rho; rho defaults to "
+                f"--rho{'' if k == 1 else '2'}); repeatable; without --region{k} a material fills "
+                f"the physical group of its NAME; instead of body {k}'s "
+                + "/".join(_BODY_CONSTANTS[k]),
+            )
+            parser.add_argument(
+                f"--region{k}",
+                action="append",
+                default=None,
+                metavar="NAME=GROUP[,GROUP]",
+                help=f"with --material{k}: the physical groups of --mesh{k} that material NAME "
+                f"fills; repeatable; every cell of body {k} must get one material",
+            )
         names = {"E": "Young's modulus", "nu": "Poisson ratio", "lam": "Lamé lambda"}
         names["mu"] = "Lamé mu"
         for key, option in _BODY2_OPTIONS.items():
@@ -1054,6 +1103,8 @@ class RunEldTwoBodies(CoupledRunCommand):
         if args.direction == "z" and args.mesh1 is None:
             raise fail("--direction", "z", "needs 3D bodies (--mesh1/--mesh2); the strip is 2D")
         check_positive("--pulse", args.pulse)
+        for k in (1, 2):
+            self.check_body_materials(args, k)
         parts = args.interface.split(",")
         if len(parts) != 2 or not all(parts):
             raise fail("--interface", args.interface, "must be PART1,PART2 (body 1's, body 2's)")
@@ -1122,6 +1173,72 @@ class RunEldTwoBodies(CoupledRunCommand):
         }
 
     @staticmethod
+    def _body_shadow(args, k: int):
+        """Body k's --material<k>/--region<k> as the --material/--region of
+        :func:`~rothe.cli.eld_options.body_material` (with body k's density option), and the
+        names to rename in its refusals."""
+        shadow = argparse.Namespace(
+            material=getattr(args, f"material{k}"),
+            region=getattr(args, f"region{k}"),
+            rho=args.rho if k == 1 else args.rho2,
+            plane=args.plane,
+            _given=getattr(args, "_given", ()),
+        )
+        names = {
+            "--material": f"--material{k}",
+            "--region": f"--region{k}",
+            "materials": f"--material{k}",
+            "regions": f"--region{k}",
+        }
+        return shadow, names
+
+    @classmethod
+    def check_body_materials(cls, args, k: int) -> None:
+        """Body k's --material<k>/--region<k> that need no mesh: with --mesh<k> only,
+        --region<k> with --material<k>, not with body k's constants, their syntax; one line
+        naming the option."""
+        material, region = getattr(args, f"material{k}"), getattr(args, f"region{k}")
+        if region and not material:
+            raise fail(f"--region{k}", region[0], f"needs --material{k} (the materials it places)")
+        if not material:
+            return
+        if getattr(args, f"mesh{k}") is None:
+            raise fail(
+                f"--material{k}",
+                material[0],
+                f"is used with --mesh{k} only (its regions are the mesh file's physical groups)",
+            )
+        for option in _BODY_CONSTANTS[k]:
+            if given(args, option):
+                raise fail(
+                    option,
+                    getattr(args, option[2:]),
+                    f"must not be combined with --material{k} (give body {k}'s constants in "
+                    f"each --material{k})",
+                )
+        shadow, names = cls._body_shadow(args, k)
+        try:
+            material_constants(shadow)
+            region_map(shadow)
+        except RotheInputError as exc:
+            raise exc.renamed(names.get(exc.parameter), names) from None
+
+    @classmethod
+    def body_materials(cls, args, k: int, mesh):
+        """Body k's :class:`~rothe.eld.materials.PiecewiseMaterial` of --material<k>/
+        --region<k> on its mesh (in the mesh's dimension), checked on the mesh's regions
+        (unknown group, cells without a material: one line naming --region<k>/--material<k>)."""
+        shadow, names = cls._body_shadow(args, k)
+        try:
+            material = body_material(shadow, {}, mesh)
+            material.on_mesh(mesh)
+        except RotheInputError as exc:
+            if exc.parameter not in names:
+                raise
+            raise exc.renamed(names[exc.parameter], names) from None
+        return material
+
+    @staticmethod
     def material2(args, dim: int = 2):
         """Body 2's material of --E2/--nu2 | --lam2/--mu2, --rho2 (errors name them), in
         ``dim`` (3D: plane strain, --plane is body 1's option and refused there)."""
@@ -1158,6 +1275,11 @@ class RunEldTwoBodies(CoupledRunCommand):
                 material2 = self.material2(args, dim=3)
             elif args.direction == "z":
                 raise fail("--direction", "z", "needs 3D bodies; the mesh files are 2D")
+            # several materials per body on its mesh's regions (--material<k>/--region<k>)
+            if args.material1:
+                material1 = self.body_materials(args, 1, mesh1)
+            if args.material2:
+                material2 = self.body_materials(args, 2, mesh2)
             # P2: one more node per edge (the facets in 2D)
             dofs = sum(
                 d * (m.p.shape[1] + ((m.facets if d == 2 else m.edges).shape[1] if k == 2 else 0))
@@ -1238,7 +1360,11 @@ class RunEldTwoBodies(CoupledRunCommand):
             summary.update(
                 ndofs=[summary.get("ndofs", glued.base.space.ndofs), comp.problem.space.ndofs],
                 degree=[args.degree, degree2],
-                material1=material_fields(args, TWO_BODIES_MATERIAL, material1),
+                material1=(
+                    material1.describe()
+                    if isinstance(material1, PiecewiseMaterial)
+                    else material_fields(args, TWO_BODIES_MATERIAL, material1)
+                ),
                 material2=material2.describe(),
                 interface_method=itf.method,
                 interface=itf.describe(),

@@ -37,6 +37,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse.linalg as spla
 
 from ..errors import (
     check_choice,
@@ -1046,9 +1047,14 @@ class TMDExample:
         The angular frequency of the force on the base.
     beam_frequency : float
         w_1 of the Euler-Bernoulli cantilever of the strip (clamped, no plate, no base), for
-        comparison.
+        comparison; NaN for a body of several materials (``prediction`` says why).
     length, height : float
         The strip's L and H (of a mesh: its extent in x and area / L).
+    clamped_frequency : float
+        w_c, the lowest frequency of the discrete body clamped at its base (no plate, no
+        support), which sizes the support's springs.
+    prediction : str or None
+        Why ``beam_frequency`` is NaN (:data:`SEVERAL_MATERIALS`), None where it is defined.
     """
 
     with_tmd: CoupledProblem
@@ -1061,14 +1067,21 @@ class TMDExample:
     beam_frequency: float
     length: float = math.nan
     height: float = math.nan
+    clamped_frequency: float = math.nan
+    prediction: str | None = None
+
+
+#: why the predictions of eld-tmd and eld-control that need one E and rho are NaN (null in
+#: summary.json) for a body of several materials
+SEVERAL_MATERIALS = "n/a: several materials (the formula is a uniform strip's, of one E and rho)"
 
 
 def _strip(n, degree, length, height, material, young, mesh=None, base="left", tip="right", axis=0):
     """The body of the coupled examples: the checked ``n``, ``length``, ``height``, the
     material (default E = ``young``, nu = 0, rho = 1, plane stress), the axial modulus of the
-    strip (E in plane stress, E/(1 - nu^2) in plane strain), the mesh, round(n L/H) x n cells on
-    [0, L] x [0, H], and the centroid and length of the ``tip`` part (the right side: (L, H/2)
-    and H).
+    strip (E in plane stress, E/(1 - nu^2) in plane strain; NaN for a PiecewiseMaterial: no one
+    modulus), the mesh, round(n L/H) x n cells on [0, L] x [0, H], and the centroid and length
+    of the ``tip`` part (the right side: (L, H/2) and H).
 
     ``mesh``: a 2D body with the named parts ``base`` and ``tip`` instead of the strip; it is
     taken as a strip along x: L its extent in x, H = area / L (the strip's own L, H to
@@ -1081,13 +1094,6 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
         raise fail("axis", "y", "needs a mesh (the built-in strip lies along x)")
     if degree not in (1, 2):
         raise fail("degree", degree, "must be 1 or 2")
-    if isinstance(material, PiecewiseMaterial):
-        raise fail(
-            "material",
-            described("a PiecewiseMaterial"),
-            "must be one Material (the example sizes its support and predicts its frequencies "
-            "by the strip's E and rho)",
-        )
     strip = mesh is None
     if strip:
         n = check_int("n", n, minimum=1)
@@ -1110,9 +1116,44 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
         height = float(meshes.cell_volumes(mesh).sum()) / length
     if material is None:
         material = Material.from_young(young, 0.0, 1.0, dim=2, plane="stress")
-    E, nu = material.young
-    modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
+    if isinstance(material, PiecewiseMaterial):
+        modulus = math.nan
+    else:
+        E, nu = material.young
+        modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
     return n, length, height, material, modulus, mesh, center, tip_size
+
+
+def _body_mass(mesh, material) -> float:
+    """The body's mass sum_c rho_c |c| (the density of each cell's material)."""
+    if isinstance(material, PiecewiseMaterial):
+        rho = material.on_mesh(mesh).rho
+    else:
+        rho = material.rho
+    return float((meshes.cell_volumes(mesh) * rho).sum())
+
+
+def _clamped_frequency(mesh, material, degree: int, part: str) -> float:
+    """w_c, the lowest natural frequency of the discrete body clamped on ``part`` (nothing
+    else attached): K x = w^2 rho_ref M x on the free dofs, for any material (a
+    PiecewiseMaterial's per-cell constants and densities are in K and M). Shift-invert Lanczos
+    about 0 (K is positive definite with the clamp), started from the vector of ones so every
+    run gets the same value. For the slender strip it is the first bending mode, the discrete
+    counterpart of the Euler-Bernoulli w_EB (10.085 against 10.15 for eld-tmd's default)."""
+
+    def held(t, x):
+        return 0.0 * x
+
+    with warnings.catch_warnings():  # G = 0: its derivatives by differences are exact
+        warnings.filterwarnings("ignore", message="G_d")
+        body = ELDProblem(mesh, material, degree=degree, dirichlet={part: held}, name="clamped")
+    free = body.constraint.free
+    K = body.K.tocsr()[free][:, free].tocsc()
+    M = (body.material.rho * body.M).tocsr()[free][:, free].tocsc()
+    w2 = spla.eigsh(
+        K, k=1, M=M, sigma=0.0, which="LM", v0=np.ones(free.size), return_eigenvectors=False
+    )
+    return float(np.sqrt(w2[0]))
 
 
 def tmd_problem(
@@ -1121,7 +1162,7 @@ def tmd_problem(
     *,
     length: float = 1.0,
     height: float = 0.1,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
     mass_ratio: float = 0.05,
     force: float = 0.01,
     forcing_ratio: float = 1.0,
@@ -1135,9 +1176,12 @@ def tmd_problem(
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along; default material E = 10^4, nu = 0, rho = 1) whose ``left`` end is tied to a support
     (:class:`~rothe.eld.components.MassSpringDamper`, mass m_b = the strip's mass, springs
-    k_b = (m_b + strip) (4 w_EB)^2 in x and y: a stiff support, w_EB the strip's clamped-free
-    Euler-Bernoulli frequency) pushed by f(t) = force sin(W t) e_y, and whose ``right`` end is a
-    rigid plate (mass 0.05 of the strip's, inertia m_p height^2/12; :class:`PlateAbsorber`).
+    k_b = (m_b + strip) (4 w_c)^2 in x and y: a stiff support, w_c the lowest frequency of the
+    discrete strip clamped at that end, :func:`_clamped_frequency`, defined for any material;
+    until issue 19's materials it was the Euler-Bernoulli w_EB, 0.6 % above w_c for the default
+    strip) pushed by f(t) = force sin(W t) e_y, and whose ``right`` end is a rigid plate (mass
+    0.05 of the strip's, inertia m_p height^2/12; :class:`PlateAbsorber`). The strip's mass is
+    sum_c rho_c |c| (any material).
     The system starts at rest; Rayleigh damping b K on the strip.
 
     ``with_tmd`` carries on the plate an absorber of mass ``mass_ratio`` m_1 tuned by Den
@@ -1148,8 +1192,11 @@ def tmd_problem(
     ----------
     n, degree : int
     length, height : float
-    material : Material, optional
-        A 2D material (default E = 10^4, nu = 0, rho = 1, plane stress).
+    material : Material or PiecewiseMaterial, optional
+        A 2D material (default E = 10^4, nu = 0, rho = 1, plane stress), or several on the
+        mesh's regions: the support, the plate and the absorber are sized by the body as
+        built (its mass, w_c, the discrete modes), so only ``beam_frequency``, a comparison,
+        is NaN then.
     mass_ratio, force, forcing_ratio, b, T : float
     mesh : skfem.MeshTri, optional
         A 2D body along x with the named parts ``base`` (tied to the support) and ``tip`` (the
@@ -1175,11 +1222,16 @@ def tmd_problem(
     force = check_real("force", force)
     ratio = check_positive("forcing_ratio", forcing_ratio)
     b = check_nonnegative("b", b)
-    rho = material.rho
-    strip = rho * length * height
-    w_eb = beam_frequencies(length, modulus * height**3 / 12, rho * height, count=1)[0]
+    strip = _body_mass(mesh, material)
+    several = isinstance(material, PiecewiseMaterial)
+    w_eb = (
+        math.nan
+        if several
+        else beam_frequencies(length, modulus * height**3 / 12, material.rho * height, count=1)[0]
+    )
+    w_c = _clamped_frequency(mesh, material, degree, base)
     base_mass = strip
-    base_k = (base_mass + strip) * (4.0 * w_eb) ** 2
+    base_k = (base_mass + strip) * (4.0 * w_c) ** 2
     plate_mass = 0.05 * strip
     plate_J = plate_mass * tip_size**2 / 12
     damping = RayleighDamping(0.0, b) if b > 0 else None
@@ -1238,6 +1290,8 @@ def tmd_problem(
             beam_frequency=float(w_eb),
             length=length,
             height=height,
+            clamped_frequency=w_c,
+            prediction=SEVERAL_MATERIALS if several else None,
         )
 
 
@@ -1269,6 +1323,9 @@ class ControlExample:
         w_1 of the discrete uncontrolled system (the mode the runs start in).
     length, height : float
         The strip's L and H (of a mesh: its extent in x and area / L).
+    prediction : str or None
+        Why ``roots``, ``roots_uncontrolled``, ``roots_undamped`` and ``modal_rate`` are NaN
+        (:data:`SEVERAL_MATERIALS`: they are the uniform bar's), None where they are defined.
     """
 
     controlled: CoupledProblem
@@ -1280,6 +1337,7 @@ class ControlExample:
     frequency: float
     length: float = math.nan
     height: float = math.nan
+    prediction: str | None = None
 
 
 def control_problem(
@@ -1288,7 +1346,7 @@ def control_problem(
     *,
     length: float = 1.0,
     height: float = 0.25,
-    material: Material | None = None,
+    material: Material | PiecewiseMaterial | None = None,
     base_mass: float = 1.0,
     base_stiffness: float = 50.0,
     gain: float = 1.0,
@@ -1320,7 +1378,9 @@ def control_problem(
     ----------
     n, degree : int
     length, height : float
-    material : Material, optional
+    material : Material or PiecewiseMaterial, optional
+        Several materials on the mesh's regions: the runs and the discrete frequency as for
+        one, the predicted roots and rates (a uniform bar's) NaN, ``prediction`` says why.
     base_mass, base_stiffness, gain, kd, filter_time, b, amplitude, T : float
         m_b, k_b, k_p, k_d, T_f (used with k_d > 0), b, the initial amplitude and T.
     mesh : skfem.MeshTri, optional
@@ -1386,6 +1446,20 @@ def control_problem(
     def H(s):
         return s * (kp + (kd * s / (1.0 + Tf * s) if kd > 0 else 0.0))
 
+    if isinstance(material, PiecewiseMaterial):  # (no one E and rho: no uniform bar)
+        unknown = np.full(2, complex(math.nan, math.nan))
+        return ControlExample(
+            controlled,
+            uncontrolled,
+            unknown,
+            unknown.copy(),
+            unknown.copy(),
+            math.nan,
+            float(w[k]),
+            length,
+            height,
+            prediction=SEVERAL_MATERIALS,
+        )
     bar = dict(area=height, base_mass=mb, base_stiffness=kb)
     roots = controlled_bar_roots(length, modulus, rho, H=H, kelvin_voigt=b, count=2, **bar)
     free = controlled_bar_roots(length, modulus, rho, kelvin_voigt=b, count=2, **bar)
