@@ -1,0 +1,83 @@
+"""``rothe.eld.examples``: the coupled examples of issue 19 (eld-tmd's cantilever, eld-control's
+bar) with several materials (a PiecewiseMaterial; refused before: "material: got a
+PiecewiseMaterial, must be one Material"): what sizes them stays defined for any material, the
+predictions of a uniform strip are NaN with the reason."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rothe.eld.examples import (
+    SEVERAL_MATERIALS,
+    _clamped_frequency,
+    control_problem,
+    rectangle,
+    tmd_problem,
+)
+from rothe.eld.materials import Material, PiecewiseMaterial
+
+#: the strips' single materials (eld-tmd, eld-control)
+TMD = Material.from_young(1e4, 0.0, 1.0, dim=2, plane="stress")
+BAR = Material.from_young(100.0, 0.0, 1.0, dim=2, plane="stress")
+
+
+def _halves(left: Material, right: Material, split: float) -> PiecewiseMaterial:
+    """``left`` at cell centroids x < split, ``right`` elsewhere."""
+
+    def core(x):
+        return x[0] < split
+
+    def shell(x):
+        return x[0] >= split
+
+    return PiecewiseMaterial({"a": left, "b": right}, regions={core: "a", shell: "b"})
+
+
+def test_clamped_frequency_is_the_discrete_cantilever_near_euler_bernoulli():
+    """w_c of the default eld-tmd strip (1 x 0.1, P2, 20 x 2): the first bending mode of the
+    clamped strip, 0.6 % below the Euler-Bernoulli 1.8751^2 sqrt(E I/(rho A))/L^2 = 10.1499
+    (shear and the 2D section lower it); the same value on every call (Lanczos from ones)."""
+    mesh = rectangle(20, 2, 1.0, 0.1)
+    w = _clamped_frequency(mesh, TMD, 2, "left")
+    eb = 1.8751040687**2 * math.sqrt(1e4 * 0.1**3 / 12 / 0.1)
+    assert eb == pytest.approx(10.1499, abs=1e-4)
+    assert -0.01 < w / eb - 1 < -0.003
+    assert _clamped_frequency(mesh, TMD, 2, "left") == w
+    # several materials: a stiffer tip half raises it, a heavier one lowers it
+    stiff = _clamped_frequency(mesh, _halves(TMD, Material(1.0, 0.0, 3e4, plane="stress"), 0.5), 2,
+                               "left")  # fmt: skip
+    heavy = _clamped_frequency(mesh, _halves(TMD, Material(2.0, 0.0, 5e3, plane="stress"), 0.5), 2,
+                               "left")  # fmt: skip
+    assert stiff > w > heavy
+
+
+def test_tmd_with_one_material_in_two_regions_is_the_one_material_example():
+    """A PiecewiseMaterial whose regions share the strip's material: the same support, plate,
+    absorber (w_1, m_1, k, c, w_c to round-off), the beam formula NaN with the reason; with a
+    heavier tip half the strip's mass (the support's and the plate's) is sum rho_c |c|."""
+    one = tmd_problem(2, 2, material=TMD, T=0.1)
+    two = tmd_problem(2, 2, material=_halves(TMD, TMD, 0.5), T=0.1)
+    for key in ("frequency", "modal_mass", "stiffness", "damping", "forcing", "clamped_frequency"):
+        assert getattr(two, key) == pytest.approx(getattr(one, key), rel=1e-10), key
+    assert one.prediction is None and one.beam_frequency == pytest.approx(10.1499, abs=1e-4)
+    assert two.prediction == SEVERAL_MATERIALS and math.isnan(two.beam_frequency)
+    heavy = tmd_problem(2, 2, material=_halves(TMD, Material(3.0, 0.0, 5e3, plane="stress"), 0.5))
+    base = heavy.with_tmd.components[0]
+    assert base.mass[0, 0] == pytest.approx(0.2, rel=1e-12)  # 0.05 + 0.15
+    assert heavy.frequency < one.frequency
+
+
+def test_control_with_several_materials_has_nan_predictions_and_the_discrete_frequency():
+    """eld-control's bar with one material in two regions: the same discrete w_1 and start
+    mode, the uniform bar's roots and modal rate NaN with the reason (one material: finite)."""
+    one = control_problem(2, 2, material=BAR, T=0.1)
+    two = control_problem(2, 2, material=_halves(BAR, BAR, 0.5), T=0.1)
+    assert two.frequency == pytest.approx(one.frequency, rel=1e-10)
+    assert np.allclose(two.controlled.components[0].q0, one.controlled.components[0].q0, rtol=1e-8)
+    assert one.prediction is None and np.isfinite(one.roots).all()
+    assert two.prediction == SEVERAL_MATERIALS
+    for value in (two.roots, two.roots_uncontrolled, two.roots_undamped, two.modal_rate):
+        assert np.isnan(value).all()
