@@ -731,6 +731,7 @@ class RunEldControl(CoupledRunCommand):
         "ndofs",
         "frequency_first",
         "decay_rate_measured",
+        "prediction",
         "decay_rate_predicted",
         "decay_rate_error",
         "decay_rate_modal",
