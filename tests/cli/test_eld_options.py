@@ -47,6 +47,12 @@ def test_every_eld_run_takes_both_pairs_and_refuses_mixing_them(tmp_path, capsys
     text = " ".join(help_text.split())
     assert code == 0 and all(f"--{k} {k.upper()}" in text for k in ("E", "nu", "lam", "mu", "rho"))
     assert ("--plane PLANE" in text) == (command not in RUNS_3D)  # 2D commands only
+    # several materials by region on a mesh file: every command (eld-mms lists it and refuses it
+    # in one line); eld-two-bodies per body (issue 19; one material per body before)
+    bodies = ("1", "2") if command == "eld-two-bodies" else ("",)
+    for k in bodies:
+        assert f"--material{k} NAME:KEY=VALUE,..." in text, k
+        assert f"--region{k} NAME=GROUP[,GROUP]" in text, k
 
 
 @pytest.mark.parametrize(
