@@ -502,12 +502,12 @@ def test_tmd_and_control_mesh_refusals_are_one_line(tmp_path, capsys, command, a
 _STRIPS = {"eld-tmd": (20, 0.1, "0.02", 1e4), "eld-control": (8, 0.25, "0.01", 100.0)}
 
 
-def _two_regions(tmp_path, command, *materials, T="0.4"):
+def _two_regions(tmp_path, command, *materials, T="0.4", plots=False):
     nx, height, tau, _ = _STRIPS[command]
     mesh = write_gmsh_body(tmp_path / "two.msh", nx=nx, ny=2, length=1.0, height=height, split=0.5)
     args = ["--mesh", mesh, "--base", "inlet", "--tip", "outlet", "--T", T, "--tau", tau]
     code, out = _run(tmp_path / "-".join(materials or ("one",)), *map(str, args), *materials,
-                     command=command)  # fmt: skip
+                     command=command, plots=plots)  # fmt: skip
     assert code == 0
     return out
 
@@ -573,11 +573,13 @@ def test_tmd_with_two_materials_tunes_and_sizes_by_the_body_as_built(tmp_path):
 def test_control_with_two_materials_measures_the_decay_and_predicts_nothing(tmp_path):
     """Two materials (E 3x, rho 2x at x > 1/2): the decay rates of both runs measured (the
     feedback damps the first mode > 50x faster than the material damping alone), the
-    predictions of the uniform bar null with the reason; the ledgers close."""
+    predictions of the uniform bar null with the reason (the figure's title without one);
+    the ledgers close."""
     out = _two_regions(
         tmp_path, "eld-control", "--material=a:E=100,nu=0", "--material=b:E=300,nu=0,rho=2",
-        "--region=a=core", "--region=b=shell", T="4",
+        "--region=a=core", "--region=b=shell", T="4", plots=True,
     )  # fmt: skip
+    assert (out / "fig_control.png").stat().st_size > 0
     s = json.loads((out / "summary.json").read_text())
     assert s["prediction"].startswith("n/a: several materials")
     for key in ("decay_rate_predicted", "decay_rate_error", "decay_rate_modal",
