@@ -73,6 +73,19 @@ def test_tip_mass_adapts_the_bar_and_the_ledger_closes(tmp_path):
     assert s["space"] == s["space_options"] and s["space"]["space_tol"] == 1e-3
 
 
+def test_tip_mass_modes_with_adapt_space_measure_the_first_only(tmp_path):
+    """--modes 2 with --adapt-space: the modes live on the first mesh, the states on others,
+    so the second frequency is null with the reason in the summary."""
+    code, out = _run(
+        tmp_path, "eld-tip-mass", "--degree", "1", "--T", "0.5", "--tau", "0.01",
+        "--adapt-space", "--space-tol", "1e-3", "--modes", "2",
+    )  # fmt: skip
+    assert code == 0
+    s = _summary(out)
+    assert s["frequencies_measured"][1] is None and s["frequencies_error_measured"][1] is None
+    assert "--adapt-space" in s["frequencies_measured_note"]
+
+
 @pytest.mark.parametrize("command", ["eld-control", "eld-tmd"])
 def test_control_and_tmd_adapt_both_runs(tmp_path, command):
     T = {"eld-control": "0.2", "eld-tmd": "0.4"}[command]

@@ -96,6 +96,30 @@ def test_tip_mass_on_a_spring_adaptive_steps_and_halved_tau_error(tmp_path):
     assert s["accepted_steps"] > 500 and abs(s["frequency_error_measured_vs_discrete"]) < 1e-3
 
 
+def test_tip_mass_measures_three_frequencies_from_the_run(tmp_path):
+    """--modes 3: the run starts in the sum of the first three axial modes (the tip at 3
+    amplitudes) and measures each frequency from its modal coordinate: within BDF2's period
+    error of the modal analysis (-6.2e-4, -9.4e-3, -3.1e-2 at tau = 0.005), the first equal to
+    the single-mode run's; the figure gets the modal coordinates."""
+    code, out = _run(tmp_path, "--modes", "3", plots=True)
+    assert code == 0 and (out / "fig_tip_mass.png").exists()
+    s = json.loads((out / "summary.json").read_text())
+    assert s["modes"] == 3 and len(s["frequencies_measured"]) == 3
+    assert s["frequency_measured"] == s["frequencies_measured"][0]
+    vs_discrete = np.array(s["frequencies_error_measured_vs_discrete"])
+    w_h = np.array(s["frequency_discrete"])
+    # BDF2's period error -(w tau)^2 / 3 or so, growing with the mode
+    assert np.all(vs_discrete < 0) and np.all(np.diff(vs_discrete) < 0)
+    assert np.all(np.abs(vs_discrete) < 0.4 * (w_h * 0.005) ** 2), vs_discrete
+    vs_analytic = np.array(s["frequencies_error_measured"])
+    assert np.allclose(vs_analytic, vs_discrete, atol=5e-4)  # P2, 2 cells across: space 2e-4
+    assert abs(np.load(out / "trajectory.npz")["q"][0, 0]) == pytest.approx(0.03, rel=1e-9)
+    code, one = _run(tmp_path / "one")
+    first = json.loads((one / "summary.json").read_text())
+    assert first["frequencies_measured"] == [first["frequency_measured"]]
+    assert first["frequency_measured"] == pytest.approx(s["frequency_measured"], rel=1e-12)
+
+
 def _strict_json(path):
     """summary.json parsed as strict JSON: NaN or Infinity, which json.dumps writes for
     non-finite floats and JSON parsers refuse, is an error."""
@@ -162,6 +186,13 @@ def test_help_states_the_defaults(capsys):
         (["--height", "0"], "--height: got 0, must be > 0"),
         (["--lifting", "l2"], "--lifting: got 'l2', must be one of"),
         (["--keep-every", "0"], "--keep-every: got 0, must be an integer >= 1"),
+        (["--modes", "0"], "--modes: got 0, must be an integer >= 1"),
+        (["--modes", "1.5"], "argument --modes: got '1.5', must be an integer >= 1"),
+        (
+            ["--modes", "6"],
+            "--modes: got 6, must be at most 5 (the axial modes among the first 16 of the "
+            "discrete system)",
+        ),
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, args, line):

@@ -42,13 +42,20 @@ from ..eld.bodies import Body, GluedBodies, strip_pair, strip_pair_dofs, strip_u
 from ..eld.bodies_output import write_bodies_result, write_body_result
 from ..eld.coupled_run import run_coupled_many
 from ..eld.examples import control_problem, tip_mass_problem, tmd_problem
-from ..eld.frequencies import crossing_frequency, decay_rate
+from ..eld.frequencies import crossing_frequency, decay_rate, modal_frequencies
 from ..eld.materials import PiecewiseMaterial
 from ..eld.run import run_eld
 from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
 from ..fem.mesh import load_mesh, mesh_dim
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
-from .common import add_output_options, float_option, given, peak_memory_mb, print_summary
+from .common import (
+    add_output_options,
+    float_option,
+    given,
+    parse_int,
+    peak_memory_mb,
+    print_summary,
+)
 from .eld_commands import meshes_summary
 from .eld_options import (
     MESH_PARAMETERS,
@@ -397,7 +404,7 @@ class RunEldTipMass(CoupledRunCommand):
     )
     name = "eld-tip-mass"
     #: the library's parameters by their options (the tip's coupling is couplings[0])
-    parameter_options = {**MESH_PARAMETERS, "couplings[0].part": "--tip"}
+    parameter_options = {**MESH_PARAMETERS, "couplings[0].part": "--tip", "modes": "--modes"}
     keys = (
         "example",
         "scheme",
@@ -410,6 +417,8 @@ class RunEldTipMass(CoupledRunCommand):
         "frequency_discrete",
         "frequency_measured",
         "frequency_error_measured",
+        "frequencies_measured",
+        "frequencies_error_measured",
         "energy_drift",
         "balance_max",
         "wall_time_s",
@@ -454,7 +463,16 @@ class RunEldTipMass(CoupledRunCommand):
             parser,
             "--amplitude",
             default=0.01,
-            help="initial tip displacement in the first axial mode (default 0.01)",
+            help="initial tip displacement of each excited axial mode (default 0.01)",
+        )
+        parser.add_argument(
+            "--modes",
+            type=parse_int("--modes", minimum=1),
+            default=1,
+            metavar="K",
+            help="start in the sum of the first K axial modes of the discrete system, each "
+            "with its tip at --amplitude, and measure their K frequencies from the run's modal "
+            "coordinates (default 1: the first mode alone)",
         )
         keep_option(parser, self.KEEP_EVERY)
         self.space_options(parser)
@@ -492,12 +510,16 @@ class RunEldTipMass(CoupledRunCommand):
             damper=args.damper,
             amplitude=args.amplitude,
             T=args.T,
+            modes=args.modes,
         )
 
         def summarize(summary, trajs, completed):
             traj = trajs["tip"]
             t, q = traj["t"], np.asarray(traj["q"])
-            measured = crossing_frequency(t, q[:, 0])
+            tip = crossing_frequency(t, q[:, 0])
+            modal = self.measured_frequencies(example, traj, tip)
+            measured = modal[0]
+            K = example.modes
             energy = traj["energy"]
             summary.update(
                 n=n,
@@ -521,10 +543,23 @@ class RunEldTipMass(CoupledRunCommand):
                 frequency_measured=measured,
                 frequency_error_measured=measured / example.analytic[0] - 1,
                 frequency_error_measured_vs_discrete=measured / example.discrete[0] - 1,
+                frequency_measured_tip=tip,
+                modes=K,
+                frequencies_measured=modal,
+                frequencies_error_measured=(np.array(modal) / example.analytic[:K] - 1).tolist(),
+                frequencies_error_measured_vs_discrete=(
+                    np.array(modal) / example.discrete[:K] - 1
+                ).tolist(),
                 energy_initial=float(energy[0]),
                 energy_drift=float(energy[-1] / energy[0] - 1),
                 balance_max=float(np.abs(traj["balance"]).max()),
             )
+            if self.adapt is not None and K > 1:
+                summary["frequencies_measured_note"] = (
+                    "modes 2..K are not measured with --adapt-space: their modal coordinates "
+                    "need the discrete modes on every mesh; the first is the tip's q_x zero "
+                    "crossings (the other modes' motion included)"
+                )
             if mesh is not None:
                 del summary["n"], summary["height"]
                 summary.update(
@@ -542,12 +577,23 @@ class RunEldTipMass(CoupledRunCommand):
             plot_tip_mass(
                 trajs["tip"],
                 stage / "fig_tip_mass.png",
+                modal=None if self.adapt is not None else example.modal_coordinates(trajs["tip"]),
                 title=f"eld-tip-mass, {summary['scheme']}, {summary['form']}, "
                 f"m = {args.mass:g}, k = {args.spring:g}",
             )
 
         runs = {"tip": example.system}
         return self.run_body(args, runs, objects, summarize, draw)
+
+    def measured_frequencies(self, example, traj, tip: float) -> list:
+        """The K excited frequencies measured from the run: the zero crossings of the modal
+        coordinates c_k = phi_k^T M x of every state (:meth:`~rothe.eld.examples.
+        TipMassExample.modal_coordinates` of the recorded u and q; docs/coupling.md Sec. 11).
+        With --adapt-space the states live on other meshes than the modes: the first is the
+        tip's crossing frequency ``tip``, the others NaN (null)."""
+        if self.adapt is not None:
+            return [tip] + [float("nan")] * (example.modes - 1)
+        return modal_frequencies(traj["t"], example.modal_coordinates(traj))
 
 
 @command("run", "eld-tmd")

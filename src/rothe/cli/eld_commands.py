@@ -46,7 +46,7 @@ from ..eld.studies import (
     tip_mass_bar,
     tip_mass_study,
 )
-from ..errors import check_choice, check_int, check_positive, described, fail
+from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
 from ..fem.mesh import boundary_part_names
 from ..fem.petsc_env import launched_processes
 from ..io.checkpoint import CheckpointError, load_checkpoint
@@ -60,6 +60,7 @@ from .common import (
     given,
     output_dir,
     parse_float_list,
+    parse_int,
     peak_memory_mb,
     print_summary,
     progress_of,
@@ -1392,6 +1393,14 @@ class StudyEldTipMass:
             help="2: the plane-stress strip 1 x 0.25, n cells across; 3: the bar 1 x 0.25 x "
             "0.25, n x n cubes across (6 tetrahedra each) (default 2)",
         )
+        parser.add_argument(
+            "--modes",
+            type=parse_int("--modes", minimum=1),
+            default=3,
+            metavar="K",
+            help="start every run in the sum of the first K axial modes and measure their K "
+            "frequencies from its modal coordinates (default 3)",
+        )
         add_output_options(parser, self.name)
         add_parallel_options(parser)
 
@@ -1426,7 +1435,20 @@ class StudyEldTipMass:
         scheme, form = scheme_of(args), form_of(args)
         # the coarsest bar refuses a mesh with too few axial modes, naming --ns, before the
         # cluster starts
-        tip_mass_problem(min(ns), args.degree, mass=args.mass, T=T, mesh=tip_mass_bar(min(ns), dim))
+        check_int("--modes", args.modes, minimum=1)
+        try:
+            tip_mass_problem(
+                min(ns),
+                args.degree,
+                mass=args.mass,
+                T=T,
+                mesh=tip_mass_bar(min(ns), dim),
+                modes=args.modes,
+            )
+        except RotheInputError as err:  # (the library's name for the option's)
+            if err.parameter != "modes":
+                raise
+            raise err.renamed("--modes") from None
         executor = executor_from_args(args, f"rothe study {self.name}")
         out = output_dir(args, self.name)
         study = tip_mass_study(
@@ -1438,6 +1460,7 @@ class StudyEldTipMass:
             mass=args.mass,
             T=T,
             dim=dim,
+            modes=args.modes,
             executor=executor,
         )
         table = format_tip_mass_table(study)

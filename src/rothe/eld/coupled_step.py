@@ -425,3 +425,18 @@ def coupled_modes(system: CoupledProblem, count: int = 6, lifting: str = "nodal"
     MT[I.size :, I.size :] += _dense(kern.Mq)
     w2, V = sla.eigh(0.5 * (KT + KT.T), 0.5 * (MT + MT.T), subset_by_index=[0, count - 1])
     return np.sqrt(np.maximum(w2, 0.0)), T @ V, V[I.size :]
+
+
+def modal_rows(system: CoupledProblem, U: np.ndarray, Q: np.ndarray, lifting: str = "nodal"):
+    """The rows that project a state (u, q) of the coupled system on its modes (U, Q of
+    :func:`coupled_modes`, M-orthonormal): the modal coordinates
+
+        c_k = phi_k^T blkdiag(rho M, M_q) (u, q) = (rho M U_k)^T u + (M_q Q_k)^T q,
+
+    i.e. c = R_u u + R_q q. For a state on the constraint (u = P^T x_I + Phi q, the coupled
+    parts moving with q and G = 0) c_k = V_k^T M_T x, the k-th generalized coordinate; a linear
+    scheme steps every c_k on its own. Returns (R_u (count, n), R_q (count, r))."""
+    kern = CoupledStepSystem(system, lifting)
+    R_u = (kern.rho * (kern.M @ U)).T
+    R_q = (_dense(kern.Mq) @ Q).T
+    return np.ascontiguousarray(R_u), np.ascontiguousarray(R_q)

@@ -37,6 +37,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import (
@@ -51,7 +52,7 @@ from ..errors import (
 from ..fem import mesh as meshes
 from .components import LinearComponent, MassSpringDamper, den_hartog, rigid_motion_matrix
 from .control import LinearController, PointSensor
-from .coupled_step import coupled_modes
+from .coupled_step import coupled_modes, modal_rows
 from .coupling import CoupledProblem, Translation, UserCoupling
 from .damping import Damping, NonlinearDamping, RayleighDamping
 from .frequencies import (
@@ -837,6 +838,29 @@ class TipMassExample:
     discrete: np.ndarray
     length: float = math.nan
     area: float = math.nan
+    #: the projection on the excited modes (:func:`~rothe.eld.coupled_step.modal_rows`):
+    #: c = projection_u u + projection_q q, one row per mode of ``modes``
+    projection_u: np.ndarray | None = None
+    projection_q: np.ndarray | None = None
+
+    @property
+    def modes(self) -> int:
+        """K, the axial modes the run starts in."""
+        return 0 if self.projection_u is None else self.projection_u.shape[0]
+
+    @property
+    def watch(self):
+        """projection_u as the ``watch`` rows of :func:`~rothe.eld.coupled_run.run_coupled`:
+        the run records R_u u at every state (``watch_u``) without keeping the fields."""
+        return sp.csr_matrix(self.projection_u)
+
+    def modal_coordinates(self, trajectory) -> np.ndarray:
+        """(states, K): c_k(t_j) = (R_u u_j)_k + (R_q q_j)_k of a run with ``watch`` (its
+        ``watch_u``) or with ``fields`` (its ``u``)."""
+        q = np.asarray(trajectory["q"])
+        if "watch_u" in trajectory.keys():
+            return np.asarray(trajectory["watch_u"]) + q @ self.projection_q.T
+        return np.asarray(trajectory["u"]) @ self.projection_u.T + q @ self.projection_q.T
 
 
 def tip_mass_problem(
@@ -858,6 +882,7 @@ def tip_mass_problem(
     clamp=("left",),
     tip: str = "right",
     damping: Damping | None = None,
+    modes: int = 1,
 ) -> TipMassExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along) clamped on ``left``, carrying on ``right`` a mass ``mass`` on a spring ``spring``
@@ -878,7 +903,16 @@ def tip_mass_problem(
     analytic frequencies are those of a prismatic bar along x (length: the extent in x, area:
     volume / length). ``damping``: the body's damping (default none); the start mode and the
     frequencies are those of the undamped system.
+
+    ``modes``: K, the run starts in the sum of the first K axial modes phi_k of the discrete
+    coupled system (body and tip coordinate), each scaled so that its tip moves by
+    ``amplitude`` with the sign of the first mode's tip (K = 1: the first mode alone, as
+    before, bit for bit); the example's ``projection_u``, ``projection_q`` give their modal
+    coordinates c_k = phi_k^T M x (:func:`~rothe.eld.coupled_step.modal_rows`), the
+    frequencies of the run's c_k (:func:`~rothe.eld.frequencies.modal_frequencies`) are the
+    measured ones. ``analytic`` and ``discrete`` hold max(3, K) frequencies.
     """
+    modes = check_int("modes", modes, minimum=1)
     mass = check_positive("mass", mass)
     spring = check_nonnegative("spring", spring)
     damper = check_nonnegative("damper", damper)
@@ -938,16 +972,35 @@ def tip_mass_problem(
                 n if refine == "n" else described("the mesh"),
                 "gives fewer than 3 axial modes among the first 16: refine",
             )
-        k = int(axial[0])
+        if modes > axial.size:
+            raise fail(
+                "modes",
+                modes,
+                f"must be at most {axial.size} (the axial modes among the first 16 of the "
+                "discrete system)",
+            )
+        excited = axial[:modes]
+        k = int(excited[0])
         scale = amplitude / abs(Q[0, k])
-        system = build(U[:, k] * scale, Q[:, k] * scale)
+        u0, q0 = U[:, k] * scale, Q[:, k] * scale
+        for i in excited[1:]:  # the higher modes' tips move with the first's, by amplitude
+            scale_i = amplitude / Q[0, i] * np.sign(Q[0, k])
+            u0, q0 = u0 + U[:, i] * scale_i, q0 + Q[:, i] * scale_i
+        system = build(u0, q0)
+        R_u, R_q = modal_rows(system, U[:, excited], Q[:, excited])
+    count = max(3, modes)
     if math.isnan(modulus):
-        analytic = np.full(3, math.nan)
+        analytic = np.full(count, math.nan)
     else:
         analytic = bar_frequencies(
-            length, modulus, rho, area=area, right=Attachment.mass_spring(mass, spring), count=3
+            length,
+            modulus,
+            rho,
+            area=area,
+            right=Attachment.mass_spring(mass, spring),
+            count=count,
         )
-    return TipMassExample(system, analytic, w[axial[:3]], length, area)
+    return TipMassExample(system, analytic, w[axial[:count]], length, area, R_u, R_q)
 
 
 # -- the cantilever on a shaken support, with and without a tuned mass damper (issue 19) --------

@@ -118,12 +118,14 @@ def plot_perturbation(taus, table: dict, path, title: str = "", labels=None) -> 
     return _save(fig, path)
 
 
-def plot_tip_mass(traj, path, title: str = "") -> Path:
+def plot_tip_mass(traj, path, title: str = "", modal=None) -> Path:
     """A coupled run (:func:`rothe.eld.run_coupled`): the component's coordinates q(t) and the
-    reactions -int lambda ds on every constrained part over time."""
+    reactions -int lambda ds on every constrained part over time; with ``modal`` (states, K)
+    a third panel, the modal coordinates c_k(t) of the excited modes (eld-tip-mass --modes)."""
     t = traj["t"]
     q = np.asarray(traj["q"])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    panels = 2 if modal is None else 3
+    fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 4))
     names = "xyz"
     for c in range(q.shape[1]):
         axes[0].plot(t, q[:, c], label=f"q_{names[c]}")
@@ -137,6 +139,13 @@ def plot_tip_mass(traj, path, title: str = "") -> Path:
     axes[1].set_xlabel("t")
     axes[1].set_ylabel(r"reaction force $-\int \lambda\, ds$")
     axes[1].legend(fontsize=8)
+    if modal is not None:
+        modal = np.asarray(modal)
+        for k in range(modal.shape[1]):
+            axes[2].plot(t, modal[:, k], lw=1.0, label=f"mode {k + 1}")
+        axes[2].set_xlabel("t")
+        axes[2].set_ylabel(r"modal coordinate $c_k = \phi_k^T M x$")
+        axes[2].legend(fontsize=8)
     for ax in axes:
         ax.grid(alpha=0.3)
     if title:

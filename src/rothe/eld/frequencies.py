@@ -434,3 +434,19 @@ def decay_rate(t: np.ndarray, y: np.ndarray) -> float:
     if k.size < 3:
         return float("nan")
     return float(-np.polyfit(t[k], np.log(y[k]), 1)[0])
+
+
+def modal_frequencies(t: np.ndarray, C: np.ndarray, floor: float = 1e-9) -> list:
+    """The frequency of each column of the modal coordinates C (states, K) of a run
+    (:func:`crossing_frequency` of c_k(t) = phi_k^T M x(t)), each cut where |c_k| last
+    exceeds ``floor`` times its maximum: a mode a dissipative scheme (implicit Euler on a high
+    mode) has damped to round-off crosses zero at random; nan (None in JSON) without two
+    crossings."""
+    t = np.asarray(t, dtype=float)
+    C = np.asarray(C, dtype=float).reshape(t.size, -1)
+    out = []
+    for c in C.T:
+        big = np.flatnonzero(np.abs(c) > floor * np.abs(c).max(initial=0.0))
+        end = big[-1] + 1 if big.size else 0
+        out.append(crossing_frequency(t[:end], c[:end]))
+    return out

@@ -33,7 +33,7 @@ from .coupled_run import run_coupled
 from .data import DEFAULT_DATA, NOISE_TARGETS, DataMode, DataNoise, as_data_mode
 from .examples import mms_errors, mms_problem, tip_mass_problem
 from .form import DEFAULT_FORM, Form, Original, Regularized, as_form
-from .frequencies import crossing_frequency
+from .frequencies import modal_frequencies
 from .run import run_eld
 from .scheme import DEFAULT_SCHEME, Scheme, as_scheme
 from .stepper import uniform_steps
@@ -776,18 +776,22 @@ def tip_mass_frequency_run(
     mass: float,
     T: float,
     dim: int = 2,
+    modes: int = 3,
 ) -> dict:
-    """One (n, tau) of :func:`tip_mass_study` (a task: builds the bar itself): the first axial
-    angular frequency of the analytic bar, of the semi-discrete system and measured from the
-    run's tip displacement (zero crossings)."""
-    example = tip_mass_problem(n, degree, mass=mass, T=T, mesh=tip_mass_bar(n, dim))
-    res = run_coupled(example.system, scheme=scheme, form=form, control=Uniform(tau))
-    q = np.asarray(res.trajectory["q"])
+    """One (n, tau) of :func:`tip_mass_study` (a task: builds the bar itself): the first
+    ``modes`` axial angular frequencies of the analytic bar, of the semi-discrete system and
+    measured from the run started in their sum (the zero crossings of the modal coordinates
+    c_k = phi_k^T M x, recorded per state as ``watch`` rows: no fields kept)."""
+    example = tip_mass_problem(n, degree, mass=mass, T=T, mesh=tip_mass_bar(n, dim), modes=modes)
+    res = run_coupled(
+        example.system, scheme=scheme, form=form, control=Uniform(tau), watch=example.watch
+    )
+    traj = res.trajectory
     return {
         "ndofs": example.system.body.space.ndofs,
-        "analytic": float(example.analytic[0]),
-        "discrete": float(example.discrete[0]),
-        "measured": crossing_frequency(np.asarray(res.trajectory["t"]), q[:, 0]),
+        "analytic": example.analytic[:modes].tolist(),
+        "discrete": example.discrete[:modes].tolist(),
+        "measured": modal_frequencies(traj["t"], example.modal_coordinates(traj)),
     }
 
 
@@ -801,15 +805,19 @@ def tip_mass_study(
     mass: float = 0.25,
     T: float = 2.0,
     dim: int = 2,
+    modes: int = 3,
     progress: bool = False,
     executor=None,
 ) -> dict:
-    """The first axial frequency of the tip-mass bar (:func:`tip_mass_problem`: P1/P2 strip
+    """The first axial frequencies of the tip-mass bar (:func:`tip_mass_problem`: P1/P2 strip
     with n cells across -- or with ``dim=3`` the box bar 1 x 0.25 x 0.25 with n x n cubes
     across, :func:`tip_mass_bar` --, clamped on ``left``, the mass on ``right`` by B u = q,
-    started in its first mode) against the analytic bar-with-tip-mass value (beta L tan(beta
-    L) = rho A L / m; A = 0.25 per unit thickness in 2D, 0.0625 in 3D), for every mesh n and
-    step tau.
+    started in the sum of its first ``modes`` axial modes) against the analytic
+    bar-with-tip-mass values (beta L tan(beta L) = rho A L / m; A = 0.25 per unit thickness in
+    2D, 0.0625 in 3D), for every mesh n and step tau. Each frequency is measured from the run:
+    the zero crossings of its modal coordinate c_k = phi_k^T M x (the run's states projected
+    M-orthogonally on the discrete mode; a linear scheme steps each c_k on its own, so the
+    measured w_k carries the scheme's period error at w_k tau and nothing of the other modes).
 
     The measured error w_run / w - 1 splits into the space error w_h / w - 1 of the semi-
     discrete system (no tau: :func:`~rothe.eld.coupled_step.coupled_modes`; order 2p in h for
@@ -821,8 +829,11 @@ def tip_mass_study(
     Returns ``{"n": [...], "tau": [...], "ndofs", "analytic", "discrete": per n, "measured":
     [n][tau], "error": [n][tau] (measured against analytic), "error_space": per n, "error_time":
     [n][tau], "order_h"`` (fitted slope of the space error in h ~ 1/n), ``"order_tau"`` (fitted
-    slope of the time error at the finest n)``}``; a failed (n, tau) gets NaN and is listed
-    under ``"failed"``.
+    slope of the time error at the finest n)``}`` -- all of the first mode, as before -- and
+    per mode k (last index): ``"analytic_modes"`` [k], ``"discrete_modes"`` [n][k],
+    ``"measured_modes"``, ``"error_modes"``, ``"error_time_modes"`` [n][tau][k],
+    ``"error_space_modes"`` [n][k], ``"order_h_modes"``, ``"order_tau_modes"`` [k]; a failed
+    (n, tau) gets NaN and is listed under ``"failed"``.
 
     Parameters
     ----------
@@ -838,6 +849,8 @@ def tip_mass_study(
         End time (2: about 2.7 periods in 2D).
     dim : int
         2 (the plane-stress strip) or 3 (the box bar, nu = 0: both are exact 1D bars axially).
+    modes : int
+        K >= 1, the axial modes excited and measured (:func:`tip_mass_problem`'s ``modes``).
     progress : bool
         Unused (coupled runs have no progress bar); for the commands' common call.
     executor : Executor, optional
@@ -848,8 +861,9 @@ def tip_mass_study(
         raise fail("ns", ns, "needs two meshes or two step sizes (with taus) to fit an order")
     if dim not in (2, 3):
         raise fail("dim", dim, "must be 2 or 3")
+    modes = check_int("modes", modes, minimum=1)
     scheme, form = as_scheme(scheme), as_form(form)
-    options = dict(degree=degree, scheme=scheme, form=form, mass=mass, T=T, dim=dim)
+    options = dict(degree=degree, scheme=scheme, form=form, mass=mass, T=T, dim=dim, modes=modes)
     tasks = [
         Task(
             f"n={n} tau={tau:g}",
@@ -875,9 +889,15 @@ def tip_mass_study(
     def first(n, key):
         return next((r[key] for r in rows[n].values()), nan)
 
-    analytic = next((r["analytic"] for n in ns for r in rows[n].values()), nan)
-    discrete = [first(n, "discrete") for n in ns]
-    measured = [[rows[n].get(tau, {}).get("measured", nan) for tau in taus] for n in ns]
+    none = [nan] * modes
+    analytic_k = np.array(next((r["analytic"] for n in ns for r in rows[n].values()), none))
+    discrete_k = np.array([first(n, "discrete") if rows[n] else none for n in ns])
+    measured_k = np.array(
+        [[rows[n].get(tau, {}).get("measured", none) for tau in taus] for n in ns], dtype=float
+    )
+    analytic = float(analytic_k[0])
+    discrete = discrete_k[:, 0].tolist()
+    measured = measured_k[:, :, 0].tolist()
     out = {
         "example": "eld-tip-mass",
         "dim": dim,
@@ -899,6 +919,23 @@ def tip_mass_study(
     # the space error decreases like h^(2p) = n^(-2p): the slope in h = 1/n
     out["order_h"] = fitted_rate([1.0 / n for n in ns], np.abs(out["error_space"]))
     out["order_tau"] = fitted_rate(taus, np.abs(out["error_time"][-1]))
+    out.update(
+        modes=modes,
+        analytic_modes=analytic_k.tolist(),
+        discrete_modes=discrete_k.tolist(),
+        measured_modes=measured_k.tolist(),
+        error_modes=(measured_k / analytic_k - 1).tolist(),
+        error_space_modes=(discrete_k / analytic_k - 1).tolist(),
+        error_time_modes=(measured_k / discrete_k[:, None, :] - 1).tolist(),
+    )
+    out["order_h_modes"] = [
+        fitted_rate([1.0 / n for n in ns], np.abs(discrete_k[:, k] / analytic_k[k] - 1))
+        for k in range(modes)
+    ]
+    out["order_tau_modes"] = [
+        fitted_rate(taus, np.abs(measured_k[-1, :, k] / discrete_k[-1, k] - 1))
+        for k in range(modes)
+    ]
     if failed:
         out["failed"] = failed
     out["seconds"] = time.perf_counter() - t0
@@ -907,22 +944,36 @@ def tip_mass_study(
 
 def format_tip_mass_table(study: dict) -> str:
     """The tip-mass study as a table: per (n, tau) the measured first frequency and its error
-    against the analytic value, split into space and time; the fitted orders."""
+    against the analytic value, split into space and time, then for every further measured
+    mode k its error against the analytic value (``wk err``) and against the semi-discrete one
+    (``wk time``); the fitted orders of every mode."""
+    modes = study.get("modes", 1)
+    analytic = ", ".join(f"{w:.8g}" for w in study.get("analytic_modes", [study["analytic"]]))
+    header = (
+        f"{'n':>4} {'dofs':>6} {'tau':>9} {'measured':>12} {'error':>10} {'space':>10} {'time':>10}"
+    )
+    for k in range(2, modes + 1):
+        header += f" {f'w{k} err':>10} {f'w{k} time':>10}"
     lines = [
         f"eld-tip-mass, {study.get('dim', 2)}D, P{study['degree']}, {study['scheme']}, "
-        f"{study['form']}, m = "
-        f"{study['mass']:g}: first axial angular frequency, analytic {study['analytic']:.8g}",
-        f"{'n':>4} {'dofs':>6} {'tau':>9} {'measured':>12} {'error':>10} {'space':>10} "
-        f"{'time':>10}",
+        f"{study['form']}, m = {study['mass']:g}: the first {modes} axial angular frequencies "
+        f"measured from the runs (modal coordinates), analytic {analytic}",
+        header,
     ]
     lines.append("-" * len(lines[-1]))
     for i, n in enumerate(study["n"]):
         for k, tau in enumerate(study["tau"]):
-            lines.append(
+            line = (
                 f"{n:>4} {study['ndofs'][i]:>6} {tau:>9.5f} {study['measured'][i][k]:>12.8g} "
                 f"{study['error'][i][k]:>10.2e} {study['error_space'][i]:>10.2e} "
                 f"{study['error_time'][i][k]:>10.2e}"
             )
+            for m in range(1, modes):
+                line += (
+                    f" {study['error_modes'][i][k][m]:>10.2e}"
+                    f" {study['error_time_modes'][i][k][m]:>10.2e}"
+                )
+            lines.append(line)
 
     def fmt(order):
         return "n/a" if order is None else f"{order:.2f}"
@@ -932,6 +983,12 @@ def format_tip_mass_table(study: dict) -> str:
         f"time error (w_run / w_h - 1) at n = {study['n'][-1]}: order "
         f"{fmt(study['order_tau'])} in tau"
     )
+    for m in range(1, modes):
+        lines.append(
+            f"mode {m + 1}: space error order {fmt(study['order_h_modes'][m])} in h "
+            f"(w_h / w - 1 = {', '.join(f'{e[m]:.2e}' for e in study['error_space_modes'])}); "
+            f"time error order {fmt(study['order_tau_modes'][m])} in tau"
+        )
     for f in study.get("failed", ()):
         lines.append(f"n = {f['n']}, tau = {f['tau']:g}: {f['status']}")
     return "\n".join(lines)
