@@ -450,3 +450,47 @@ def modal_frequencies(t: np.ndarray, C: np.ndarray, floor: float = 1e-9) -> list
         end = big[-1] + 1 if big.size else 0
         out.append(crossing_frequency(t[:end], c[:end]))
     return out
+
+
+#: the largest Hankel matrix of :func:`pencil_frequencies` (columns): its SVD is O(L^3)
+PENCIL_MAX_COLUMNS = 500
+
+
+def pencil_frequencies(t: np.ndarray, y: np.ndarray, count: int, rtol: float = 1e-10) -> list:
+    """The ``count`` angular frequencies of largest amplitude in a signal sampled at equal
+    steps (the tip's q_x of a run: what an experimenter records), by the matrix pencil
+    method: y_j = sum_i a_i z_i^j with z_i = e^{(-alpha_i + i w_i) tau}; the Hankel matrix
+    H = [y_{j+l}] (L + 1 columns, L = min(N/2, PENCIL_MAX_COLUMNS)), its right singular
+    vectors V of the r largest singular values, z the eigenvalues of V_-^+ V_+ (V without its
+    last / first row), a by least squares, w = |arg z| / tau of the ``count`` largest |a| with
+    arg z > 0.
+
+    r: the singular values above ``rtol`` times the largest, at most 4 ``count`` -- a linear
+    two-step scheme (BDF2) steps every mode with two pairs of roots, its own and the
+    parasitic one. A run of a linear scheme on uniform steps IS such a sum, so w_i is the
+    scheme's discrete frequency to round-off (docs/coupling.md Sec. 11). NaN for every
+    frequency when the steps are not equal (adaptive steps) or the signal too short."""
+    count = check_int("count", count, minimum=1)
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    nan = [float("nan")] * count
+    if t.size < 8 * count:
+        return nan
+    dt = np.diff(t)
+    tau = float(dt.mean())
+    if np.abs(dt - tau).max() > 1e-9 * tau:
+        return nan
+    L = min(y.size // 2, PENCIL_MAX_COLUMNS)
+    H = np.lib.stride_tricks.sliding_window_view(y, L + 1)
+    _, s, Vh = np.linalg.svd(H, full_matrices=False)
+    if s[0] == 0.0:
+        return nan
+    r = int(min(4 * count, np.count_nonzero(s > rtol * s[0])))
+    V = Vh[:r].T
+    z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+    Z = z[None, :] ** np.arange(y.size)[:, None]
+    a = np.linalg.lstsq(Z, y.astype(complex), rcond=None)[0]
+    up = np.angle(z) > 0
+    w, a = np.angle(z[up]) / tau, a[up]
+    w = np.sort(w[np.argsort(-np.abs(a))[:count]])
+    return w.tolist() + nan[w.size :]
