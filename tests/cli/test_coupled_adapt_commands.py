@@ -73,16 +73,20 @@ def test_tip_mass_adapts_the_bar_and_the_ledger_closes(tmp_path):
     assert s["space"] == s["space_options"] and s["space"]["space_tol"] == 1e-3
 
 
-def test_tip_mass_modes_with_adapt_space_measure_the_first_only(tmp_path):
+def test_tip_mass_modes_with_adapt_space_fit_the_tip_signal(tmp_path):
     """--modes 2 with --adapt-space: the modes live on the first mesh, the states on others,
-    so the second frequency is null with the reason in the summary."""
+    so the frequencies are the matrix pencil's of the tip's q_x (the reason in the summary);
+    T = 0.3 is less than half the first period and the meshes change, so they are rough:
+    +2 % and -4 % from the discrete ones measured (BDF2 at w_2 tau = 0.34: -3.4 %)."""
     code, out = _run(
-        tmp_path, "eld-tip-mass", "--degree", "1", "--T", "0.5", "--tau", "0.01",
-        "--adapt-space", "--space-tol", "1e-3", "--modes", "2",
+        tmp_path, "eld-tip-mass", "--degree", "1", "--T", "0.3", "--tau", "0.01",
+        "--adapt-space", "--space-tol", "1e-2", "--max-dofs", "1000", "--modes", "2",
     )  # fmt: skip
     assert code == 0
     s = _summary(out)
-    assert s["frequencies_measured"][1] is None and s["frequencies_error_measured"][1] is None
+    assert s["meshes"] >= 2
+    assert s["frequencies_measured"] == s["frequencies_measured_tip"]
+    assert np.all(np.abs(s["frequencies_error_measured_vs_discrete"]) < 0.1)
     assert "--adapt-space" in s["frequencies_measured_note"]
 
 

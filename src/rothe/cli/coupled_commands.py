@@ -522,10 +522,10 @@ class RunEldTipMass(CoupledRunCommand):
             traj = trajs["tip"]
             t, q = traj["t"], np.asarray(traj["q"])
             tip = crossing_frequency(t, q[:, 0])
-            modal = self.measured_frequencies(example, traj, tip)
-            measured = modal[0]
             K = example.modes
             pencil = np.array(pencil_frequencies(t, q[:, 0], K))
+            modal = self.measured_frequencies(example, traj, tip, pencil)
+            measured = modal[0]
             energy = traj["energy"]
             summary.update(
                 n=n,
@@ -566,11 +566,10 @@ class RunEldTipMass(CoupledRunCommand):
             )
             if self.adapt is not None and K > 1:
                 summary["frequencies_measured_note"] = (
-                    "modes 2..K are not measured from modal coordinates with --adapt-space: "
-                    "they need the discrete modes on every mesh; the first is the tip's q_x "
-                    "zero crossings (the other modes' motion included); "
-                    "frequencies_measured_tip fits all K to the tip's q_x (matrix pencil, "
-                    "uniform steps)"
+                    "with --adapt-space the modal coordinates would need the discrete modes on "
+                    "every mesh: the frequencies are the matrix pencil's of the tip's q_x "
+                    "(frequencies_measured_tip; null with --control adaptive, whose steps are "
+                    "not equal)"
                 )
             if mesh is not None:
                 del summary["n"], summary["height"]
@@ -597,14 +596,15 @@ class RunEldTipMass(CoupledRunCommand):
         runs = {"tip": example.system}
         return self.run_body(args, runs, objects, summarize, draw)
 
-    def measured_frequencies(self, example, traj, tip: float) -> list:
+    def measured_frequencies(self, example, traj, tip: float, pencil) -> list:
         """The K excited frequencies measured from the run: the zero crossings of the modal
         coordinates c_k = phi_k^T M x of every state (:meth:`~rothe.eld.examples.
         TipMassExample.modal_coordinates` of the recorded u and q; docs/coupling.md Sec. 11).
-        With --adapt-space the states live on other meshes than the modes: the first is the
-        tip's crossing frequency ``tip``, the others NaN (null)."""
+        With --adapt-space the states live on other meshes than the modes: one mode (K = 1)
+        is the tip's crossing frequency ``tip`` (as before), several the matrix pencil's of
+        the tip's q_x, ``pencil`` (NaN on unequal steps)."""
         if self.adapt is not None:
-            return [tip] + [float("nan")] * (example.modes - 1)
+            return [tip] if example.modes == 1 else list(pencil)
         return modal_frequencies(traj["t"], example.modal_coordinates(traj))
 
 
