@@ -114,7 +114,7 @@ def test_tip_mass_measures_three_frequencies_from_the_run(tmp_path):
     vs_analytic = np.array(s["frequencies_error_measured"])
     assert np.allclose(vs_analytic, vs_discrete, atol=5e-4)  # P2, 2 cells across: space 2e-4
     assert abs(np.load(out / "trajectory.npz")["q"][0, 0]) == pytest.approx(0.03, rel=1e-9)
-    # the tip's q_x alone (matrix pencil): the same frequencies (4e-6 apart measured: the
+    # the tip's q_x alone (matrix pencil): the same frequencies (1.2e-6 apart measured: the
     # crossings' interpolation)
     assert np.allclose(s["frequencies_measured_tip"], s["frequencies_measured"], rtol=1e-4)
     code, one = _run(tmp_path / "one")
