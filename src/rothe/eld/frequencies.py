@@ -193,6 +193,110 @@ def bar_frequencies(
     return _find_roots(det, w_max, count, n_grid)
 
 
+def _per_slice(name: str, value, n: int) -> np.ndarray:
+    """A positive value per slice (a scalar for all), one-line refusals."""
+    v = np.atleast_1d(np.asarray(value, dtype=float))
+    if v.size == 1:
+        v = np.full(n, float(v[0]))
+    if v.size != n:
+        raise fail(name, v.tolist(), f"must be one value or one per slice ({n})")
+    for x in v:
+        check_positive(name, float(x))
+    return v
+
+
+def sliced_bar_frequencies(
+    lengths,
+    E,
+    rho,
+    *,
+    area=1.0,
+    left="clamped",
+    right="free",
+    count: int = 3,
+    w_max: float | None = None,
+    n_grid: int = 4000,
+) -> np.ndarray:
+    """The first ``count`` angular frequencies of a longitudinal bar made of slices along x
+    (slice i: length l_i, E_i, rho_i, A_i; each a scalar for all slices or one per slice),
+    with 'clamped', 'free' or :class:`Attachment` ends as :func:`bar_frequencies`.
+
+    In slice i (c_i = (E_i/rho_i)^{1/2}, beta_i = w/c_i, Z_i = E_i A_i beta_i) the state
+    (phi, N = E A phi') at its right end is T_i times the state at its left end,
+
+        T_i = [[cos(beta_i l_i), sin(beta_i l_i)/Z_i], [-Z_i sin(beta_i l_i), cos(beta_i l_i)]],
+
+    continuous across the interfaces (displacement and normal force); T = T_n ... T_1 (entire
+    in w: sin(beta l)/Z = l/(E A) sinc). The unknowns are (phi(0), N(0)) and the components'
+    coordinates; the rows are the end conditions of :func:`bar_frequencies` with
+    (phi(L), N(L)) = T (phi(0), N(0)); its frequencies are the zeros of their determinant.
+    One slice is :func:`bar_frequencies`."""
+    ell = np.atleast_1d(np.asarray(lengths, dtype=float))
+    if ell.size == 0:
+        raise fail("lengths", [], "must hold at least one slice")
+    for x in ell:
+        check_positive("lengths", float(x))
+    n = ell.size
+    E = _per_slice("E", E, n)
+    rho = _per_slice("rho", rho, n)
+    A = _per_slice("area", area, n)
+    count = check_int("count", count, minimum=1)
+    left, right = _end("left", left), _end("right", right)
+    if left == "free" and right == "free":
+        raise fail("left", left, "and right both free: the bar is not held (rigid motion)")
+    c = np.sqrt(E / rho)
+    EA = E * A
+    # N in units of the stiffest slice's E A / L: the rows of phi and N of one size
+    scale = EA.max() / ell.sum()
+    m0 = left.mass.shape[0] if isinstance(left, Attachment) else 0
+    mL = right.mass.shape[0] if isinstance(right, Attachment) else 0
+    size = 2 + m0 + mL
+
+    def transfer(w):
+        """T (phi, N / scale) from x = 0 to x = L."""
+        T = np.eye(2)
+        for li, ci, EAi in zip(ell, c, EA, strict=True):
+            bl = w / ci * li
+            sinc = np.sinc(bl / np.pi)  # sin(bl)/bl
+            Ti = np.array(
+                [
+                    [np.cos(bl), li / EAi * sinc * scale],  # sin(beta l)/Z
+                    [-EAi * (w / ci) * np.sin(bl) / scale, np.cos(bl)],
+                ]
+            )
+            T = Ti @ T
+        return T
+
+    def det(w):
+        M = np.zeros((size, size))
+        T = transfer(w)
+        row = 0
+        # (phi, N) at each end as rows acting on the unknowns (phi(0), N(0)/scale)
+        for state, end, off, sgn in ((np.eye(2), left, 2, +1.0), (T, right, 2 + m0, -1.0)):
+            phi, N = state[0], state[1] * scale
+            if end == "clamped":
+                M[row, :2] = phi
+                row += 1
+            elif end == "free":
+                M[row, :2] = N / scale
+                row += 1
+            else:
+                m = end.mass.shape[0]
+                M[row, :2] = phi
+                M[row, off + end.at] = -1.0
+                row += 1
+                # (K - w^2 M) q - sgn N e_at = 0, in units of scale
+                M[row : row + m, off : off + m] = (end.stiffness - w * w * end.mass) / scale
+                M[row + end.at, :2] -= sgn * N / scale
+                row += m
+        return np.linalg.det(M)
+
+    if w_max is None:
+        # the slowest slice's wave time sets the spacing of the roots
+        w_max = (count + 2) * np.pi / float(np.sum(ell / c))
+    return _find_roots(det, w_max, count, n_grid)
+
+
 def tip_mass_roots(mass_ratio: float, count: int = 3) -> np.ndarray:
     """The roots x_k of x tan x = mass_ratio (= rho A L / m_tip), one in each
     (k pi, k pi + pi/2): the frequencies of a clamped bar with a tip mass are
