@@ -20,6 +20,13 @@ Brent's method.
   compliance L/(E A) in series, weighted by its mass distribution) -- not used by the tests,
   which compare with the determinant.
 
+**A bar of slices** along x (:func:`sliced_bar_frequencies`): the transfer matrices of the
+slices carry (phi, N) from x = 0 to x = L, the same end conditions.
+
+**Measured from a run**: :func:`crossing_frequency` (zero crossings), :func:`modal_frequencies`
+(the crossings of each modal coordinate phi_k^T M x of a run), :func:`pencil_frequencies` (the
+matrix pencil of one signal on equal steps), :func:`decay_rate`.
+
 **Euler-Bernoulli beam** (bending stiffness E I, mass per length rho A; beta^4 = rho A w^2/(E I)):
 w = a_1 cos + a_2 sin + a_3 cosh + a_4 sinh (beta x); ``"clamped"`` (w = w' = 0), ``"free"``
 (w'' = w''' = 0) or an :class:`Attachment` moving with the end's deflection (no moment:
