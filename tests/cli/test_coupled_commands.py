@@ -283,6 +283,40 @@ def test_feedback_decay_rate_against_the_characteristic_equation(tmp_path):
     assert d["z"].shape[1] == 0 and np.load(out / "trajectory.npz")["q"].shape[1] == 2
 
 
+def test_negative_gain_grows_at_the_predicted_negative_rate_and_the_ledger_closes(tmp_path):
+    """k_p = -1 feeds energy in (a study of instability, accepted): the first mode grows at
+    the controlled bar's root, the summary's decay rate negative (-0.455, measured within 1 %),
+    the controller's work positive, and the ledger still closes to round-off of the largest
+    energy (docs/coupling.md Sec. 18)."""
+    code, out = _run(
+        tmp_path, "--gain", "-1", "--T", "4", "--tau", "0.01", "--no-plots", command="eld-control"
+    )
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["decay_rate_predicted"] == pytest.approx(-0.455078, rel=1e-4)
+    assert s["decay_rate_measured"] == pytest.approx(s["decay_rate_predicted"], rel=0.01)
+    assert s["decay_rate_error"] == pytest.approx(
+        s["decay_rate_measured"] / s["decay_rate_predicted"] - 1, abs=1e-15
+    )
+    assert abs(s["decay_rate_error"]) < 0.01
+    assert s["energy_ratio"] > 20 and s["work_controller"] > 0
+    d = np.load(out / "trajectory.npz")
+    assert d["work_controllers"][-1] == pytest.approx(s["work_controller"])
+    assert s["balance_max"] == np.abs(d["balance"]).max()
+    assert s["balance_max_relative"] == pytest.approx(s["balance_max"] / d["energy"].max())
+    assert s["balance_max_relative"] < 1e-13
+
+
+def test_no_gain_and_no_damping_gives_no_relative_decay_error(tmp_path):
+    """--gain 0 --b 0: the predicted rate is 0, the relative error undefined: null (a
+    ZeroDivisionError's traceback before)."""
+    code, out = _run(tmp_path, "--gain", "0", "--b", "0", *CONTROL_SHORT, command="eld-control")
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["decay_rate_predicted"] == 0 and s["decay_rate_error"] is None
+    assert s["balance_max_relative"] < 1e-13
+
+
 def _same_npz(a, b):
     """Every array of two trajectory files equal (NaN where the other has NaN), the timings
     and the meta data (the number of sessions) aside."""

@@ -826,7 +826,8 @@ class RunEldControl(CoupledRunCommand):
             "--gain",
             default=1.0,
             help="k_p: the actuator force -k_p v_L on the base, v_L the tip's axial velocity "
-            "(a damper; default 1)",
+            "(k_p > 0: a damper; default 1). k_p < 0 feeds energy in: the run then grows; the "
+            "decay rate in the summary is negative (a study of instability)",
         )
         float_option(
             parser,
@@ -920,13 +921,20 @@ class RunEldControl(CoupledRunCommand):
                 summary[f"decay_rate_measured{suffix}"] = decay_rate(t, y)
                 summary[f"frequency_measured{suffix}"] = crossing_frequency(t, y)
                 summary[f"balance_max{suffix}"] = float(np.abs(traj["balance"]).max())
+                # against the largest energy: a growing run (k_p < 0) has a ledger of growing
+                # terms, whose round-off grows with them
+                summary[f"balance_max_relative{suffix}"] = float(
+                    np.abs(traj["balance"]).max() / np.abs(traj["energy"]).max()
+                )
                 summary[f"energy_ratio{suffix}"] = float(traj["energy"][-1] / traj["energy"][0])
             if "controlled" in trajs:
                 summary["work_controller"] = float(trajs["controlled"]["work_controllers"][-1])
+                # relative to the predicted rate, of either sign; undefined (null) without a
+                # prediction (several materials) or where that rate is 0 (--gain 0 --b 0:
+                # nothing damps the bar)
+                rate = summary["decay_rate_predicted"]
                 summary["decay_rate_error"] = (
-                    summary["decay_rate_measured"] / summary["decay_rate_predicted"] - 1
-                    if predicted
-                    else None
+                    summary["decay_rate_measured"] / rate - 1 if predicted and rate != 0 else None
                 )
 
         def draw(stage, trajs, summary):
