@@ -151,9 +151,16 @@ def _fmt(value) -> str:
     return repr(value) if isinstance(value, str) else str(value)
 
 
+def got(value, allowed: str) -> str:
+    """``got <value>, <allowed>``: the one-line error after its name (:func:`fail` puts the
+    name before it; argparse's type functions of the command line, whose errors argparse
+    prefixes with ``argument --option:``, use it alone)."""
+    return f"got {_fmt(value)}, {allowed}"
+
+
 def fail(name: str, value, allowed: str) -> RotheInputError:
     """Build the one-line error ``<name>: got <value>, <allowed>`` (``parameter`` = name)."""
-    return RotheInputError(f"{name}: got {_fmt(value)}, {allowed}", name)
+    return RotheInputError(f"{name}: {got(value, allowed)}", name)
 
 
 def check_real(name: str, value) -> float:
@@ -185,9 +192,11 @@ def check_nonnegative(name: str, value) -> float:
     return x
 
 
-def _at_least(minimum: int | None) -> str:
-    """The range of :func:`check_int`'s message: `` >= minimum``, or nothing."""
-    return "" if minimum is None else f" >= {minimum}"
+def integer_allowed(minimum: int | None = None) -> str:
+    """What :func:`check_int` allows, in the words of its message: ``must be an integer``, with
+    `` >= minimum`` if given (the one source of that wording: the command line's ``parse_int``
+    and the integer checks written by hand use it too)."""
+    return "must be an integer" + ("" if minimum is None else f" >= {minimum}")
 
 
 def check_int(name: str, value, minimum: int | None = None) -> int:
@@ -201,10 +210,10 @@ def check_int(name: str, value, minimum: int | None = None) -> int:
         # float('auto') or float(None): it raised its own ValueError/TypeError, naming nothing
         integral = False
     if not integral:
-        raise fail(name, value, "must be an integer" + _at_least(minimum))
+        raise fail(name, value, integer_allowed(minimum))
     n = int(float(value)) if isinstance(value, str) else int(value)  # int('4.0') raises
     if minimum is not None and n < minimum:
-        raise fail(name, value, "must be an integer" + _at_least(minimum))
+        raise fail(name, value, integer_allowed(minimum))
     return n
 
 

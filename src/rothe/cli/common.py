@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import RotheInputError, check_int, check_positive, fail
+from ..errors import RotheInputError, check_int, check_positive, fail, got, integer_allowed
 from ..io.atomic import TMP_PREFIX, atomic_write_text, check_writable
 from ..parallel.executor import INSTALL_HINT, Executor, check_workers, dask_available
 from ..stepping.progress import ProgressOptions
@@ -70,9 +70,9 @@ def parse_float(name: str):
         try:
             value = float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"got {text!r}, must be a number") from None
+            raise argparse.ArgumentTypeError(got(text, "must be a number")) from None
         if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"got {text!r}, must be finite")
+            raise argparse.ArgumentTypeError(got(text, "must be finite"))
         return value
 
     return conv
@@ -101,8 +101,7 @@ def parse_int(name: str, minimum: int | None = None):
         try:
             return int(text)
         except ValueError:
-            allowed = "an integer" + ("" if minimum is None else f" >= {minimum}")
-            raise argparse.ArgumentTypeError(f"got {text!r}, must be {allowed}") from None
+            raise argparse.ArgumentTypeError(got(text, integer_allowed(minimum))) from None
 
     return conv
 
@@ -119,7 +118,7 @@ def parse_float_list(name: str):
             values = None
         if values is None or not all(math.isfinite(v) for v in values):
             raise argparse.ArgumentTypeError(
-                f"got {text!r}, must be a comma-separated list of finite numbers"
+                got(text, "must be a comma-separated list of finite numbers")
             )
         return values
 

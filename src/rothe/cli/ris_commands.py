@@ -16,6 +16,7 @@ from ..errors import (
     check_positive,
     described,
     fail,
+    integer_allowed,
 )
 from ..parallel import Executor, Task, TaskFailed
 from ..ris import examples
@@ -274,7 +275,7 @@ class RISRunBase(ABC):
         if control == "nested":
             tols = check_decreasing("--tols", args.tols or list(self.default_tols))
         if args.keep_every < 1:
-            raise fail("--keep-every", args.keep_every, "must be an integer >= 1")
+            raise fail("--keep-every", args.keep_every, integer_allowed(1))
         if args.simpson < 2 or args.simpson % 2:
             raise fail("--simpson", args.simpson, "must be an even integer >= 2")
         return control, tol, tau, tau_min, tols

@@ -41,7 +41,7 @@ import threading
 import time
 import uuid
 
-from ..errors import RotheInputError, RunInterrupted, check_int, fail
+from ..errors import RotheInputError, RunInterrupted, check_int, fail, integer_allowed
 from ..stepping import interrupt
 from .tasks import Task, TaskResult, execute_task
 
@@ -98,7 +98,7 @@ def default_workers() -> int:
         try:
             n = int(env)
         except ValueError:
-            raise fail("ROTHE_WORKERS", env, "must be an integer >= 1") from None
+            raise fail("ROTHE_WORKERS", env, integer_allowed(1)) from None
         return check_workers("ROTHE_WORKERS", n)
     return cpu_count() if dask_available() else 1
 

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import RunFailed, check_positive, described, fail
+from ..errors import RunFailed, check_positive, described, fail, integer_allowed
 
 
 @dataclass
@@ -229,7 +229,7 @@ class ErrorNormController(StepController):
         super().__init__(tau0, tau_min, tau_max)
         self.tol = check_positive("tol", tol)
         if int(order) < 1:
-            raise fail("order", order, "must be an integer >= 1")
+            raise fail("order", order, integer_allowed(1))
         self.order = int(order)
         self.key = key
         self.safety = check_positive("safety", safety)
