@@ -423,3 +423,100 @@ def test_a_body_of_two_materials_adapts_its_mesh(tmp_path, capsys):
     data = np.load(tmp_path / "out" / "trajectory.npz")
     assert len(np.unique(data["mesh_id"])) >= 3
     assert s["balance_residual_max"] < 1e-10
+
+
+# -- the summary's material: one helper (summary_material) for every run eld-* -------------------
+
+_SHORT = ("--T", "0.02", "--tau", "0.01", "--quiet", "--no-plots")
+_LAME = {"E": 93.33333333333333, "nu": 0.16666666666666666, "lam": 20.0, "mu": 40.0}
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (
+            ["eld-beam", "--n", "1", "--degree", "1", "--lam", "500", "--mu", "300"],
+            {
+                "E": 787.5,
+                "nu": 0.3125,
+                "material": {"E": 787.5, "nu": 0.3125, "lam": 500.0, "mu": 300.0, "rho": 1.0,
+                             "plane": "strain"},
+            },
+        ),
+        (
+            ["eld-mms", "--n", "2", "--E", "3", "--nu", "0.2"],
+            {"material": {"E": 3.0, "nu": 0.2, "lam": 5 / 6, "mu": 1.25, "rho": 1.0,
+                          "plane": "strain"}},
+        ),
+        (
+            ["eld-tip-mass", "--lam", "1", "--mu", "40", "--plane", "strain"],
+            {"E": 80.97560975609755, "nu": 0.012195121951219513, "lam": 1.0, "mu": 40.0,
+             "rho": 1.0, "plane": "strain"},
+        ),
+        (
+            ["eld-control", "--E", "80", "--nu", "0.1", "--rho", "2"],
+            {"material": {"E": 80.0, "nu": 0.1, "lam": 100 / 11, "mu": 400 / 11, "rho": 2.0,
+                          "plane": "stress"}},
+        ),
+        (
+            ["eld-tmd", "--lam", "20", "--mu", "40"],
+            {"material": {**_LAME, "rho": 1.0, "plane": "stress"}},
+        ),
+        (
+            ["eld-two-bodies", "--lam", "20", "--mu", "40", "--E2", "7"],
+            {
+                "material1": {**_LAME, "rho": 1.0, "plane": "stress"},
+                "material2": {"rho": 2.0, "lam": 1.9444444444444446, "mu": 2.916666666666667,
+                              "plane": "stress"},
+            },
+        ),
+    ],
+    ids=lambda v: v[0] if isinstance(v, list) else "",
+)  # fmt: skip
+def test_the_summary_states_the_material_as_each_command_always_did(tmp_path, capsys, argv,
+                                                                      expected):  # fmt: skip
+    """``summary_material`` (cli/eld_options.py) chooses the material's description for every
+    command (it was chosen three ways): the pair as given and the other derived, rho and the
+    model; eld-tip-mass's flat at the top level and eld-beam's E, nu before ``material``, as
+    before the helper (the summaries of 19 runs of the 8 commands, with and without
+    --material, compared key by key before and after: equal)."""
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "run", *argv, *_SHORT, "--out", out)
+    assert code == 0, err
+    s = _summary(out)
+
+    def close(v):
+        return v if isinstance(v, str) else pytest.approx(v, rel=1e-14)
+
+    for key, value in expected.items():
+        if isinstance(value, dict):
+            assert list(s[key]) == list(value)
+            assert all(s[key][k] == close(v) for k, v in value.items())
+        else:
+            assert s[key] == close(value)
+    keys = list(s)
+    assert keys[keys.index(next(iter(expected))) :][: len(expected)] == list(expected)
+    if "E" in expected and "material" not in expected:  # eld-tip-mass: flat
+        assert "material" not in s
+
+
+def test_summary_material_with_material_is_the_piecewise_description(tmp_path, capsys):
+    """With --material (eld-tip-mass on a gmsh strip of two regions): the materials, their
+    regions, the reference density, under ``material``."""
+    mesh = write_gmsh_body(tmp_path / "two.msh", nx=8, ny=2, length=1.0, height=0.25, split=0.5)
+    code, _, err = run_cli(
+        capsys, "run", "eld-tip-mass", "--mesh", mesh, "--dirichlet", "inlet", "--tip", "outlet",
+        "--material", "hard:lam=2,mu=1", "--material", "soft:E=3,nu=0.25,rho=4",
+        "--region", "hard=core", "--region", "soft=shell", *_SHORT, "--out", tmp_path / "out",
+    )  # fmt: skip
+    assert code == 0, err
+    s = _summary(tmp_path / "out")
+    assert "E" not in s and s["material"] == {
+        "materials": {
+            "hard": {"rho": 1.0, "lam": 2.0, "mu": 1.0, "plane": "stress"},
+            "soft": {"rho": 4.0, "lam": pytest.approx(1.2), "mu": pytest.approx(1.2),
+                     "plane": "stress"},
+        },
+        "regions": {"core": "hard", "shell": "soft"},
+        "rho_ref": 4.0,
+    }  # fmt: skip

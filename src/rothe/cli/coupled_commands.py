@@ -48,7 +48,6 @@ from ..eld.frequencies import (
     modal_frequencies,
     pencil_frequencies,
 )
-from ..eld.materials import PiecewiseMaterial
 from ..eld.run import run_eld
 from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
 from ..fem.mesh import load_mesh, mesh_dim
@@ -74,7 +73,6 @@ from .eld_options import (
     keep_option,
     lifting_option,
     material_constants,
-    material_fields,
     material_of,
     material_options,
     mesh_fields,
@@ -84,6 +82,7 @@ from .eld_options import (
     region_map,
     scheme_of,
     step_options,
+    summary_material,
 )
 from .registry import command
 from .session import add_run_options, run_sequence
@@ -202,13 +201,6 @@ class CoupledRunCommand:
         if material is not None:
             return material
         return body_material(args, self.default_material, mesh)
-
-    def material_summary(self, args, material) -> dict:
-        """The summary's ``material``: the pair as given and derived (one material), or the
-        materials, their regions and rho_ref (several)."""
-        if isinstance(material, PiecewiseMaterial):
-            return material.describe()
-        return material_fields(args, self.default_material, material)
 
     @staticmethod
     def body_of(args, example, mesh):
@@ -535,10 +527,8 @@ class RunEldTipMass(CoupledRunCommand):
                 length=args.length,
                 height=args.height,
             )
-            if args.material:
-                summary["material"] = material.describe()
-            else:
-                summary.update(material_fields(args, TIP_MASS_MATERIAL, material))
+            fields = summary_material(args, TIP_MASS_MATERIAL, material)
+            summary.update({"material": fields} if args.material else fields)  # (flat: as always)
             summary.update(
                 mass=args.mass,
                 spring=args.spring,
@@ -710,7 +700,7 @@ class RunEldTmd(CoupledRunCommand):
                 **self.body_of(args, example, mesh),
                 degree=args.degree,
                 ndofs=summary.get("ndofs", example.with_tmd.body.space.ndofs),
-                material=self.material_summary(args, material),
+                material=summary_material(args, TMD_MATERIAL, material),
                 b=args.b,
                 frequency_first_bending=example.frequency,
                 frequency_clamped=example.clamped_frequency,
@@ -896,7 +886,7 @@ class RunEldControl(CoupledRunCommand):
                 **self.body_of(args, example, mesh),
                 degree=args.degree,
                 ndofs=summary.get("ndofs", example.controlled.body.space.ndofs),
-                material=self.material_summary(args, material),
+                material=summary_material(args, CONTROL_MATERIAL, material),
                 prediction=example.prediction or "the uniform bar's characteristic equation",
                 base_mass=args.base_mass,
                 base_spring=args.base_spring,
@@ -1427,11 +1417,7 @@ class RunEldTwoBodies(CoupledRunCommand):
             summary.update(
                 ndofs=[summary.get("ndofs", glued.base.space.ndofs), comp.problem.space.ndofs],
                 degree=[args.degree, degree2],
-                material1=(
-                    material1.describe()
-                    if isinstance(material1, PiecewiseMaterial)
-                    else material_fields(args, TWO_BODIES_MATERIAL, material1)
-                ),
+                material1=summary_material(args, TWO_BODIES_MATERIAL, material1),
                 material2=material2.describe(),
                 interface_method=itf.method,
                 interface=itf.describe(),

@@ -92,7 +92,6 @@ from .eld_options import (
     form_option,
     keep_option,
     lifting_option,
-    material_fields,
     material_of,
     material_options,
     mesh_fields,
@@ -103,6 +102,7 @@ from .eld_options import (
     scheme_of,
     scheme_option,
     step_options,
+    summary_material,
 )
 from .registry import command
 from .session import add_run_options, run_sequence
@@ -508,7 +508,7 @@ class RunEldMMS(EldRunCommand):
         def summarize(summary, result, completed):
             summary.update({"n": n} if mesh is None else mesh_fields(args, mesh))
             summary.update(degree=args.degree, dirichlet=list(parts))
-            summary["material"] = material_fields(args, MMS_MATERIAL, material)
+            summary["material"] = summary_material(args, MMS_MATERIAL, material)
             if completed:
                 summary.update(mms_errors(exact, result))
 
@@ -745,11 +745,10 @@ class RunEldBeam(EldRunCommand):
         held parts), the ``material`` of :meth:`validate`, seconds per step, the reactions at
         the (first) held part and the fraction of the energy put in that the scheme
         dissipated."""
-        if args.material:
-            summary["material"] = material.describe()
-        else:
-            fields = material_fields(args, BEAM_MATERIAL, material)
-            summary.update(E=fields["E"], nu=fields["nu"], material=fields)
+        fields = summary_material(args, BEAM_MATERIAL, material)
+        # (one material: its E and nu at the top level too, before it, as the beam always had)
+        summary.update({} if args.material else {"E": fields["E"], "nu": fields["nu"]})
+        summary["material"] = fields
         if mesh is None:
             summary.update(n=args.n, length=args.length)
         else:
@@ -924,11 +923,7 @@ class RunEldPulse(EldRunCommand):
             else:
                 summary.update(mesh_fields(args, mesh), dirichlet=list(parts))
             summary.update(degree=args.degree, t_pulse=args.t_pulse, width=args.width)
-            summary["material"] = (
-                material.describe()
-                if args.material
-                else material_fields(args, MMS_MATERIAL, material)
-            )
+            summary["material"] = summary_material(args, MMS_MATERIAL, material)
 
         return self.run(
             args, problem, dict(objects, keep_every=keep, adapt=space), label, summarize

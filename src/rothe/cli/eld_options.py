@@ -19,7 +19,13 @@ from ..eld.constraint import LIFTINGS
 from ..eld.damping import DAMPINGS, make_damping
 from ..eld.data import DATA_MODES, DEFAULT_DATA
 from ..eld.form import DEFAULT_FORM, Original, Regularized
-from ..eld.materials import ELASTIC_PAIRS, PLANES, material_from, materials_from
+from ..eld.materials import (
+    ELASTIC_PAIRS,
+    PLANES,
+    PiecewiseMaterial,
+    material_from,
+    materials_from,
+)
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
 from ..eld.studies import check_halvings, check_uniform_runs
 from ..errors import check_choice, check_positive, described, fail
@@ -333,6 +339,17 @@ def material_fields(args, default: dict, material) -> dict:
         out[key] = float(value if value is not None else default.get(key, out[key]))
     out.update(rho=material.rho, plane=material.plane)
     return out
+
+
+def summary_material(args, default: dict, material) -> dict:
+    """The material of a run for its summary, chosen in one place for every ``run eld-*``
+    command: several materials (``--material``, eld-two-bodies' ``--material1``) give the
+    materials, their regions and the reference density (``PiecewiseMaterial.describe``), one
+    material :func:`material_fields` of ``--E/--nu`` or ``--lam/--mu`` (``default`` where none
+    is given)."""
+    if isinstance(material, PiecewiseMaterial):
+        return material.describe()
+    return material_fields(args, default, material)
 
 
 #: API parameters of the --mesh commands whose names are not their options
