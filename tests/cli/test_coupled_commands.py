@@ -429,6 +429,19 @@ def test_a_resume_with_other_options_is_refused_in_one_line(
         ("eld-control", ["--kd", "1", "--filter-time", "0"], "--filter-time: got 0, must be > 0"),
         ("eld-control", ["--n", "0"], "--n: got 0, must be an integer >= 1"),
         ("eld-control", ["--plane", "shell"], "--plane: got 'shell', must be one of"),
+        # (issue 19, "a part also carrying ... data": eld-tmd named the API's couplings[1].part,
+        # "is already coupled (couplings[0])"; eld-control ran, the sensor on the pushed end, the
+        # predicted roots those of the feedback from the far end)
+        (
+            "eld-tmd",
+            ["--base", "right", "--tip", "right"],
+            "--tip: got 'right', must not be the base's part (the base and the tip are two ends)",
+        ),
+        (
+            "eld-control",
+            ["--base", "right", "--tip", "right"],
+            "--tip: got 'right', must not be the base's part (the base and the tip are two ends)",
+        ),
     ],
 )
 def test_tmd_and_control_refusals_are_one_line(tmp_path, capsys, command, args, line):

@@ -9,6 +9,7 @@ import json
 import meshio
 import numpy as np
 import pytest
+from skfem import MeshTri
 
 from rothe.cli import registry
 
@@ -329,6 +330,28 @@ def test_mms_refuses_a_mesh_with_unnamed_boundary_facets(tmp_path, capsys):
     )
 
 
+def _write_l_body(path):
+    """The L-shaped body [0, 1]^2 minus [0.5, 1]^2 of 8 x 8 squares' triangles as a gmsh file:
+    the facets 'inlet' (x = 0), 'ends' (x = 1 and y = 1 with x > 1/8: their centroid (0.705,
+    0.571) lies in the cut-out square) and 'wall'; the cells 'core'."""
+    m = MeshTri.init_tensor(np.linspace(0, 1, 9), np.linspace(0, 1, 9))
+    c = m.p[:, m.t].mean(axis=1)
+    m = MeshTri(m.p, m.t[:, ~((c[0] > 0.5) & (c[1] > 0.5))])
+    facets = m.facets[:, m.boundary_facets()]
+    mid = m.p[:, facets].mean(axis=1)
+    ends = np.isclose(mid[0], 1) | (np.isclose(mid[1], 1) & (mid[0] > 0.125))
+    tags = np.where(np.isclose(mid[0], 0), 1, np.where(ends, 2, 3))
+    cells = np.full(m.t.shape[1], 4)
+    groups = {"inlet": [1, 1], "ends": [2, 1], "wall": [3, 1], "core": [4, 2]}
+    meshio.Mesh(
+        m.p.T,
+        [("line", facets.T), ("triangle", m.t.T)],
+        cell_data={"gmsh:physical": [tags, cells], "gmsh:geometrical": [tags, cells]},
+        field_data={k: np.array(v) for k, v in groups.items()},
+    ).write(path, file_format="gmsh22", binary=False)
+    return path
+
+
 @pytest.mark.parametrize(
     "command, args, line",
     [
@@ -393,6 +416,35 @@ def test_mms_refuses_a_mesh_with_unnamed_boundary_facets(tmp_path, capsys):
          "--material: got 'a:E=1,nu=0', is not taken by eld-mms (one material"),
         ("eld-beam", ["--dirichlet", ","],
          "--dirichlet: got ',', must name at least one boundary part"),
+        # issue 19's bad input on the command line (docs/coupling.md Sec. 18): eld-beam named
+        # the API's 'materials' and 'regions' (it had no table of its parameters)
+        ("eld-beam", ["--mesh", "{box2}", "--dirichlet", "inlet", "--material", "a:E=1,nu=0",
+                      "--region", "a=core"],
+         "--material: got 6 of 12 cells in no region with a material (the first at "),
+        ("eld-beam", ["--mesh", "{box}", "--dirichlet", "inlet", "--material", "a:E=1,nu=0",
+                      "--region", "a=mantle"],
+         "--region: got 'mantle', must be one of the mesh's subdomains: core"),
+        # a material without --region fills the cell group of its name: --region was named
+        # although not given
+        ("eld-pulse", ["--mesh", "{two}", "--dirichlet", "inlet", "--material", "steel:E=1,nu=0",
+                       "--no-adapt-space"],
+         "--material: got 'steel', must be one of the mesh's subdomains: core, shell (a material "
+         "without a region fills the cell group of its name)"),
+        ("eld-beam", ["--mesh", "{box}", "--dirichlet", "inlet", "--material", "a:E=1,nu=0"],
+         "--material: got 'a', must be one of the mesh's subdomains: core (a material without a "
+         "region fills the cell group of its name)"),
+        # eld-tmd's couplings named couplings[0].part (the base) and couplings[1].part (the tip)
+        ("eld-tmd", ["--mesh", "{two}", "--base", "inlet", "--tip", "wall"],
+         "--base: got 'inlet', shares 2 node(s) with the constrained part 'wall'; coupled parts "
+         "must not touch other constrained parts"),
+        ("eld-tmd", ["--mesh", "{two}", "--base", "inlet", "--tip", "inlet"],
+         "--tip: got 'inlet', must not be the base's part (the base and the tip are two ends)"),
+        # the sensor at the centroid of an L-shaped body's two ends, in no cell: it named the
+        # API's controllers[0].sensors[0].point
+        ("eld-control", ["--mesh", "{ell}", "--base", "inlet", "--tip", "ends"],
+         "--tip: got 'ends', has its centroid (0.7054, 0.5714) outside the body, where the "
+         "sensor of v_L would sit; must be a part whose centroid lies in the body (e.g. a "
+         "straight end)"),
     ],
 )  # fmt: skip
 def test_bad_mesh_input_is_one_line_and_exit_2(tmp_path, capsys, command, args, line):
@@ -400,6 +452,8 @@ def test_bad_mesh_input_is_one_line_and_exit_2(tmp_path, capsys, command, args, 
         "dir": tmp_path,
         "two": write_gmsh_body(tmp_path / "two.msh", nx=8, ny=4, split=1.0),
         "box": write_gmsh_body(tmp_path / "box.msh", dim=3, nx=2, ny=1),
+        "box2": write_gmsh_body(tmp_path / "box2.msh", dim=3, nx=2, ny=1, split=1.0),
+        "ell": _write_l_body(tmp_path / "ell.msh"),
     }
     argv = [a.format(**files) for a in args]
     code, _, err = run_cli(capsys, "run", command, *argv, "--out", tmp_path / "out")

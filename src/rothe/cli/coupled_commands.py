@@ -116,6 +116,15 @@ def check_modal_size(mesh, degree: int) -> None:
         )
 
 
+#: the library's parameters by their options on eld-tmd and eld-control: --material/--region,
+#: and their couplings, the base's first (its support) and the tip's second (eld-tmd's plate)
+BASE_TIP_PARAMETERS = {
+    **MESH_PARAMETERS,
+    "couplings[0].part": "--base",
+    "couplings[1].part": "--tip",
+}
+
+
 class CoupledRunCommand:
     """Base of the coupled run commands: the options every one has, and :meth:`run`, the run
     sequence of one or two coupled runs."""
@@ -610,7 +619,7 @@ class RunEldTmd(CoupledRunCommand):
     )
     name = "eld-tmd"
     default_material = TMD_MATERIAL
-    parameter_options = MESH_PARAMETERS
+    parameter_options = BASE_TIP_PARAMETERS
     keys = (
         "example",
         "scheme",
@@ -771,7 +780,7 @@ class RunEldControl(CoupledRunCommand):
     name = "eld-control"
     default_material = CONTROL_MATERIAL
     #: the library's parameters by their options (control_problem's base_stiffness)
-    parameter_options = {**MESH_PARAMETERS, "base_stiffness": "--base-spring"}
+    parameter_options = {**BASE_TIP_PARAMETERS, "base_stiffness": "--base-spring"}
     keys = (
         "example",
         "scheme",

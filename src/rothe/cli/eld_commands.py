@@ -530,6 +530,8 @@ class RunEldBeam(EldRunCommand):
         "free; the multiplier is the reaction at the held end (XDMF for ParaView)"
     )
     name = "eld-beam"
+    #: the library's parameters by their options (materials, regions of --material/--region)
+    parameter_options = MESH_PARAMETERS
     keys = (
         "example",
         "form",

@@ -44,14 +44,14 @@ from .components import Component, check_jacobian
 QUANTITIES = ("displacement", "velocity")
 
 
-def locate(space, point: np.ndarray, name: str = "point", tol: float = 1e-10):
-    """(cell, reference coordinates X) of the cell of ``space.mesh`` containing ``point``.
+def locate(mesh, point: np.ndarray, name: str = "point", tol: float = 1e-10):
+    """(cell, reference coordinates X) of the cell of ``mesh`` containing ``point``.
 
     Barycentric coordinates of the point in every cell at once (affine maps); the cell whose
     smallest barycentric coordinate is largest wins, and it must be >= -tol (relative to
     the cell): otherwise the point is outside the body and a one-line error names ``name``.
     """
-    p, t = np.asarray(space.mesh.p), np.asarray(space.mesh.t)
+    p, t = np.asarray(mesh.p), np.asarray(mesh.t)
     x = np.asarray(point, dtype=float)
     inv, _ = affine_geometry(p, t)  # invJ[k, a, c]
     r = x[:, None] - p[:, t[0]]  # (d, ne)
@@ -114,7 +114,7 @@ class PointSensor(Sensor):
                 described(f"a {self.point.size}D point"),
                 f"must be a point in {d}D like the mesh",
             )
-        cell, X = locate(space, self.point, f"{name}.point")
+        cell, X = locate(space.mesh, self.point, f"{name}.point")
         nbf = space.element_dofs.shape[0]
         phi = np.array(
             [float(np.ravel(space.element.lbasis(X[:, None], i)[0])[0]) for i in range(nbf)]

@@ -41,6 +41,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import (
+    RotheInputError,
     check_choice,
     check_int,
     check_nonnegative,
@@ -51,7 +52,7 @@ from ..errors import (
 )
 from ..fem import mesh as meshes
 from .components import LinearComponent, MassSpringDamper, den_hartog, rigid_motion_matrix
-from .control import LinearController, PointSensor
+from .control import LinearController, PointSensor, locate
 from .coupled_step import coupled_modes, modal_rows
 from .coupling import CoupledProblem, Translation, UserCoupling
 from .damping import Damping, NonlinearDamping, RayleighDamping
@@ -1160,6 +1161,8 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
             "must be 2D (this example's support and tip plate are plane)",
         )
     meshes.part_centroid(mesh, base, "base")  # (the base must be a part: one line if not)
+    if tip == base:
+        raise fail("tip", tip, "must not be the base's part (the base and the tip are two ends)")
     if strip and tip == "right":  # (exact, as before the parts could be named)
         center, tip_size = np.array([length, height / 2]), height
     else:
@@ -1454,6 +1457,16 @@ def control_problem(
     n, length, height, material, modulus, mesh, center, _ = _strip(
         n, degree, length, height, material, 100.0, mesh, base, tip, axis
     )
+    try:  # the sensor of v_L sits at the tip part's centroid
+        locate(mesh, center)
+    except RotheInputError:
+        where = ", ".join(f"{v:.4g}" for v in center)
+        raise fail(
+            "tip",
+            tip,
+            f"has its centroid ({where}) outside the body, where the sensor of v_L would sit; "
+            "must be a part whose centroid lies in the body (e.g. a straight end)",
+        ) from None
     mb = check_positive("base_mass", base_mass)
     kb = check_nonnegative("base_stiffness", base_stiffness)
     springs = [kb, 1e4] if axis == 0 else [1e4, kb]  # (k_b along the bar, stiff across)

@@ -370,6 +370,13 @@ class PiecewiseMaterial:
             else:
                 if region not in subdomains:
                     known = ", ".join(sorted(subdomains)) or "(the mesh has no subdomains)"
+                    if all(r == n for r, n in self.regions.items()):  # (no regions given)
+                        raise fail(
+                            "materials",
+                            region,
+                            f"must be one of the mesh's subdomains: {known} (a material without "
+                            "a region fills the cell group of its name)",
+                        )
                     raise fail("regions", region, f"must be one of the mesh's subdomains: {known}")
                 cells = np.asarray(subdomains[region], dtype=np.int64)
                 label = region
