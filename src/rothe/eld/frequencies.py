@@ -141,6 +141,30 @@ def _find_roots(f, w_max: float, count: int, n_grid: int) -> np.ndarray:
     return np.asarray(roots)
 
 
+def _end_rows(M, row, end, off, sgn, w, phi, force, free, *, scale=1.0) -> int:
+    """The rows of one end's condition in the frequency determinant of :func:`bar_frequencies`
+    and :func:`sliced_bar_frequencies`, from ``row`` on; returns the next row. ``phi`` and
+    ``force`` are the rows of phi and N = E A phi' at the end acting on the two unknowns of the
+    bar, ``free`` the row of a free end (N = 0, of a convenient size). Clamped: phi = 0. An
+    :class:`Attachment` with coordinates q at column ``off``: phi - q_at = 0 and
+    (K - w^2 M) q - sgn N e_at = 0 (sgn = +1 at x = 0, -1 at x = L: the bar's force on the
+    component), both divided by ``scale``."""
+    if end == "clamped":
+        M[row, :2] = phi
+        return row + 1
+    if end == "free":
+        M[row, :2] = free
+        return row + 1
+    m = end.mass.shape[0]
+    M[row, :2] = phi
+    M[row, off + end.at] = -1.0
+    row += 1
+    K = end.stiffness - w * w * end.mass
+    M[row : row + m, off : off + m] = K if scale == 1.0 else K / scale
+    M[row + end.at, :2] -= sgn * force if scale == 1.0 else sgn * force / scale
+    return row + m
+
+
 def bar_frequencies(
     length: float,
     E: float,
@@ -177,22 +201,7 @@ def bar_frequencies(
             cb, sb = np.cos(beta * x), np.sin(beta * x)
             phi = np.array([cb, sb])
             dphi = beta * np.array([-sb, cb])  # phi' (N = E A phi')
-            if end == "clamped":
-                M[row, :2] = phi
-                row += 1
-            elif end == "free":
-                M[row, :2] = dphi / beta
-                row += 1
-            else:
-                m = end.mass.shape[0]
-                # phi(end) - q_at = 0
-                M[row, :2] = phi
-                M[row, off + end.at] = -1.0
-                row += 1
-                # (K - w^2 M) q - sgn N e_at = 0
-                M[row : row + m, off : off + m] = end.stiffness - w * w * end.mass
-                M[row + end.at, :2] -= sgn * EA * dphi
-                row += m
+            row = _end_rows(M, row, end, off, sgn, w, phi, EA * dphi, dphi / beta)
         return np.linalg.det(M)
 
     if w_max is None:
@@ -281,21 +290,8 @@ def sliced_bar_frequencies(
         # (phi, N) at each end as rows acting on the unknowns (phi(0), N(0)/scale)
         for state, end, off, sgn in ((np.eye(2), left, 2, +1.0), (T, right, 2 + m0, -1.0)):
             phi, N = state[0], state[1] * scale
-            if end == "clamped":
-                M[row, :2] = phi
-                row += 1
-            elif end == "free":
-                M[row, :2] = N / scale
-                row += 1
-            else:
-                m = end.mass.shape[0]
-                M[row, :2] = phi
-                M[row, off + end.at] = -1.0
-                row += 1
-                # (K - w^2 M) q - sgn N e_at = 0, in units of scale
-                M[row : row + m, off : off + m] = (end.stiffness - w * w * end.mass) / scale
-                M[row + end.at, :2] -= sgn * N / scale
-                row += m
+            # (the component's rows in units of scale)
+            row = _end_rows(M, row, end, off, sgn, w, phi, N, N / scale, scale=scale)
         return np.linalg.det(M)
 
     if w_max is None:
