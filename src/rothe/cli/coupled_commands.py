@@ -418,6 +418,7 @@ class RunEldTipMass(CoupledRunCommand):
         "accepted_steps",
         "rejected_steps",
         "ndofs",
+        "analytic",
         "frequency_analytic",
         "frequency_discrete",
         "frequency_measured",
@@ -543,6 +544,8 @@ class RunEldTipMass(CoupledRunCommand):
                 mass=args.mass,
                 spring=args.spring,
                 damper=args.damper,
+                # "bar", "sliced bar" (several materials in slices along x) or "n/a: <why>"
+                analytic=example.prediction,
                 frequency_analytic=example.analytic.tolist(),
                 frequency_discrete=example.discrete.tolist(),
                 frequency_error_discrete=(example.discrete / example.analytic - 1).tolist(),
@@ -564,6 +567,8 @@ class RunEldTipMass(CoupledRunCommand):
                 energy_drift=float(energy[-1] / energy[0] - 1),
                 balance_max=float(np.abs(traj["balance"]).max()),
             )
+            if example.slices is not None:
+                summary["slices"] = example.slices
             if self.adapt is not None and K > 1:
                 summary["frequencies_measured_note"] = (
                     "with --adapt-space the modal coordinates would need the discrete modes on "
