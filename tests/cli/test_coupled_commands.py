@@ -16,7 +16,12 @@ import pytest
 from rothe.cli.coupled_commands import crossing_frequency, decay_rate
 from rothe.cli.main import main
 from rothe.eld.coupled_run import CoupledStepper
-from rothe.eld.frequencies import Attachment, bar_frequencies, sliced_bar_frequencies
+from rothe.eld.frequencies import (
+    Attachment,
+    bar_frequencies,
+    modal_frequencies,
+    sliced_bar_frequencies,
+)
 from rothe.io.checkpoint import load_checkpoint
 from rothe.io.trajectory import is_timing_array
 
@@ -122,6 +127,25 @@ def test_tip_mass_measures_three_frequencies_from_the_run(tmp_path):
     first = json.loads((one / "summary.json").read_text())
     assert first["frequencies_measured"] == [first["frequency_measured"]]
     assert first["frequency_measured"] == pytest.approx(s["frequency_measured"], rel=1e-12)
+
+
+def test_tip_mass_trajectory_stores_the_modal_coordinates(tmp_path):
+    """trajectory.npz holds what --modes measures from (before: only q and the kept u): the
+    modal coordinates c_k(t) (``modal_c``, every state, at ``modal_t``) and the rows that
+    project on them (``modal_rows_u``, ``modal_rows_q``); c_1 equals the projection recomputed
+    from the stored u and q at the kept states, and re-fitting the stored c_k gives the
+    summary's frequencies."""
+    code, out = _run(tmp_path, "--modes", "2", "--T", "1", "--tau", "0.01")
+    assert code == 0
+    d = np.load(out / "trajectory.npz")
+    s = json.loads((out / "summary.json").read_text())
+    assert d["modal_c"].shape == (101, 2) and np.array_equal(d["modal_t"], d["t"])
+    assert d["modal_rows_u"].shape == (2, d["u"].shape[1]) and d["modal_rows_q"].shape == (2, 2)
+    keep = d["kept_states"]
+    c1 = d["u"] @ d["modal_rows_u"][0] + d["q"][keep] @ d["modal_rows_q"][0]
+    scale = np.abs(d["modal_c"][:, 0]).max()
+    assert scale > 0 and np.abs(d["modal_c"][keep, 0] - c1).max() <= 1e-12 * scale
+    assert modal_frequencies(d["modal_t"], d["modal_c"]) == s["frequencies_measured"]
 
 
 # -- several materials in slices along x: the sliced bar's analytic frequencies (issue 19) ----
