@@ -39,17 +39,20 @@ def load_gmsh_text():
     return mod
 
 
-def write_gmsh_body(path, dim=2, nx=8, ny=4, length=2.0, height=1.0, split=None, x0=0.0):
+def write_gmsh_body(
+    path, dim=2, nx=8, ny=4, length=2.0, height=1.0, split=None, x0=0.0, split_axis=0
+):
     """A box [x0, x0 + length] x [0, height]^(dim-1) of nx x ny (x ny) cells written by meshio
     as a gmsh 2.2 file with physical groups: the facets ``inlet`` (x = x0), ``outlet`` (x = x0 +
-    length), ``wall`` (the rest); the cells ``core`` (centroid x < split) and ``shell`` (the
-    rest; none without ``split``). Returns the path."""
+    length), ``wall`` (the rest); the cells ``core`` (centroid x < split; with ``split_axis``
+    1: centroid y < split, a layer along the length) and ``shell`` (the rest; none without
+    ``split``). Returns the path."""
     xs, ys = np.linspace(x0, x0 + length, nx + 1), np.linspace(0, height, ny + 1)
     m = MeshTri.init_tensor(xs, ys) if dim == 2 else MeshTet.init_tensor(xs, ys, ys)
     facets = m.facets[:, m.boundary_facets()]
     mid = m.p[:, facets].mean(axis=1)
     tags = np.where(np.isclose(mid[0], x0), 1, np.where(np.isclose(mid[0], x0 + length), 2, 3))
-    centroid = m.p[0, m.t].mean(axis=0)
+    centroid = m.p[split_axis, m.t].mean(axis=0)
     volume = np.where(centroid < (np.inf if split is None else split), 4, 5)
     points = np.vstack([m.p, np.zeros((3 - dim, m.p.shape[1]))]).T
     kinds = ("line", "triangle") if dim == 2 else ("triangle", "tetra")

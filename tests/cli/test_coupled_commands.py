@@ -16,6 +16,12 @@ import pytest
 from rothe.cli.coupled_commands import crossing_frequency, decay_rate
 from rothe.cli.main import main
 from rothe.eld.coupled_run import CoupledStepper
+from rothe.eld.frequencies import (
+    Attachment,
+    bar_frequencies,
+    modal_frequencies,
+    sliced_bar_frequencies,
+)
 from rothe.io.checkpoint import load_checkpoint
 from rothe.io.trajectory import is_timing_array
 
@@ -121,6 +127,89 @@ def test_tip_mass_measures_three_frequencies_from_the_run(tmp_path):
     first = json.loads((one / "summary.json").read_text())
     assert first["frequencies_measured"] == [first["frequency_measured"]]
     assert first["frequency_measured"] == pytest.approx(s["frequency_measured"], rel=1e-12)
+
+
+def test_tip_mass_trajectory_stores_the_modal_coordinates(tmp_path):
+    """trajectory.npz holds what --modes measures from (before: only q and the kept u): the
+    modal coordinates c_k(t) (``modal_c``, every state, at ``modal_t``) and the rows that
+    project on them (``modal_rows_u``, ``modal_rows_q``); c_1 equals the projection recomputed
+    from the stored u and q at the kept states, and re-fitting the stored c_k gives the
+    summary's frequencies."""
+    code, out = _run(tmp_path, "--modes", "2", "--T", "1", "--tau", "0.01")
+    assert code == 0
+    d = np.load(out / "trajectory.npz")
+    s = json.loads((out / "summary.json").read_text())
+    assert d["modal_c"].shape == (101, 2) and np.array_equal(d["modal_t"], d["t"])
+    assert d["modal_rows_u"].shape == (2, d["u"].shape[1]) and d["modal_rows_q"].shape == (2, 2)
+    keep = d["kept_states"]
+    c1 = d["u"] @ d["modal_rows_u"][0] + d["q"][keep] @ d["modal_rows_q"][0]
+    scale = np.abs(d["modal_c"][:, 0]).max()
+    assert scale > 0 and np.abs(d["modal_c"][keep, 0] - c1).max() <= 1e-12 * scale
+    assert modal_frequencies(d["modal_t"], d["modal_c"]) == s["frequencies_measured"]
+
+
+# -- several materials in slices along x: the sliced bar's analytic frequencies (issue 19) ----
+
+_HALVES = ("--material=soft:E=100,nu=0", "--material=stiff:E=400,nu=0,rho=2",
+           "--region=soft=core", "--region=stiff=shell")  # fmt: skip
+
+
+def _two_materials(tmp_path, name, *materials, split_axis=0):
+    """eld-tip-mass on the default strip (1 x 0.25, 8 x 2 cells, P2) as a gmsh file whose cells
+    are 'core' (x < 1/2, or y < 1/8 with ``split_axis`` 1) and 'shell'."""
+    split = 0.5 if split_axis == 0 else 0.125
+    mesh = write_gmsh_body(tmp_path / f"{name}.msh", nx=8, ny=2, length=1.0, height=0.25,
+                           split=split, split_axis=split_axis)  # fmt: skip
+    code, out = _run(tmp_path / name, "--mesh", str(mesh), "--dirichlet", "inlet", "--tip",
+                     "outlet", "--modes", "3", *materials)  # fmt: skip
+    assert code == 0
+    return _strict_json(out / "summary.json")
+
+
+def test_tip_mass_of_two_slices_against_the_sliced_bar(tmp_path):
+    """E = 100, rho = 1 on x < 1/2 and E = 400, rho = 2 on x > 1/2 (before: frequency_analytic
+    null, the bar equation takes one E and rho): the transfer matrix of the two slices with the
+    tip mass (9.0434, 48.480, 72.214); the discrete frequencies converge to it (9.0e-8, 4.1e-5,
+    2.9e-4 on 8 x 2 cells), the measured ones within BDF2's period error (tau = 0.005)."""
+    s = _two_materials(tmp_path, "slices", *_HALVES)
+    exact = sliced_bar_frequencies(
+        [0.5, 0.5], [100.0, 400.0], [1.0, 2.0], area=0.25, right=Attachment.mass_spring(0.25, 0)
+    )
+    assert s["analytic"] == "sliced bar"
+    assert np.allclose(s["frequency_analytic"], exact, rtol=1e-12, atol=0)
+    assert [(p["x"], p["material"], p["modulus"], p["rho"]) for p in s["slices"]] == [
+        ([0.0, 0.5], "soft", 100.0, 1.0),
+        ([0.5, 1.0], "stiff", 400.0, 2.0),
+    ]
+    assert np.all(np.abs(s["frequency_error_discrete"]) < [1e-6, 1e-4, 1e-3])
+    errors = np.abs(s["frequencies_error_measured"])
+    assert errors[0] < 1e-3 and np.all(errors < 0.05), errors
+    # the uniform bar of the first material is 4 % off: the check would fail for one E, rho
+    uniform = bar_frequencies(1.0, 100.0, 1.0, area=0.25, right=Attachment.mass_spring(0.25, 0))
+    assert abs(uniform[0] / exact[0] - 1) > 0.04
+
+
+def test_tip_mass_of_layers_along_the_length_has_no_analytic_frequencies(tmp_path):
+    """The same materials as layers along x (y < 1/8 and y > 1/8): their intervals of x
+    overlap, no slices -- frequency_analytic null with the reason; the run is measured."""
+    s = _two_materials(tmp_path, "layers", *_HALVES, split_axis=1)
+    assert s["analytic"].startswith("n/a: the materials do not fill slices along x")
+    assert s["frequency_analytic"] == [None, None, None] and "slices" not in s
+    assert s["frequencies_error_measured"] == [None, None, None]
+    assert len(s["frequencies_measured"]) == 3 and s["frequencies_measured"][0] > 0
+
+
+def test_one_material_in_two_slices_is_the_bar_equation(tmp_path):
+    """Two materials of equal constants on the two halves: the sliced bar's frequencies are the
+    one-material bar equation's (to 1e-12)."""
+    two = _two_materials(
+        tmp_path, "two", "--material=a:E=100,nu=0", "--material=b:E=100,nu=0",
+        "--region=a=core", "--region=b=shell",
+    )  # fmt: skip
+    one = _two_materials(tmp_path, "one")
+    assert two["analytic"] == "sliced bar" and one["analytic"] == "bar"
+    assert len(two["slices"]) == 2
+    assert np.allclose(two["frequency_analytic"], one["frequency_analytic"], rtol=1e-12, atol=0)
 
 
 def _strict_json(path):

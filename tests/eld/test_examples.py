@@ -11,12 +11,17 @@ import numpy as np
 import pytest
 
 from rothe.eld.examples import (
+    NOT_SLICES,
     SEVERAL_MATERIALS,
     _clamped_frequency,
+    axial_modulus,
+    axial_slices,
     control_problem,
     rectangle,
+    tip_mass_problem,
     tmd_problem,
 )
+from rothe.eld.frequencies import Attachment, sliced_bar_frequencies
 from rothe.eld.materials import Material, PiecewiseMaterial
 
 #: the strips' single materials (eld-tmd, eld-control)
@@ -81,3 +86,72 @@ def test_control_with_several_materials_has_nan_predictions_and_the_discrete_fre
     assert two.prediction == SEVERAL_MATERIALS
     for value in (two.roots, two.roots_uncontrolled, two.roots_undamped, two.modal_rate):
         assert np.isnan(value).all()
+
+
+# -- the tip-mass bar of several materials: slices along x (branch slice19) ------------------
+
+
+def _bands(materials: dict, edges, axis: int = 0) -> PiecewiseMaterial:
+    """materials[names[i]] on the cells with centroid coordinate ``axis`` in
+    [edges[i], edges[i + 1]) -- ``names`` the keys in order, repeated names allowed."""
+    names = list(materials)
+
+    def band(lo, hi):
+        def inside(x):
+            return (x[axis] >= lo) & (x[axis] < hi)
+
+        inside.__name__ = f"band_{lo:g}_{hi:g}"
+        return inside
+
+    bands = zip(edges[:-1], edges[1:], strict=True)
+    regions = {band(lo, hi): names[i % len(names)] for i, (lo, hi) in enumerate(bands)}
+    return PiecewiseMaterial(materials, regions=regions)
+
+
+SOFT = BAR
+STIFF = Material.from_young(400.0, 0.0, 2.0, dim=2, plane="stress")
+
+
+def test_axial_slices_of_a_strip():
+    """Slices are found per material from the cells' x-extents: A B A (one material in two
+    slices) in order, a layer split across y refused (overlapping x-intervals), the bounds
+    exact to round-off."""
+    mesh = rectangle(8, 2, 1.0, 0.25)
+    slices = axial_slices(mesh, _bands({"a": SOFT, "b": STIFF}, [0, 0.25, 0.75, 1.01]))
+    assert [(s["material"], s["x"]) for s in slices] == [
+        ("a", [0.0, 0.25]), ("b", [0.25, 0.75]), ("a", [0.75, 1.0]),
+    ]  # fmt: skip
+    assert [s["modulus"] for s in slices] == [100.0, 400.0, 100.0]
+    layers = axial_slices(mesh, _bands({"a": SOFT, "b": STIFF}, [0, 0.125, 1], axis=1))
+    assert layers == f"{NOT_SLICES}: their intervals of x overlap or leave gaps"
+    # the tip on the left: the slices from the clamped end (x = 1) to the tip (x = 0)
+    flipped = axial_slices(mesh, _bands({"a": SOFT, "b": STIFF}, [0, 0.5, 1.01]), tip="left")
+    assert [(s["material"], s["x"]) for s in flipped] == [("b", [0.5, 1.0]), ("a", [0.0, 0.5])]
+
+
+def test_axial_slices_take_each_slices_axial_modulus():
+    """Plane strain: E/(1 - nu^2) per slice, as the one-material bar (plane stress and 3D: E)."""
+    strain = {
+        "a": Material.from_young(100.0, 0.3, 1.0, dim=2, plane="strain"),
+        "b": Material.from_young(400.0, 0.2, 2.0, dim=2, plane="strain"),
+    }
+    slices = axial_slices(rectangle(8, 2, 1.0, 0.25), _bands(strain, [0, 0.5, 1.01]))
+    assert [s["modulus"] for s in slices] == pytest.approx([100 / 0.91, 400 / 0.96], rel=1e-14)
+    assert [axial_modulus(m, 2) for m in strain.values()] == [s["modulus"] for s in slices]
+    assert axial_modulus(strain["a"], 3) == pytest.approx(100.0, rel=1e-14)
+
+
+def test_tip_mass_clamped_on_the_right_orders_the_slices_from_the_clamp():
+    """The strip clamped on 'right', the mass on 'left': the sliced bar from the stiff half
+    (the clamped end) to the soft one -- 11.404, 41.622, 70.779, not the 9.0434, 48.480, 72.214
+    of the other way round; the discrete frequencies agree to 3.1e-4 (P2, 8 x 2)."""
+    material = _bands({"soft": SOFT, "stiff": STIFF}, [0, 0.5, 1.01])
+    example = tip_mass_problem(2, 2, material=material, clamp=("right",), tip="left", T=0.5)
+    assert example.prediction == "sliced bar"
+    assert [s["material"] for s in example.slices] == ["stiff", "soft"]
+    expected = sliced_bar_frequencies(
+        [0.5, 0.5], [400.0, 100.0], [2.0, 1.0], area=0.25, right=Attachment.mass_spring(0.25, 0)
+    )
+    assert np.array_equal(example.analytic, expected)
+    assert expected == pytest.approx([11.40411705, 41.62189237, 70.7786088], rel=1e-8)
+    assert np.all(np.abs(example.discrete / example.analytic - 1) < [1e-6, 1e-4, 1e-3])

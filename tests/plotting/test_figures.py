@@ -163,3 +163,45 @@ def test_energy_figure_labels_both_panels(tmp_path, captured):
     left, right = _panels(fig)
     assert left.get_ylabel() == "energy" and right.get_ylabel()  # was empty on the right
     assert right.get_title().startswith("energy identity term by term")
+
+
+def test_tip_mass_study_figure_draws_every_mode_from_the_summary(tmp_path, monkeypatch):
+    """``rothe study eld-tip-mass`` (K = 3 by default) writes fig_tip_mass_frequency.png with a
+    line per mode in both panels (before: the first mode only): against tau the finest mesh's
+    error vs analytic and its time error, against h the space error -- the summary's
+    ``error_modes[-1]``, ``error_time_modes[-1]``, ``error_space_modes`` of that mode."""
+    import json
+
+    import rothe.eld.figures as eld_figures
+    from rothe.cli.main import main
+
+    figures, save = [], eld_figures._save
+
+    def spy(fig, path, *args, **kwargs):  # the figure as drawn, then written as always
+        figures.append(fig)
+        return save(fig, path, *args, **kwargs)
+
+    monkeypatch.setattr(eld_figures, "_save", spy)
+    out = tmp_path / "study"
+    argv = ["study", "eld-tip-mass", "--ns", "1,2", "--taus", "0.02,0.01", "--T", "1"]
+    assert main([*argv, "--workers", "1", "--quiet", "--out", str(out)]) == 0
+    assert (out / "fig_tip_mass_frequency.png").stat().st_size > 0
+    (fig,) = figures
+    _check_readable(fig, min_fill=0.6)
+    s = json.loads((out / "summary.json").read_text())
+    left, right = _panels(fig)
+    lines = {ln.get_label(): ln for ax in (left, right) for ln in ax.get_lines()}
+    error = np.abs(np.array(s["error_modes"]))
+    time_error = np.abs(np.array(s["error_time_modes"]))
+    space = np.abs(np.array(s["error_space_modes"]))
+    assert s["modes"] == 3 and left.get_title().startswith("first 3 frequencies")
+    for k in range(3):
+        name = rf"$\omega_{{{k + 1}}}$"
+        for label, values in (
+            (f"{name}, n = 2: run vs analytic", error[-1, :, k]),
+            (f"{name}, n = 2: time error", time_error[-1, :, k]),
+            (rf"{name}: $|\omega_h/\omega - 1|$", space[:, k]),
+        ):
+            assert np.array_equal(lines[label].get_ydata(), values), label
+        assert np.array_equal(lines[rf"{name}: $|\omega_h/\omega - 1|$"].get_xdata(), [1, 0.5])
+    assert len(lines) == 9

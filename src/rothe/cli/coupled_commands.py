@@ -236,9 +236,10 @@ class CoupledRunCommand:
     #: eld-tmd's default output 61 MB instead of 0.5 MB (docs/coupling.md, Sec. 18)
     KEEP_EVERY = 5
 
-    def run_body(self, args, runs: dict, objects, summarize, draw) -> int:
+    def run_body(self, args, runs: dict, objects, summarize, draw, extra=None) -> int:
         """:meth:`run` of a one-body command (eld-tip-mass, eld-tmd, eld-control): the runs
-        record their body's fields, written by :meth:`body_outputs` every --keep-every states."""
+        record their body's fields, written by :meth:`body_outputs` every --keep-every states
+        (``extra(label, result)``: the command's own arrays for that run's npz, or None)."""
         return self.run(
             args,
             runs,
@@ -246,16 +247,16 @@ class CoupledRunCommand:
             summarize,
             draw,
             fields=True,
-            outputs=self.body_outputs(runs, args.keep_every),
+            outputs=self.body_outputs(runs, args.keep_every, extra),
         )
 
-    def body_outputs(self, runs: dict, every: int):
+    def body_outputs(self, runs: dict, every: int, extra=None):
         """``outputs`` of :meth:`run` for the one-body commands: every completed run's
         ``trajectory[_<label>].npz`` and its body's ParaView series ``body[_<label>]`` (u, v,
         stresses and the multiplier on every constrained part; ``.xdmf`` on a fixed mesh, a
         ``.pvd`` of VTU files with --adapt-space: :func:`rothe.eld.bodies_output.
         write_body_result`) of every ``every``-th state (--keep-every), the first run without
-        the suffix."""
+        the suffix; ``extra(label, result)``: more arrays for its npz (None: none)."""
         labels = list(runs)
         suffixes = {label: "" if k == 0 else f"_{label}" for k, label in enumerate(labels)}
         kind = "xdmf" if self.adapt is None else "pvd"
@@ -270,6 +271,7 @@ class CoupledRunCommand:
                 f"body{suffix}",
                 npz=f"trajectory{suffix}.npz",
                 every=every,
+                extra=None if extra is None else extra(label, result),
             )
 
         return outputs
@@ -419,6 +421,7 @@ class RunEldTipMass(CoupledRunCommand):
         "accepted_steps",
         "rejected_steps",
         "ndofs",
+        "analytic",
         "frequency_analytic",
         "frequency_discrete",
         "frequency_measured",
@@ -542,6 +545,8 @@ class RunEldTipMass(CoupledRunCommand):
                 mass=args.mass,
                 spring=args.spring,
                 damper=args.damper,
+                # "bar", "sliced bar" (several materials in slices along x) or "n/a: <why>"
+                analytic=example.prediction,
                 frequency_analytic=example.analytic.tolist(),
                 frequency_discrete=example.discrete.tolist(),
                 frequency_error_discrete=(example.discrete / example.analytic - 1).tolist(),
@@ -563,6 +568,8 @@ class RunEldTipMass(CoupledRunCommand):
                 energy_drift=float(energy[-1] / energy[0] - 1),
                 balance_max=float(np.abs(traj["balance"]).max()),
             )
+            if example.slices is not None:
+                summary["slices"] = example.slices
             if self.adapt is not None and K > 1:
                 summary["frequencies_measured_note"] = (
                     "with --adapt-space the modal coordinates would need the discrete modes on "
@@ -592,8 +599,22 @@ class RunEldTipMass(CoupledRunCommand):
                 f"m = {args.mass:g}, k = {args.spring:g}",
             )
 
+        def modal(label, result):
+            # the modal coordinates --modes measures from, with the rows that project on them,
+            # so that a user can re-fit them (docs/coupling.md, Sec. 11); none on changing
+            # meshes (the modes are the first mesh's)
+            if self.adapt is not None:
+                return None
+            traj = result.trajectory
+            return {
+                "modal_t": np.asarray(traj["t"]),
+                "modal_c": example.modal_coordinates(traj),
+                "modal_rows_u": example.projection_u,
+                "modal_rows_q": example.projection_q,
+            }
+
         runs = {"tip": example.system}
-        return self.run_body(args, runs, objects, summarize, draw)
+        return self.run_body(args, runs, objects, summarize, draw, extra=modal)
 
     def measured_frequencies(self, example, traj, tip: float, pencil) -> list:
         """The K excited frequencies measured from the run: the zero crossings of the modal

@@ -1469,8 +1469,8 @@ class StudyEldTipMass:
             plot_tip_mass_study(
                 study,
                 out / "fig_tip_mass_frequency.png",
-                title=f"eld-tip-mass: first axial frequency, {dim}D, P{args.degree}, "
-                f"m = {args.mass:g}",
+                title=f"eld-tip-mass: first {args.modes} axial frequencies, {dim}D, "
+                f"P{args.degree}, m = {args.mass:g}",
             )
 
         write_study(args, out, study, table, draw)

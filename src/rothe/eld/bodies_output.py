@@ -109,7 +109,13 @@ def kept_states(n: int, every: int) -> np.ndarray:
 
 
 def write_body_result(
-    result, problem, out_dir, name: str, npz: str = "trajectory.npz", every: int = 1
+    result,
+    problem,
+    out_dir,
+    name: str,
+    npz: str = "trajectory.npz",
+    every: int = 1,
+    extra: dict | None = None,
 ) -> dict:
     """Write ``npz`` and the ParaView series ``<name>`` of a one-body coupled run
     (:func:`rothe.eld.run_coupled` with ``fields=True``; ``problem`` its system's body, whose
@@ -119,7 +125,8 @@ def write_body_result(
     glued bodies (:func:`write_bodies_result`). ``every``: the series, and on a fixed mesh the
     fields ``u``, ``v``, ``lam`` in ``npz``, keep every k-th state, the first and the last
     (:func:`kept_states`; their numbers in ``kept_states``); the other series of the run keep
-    every state. Returns the written paths by kind (``npz``, ``xdmf`` or ``pvd``)."""
+    every state. ``extra``: more arrays for ``npz`` (a command's own, e.g. eld-tip-mass's modal
+    coordinates). Returns the written paths by kind (``npz``, ``xdmf`` or ``pvd``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     traj, meshes = result.trajectory, result.meshes
@@ -128,13 +135,13 @@ def write_body_result(
         keep = kept_states(t.size, every)
         u, v, lam = (np.asarray(traj[k])[keep] for k in ("u", "v", "lam"))
         # (save_npz writes extra after the series: the kept rows replace the full ones)
-        extra = {"u": u, "v": v, "lam": lam, "kept_states": keep}
+        fields = {"u": u, "v": v, "lam": lam, "kept_states": keep}
         paths: dict = {"xdmf": _xdmf(out, problem, t[keep], u, v, lam, name=name)}
     else:
         keep = kept_states(len(meshes.kept["u"]), every)
-        extra = {**meshes.npz_arrays(traj), **result.mesh_arrays(), "kept_states": keep}
+        fields = {**meshes.npz_arrays(traj), **result.mesh_arrays(), "kept_states": keep}
         paths = {"pvd": write_adaptive_series(out, name, meshes, traj, states=keep)}
-    paths["npz"] = traj.save_npz(out / npz, extra=extra)
+    paths["npz"] = traj.save_npz(out / npz, extra={**fields, **(extra or {})})
     return paths
 
 

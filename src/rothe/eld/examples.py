@@ -62,6 +62,7 @@ from .frequencies import (
     beam_frequencies,
     controlled_bar_roots,
     first_mode_decay_rate,
+    sliced_bar_frequencies,
 )
 from .materials import Material, PiecewiseMaterial
 from .problem import DirichletData, ELDProblem
@@ -825,7 +826,10 @@ class TipMassExample:
     analytic : ndarray
         The first three axial angular frequencies of the 1D bar (length, cross-section
         ``area``) with the mass-spring at its end (the transcendental equation:
-        :func:`rothe.eld.frequencies.bar_frequencies`); NaN for a body of several materials.
+        :func:`rothe.eld.frequencies.bar_frequencies`); for a body of several materials whose
+        materials fill slices along x, those of the sliced bar
+        (:func:`rothe.eld.frequencies.sliced_bar_frequencies`, :func:`axial_slices`); NaN for
+        other bodies of several materials (the reason in ``prediction``).
     discrete : ndarray
         The first three axial frequencies of the semi-discrete coupled system
         (:func:`rothe.eld.coupled_step.coupled_modes`; axial: the tip moves along x).
@@ -843,6 +847,12 @@ class TipMassExample:
     #: c = projection_u u + projection_q q, one row per mode of ``modes``
     projection_u: np.ndarray | None = None
     projection_q: np.ndarray | None = None
+    #: how ``analytic`` was found: ``"bar"`` (one material), ``"sliced bar"`` (slices of
+    #: several materials along x: ``slices``) or ``"n/a: <why>"`` (``analytic`` NaN)
+    prediction: str = "bar"
+    #: the slices behind a sliced bar's ``analytic``, from the clamped end to the tip: per
+    #: slice its interval [a, b] in x, material name, axial modulus and density
+    slices: list | None = None
 
     @property
     def modes(self) -> int:
@@ -898,10 +908,13 @@ def tip_mass_problem(
     ``material``: a Material instead of E, nu, rho (plane stress by default in 2D); the
     analytic frequencies then take the axial modulus, E in plane stress and 3D and
     E/(1 - nu^2) in plane strain (sigma_yy = 0 across the free sides), with E, nu of
-    :attr:`~rothe.eld.materials.Material.young`; or a PiecewiseMaterial (no analytic
-    frequencies). ``mesh``: any body (2D or 3D, named parts) instead of the strip, clamped on
-    the parts ``clamp``, the mass-spring on the part ``tip``; "axial" is along x, and the
-    analytic frequencies are those of a prismatic bar along x (length: the extent in x, area:
+    :attr:`~rothe.eld.materials.Material.young`; or a PiecewiseMaterial: when its materials
+    fill slices along x (:func:`axial_slices`) the analytic frequencies are the sliced bar's
+    (:func:`~rothe.eld.frequencies.sliced_bar_frequencies`, each slice's axial modulus as
+    above, the mass-spring at the tip), otherwise NaN (the reason in ``prediction``).
+    ``mesh``: any body (2D or 3D, named parts) instead of the strip, clamped on the parts
+    ``clamp``, the mass-spring on the part ``tip``; "axial" is along x, and the analytic
+    frequencies are those of a prismatic bar along x (length: the extent in x, area:
     volume / length). ``damping``: the body's damping (default none); the start mode and the
     frequencies are those of the undamped system.
 
@@ -941,9 +954,7 @@ def tip_mass_problem(
     elif isinstance(material, PiecewiseMaterial):
         modulus = math.nan
     else:
-        E, nu = material.young
-        modulus = E if material.plane == "stress" or dim == 3 else E / (1.0 - nu * nu)
-        rho = material.rho
+        modulus, rho = axial_modulus(material, dim), material.rho
     clamp = (clamp,) if isinstance(clamp, str) else tuple(clamp)
 
     def held(t, x):
@@ -990,18 +1001,95 @@ def tip_mass_problem(
         system = build(u0, q0)
         R_u, R_q = modal_rows(system, U[:, excited], Q[:, excited])
     count = max(3, modes)
-    if math.isnan(modulus):
-        analytic = np.full(count, math.nan)
+    attachment = Attachment.mass_spring(mass, spring)
+    prediction, slices = "bar", None
+    if not math.isnan(modulus):
+        analytic = bar_frequencies(length, modulus, rho, area=area, right=attachment, count=count)
     else:
-        analytic = bar_frequencies(
-            length,
-            modulus,
-            rho,
-            area=area,
-            right=Attachment.mass_spring(mass, spring),
-            count=count,
+        slices = axial_slices(mesh, material, tip)
+        if isinstance(slices, str):
+            prediction, slices = slices, None
+            analytic = np.full(count, math.nan)
+        else:
+            prediction = "sliced bar"
+            analytic = sliced_bar_frequencies(
+                [s["x"][1] - s["x"][0] for s in slices],
+                [s["modulus"] for s in slices],
+                [s["rho"] for s in slices],
+                area=area,
+                right=attachment,
+                count=count,
+            )
+    return TipMassExample(
+        system, analytic, w[axial[:count]], length, area, R_u, R_q, prediction, slices
+    )
+
+
+#: why a body of several materials has no analytic frequencies (its ``prediction``)
+NOT_SLICES = "n/a: the materials do not fill slices along x (the sliced bar needs them)"
+
+
+def axial_modulus(material: Material, dim: int) -> float:
+    """The modulus of a bar's axial motion in ``material``: E in plane stress and 3D (free
+    sides: sigma_yy = sigma_zz = 0), E/(1 - nu^2) in plane strain (eps_zz = 0, sigma_yy = 0)."""
+    E, nu = material.young
+    return E if material.plane == "stress" or dim == 3 else E / (1.0 - nu * nu)
+
+
+def axial_slices(mesh, material: PiecewiseMaterial, tip: str = "right", rtol: float = 1e-9):
+    """The slices along x of a body of several materials, from the clamped end to the tip, or
+    the reason there are none (:data:`NOT_SLICES` with what failed).
+
+    Each material's cells are grouped into intervals of x: the cells' [min x, max x] of their
+    nodes, sorted, merged where they overlap or touch (one material may fill several slices).
+    The body is sliced when these intervals, all materials together, tile [x_min, x_max]
+    (a_0 = x_min, b_{i} = a_{i+1}, b_last = x_max, to ``rtol`` L) and each fills the whole
+    cross-section: its cells' volume is (b_i - a_i) A, A = volume / L, to ``rtol`` of the
+    body's volume. A core in a shell along the length, or layers along y, overlap in x and are
+    refused. The order is reversed when the ``tip`` part lies at x_min (the bar's x = 0 is the
+    clamped end). Returns a list of dicts: ``x`` [a, b], ``material`` (name), ``modulus``
+    (:func:`axial_modulus`), ``rho``; or the reason (a string)."""
+    p, t = np.asarray(mesh.p), np.asarray(mesh.t)
+    dim = meshes.mesh_dim(mesh)
+    names = material.on_mesh(mesh).names
+    x = p[0, t]  # (nodes of a cell, cells)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    volume = meshes.cell_volumes(mesh)
+    x0, x1 = float(p[0].min()), float(p[0].max())
+    L, total = x1 - x0, float(volume.sum())
+    tol = rtol * L
+    a, b, v, owner = [], [], [], []
+    for k in np.unique(names):  # (a loop over the materials, not the cells)
+        cells = np.flatnonzero(names == k)
+        cells = cells[np.argsort(lo[cells], kind="stable")]
+        start_x, reach = lo[cells], np.maximum.accumulate(hi[cells])
+        starts = np.flatnonzero(np.r_[True, start_x[1:] > reach[:-1] + tol])
+        ends = np.r_[starts[1:] - 1, cells.size - 1]
+        a.append(start_x[starts])
+        b.append(reach[ends])
+        v.append(np.add.reduceat(volume[cells], starts))
+        owner.append(np.full(starts.size, k))
+    a, b, v, owner = (np.concatenate(z) for z in (a, b, v, owner))
+    order = np.argsort(a, kind="stable")
+    a, b, v, owner = a[order], b[order], v[order], owner[order]
+    if abs(a[0] - x0) > tol or abs(b[-1] - x1) > tol or np.any(np.abs(a[1:] - b[:-1]) > tol):
+        return f"{NOT_SLICES}: their intervals of x overlap or leave gaps"
+    if np.any(np.abs(v - (b - a) * total / L) > rtol * total):
+        return f"{NOT_SLICES}: a slice does not fill the cross-section"
+    tip_x = meshes.part_centroid(mesh, tip, "tip")[0][0]
+    slices = []
+    for ai, bi, k in zip(a, b, owner, strict=True):
+        name = material.names[k]
+        m = material.materials[name]
+        slices.append(
+            {
+                "x": [float(ai), float(bi)],
+                "material": name,
+                "modulus": axial_modulus(m, dim),
+                "rho": float(m.rho),
+            }
         )
-    return TipMassExample(system, analytic, w[axial[:count]], length, area, R_u, R_q)
+    return slices[::-1] if tip_x - x0 < x1 - tip_x else slices
 
 
 # -- the cantilever on a shaken support, with and without a tuned mass damper (issue 19) --------

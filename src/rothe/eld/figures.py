@@ -180,27 +180,43 @@ def plot_comparison(
 
 
 def plot_tip_mass_study(study: dict, path, title: str = "") -> Path:
-    """The tip-mass study (:func:`rothe.eld.studies.tip_mass_study`): left, |w_run / w - 1|
-    against tau for every mesh with the time error of the finest mesh; right, the space error
-    |w_h / w - 1| of the semi-discrete system against h = 1/n."""
+    """The tip-mass study (:func:`rothe.eld.studies.tip_mass_study`), one line per measured
+    mode k = 1..K (one colour each): left, against tau on the finest mesh, |w_k,run / w_k - 1|
+    (solid; the study's ``error_modes[-1]``) and the time error |w_k,run / w_k,h - 1| (dashed;
+    ``error_time_modes[-1]``; on top of the solid line where the space error is far
+    smaller, as for P2); right, the space error |w_k,h / w_k - 1| of the semi-discrete
+    system against h = 1/n (``error_space_modes``)."""
     taus = np.asarray(study["tau"], float)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
-    for n, row in zip(study["n"], study["error"], strict=True):
-        left.loglog(taus, np.abs(row), "o-", label=f"n = {n}: measured vs analytic")
-    left.loglog(
-        taus, np.abs(study["error_time"][-1]), "k--", label=f"n = {study['n'][-1]}: time error"
-    )
+    ns = list(study["n"])
+    error = np.asarray(study["error_modes"], float)  # (n, tau, K)
+    time_error = np.asarray(study["error_time_modes"], float)
+    space = np.asarray(study["error_space_modes"], float)  # (n, K)
+    modes = error.shape[2]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.5))
+    h = 1.0 / np.asarray(ns, float)
+    for k in range(modes):
+        color = colors[k % len(colors)]
+        name = rf"$\omega_{{{k + 1}}}$"
+        left.loglog(taus, np.abs(error[-1, :, k]), "o-", color=color, lw=3, alpha=0.4,
+                    label=f"{name}, n = {ns[-1]}: run vs analytic")  # fmt: skip
+        left.loglog(taus, np.abs(time_error[-1, :, k]), "x--", color=color,
+                    label=f"{name}, n = {ns[-1]}: time error")  # fmt: skip
+        right.loglog(h, np.abs(space[:, k]), "s-", color=color,
+                     label=rf"{name}: $|\omega_h/\omega - 1|$")  # fmt: skip
     left.set_xlabel(r"$\tau$")
-    left.set_ylabel(r"relative error of $\omega_1$")
-    left.set_title(f"first frequency, {study['scheme']}", fontsize=10)
-    h = 1.0 / np.asarray(study["n"], float)
-    right.loglog(h, np.abs(study["error_space"]), "s-", label=r"$|\omega_h/\omega - 1|$")
+    left.set_ylabel(r"relative error of $\omega_k$")
+    left.set_title(f"first {modes} frequencies, {study['scheme']}", fontsize=10)
     right.set_xlabel(r"$h \sim 1/n$")
-    right.set_ylabel(r"space error of $\omega_1$")
+    right.set_ylabel(r"space error of $\omega_k$")
     right.set_title(f"semi-discrete, P{study['degree']}", fontsize=10)
     for ax in (left, right):
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=7, loc="lower right")
+    drawn = np.abs(np.concatenate([error[-1].ravel(), time_error[-1].ravel()]))
+    drawn = drawn[np.isfinite(drawn) & (drawn > 0)]
+    if drawn.size:  # room below the lines (they rise to the right) for the six-line legend
+        left.set_ylim(drawn.min() / 30, drawn.max() * 2)
     if title:
         fig.suptitle(title, fontsize=10)
     return _save(fig, path)
