@@ -413,7 +413,7 @@ def _write_l_body(path):
         ("eld-mms", ["--mesh", "{two}", "--n", "4"],
          "--n: got 4, cannot be combined with --mesh (the mesh fixes the body)"),
         ("eld-mms", ["--mesh", "{two}", "--material", "a:E=1,nu=0"],
-         "--material: got 'a:E=1,nu=0', is not taken by eld-mms (one material"),
+         "--material: got 'a', must be one of the mesh's subdomains: core, shell"),
         ("eld-beam", ["--dirichlet", ","],
          "--dirichlet: got ',', must name at least one boundary part"),
         # issue 19's bad input on the command line (docs/coupling.md Sec. 18): eld-beam named

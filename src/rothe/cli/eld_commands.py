@@ -82,7 +82,6 @@ from .eld_options import (
     check_mesh_dim,
     check_mesh_options,
     check_mms_size,
-    check_one_material,
     check_space_data,
     check_study_options,
     damping_of,
@@ -428,6 +427,8 @@ class RunEldMMS(EldRunCommand):
     )
     name = "eld-mms"
     keys = MMS_KEYS
+    #: the library's parameters by their options (materials, regions of --material/--region)
+    parameter_options = MESH_PARAMETERS
 
     def configure(self, parser) -> None:
         """The step options, --steps, --load-quadrature, --keep-every, --dirichlet, --start, the
@@ -472,7 +473,6 @@ class RunEldMMS(EldRunCommand):
         check_damping_options(args)
         objects, keep = self.step_checks(args)
         check_mesh_options(args, ("--n",))
-        check_one_material(args, self.name, "the manufactured body force is of one material")
         n = check_int("--n", args.n, minimum=1)
         if args.mesh is None:
             check_mms_size(n, args.degree)
@@ -480,13 +480,24 @@ class RunEldMMS(EldRunCommand):
         parts = parts_of(args) if args.mesh is None or given(args, "--dirichlet") else None
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"], hysteresis=True)
         check_space_data(args, space)
-        material = material_of(args, MMS_MATERIAL)
+        if args.material and space is not None:
+            raise fail(
+                "--adapt-space",
+                described(f"with {len(args.material)} --material"),
+                "must not be combined with --material in eld-mms (the manufactured body force "
+                "holds the per-cell constants of the fixed mesh)",
+            )
+        # several materials (--material/--region, on the cell groups of --mesh): built with
+        # the mesh in execute (materials_from's checks of the constants run there)
+        material = None if args.material else material_of(args, MMS_MATERIAL)
         return objects, keep, n, parts, damping_of(args), space, material
 
     def execute(self, args) -> int:
         """Build the manufactured solution, run it as a session; the summary adds its errors."""
         objects, keep, n, parts, damping, space, material = self.validate(args)
         mesh = body_mesh(args)
+        if material is None:
+            material = body_material(args, MMS_MATERIAL, mesh)
         if parts is None:
             parts = tuple(boundary_part_names(mesh))
         problem, exact = mms_problem(

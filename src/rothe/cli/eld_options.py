@@ -412,16 +412,6 @@ def part_option(parser, option: str, default: str, what: str) -> None:
     )
 
 
-def check_one_material(args, command: str, why: str) -> None:
-    """Refuse ``--material`` on a command whose example takes one material (one line)."""
-    if args.material:
-        raise fail(
-            "--material",
-            args.material[0],
-            f"is not taken by {command} (one material, --E/--nu or --lam/--mu and --rho: {why})",
-        )
-
-
 def _split_list(text: str) -> list[str]:
     return [x.strip() for x in str(text).split(",") if x.strip()]
 

@@ -91,26 +91,35 @@ def _quad_grad(c, x):
 
 
 def _div_sigma_const(c, lam, mu):
-    """div sigma(w) = mu Lap w + (lam + mu) grad div w, constant for quadratic w."""
-    lap = np.array([2 * c[0, 3] + 2 * c[0, 5], 2 * c[1, 3] + 2 * c[1, 5]])
-    grad_div = np.array([2 * c[0, 3] + c[1, 4], c[0, 4] + 2 * c[1, 5]])
+    """div sigma(w) = mu Lap w + (lam + mu) grad div w, constant for quadratic w; (2,) for
+    scalar lam, mu, (2,) + their shape for arrays (per-cell constants)."""
+    shape = (2,) + (1,) * np.ndim(mu)
+    lap = np.array([2 * c[0, 3] + 2 * c[0, 5], 2 * c[1, 3] + 2 * c[1, 5]]).reshape(shape)
+    grad_div = np.array([2 * c[0, 3] + c[1, 4], c[0, 4] + 2 * c[1, 5]]).reshape(shape)
     return mu * lap + (lam + mu) * grad_div
 
 
 class ManufacturedSolution:
     """u = alpha(t) P + beta(t) R, alpha = sin(pi t + pi/6), beta = 1 - cos(pi t) (module doc).
 
+    With a :class:`PiecewiseMaterial` the data are those of each cell's material: the body
+    force with the cell's rho_c, lam_c, mu_c (:meth:`body_force_on`), tractions and multipliers
+    with the constants of the cell next to each boundary facet (:meth:`traction_on`,
+    :meth:`multiplier_on`), and the jump of the traction across the facets between two
+    materials (:meth:`interface_load`), so that u stays the exact solution.
+
     Parameters
     ----------
-    material : Material
+    material : Material or PiecewiseMaterial
     damping : Damping
         The damping the body force is made for.
     """
 
-    def __init__(self, material: Material, damping: Damping):
+    def __init__(self, material: Material | PiecewiseMaterial, damping: Damping):
         self.material = material
         self.damping = damping
         self.b = getattr(damping, "b", 0.0)
+        self.piecewise = isinstance(material, PiecewiseMaterial)
 
     @staticmethod
     def _time(t):
@@ -144,20 +153,22 @@ class ManufacturedSolution:
         """grad u'(t, x), shape (2, 2, ...)."""
         return _quad_grad(self._coeffs(t, 1), x)
 
-    def stress(self, t, x):
-        """sigma(u + b u') at x: (2, 2, ...)."""
-        m = self.material
+    def stress(self, t, x, lam=None, mu=None):
+        """sigma(u + b u') at x: (2, 2, ...); ``lam``, ``mu`` (default: the material's) may be
+        arrays broadcasting against x[0] (per facet or cell constants)."""
+        if lam is None:
+            lam, mu = self.material.lam_eff, self.material.mu
         g = self.grad_u(t, x) + self.b * self.grad_u_dot(t, x)
         eps = 0.5 * (g + g.transpose((1, 0) + tuple(range(2, g.ndim))))
         tr = eps[0, 0] + eps[1, 1]
-        sig = 2 * m.mu * eps  # lam_eff: lam (plane strain), 2 lam mu/(lam + 2 mu) (plane stress)
-        sig[0, 0] += m.lam_eff * tr
-        sig[1, 1] += m.lam_eff * tr
+        sig = 2 * mu * eps  # lam_eff: lam (plane strain), 2 lam mu/(lam + 2 mu) (plane stress)
+        sig[0, 0] += lam * tr
+        sig[1, 1] += lam * tr
         return sig
 
-    def traction(self, t, x, n):
+    def traction(self, t, x, n, lam=None, mu=None):
         """sigma(u + b u') n."""
-        return np.einsum("ij...,j...->i...", self.stress(t, x), n)
+        return np.einsum("ij...,j...->i...", self.stress(t, x, lam, mu), n)
 
     def multiplier(self, t, x, n):
         """lambda = -sigma(u + b u') n on Gamma_D (paper's sign: ... + B* lambda = F)."""
@@ -165,17 +176,94 @@ class ManufacturedSolution:
 
     def body_force(self, t, x):
         """f = rho u'' - div sigma(u + b u') + the damping's mass and pointwise parts: the body
-        force that makes u exact."""
+        force that makes u exact (one material; several: :meth:`body_force_on`)."""
+        if self.piecewise:
+            raise fail(
+                "body_force",
+                described("a call without the mesh"),
+                "must be body_force_on(mesh) for several materials (per-cell constants)",
+            )
         m = self.material
+        return self._body_force(t, x, m.rho, m.lam_eff, m.mu, 1.0)
+
+    def _body_force(self, t, x, rho, lam, mu, weight):
+        """rho u'' - div sigma(u + b u') + the damping force density, the constants scalars or
+        (nc, 1); ``weight`` = rho/rho_ref multiplies the mass-proportional damping (it acts
+        through the mass of density rho/rho_ref, :mod:`rothe.eld.materials`)."""
         w_coeffs = self._coeffs(t, 0) + self.b * self._coeffs(t, 1)
-        div = _div_sigma_const(w_coeffs, m.lam_eff, m.mu).reshape((2,) + (1,) * (x.ndim - 1))
+        div = _div_sigma_const(w_coeffs, lam, mu)  # (2,) or (2, nc, 1): constant per cell
+        div = np.reshape(div, np.shape(div) + (1,) * (x.ndim - np.ndim(div)))
         v = self.u_dot(t, x)
-        f = m.rho * self.u_ddot(t, x) - div
+        f = rho * self.u_ddot(t, x) - div
         if isinstance(self.damping, RayleighDamping):
-            f = f + self.damping.a * v
+            f = f + self.damping.a * weight * v
         elif isinstance(self.damping, NonlinearDamping):
-            f = f + self.damping.force_density(v)
+            f = f + self.damping.force_density(v) + self.damping.d0 * (1.0 - weight) * v
         return f
+
+    # -- several materials: per-cell and per-facet constants ----------------------------------
+    def _cells(self, mesh):
+        """(lam_eff, mu, rho, rho/rho_ref) per cell of ``mesh`` (scalars for one material)."""
+        if not self.piecewise:
+            m = self.material
+            return m.lam_eff, m.mu, m.rho, 1.0
+        c = self.material.on_mesh(mesh)
+        return c.lam, c.mu, c.rho, c.density_weight
+
+    def body_force_on(self, mesh):
+        """The body force f(t, x) of ``mesh`` for x (2, n_cells, nq), all its cells in mesh
+        order (:meth:`ELDProblem.load`), each cell with its material's constants; one
+        material: :meth:`body_force`."""
+        if not self.piecewise:
+            return self.body_force
+        lam, mu, rho, weight = (a[:, None] for a in self._cells(mesh))
+        ne = lam.shape[0]
+
+        def body_force(t, x):
+            if x.ndim != 3 or x.shape[1] != ne:
+                raise fail(
+                    "body_force",
+                    described(f"points of shape {x.shape}"),
+                    f"must be (2, {ne}, nq): every cell of its mesh (per-cell materials)",
+                )
+            return self._body_force(t, x, rho, lam, mu, weight)
+
+        return body_force
+
+    def _facet_constants(self, mesh, facets):
+        """lam_eff, mu of the cell next to each boundary facet (nf, 1)."""
+        lam, mu, _, _ = self._cells(mesh)
+        cell = np.asarray(mesh.f2t)[0, np.asarray(facets, dtype=np.int64)]
+        return np.asarray(lam)[cell][:, None], np.asarray(mu)[cell][:, None]
+
+    def traction_on(self, mesh, facets):
+        """g(t, x, n) = sigma(u + b u') n on the boundary ``facets`` (sorted, the order of
+        their facet quadrature), with the constants of the cell next to each."""
+        if not self.piecewise:
+            return self.traction
+        lam, mu = self._facet_constants(mesh, facets)
+
+        def traction(t, x, n):
+            return self.traction(t, x, n, lam, mu)
+
+        return traction
+
+    def multiplier_on(self, mesh, facets):
+        """lambda(t, x, n) = -sigma(u + b u') n on the Dirichlet ``facets`` (as
+        :meth:`traction_on`)."""
+        if not self.piecewise:
+            return self.multiplier
+        g = self.traction_on(mesh, facets)
+        return lambda t, x, n: -g(t, x, n)
+
+    def interface_load(self, t, x, n, k0, k1):
+        """(sigma_0(u + b u') - sigma_1(u + b u')) n_0 on the facets between two materials
+        (k0, k1 (nf, 1): the materials of the two sides, n the outward normal of side 0): what
+        sum_K int_K sigma_K : eps(phi) leaves on the interfaces of the exact u."""
+        mats = [self.material.materials[name] for name in self.material.names]
+        lam = np.array([m.lam_eff for m in mats])
+        mu = np.array([m.mu for m in mats])
+        return self.traction(t, x, n, lam[k0] - lam[k1], mu[k0] - mu[k1])
 
 
 def mms_problem(
@@ -219,10 +307,16 @@ def mms_problem(
     start : {'exact', 'rest'}
     load_quadrature : int, optional
         The degree of the quadrature of body force and tractions (default 2 * degree).
-    material : Material, optional
+    material : Material or PiecewiseMaterial, optional
         Instead of rho, lam, mu: a 2D material, also in plane stress (the body force, traction
         and multiplier are then those of the plane-stress law, sigma = lam* tr(eps) I + 2 mu eps
-        with lam* = 2 lam mu/(lam + 2 mu)).
+        with lam* = 2 lam mu/(lam + 2 mu)). Several materials on regions of ``mesh``: each
+        cell's body force f = rho_c u'' - div sigma_c(u + b u') + damping with its constants,
+        tractions and multipliers with those of the cell next to the facet, and on the facets
+        between two materials the load (sigma_0 - sigma_1)(u + b u') n_0 (ELDProblem's
+        ``interface_load``): sum_K int_K sigma_K(u) : eps(v) = int f v + int_{Gamma_N} t v +
+        sum_{interfaces} int (sigma_0 - sigma_1) n_0 . v, so u stays exact. A fixed mesh: the
+        body force knows its cells (a space-adaptive run is refused).
 
     Returns
     -------
@@ -241,7 +335,12 @@ def mms_problem(
     data = DirichletData(exact.u, exact.u_dot, exact.u_ddot)
     names = sorted((mesh.boundaries or {}).keys())
     # an unknown Dirichlet name is reported by ELDProblem (one line, naming the known parts)
-    traction = {p: exact.traction for p in names if p not in dirichlet}
+    # (the facets in the order of the part's facet quadrature: VectorSpace.facets sorts them)
+    traction = {
+        p: exact.traction_on(mesh, np.unique(np.asarray(mesh.boundaries[p])))
+        for p in names
+        if p not in dirichlet
+    }
     problem = ELDProblem(
         mesh,
         material,
@@ -249,7 +348,8 @@ def mms_problem(
         damping=damping,
         dirichlet={p: data for p in dirichlet},
         traction=traction,
-        body_force=exact.body_force,
+        body_force=exact.body_force_on(mesh),
+        interface_load=exact.interface_load if exact.piecewise else None,
         u0=(lambda x: exact.u(0.0, x)) if start == "exact" else None,
         v0=(lambda x: exact.u_dot(0.0, x)) if start == "exact" else None,
         T=T,
@@ -311,12 +411,16 @@ def mms_errors(exact: ManufacturedSolution, result) -> dict:
     eu = space.error_norms(u, lambda x: exact.u(T, x), lambda x: exact.grad_u(T, x))
     ev = space.error_norms(v, lambda x: exact.u_dot(T, x), lambda x: exact.grad_u_dot(T, x))
     lam_quad = multiplier_quadrature(problem)
+    # -sigma n with the constants of the cell next to each Dirichlet facet (several materials)
+    multiplier = exact.multiplier_on(
+        space.mesh, space.facets(problem.constraint.parts, "dirichlet")
+    )
     out = {
         "error_u_l2": eu["l2"],
         "error_u_h1": eu["h1"],
         "error_v_l2": ev["l2"],
         "error_v_h1": ev["h1"],
-        "error_lam_l2": lam_quad.error(lam, lambda x, n: exact.multiplier(T, x, n)),
+        "error_lam_l2": lam_quad.error(lam, lambda x, n: multiplier(T, x, n)),
         "lam_norm": "L2(Gamma_D)",
     }
     if "kept_t" in traj and "u" in traj:
@@ -330,7 +434,7 @@ def mms_errors(exact: ManufacturedSolution, result) -> dict:
             space.error_norms(vs[k], lambda x, t=ts[k]: exact.u_dot(t, x))["l2"] for k in ks
         )
         out["error_lam_l2_max"] = max(
-            lam_quad.error(lams[k], lambda x, n, t=ts[k]: exact.multiplier(t, x, n)) for k in ks
+            lam_quad.error(lams[k], lambda x, n, t=ts[k]: multiplier(t, x, n)) for k in ks
         )
     return out
 

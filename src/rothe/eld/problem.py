@@ -20,6 +20,11 @@ Callables and their shapes (x holds points with the coordinate axis first):
   and a warning).
 - traction ``g(t, x, n)`` with points x and outward unit normals n, both (d, nf, nq);
 - body force ``f(t, x)`` with x (d, ne, nq);
+- interface load ``h(t, x, n, k0, k1)`` (several materials) on the interior facets whose two
+  cells have different materials: x and n (d, nf, nq), n the unit normal pointing out of side 0
+  (the cell ``mesh.f2t[0]``), k0, k1 (nf, 1) the materials of the two sides as indices into
+  ``PiecewiseMaterial.names``; F gets sum_facets int_F h . phi ds (e.g. the jump of the traction
+  (sigma_0 - sigma_1) n_0 that a manufactured solution leaves there);
 - ``u0``, ``v0``: callables x -> (d, k), dof vectors, or None (zero).
 
 Loads are integrated by quadrature of degree ``load_quadrature`` (default 2p, p the element
@@ -37,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import RotheInputError, check_int, check_positive, described, fail
-from ..fem.elasticity import VectorSpace
+from ..fem.elasticity import FacetQuadrature, VectorSpace
 from ..io.checkpoint import digest
 from .constraint import DirichletConstraint
 from .damping import Damping, NoDamping
@@ -124,6 +129,8 @@ class ELDProblem:
     traction : dict, optional
         part -> callable g(t, x, n).
     body_force : callable f(t, x), optional
+    interface_load : callable h(t, x, n, k0, k1), optional
+        A load on the facets between two materials of a PiecewiseMaterial (module docstring).
     u0, v0 : callable, dof vector or None
         Initial displacement and velocity (None: zero); u0 must match G(0) on the Dirichlet
         parts (Remark 2.2, checked before the first step).
@@ -151,6 +158,7 @@ class ELDProblem:
         dirichlet: dict,
         traction: dict | None = None,
         body_force=None,
+        interface_load=None,
         u0=None,
         v0=None,
         T: float = 1.0,
@@ -182,6 +190,8 @@ class ELDProblem:
             name=name,
             load_quadrature=load_quadrature,
         )
+        if interface_load is not None:  # (only then: the definition of the others unchanged)
+            self._data["interface_load"] = interface_load
         self.space = VectorSpace(mesh, degree)
         if not isinstance(material, Material | PiecewiseMaterial):
             raise fail(
@@ -253,6 +263,21 @@ class ELDProblem:
                 material.lam_eff, material.mu, format="bsr", reuse=reuse, keep=keep
             )
             self.M = sp_.mass()
+        self._interface = None
+        if interface_load is not None:
+            if not callable(interface_load):
+                raise fail(
+                    "interface_load",
+                    type(interface_load).__name__,
+                    "must be a callable (t, x, n, k0, k1)",
+                )
+            if self.cell_material is None:
+                raise fail(
+                    "interface_load",
+                    described(f"a load with one material ({type(material).__name__})"),
+                    "needs a PiecewiseMaterial (it acts between two materials)",
+                )
+            self._interface = (interface_load, *self._interface_quadrature())
         self.damping_op = self.damping.operator(sp_, self.M, self.K)
         self.u0 = self._initial(u0, "u0")
         self.v0 = self._initial(v0, "v0")
@@ -260,6 +285,32 @@ class ELDProblem:
             p: sp_.doflocs[:, sp_.scalar_dofs_on((p,), "dirichlet")] for p in self.dirichlet
         }
         self.derivative_info = self._derivative_info()
+
+    def _interface_quadrature(self):
+        """The facets between cells of different materials: their quadrature of degree
+        ``load_quadrature`` seen from side 0 (``mesh.f2t[0]``, whose outward normal n_0 it
+        has) and the materials (k0, k1) of the two sides, (nf, 1) each. None if there are none."""
+        from skfem import FacetBasis  # heavy: imported when first needed (start-up time)
+
+        f2t = np.asarray(self.space.mesh.f2t)
+        names = self.cell_material.names
+        interior = np.flatnonzero(f2t[1] >= 0)
+        k0, k1 = names[f2t[0, interior]], names[f2t[1, interior]]
+        between = k0 != k1
+        facets = interior[between]
+        if facets.size == 0:
+            return None, None, None
+        fb = FacetBasis(
+            self.space.mesh, self.space.element, facets=facets, intorder=self.load_quadrature
+        )
+        q = FacetQuadrature(
+            values=np.stack([np.asarray(b[0]) for b in fb.basis]),
+            dofs=np.asarray(fb.element_dofs),
+            dx=np.asarray(fb.dx),
+            x=np.asarray(fb.global_coordinates()),
+            normals=np.asarray(fb.normals),
+        )
+        return q, k0[between][:, None], k1[between][:, None]
 
     def release_operators(self) -> None:
         """Drop K, M and the damping operator (a space-adaptive run, on a problem it made
@@ -438,12 +489,18 @@ class ELDProblem:
         for g, q in self._traction.values():
             vals = np.broadcast_to(np.asarray(g(float(t), q.x, q.normals), dtype=float), q.x.shape)
             F += q.integrate_against_basis(vals, sp_.n_scalar).ravel()
+        if self._interface is not None and self._interface[1] is not None:
+            h, q, k0, k1 = self._interface
+            vals = np.broadcast_to(
+                np.asarray(h(float(t), q.x, q.normals, k0, k1), dtype=float), q.x.shape
+            )
+            F += q.integrate_against_basis(vals, sp_.n_scalar).ravel()
         return F
 
     @property
     def has_loads(self) -> bool:
         """Whether there is a body force or a traction."""
-        return self.body_force is not None or bool(self._traction)
+        return self.body_force is not None or bool(self._traction) or self._interface is not None
 
     # -- description ----------------------------------------------------------------------------
     def describe(self) -> dict:
@@ -460,6 +517,7 @@ class ELDProblem:
             "damping": self.damping.describe(),
             "dirichlet_parts": list(self.constraint.parts),
             "traction_parts": list(self._traction),
+            **({"interface_load": True} if self._interface is not None else {}),
             "T": self.T,
             "load_quadrature": self.load_quadrature,
             "derivatives_of_G": self.derivative_info,

@@ -1,0 +1,178 @@
+"""The manufactured solution with several materials (rothe.eld.examples.mms_problem with a
+PiecewiseMaterial): per-cell body force, tractions and multipliers of the adjacent cell, and the
+interface load (sigma_0 - sigma_1)(u + b u') n_0 on the facets between two materials, so that
+the quadratic u stays exact for P2; and the command line (eld-mms --material/--region)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from rothe.eld import (
+    BDF2,
+    Material,
+    NonlinearDamping,
+    PiecewiseMaterial,
+    RayleighDamping,
+    mms_errors,
+    mms_problem,
+    run_eld,
+)
+from rothe.eld.studies import fitted_rate
+from rothe.errors import RotheInputError
+from rothe.stepping.controllers import Uniform
+
+from ..conftest import run_cli, write_gmsh_body
+
+SOFT = Material(rho=1.0, lam=2.0, mu=1.0)
+HARD = Material(rho=3.0, lam=10.0, mu=4.0)
+TAUS = (0.1, 0.05, 0.025)
+
+
+def _left(x):
+    return x[0] < 0.5
+
+
+def _right(x):
+    return x[0] >= 0.5
+
+
+def _halves(left=SOFT, right=HARD) -> PiecewiseMaterial:
+    """``left`` on the cells with centroid x < 1/2 of the unit square, ``right`` on the rest."""
+    return PiecewiseMaterial(
+        {"left": left, "right": right}, regions={_left: "left", _right: "right"}
+    )
+
+
+def _static_residual(problem, exact, t):
+    """max over the free dofs of |rho_ref M a + D(v) + K u - F(t)| at the interpolated exact
+    u(t), u'(t), u''(t): P2 holds them exactly, so this is the consistency of the data."""
+    space = problem.space
+    u, v, a = (
+        space.interpolate(lambda x, f=f: f(t, x)) for f in (exact.u, exact.u_dot, exact.u_ddot)
+    )
+    R = (
+        problem.material.rho * (problem.M @ a)
+        + problem.damping_op.apply(v)
+        + problem.K @ u
+        - problem.load(t)
+    )
+    free = np.setdiff1d(np.arange(space.ndofs), problem.constraint.dofs)
+    return float(np.abs(R[free]).max())
+
+
+@pytest.mark.parametrize(
+    "damping",
+    [NonlinearDamping(b=0.01, d0=0.5, d_nl=1.0), RayleighDamping(a=0.3, b=0.02)],
+    ids=["nonlinear", "rayleigh"],
+)
+@pytest.mark.parametrize("plane", ["strain", "stress"])
+def test_the_exact_u_is_a_static_solution_only_with_the_interface_load(damping, plane):
+    # n = 3: the material boundary x = 1/2 cuts no cell, it zigzags along cell edges
+    left = Material(rho=1.0, lam=2.0, mu=1.0, plane=plane)
+    right = Material(rho=3.0, lam=10.0, mu=4.0, plane=plane)
+    problem, exact = mms_problem(3, 2, material=_halves(left, right), damping=damping)
+    assert problem.describe()["interface_load"] is True
+    assert _static_residual(problem, exact, 0.37) < 1e-12
+    problem._interface = None  # without the jump of the traction on the interface
+    assert _static_residual(problem, exact, 0.37) > 1.0
+
+
+def test_bdf2_errors_are_second_order_in_tau_and_stall_without_the_interface_load():
+    # P2: the semi-discrete solution is u itself, so the errors are BDF2's (tau^2)
+    problem, exact = mms_problem(2, 2, material=_halves(), T=0.5)
+    errs = [
+        mms_errors(exact, run_eld(problem, scheme=BDF2(), control=Uniform(tau), store_fields=False))
+        for tau in TAUS
+    ]
+    for key in ("error_u_l2", "error_v_l2", "error_lam_l2"):
+        assert fitted_rate(TAUS, [e[key] for e in errs]) >= 1.8, key
+    assert errs[-1]["error_u_l2"] < 6e-3 and errs[-1]["error_lam_l2"] < 5e-2
+    problem._interface = None
+    stalled = [
+        mms_errors(exact, run_eld(problem, scheme=BDF2(), control=Uniform(tau), store_fields=False))
+        for tau in TAUS[1:]
+    ]
+    assert min(e["error_u_l2"] for e in stalled) > 1.0  # O(1): the jump of the traction
+
+
+@pytest.mark.parametrize("names", [("a", "b"), ("a", "a")], ids=["two-names", "one-name"])
+def test_one_material_in_two_regions_is_the_one_material_run(names):
+    one = Material(rho=2.0, lam=3.0, mu=1.5, plane="stress")
+    same = Material(rho=2.0, lam=3.0, mu=1.5, plane="stress")
+    piecewise = PiecewiseMaterial(
+        {names[0]: one, names[1]: same}, regions={_left: names[0], _right: names[1]}
+    )
+    (p1, e1), (p2, e2) = (mms_problem(2, 2, material=m, T=0.2) for m in (one, piecewise))
+    r1, r2 = (run_eld(p, scheme=BDF2(), control=Uniform(0.05)) for p in (p1, p2))
+    for key in ("u", "v", "lam"):
+        scale = np.abs(r1.trajectory[key]).max()
+        assert np.abs(r1.trajectory[key] - r2.trajectory[key]).max() <= 1e-12 * scale
+    a, b = mms_errors(e1, r1), mms_errors(e2, r2)
+    assert all(abs(a[k] - b[k]) <= 1e-12 for k in a if isinstance(a[k], float))
+
+
+def test_the_body_force_of_several_materials_needs_its_mesh():
+    problem, exact = mms_problem(2, 2, material=_halves())
+    with pytest.raises(RotheInputError, match=r"^body_force: got a call without the mesh"):
+        exact.body_force(0.0, problem.space.quad_points)
+    f = problem.definition["body_force"]
+    with pytest.raises(RotheInputError, match=r"^body_force: got points of shape \(2, 3, 6\)"):
+        f(0.0, np.zeros((2, 3, 6)))
+
+
+def test_an_interface_load_needs_several_materials():
+    problem, exact = mms_problem(2, 2)
+    with pytest.raises(RotheInputError, match=r"^interface_load: got a load with one material"):
+        type(problem)(problem.space.mesh, **problem.definition, interface_load=exact.u)
+
+
+def _split_mesh(tmp_path):
+    # [0, 2] x [0, 1], 'core' x < 1, 'shell' x > 1; boundary parts inlet, outlet, wall
+    return write_gmsh_body(tmp_path / "split.msh", nx=4, ny=2, split=1.0)
+
+
+MATERIALS = ["--material", "A:lam=2,mu=1,rho=1", "--material", "B:lam=10,mu=4,rho=3"]
+
+
+def test_cli_eld_mms_with_two_materials_on_cell_groups(tmp_path, capsys):
+    out = tmp_path / "out"
+    code, _, err = run_cli(
+        capsys,
+        *("run", "eld-mms", "--mesh", _split_mesh(tmp_path), *MATERIALS),
+        *("--region", "A=core", "--region", "B=shell", "--dirichlet", "inlet"),
+        *("--scheme", "bdf2", "--degree", "2", "--tau", "0.0125", "--T", "0.5"),
+        *("--out", out, "--no-plots", "--quiet"),
+    )
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["material"]["regions"] == {"core": "A", "shell": "B"}
+    assert summary["material"]["rho_ref"] == 3.0
+    # BDF2 at tau = 0.0125 (measured 4.04e-3, 5.98e-3, 6.60e-3; O(1) without the interface load)
+    assert summary["error_u_l2"] < 5e-3
+    assert summary["error_v_l2"] < 7e-3
+    assert summary["error_lam_l2"] < 8e-3
+
+
+@pytest.mark.parametrize(
+    "extra,message",
+    [
+        (
+            ["--region", "A=core"],
+            "--material: got 8 of 16 cells in no region with a material",
+        ),
+        (
+            ["--region", "A=core", "--region", "B=shell", "--adapt-space", "--space-tol", "0.1"],
+            "--adapt-space: got with 2 --material, must not be combined with --material in eld-mms",
+        ),
+    ],
+    ids=["region-missing", "adapt-space"],
+)
+def test_cli_eld_mms_refusals_with_materials(tmp_path, capsys, extra, message):
+    code, _, err = run_cli(
+        capsys,
+        *("run", "eld-mms", "--mesh", _split_mesh(tmp_path), *MATERIALS, *extra),
+        *("--dirichlet", "inlet", "--out", tmp_path / "out", "--no-plots", "--quiet"),
+    )
+    assert code == 2
+    assert message in err and len(err.strip().splitlines()) == 1
