@@ -119,6 +119,9 @@ def test_the_body_force_of_several_materials_needs_its_mesh():
     f = problem.definition["body_force"]
     with pytest.raises(RotheInputError, match=r"^body_force: got points of shape \(2, 3, 6\)"):
         f(0.0, np.zeros((2, 3, 6)))
+    g = problem.definition["traction"]["top"]
+    with pytest.raises(RotheInputError, match=r"^traction: got points of shape \(2, 5, 3\)"):
+        g(0.0, np.zeros((2, 5, 3)), np.zeros((2, 5, 3)))
 
 
 def test_an_interface_load_needs_several_materials():

@@ -244,6 +244,13 @@ class ManufacturedSolution:
         lam, mu = self._facet_constants(mesh, facets)
 
         def traction(t, x, n):
+            if x.ndim != 3 or x.shape[1] != lam.shape[0]:
+                raise fail(
+                    "traction",
+                    described(f"points of shape {x.shape}"),
+                    f"must be (2, {lam.shape[0]}, nq): the facets it was made for (per-cell "
+                    "materials)",
+                )
             return self.traction(t, x, n, lam, mu)
 
         return traction
