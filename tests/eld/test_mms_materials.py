@@ -18,8 +18,10 @@ from rothe.eld import (
     mms_problem,
     run_eld,
 )
+from rothe.eld.stepper import ELDStepper
 from rothe.eld.studies import fitted_rate
 from rothe.errors import RotheInputError
+from rothe.fem.adapt import SpaceAdaptivity
 from rothe.stepping.controllers import Uniform
 
 from ..conftest import run_cli, write_gmsh_body
@@ -179,3 +181,42 @@ def test_cli_eld_mms_refusals_with_materials(tmp_path, capsys, extra, message):
     )
     assert code == 2
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_problem_made_for_its_cells_refuses_space_adaptivity_and_other_meshes():
+    """The several-materials problem's data hold its mesh's cells (mesh_bound): space
+    adaptivity and on_mesh are refused before the first step, in one line (before: a shape
+    error at the first load on a refined mesh, after steps had been taken)."""
+    problem, _ = mms_problem(2, 2, material=_halves(), T=0.2)
+    assert problem.mesh_bound and problem.definition["mesh_bound"]
+    with pytest.raises(RotheInputError, match=r"^adapt: got SpaceAdaptivity, must be None"):
+        run_eld(problem, control=Uniform(0.05), adapt=SpaceAdaptivity(space_tol=1e-3))
+    with pytest.raises(RotheInputError, match=r"^mesh: got another mesh for problem 'eld-mms'"):
+        problem.on_mesh(problem.space.mesh.refined())
+    one, _ = mms_problem(2, 2, T=0.2)  # one material: no cells held, the definition unchanged
+    assert not one.mesh_bound and "mesh_bound" not in one.definition
+
+
+def test_cli_eld_mms_with_two_materials_interrupted_then_resumed_bit_for_bit(
+    tmp_path, capsys, signal_at_attempt
+):
+    """SIGINT at the 10th step of a two-material eld-mms run (exit 130, a checkpoint), then
+    ``rothe resume``: the trajectory equals the uninterrupted run's bit for bit."""
+    mesh = _split_mesh(tmp_path)
+    argv = [
+        *("run", "eld-mms", "--mesh", mesh, *MATERIALS, "--region", "A=core"),
+        *("--region", "B=shell", "--dirichlet", "inlet", "--tau", "0.02", "--T", "0.4"),
+        *("--no-plots", "--quiet"),
+    ]
+    ref, out = tmp_path / "ref", tmp_path / "out"
+    assert run_cli(capsys, *argv, "--out", ref)[0] == 0
+    signal_at_attempt(ELDStepper, 10)
+    code, _, err = run_cli(capsys, *argv, "--out", out)
+    assert code == 130 and f"rothe resume {out}" in err
+    signal_at_attempt(ELDStepper, 10**9)
+    assert run_cli(capsys, "resume", out, "--quiet")[0] == 0
+    with np.load(ref / "trajectory.npz") as a, np.load(out / "trajectory.npz") as b:
+        for key in ("t", "u", "v", "lam"):
+            assert np.array_equal(a[key], b[key]), key
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "completed" and s["sessions"] == 2

@@ -362,6 +362,7 @@ def mms_problem(
         T=T,
         name="eld-mms",
         load_quadrature=load_quadrature,
+        mesh_bound=exact.piecewise,
     )
     return problem, exact
 
