@@ -961,7 +961,9 @@ class RunEldControl(CoupledRunCommand):
                     summary["decay_rate_measured"] / rate - 1 if predicted and rate != 0 else None
                 )
                 rate = summary["decay_rate_predicted_discrete"]
-                defined = np.isfinite(rate) and rate != 0
+                # (undefined where nothing damps the bar: --gain 0 --b 0 gives a rate of
+                # round-off, ~1e-18, not a scale)
+                defined = np.isfinite(rate) and abs(rate) > 1e-12 * w1
                 for key, measured in (
                     ("decay_rate_error_discrete", "decay_rate_measured"),
                     ("decay_rate_pencil_error", "decay_rate_measured_pencil"),

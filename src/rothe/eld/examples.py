@@ -1445,8 +1445,9 @@ def control_problem(
     n, degree : int
     length, height : float
     material : Material or PiecewiseMaterial, optional
-        Several materials on the mesh's regions: the runs and the discrete frequency as for
-        one, the predicted roots and rates (a uniform bar's) NaN, ``prediction`` says why.
+        Several materials on the mesh's regions: the runs, the discrete frequency and the
+        discrete closed loop's roots (``roots_discrete``) as for one, the uniform bar's
+        predicted roots and rates NaN, ``prediction`` says why.
     base_mass, base_stiffness, gain, kd, filter_time, b, amplitude, T : float
         m_b, k_b, k_p, k_d, T_f (used with k_d > 0), b, the initial amplitude and T.
     mesh : skfem.MeshTri, optional
