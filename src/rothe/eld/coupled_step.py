@@ -462,7 +462,8 @@ def closed_loop_matrices(system: CoupledProblem):
 
     The feedback makes A non-symmetric; nonlinear components and controllers are linearized
     at rest (their Jacobians at t = 0, q = p = 0, z = z_0, y = 0). Returns (A, B) sparse
-    (2N + s square, N = |I| + r) and N."""
+    (2N + s square, N = |I| + r) and the reduced mass M_T (N x N, sparse, without the
+    feedback's term: the norm in which :func:`closed_loop_roots` compares modes)."""
     kern = CoupledStepSystem(system, "nodal")
     n, I, r, s = system.body.space.ndofs, kern.I, kern.r, kern.s
     N = I.size + r
@@ -479,17 +480,21 @@ def closed_loop_matrices(system: CoupledProblem):
         return (T.T @ A @ T + sp.block_diag([sp.csr_matrix((I.size, I.size)), Aq])).tocsr()
 
     MT, CT, KT = reduced(rhoM, kern.Mq), reduced(C, Cq), reduced(K, Kq)
+    mass = MT
     zero = sp.csr_matrix((N, N))
     if kern.k_in:
-        ET = np.vstack([np.zeros((I.size, kern.o)), kern.E])  # (N, o)
+        # all sparse: the feedback's terms are of rank k (sensors) on the actuated rows q
+        ET = sp.csr_matrix(np.vstack([np.zeros((I.size, kern.o)), kern.E]))  # (N, o)
         Z = sp.csr_matrix(kern._LZ)  # (n, k): L M_G^-1 Y_lam^T, zero without reaction sensors
-        Yq = ((kern.Y_u - Z.T @ K) @ T).toarray()
-        Yp = ((kern.Y_v - Z.T @ C) @ T).toarray()
-        Ya = -(Z.T @ rhoM @ T).toarray()
-        ED = ET @ kern.Dc
+        Z.eliminate_zeros()
+        Yq = ((kern.Y_u - Z.T @ K) @ T).tocsr()
+        Yp = ((kern.Y_v - Z.T @ C) @ T).tocsr()
+        Ya = (-(Z.T @ rhoM @ T)).tocsr()
+        ED = ET @ sp.csr_matrix(kern.Dc)
         MT, KT, CT = MT - ED @ Ya, KT - ED @ Yq, CT - ED @ Yp
-        Bz, Az = sp.csr_matrix(kern.Bc @ Ya), sp.csr_matrix(kern.Ac)
-        top_z, rows_z = sp.csr_matrix(ET @ kern.Cc), [kern.Bc @ Yq, kern.Bc @ Yp, Az]
+        Bc = sp.csr_matrix(kern.Bc)
+        Bz, Az = Bc @ Ya, sp.csr_matrix(kern.Ac)
+        top_z, rows_z = ET @ sp.csr_matrix(kern.Cc), [Bc @ Yq, Bc @ Yp, Az]
     else:
         Bz = sp.csr_matrix((0, N))
         top_z, rows_z = sp.csr_matrix((N, 0)), [np.zeros((0, N)), np.zeros((0, N)), None]
@@ -503,7 +508,7 @@ def closed_loop_matrices(system: CoupledProblem):
         ],
         format="csc",
     )
-    return A, B, N
+    return A, B, mass
 
 
 def closed_loop_roots(system: CoupledProblem, frequencies, U, Q, count: int = 6) -> np.ndarray:
@@ -517,29 +522,23 @@ def closed_loop_roots(system: CoupledProblem, frequencies, U, Q, count: int = 6)
     the mode's decay rate predicted by the discrete body (no time discretization): a run's
     measured rate tends to it as tau -> 0 (docs/coupling.md, Sec. 11). Returns the roots
     (len(frequencies),), complex, Im s > 0."""
-    A, B, N = closed_loop_matrices(system)
-    I = system.constraint.free
-    MT = B[N : 2 * N, N : 2 * N]
+    A, B, MT = closed_loop_matrices(system)
+    I, N = system.constraint.free, MT.shape[0]
     size = A.shape[0]
     roots = np.empty(len(frequencies), dtype=complex)
     for j, w in enumerate(np.asarray(frequencies, dtype=float)):
         phi = np.concatenate([U[I, j], Q[:, j]])
         shift = 1j * w * (1 + 1e-4) if w > 0 else 1e-4
-        if size <= 4 * count + 2:  # (too small for ARPACK)
-            vals, vecs = sla.eig(A.toarray(), B.toarray())
-            keep = np.isfinite(vals)
-            vals, vecs = vals[keep], vecs[:, keep]
-        else:
-            lu = spla.splu(sp.csc_matrix(A - shift * B, dtype=complex))
-            op = spla.LinearOperator(
-                (size, size), matvec=lambda x, lu=lu: lu.solve(B @ x), dtype=complex
-            )
-            mu, vecs = spla.eigs(op, k=count, which="LM")
-            vals = shift + 1.0 / mu
+        lu = spla.splu(sp.csc_matrix(A - shift * B, dtype=complex))
+        op = spla.LinearOperator(
+            (size, size), matvec=lambda x, lu=lu: lu.solve(B @ x), dtype=complex
+        )
+        mu, vecs = spla.eigs(op, k=min(count, size - 2), which="LM")  # (ARPACK: k < size - 1)
+        vals = shift + 1.0 / mu
         v = vecs[:N]
         Mphi = MT @ phi
         overlap = np.abs(Mphi @ v) / np.sqrt(
-            (phi @ Mphi) * np.abs(np.einsum("ij,ij->j", v.conj(), MT @ v))
+            (phi @ Mphi) * np.einsum("ij,ij->j", v.conj(), MT @ v).real
         )
         overlap[vals.imag < 0] = -1.0
         best = int(np.argmax(overlap - 1e-9 * np.abs(vals - shift)))
