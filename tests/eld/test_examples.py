@@ -155,3 +155,69 @@ def test_tip_mass_clamped_on_the_right_orders_the_slices_from_the_clamp():
     assert np.array_equal(example.analytic, expected)
     assert expected == pytest.approx([11.40411705, 41.62189237, 70.7786088], rel=1e-8)
     assert np.all(np.abs(example.discrete / example.analytic - 1) < [1e-6, 1e-4, 1e-3])
+
+
+# -- the discrete closed loop's roots (closed_loop_roots): a prediction for any material ------
+
+
+def test_control_discrete_roots_converge_to_the_uniform_bar_roots():
+    """The eigenvalues of the semi-discrete closed loop (body on the constraint, base, the
+    feedback's non-symmetric terms) near the first two axial modes tend to the roots of the
+    uniform bar's characteristic equation as h -> 0: P1 on 8 x 2 and 16 x 4 cells, measured
+    |ds|/|s| 6.1e-5 -> 1.6e-5 (s_1) and 1.9e-3 -> 3.9e-4 (s_2), i.e. h^2; the uncontrolled
+    roots likewise."""
+    errors = []
+    for n in (2, 4):
+        ex = control_problem(n, 1, T=0.1)
+        assert ex.prediction is None
+        rel = np.abs(ex.roots_discrete - ex.roots) / np.abs(ex.roots)
+        free = np.abs(ex.roots_discrete_uncontrolled - ex.roots_uncontrolled)
+        assert (rel < [1e-4, 3e-3]).all() and (free / np.abs(ex.roots_uncontrolled) < 3e-3).all()
+        errors.append(rel)
+    ratio = errors[0] / errors[1]
+    assert (ratio > 3).all() and (ratio < 5.5).all(), ratio  # (h^2: 4)
+    assert -ex.roots_discrete[0].real == pytest.approx(0.46322, rel=1e-4)
+
+
+@pytest.mark.parametrize(
+    "gain, b, rate",
+    [(0.0, 0.0, 0.0), (0.0, 0.005, 0.0032968), (-1.0, 0.005, -0.45508), (1.0, 0.005, 0.46322)],
+)
+def test_control_discrete_rate_of_zero_negative_and_positive_gain(gain, b, rate):
+    """No feedback and no damping: Re s = 0 to round-off (the loop is then the undamped
+    symmetric system); no feedback: the material damping's rate, the controlled loop's root
+    equal to the uncontrolled one; a negative gain: a negative rate (the mode grows), the
+    uniform bar's root to 1e-4 as a positive one. P2, 4 x 1 cells."""
+    ex = control_problem(1, 2, gain=gain, b=b, T=0.1)
+    s = ex.roots_discrete
+    if rate == 0.0:
+        assert np.abs(s.real).max() < 1e-12 * np.abs(s).max()
+    else:
+        assert -s[0].real == pytest.approx(rate, rel=1e-4)
+    assert -s[0].real == pytest.approx(-ex.roots[0].real, rel=1e-4, abs=1e-14)
+    if gain == 0.0:
+        assert np.allclose(s, ex.roots_discrete_uncontrolled, rtol=1e-10)
+
+
+def test_control_discrete_roots_with_a_filter_state():
+    """k_d > 0 adds the controller's state z (the filtered derivative, T_f = 0.02): the loop
+    has 2N + 1 unknowns; its first root is the uniform bar's with H = s (k_p + k_d s/(1 + T_f s))
+    (measured rate 0.45280 both)."""
+    ex = control_problem(1, 2, kd=0.05, T=0.1)
+    assert np.abs(ex.roots_discrete - ex.roots).max() < 1e-4 * np.abs(ex.roots).max()
+    assert -ex.roots_discrete[0].real == pytest.approx(0.45280, rel=1e-4)
+
+
+def test_control_discrete_roots_with_several_materials_are_defined():
+    """A stiffer, heavier tip half (E 3x, rho 2x): the uniform bar's roots NaN, the discrete
+    loop's finite -- lower in frequency and damped more slowly than the uniform bar's (the
+    tip half heavier) -- and with equal halves the one-material roots to round-off."""
+    one = control_problem(1, 2, material=BAR, T=0.1)
+    same = control_problem(1, 2, material=_halves(BAR, BAR, 0.5), T=0.1)
+    assert np.allclose(same.roots_discrete, one.roots_discrete, rtol=1e-10)
+    hard = Material.from_young(300.0, 0.0, 2.0, dim=2, plane="stress")
+    two = control_problem(1, 2, material=_halves(BAR, hard, 0.5), T=0.1)
+    assert np.isnan(two.roots).all() and np.isfinite(two.roots_discrete).all()
+    s1 = two.roots_discrete[0]
+    assert 5.7 < s1.imag < 5.9 and 0.40 < -s1.real < 0.43  # (measured 5.8125, 0.41750 on 8 x 2)
+    assert s1.imag < one.roots_discrete[0].imag

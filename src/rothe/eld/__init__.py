@@ -44,7 +44,7 @@ from .components import (
 from .constraint import DirichletConstraint, HarmonicLifting, NodalLifting
 from .control import LinearController, PointSensor, ReactionSensor, UserController
 from .coupled_run import CoupledResult, CoupledStepper, run_coupled, run_coupled_many
-from .coupled_step import CoupledStepSystem, coupled_modes
+from .coupled_step import CoupledStepSystem, closed_loop_matrices, closed_loop_roots, coupled_modes
 from .coupling import (
     CoupledProblem,
     Coupling,
@@ -139,6 +139,8 @@ __all__ = [
     "beam_problem",
     "cauchy_stress",
     "convergence_study",
+    "closed_loop_matrices",
+    "closed_loop_roots",
     "coupled_modes",
     "run_bodies",
     "run_coupled",

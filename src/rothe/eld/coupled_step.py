@@ -440,3 +440,107 @@ def modal_rows(system: CoupledProblem, U: np.ndarray, Q: np.ndarray, lifting: st
     R_u = (kern.rho * (kern.M @ U)).T
     R_q = (_dense(kern.Mq) @ Q).T
     return np.ascontiguousarray(R_u), np.ascontiguousarray(R_q)
+
+
+def closed_loop_matrices(system: CoupledProblem):
+    """The semi-discrete closed loop (body on the constraint, components, controllers) as a
+    first-order linear system B x' = A x, x = (v, v', z), v = (x_I, q) the generalized
+    coordinates of :func:`coupled_modes` (u = P^T x_I + Phi q, nodal lifting):
+
+        M_T v'' + C_T v' + K_T v = E_T w,   w = C_c z + D_c y,   z' = A_c z + B_c y,
+        y = Y_u u + Y_v u' + Y_lam lambda = Y_q v + Y_p v' + Y_a v'',
+
+    with M_T = T^T rho M T + blkdiag(0, M_q), C_T, K_T likewise (the body's damping C, the
+    components' df/dp, df/dq at rest), E_T = [0; E] (the actuated coordinates) and
+    lambda = -M_G^-1 L^T (rho M a + C v + K u) (docs/coupling.md, (C.1)-(C.3) and Sec. 4's
+    W = Y_u + kappa Y_v - Y_lam M_G^-1 L^T A with the scheme's kappa -> d/dt), hence
+    Y_q = (Y_u - Z^T K) T, Y_p = (Y_v - Z^T C) T, Y_a = -Z^T rho M T, Z = L M_G^-1 Y_lam^T:
+
+        B = [[I, 0, 0], [0, M_T - E_T D_c Y_a, 0], [0, -B_c Y_a, I]],
+        A = [[0, I, 0], [-(K_T - E_T D_c Y_q), -(C_T - E_T D_c Y_p), E_T C_c],
+             [B_c Y_q, B_c Y_p, A_c]].
+
+    The feedback makes A non-symmetric; nonlinear components and controllers are linearized
+    at rest (their Jacobians at t = 0, q = p = 0, z = z_0, y = 0). Returns (A, B) sparse
+    (2N + s square, N = |I| + r) and the reduced mass M_T (N x N, sparse, without the
+    feedback's term: the norm in which :func:`closed_loop_roots` compares modes)."""
+    kern = CoupledStepSystem(system, "nodal")
+    n, I, r, s = system.body.space.ndofs, kern.I, kern.r, kern.s
+    N = I.size + r
+    P_T = sp.csr_matrix((np.ones(I.size), (I, np.arange(I.size))), shape=(n, I.size))
+    T = sp.hstack([P_T, sp.csr_matrix(kern.Phi_sparse)], format="csr")
+    rhoM, C, K = kern.matrix(1.0, 0.0, 0.0), kern.matrix(0.0, 1.0, 0.0), kern.matrix(0.0, 0.0, 1.0)
+    Kq, Cq = np.zeros((r, r)), np.zeros((r, r))
+    for cmp in system.components:
+        sl = system.slice(cmp)
+        dq, dp = cmp.jacobians(0.0, np.zeros(cmp.size), np.zeros(cmp.size))
+        Kq[sl, sl], Cq[sl, sl] = _dense(dq), _dense(dp)
+
+    def reduced(A, Aq):
+        return (T.T @ A @ T + sp.block_diag([sp.csr_matrix((I.size, I.size)), Aq])).tocsr()
+
+    MT, CT, KT = reduced(rhoM, kern.Mq), reduced(C, Cq), reduced(K, Kq)
+    mass = MT
+    zero = sp.csr_matrix((N, N))
+    if kern.k_in:
+        # all sparse: the feedback's terms are of rank k (sensors) on the actuated rows q
+        ET = sp.csr_matrix(np.vstack([np.zeros((I.size, kern.o)), kern.E]))  # (N, o)
+        Z = sp.csr_matrix(kern._LZ)  # (n, k): L M_G^-1 Y_lam^T, zero without reaction sensors
+        Z.eliminate_zeros()
+        Yq = ((kern.Y_u - Z.T @ K) @ T).tocsr()
+        Yp = ((kern.Y_v - Z.T @ C) @ T).tocsr()
+        Ya = (-(Z.T @ rhoM @ T)).tocsr()
+        ED = ET @ sp.csr_matrix(kern.Dc)
+        MT, KT, CT = MT - ED @ Ya, KT - ED @ Yq, CT - ED @ Yp
+        Bc = sp.csr_matrix(kern.Bc)
+        Bz, Az = Bc @ Ya, sp.csr_matrix(kern.Ac)
+        top_z, rows_z = ET @ sp.csr_matrix(kern.Cc), [Bc @ Yq, Bc @ Yp, Az]
+    else:
+        Bz = sp.csr_matrix((0, N))
+        top_z, rows_z = sp.csr_matrix((N, 0)), [np.zeros((0, N)), np.zeros((0, N)), None]
+    eye_N, eye_s = sp.identity(N, format="csr"), sp.identity(s, format="csr")
+    B = sp.bmat([[eye_N, None, None], [None, MT, None], [None, -Bz, eye_s]], format="csc")
+    A = sp.bmat(
+        [
+            [zero, eye_N, sp.csr_matrix((N, s))],
+            [-sp.csr_matrix(KT), -sp.csr_matrix(CT), top_z],
+            [sp.csr_matrix(rows_z[0]), sp.csr_matrix(rows_z[1]), rows_z[2]],
+        ],
+        format="csc",
+    )
+    return A, B, mass
+
+
+def closed_loop_roots(system: CoupledProblem, frequencies, U, Q, count: int = 6) -> np.ndarray:
+    """The eigenvalues s = -sigma + i omega of the semi-discrete closed loop
+    (:func:`closed_loop_matrices`, A x = s B x) that continue the given undamped modes
+    (w_k, U_k, Q_k of :func:`coupled_modes`, typically of the system without controllers):
+    for each k the ``count`` eigenvalues nearest i w_k (shift-invert, one complex sparse LU of
+    A - s_0 B per mode, s_0 = i w_k (1 + 1e-4) so that an undamped root is not the shift), of
+    which the one whose eigenvector's displacement part v has the largest M_T-overlap
+    |phi_k^T M_T v| / (|phi_k|_M |v|_M) with phi_k = (U_k on the free dofs, Q_k). sigma_k is
+    the mode's decay rate predicted by the discrete body (no time discretization): a run's
+    measured rate tends to it as tau -> 0 (docs/coupling.md, Sec. 11). Returns the roots
+    (len(frequencies),), complex, Im s > 0."""
+    A, B, MT = closed_loop_matrices(system)
+    I, N = system.constraint.free, MT.shape[0]
+    size = A.shape[0]
+    roots = np.empty(len(frequencies), dtype=complex)
+    for j, w in enumerate(np.asarray(frequencies, dtype=float)):
+        phi = np.concatenate([U[I, j], Q[:, j]])
+        shift = 1j * w * (1 + 1e-4) if w > 0 else 1e-4
+        lu = spla.splu(sp.csc_matrix(A - shift * B, dtype=complex))
+        op = spla.LinearOperator(
+            (size, size), matvec=lambda x, lu=lu: lu.solve(B @ x), dtype=complex
+        )
+        mu, vecs = spla.eigs(op, k=min(count, size - 2), which="LM")  # (ARPACK: k < size - 1)
+        vals = shift + 1.0 / mu
+        v = vecs[:N]
+        Mphi = MT @ phi
+        overlap = np.abs(Mphi @ v) / np.sqrt(
+            (phi @ Mphi) * np.einsum("ij,ij->j", v.conj(), MT @ v).real
+        )
+        overlap[vals.imag < 0] = -1.0
+        best = int(np.argmax(overlap - 1e-9 * np.abs(vals - shift)))
+        roots[j] = vals[best]
+    return roots

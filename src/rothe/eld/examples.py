@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import warnings
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -53,7 +53,7 @@ from ..errors import (
 from ..fem import mesh as meshes
 from .components import LinearComponent, MassSpringDamper, den_hartog, rigid_motion_matrix
 from .control import LinearController, PointSensor, locate
-from .coupled_step import coupled_modes, modal_rows
+from .coupled_step import closed_loop_roots, coupled_modes, modal_rows
 from .coupling import CoupledProblem, Translation, UserCoupling
 from .damping import Damping, NonlinearDamping, RayleighDamping
 from .frequencies import (
@@ -1582,6 +1582,12 @@ class ControlExample:
     prediction : str or None
         Why ``roots``, ``roots_uncontrolled``, ``roots_undamped`` and ``modal_rate`` are NaN
         (:data:`SEVERAL_MATERIALS`: they are the uniform bar's), None where they are defined.
+    roots_discrete, roots_discrete_uncontrolled : ndarray
+        The roots of the first two axial modes of the semi-discrete closed loop, with and
+        without the feedback (:func:`rothe.eld.coupled_step.closed_loop_roots`: the
+        eigenvalues of the body on the constraint, the base and the controller's state near
+        i w_k of the discrete uncontrolled modes): defined for any material and mesh; the rate
+        a run measures as tau -> 0. NaN for a second axial mode not among the first 8.
     """
 
     controlled: CoupledProblem
@@ -1594,6 +1600,10 @@ class ControlExample:
     length: float = math.nan
     height: float = math.nan
     prediction: str | None = None
+    roots_discrete: np.ndarray = field(default_factory=lambda: np.full(2, complex(math.nan)))
+    roots_discrete_uncontrolled: np.ndarray = field(
+        default_factory=lambda: np.full(2, complex(math.nan))
+    )
 
 
 def control_problem(
@@ -1635,8 +1645,9 @@ def control_problem(
     n, degree : int
     length, height : float
     material : Material or PiecewiseMaterial, optional
-        Several materials on the mesh's regions: the runs and the discrete frequency as for
-        one, the predicted roots and rates (a uniform bar's) NaN, ``prediction`` says why.
+        Several materials on the mesh's regions: the runs, the discrete frequency and the
+        discrete closed loop's roots (``roots_discrete``) as for one, the uniform bar's
+        predicted roots and rates NaN, ``prediction`` says why.
     base_mass, base_stiffness, gain, kd, filter_time, b, amplitude, T : float
         m_b, k_b, k_p, k_d, T_f (used with k_d > 0), b, the initial amplitude and T.
     mesh : skfem.MeshTri, optional
@@ -1708,6 +1719,16 @@ def control_problem(
         scale = amplitude / abs(Q[axis, k])
         q0, u0 = Q[:, k] * scale, U[:, k] * scale
         controlled, uncontrolled = build(True, q0, u0), build(False, q0, u0)
+        # the discrete closed loop's roots continuing the first two axial modes: any material
+        follow = axial[:2]
+        discrete = np.full(2, complex(math.nan, math.nan))
+        discrete_free = discrete.copy()
+        discrete[: follow.size] = closed_loop_roots(
+            controlled, w[follow], U[:, follow], Q[:, follow]
+        )
+        discrete_free[: follow.size] = closed_loop_roots(
+            uncontrolled, w[follow], U[:, follow], Q[:, follow]
+        )
 
     def H(s):
         return s * (kp + (kd * s / (1.0 + Tf * s) if kd > 0 else 0.0))
@@ -1725,6 +1746,8 @@ def control_problem(
             length,
             height,
             prediction=SEVERAL_MATERIALS,
+            roots_discrete=discrete,
+            roots_discrete_uncontrolled=discrete_free,
         )
     bar = dict(area=height, base_mass=mb, base_stiffness=kb)
     roots = controlled_bar_roots(length, modulus, rho, H=H, kelvin_voigt=b, count=2, **bar)
@@ -1732,5 +1755,15 @@ def control_problem(
     undamped = controlled_bar_roots(length, modulus, rho, H=H, count=2, **bar)
     modal = first_mode_decay_rate(length, modulus, rho, H=H, **bar) - free[0].real
     return ControlExample(
-        controlled, uncontrolled, roots, free, undamped, modal, float(w[k]), length, height
+        controlled,
+        uncontrolled,
+        roots,
+        free,
+        undamped,
+        modal,
+        float(w[k]),
+        length,
+        height,
+        roots_discrete=discrete,
+        roots_discrete_uncontrolled=discrete_free,
     )

@@ -583,10 +583,21 @@ def pencil_frequencies(t: np.ndarray, y: np.ndarray, count: int, rtol: float = 1
     parasitic one. A run of a linear scheme on uniform steps IS such a sum, so w_i is the
     scheme's discrete frequency to round-off (docs/coupling.md Sec. 11). NaN for every
     frequency when the steps are not equal (adaptive steps) or the signal too short."""
+    return [float(s.imag) for s in pencil_roots(t, y, count, rtol)]
+
+
+def pencil_roots(t: np.ndarray, y: np.ndarray, count: int, rtol: float = 1e-10) -> list:
+    """The exponents s_i = log(z_i)/tau = -alpha_i + i w_i (complex, ascending in w) of the
+    ``count`` components of largest amplitude of :func:`pencil_frequencies`'s matrix pencil:
+    their decay rates alpha_i as well as their frequencies. A linear scheme's run on uniform
+    steps is exactly such a sum, so s_i is the scheme's discrete root of mode i to round-off,
+    unaffected by the other modes a start excites (which bias :func:`decay_rate`'s maxima):
+    s_i -> the semi-discrete root as tau -> 0, at the scheme's order (docs/coupling.md,
+    Sec. 11, eld-control). NaN (complex) where :func:`pencil_frequencies` has NaN."""
     count = check_int("count", count, minimum=1)
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
-    nan = [float("nan")] * count
+    nan = [complex(float("nan"), float("nan"))] * count
     if t.size < 8 * count:
         return nan
     dt = np.diff(t)
@@ -606,6 +617,8 @@ def pencil_frequencies(t: np.ndarray, y: np.ndarray, count: int, rtol: float = 1
     Z = z[None, :] ** np.arange(y.size)[:, None]
     a = np.linalg.lstsq(Z, y.astype(complex), rcond=None)[0]
     up = np.angle(z) > 0
-    w, a = np.angle(z[up]) / tau, a[up]
-    w = np.sort(w[np.argsort(-np.abs(a))[:count]])
-    return w.tolist() + nan[w.size :]
+    z, a = z[up], a[up]
+    z = z[np.argsort(-np.abs(a))[:count]]
+    roots = np.log(z) / tau
+    roots = roots[np.argsort(roots.imag)]
+    return [complex(v) for v in roots] + nan[roots.size :]
