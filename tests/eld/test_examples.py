@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from rothe.eld.examples import (
+    BEAM_THEORY_2D,
     NOT_SLICES,
     SEVERAL_MATERIALS,
     _clamped_frequency,
@@ -23,6 +24,8 @@ from rothe.eld.examples import (
 )
 from rothe.eld.frequencies import Attachment, sliced_bar_frequencies
 from rothe.eld.materials import Material, PiecewiseMaterial
+from rothe.errors import RotheInputError
+from rothe.fem.mesh import box
 
 #: the strips' single materials (eld-tmd, eld-control)
 TMD = Material.from_young(1e4, 0.0, 1.0, dim=2, plane="stress")
@@ -221,3 +224,41 @@ def test_control_discrete_roots_with_several_materials_are_defined():
     s1 = two.roots_discrete[0]
     assert 5.7 < s1.imag < 5.9 and 0.40 < -s1.real < 0.43  # (measured 5.8125, 0.41750 on 8 x 2)
     assert s1.imag < one.roots_discrete[0].imag
+
+
+# -- eld-tmd and eld-control on 3D bodies (refused before: "mesh: got a 3D mesh ..., must be
+# 2D (this example's support and tip plate are plane)") ------------------------------------------
+
+
+def test_tmd_on_a_3d_bar_tunes_to_either_transverse_axis_of_a_square_section():
+    """The 3D bar 1 x 0.1 x 0.1 (8 cubes x 6 tetrahedra, P2) along x: its first bending modes
+    in y and z are one eigenvalue (a square section), split in the solver's basis at will; the
+    absorber along y or z is tuned to the same w_1 and m_1 (the combination with the largest
+    a_direction, :func:`_bending_mode_3d`), and the plate carries a_x..theta_z and s. The
+    Euler-Bernoulli comparison is NaN with its reason; w_c is the clamped body's."""
+    mesh = box(8, 1, 1, 1.0, 0.1, 0.1)
+    along_y = tmd_problem(mesh=mesh, T=0.1)
+    along_z = tmd_problem(mesh=mesh, T=0.1, direction=2)
+    assert along_y.frequency == pytest.approx(along_z.frequency, rel=1e-9)
+    assert along_y.modal_mass == pytest.approx(along_z.modal_mass, rel=1e-9)
+    # (measured: w_1 = 9.1411, w_c = 10.096 against the 2D strip's 10.085)
+    assert 9.0 < along_y.frequency < along_y.clamped_frequency < 10.2
+    # m_1 with a_y = 1: between the plate's mass and the bar's with its base (4 x 0.01)
+    assert 0.05 * 0.01 < along_y.modal_mass < 0.04
+    plate = along_y.with_tmd.components[1]
+    assert plate.coordinates[-1] == "absorber_y" and plate.size == 7
+    assert along_z.with_tmd.components[1].coordinates[-1] == "absorber_z"
+    assert math.isnan(along_y.beam_frequency) and along_y.prediction == BEAM_THEORY_2D
+    with pytest.raises(RotheInputError, match="direction: got 0, must be an axis 0..2 of the 3D"):
+        tmd_problem(mesh=mesh, direction=0)
+
+
+def test_control_on_a_3d_bar_has_the_bar_roots_of_its_section():
+    """The 3D bar 1 x 0.25 x 0.25 (4 cubes, P2, nu = 0): the axial motion is the 1D bar's of
+    area A = volume / L, so the uniform bar's roots hold and the discrete closed loop's agree
+    with them (measured 2e-6 in the rate of the first mode)."""
+    ex = control_problem(mesh=box(4, 1, 1, 1.0, 0.25, 0.25), T=0.1)
+    assert ex.prediction is None and ex.height == pytest.approx(0.0625, rel=1e-12)
+    assert ex.roots_discrete[0].real == pytest.approx(ex.roots[0].real, rel=1e-4)
+    assert ex.roots_discrete[0].imag == pytest.approx(ex.roots[0].imag, rel=1e-4)
+    assert ex.controlled.components[0].size == 3

@@ -51,7 +51,7 @@ from ..eld.frequencies import (
 )
 from ..eld.run import run_eld
 from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
-from ..fem.mesh import load_mesh, mesh_dim
+from ..fem.mesh import describe, load_mesh, mesh_dim
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
 from .common import (
     add_output_options,
@@ -123,6 +123,7 @@ BASE_TIP_PARAMETERS = {
     **MESH_PARAMETERS,
     "couplings[0].part": "--base",
     "couplings[1].part": "--tip",
+    "axis": "--axis",
 }
 
 
@@ -186,8 +187,8 @@ class CoupledRunCommand:
         parser.add_argument(
             "--axis",
             default="x",
-            help="x | y: the body's long axis (default x; y with --mesh only, the strip lies "
-            "along x); L is the mesh's extent along it",
+            help="x | y | z: the body's long axis (default x; y with --mesh only, the strip lies "
+            "along x; z with a 3D --mesh); L is the mesh's extent along it",
         )
 
     def validate(self, args):
@@ -198,11 +199,13 @@ class CoupledRunCommand:
         With ``--mesh``: not with the strip's --n/--length/--height."""
         objects = self.run_objects(args)
         check_mesh_options(args, ("--n", "--length", "--height"))
-        if check_choice("--axis", args.axis, ("x", "y")) == "y" and args.mesh is None:
-            raise fail("--axis", "y", "needs --mesh (the built-in strip lies along x)")
+        if check_choice("--axis", args.axis, ("x", "y", "z")) != "x" and args.mesh is None:
+            raise fail("--axis", args.axis, "needs --mesh (the built-in strip lies along x)")
         n = self.strip_checks(args)
         material = None if args.material else material_of(args, self.default_material)
-        return objects, n, material
+        # (a --mesh body: the material in the mesh's dimension, body_material_of; the 2D one
+        # above checks the options before the mesh is read)
+        return objects, n, None if args.mesh is not None else material
 
     def body_material_of(self, args, material, mesh):
         """The body's material: ``material`` of :meth:`validate`, or with ``--material``/
@@ -210,21 +213,25 @@ class CoupledRunCommand:
         regions (its refusals name --material/--region: ``MESH_PARAMETERS``)."""
         if material is not None:
             return material
+        if mesh is not None and args.axis == "z" and mesh_dim(mesh) == 2:
+            raise fail("--axis", "z", f"needs a 3D --mesh (got a 2D mesh: {describe(mesh)})")
         return body_material(args, self.default_material, mesh)
 
     @staticmethod
     def body_of(args, example, mesh):
         """The summary's fields of the body: the strip's n, L, H, or the mesh file's fields with
-        the parts and the L, H the example took from the mesh (extent in x, area / L)."""
+        the parts and the L, H the example took from the mesh (extent along --axis,
+        area / L; 3D: ``area``, the section's volume / L, instead of H)."""
         if args.mesh is None:
             return {"n": args.n, "length": args.length, "height": args.height}
+        section = "height" if mesh_dim(mesh) == 2 else "area"
         return {
             **mesh_fields(args, mesh),
             "base": args.base,
             "tip": args.tip,
             "axis": args.axis,
             "length": example.length,
-            "height": example.height,
+            section: example.height,
         }
 
     #: the SpaceAdaptivity of --adapt-space (None: fixed mesh), set by :meth:`run_objects`
@@ -672,6 +679,13 @@ class RunEldTmd(CoupledRunCommand):
             base="the end tied to the support (pushed along y)",
             tip="the end carrying the rigid plate and the absorber (centred at its centroid)",
         )
+        parser.add_argument(
+            "--direction",
+            default=None,
+            help="x | y | z: the transverse axis the support is pushed along and the absorber "
+            "swings along (default the next axis after --axis: y for x, x for y in 2D; in 3D "
+            "x -> y -> z -> x); must differ from --axis, z needs a 3D --mesh",
+        )
         float_option(
             parser,
             "--mass-ratio",
@@ -700,13 +714,36 @@ class RunEldTmd(CoupledRunCommand):
         add_output_options(parser, self.name)
         add_run_options(parser)
 
+    def direction_of(self, args, mesh) -> int:
+        """--direction as an axis index (default the next after --axis: 1 - axis in 2D,
+        (axis + 1) mod 3 in 3D); one line naming --direction when it equals --axis or is z
+        on a 2D body."""
+        axis = "xyz".index(args.axis)
+        dim = 2 if mesh is None else mesh_dim(mesh)
+        if args.direction is None:
+            return 1 - axis if dim == 2 else (axis + 1) % 3
+        direction = check_choice("--direction", args.direction, ("x", "y", "z"))
+        if direction == args.axis:
+            raise fail(
+                "--direction",
+                direction,
+                f"must differ from --axis {args.axis} (the absorber swings across the body)",
+            )
+        if direction == "z" and dim == 2:
+            where = "the built-in strip" if mesh is None else f"a 2D mesh: {describe(mesh)}"
+            raise fail("--direction", "z", f"needs a 3D --mesh (got {where})")
+        return "xyz".index(direction)
+
     def execute(self, args) -> int:
         """Build both systems, run them, write both trajectories, the summary and the figure."""
         objects, n, material = self.validate(args)
+        if args.direction is not None and (args.mesh is None or args.direction == args.axis):
+            self.direction_of(args, None)  # (the refusals that need no mesh, before reading it)
         mesh = body_mesh(args)
         if mesh is not None:
             check_modal_size(mesh, args.degree)
         material = self.body_material_of(args, material, mesh)
+        across = self.direction_of(args, mesh)  # (pushed and measured across the body)
         example = tmd_problem(
             n,
             args.degree,
@@ -716,15 +753,18 @@ class RunEldTmd(CoupledRunCommand):
             mesh=mesh,
             base=args.base,
             tip=args.tip,
-            axis="xy".index(args.axis),
+            axis="xyz".index(args.axis),
+            direction=across,
             mass_ratio=args.mass_ratio,
             force=args.force,
             forcing_ratio=args.forcing_ratio,
             b=args.b,
             T=args.T,
         )
-        across = 1 - "xy".index(args.axis)  # (pushed and measured across the body)
         tip = example.with_tmd.offsets["tip"] + across  # the plate's deflection a_y, in q
+        # the absorber's displacement s: the plate's last coordinate (a_x, a_y, theta, s; 3D:
+        # a, theta, s)
+        absorber = example.with_tmd.offsets["tip"] + example.with_tmd.components[1].size - 1
 
         def summarize(summary, trajs, completed):
             summary.update(
@@ -744,6 +784,8 @@ class RunEldTmd(CoupledRunCommand):
                 absorber_stiffness=example.stiffness,
                 absorber_damping=example.damping,
             )
+            if mesh is not None:
+                summary["direction"] = "xyz"[across]
             period = 2 * np.pi / example.forcing
             for label, suffix in (("with_tmd", ""), ("without_tmd", "_without_tmd")):
                 if label not in trajs:
@@ -759,7 +801,7 @@ class RunEldTmd(CoupledRunCommand):
                 summary[f"energy_final{suffix}"] = float(traj["energy"][-1])
             if "with_tmd" in trajs:
                 q = np.asarray(trajs["with_tmd"]["q"])
-                summary["absorber_amplitude_max"] = float(np.abs(q[:, tip + 2]).max())
+                summary["absorber_amplitude_max"] = float(np.abs(q[:, absorber]).max())
             if completed:
                 summary["amplitude_reduction"] = (
                     summary["tip_amplitude_max_without_tmd"] / summary["tip_amplitude_max"]
@@ -779,7 +821,7 @@ class RunEldTmd(CoupledRunCommand):
                 {"with TMD": trajs["with_tmd"], "without TMD": trajs["without_tmd"]},
                 stage / "fig_tmd.png",
                 coordinate=tip,
-                label=f"tip deflection (end plate a_{'xy'[across]})",
+                label=f"tip deflection (end plate a_{'xyz'[across]})",
                 part=args.base,
                 axis=across,
                 title=f"eld-tmd, forcing {example.forcing:.4g} rad/s, mass ratio "
@@ -900,7 +942,7 @@ class RunEldControl(CoupledRunCommand):
             mesh=mesh,
             base=args.base,
             tip=args.tip,
-            axis="xy".index(args.axis),
+            axis="xyz".index(args.axis),
             base_mass=args.base_mass,
             base_stiffness=args.base_spring,
             gain=args.gain,
@@ -913,7 +955,7 @@ class RunEldControl(CoupledRunCommand):
         roots, free, undamped = example.roots, example.roots_uncontrolled, example.roots_undamped
         discrete = example.roots_discrete
         w1 = float(discrete[0].imag) if np.isfinite(discrete[0]) else example.frequency
-        axis = "xy".index(args.axis)  # (the base's displacement along the bar: q[axis])
+        axis = "xyz".index(args.axis)  # (the base's displacement along the bar: q[axis])
         # several materials: the uniform bar's predictions are NaN (null in summary.json, the
         # reason in "prediction"), the measured rates of both runs are reported as for one
         predicted = example.prediction is None

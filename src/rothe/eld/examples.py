@@ -1208,13 +1208,18 @@ def axial_slices(mesh, material: PiecewiseMaterial, tip: str = "right", rtol: fl
 
 
 class PlateAbsorber(LinearComponent):
-    """A rigid end plate (2D small rotations: translation a, rotation theta about its centre
-    x_c; mass m_p, inertia J_p) carrying an absorber mass m_a on a spring k and a damper c along
-    y: coordinates q = (a_x, a_y, theta, s), with s the absorber's displacement,
+    """A rigid end plate (small rotations: translation a, rotation theta about its centre x_c;
+    mass m_p, inertia J_p) carrying an absorber mass m_a on a spring k and a damper c along the
+    axis ``axis``. 2D: coordinates q = (a_x, a_y, theta, s), with s the absorber's
+    displacement,
 
-        M = diag(m_p, m_p, J_p, m_a),   f = k (a_y - s) (e_ay - e_s) + c (p_ay - p_s) (e_ay - e_s).
+        M = diag(m_p, m_p, J_p, m_a),   f = k (a_y - s) (e_ay - e_s) + c (p_ay - p_s) (e_ay - e_s);
 
-    Without an absorber (``absorber_mass=0``) only (a_x, a_y, theta): the plate alone, a
+    3D (a centre of 3 coordinates): q = (a_x, a_y, a_z, theta_x, theta_y, theta_z, s),
+    M = diag(m_p I, J_p I, m_a) (J_p isotropic about the centre), the same spring and damper
+    between a_axis and s.
+
+    Without an absorber (``absorber_mass=0``) only (a, theta): the plate alone, a
     :class:`~rothe.eld.components.RigidBody`'s coordinates. Tie it to a part with
     :func:`plate_coupling`.
 
@@ -1222,13 +1227,14 @@ class PlateAbsorber(LinearComponent):
     ----------
     plate_mass, plate_inertia : float
         m_p > 0, J_p > 0 about the centre.
-    center : (2,) array
-        x_c, the reference point of the rotation.
+    center : (2,) or (3,) array
+        x_c, the reference point of the rotation; its size is the dimension.
     absorber_mass, stiffness, damping : float
         m_a >= 0 (0: no absorber), k, c >= 0.
     name : str
     axis : int
-        The absorber's direction: 1 (y, default: the formulas above) or 0 (x: a_x - s).
+        The absorber's direction: 1 (y, default: the formulas above), 0 (x: a_x - s) or, in
+        3D, 2 (z).
     """
 
     def __init__(
@@ -1248,33 +1254,43 @@ class PlateAbsorber(LinearComponent):
         ma = check_nonnegative("absorber_mass", absorber_mass)
         k = check_nonnegative("stiffness", stiffness)
         c = check_nonnegative("damping", damping)
-        self.center = np.asarray(center, dtype=float).reshape(2)
-        names = ("a_x", "a_y", "theta")
+        center = np.asarray(center, dtype=float).ravel()
+        if center.size not in (2, 3):
+            raise fail("center", described(f"{center.tolist()}"), "must be a point in 2D or 3D")
+        self.center = center
+        self.dim = d = center.size
+        if d == 2:
+            names, rigid = ("a_x", "a_y", "theta"), [mp, mp, Jp]
+        else:
+            names = ("a_x", "a_y", "a_z", "theta_x", "theta_y", "theta_z")
+            rigid = [mp] * 3 + [Jp] * 3
         if ma == 0.0:
-            super().__init__(np.array([mp, mp, Jp]), coordinates=names, name=name)
+            super().__init__(np.array(rigid), coordinates=names, name=name)
             return
-        if axis not in (0, 1):
-            raise fail("axis", axis, "must be 0 (x) or 1 (y)")
-        e = np.array([0.0, 0.0, 0.0, -1.0])
-        e[axis] = 1.0  # a_y - s (a_x - s along x)
+        if axis not in range(d):
+            raise fail("axis", axis, "must be 0 (x) or 1 (y)" + (" or 2 (z)" if d == 3 else ""))
+        e = np.zeros(len(names) + 1)
+        e[axis], e[-1] = 1.0, -1.0  # a_y - s (a_x - s along x, a_z - s along z)
         super().__init__(
-            np.array([mp, mp, Jp, ma]),
+            np.array(rigid + [ma]),
             k * np.outer(e, e),
             c * np.outer(e, e),
-            coordinates=(*names, "absorber_" + "xy"[axis]),
+            coordinates=(*names, "absorber_" + "xyz"[axis]),
             name=name,
         )
 
 
 def plate_coupling(part: str, plate: PlateAbsorber) -> UserCoupling:
-    """B u = G(q) on ``part``: the part moves with the plate, G(q, x) = a + theta e_z x
-    (x - x_c) (linearized rigid motion, :func:`~rothe.eld.components.rigid_motion_matrix`);
-    the absorber coordinate does not enter G. A linear, time-independent coupling."""
+    """B u = G(q) on ``part``: the part moves with the plate, G(q, x) = a + theta x (x - x_c)
+    (linearized rigid motion, 2D: theta e_z x (x - x_c);
+    :func:`~rothe.eld.components.rigid_motion_matrix`); the absorber coordinate does not enter
+    G. A linear, time-independent coupling."""
+    rigid = 3 if plate.dim == 2 else 6
 
     def G_q(t, q, x):
-        R = rigid_motion_matrix(2, x, plate.center)  # (2, k, 3)
+        R = rigid_motion_matrix(plate.dim, x, plate.center)  # (d, k, 3 or 6)
         out = np.zeros(R.shape[:2] + (plate.size,))
-        out[:, :, :3] = R
+        out[:, :, :rigid] = R
         return out
 
     def G(t, q, x):
@@ -1332,20 +1348,21 @@ SEVERAL_MATERIALS = "n/a: several materials (the formula is a uniform strip's, o
 
 def _strip(n, degree, length, height, material, young, mesh=None, base="left", tip="right", axis=0):
     """The body of the coupled examples: the checked ``n``, ``length``, ``height``, the
-    material (default E = ``young``, nu = 0, rho = 1, plane stress), the axial modulus of the
-    strip (E in plane stress, E/(1 - nu^2) in plane strain; NaN for a PiecewiseMaterial: no one
-    modulus), the mesh, round(n L/H) x n cells on [0, L] x [0, H], and the centroid and length
-    of the ``tip`` part (the right side: (L, H/2) and H).
+    material (default E = ``young``, nu = 0, rho = 1, plane stress; plane strain in 3D), the
+    axial modulus of the strip (:func:`axial_modulus`: E in plane stress and 3D, E/(1 - nu^2)
+    in plane strain; NaN for a PiecewiseMaterial: no one modulus), the mesh, round(n L/H) x n
+    cells on [0, L] x [0, H], and the centroid and size of the ``tip`` part (the right side:
+    (L, H/2) and H).
 
-    ``mesh``: a 2D body with the named parts ``base`` and ``tip`` instead of the strip; it is
-    taken as a strip along x: L its extent in x, H = area / L (the strip's own L, H to
-    round-off), the tip's centroid and length from its facets
-    (:func:`rothe.fem.mesh.part_centroid`). ``axis`` 1: a mesh along y (L its extent in y);
-    the built-in strip lies along x only."""
-    if axis not in (0, 1):
-        raise fail("axis", axis, "must be 0 (x) or 1 (y)")
-    if axis == 1 and mesh is None:
-        raise fail("axis", "y", "needs a mesh (the built-in strip lies along x)")
+    ``mesh``: a 2D or 3D body with the named parts ``base`` and ``tip`` instead of the strip;
+    it is taken as a bar along ``axis``: L its extent along it, H = volume / L (2D: the strip's
+    own L, H to round-off; 3D: the cross-section's area A), the tip's centroid and measure
+    (length in 2D, area in 3D) from its facets (:func:`rothe.fem.mesh.part_centroid`).
+    ``axis`` 1 (y) or 2 (z, a 3D mesh) needs a mesh; the built-in strip lies along x only."""
+    if axis not in (0, 1, 2):
+        raise fail("axis", axis, "must be 0 (x), 1 (y) or 2 (z)")
+    if axis > 0 and mesh is None:
+        raise fail("axis", "xyz"[axis], "needs a mesh (the built-in strip lies along x)")
     if degree not in (1, 2):
         raise fail("degree", degree, "must be 1 or 2")
     strip = mesh is None
@@ -1354,11 +1371,11 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
         length = check_positive("length", length)
         height = check_positive("height", height)
         mesh = rectangle(max(1, int(round(n * length / height))), n, length, height)
-    elif meshes.mesh_dim(mesh) != 2:
+    elif axis >= meshes.mesh_dim(mesh):
         raise fail(
-            "mesh",
-            described(f"a {meshes.mesh_dim(mesh)}D mesh ({meshes.describe(mesh)})"),
-            "must be 2D (this example's support and tip plate are plane)",
+            "axis",
+            "xyz"[axis],
+            f"needs a 3D mesh (got a 2D mesh: {meshes.describe(mesh)})",
         )
     meshes.part_centroid(mesh, base, "base")  # (the base must be a part: one line if not)
     if tip == base:
@@ -1370,14 +1387,49 @@ def _strip(n, degree, length, height, material, young, mesh=None, base="left", t
     if not strip:
         length = float(np.ptp(np.asarray(mesh.p)[axis]))
         height = float(meshes.cell_volumes(mesh).sum()) / length
+    dim = meshes.mesh_dim(mesh)
     if material is None:
-        material = Material.from_young(young, 0.0, 1.0, dim=2, plane="stress")
+        plane = "stress" if dim == 2 else "strain"
+        material = Material.from_young(young, 0.0, 1.0, dim=dim, plane=plane)
     if isinstance(material, PiecewiseMaterial):
         modulus = math.nan
     else:
-        E, nu = material.young
-        modulus = E if material.plane == "stress" else E / (1.0 - nu * nu)
+        modulus = axial_modulus(material, dim)
     return n, length, height, material, modulus, mesh, center, tip_size
+
+
+#: why eld-tmd's Euler-Bernoulli comparison is NaN (null in summary.json) on a 3D body
+BEAM_THEORY_2D = (
+    "n/a: a 3D body (the Euler-Bernoulli comparison is the plane strip's, E H^3/12; the "
+    "discrete w_1 and w_c hold in 3D)"
+)
+
+
+def _bending_mode_3d(w, Q, offset: int, axis: int, across: int, refine) -> tuple[float, float]:
+    """(w_1, m_1) of the first bending mode along ``across`` of a 3D coupled system from its
+    mass-normalized modes (w, Q of :func:`~rothe.eld.coupled_step.coupled_modes`; the plate's
+    a at ``offset``): the modes are grouped by frequency (within 1e-3: a square section's
+    bending modes in its two transverse axes are one eigenvalue, split in the solver's basis
+    at will), and in each group the combination psi = sum_k c_k phi_k, |c| = 1, with the
+    largest a_across, c = Q[a_across, group] / |.|; the first group whose psi has
+    |a_across| > 10 |a_axis| and > 10 |a_other| is bending along ``across``, with
+    w_1^2 = sum_k c_k^2 w_k^2 (the Rayleigh quotient) and m_1 = 1 / |Q[a_across, group]|^2
+    (psi's a_across scaled to 1)."""
+    other = 3 - axis - across
+    start = 0
+    while start < w.size:
+        group = np.flatnonzero(np.abs(w - w[start]) <= 1e-3 * w[start])
+        group = group[group >= start]
+        a = Q[offset + across, group]
+        size = float(np.sqrt(a @ a))
+        if size > 0:
+            c = a / size
+            psi = Q[:, group] @ c
+            side = max(abs(psi[offset + axis]), abs(psi[offset + other]))
+            if abs(psi[offset + across]) > 10 * side:
+                return float(np.sqrt(c**2 @ w[group] ** 2)), 1.0 / size**2
+        start = int(group[-1]) + 1
+    raise fail(*refine, "gives no bending mode among the first 8: refine")
 
 
 def _body_mass(mesh, material) -> float:
@@ -1428,6 +1480,7 @@ def tmd_problem(
     base: str = "left",
     tip: str = "right",
     axis: int = 0,
+    direction: int | None = None,
 ) -> TMDExample:
     """A plane-stress strip [0, length] x [0, height] (n cells across, round(n length/height)
     along; default material E = 10^4, nu = 0, rho = 1) whose ``left`` end is tied to a support
@@ -1454,16 +1507,24 @@ def tmd_problem(
         built (its mass, w_c, the discrete modes), so only ``beam_frequency``, a comparison,
         is NaN then.
     mass_ratio, force, forcing_ratio, b, T : float
-    mesh : skfem.MeshTri, optional
-        A 2D body along x with the named parts ``base`` (tied to the support) and ``tip`` (the
-        plate, centred at the part's centroid, J_p by the part's length) instead of the strip
-        (:func:`_strip`: L its extent in x, H = area / L; a gmsh mesh of the strip with these
-        parts gives the strip's run to round-off).
+    mesh : skfem.MeshTri or skfem.MeshTet, optional
+        A 2D or 3D body along ``axis`` with the named parts ``base`` (tied to the support) and
+        ``tip`` (the plate, centred at the part's centroid, J_p by the part's length; in 3D
+        J_p = m_p |tip| / 12 about every axis, the square plate's about its sides) instead of
+        the strip (:func:`_strip`: L its extent along the axis, H = volume / L; a gmsh mesh of
+        the strip with these parts gives the strip's run to round-off). In 3D the first bending
+        mode along ``direction`` is taken in the span of the modes within 1e-3 of its
+        frequency (a square section's two bending modes are one eigenvalue): the combination
+        with the largest a_direction, its w_1^2 the Rayleigh quotient; ``beam_frequency`` is
+        NaN (``prediction``: :data:`BEAM_THEORY_2D`).
     base, tip : str
         The boundary parts (default ``left``, ``right``: the strip's).
     axis : int
-        The body's long axis, 0 (x, default) or 1 (y, a mesh only); the support is pushed and
-        the absorber swings across it (y, or x).
+        The body's long axis, 0 (x, default), 1 (y, a mesh only) or 2 (z, a 3D mesh).
+    direction : int, optional
+        The transverse axis the support is pushed along and the absorber swings along: in 2D
+        the other axis (the default), in 3D any but ``axis`` (default the next one,
+        (axis + 1) mod 3).
 
     Returns
     -------
@@ -1473,7 +1534,17 @@ def tmd_problem(
     n, length, height, material, modulus, mesh, center, tip_size = _strip(
         n, degree, length, height, material, 1e4, mesh, base, tip, axis
     )
-    across = 1 - axis
+    dim = meshes.mesh_dim(mesh)
+    if direction is None:
+        direction = 1 - axis if dim == 2 else (axis + 1) % 3
+    if direction not in range(dim) or direction == axis:
+        raise fail(
+            "direction",
+            direction,
+            f"must be an axis 0..{dim - 1} of the {dim}D body other than axis {axis} (the "
+            "absorber swings across the body)",
+        )
+    across = direction
     mu = check_positive("mass_ratio", mass_ratio)
     force = check_real("force", force)
     ratio = check_positive("forcing_ratio", forcing_ratio)
@@ -1482,23 +1553,24 @@ def tmd_problem(
     several = isinstance(material, PiecewiseMaterial)
     w_eb = (
         math.nan
-        if several
+        if several or dim == 3
         else beam_frequencies(length, modulus * height**3 / 12, material.rho * height, count=1)[0]
     )
     w_c = _clamped_frequency(mesh, material, degree, base)
     base_mass = strip
     base_k = (base_mass + strip) * (4.0 * w_c) ** 2
     plate_mass = 0.05 * strip
-    plate_J = plate_mass * tip_size**2 / 12
+    # (3D: tip_size is the plate's area, h^2 of a square plate of side h)
+    plate_J = plate_mass * (tip_size**2 if dim == 2 else tip_size) / 12
     damping = RayleighDamping(0.0, b) if b > 0 else None
 
     def build(absorber=None, forcing=0.0):
         def push(t):
-            f = np.zeros(2)
+            f = np.zeros(dim)
             f[across] = force * math.sin(forcing * t)
             return f
 
-        support = MassSpringDamper(base_mass, base_k, load=push, name="base")
+        support = MassSpringDamper(base_mass, base_k, dim=dim, load=push, name="base")
         k, c = (0.0, 0.0) if absorber is None else absorber[1:]
         plate = PlateAbsorber(
             plate_mass,
@@ -1527,12 +1599,15 @@ def tmd_problem(
         w, _, Q = coupled_modes(bare, 8)
         ay = bare.offsets["tip"] + across  # (the deflection across the body, a_y along x)
         ax = bare.offsets["tip"] + axis
-        bending = np.flatnonzero(np.abs(Q[ay]) > 10 * np.abs(Q[ax]))
-        if bending.size == 0:
-            raise fail(*refine, "gives no bending mode among the first 8: refine")
-        k1 = int(bending[0])
-        w1 = float(w[k1])
-        m1 = 1.0 / float(Q[ay, k1]) ** 2  # (mass-normalized modes: the deflection a_y = 1)
+        if dim == 2:
+            bending = np.flatnonzero(np.abs(Q[ay]) > 10 * np.abs(Q[ax]))
+            if bending.size == 0:
+                raise fail(*refine, "gives no bending mode among the first 8: refine")
+            k1 = int(bending[0])
+            w1 = float(w[k1])
+            m1 = 1.0 / float(Q[ay, k1]) ** 2  # (mass-normalized modes: the deflection a_y = 1)
+        else:
+            w1, m1 = _bending_mode_3d(w, Q, bare.offsets["tip"], axis, across, refine)
         k_a, c_a = den_hartog(m1, w1, mu)
         forcing = ratio * w1
         return TMDExample(
@@ -1547,7 +1622,7 @@ def tmd_problem(
             length=length,
             height=height,
             clamped_frequency=w_c,
-            prediction=SEVERAL_MATERIALS if several else None,
+            prediction=SEVERAL_MATERIALS if several else (BEAM_THEORY_2D if dim == 3 else None),
         )
 
 
@@ -1650,15 +1725,17 @@ def control_problem(
         predicted roots and rates NaN, ``prediction`` says why.
     base_mass, base_stiffness, gain, kd, filter_time, b, amplitude, T : float
         m_b, k_b, k_p, k_d, T_f (used with k_d > 0), b, the initial amplitude and T.
-    mesh : skfem.MeshTri, optional
-        A 2D body along x with the named parts ``base`` (held by the base) and ``tip`` (the
-        sensor at its centroid) instead of the strip (:func:`_strip`: L its extent in x,
-        H = area / L in the predicted roots).
+    mesh : skfem.MeshTri or skfem.MeshTet, optional
+        A 2D or 3D body along ``axis`` with the named parts ``base`` (held by the base) and
+        ``tip`` (the sensor at its centroid) instead of the strip (:func:`_strip`: L its
+        extent along the axis, H = volume / L in the predicted roots: in 3D the section's
+        area A, the 1D bar's roots with the axial modulus E).
     base, tip : str
         The boundary parts (default ``left``, ``right``: the strip's).
     axis : int
-        The bar's axis, 0 (x, default) or 1 (y, a mesh only): the base's spring k_b, the push
-        and the fed-back velocity along it.
+        The bar's axis, 0 (x, default), 1 (y, a mesh only) or 2 (z, a 3D mesh): the base's
+        spring k_b, the push and the fed-back velocity along it (10^4 across, every other
+        axis).
 
     Returns
     -------
@@ -1680,7 +1757,9 @@ def control_problem(
         ) from None
     mb = check_positive("base_mass", base_mass)
     kb = check_nonnegative("base_stiffness", base_stiffness)
-    springs = [kb, 1e4] if axis == 0 else [1e4, kb]  # (k_b along the bar, stiff across)
+    dim = meshes.mesh_dim(mesh)
+    springs = [1e4] * dim  # (k_b along the bar, stiff across)
+    springs[axis] = kb
     kp = check_real("gain", gain)
     kd = check_nonnegative("kd", kd)
     b = check_nonnegative("b", b)
@@ -1690,9 +1769,9 @@ def control_problem(
     Tf = check_positive("filter_time", filter_time) if kd > 0 else None
 
     def build(feedback: bool, q0=None, u0=None):
-        support = MassSpringDamper(mb, springs, q0=q0, name="base")
+        support = MassSpringDamper(mb, springs, dim=dim, q0=q0, name="base")
         sensor = PointSensor(center, "velocity", axes=[axis])
-        along = [[1.0], [0.0]] if axis == 0 else [[0.0], [1.0]]
+        along = np.eye(dim)[:, [axis]].tolist()  # (the push e_axis: a column)
         ctrls = []
         if feedback:
             ctrls = [LinearController.pd(kp, kd, sensor, support, filter_time=Tf, directions=along)]
@@ -1712,7 +1791,8 @@ def control_problem(
     with warnings.catch_warnings():  # no prescribed part: nothing is differenced
         warnings.filterwarnings("ignore", message="G_d")
         w, U, Q = coupled_modes(build(False), 8)
-        axial = np.flatnonzero(np.abs(Q[axis]) > 10 * np.abs(Q[1 - axis]))
+        across = np.delete(np.abs(Q[:dim]), axis, axis=0).max(axis=0)  # (the base's q)
+        axial = np.flatnonzero(np.abs(Q[axis]) > 10 * across)
         if axial.size == 0:
             raise fail(*refine, "gives no axial mode among the first 8: refine")
         k = int(axial[0])
