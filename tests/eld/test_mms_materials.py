@@ -139,6 +139,16 @@ def test_the_body_force_of_several_materials_needs_its_mesh_or_the_cells_materia
     assert np.array_equal(traction(0.3, q.x, q.normals, kf), g(0.3, q.x, q.normals))
 
 
+def test_a_cellwise_load_needs_several_materials():
+    problem, exact = mms_problem(2, 2)
+    data = problem.definition
+    data["body_force"] = CellwiseLoad(lambda t, x, k: 0 * x)
+    with pytest.raises(RotheInputError, match=r"^body_force: got a CellwiseLoad with one material"):
+        ELDProblem(problem.space.mesh, **data)
+    with pytest.raises(RotheInputError, match=r"^f: got 'int', must be a callable"):
+        CellwiseLoad(3)
+
+
 def test_an_interface_load_needs_several_materials():
     problem, exact = mms_problem(2, 2)
     with pytest.raises(RotheInputError, match=r"^interface_load: got a load with one material"):

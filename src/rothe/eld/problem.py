@@ -168,7 +168,7 @@ class ELDProblem:
         Degree of the quadrature rule for body force and tractions (default 2p).
     mesh_bound : bool, optional
         The data (body force, tractions) are made for this mesh's cells and facets (per-cell
-        constants, e.g. a manufactured solution of several materials): :meth:`on_mesh` and
+        constants held in closures; a :class:`CellwiseLoad` does not need it): :meth:`on_mesh` and
         space adaptivity refuse it at the start instead of failing at the first load on
         another mesh (default False).
     element_cache : bool or tuple, optional
