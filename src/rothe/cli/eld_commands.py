@@ -480,13 +480,6 @@ class RunEldMMS(EldRunCommand):
         parts = parts_of(args) if args.mesh is None or given(args, "--dirichlet") else None
         space = space_adaptivity(args, default_max_dofs=ELD_MAX_DOFS["2d"], hysteresis=True)
         check_space_data(args, space)
-        if args.material and space is not None:
-            raise fail(
-                "--adapt-space",
-                described(f"with {len(args.material)} --material"),
-                "must not be combined with --material in eld-mms (the manufactured body force "
-                "holds the per-cell constants of the fixed mesh)",
-            )
         # several materials (--material/--region, on the cell groups of --mesh): built with
         # the mesh in execute (materials_from's checks of the constants run there)
         material = None if args.material else material_of(args, MMS_MATERIAL)

@@ -67,7 +67,7 @@ from .form import Form, Original, Regularized
 from .interface import Interface
 from .materials import Material, PiecewiseMaterial
 from .output import write_eld_result
-from .problem import DirichletData, ELDProblem
+from .problem import CellwiseLoad, DirichletData, ELDProblem
 from .run import ELDResult, ELDRun, prepare_eld_run, run_eld
 from .scheme import BDF2, ImplicitEuler, Scheme
 from .state import ELDCode, ELDState, ELDStepResult, EnergyLedger
@@ -110,6 +110,7 @@ __all__ = [
     "LinearComponent",
     "LinearController",
     "ManufacturedSolution",
+    "CellwiseLoad",
     "MassSpringDamper",
     "Material",
     "Means",

@@ -65,7 +65,7 @@ from .frequencies import (
     sliced_bar_frequencies,
 )
 from .materials import Material, PiecewiseMaterial
-from .problem import DirichletData, ELDProblem
+from .problem import CellwiseLoad, DirichletData, ELDProblem
 
 # quadratic polynomials c0 + cx x + cy y + cxx x^2 + cxy x y + cyy y^2, per component
 _P = np.array([[0.0, 1.0, 0.0, 0.0, 1.0, 0.5], [0.0, 0.0, 1.0, 0.5, -1.0, 0.0]])
@@ -230,6 +230,39 @@ class ManufacturedSolution:
 
         return body_force
 
+    def _material_constants(self):
+        """lam_eff, mu, rho, rho/rho_ref per material index (PiecewiseMaterial.names)."""
+        mats = [self.material.materials[name] for name in self.material.names]
+        rho = np.array([m.rho for m in mats])
+        return (
+            np.array([m.lam_eff for m in mats]),
+            np.array([m.mu for m in mats]),
+            rho,
+            rho / self.material.rho,
+        )
+
+    def cellwise_body_force(self):
+        """The body force as a :class:`~rothe.eld.problem.CellwiseLoad` f(t, x, k), k (ne, 1)
+        each cell's material index: :meth:`body_force_on` for whatever mesh the problem is
+        on (space adaptivity); one material: :meth:`body_force`."""
+        if not self.piecewise:
+            return self.body_force
+        lam, mu, rho, weight = self._material_constants()
+
+        def body_force(t, x, k):
+            return self._body_force(t, x, rho[k], lam[k], mu[k], weight[k])
+
+        return CellwiseLoad(body_force)
+
+    def cellwise_traction(self):
+        """sigma(u + b u') n as a :class:`~rothe.eld.problem.CellwiseLoad` g(t, x, n, k), k
+        (nf, 1) the material of the cell next to each facet; one material:
+        :meth:`traction`."""
+        if not self.piecewise:
+            return self.traction
+        lam, mu, _, _ = self._material_constants()
+        return CellwiseLoad(lambda t, x, n, k: self.traction(t, x, n, lam[k], mu[k]))
+
     def _facet_constants(self, mesh, facets):
         """lam_eff, mu of the cell next to each boundary facet (nf, 1)."""
         lam, mu, _, _ = self._cells(mesh)
@@ -267,9 +300,7 @@ class ManufacturedSolution:
         """(sigma_0(u + b u') - sigma_1(u + b u')) n_0 on the facets between two materials
         (k0, k1 (nf, 1): the materials of the two sides, n the outward normal of side 0): what
         sum_K int_K sigma_K : eps(phi) leaves on the interfaces of the exact u."""
-        mats = [self.material.materials[name] for name in self.material.names]
-        lam = np.array([m.lam_eff for m in mats])
-        mu = np.array([m.mu for m in mats])
+        lam, mu, _, _ = self._material_constants()
         return self.traction(t, x, n, lam[k0] - lam[k1], mu[k0] - mu[k1])
 
 
@@ -322,8 +353,9 @@ def mms_problem(
         tractions and multipliers with those of the cell next to the facet, and on the facets
         between two materials the load (sigma_0 - sigma_1)(u + b u') n_0 (ELDProblem's
         ``interface_load``): sum_K int_K sigma_K(u) : eps(v) = int f v + int_{Gamma_N} t v +
-        sum_{interfaces} int (sigma_0 - sigma_1) n_0 . v, so u stays exact. A fixed mesh: the
-        body force knows its cells (a space-adaptive run is refused).
+        sum_{interfaces} int (sigma_0 - sigma_1) n_0 . v, so u stays exact. The body force and
+        tractions are :class:`~rothe.eld.problem.CellwiseLoad` s (each cell's material index
+        from the problem's mesh): a space-adaptive run takes them to its refined meshes.
 
     Returns
     -------
@@ -341,13 +373,10 @@ def mms_problem(
     dirichlet = (dirichlet,) if isinstance(dirichlet, str) else tuple(dirichlet)
     data = DirichletData(exact.u, exact.u_dot, exact.u_ddot)
     names = sorted((mesh.boundaries or {}).keys())
-    # an unknown Dirichlet name is reported by ELDProblem (one line, naming the known parts)
-    # (the facets in the order of the part's facet quadrature: VectorSpace.facets sorts them)
-    traction = {
-        p: exact.traction_on(mesh, np.unique(np.asarray(mesh.boundaries[p])))
-        for p in names
-        if p not in dirichlet
-    }
+    # an unknown Dirichlet name is reported by ELDProblem (one line, naming the known parts);
+    # several materials: loads that take each cell's material index from the problem's mesh,
+    # so that they go to the refined meshes of a space-adaptive run
+    traction = {p: exact.cellwise_traction() for p in names if p not in dirichlet}
     problem = ELDProblem(
         mesh,
         material,
@@ -355,14 +384,13 @@ def mms_problem(
         damping=damping,
         dirichlet={p: data for p in dirichlet},
         traction=traction,
-        body_force=exact.body_force_on(mesh),
+        body_force=exact.cellwise_body_force(),
         interface_load=exact.interface_load if exact.piecewise else None,
         u0=(lambda x: exact.u(0.0, x)) if start == "exact" else None,
         v0=(lambda x: exact.u_dot(0.0, x)) if start == "exact" else None,
         T=T,
         name="eld-mms",
         load_quadrature=load_quadrature,
-        mesh_bound=exact.piecewise,
     )
     return problem, exact
 

@@ -16,7 +16,9 @@ sigma(w) = lam tr eps(w) I + 2 mu eps(w). The indicator of a cell K is the resid
               + sum_{F in F_N(K)} mu^{-1/2} alpha_F ||g - sigma(w_h) n||_F^2,
 
     R_K = f - rho a_h - c_M v_h - N(v_h) + div sigma(w_h)   (div sigma = 0 in P1 cells),
-    J_F = [sigma(w_h) n]_F  (jump of the normal stress across the interior facet F),
+    J_F = [sigma(w_h) n]_F - h_F  (jump of the normal stress across the interior facet F,
+          less the interface load h_F of a body of several materials: its weak form puts
+          int_F h . phi on F, so the exact solution has [sigma n]_F = h_F there),
     alpha_S = min(h_S / (p sqrt(mu)), 1 / sqrt(kappa)),
 
 h_K the longest edge of K, h_F that of F, p the polynomial degree (the h/p scaling of
@@ -47,6 +49,7 @@ import numpy as np
 from ..errors import check_nonnegative, check_positive, described, fail
 from ..fem.simplex import CellIndicators, SimplexEvaluator, assemble_indicators, robust_weight
 from .damping import NonlinearDamping, RayleighDamping, saturating_velocity
+from .problem import CellwiseLoad
 
 
 def _as_field(U, n: int, d: int, name: str) -> np.ndarray:
@@ -125,7 +128,7 @@ def eld_indicators(
     rho: float = 1.0,
     accel: np.ndarray | None = None,
     velocity: np.ndarray | None = None,
-    mass_damping: float = 0.0,
+    mass_damping=0.0,
     stiffness_damping: float = 0.0,
     pointwise_damping=None,
     body_force=None,
@@ -133,6 +136,8 @@ def eld_indicators(
     dirichlet_parts=(),
     reaction: float = 0.0,
     evaluator: SimplexEvaluator | None = None,
+    material_index: np.ndarray | None = None,
+    interface_load=None,
 ) -> CellIndicators:
     """Cell indicators eta_K of one elastodynamics step (formula in the module docstring).
 
@@ -148,8 +153,9 @@ def eld_indicators(
     rho, accel : density (a float or per cell) and the scheme's acceleration a^j as a field
         (None: 0)
     velocity : the scheme's velocity v^j as a field (None: 0); enters through
-        ``mass_damping`` c_M (c_M v), ``stiffness_damping`` b (sigma(u + b v)) and
-        ``pointwise_damping`` (a callable v -> force density, v and the result (d, ...)).
+        ``mass_damping`` c_M (c_M v; a float or per cell), ``stiffness_damping`` b
+        (sigma(u + b v)) and ``pointwise_damping`` (a callable v -> force density, v and the
+        result (d, ...)).
     body_force : callable f(x) with x (d, ...) -> (d, ...), or values at the cell quadrature
         points (d, nc, nq), or None.
     traction : dict part -> callable g(x, n) (x, n (d, nf, nq)) on Neumann parts; boundary
@@ -158,6 +164,14 @@ def eld_indicators(
     reaction : kappa >= 0 of the robust weights (rho/tau^2 for an implicit Euler step); a float
         or per cell.
     evaluator : a :class:`SimplexEvaluator` of (mesh, degree) to reuse, optional.
+    material_index : (n_cells,) integers, optional
+        Each cell's material (several materials). Then the callables get it as well:
+        ``body_force(x, k)`` with k (n, 1) of the cells, ``g(x, n, k)`` with k (nf, 1) of the
+        cell next to each facet, and ``interface_load`` applies.
+    interface_load : callable h(x, n, k0, k1), optional
+        The load on the facets between two materials (needs ``material_index``; x, n (d, nf,
+        nq), n the outward normal of side 0, k0, k1 (nf, 1) the two sides' materials), taken
+        off their jump J_F (:class:`~rothe.eld.problem.ELDProblem`'s ``interface_load``).
     """
     ev = evaluator if evaluator is not None else SimplexEvaluator(mesh, degree)
     nc = ev.h.shape[0]
@@ -165,6 +179,18 @@ def eld_indicators(
     lam = _coefficient("lam", lam, nc, "real")
     rho = _coefficient("rho", rho, nc, "nonnegative")
     reaction = _coefficient("reaction", reaction, nc, "nonnegative")
+    mass_damping = _coefficient("mass_damping", mass_damping, nc, "real")
+    kc = None
+    if material_index is not None:
+        kc = np.asarray(material_index)
+        if kc.shape != (nc,) or not np.issubdtype(kc.dtype, np.integer):
+            raise fail(
+                "material_index",
+                described(f"an array of shape {kc.shape} ({kc.dtype})"),
+                f"must be integers, one per cell ({nc},)",
+            )
+    if interface_load is not None and kc is None:
+        raise fail("interface_load", "a load without material_index", "needs material_index")
     d, n = ev.dim, ev.ndofs
     U = _as_field(u, n, d, "u")
     W = U.copy()
@@ -195,13 +221,14 @@ def eld_indicators(
         c = slice(k0, k0 + CELL_CHUNK)
         R = np.zeros((d, len(range(nc)[c]), len(ev.cell_w)))
         if body_force is not None:
-            R += _at(body_force, ev.cell_points_of(c))
+            extra = () if kc is None else (kc[c, None],)
+            R += _at(body_force, ev.cell_points_of(c), *extra)
         if A is not None:
             R -= _on(rho, c, 1) * ev.values(A, c)
         if V is not None:
             vq = ev.values(V, c)  # (d, n, nq)
-            if mass_damping:
-                R -= mass_damping * vq
+            if np.any(mass_damping):
+                R -= _on(mass_damping, c, 1) * vq
             if pointwise_damping is not None:
                 R -= np.asarray(pointwise_damping(vq), dtype=float)
             del vq
@@ -224,6 +251,13 @@ def eld_indicators(
         S0 -= stress(at(gv, c1, ev.facet_lambda(c1, l1, fv)), _on(lam, c1, 1), _on(mu, c1, 1))
         J = np.einsum("ijfq,jf->ifq", S0, normal)
         del S0
+        if interface_load is not None:
+            between = kc[c0] != kc[c1]
+            if between.any():
+                xf = ev.facet_points(fv[:, between])
+                nf = np.broadcast_to(normal[:, between, None], xf.shape)
+                k0, k1 = kc[c0[between], None], kc[c1[between], None]
+                J[:, between] -= _at(interface_load, xf, nf, k0, k1)
         # a facet between two materials: the smaller mu and reaction of its cells (the larger
         # weight)
         mu_F = mu if np.ndim(mu) == 0 else np.minimum(mu[c0], mu[c1])
@@ -253,7 +287,8 @@ def eld_indicators(
                 raise fail("traction", part, "must name a boundary part of the mesh")
             on = np.isin(bfacets, np.asarray(known[part], dtype=np.int64))
             if on.any():
-                Jb[:, on] += _at(g, xb[:, on], nb[:, on])
+                extra = () if kc is None else (kc[bc[on], None],)
+                Jb[:, on] += _at(g, xb[:, on], nb[:, on], *extra)
     w_b = meas_b[:, None] * ev.facet_w[None, :]
     mu_b = _on(mu, bc)
     bnd_sq = (
@@ -282,7 +317,11 @@ def eld_indicators_for(
 
     A body of several materials (``problem.cell_material``): per-cell lam, mu, rho, and the
     ``reaction`` -- given as rho kappa with rho the material's rho, i.e. the reference density
-    rho_ref of a PiecewiseMaterial -- scaled to each cell's rho_c kappa (``density_weight``).
+    rho_ref of a PiecewiseMaterial -- scaled to each cell's rho_c kappa (``density_weight``),
+    and so is c_M (the damping acts through the mass of density rho_c/rho_ref,
+    :mod:`rothe.eld.materials`); the body force, tractions and interface load with each
+    cell's material index (``material_index``: a :class:`~rothe.eld.problem.CellwiseLoad`
+    takes it).
     """
     space = problem.space
     m = problem.material
@@ -300,16 +339,25 @@ def eld_indicators_for(
         kw = {"mass_damping": -damp.d0, "stiffness_damping": damp.b}
         if damp.d_nl:
             kw["pointwise_damping"] = lambda v, s=damp: s.d_nl * saturating_velocity(v, s.v_ref)
-    body = None
-    if problem.body_force is not None:
+    if cells is not None and "mass_damping" in kw:
+        kw["mass_damping"] = kw["mass_damping"] * cells.density_weight
+    # several materials: the callables get the material index k of their cells; a
+    # CellwiseLoad (rothe.eld.problem) uses it, the others do not
+    cellwise = cells is not None
 
-        def body(x, f=problem.body_force):
-            return f(float(t), x)
+    def at_t(g, n_points: int):
+        """g at t; with several materials k comes after the n_points point arrays, and only a
+        CellwiseLoad takes it."""
+        if isinstance(g, CellwiseLoad) or not cellwise:
+            return lambda *a: g(float(t), *a)
+        return lambda *a: g(float(t), *a[:n_points])
 
-    def at_t(g):
-        return lambda x, n: g(float(t), x, n)
-
-    traction = {part: at_t(g) for part, (g, _) in problem._traction.items()}
+    body = None if problem.body_force is None else at_t(problem.body_force, 1)
+    traction = {part: at_t(g, 2) for part, (g, _) in problem._traction.items()}
+    interface = getattr(problem, "_interface", None)
+    interface_load = None
+    if interface is not None:
+        interface_load = lambda x, n, k0, k1, h=interface[0]: h(float(t), x, n, k0, k1)  # noqa: E731
     return eld_indicators(
         space.mesh,
         space.degree,
@@ -324,5 +372,7 @@ def eld_indicators_for(
         dirichlet_parts=problem.constraint.parts,
         reaction=reaction,
         evaluator=evaluator,
+        material_index=None if cells is None else cells.names,
+        interface_load=interface_load,
         **kw,
     )

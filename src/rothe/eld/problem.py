@@ -27,6 +27,13 @@ Callables and their shapes (x holds points with the coordinate axis first):
   (sigma_0 - sigma_1) n_0 that a manufactured solution leaves there);
 - ``u0``, ``v0``: callables x -> (d, k), dof vectors, or None (zero).
 
+Several materials: a body force or traction wrapped in :class:`CellwiseLoad` is called with the
+material index k of the cells as well, ``f(t, x, k)`` with k (ne, 1) per cell and
+``g(t, x, n, k)`` with k (nf, 1) of the cell next to each facet (indices into
+``PiecewiseMaterial.names``, as k0, k1 of the interface load). The problem takes k from its own
+mesh, so such data go to another mesh (:meth:`ELDProblem.on_mesh`, space adaptivity) where a
+closure over one mesh's cells cannot (``mesh_bound``).
+
 Loads are integrated by quadrature of degree ``load_quadrature`` (default 2p, p the element
 degree: exact for loads of degree p against the basis) over the cells (body force) and the
 facets of the traction parts.
@@ -75,6 +82,25 @@ class _CellQuadrature:
         for c in range(self.dim):
             out[:, c] = np.bincount(flat, weights=local[c].ravel(), minlength=self.n_scalar)
         return out.ravel()
+
+
+class CellwiseLoad:
+    """A body force f(t, x, k) or traction g(t, x, n, k) that needs the material index k of
+    its cells (module docstring): :class:`ELDProblem` passes k of its own mesh.
+
+    Parameters
+    ----------
+    f : callable
+        (t, x, k) for a body force, (t, x, n, k) for a traction.
+    """
+
+    def __init__(self, f):
+        if not callable(f):
+            raise fail("f", type(f).__name__, "must be a callable (t, x, k) or (t, x, n, k)")
+        self.f = f
+
+    def __call__(self, *args):
+        return self.f(*args)
 
 
 @dataclass
@@ -127,8 +153,8 @@ class ELDProblem:
         part -> callable G(t, x) or DirichletData. Where two parts share nodes, the part listed
         last sets their values.
     traction : dict, optional
-        part -> callable g(t, x, n).
-    body_force : callable f(t, x), optional
+        part -> callable g(t, x, n), or a :class:`CellwiseLoad` g(t, x, n, k).
+    body_force : callable f(t, x), or a :class:`CellwiseLoad` f(t, x, k), optional
     interface_load : callable h(t, x, n, k0, k1), optional
         A load on the facets between two materials of a PiecewiseMaterial (module docstring).
     u0, v0 : callable, dof vector or None
@@ -142,7 +168,7 @@ class ELDProblem:
         Degree of the quadrature rule for body force and tractions (default 2p).
     mesh_bound : bool, optional
         The data (body force, tractions) are made for this mesh's cells and facets (per-cell
-        constants, e.g. a manufactured solution of several materials): :meth:`on_mesh` and
+        constants held in closures; a :class:`CellwiseLoad` does not need it): :meth:`on_mesh` and
         space adaptivity refuse it at the start instead of failing at the first load on
         another mesh (default False).
     element_cache : bool or tuple, optional
@@ -275,6 +301,27 @@ class ELDProblem:
             )
             self.M = sp_.mass()
         self._interface = None
+        cellwise = [
+            name
+            for name, g in [("body_force", body_force)]
+            + [(f"traction[{p!r}]", g) for p, g in traction.items()]
+            if isinstance(g, CellwiseLoad)
+        ]
+        if cellwise and self.cell_material is None:
+            raise fail(
+                cellwise[0],
+                described(f"a CellwiseLoad with one material ({type(material).__name__})"),
+                "needs a PiecewiseMaterial (k indexes its materials)",
+            )
+        # the material index of each cell, and of the cell next to each traction facet (in
+        # the order of the part's facet quadrature: VectorSpace.facets sorts them)
+        self._cell_index = None if self.cell_material is None else self.cell_material.names[:, None]
+        f2t0 = np.asarray(mesh.f2t)[0]
+        self._traction_index = {
+            p: self._cell_index[f2t0[sp_.facets((p,), "traction")]]
+            for p, g in traction.items()
+            if isinstance(g, CellwiseLoad)
+        }
         if interface_load is not None:
             if not callable(interface_load):
                 raise fail(
@@ -502,10 +549,13 @@ class ELDProblem:
         if self.body_force is not None:
             q = self._cell_quadrature
             x = sp_.quad_points if q is None else q.x
-            f = np.broadcast_to(np.asarray(self.body_force(float(t), x), dtype=float), x.shape)
+            k = (self._cell_index,) if isinstance(self.body_force, CellwiseLoad) else ()
+            f = np.broadcast_to(np.asarray(self.body_force(float(t), x, *k), dtype=float), x.shape)
             F += sp_.load_from_quad(f) if q is None else q.load(f)
-        for g, q in self._traction.values():
-            vals = np.broadcast_to(np.asarray(g(float(t), q.x, q.normals), dtype=float), q.x.shape)
+        for part, (g, q) in self._traction.items():
+            k = (self._traction_index[part],) if part in self._traction_index else ()
+            vals = np.asarray(g(float(t), q.x, q.normals, *k), dtype=float)
+            vals = np.broadcast_to(vals, q.x.shape)
             F += q.integrate_against_basis(vals, sp_.n_scalar).ravel()
         if self._interface is not None and self._interface[1] is not None:
             h, q, k0, k1 = self._interface
