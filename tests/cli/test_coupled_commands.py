@@ -592,6 +592,32 @@ def test_a_gmsh_file_of_the_strip_is_the_built_in_run(tmp_path, command, nx, ny,
     assert "n" not in s
 
 
+def _same_run_in_another_frame(tmp_path, command, tau, mesh, moved, axis, order, sign):
+    """``command`` on ``mesh`` (along x) and on ``moved`` (the same body along ``axis``): the
+    second run's q, its components reordered by ``order`` and multiplied by ``sign``, equal to
+    the first's to 1e-8 of its maximum (the modal analyses differ in the last digits; a
+    mode's sign is free); the predicted rate, frequencies and amplitudes to 1e-8. Returns both
+    summaries."""
+    common = ("--T", "0.4", "--tau", tau, "--base", "inlet", "--tip", "outlet")
+    code, along_x = _run(tmp_path / "x", *common, "--mesh", str(mesh), command=command)
+    assert code == 0
+    code, along = _run(
+        tmp_path / axis, *common, "--mesh", str(moved), "--axis", axis, command=command
+    )
+    assert code == 0
+    a, b = np.load(along_x / "trajectory.npz")["q"], np.load(along / "trajectory.npz")["q"]
+    b = b[:, order] * sign
+    b = b * np.sign(b[0] @ a[0]) if np.abs(a[0]).max() > 0 else b
+    assert np.abs(a).max() > 0 and np.abs(a - b).max() < 1e-8 * np.abs(a).max()
+    sa, sb = (json.loads((d / "summary.json").read_text()) for d in (along_x, along))
+    assert sb["axis"] == axis and sb["length"] == 1.0
+    for key in ("decay_rate_predicted", "frequency_first", "frequency_first_bending",
+                "tip_amplitude_max", "base_reaction_max"):  # fmt: skip
+        if key in sa:
+            assert sb[key] == pytest.approx(sa[key], rel=1e-8), key
+    return sa, sb
+
+
 def _swap_xy(path, out):
     """The gmsh file ``path`` reflected in y = x (x and y swapped, the triangles reversed to
     keep their orientation), written to ``out``."""
@@ -621,25 +647,12 @@ def test_axis_y_on_the_reflected_strip_is_the_strip_run(
     rotation changes sign): q to 1e-8 of its maximum (the modal analyses differ in the 10th
     digit); the same predicted rate, frequencies and amplitudes."""
     mesh = write_gmsh_body(tmp_path / "x.msh", nx=nx, ny=2, length=1.0, height=height)
-    common = ("--T", "0.4", "--tau", tau, "--base", "inlet", "--tip", "outlet")
-    code, along_x = _run(tmp_path / "x", *common, "--mesh", str(mesh), command=command)
-    assert code == 0
-    along_y = _swap_xy(mesh, tmp_path / "y.msh")
-    code, along_y = _run(
-        tmp_path / "y", *common, "--mesh", str(along_y), "--axis", "y", command=command
+    sa, sb = _same_run_in_another_frame(
+        tmp_path, command, tau, mesh, _swap_xy(mesh, tmp_path / "y.msh"), "y", swap, sign
     )
-    assert code == 0
-    a, b = np.load(along_x / "trajectory.npz")["q"], np.load(along_y / "trajectory.npz")["q"]
-    b = b[:, swap] * sign
-    b = b * np.sign(b[0] @ a[0]) if np.abs(a[0]).max() > 0 else b  # (a mode's sign is free)
-    assert np.abs(a - b).max() < 1e-8 * np.abs(a).max()
-    sa, sb = (json.loads((d / "summary.json").read_text()) for d in (along_x, along_y))
-    assert sb["axis"] == "y" and sb["length"] == 1.0
     # (absorber_amplitude_max read the plate's theta along y before branch tmd3d19)
-    for key in ("decay_rate_predicted", "frequency_first", "frequency_first_bending",
-                "tip_amplitude_max", "base_reaction_max", "absorber_amplitude_max"):  # fmt: skip
-        if key in sa:
-            assert sb[key] == pytest.approx(sa[key], rel=1e-8), key
+    if command == "eld-tmd":
+        assert sb["absorber_amplitude_max"] == pytest.approx(sa["absorber_amplitude_max"], rel=1e-8)
 
 
 @pytest.mark.parametrize("command", ["eld-tmd", "eld-control"])
@@ -880,26 +893,11 @@ def test_axis_z_on_the_turned_bar_is_the_x_run(tmp_path, command, nx, height, ta
     (the next after z), the turned y; the same run with the axes permuted, q to 1e-8 of its
     maximum (the modal analyses differ in the last digits), the same frequencies."""
     mesh = _bar_3d(tmp_path, "x.msh", nx, height)
-    common = ("--T", "0.4", "--tau", tau, "--base", "inlet", "--tip", "outlet")
-    code, along_x = _run(tmp_path / "x", *common, "--mesh", str(mesh), command=command)
-    assert code == 0
-    along_z = _rotate_xyz(mesh, tmp_path / "z.msh")
-    code, along_z = _run(
-        tmp_path / "z", *common, "--mesh", str(along_z), "--axis", "z", command=command
+    _, sb = _same_run_in_another_frame(
+        tmp_path, command, tau, mesh, _rotate_xyz(mesh, tmp_path / "z.msh"), "z", back, 1
     )
-    assert code == 0
-    a, b = np.load(along_x / "trajectory.npz")["q"], np.load(along_z / "trajectory.npz")["q"]
-    b = b[:, back]
-    b = b * np.sign(b[0] @ a[0]) if np.abs(a[0]).max() > 0 else b  # (a mode's sign is free)
-    assert np.abs(a).max() > 0 and np.abs(a - b).max() < 1e-8 * np.abs(a).max()
-    sa, sb = (json.loads((d / "summary.json").read_text()) for d in (along_x, along_z))
-    assert sb["axis"] == "z" and sb["length"] == 1.0
     if command == "eld-tmd":
         assert sb["direction"] == "x"
-    for key in ("decay_rate_predicted", "frequency_first", "frequency_first_bending",
-                "tip_amplitude_max", "base_reaction_max"):  # fmt: skip
-        if key in sa:
-            assert sb[key] == pytest.approx(sa[key], rel=1e-8), key
 
 
 @pytest.mark.parametrize(
