@@ -121,22 +121,23 @@ def test_the_body_force_of_several_materials_needs_its_mesh_or_the_cells_materia
     mesh = problem.space.mesh
     with pytest.raises(RotheInputError, match=r"^body_force: got a call without the mesh"):
         exact.body_force(0.0, problem.space.quad_points)
-    f = exact.body_force_on(mesh)
-    with pytest.raises(RotheInputError, match=r"^body_force: got points of shape \(2, 3, 6\)"):
-        f(0.0, np.zeros((2, 3, 6)))
-    top = problem.space.facets(("top",))
-    g = exact.traction_on(mesh, top)
-    with pytest.raises(RotheInputError, match=r"^traction: got points of shape \(2, 5, 3\)"):
-        g(0.0, np.zeros((2, 5, 3)), np.zeros((2, 5, 3)))
     # the problem's data take each cell's material from its mesh (CellwiseLoad): the values of
-    # the closures over this mesh, and no mesh held (space adaptivity takes them along)
+    # each cell's (facet's) own constants, and no mesh held (space adaptivity takes them along)
     body, traction = problem.definition["body_force"], problem.definition["traction"]["top"]
     assert isinstance(body, CellwiseLoad) and isinstance(traction, CellwiseLoad)
-    x, k = problem.space.quad_points, problem.cell_material.names[:, None]
-    assert np.array_equal(body(0.3, x, k), f(0.3, x))
+    cells = problem.cell_material
+    x, k = problem.space.quad_points, cells.names[:, None]
+    per_cell = (cells.rho[:, None], cells.lam[:, None], cells.mu[:, None])
+    weight = cells.density_weight[:, None]
+    assert np.array_equal(body(0.3, x, k), exact._body_force(0.3, x, *per_cell, weight))
+    top = problem.space.facets(("top",))
     q = problem.space.facet_quadrature(("top",))
-    kf = k[np.asarray(mesh.f2t)[0, top]]
-    assert np.array_equal(traction(0.3, q.x, q.normals, kf), g(0.3, q.x, q.normals))
+    next_to = np.asarray(mesh.f2t)[0, top]
+    kf = k[next_to]
+    lam, mu = cells.lam[next_to][:, None], cells.mu[next_to][:, None]
+    assert np.array_equal(
+        traction(0.3, q.x, q.normals, kf), exact.traction(0.3, q.x, q.normals, lam, mu)
+    )
 
 
 def test_a_cellwise_load_needs_several_materials():
@@ -277,27 +278,6 @@ def test_cli_eld_mms_refusals_with_materials(tmp_path, capsys, extra, message):
     )
     assert code == 2
     assert message in err and len(err.strip().splitlines()) == 1
-
-
-def test_a_problem_made_for_its_cells_refuses_space_adaptivity_and_other_meshes():
-    """Data that hold one mesh's cells (closures of body_force_on/traction_on, mesh_bound):
-    space adaptivity and on_mesh are refused before the first step, in one line (before: a
-    shape error at the first load on a refined mesh, after steps had been taken)."""
-    problem, exact = mms_problem(2, 2, material=_halves(), T=0.2)
-    # mms_problem's own data are CellwiseLoads: no mesh held
-    assert not problem.mesh_bound and "mesh_bound" not in problem.definition
-    mesh, data = problem.space.mesh, problem.definition
-    data["body_force"] = exact.body_force_on(mesh)
-    data["traction"] = {
-        p: exact.traction_on(mesh, problem.space.facets((p,))) for p in data["traction"]
-    }
-    bound = ELDProblem(mesh, **data, mesh_bound=True)
-    assert bound.mesh_bound and bound.definition["mesh_bound"]
-    assert np.array_equal(bound.load(0.3), problem.load(0.3))
-    with pytest.raises(RotheInputError, match=r"^adapt: got SpaceAdaptivity, must be None"):
-        run_eld(bound, control=Uniform(0.05), adapt=SpaceAdaptivity(space_tol=1e-3))
-    with pytest.raises(RotheInputError, match=r"^mesh: got another mesh for problem 'eld-mms'"):
-        bound.on_mesh(mesh.refined())
 
 
 def test_cli_eld_mms_with_two_materials_interrupted_then_resumed_bit_for_bit(

@@ -103,10 +103,10 @@ class ManufacturedSolution:
     """u = alpha(t) P + beta(t) R, alpha = sin(pi t + pi/6), beta = 1 - cos(pi t) (module doc).
 
     With a :class:`PiecewiseMaterial` the data are those of each cell's material: the body
-    force with the cell's rho_c, lam_c, mu_c (:meth:`body_force_on`), tractions and multipliers
-    with the constants of the cell next to each boundary facet (:meth:`traction_on`,
-    :meth:`multiplier_on`), and the jump of the traction across the facets between two
-    materials (:meth:`interface_load`), so that u stays the exact solution.
+    force with the cell's rho_c, lam_c, mu_c (:meth:`cellwise_body_force`), tractions and
+    multipliers with the constants of the cell next to each boundary facet
+    (:meth:`cellwise_traction`, :meth:`multiplier_on`), and the jump of the traction across the
+    facets between two materials (:meth:`interface_load`), so that u stays the exact solution.
 
     Parameters
     ----------
@@ -176,12 +176,12 @@ class ManufacturedSolution:
 
     def body_force(self, t, x):
         """f = rho u'' - div sigma(u + b u') + the damping's mass and pointwise parts: the body
-        force that makes u exact (one material; several: :meth:`body_force_on`)."""
+        force that makes u exact (one material; several: :meth:`cellwise_body_force`)."""
         if self.piecewise:
             raise fail(
                 "body_force",
                 described("a call without the mesh"),
-                "must be body_force_on(mesh) for several materials (per-cell constants)",
+                "must be cellwise_body_force() for several materials (each cell's material)",
             )
         m = self.material
         return self._body_force(t, x, m.rho, m.lam_eff, m.mu, 1.0)
@@ -202,34 +202,6 @@ class ManufacturedSolution:
         return f
 
     # -- several materials: per-cell and per-facet constants ----------------------------------
-    def _cells(self, mesh):
-        """(lam_eff, mu, rho, rho/rho_ref) per cell of ``mesh`` (scalars for one material)."""
-        if not self.piecewise:
-            m = self.material
-            return m.lam_eff, m.mu, m.rho, 1.0
-        c = self.material.on_mesh(mesh)
-        return c.lam, c.mu, c.rho, c.density_weight
-
-    def body_force_on(self, mesh):
-        """The body force f(t, x) of ``mesh`` for x (2, n_cells, nq), all its cells in mesh
-        order (:meth:`ELDProblem.load`), each cell with its material's constants; one
-        material: :meth:`body_force`."""
-        if not self.piecewise:
-            return self.body_force
-        lam, mu, rho, weight = (a[:, None] for a in self._cells(mesh))
-        ne = lam.shape[0]
-
-        def body_force(t, x):
-            if x.ndim != 3 or x.shape[1] != ne:
-                raise fail(
-                    "body_force",
-                    described(f"points of shape {x.shape}"),
-                    f"must be (2, {ne}, nq): every cell of its mesh (per-cell materials)",
-                )
-            return self._body_force(t, x, rho, lam, mu, weight)
-
-        return body_force
-
     def _material_constants(self):
         """lam_eff, mu, rho, rho/rho_ref per material index (PiecewiseMaterial.names)."""
         mats = [self.material.materials[name] for name in self.material.names]
@@ -243,8 +215,8 @@ class ManufacturedSolution:
 
     def cellwise_body_force(self):
         """The body force as a :class:`~rothe.eld.problem.CellwiseLoad` f(t, x, k), k (ne, 1)
-        each cell's material index: :meth:`body_force_on` for whatever mesh the problem is
-        on (space adaptivity); one material: :meth:`body_force`."""
+        each cell's material index, on whatever mesh the problem is on (space adaptivity); one
+        material: :meth:`body_force`."""
         if not self.piecewise:
             return self.body_force
         lam, mu, rho, weight = self._material_constants()
@@ -263,38 +235,16 @@ class ManufacturedSolution:
         lam, mu, _, _ = self._material_constants()
         return CellwiseLoad(lambda t, x, n, k: self.traction(t, x, n, lam[k], mu[k]))
 
-    def _facet_constants(self, mesh, facets):
-        """lam_eff, mu of the cell next to each boundary facet (nf, 1)."""
-        lam, mu, _, _ = self._cells(mesh)
-        cell = np.asarray(mesh.f2t)[0, np.asarray(facets, dtype=np.int64)]
-        return np.asarray(lam)[cell][:, None], np.asarray(mu)[cell][:, None]
-
-    def traction_on(self, mesh, facets):
-        """g(t, x, n) = sigma(u + b u') n on the boundary ``facets`` (sorted, the order of
-        their facet quadrature), with the constants of the cell next to each."""
-        if not self.piecewise:
-            return self.traction
-        lam, mu = self._facet_constants(mesh, facets)
-
-        def traction(t, x, n):
-            if x.ndim != 3 or x.shape[1] != lam.shape[0]:
-                raise fail(
-                    "traction",
-                    described(f"points of shape {x.shape}"),
-                    f"must be (2, {lam.shape[0]}, nq): the facets it was made for (per-cell "
-                    "materials)",
-                )
-            return self.traction(t, x, n, lam, mu)
-
-        return traction
-
     def multiplier_on(self, mesh, facets):
-        """lambda(t, x, n) = -sigma(u + b u') n on the Dirichlet ``facets`` (as
-        :meth:`traction_on`)."""
+        """lambda(t, x, n) = -sigma(u + b u') n on the Dirichlet ``facets`` of ``mesh`` (sorted,
+        the order of their facet quadrature), with the constants of the cell next to each;
+        one material: :meth:`multiplier`."""
         if not self.piecewise:
             return self.multiplier
-        g = self.traction_on(mesh, facets)
-        return lambda t, x, n: -g(t, x, n)
+        lam, mu, _, _ = self._material_constants()
+        cell = np.asarray(mesh.f2t)[0, np.asarray(facets, dtype=np.int64)]
+        k = self.material.on_mesh(mesh).names[cell][:, None]
+        return lambda t, x, n: -self.traction(t, x, n, lam[k], mu[k])
 
     def interface_load(self, t, x, n, k0, k1):
         """(sigma_0(u + b u') - sigma_1(u + b u')) n_0 on the facets between two materials

@@ -32,7 +32,7 @@ material index k of the cells as well, ``f(t, x, k)`` with k (ne, 1) per cell an
 ``g(t, x, n, k)`` with k (nf, 1) of the cell next to each facet (indices into
 ``PiecewiseMaterial.names``, as k0, k1 of the interface load). The problem takes k from its own
 mesh, so such data go to another mesh (:meth:`ELDProblem.on_mesh`, space adaptivity) where a
-closure over one mesh's cells cannot (``mesh_bound``).
+closure over one mesh's cells could not.
 
 Loads are integrated by quadrature of degree ``load_quadrature`` (default 2p, p the element
 degree: exact for loads of degree p against the basis) over the cells (body force) and the
@@ -166,11 +166,6 @@ class ELDProblem:
         The problem's name in outputs.
     load_quadrature : int, optional
         Degree of the quadrature rule for body force and tractions (default 2p).
-    mesh_bound : bool, optional
-        The data (body force, tractions) are made for this mesh's cells and facets (per-cell
-        constants held in closures; a :class:`CellwiseLoad` does not need it): :meth:`on_mesh` and
-        space adaptivity refuse it at the start instead of failing at the first load on
-        another mesh (default False).
     element_cache : bool or tuple, optional
         Incremental rebuilds (space adaptivity, :meth:`on_mesh`): True keeps the element
         matrices of K (``space.element_stiffness``); (matrices, source) also takes those of the
@@ -195,7 +190,6 @@ class ELDProblem:
         T: float = 1.0,
         name: str = "eld",
         load_quadrature: int | None = None,
-        mesh_bound: bool = False,
         element_cache=False,
     ):
         self.name = name
@@ -224,11 +218,6 @@ class ELDProblem:
         )
         if interface_load is not None:  # (only then: the definition of the others unchanged)
             self._data["interface_load"] = interface_load
-        if not isinstance(mesh_bound, bool):
-            raise fail("mesh_bound", described(type(mesh_bound).__name__), "must be True or False")
-        self.mesh_bound = mesh_bound
-        if mesh_bound:  # (as interface_load: the definition of the others unchanged)
-            self._data["mesh_bound"] = True
         self.space = VectorSpace(mesh, degree)
         if not isinstance(material, Material | PiecewiseMaterial):
             raise fail(
@@ -400,13 +389,6 @@ class ELDProblem:
         vectors they cannot be, and the new problem gets u0 = G(0) on Gamma_D and 0 elsewhere,
         v0 = 0 (consistent, Remark 2.2). An adaptive run never starts from them: its state is
         transferred from the previous mesh."""
-        if self.mesh_bound:
-            raise fail(
-                "mesh",
-                described(f"another mesh for problem {self.name!r}"),
-                "must be its own: its data are made for the cells and facets of its mesh "
-                "(mesh_bound)",
-            )
         data = dict(self._data)
         arrays = [k for k in ("u0", "v0") if data[k] is not None and not callable(data[k])]
         for k in arrays:

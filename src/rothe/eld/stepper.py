@@ -858,14 +858,6 @@ class ELDStepper(StepperBase):
         self.data_mode.check(self.scheme)
         if adapt is not None:
             check_adapt(adapt, data=self.data_mode, noise=noise)
-            if problem.mesh_bound:
-                raise fail(
-                    "adapt",
-                    described(type(adapt).__name__),
-                    f"must be None: problem {problem.name!r} has data made for the cells and "
-                    "facets of its mesh (mesh_bound; e.g. a manufactured solution of several "
-                    "materials), which a refined mesh cannot take",
-                )
         self._set_common(problem, newton, store_fields, keep_every, observer, error_scale)
         self.times = PhaseTimes()  # factor, solve; estimate ... transfer of the adapt step
         # the first step's effective step: the stored factorization's matrix
