@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import RotheInputError, check_int, check_positive, described, fail
-from ..fem.elasticity import FacetQuadrature, VectorSpace
+from ..fem.elasticity import VectorSpace
 from ..io.checkpoint import digest
 from .constraint import DirichletConstraint
 from .damping import Damping, NoDamping
@@ -337,8 +337,6 @@ class ELDProblem:
         """The facets between cells of different materials: their quadrature of degree
         ``load_quadrature`` seen from side 0 (``mesh.f2t[0]``, whose outward normal n_0 it
         has) and the materials (k0, k1) of the two sides, (nf, 1) each. None if there are none."""
-        from skfem import FacetBasis  # heavy: imported when first needed (start-up time)
-
         f2t = np.asarray(self.space.mesh.f2t)
         names = self.cell_material.names
         interior = np.flatnonzero(f2t[1] >= 0)
@@ -347,16 +345,7 @@ class ELDProblem:
         facets = interior[between]
         if facets.size == 0:
             return None, None, None
-        fb = FacetBasis(
-            self.space.mesh, self.space.element, facets=facets, intorder=self.load_quadrature
-        )
-        q = FacetQuadrature(
-            values=np.stack([np.asarray(b[0]) for b in fb.basis]),
-            dofs=np.asarray(fb.element_dofs),
-            dx=np.asarray(fb.dx),
-            x=np.asarray(fb.global_coordinates()),
-            normals=np.asarray(fb.normals),
-        )
+        q = self.space.facet_quadrature_on(facets, self.load_quadrature)
         return q, k0[between][:, None], k1[between][:, None]
 
     def release_operators(self) -> None:

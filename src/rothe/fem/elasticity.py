@@ -949,28 +949,29 @@ class VectorSpace:
         FacetBasis maps every cell of the mesh first (5 ms at 4k P2 dofs), and the boundary mass,
         the constraint and the data indicator of a space-adaptive run ask for the same one.
         """
-        from skfem import FacetBasis  # heavy: imported when first needed (start-up time)
-
         facets = self.facets(parts, name)
         intorder = 2 * self.degree if intorder is None else int(intorder)
         key = (tuple(parts), intorder)
         cache = self.__dict__.setdefault("_facet_quadratures", {})
-        if key in cache:
-            return cache[key]
-        fb = FacetBasis(
-            self.mesh,
-            self.element,
-            facets=facets,
-            intorder=intorder,
-        )
-        cache[key] = FacetQuadrature(
+        if key not in cache:
+            cache[key] = self.facet_quadrature_on(facets, intorder)
+        return cache[key]
+
+    def facet_quadrature_on(self, facets, intorder: int | None = None) -> FacetQuadrature:
+        """A :class:`FacetQuadrature` on the given ``facets`` (degree ``intorder``, default 2p),
+        boundary or interior ones, each seen from its side 0 (``mesh.f2t[0]``, whose outward
+        normal it has); not cached (:meth:`facet_quadrature` caches the named parts')."""
+        from skfem import FacetBasis  # heavy: imported when first needed (start-up time)
+
+        intorder = 2 * self.degree if intorder is None else int(intorder)
+        fb = FacetBasis(self.mesh, self.element, facets=facets, intorder=intorder)
+        return FacetQuadrature(
             values=np.stack([np.asarray(b[0]) for b in fb.basis]),
             dofs=np.asarray(fb.element_dofs),
             dx=np.asarray(fb.dx),
             x=np.asarray(fb.global_coordinates()),
             normals=np.asarray(fb.normals),
         )
-        return cache[key]
 
     def boundary_scalar_mass(self, parts, name: str = "parts") -> sp.csr_matrix:
         """Scalar boundary mass int_Gamma phi_i phi_j ds over the named parts (n_scalar square).
