@@ -354,10 +354,11 @@ def eld_indicators_for(
 
     body = None if problem.body_force is None else at_t(problem.body_force, 1)
     traction = {part: at_t(g, 2) for part, (g, _) in problem._traction.items()}
-    interface = getattr(problem, "_interface", None)
-    interface_load = None
-    if interface is not None:
-        interface_load = lambda x, n, k0, k1, h=interface[0]: h(float(t), x, n, k0, k1)  # noqa: E731
+    interface_load = (
+        None
+        if problem._interface is None
+        else (lambda x, n, k0, k1, h=problem._interface[0]: h(float(t), x, n, k0, k1))
+    )
     return eld_indicators(
         space.mesh,
         space.degree,
