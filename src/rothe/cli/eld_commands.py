@@ -23,6 +23,8 @@ import numpy as np
 
 from ..eld.data import NOISE_TARGETS
 from ..eld.examples import (
+    BEAM_MESH,
+    PULSE_3D_MESH,
     beam_problem,
     mms_errors,
     mms_problem,
@@ -47,7 +49,7 @@ from ..eld.studies import (
     tip_mass_study,
 )
 from ..errors import RotheInputError, check_choice, check_int, check_positive, described, fail
-from ..fem.mesh import boundary_part_names
+from ..fem.mesh import boundary_part_names, check_mesh_dim
 from ..fem.petsc_env import launched_processes
 from ..io.checkpoint import CheckpointError, load_checkpoint
 from .adapt_options import add_space_options, check_memory, fit_default_cap, space_adaptivity
@@ -79,7 +81,6 @@ from .eld_options import (
     check_convergence_runs,
     check_damping_options,
     check_eld_step,
-    check_mesh_dim,
     check_mesh_options,
     check_mms_size,
     check_space_data,
@@ -689,7 +690,8 @@ class RunEldBeam(EldRunCommand):
             from .eld_mpi import execute_beam
 
             return execute_beam(self, args)
-        mesh = check_mesh_dim(body_mesh(args), 3, "tetrahedra: the held end moves along z")
+        # (before the materials are built on it; beam_problem checks the same)
+        mesh = check_mesh_dim(body_mesh(args), 3, BEAM_MESH, "--mesh")
         if mesh is not None:
             material = body_material(args, BEAM_MATERIAL, mesh)
         problem = self.beam(args, n, damping, material, mesh)
@@ -1068,7 +1070,8 @@ class RunEldPulse3d(RunEldPulse):
     def execute(self, args) -> int:
         """Build the 3D pulse problem and run it as a session."""
         objects, keep, n, length, space, material, parts = self.validate(args)
-        mesh = check_mesh_dim(body_mesh(args), 3, "tetrahedra; the 2D pulse is eld-pulse")
+        # (before the materials are built on it; pulse_3d_problem checks the same)
+        mesh = check_mesh_dim(body_mesh(args), 3, PULSE_3D_MESH, "--mesh")
         if mesh is not None:
             material = body_material(args, MMS_MATERIAL, mesh)
         problem = pulse_3d_problem(

@@ -29,7 +29,7 @@ from ..eld.materials import (
 from ..eld.scheme import BDF2, DEFAULT_SCHEME, ImplicitEuler
 from ..eld.studies import check_halvings, check_uniform_runs
 from ..errors import check_choice, check_positive, described, fail
-from ..fem.mesh import DUPLICATE_NODES, describe, load_mesh, mesh_dim
+from ..fem.mesh import DUPLICATE_NODES, load_mesh, mesh_dim
 from ..stepping.controllers import Adaptive, Given, Uniform
 from .adapt_options import check_memory
 from .common import float_option, given
@@ -508,17 +508,6 @@ def body_mesh(args):
     if args.mesh is None:
         return None
     return load_mesh(args.mesh, name="mesh", duplicate_nodes=args.duplicate_nodes)
-
-
-def check_mesh_dim(mesh, dim: int, why: str):
-    """``mesh`` if it is ``dim``-dimensional, else one line naming ``--mesh``."""
-    if mesh is not None and mesh_dim(mesh) != dim:
-        raise fail(
-            "--mesh",
-            described(f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})"),
-            f"must be {dim}D ({why})",
-        )
-    return mesh
 
 
 def body_material(args, default: dict, mesh=None):

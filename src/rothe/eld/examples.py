@@ -348,12 +348,7 @@ def mms_problem(
 def _check_mms_mesh(mesh) -> None:
     """A mesh for :func:`mms_problem`: 2D (the manufactured solution is plane), every boundary
     facet in a named part; one line naming ``mesh`` otherwise."""
-    if meshes.mesh_dim(mesh) != 2:
-        raise fail(
-            "mesh",
-            described(f"a 3D mesh ({meshes.describe(mesh)})"),
-            "must be 2D (triangles: the manufactured solution is plane)",
-        )
+    meshes.check_mesh_dim(mesh, 2, "triangles: the manufactured solution is plane")
     named = [np.asarray(f) for f in (mesh.boundaries or {}).values()]
     outside = np.setdiff1d(
         np.asarray(mesh.boundary_facets()), np.concatenate(named) if named else []
@@ -569,6 +564,11 @@ class EndMotion(_DirichletMotion):
         return out
 
 
+#: why a mesh of :func:`beam_problem` and :func:`pulse_3d_problem` must be 3D (their refusal)
+BEAM_MESH = "tetrahedra: the held end moves along z"
+PULSE_3D_MESH = "tetrahedra; the 2D pulse is eld-pulse"
+
+
 def beam_problem(
     n: int = 4,
     *,
@@ -621,12 +621,8 @@ def beam_problem(
     if mesh is None:
         nx = max(1, int(round(length * n)))
         mesh = meshes.box(nx, n, n, length, 1.0, 1.0)
-    elif meshes.mesh_dim(mesh) != 3:
-        raise fail(
-            "mesh",
-            described(f"a 2D mesh ({meshes.describe(mesh)})"),
-            "must be 3D (tetrahedra: the held end moves along z)",
-        )
+    else:
+        meshes.check_mesh_dim(mesh, 3, BEAM_MESH)
     motion = EndMotion(amplitude, t_move)
     held = DirichletData(motion.G, motion.G_dot, motion.G_ddot)
     parts = (dirichlet,) if isinstance(dirichlet, str) else tuple(dirichlet)
@@ -878,12 +874,8 @@ def pulse_3d_problem(
         n = check_int("n", n, minimum=1)
         length = check_positive("length", length)
         mesh = block(max(1, round(length * n)), n, n, length)
-    elif meshes.mesh_dim(mesh) != 3:
-        raise fail(
-            "mesh",
-            described(f"a 2D mesh ({meshes.describe(mesh)})"),
-            "must be 3D (tetrahedra; the 2D pulse is eld-pulse)",
-        )
+    else:
+        meshes.check_mesh_dim(mesh, 3, PULSE_3D_MESH)
     if material is None:
         material = Material(rho=rho, lam=lam, mu=mu, dim=3)
     return pulse_problem(

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import RotheInputError, check_int, check_positive, fail
+from ..errors import RotheInputError, check_int, check_positive, described, fail
 
 #: meshio cell type of the volume cells and of the boundary facets, by dimension
 CELL_TYPE = {2: "triangle", 3: "tetra"}
@@ -186,6 +186,18 @@ def check_simplex_mesh(mesh, name: str = "mesh") -> int:
 def mesh_dim(mesh) -> int:
     """The space dimension d of a mesh (2: triangles, 3: tetrahedra)."""
     return int(mesh.p.shape[0])
+
+
+def check_mesh_dim(mesh, dim: int, why: str, name: str = "mesh"):
+    """``mesh`` (or None) if it is ``dim``-dimensional, else one line naming ``name``: ``got a
+    kD mesh (<describe>), must be <dim>D (<why>)``."""
+    if mesh is not None and mesh_dim(mesh) != dim:
+        raise fail(
+            name,
+            described(f"a {mesh_dim(mesh)}D mesh ({describe(mesh)})"),
+            f"must be {dim}D ({why})",
+        )
+    return mesh
 
 
 def barycentric_gradients(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
