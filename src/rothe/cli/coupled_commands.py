@@ -714,14 +714,12 @@ class RunEldTmd(CoupledRunCommand):
         add_output_options(parser, self.name)
         add_run_options(parser)
 
-    def direction_of(self, args, mesh) -> int:
-        """--direction as an axis index (default the next after --axis: 1 - axis in 2D,
-        (axis + 1) mod 3 in 3D); one line naming --direction when it equals --axis or is z
-        on a 2D body."""
-        axis = "xyz".index(args.axis)
-        dim = 2 if mesh is None else mesh_dim(mesh)
+    def direction_of(self, args, mesh) -> int | None:
+        """--direction as an axis index, None where not given (tmd_problem's default, the next
+        axis after --axis); one line naming --direction when it equals --axis or is z on a 2D
+        body."""
         if args.direction is None:
-            return 1 - axis if dim == 2 else (axis + 1) % 3
+            return None
         direction = check_choice("--direction", args.direction, ("x", "y", "z"))
         if direction == args.axis:
             raise fail(
@@ -729,7 +727,7 @@ class RunEldTmd(CoupledRunCommand):
                 direction,
                 f"must differ from --axis {args.axis} (the absorber swings across the body)",
             )
-        if direction == "z" and dim == 2:
+        if direction == "z" and (mesh is None or mesh_dim(mesh) == 2):
             where = "the built-in strip" if mesh is None else f"a 2D mesh: {describe(mesh)}"
             raise fail("--direction", "z", f"needs a 3D --mesh (got {where})")
         return "xyz".index(direction)
@@ -743,7 +741,6 @@ class RunEldTmd(CoupledRunCommand):
         if mesh is not None:
             check_modal_size(mesh, args.degree)
         material = self.body_material_of(args, material, mesh)
-        across = self.direction_of(args, mesh)  # (pushed and measured across the body)
         example = tmd_problem(
             n,
             args.degree,
@@ -754,13 +751,14 @@ class RunEldTmd(CoupledRunCommand):
             base=args.base,
             tip=args.tip,
             axis="xyz".index(args.axis),
-            direction=across,
+            direction=self.direction_of(args, mesh),
             mass_ratio=args.mass_ratio,
             force=args.force,
             forcing_ratio=args.forcing_ratio,
             b=args.b,
             T=args.T,
         )
+        across = example.direction  # (pushed and measured across the body)
         tip = example.with_tmd.offsets["tip"] + across  # the plate's deflection a_y, in q
         # the absorber's displacement s: the plate's last coordinate (a_x, a_y, theta, s; 3D:
         # a, theta, s)

@@ -1295,6 +1295,9 @@ class TMDExample:
         support), which sizes the support's springs.
     prediction : str or None
         Why ``beam_frequency`` is NaN (:data:`SEVERAL_MATERIALS`), None where it is defined.
+    direction : int
+        The axis the support is pushed along and the absorber swings along (the plate's
+        deflection a_direction; :func:`tmd_problem`'s ``direction`` or its default).
     """
 
     with_tmd: CoupledProblem
@@ -1309,6 +1312,7 @@ class TMDExample:
     height: float = math.nan
     clamped_frequency: float = math.nan
     prediction: str | None = None
+    direction: int = 1
 
 
 #: why the predictions of eld-tmd and eld-control that need one E and rho are NaN (null in
@@ -1593,6 +1597,7 @@ def tmd_problem(
             height=height,
             clamped_frequency=w_c,
             prediction=SEVERAL_MATERIALS if several else (BEAM_THEORY_2D if dim == 3 else None),
+            direction=across,
         )
 
 
