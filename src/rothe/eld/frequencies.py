@@ -141,6 +141,18 @@ def _find_roots(f, w_max: float, count: int, n_grid: int) -> np.ndarray:
     return np.asarray(roots)
 
 
+def _bar_ends(left, right):
+    """The two ends of a bar (:func:`_end`), refused both free (a rigid motion), with the
+    determinant's layout: (left, right, m0 the left component's coordinates, size = 2 + m0 +
+    the right one's), the unknowns (phi(0) or its coefficients, 2) then each component's q."""
+    left, right = _end("left", left), _end("right", right)
+    if left == "free" and right == "free":
+        raise fail("left", left, "and right both free: the bar is not held (rigid motion)")
+    m0 = left.mass.shape[0] if isinstance(left, Attachment) else 0
+    mL = right.mass.shape[0] if isinstance(right, Attachment) else 0
+    return left, right, m0, 2 + m0 + mL
+
+
 def _end_rows(M, row, end, off, sgn, w, phi, force, free, *, scale=1.0) -> int:
     """The rows of one end's condition in the frequency determinant of :func:`bar_frequencies`
     and :func:`sliced_bar_frequencies`, from ``row`` on; returns the next row. ``phi`` and
@@ -184,14 +196,9 @@ def bar_frequencies(
     rho = check_positive("rho", rho)
     A = check_positive("area", area)
     count = check_int("count", count, minimum=1)
-    left, right = _end("left", left), _end("right", right)
-    if left == "free" and right == "free":
-        raise fail("left", left, "and right both free: the bar is not held (rigid motion)")
+    left, right, m0, size = _bar_ends(left, right)
     c = np.sqrt(E / rho)
     EA = E * A
-    m0 = left.mass.shape[0] if isinstance(left, Attachment) else 0
-    mL = right.mass.shape[0] if isinstance(right, Attachment) else 0
-    size = 2 + m0 + mL
 
     def det(w):
         beta = w / c
@@ -257,16 +264,11 @@ def sliced_bar_frequencies(
     rho = _per_slice("rho", rho, n)
     A = _per_slice("area", area, n)
     count = check_int("count", count, minimum=1)
-    left, right = _end("left", left), _end("right", right)
-    if left == "free" and right == "free":
-        raise fail("left", left, "and right both free: the bar is not held (rigid motion)")
+    left, right, m0, size = _bar_ends(left, right)
     c = np.sqrt(E / rho)
     EA = E * A
     # N in units of the stiffest slice's E A / L: the rows of phi and N of one size
     scale = EA.max() / ell.sum()
-    m0 = left.mass.shape[0] if isinstance(left, Attachment) else 0
-    mL = right.mass.shape[0] if isinstance(right, Attachment) else 0
-    size = 2 + m0 + mL
 
     def transfer(w):
         """T (phi, N / scale) from x = 0 to x = L."""
